@@ -1,0 +1,51 @@
+"""The `cmm` command line: one sub-command per capability.
+
+Each sub-command lives in the module that owns the capability; that module
+exposes ``add_arguments(parser)`` and ``run(args) -> int`` and keeps heavy
+imports inside ``run`` so `cmm --help` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "sim": ("cmm.sim.cli", "serve the simulated PIC-SERVO network (TCP or pseudo-terminal)"),
+    "fit": ("cmm.metrology.cli_fit", "fit a feature to points from a text file"),
+    "deviation": ("cmm.metrology.cli_deviation", "signed deviation of points to a part mesh"),
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cmm", description="CMM measurement station")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:  # a capability not built yet must not break the others
+            if exc.name and exc.name.startswith("cmm"):
+                continue
+            raise
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
