@@ -1,0 +1,55 @@
+"""Byte transports for the NMC bus: any pyserial URL, or an in-process object.
+
+A transport is anything with pyserial's byte interface (``write``, ``read``
+honouring ``timeout``, ``baudrate``, ``reset_input_buffer``, ``close``).
+Objects that also provide ``now()`` and ``sleep(seconds)`` bring their own
+clock (the simulator's virtual clock); everything else runs on wall time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Protocol
+
+import serial
+
+
+class Clock(Protocol):
+    def now(self) -> float: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+class WallClock:
+    """Real time, for real ports and served simulators."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds)
+
+
+class TransportError(OSError):
+    """A port that cannot be opened or used, in words an operator understands."""
+
+
+URL_FORMS = "a device path (/dev/ttyUSB0), COMn, socket://host:port, rfc2217://host:port, loop:// or spy://..."
+
+
+def open_port(port: Any, baudrate: int, timeout: float) -> tuple[Any, Clock]:
+    """Open ``port`` (a pyserial URL / device name, or a transport object) at 8N1."""
+    if not isinstance(port, str):
+        port.baudrate = baudrate
+        port.timeout = timeout
+        clock = port if hasattr(port, "sleep") and hasattr(port, "now") else WallClock()
+        return port, clock
+    if not port:
+        raise TransportError(f"no serial port given; use {URL_FORMS}")
+    try:
+        ser = serial.serial_for_url(
+            port, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout, write_timeout=1.0
+        )
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise TransportError(f"cannot open serial port {port!r}: {exc}. Expected {URL_FORMS}") from exc
+    return ser, WallClock()
