@@ -1,0 +1,172 @@
+"""Feature result records returned by the fits.
+
+Every result carries the fit statistics (FitResult fields) and its geometry:
+
+- residuals: signed orthogonal distances of the points to the feature
+  (positive outside / along the normal); for a 3D line the distance is
+  unsigned; for a 3D circle they are the in-plane radial deviations and the
+  out-of-plane deviations are in ``plane_residuals``.
+- sigma = |d| / sqrt(m - n) (NaN when m == n), n = number of parameters.
+- form = max(residuals) - min(residuals)  (3D line: 2 * max distance, the
+  diameter of the cylinder around the line that holds the points).
+- covariance: sigma^2 (J^T J)^-1 of the minimal parameters named in
+  ``param_names`` (local parametrisation at the solution, see fit_ls).
+
+Conventions: unit vectors are normalised; undirected axes (line, plane
+normal, circle normal, cylinder, torus) have a canonical sign (largest
+component positive); line and cylinder axis points are the axis points
+closest to the origin; the cone direction points from the apex into the cone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+
+class FitError(ValueError):
+    """A fit was refused or failed; str(error) is a sentence for the operator."""
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FitResult:
+    residuals: np.ndarray = field(repr=False)
+    sigma: float
+    form: float
+    covariance: np.ndarray = field(repr=False)
+    n_points: int
+    method: str
+    param_names: tuple[str, ...] = field(default=(), repr=False)
+
+    kind: ClassVar[str] = "feature"
+    _stat_fields: ClassVar[frozenset[str]] = frozenset(
+        {"residuals", "sigma", "form", "covariance", "n_points", "method", "param_names", "plane_residuals"}
+    )
+
+    def geometry(self) -> dict[str, Any]:
+        """The geometric parameters as plain Python floats / lists."""
+        out: dict[str, Any] = {}
+        for f in fields(self):
+            if f.name in self._stat_fields:
+                continue
+            value = getattr(self, f.name)
+            out[f.name] = value.tolist() if isinstance(value, np.ndarray) else float(value)
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """kind, method, n_points, form, sigma plus the geometry (JSON-ready)."""
+        sigma = float(self.sigma)
+        return {
+            "kind": self.kind,
+            "method": self.method,
+            "n_points": int(self.n_points),
+            "form": float(self.form),
+            "sigma": None if math.isnan(sigma) else sigma,
+            **self.geometry(),
+        }
+
+
+class _Sized:
+    """Mixin: diameter from radius."""
+
+    radius: float
+
+    @property
+    def diameter(self) -> float:
+        return 2.0 * self.radius
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Point(FitResult):
+    point: np.ndarray
+    kind: ClassVar[str] = "point"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Line(FitResult):
+    point: np.ndarray  # axis point closest to the origin
+    direction: np.ndarray
+    kind: ClassVar[str] = "line"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Plane(FitResult):
+    point: np.ndarray  # centroid of the points, on the plane
+    normal: np.ndarray
+    kind: ClassVar[str] = "plane"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Circle(FitResult, _Sized):
+    center: np.ndarray
+    normal: np.ndarray
+    radius: float
+    plane_residuals: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    kind: ClassVar[str] = "circle"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Sphere(FitResult, _Sized):
+    center: np.ndarray
+    radius: float
+    kind: ClassVar[str] = "sphere"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Cylinder(FitResult, _Sized):
+    point: np.ndarray  # axis point closest to the origin
+    direction: np.ndarray
+    radius: float
+    kind: ClassVar[str] = "cylinder"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Cone(FitResult):
+    apex: np.ndarray
+    direction: np.ndarray  # from the apex into the cone
+    half_angle: float  # radians
+
+    kind: ClassVar[str] = "cone"
+
+    @property
+    def half_angle_deg(self) -> float:
+        return math.degrees(self.half_angle)
+
+    def geometry(self) -> dict[str, Any]:
+        g = super().geometry()
+        g["half_angle_deg"] = self.half_angle_deg
+        return g
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Torus(FitResult):
+    center: np.ndarray
+    normal: np.ndarray  # axis of revolution
+    major_radius: float
+    minor_radius: float
+    kind: ClassVar[str] = "torus"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Line2D(FitResult):
+    """A line in a plane's 2D coordinates; residuals signed along ``normal``."""
+
+    point: np.ndarray  # point closest to the 2D origin
+    direction: np.ndarray
+    normal: np.ndarray
+    kind: ClassVar[str] = "line2d"
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class Circle2D(FitResult, _Sized):
+    center: np.ndarray
+    radius: float
+    kind: ClassVar[str] = "circle2d"
+
+
+FEATURE_CLASSES: dict[str, type[FitResult]] = {
+    cls.kind: cls for cls in (Point, Line, Plane, Circle, Sphere, Cylinder, Cone, Torus, Line2D, Circle2D)
+}

@@ -1,0 +1,114 @@
+"""Small geometric helpers shared by the fitting modules (pure numpy)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cmm.metrology.features import FitError
+
+# Relative singular-value threshold below which a point set is treated as
+# lower-dimensional (collinear / coplanar).  Far below any probing noise.
+RANK_TOL = 1e-10
+
+
+def as_points(points: Any, kind: str, min_points: int, dim: int = 3) -> np.ndarray:
+    """Validate and return points as a float64 (m, dim) array.
+
+    Raises FitError with an operator-readable sentence for wrong shape,
+    too few points or non-finite coordinates.
+    """
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise FitError(f"the points for a {kind} are not numbers: {exc}") from None
+    if arr.ndim == 1 and arr.size == dim:
+        arr = arr.reshape(1, dim)
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise FitError(f"a {kind} needs points with {dim} coordinates each, got an array of shape {arr.shape}")
+    m = arr.shape[0]
+    if m < min_points:
+        article = "an" if kind[0] in "aeiou" else "a"
+        raise FitError(f"{article} {kind} needs at least {min_points} points, got {m}")
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        raise FitError(f"point {int(np.argmax(bad)) + 1} of {m} has a NaN or infinite coordinate")
+    return arr
+
+
+def centre(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid and centred points."""
+    c = points.mean(axis=0)
+    return c, points - c
+
+
+def principal_axes(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values (descending) and principal directions (rows) of centred points."""
+    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    return s, vt
+
+
+def check_rank(s: np.ndarray, kind: str, need: int) -> None:
+    """Refuse point sets spanning fewer than `need` dimensions (1 = line, 2 = plane, 3 = space)."""
+    if s[0] == 0.0:
+        raise FitError(f"all points coincide: a {kind} through them is not defined")
+    if need >= 2 and s[1] <= RANK_TOL * s[0]:
+        raise FitError(f"the points are collinear: a {kind} through them is not defined")
+    if need >= 3 and s[2] <= RANK_TOL * s[0]:
+        raise FitError(f"the points are coplanar: a {kind} through them is not defined")
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v)
+    if not np.isfinite(n) or n == 0.0:
+        raise FitError("a direction of zero length was given")
+    return v / n
+
+
+def canonical_direction(u: np.ndarray) -> np.ndarray:
+    """Unit vector with a canonical sign: its largest-magnitude component positive."""
+    u = unit(u)
+    return -u if u[np.argmax(np.abs(u))] < 0 else u
+
+
+def axis_point_closest_to_origin(p: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The point of the line p + t u nearest the origin (u unit)."""
+    return p - np.dot(p, u) * u
+
+
+def frame_with_axis(u: np.ndarray) -> np.ndarray:
+    """A right-handed orthonormal 3x3 matrix whose third column is u (unit)."""
+    u = unit(u)
+    helper = np.eye(3)[np.argmin(np.abs(u))]
+    e1 = np.cross(helper, u)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    return np.column_stack([e1, e2, u])
+
+
+def tilt(frame: np.ndarray, alpha: float, beta: float) -> np.ndarray:
+    """The axis frame[:, 2] tilted by small angles: frame @ unit(alpha, beta, 1)."""
+    return frame @ unit(np.array([alpha, beta, 1.0]))
+
+
+def nominal_value(nominal: Any, *names: str) -> Any:
+    """First of `names` found on a nominal given as a mapping or an object, else None."""
+    if nominal is None:
+        return None
+    for name in names:
+        value = nominal.get(name) if isinstance(nominal, dict) else getattr(nominal, name, None)
+        if value is not None:
+            return value
+    return None
+
+
+def algebraic_ball(centred: np.ndarray) -> tuple[np.ndarray, float]:
+    """Algebraic (Kasa) circle/sphere on centred points: a start value, not a result."""
+    a = np.column_stack([2.0 * centred, np.ones(len(centred))])
+    b = np.einsum("ij,ij->i", centred, centred)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    c = sol[:-1]
+    r2 = sol[-1] + c @ c
+    return c, float(np.sqrt(max(r2, 0.0)))
