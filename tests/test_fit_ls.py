@@ -1,0 +1,212 @@
+"""Least-squares fits against null-space known answers (tests/knownanswer.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import knownanswer as ka
+from cmm.metrology import fit_ls
+from cmm.metrology.features import FitError
+
+TOL = 1e-9  # mm and rad
+FAR = np.array([1000.0, -700.0, 650.0])  # 1000 mm class distance from the origin
+TILT = np.array([0.3, -0.5, 0.81])
+
+
+def closest(p, u):
+    u = u / np.linalg.norm(u)
+    return p - (p @ u) * u
+
+
+def assert_dir(u, v):
+    """Directions equal up to sign, to TOL rad."""
+    assert np.linalg.norm(np.cross(u, v)) < TOL
+    assert abs(np.linalg.norm(u) - 1.0) < 1e-14
+
+
+def assert_stats(res, data):
+    e = data.residuals
+    dof = e.size - data.n_params
+    if dof > 0:
+        assert res.sigma == pytest.approx(np.linalg.norm(e) / np.sqrt(dof), rel=1e-6)
+    assert res.n_points == len(data.points)
+    assert res.covariance.shape == (data.n_params, data.n_params)
+
+
+OFFSETS = {"origin": np.zeros(3), "far": FAR}
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+@pytest.mark.parametrize("cap", [360.0, 30.0])
+def test_sphere(where, cap):
+    data = ka.sphere(OFFSETS[where] + [1.0, 2.0, 3.0], 12.5, cap_deg=cap, form=0.004 if cap < 360 else 0.02)
+    res = fit_ls.fit_sphere(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert abs(res.radius - data.answer["radius"]) < TOL
+    assert res.diameter == pytest.approx(25.0, abs=2 * TOL)
+    assert np.abs(res.residuals - data.residuals).max() < TOL
+    assert res.form == pytest.approx(data.residuals.max() - data.residuals.min(), abs=TOL)
+    assert_stats(res, data)
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+def test_plane(where):
+    data = ka.plane(OFFSETS[where] + [5.0, 0.0, 1.0], TILT)
+    res = fit_ls.fit_plane(data.points)
+    assert_dir(res.normal, data.answer["normal"])
+    assert abs((res.point - data.answer["point"]) @ res.normal) < TOL
+    assert res.normal[np.argmax(np.abs(res.normal))] > 0  # canonical sign
+    assert np.abs(np.abs(res.residuals) - np.abs(data.residuals)).max() < TOL
+    assert_stats(res, data)
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+def test_line(where):
+    data = ka.line(OFFSETS[where], TILT)
+    res = fit_ls.fit_line(data.points)
+    assert_dir(res.direction, data.answer["direction"])
+    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
+    assert abs(res.point @ res.direction) < 1e-9  # closest to origin
+    dist = np.hypot(*data.residuals.reshape(2, -1))
+    assert np.abs(res.residuals - dist).max() < TOL
+    assert res.form == pytest.approx(2 * dist.max(), abs=TOL)
+    assert_stats(res, data)
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+@pytest.mark.parametrize("arc", [360.0, 30.0])
+def test_circle_2d(where, arc):
+    data = ka.circle2d(OFFSETS[where][:2] + [3.0, -4.0], 20.0, arc_deg=arc, form=0.002 if arc < 360 else 0.01)
+    res = fit_ls.fit_circle_2d(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert abs(res.radius - 20.0) < TOL
+    assert np.abs(res.residuals - data.residuals).max() < TOL
+    assert_stats(res, data)
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+@pytest.mark.parametrize("arc", [360.0, 30.0])
+def test_circle_3d(where, arc):
+    data = ka.circle3d(OFFSETS[where] + [1.0, 1.0, 1.0], TILT, 20.0, arc_deg=arc, form=0.002 if arc < 360 else 0.01)
+    res = fit_ls.fit_circle(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert_dir(res.normal, data.answer["normal"])
+    assert abs(res.radius - 20.0) < TOL
+    m = len(data.points)
+    assert np.abs(res.plane_residuals - data.residuals[:m]).max() < TOL
+    assert np.abs(res.residuals - data.residuals[m:]).max() < TOL
+    assert_stats(res, data)
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+@pytest.mark.parametrize("arc", [360.0, 30.0])
+def test_cylinder(where, arc):
+    data = ka.cylinder(OFFSETS[where] + [2.0, 0.0, 0.0], TILT, 8.0, length=60.0 if arc < 360 else 40.0,
+                       arc_deg=arc, form=0.002 if arc < 360 else 0.01)
+    res = fit_ls.fit_cylinder(data.points)
+    assert_dir(res.direction, data.answer["direction"])
+    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
+    assert abs(res.radius - 8.0) < TOL
+    assert np.abs(res.residuals - data.residuals).max() < TOL
+    assert_stats(res, data)
+
+
+def test_short_cylinder_ring_uses_plane_normal_start():
+    data = ka.cylinder(FAR, TILT, 30.0, length=3.0, m=40)
+    res = fit_ls.fit_cylinder(data.points)
+    assert_dir(res.direction, data.answer["direction"])
+    assert abs(res.radius - 30.0) < TOL
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+def test_cone(where):
+    data = ka.cone(OFFSETS[where] + [0.0, 3.0, 0.0], TILT, np.radians(20.0))
+    res = fit_ls.fit_cone(data.points)
+    assert np.abs(res.apex - data.answer["apex"]).max() < TOL
+    assert np.linalg.norm(res.direction - data.answer["direction"]) < TOL  # oriented: apex into the cone
+    assert abs(res.half_angle - data.answer["half_angle"]) < TOL
+    assert res.half_angle_deg == pytest.approx(20.0, abs=1e-7)
+    assert np.abs(res.residuals - data.residuals).max() < TOL
+    assert_stats(res, data)
+
+
+def test_cone_partial_arc_with_nominal():
+    data = ka.cone(FAR, TILT, np.radians(30.0), arc_deg=60.0, form=0.002)
+    nominal = {"apex": data.answer["apex"] + 0.3, "direction": data.answer["direction"] + [0.02, 0, 0],
+               "half_angle_deg": 29.0}
+    res = fit_ls.fit_cone(data.points, nominal=nominal)
+    assert np.abs(res.apex - data.answer["apex"]).max() < TOL
+    assert abs(res.half_angle - data.answer["half_angle"]) < TOL
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+def test_torus(where):
+    data = ka.torus(OFFSETS[where], TILT, 25.0, 4.0)
+    res = fit_ls.fit_torus(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert_dir(res.normal, data.answer["normal"])
+    assert abs(res.major_radius - 25.0) < TOL and abs(res.minor_radius - 4.0) < TOL
+    assert np.abs(res.residuals - data.residuals).max() < TOL
+    assert_stats(res, data)
+
+
+def test_nominal_start_is_used_for_cylinder():
+    data = ka.cylinder(FAR, TILT, 8.0, arc_deg=90.0, form=0.001)
+    nominal = {"point": data.answer["point"] + 0.2, "direction": data.answer["direction"], "radius": 8.1}
+    res = fit_ls.fit_cylinder(data.points, nominal=nominal)
+    assert abs(res.radius - 8.0) < TOL
+
+
+# ---------------------------------------------------------------- refusals
+
+@pytest.mark.parametrize(
+    "fit, m, words",
+    [
+        (fit_ls.fit_line, 1, "a line needs at least 2 points, got 1"),
+        (fit_ls.fit_plane, 2, "a plane needs at least 3 points, got 2"),
+        (fit_ls.fit_circle, 2, "a circle needs at least 3 points, got 2"),
+        (fit_ls.fit_sphere, 3, "a sphere needs at least 4 points, got 3"),
+        (fit_ls.fit_cylinder, 4, "a cylinder needs at least 5 points, got 4"),
+        (fit_ls.fit_cone, 5, "a cone needs at least 6 points, got 5"),
+        (fit_ls.fit_torus, 6, "a torus needs at least 7 points, got 6"),
+    ],
+)
+def test_too_few_points(fit, m, words):
+    pts = np.random.default_rng(0).random((m, 3))
+    with pytest.raises(FitError, match=words):
+        fit(pts)
+
+
+def test_nan_refused():
+    pts = np.random.default_rng(0).random((10, 3))
+    pts[4, 1] = np.nan
+    with pytest.raises(FitError, match="point 5 of 10 has a NaN"):
+        fit_ls.fit_sphere(pts)
+
+
+def test_collinear_plane_and_circle_refused():
+    pts = np.outer(np.linspace(0, 1, 6), [1.0, 2.0, 3.0]) + 1000.0
+    for fit in (fit_ls.fit_plane, fit_ls.fit_circle):
+        with pytest.raises(FitError, match="collinear"):
+            fit(pts)
+
+
+def test_coplanar_sphere_cylinder_cone_refused():
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    pts = np.column_stack([10 * np.cos(t), 10 * np.sin(t), np.zeros_like(t)])
+    for fit in (fit_ls.fit_sphere, fit_ls.fit_cylinder, fit_ls.fit_cone):
+        with pytest.raises(FitError, match="coplanar"):
+            fit(pts)
+
+
+def test_coincident_points_refused():
+    with pytest.raises(FitError, match="coincide"):
+        fit_ls.fit_line(np.ones((5, 3)))
+
+
+def test_exact_fit_has_undefined_sigma():
+    res = fit_ls.fit_circle(np.array([[10.0, 0, 0], [0, 10.0, 0], [-10.0, 0, 0]]))
+    assert res.radius == pytest.approx(10.0, abs=1e-12)
+    assert np.isnan(res.sigma)
+    assert res.summary()["sigma"] is None
