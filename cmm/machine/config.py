@@ -73,6 +73,7 @@ class LinkConfig:
     port: str = "sim"
     baud: int = 115200
     firmware: str = "pic-servo"
+    read_following_error: bool = True  # status item 0x40 (SC firmware and the simulator); false on original PIC-SERVOs
 
 
 @dataclass(frozen=True)

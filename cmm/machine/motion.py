@@ -1,0 +1,479 @@
+"""The CMM machine: three PIC-SERVO axes in millimetres.
+
+One object owns the bus. ``poll()`` samples every axis once and runs the
+watchers (move completion, jog dead-man, soft limits while jogging, probe
+contacts); a background thread may call it in a loop (``start_polling``), or
+a status's ``wait()`` drives it (scripts, tests on the virtual clock).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..nmc import codec
+from ..nmc.bus import Bus, ModuleInfo, NmcError
+from ..nmc.module import Module
+from ..nmc.trace import ByteTrace
+from .config import AXES, MachineConfig
+from .status import MotionError, MoveStatus
+
+GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
+POLL_PAUSE = 0.0005  # between samples when a background thread polls (about one servo tick)
+STEP_MIN_COUNTS = 1
+STEP_MAX_MM = 10.0
+
+
+class LimitError(MotionError):
+    """A target outside the travel, refused before anything moves."""
+
+
+class ContactError(MotionError):
+    """The probe touched something during a move that was not a probing move."""
+
+
+@dataclass(frozen=True)
+class AxisState:
+    counts: int
+    mm: float
+    following_error: int | None  # counts; None when the firmware cannot report it
+    velocity: float  # mm/s (integer counts per tick, as the module reports it)
+    status: int
+    aux: int
+
+    @property
+    def words(self) -> list[str]:
+        return codec.status_words(self.status, self.aux)
+
+
+@dataclass(frozen=True)
+class MachineState:
+    time: float
+    axes: tuple[AxisState, AxisState, AxisState]
+    probe_triggered: bool
+    jogging: bool
+    moving: bool
+
+    @property
+    def position(self) -> np.ndarray:
+        return np.array([a.mm for a in self.axes])
+
+    @property
+    def counts(self) -> tuple[int, int, int]:
+        return tuple(a.counts for a in self.axes)  # type: ignore[return-value]
+
+
+@dataclass
+class _Motion:
+    """What the machine is doing, so ``poll`` knows what to watch."""
+
+    status: MoveStatus
+    kind: str  # "move", "probe", "jog"
+    armed: bool = False  # home capture armed on the probe input
+    on_capture: Callable[[tuple[int, int, int]], None] | None = None
+    extra: dict = field(default_factory=dict)
+
+
+class Machine:
+    def __init__(self, config: MachineConfig, port: Any, *, trace: ByteTrace | None = None) -> None:
+        self.config = config
+        self.bus = Bus(port, firmware=config.link.firmware, trace=trace)
+        self.clock = self.bus.clock
+        self.modules = [Module(self.bus, a.address) for a in config.axes]
+        self.items = codec.SEND_POS | codec.SEND_VEL | codec.SEND_AUX
+        if config.link.read_following_error:
+            self.items |= codec.SEND_PERROR
+        self.state: MachineState | None = None
+        self.polling = False
+        self._thread: threading.Thread | None = None
+        self._lock = threading.RLock()
+        self._motion: _Motion | None = None
+        self._jog_refreshed = 0.0
+        self._subscribers: list[Callable[[MachineState], None]] = []
+        self._event_listeners: list[Callable[[str, dict], None]] = []
+        self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
+        self.samples = 0
+
+    # --- connection -------------------------------------------------------
+
+    def connect(self) -> list[ModuleInfo]:
+        """Initialise the network and every axis: gains, status items, inputs, group, servo on."""
+        with self._lock:
+            infos = self.bus.initialize(self.config.link.baud)
+            found = {m.address for m in infos}
+            for axis in self.config.axes:
+                if axis.address not in found:
+                    raise NmcError(f"axis {axis.name.upper()} expects a module at address {axis.address}, "
+                                   f"found modules {sorted(found)}", axis.address)
+            for axis, mod in zip(self.config.axes, self.modules):
+                mod.define_status(self.items)
+                mod.set_gains(axis.gains)
+                mod.io_control(limit1_input=True, limit2_input=True)
+                mod.clear_bits()
+                mod.enable()
+                mod.set_group(GROUP, leader=axis.name == "x")
+            self.sample()
+            return infos
+
+    def close(self) -> None:
+        self.stop_polling()
+        with self._lock:
+            try:
+                for mod in self.modules:
+                    mod.stop("off")
+            except NmcError:
+                pass
+            self.bus.close()
+
+    # --- sampling ---------------------------------------------------------
+
+    def _probe_active(self, status: int) -> bool:
+        level = bool(status & self._probe_mask)
+        return level if self.config.probe.active_level == "high" else not level
+
+    def sample(self) -> MachineState:
+        """Read every axis once and publish the state to subscribers."""
+        with self._lock:
+            sts = [m.nop() for m in self.modules]
+            now = self.clock.now()
+            axes = []
+            for axis, st in zip(self.config.axes, sts):
+                tick = codec.tick_seconds(axis.gains.sr)
+                vel = st.velocity / tick / (axis.counts_per_mm * axis.direction) if st.velocity is not None else 0.0
+                axes.append(AxisState(st.position, axis.to_mm(st.position), st.position_error, vel, st.status,
+                                      st.aux or 0))
+            self.state = MachineState(
+                now, tuple(axes), any(self._probe_active(s.status) for s in sts),  # type: ignore[arg-type]
+                self._motion is not None and self._motion.kind == "jog",
+                self._motion is not None,
+            )
+            self.samples += 1
+            subscribers = list(self._subscribers)
+        for fn in subscribers:
+            fn(self.state)
+        return self.state
+
+    def subscribe(self, fn: Callable[[MachineState], None]) -> Callable[[], None]:
+        """Call ``fn`` with every new state; returns an unsubscribe function."""
+        self._subscribers.append(fn)
+        return lambda: self._subscribers.remove(fn) if fn in self._subscribers else None
+
+    def on_event(self, fn: Callable[[str, dict], None]) -> None:
+        """Events: 'contact' (unexpected), 'deadman', 'limit', 'hit', 'error'."""
+        self._event_listeners.append(fn)
+
+    def _emit(self, kind: str, **info: Any) -> None:
+        for fn in list(self._event_listeners):
+            fn(kind, info)
+
+    # --- the poll loop ----------------------------------------------------
+
+    def poll(self) -> MachineState:
+        with self._lock:
+            state = self.sample()
+            motion = self._motion
+            if motion is None:
+                return state
+            try:
+                self._watch(motion, state)
+            except NmcError as exc:
+                self._finish(motion, error=exc)
+            return state
+
+    def _watch(self, motion: _Motion, state: MachineState) -> None:
+        captured = motion.armed and any(not (a.status & codec.HOME_IN_PROG) for a in state.axes)
+        if captured:
+            latched = tuple(m.home_position() for m in self.modules)
+            motion.armed = False
+            if motion.on_capture is not None:
+                motion.on_capture(latched)  # type: ignore[arg-type]
+            else:
+                self._halt("abrupt")
+                pos = [a.to_mm(c) for a, c in zip(self.config.axes, latched)]
+                self._emit("contact", position=pos)
+                self._finish(motion, error=ContactError(
+                    "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped and no hit was "
+                    "recorded".format(*pos)))
+            return
+        if any(a.status & codec.POS_ERROR for a in state.axes) and motion.kind != "jog":
+            bad = [n.upper() for n, a in zip(AXES, state.axes) if a.status & codec.POS_ERROR]
+            self._halt("abrupt")
+            self._finish(motion, error=MotionError(f"position error limit tripped on axis {', '.join(bad)}: "
+                                                   "servo disabled (collision?)"))
+            return
+        if motion.kind == "jog":
+            self._watch_jog(motion, state)
+        elif all(a.status & codec.MOVE_DONE for a in state.axes):
+            done = motion.extra.get("on_done")
+            if done is not None:
+                done(state)
+            else:
+                self._finish(motion, result=state.position)
+
+    def _finish(self, motion: _Motion, result: Any = None, error: BaseException | None = None) -> None:
+        if self._motion is motion:
+            self._motion = None
+        motion.status.finish(result, error)
+
+    def start_polling(self) -> None:
+        """Sample continuously in a background thread (for the UI)."""
+        if self._thread is not None:
+            return
+        self.polling = True
+
+        def loop() -> None:
+            while self.polling:
+                try:
+                    self.poll()
+                except NmcError as exc:
+                    self._emit("error", message=str(exc))
+                    self.clock.sleep(0.05)
+                self.clock.sleep(POLL_PAUSE)
+
+        self._thread = threading.Thread(target=loop, name="machine-poll", daemon=True)
+        self._thread.start()
+
+    def stop_polling(self) -> None:
+        self.polling = False
+        if self._thread is not None:
+            self._thread.join(timeout=2)
+            self._thread = None
+
+    def run_for(self, seconds: float) -> None:
+        """Poll for ``seconds`` of machine time (scripts and tests without the background thread)."""
+        end = self.clock.now() + seconds
+        while self.clock.now() < end:
+            self.poll()
+
+    # --- checks -------------------------------------------------------------
+
+    def check_target(self, target: Any) -> np.ndarray:
+        t = np.asarray(target, dtype=np.float64).reshape(-1)
+        if t.shape != (3,):
+            raise LimitError(f"a target needs X, Y and Z, got {t.size} values")
+        for axis, v in zip(self.config.axes, t):
+            if not math.isfinite(v):
+                raise LimitError(f"target {axis.name.upper()}={v} is not a number")
+            if not axis.min <= v <= axis.max:
+                raise LimitError(f"target {axis.name.upper()}={v:.3f} mm is outside the travel "
+                                 f"{axis.min:g}..{axis.max:g} mm")
+        return t
+
+    def _require_idle(self) -> None:
+        if self._motion is not None:
+            raise MotionError(f"the machine is busy ({self._motion.status.description}); stop it first")
+        st = self.state
+        if st is not None and any(a.status & codec.POS_ERROR for a in st.axes):
+            raise MotionError("an axis has its servo disabled after a position error: clear it with Reset first")
+
+    @property
+    def position(self) -> np.ndarray:
+        return (self.state or self.sample()).position
+
+    @property
+    def busy(self) -> bool:
+        return self._motion is not None
+
+    # --- motion -------------------------------------------------------------
+
+    def _arm(self, action: str = "abrupt") -> bool:
+        """Arm home capture on the probe input of every axis, unless the probe is already deflected."""
+        if self.sample().probe_triggered:
+            return False
+        for m in self.modules:
+            m.arm_home(self.config.probe.input, action)
+        return True
+
+    def _load_line(self, target: np.ndarray, speed: float, accel: float) -> float:
+        """Load a straight line on every axis (buffered) and start them with one group START_MOVE.
+
+        Per-axis speed and acceleration are scaled by the axis share of the
+        path so all axes start on the same tick and arrive together.
+        """
+        start = self.position
+        delta = target - start
+        length = float(np.linalg.norm(delta))
+        for axis, mod, d, goal in zip(self.config.axes, self.modules, delta, target):
+            share = abs(d) / length if length > 0 else 0.0
+            vel = codec.velocity_to_fixed(speed * share, axis.counts_per_mm, axis.gains.sr)
+            acc = codec.acceleration_to_fixed(accel * share, axis.counts_per_mm, axis.gains.sr)
+            if share > 0 and (vel == 0 or acc == 0):  # a tiny share: move at the smallest non-zero rate
+                vel, acc = max(vel, 1), max(acc, 1)
+            mod.load_position(axis.to_counts(goal), vel, acc, start=False)
+        self.bus.start_move(GROUP)
+        return length
+
+    def move_to(self, target: Any, speed: float | None = None, accel: float | None = None,
+                *, protect: bool = True) -> MoveStatus:
+        """Coordinated straight-line move; returns a status to wait on, poll or cancel."""
+        t = self.check_target(target)
+        speed = self.config.speeds.positioning if speed is None else speed
+        accel = self.config.accelerations.positioning if accel is None else accel
+        if not (math.isfinite(speed) and speed > 0 and math.isfinite(accel) and accel > 0):
+            raise MotionError(f"speed and acceleration must be positive numbers, got {speed} and {accel}")
+        with self._lock:
+            self._require_idle()
+            status = MoveStatus("move to X={:.3f} Y={:.3f} Z={:.3f}".format(*t), self)
+            armed = self._arm() if protect else False
+            motion = _Motion(status, "move", armed=armed)
+            self._motion = motion
+            status.on_cancel(lambda: self._cancel(motion))
+            try:
+                self._load_line(t, speed, accel)
+            except BaseException as exc:
+                self._finish(motion, error=exc)
+                raise
+            return status
+
+    def move_by(self, delta: Any, speed: float | None = None) -> MoveStatus:
+        return self.move_to(self.position + np.asarray(delta, dtype=np.float64), speed)
+
+    def step(self, axis: str, step_mm: float, speed: float | None = None) -> MoveStatus:
+        """Incremental step jog of one axis, from 1 count to 10 mm."""
+        cfg = self.config.axis(axis)
+        one_count = 1.0 / cfg.counts_per_mm
+        if not math.isfinite(step_mm) or not one_count - 1e-12 <= abs(step_mm) <= STEP_MAX_MM:
+            raise MotionError(f"a step must be between one count ({one_count * 1000:g} um) and {STEP_MAX_MM:g} mm, "
+                              f"got {step_mm} mm")
+        target = self.position.copy()
+        # steps go from the commanded grid so repeated 1-count steps do not drift
+        idx = AXES.index(axis)
+        target[idx] = cfg.to_mm(round((target[idx] - cfg.home) * cfg.counts_per_mm * cfg.direction)) + step_mm
+        return self.move_to(target, speed or self.config.speeds.jog_slow)
+
+    def _cancel(self, motion: _Motion) -> None:
+        with self._lock:
+            self._halt("smooth")
+            if self._motion is motion:
+                self._motion = None
+
+    def _halt(self, mode: str) -> None:
+        for m in self.modules:
+            m.stop(mode)
+
+    def stop(self) -> None:
+        """Controlled stop of whatever is moving (decelerates)."""
+        with self._lock:
+            motion = self._motion
+            if motion is not None and motion.kind == "jog":
+                self._jog_stop_axes(range(3))
+            else:
+                self._halt("smooth")
+            if motion is not None:
+                self._finish(motion, error=MotionError("stopped by the operator"))
+
+    def emergency_stop(self) -> None:
+        """Abrupt stop, then amplifiers off. Motion needs ``reset()`` afterwards."""
+        with self._lock:
+            self._halt("abrupt")
+            self._halt("off")
+            motion = self._motion
+            if motion is not None:
+                self._finish(motion, error=MotionError("emergency stop"))
+            self._emit("estop")
+
+    def reset(self) -> None:
+        """Clear sticky error bits and re-enable the servos at the present position."""
+        with self._lock:
+            for m in self.modules:
+                m.clear_bits()
+                m.enable()
+            self.sample()
+
+    def zero(self) -> None:
+        """The thesis's "Cero": the present position becomes the configured home coordinates."""
+        with self._lock:
+            self._require_idle()
+            for m in self.modules:
+                m.reset_position()
+            self.sample()
+
+    # --- jogging (velocity mode) ------------------------------------------
+
+    def jog(self, velocity: Any, *, manual_probe: Callable[[tuple[int, int, int], np.ndarray], None] | None = None) -> None:
+        """Velocity-mode jog, mm/s per axis. Must be refreshed (called again) within the dead-man timeout.
+
+        With ``manual_probe`` the probe input is armed and a trigger latches a
+        hit with the motion direction as approach direction (thesis experiment 2).
+        """
+        v = np.asarray(velocity, dtype=np.float64).reshape(-1)
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise MotionError(f"a jog needs three finite axis velocities, got {velocity!r}")
+        limit = self.config.speeds.jog_fast
+        if np.any(np.abs(v) > limit + 1e-9):
+            raise MotionError(f"jog speed {np.max(np.abs(v)):.1f} mm/s is above jog_fast ({limit:g} mm/s)")
+        with self._lock:
+            motion = self._motion
+            if motion is not None and motion.kind != "jog":
+                raise MotionError(f"the machine is busy ({motion.status.description}); stop it first")
+            pos = self.position
+            for i, axis in enumerate(self.config.axes):  # never jog further out of the travel
+                if (v[i] > 0 and pos[i] >= axis.max) or (v[i] < 0 and pos[i] <= axis.min):
+                    v[i] = 0.0
+            self._jog_refreshed = self.clock.now()
+            if motion is None:
+                status = MoveStatus("jog", self)
+                motion = _Motion(status, "jog")
+                self._motion = motion
+                if manual_probe is not None:
+                    motion.armed = self._arm("abrupt")
+                    motion.on_capture = lambda latched: self._manual_hit(motion, latched, manual_probe)
+            prev = motion.extra.get("v")
+            acc = self.config.accelerations
+            for i, (axis, mod, vi) in enumerate(zip(self.config.axes, self.modules, v)):
+                old = 0.0 if prev is None else prev[i]
+                if prev is not None and vi == old:
+                    continue
+                a = acc.jog if abs(vi) >= abs(old) and vi * old >= 0 else acc.stop
+                fixed = codec.velocity_to_fixed(vi, axis.counts_per_mm, axis.gains.sr)
+                mod.load_velocity(int(math.copysign(fixed, vi * axis.direction)) if vi else 0,
+                                  codec.acceleration_to_fixed(a, axis.counts_per_mm, axis.gains.sr))
+            motion.extra["v"] = v.copy()
+
+    def _jog_stop_axes(self, axes: Any) -> None:
+        for i in axes:
+            axis = self.config.axes[i]
+            self.modules[i].load_velocity(0, codec.acceleration_to_fixed(self.config.accelerations.stop,
+                                                                         axis.counts_per_mm, axis.gains.sr))
+
+    def jog_release(self) -> None:
+        """End a jog now (button or key released): decelerate at the stop rate."""
+        with self._lock:
+            motion = self._motion
+            if motion is not None and motion.kind == "jog":
+                self._jog_stop_axes(range(3))
+                motion.extra["v"] = np.zeros(3)
+
+    def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
+        v = motion.extra.get("v", np.zeros(3))
+        if np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
+            self._jog_stop_axes(range(3))
+            motion.extra["v"] = np.zeros(3)
+            self._emit("deadman", after=state.time - self._jog_refreshed)
+            v = motion.extra["v"]
+        for i, (axis, a) in enumerate(zip(self.config.axes, state.axes)):
+            if v[i] == 0:
+                continue
+            stopping = a.velocity ** 2 / (2 * self.config.accelerations.stop) + 0.05
+            if (v[i] > 0 and a.mm + stopping >= axis.max) or (v[i] < 0 and a.mm - stopping <= axis.min):
+                self._jog_stop_axes([i])
+                v = v.copy()
+                v[i] = 0
+                motion.extra["v"] = v
+                self._emit("limit", axis=axis.name)
+        if not np.any(v) and all(abs(a.velocity) < 1e-9 for a in state.axes):
+            self._finish(motion, result=state.position)
+
+    def _manual_hit(self, motion: _Motion, latched: tuple[int, int, int],
+                    record: Callable[[tuple[int, int, int], np.ndarray], None]) -> None:
+        v = np.array(motion.extra.get("v", np.zeros(3)), dtype=np.float64)
+        self._halt("abrupt")
+        self._finish(motion, result=latched)
+        if np.any(v):
+            record(latched, v)  # the jog velocity gives the approach direction and the probing speed
+        else:
+            self._emit("contact", position=[a.to_mm(c) for a, c in zip(self.config.axes, latched)])

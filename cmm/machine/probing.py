@@ -1,0 +1,159 @@
+"""Touch-trigger probing cycles on top of the machine's motion.
+
+The probe's switch drives a LIMIT input of every axis module; home capture
+armed on that input with stop-abrupt latches all three axis positions on the
+servo tick of the trigger. A hit keeps the raw counts (the truth) beside the
+millimetres derived from them.
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..metrology.compensation import PretravelModel, compensate
+from .motion import Machine, _Motion
+from .status import MotionError, MoveStatus
+
+
+class SurfaceNotFound(MotionError):
+    pass
+
+
+@dataclass(frozen=True)
+class Hit:
+    counts: tuple[int, int, int]  # latched raw encoder counts
+    machine: tuple[float, float, float]  # latched tip centre, machine mm
+    approach: tuple[float, float, float]  # unit approach direction (into the surface)
+    speed: float  # probing speed, mm/s
+    time: float  # wall-clock seconds since the epoch
+    point: tuple[float, float, float]  # compensated surface point, machine mm
+    mode: str = "programmed"  # or "manual"
+    normal: tuple[float, float, float] | None = None  # normal used for the radius offset, if not the approach
+
+
+@dataclass
+class ProbeSettings:
+    """What compensation uses now; the calibration routine replaces these."""
+
+    tip_radius: float
+    pretravel: PretravelModel = field(default_factory=PretravelModel)
+
+    def compensate(self, centre: np.ndarray, approach: np.ndarray, normal: np.ndarray | None = None) -> np.ndarray:
+        return compensate(centre, approach, self.tip_radius, self.pretravel, normal)
+
+
+def _unit(direction: np.ndarray) -> np.ndarray:
+    d = np.asarray(direction, dtype=np.float64).reshape(-1)
+    n = float(np.linalg.norm(d)) if d.shape == (3,) else 0.0
+    if not math.isfinite(n) or n < 1e-9:
+        raise MotionError(f"an approach direction needs three finite components, not all zero; got {direction!r}")
+    return d / n
+
+
+class Prober:
+    """Programmed and manual probing for one machine with the current probe settings."""
+
+    def __init__(self, machine: Machine, settings: ProbeSettings | None = None) -> None:
+        self.machine = machine
+        cfg = machine.config.probe
+        self.settings = settings or ProbeSettings(cfg.tip_radius, PretravelModel.constant(cfg.pretravel))
+        self.listeners: list[Callable[[Hit], None]] = []
+
+    def _make_hit(self, latched: tuple[int, int, int], approach: np.ndarray, speed: float, mode: str,
+                  normal: np.ndarray | None = None) -> Hit:
+        axes = self.machine.config.axes
+        centre = np.array([a.to_mm(c) for a, c in zip(axes, latched)])
+        point = self.settings.compensate(centre, approach, normal)
+        hit = Hit(tuple(int(c) for c in latched), tuple(centre), tuple(approach), speed, _time.time(),  # type: ignore[arg-type]
+                  tuple(float(p) for p in point), mode, None if normal is None else tuple(normal))  # type: ignore[arg-type]
+        for fn in list(self.listeners):
+            fn(hit)
+        return hit
+
+    def probe(self, nominal: np.ndarray, approach: np.ndarray, *, speed: float | None = None,
+              normal: np.ndarray | None = None) -> MoveStatus:
+        """Programmed hit at a nominal surface point along an approach direction (into the surface).
+
+        Rapid to the pre-hit point at the approach distance, arm capture, move
+        at probing speed for at most approach + search distance, read the
+        latched positions, retract. The status's result is the :class:`Hit`.
+        """
+        m = self.machine
+        cfg = m.config.probe
+        u = _unit(approach)
+        p = np.asarray(nominal, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise MotionError(f"a nominal point needs three finite coordinates, got {nominal!r}")
+        speed = m.config.speeds.probing if speed is None else speed
+        contact = p - self.settings.tip_radius * u
+        pre = m.check_target(contact - cfg.approach_distance * u)
+        end = m.check_target(contact + cfg.search_distance * u)
+        status = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), m)
+
+        def fail(error: BaseException) -> None:
+            status.finish(error=error)
+
+        def after_rapid(s: MoveStatus) -> None:
+            if s.error is not None:
+                return fail(s.error)
+            try:
+                with m._lock:
+                    if not m._arm("abrupt"):
+                        return fail(MotionError("the probe is deflected at the pre-hit point: clear it first"))
+                    motion = _Motion(MoveStatus("probing move", m), "probe", armed=True)
+                    motion.on_capture = lambda latched: on_trigger(motion, latched)
+                    motion.extra["on_done"] = lambda state: not_found(motion)
+                    m._motion = motion
+                    status.on_cancel(lambda: m._cancel(motion))
+                    m._load_line(end, speed, m.config.accelerations.probing)
+            except BaseException as exc:  # noqa: BLE001 - reported through the status
+                m._motion = None
+                fail(exc)
+
+        def on_trigger(motion: _Motion, latched: tuple[int, int, int]) -> None:
+            m._finish(motion, result=latched)
+            hit = self._make_hit(latched, u, speed, "programmed", normal)
+            self._retract(u, hit_status=status, result=hit)
+
+        def not_found(motion: _Motion) -> None:
+            m._finish(motion)
+            back = m.move_to(pre, protect=False)
+            back.add_callback(lambda s: fail(SurfaceNotFound(
+                "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
+                .format(cfg.approach_distance + cfg.search_distance, *p))))
+
+        m.move_to(pre).add_callback(after_rapid)
+        return status
+
+    def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit) -> None:
+        m = self.machine
+        target = m.position - m.config.probe.retract_distance * u
+        try:
+            back = m.move_to(target, m.config.speeds.probing * 5, protect=False)
+        except MotionError as exc:
+            hit_status.finish(result, None)
+            m._emit("error", message=f"retract after the hit failed: {exc}")
+            return
+
+        def done(s: MoveStatus) -> None:
+            if s.error is None and m.sample().probe_triggered:
+                m._emit("error", message="the probe is still deflected after the retract")
+            hit_status.finish(result, None)
+
+        back.add_callback(done)
+
+    def jog_probe(self, velocity: np.ndarray) -> None:
+        """Jog in velocity mode with the probe armed (thesis experiment 2): a trigger records a manual hit."""
+
+        def record(latched: tuple[int, int, int], v: np.ndarray) -> None:
+            speed = float(np.linalg.norm(v))
+            direction = v / speed
+            hit = self._make_hit(latched, direction, speed, "manual")
+            self._retract(direction, hit_status=MoveStatus("manual hit retract"), result=hit)
+
+        self.machine.jog(velocity, manual_probe=record)
