@@ -1,0 +1,339 @@
+"""The simulated NMC network: a byte stream in, a byte stream out, a clock.
+
+Time is kept in integer nanoseconds. Base tick k covers [k*T, (k+1)*T) with
+T = 0.512 ms; at its end the plants move, the tick hooks run, every module
+runs its servo code (every SR-th base tick), and then the commands that fully
+arrived during the tick execute and their replies start.
+
+Wire model
+- Host bytes are timestamped on arrival (with wire-time emulation each byte
+  takes 10 bits at the host's baud rate, back to back), then parsed byte by
+  byte by every module whose communications are enabled: a module ignores
+  everything until the 0xAA header, then counts the packet length from the
+  command byte's high nibble. Nulls therefore complete a truncated packet,
+  which then fails its checksum (the host flushes that reply).
+- Any host byte arriving while a reply is pending or being sent aborts the
+  rest of that reply (all modules stop transmitting).
+- Baud: each module has its own rate (19200 at power-up; SET_BAUD switches
+  after the reply). If the host's rate differs from a module's, the module
+  receives nothing from the host (framing errors, dropped) and the host
+  receives nothing from it: the host sees a time-out, as with real hardware
+  whose garbage bytes a driver would discard. ``host_baud=None`` means the
+  host always matches (a TCP link, which carries no line rate).
+- Two modules replying to the same packet (duplicate addresses) collide:
+  their bytes are OR-ed, as garbage a host checksum will reject.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from cmm.nmc import codec as c
+from cmm.sim.picservo import PicServo
+from cmm.sim.plant import DEFAULT_PLANT, Plant, PlantParams
+
+if TYPE_CHECKING:
+    from cmm.sim.transport import SimTransport
+
+TICK_NS = 512_000
+TickHook = Callable[["SimNetwork", int], None]
+
+FIRMWARE_VERSIONS = {"pic-servo": 4, "pic-servo-sc": 10}
+
+
+def byte_ns(baud: int) -> int:
+    """Wire time of one byte (start + 8 data + stop bits)."""
+    return round(10e9 / baud)
+
+
+class _Parser:
+    """Byte-by-byte packet framing of one module's receiver."""
+
+    __slots__ = ("buf", "need")
+
+    def __init__(self) -> None:
+        self.buf = bytearray()
+        self.need = 0
+
+    def reset(self) -> None:
+        self.buf.clear()
+        self.need = 0
+
+    def feed(self, b: int) -> bytes | None:
+        buf = self.buf
+        if not buf:
+            if b == c.HEADER:  # everything else outside a packet is ignored
+                buf.append(b)
+            return None
+        buf.append(b)
+        n = len(buf)
+        if n == 3:
+            self.need = 4 + (b >> 4)
+        elif n > 3 and n == self.need:
+            packet = bytes(buf)
+            buf.clear()
+            return packet
+        return None
+
+
+@dataclass
+class _Arrival:
+    """A packet one module finished receiving."""
+
+    tick: int  # executes at the end of this base tick
+    seq: int  # host byte counter at completion (later bytes abort the reply)
+    module: int
+    packet: bytes
+
+
+class SimNetwork:
+    """A chain of simulated PIC-SERVO modules on one NMC bus.
+
+    ``modules[0]`` is the module furthest from the host (ADDR_IN grounded):
+    it answers first at 0x00 and so usually becomes address 1.
+    """
+
+    def __init__(self, n_modules: int = 3, version: int | None = None, wire_time: bool = False,
+                 realtime: bool = False, firmware: str = "pic-servo", seed: int | None = None,
+                 plant: PlantParams | list[PlantParams] = DEFAULT_PLANT,
+                 tick_hook: TickHook | None = None) -> None:
+        if not 1 <= n_modules <= 32:
+            raise ValueError(f"an NMC network holds 1 to 32 modules, not {n_modules}")
+        if firmware not in c.BAUD_DIVISORS:
+            raise ValueError(f"unknown firmware {firmware!r}; known: {', '.join(c.BAUD_DIVISORS)}")
+        self.firmware = firmware
+        self.version = FIRMWARE_VERSIONS[firmware] if version is None else version
+        self.wire_time = wire_time
+        self.realtime = realtime
+        self.seed = seed  # reserved for stochastic plant options; the model is deterministic
+        params = plant if isinstance(plant, list) else [plant] * n_modules
+        self.plants = [Plant(p) for p in params]
+        self.modules = [PicServo(p, self.version, firmware) for p in self.plants]
+        self._parsers = [_Parser() for _ in self.modules]
+        self.tick_hooks: list[TickHook] = [tick_hook] if tick_hook else []
+        self.host_baud: int | None = c.POWER_UP_BAUD
+        self.tick = 0  # completed base ticks
+        self.now_ns = 0
+        self._rx: deque[tuple[int, int]] = deque()  # (arrival ns, byte) not yet fed
+        self._host_tx_free = 0  # when the host's line is free again
+        self._seq = 0  # host bytes fed so far
+        self._arrivals: list[_Arrival] = []
+        self._tx: deque[tuple[int, int, int]] = deque()  # (start ns, end ns, byte) on the status line
+        self._tx_free = 0
+        self.host_in = bytearray()  # bytes the host has received and not read
+        self._t0 = time.perf_counter_ns()
+        self._update_chain()
+
+    def transport(self, baudrate: int = c.POWER_UP_BAUD, timeout: float | None = 0.1) -> "SimTransport":
+        """An in-process pyserial-like port on this network."""
+        from cmm.sim.transport import SimTransport
+
+        return SimTransport(self, baudrate=baudrate, timeout=timeout)
+
+    # --- world API ------------------------------------------------------------
+    def add_tick_hook(self, hook: TickHook) -> None:
+        """``hook(network, tick)`` runs every base tick after the plants move,
+        before the modules read their inputs (capture logic)."""
+        self.tick_hooks.append(hook)
+
+    def set_inputs(self, axis: int, **levels: bool) -> None:
+        """Set LIMIT1 / LIMIT2 / INDEX levels of ``modules[axis]`` (see Plant.set_inputs)."""
+        self.plants[axis].set_inputs(**levels)
+
+    def set_power(self, on: bool, axis: int | None = None) -> None:
+        for p in self.plants if axis is None else [self.plants[axis]]:
+            p.set_power(on)
+
+    @property
+    def seconds(self) -> float:
+        return self.now_ns * 1e-9
+
+    # --- host side --------------------------------------------------------------
+    def host_write(self, data: bytes) -> None:
+        """Bytes the host puts on the command line now."""
+        self.sync()
+        t = self.now_ns
+        if self.wire_time:
+            per = byte_ns(self.host_baud or self.modules[0].baud)
+            t = max(t, self._host_tx_free)
+            for b in data:
+                t += per
+                self._rx.append((t, b))
+            self._host_tx_free = t
+        else:
+            for b in data:
+                self._rx.append((t, b))
+            self._feed_until(t, inclusive=True)
+
+    def host_read(self, size: int | None = None) -> bytes:
+        """Take up to ``size`` received bytes (all if None)."""
+        buf = self.host_in
+        n = len(buf) if size is None else min(size, len(buf))
+        out = bytes(buf[:n])
+        del buf[:n]
+        return out
+
+    def busy(self) -> bool:
+        """Something is in flight: a byte on either line or a command waiting for its tick."""
+        return bool(self._rx or self._arrivals or self._tx)
+
+    def next_event_ns(self) -> int:
+        """When something observable to the host may next happen."""
+        t = (self.tick + 1) * TICK_NS
+        if self._tx and self._tx[0][1] < t:
+            t = self._tx[0][1]
+        return t
+
+    # --- clock ------------------------------------------------------------------
+    def wall_ns(self) -> int:
+        return time.perf_counter_ns() - self._t0
+
+    def sync(self) -> None:
+        """In real time, catch the simulation up with the wall clock."""
+        if self.realtime:
+            self.advance_to(self.wall_ns())
+
+    def advance(self, seconds: float) -> None:
+        self.advance_to(self.now_ns + round(seconds * 1e9))
+
+    def advance_to(self, t_ns: int) -> None:
+        """Run the network up to time ``t_ns`` (ticks whose end is <= t_ns)."""
+        if t_ns <= self.now_ns:
+            return
+        while True:
+            tick_end = (self.tick + 1) * TICK_NS
+            if tick_end > t_ns:
+                break
+            self._feed_until(tick_end, inclusive=False)
+            if tick_end + TICK_NS <= t_ns and self._skippable():
+                nxt = t_ns if not self._rx else min(t_ns, self._rx[0][0])
+                skip = nxt // TICK_NS - self.tick - 1
+                if skip > 0:
+                    self.tick += skip  # every module is provably idle: skip exactly
+                    continue
+            self._run_tick(tick_end)
+            self.tick += 1
+        self._feed_until(t_ns, inclusive=True)
+        self.now_ns = t_ns
+        self._deliver(t_ns)
+
+    def _skippable(self) -> bool:
+        if self.tick_hooks or self._arrivals or self._tx:
+            return False
+        for m in self.modules:
+            if not m.quiet:
+                return False
+        return True
+
+    # --- internals ----------------------------------------------------------------
+    def _feed_until(self, t_ns: int, inclusive: bool) -> None:
+        rx = self._rx
+        while rx and (rx[0][0] <= t_ns if inclusive else rx[0][0] < t_ns):
+            t, b = rx.popleft()
+            self._feed(t, b)
+
+    def _feed(self, t: int, b: int) -> None:
+        self._seq += 1
+        tx = self._tx
+        if tx:  # a new byte aborts the reply in progress
+            while tx and tx[-1][0] >= t:
+                tx.pop()
+            self._tx_free = tx[-1][1] if tx else t
+        host_baud = self.host_baud
+        tick = t // TICK_NS
+        if tick < self.tick:
+            tick = self.tick
+        for i, m in enumerate(self.modules):
+            if not m.comms_enabled or (host_baud is not None and m.baud != host_baud):
+                continue
+            packet = self._parsers[i].feed(b)
+            if packet is not None:
+                self._arrivals.append(_Arrival(tick, self._seq, i, packet))
+
+    def _run_tick(self, tick_end: int) -> None:
+        tick = self.tick
+        mods = self.modules
+        for m in mods:
+            if not m.quiet:
+                m.plant.step()
+        for hook in self.tick_hooks:
+            hook(self, tick)
+        for m in mods:
+            if not m.quiet and (m.sr == 1 or tick % m.sr == 0):
+                m.servo()
+        if self._arrivals:
+            self._execute(tick, tick_end)
+
+    def _execute(self, tick: int, tick_end: int) -> None:
+        due = [a for a in self._arrivals if a.tick <= tick]
+        self._arrivals = [a for a in self._arrivals if a.tick > tick]
+        replies: dict[int, list[tuple[PicServo, bytes]]] = {}
+        for a in due:
+            m = self.modules[a.module]
+            reply = self._execute_one(m, a.packet)
+            if reply is not None and a.seq == self._seq:  # no newer byte has arrived
+                replies.setdefault(a.seq, []).append((m, reply))
+        for group in replies.values():
+            self._send(group, tick_end)
+        for a in due:  # SET_BAUD takes effect once its reply has been sent
+            m = self.modules[a.module]
+            if m.pending_baud is not None:
+                m.baud, m.pending_baud = m.pending_baud, None
+
+    def _execute_one(self, m: PicServo, packet: bytes) -> bytes | None:
+        """Execute a packet a module received; return its reply if it sends one."""
+        addr = packet[1]
+        individual = addr == m.address
+        if not individual and addr != m.group:
+            return None
+        answers = individual or m.leader
+        if sum(packet[1:-1]) & 0xFF != packet[-1]:
+            reply = m.checksum_error_reply()
+            return reply if answers else None
+        code = packet[2] & 0x0F
+        data = packet[3:-1]
+        reply = m.execute(code, data)
+        if code == c.SET_BAUD and len(data) == 1:
+            m.pending_baud = c.BAUD_DIVISORS[self.firmware].get(data[0], 0)  # unknown: unreachable
+        elif code in (c.SET_ADDR, c.HARD_RESET):
+            if code == c.HARD_RESET:
+                self._parsers[self.modules.index(m)].reset()
+            self._update_chain()
+        return reply if answers else None
+
+    def _send(self, group: list[tuple[PicServo, bytes]], tick_end: int) -> None:
+        reply = group[0][1]
+        for _, other in group[1:]:  # bus collision
+            reply = bytes(x | y for x, y in zip(reply, other))
+        m = group[0][0]
+        matched = self.host_baud is None or self.host_baud == m.baud
+        per = byte_ns(m.baud) if self.wire_time else 0
+        t = max(tick_end, self._tx_free)
+        for b in reply:
+            start = t
+            t += per
+            if matched:
+                self._tx.append((start, t, b))
+        self._tx_free = t
+
+    def _update_chain(self) -> None:
+        """ADDR_OUT of module i drives ADDR_IN of module i+1; modules[0] is grounded.
+
+        A module latches its communications on once it sees ADDR_IN low and
+        keeps them until its own reset."""
+        low = True
+        for m in self.modules:
+            if low and not m.comms_enabled:
+                m.comms_enabled = True
+            low = m.addr_out_low
+
+    def _deliver(self, t_ns: int) -> None:
+        tx = self._tx
+        if tx and tx[0][1] <= t_ns:
+            out = self.host_in
+            while tx and tx[0][1] <= t_ns:
+                out.append(tx.popleft()[2])

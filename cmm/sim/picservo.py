@@ -1,0 +1,497 @@
+"""One simulated PIC-SERVO module: command execution, profile generator,
+PID control law, home capture and status packets.
+
+Everything the firmware computes is done in integers as the PIC does:
+command position, velocity and acceleration in 16.16 fixed point (counts and
+counts per servo tick), the PID output in integer units, PWM 0..255. The
+module talks to the outside only through ``execute`` (decoded command bytes
+in, status bytes out) and through its :class:`~cmm.sim.plant.Plant` (PWM out,
+encoder count and input levels in).
+
+Addressing, baud rate and reply rules live in :mod:`cmm.sim.network`.
+"""
+
+from __future__ import annotations
+
+import struct
+
+from cmm.nmc import codec as c
+from cmm.sim.plant import Plant
+
+# Profile state.
+HOLD, TRAPEZOID, VELOCITY = 0, 1, 2
+
+_CAPTURE_CONDITIONS = c.ON_LIMIT1 | c.ON_LIMIT2 | c.ON_INDEX | c.ON_POS_ERR | c.ON_CUR_ERR
+_INT32 = 1 << 32
+
+
+def _int32(value: int) -> int:
+    return (value + 0x80000000) % _INT32 - 0x80000000
+
+
+def _clamp16(value: int) -> int:
+    return -0x8000 if value < -0x8000 else 0x7FFF if value > 0x7FFF else value
+
+
+def _stop_distance(u: int, a: int) -> int:
+    """Distance (16.16) covered while decelerating from speed ``u`` by ``a`` per tick to rest."""
+    n = u // a
+    return n * u - a * n * (n + 1) // 2
+
+
+class PicServo:
+    """Firmware state of one module. ``servo()`` runs once per servo tick."""
+
+    def __init__(self, plant: Plant, version: int = 4, firmware: str = "pic-servo") -> None:
+        self.plant = plant
+        self.version = version
+        self.firmware = firmware
+        self.enc_offset = plant.count
+        self.quiet = False  # True when the next tick provably changes nothing
+        plant.on_change = self.wake
+        self.power_up()
+
+    # --- power-up / HARD_RESET ---------------------------------------------
+    def power_up(self) -> None:
+        """Power-up state as listed in the data sheet (see picservo-nmc.md)."""
+        # Communications (the network reads these).
+        self.address = 0x00
+        self.group = 0xFF
+        self.leader = False
+        self.addr_out_low = False  # ADDR_OUT goes low on the first SET_ADDR
+        self.comms_enabled = False  # latched once ADDR_IN is seen low
+        self.baud = c.POWER_UP_BAUD
+        self.pending_baud: int | None = None  # set by SET_BAUD, applied after the reply
+        self.stat_items = 0  # status byte only
+        # Gains: all zero, SR for 1.953 kHz.
+        self.kp = self.kd = self.ki = self.il = self.ol = self.cl = self.el = self.db = 0
+        self.sr = 1
+        # Trajectory registers (LOAD_TRAJ) and the buffered command.
+        self.goal = 0
+        self.vel_reg = 0
+        self.acc_reg = 0
+        self.pwm_reg = 0
+        self.pwm_reverse = False
+        self.pending: c.LoadTraj | None = None
+        # Servo state: the counter is cleared, the command follows it.
+        self.enc_offset = self.plant.count
+        self.pos = 0
+        self.velocity = 0
+        self.cmd_fx = 0  # command position, 16.16
+        self.v_fx = 0  # signed profile velocity, 16.16 counts per servo tick
+        self.prof = HOLD
+        self.goal_fx = 0
+        self.vmax = 0
+        self.acc = 0
+        self.vtarget = 0
+        self.servo_on = False
+        self.amp_en = False
+        self.e_prev = 0
+        self.isum = 0
+        self.cla = 0  # current_limit_adjustment
+        self.pwm = 0
+        self.reverse = False
+        self.ad = 0
+        self.pos_error_value = 0
+        # Status bits.
+        self.move_done = True
+        self.pos_error = True
+        self.overcurrent = False
+        self.home_in_prog = False
+        self.cksum_error = False
+        self.accel_done = False
+        self.slew_done = False
+        self.pos_wrap = False
+        self.servo_overrun = False
+        # Home capture and I/O.
+        self.home = 0
+        self.home_ctrl = 0
+        self.io = c.IO_LIMIT1_IN | c.IO_LIMIT2_IN  # both LIMIT pins are inputs
+        self._levels = self._input_levels()
+        self.plant.drive(0, False, False)
+        self.quiet = False
+
+    def wake(self) -> None:
+        self.quiet = False
+
+    # --- inputs ---------------------------------------------------------------
+    def _pin(self, is_input: int, out_bit: int, level: bool) -> bool:
+        return level if self.io & is_input else bool(self.io & out_bit)
+
+    def _input_levels(self) -> tuple[bool, bool, bool]:
+        p = self.plant
+        return (self._pin(c.IO_LIMIT1_IN, c.IO_LIMIT1_OUT, p.limit1),
+                self._pin(c.IO_LIMIT2_IN, c.IO_LIMIT2_OUT, p.limit2), p.index)
+
+    # --- the servo interrupt ------------------------------------------------
+    def servo(self) -> None:
+        """One servo tick: read the counter, capture, profile, PID, PWM out."""
+        plant = self.plant
+        cnt = plant.count - self.enc_offset
+        vel = cnt - self.pos
+        self.velocity = vel
+        self.pos = cnt
+        old_pwm, old_rev, old_cla, old_isum, old_e = self.pwm, self.reverse, self.cla, self.isum, self.e_prev
+
+        if self.home_in_prog:
+            levels = self._input_levels()
+            ctrl = self.home_ctrl
+            old = self._levels
+            self._levels = levels
+            if ((ctrl & c.ON_LIMIT1 and levels[0] != old[0]) or (ctrl & c.ON_LIMIT2 and levels[1] != old[1])
+                    or (ctrl & c.ON_INDEX and levels[2] != old[2])):
+                self._capture()
+        if not plant.power and self.servo_on:
+            # The firmware watches the motor supply and drops the servo itself.
+            self._servo_off()
+            self.pos_error = True
+
+        if self.servo_on:
+            prof = self.prof
+            if prof == TRAPEZOID:
+                self._trapezoid_step()
+            elif prof == VELOCITY:
+                self._velocity_step()
+            e = (self.cmd_fx >> 16) - cnt
+            self.pos_error_value = e
+            if e > self.el or e < -self.el:
+                self._servo_off()  # collision detector: motor off, sticky flag
+                self.pos_error = True
+                if self.home_in_prog and self.home_ctrl & c.ON_POS_ERR:
+                    self._capture()
+                mag = 0
+            else:
+                isum = self.isum + e
+                lim = self.il << 8
+                if isum > lim:
+                    isum = lim
+                elif isum < -lim:
+                    isum = -lim
+                self.isum = isum
+                # Negative feedback with damping: the thesis prints the Kd term
+                # as "- Kd*(e - e_prev)", which under pos_error = command - actual
+                # would be positive velocity feedback; the firmware damps.
+                out = self.kp * e + self.kd * (e - self.e_prev) + self.ki * (isum >> 8)
+                self.e_prev = e
+                self.reverse = out < 0
+                mag = (-out if out < 0 else out) >> 8
+                if mag and self.db:
+                    mag += self.db  # amplifier deadband compensation
+                if mag > self.ol:
+                    mag = self.ol
+        else:
+            self.cmd_fx = cnt << 16  # the command follows so enabling the servo holds here
+            self.pos_error_value = 0
+            mag = self.pwm_reg
+            self.reverse = self.pwm_reverse
+
+        # Current limit: the adjustment creeps 1 per tick (thesis, ch. 2).
+        ad = plant.ad_value
+        self.ad = ad
+        cl = self.cl
+        over = ad > cl if cl & 1 else ad < cl  # odd CL: sensor proportional to current
+        cla = self.cla
+        if over:
+            if cla < mag:
+                cla += 1
+            self.overcurrent = True
+            if self.home_in_prog and self.home_ctrl & c.ON_CUR_ERR:
+                self._capture()
+                if not self.servo_on:
+                    mag = self.pwm_reg
+        elif cla:
+            cla -= 1
+        self.cla = cla
+        pwm = mag - cla
+        if pwm < 0:
+            pwm = 0
+        self.pwm = pwm
+        plant.drive(pwm, self.reverse, self.amp_en)
+        self.quiet = (vel == 0 and plant.v == 0.0 and self.prof == HOLD and pwm == old_pwm
+                      and self.reverse == old_rev and cla == old_cla and self.isum == old_isum
+                      and self.e_prev == old_e)
+
+    # --- profile generator ------------------------------------------------------
+    def _trapezoid_step(self) -> None:
+        """One tick of the trapezoidal profile; lands exactly on the goal."""
+        a = self.acc
+        rem = self.goal_fx - self.cmd_fx
+        v = self.v_fx
+        if rem == 0 or a <= 0:
+            if rem == 0:
+                self._finish_move()
+            return
+        if rem > 0:
+            r, u = rem, v
+        else:
+            r, u = -rem, -v
+        vmax = self.vmax
+        if u > vmax:
+            un = u - a
+            if un < vmax:
+                un = vmax
+        else:
+            un = u + a
+            if un > vmax:
+                un = vmax
+        if un > 0 and un + _stop_distance(un, a) > r:
+            if u > 0 and un > u and u + _stop_distance(u, a) <= r:
+                un = u  # cannot accelerate further: hold (slew)
+            else:
+                un = u - a  # decelerate
+                if un <= 0 <= u:
+                    un = a if a < r else r  # final creep onto the goal
+        if un > r:
+            un = r
+        if un <= u:
+            self.accel_done = True
+            if un < u:
+                self.slew_done = True
+        if un == r:
+            self.cmd_fx = self.goal_fx
+            self._finish_move()
+            return
+        if rem > 0:
+            self.cmd_fx += un
+            self.v_fx = un
+        else:
+            self.cmd_fx -= un
+            self.v_fx = -un
+
+    def _finish_move(self) -> None:
+        self.v_fx = 0
+        self.prof = HOLD
+        self.move_done = self.accel_done = self.slew_done = True
+
+    def _velocity_step(self) -> None:
+        vt = self.vtarget
+        v = self.v_fx
+        a = self.acc
+        if v < vt:
+            v = v + a if v + a < vt else vt
+        elif v > vt:
+            v = v - a if v - a > vt else vt
+        self.v_fx = v
+        self.cmd_fx += v
+        if v == vt:
+            self.move_done = self.accel_done = True
+            if v == 0:
+                self.prof = HOLD  # a smooth stop has ended
+
+    # --- servo on/off -----------------------------------------------------------
+    def _servo_on_here(self) -> None:
+        if not self.servo_on:
+            self.servo_on = True
+            self.cmd_fx = self.pos << 16
+            self.v_fx = 0
+            self.e_prev = 0
+            self.isum = 0
+
+    def _servo_off(self) -> None:
+        """Motor off: servo and PWM off (PWM mode with PWM 0)."""
+        self.servo_on = False
+        self.prof = HOLD
+        self.v_fx = 0
+        self.pwm_reg = 0
+        self.pwm = 0
+        self.move_done = True
+
+    def _stop_abrupt(self, position: int | None = None) -> None:
+        self._servo_on_here()
+        self.cmd_fx = (self.pos if position is None else position) << 16
+        self.v_fx = 0
+        self.prof = HOLD
+        self.move_done = True
+
+    def _stop_smooth(self) -> None:
+        if not self.servo_on or self.prof == HOLD:
+            self._stop_abrupt()
+            return
+        if self.acc_reg <= 0:
+            self._stop_abrupt()  # no deceleration loaded: a smooth stop would never end
+            return
+        self.prof = VELOCITY
+        self.vtarget = 0
+        self.acc = self.acc_reg
+        self.move_done = False
+
+    def _capture(self) -> None:
+        """Latch the home position and run the requested stop action."""
+        self.home = self.pos
+        self.home_in_prog = False
+        ctrl = self.home_ctrl
+        if ctrl & c.HOME_MOTOR_OFF:
+            self._servo_off()
+        elif ctrl & c.HOME_STOP_ABRUPT:
+            if self.servo_on:
+                self._stop_abrupt()
+        elif ctrl & c.HOME_STOP_SMOOTH:
+            if self.servo_on:
+                self._stop_smooth()
+
+    # --- commands ---------------------------------------------------------------
+    def status_byte(self) -> int:
+        levels = self._input_levels()
+        return ((c.MOVE_DONE if self.move_done else 0) | (c.CKSUM_ERROR if self.cksum_error else 0)
+                | (c.OVERCURRENT if self.overcurrent else 0) | (c.POWER_ON if self.plant.power else 0)
+                | (c.POS_ERROR if self.pos_error else 0) | (c.LIMIT1 if levels[0] else 0)
+                | (c.LIMIT2 if levels[1] else 0) | (c.HOME_IN_PROG if self.home_in_prog else 0))
+
+    def aux_byte(self) -> int:
+        p = self.plant
+        return ((c.AUX_INDEX if p.index else 0) | (c.AUX_POS_WRAP if self.pos_wrap else 0)
+                | (c.AUX_SERVO_ON if self.servo_on else 0) | (c.AUX_ACCEL_DONE if self.accel_done else 0)
+                | (c.AUX_SLEW_DONE if self.slew_done else 0) | (c.AUX_SERVO_OVERRUN if self.servo_overrun else 0))
+
+    def status_packet(self, items: int | None = None) -> bytes:
+        """The status packet with ``items`` (default: the DEF_STAT set)."""
+        if items is None:
+            items = self.stat_items
+        out = bytearray((self.status_byte(),))
+        if items:
+            if items & c.SEND_POS:
+                out += struct.pack("<i", _int32(self.pos))
+            if items & c.SEND_AD:
+                out.append(self.ad)
+            if items & c.SEND_VEL:
+                out += struct.pack("<h", _clamp16(self.velocity))
+            if items & c.SEND_AUX:
+                out.append(self.aux_byte())
+            if items & c.SEND_HOME:
+                out += struct.pack("<i", _int32(self.home))
+            if items & c.SEND_ID:
+                out += bytes((c.PIC_SERVO_TYPE, self.version & 0xFF))
+            if items & c.SEND_PERROR:
+                out += struct.pack("<h", _clamp16(self.pos_error_value))
+            if items & c.SEND_NPOINTS:
+                out.append(0)
+        out.append(sum(out) & 0xFF)
+        return bytes(out)
+
+    def checksum_error_reply(self) -> bytes:
+        """A bad packet is not executed, but answered with cksum_error set."""
+        self.cksum_error = True
+        return self.status_packet()
+
+    def execute(self, code: int, data: bytes) -> bytes | None:
+        """Run one command; return the status packet (None for HARD_RESET).
+
+        SET_ADDR and SET_BAUD change communication state the network reads
+        back (``address``, ``group``, ``leader``, ``addr_out_low``, ``baud``).
+        """
+        self.cksum_error = False
+        self.quiet = False
+        items = None
+        n = len(data)
+        if code == c.NOP:
+            pass
+        elif code == c.READ_STAT and n == 1:
+            items = data[0]  # one-shot; DEF_STAT's set stays
+        elif code == c.DEF_STAT and n == 1:
+            self.stat_items = data[0]
+        elif code == c.LOAD_TRAJ:
+            try:
+                lt = c.parse_load_traj(data)
+            except c.CodecError:
+                lt = None  # malformed: ignored (the firmware would misread it)
+            if lt is not None:
+                if lt.control & c.START_NOW:
+                    self.pending = None
+                    self._start(lt)
+                else:
+                    self.pending = lt
+        elif code == c.START_MOVE:
+            if self.pending is not None:
+                lt, self.pending = self.pending, None
+                self._start(lt)
+        elif code == c.SET_ADDR and n == 2:
+            self.address = data[0]
+            self.leader = not data[1] & 0x80
+            self.group = data[1] | 0x80
+            self.addr_out_low = True
+        elif code == c.SET_GAIN and n in (14, 15):
+            g = c.Gains.from_bytes(data)
+            self.kp, self.kd, self.ki, self.il = g.kp, g.kd, g.ki, g.il
+            self.ol, self.cl, self.el, self.sr, self.db = g.ol, g.cl, g.el, max(1, g.sr), g.db
+        elif code == c.STOP_MOTOR and n in (1, 5):
+            self._stop_motor(data[0], struct.unpack_from("<i", data, 1)[0] if n == 5 else None)
+        elif code == c.IO_CTRL and n == 1:
+            self.io = data[0] & 0x0F
+        elif code == c.SET_HOMING and n == 1:
+            self.home_ctrl = data[0]
+            self.home_in_prog = bool(data[0] & _CAPTURE_CONDITIONS)
+            self._levels = self._input_levels()
+        elif code == c.SET_BAUD and n == 1:
+            pass  # the network switches the rate after the reply
+        elif code == c.CLEAR_BITS:
+            self.overcurrent = self.pos_error = self.pos_wrap = self.servo_overrun = False
+        elif code == c.SAVE_AS_HOME:
+            self.home = self.pos
+        elif code == c.RESET_POS:
+            self._reset_pos(data)
+        elif code == c.HARD_RESET:
+            self.power_up()
+            return None
+        return self.status_packet(items)
+
+    def _reset_pos(self, data: bytes) -> None:
+        """Counter and command position to 0 (later firmware: relative to home / set)."""
+        if len(data) == 5 and data[0] & c.RESET_SET_POS:
+            new = struct.unpack_from("<i", data, 1)[0]
+        elif len(data) >= 1 and data[0] & c.RESET_REL_HOME:
+            new = self.pos - self.home
+            self.home = 0
+        else:
+            new = 0
+        shift = new - self.pos
+        self.enc_offset -= shift
+        self.pos = new
+        self.cmd_fx = new << 16
+        self.goal_fx += shift << 16
+        self.e_prev = 0
+
+    def _stop_motor(self, ctrl: int, position: int | None) -> None:
+        self.amp_en = bool(ctrl & c.AMP_ENABLE)
+        if ctrl & c.MOTOR_OFF:
+            self._servo_off()
+        elif ctrl & c.STOP_ABRUPT:
+            self._stop_abrupt()
+        elif ctrl & c.STOP_SMOOTH:
+            self._stop_smooth()
+        elif ctrl & c.STOP_HERE and position is not None:
+            self._stop_abrupt(position)
+        self.plant.drive(self.pwm, self.reverse, self.amp_en)
+
+    def _start(self, lt: c.LoadTraj) -> None:
+        """Apply a LOAD_TRAJ now (START_NOW, or on START_MOVE)."""
+        if lt.position is not None:
+            self.goal = lt.position
+        if lt.velocity is not None:
+            self.vel_reg = lt.velocity
+        if lt.acceleration is not None:
+            self.acc_reg = lt.acceleration
+        if lt.pwm is not None:
+            self.pwm_reg = lt.pwm
+        ctrl = lt.control
+        if not ctrl & c.ENABLE_SERVO:
+            # PWM mode: servo off, the PWM register drives the amplifier directly.
+            self.servo_on = False
+            self.prof = HOLD
+            self.v_fx = 0
+            self.pwm_reverse = bool(ctrl & c.REVERSE)
+            self.move_done = True
+            return
+        self._servo_on_here()
+        self.acc = self.acc_reg
+        self.accel_done = self.slew_done = False
+        if ctrl & c.VEL_MODE:
+            self.prof = VELOCITY
+            self.vtarget = -self.vel_reg if ctrl & c.REVERSE else self.vel_reg
+            self.move_done = self.v_fx == self.vtarget
+        else:
+            self.prof = TRAPEZOID
+            self.goal_fx = self.goal << 16
+            self.vmax = self.vel_reg
+            self.move_done = self.goal_fx == self.cmd_fx and self.v_fx == 0
+            if self.move_done:
+                self._finish_move()

@@ -1,0 +1,128 @@
+"""In-process transport: the pyserial subset the NMC driver uses, over a SimNetwork.
+
+With a virtual clock (the default) simulated time advances only while the
+host waits (``read`` blocking, ``sleep``), as fast as the CPU allows: a
+transaction costs exactly the rest of the current servo tick (plus the wire
+time when emulated). With ``SimNetwork(realtime=True)`` the clock is the wall
+clock and reads really wait.
+"""
+
+from __future__ import annotations
+
+import time
+
+from cmm.sim.network import SimNetwork
+
+# A blocking read (timeout None) on a virtual clock still gives up after this
+# much simulated time, so a host waiting for a reply that never comes ends.
+VIRTUAL_BLOCK_LIMIT_S = 10.0
+
+
+class SimTransport:
+    """``serial.Serial``-like byte pipe to a simulated NMC network."""
+
+    def __init__(self, network: SimNetwork, baudrate: int = 19200, timeout: float | None = 0.1) -> None:
+        self.network = network
+        self.timeout = timeout
+        self.write_timeout: float | None = None
+        self.port = "sim://"
+        self.is_open = True
+        self.baudrate = baudrate
+
+    # pyserial attributes -------------------------------------------------------
+    @property
+    def baudrate(self) -> int:
+        return self._baudrate
+
+    @baudrate.setter
+    def baudrate(self, value: int) -> None:
+        self._baudrate = int(value)
+        self.network.host_baud = self._baudrate
+
+    @property
+    def in_waiting(self) -> int:
+        self.network.sync()
+        return len(self.network.host_in)
+
+    @property
+    def out_waiting(self) -> int:
+        return 0
+
+    def _check_open(self) -> None:
+        if not self.is_open:
+            raise OSError("the simulated port is closed")
+
+    # byte I/O ----------------------------------------------------------------------
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        self._check_open()
+        data = bytes(data)
+        self.network.host_write(data)
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        """Up to ``size`` bytes; waits up to ``timeout`` seconds of simulated time."""
+        self._check_open()
+        net = self.network
+        buf = net.host_in
+        if len(buf) >= size:
+            return net.host_read(size)
+        wait = VIRTUAL_BLOCK_LIMIT_S if self.timeout is None else self.timeout
+        if net.realtime:
+            deadline = time.perf_counter() + wait
+            while True:
+                net.sync()
+                if len(buf) >= size or time.perf_counter() >= deadline:
+                    break
+                time.sleep(0.0002)
+            return net.host_read(size)
+        deadline = net.now_ns + round(wait * 1e9)
+        while len(buf) < size and net.now_ns < deadline:
+            if net.busy():
+                net.advance_to(min(deadline, net.next_event_ns()))
+            else:
+                net.advance_to(deadline)  # nothing can arrive: the whole time-out passes
+        return net.host_read(size)
+
+    def read_all(self) -> bytes:
+        self.network.sync()
+        return self.network.host_read()
+
+    def reset_input_buffer(self) -> None:
+        self.network.sync()
+        self.network.host_in.clear()
+
+    def reset_output_buffer(self) -> None:
+        pass  # bytes are on the wire as soon as written
+
+    def flush(self) -> None:
+        """Wait until written bytes have left (only takes time with wire emulation)."""
+        net = self.network
+        if net.wire_time and not net.realtime and net._host_tx_free > net.now_ns:
+            net.advance_to(net._host_tx_free)
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def open(self) -> None:
+        self.is_open = True
+
+    def __enter__(self) -> "SimTransport":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # clock ------------------------------------------------------------------------
+    def now(self) -> float:
+        """Simulated seconds since power-up (wall time when real time)."""
+        self.network.sync()
+        return self.network.now_ns * 1e-9
+
+    def sleep(self, seconds: float) -> None:
+        if seconds <= 0:
+            return
+        if self.network.realtime:
+            time.sleep(seconds)
+            self.network.sync()
+        else:
+            self.network.advance(seconds)
