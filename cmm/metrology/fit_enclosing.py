@@ -1,0 +1,78 @@
+"""Exact minimum circumscribed and maximum inscribed circles / spheres.
+
+- min_enclosing_ball: Welzl's algorithm (randomised incremental, expected
+  linear time) in 2D or 3D on the convex hull vertices: exact.
+- max_inscribed_ball: the centre of the largest empty circle/sphere whose
+  centre lies inside the convex hull is a Voronoi vertex of the points
+  (scipy.spatial.Voronoi); we take the vertex inside the hull farthest from
+  its nearest point: exact.  Meaningful when the points surround the
+  centre (a bore probed all round).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError, Voronoi, cKDTree
+
+from cmm.metrology.features import FitError
+
+
+def _circumball(boundary: list[np.ndarray]) -> tuple[np.ndarray, float]:
+    """Smallest ball with all boundary points on its surface (they are affinely independent)."""
+    p0 = boundary[0]
+    if len(boundary) == 1:
+        return p0.copy(), 0.0
+    a = np.array(boundary[1:]) - p0
+    lam, *_ = np.linalg.lstsq(2.0 * a @ a.T, np.einsum("ij,ij->i", a, a), rcond=None)
+    c = p0 + a.T @ lam
+    return c, float(np.linalg.norm(c - p0))
+
+
+def _welzl(pts: np.ndarray, n: int, boundary: list[np.ndarray], tol: float) -> tuple[np.ndarray, float]:
+    """Smallest ball holding pts[:n] with `boundary` on its surface (iterative Welzl, depth <= d+1)."""
+    if boundary:
+        c, r = _circumball(boundary)
+    else:
+        c, r = np.zeros(pts.shape[1]), -1.0
+    if len(boundary) == pts.shape[1] + 1:
+        return c, r
+    start = 0
+    while start < n:
+        dist = np.linalg.norm(pts[start:n] - c, axis=1)
+        outside = np.nonzero(dist > r + tol)[0]
+        if outside.size == 0:
+            break
+        i = start + int(outside[0])
+        c, r = _welzl(pts, i, boundary + [pts[i]], tol)
+        start = i + 1
+    return c, r
+
+
+def _hull_vertices(points: np.ndarray) -> np.ndarray:
+    try:
+        return points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        return points
+
+
+def min_enclosing_ball(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Exact minimum enclosing circle (2D) or sphere (3D) of centred, scaled points."""
+    pts = _hull_vertices(points)
+    pts = pts[np.random.default_rng(12345).permutation(len(pts))]  # fixed seed: reproducible results
+    return _welzl(pts, len(pts), [], 1e-13)
+
+
+def max_inscribed_ball(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Exact maximum inscribed circle (2D) or sphere (3D), centre inside the hull."""
+    try:
+        hull = ConvexHull(points)
+        vertices = Voronoi(points).vertices
+    except (QhullError, ValueError) as exc:
+        raise FitError(f"the points do not enclose an area or volume: {str(exc).splitlines()[0]}") from None
+    inside = np.all(vertices @ hull.equations[:, :-1].T + hull.equations[:, -1] <= 1e-12, axis=1)
+    if not inside.any():
+        raise FitError("no inscribed circle or sphere: the points do not surround a centre")
+    cand = vertices[inside]
+    dist, _ = cKDTree(points).query(cand)
+    k = int(np.argmax(dist))
+    return cand[k], float(dist[k])
