@@ -1,0 +1,252 @@
+"""Part meshes: loading and signed deviation of measured points (float64).
+
+Sign convention (used everywhere in the station, see SIGN_CONVENTION):
+    deviation > 0  the measured point lies OUTSIDE the nominal material
+                   (the real part has excess material there),
+    deviation < 0  the point lies INSIDE the nominal material (material missing).
+This is the opposite of ``trimesh.proximity.signed_distance`` (positive inside).
+
+The sign comes from the angle-weighted pseudo-normal at the closest surface
+point (Baerentzen & Aanaes 2005): the face normal inside a face, the sum of the
+two face normals on an edge and the angle-weighted vertex normal at a vertex.
+That is exact for any consistently wound closed mesh and needs no ray-casting
+containment test.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from cmm.metrology.transform import apply_points, apply_vectors, as_pose, invert
+
+SUPPORTED_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf", ".3mf")
+
+SIGN_CONVENTION = (
+    "deviation = signed distance to the nominal surface in mm: "
+    "+ = point outside the nominal material (excess material), "
+    "- = point inside the nominal material (missing material)"
+)
+
+# barycentric coordinate below which the closest point counts as on an edge/vertex
+_BARY_EPS = 1e-7
+# closest-point query chunk sizes: bound memory for (point, candidate face) pairs
+_QUERY_CHUNK = 4096
+_PAIR_CHUNK = 400_000
+
+
+class MeshError(ValueError):
+    """A part mesh cannot be used; the message is meant for the operator."""
+
+
+class MeshWarning(UserWarning):
+    """The mesh loaded but results may be unreliable (e.g. not watertight)."""
+
+
+def load_part(path: str | Path) -> trimesh.Trimesh:
+    """Load a part mesh as one float64 triangle mesh in the file's units (mm).
+
+    Supports STL (ascii and binary), OBJ, PLY, OFF, GLB/GLTF and 3MF; scenes
+    are flattened into one mesh with their node transforms applied.
+    ``mesh.metadata["watertight"]`` tells whether the mesh is closed; when it
+    is not, a MeshWarning is issued because signs near holes are unreliable.
+    Raises MeshError for an unsupported extension, a missing, broken or empty
+    file and for NaN/infinite vertex coordinates.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in SUPPORTED_EXTENSIONS:
+        raise MeshError(
+            f"cannot read '{p.name}': unsupported mesh format '{ext or '(no extension)'}'; "
+            f"supported formats are {', '.join(SUPPORTED_EXTENSIONS)}"
+        )
+    if not p.is_file():
+        raise MeshError(f"mesh file '{p}' does not exist")
+    try:
+        loaded = trimesh.load(str(p), file_type=ext[1:], force="mesh", process=False)
+    except Exception as exc:  # parsers raise anything from KeyError to struct.error
+        raise MeshError(f"mesh file '{p.name}' is broken or not a valid {ext[1:].upper()} file ({exc})") from exc
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"mesh file '{p.name}' contains no triangles")
+    vertices = np.asarray(loaded.vertices, dtype=np.float64)
+    if not np.all(np.isfinite(vertices)):
+        raise MeshError(f"mesh file '{p.name}' has vertices with NaN or infinite coordinates")
+    mesh = trimesh.Trimesh(vertices=vertices, faces=np.asarray(loaded.faces), process=True, validate=False)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) == 0:
+        raise MeshError(f"mesh file '{p.name}' contains only degenerate (zero-area) triangles")
+    mesh.metadata["file_name"] = p.name
+    mesh.metadata["watertight"] = bool(mesh.is_watertight)
+    if not mesh.metadata["watertight"]:
+        warnings.warn(
+            f"mesh '{p.name}' is not watertight (open edges): the sign of deviations "
+            "near the holes may be wrong",
+            MeshWarning,
+            stacklevel=2,
+        )
+    return mesh
+
+
+@dataclass(frozen=True)
+class ClosestPoints:
+    """Closest surface points in the mesh's own coordinates."""
+
+    points: NDArray[np.float64]  # (n, 3)
+    distances: NDArray[np.float64]  # (n,) unsigned
+    face_ids: NDArray[np.int64]  # (n,)
+    normals: NDArray[np.float64]  # (n, 3) unit outward pseudo-normal at the closest point
+
+
+@dataclass(frozen=True)
+class DeviationResult:
+    """Signed deviation of points to a posed mesh; all arrays in machine coordinates."""
+
+    deviations: NDArray[np.float64]  # (n,) signed, see SIGN_CONVENTION
+    closest_points: NDArray[np.float64]  # (n, 3)
+    face_ids: NDArray[np.int64]  # (n,)
+    normals: NDArray[np.float64]  # (n, 3) outward unit normal at the closest point
+    watertight: bool = True
+    sign_convention: str = field(default=SIGN_CONVENTION)
+
+    @property
+    def min(self) -> float:
+        return float(self.deviations.min())
+
+    @property
+    def max(self) -> float:
+        return float(self.deviations.max())
+
+    @property
+    def mean(self) -> float:
+        return float(self.deviations.mean())
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.deviations**2)))
+
+    def summary(self) -> dict[str, float | int]:
+        return {"n": int(self.deviations.size), "min": self.min, "max": self.max, "mean": self.mean, "rms": self.rms}
+
+
+def closest_points(mesh: trimesh.Trimesh, points: ArrayLike) -> ClosestPoints:
+    """Exact closest points on the mesh for (n, 3) points in mesh coordinates.
+
+    Candidate faces come from the triangle R-tree, queried with a box of
+    half-size equal to an upper bound of the distance (distance to the nearest
+    of a set of surface samples: vertices plus a grid on large faces). Work is
+    chunked so memory stays bounded for points far from the surface.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(pts)
+    if n == 0:
+        empty = np.empty((0, 3))
+        return ClosestPoints(empty, np.empty(0), np.empty(0, dtype=np.int64), empty)
+    triangles = np.asarray(mesh.triangles, dtype=np.float64)
+    tree = mesh.triangles_tree
+    samples = _surface_samples(mesh)
+    from scipy.spatial import cKDTree
+
+    upper, _ = cKDTree(samples).query(pts)
+    # pad for round-off so the true closest face is never excluded
+    upper = upper * (1 + 1e-9) + 1e-9 * max(1.0, float(mesh.scale))
+
+    best_pt = np.empty((n, 3))
+    best_d2 = np.full(n, np.inf)
+    best_face = np.zeros(n, dtype=np.int64)
+    for start in range(0, n, _QUERY_CHUNK):
+        sl = slice(start, min(start + _QUERY_CHUNK, n))
+        p, r = pts[sl], upper[sl, None]
+        faces, counts = tree.intersection_v(p - r, p + r)
+        owner = np.repeat(np.arange(sl.start, sl.stop), counts.astype(np.int64))
+        for a in range(0, len(faces), _PAIR_CHUNK):
+            f = faces[a : a + _PAIR_CHUNK].astype(np.int64)
+            o = owner[a : a + _PAIR_CHUNK]
+            cp = trimesh.triangles.closest_point(triangles[f], pts[o])
+            d2 = np.einsum("ij,ij->i", cp - pts[o], cp - pts[o])
+            # per owner keep the smallest: sort by (owner, d2), take first of each owner
+            order = np.lexsort((d2, o))
+            o_s = o[order]
+            first = order[np.r_[True, o_s[1:] != o_s[:-1]]]
+            better = d2[first] < best_d2[o[first]]
+            sel = first[better]
+            best_d2[o[sel]] = d2[sel]
+            best_pt[o[sel]] = cp[sel]
+            best_face[o[sel]] = f[sel]
+    if not np.all(np.isfinite(best_d2)):  # cannot happen for finite input; guard the invariant
+        raise MeshError("closest-point search failed (non-finite points?)")
+    normals = pseudo_normals(mesh, best_face, best_pt)
+    return ClosestPoints(best_pt, np.sqrt(best_d2), best_face, normals)
+
+
+def pseudo_normals(mesh: trimesh.Trimesh, face_ids: NDArray[np.int64], points: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Unit angle-weighted pseudo-normals at surface points lying on the given faces."""
+    face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    normals = face_normals[face_ids].copy()
+    bary = trimesh.triangles.points_to_barycentric(mesh.triangles[face_ids], points)
+    small = bary < _BARY_EPS
+    n_small = small.sum(axis=1)
+
+    on_edge = np.nonzero(n_small == 1)[0]
+    if len(on_edge):
+        # edge k of a face joins vertices k and k+1, so it is opposite vertex k+2
+        zero = np.argmax(small[on_edge], axis=1)
+        k = (zero + 1) % 3
+        edge_sum = np.zeros((len(mesh.edges_unique), 3))
+        np.add.at(edge_sum, mesh.edges_unique_inverse, np.repeat(face_normals, 3, axis=0))
+        normals[on_edge] = edge_sum[mesh.edges_unique_inverse[3 * face_ids[on_edge] + k]]
+
+    on_vertex = np.nonzero(n_small >= 2)[0]
+    if len(on_vertex):
+        vertex_sum = np.zeros((len(mesh.vertices), 3))
+        angles = np.nan_to_num(np.asarray(mesh.face_angles))
+        np.add.at(vertex_sum, mesh.faces, face_normals[:, None, :] * angles[:, :, None])
+        corner = np.argmax(bary[on_vertex], axis=1)
+        normals[on_vertex] = vertex_sum[mesh.faces[face_ids[on_vertex], corner]]
+
+    length = np.linalg.norm(normals, axis=1)
+    ok = length > 1e-12  # a knife edge can cancel; fall back to the face normal
+    normals[ok] /= length[ok, None]
+    normals[~ok] = face_normals[face_ids[~ok]]
+    return normals
+
+
+def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike | None = None) -> DeviationResult:
+    """Signed deviation of measured points (machine coordinates) to a posed part mesh.
+
+    ``pose`` is the 4x4 part-to-machine transform of the mesh (None = identity).
+    Sign: + = point outside the nominal material (excess), - = inside (missing);
+    the opposite of trimesh.proximity.signed_distance.
+    """
+    T = as_pose(pose)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(pts)):
+        raise MeshError("measured points contain NaN or infinite coordinates")
+    if len(pts) == 0:
+        raise MeshError("no measured points were given")
+    local = apply_points(invert(T), pts)
+    cp = closest_points(mesh, local)
+    sign = np.sign(np.einsum("ij,ij->i", local - cp.points, cp.normals))
+    return DeviationResult(
+        deviations=sign * cp.distances,
+        closest_points=apply_points(T, cp.points),
+        face_ids=cp.face_ids,
+        normals=apply_vectors(T, cp.normals),
+        watertight=bool(mesh.metadata.get("watertight", mesh.is_watertight)),
+    )
+
+
+def _surface_samples(mesh: trimesh.Trimesh, count: int = 50_000) -> NDArray[np.float64]:
+    """Vertices plus area-weighted surface samples (fixed seed, so deterministic).
+
+    Their distance to a query point bounds its distance to the surface from
+    above; the area samples keep that bound tight over large flat faces whose
+    vertices are far away.
+    """
+    sampled, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
+    return np.concatenate([np.asarray(mesh.vertices, dtype=np.float64), np.asarray(sampled, dtype=np.float64)])
