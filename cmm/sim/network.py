@@ -298,7 +298,7 @@ class SimNetwork:
         data = packet[3:-1]
         reply = m.execute(code, data)
         if code == c.SET_BAUD and len(data) == 1:
-            m.pending_baud = c.BAUD_DIVISORS[self.firmware].get(data[0], 0)  # unknown: unreachable
+            m.pending_baud = c.baud_from_divisor(data[0], self.firmware) or 0  # unknown: unreachable
         elif code in (c.SET_ADDR, c.HARD_RESET):
             if code == c.HARD_RESET:
                 self._parsers[self.modules.index(m)].reset()
