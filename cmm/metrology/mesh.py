@@ -134,7 +134,23 @@ class DeviationResult:
         return {"n": int(self.deviations.size), "min": self.min, "max": self.max, "mean": self.mean, "rms": self.rms}
 
 
-def closest_points(mesh: trimesh.Trimesh, points: ArrayLike) -> ClosestPoints:
+class SurfaceIndex:
+    """Search structures for repeated closest-point queries on one mesh (e.g. ICP).
+
+    Build once with ``SurfaceIndex(mesh)`` and pass it to closest_points; the
+    mesh must not be edited while the index is in use.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        from scipy.spatial import cKDTree
+
+        self.triangles = np.asarray(mesh.triangles, dtype=np.float64)
+        self.tree = mesh.triangles_tree
+        self.samples = cKDTree(_surface_samples(mesh))
+        self.pad = 1e-9 * max(1.0, float(mesh.scale))
+
+
+def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex | None = None) -> ClosestPoints:
     """Exact closest points on the mesh for (n, 3) points in mesh coordinates.
 
     Candidate faces come from the triangle R-tree, queried with a box of
@@ -147,14 +163,11 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike) -> ClosestPoints:
     if n == 0:
         empty = np.empty((0, 3))
         return ClosestPoints(empty, np.empty(0), np.empty(0, dtype=np.int64), empty)
-    triangles = np.asarray(mesh.triangles, dtype=np.float64)
-    tree = mesh.triangles_tree
-    samples = _surface_samples(mesh)
-    from scipy.spatial import cKDTree
-
-    upper, _ = cKDTree(samples).query(pts)
+    index = index or SurfaceIndex(mesh)
+    triangles, tree = index.triangles, index.tree
+    upper, _ = index.samples.query(pts)
     # pad for round-off so the true closest face is never excluded
-    upper = upper * (1 + 1e-9) + 1e-9 * max(1.0, float(mesh.scale))
+    upper = upper * (1 + 1e-9) + index.pad
 
     best_pt = np.empty((n, 3))
     best_d2 = np.full(n, np.inf)
