@@ -72,7 +72,9 @@ def load_part(path: str | Path) -> trimesh.Trimesh:
     except Exception as exc:  # parsers raise anything from KeyError to struct.error
         raise MeshError(f"mesh file '{p.name}' is broken or not a valid {ext[1:].upper()} file ({exc})") from exc
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise MeshError(f"mesh file '{p.name}' contains no triangles")
+        raise MeshError(
+            f"mesh file '{p.name}' contains no triangles (empty, truncated or not a {ext[1:].upper()} file)"
+        )
     vertices = np.asarray(loaded.vertices, dtype=np.float64)
     if not np.all(np.isfinite(vertices)):
         raise MeshError(f"mesh file '{p.name}' has vertices with NaN or infinite coordinates")

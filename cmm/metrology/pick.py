@@ -398,7 +398,13 @@ def _fit_cone(mesh, faces) -> _Fit | None:
     apex = np.linalg.solve(A, b)
     if (centres - apex).mean(axis=0) @ axis < 0:
         axis, s = -axis, -s  # point from the apex into the cone
-    half = float(np.arcsin(abs(s)))
+    # the facets form a pyramid (flatter than the cone by cos(pi/n)); the vertices lie on
+    # the cone itself, so take the half angle from them
+    d = v - apex
+    h = d @ axis
+    rho = np.linalg.norm(d - np.outer(h, axis), axis=1)
+    far = h > 1e-6 * max(h.max(), 1e-300)
+    half = float(np.mean(np.arctan2(rho[far], h[far]))) if far.any() else float(np.arcsin(abs(s)))
     radial = centres - apex - np.outer((centres - apex) @ axis, axis)
     bore = bool(np.sum(np.einsum("ij,ij->i", normals, radial) * areas) < 0)
     feature = NominalFeature("cone", {"apex": apex, "direction": axis, "half_angle": half, "bore": bore})
