@@ -70,13 +70,18 @@ class FitResult:
 
 
 class _Sized:
-    """Mixin: diameter from radius."""
+    """Mixin: diameter from radius (also reported by geometry())."""
 
     radius: float
 
     @property
     def diameter(self) -> float:
         return 2.0 * self.radius
+
+    def geometry(self) -> dict[str, Any]:
+        g = super().geometry()  # type: ignore[misc]
+        g["diameter"] = float(self.diameter)
+        return g
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -100,7 +105,7 @@ class Plane(FitResult):
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class Circle(FitResult, _Sized):
+class Circle(_Sized, FitResult):
     center: np.ndarray
     normal: np.ndarray
     radius: float
@@ -109,14 +114,14 @@ class Circle(FitResult, _Sized):
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class Sphere(FitResult, _Sized):
+class Sphere(_Sized, FitResult):
     center: np.ndarray
     radius: float
     kind: ClassVar[str] = "sphere"
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class Cylinder(FitResult, _Sized):
+class Cylinder(_Sized, FitResult):
     point: np.ndarray  # axis point closest to the origin
     direction: np.ndarray
     radius: float
@@ -137,7 +142,7 @@ class Cone(FitResult):
 
     def geometry(self) -> dict[str, Any]:
         g = super().geometry()
-        g["half_angle_deg"] = self.half_angle_deg
+        g["half_angle_deg"] = float(self.half_angle_deg)
         return g
 
 
@@ -161,7 +166,7 @@ class Line2D(FitResult):
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class Circle2D(FitResult, _Sized):
+class Circle2D(_Sized, FitResult):
     center: np.ndarray
     radius: float
     kind: ClassVar[str] = "circle2d"

@@ -1,0 +1,104 @@
+"""`cmm fit KIND FILE [--method ls|minzone|mic|mcc] [--json]`
+
+FILE holds one point per line, ``x y z`` separated by commas and/or
+whitespace; one header line is allowed before the first point, blank lines
+and ``#`` comments are skipped; ``-`` reads standard input.  Exit status: 0
+success, 1 the fit was refused (too few / degenerate points, method not
+available for the kind), 2 the file is missing or malformed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from typing import Any, Iterable, TextIO
+
+KINDS = ("line", "plane", "circle", "sphere", "cylinder", "cone")
+METHODS = ("ls", "minzone", "mic", "mcc")
+_SPLIT = re.compile(r"[,\s;]+")
+
+
+class PointFileError(ValueError):
+    """A points file could not be read; the message names the file and line."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("kind", choices=KINDS, help="feature to fit")
+    parser.add_argument("file", help="text file with one 'x y z' point per line ('-' for stdin)")
+    parser.add_argument("--method", choices=METHODS, default="ls",
+                        help="ls: least squares (default); minzone: minimum zone; "
+                             "mic: maximum inscribed; mcc: minimum circumscribed")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON (full float precision)")
+
+
+def parse_points(lines: Iterable[str], name: str = "<input>") -> list[tuple[float, float, float]]:
+    """Rows of three floats; one header line allowed before the first point."""
+    points: list[tuple[float, float, float]] = []
+    header_seen = False
+    for number, raw in enumerate(lines, start=1):
+        text = raw.split("#", 1)[0].strip()
+        if not text:
+            continue
+        fields = [f for f in _SPLIT.split(text) if f]
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            if not points and not header_seen:
+                header_seen = True
+                continue
+            raise PointFileError(f"{name} line {number}: expected three numbers 'x y z', got {raw.strip()!r}") from None
+        if len(values) != 3:
+            raise PointFileError(f"{name} line {number}: expected three numbers 'x y z', got {len(values)}: {raw.strip()!r}")
+        points.append((values[0], values[1], values[2]))
+    return points
+
+
+def read_points(path: str, stdin: TextIO | None = None) -> list[tuple[float, float, float]]:
+    if path == "-":
+        return parse_points(stdin or sys.stdin, "<stdin>")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return parse_points(fh, path)
+    except FileNotFoundError:
+        raise PointFileError(f"file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PointFileError(f"cannot read {path}: {exc}") from None
+
+
+def _format(value: Any) -> str:
+    if isinstance(value, list):
+        return "  ".join(f"{v:.9f}" for v in value)
+    if isinstance(value, float):
+        return f"{value:.9f}"
+    return str(value)
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    width = max(len(k) for k in summary)
+    return "\n".join(f"{k.ljust(width)}  {_format(v) if v is not None else '-'}" for k, v in summary.items())
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    from cmm.metrology.features import FitError
+    from cmm.metrology.fit_criteria import fit
+
+    try:
+        points = read_points(args.file)
+        result = fit(args.kind, np.asarray(points, dtype=np.float64).reshape(-1, 3), args.method)
+    except PointFileError as exc:
+        print(f"cmm fit: {exc}", file=sys.stderr)
+        return 2
+    except FitError as exc:
+        print(f"cmm fit: {exc}", file=sys.stderr)
+        return 1
+    summary = result.summary()
+    if args.json:
+        print(json.dumps(summary))  # json writes floats with repr: full precision
+    else:
+        print(format_table(summary))
+    return 0
