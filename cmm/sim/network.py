@@ -26,6 +26,7 @@ Wire model
 
 from __future__ import annotations
 
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
     from cmm.sim.transport import SimTransport
 
 TICK_NS = 512_000
+MAX_LAG_NS = 250_000_000
 TickHook = Callable[["SimNetwork", int], None]
 
 FIRMWARE_VERSIONS = {"pic-servo": 4, "pic-servo-sc": 10}
@@ -126,6 +128,7 @@ class SimNetwork:
         self._tx_free = 0
         self.host_in = bytearray()  # bytes the host has received and not read
         self._t0 = time.perf_counter_ns()
+        self.lock = threading.RLock()  # held by a serving thread around every step
         self._update_chain()
 
     def transport(self, baudrate: int = c.POWER_UP_BAUD, timeout: float | None = 0.1) -> "SimTransport":
@@ -158,7 +161,7 @@ class SimNetwork:
         self.sync()
         t = self.now_ns
         if self.wire_time:
-            per = byte_ns(self.host_baud or self.modules[0].baud)
+            per = byte_ns(self.host_baud or self.modules[0].baud or c.POWER_UP_BAUD)
             t = max(t, self._host_tx_free)
             for b in data:
                 t += per
@@ -192,10 +195,22 @@ class SimNetwork:
     def wall_ns(self) -> int:
         return time.perf_counter_ns() - self._t0
 
+    def start_realtime(self) -> None:
+        """Switch to the wall clock from the current simulated time on."""
+        self.realtime = True
+        self._t0 = time.perf_counter_ns() - self.now_ns
+
     def sync(self) -> None:
-        """In real time, catch the simulation up with the wall clock."""
+        """In real time, catch the simulation up with the wall clock (in one batch).
+
+        If the CPU cannot keep up for more than MAX_LAG_NS, the lost time is
+        dropped rather than replayed, so a stall does not snowball."""
         if self.realtime:
-            self.advance_to(self.wall_ns())
+            wall = self.wall_ns()
+            if wall - self.now_ns > MAX_LAG_NS:
+                self._t0 += wall - self.now_ns - MAX_LAG_NS
+                wall = self.now_ns + MAX_LAG_NS
+            self.advance_to(wall)
 
     def advance(self, seconds: float) -> None:
         self.advance_to(self.now_ns + round(seconds * 1e9))
@@ -248,7 +263,7 @@ class SimNetwork:
         if tick < self.tick:
             tick = self.tick
         for i, m in enumerate(self.modules):
-            if not m.comms_enabled or (host_baud is not None and m.baud != host_baud):
+            if not m.comms_enabled or not m.baud or (host_baud is not None and m.baud != host_baud):
                 continue
             packet = self._parsers[i].feed(b)
             if packet is not None:
@@ -310,8 +325,8 @@ class SimNetwork:
         for _, other in group[1:]:  # bus collision
             reply = bytes(x | y for x, y in zip(reply, other))
         m = group[0][0]
-        matched = self.host_baud is None or self.host_baud == m.baud
-        per = byte_ns(m.baud) if self.wire_time else 0
+        matched = m.baud and (self.host_baud is None or self.host_baud == m.baud)
+        per = byte_ns(m.baud) if self.wire_time and m.baud else 0
         t = max(tick_end, self._tx_free)
         for b in reply:
             start = t

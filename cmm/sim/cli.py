@@ -1,0 +1,76 @@
+"""`cmm sim`: serve the simulated PIC-SERVO network over TCP or a pseudo-terminal."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--tcp", metavar="HOST:PORT", default=None,
+                       help="listen on HOST:PORT (default 127.0.0.1:7777; port 0 picks a free one); "
+                            "the driver opens socket://HOST:PORT")
+    where.add_argument("--pty", action="store_true", help="create a pseudo-terminal and print its device path")
+    parser.add_argument("--modules", type=int, default=3, metavar="N", help="modules on the network (default 3)")
+    parser.add_argument("--no-wire-time", dest="wire_time", action="store_false",
+                        help="deliver bytes instantly instead of 10 bits per baud each way")
+    parser.add_argument("--firmware", choices=("pic-servo", "pic-servo-sc"), default="pic-servo",
+                        help="firmware family: module version and SET_BAUD divisor table (default pic-servo)")
+    parser.add_argument("--module-version", type=int, default=None, metavar="V",
+                        help="version byte reported in status item 0x20 (default 4, SC: 10)")
+
+
+def banner(network, url: str, pty: bool) -> str:
+    """Start-up text: what is served, and the gains a host must send."""
+    from cmm.sim.plant import DEFAULT_GAINS as g
+    from cmm.sim.plant import DEFAULT_PLANT as p
+
+    where = f"device {url}   (open it at 19200 8N1)" if pty else f"driver URL {url}"
+    return "\n".join([
+        f"cmm sim: {len(network.modules)} simulated PIC-SERVO modules (firmware {network.firmware}, "
+        f"version {network.version}), wire-time emulation {'on' if network.wire_time else 'off'}",
+        f"  {where}",
+        "  power-up gains are 0: send SET_GAIN to every module with",
+        f"    Kp {g.kp}  Kd {g.kd}  Ki {g.ki}  IL {g.il}  OL {g.ol}  CL {g.cl}  EL {g.el}  SR {g.sr}  DB {g.db}",
+        f"    SET_GAIN data bytes: {g.to_bytes().hex(' ')}",
+        f"  plant per axis: {p.supply_v:g} V motor, {p.lead_mm:g} mm lead, {p.counts_per_mm:g} counts/mm, "
+        f"top speed about {p.top_speed_mm_s:.0f} mm/s",
+        "  Ctrl-C stops.",
+    ])
+
+
+def run(args: argparse.Namespace) -> int:
+    import signal
+    import sys
+    import threading
+
+    from cmm.sim.network import SimNetwork
+    from cmm.sim.serve import serve_pty, serve_tcp
+
+    try:
+        network = SimNetwork(args.modules, version=args.module_version, wire_time=args.wire_time,
+                             realtime=True, firmware=args.firmware)
+    except ValueError as exc:
+        print(f"cmm sim: {exc}", file=sys.stderr)
+        return 2
+    if args.pty:
+        handle = serve_pty(network)
+    else:
+        host, _, port = (args.tcp or "127.0.0.1:7777").rpartition(":")
+        try:
+            handle = serve_tcp(network, host or "127.0.0.1", int(port))
+        except (OSError, ValueError) as exc:
+            print(f"cmm sim: cannot listen on {args.tcp}: {exc}", file=sys.stderr)
+            return 1
+    print(banner(network, handle.url, args.pty), flush=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        handle.close()
+    print("cmm sim: stopped", flush=True)
+    return 0

@@ -1,0 +1,175 @@
+"""Serve a SimNetwork in real time over TCP or a pseudo-terminal.
+
+One background thread owns the network: it feeds the bytes a client sends
+(timestamped on arrival, serialised at the line rate when wire-time
+emulation is on), runs the servo ticks to catch up with the wall clock in a
+batch, and sends back the status bytes whose time has come. Hold
+``handle.lock`` to touch the network (inputs, power) from another thread.
+
+- TCP: one client at a time; a new connection replaces the old one; a client
+  disconnecting leaves the modules as they are. A TCP link carries no line
+  rate, so the host is assumed to follow the modules' baud rate.
+- PTY: the device path works with any serial program. The line rate the
+  client sets with termios is the host's baud rate: after SET_BAUD the client
+  must switch, as on a real port.
+"""
+
+from __future__ import annotations
+
+import os
+import selectors
+import socket
+import termios
+import threading
+import tty
+from dataclasses import dataclass, field
+
+from cmm.sim.network import SimNetwork
+
+_POLL_S = 0.0005  # loop period when idle: below one servo tick
+_SPEEDS = {getattr(termios, f"B{r}"): r for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+           if hasattr(termios, f"B{r}")}
+
+
+@dataclass
+class ServedSim:
+    """A simulator served by a background thread; ``close()`` stops it."""
+
+    network: SimNetwork
+    url: str  # what the driver opens: socket://host:port or the pty device path
+    _thread: threading.Thread | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+    _closers: list = field(default_factory=list)
+
+    @property
+    def lock(self) -> threading.RLock:
+        return self.network.lock
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        for closer in self._closers:
+            try:
+                closer()
+            except OSError:
+                pass
+
+    def __enter__(self) -> "ServedSim":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _pump(network: SimNetwork, data: bytes | None) -> bytes:
+    """One step of the real-time loop: take host bytes, catch up, return reply bytes."""
+    with network.lock:
+        if data:
+            network.host_write(data)
+        network.sync()
+        return network.host_read()
+
+
+def _wait_s(network: SimNetwork) -> float:
+    """Sleep until the next reply byte is due, at most one poll period."""
+    if network._tx:
+        due = (network._tx[0][1] - network.wall_ns()) * 1e-9
+        return min(_POLL_S, max(0.0, due))
+    return _POLL_S
+
+
+def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0) -> ServedSim:
+    """Serve on ``host:port`` (port 0: an ephemeral port, see ``.url``)."""
+    listener = socket.create_server((host, port))
+    listener.setblocking(False)
+    bound_host, bound_port = listener.getsockname()[:2]
+    handle = ServedSim(network, f"socket://{bound_host}:{bound_port}")
+    network.host_baud = None  # TCP carries no line rate
+    network.start_realtime()
+    sel = selectors.DefaultSelector()
+    sel.register(listener, selectors.EVENT_READ)
+    client: list[socket.socket] = []
+
+    def drop_client() -> None:
+        for s in client:
+            sel.unregister(s)
+            s.close()
+        client.clear()
+
+    def loop() -> None:
+        while not handle._stop.is_set():
+            data = None
+            for key, _ in sel.select(_wait_s(network)):
+                if key.fileobj is listener:
+                    try:
+                        conn, _ = listener.accept()
+                    except OSError:
+                        continue
+                    drop_client()  # a new connection replaces the old one
+                    conn.setblocking(False)
+                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    sel.register(conn, selectors.EVENT_READ)
+                    client.append(conn)
+                    with network.lock:
+                        network.host_in.clear()
+                else:
+                    try:
+                        chunk = key.fileobj.recv(4096)
+                    except OSError:
+                        chunk = b""
+                    if chunk:
+                        data = (data or b"") + chunk
+                    else:
+                        drop_client()
+            out = _pump(network, data)
+            if out and client:
+                try:
+                    client[0].sendall(out)
+                except OSError:
+                    drop_client()
+        drop_client()
+
+    handle._closers += [sel.close, listener.close]
+    handle._thread = threading.Thread(target=loop, name="cmm-sim-tcp", daemon=True)
+    handle._thread.start()
+    return handle
+
+
+def serve_pty(network: SimNetwork) -> ServedSim:
+    """Serve on a new pseudo-terminal; ``.url`` is the device path (e.g. /dev/pts/4)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)  # no echo, no line discipline: a byte-clean line
+    attrs = termios.tcgetattr(slave)
+    attrs[4] = attrs[5] = termios.B19200  # the modules' power-up rate
+    termios.tcsetattr(slave, termios.TCSANOW, attrs)
+    os.set_blocking(master, False)
+    handle = ServedSim(network, os.ttyname(slave))
+    network.start_realtime()
+    sel = selectors.DefaultSelector()
+    sel.register(master, selectors.EVENT_READ)
+
+    def loop() -> None:
+        while not handle._stop.is_set():
+            data = None
+            if sel.select(_wait_s(network)):
+                try:
+                    data = os.read(master, 4096)
+                except (BlockingIOError, OSError):
+                    data = None
+            try:  # the client's termios speed is the host's line rate
+                network.host_baud = _SPEEDS.get(termios.tcgetattr(slave)[5], 0)
+            except termios.error:
+                pass
+            out = _pump(network, data)
+            if out:
+                try:
+                    os.write(master, out)
+                except OSError:
+                    pass
+
+    # the slave stays open here so a client closing the port does not hang up the master
+    handle._closers += [sel.close, lambda: os.close(master), lambda: os.close(slave)]
+    handle._thread = threading.Thread(target=loop, name="cmm-sim-pty", daemon=True)
+    handle._thread.start()
+    return handle
