@@ -53,4 +53,4 @@ def test_missing_axis_unreadable_and_broken_files(tmp_path):
 def test_per_axis_gain_override(tmp_path):
     text = cfg.default_text().replace("home = 300.0", "home = 300.0\n[axes.z.gains]\nkp = 250")
     m = cfg.load(write(tmp_path, text))
-    assert m.axis("z").gains.kp == 250 and m.axis("x").gains.kp == 100
+    assert m.axis("z").gains.kp == 250 and m.axis("x").gains.kp == 1800

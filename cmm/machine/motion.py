@@ -329,6 +329,24 @@ class Machine:
                 raise
             return status
 
+    def move_path(self, points: list[Any], speed: float | None = None) -> MoveStatus:
+        """Straight moves through ``points`` in turn (all checked first); one status for the whole path."""
+        targets = [self.check_target(p) for p in points]
+        status = MoveStatus(f"path of {len(targets)} moves", self)
+
+        def next_leg(i: int) -> None:
+            if i == len(targets):
+                return status.finish(self.position)
+            try:
+                leg = self.move_to(targets[i], speed)
+            except MotionError as exc:
+                return status.finish(error=exc)
+            status.on_cancel(leg.cancel)
+            leg.add_callback(lambda s: status.finish(error=s.error) if s.error else next_leg(i + 1))
+
+        next_leg(0)
+        return status
+
     def move_by(self, delta: Any, speed: float | None = None) -> MoveStatus:
         return self.move_to(self.position + np.asarray(delta, dtype=np.float64), speed)
 

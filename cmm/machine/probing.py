@@ -47,6 +47,10 @@ class ProbeSettings:
         return compensate(centre, approach, self.tip_radius, self.pretravel, normal)
 
 
+def _floats(v: np.ndarray) -> tuple[float, ...]:
+    return tuple(float(x) for x in np.asarray(v).reshape(-1))
+
+
 def _unit(direction: np.ndarray) -> np.ndarray:
     d = np.asarray(direction, dtype=np.float64).reshape(-1)
     n = float(np.linalg.norm(d)) if d.shape == (3,) else 0.0
@@ -69,19 +73,21 @@ class Prober:
         axes = self.machine.config.axes
         centre = np.array([a.to_mm(c) for a, c in zip(axes, latched)])
         point = self.settings.compensate(centre, approach, normal)
-        hit = Hit(tuple(int(c) for c in latched), tuple(centre), tuple(approach), speed, _time.time(),  # type: ignore[arg-type]
-                  tuple(float(p) for p in point), mode, None if normal is None else tuple(normal))  # type: ignore[arg-type]
+        hit = Hit(tuple(int(c) for c in latched), _floats(centre), _floats(approach), float(speed), _time.time(),  # type: ignore[arg-type]
+                  _floats(point), mode, None if normal is None else _floats(normal))  # type: ignore[arg-type]
         for fn in list(self.listeners):
             fn(hit)
         return hit
 
     def probe(self, nominal: np.ndarray, approach: np.ndarray, *, speed: float | None = None,
-              normal: np.ndarray | None = None) -> MoveStatus:
+              normal: np.ndarray | None = None, clearance_z: float | None = None) -> MoveStatus:
         """Programmed hit at a nominal surface point along an approach direction (into the surface).
 
         Rapid to the pre-hit point at the approach distance, arm capture, move
         at probing speed for at most approach + search distance, read the
         latched positions, retract. The status's result is the :class:`Hit`.
+        With ``clearance_z`` the rapid climbs to that height, crosses, and
+        descends to the pre-hit point, so it clears features in between.
         """
         m = self.machine
         cfg = m.config.probe
@@ -127,7 +133,11 @@ class Prober:
                 "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
                 .format(cfg.approach_distance + cfg.search_distance, *p))))
 
-        m.move_to(pre).add_callback(after_rapid)
+        path = [pre]
+        if clearance_z is not None:
+            here = m.position
+            path = [[here[0], here[1], max(clearance_z, here[2])], [pre[0], pre[1], max(clearance_z, pre[2])], pre]
+        m.move_path(path).add_callback(after_rapid)
         return status
 
     def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit) -> None:

@@ -1,0 +1,110 @@
+"""The simulated CMM: a 3-axis bridge machine on three simulated PIC-SERVO modules.
+
+The part sits on the table at a pose the operator does not know exactly; a
+25 mm reference sphere stands beside it for calibration. Every servo tick the
+axis carriage positions (plant, not encoder) give the real tip position, and
+the probe's switch drives the configured LIMIT input of all three modules.
+The host learns all of this only through the NMC bytes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..machine.config import MachineConfig, load
+from .network import SimNetwork
+from .probe_world import GeometryErrors, MeshObstacle, PlaneObstacle, ProbeModel, ProbeWorld, SphereObstacle
+
+REFERENCE_SPHERE_DIAMETER = 25.0
+
+
+def pose_matrix(xyz: tuple[float, float, float], rz_deg: float = 0.0, rx_deg: float = 0.0,
+                ry_deg: float = 0.0) -> np.ndarray:
+    """A 4x4 part -> machine transform: rotations about X, Y then Z, then a translation."""
+    ax, ay, az = np.radians([rx_deg, ry_deg, rz_deg])
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    t = np.eye(4)
+    t[:3, :3] = rz @ ry @ rx
+    t[:3, 3] = xyz
+    return t
+
+
+# Where the station believes the part is (the nominal set-up) ...
+NOMINAL_PART_POSE = pose_matrix((190.0, 150.0, 0.0))
+# ... and where it really is: off by a few tenths of a millimetre and half a degree.
+TRUE_PART_POSE = pose_matrix((190.35, 149.8, 0.0), rz_deg=0.5)
+REFERENCE_SPHERE_CENTRE = (400.0, 300.0, 100.0)
+
+
+@dataclass
+class CmmSimSettings:
+    part_mesh: object | None = None  # trimesh.Trimesh in part coordinates; None = the sample part
+    part_pose: np.ndarray = field(default_factory=lambda: TRUE_PART_POSE.copy())
+    sphere_centre: tuple[float, float, float] = REFERENCE_SPHERE_CENTRE
+    sphere_diameter: float = REFERENCE_SPHERE_DIAMETER
+    probe: ProbeModel = field(default_factory=ProbeModel)
+    errors: GeometryErrors = field(default_factory=GeometryErrors)
+    seed: int = 1
+
+
+class SimulatedCMM:
+    """Three simulated modules plus the machine world that drives their probe inputs."""
+
+    def __init__(self, config: MachineConfig | None = None, settings: CmmSimSettings | None = None, *,
+                 wire_time: bool = False, realtime: bool = False) -> None:
+        self.config = config or load()
+        self.settings = settings or CmmSimSettings()
+        mesh = self.settings.part_mesh
+        if mesh is None:
+            from .sample_part import sample_part
+
+            mesh, self.nominal_features = sample_part()
+        else:
+            self.nominal_features = {}
+        self.part_mesh = mesh
+        obstacles = [
+            PlaneObstacle(0.0),
+            MeshObstacle(mesh, self.settings.part_pose),
+            SphereObstacle(np.array(self.settings.sphere_centre), self.settings.sphere_diameter / 2),
+        ]
+        self.world = ProbeWorld(obstacles, self.settings.probe, self.settings.errors, seed=self.settings.seed)
+        self.network = SimNetwork(3, wire_time=wire_time, realtime=realtime)
+        # modules[0] is furthest from the host and takes address 1 first: order the axes by address
+        order = sorted(range(3), key=lambda i: self.config.axes[i].address)
+        self._axis_module = [order.index(i) for i in range(3)]
+        self._scale = [1.0 / (a.counts_per_mm * a.direction) for a in self.config.axes]
+        self._home = [a.home for a in self.config.axes]
+        self._input = self.config.probe.input
+        self._active_high = self.config.probe.active_level == "high"
+        self._level: bool | None = None
+        self.network.add_tick_hook(self._tick)
+        self.triggers = 0
+        self._tick(self.network, 0)
+
+    def axis_readings(self) -> tuple[float, float, float]:
+        """Machine coordinates the ideal encoders would read now (continuous, mm)."""
+        plants = self.network.plants
+        return tuple(h + plants[m].x * s for h, m, s in zip(self._home, self._axis_module, self._scale))  # type: ignore[return-value]
+
+    def tip_position(self) -> np.ndarray:
+        """The true tip centre, machine mm (geometry errors included)."""
+        return self.world.tip(np.array(self.axis_readings()))
+
+    def _tick(self, network: SimNetwork, tick: int) -> None:
+        x, y, z = self.axis_readings()
+        triggered = self.world.update(x, y, z)
+        level = triggered if self._active_high else not triggered
+        if level != self._level:
+            if triggered:
+                self.triggers += 1
+            self._level = level
+            for i in range(3):
+                network.set_inputs(i, **{self._input: level})
+
+    def transport(self):
+        """An in-process byte transport to this machine's NMC network (virtual clock)."""
+        return self.network.transport()

@@ -1,0 +1,175 @@
+"""The simulated CMM's world: machine geometry, the part, the reference sphere and the probe.
+
+Given the three axis readings it answers where the stylus tip really is and
+whether the touch-trigger probe has fired. The trigger fires when the tip
+ball has penetrated the material by the pre-travel delta of the contact
+direction (3-lobed in XY, another value along Z) plus trigger noise.
+
+Distance queries against a mesh are expensive, so they use conservative
+advancement: after a query at distance d the tip cannot touch anything until
+it has moved by d - r - delta_max, and no query is made before that.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ProbeModel:
+    """The simulated probe (mm). delta(n) = xy + lobe * cos(3 phi + phase) horizontally, z vertically."""
+
+    tip_radius: float = 1.0
+    pretravel_xy: float = 0.004
+    pretravel_lobe: float = 0.0015
+    pretravel_phase: float = 0.0
+    pretravel_z: float = 0.002
+    noise_sigma: float = 0.00025
+
+    def pretravel(self, n: np.ndarray) -> float:
+        """Pre-travel for a contact whose surface normal (out of the material) is ``n``."""
+        s2 = n[0] * n[0] + n[1] * n[1]
+        phi = math.atan2(-n[1], -n[0])  # azimuth of the stylus deflection direction (into the surface)
+        horizontal = self.pretravel_xy + self.pretravel_lobe * math.cos(3 * phi + self.pretravel_phase)
+        return s2 * horizontal + (1 - s2) * self.pretravel_z
+
+    @property
+    def max_pretravel(self) -> float:
+        return max(self.pretravel_xy + abs(self.pretravel_lobe), self.pretravel_z) + 6 * self.noise_sigma
+
+
+@dataclass(frozen=True)
+class GeometryErrors:
+    """First-order machine geometry: per-axis scale (ppm) and squareness (urad), default off."""
+
+    scale_ppm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    squareness_urad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # xy, xz, yz
+
+    def matrix(self) -> np.ndarray:
+        sx, sy, sz = (1 + s * 1e-6 for s in self.scale_ppm)
+        axy, axz, ayz = (a * 1e-6 for a in self.squareness_urad)
+        # columns: where a unit move of the X, Y and Z carriage really takes the tip
+        return np.array([[sx, axy * sy, axz * sz], [0.0, sy, ayz * sz], [0.0, 0.0, sz]])
+
+
+class Obstacle:
+    """Something the tip can touch: distance from a point to its surface and the outward normal there."""
+
+    def query(self, p: np.ndarray) -> tuple[float, np.ndarray]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class SphereObstacle(Obstacle):
+    def __init__(self, centre: np.ndarray, radius: float) -> None:
+        self.centre = np.asarray(centre, dtype=np.float64)
+        self.radius = float(radius)
+
+    def query(self, p: np.ndarray) -> tuple[float, np.ndarray]:
+        d = p - self.centre
+        n = float(np.linalg.norm(d))
+        return n - self.radius, d / n if n > 0 else np.array([0.0, 0.0, 1.0])
+
+
+class PlaneObstacle(Obstacle):
+    """A half-space below z = height (the table)."""
+
+    def __init__(self, height: float = 0.0) -> None:
+        self.height = height
+
+    def query(self, p: np.ndarray) -> tuple[float, np.ndarray]:
+        return float(p[2] - self.height), np.array([0.0, 0.0, 1.0])
+
+
+class MeshObstacle(Obstacle):
+    """A watertight part mesh at a pose (4x4, part -> machine)."""
+
+    def __init__(self, mesh, pose: np.ndarray) -> None:
+        self.mesh = mesh.copy()
+        self.mesh.apply_transform(np.asarray(pose, dtype=np.float64))
+        self.lo, self.hi = self.mesh.bounds
+        self._query = self.mesh.nearest.on_surface
+
+    def query(self, p: np.ndarray) -> tuple[float, np.ndarray]:
+        # a cheap lower bound first: the distance to the bounding box
+        gap = np.maximum(np.maximum(self.lo - p, p - self.hi), 0.0)
+        box = float(np.linalg.norm(gap))
+        if box > 1.0:
+            return box, np.array([0.0, 0.0, 1.0])
+        closest, dist, tri = self._query(p[None, :])
+        c = closest[0]
+        n = self.mesh.face_normals[tri[0]]
+        v = p - c
+        dv = float(np.linalg.norm(v))
+        inside = float(np.dot(v, n)) < 0 if dv > 1e-12 else False
+        normal = (v / dv if dv > 1e-9 else n) * (-1 if inside else 1)
+        return (-dv if inside else dv), normal
+
+
+@dataclass
+class ProbeWorld:
+    """Axis readings -> tip position -> probe state."""
+
+    obstacles: list[Obstacle]
+    probe: ProbeModel = field(default_factory=ProbeModel)
+    errors: GeometryErrors = field(default_factory=GeometryErrors)
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))  # tip position at zero axis travel
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self._m = self.errors.matrix()
+        self._rng = np.random.default_rng(self.seed)
+        self._safe_from: np.ndarray | None = None  # tip position of the last distance query
+        self._safe_dist = 0.0  # how far the tip may move from there before it could touch
+        self.triggered = False
+        self._threshold = self._draw_threshold()
+        self.contact_normal: np.ndarray | None = None
+        self.queries = 0
+
+    def _draw_threshold(self) -> float:
+        return float(self._rng.normal(0.0, self.probe.noise_sigma))
+
+    def tip(self, axes_mm: np.ndarray) -> np.ndarray:
+        """Where the tip centre really is for the given axis readings (mm)."""
+        return self.origin + self._m @ np.asarray(axes_mm, dtype=np.float64)
+
+    def update(self, x: float, y: float, z: float) -> bool:
+        """New axis readings (mm of carriage travel); returns whether the probe is triggered.
+
+        Runs every servo tick, so the no-contact-possible case is plain floats.
+        """
+        m = self._m
+        px = self.origin[0] + m[0, 0] * x + m[0, 1] * y + m[0, 2] * z
+        py = self.origin[1] + m[1, 1] * y + m[1, 2] * z
+        pz = self.origin[2] + m[2, 2] * z
+        if not self.triggered and self._safe_from is not None:
+            sx, sy, sz = self._safe_from
+            if (px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2 < self._safe_dist ** 2:
+                return False
+        p = np.array([px, py, pz])
+        r = self.probe.tip_radius
+        best, normal = math.inf, None
+        for ob in self.obstacles:
+            d, n = ob.query(p)
+            if d < best:
+                best, normal = d, n
+        self.queries += 1
+        penetration = r - best
+        if self.triggered:
+            # the switch re-seats once the tip is clear of the surface again
+            if penetration < -0.0005:
+                self.triggered = False
+                self._threshold = self._draw_threshold()
+                self.contact_normal = None
+            return self.triggered
+        assert normal is not None
+        if penetration >= self.probe.pretravel(normal) + self._threshold:
+            self.triggered = True
+            self.contact_normal = normal
+            self._safe_from = None
+            return True
+        self._safe_from = (px, py, pz)
+        self._safe_dist = max(0.0, best - r - self.probe.max_pretravel)
+        return False

@@ -1,0 +1,130 @@
+"""Machine layer on the simulated CMM, through the NMC byte stream."""
+
+import numpy as np
+import pytest
+
+from cmm.machine.motion import ContactError, LimitError
+from cmm.machine.status import MotionError
+from cmm.nmc import codec
+
+
+def test_connect_sets_up_three_axes_at_home(sim_machine):
+    sim, m, _ = sim_machine
+    assert m.position == pytest.approx([0.0, 0.0, 300.0])
+    assert [mod.gains.kp for mod in m.modules] == [m.config.axes[0].gains.kp] * 3
+    st = m.sample()
+    assert all(a.status & codec.POWER_ON and not a.status & codec.POS_ERROR for a in st.axes)
+    assert all(a.aux & codec.AUX_SERVO_ON for a in st.axes)
+
+
+def test_coordinated_move_is_a_straight_line_and_axes_arrive_together(sim_machine):
+    sim, m, _ = sim_machine
+    start = m.position
+    target = np.array([120.0, 60.0, 250.0])
+    status = m.move_to(target)
+    off_line, done_at = [], [None, None, None]
+    while not status.done:
+        st = m.poll()
+        p = st.position
+        d = target - start
+        s = np.dot(p - start, d) / np.dot(d, d)
+        off_line.append(np.linalg.norm(p - (start + s * d)))
+        for i, a in enumerate(st.axes):
+            if a.status & codec.MOVE_DONE and done_at[i] is None:
+                done_at[i] = st.time
+    status.wait()
+    assert max(off_line) < 0.05  # following error only: the axes share one time base
+    assert max(done_at) - min(done_at) < 0.005
+    assert m.position == pytest.approx(target, abs=0.0021)  # within 1 count
+    assert np.abs(sim.tip_position() - target).max() < 0.003
+
+
+def test_out_of_travel_and_nan_targets_refused_before_any_motion(sim_machine):
+    _, m, _ = sim_machine
+    before = len(m.bus.trace.entries())
+    with pytest.raises(LimitError, match=r"target X=612.000 mm is outside the travel 0..500 mm"):
+        m.move_to([612.0, 10.0, 100.0])
+    with pytest.raises(LimitError, match="not a number"):
+        m.move_to([float("nan"), 10.0, 100.0])
+    sent = [e for e in m.bus.trace.entries()[before:] if e.direction == "tx"]
+    assert not any("LOAD_TRAJ" in e.note for e in sent)
+
+
+def test_move_status_cancel_stops_the_axes(sim_machine):
+    _, m, _ = sim_machine
+    status = m.move_to([400.0, 300.0, 300.0])
+    m.run_for(0.5)
+    status.cancel()
+    m.run_for(0.5)
+    p1 = m.position
+    m.run_for(0.3)
+    assert np.allclose(m.position, p1, atol=0.0021)
+    assert p1[0] < 390
+    with pytest.raises(MotionError, match="cancelled"):
+        status.wait()
+
+
+def test_jog_dead_man_stops_within_200_ms(sim_machine):
+    _, m, _ = sim_machine
+    m.move_to([100.0, 100.0, 200.0]).wait()
+    m.jog([20.0, 0.0, 0.0])
+    for _ in range(10):  # refreshed every 50 ms: keeps moving
+        m.run_for(0.05)
+        m.jog([20.0, 0.0, 0.0])
+    last_refresh = m.clock.now()
+    assert m.state.axes[0].velocity == pytest.approx(20.0, rel=0.05)
+    events = []
+    m.on_event(lambda kind, info: events.append(kind))
+    stopped_at = None
+    while m.clock.now() - last_refresh < 0.5:
+        st = m.poll()
+        if stopped_at is None and abs(st.axes[0].velocity) < 1e-9:
+            stopped_at = st.time
+    assert "deadman" in events
+    assert stopped_at is not None and stopped_at - last_refresh <= 0.2
+    assert not m.busy
+
+
+def test_jog_release_and_step_jog_one_count(sim_machine):
+    _, m, _ = sim_machine
+    m.move_to([100.0, 100.0, 200.0]).wait()
+    m.jog([0.0, -10.0, 0.0])
+    m.run_for(0.2)
+    m.jog_release()
+    m.run_for(0.2)
+    assert not m.busy and m.position[1] < 100.0
+    y0 = m.sample().axes[1].counts
+    m.step("y", 0.002).wait()
+    assert m.sample().axes[1].counts == y0 + 1
+    m.step("y", -10.0).wait()
+    assert m.sample().axes[1].counts == y0 + 1 - 5000
+    with pytest.raises(MotionError, match="between one count"):
+        m.step("y", 11.0)
+
+
+def test_unexpected_contact_during_rapid_stops_and_records_nothing(sim_machine):
+    sim, m, prober = sim_machine
+    hits = []
+    prober.listeners.append(hits.append)
+    m.move_to([250.0, 190.0, 60.0]).wait()  # above the part's top face (z 40)
+    status = m.move_to([250.0, 190.0, 20.0])  # straight down into it
+    with pytest.raises(ContactError, match="unexpected probe contact"):
+        status.wait()
+    m.run_for(0.1)
+    assert hits == []
+    assert m.position[2] == pytest.approx(41.0, abs=0.2)  # stopped right at the surface
+    assert all(abs(a.velocity) < 1e-9 for a in m.state.axes)
+
+
+def test_emergency_stop_turns_the_servos_off(sim_machine):
+    _, m, _ = sim_machine
+    status = m.move_to([300.0, 0.0, 300.0])
+    m.run_for(0.3)
+    m.emergency_stop()
+    with pytest.raises(MotionError, match="emergency stop"):
+        status.wait()
+    m.run_for(0.2)
+    assert all(not a.aux & codec.AUX_SERVO_ON for a in m.state.axes)
+    m.reset()
+    assert all(a.aux & codec.AUX_SERVO_ON for a in m.sample().axes)
+    m.move_to([10.0, 0.0, 300.0]).wait()
