@@ -145,7 +145,10 @@ def suggest_feature(
     exports; the first whose largest vertex residual is within ``tolerance``
     (default 1e-3 x region size, at least 1 um) wins. If the smooth region is
     a blend of several surfaces, each kind is instead grown from a small seed
-    patch and the largest consistent region wins. Returned parameters are in
+    patch and the largest consistent region wins; that fallback is best
+    effort (a seed patch that already straddles a tangent blend, e.g. the
+    long strips of a capsule, gives a poor hypothesis) and the residuals in
+    the result tell how good the suggestion is. Returned parameters are in
     machine coordinates when ``pose`` is given.
     """
     if not 0 <= face_id < len(mesh.faces):
