@@ -53,11 +53,16 @@ def perturb(points, normals, shape_columns, x0, form, rng, n_params):
     # symmetries give columns that are zero up to rounding (e.g. 1e-13 at 1000 mm): drop them
     norms = np.linalg.norm(jac, axis=0)
     jac = jac[:, norms > 1e-9 * norms.max()]
-    q, _ = np.linalg.qr(jac, mode="complete")
     rank = np.linalg.matrix_rank(jac, tol=1e-9 * np.linalg.norm(jac, 2))
     assert rank == n_params, f"constructed Jacobian has rank {rank}, expected {n_params}"
-    q2 = q[:, jac.shape[1]:]
-    e = q2 @ rng.standard_normal(q2.shape[1])
+    if len(jac) <= 2000:
+        q, _ = np.linalg.qr(jac, mode="complete")
+        q2 = q[:, jac.shape[1]:]
+        e = q2 @ rng.standard_normal(q2.shape[1])
+    else:  # same subspace without the m x m Q: e = (I - Q1 Q1^T) c = Q2 (Q2^T c)
+        q1, _ = np.linalg.qr(jac)
+        c = rng.standard_normal(len(jac))
+        e = c - q1 @ (q1.T @ c)
     if form > 0:
         e *= form / (e.max() - e.min())
     else:
