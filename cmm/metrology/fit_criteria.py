@@ -43,15 +43,16 @@ from cmm.metrology.geom_basics import (
     canonical_direction,
     check_rank,
     frame_with_axis,
+    ScaledPoints,
     principal_axes,
 )
 
 METHODS = ("ls", "minzone", "mic", "mcc")
 
 
-def _prepare(points: Any, kind: str, rank: int, dim: int = 3) -> fit_ls._Scaled:
+def _prepare(points: Any, kind: str, rank: int, dim: int = 3) -> ScaledPoints:
     """Validated, centred and scaled points (same refusals as the least-squares fits)."""
-    data = fit_ls._Scaled(as_points(points, kind, fit_ls.MIN_POINTS[kind], dim=dim))
+    data = ScaledPoints(as_points(points, kind, fit_ls.MIN_POINTS[kind], dim=dim))
     check_rank(principal_axes(data.x)[0], kind, rank)
     return data
 
@@ -128,7 +129,7 @@ def _criterion_ball(xs: np.ndarray, method: str) -> tuple[np.ndarray, float]:
     return chebyshev_fit(model, ls_state, "minzone")
 
 
-def _ball_fit(points: Any, method: str, kind: str, dim: int) -> tuple[fit_ls._Scaled, np.ndarray, float]:
+def _ball_fit(points: Any, method: str, kind: str, dim: int) -> tuple[ScaledPoints, np.ndarray, float]:
     data = _prepare(points, kind, dim, dim=dim)
     c, r = _criterion_ball(data.x, method)
     return data, data.to_mm(c), r * data.scale

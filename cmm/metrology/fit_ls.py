@@ -48,6 +48,7 @@ from cmm.metrology.geom_basics import (
     check_rank,
     frame_with_axis,
     nominal_value,
+    ScaledPoints,
     principal_axes,
     unit,
 )
@@ -125,21 +126,6 @@ def fit_line_2d(points: Any) -> Line2D:
 # ---------------------------------------------------------------- iterative
 
 
-class _Scaled:
-    """Points centred on their centroid and divided by their RMS radius."""
-
-    def __init__(self, x: np.ndarray):
-        self.c, xc = centre(x)
-        self.scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", xc, xc)))) or 1.0
-        self.x = xc / self.scale
-
-    def to_mm(self, p: np.ndarray) -> np.ndarray:
-        return self.c + self.scale * p
-
-    def to_scaled(self, p: Any) -> np.ndarray:
-        return (np.asarray(p, dtype=np.float64) - self.c) / self.scale
-
-
 def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Sequence[Any], kind: str) -> Solution:
     """Run LM from each start (on a subsample when there are several) and refine the best."""
     if not starts:
@@ -164,7 +150,7 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
     return sol
 
 
-def _finish(sol: Solution, model: Any, data: _Scaled, residuals_mm: np.ndarray, **extra: Any) -> dict[str, Any]:
+def _finish(sol: Solution, model: Any, data: ScaledPoints, residuals_mm: np.ndarray, **extra: Any) -> dict[str, Any]:
     st = statistics(residuals_mm, sol.jacobian, sol.jacobian.shape[1], data.scale, model.units, **extra)
     return {"n_points": len(data.x), "method": "ls", **st}
 
@@ -172,7 +158,7 @@ def _finish(sol: Solution, model: Any, data: _Scaled, residuals_mm: np.ndarray, 
 def fit_circle_2d(points: Any, nominal: Any = None) -> Circle2D:
     """2D circle: algebraic start, then LM on d = |x - c| - r."""
     x = as_points(points, "circle", MIN_POINTS["circle"], dim=2)
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "circle", 2)
     sol = _solve(fm.BallModel, data.x, [_ball_start(data, nominal)], "circle")
     c, r = sol.state
@@ -184,7 +170,7 @@ def fit_circle_2d(points: Any, nominal: Any = None) -> Circle2D:
 def fit_sphere(points: Any, nominal: Any = None) -> Sphere:
     """Sphere: algebraic start, then LM on d = |x - c| - r."""
     x = as_points(points, "sphere", MIN_POINTS["sphere"])
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "sphere", 3)
     sol = _solve(fm.BallModel, data.x, [_ball_start(data, nominal)], "sphere")
     c, r = sol.state
@@ -193,7 +179,7 @@ def fit_sphere(points: Any, nominal: Any = None) -> Sphere:
                   param_names=("x", "y", "z", "r"), **out)
 
 
-def _ball_start(data: _Scaled, nominal: Any) -> tuple[np.ndarray, float]:
+def _ball_start(data: ScaledPoints, nominal: Any) -> tuple[np.ndarray, float]:
     c, r = nominal_value(nominal, "center"), nominal_value(nominal, "radius")
     if c is not None:
         cs = data.to_scaled(c)
@@ -208,7 +194,7 @@ def fit_circle(points: Any, nominal: Any = None) -> Circle:
     rho - r (roundness), plane_residuals are h; sigma uses 2m values, n = 6.
     """
     x = as_points(points, "circle", MIN_POINTS["circle"])
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     s, vt = principal_axes(data.x)
     check_rank(s, "circle", 2)
     n0 = nominal_value(nominal, "normal")
@@ -235,14 +221,14 @@ def fit_circle(points: Any, nominal: Any = None) -> Circle:
                   param_names=("a", "b", "c_n", "alpha", "beta", "r"), **st)
 
 
-def _axis_candidates(data: _Scaled, nominal: Any) -> list[np.ndarray]:
+def _axis_candidates(data: ScaledPoints, nominal: Any) -> list[np.ndarray]:
     u = nominal_value(nominal, "direction", "normal")
     if u is not None:
         return [unit(u)]
     return list(principal_axes(data.x)[1])
 
 
-def _axis_start(data: _Scaled, u: np.ndarray, nominal: Any) -> tuple[np.ndarray, float]:
+def _axis_start(data: ScaledPoints, u: np.ndarray, nominal: Any) -> tuple[np.ndarray, float]:
     """Axis point (in the centroid plane) and radius for axis direction u."""
     p = nominal_value(nominal, "point", "center")
     if p is not None:
@@ -261,7 +247,7 @@ def _axis_start(data: _Scaled, u: np.ndarray, nominal: Any) -> tuple[np.ndarray,
 def fit_cylinder(points: Any, nominal: Any = None) -> Cylinder:
     """Cylinder: LM with axis point in the centroid plane, two tilt angles, radius."""
     x = as_points(points, "cylinder", MIN_POINTS["cylinder"])
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "cylinder", 3)
     starts = []
     for u in _axis_candidates(data, nominal):
@@ -275,7 +261,7 @@ def fit_cylinder(points: Any, nominal: Any = None) -> Cylinder:
                     residuals=sol.residuals * data.scale, param_names=("a", "b", "alpha", "beta", "r"), **out)
 
 
-def _cone_start(data: _Scaled, u: np.ndarray, nominal: Any) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _cone_start(data: ScaledPoints, u: np.ndarray, nominal: Any) -> tuple[np.ndarray, np.ndarray, float, float]:
     apex = nominal_value(nominal, "apex")
     psi = nominal_value(nominal, "half_angle")
     if psi is None and nominal_value(nominal, "half_angle_deg") is not None:
@@ -297,7 +283,7 @@ def _cone_start(data: _Scaled, u: np.ndarray, nominal: Any) -> tuple[np.ndarray,
 def fit_cone(points: Any, nominal: Any = None) -> Cone:
     """Cone: LM on d = (rho - s) cos(psi) - z sin(psi), s = radius in the centroid plane."""
     x = as_points(points, "cone", MIN_POINTS["cone"])
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "cone", 3)
     starts = [_cone_start(data, u, nominal) for u in _axis_candidates(data, nominal)]
     sol = _solve(fm.ConeModel, data.x, starts, "cone")
@@ -315,7 +301,7 @@ def fit_cone(points: Any, nominal: Any = None) -> Cone:
 def fit_torus(points: Any, nominal: Any = None) -> Torus:
     """Torus: LM on d = sqrt((rho - R)^2 + z^2) - r; start from a nominal or plane normal + centroid."""
     x = as_points(points, "torus", MIN_POINTS["torus"])
-    data = _Scaled(x)
+    data = ScaledPoints(x)
     s, vt = principal_axes(data.x)
     check_rank(s, "torus", 3)
     u = nominal_value(nominal, "normal", "direction")

@@ -112,3 +112,18 @@ def algebraic_ball(centred: np.ndarray) -> tuple[np.ndarray, float]:
     c = sol[:-1]
     r2 = sol[-1] + c @ c
     return c, float(np.sqrt(max(r2, 0.0)))
+
+
+class ScaledPoints:
+    """Points centred on their centroid and divided by their RMS radius."""
+
+    def __init__(self, x: np.ndarray):
+        self.c, xc = centre(x)
+        self.scale = float(np.sqrt(np.mean(np.einsum("ij,ij->i", xc, xc)))) or 1.0
+        self.x = xc / self.scale
+
+    def to_mm(self, p: np.ndarray) -> np.ndarray:
+        return self.c + self.scale * p
+
+    def to_scaled(self, p: Any) -> np.ndarray:
+        return (np.asarray(p, dtype=np.float64) - self.c) / self.scale
