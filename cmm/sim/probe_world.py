@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import trimesh
 
 
 @dataclass(frozen=True)
@@ -37,8 +38,12 @@ class ProbeModel:
         return s2 * horizontal + (1 - s2) * self.pretravel_z
 
     @property
-    def max_pretravel(self) -> float:
-        return max(self.pretravel_xy + abs(self.pretravel_lobe), self.pretravel_z) + 6 * self.noise_sigma
+    def min_pretravel(self) -> float:
+        """A lower bound of the trigger depth (noise drawn beyond 6 sigma is clipped)."""
+        return max(0.0, min(self.pretravel_xy - abs(self.pretravel_lobe), self.pretravel_z) - 6 * self.noise_sigma)
+
+
+RESEAT = 0.0005  # mm clear of the surface before the probe's switch closes again
 
 
 @dataclass(frozen=True)
@@ -84,13 +89,32 @@ class PlaneObstacle(Obstacle):
 
 
 class MeshObstacle(Obstacle):
-    """A watertight part mesh at a pose (4x4, part -> machine)."""
+    """A watertight part mesh at a pose (4x4, part -> machine).
+
+    A full closest-point query costs milliseconds, too much for a servo
+    tick, so the triangles near the last full query are kept: while the tip
+    stays within LOCAL_REACH of that point, the closest point is among them.
+    """
+
+    LOCAL_REACH = 0.5  # mm
 
     def __init__(self, mesh, pose: np.ndarray) -> None:
         self.mesh = mesh.copy()
         self.mesh.apply_transform(np.asarray(pose, dtype=np.float64))
         self.lo, self.hi = self.mesh.bounds
-        self._query = self.mesh.nearest.on_surface
+        self._tree = self.mesh.triangles_tree
+        self._local_at: np.ndarray | None = None
+        self._local_faces = np.zeros(0, dtype=np.int64)
+        self.full_queries = 0
+
+    def _gather(self, p: np.ndarray) -> None:
+        """Faces that can hold the closest point for any tip within LOCAL_REACH of ``p``."""
+        closest, dist, _ = self.mesh.nearest.on_surface(p[None, :])
+        self.full_queries += 1
+        reach = float(dist[0]) + 2 * self.LOCAL_REACH
+        box = np.concatenate([p - reach, p + reach])
+        self._local_faces = np.fromiter(self._tree.intersection(box), dtype=np.int64)
+        self._local_at = p.copy()
 
     def query(self, p: np.ndarray) -> tuple[float, np.ndarray]:
         # a cheap lower bound first: the distance to the bounding box
@@ -98,11 +122,17 @@ class MeshObstacle(Obstacle):
         box = float(np.linalg.norm(gap))
         if box > 1.0:
             return box, np.array([0.0, 0.0, 1.0])
-        closest, dist, tri = self._query(p[None, :])
-        c = closest[0]
-        n = self.mesh.face_normals[tri[0]]
+        if self._local_at is None or float(np.linalg.norm(p - self._local_at)) > self.LOCAL_REACH:
+            self._gather(p)
+        faces = self._local_faces
+        tris = self.mesh.triangles[faces]
+        cps = trimesh.triangles.closest_point(tris, np.repeat(p[None, :], len(faces), axis=0))
+        d2 = np.einsum("ij,ij->i", cps - p, cps - p)
+        k = int(np.argmin(d2))
+        c = cps[k]
+        n = self.mesh.face_normals[faces[k]]
         v = p - c
-        dv = float(np.linalg.norm(v))
+        dv = float(np.sqrt(d2[k]))
         inside = float(np.dot(v, n)) < 0 if dv > 1e-12 else False
         normal = (v / dv if dv > 1e-9 else n) * (-1 if inside else 1)
         return (-dv if inside else dv), normal
@@ -129,7 +159,8 @@ class ProbeWorld:
         self.queries = 0
 
     def _draw_threshold(self) -> float:
-        return float(self._rng.normal(0.0, self.probe.noise_sigma))
+        sigma = self.probe.noise_sigma
+        return float(np.clip(self._rng.normal(0.0, sigma), -6 * sigma, 6 * sigma))
 
     def tip(self, axes_mm: np.ndarray) -> np.ndarray:
         """Where the tip centre really is for the given axis readings (mm)."""
@@ -144,10 +175,10 @@ class ProbeWorld:
         px = self.origin[0] + m[0, 0] * x + m[0, 1] * y + m[0, 2] * z
         py = self.origin[1] + m[1, 1] * y + m[1, 2] * z
         pz = self.origin[2] + m[2, 2] * z
-        if not self.triggered and self._safe_from is not None:
+        if self._safe_from is not None:
             sx, sy, sz = self._safe_from
             if (px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2 < self._safe_dist ** 2:
-                return False
+                return self.triggered
         p = np.array([px, py, pz])
         r = self.probe.tip_radius
         best, normal = math.inf, None
@@ -159,10 +190,14 @@ class ProbeWorld:
         penetration = r - best
         if self.triggered:
             # the switch re-seats once the tip is clear of the surface again
-            if penetration < -0.0005:
+            if penetration < -RESEAT:
                 self.triggered = False
                 self._threshold = self._draw_threshold()
                 self.contact_normal = None
+                self._safe_from = None
+            else:  # it cannot re-seat before the tip has moved this far
+                self._safe_from = (px, py, pz)
+                self._safe_dist = penetration + RESEAT
             return self.triggered
         assert normal is not None
         if penetration >= self.probe.pretravel(normal) + self._threshold:
@@ -171,5 +206,5 @@ class ProbeWorld:
             self._safe_from = None
             return True
         self._safe_from = (px, py, pz)
-        self._safe_dist = max(0.0, best - r - self.probe.max_pretravel)
+        self._safe_dist = max(0.0, best - r + self.probe.min_pretravel)
         return False

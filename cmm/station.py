@@ -1,0 +1,337 @@
+"""The station: one object owning the machine, probe, part and the active session.
+
+Every action the UI offers is a method here, usable from scripts and tests
+without a browser. Thread-safe: the UI calls it from several client threads
+while the machine's poll thread publishes state.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from .machine.config import MachineConfig, load
+from .machine.motion import Machine, MachineState
+from .machine.probing import Hit, Prober
+from .machine.status import MotionError, MoveStatus
+from .metrology import fit_criteria
+from .metrology.features import FitError, FitResult
+from .metrology.mesh import signed_deviation
+from .metrology.pick import NominalFeature, PickResult, pick, suggest_feature
+from .metrology.probe_offset import offset_feature
+from .nmc.trace import ByteTrace
+from .session.journal import Journal
+
+FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
+
+
+class StationError(RuntimeError):
+    """An action the station refuses, in an operator's words."""
+
+
+@dataclass
+class Part:
+    name: str
+    mesh: Any  # trimesh.Trimesh in part coordinates
+    pose: np.ndarray  # part -> machine (the station's belief; alignment refines it)
+    nominal_features: dict[str, NominalFeature] = field(default_factory=dict)
+
+
+@dataclass
+class Feature:
+    id: int
+    name: str
+    kind: str
+    method: str
+    hit_ids: list[int]
+    result: FitResult
+    nominal: NominalFeature | None = None
+
+    def summary(self) -> dict[str, Any]:
+        return {"id": self.id, "name": self.name, "hit_ids": self.hit_ids, **self.result.summary(),
+                "nominal": None if self.nominal is None else self.nominal.to_dict()}
+
+
+class Station:
+    """Wire machine, probe, part and session together.
+
+    ``port`` None or "sim" starts the simulated CMM served in real time over
+    TCP on loopback, and the driver talks to it through that byte stream.
+    """
+
+    def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
+                 part_path: str | Path | None = None, session_dir: str | Path = "sessions",
+                 sim_settings: Any = None) -> None:
+        self.config = config or load()
+        if baud is not None:
+            self.config = self.config.with_link(baud=baud)
+        self.trace = ByteTrace()
+        self.sim = None
+        self._served = None
+        self.lock = threading.RLock()
+        port = port or self.config.link.port
+        if port == "sim":
+            from .sim.cmm_sim import NOMINAL_PART_POSE, SimulatedCMM
+            from .sim.serve import serve_tcp
+
+            self.sim = SimulatedCMM(self.config, sim_settings, wire_time=True, realtime=True)
+            self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
+            port = self._served.url
+            mesh, nominal = self.sim.part_mesh, self.sim.nominal_features
+            self.part: Part | None = Part("sample part", mesh, NOMINAL_PART_POSE.copy(), dict(nominal))
+        else:
+            self.part = None
+        if part_path is not None:
+            self.load_part(part_path)
+        self.port = port
+        self.machine = Machine(self.config, port, trace=self.trace)
+        self.prober = Prober(self.machine)
+        self.prober.listeners.append(self._on_hit)
+        self.hits: dict[int, Hit] = {}
+        self.deleted: dict[int, Hit] = {}
+        self._undo: list[tuple[str, int]] = []
+        self.features: dict[int, Feature] = {}
+        self._next_hit = 1
+        self._next_feature = 1
+        self.last_hit: Hit | None = None
+        self.events: list[tuple[float, str, str]] = []  # (time, kind, message) for the UI
+        self._listeners: list[Callable[[str, Any], None]] = []
+        self.session_dir = Path(session_dir)
+        self.journal: Journal | None = None
+        self.machine.on_event(lambda kind, info: self._notify(kind, info))
+
+    # --- life cycle -----------------------------------------------------------
+
+    def start(self, session_name: str | None = None) -> "Station":
+        self.machine.connect()
+        self.machine.start_polling()
+        self.new_session(session_name)
+        return self
+
+    def close(self) -> None:
+        self.machine.close()
+        if self._served is not None:
+            self._served.close()
+        if self.journal is not None:
+            self.journal.close()
+
+    def __enter__(self) -> "Station":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def subscribe(self, fn: Callable[[str, Any], None]) -> None:
+        """Station events: 'hit', 'hits', 'feature', 'features', 'part', plus machine events."""
+        self._listeners.append(fn)
+
+    def _notify(self, kind: str, info: Any) -> None:
+        if kind in ("contact", "deadman", "limit", "error", "estop"):
+            self.events.append((time.time(), kind, str(info)))
+        for fn in list(self._listeners):
+            try:
+                fn(kind, info)
+            except Exception as exc:  # a broken listener must not stop the machine
+                self.events.append((time.time(), "error", f"listener failed: {exc}"))
+
+    def subscribe_state(self, fn: Callable[[MachineState], None]) -> Callable[[], None]:
+        return self.machine.subscribe(fn)
+
+    @property
+    def state(self) -> MachineState | None:
+        return self.machine.state
+
+    # --- session ----------------------------------------------------------------
+
+    def new_session(self, name: str | None = None) -> Path:
+        with self.lock:
+            if self.journal is not None:
+                self.journal.close()
+            name = name or time.strftime("session-%Y%m%d-%H%M%S")
+            path = self.session_dir / f"{name}.jsonl"
+            self.journal = Journal(path)
+            self.journal.append("start", config=self.config.source, port=str(self.port),
+                                tip_radius=self.prober.settings.tip_radius,
+                                pretravel=self.prober.settings.pretravel.coefficients,
+                                part=None if self.part is None else self.part.name,
+                                part_pose=None if self.part is None else self.part.pose)
+            return path
+
+    def _record(self, kind: str, **data: Any) -> None:
+        if self.journal is not None:
+            self.journal.append(kind, **data)
+
+    # --- part -------------------------------------------------------------------
+
+    def load_part(self, path: str | Path, pose: np.ndarray | None = None) -> Part:
+        from .metrology.mesh import load_part
+
+        mesh = load_part(path)
+        with self.lock:
+            self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))
+            self._record("part", name=self.part.name, pose=self.part.pose) if self.journal else None
+        self._notify("part", self.part)
+        return self.part
+
+    def pick(self, origin: Any, direction: Any) -> tuple[PickResult, NominalFeature | None] | None:
+        """Ray pick on the part: hit point and normal (machine coordinates) and a suggested nominal feature."""
+        if self.part is None:
+            raise StationError("no part is loaded")
+        hit = pick(self.part.mesh, self.part.pose, origin, direction)
+        if hit is None:
+            return None
+        try:
+            suggestion = suggest_feature(self.part.mesh, hit.face_id, self.part.pose)
+            nominal = suggestion.feature if suggestion is not None else None
+        except Exception:  # noqa: BLE001 - a suggestion is optional help
+            nominal = None
+        return hit, nominal
+
+    # --- motion ------------------------------------------------------------------
+
+    def move_to(self, target: Any, speed: float | None = None) -> MoveStatus:
+        return self.machine.move_to(target, speed)
+
+    def move_above(self, point: Any, normal: Any, clearance: float | None = None) -> MoveStatus:
+        """Move the tip to ``clearance`` mm above a picked surface point along its normal."""
+        clearance = self.config.probe.approach_distance + self.prober.settings.tip_radius if clearance is None else clearance
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+        return self.machine.move_to(np.asarray(point, float) + clearance * n)
+
+    def jog(self, velocity: Any) -> None:
+        self.machine.jog(velocity)
+
+    def jog_release(self) -> None:
+        self.machine.jog_release()
+
+    def step(self, axis: str, step_mm: float) -> MoveStatus:
+        return self.machine.step(axis, step_mm)
+
+    def stop(self) -> None:
+        self.machine.stop()
+
+    def emergency_stop(self) -> None:
+        self.machine.emergency_stop()
+
+    def reset(self) -> None:
+        self.machine.reset()
+
+    def zero(self) -> None:
+        self.machine.zero()
+
+    # --- probing -----------------------------------------------------------------
+
+    def probe(self, point: Any, approach: Any, clearance_z: float | None = None) -> MoveStatus:
+        """Programmed hit at a surface point; ``approach`` points into the surface."""
+        return self.prober.probe(point, approach, clearance_z=clearance_z)
+
+    def probe_here(self, point: Any, normal: Any) -> MoveStatus:
+        """Probe a picked point along its (outward) mesh normal."""
+        n = np.asarray(normal, float)
+        return self.probe(point, -n)
+
+    def jog_probe(self, velocity: Any) -> None:
+        """Jog with the probe armed: a trigger takes a manual hit."""
+        self.prober.jog_probe(velocity)
+
+    def _on_hit(self, hit: Hit) -> None:
+        with self.lock:
+            hid = self._next_hit
+            self._next_hit += 1
+            self._record("hit", id=hid, counts=hit.counts, machine=hit.machine, approach=hit.approach,
+                         speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode)
+            self.hits[hid] = hit  # on disk before anyone is shown it
+            self.last_hit = hit
+            self._undo.append(("add", hid))
+        self._notify("hit", (hid, hit))
+
+    def delete_hit(self, hid: int) -> None:
+        with self.lock:
+            if hid not in self.hits:
+                raise StationError(f"there is no hit {hid}")
+            self.deleted[hid] = self.hits.pop(hid)
+            self._undo.append(("delete", hid))
+            self._record("hit_deleted", id=hid)
+        self._notify("hits", None)
+
+    def undo(self) -> str:
+        """Undo the last hit added or deleted."""
+        with self.lock:
+            if not self._undo:
+                raise StationError("nothing to undo")
+            action, hid = self._undo.pop()
+            if action == "add":
+                self.deleted[hid] = self.hits.pop(hid)
+                self._record("hit_deleted", id=hid, undo=True)
+                message = f"removed hit {hid}"
+            else:
+                self.hits[hid] = self.deleted.pop(hid)
+                self._record("hit_restored", id=hid, undo=True)
+                message = f"restored hit {hid}"
+        self._notify("hits", None)
+        return message
+
+    # --- features ----------------------------------------------------------------
+
+    def fit_feature(self, kind: str, hit_ids: list[int], method: str = "ls", name: str | None = None,
+                    nominal: NominalFeature | None = None) -> Feature:
+        """Fit a feature to hits: fit the pre-travel-corrected tip centres, then offset by the tip radius."""
+        if kind not in FEATURE_KINDS:
+            raise StationError(f"unknown feature kind {kind!r}; choose one of {', '.join(FEATURE_KINDS)}")
+        with self.lock:
+            missing = [h for h in hit_ids if h not in self.hits]
+            if missing:
+                raise StationError(f"no hits with ids {missing}")
+            hits = [self.hits[h] for h in hit_ids]
+        centres = np.array([h.machine for h in hits])
+        approach = np.array([h.approach for h in hits])
+        settings = self.prober.settings
+        centres = centres - settings.pretravel(approach)[:, None] * approach
+        try:
+            if kind == "point":
+                result = fit_criteria.fit("point", np.array([h.point for h in hits]), method)
+            else:
+                result = fit_criteria.fit(kind, centres, method)
+                if kind != "line":
+                    result = offset_feature(result, centres, approach, settings.tip_radius)
+        except FitError as exc:
+            raise StationError(str(exc)) from None
+        with self.lock:
+            fid = self._next_feature
+            self._next_feature += 1
+            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal)
+            self.features[fid] = feature
+            self._record("feature", **feature.summary())
+        self._notify("feature", feature)
+        return feature
+
+    def delete_feature(self, fid: int) -> None:
+        with self.lock:
+            if self.features.pop(fid, None) is None:
+                raise StationError(f"there is no feature {fid}")
+            self._record("feature_deleted", id=fid)
+        self._notify("features", None)
+
+    def hit_deviations(self) -> dict[int, float]:
+        """Signed deviation of each compensated hit from the part mesh (+ = material outside nominal)."""
+        with self.lock:
+            items = list(self.hits.items())
+        if self.part is None or not items:
+            return {}
+        result = signed_deviation(self.part.mesh, np.array([h.point for _, h in items]), self.part.pose)
+        return {hid: float(d) for (hid, _), d in zip(items, result.deviations)}
+
+    def note(self, text: str) -> None:
+        self._record("note", text=text)
+
+    def wait_idle(self, timeout: float = 60.0) -> None:
+        end = time.monotonic() + timeout
+        while self.machine.busy:
+            if time.monotonic() > end:
+                raise MotionError("the machine is still busy")
+            time.sleep(0.01)
