@@ -75,7 +75,7 @@ CRITERIA_CAPS = {
     ("plane", "minzone"): 10**5,   # exact hull width, O(h^2) in hull vertices
     ("line", "minzone"): 10**4,    # SLP, 2m LP rows
     ("circle", "minzone"): 10**4,  # SLP
-    ("circle", "mic"): 10**5,      # exact, 2D Voronoi
+    ("circle", "mic"): 10**4,      # exact, 2D Voronoi: qhull is slow on cocircular points (22 s at 1e5)
     ("circle", "mcc"): 10**6,      # exact, Welzl on hull vertices
     ("sphere", "minzone"): 10**4,  # SLP
     ("sphere", "mic"): 10**3,      # exact, 3D Voronoi: qhull is slow on cospherical points (12 s at 1e4)
