@@ -39,14 +39,14 @@ def _address_and_move(port: serial.Serial) -> None:
 def test_tcp_serving_and_reconnect():
     with serve_tcp(SimNetwork(2, wire_time=True)) as sim:
         assert sim.url.startswith("socket://127.0.0.1:")
-        first = serial.serial_for_url(sim.url, timeout=0.5)
+        first = serial.serial_for_url(sim.url, timeout=2.0)
         _address_and_move(first)
-        second = serial.serial_for_url(sim.url, timeout=0.5)  # replaces the first client
+        second = serial.serial_for_url(sim.url, timeout=2.0)  # replaces the first client
         s = c.parse_status(_transact(second, c.nop(1), 6), c.SEND_POS)
         assert abs(s.position - 2000) <= 1
         first.close()
         second.close()
-        third = serial.serial_for_url(sim.url, timeout=0.5)  # survives disconnects
+        third = serial.serial_for_url(sim.url, timeout=2.0)  # survives disconnects
         assert len(_transact(third, c.nop(1), 6)) == 6
         with sim.lock:
             sim.network.set_inputs(0, limit1=True)
@@ -57,11 +57,13 @@ def test_tcp_serving_and_reconnect():
 @pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX")
 def test_pty_serving_follows_the_client_baud_rate():
     with serve_pty(SimNetwork(1, wire_time=True)) as sim:
-        port = serial.Serial(sim.url, 19200, timeout=0.5)
+        port = serial.Serial(sim.url, 19200, timeout=2.0)
         _address_and_move(port)
         assert _transact(port, c.set_baud(1, c.baud_divisor(115200)), 6)  # answered at the old rate
         port.reset_input_buffer()
+        port.timeout = 0.3
         assert _transact(port, c.nop(1), 6) == b""  # client still at 19200
+        port.timeout = 2.0
         port.baudrate = 115200
         port.write(bytes(16))
         port.reset_input_buffer()

@@ -72,11 +72,14 @@ def _pump(network: SimNetwork, data: bytes | None) -> bytes:
 
 
 def _wait_s(network: SimNetwork) -> float:
-    """Sleep until the next reply byte is due, at most one poll period."""
-    if network._tx:
-        due = (network._tx[0][1] - network.wall_ns()) * 1e-9
-        return min(_POLL_S, max(0.0, due))
-    return _POLL_S
+    """Sleep until something the host will see is due, at most one poll period."""
+    with network.lock:
+        if not network.busy():
+            return _POLL_S
+        due = network.next_event_ns()
+        if network._rx:  # wire emulation: a command byte still on its way in
+            due = min(due, max(network._rx[0][0], (network._rx[0][0] // 512_000 + 1) * 512_000))
+    return min(_POLL_S, max(0.0, (due - network.wall_ns()) * 1e-9))
 
 
 def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0) -> ServedSim:
