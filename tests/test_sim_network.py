@@ -159,3 +159,51 @@ def test_virtual_transaction_costs_one_tick():
     for _ in range(10):
         host.raw(c.nop(1), 2)
     assert abs(host.port.now() - t0 - 10 * 0.000512) < 1e-9
+
+
+def test_transport_pyserial_subset_and_virtual_clock():
+    net = SimNetwork(1)
+    port = net.transport(timeout=0.25)
+    assert port.is_open and port.baudrate == 19200 and port.now() == 0.0
+    assert port.read(1) == b"" and abs(port.now() - 0.25) < 1e-6  # the whole time-out passes
+    port.sleep(0.75)
+    assert abs(port.now() - 1.0) < 1e-6
+    port.write(c.set_addr(0, 1))
+    port.flush()
+    assert port.in_waiting == 0  # executes at the end of the tick
+    assert len(port.read(2)) == 2 and port.in_waiting == 0
+    port.write(c.nop(1))
+    port.sleep(0.001)
+    assert port.in_waiting == 2
+    port.reset_input_buffer()
+    port.reset_output_buffer()
+    assert port.in_waiting == 0
+    port.close()
+    assert not port.is_open
+
+
+def test_idle_skip_is_exact():
+    """A tick hook disables the idle fast path; results must not change."""
+    def run(hook: bool) -> tuple:
+        net = SimNetwork(2)
+        if hook:
+            net.add_tick_hook(lambda network, tick: None)
+        host = Host(net)
+        host.init()
+        host.cmd(c.load_traj(1, position=3001, velocity=300000, acceleration=4000))
+        host.port.sleep(0.5)
+        host.cmd(c.load_traj(2, position=-77, velocity=300000, acceleration=4000))
+        host.port.sleep(1.0)
+        return tuple((p.x, p.v, p.count) for p in net.plants) + (net.tick, net.now_ns)
+
+    assert run(False) == run(True)
+
+
+def test_realtime_in_process_clock():
+    net = SimNetwork(1, realtime=True)
+    port = net.transport(timeout=0.05)
+    port.write(c.set_addr(0, 1))
+    assert len(port.read(2)) == 2
+    t0 = port.now()
+    assert port.read(1) == b""
+    assert port.now() - t0 >= 0.05
