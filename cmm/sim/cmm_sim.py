@@ -9,6 +9,7 @@ The host learns all of this only through the NMC bytes.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,6 +84,7 @@ class SimulatedCMM:
         self._level: bool | None = None
         self.network.add_tick_hook(self._tick)
         self.triggers = 0
+        self.last_trigger_wall = 0.0
         self._tick(self.network, 0)
 
     def axis_readings(self) -> tuple[float, float, float]:
@@ -101,6 +103,7 @@ class SimulatedCMM:
         if level != self._level:
             if triggered:
                 self.triggers += 1
+                self.last_trigger_wall = time.perf_counter()  # for latency benchmarks
             self._level = level
             for i in range(3):
                 network.set_inputs(i, **{self._input: level})
