@@ -16,6 +16,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("cmm.sim.cli", "serve the simulated PIC-SERVO network (TCP or pseudo-terminal)"),
     "fit": ("cmm.metrology.cli_fit", "fit a feature to points from a text file"),
     "deviation": ("cmm.metrology.cli_deviation", "signed deviation of points to a part mesh"),
+    "serve": ("cmm.ui.serve", "start the browser station"),
 }
 
 

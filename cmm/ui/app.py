@@ -1,0 +1,215 @@
+"""The viser application: one shared scene, one GUI per client, all actions through the Station.
+
+:class:`StationApp` starts the viser server, draws the scene
+(:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
+tab, and runs two light threads: the probe updater (50 Hz, also samples the
+following-error plot) and the panel refresher (20 Hz hold watchdog, 5 Hz
+read-outs). Who may move the machine is decided by the access
+:class:`~cmm.ui.access.Control`, shared with the pendant page.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from .access import Control
+from .panels import ClientApp
+from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
+
+REFRESH_HZ = 20.0
+READOUT_EVERY = 4  # refresher ticks between read-out refreshes (5 Hz)
+PLOT_SECONDS = 10.0
+
+
+def _is_loopback(address: Any) -> bool:
+    host = address[0] if isinstance(address, (tuple, list)) and address else address
+    return isinstance(host, str) and (host.startswith("127.") or host in ("::1", "::ffff:127.0.0.1", "localhost"))
+
+
+class StationApp:
+    def __init__(self, station: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
+                 control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
+                 tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False) -> None:
+        import viser
+
+        self.station = station
+        self.host = host
+        self.control = control or Control(lan=lan, on_holder_lost=lambda _cid: self._holder_lost())
+        self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
+        self.port = self.server.get_port()
+        self.clients: dict[int, ClientApp] = {}
+        self._clients_lock = threading.Lock()
+        self._fe: deque[tuple[float, float, float, float]] = deque(maxlen=int(PLOT_SECONDS * 50))
+        self._t0 = time.monotonic()
+        self._dirty = {"hits": True, "features": True, "part": False}
+        self._deviations: dict[int, float] = {}
+        self.view = SceneView(self.server.scene, station, tolerance=tolerance,
+                              on_feature_click=self._feature_clicked)
+        self.view.build()
+        self.pendant = None
+        self.pendant_url: str | None = None
+        if pendant:
+            self._start_pendant(pendant_port if pendant_port is not None else (port + 1 if port else 0))
+        station.subscribe(self._on_station_event)
+        self.server.scene.on_click()(self._scene_clicked)
+        self.server.on_client_connect(self._connect)
+        self.server.on_client_disconnect(self._disconnect)
+        self.updater = ProbeUpdater(station, self.view, extra=self._sample_plot).start()
+        self._stop = threading.Event()
+        self._refresher = threading.Thread(target=self._refresh_loop, name="ui-refresh", daemon=True)
+        self._refresher.start()
+
+    # --- life cycle ------------------------------------------------------------
+
+    @property
+    def url(self) -> str:
+        shown = "127.0.0.1" if self.host in ("0.0.0.0", "") else self.host
+        return f"http://{shown}:{self.port}/"
+
+    def _start_pendant(self, port: int) -> None:
+        try:
+            from .pendant import start_pendant_server
+        except ImportError:
+            return
+        for p in dict.fromkeys((port, 0)):
+            try:
+                self.pendant = start_pendant_server(self.station, self.control, self.host, p)
+                self.pendant_url = self.pendant.url
+                return
+            except OSError:
+                continue
+
+    def close(self) -> None:
+        self._stop.set()
+        self.updater.close()
+        if self._refresher.is_alive():
+            self._refresher.join(timeout=2)
+        if self.pendant is not None:
+            self.pendant.close()
+        self.server.stop()
+
+    def _holder_lost(self) -> None:
+        try:
+            self.station.jog_release()
+        except Exception:  # noqa: BLE001 - nothing was jogging
+            pass
+
+    # --- clients -------------------------------------------------------------------
+
+    def client_address(self, client_id: int) -> Any:
+        """Remote address of a viser client's WebSocket (viser keeps it on the live connection)."""
+        try:
+            return self.server._websock_server._live_connections[client_id].remote_address
+        except Exception:  # noqa: BLE001 - unknown: treat as remote
+            return None
+
+    def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
+        """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
+        if is_local is None:
+            is_local = client is not None and _is_loopback(self.client_address(client.client_id))
+        capp = ClientApp(self, client, client_id=client_id, is_local=is_local)
+        key = client.client_id if client is not None else -len(self.clients) - 1
+        with self._clients_lock:
+            self.clients[key] = capp
+        if client is not None:
+            capp.build()
+        return capp
+
+    def _connect(self, client: Any) -> None:
+        self.add_client(client)
+
+    def _disconnect(self, client: Any) -> None:
+        with self._clients_lock:
+            capp = self.clients.pop(client.client_id, None)
+        if capp is not None:
+            capp.jog_release()
+            self.control.disconnected(capp.client_id)
+
+    def _scene_clicked(self, event: Any) -> None:
+        capp = self.clients.get(event.client_id)
+        if capp is not None:
+            capp.on_scene_click(event.ray_origin, event.ray_direction)
+
+    def _feature_clicked(self, fid: int, client: Any) -> None:
+        capp = self.clients.get(client.client_id) if client is not None else None
+        if capp is not None:
+            capp.select_feature(fid)
+
+    def link_info(self) -> str:
+        st, cfg = self.station, self.station.config
+        bus = st.machine.bus
+        modules = getattr(bus, "modules", None) or []
+        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in modules) or "-"
+        kind = "simulator over TCP" if st.sim is not None else "serial"
+        return (f"port `{st.port}` ({kind}) · {getattr(bus, 'baud', cfg.link.baud)} baud · "
+                f"firmware {cfg.link.firmware}\n\nmodules: {mods}")
+
+    # --- station state -------------------------------------------------------------------
+
+    def _on_station_event(self, kind: str, info: Any) -> None:
+        # runs in the machine's thread: only mark what to redraw
+        if kind in ("hit", "hits"):
+            self._dirty["hits"] = True
+        elif kind in ("feature", "features"):
+            self._dirty["features"] = True
+        elif kind == "part":
+            self._dirty["part"] = True
+        elif kind in ("deadman", "limit", "contact", "error", "estop"):
+            text = {"deadman": "jog stopped: no refresh from the browser (dead-man)",
+                    "limit": f"jog stopped at the end of travel ({info.get('axis', '?') if isinstance(info, dict) else ''})",
+                    "estop": "emergency stop"}.get(kind, str(info.get("message", info) if isinstance(info, dict) else info))
+            for capp in list(self.clients.values()):
+                capp.notify(kind, text, "error" if kind in ("contact", "error", "estop") else "info")
+
+    def deviations(self) -> dict[int, float]:
+        return self._deviations
+
+    def _sample_plot(self, state: Any) -> None:
+        fe = [float("nan") if a.following_error is None else float(a.following_error) for a in state.axes]
+        self._fe.append((time.monotonic() - self._t0, *fe))
+
+    def following_error_series(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        data = np.array(self._fe, dtype=np.float64).reshape(-1, 4)
+        if len(data) < 2:
+            data = np.zeros((2, 4))
+        return data[:, 0], (data[:, 1], data[:, 2], data[:, 3])
+
+    def redraw(self) -> None:
+        """Redraw whatever station events marked dirty (refresher thread; tests may call it)."""
+        if self._dirty["part"]:
+            self._dirty["part"] = False
+            self.view.draw_part()
+            self._dirty["hits"] = True
+        if self._dirty["hits"]:
+            self._dirty["hits"] = False
+            try:
+                self._deviations = self.station.hit_deviations()
+            except Exception:  # noqa: BLE001
+                self._deviations = {}
+            self.view.draw_hits(self._deviations)
+        if self._dirty["features"]:
+            self._dirty["features"] = False
+            self.view.draw_features()
+
+    def _refresh_loop(self) -> None:
+        tick = 0
+        while not self._stop.wait(1.0 / REFRESH_HZ):
+            tick += 1
+            clients = list(self.clients.values())
+            for capp in clients:
+                capp.watch_hold()
+            try:
+                self.redraw()
+            except Exception:  # noqa: BLE001 - keep the UI alive
+                pass
+            if tick % READOUT_EVERY == 0:
+                for capp in clients:
+                    try:
+                        capp.refresh()
+                    except Exception:  # noqa: BLE001 - a closing tab
+                        pass

@@ -1,0 +1,506 @@
+"""One client's GUI: panels built declaratively, short callbacks, state kept outside the widgets.
+
+:class:`ClientApp` holds one browser tab's state (picked point, speed mode,
+the last move status) and exposes every action as a plain method
+(``go_to``, ``jog_hold``, ``pick``, ``probe_here``, ``fit`` ...), so the tests
+drive exactly what a button does without a browser. ``build()`` creates the
+widgets and wires each one to a method; ``refresh()`` copies station state
+into the read-outs a few times a second.
+
+Every action that moves the machine or changes the measurement first asks
+the access :class:`~cmm.ui.access.Control` whether this client holds control
+(a server-side check: hiding buttons is not security). Stop and E-stop are
+open to everyone who can see the machine.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from typing import TYPE_CHECKING, Any, Callable
+
+import numpy as np
+
+from ..machine.status import MotionError
+from ..metrology import fit_criteria
+from ..metrology.features import FitError
+from ..station import FEATURE_KINDS, StationError
+from .scene import SCALE, draw_pick
+
+if TYPE_CHECKING:
+    from .app import StationApp
+
+AXES = ("x", "y", "z")
+SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
+STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
+HOLD_HZ = 20.0  # jog refresh rate while a button is held (dead-man timeout is 0.1 s)
+OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
+
+
+def parse_ids(text: str) -> list[int]:
+    """'1-4, 7 9' -> [1, 2, 3, 4, 7, 9]."""
+    ids: list[int] = []
+    for part in re.split(r"[,\s]+", text.strip()):
+        if not part:
+            continue
+        m = re.fullmatch(r"(\d+)\s*-\s*(\d+)", part)
+        if m:
+            a, b = int(m.group(1)), int(m.group(2))
+            ids.extend(range(min(a, b), max(a, b) + 1))
+        elif part.isdigit():
+            ids.append(int(part))
+        else:
+            raise ValueError(f"'{part}' is not a hit number or a range like 3-7")
+    return ids
+
+
+def _unit(v: Any) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def _angle(u: Any, v: Any) -> float:
+    """Angle between two axes (sign ignored), degrees."""
+    c = abs(float(np.dot(_unit(u), _unit(v))))
+    return math.degrees(math.acos(min(c, 1.0)))
+
+
+def _dist_to_axis(p: Any, point: Any, direction: Any) -> float:
+    d = _unit(direction)
+    r = np.asarray(p, float) - np.asarray(point, float)
+    return float(np.linalg.norm(r - (r @ d) * d))
+
+
+def nominal_deviation(kind: str, geometry: dict[str, Any], nominal: Any) -> dict[str, float]:
+    """Deviations of a fitted feature from a nominal one (mm, degrees); empty when they do not compare."""
+    if nominal is None:
+        return {}
+    g = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in geometry.items()}
+    n, p = nominal.kind, nominal.params
+    out: dict[str, float] = {}
+    if kind == "plane" and n in ("plane", "surface"):
+        out["distance"] = float((g["point"] - p["point"]) @ _unit(p["normal"]))
+        out["angle_deg"] = _angle(g["normal"], p["normal"])
+    elif kind == "sphere" and n == "sphere":
+        out["centre_offset"] = float(np.linalg.norm(g["center"] - p["center"]))
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+    elif kind == "cylinder" and n == "cylinder":
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+        out["axis_offset"] = _dist_to_axis(g["point"], p["point"], p["direction"])
+        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
+    elif kind == "circle" and n == "cylinder":
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+        out["centre_to_axis"] = _dist_to_axis(g["center"], p["point"], p["direction"])
+        out["axis_angle_deg"] = _angle(g["normal"], p["direction"])
+    elif kind == "cone" and n == "cone":
+        out["apex_offset"] = float(np.linalg.norm(g["apex"] - p["apex"]))
+        out["half_angle_dev_deg"] = math.degrees(float(g["half_angle"]) - float(p["half_angle"]))
+        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
+    return out
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4f}"
+    if isinstance(v, list):
+        return "(" + ", ".join(f"{x:.4f}" for x in v) + ")"
+    return str(v)
+
+
+def machine_markdown(station: Any) -> str:
+    st = station.state
+    if st is None:
+        return "*no state yet*"
+    lines = ["| axis | mm | counts | f.err | status |", "|---|---:|---:|---:|---|"]
+    for name, a in zip(AXES, st.axes):
+        fe = "-" if a.following_error is None else str(a.following_error)
+        lines.append(f"| {name.upper()} | {a.mm:.4f} | {a.counts} | {fe} | {', '.join(a.words)} |")
+    flags = [w for w, on in (("moving", st.moving), ("jogging", st.jogging), ("PROBE DEFLECTED", st.probe_triggered))
+             if on]
+    lines.append("")
+    lines.append(f"**{' · '.join(flags) or 'idle'}**")
+    return "\n".join(lines)
+
+
+class ClientApp:
+    """One browser client (or a test standing in for one)."""
+
+    def __init__(self, app: "StationApp", client: Any = None, *, client_id: str | None = None,
+                 is_local: bool = False) -> None:
+        self.app = app
+        self.station = app.station
+        self.control = app.control
+        self.client = client
+        self.client_id = client_id or (f"viser-{client.client_id}" if client is not None else "test")
+        self.is_local = is_local
+        self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
+        self.speed_mode = "probing"
+        self.step_size = "1"
+        self.manual_probe = False
+        self.picked: Any = None  # (PickResult, NominalFeature | None)
+        self.move_status: Any = None
+        self.selected_feature: int | None = None
+        self._jogging = False
+        self._last_hold = 0.0
+        self._last_error = ("", 0.0)
+        self.gui: dict[str, Any] = {}
+        self._shown: dict[str, Any] = {}
+
+    # --- messages -------------------------------------------------------------
+
+    def notify(self, title: str, body: str = "", level: str = "info") -> None:
+        self.messages.append((level, title, body))
+        del self.messages[:-50]
+        if self.client is not None:
+            try:
+                self.client.add_notification(title, body, auto_close_seconds=6.0 if level != "error" else 10.0,
+                                             color="red" if level == "error" else None)
+            except Exception:  # noqa: BLE001 - the tab may have closed
+                pass
+
+    def error(self, exc: BaseException | str, title: str = "Refused") -> None:
+        self.notify(title, str(exc), "error")
+
+    def allowed(self, action: str) -> bool:
+        """The server-side control check every machine- or measurement-changing action makes first."""
+        if self.control.can_move(self.client_id):
+            return True
+        self.error(f"{action}: this browser only observes. Take control first.", "Not in control")
+        return False
+
+    def _run(self, action: str, fn: Callable[[], Any], *, guarded: bool = True) -> Any:
+        if guarded and not self.allowed(action):
+            return None
+        try:
+            return fn()
+        except OPERATOR_ERRORS as exc:
+            self.error(exc, f"{action} refused")
+            return None
+
+    # --- machine ------------------------------------------------------------------
+
+    def stop(self) -> None:
+        self._jogging = False
+        self._run("Stop", self.station.stop, guarded=False)
+
+    def emergency_stop(self) -> None:
+        self._jogging = False
+        self._run("E-stop", self.station.emergency_stop, guarded=False)
+        self.notify("Emergency stop", "Amplifiers off. Press Reset to re-enable the servos.", "error")
+
+    def reset(self) -> None:
+        self._run("Reset", self.station.reset)
+
+    def zero(self) -> None:
+        self._run("Zero", self.station.zero)
+
+    # --- go to -------------------------------------------------------------------
+
+    def go_to(self, x: float, y: float, z: float) -> Any:
+        def go() -> Any:
+            self.move_status = self.station.move_to([float(x), float(y), float(z)])
+            self.move_status.add_callback(self._move_done)
+            return self.move_status
+        return self._run("Go to", go)
+
+    def _move_done(self, status: Any) -> None:
+        err = getattr(status, "error", None)
+        if err is not None and "stopped by the operator" not in str(err):
+            self.error(err, "Move ended")
+
+    def cancel(self) -> None:
+        status = self.move_status
+        if status is not None and not getattr(status, "done", True):
+            self._run("Cancel", status.cancel, guarded=False)
+        else:
+            self.stop()
+
+    # --- jog -------------------------------------------------------------------------
+
+    def jog_velocity(self, axis: int, sign: int) -> np.ndarray:
+        v = np.zeros(3)
+        v[axis] = math.copysign(getattr(self.station.config.speeds, SPEEDS[self.speed_mode]), sign)
+        return v
+
+    def jog_hold(self, axis: int, sign: int) -> None:
+        """Called repeatedly while a jog button is held: refreshes the station's dead-man jog."""
+        if not self.control.can_move(self.client_id):
+            self._throttled_error("Jog", "this browser only observes. Take control first.")
+            return
+        v = self.jog_velocity(axis, sign)
+        try:
+            if self.manual_probe:
+                self.station.jog_probe(v)
+            else:
+                self.station.jog(v)
+        except OPERATOR_ERRORS as exc:
+            self._throttled_error("Jog refused", str(exc))
+            return
+        self._jogging = True
+        self._last_hold = time.monotonic()
+
+    def jog_release(self) -> None:
+        """The button was released (viser's click event fires on release) or the holds stopped coming."""
+        if self._jogging:
+            self._jogging = False
+            try:
+                self.station.jog_release()
+            except OPERATOR_ERRORS as exc:
+                self.error(exc, "Jog release")
+
+    def watch_hold(self, now: float | None = None) -> None:
+        """Release a jog whose hold refreshes stopped (the tab lost the pointer-up)."""
+        now = time.monotonic() if now is None else now
+        if self._jogging and now - self._last_hold > 2.5 / HOLD_HZ:
+            self.jog_release()
+
+    def _throttled_error(self, title: str, body: str) -> None:
+        last, when = self._last_error
+        if body != last or time.monotonic() - when > 2.0:
+            self._last_error = (body, time.monotonic())
+            self.error(body, title)
+
+    def step(self, axis: int, sign: int) -> Any:
+        size = self.step_size
+        mm = 1.0 / self.station.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
+        return self._run("Step", lambda: self.station.step(AXES[axis], math.copysign(mm, sign)))
+
+    def set_manual_probe(self, on: bool) -> None:
+        self.jog_release()
+        self.manual_probe = bool(on)
+
+    # --- pick ------------------------------------------------------------------------
+
+    def pick(self, origin_mm: Any, direction: Any) -> Any:
+        """Ray pick on the part (machine mm). Anyone may pick: it moves nothing."""
+        try:
+            result = self.station.pick(origin_mm, direction)
+        except OPERATOR_ERRORS as exc:
+            self.error(exc, "Pick")
+            return None
+        if result is None:
+            self.notify("Pick", "the ray missed the part")
+            return None
+        self.picked = result
+        hit, nominal = result
+        if self.client is not None:
+            draw_pick(self.client.scene, hit.point, hit.normal)
+        self.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f}".format(*hit.point)
+                    + (f" · {nominal.kind}" if nominal is not None else ""))
+        return result
+
+    def on_scene_click(self, origin_scene: Any, direction: Any) -> Any:
+        return self.pick(np.asarray(origin_scene, float) / SCALE, direction)
+
+    def move_above(self) -> Any:
+        if self.picked is None:
+            self.error("click a point on the part first", "Move above")
+            return None
+        hit = self.picked[0]
+        return self._run("Move above", lambda: self._track(self.station.move_above(hit.point, hit.normal)))
+
+    def probe_here(self) -> Any:
+        if self.picked is None:
+            self.error("click a point on the part first", "Probe here")
+            return None
+        hit = self.picked[0]
+        return self._run("Probe here", lambda: self._track(self.station.probe_here(hit.point, hit.normal)))
+
+    def _track(self, status: Any) -> Any:
+        self.move_status = status
+        status.add_callback(self._move_done)
+        return status
+
+    # --- hits ---------------------------------------------------------------------------
+
+    def delete_hit(self, hid: int) -> None:
+        self._run("Delete hit", lambda: self.station.delete_hit(int(hid)))
+
+    def undo(self) -> None:
+        message = self._run("Undo", self.station.undo)
+        if message:
+            self.notify("Undo", message)
+
+    # --- features --------------------------------------------------------------------------
+
+    def hit_ids_for(self, ids_text: str, last_n: int) -> list[int]:
+        if ids_text.strip():
+            return parse_ids(ids_text)
+        with self.station.lock:
+            ids = sorted(self.station.hits)
+        return ids[-int(last_n):] if last_n > 0 else ids
+
+    def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
+        def do() -> Any:
+            ids = self.hit_ids_for(ids_text, last_n)
+            nominal = self.picked[1] if self.picked is not None else None
+            feature = self.station.fit_feature(kind, ids, method, nominal=nominal)
+            self.selected_feature = feature.id
+            self.app.view.select_feature(feature.id)
+            self.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
+                                  f"from {len(ids)} hits")
+            return feature
+        return self._run("Fit", do)
+
+    def select_feature(self, fid: int) -> None:
+        self.selected_feature = fid
+        self.app.view.select_feature(fid)
+        self.refresh()
+
+    def feature_markdown(self) -> str:
+        fid = self.selected_feature
+        feature = self.station.features.get(fid) if fid is not None else None
+        if feature is None:
+            return "*no feature selected*"
+        s = feature.result.summary()
+        lines = [f"**{feature.name}** ({feature.kind}, {feature.method}, hits {feature.hit_ids})", "",
+                 f"form error: **{s['form'] * 1000:.2f} um**"
+                 + (f" · sigma {s['sigma'] * 1000:.2f} um" if s.get("sigma") is not None else "")]
+        for k, v in feature.result.geometry().items():
+            lines.append(f"- {k}: {_fmt(v)}")
+        dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
+        if dev:
+            lines.append(f"\nvs nominal {feature.nominal.kind}:")
+            lines.extend(f"- {k}: {v:+.4f}" for k, v in dev.items())
+        return "\n".join(lines)
+
+    # --- control ------------------------------------------------------------------------------
+
+    def take_control(self, code: str | None = None) -> bool:
+        ok = self.control.take(self.client_id, code or None, self.is_local)
+        if ok:
+            self.notify("Control", "you control the machine")
+        else:
+            self.error("wrong or missing access code" if not self.is_local else "refused", "Take control")
+        return ok
+
+    def release_control(self) -> None:
+        self.jog_release()
+        self.control.release(self.client_id)
+
+    def control_text(self) -> str:
+        holder = self.control.holder
+        if holder == self.client_id:
+            return "**You control the machine.**"
+        if holder is None:
+            return "Nobody controls the machine. You observe."
+        return f"Observing; control is held by `{holder}`."
+
+    # --- GUI ---------------------------------------------------------------------------------------
+
+    def build(self) -> None:
+        """Create this client's widgets. Callbacks only call the methods above."""
+        gui = self.client.gui
+        cfg = self.station.config
+        g = self.gui
+        with gui.add_folder("Control"):
+            g["control"] = gui.add_markdown(self.control_text())
+            g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
+            take = gui.add_button("Take control", color="green")
+            take.on_click(lambda _: self.take_control(g["code"].value))
+            gui.add_button("Release").on_click(lambda _: self.release_control())
+            if self.app.pendant_url:
+                gui.add_html(f'<iframe src="{self.app.pendant_url}" style="width:100%;height:220px;border:0" '
+                             'title="pendant"></iframe>')
+        with gui.add_folder("Safety"):
+            gui.add_button("STOP", color="orange").on_click(lambda _: self.stop())
+            gui.add_button("E-STOP", color="red").on_click(lambda _: self.emergency_stop())
+        tabs = gui.add_tab_group()
+        with tabs.add_tab("Machine"):
+            info = self.app.link_info()
+            gui.add_markdown(info)
+            g["machine"] = gui.add_markdown(machine_markdown(self.station))
+            gui.add_button("Zero").on_click(lambda _: self.zero())
+            gui.add_button("Reset").on_click(lambda _: self.reset())
+        with tabs.add_tab("Jog"):
+            speed = gui.add_button_group("Speed", tuple(SPEEDS))
+            speed.value = self.speed_mode
+            speed.on_click(lambda e: setattr(self, "speed_mode", e.target.value))
+            manual = gui.add_checkbox("Manual probing (armed jog)", False)
+            manual.on_update(lambda e: self.set_manual_probe(e.target.value))
+            for i, name in enumerate(AXES):
+                for sign, label in ((-1, f"{name.upper()} −"), (1, f"{name.upper()} +")):
+                    b = gui.add_button(f"hold {label}")
+                    b.on_hold(lambda _e, i=i, s=sign: self.jog_hold(i, s), callback_hz=HOLD_HZ)
+                    b.on_click(lambda _e: self.jog_release())
+            size = gui.add_dropdown("Step (mm)", STEP_SIZES, initial_value=self.step_size)
+            size.on_update(lambda e: setattr(self, "step_size", e.target.value))
+            for i, name in enumerate(AXES):
+                gui.add_button_group(f"Step {name.upper()}", ("−", "+")).on_click(
+                    lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
+        with tabs.add_tab("Go to"):
+            pos = self.station.state.position if self.station.state is not None else np.zeros(3)
+            g["target"] = gui.add_vector3("Target (mm)", tuple(float(v) for v in pos), step=0.001)
+            gui.add_button("Go").on_click(lambda _: self.go_to(*g["target"].value))
+            gui.add_button("Cancel").on_click(lambda _: self.cancel())
+            g["pick"] = gui.add_markdown("Click the part to pick a point.")
+            gui.add_button("Move above").on_click(lambda _: self.move_above())
+            gui.add_button("Probe here").on_click(lambda _: self.probe_here())
+        with tabs.add_tab("Probe"):
+            settings = self.station.prober.settings
+            gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
+                             f"{settings.pretravel.describe()}")
+            g["contact"] = gui.add_markdown("*no hit yet*")
+            g["hits"] = gui.add_markdown("")
+            g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
+            gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
+            gui.add_button("Undo").on_click(lambda _: self.undo())
+        with tabs.add_tab("Features"):
+            kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
+            method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
+            kind.on_update(lambda e: setattr(method, "options", fit_criteria.methods_for(e.target.value)))
+            ids = gui.add_text("Hit ids", "", hint="e.g. 1-4, 7; empty = the last N hits")
+            last_n = gui.add_number("Last N hits", 4, min=0, step=1)
+            gui.add_button("Fit").on_click(lambda _: self.fit(kind.value, method.value, ids.value, int(last_n.value)))
+            g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
+            g["features"].on_update(lambda e: self._feature_chosen(e.target.value))
+            g["feature"] = gui.add_markdown(self.feature_markdown())
+        with tabs.add_tab("Diagnostics"):
+            g["trace"] = gui.add_text("NMC bytes (Tx/Rx)", "", multiline=True, disabled=True)
+            t, fe = self.app.following_error_series()
+            g["plot"] = gui.add_uplot(
+                (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
+                           {"label": "Z", "stroke": "blue"}),
+                title="following error (counts)", aspect=1.6)
+
+    def _feature_chosen(self, value: str) -> None:
+        m = re.match(r"(\d+)", value)
+        if m:
+            self.select_feature(int(m.group(1)))
+
+    def refresh(self) -> None:
+        """Copy station state into this client's read-outs (only what changed)."""
+        if not self.gui:
+            return
+        st = self.station
+        self._set("control", "content", self.control_text())
+        self._set("machine", "content", machine_markdown(st))
+        hit = st.last_hit
+        if hit is not None:
+            self._set("contact", "content",
+                      "last trigger (tip centre): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
+                      + "contact point: X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
+        with st.lock:
+            hits = sorted(st.hits.items())
+            features = sorted(st.features.items())
+        devs = self.app.deviations()
+        rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
+                f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]
+        self._set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
+        options = tuple(f"{fid} {f.name}" for fid, f in features) or ("-",)
+        self._set("features", "options", options)
+        self._set("feature", "content", self.feature_markdown())
+        if self.picked is not None:
+            p, nominal = self.picked
+            self._set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
+                *p.point, *p.normal) + (f"; nominal {nominal.kind}" if nominal is not None else ""))
+        self._set("trace", "value", st.trace.dump(last=30))
+        t, fe = self.app.following_error_series()
+        if "plot" in self.gui and len(t) > 1:
+            self.gui["plot"].data = (t, *fe)
+
+    def _set(self, key: str, attr: str, value: Any) -> None:
+        if key in self.gui and self._shown.get(key) != value:
+            self._shown[key] = value
+            setattr(self.gui[key], attr, value)

@@ -1,0 +1,367 @@
+"""The 3D scene of the browser station: machine, part, live probe, hits and fitted features.
+
+Units: the machine speaks millimetres; the scene is drawn in metres
+(``SCALE``) so viser's default camera and clipping suit a 0.5 m machine.
+Anything that needs micrometre resolution is drawn as float32 offsets in a
+local frame (``/local``) near the part, or as node positions (float64 on the
+wire), so a 1-count (2 um) move is never quantised the way a float16 point
+cloud in machine coordinates would be.
+
+One :class:`SceneView` draws into the shared ``server.scene`` (every client
+sees the same scene); the live probe is pushed by :class:`ProbeUpdater`, a
+throttled thread that reads the station's latest state at a fixed rate
+rather than forwarding every machine sample.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any, Callable
+
+import numpy as np
+import trimesh
+
+SCALE = 0.001  # scene units per millimetre (the scene is in metres)
+PROBE_HZ = 50.0
+STYLUS_LENGTH = 40.0  # mm, drawn above the tip centre
+DEFAULT_TOLERANCE = 0.01  # mm, the green band of the deviation colour map
+ARROW_LENGTH = 4.0  # mm, approach arrows drawn before each hit
+
+GREEN = np.array([40, 190, 70])
+BLUE = np.array([40, 90, 230])
+RED = np.array([220, 40, 40])
+
+
+def deviation_colour(deviation: float, tolerance: float = DEFAULT_TOLERANCE) -> tuple[int, int, int]:
+    """Blue (material missing) - green (within +-tolerance) - red (material outside nominal).
+
+    Inside the band the colour stays green; beyond it it blends to pure
+    blue/red at twice the tolerance. NaN gives grey.
+    """
+    if not math.isfinite(deviation):
+        return (150, 150, 150)
+    tol = max(float(tolerance), 1e-12)
+    if abs(deviation) <= tol:
+        return tuple(int(c) for c in GREEN)  # type: ignore[return-value]
+    t = min((abs(deviation) - tol) / tol, 1.0)
+    end = RED if deviation > 0 else BLUE
+    return tuple(int(round(c)) for c in (1 - t) * GREEN + t * end)  # type: ignore[return-value]
+
+
+def quat_from_matrix(R: np.ndarray) -> tuple[float, float, float, float]:
+    """Rotation matrix -> (w, x, y, z)."""
+    q = trimesh.transformations.quaternion_from_matrix(np.asarray(R, float))
+    return tuple(float(v) for v in q)  # type: ignore[return-value]
+
+
+def _frame_for_axis(direction: np.ndarray) -> np.ndarray:
+    """A 4x4 rotation taking +Z to ``direction``."""
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    return trimesh.geometry.align_vectors([0.0, 0.0, 1.0], d)
+
+
+def _extent_along(points: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> tuple[float, float]:
+    if len(points) == 0:
+        return -5.0, 5.0
+    t = (np.asarray(points) - origin) @ direction
+    lo, hi = float(t.min()), float(t.max())
+    if hi - lo < 2.0:
+        mid = (lo + hi) / 2
+        lo, hi = mid - 1.0, mid + 1.0
+    return lo, hi
+
+
+def feature_mesh(kind: str, geometry: dict[str, Any], points: np.ndarray) -> trimesh.Trimesh | None:
+    """A display mesh (machine mm) for a fitted feature; ``points`` are its hits, to size it."""
+    g = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in geometry.items()}
+    pts = np.asarray(points, float).reshape(-1, 3)
+    if kind == "plane":
+        n = g["normal"] / np.linalg.norm(g["normal"])
+        T = _frame_for_axis(n)
+        u, v = T[:3, 0], T[:3, 1]
+        c = g["point"]
+        rel = pts - c if len(pts) else np.zeros((1, 3))
+        half = max(float(np.max(np.abs(np.c_[rel @ u, rel @ v]))) + 3.0, 5.0)
+        corners = np.array([c + half * (su * u + sv * v) for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        return trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], process=False)
+    if kind == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=3, radius=float(g["radius"]))
+        m.apply_translation(g["center"])
+        return m
+    if kind == "circle":
+        n = g["normal"] / np.linalg.norm(g["normal"])
+        r = float(g["radius"])
+        m = trimesh.creation.annulus(r_min=max(r - 0.15, 0.0), r_max=r + 0.15, height=0.3, sections=96)
+        T = _frame_for_axis(n)
+        T[:3, 3] = g["center"]
+        m.apply_transform(T)
+        return m
+    if kind == "cylinder":
+        d = g["direction"] / np.linalg.norm(g["direction"])
+        lo, hi = _extent_along(pts, g["point"], d)
+        return trimesh.creation.cylinder(radius=float(g["radius"]), segment=[g["point"] + lo * d, g["point"] + hi * d],
+                                         sections=64)
+    if kind == "cone":
+        d = g["direction"] / np.linalg.norm(g["direction"])
+        _, hi = _extent_along(pts, g["apex"], d)
+        height = max(hi, 2.0)
+        radius = height * math.tan(float(g["half_angle"]))
+        m = trimesh.creation.cone(radius=radius, height=height, sections=64)
+        # trimesh's cone has its base at z=0 and apex at +z: flip so the apex sits at the origin
+        m.apply_transform(trimesh.transformations.translation_matrix([0, 0, -height]))
+        m.apply_transform(trimesh.transformations.rotation_matrix(math.pi, [1, 0, 0]))
+        T = _frame_for_axis(d)
+        T[:3, 3] = g["apex"]
+        m.apply_transform(T)
+        return m
+    if kind in ("point", "line"):
+        if kind == "point":
+            m = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
+            m.apply_translation(g["point"])
+            return m
+        d = g["direction"] / np.linalg.norm(g["direction"])
+        lo, hi = _extent_along(pts, g["point"], d)
+        return trimesh.creation.cylinder(radius=0.2, segment=[g["point"] + lo * d, g["point"] + hi * d], sections=12)
+    return None
+
+
+FEATURE_COLOURS = {"plane": (240, 180, 40), "circle": (250, 120, 20), "sphere": (170, 90, 230),
+                   "cylinder": (40, 180, 200), "cone": (230, 90, 160), "point": (250, 250, 250),
+                   "line": (250, 250, 250)}
+
+
+class SceneView:
+    """Draws the station into a viser scene (``server.scene``)."""
+
+    def __init__(self, scene: Any, station: Any, *, tolerance: float = DEFAULT_TOLERANCE,
+                 on_feature_click: Callable[[int, Any], None] | None = None) -> None:
+        self.scene = scene
+        self.station = station
+        self.tolerance = tolerance
+        self.on_feature_click = on_feature_click
+        self.origin_mm = np.zeros(3)  # the local frame's origin (near the part), machine mm
+        self.probe = None
+        self._feature_nodes: dict[int, Any] = {}
+        self.selected: int | None = None
+        self._lock = threading.Lock()
+
+    # --- coordinates --------------------------------------------------------
+
+    def local(self, points_mm: Any) -> np.ndarray:
+        """Machine mm -> float32 metres in the local frame near the part."""
+        return ((np.asarray(points_mm, float) - self.origin_mm) * SCALE).astype(np.float32)
+
+    @staticmethod
+    def to_mm(scene_xyz: Any) -> np.ndarray:
+        """Scene (world, metres) -> machine mm; for pick rays."""
+        return np.asarray(scene_xyz, float) / SCALE
+
+    # --- building -------------------------------------------------------------
+
+    def build(self) -> None:
+        st, cfg = self.station, self.station.config
+        lo = np.array([a.min for a in cfg.axes])
+        hi = np.array([a.max for a in cfg.axes])
+        self.scene.set_up_direction("+z")
+        self.scene.add_box("/machine/envelope", color=(120, 120, 120), dimensions=tuple((hi - lo) * SCALE),
+                           wireframe=True, position=tuple((lo + hi) / 2 * SCALE))
+        table_z = lo[2] - 5.0
+        self.scene.add_box("/machine/table", color=(70, 70, 78), dimensions=(
+            (hi[0] - lo[0] + 100) * SCALE, (hi[1] - lo[1] + 100) * SCALE, 10 * SCALE),
+            position=(float((lo[0] + hi[0]) / 2 * SCALE), float((lo[1] + hi[1]) / 2 * SCALE), table_z * SCALE),
+            receive_shadow=True, cast_shadow=False)
+        self.draw_part()
+        start = st.state.position if st.state is not None else (lo + hi) / 2
+        self.probe = self.scene.add_frame("/probe", show_axes=False, position=tuple(np.asarray(start) * SCALE))
+        r = float(st.prober.settings.tip_radius)
+        self.scene.add_icosphere("/probe/tip", radius=r * SCALE, color=(230, 30, 30), subdivisions=3)
+        stylus = trimesh.creation.cylinder(radius=max(r * 0.4, 0.2), segment=[[0, 0, r * 0.8], [0, 0, STYLUS_LENGTH]],
+                                           sections=24)
+        self.scene.add_mesh_simple("/probe/stylus", (stylus.vertices * SCALE).astype(np.float32), stylus.faces,
+                                   color=(200, 200, 210))
+        body = trimesh.creation.cylinder(radius=8.0, segment=[[0, 0, STYLUS_LENGTH], [0, 0, STYLUS_LENGTH + 30]])
+        self.scene.add_mesh_simple("/probe/body", (body.vertices * SCALE).astype(np.float32), body.faces,
+                                   color=(60, 60, 70))
+        self.draw_hits()
+        self.draw_features()
+
+    def draw_part(self) -> None:
+        part = self.station.part
+        if part is None:
+            self.scene.add_frame("/local", show_axes=False)
+            return
+        pose = np.asarray(part.pose, float)
+        self.origin_mm = np.round(pose[:3, 3])
+        self.scene.add_frame("/local", show_axes=False, position=tuple(self.origin_mm * SCALE))
+        self.scene.add_mesh_simple("/part", (np.asarray(part.mesh.vertices) * SCALE).astype(np.float32),
+                                   np.asarray(part.mesh.faces, np.uint32), color=(150, 170, 190),
+                                   wxyz=quat_from_matrix(pose[:3, :3]), position=tuple(pose[:3, 3] * SCALE),
+                                   flat_shading=False, opacity=0.85)
+
+    # --- live probe -------------------------------------------------------------
+
+    def set_probe(self, position_mm: Any) -> None:
+        """Move the probe node (float64 position on the wire: no quantisation)."""
+        if self.probe is not None:
+            self.probe.position = tuple(float(v) * SCALE for v in position_mm)
+
+    # --- hits ---------------------------------------------------------------------
+
+    def hit_colours(self, ids: list[int], deviations: dict[int, float]) -> np.ndarray:
+        return np.array([deviation_colour(deviations.get(h, float("nan")), self.tolerance) for h in ids],
+                        dtype=np.uint8).reshape(-1, 3)
+
+    def draw_hits(self, deviations: dict[int, float] | None = None) -> None:
+        st = self.station
+        with st.lock:
+            hits = dict(st.hits)
+        with self._lock:
+            if not hits:
+                self.scene.add_frame("/local/hits", show_axes=False)  # replaces the previous hits with nothing
+                return
+            ids = sorted(hits)
+            if deviations is None:
+                try:
+                    deviations = st.hit_deviations()
+                except Exception:  # noqa: BLE001 - colour is a help, not a requirement
+                    deviations = {}
+            points = np.array([hits[h].point for h in ids])
+            approach = np.array([hits[h].approach for h in ids])
+            colours = self.hit_colours(ids, deviations)
+            self.scene.add_frame("/local/hits", show_axes=False)
+            sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.35 * SCALE)
+            self.scene.add_batched_meshes_simple(
+                "/local/hits/points", sphere.vertices.astype(np.float32), sphere.faces,
+                batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (len(ids), 1)), batched_positions=self.local(points),
+                batched_colors=colours, lod="off")
+            segs = np.stack([self.local(points - ARROW_LENGTH * approach), self.local(points)], axis=1)
+            self.scene.add_line_segments("/local/hits/approach", segs,
+                                         np.repeat(colours[:, None, :], 2, axis=1), thickness=2.0,
+                                         thickness_units="screen")
+
+    # --- features -----------------------------------------------------------------
+
+    def draw_features(self) -> None:
+        st = self.station
+        with st.lock:
+            features = dict(st.features)
+            hits = dict(st.hits) | dict(st.deleted)
+        with self._lock:
+            for fid in list(self._feature_nodes):
+                if fid not in features:
+                    self._feature_nodes.pop(fid).remove()
+            for fid, feature in features.items():
+                if fid in self._feature_nodes:
+                    continue
+                pts = np.array([hits[h].point for h in feature.hit_ids if h in hits]).reshape(-1, 3)
+                mesh = feature_mesh(feature.kind, feature.result.geometry(), pts)
+                if mesh is None:
+                    continue
+                node = self.scene.add_mesh_simple(
+                    f"/local/features/f{fid}", self.local(mesh.vertices), np.asarray(mesh.faces, np.uint32),
+                    color=FEATURE_COLOURS.get(feature.kind, (200, 200, 200)), opacity=0.55, side="double",
+                    cast_shadow=False)
+                if self.on_feature_click is not None:
+                    node.on_click(lambda event, fid=fid: self.on_feature_click(fid, event.client))  # type: ignore[misc]
+                self._feature_nodes[fid] = node
+            self._highlight()
+
+    def select_feature(self, fid: int | None) -> None:
+        with self._lock:
+            self.selected = fid
+            self._highlight()
+
+    def _highlight(self) -> None:
+        for fid, node in self._feature_nodes.items():
+            node.opacity = 0.9 if fid == self.selected else 0.55
+
+    # --- station events ------------------------------------------------------------
+
+    def on_station_event(self, kind: str, info: Any) -> None:
+        if kind in ("hit", "hits"):
+            self.draw_hits()
+        elif kind in ("feature", "features"):
+            self.draw_features()
+        elif kind == "part":
+            self.draw_part()
+            self.draw_hits()
+
+
+def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") -> None:
+    """A marker and a normal arrow at a picked point (client scene, absolute position)."""
+    p = np.asarray(point_mm, float)
+    n = np.asarray(normal_mm, float)
+    n = n / np.linalg.norm(n)
+    scene.add_icosphere(f"{name}/point", radius=0.8 * SCALE, color=(255, 230, 0), position=tuple(p * SCALE))
+    seg = np.array([[[0, 0, 0], n * 12.0 * SCALE]], dtype=np.float32)
+    scene.add_line_segments(f"{name}/normal", seg, (255, 230, 0), thickness=3.0, thickness_units="screen",
+                            position=tuple(p * SCALE))
+    head = trimesh.creation.cone(radius=1.2, height=3.0, sections=16)
+    T = _frame_for_axis(n)
+    T[:3, 3] = n * 12.0
+    head.apply_transform(T)
+    scene.add_mesh_simple(f"{name}/head", (head.vertices * SCALE).astype(np.float32), head.faces,
+                          color=(255, 230, 0), position=tuple(p * SCALE))
+
+
+class ProbeUpdater:
+    """Push the probe position to the scene at a fixed rate (default 50 Hz) from the latest state.
+
+    It is throttled: the machine samples ~100 times a second per axis set,
+    but the scene gets at most ``hz`` updates, and only when the probe moved.
+    """
+
+    def __init__(self, station: Any, view: SceneView, hz: float = PROBE_HZ,
+                 extra: Callable[[Any], None] | None = None) -> None:
+        self.station = station
+        self.view = view
+        self.period = 1.0 / hz
+        self.extra = extra
+        self.pushes = 0
+        self.ticks = 0
+        self._last: np.ndarray | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="scene-probe", daemon=True)
+
+    def start(self) -> "ProbeUpdater":
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+
+    def step(self) -> bool:
+        """One tick: push the probe if it moved. Returns True when it pushed."""
+        state = self.station.state
+        self.ticks += 1
+        if state is None:
+            return False
+        pos = state.position
+        pushed = False
+        if self._last is None or np.any(pos != self._last):
+            self.view.set_probe(pos)
+            self._last = pos
+            self.pushes += 1
+            pushed = True
+        if self.extra is not None:
+            self.extra(state)
+        return pushed
+
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self.step()
+            except Exception:  # noqa: BLE001 - a disconnected client must not end the live view
+                pass
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay < 0:
+                next_t = time.monotonic()
+                delay = 0
+            self._stop.wait(delay)

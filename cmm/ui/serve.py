@@ -1,0 +1,86 @@
+"""`cmm serve`: start the station and serve the browser UI (viser) and the pendant page.
+
+With no arguments the simulated CMM is served over TCP on loopback and the
+driver talks to it through that byte stream; ``--serial`` drives real
+hardware through any pyserial URL with the same UI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--serial", metavar="URL", default=None,
+                        help="pyserial URL of the NMC network (/dev/ttyUSB0, COM3, socket://host:port); "
+                             "default: the built-in simulator")
+    parser.add_argument("--baud", type=int, default=None, help="baud rate after start-up (19200, 57600, 115200)")
+    parser.add_argument("--http-port", type=int, default=8080, help="port of the browser station (default 8080)")
+    parser.add_argument("--pendant-port", type=int, default=None,
+                        help="port of the pendant page (default: the HTTP port + 1)")
+    parser.add_argument("--part", metavar="FILE", default=None, help="part mesh (STL, OBJ, PLY, ...)")
+    parser.add_argument("--config", metavar="FILE", default=None, help="machine configuration TOML")
+    parser.add_argument("--lan", action="store_true",
+                        help="listen on every interface (0.0.0.0) and print an access code for remote operators")
+    parser.add_argument("--sessions", metavar="DIR", default="sessions", help="where session journals go")
+    parser.add_argument("--tolerance", type=float, default=0.01,
+                        help="deviation colour band of the hits, mm (default 0.01)")
+
+
+def _fail(message: str) -> int:
+    print(f"cmm serve: {message}", file=sys.stderr)
+    return 2
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..machine.config import ConfigError, load
+    from ..metrology.mesh import MeshError
+    from ..station import Station
+
+    try:
+        config = load(args.config) if args.config else None
+    except (ConfigError, OSError) as exc:
+        return _fail(f"cannot use the machine configuration: {exc}")
+    try:
+        station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
+                          session_dir=args.sessions)
+    except MeshError as exc:
+        return _fail(f"cannot load the part: {exc}")
+    except ConfigError as exc:
+        return _fail(f"bad machine configuration: {exc}")
+    except Exception as exc:  # noqa: BLE001 - serial errors come in many types; say what happened in one line
+        where = args.serial or "the simulator"
+        return _fail(f"cannot open {where}: {exc}")
+    try:
+        station.start()
+    except Exception as exc:  # noqa: BLE001
+        station.close()
+        return _fail(f"the machine did not answer on {station.port}: {exc}")
+
+    from .app import StationApp
+
+    host = "0.0.0.0" if args.lan else "127.0.0.1"
+    try:
+        app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
+                         pendant_port=args.pendant_port, tolerance=args.tolerance)
+    except Exception as exc:  # noqa: BLE001
+        station.close()
+        return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
+    print(f"CMM station on {station.port}; session journal {station.journal.path if station.journal else '-'}")
+    print(f"Open {app.url} in a browser")
+    if app.pendant_url:
+        print(f"Pendant page: {app.pendant_url}")
+    if app.control.access_code:
+        print(f"Access code for remote operators: {app.control.access_code}")
+    print("Press Ctrl-C to stop.")
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        print("\nstopping...")
+    finally:
+        app.close()
+        station.close()
+    return 0
