@@ -27,7 +27,7 @@ def test_shipped_default_loads_and_converts_units():
         ("max = 400.0", "max = -1.0", r"travel min 0.0 must be below max -1.0"),
         ('input = "limit1"', 'input = "index"', r"probe.input\] must be limit1 or limit2"),
         ("baud = 115200", "baud = 38400", r"38400 is not available"),
-        ("kp = 1800", "kp = 40000", r"gain KP must be 0..32767"),
+        ("kp = 4000", "kp = 40000", r"gain KP must be 0..32767"),
         ("address = 2", "address = 1", r"each axis needs its own module address"),
         ("stop = 1000.0", "stop = 100.0", r"must stop within 0.2 s"),
         ("probing = 2.0", "probing = nan", r"speeds.probing\] must be a number"),
@@ -53,4 +53,4 @@ def test_missing_axis_unreadable_and_broken_files(tmp_path):
 def test_per_axis_gain_override(tmp_path):
     text = cfg.default_text().replace("home = 300.0", "home = 300.0\n[axes.z.gains]\nkp = 250")
     m = cfg.load(write(tmp_path, text))
-    assert m.axis("z").gains.kp == 250 and m.axis("x").gains.kp == 1800
+    assert m.axis("z").gains.kp == 250 and m.axis("x").gains.kp == 4000
