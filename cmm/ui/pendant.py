@@ -1,0 +1,410 @@
+"""The jog pendant server: web/pendant.html + pendant.js over HTTP and a JSON WebSocket, on one port.
+
+One small asyncio loop in a background thread (the ``websockets`` library's
+``process_request`` hook serves the two static files; ``/ws`` is the
+WebSocket). Every station call runs on one worker thread, in arrival order, so
+the event loop never waits on the serial bus and a release can never overtake
+the jog it ends.
+
+Protocol (JSON text messages)
+-----------------------------
+client -> server
+
+- ``{"type": "hello"}``: the server answers ``{"type": "hello", "client": id,
+  "local": bool, "code_required": bool, "speeds": {"jog_fast", "jog_slow",
+  "jog_fine"}, "deadman_ms": 200, "state_hz": 20}``. The connection stays an
+  observer. ``hello`` with a ``"code"`` member (``null`` from a local
+  pendant) also asks for control, exactly like ``take``.
+- ``{"type": "take", "code": "..."}``: take control (:class:`~cmm.ui.access.Control`
+  rules: local clients need no code, remote clients need the LAN access code).
+  Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
+- ``{"type": "observe"}``: give control back (any jog of this pendant is ended).
+- ``{"type": "jog", "v": [vx, vy, vz]}``: velocity jog in mm/s, each component
+  clamped to ``speeds.jog_fast``; all zeros is a release. Only the control
+  holder may jog; it must repeat the message (every 50 ms) while the jog lasts.
+- ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
+- ``{"type": "stop"}``: controlled stop of whatever the machine is doing. Any
+  *authenticated* pendant may press it, holder or not: a local one, or one
+  that has given the right access code on this connection. An anonymous LAN
+  observer may not (it could otherwise disturb a measurement it cannot see).
+
+server -> client
+
+- ``{"type": "state", "pos": [x, y, z], "vel": [...], "moving": bool,
+  "jogging": bool, "probe": bool, "control": bool, "holder": "you" | "other" | null}``
+  at ``state_hz`` (20 Hz).
+- ``{"type": "error", "message": "..."}`` in an operator's words.
+
+Dead-man
+--------
+While a pendant jogs, a message must arrive at least every ``deadman`` s
+(0.2 s) or the server releases the jog; a closed connection releases it at
+once. The machine's own dead-man (``config.deadman_timeout``, 0.1 s without
+a jog refresh) applies underneath, so a pendant that goes quiet stops within
+0.1 s plus the deceleration whatever happens to the network.
+
+Security
+--------
+A WebSocket handshake whose ``Origin`` is not this server's own origin is
+refused (another web page open in the operator's browser must not drive the
+machine), and a connection counts as *local* only when it comes from a
+loopback address *and* names a loopback host (``localhost``, ``127.x``,
+``[::1]``) in its ``Host`` header, which defeats DNS-rebinding pages.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import ipaddress
+import itertools
+import json
+import math
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from http import HTTPStatus
+from pathlib import Path
+from typing import Any, Callable
+
+from websockets.asyncio.server import ServerConnection, serve
+from websockets.datastructures import Headers
+from websockets.exceptions import ConnectionClosed
+from websockets.http11 import Request, Response
+
+from .access import Control
+
+DEADMAN = 0.2  # s without any message from a jogging pendant before the server releases its jog
+STATE_HZ = 20.0
+WRONG_CODE_DELAY = 0.5  # s before answering a refused take (slows down guessing)
+ERROR_INTERVAL = 0.5  # s between repeated errors for refused jogs
+
+STATIC = {
+    "/": ("pendant.html", "text/html; charset=utf-8"),
+    "/pendant.html": ("pendant.html", "text/html; charset=utf-8"),
+    "/pendant.js": ("pendant.js", "text/javascript; charset=utf-8"),
+}
+
+
+def web_dir() -> Path:
+    """Where pendant.html lives: $CMM_WEB_DIR, the repository's web/ (source checkout, editable
+    install), or <prefix>/share/cmm/web (wheel install with the data-files entry)."""
+    candidates = []
+    if os.environ.get("CMM_WEB_DIR"):
+        candidates.append(Path(os.environ["CMM_WEB_DIR"]))
+    candidates.append(Path(__file__).resolve().parents[2] / "web")
+    candidates.append(Path(sys.prefix) / "share" / "cmm" / "web")
+    for c in candidates:
+        if (c / "pendant.html").is_file():
+            return c
+    raise FileNotFoundError("the pendant page web/pendant.html was not found in " + ", ".join(map(str, candidates)))
+
+
+def _is_loopback_host(host_header: str) -> bool:
+    host = host_header.strip()
+    if host.startswith("["):
+        host = host[1:host.find("]")] if "]" in host else host[1:]
+    elif host.count(":") == 1:
+        host = host.split(":", 1)[0]
+    host = host.lower().rstrip(".")
+    if host == "localhost" or host.endswith(".localhost"):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def _is_loopback_peer(address: Any) -> bool:
+    try:
+        return ipaddress.ip_address(address[0]).is_loopback
+    except (TypeError, ValueError, IndexError):
+        return False
+
+
+@dataclass(eq=False)
+class _Session:
+    ws: ServerConnection
+    client_id: str
+    local: bool
+    authenticated: bool = False  # local, or gave the right code on this connection
+    jogging: bool = False
+    last_message: float = 0.0
+    last_error: float = 0.0
+
+
+class PendantServer:
+    """Handle returned by :func:`start_pendant_server`: ``url``, ``ws_url``, ``port``, ``close()``."""
+
+    def __init__(self, station: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
+                 deadman: float = DEADMAN, state_hz: float = STATE_HZ, static_dir: Path | None = None) -> None:
+        self.station = station
+        self.control = control
+        self.host = host
+        self.deadman = deadman
+        self.state_hz = state_hz
+        root = static_dir or web_dir()
+        self._files = {path: ((root / name).read_bytes(), ctype) for path, (name, ctype) in STATIC.items()}
+        self._ids = itertools.count(1)
+        self._sessions: set[_Session] = set()
+        self._worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="pendant-station")
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self.port = 0
+        self.errors: list[str] = []  # station calls that failed unexpectedly
+        self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(10):
+            raise RuntimeError("the pendant server did not start within 10 s")
+        if self._error is not None:
+            raise self._error
+
+    # --- addresses ------------------------------------------------------------
+
+    @property
+    def _url_host(self) -> str:
+        host = self.host
+        if host in ("", "0.0.0.0", "::"):
+            host = "127.0.0.1"  # a wildcard bind is reachable locally through loopback
+        return f"[{host}]" if ":" in host else host
+
+    @property
+    def url(self) -> str:
+        return f"http://{self._url_host}:{self.port}/"
+
+    @property
+    def ws_url(self) -> str:
+        return f"ws://{self._url_host}:{self.port}/ws"
+
+    # --- life cycle ----------------------------------------------------------
+
+    def _run_thread(self, port: int) -> None:
+        try:
+            asyncio.run(self._main(port))
+        except BaseException as exc:  # noqa: BLE001 - reported to the starting thread
+            self._error = exc
+            self._ready.set()
+
+    async def _main(self, port: int) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stop = asyncio.Event()
+        async with serve(self._handler, self.host, port, process_request=self._process_request,
+                         ping_interval=5, ping_timeout=5, max_size=4096, compression=None) as server:
+            self.port = next(iter(server.sockets)).getsockname()[1]
+            self._ready.set()
+            await self._stop.wait()
+            # the connections' finally blocks release their jogs while the server closes them
+
+    def close(self) -> None:
+        if self._loop is not None and self._stop is not None and self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(5)
+        self._worker.shutdown(wait=True)
+
+    def __enter__(self) -> "PendantServer":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # --- HTTP -----------------------------------------------------------------
+
+    def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
+        path = request.path.split("?", 1)[0]
+        if path == "/ws":
+            origin = request.headers.get("Origin")
+            host = request.headers.get("Host", "")
+            if origin is not None and origin not in (f"http://{host}", f"https://{host}"):
+                return connection.respond(HTTPStatus.FORBIDDEN, "pendant connections from other web pages are refused\n")
+            return None
+        if path in self._files:
+            body, ctype = self._files[path]
+            headers = Headers([("Date", time.strftime("%a, %d %b %Y %H:%M:%S GMT", time.gmtime())),
+                               ("Connection", "close"), ("Content-Length", str(len(body))),
+                               ("Content-Type", ctype), ("Cache-Control", "no-store"),
+                               ("X-Content-Type-Options", "nosniff")])
+            return Response(200, "OK", headers, body)
+        return connection.respond(HTTPStatus.NOT_FOUND, "not found\n")
+
+    # --- WebSocket -------------------------------------------------------------
+
+    async def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
+        assert self._loop is not None
+        return await self._loop.run_in_executor(self._worker, fn, *args)
+
+    async def _send(self, session: _Session, message: dict) -> None:
+        try:
+            await session.ws.send(json.dumps(message))
+        except ConnectionClosed:
+            pass
+
+    async def _error_msg(self, session: _Session, message: str, *, throttle: bool = False) -> None:
+        now = time.monotonic()
+        if throttle and now - session.last_error < ERROR_INTERVAL:
+            return
+        session.last_error = now
+        await self._send(session, {"type": "error", "message": message})
+
+    async def _handler(self, ws: ServerConnection) -> None:
+        host = ws.request.headers.get("Host", "") if ws.request is not None else ""
+        local = _is_loopback_peer(ws.remote_address) and _is_loopback_host(host)
+        session = _Session(ws, f"pendant-{next(self._ids)}", local, authenticated=local,
+                           last_message=time.monotonic())
+        self._sessions.add(session)
+        tasks = [asyncio.create_task(self._send_states(session)), asyncio.create_task(self._watch(session))]
+        try:
+            async for raw in ws:
+                session.last_message = time.monotonic()
+                await self._on_message(session, raw)
+        except ConnectionClosed:
+            pass
+        finally:
+            for t in tasks:
+                t.cancel()
+            self._sessions.discard(session)
+            await self._call(self._gone, session)
+
+    def _gone(self, session: _Session) -> None:
+        if session.jogging:
+            session.jogging = False
+            self._station_call(self.station.jog_release)
+        self.control.disconnected(session.client_id)
+
+    def _station_call(self, fn: Callable[..., Any], *args: Any) -> str | None:
+        """Run a station action; an error comes back as the operator's sentence."""
+        try:
+            fn(*args)
+        except Exception as exc:  # noqa: BLE001 - every station refusal is reported, never raised into the loop
+            if not isinstance(exc, RuntimeError):  # MotionError / StationError are RuntimeErrors
+                self.errors.append(f"{type(exc).__name__}: {exc}")
+            return str(exc) or type(exc).__name__
+        return None
+
+    async def _send_states(self, session: _Session) -> None:
+        period = 1.0 / self.state_hz
+        while True:
+            st = self.station.state
+            holder = self.control.holder
+            msg: dict[str, Any] = {
+                "type": "state",
+                "control": holder == session.client_id,
+                "holder": None if holder is None else ("you" if holder == session.client_id else "other"),
+            }
+            if st is not None:
+                msg.update(pos=[round(a.mm, 4) for a in st.axes], vel=[round(a.velocity, 3) for a in st.axes],
+                           moving=bool(st.moving), jogging=bool(st.jogging), probe=bool(st.probe_triggered))
+            await self._send(session, msg)
+            await asyncio.sleep(period)
+
+    async def _watch(self, session: _Session) -> None:
+        """Pendant dead-man: a jogging pendant that goes quiet for ``deadman`` s loses its jog."""
+        while True:
+            await asyncio.sleep(min(0.02, self.deadman / 5))
+            if session.jogging and time.monotonic() - session.last_message > self.deadman:
+                session.jogging = False
+                await self._call(self._station_call, self.station.jog_release)
+                await self._error_msg(session, f"jog stopped: no message from this pendant for "
+                                               f"{self.deadman * 1000:.0f} ms")
+
+    def _speeds(self) -> dict[str, float]:
+        s = self.station.config.speeds
+        return {"jog_fast": s.jog_fast, "jog_slow": s.jog_slow, "jog_fine": s.jog_fine}
+
+    async def _on_message(self, session: _Session, raw: Any) -> None:
+        try:
+            msg = json.loads(raw)
+        except (TypeError, ValueError):
+            return await self._error_msg(session, "a pendant message must be JSON text")
+        if not isinstance(msg, dict):
+            return await self._error_msg(session, "a pendant message must be a JSON object")
+        kind = msg.get("type")
+        if kind == "hello":
+            await self._send(session, {
+                "type": "hello", "client": session.client_id, "local": session.local,
+                "code_required": not session.local, "lan": self.control.access_code is not None,
+                "speeds": self._speeds(), "deadman_ms": round(self.deadman * 1000), "state_hz": self.state_hz})
+            if "code" in msg:
+                await self._take(session, msg.get("code"))
+        elif kind == "take":
+            await self._take(session, msg.get("code"))
+        elif kind == "observe":
+            if session.jogging:
+                session.jogging = False
+                await self._call(self._station_call, self.station.jog_release)
+            await self._call(self.control.release, session.client_id)
+            await self._send(session, {"type": "control", "control": False})
+        elif kind == "jog":
+            await self._jog(session, msg.get("v"))
+        elif kind == "release":
+            if session.jogging or self.control.can_move(session.client_id):
+                session.jogging = False
+                await self._call(self._station_call, self.station.jog_release)
+        elif kind == "stop":
+            if not (session.authenticated or self.control.can_move(session.client_id)):
+                return await self._error_msg(session, "stop refused: enter the access code first "
+                                                      "(use the stop on the station or the machine's E-stop)")
+            session.jogging = False
+            error = await self._call(self._station_call, self.station.stop)
+            if error:
+                await self._error_msg(session, error)
+        else:
+            await self._error_msg(session, f"unknown pendant message type {kind!r}")
+
+    async def _take(self, session: _Session, code: Any) -> None:
+        code = code if isinstance(code, str) else None
+        ok = await self._call(self.control.take, session.client_id, code, session.local)
+        if ok:
+            session.authenticated = True
+            return await self._send(session, {"type": "control", "control": True})
+        await asyncio.sleep(WRONG_CODE_DELAY)
+        if self.control.access_code is None:
+            reason = ("this station accepts control only from its own computer: "
+                      "start it with --lan to allow pendants on the network")
+        elif not code:
+            reason = "enter the access code shown on the station to take control"
+        else:
+            reason = "wrong access code: control refused"
+        await self._error_msg(session, reason)
+
+    async def _jog(self, session: _Session, v: Any) -> None:
+        if not self.control.can_move(session.client_id):
+            if session.jogging:
+                session.jogging = False
+                await self._call(self._station_call, self.station.jog_release)
+            return await self._error_msg(session, "this pendant is not in control: take control to jog",
+                                         throttle=True)
+        if not (isinstance(v, list) and len(v) == 3
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+            return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
+        limit = float(self.station.config.speeds.jog_fast)
+        v = [max(-limit, min(limit, float(x))) for x in v]
+        if not any(v):
+            if session.jogging:
+                session.jogging = False
+                await self._call(self._station_call, self.station.jog_release)
+            return
+        error = await self._call(self._jog_if_holder, session, v)
+        if error:
+            await self._error_msg(session, error, throttle=True)
+
+    def _jog_if_holder(self, session: _Session, v: list[float]) -> str | None:
+        # checked again on the worker: control may have moved while the jog waited in the queue
+        if not self.control.can_move(session.client_id):
+            return "this pendant is not in control: take control to jog"
+        error = self._station_call(self.station.jog, v)
+        session.jogging = error is None
+        return error
+
+
+def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1", port: int = 0,
+                         **options: Any) -> PendantServer:
+    """Serve the pendant page and its WebSocket in a background thread; returns the running handle.
+
+    ``host`` "0.0.0.0" listens on the LAN (pair it with ``Control(lan=True)``);
+    ``port`` 0 picks a free port (see ``handle.port``).
+    """
+    return PendantServer(station, control, host, port, **options)

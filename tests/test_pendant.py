@@ -1,0 +1,316 @@
+"""The pendant server against a real station on the real-time simulator, over loopback WebSockets."""
+
+from __future__ import annotations
+
+import json
+import time
+import urllib.error
+import urllib.request
+
+import pytest
+from websockets.exceptions import InvalidStatus
+from websockets.sync.client import connect
+
+from cmm.station import Station
+from cmm.ui import pendant as pendant_mod
+from cmm.ui.access import Control
+from cmm.ui.pendant import start_pendant_server
+
+pytestmark = pytest.mark.timeout(60)
+
+STOP_WITHIN = 0.3  # s from the last message to zero velocity (0.2 s dead-man budget + deceleration + sampling)
+
+
+@pytest.fixture
+def station(tmp_path):
+    st = Station(session_dir=tmp_path).start()
+    yield st
+    st.close()
+
+
+def _serve(station, control):
+    return start_pendant_server(station, control, "127.0.0.1", 0)
+
+
+@pytest.fixture
+def control(station):
+    return Control(access_code="open-sesame", on_holder_lost=lambda _cid: station.jog_release())
+
+
+@pytest.fixture
+def server(station, control):
+    handle = _serve(station, control)
+    yield handle
+    handle.close()
+
+
+class Client:
+    """A blocking pendant client that remembers what the server said."""
+
+    def __init__(self, url: str) -> None:
+        self.ws = connect(url, open_timeout=5, close_timeout=2)
+        self.messages: list[dict] = []
+
+    def send(self, **msg) -> None:
+        self.ws.send(json.dumps(msg))
+
+    def drain(self, seconds: float = 0.0) -> list[dict]:
+        end = time.monotonic() + seconds
+        while True:
+            try:
+                self.messages.append(json.loads(self.ws.recv(timeout=max(0.0, end - time.monotonic()))))
+            except TimeoutError:
+                return self.messages
+
+    def wait_for(self, kind: str, timeout: float = 3.0) -> dict:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                msg = json.loads(self.ws.recv(timeout=end - time.monotonic()))
+            except TimeoutError:
+                break
+            self.messages.append(msg)
+            if msg.get("type") == kind:
+                return msg
+        raise AssertionError(f"no {kind!r} message within {timeout} s; got {self.messages[-5:]}")
+
+    def errors(self) -> list[str]:
+        return [m["message"] for m in self.messages if m.get("type") == "error"]
+
+    def jog_for(self, v, seconds: float, period: float = 0.05) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.send(type="jog", v=v)
+            self.drain(period)
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+@pytest.fixture
+def client(server):
+    clients: list[Client] = []
+
+    def make() -> Client:
+        c = Client(server.ws_url)
+        clients.append(c)
+        return c
+
+    yield make
+    for c in clients:
+        c.close()
+
+
+def speed(station) -> float:
+    return max(abs(a.velocity) for a in station.state.axes)
+
+
+def time_to_stop(station, since: float, limit: float = 2.0) -> float:
+    while time.monotonic() - since < limit:
+        if speed(station) < 1e-9:
+            return time.monotonic() - since
+        time.sleep(0.002)
+    raise AssertionError(f"the machine still moves {limit} s after the last message ({speed(station):.2f} mm/s)")
+
+
+def wait_moving(station, timeout: float = 1.0) -> None:
+    end = time.monotonic() + timeout
+    while speed(station) < 1.0:
+        assert time.monotonic() < end, "the machine did not start moving"
+        time.sleep(0.005)
+
+
+# --- HTTP ---------------------------------------------------------------------------
+
+
+def test_serves_the_page_and_script(server):
+    assert server.url.startswith("http://127.0.0.1:") and server.ws_url.endswith("/ws")
+    with urllib.request.urlopen(server.url, timeout=5) as r:
+        assert r.headers["Content-Type"].startswith("text/html")
+        assert b"pendant.js" in r.read()
+    with urllib.request.urlopen(server.url + "pendant.js", timeout=5) as r:
+        assert r.headers["Content-Type"].startswith("text/javascript")
+        assert b"getGamepads" in r.read()
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(server.url + "../pyproject.toml", timeout=5)
+    assert e.value.code == 404
+
+
+def test_refuses_websocket_from_another_origin(server):
+    with pytest.raises(InvalidStatus) as e:
+        connect(server.ws_url, origin="http://evil.example", open_timeout=5)
+    assert e.value.response.status_code == 403
+    own = connect(server.ws_url, origin=server.url.rstrip("/"), open_timeout=5)
+    own.close()
+
+
+# --- control ----------------------------------------------------------------------------
+
+
+def test_hello_reports_speeds_and_state(server, station, client):
+    c = client()
+    c.send(type="hello")
+    hello = c.wait_for("hello")
+    s = station.config.speeds
+    assert hello["speeds"] == {"jog_fast": s.jog_fast, "jog_slow": s.jog_slow, "jog_fine": s.jog_fine}
+    assert hello["local"] is True and hello["deadman_ms"] == 200
+    state = c.wait_for("state")
+    assert state["control"] is False and state["holder"] is None
+    assert state["pos"] == pytest.approx(list(station.state.position), abs=1e-3)
+
+
+def test_observer_cannot_jog(server, station, control, client):
+    c = client()
+    c.send(type="hello")
+    start = station.state.position.copy()
+    c.jog_for([20, 20, 0], 0.4)
+    assert any("not in control" in e for e in c.errors())
+    assert speed(station) == 0
+    assert (station.state.position == start).all()
+    assert control.holder is None
+
+
+def test_remote_pendant_needs_the_code(server, station, control, client, monkeypatch):
+    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)  # pretend it is on the LAN
+    c = client()
+    c.send(type="hello", code="guess")
+    c.wait_for("error")
+    assert "wrong access code" in c.errors()[-1]
+    c.send(type="stop")  # an anonymous LAN observer may not stop a measurement it cannot see
+    c.wait_for("error")
+    assert "stop refused" in c.errors()[-1]
+    start = station.state.position.copy()
+    c.jog_for([20, 0, 0], 0.3)
+    assert (station.state.position == start).all() and control.holder is None
+    c.send(type="take", code="open-sesame")
+    assert c.wait_for("control")["control"] is True
+    assert control.holder is not None and control.holder.startswith("pendant-")
+
+
+def test_loopback_only_server_refuses_remote_pendants(station, monkeypatch):
+    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)
+    control = Control()  # no --lan: no code at all
+    with _serve(station, control) as srv:
+        c = Client(srv.ws_url)
+        c.send(type="take", code="anything")
+        c.wait_for("error")
+        assert "--lan" in c.errors()[-1]
+        c.close()
+    assert control.holder is None
+
+
+def test_holder_jogs_and_release_stops(server, station, client):
+    c = client()
+    c.send(type="hello", code=None)  # local: no code needed
+    assert c.wait_for("control")["control"] is True
+    start = station.state.position.copy()
+    c.jog_for([20, 10, 0], 0.5)
+    moved = station.state.position - start
+    assert moved[0] > 4 and moved[1] > 2 and abs(moved[2]) < 1e-6, moved
+    state = [m for m in c.messages if m["type"] == "state"][-1]
+    assert state["control"] is True and state["holder"] == "you" and state["jogging"] is True
+    c.send(type="release")
+    t = time_to_stop(station, time.monotonic())
+    assert t < STOP_WITHIN
+
+
+def test_silence_stops_the_jog(server, station, client):
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    c.jog_for([20, 0, 0], 0.3)
+    wait_moving(station)
+    last = time.monotonic()
+    assert time_to_stop(station, last) < STOP_WITHIN  # no release, no message: the dead-man stops it
+
+
+def test_closing_the_socket_stops_the_jog_and_releases_control(server, station, control, client):
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    for _ in range(6):
+        c.send(type="jog", v=[20, 0, 0])
+        time.sleep(0.05)
+    wait_moving(station)
+    c.ws.close()
+    last = time.monotonic()
+    assert time_to_stop(station, last) < STOP_WITHIN
+    end = time.monotonic() + 2
+    while control.holder is not None and time.monotonic() < end:
+        time.sleep(0.01)
+    assert control.holder is None
+
+
+def test_stop_message(server, station, client):
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    c.jog_for([20, 0, 0], 0.2)
+    c.send(type="stop")
+    assert time_to_stop(station, time.monotonic()) < STOP_WITHIN
+    observer = client()  # a local pendant that does not hold control may still press stop
+    observer.send(type="stop")
+    observer.drain(0.2)
+    assert observer.errors() == []
+
+
+def test_jog_is_validated_and_clamped(server, station, client):
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    for bad in ([1, 2], ["1", 0, 0], [float("nan"), 0, 0], None, [True, 0, 0]):
+        c.send(type="jog", v=bad)
+        c.wait_for("error")
+        assert "three finite velocities" in c.errors()[-1]
+        c.messages.clear()
+        time.sleep(ERROR_GAP)
+    assert speed(station) == 0
+    c.jog_for([1000, 0, 0], 0.4)
+    assert speed(station) <= station.config.speeds.jog_fast + 1e-6
+    assert speed(station) > station.config.speeds.jog_fast * 0.9
+    assert not [e for e in c.errors() if "jog" in e and "finite" not in e]
+    c.send(type="release")
+    time_to_stop(station, time.monotonic())
+    c.ws.send("not json")
+    c.wait_for("error")
+    c.send(type="dance")
+    assert "unknown" in c.wait_for("error")["message"]
+
+
+ERROR_GAP = pendant_mod.ERROR_INTERVAL + 0.05
+
+
+def test_takeover_stops_the_previous_holders_jog(server, station, control, client):
+    a, b = client(), client()
+    a.send(type="take")
+    a.wait_for("control")
+    a.jog_for([20, 0, 0], 0.2)
+    wait_moving(station)
+    b.send(type="take")  # the person at the machine takes over
+    b.wait_for("control")
+    t0 = time.monotonic()
+    a.jog_for([20, 0, 0], 0.3)  # a keeps pushing: refused
+    assert any("not in control" in e for e in a.errors())
+    assert speed(station) == 0
+    assert time.monotonic() - t0 < 1.0
+    assert control.holder is not None and b.wait_for("state")["holder"] == "you"
+
+
+def test_observe_gives_control_back(server, station, control, client):
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    c.send(type="observe")
+    assert c.wait_for("control")["control"] is False
+    assert control.holder is None
+
+
+def test_close_with_connected_clients(station, control):
+    srv = _serve(station, control)
+    c = Client(srv.ws_url)
+    c.send(type="take")
+    c.wait_for("control")
+    c.jog_for([20, 0, 0], 0.2)
+    srv.close()
+    assert time_to_stop(station, time.monotonic()) < 1.0
+    assert control.holder is None
