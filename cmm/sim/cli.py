@@ -18,6 +18,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="firmware family: module version and SET_BAUD divisor table (default pic-servo)")
     parser.add_argument("--module-version", type=int, default=None, metavar="V",
                         help="version byte reported in status item 0x20 (default 4, SC: 10)")
+    cmm = parser.add_argument_group("simulated CMM (--cmm)")
+    cmm.add_argument("--cmm", action="store_true",
+                     help="serve the whole simulated CMM: 3 axes, the sample part on the table, a 25 mm reference "
+                          "sphere and a touch-trigger probe on the LIMIT inputs")
+    cmm.add_argument("--config", metavar="FILE", help="machine configuration (axes, probe wiring); default shipped")
+    cmm.add_argument("--scale-ppm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 0.0, 0.0),
+                     help="injected per-axis scale errors, ppm")
+    cmm.add_argument("--squareness-urad", type=float, nargs=3, metavar=("XY", "XZ", "YZ"), default=(0.0, 0.0, 0.0),
+                     help="injected squareness errors, urad")
 
 
 def banner(network, url: str, pty: bool) -> str:
@@ -39,6 +48,20 @@ def banner(network, url: str, pty: bool) -> str:
     ])
 
 
+def _cmm_network(args: argparse.Namespace):
+    """The simulated CMM's network (its world drives the probe inputs every tick)."""
+    from cmm.machine.config import load
+    from cmm.sim.cmm_sim import CmmSimSettings, SimulatedCMM
+    from cmm.sim.probe_world import GeometryErrors
+
+    settings = CmmSimSettings(errors=GeometryErrors(tuple(args.scale_ppm), tuple(args.squareness_urad)))
+    cmm = SimulatedCMM(load(args.config), settings, wire_time=args.wire_time, realtime=True)
+    print(f"cmm sim: simulated CMM, part at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
+          f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
+          f"at {settings.sphere_centre}", flush=True)
+    return cmm.network
+
+
 def run(args: argparse.Namespace) -> int:
     import signal
     import sys
@@ -48,9 +71,12 @@ def run(args: argparse.Namespace) -> int:
     from cmm.sim.serve import serve_pty, serve_tcp
 
     try:
-        network = SimNetwork(args.modules, version=args.module_version, wire_time=args.wire_time,
-                             realtime=True, firmware=args.firmware)
-    except ValueError as exc:
+        if args.cmm:
+            network = _cmm_network(args)
+        else:
+            network = SimNetwork(args.modules, version=args.module_version, wire_time=args.wire_time,
+                                 realtime=True, firmware=args.firmware)
+    except ValueError as exc:  # ConfigError is a ValueError
         print(f"cmm sim: {exc}", file=sys.stderr)
         return 2
     if args.pty:
