@@ -306,7 +306,7 @@ class Station:
             self._next_feature += 1
             feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal)
             self.features[fid] = feature
-            self._record("feature", **feature.summary())
+            self._record("feature", **{("feature_kind" if k == "kind" else k): v for k, v in feature.summary().items()})
         self._notify("feature", feature)
         return feature
 
