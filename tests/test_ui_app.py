@@ -1,0 +1,256 @@
+"""The viser station app against a real Station on the simulator (in-process, loopback only).
+
+Handlers are driven directly through :class:`cmm.ui.panels.ClientApp` (what
+each button calls); a raw WebSocket client stands in for a browser tab so the
+per-client GUI is really built. Browser tests (Playwright) live elsewhere.
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser")
+
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.panels import nominal_deviation, parse_ids  # noqa: E402
+from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start()
+    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant=False)
+    yield ui
+    ui.close()
+    station.close()
+
+
+@pytest.fixture()
+def operator(app):
+    capp = app.add_client(client_id="operator", is_local=True)
+    assert capp.take_control()
+    yield capp
+    capp.release_control()
+    app.station.stop()
+    app.station.wait_idle(10)
+
+
+def _wait_done(status, timeout=30.0, capp=None):
+    assert status is not None, capp.messages[-3:] if capp is not None else None
+    status.wait(timeout)
+    return status
+
+
+def _above_part(station) -> np.ndarray:
+    """A point 30 mm above the sample part's top, over a flat face (part X=60, Y=40)."""
+    b = station.part.mesh.bounds
+    local = np.array([60.0, 40.0, b[1][2] + 30.0])
+    return station.part.pose[:3, :3] @ local + station.part.pose[:3, 3]
+
+
+def test_page_is_served(app):
+    with urllib.request.urlopen(f"http://127.0.0.1:{app.port}/", timeout=10) as r:
+        assert r.status == 200
+        assert b"<html" in r.read().lower()
+
+
+def test_browser_tab_gets_its_own_gui(app):
+    """A WebSocket client (what the page opens) makes the app build that client's panels."""
+    import msgspec
+    import viser
+    from viser import _messages
+    from websockets.sync.client import connect
+
+    before = len(app.clients)
+    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+        # viser counts a tab as connected once it reports its camera
+        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
+                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        end = time.monotonic() + 10
+        while len(app.clients) == before and time.monotonic() < end:
+            try:
+                ws.recv(timeout=0.2)
+            except TimeoutError:
+                pass
+        capp = next(c for c in app.clients.values() if c.client is not None)
+        end = time.monotonic() + 10
+        while "plot" not in capp.gui and time.monotonic() < end:
+            time.sleep(0.05)
+        assert {"machine", "trace", "plot", "feature", "control"} <= set(capp.gui)
+        assert capp.is_local  # it came from 127.0.0.1
+        capp.refresh()
+        assert "| X |" in capp.gui["machine"].content
+        assert capp.gui["trace"].value  # raw NMC bytes are shown
+        assert not capp.control.can_move(capp.client_id)  # a new tab observes
+    end = time.monotonic() + 5
+    while len(app.clients) > before and time.monotonic() < end:
+        time.sleep(0.05)
+    assert len(app.clients) == before
+
+
+def test_go_to_moves_the_machine(app, operator):
+    start = app.station.state.position
+    target = start + np.array([3.0, 2.0, -4.0])
+    _wait_done(operator.go_to(*target))
+    assert np.allclose(app.station.state.position, target, atol=0.0021)
+
+
+def test_nan_target_is_an_error_notification_and_no_motion(app, operator):
+    before = app.station.state.position
+    assert operator.go_to(float("nan"), 10.0, 10.0) is None
+    level, title, body = operator.messages[-1]
+    assert level == "error" and "not a number" in body
+    time.sleep(0.1)
+    assert not app.station.machine.busy
+    assert np.allclose(app.station.state.position, before)
+    operator.go_to(1e6, 0, 0)
+    assert "outside the travel" in operator.messages[-1][2]
+
+
+def test_observer_cannot_move(app, operator):
+    observer = app.add_client(client_id="observer", is_local=False)
+    before = app.station.state.position
+    assert observer.go_to(*(before + 1.0)) is None
+    observer.jog_hold(0, 1)
+    observer.step(0, 1)
+    assert not observer.take_control("wrong code")
+    assert all(level == "error" for level, _, _ in observer.messages)
+    time.sleep(0.15)
+    assert not app.station.machine.busy
+    assert np.allclose(app.station.state.position, before)
+    observer.stop()  # stopping is open to everyone
+    assert operator.control.can_move("operator")
+
+
+def test_jog_hold_moves_and_stops_when_refresh_stops(app, operator):
+    st = app.station
+    start = st.state.position.copy()
+    operator.speed_mode = "probing"
+    end = time.monotonic() + 0.5
+    while time.monotonic() < end:  # the browser's on_hold at 20 Hz
+        operator.jog_hold(0, 1)
+        time.sleep(0.05)
+    assert st.state.position[0] > start[0] + 1.0
+    released = time.monotonic()  # no more refreshes; no release event either (lost pointer-up)
+    while st.machine.busy and time.monotonic() - released < 1.0:
+        time.sleep(0.005)
+    stopped_after = time.monotonic() - released
+    assert not st.machine.busy
+    assert stopped_after < 0.2, stopped_after
+    x = st.state.position[0]
+    time.sleep(0.1)
+    assert abs(st.state.position[0] - x) < 0.01  # settled (a count or two of servo settling)
+
+
+def test_jog_release_event_stops_at_once(app, operator):
+    st = app.station
+    for _ in range(5):
+        operator.jog_hold(1, 1)
+        time.sleep(0.04)
+    t = time.monotonic()
+    operator.jog_release()
+    while st.machine.busy and time.monotonic() - t < 1.0:
+        time.sleep(0.005)
+    assert time.monotonic() - t < 0.2
+
+
+def test_step_jog_one_count(app, operator):
+    st = app.station
+    operator.step_size = "1 count"
+    before = st.state.counts[2]
+    _wait_done(operator.step(2, -1), 10, operator)
+    assert st.state.counts[2] == before - 1
+
+
+def test_pick_probe_here_and_fit(app, operator):
+    st = app.station
+    above = _above_part(st)
+    picked = operator.on_scene_click(above * SCALE, (0.0, 0.0, -1.0))
+    assert picked is not None
+    hit, nominal = picked
+    assert np.allclose(hit.point[:2], above[:2], atol=1e-6)
+    target = hit.point
+    assert np.allclose(hit.normal, [0, 0, 1])
+    assert nominal is not None and nominal.kind == "plane"
+    n_before = len(st.hits)
+    _wait_done(operator.probe_here(), 40)
+    assert len(st.hits) == n_before + 1
+    assert abs(st.last_hit.point[2] - target[2]) < 0.01
+    for dx, dy in ((6, 0), (6, 6), (0, 6)):  # three more hits on the same face
+        p = target + [dx, dy, 0]
+        again = operator.pick(p + [0, 0, 30], [0, 0, -1])
+        assert again is not None and abs(again[0].point[2] - target[2]) < 1e-9
+        _wait_done(operator.probe_here(), 20)
+    app.redraw()
+    assert set(app.deviations()) == set(st.hits)
+    feature = operator.fit("plane", "ls", last_n=4)
+    assert feature is not None, operator.messages[-3:]
+    assert feature.kind == "plane" and len(feature.hit_ids) == 4
+    assert feature.result.form < 0.01
+    assert abs(abs(feature.result.normal[2]) - 1) < 1e-4
+    text = operator.feature_markdown()
+    assert "form error" in text and "vs nominal plane" in text
+    app.redraw()
+    assert feature.id in app.view._feature_nodes
+    # undo removes the last hit; a fit needs the hits it names
+    last = max(st.hits)
+    operator.undo()
+    assert last not in st.hits
+    assert operator.fit("sphere", "ls", ids_text=str(last)) is None
+    assert operator.messages[-1][0] == "error"
+
+
+def test_pick_miss_and_move_above_without_pick(app):
+    capp = app.add_client(client_id="viewer")
+    assert capp.pick([0, 0, 200], [0, 0, 1]) is None  # pointing away from everything
+    assert capp.move_above() is None
+    assert capp.messages[-1][0] == "error"
+
+
+def test_colour_map_and_helpers():
+    assert deviation_colour(0.0, 0.01) == deviation_colour(0.009, 0.01)  # inside the band: green
+    red, blue = deviation_colour(0.05, 0.01), deviation_colour(-0.05, 0.01)
+    assert red[0] > 200 and red[2] < 60 and blue[2] > 200 and blue[0] < 60
+    assert deviation_colour(math.nan) == (150, 150, 150)
+    assert parse_ids("1-3, 7 9") == [1, 2, 3, 7, 9]
+    with pytest.raises(ValueError):
+        parse_ids("a")
+    pts = np.array([[0, 0, 0], [0, 0, 10.0]])
+    for kind, geom in (("plane", {"point": [0, 0, 0], "normal": [0, 0, 1]}),
+                       ("circle", {"center": [0, 0, 0], "normal": [1, 0, 0], "radius": 5.0}),
+                       ("sphere", {"center": [1, 2, 3], "radius": 4.0}),
+                       ("cylinder", {"point": [0, 0, 0], "direction": [0, 1, 0], "radius": 3.0}),
+                       ("cone", {"apex": [0, 0, 0], "direction": [0, 0, 1], "half_angle": 0.3})):
+        mesh = feature_mesh(kind, geom, pts)
+        assert mesh is not None and len(mesh.faces) > 0, kind
+    cone = feature_mesh("cone", {"apex": [0, 0, 0], "direction": [0, 0, 1], "half_angle": 0.3}, pts)
+    assert np.allclose(cone.vertices.min(axis=0)[2], 0.0, atol=1e-9)  # apex at the origin, opening along +z
+
+    from cmm.metrology.pick import NominalFeature
+    dev = nominal_deviation("sphere", {"center": [0, 0, 1.0], "radius": 5.002},
+                            NominalFeature("sphere", {"center": [0, 0, 0], "radius": 5.0}))
+    assert dev["centre_offset"] == pytest.approx(1.0) and dev["radius_dev"] == pytest.approx(0.002)
+
+
+def test_probe_node_follows_micrometre_moves(app, operator):
+    """A 1-count move reaches the scene's probe node unquantised (node positions are float64)."""
+    st = app.station
+    operator.step_size = "1 count"
+    _wait_done(operator.step(0, 1), 10)
+    time.sleep(0.1)  # a few updater ticks
+    assert np.allclose(np.asarray(app.view.probe.position) / SCALE, st.state.position, atol=1e-9)
+    assert app.updater.pushes > 0
