@@ -50,3 +50,20 @@ def test_injected_scale_and_squareness_move_the_real_tip():
     reading = np.array(sim.axis_readings())
     assert tip[0] - reading[0] == pytest.approx(400.0 * 50e-6 + 300.0 * 30e-6, abs=1e-6)
     assert tip[1] == pytest.approx(reading[1], abs=1e-9)
+
+
+def test_geometry_correction_cancels_the_injected_errors():
+    from cmm.machine.geometry import GeometryCorrection
+
+    errors = GeometryErrors(scale_ppm=(50.0, -20.0, 10.0), squareness_urad=(30.0, -15.0, 25.0))
+    sim = SimulatedCMM(load(), CmmSimSettings(errors=errors))
+    m = Machine(sim.config, sim.transport())
+    m.connect()
+    m.correction = GeometryCorrection(errors.scale_ppm, errors.squareness_urad)
+    target = np.array([450.0, 350.0, 50.0])
+    m.move_to(target).wait()
+    m.run_for(0.05)
+    assert np.abs(sim.tip_position() - target).max() < 0.003  # the true tip, within the count grid
+    assert np.abs(m.position - target).max() < 0.003
+    m.step("x", 0.002).wait()
+    assert m.sample().axes[0].counts == m.mm_to_counts(target)[0] + 1

@@ -20,6 +20,7 @@ from ..nmc.bus import Bus, ModuleInfo, NmcError
 from ..nmc.module import Module
 from ..nmc.trace import ByteTrace
 from .config import AXES, MachineConfig
+from .geometry import GeometryCorrection
 from .status import MotionError, MoveStatus
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
@@ -97,6 +98,7 @@ class Machine:
         self._event_listeners: list[Callable[[str, dict], None]] = []
         self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
         self.samples = 0
+        self.correction = GeometryCorrection()  # the calibration routine sets it
 
     # --- connection -------------------------------------------------------
 
@@ -141,11 +143,11 @@ class Machine:
             sts = [m.nop() for m in self.modules]
             now = self.clock.now()
             axes = []
-            for axis, st in zip(self.config.axes, sts):
+            mm = self.counts_to_mm([st.position for st in sts])
+            for axis, st, p in zip(self.config.axes, sts, mm):
                 tick = codec.tick_seconds(axis.gains.sr)
                 vel = st.velocity / tick / (axis.counts_per_mm * axis.direction) if st.velocity is not None else 0.0
-                axes.append(AxisState(st.position, axis.to_mm(st.position), st.position_error, vel, st.status,
-                                      st.aux or 0))
+                axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0))
             self.state = MachineState(
                 now, tuple(axes), any(self._probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
@@ -156,6 +158,14 @@ class Machine:
         for fn in subscribers:
             fn(self.state)
         return self.state
+
+    def counts_to_mm(self, counts: Any) -> np.ndarray:
+        """Raw axis counts -> machine coordinates (mm), geometry correction applied."""
+        return self.correction.apply(np.array([a.to_mm(c) for a, c in zip(self.config.axes, counts)]))
+
+    def mm_to_counts(self, position: Any) -> list[int]:
+        """Machine coordinates (mm) -> the axis counts that reach them."""
+        return [a.to_counts(r) for a, r in zip(self.config.axes, self.correction.invert(position))]
 
     def subscribe(self, fn: Callable[[MachineState], None]) -> Callable[[], None]:
         """Call ``fn`` with every new state; returns an unsubscribe function."""
@@ -193,7 +203,7 @@ class Machine:
                 motion.on_capture(latched)  # type: ignore[arg-type]
             else:
                 self._halt("abrupt")
-                pos = [a.to_mm(c) for a, c in zip(self.config.axes, latched)]
+                pos = self.counts_to_mm(latched).tolist()
                 self._emit("contact", position=pos)
                 self._finish(motion, error=ContactError(
                     "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped and no hit was "
@@ -297,13 +307,14 @@ class Machine:
         start = self.position
         delta = target - start
         length = float(np.linalg.norm(delta))
-        for axis, mod, d, goal in zip(self.config.axes, self.modules, delta, target):
+        goals = self.mm_to_counts(target)
+        for axis, mod, d, goal in zip(self.config.axes, self.modules, delta, goals):
             share = abs(d) / length if length > 0 else 0.0
             vel = codec.velocity_to_fixed(speed * share, axis.counts_per_mm, axis.gains.sr)
             acc = codec.acceleration_to_fixed(accel * share, axis.counts_per_mm, axis.gains.sr)
             if share > 0 and (vel == 0 or acc == 0):  # a tiny share: move at the smallest non-zero rate
                 vel, acc = max(vel, 1), max(acc, 1)
-            mod.load_position(axis.to_counts(goal), vel, acc, start=False)
+            mod.load_position(goal, vel, acc, start=False)
         self.bus.start_move(GROUP)
         return length
 
@@ -357,11 +368,11 @@ class Machine:
         if not math.isfinite(step_mm) or not one_count - 1e-12 <= abs(step_mm) <= STEP_MAX_MM:
             raise MotionError(f"a step must be between one count ({one_count * 1000:g} um) and {STEP_MAX_MM:g} mm, "
                               f"got {step_mm} mm")
-        target = self.position.copy()
-        # steps go from the commanded grid so repeated 1-count steps do not drift
+        # steps go along the axis from its count grid, so repeated 1-count steps do not drift
+        readings = self.correction.invert(self.position)
         idx = AXES.index(axis)
-        target[idx] = cfg.to_mm(round((target[idx] - cfg.home) * cfg.counts_per_mm * cfg.direction)) + step_mm
-        return self.move_to(target, speed or self.config.speeds.jog_slow)
+        readings[idx] = cfg.to_mm(round((readings[idx] - cfg.home) * cfg.counts_per_mm * cfg.direction)) + step_mm
+        return self.move_to(self.correction.apply(readings), speed or self.config.speeds.jog_slow)
 
     def _cancel(self, motion: _Motion) -> None:
         with self._lock:
@@ -494,4 +505,4 @@ class Machine:
         if np.any(v):
             record(latched, v)  # the jog velocity gives the approach direction and the probing speed
         else:
-            self._emit("contact", position=[a.to_mm(c) for a, c in zip(self.config.axes, latched)])
+            self._emit("contact", position=self.counts_to_mm(latched).tolist())

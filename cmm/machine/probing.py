@@ -70,8 +70,7 @@ class Prober:
 
     def _make_hit(self, latched: tuple[int, int, int], approach: np.ndarray, speed: float, mode: str,
                   normal: np.ndarray | None = None) -> Hit:
-        axes = self.machine.config.axes
-        centre = np.array([a.to_mm(c) for a, c in zip(axes, latched)])
+        centre = self.machine.counts_to_mm(latched)
         point = self.settings.compensate(centre, approach, normal)
         hit = Hit(tuple(int(c) for c in latched), _floats(centre), _floats(approach), float(speed), _time.time(),  # type: ignore[arg-type]
                   _floats(point), mode, None if normal is None else _floats(normal))  # type: ignore[arg-type]
