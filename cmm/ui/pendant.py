@@ -59,6 +59,7 @@ import concurrent.futures
 import ipaddress
 import itertools
 import json
+import logging
 import math
 import os
 import sys
@@ -71,7 +72,7 @@ from typing import Any, Callable
 
 from websockets.asyncio.server import ServerConnection, serve
 from websockets.datastructures import Headers
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidMessage
 from websockets.http11 import Request, Response
 
 from .access import Control
@@ -80,6 +81,22 @@ DEADMAN = 0.2  # s without any message from a jogging pendant before the server 
 STATE_HZ = 20.0
 WRONG_CODE_DELAY = 0.5  # s before answering a refused take (slows down guessing)
 ERROR_INTERVAL = 0.5  # s between repeated errors for refused jogs
+
+log = logging.getLogger(__name__)
+
+
+class _QuietHandshakes(logging.Filter):
+    """Browsers open spare connections and close them unused; that is not an error worth a traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith("opening handshake failed") and record.exc_info:
+            exc = record.exc_info[1]
+            if isinstance(exc, InvalidMessage) and isinstance(exc.__cause__, EOFError):
+                return False
+        return True
+
+
+log.addFilter(_QuietHandshakes())
 
 STATIC = {
     "/": ("pendant.html", "text/html; charset=utf-8"),
@@ -193,7 +210,8 @@ class PendantServer:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
         async with serve(self._handler, self.host, port, process_request=self._process_request,
-                         ping_interval=5, ping_timeout=5, max_size=4096, compression=None) as server:
+                         ping_interval=5, ping_timeout=5, max_size=4096, compression=None,
+                         logger=log) as server:
             self.port = next(iter(server.sockets)).getsockname()[1]
             self._ready.set()
             await self._stop.wait()

@@ -1,0 +1,107 @@
+"""Launch the system's headless chromium through Playwright (no browser download, no sandbox, no network).
+
+Playwright is used only as a CDP driver: the browser is Debian's /usr/bin/chromium
+(``apt-get install chromium``), never one fetched by ``playwright install``.
+Set CMM_CHROMIUM to use another binary.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+CHROMIUM_ARGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync",
+]
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+
+def chromium_path() -> str | None:
+    for candidate in (os.environ.get("CMM_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
+                      shutil.which("chromium-browser")):
+        if candidate and os.path.isfile(candidate) and os.access(candidate, os.X_OK):
+            return candidate
+    return None
+
+
+def unavailable_reason() -> str | None:
+    """Why browser tests cannot run here, or None when they can."""
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright is not installed (pip install playwright; the browser comes from apt: chromium)"
+    if chromium_path() is None:
+        return "chromium is not installed (apt-get install -y chromium) or CMM_CHROMIUM does not point to it"
+    return None
+
+
+@dataclass
+class PageLog:
+    """Console errors, uncaught exceptions and failed requests seen by a page."""
+
+    console_errors: list[str] = field(default_factory=list)
+    page_errors: list[str] = field(default_factory=list)
+    failed_requests: list[str] = field(default_factory=list)
+
+    def attach(self, page: Any) -> None:
+        page.on("console", lambda m: self.console_errors.append(m.text) if m.type == "error" else None)
+        page.on("pageerror", lambda e: self.page_errors.append(str(e)))
+        page.on("requestfailed", lambda r: self.failed_requests.append(f"{r.url}: {r.failure}"))
+
+    @property
+    def problems(self) -> list[str]:
+        return self.console_errors + self.page_errors + self.failed_requests
+
+
+@contextlib.contextmanager
+def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> Iterator[Any]:
+    """A Playwright browser context in a fresh profile directory, closed (and deleted) afterwards."""
+    from playwright.sync_api import sync_playwright
+
+    profile = tempfile.mkdtemp(prefix="cmm-chromium-")
+    try:
+        with sync_playwright() as p:
+            context = p.chromium.launch_persistent_context(
+                profile, executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS,
+                viewport={"width": viewport[0], "height": viewport[1]}, timeout=30_000, **options)
+            context.set_default_timeout(10_000)
+            try:
+                yield context
+            finally:
+                context.close()
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+def screenshot(page: Any, name: str, **options: Any) -> Path:
+    ARTIFACTS.mkdir(exist_ok=True)
+    path = ARTIFACTS / f"{name}.png"
+    page.screenshot(path=str(path), **options)
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# A fake standard-mapping gamepad whose state the test changes through window.__pad.
+FAKE_GAMEPAD = """
+(() => {
+  window.__pad = { axes: [0, 0, 0, 0], buttons: new Array(17).fill(0) };
+  const snapshot = () => ({
+    id: "Test gamepad (STANDARD GAMEPAD)", index: 0, connected: true, mapping: "standard",
+    timestamp: performance.now(), axes: window.__pad.axes.slice(),
+    buttons: window.__pad.buttons.map(v => ({ pressed: v > 0.5, touched: v > 0, value: v })),
+  });
+  Object.defineProperty(navigator, "getGamepads", { configurable: true, value: () => [snapshot(), null, null, null] });
+})();
+"""

@@ -1,0 +1,310 @@
+"""The pendant page (and the viser app, once it exists) in headless chromium, driving the simulated station.
+
+Needs the Python package ``playwright`` and Debian's ``chromium``; skipped with the reason otherwise.
+Screenshots go to test-artifacts/ (git-ignored).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+import time
+import urllib.request
+
+import pytest
+
+import browser_support as bs
+from cmm.station import Station
+from cmm.ui import pendant as pendant_mod
+from cmm.ui.access import Control
+from cmm.ui.pendant import start_pendant_server
+
+_reason = bs.unavailable_reason()
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(120),
+              pytest.mark.skipif(_reason is not None, reason=_reason or "")]
+
+STOP_WITHIN = 0.3  # s from the input's release to zero velocity
+
+
+@pytest.fixture
+def station(tmp_path):
+    st = Station(session_dir=tmp_path).start()
+    yield st
+    st.close()
+
+
+@pytest.fixture
+def control(station):
+    return Control(access_code="right-code", on_holder_lost=lambda _cid: station.jog_release())
+
+
+@pytest.fixture
+def server(station, control):
+    handle = start_pendant_server(station, control, "127.0.0.1", 0)
+    yield handle
+    handle.close()
+
+
+@pytest.fixture(scope="module")
+def context():
+    with bs.browser_context() as ctx:
+        yield ctx
+
+
+@pytest.fixture
+def page(context):
+    page = context.new_page()
+    page.add_init_script(bs.FAKE_GAMEPAD)
+    log = bs.PageLog()
+    log.attach(page)
+    page.log = log
+    yield page
+    page.close()
+
+
+def velocity(station):
+    return [a.velocity for a in station.state.axes]
+
+
+def speed(station) -> float:
+    return max(abs(v) for v in velocity(station))
+
+
+def rate(station, seconds: float = 0.3):
+    """Mean axis speeds from the position change (the reported velocity is whole counts per servo tick,
+    3.9 mm/s steps on the simulated machine, too coarse to compare speeds)."""
+    s0 = station.state
+    time.sleep(seconds)
+    s1 = station.state
+    return (s1.position - s0.position) / (s1.time - s0.time)
+
+
+def wait_until(predicate, timeout: float, what: str) -> float:
+    start = time.monotonic()
+    while not predicate():
+        if time.monotonic() - start > timeout:
+            raise AssertionError(f"{what} did not happen within {timeout} s")
+        time.sleep(0.005)
+    return time.monotonic() - start
+
+
+def open_pendant(page, server, take: bool = True, code: str | None = None):
+    page.goto(server.url)
+    page.wait_for_function("document.getElementById('px').textContent !== '–'")
+    page.wait_for_function("document.getElementById('link').classList.contains('on')")
+    if code is not None:
+        page.fill("#code", code)
+    if take:
+        page.click("#take")
+        if code is None:
+            page.wait_for_function("document.getElementById('control').textContent === 'you have control'")
+
+
+def test_pendant_loads_and_shows_position(page, server, station):
+    open_pendant(page, server, take=False)
+    x, y, z = station.state.position
+    assert page.text_content("#px") == f"{x:.3f}"
+    assert page.text_content("#pz") == f"{z:.3f}"
+    assert page.text_content("#control") == "observer"
+    assert "Test gamepad" in page.text_content("#gamepad")
+    page.wait_for_timeout(300)
+    bs.screenshot(page, "pendant-observer")
+    assert page.log.problems == []
+
+
+def test_pendant_in_an_iframe(page, server):
+    page.set_content(f'<body style="margin:0;background:#333"><iframe src="{server.url}" '
+                     'style="width:420px;height:760px;border:0"></iframe></body>')
+    frame = page.frame_locator("iframe")
+    frame.locator("#link.on").wait_for()
+    frame.locator("#take").click()
+    frame.locator("#control.you").wait_for()
+    page.wait_for_timeout(200)
+    bs.screenshot(page, "pendant-embedded")
+    assert page.log.problems == []
+
+
+def test_gamepad_moves_and_stops(page, server, station):
+    open_pendant(page, server)
+    start = station.state.position.copy()
+    page.evaluate("window.__pad.axes[0] = 1.0")  # left stick full right: +X at jog_fast
+    fast = station.config.speeds.jog_fast
+    wait_until(lambda: velocity(station)[0] > 0.9 * fast, 2.0, "the jog at jog_fast")
+    assert rate(station)[0] == pytest.approx(fast, rel=0.03)
+    assert station.state.jogging
+    bs.screenshot(page, "pendant-jogging")
+    page.evaluate("window.__pad.axes[0] = 0.0")  # back to centre: one release
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop") < STOP_WITHIN
+    assert station.state.position[0] > start[0] + 5
+
+    # hold A: fine (probing) speed; the cubic curve makes a half deflection much slower than half speed
+    page.evaluate("window.__pad.buttons[0] = 1; window.__pad.axes[1] = -1.0")  # stick up: +Y
+    fine = station.config.speeds.jog_fine
+    wait_until(lambda: velocity(station)[1] > 0.9 * fine, 2.0, "the fine jog")
+    page.wait_for_timeout(100)
+    assert rate(station)[1] == pytest.approx(fine, rel=0.05)
+    page.evaluate("window.__pad.buttons[0] = 0; window.__pad.axes[1] = -0.5")
+    page.wait_for_timeout(200)
+    half = ((0.5 - 0.15) / 0.85) ** 3 * fast
+    assert rate(station)[1] == pytest.approx(half, rel=0.05)
+    page.evaluate("window.__pad.buttons[1] = 1")  # B: stop
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on B") < STOP_WITHIN + 0.1
+    page.evaluate("window.__pad.buttons[1] = 0; window.__pad.axes[1] = 0")
+    page.wait_for_timeout(200)
+    assert page.log.problems == []
+
+
+def test_gamepad_inside_dead_zone_does_not_move(page, server, station):
+    open_pendant(page, server)
+    page.evaluate("window.__pad.axes[0] = 0.12; window.__pad.axes[1] = -0.1")
+    page.wait_for_timeout(400)
+    assert speed(station) == 0
+
+
+def test_keyboard_jog_and_keyup_stop(page, server, station):
+    open_pendant(page, server)
+    start = station.state.position.copy()
+    page.keyboard.down("ArrowRight")
+    slow = station.config.speeds.jog_slow
+    wait_until(lambda: velocity(station)[0] > 0.9 * slow, 2.0, "the keyboard jog")
+    page.wait_for_timeout(100)
+    assert rate(station)[0] == pytest.approx(slow, rel=0.03)
+    page.keyboard.up("ArrowRight")
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    moved = station.state.position - start
+    assert moved[0] > 1 and abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-9
+    page.keyboard.down("Shift")
+    page.keyboard.down("ArrowUp")
+    fast = station.config.speeds.jog_fast
+    wait_until(lambda: velocity(station)[1] > 0.9 * fast, 2.0, "the fast keyboard jog")
+    assert rate(station, 0.2)[1] == pytest.approx(fast, rel=0.03)
+    page.keyboard.up("ArrowUp")
+    page.keyboard.up("Shift")
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    page.keyboard.down("PageDown")  # Z-
+    wait_until(lambda: velocity(station)[2] < -0.9 * slow, 2.0, "the Z jog")
+    page.evaluate("window.dispatchEvent(new Event('blur'))")  # focus lost while a key is down
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on blur") < STOP_WITHIN
+    page.keyboard.up("PageDown")
+    assert page.log.problems == []
+
+
+def test_hold_button(page, server, station):
+    open_pendant(page, server)
+    box = page.locator(".pad .xp").bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 2.0, "the button jog")
+    page.mouse.move(box["x"] - 60, box["y"] + box["height"] / 2)  # slide off the button: pointerleave
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on leaving the button") < STOP_WITHIN
+    page.mouse.up()
+
+
+def test_observer_cannot_move(page, server, station, control, monkeypatch):
+    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)  # the browser counts as remote
+    open_pendant(page, server, code="wrong-code")
+    page.wait_for_function("document.getElementById('message').textContent.includes('wrong access code')")
+    start = station.state.position.copy()
+    page.keyboard.down("ArrowRight")
+    page.evaluate("window.__pad.axes[0] = 1.0")
+    page.wait_for_timeout(500)
+    assert speed(station) == 0 and (station.state.position == start).all()
+    assert control.holder is None
+    assert page.text_content("#control") == "observer"
+    bs.screenshot(page, "pendant-wrong-code")
+    page.keyboard.up("ArrowRight")
+    page.evaluate("window.__pad.axes[0] = 0")
+    # with the right code the same page may move
+    page.fill("#code", "right-code")
+    page.click("#take")
+    page.wait_for_function("document.getElementById('control').textContent === 'you have control'")
+    page.keyboard.down("ArrowRight")
+    wait_until(lambda: velocity(station)[0] > 1.0, 2.0, "the jog after the right code")
+    page.keyboard.up("ArrowRight")
+    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
+
+
+def test_another_holder_makes_the_page_an_observer(page, server, station, control):
+    open_pendant(page, server)
+    assert control.take("someone-else", is_local=True)
+    page.wait_for_function("document.getElementById('control').textContent.includes('another client')")
+    page.keyboard.down("ArrowRight")
+    page.wait_for_timeout(400)
+    assert speed(station) == 0
+    page.keyboard.up("ArrowRight")
+
+
+# --- the viser app (the other half of the UI) ---------------------------------------------------
+
+def _viser_app_available() -> bool:
+    if importlib.util.find_spec("cmm.ui.app") is None:
+        return False
+    from cmm import cli
+
+    return "serve" in cli.COMMANDS
+
+
+VISER_TABS = ("Machine", "Jog", "Go to", "Probe", "Features", "Diagnostics")
+
+
+@pytest.mark.skipif(not _viser_app_available(), reason="viser app not available")
+def test_viser_app_loads(context, tmp_path):
+    """`cmm serve` as an operator starts it: the page loads without console errors; one screenshot per tab."""
+    port, pendant_port = bs.free_port(), bs.free_port()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "cmm.cli", "serve", "--http-port", str(port),
+                             "--pendant-port", str(pendant_port), "--sessions", str(tmp_path / "sessions")],
+                            cwd=tmp_path, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, env=env)
+    try:
+        url = f"http://127.0.0.1:{port}/"
+        end = time.monotonic() + 60
+        while True:
+            try:
+                urllib.request.urlopen(url, timeout=2).close()
+                break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > end:
+                    if proc.poll() is None:
+                        proc.kill()
+                    out = proc.stdout.read().decode(errors="replace") if proc.stdout else ""
+                    raise AssertionError(f"`cmm serve` did not come up on {url}:\n{out[-2000:]}")
+                time.sleep(0.2)
+        page = context.new_page()
+        page.set_viewport_size({"width": 1400, "height": 900})
+        log = bs.PageLog()
+        log.attach(page)
+        page.goto(url)
+        page.wait_for_selector("canvas", timeout=30_000)
+        page.get_by_text("Take control").first.wait_for(timeout=30_000)  # the panels arrived over viser's socket
+        page.wait_for_timeout(2000)
+        bs.screenshot(page, "viser-main")
+        shot = 0
+        for name in VISER_TABS:
+            tab = page.get_by_role("tab", name=name)
+            if tab.count() == 0:
+                continue
+            tab.first.click()
+            page.wait_for_timeout(400)
+            bs.screenshot(page, f"viser-tab-{name.lower().replace(' ', '-')}")
+            shot += 1
+        page.close()
+        assert log.console_errors == [] and log.page_errors == [], log.problems
+
+        pendant = context.new_page()  # the pendant the app serves beside it
+        plog = bs.PageLog()
+        plog.attach(pendant)
+        pendant.goto(f"http://127.0.0.1:{pendant_port}/")
+        pendant.wait_for_function("document.getElementById('px').textContent !== '\u2013'")
+        bs.screenshot(pendant, "viser-app-pendant")
+        pendant.close()
+        assert plog.problems == []
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
