@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
+from ..machine.geometry import geometry_matrix
+
 
 @dataclass(frozen=True)
 class ProbeModel:
@@ -54,10 +56,8 @@ class GeometryErrors:
     squareness_urad: tuple[float, float, float] = (0.0, 0.0, 0.0)  # xy, xz, yz
 
     def matrix(self) -> np.ndarray:
-        sx, sy, sz = (1 + s * 1e-6 for s in self.scale_ppm)
-        axy, axz, ayz = (a * 1e-6 for a in self.squareness_urad)
-        # columns: where a unit move of the X, Y and Z carriage really takes the tip
-        return np.array([[sx, axy * sy, axz * sz], [0.0, sy, ayz * sz], [0.0, 0.0, sz]])
+        """Columns: where a unit move of the X, Y and Z carriage really takes the tip."""
+        return geometry_matrix(self.scale_ppm, self.squareness_urad)
 
 
 class Obstacle:
