@@ -32,7 +32,7 @@ def _free_port() -> int:
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant=False)
+    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant_port=0)
     yield ui
     ui.close()
     station.close()
@@ -92,10 +92,19 @@ def test_browser_tab_gets_its_own_gui(app):
             time.sleep(0.05)
         assert {"machine", "trace", "plot", "feature", "control"} <= set(capp.gui)
         assert capp.is_local  # it came from 127.0.0.1
+        assert f"127.0.0.1:{app.pendant.port}/" in capp.gui["pendant"].content  # the pendant, embedded
         capp.refresh()
         assert "| X |" in capp.gui["machine"].content
         assert capp.gui["trace"].value  # raw NMC bytes are shown
         assert not capp.control.can_move(capp.client_id)  # a new tab observes
+        # a click in the 3D view arrives as a ray; the tab's app picks the part with it
+        above = _above_part(app.station)
+        click = _messages.ScenePointerMessage("click", tuple(above * SCALE), (0.0, 0.0, -1.0), ((0.5, 0.5),), None)
+        ws.send(msgspec.msgpack.encode(click.as_serializable_dict()))
+        end = time.monotonic() + 5
+        while capp.picked is None and time.monotonic() < end:
+            time.sleep(0.02)
+        assert capp.picked is not None and np.allclose(capp.picked[0].normal, [0, 0, 1])
     end = time.monotonic() + 5
     while len(app.clients) > before and time.monotonic() < end:
         time.sleep(0.05)

@@ -108,6 +108,17 @@ class StationApp:
         except Exception:  # noqa: BLE001 - unknown: treat as remote
             return None
 
+    def pendant_src(self, client_id: int | None) -> str | None:
+        """The pendant URL as this browser can reach it: the host it used for the viser page, the pendant's port."""
+        if self.pendant is None:
+            return None
+        try:
+            host = self.server._websock_server._live_connections[client_id].request.headers["Host"]
+            host = host.rsplit(":", 1)[0] if not host.endswith("]") else host
+            return f"http://{host}:{self.pendant.port}/"
+        except Exception:  # noqa: BLE001 - fall back to the address the pendant reports
+            return self.pendant_url
+
     def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
         """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
         if is_local is None:

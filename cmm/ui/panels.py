@@ -400,9 +400,10 @@ class ClientApp:
             take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
             gui.add_button("Release").on_click(lambda _: self.release_control())
-            if self.app.pendant_url:
-                gui.add_html(f'<iframe src="{self.app.pendant_url}" style="width:100%;height:220px;border:0" '
-                             'title="pendant"></iframe>')
+            src = self.app.pendant_src(self.client.client_id)
+            if src:
+                g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:260px;border:0" '
+                             'title="pendant" allow="gamepad"></iframe>')
         with gui.add_folder("Safety"):
             gui.add_button("STOP", color="orange").on_click(lambda _: self.stop())
             gui.add_button("E-STOP", color="red").on_click(lambda _: self.emergency_stop())
