@@ -70,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
     print(f"CMM station on {station.port}; session journal {station.journal.path if station.journal else '-'}")
     print(f"Open {app.url} in a browser")
+    if args.lan:
+        import socket
+
+        print(f"On the LAN: http://{socket.gethostname()}:{app.port}/ (or this PC's IP address)")
     if app.pendant_url:
         print(f"Pendant page: {app.pendant_url}")
     if app.control.access_code:
