@@ -128,3 +128,14 @@ def test_emergency_stop_turns_the_servos_off(sim_machine):
     m.reset()
     assert all(a.aux & codec.AUX_SERVO_ON for a in m.sample().axes)
     m.move_to([10.0, 0.0, 300.0]).wait()
+
+
+def test_zero_and_home(sim_machine):
+    sim, m, _ = sim_machine
+    m.move_to([100.0, 50.0, 250.0]).wait()
+    m.zero()  # the thesis's "Cero": here becomes the configured home coordinates
+    assert m.position == pytest.approx([0.0, 0.0, 300.0])
+    m.move_to([30.0, 20.0, 280.0]).wait()
+    m.home().wait()
+    assert m.position == pytest.approx([0.0, 0.0, 300.0], abs=0.0021)
+    assert sim.axis_readings()[0] == pytest.approx(100.0, abs=0.003)  # physically back where Zero was taken

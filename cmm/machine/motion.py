@@ -24,7 +24,7 @@ from .geometry import GeometryCorrection
 from .status import MotionError, MoveStatus
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
-POLL_PAUSE = 0.0005  # between samples when a background thread polls (about one servo tick)
+POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; the link is the limit
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
 
@@ -412,6 +412,13 @@ class Machine:
                 m.clear_bits()
                 m.enable()
             self.sample()
+
+    def home(self) -> MoveStatus:
+        """Go to the configured home coordinates: Z up first, then X and Y."""
+        home = np.array([a.home for a in self.config.axes])
+        here = self.position
+        return self.move_path([[here[0], here[1], max(here[2], home[2])], [home[0], home[1], max(here[2], home[2])],
+                               home])
 
     def zero(self) -> None:
         """The thesis's "Cero": the present position becomes the configured home coordinates."""
