@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from cmm.cli import main
-from cmm.metrology.cli_deviation import InputError, read_points
+from cmm.metrology.pointfile import PointFileError, parse_points
 
 
 @pytest.fixture()
@@ -57,8 +57,10 @@ def test_malformed_line_names_line_number(tmp_path, box_stl, capsys):
 
 
 def test_wrong_column_count():
-    with pytest.raises(InputError, match="line 2: expected 3 finite numbers"):
-        read_points("1 2 3\n1 2\n")
+    with pytest.raises(PointFileError, match="line 2: expected 3 finite numbers"):
+        parse_points("1 2 3\n1 2\n".splitlines())
+    with pytest.raises(PointFileError, match="line 1: expected 3 finite numbers"):
+        parse_points(["1 nan 3"])
 
 
 def test_mesh_errors_go_to_stderr(tmp_path, capsys):

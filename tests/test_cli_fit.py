@@ -83,7 +83,7 @@ def test_too_few_points_exit_1(tmp_path, capsys):
 
 def test_missing_file_exit_2(tmp_path, capsys):
     assert main(["fit", "plane", str(tmp_path / "nope.txt")]) == 2
-    assert "file not found" in capsys.readouterr().err
+    assert "nope.txt' does not exist" in capsys.readouterr().err
 
 
 def test_malformed_row_names_the_line(tmp_path, capsys):

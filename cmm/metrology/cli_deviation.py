@@ -6,12 +6,13 @@ import argparse
 import json
 import re
 import sys
-from pathlib import Path
+
+from .pointfile import PointFileError, read_points, read_text
 
 _SPLIT = re.compile(r"[,\s;]+")
 
 
-class InputError(ValueError):
+class InputError(PointFileError):
     """A points or pose file cannot be read; the message names file and line."""
 
 
@@ -24,31 +25,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--pose", help="text file with the 4x4 part-to-machine transform (16 numbers, row-major)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-
-
-def read_points(text: str, source: str = "points") -> list[tuple[float, float, float]]:
-    """Parse 'x y z' lines; the first non-comment line may be a header."""
-    points: list[tuple[float, float, float]] = []
-    seen_data_or_header = False
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0].strip()
-        if not line:
-            continue
-        fields = [f for f in _SPLIT.split(line) if f]
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            if not seen_data_or_header:  # a header such as "x,y,z"
-                seen_data_or_header = True
-                continue
-            raise InputError(f"{source} line {number}: expected 3 numbers 'x y z', got {raw.strip()!r}") from None
-        seen_data_or_header = True
-        if len(values) != 3 or not all(v == v and abs(v) != float("inf") for v in values):
-            raise InputError(f"{source} line {number}: expected 3 finite numbers 'x y z', got {raw.strip()!r}")
-        points.append((values[0], values[1], values[2]))
-    if not points:
-        raise InputError(f"{source}: no points found")
-    return points
 
 
 def read_pose(text: str, source: str = "pose") -> list[list[float]]:
@@ -73,8 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from cmm.metrology.mesh import MeshError, MeshWarning, load_part, signed_deviation
 
     try:
-        points = np.array(read_points(_read(args.points), args.points))
-        pose = np.array(read_pose(_read(args.pose), args.pose)) if args.pose else None
+        points = np.array(read_points(args.points))
+        pose = np.array(read_pose(read_text(args.pose), args.pose)) if args.pose else None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", MeshWarning)
             mesh = load_part(args.mesh)
@@ -111,14 +87,3 @@ def run(args: argparse.Namespace) -> int:
         f"mean={s['mean']:+.6f}  rms={s['rms']:.6f}  (mm)"
     )
     return 0
-
-
-def _read(path: str) -> str:
-    if path == "-":
-        return sys.stdin.read()
-    try:
-        return Path(path).read_text()
-    except FileNotFoundError:
-        raise InputError(f"file '{path}' does not exist") from None
-    except UnicodeDecodeError:
-        raise InputError(f"file '{path}' is not a text file") from None

@@ -10,17 +10,13 @@ available for the kind), 2 the file is missing or malformed.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
-from typing import Any, Iterable, TextIO
+from typing import Any
+
+from .pointfile import PointFileError, read_points
 
 KINDS = ("line", "plane", "circle", "sphere", "cylinder", "cone")
 METHODS = ("ls", "minzone", "mic", "mcc")
-_SPLIT = re.compile(r"[,\s;]+")
-
-
-class PointFileError(ValueError):
-    """A points file could not be read; the message names the file and line."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,40 +26,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ls: least squares (default); minzone: minimum zone; "
                              "mic: maximum inscribed; mcc: minimum circumscribed")
     parser.add_argument("--json", action="store_true", help="print the result as JSON (full float precision)")
-
-
-def parse_points(lines: Iterable[str], name: str = "<input>") -> list[tuple[float, float, float]]:
-    """Rows of three floats; one header line allowed before the first point."""
-    points: list[tuple[float, float, float]] = []
-    header_seen = False
-    for number, raw in enumerate(lines, start=1):
-        text = raw.split("#", 1)[0].strip()
-        if not text:
-            continue
-        fields = [f for f in _SPLIT.split(text) if f]
-        try:
-            values = [float(f) for f in fields]
-        except ValueError:
-            if not points and not header_seen:
-                header_seen = True
-                continue
-            raise PointFileError(f"{name} line {number}: expected three numbers 'x y z', got {raw.strip()!r}") from None
-        if len(values) != 3:
-            raise PointFileError(f"{name} line {number}: expected three numbers 'x y z', got {len(values)}: {raw.strip()!r}")
-        points.append((values[0], values[1], values[2]))
-    return points
-
-
-def read_points(path: str, stdin: TextIO | None = None) -> list[tuple[float, float, float]]:
-    if path == "-":
-        return parse_points(stdin or sys.stdin, "<stdin>")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return parse_points(fh, path)
-    except FileNotFoundError:
-        raise PointFileError(f"file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PointFileError(f"cannot read {path}: {exc}") from None
 
 
 def _format(value: Any) -> str:

@@ -1,0 +1,60 @@
+"""Point files for the command line: one `x y z` point per line.
+
+Comma, semicolon or whitespace separated; one header line allowed before the
+first point; blank lines and `#` comments skipped; `-` reads stdin.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+from typing import Iterable, TextIO
+
+_SPLIT = re.compile(r"[,\s;]+")
+
+
+class PointFileError(ValueError):
+    """A points file could not be read; the message names the file and line."""
+
+
+def parse_points(lines: Iterable[str], name: str = "<input>") -> list[tuple[float, float, float]]:
+    """Rows of three finite numbers; raises PointFileError naming the line."""
+    points: list[tuple[float, float, float]] = []
+    header_seen = False
+    for number, raw in enumerate(lines, start=1):
+        text = raw.split("#", 1)[0].strip()
+        if not text:
+            continue
+        try:
+            values = [float(f) for f in _SPLIT.split(text) if f]
+        except ValueError:
+            if not points and not header_seen:  # a header such as "x,y,z"
+                header_seen = True
+                continue
+            raise PointFileError(f"{name} line {number}: expected 3 finite numbers 'x y z', got {raw.strip()!r}") from None
+        if len(values) != 3 or not all(math.isfinite(v) for v in values):
+            raise PointFileError(f"{name} line {number}: expected 3 finite numbers 'x y z', got {raw.strip()!r}")
+        points.append((values[0], values[1], values[2]))
+    if not points:
+        raise PointFileError(f"{name}: no points found")
+    return points
+
+
+def read_text(path: str, stdin: TextIO | None = None) -> str:
+    """The whole file (or stdin for '-'), with a clear error for missing or binary files."""
+    if path == "-":
+        return (stdin or sys.stdin).read()
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return fh.read()
+    except FileNotFoundError:
+        raise PointFileError(f"file '{path}' does not exist") from None
+    except UnicodeDecodeError:
+        raise PointFileError(f"file '{path}' is not a text file") from None
+    except OSError as exc:
+        raise PointFileError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def read_points(path: str, stdin: TextIO | None = None) -> list[tuple[float, float, float]]:
+    return parse_points(read_text(path, stdin).splitlines(), "<stdin>" if path == "-" else path)
