@@ -19,16 +19,28 @@ import numpy as np
 # azimuth of u and s = |u_xy|: a kinematic-seat probe gives a 3-lobed pattern
 # in the XY plane (cos 3phi, sin 3phi) and a different value along Z.
 PRETRAVEL_TERMS = ("const", "s_cos1", "s_sin1", "s_cos3", "s_sin3", "z2")
+# Optional terms (not in the default fit): the lobes weighted by s^2 = 1 - u_z^2,
+# as the horizontal force share of a kinematic seat (delta = s^2 d_xy(phi) + u_z^2 d_z);
+# the probe qualification fits ("const", "s2_cos3", "s2_sin3", "z2").
+EXTRA_PRETRAVEL_TERMS = ("s2_cos3", "s2_sin3")
+ALL_PRETRAVEL_TERMS = PRETRAVEL_TERMS + EXTRA_PRETRAVEL_TERMS
 
 
-def pretravel_basis(directions: np.ndarray) -> np.ndarray:
-    """Design matrix (n x len(PRETRAVEL_TERMS)) of the directional model at unit ``directions``."""
-    u = np.atleast_2d(np.asarray(directions, dtype=np.float64))
+def _term_columns(u: np.ndarray) -> dict[str, np.ndarray]:
     s = np.hypot(u[:, 0], u[:, 1])
     phi = np.arctan2(u[:, 1], u[:, 0])
-    return np.column_stack(
-        [np.ones(len(u)), s * np.cos(phi), s * np.sin(phi), s * np.cos(3 * phi), s * np.sin(3 * phi), u[:, 2] ** 2]
-    )
+    return {"const": np.ones(len(u)), "s_cos1": s * np.cos(phi), "s_sin1": s * np.sin(phi),
+            "s_cos3": s * np.cos(3 * phi), "s_sin3": s * np.sin(3 * phi), "z2": u[:, 2] ** 2,
+            "s2_cos3": s * s * np.cos(3 * phi), "s2_sin3": s * s * np.sin(3 * phi)}
+
+
+def pretravel_basis(directions: np.ndarray, terms: tuple[str, ...] = PRETRAVEL_TERMS) -> np.ndarray:
+    """Design matrix (n x len(terms)) of the directional model at unit ``directions``."""
+    unknown = set(terms) - set(ALL_PRETRAVEL_TERMS)
+    if unknown:
+        raise ValueError(f"unknown pre-travel terms {sorted(unknown)}; known: {', '.join(ALL_PRETRAVEL_TERMS)}")
+    cols = _term_columns(np.atleast_2d(np.asarray(directions, dtype=np.float64)))
+    return np.column_stack([cols[k] for k in terms])
 
 
 @dataclass
@@ -42,18 +54,22 @@ class PretravelModel:
         return cls({"const": float(delta)})
 
     @classmethod
-    def fit(cls, directions: np.ndarray, deltas: np.ndarray) -> "PretravelModel":
-        """Least-squares fit of the model to measured pre-travel by direction."""
-        a = pretravel_basis(directions)
+    def fit(cls, directions: np.ndarray, deltas: np.ndarray,
+            terms: tuple[str, ...] = PRETRAVEL_TERMS) -> "PretravelModel":
+        """Least-squares fit of the model (the given basis terms) to measured pre-travel by direction."""
+        a = pretravel_basis(directions, terms)
         coef, *_ = np.linalg.lstsq(a, np.asarray(deltas, dtype=np.float64), rcond=None)
-        return cls({k: float(v) for k, v in zip(PRETRAVEL_TERMS, coef)})
+        return cls({k: float(v) for k, v in zip(terms, coef)})
 
     def __call__(self, directions: np.ndarray) -> np.ndarray:
-        unknown = set(self.coefficients) - set(PRETRAVEL_TERMS)
+        unknown = set(self.coefficients) - set(ALL_PRETRAVEL_TERMS)
         if unknown:
-            raise ValueError(f"unknown pre-travel terms {sorted(unknown)}; known: {', '.join(PRETRAVEL_TERMS)}")
-        coef = np.array([self.coefficients.get(k, 0.0) for k in PRETRAVEL_TERMS])
-        return pretravel_basis(directions) @ coef
+            raise ValueError(f"unknown pre-travel terms {sorted(unknown)}; known: {', '.join(ALL_PRETRAVEL_TERMS)}")
+        terms = tuple(self.coefficients)
+        if not terms:
+            return np.zeros(len(np.atleast_2d(directions)))
+        coef = np.array([self.coefficients[k] for k in terms])
+        return pretravel_basis(directions, terms) @ coef
 
     @property
     def is_directional(self) -> bool:

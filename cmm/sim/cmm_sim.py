@@ -50,6 +50,8 @@ class CmmSimSettings:
     probe: ProbeModel = field(default_factory=ProbeModel)
     errors: GeometryErrors = field(default_factory=GeometryErrors)
     seed: int = 1
+    # extra calibration artifacts: (centre, diameter) spheres, e.g. the two balls of a ball bar
+    artifacts: list = field(default_factory=list)
 
 
 class SimulatedCMM:
@@ -72,6 +74,8 @@ class SimulatedCMM:
             MeshObstacle(mesh, self.settings.part_pose),
             SphereObstacle(np.array(self.settings.sphere_centre), self.settings.sphere_diameter / 2),
         ]
+        self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in self.settings.artifacts]
+        obstacles += self._artifacts
         self.world = ProbeWorld(obstacles, self.settings.probe, self.settings.errors, seed=self.settings.seed)
         self.network = SimNetwork(3, wire_time=wire_time, realtime=realtime)
         # modules[0] is furthest from the host and takes address 1 first: order the axes by address
@@ -107,6 +111,14 @@ class SimulatedCMM:
             self._level = level
             for i in range(3):
                 network.set_inputs(i, **{self._input: level})
+
+    def place_artifacts(self, spheres: list) -> None:
+        """The operator sets up an artifact: replace the extra spheres by ``spheres`` [(centre, diameter)]."""
+        for ob in self._artifacts:
+            self.world.obstacles.remove(ob)
+        self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in spheres]
+        self.world.obstacles.extend(self._artifacts)
+        self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
 
     def transport(self):
         """An in-process byte transport to this machine's NMC network (virtual clock)."""
