@@ -76,18 +76,10 @@ class Station:
         self.lock = threading.RLock()
         port = port or self.config.link.port
         if port == "sim":
-            from .sim.cmm_sim import NOMINAL_PART_POSE, SimulatedCMM
-            from .sim.serve import serve_tcp
-
-            self.sim = SimulatedCMM(self.config, sim_settings, wire_time=True, realtime=True)
-            self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
+            self.part: Part | None = self._start_simulator(sim_settings, part_path)
             port = self._served.url
-            mesh, nominal = self.sim.part_mesh, self.sim.nominal_features
-            self.part: Part | None = Part("sample part", mesh, NOMINAL_PART_POSE.copy(), dict(nominal))
         else:
             self.part = None
-        if part_path is not None:
-            self.load_part(part_path)
         self.port = port
         self.machine = Machine(self.config, port, trace=self.trace)
         self.prober = Prober(self.machine)
@@ -104,6 +96,34 @@ class Station:
         self.session_dir = Path(session_dir)
         self.journal: Journal | None = None
         self.machine.on_event(lambda kind, info: self._notify(kind, info))
+        if part_path is not None and self.sim is None:
+            self.load_part(part_path)
+
+    def _start_simulator(self, settings: Any, part_path: str | Path | None) -> Part:
+        """The simulated CMM served over TCP on loopback; a user's part is placed on its table.
+
+        The part lies where the station believes it is (its lowest corner at the
+        nominal set-up position) up to the simulator's deliberate set-up error.
+        """
+        from dataclasses import replace
+
+        from .metrology.mesh import load_part
+        from .sim.cmm_sim import NOMINAL_PART_POSE, TRUE_PART_POSE, CmmSimSettings, SimulatedCMM
+        from .sim.serve import serve_tcp
+
+        settings = settings or CmmSimSettings()
+        nominal_pose = NOMINAL_PART_POSE.copy()
+        name = "sample part"
+        if part_path is not None:
+            mesh = load_part(part_path)
+            shift = np.eye(4)
+            shift[:3, 3] = -mesh.bounds[0]
+            nominal_pose = nominal_pose @ shift
+            settings = replace(settings, part_mesh=mesh, part_pose=TRUE_PART_POSE @ shift)
+            name = Path(part_path).name
+        self.sim = SimulatedCMM(self.config, settings, wire_time=True, realtime=True)
+        self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
+        return Part(name, self.sim.part_mesh, nominal_pose, dict(self.sim.nominal_features))
 
     # --- life cycle -----------------------------------------------------------
 
