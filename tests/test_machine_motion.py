@@ -139,3 +139,18 @@ def test_zero_and_home(sim_machine):
     m.home().wait()
     assert m.position == pytest.approx([0.0, 0.0, 300.0], abs=0.0021)
     assert sim.axis_readings()[0] == pytest.approx(100.0, abs=0.003)  # physically back where Zero was taken
+
+
+def test_jog_stops_inside_the_travel(sim_machine):
+    _, m, _ = sim_machine
+    m.move_to([5.0, 3.0, 200.0]).wait()
+    events = []
+    m.on_event(lambda kind, info: events.append(kind))
+    for _ in range(40):  # full jog speed towards Y = 0, refreshed
+        m.jog([0.0, -m.config.speeds.jog_fast, 0.0])
+        m.run_for(0.05)
+    m.jog_release()
+    m.run_for(0.3)
+    assert "limit" in events
+    assert 0.0 <= m.position[1] < 1.5
+    m.step("y", 0.1).wait()  # and it can still step

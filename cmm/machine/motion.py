@@ -25,6 +25,7 @@ from .status import MotionError, MoveStatus
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
 POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; the link is the limit
+JOG_LOOKAHEAD = 0.03  # s of travel allowed for sampling latency before a jog reaches a travel limit
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
 
@@ -494,7 +495,8 @@ class Machine:
         for i, (axis, a) in enumerate(zip(self.config.axes, state.axes)):
             if v[i] == 0:
                 continue
-            stopping = a.velocity ** 2 / (2 * self.config.accelerations.stop) + 0.05
+            # braking distance, plus the travel until the next samples see it (a few link round trips)
+            stopping = a.velocity ** 2 / (2 * self.config.accelerations.stop) + abs(a.velocity) * JOG_LOOKAHEAD + 0.05
             if (v[i] > 0 and a.mm + stopping >= axis.max) or (v[i] < 0 and a.mm - stopping <= axis.min):
                 self._jog_stop_axes([i])
                 v = v.copy()
