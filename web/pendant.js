@@ -231,7 +231,7 @@
     } else if (msg.type === "hello") {
       if (msg.speeds) speeds = msg.speeds;
       isLocal = !!msg.local; lanEnabled = !!msg.lan;
-      $("code").placeholder = isLocal ? "access code (not needed here)" : "access code";
+      $("code").placeholder = isLocal ? "no code needed here" : "access code";
       if (!isLocal && !lanEnabled) showMessage("this station only accepts control from its own computer", true);
     } else if (msg.type === "control") {
       setControl(!!msg.control, msg.control ? "you" : null);
