@@ -2,8 +2,23 @@
 
 One event per line, flushed and fsync'ed before ``append`` returns, so a
 hit the UI shows is on disk; a killed process loses nothing acknowledged.
-JSON Lines (not SQLite) because a journal must stay readable and
-recoverable with a text editor: a torn last line is simply dropped on read.
+JSON Lines (not SQLite, not a binary log) for the embedded default because:
+
+- human-readable: a journal can be read, grepped and repaired with a text
+  editor, and diffed between two sessions;
+- torn tail recoverable: a process killed mid-write leaves at most one
+  incomplete last line; every line before it is a complete event, so the
+  reader keeps them all and names the damaged line;
+- no server: a directory of ``*.jsonl`` files is the whole store.
+
+On-disk format (unchanged since the first version, so old journals open):
+one JSON object per line with ``seq`` (1, 2, ... per journal), ``time`` (wall
+seconds since the epoch), ``kind`` and the event's fields (see
+:mod:`cmm.session.model` for the kinds). Non-finite floats are refused.
+
+A writer holds an exclusive advisory lock (``flock``) on the file while it is
+open, so the session store can refuse to rename or delete a session that is
+being recorded; the lock dies with the process, even on SIGKILL.
 """
 
 from __future__ import annotations
@@ -16,9 +31,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+try:  # POSIX; elsewhere sessions simply are not locked
+    import fcntl
+except ImportError:  # pragma: no cover - Windows
+    fcntl = None  # type: ignore[assignment]
+
 
 class JournalError(OSError):
     pass
+
+
+class JournalBusy(JournalError):
+    """The journal is open for writing by another process or station."""
 
 
 def _default(value: Any) -> Any:
@@ -29,55 +53,129 @@ def _default(value: Any) -> Any:
     raise TypeError(f"cannot record a {type(value).__name__} in the journal")
 
 
-class Journal:
-    """Appends events to ``path`` (created with its directory if needed)."""
+def encode_event(event: dict) -> str:
+    """One journal line (without the newline)."""
+    return json.dumps(event, default=_default, allow_nan=False)
 
-    def __init__(self, path: str | Path) -> None:
+
+def try_lock(fh: Any) -> bool:
+    """Take an exclusive non-blocking advisory lock on an open file; False if someone holds it."""
+    if fcntl is None:
+        return True
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except BlockingIOError:
+        return False
+
+
+def is_locked(path: str | Path) -> bool:
+    """True if a writer holds the journal at ``path`` open."""
+    if fcntl is None or not Path(path).exists():
+        return False
+    with open(path, "rb") as fh:
+        if try_lock(fh):
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+            return False
+        return True
+
+
+class Journal:
+    """Appends events to ``path`` (created with its directory if needed).
+
+    Opening an existing journal whose tail is damaged (a torn last line from a
+    killed writer) moves the damaged bytes to ``<path>.damaged-<time>`` and
+    truncates the journal to its intact events before appending, so new
+    events never follow garbage. The damage message stays in ``self.damage``.
+    """
+
+    def __init__(self, path: str | Path, *, lock: bool = True) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
-        self._file = open(self.path, "a", encoding="utf-8")
-        self.seq = sum(1 for _ in read_events(self.path).events)
+        self._file = open(self.path, "ab")
+        if lock and not try_lock(self._file):
+            self._file.close()
+            raise JournalBusy(f"session journal {self.path} is already open for writing by another station")
+        contents = read_events(self.path)
+        self.damage = contents.damage
+        if contents.damage is not None:
+            self._cut_damaged_tail(contents.intact_bytes)
+        self.seq = max((int(e.get("seq", 0)) for e in contents.events), default=0)
+
+    def _cut_damaged_tail(self, intact_bytes: int) -> None:
+        with open(self.path, "rb") as fh:
+            fh.seek(intact_bytes)
+            tail = fh.read()
+        aside = self.path.with_name(f"{self.path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
+        aside.write_bytes(tail)
+        os.truncate(self.path, intact_bytes)
+        self._file.flush()
+        os.fsync(self._file.fileno())
 
     def append(self, kind: str, **data: Any) -> dict:
+        """Write one event and fsync it; returns the event once it is on disk."""
         with self._lock:
-            self.seq += 1
-            event = {"seq": self.seq, "time": time.time(), "kind": kind, **data}
-            line = json.dumps(event, default=_default, allow_nan=False)
-            self._file.write(line + "\n")
+            if self._file.closed:
+                raise JournalError(f"session journal {self.path} is closed")
+            event = {"seq": self.seq + 1, "time": time.time(), "kind": kind, **data}
+            line = encode_event(event)  # refuses NaN / unknown types before anything is written
+            self._file.write(line.encode("utf-8") + b"\n")
             self._file.flush()
             os.fsync(self._file.fileno())
+            self.seq += 1
             return event
+
+    @property
+    def closed(self) -> bool:
+        return self._file.closed
 
     def close(self) -> None:
         with self._lock:
             if not self._file.closed:
-                self._file.close()
+                self._file.close()  # also releases the lock
+
+    def __enter__(self) -> "Journal":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 @dataclass
 class JournalContents:
     events: list[dict]
     damage: str | None = None  # a sentence about a damaged tail, if any
+    intact_bytes: int = 0  # length of the intact prefix of the file
+
+
+def parse_lines(lines: Any, source: str) -> JournalContents:
+    """Events from an iterable of raw lines (bytes, each ending in b"\\n" unless torn)."""
+    events: list[dict] = []
+    offset = 0
+    for lineno, raw in enumerate(lines, 1):
+        try:
+            text = raw.decode("utf-8")
+            if not text.endswith("\n"):
+                raise ValueError("incomplete last line: the writer was stopped while writing it")
+            if not text.strip():
+                raise ValueError("empty line")
+            event = json.loads(text)
+            if not isinstance(event, dict) or "kind" not in event:
+                raise ValueError("not an event")
+        except (UnicodeDecodeError, ValueError) as exc:
+            return JournalContents(events, f"{source}: line {lineno} is damaged ({exc}); "
+                                           f"the {len(events)} events before it are intact and shown, "
+                                           f"everything from line {lineno} on is ignored", offset)
+        events.append(event)
+        offset += len(raw)
+    return JournalContents(events, None, offset)
 
 
 def read_events(path: str | Path) -> JournalContents:
     """Every intact event; a damaged line ends the read with a message naming it."""
-    events: list[dict] = []
     p = Path(path)
     if not p.exists():
-        return JournalContents(events)
+        return JournalContents([])
     with open(p, "rb") as fh:
-        for lineno, raw in enumerate(fh, 1):
-            try:
-                text = raw.decode("utf-8")
-                if not text.endswith("\n"):
-                    raise ValueError("incomplete last line")
-                event = json.loads(text)
-                if not isinstance(event, dict) or "kind" not in event:
-                    raise ValueError("not an event")
-            except (UnicodeDecodeError, ValueError) as exc:
-                return JournalContents(events, f"{p}: line {lineno} is damaged ({exc}); "
-                                               f"the {len(events)} events before it are intact")
-            events.append(event)
-    return JournalContents(events)
+        return parse_lines(fh, str(p))

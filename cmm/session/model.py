@@ -1,0 +1,352 @@
+"""A measurement session rebuilt from its journal events.
+
+Event kinds (every event also has ``seq``, ``time`` and ``kind``):
+
+- ``start``: the machine and probe snapshot the session was recorded with:
+  ``config`` (file name), ``port``, ``tip_radius``, ``pretravel`` (model
+  coefficients), ``part``/``part_pose``/``part_sha256`` and, since format 2,
+  ``format``, ``axes`` (name, counts_per_mm, direction, home, min, max per
+  axis), ``correction`` (scale_ppm, squareness_urad), ``probe`` (the
+  configured probe) and ``speeds``; a derived session adds ``derived_from``.
+- ``part``: ``name``, ``pose`` (4x4 part -> machine), ``sha256``, ``path``.
+- ``alignment``: ``pose`` (4x4 part -> machine), ``method``, optional
+  ``rms``, ``max_residual``, ``hit_ids``.
+- ``hit``: ``id``, ``counts`` (raw latched encoder counts, the truth),
+  ``machine`` (tip centre mm), ``approach``, ``speed``, ``hit_time``,
+  ``point`` (compensated surface point), ``mode``, optional ``normal``.
+- ``hit_deleted`` / ``hit_restored``: ``id`` (and ``undo``).
+- ``feature``: ``id``, ``name``, ``feature_kind``, ``method``, ``hit_ids``,
+  the fit summary (``n_points``, ``form``, ``sigma`` and geometry such as
+  ``point``, ``normal``, ``center``, ``radius``, ``diameter``...), ``nominal``
+  (machine coordinates) and optional ``tolerance`` ({"size", "form", "location"}).
+- ``feature_deleted``: ``id``.
+- ``note``: ``text``. ``error``: ``message`` and ``source`` (e.g. "machine:limit").
+- ``program``: ``name``, ``sha256`` of a program that ran (``status``).
+
+Unknown kinds are kept in ``events`` and otherwise ignored, so newer
+journals open in older readers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field, replace
+from typing import Any, Iterable
+
+import numpy as np
+
+FORMAT = 2
+DEFAULT_TOLERANCE = {"size": 0.02, "form": 0.02, "location": 0.02}  # mm, +- for size/location
+
+
+@dataclass(frozen=True)
+class HitRecord:
+    id: int
+    seq: int
+    counts: tuple[int, int, int]
+    machine: tuple[float, float, float]
+    approach: tuple[float, float, float]
+    speed: float
+    time: float
+    point: tuple[float, float, float]
+    mode: str = "programmed"
+    normal: tuple[float, float, float] | None = None
+
+    @classmethod
+    def from_event(cls, e: dict) -> "HitRecord":
+        return cls(int(e["id"]), int(e.get("seq", 0)), tuple(int(c) for c in e["counts"]),  # type: ignore[arg-type]
+                   tuple(e["machine"]), tuple(e["approach"]), float(e.get("speed", 0.0)),  # type: ignore[arg-type]
+                   float(e.get("hit_time", e.get("time", 0.0))), tuple(e["point"]), e.get("mode", "programmed"),  # type: ignore[arg-type]
+                   None if e.get("normal") is None else tuple(e["normal"]))  # type: ignore[arg-type]
+
+    def to_event(self) -> dict:
+        return {"id": self.id, "counts": list(self.counts), "machine": list(self.machine),
+                "approach": list(self.approach), "speed": self.speed, "hit_time": self.time,
+                "point": list(self.point), "mode": self.mode, "normal": None if self.normal is None else list(self.normal)}
+
+
+_FEATURE_META = ("seq", "time", "kind", "id", "name", "feature_kind", "method", "hit_ids", "nominal", "tolerance")
+
+
+@dataclass(frozen=True)
+class FeatureRecord:
+    id: int
+    seq: int
+    name: str
+    kind: str
+    method: str
+    hit_ids: tuple[int, ...]
+    fit: dict[str, Any]  # n_points, form, sigma and the geometry (diameter, center, ...)
+    nominal: dict[str, Any] | None = None  # NominalFeature.to_dict() in machine coordinates
+    tolerance: dict[str, float] | None = None
+
+    @classmethod
+    def from_event(cls, e: dict) -> "FeatureRecord":
+        fit = {k: v for k, v in e.items() if k not in _FEATURE_META}
+        return cls(int(e["id"]), int(e.get("seq", 0)), str(e.get("name", f"feature {e['id']}")),
+                   str(e.get("feature_kind", "")), str(e.get("method", "ls")), tuple(int(h) for h in e.get("hit_ids", ())),
+                   fit, e.get("nominal"), e.get("tolerance"))
+
+    def to_event(self) -> dict:
+        out = {"id": self.id, "name": self.name, "hit_ids": list(self.hit_ids), "feature_kind": self.kind,
+               "method": self.method, **self.fit, "nominal": self.nominal}
+        if self.tolerance is not None:
+            out["tolerance"] = self.tolerance
+        return out
+
+
+@dataclass(frozen=True)
+class PartRef:
+    name: str
+    sha256: str | None
+    pose: tuple[tuple[float, ...], ...]
+    path: str | None = None
+
+    @property
+    def pose_array(self) -> np.ndarray:
+        return np.array(self.pose, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class AlignmentRecord:
+    seq: int
+    method: str
+    pose: tuple[tuple[float, ...], ...]
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def pose_array(self) -> np.ndarray:
+        return np.array(self.pose, dtype=np.float64)
+
+
+def _pose(value: Any) -> tuple[tuple[float, ...], ...] | None:
+    if value is None:
+        return None
+    a = np.asarray(value, dtype=np.float64).reshape(4, 4)
+    return tuple(tuple(float(x) for x in row) for row in a)
+
+
+@dataclass
+class SessionState:
+    """What was known after a given event: the scrubber's view of a session."""
+
+    index: int = -1  # index of the last applied event in the event list (-1: none yet)
+    seq: int = 0
+    time: float | None = None
+    hits: dict[int, HitRecord] = field(default_factory=dict)  # active hits by id, in recording order
+    deleted_hits: dict[int, HitRecord] = field(default_factory=dict)
+    features: dict[int, FeatureRecord] = field(default_factory=dict)
+    part: PartRef | None = None
+    part_pose: tuple[tuple[float, ...], ...] | None = None  # the current part -> machine pose (alignment)
+    alignments: list[AlignmentRecord] = field(default_factory=list)
+    notes: list[tuple[int, str]] = field(default_factory=list)  # (seq, text)
+    errors: list[tuple[int, str]] = field(default_factory=list)
+    hit_pose: dict[int, tuple[tuple[float, ...], ...] | None] = field(default_factory=dict)  # pose in force per hit
+    last_event: dict | None = None
+
+    def copy(self) -> "SessionState":
+        """An independent copy (records are immutable, so shallow container copies suffice)."""
+        return replace(self, hits=dict(self.hits), deleted_hits=dict(self.deleted_hits), features=dict(self.features),
+                       alignments=list(self.alignments), notes=list(self.notes), errors=list(self.errors),
+                       hit_pose=dict(self.hit_pose))
+
+    @property
+    def pose_array(self) -> np.ndarray | None:
+        return None if self.part_pose is None else np.array(self.part_pose, dtype=np.float64)
+
+    @property
+    def alignment(self) -> AlignmentRecord | None:
+        return self.alignments[-1] if self.alignments else None
+
+    def points(self, ids: Iterable[int] | None = None) -> np.ndarray:
+        """Compensated points (n x 3, machine mm) of the active hits (or of ``ids``)."""
+        recs = self.hits.values() if ids is None else [self.hits.get(i) or self.deleted_hits[i] for i in ids]
+        return np.array([h.point for h in recs], dtype=np.float64).reshape(-1, 3)
+
+    def apply(self, event: dict, index: int | None = None) -> None:
+        kind = event.get("kind")
+        self.index = self.index + 1 if index is None else index
+        self.seq = int(event.get("seq", self.seq + 1))
+        self.time = event.get("time", self.time)
+        self.last_event = event
+        if kind == "start":
+            if event.get("part") is not None:
+                self.part = PartRef(str(event["part"]), event.get("part_sha256"), _pose(event.get("part_pose")) or _pose(np.eye(4)),  # type: ignore[arg-type]
+                                    event.get("part_path"))
+            self.part_pose = _pose(event.get("part_pose"))
+        elif kind == "part":
+            pose = _pose(event.get("pose")) or _pose(np.eye(4))
+            self.part = PartRef(str(event.get("name")), event.get("sha256"), pose, event.get("path"))  # type: ignore[arg-type]
+            self.part_pose = pose
+        elif kind == "alignment":
+            pose = _pose(event["pose"])
+            info = {k: v for k, v in event.items() if k not in ("seq", "time", "kind", "pose", "method")}
+            self.alignments.append(AlignmentRecord(self.seq, str(event.get("method", "manual")), pose, info))  # type: ignore[arg-type]
+            self.part_pose = pose
+        elif kind == "hit":
+            rec = HitRecord.from_event(event)
+            self.hits[rec.id] = rec
+            self.deleted_hits.pop(rec.id, None)
+            self.hit_pose[rec.id] = self.part_pose
+        elif kind == "hit_deleted":
+            hid = int(event["id"])
+            if hid in self.hits:
+                self.deleted_hits[hid] = self.hits.pop(hid)
+        elif kind == "hit_restored":
+            hid = int(event["id"])
+            if hid in self.deleted_hits:
+                self.hits[hid] = self.deleted_hits.pop(hid)
+                self.hits = dict(sorted(self.hits.items()))
+        elif kind == "feature":
+            rec = FeatureRecord.from_event(event)
+            self.features[rec.id] = rec
+        elif kind == "feature_deleted":
+            self.features.pop(int(event["id"]), None)
+        elif kind == "note":
+            self.notes.append((self.seq, str(event.get("text", ""))))
+        elif kind == "error":
+            self.errors.append((self.seq, str(event.get("message", ""))))
+
+
+@dataclass
+class Session:
+    """A whole session: its events, the final state and the recorded configuration."""
+
+    name: str
+    events: list[dict]
+    damage: str | None = None
+    state: SessionState = field(default_factory=SessionState)
+
+    @classmethod
+    def from_events(cls, events: list[dict], name: str = "session", damage: str | None = None) -> "Session":
+        state = SessionState()
+        for i, e in enumerate(events):
+            state.apply(e, i)
+        return cls(name, list(events), damage, state)
+
+    # --- recorded configuration ------------------------------------------------
+
+    @property
+    def start(self) -> dict:
+        for e in self.events:
+            if e.get("kind") == "start":
+                return e
+        return {}
+
+    @property
+    def hits(self) -> dict[int, HitRecord]:
+        return self.state.hits
+
+    @property
+    def features(self) -> dict[int, FeatureRecord]:
+        return self.state.features
+
+    @property
+    def part(self) -> PartRef | None:
+        return self.state.part
+
+    @property
+    def derived_from(self) -> dict | None:
+        return self.start.get("derived_from")
+
+    def axes(self) -> list[dict]:
+        """Per-axis counts -> mm configuration as recorded (older journals: the shipped default, with a warning)."""
+        axes = self.start.get("axes")
+        if axes:
+            return axes
+        from ..machine.config import load
+
+        cfg = load()
+        return [axis_snapshot(a) for a in cfg.axes]
+
+    @property
+    def warnings(self) -> list[str]:
+        out = []
+        if self.damage:
+            out.append(self.damage)
+        if self.events and not self.start.get("axes"):
+            out.append("this journal does not record the axis configuration; "
+                       "counts are converted with the shipped default machine.toml")
+        return out
+
+    def correction(self) -> dict:
+        return self.start.get("correction") or {"scale_ppm": [0.0, 0.0, 0.0], "squareness_urad": [0.0, 0.0, 0.0]}
+
+    def probe_settings(self) -> Any:
+        """The ProbeSettings (tip radius + pre-travel model) the session was recorded with."""
+        from ..machine.probing import ProbeSettings
+        from ..metrology.compensation import PretravelModel
+
+        s = self.start
+        return ProbeSettings(float(s.get("tip_radius", 1.0)), PretravelModel(dict(s.get("pretravel") or {})))
+
+    def counts_to_mm(self, counts: Any) -> np.ndarray:
+        """Raw counts (n x 3) -> machine mm through the recorded axis config and geometry correction."""
+        return counts_to_mm(counts, self.axes(), self.correction())
+
+    def summary(self) -> dict[str, Any]:
+        s = self.state
+        return {"name": self.name, "events": len(self.events), "hits": len(s.hits), "deleted_hits": len(s.deleted_hits),
+                "features": len(s.features), "alignments": len(s.alignments), "notes": len(s.notes),
+                "errors": len(s.errors), "part": None if s.part is None else s.part.name,
+                "part_sha256": None if s.part is None else s.part.sha256,
+                "started": self.events[0].get("time") if self.events else None,
+                "ended": self.events[-1].get("time") if self.events else None,
+                "derived_from": self.derived_from, "damage": self.damage}
+
+
+# --- snapshots and helpers used by the station and the recorder --------------------
+
+
+def axis_snapshot(axis: Any) -> dict:
+    return {"name": axis.name, "counts_per_mm": axis.counts_per_mm, "direction": axis.direction,
+            "home": axis.home, "min": axis.min, "max": axis.max}
+
+
+def machine_snapshot(config: Any, correction: Any = None, settings: Any = None) -> dict:
+    """The configuration + calibration fields of a ``start`` event (JSON-ready)."""
+    out: dict[str, Any] = {
+        "format": FORMAT,
+        "config": config.source,
+        "axes": [axis_snapshot(a) for a in config.axes],
+        "probe": {k: getattr(config.probe, k) for k in ("input", "active_level", "tip_radius", "pretravel",
+                                                        "approach_distance", "search_distance", "retract_distance")},
+        "speeds": {k: getattr(config.speeds, k) for k in ("positioning", "probing")},
+    }
+    if correction is not None:
+        out["correction"] = {"scale_ppm": list(correction.scale_ppm), "squareness_urad": list(correction.squareness_urad)}
+    if settings is not None:
+        out["tip_radius"] = settings.tip_radius
+        out["pretravel"] = dict(settings.pretravel.coefficients)
+    return out
+
+
+def counts_to_mm(counts: Any, axes: list[dict], correction: dict | None = None) -> np.ndarray:
+    from ..machine.geometry import geometry_matrix
+
+    c = np.atleast_2d(np.asarray(counts, dtype=np.float64))
+    readings = np.column_stack([a["home"] + c[:, i] / (a["counts_per_mm"] * a["direction"]) for i, a in enumerate(axes)])
+    if correction and (any(correction.get("scale_ppm", ())) or any(correction.get("squareness_urad", ()))):
+        m = geometry_matrix(tuple(correction["scale_ppm"]), tuple(correction["squareness_urad"]))
+        readings = readings @ m.T
+    return readings
+
+
+def mesh_sha256(mesh: Any) -> str:
+    """Content hash of a mesh: the file's sha256 if it was loaded from a file
+    (``mesh.metadata['sha256']``), else sha256 of its float64 vertices and int64 faces."""
+    meta = getattr(mesh, "metadata", None) or {}
+    if meta.get("sha256"):
+        return str(meta["sha256"])
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(mesh.vertices, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(mesh.faces, dtype="<i8").tobytes())
+    return h.hexdigest()
+
+
+def file_sha256(path: Any) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -1,0 +1,117 @@
+"""Re-evaluate a recorded session from its raw hits: the raw counts are the truth.
+
+For every hit: counts -> machine mm through the axis configuration and
+geometry correction recorded in the session's ``start`` event, then
+compensation with the given :class:`ProbeSettings` (tip radius + pre-travel
+model). Every feature is refitted with its recorded kind and hits and the
+chosen method (default: the recorded one), exactly as the station fits:
+fit the pre-travel-corrected tip centres, then offset by the tip radius
+(points: the compensated point; lines: the tip-centre line).
+
+The result is a new in-memory :class:`Session` whose events are the
+original ones with hits and features replaced; its ``start`` event carries
+``derived_from`` naming the original. ``write_session`` stores it as a new
+session.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from ..metrology import fit_criteria
+from ..metrology.features import FitError, FitResult
+from ..metrology.probe_offset import offset_feature
+from .model import HitRecord, Session
+
+
+def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, settings: Any) -> FitResult:
+    """The station's feature fit from latched tip centres, approach directions and compensated points."""
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
+    approach = np.asarray(approach, dtype=np.float64).reshape(-1, 3)
+    if kind == "point":
+        return fit_criteria.fit("point", np.asarray(points, dtype=np.float64).reshape(-1, 3), method)
+    centres = centres - settings.pretravel(approach)[:, None] * approach
+    result = fit_criteria.fit(kind, centres, method)
+    if kind != "line":
+        result = offset_feature(result, centres, approach, settings.tip_radius)
+    return result
+
+
+def feature_fields(result: FitResult) -> dict[str, Any]:
+    """A fit summary as recorded in ``feature`` events (``kind`` -> ``feature_kind``)."""
+    return {("feature_kind" if k == "kind" else k): v for k, v in result.summary().items()}
+
+
+def recompute_hits(session: Session, settings: Any) -> dict[int, HitRecord]:
+    """Every hit ever recorded (active or deleted), recomputed from its counts."""
+    recs = {int(e["id"]): HitRecord.from_event(e) for e in session.events if e.get("kind") == "hit"}
+    if not recs:
+        return {}
+    ids = list(recs)
+    counts = np.array([recs[i].counts for i in ids], dtype=np.float64)
+    machine = session.counts_to_mm(counts)
+    approach = np.array([recs[i].approach for i in ids], dtype=np.float64)
+    normals = [recs[i].normal for i in ids]
+    points = settings.compensate(machine, approach)
+    for k, n in enumerate(normals):
+        if n is not None:
+            points[k] = settings.compensate(machine[k], approach[k], np.asarray(n))
+    out = {}
+    for k, i in enumerate(ids):
+        out[i] = HitRecord(i, recs[i].seq, recs[i].counts, tuple(float(x) for x in machine[k]), recs[i].approach,  # type: ignore[arg-type]
+                           recs[i].speed, recs[i].time, tuple(float(x) for x in points[k]), recs[i].mode, recs[i].normal)  # type: ignore[arg-type]
+    return out
+
+
+def reevaluate(session: Session, settings: Any = None, *, method: str | None = None,
+               methods: dict[str, str] | None = None, name: str | None = None,
+               progress: Callable[[int, int], None] | None = None) -> Session:
+    """A new session evaluated from ``session``'s raw hits.
+
+    ``settings``: the ProbeSettings to compensate with (default: the recorded
+    ones). ``method`` refits every feature with that criterion; ``methods``
+    maps feature names to criteria (wins over ``method``); otherwise each
+    feature keeps its recorded method. A feature that cannot be refitted
+    (e.g. a method not available for its kind) becomes an ``error`` event.
+    """
+    settings = settings or session.probe_settings()
+    hits = recompute_hits(session, settings)
+    methods = methods or {}
+    events: list[dict] = []
+    n = len(session.events)
+    for i, e in enumerate(session.events):
+        kind = e.get("kind")
+        head = {"seq": e.get("seq"), "time": e.get("time"), "kind": kind}
+        if kind == "start":
+            events.append({**e, "tip_radius": settings.tip_radius, "pretravel": dict(settings.pretravel.coefficients),
+                           "derived_from": {"session": session.name, "how": "re-evaluation from raw counts",
+                                            "recorded_tip_radius": e.get("tip_radius"),
+                                            "recorded_pretravel": e.get("pretravel"), "method": method,
+                                            "methods": methods or None}})
+        elif kind == "hit":
+            events.append({**head, **hits[int(e["id"])].to_event()})
+        elif kind == "feature":
+            fmethod = methods.get(e.get("name", ""), method or e.get("method", "ls"))
+            ids = [int(h) for h in e.get("hit_ids", ())]
+            recs = [hits[h] for h in ids if h in hits]
+            try:
+                if len(recs) != len(ids):
+                    raise FitError(f"hits {[h for h in ids if h not in hits]} are not in the journal")
+                result = fit_hits(e["feature_kind"], fmethod, [h.machine for h in recs], [h.approach for h in recs],
+                                  [h.point for h in recs], settings)
+            except (FitError, ValueError) as exc:
+                events.append({**head, "kind": "error", "source": "reevaluate",
+                               "message": f"feature {e.get('name')!r} could not be refitted: {exc}"})
+                continue
+            fields = feature_fields(result)
+            fields["feature_kind"] = e["feature_kind"]
+            extra = {k: e[k] for k in ("tolerance",) if k in e}
+            events.append({**head, "id": e["id"], "name": e.get("name"), "hit_ids": ids, **fields,
+                           "nominal": e.get("nominal"), **extra})
+        else:
+            events.append(dict(e))
+        if progress is not None and (i % 1000 == 0 or i == n - 1):
+            progress(i + 1, n)
+    return Session.from_events(events, name or f"{session.name}-reevaluated", None)
