@@ -77,11 +77,15 @@ class Client:
     def errors(self) -> list[str]:
         return [m["message"] for m in self.messages if m.get("type") == "error"]
 
-    def jog_for(self, v, seconds: float, period: float = 0.05) -> None:
+    def jog_for(self, v, seconds: float, period: float = 0.05) -> float:
+        """Send a jog every ``period`` for ``seconds``; returns the time of the last one."""
         end = time.monotonic() + seconds
+        last = time.monotonic()
         while time.monotonic() < end:
             self.send(type="jog", v=v)
+            last = time.monotonic()
             self.drain(period)
+        return last
 
     def close(self) -> None:
         self.ws.close()
@@ -218,9 +222,8 @@ def test_silence_stops_the_jog(server, station, client):
     c = client()
     c.send(type="take")
     c.wait_for("control")
-    c.jog_for([20, 0, 0], 0.3)
+    last = c.jog_for([20, 0, 0], 0.3)
     wait_moving(station)
-    last = time.monotonic()
     assert time_to_stop(station, last) < STOP_WITHIN  # no release, no message: the dead-man stops it
 
 
