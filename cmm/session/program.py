@@ -132,8 +132,8 @@ def teach(session: Session, *, name: str | None = None, clearance: float = 10.0,
         dirs[hid] = inv[:3, :3] @ np.array(h.approach)
     top = float(np.asarray(part_mesh.bounds)[1, 2]) if part_mesh is not None else max(float(p[2]) for p in pts.values())
     renumber = {hid: k + 1 for k, hid in enumerate(used)}
-    hits = [ProgramHit(renumber[h], tuple(round(float(x), 6) for x in pts[h]),  # type: ignore[arg-type]
-                       tuple(round(float(x), 9) for x in dirs[h] / np.linalg.norm(dirs[h])),  # type: ignore[arg-type]
+    hits = [ProgramHit(renumber[h], tuple(round(float(x), 6) + 0.0 for x in pts[h]),  # type: ignore[arg-type]
+                       tuple(round(float(x), 9) + 0.0 for x in dirs[h] / np.linalg.norm(dirs[h])),  # type: ignore[arg-type]
                        round(top + clearance, 3)) for h in used]
     out = []
     for f in feats:
@@ -223,8 +223,11 @@ def from_toml(text: str, source: str = "<program>") -> Program:
         cz = h.get("clearance_z", None)
         if not isinstance(cz, (int, float)) or isinstance(cz, bool):
             raise ProgramError(f"{where} needs a clearance_z height (part Z, mm)")
+        norm = float(np.linalg.norm(u))
+        if abs(norm - 1.0) > 1e-6:  # an edited direction need not be unit
+            u = u / norm
         hits.append(ProgramHit(h["id"], _vec(h.get("point"), f"{where} point"),
-                               tuple(float(x) for x in u / np.linalg.norm(u)), float(cz)))  # type: ignore[arg-type]
+                               tuple(float(x) for x in u), float(cz)))  # type: ignore[arg-type]
     features = []
     for k, f in enumerate(data.get("features") or [], 1):
         where = f"{source}: feature #{k}"

@@ -1,0 +1,126 @@
+"""Helpers for the session tests: record real sessions on the simulated CMM (in-process, virtual clock)."""
+
+from __future__ import annotations
+
+import functools
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from cmm.machine.config import load
+from cmm.machine.motion import Machine
+from cmm.machine.probing import Prober
+from cmm.metrology.align import best_fit
+from cmm.metrology.compensation import PretravelModel
+from cmm.session.recorder import PartInfo, SessionRecorder
+from cmm.session.store import DirectoryStore
+from cmm.sim.cmm_sim import NOMINAL_PART_POSE, CmmSimSettings, SimulatedCMM, pose_matrix
+
+
+def matched_pretravel(sim) -> PretravelModel:
+    p = sim.settings.probe
+    return PretravelModel({"const": p.pretravel_xy, "s_cos3": p.pretravel_lobe, "z2": p.pretravel_z - p.pretravel_xy})
+
+
+def setup(part_pose=None):
+    config = load()
+    sim = SimulatedCMM(config, CmmSimSettings() if part_pose is None else CmmSimSettings(part_pose=part_pose))
+    machine = Machine(config, sim.transport())
+    machine.connect()
+    prober = Prober(machine)
+    prober.settings.pretravel = matched_pretravel(sim)
+    return sim, machine, prober
+
+
+def to_machine(pose, p):
+    return (pose @ np.append(np.asarray(p, float), 1.0))[:3]
+
+
+def dir_to_machine(pose, u):
+    return pose[:3, :3] @ np.asarray(u, float)
+
+
+# alignment hits (part coordinates, approach into the surface): top, front, left faces
+ALIGN_HITS = [((15, 10, 40), (0, 0, -1)), ((110, 15, 40), (0, 0, -1)), ((110, 70, 40), (0, 0, -1)),
+              ((15, 70, 40), (0, 0, -1)),
+              ((15, 0, 20), (0, 1, 0)), ((100, 0, 20), (0, 1, 0)), ((60, 0, 10), (0, 1, 0)),
+              ((0, 15, 20), (1, 0, 0)), ((0, 65, 20), (1, 0, 0))]
+
+
+def feature_hits():
+    """(name, kind, [(part point, approach)]) for the taught features."""
+    top = [((10, 30, 40), (0, 0, -1)), ((50, 5, 40), (0, 0, -1)), ((112, 72, 40), (0, 0, -1)), ((95, 10, 40), (0, 0, -1))]
+    boss = []
+    for z in (44.0, 52.0):
+        for a in np.radians([10, 100, 190, 280]):
+            n = np.array([np.cos(a), np.sin(a), 0.0])
+            boss.append((np.array([70, 22, z]) + 10 * n, -n))
+    dome = [((70, 58, 49), (0, 0, -1))]
+    for a in np.radians([20, 110, 200, 290]):
+        t = np.radians(50)
+        n = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
+        dome.append((np.array([70, 58, 39]) + 10 * n, -n))
+    return [("top_plane", "plane", top), ("boss", "cylinder", boss), ("dome", "sphere", dome)]
+
+
+CLEARANCE_Z = 65.0  # part z
+
+
+def align(rec, machine_guess_pose):
+    """Probe the alignment hits where the part is believed to be, best-fit them to the mesh."""
+    ids = []
+    for p, u in ALIGN_HITS:
+        hit = rec.probe(to_machine(machine_guess_pose, p), dir_to_machine(machine_guess_pose, u),
+                        clearance_z=to_machine(machine_guess_pose, [p[0], p[1], CLEARANCE_Z])[2]).wait()
+        ids.append(rec.hit_id(hit))
+    pts = np.array([rec.hits[i].point for i in ids])
+    fit = best_fit(rec.part.mesh, pts, initial=machine_guess_pose)
+    rec.set_alignment(fit.transform, "best_fit", rms=fit.rms, max_residual=fit.max_residual, hit_ids=ids)
+    return fit.transform
+
+
+def measure(rec, pose, nominals):
+    for name, kind, hits in feature_hits():
+        ids = []
+        for p, u in hits:
+            hit = rec.probe(to_machine(pose, p), dir_to_machine(pose, u),
+                            clearance_z=to_machine(pose, [p[0], p[1], CLEARANCE_Z])[2]).wait()
+            ids.append(rec.hit_id(hit))
+        rec.fit_feature(kind, ids, "ls", name, nominals[name].transformed(pose))
+
+
+def record_session(store, name, part_pose=None, guess_pose=None):
+    """A complete session: start, alignment (9 hits + best fit), 3 features (17 hits), a note."""
+    sim, machine, prober = setup(part_pose)
+    part = PartInfo("sample part", sim.part_mesh, (NOMINAL_PART_POSE if guess_pose is None else guess_pose).copy(),
+                    dict(sim.nominal_features))
+    rec = SessionRecorder(store.create(name), machine, prober, part, port="in-process")
+    try:
+        pose = align(rec, part.pose)
+        measure(rec, pose, sim.nominal_features)
+        rec.note("taught on the first set-up")
+    finally:
+        rec.close()
+        machine.close()
+    return sim
+
+
+@functools.lru_cache(maxsize=1)
+def _recorded() -> Path:
+    root = Path(tempfile.mkdtemp(prefix="cmm-session-tests-"))
+    record_session(DirectoryStore(root), "taught")
+    return root / "taught.jsonl"
+
+
+def recorded_copy(directory: Path, name: str = "taught") -> Path:
+    """A copy of the (once per test process) recorded session journal in ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    dest = directory / f"{name}.jsonl"
+    shutil.copyfile(_recorded(), dest)
+    return dest
+
+
+SECOND_POSE = pose_matrix((240.0, 190.0, 0.0), rz_deg=20.0)
+SECOND_GUESS = pose_matrix((240.5, 189.6, 0.0), rz_deg=19.6)

@@ -1,0 +1,140 @@
+"""Teach and repeat: a program taught on one set-up runs on a second part pose after alignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import session_support as sup
+from cmm.session import program as prog
+from cmm.session.recorder import PartInfo, SessionRecorder
+from cmm.session.store import DirectoryStore, load_session
+from cmm.sim.sample_part import reference_sphere
+
+COUNT = 0.002
+
+
+@pytest.fixture(scope="module")
+def taught(tmp_path_factory):
+    root = tmp_path_factory.mktemp("programs")
+    sup.recorded_copy(root)
+    session = load_session(DirectoryStore(root), "taught")
+    sim, _, _ = sup.setup()
+    return prog.teach(session, name="sample-part check", part_mesh=sim.part_mesh, part_nominals=sim.nominal_features)
+
+
+def _part_coords(feature, pose):
+    """The fitted feature's characteristic values in part coordinates."""
+    inv = np.linalg.inv(pose)
+    g = feature.result.geometry()
+    R, t = inv[:3, :3], inv[:3, 3]
+    if feature.kind == "plane":
+        n = R @ np.array(g["normal"])
+        return {"offset": float(n @ (R @ np.array(g["point"]) + t)), "normal": n}
+    if feature.kind == "cylinder":
+        d = R @ np.array(g["direction"])
+        p = R @ np.array(g["point"]) + t
+        p40 = p + (40.0 - p[2]) / d[2] * d  # the axis at part z = 40
+        return {"radius": g["radius"], "axis_xy": p40[:2], "direction": d * np.sign(d[2])}
+    if feature.kind == "sphere":
+        return {"radius": g["radius"], "center": R @ np.array(g["center"]) + t}
+    raise AssertionError(feature.kind)
+
+
+def test_program_round_trips_through_toml(taught, tmp_path):
+    path = prog.save(taught, tmp_path / "check.toml")
+    text = path.read_text()
+    assert 'format = "cmm-program/1"' in text and "[[hits]]" in text and "clearance_z" in text
+    again = prog.load(path)
+    assert again == taught
+    assert [f.name for f in again.features] == ["top_plane", "boss", "dome"]
+    assert len(again.hits) == 17
+    boss = again.feature("boss")
+    assert boss.kind == "cylinder" and boss.method == "ls" and boss.nominal_ref == "boss"
+    assert boss.nominal["radius"] == pytest.approx(10.0)
+    # hits are in part coordinates: the boss hits lie on its nominal surface
+    for i in boss.hits:
+        h = next(h for h in again.hits if h.id == i)
+        assert np.hypot(h.point[0] - 70, h.point[1] - 22) == pytest.approx(10.0, abs=0.01)
+
+
+def test_program_taught_on_one_pose_measures_the_same_on_a_second_pose(taught, tmp_path):
+    # first set-up: the features as the taught session measured them (re-run the program there too)
+    results = []
+    for true_pose, guess in ((None, sup.NOMINAL_PART_POSE), (sup.SECOND_POSE, sup.SECOND_GUESS)):
+        sim, machine, prober = sup.setup(true_pose)
+        part = PartInfo("sample part", sim.part_mesh, guess.copy(), dict(sim.nominal_features))
+        rec = SessionRecorder(DirectoryStore(tmp_path).create(f"run{len(results)}"), machine, prober, part)
+        try:
+            pose = sup.align(rec, guess)
+            run = prog.run_program(taught, rec, pose)
+        finally:
+            rec.close()
+            machine.close()
+        assert set(run.features) == {"top_plane", "boss", "dome"}
+        assert len(run.hit_ids) == 17
+        results.append({name: _part_coords(f, pose) for name, f in run.features.items()})
+    a, b = results
+    tol = 2 * COUNT
+    assert abs(a["top_plane"]["offset"] - b["top_plane"]["offset"]) <= tol
+    assert a["top_plane"]["offset"] == pytest.approx(40.0, abs=tol)
+    assert abs(a["boss"]["radius"] - b["boss"]["radius"]) <= tol
+    assert np.linalg.norm(a["boss"]["axis_xy"] - b["boss"]["axis_xy"]) <= tol
+    assert np.linalg.norm(a["boss"]["axis_xy"] - [70, 22]) <= tol
+    assert abs(a["dome"]["radius"] - b["dome"]["radius"]) <= tol
+    assert np.linalg.norm(a["dome"]["center"] - b["dome"]["center"]) <= tol
+    # the second run's session records the alignment, the hits and the fitted features
+    s = load_session(DirectoryStore(tmp_path), "run1")
+    assert len(s.state.alignments) == 1 and len(s.features) == 3 and len(s.hits) == 9 + 17
+    assert any("program" in text for _, text in s.state.notes)
+
+
+def _recorder(tmp_path, mesh=None, nominals=None):
+    sim, machine, prober = sup.setup()
+    part = PartInfo("other", mesh if mesh is not None else sim.part_mesh, sup.NOMINAL_PART_POSE.copy(),
+                    dict(sim.nominal_features) if nominals is None else nominals)
+    return SessionRecorder(DirectoryStore(tmp_path).create("refused"), machine, prober, part), machine
+
+
+def _refused(program, tmp_path, match, **kw):
+    rec, machine = _recorder(tmp_path, **kw)
+    start = machine.position.copy()
+    try:
+        with pytest.raises(prog.ProgramError, match=match):
+            prog.run_program(program, rec, sup.NOMINAL_PART_POSE)
+        assert np.allclose(machine.position, start)  # nothing moved
+        assert rec.hits == {}
+    finally:
+        rec.close()
+        machine.close()
+
+
+def test_a_program_for_another_part_is_refused_before_anything_moves(taught, tmp_path):
+    other, _ = reference_sphere()
+    _refused(taught, tmp_path, r"taught on part 'sample part' \(sha256 .*loaded part 'other'", mesh=other)
+
+
+def test_a_program_whose_features_do_not_match_is_refused_before_anything_moves(taught, tmp_path):
+    text = prog.to_toml(taught)
+    bad = prog.from_toml(text.replace('nominal_ref = "boss"', 'nominal_ref = "flange"'))
+    _refused(bad, tmp_path / "a", r"nominal feature 'flange'.*does not have")
+    bad = prog.from_toml(text)
+    bad.features[1].hits.append(99)
+    _refused(bad, tmp_path / "b", r"refers to hits \[99\]")
+    bad = prog.from_toml(text.replace('kind = "sphere"', 'kind = "sphere"\nmethod = "mcc"', 0))
+    bad.features[0].method = "mic"
+    _refused(bad, tmp_path / "c", r"method 'mic' is not available for a plane")
+
+
+def test_bad_program_files_are_refused_with_a_message(tmp_path):
+    with pytest.raises(prog.ProgramError, match="not valid TOML"):
+        prog.from_toml("name = [", "x.toml")
+    with pytest.raises(prog.ProgramError, match="format must be"):
+        prog.from_toml('name = "x"')
+    with pytest.raises(prog.ProgramError, match="sha256"):
+        prog.from_toml('format = "cmm-program/1"\n[part]\nname = "x"\n')
+    with pytest.raises(prog.ProgramError, match="three finite numbers"):
+        prog.from_toml('format = "cmm-program/1"\n[part]\nsha256 = "ab"\n[[hits]]\nid = 1\npoint = [1, 2]\n'
+                       'approach = [0, 0, -1]\nclearance_z = 50.0\n')
+    with pytest.raises(prog.ProgramError, match="cannot read"):
+        prog.load(tmp_path / "missing.toml")
