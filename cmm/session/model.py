@@ -141,14 +141,18 @@ class SessionState:
     alignments: list[AlignmentRecord] = field(default_factory=list)
     notes: list[tuple[int, str]] = field(default_factory=list)  # (seq, text)
     errors: list[tuple[int, str]] = field(default_factory=list)
-    hit_pose: dict[int, tuple[tuple[float, ...], ...] | None] = field(default_factory=dict)  # pose in force per hit
+    # part pose per hit: the alignment in force when it was taken; hits taken before the first
+    # alignment of a part get that alignment (it is the best knowledge of where that part is)
+    hit_pose: dict[int, tuple[tuple[float, ...], ...] | None] = field(default_factory=dict)
+    unaligned: list[int] = field(default_factory=list)
+    aligned: bool = False  # an alignment was made since the part was (re)loaded
     last_event: dict | None = None
 
     def copy(self) -> "SessionState":
         """An independent copy (records are immutable, so shallow container copies suffice)."""
         return replace(self, hits=dict(self.hits), deleted_hits=dict(self.deleted_hits), features=dict(self.features),
                        alignments=list(self.alignments), notes=list(self.notes), errors=list(self.errors),
-                       hit_pose=dict(self.hit_pose))
+                       hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned))
 
     @property
     def pose_array(self) -> np.ndarray | None:
@@ -178,16 +182,24 @@ class SessionState:
             pose = _pose(event.get("pose")) or _pose(np.eye(4))
             self.part = PartRef(str(event.get("name")), event.get("sha256"), pose, event.get("path"))  # type: ignore[arg-type]
             self.part_pose = pose
+            self.unaligned = []
+            self.aligned = False
         elif kind == "alignment":
             pose = _pose(event["pose"])
             info = {k: v for k, v in event.items() if k not in ("seq", "time", "kind", "pose", "method")}
             self.alignments.append(AlignmentRecord(self.seq, str(event.get("method", "manual")), pose, info))  # type: ignore[arg-type]
             self.part_pose = pose
+            for hid in self.unaligned:
+                self.hit_pose[hid] = pose
+            self.unaligned = []
+            self.aligned = True
         elif kind == "hit":
             rec = HitRecord.from_event(event)
             self.hits[rec.id] = rec
             self.deleted_hits.pop(rec.id, None)
             self.hit_pose[rec.id] = self.part_pose
+            if not self.aligned:
+                self.unaligned.append(rec.id)
         elif kind == "hit_deleted":
             hid = int(event["id"])
             if hid in self.hits:
