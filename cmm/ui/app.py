@@ -51,6 +51,7 @@ class StationApp:
         self.view = SceneView(self.server.scene, station, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)
         self.view.build()
+        self.view.frame_camera(self.server.initial_camera)
         self.pendant = None
         self.pendant_url: str | None = None
         if pendant:

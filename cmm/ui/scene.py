@@ -161,13 +161,25 @@ class SceneView:
 
     # --- building -------------------------------------------------------------
 
+    def frame_camera(self, camera: Any) -> None:
+        """Start new clients (viser's initial camera) looking at the whole envelope from the front right."""
+        cfg = self.station.config
+        lo = np.array([a.min for a in cfg.axes])
+        hi = np.array([a.max for a in cfg.axes])
+        centre = (lo + hi) / 2 * SCALE
+        size = float(np.max(hi - lo)) * SCALE
+        camera.look_at = (float(centre[0]), float(centre[1]), float(lo[2] * SCALE))
+        camera.position = tuple(float(v) for v in centre + np.array([1.1, -1.5, 1.0]) * size)
+
     def build(self) -> None:
         st, cfg = self.station, self.station.config
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
         self.scene.set_up_direction("+z")
-        self.scene.add_box("/machine/envelope", color=(120, 120, 120), dimensions=tuple((hi - lo) * SCALE),
-                           wireframe=True, position=tuple((lo + hi) / 2 * SCALE))
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
+        self.scene.add_line_segments("/machine/envelope", (corners[np.array(edges)] * SCALE).astype(np.float32),
+                                     colors=(120, 120, 120), line_width=1.5)
         table_z = lo[2] - 5.0
         self.scene.add_box("/machine/table", color=(70, 70, 78), dimensions=(
             (hi[0] - lo[0] + 100) * SCALE, (hi[1] - lo[1] + 100) * SCALE, 10 * SCALE),
