@@ -26,6 +26,8 @@ from .metrology.pick import NominalFeature, PickResult, pick, suggest_feature
 from .metrology.probe_offset import offset_feature
 from .nmc.trace import ByteTrace
 from .session.journal import Journal
+from .session.model import file_sha256, machine_snapshot, mesh_sha256
+from .session.store import is_url, open_store
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 
@@ -93,7 +95,7 @@ class Station:
         self.last_hit: Hit | None = None
         self.events: list[tuple[float, str, str]] = []  # (time, kind, message) for the UI
         self._listeners: list[Callable[[str, Any], None]] = []
-        self.session_dir = Path(session_dir)
+        self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
         self.journal: Journal | None = None
         self.machine.on_event(lambda kind, info: self._notify(kind, info))
         if part_path is not None and self.sim is None:
@@ -153,6 +155,10 @@ class Station:
     def _notify(self, kind: str, info: Any) -> None:
         if kind in ("contact", "deadman", "limit", "error", "estop"):
             self.events.append((time.time(), kind, str(info)))
+            try:
+                self._record("error", source=f"machine:{kind}", message=str(info))
+            except (OSError, ValueError, TypeError):  # the session may be closing
+                pass
         for fn in list(self._listeners):
             try:
                 fn(kind, info)
@@ -168,18 +174,29 @@ class Station:
 
     # --- session ----------------------------------------------------------------
 
-    def new_session(self, name: str | None = None) -> Path:
+    def new_session(self, name: str | None = None) -> Path | str:
         with self.lock:
             if self.journal is not None:
                 self.journal.close()
-            name = name or time.strftime("session-%Y%m%d-%H%M%S")
-            path = self.session_dir / f"{name}.jsonl"
-            self.journal = Journal(path)
-            self.journal.append("start", config=self.config.source, port=str(self.port),
-                                tip_radius=self.prober.settings.tip_radius,
-                                pretravel=self.prober.settings.pretravel.coefficients,
-                                part=None if self.part is None else self.part.name,
-                                part_pose=None if self.part is None else self.part.pose)
+            stamp = time.strftime("session-%Y%m%d-%H%M%S")
+            name = name or stamp
+            if is_url(self.session_dir):
+                self.journal = open_store(self.session_dir).create(name, append=True)  # type: ignore[assignment]
+                path: Path | str = f"{name}"
+            else:
+                path = self.session_dir / f"{name}.jsonl"
+                for n in range(2, 100):  # two stations started in the same second get their own sessions
+                    if name != stamp or not path.exists():
+                        break
+                    path = self.session_dir / f"{stamp}-{n}.jsonl"
+                self.journal = Journal(path)
+            part = self.part
+            self.journal.append("start", port=str(self.port),  # configuration + calibration snapshot
+                                **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
+                                part=None if part is None else part.name,
+                                part_pose=None if part is None else part.pose,
+                                part_sha256=None if part is None else mesh_sha256(part.mesh),
+                                part_path=None if part is None else part.mesh.metadata.get("path"))
             return path
 
     def _record(self, kind: str, **data: Any) -> None:
@@ -192,9 +209,11 @@ class Station:
         from .metrology.mesh import load_part
 
         mesh = load_part(path)
+        mesh.metadata["sha256"], mesh.metadata["path"] = file_sha256(path), str(Path(path).resolve())
         with self.lock:
             self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))
-            self._record("part", name=self.part.name, pose=self.part.pose) if self.journal else None
+            self._record("part", name=self.part.name, pose=self.part.pose, sha256=mesh.metadata["sha256"],
+                         path=mesh.metadata["path"]) if self.journal else None
         self._notify("part", self.part)
         return self.part
 
@@ -264,7 +283,7 @@ class Station:
             hid = self._next_hit
             self._next_hit += 1
             self._record("hit", id=hid, counts=hit.counts, machine=hit.machine, approach=hit.approach,
-                         speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode)
+                         speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal)
             self.hits[hid] = hit  # on disk before anyone is shown it
             self.last_hit = hit
             self._undo.append(("add", hid))
@@ -348,6 +367,21 @@ class Station:
 
     def note(self, text: str) -> None:
         self._record("note", text=text)
+
+    def set_alignment(self, pose: Any, method: str = "manual", **info: Any) -> None:
+        """Adopt a part -> machine pose from an alignment (3-2-1, best fit) and record it."""
+        if self.part is None:
+            raise StationError("load a part before aligning it")
+        with self.lock:
+            self.part.pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+            self._record("alignment", pose=self.part.pose, method=method, **info)
+        self._notify("part", self.part)
+
+    def run_program(self, program: Any, part_pose: Any = None) -> Any:
+        """Run a taught measurement program (cmm.session.program) on the aligned part."""
+        from .session.program import load, run_program
+
+        return run_program(load(program) if isinstance(program, (str, Path)) else program, self, part_pose)
 
     def wait_idle(self, timeout: float = 60.0) -> None:
         end = time.monotonic() + timeout

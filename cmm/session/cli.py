@@ -1,0 +1,167 @@
+"""`cmm sessions`: list, show, rename, delete and export recorded sessions.
+
+    cmm sessions [--store DIR|URL] list
+    cmm sessions show NAME
+    cmm sessions rename OLD NEW
+    cmm sessions delete NAME [--yes]
+    cmm sessions export NAME [--csv FILE] [--json FILE] [--part MESH]
+    cmm sessions reevaluate NAME NEW [--tip-radius MM] [--method ls|minzone|mic|mcc]
+    cmm sessions teach NAME -o PROGRAM.toml [--clearance MM]
+
+``--store`` is a directory of JSON Lines journals (default ./sessions, or
+$CMM_SESSION_STORE) or a postgresql:// URL. A session being recorded cannot
+be renamed or deleted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from typing import Any
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--store", default=None, help="session directory or postgresql:// URL (default ./sessions)")
+    sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    sub.add_parser("list", help="list the sessions")
+    p = sub.add_parser("show", help="summary, features and warnings of a session")
+    p.add_argument("name")
+    p = sub.add_parser("rename", help="rename a session")
+    p.add_argument("old")
+    p.add_argument("new")
+    p = sub.add_parser("delete", help="delete a session")
+    p.add_argument("name")
+    p.add_argument("--yes", action="store_true", help="do not ask for confirmation")
+    p = sub.add_parser("export", help="export hits as CSV and/or the whole session as JSON")
+    p.add_argument("name")
+    p.add_argument("--csv", metavar="FILE")
+    p.add_argument("--json", metavar="FILE")
+    p.add_argument("--part", metavar="MESH", help="part mesh for deviations (else the recorded one if found)")
+    p = sub.add_parser("reevaluate", help="recompute points and features from the raw counts into a new session")
+    p.add_argument("name")
+    p.add_argument("new")
+    p.add_argument("--tip-radius", type=float, help="tip radius in mm (default: the recorded one)")
+    p.add_argument("--method", choices=("ls", "minzone", "mic", "mcc"), help="refit every feature with this criterion")
+    p = sub.add_parser("teach", help="write a measurement program (TOML) from a session")
+    p.add_argument("name")
+    p.add_argument("-o", "--output", required=True, metavar="PROGRAM.toml")
+    p.add_argument("--clearance", type=float, default=10.0, help="mm above the part for moves between hits")
+
+
+def _when(t: float | None) -> str:
+    return "" if t is None else time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+
+
+def run(args: argparse.Namespace) -> int:
+    from .journal import JournalError
+    from .program import ProgramError
+    from .store import StoreError
+
+    try:
+        return _run(args)
+    except (StoreError, JournalError, ProgramError, OSError) as exc:
+        print(f"cmm sessions: {exc}", file=sys.stderr)
+        return 1
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .store import load_session, open_store
+
+    store = open_store(args.store)
+    if args.action == "list":
+        infos = store.list()
+        if not infos:
+            print(f"no sessions in {store.location}")
+            return 0
+        width = max(len(i.name) for i in infos)
+        for i in infos:
+            flag = "  (recording)" if i.open_for_writing else ""
+            print(f"{i.name:<{width}}  {i.events:7d} events  {_when(i.modified)}{flag}")
+        return 0
+    if args.action == "show":
+        s = load_session(store, args.name)
+        summary = s.summary()
+        for k in ("name", "events", "hits", "deleted_hits", "features", "alignments", "notes", "errors", "part",
+                  "part_sha256"):
+            print(f"{k:>13}: {summary[k]}")
+        print(f"{'started':>13}: {_when(summary['started'])}")
+        print(f"{'ended':>13}: {_when(summary['ended'])}")
+        if s.derived_from:
+            print(f"{'derived from':>13}: {s.derived_from.get('session')}")
+        for f in s.features.values():
+            g = f.fit
+            size = f"  D {2 * g['radius']:.4f}" if "radius" in g else ""
+            print(f"  feature {f.id} {f.name!r}: {f.kind}/{f.method}, {len(f.hit_ids)} hits{size}  form {g.get('form', 0):.4f}")
+        for w in s.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        return 0
+    if args.action == "rename":
+        store.rename(args.old, args.new)
+        print(f"renamed {args.old!r} to {args.new!r}")
+        return 0
+    if args.action == "delete":
+        if not store.exists(args.name):
+            print(f"cmm sessions: there is no session {args.name!r} in {store.location}", file=sys.stderr)
+            return 1
+        if not args.yes:
+            if not sys.stdin.isatty():
+                print("cmm sessions: refusing to delete without confirmation: add --yes", file=sys.stderr)
+                return 1
+            if input(f"delete session {args.name!r}? [y/N] ").strip().lower() not in ("y", "yes"):
+                print("not deleted")
+                return 1
+        store.delete(args.name)
+        print(f"deleted {args.name!r}")
+        return 0
+    if args.action == "export":
+        from .export import resolve_part_mesh, write_csv, write_json
+
+        if not args.csv and not args.json:
+            print("cmm sessions: export needs --csv FILE and/or --json FILE", file=sys.stderr)
+            return 2
+        s = load_session(store, args.name)
+        mesh = resolve_part_mesh(s, args.part)
+        if s.part is not None and mesh is None:
+            print(f"warning: part {s.part.name!r} not found (or its sha256 differs): no deviations", file=sys.stderr)
+        if args.csv:
+            write_csv(s, args.csv, mesh)
+            print(f"wrote {len(s.hits) + len(s.state.deleted_hits)} hits to {args.csv}")
+        if args.json:
+            write_json(s, args.json, mesh)
+            print(f"wrote {len(s.events)} events to {args.json}")
+        for w in s.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        return 0
+    if args.action == "reevaluate":
+        from dataclasses import replace
+
+        from .reevaluate import reevaluate
+        from .store import write_session
+
+        s = load_session(store, args.name)
+        settings = s.probe_settings()
+        if args.tip_radius is not None:
+            settings = replace(settings, tip_radius=args.tip_radius)
+        new = reevaluate(s, settings, method=args.method, name=args.new)
+        write_session(store, args.new, new.events)
+        print(f"wrote {args.new!r}: {len(new.hits)} hits, {len(new.features)} features re-evaluated from raw counts")
+        for _, m in new.state.errors[len(s.state.errors):]:
+            print(f"warning: {m}", file=sys.stderr)
+        return 0
+    if args.action == "teach":
+        from .export import resolve_part_mesh
+        from .program import save, teach
+
+        s = load_session(store, args.name)
+        prog = teach(s, clearance=args.clearance, part_mesh=resolve_part_mesh(s))
+        save(prog, args.output)
+        print(f"wrote {args.output}: {len(prog.features)} features, {len(prog.hits)} hits")
+        return 0
+    return 2  # pragma: no cover
+
+
+def main(argv: list[str] | None = None) -> Any:  # pragma: no cover - convenience
+    parser = argparse.ArgumentParser(prog="cmm sessions")
+    add_arguments(parser)
+    return run(parser.parse_args(argv))

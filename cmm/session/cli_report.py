@@ -1,0 +1,50 @@
+"""`cmm report SESSION -o report.html`: the inspection report of a recorded session.
+
+SESSION is a name in the store (``--store DIR|URL``, default ./sessions) or
+the path of a ``.jsonl`` journal. The part mesh is found from the recorded
+path, ``--part`` or the simulator's sample part, and used only if its sha256
+matches the recorded one. ``--program`` takes tolerances from a program.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session", help="session name in the store, or a .jsonl journal file")
+    parser.add_argument("-o", "--output", default="report.html", help="HTML file to write (default report.html)")
+    parser.add_argument("--store", default=None, help="session directory or postgresql:// URL (default ./sessions)")
+    parser.add_argument("--part", metavar="MESH", help="part mesh file (must match the recorded sha256)")
+    parser.add_argument("--program", metavar="PROGRAM.toml", help="take the feature tolerances from this program")
+    parser.add_argument("--tolerance", type=float, help="default tolerance in mm (size, location, form; default 0.02)")
+    parser.add_argument("--title", help="report title")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .journal import JournalError
+    from .program import ProgramError
+    from .store import StoreError
+
+    try:
+        from .export import resolve_part_mesh
+        from .program import load as load_program
+        from .report import write_report
+        from .store import open_session
+
+        session = open_session(args.session, args.store)
+        mesh = resolve_part_mesh(session, args.part)
+        program = load_program(args.program) if args.program else None
+        write_report(session, args.output, mesh=mesh, program=program, title=args.title,
+                     default_tolerance=args.tolerance)
+    except (StoreError, JournalError, ProgramError, OSError) as exc:
+        print(f"cmm report: {exc}", file=sys.stderr)
+        return 1
+    if session.part is not None and mesh is None:
+        print(f"warning: part {session.part.name!r} not found (or its sha256 differs): the report shows hits only",
+              file=sys.stderr)
+    for w in session.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"wrote {args.output}: {len(session.features)} features, {len(session.hits)} hits")
+    return 0
