@@ -1,0 +1,411 @@
+"""Calibration certificates (inputs) and records (results) as TOML files.
+
+Certificates describe artifacts (``kind = "sphere"`` or ``"ball_bar"``);
+records hold what a routine found (``kind = "probe"``, ``"machine"``,
+``"servo"``). Every file has an ``[artifact]`` or ``[record]`` table; values
+are millimetres unless the key says otherwise (``_um``, ``_ppm``, ``_urad``).
+Records are written atomically (temporary file + rename), so a failed or
+interrupted routine never leaves a half-written record and the previous
+calibration stays in force.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import os
+import tempfile
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..machine.geometry import GeometryCorrection
+from ..metrology.compensation import ALL_PRETRAVEL_TERMS, PretravelModel
+
+DEFAULT_DIR = Path("calibration")
+PROBE_RECORD = "probe.toml"
+MACHINE_RECORD = "machine.toml"
+SERVO_RECORD = "servo.toml"
+SPHERE_CERTIFICATE = "reference-sphere.toml"
+
+
+class CalibrationError(RuntimeError):
+    """A calibration that cannot go on, in an operator's words; the previous calibration stays in force."""
+
+
+# ----------------------------------------------------------------- TOML in / out
+
+
+def _read(path: str | Path, what: str) -> dict:
+    p = Path(path)
+    if not p.is_file():
+        raise CalibrationError(f"{what} {p} is missing: create it (see calibration/README.md) or pass its path")
+    try:
+        return tomllib.loads(p.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"{what} {p} is not valid TOML: {exc}") from None
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write the non-finite number {v} to a record")
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if hasattr(v, "tolist"):
+        return _value(v.tolist())
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dumps(data: dict, header: str = "") -> str:
+    """A small TOML writer: nested dicts become tables; scalars, strings and (nested) lists."""
+    lines = [f"# {line}" if line else "#" for line in header.splitlines()]
+
+    def table(prefix: str, d: dict) -> None:
+        scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
+        tables = {k: v for k, v in d.items() if isinstance(v, dict)}
+        if prefix and (scalars or not tables):
+            lines.append("")
+            lines.append(f"[{prefix}]")
+        for k, v in scalars.items():
+            if v is not None:
+                lines.append(f"{k} = {_value(v)}")
+        for k, v in tables.items():
+            table(f"{prefix}.{k}" if prefix else k, v)
+
+    table("", data)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def write_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        tomllib.loads(text)  # never replace a record by something unreadable
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return p
+
+
+def now() -> str:
+    return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+# ----------------------------------------------------------------- validation helpers
+
+
+def _num(src: str, table: dict, key: str, *, positive: bool = False, default: Any = ...) -> float:
+    if key not in table:
+        if default is not ...:
+            return default
+        raise CalibrationError(f"{src}: '{key}' is missing")
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise CalibrationError(f"{src}: '{key}' must be a number, got {v!r}")
+    if positive and v <= 0:
+        raise CalibrationError(f"{src}: '{key}' must be greater than 0, got {v!r}")
+    return float(v)
+
+
+def _vec(src: str, table: dict, key: str, n: int = 3, default: Any = ...) -> tuple[float, ...]:
+    if key not in table:
+        if default is not ...:
+            return default
+        raise CalibrationError(f"{src}: '{key}' is missing")
+    v = table[key]
+    if not isinstance(v, list) or len(v) != n or not all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v):
+        raise CalibrationError(f"{src}: '{key}' must be a list of {n} numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def _table(src: str, data: dict, key: str) -> dict:
+    t = data.get(key)
+    if not isinstance(t, dict):
+        raise CalibrationError(f"{src}: the [{key}] table is missing")
+    return t
+
+
+# ----------------------------------------------------------------- certificates
+
+
+@dataclass(frozen=True)
+class SphereCertificate:
+    name: str
+    diameter: float  # mm, certified
+    form: float = 0.0  # mm, certified form deviation
+    uncertainty: float = 0.0  # mm, expanded (k = 2) uncertainty of the diameter
+    serial: str = ""
+    certified: str = ""
+    approx_centre: tuple[float, float, float] | None = None  # where it stands on the table (machine mm)
+    source: str = ""
+
+    def describe(self) -> str:
+        return f"{self.name} {self.serial} D {self.diameter:.4f} mm".replace("  ", " ")
+
+
+@dataclass(frozen=True)
+class BallBarCertificate:
+    name: str
+    length: float  # mm, certified centre-to-centre distance
+    ball_diameter: float  # mm (nominal; the centres are what matter)
+    uncertainty: float = 0.0  # mm (k = 2)
+    serial: str = ""
+    certified: str = ""
+    source: str = ""
+
+    def describe(self) -> str:
+        return f"{self.name} {self.serial} L {self.length:.4f} mm".replace("  ", " ")
+
+
+def load_certificate(path: str | Path) -> SphereCertificate | BallBarCertificate:
+    """Read and check an artifact certificate; CalibrationError names what is wrong."""
+    src = str(path)
+    data = _read(path, "artifact certificate")
+    art = _table(src, data, "artifact")
+    kind = art.get("kind")
+    name = str(art.get("name", Path(path).stem))
+    common = dict(name=name, serial=str(art.get("serial", "")), certified=str(art.get("certified", "")), source=src)
+    if kind == "sphere":
+        d = _num(src, art, "diameter", positive=True)
+        form = _num(src, art, "form", default=0.0)
+        if form < 0 or form > 0.01 * d:
+            raise CalibrationError(f"{src}: 'form' {form} mm is not a plausible form deviation for a D {d} mm sphere")
+        setup = data.get("setup", {})
+        centre = _vec(src, setup, "centre", default=None) if isinstance(setup, dict) else None
+        return SphereCertificate(diameter=d, form=form, uncertainty=_num(src, art, "uncertainty", default=0.0),
+                                 approx_centre=centre, **common)
+    if kind == "ball_bar":
+        return BallBarCertificate(length=_num(src, art, "length", positive=True),
+                                  ball_diameter=_num(src, art, "ball_diameter", positive=True),
+                                  uncertainty=_num(src, art, "uncertainty", default=0.0), **common)
+    raise CalibrationError(f"{src}: [artifact] kind must be \"sphere\" or \"ball_bar\", got {kind!r}")
+
+
+def load_sphere_certificate(path: str | Path) -> SphereCertificate:
+    cert = load_certificate(path)
+    if not isinstance(cert, SphereCertificate):
+        raise CalibrationError(f"{path}: expected a sphere certificate, found a {type(cert).__name__}")
+    return cert
+
+
+def load_ball_bar_certificate(path: str | Path) -> BallBarCertificate:
+    cert = load_certificate(path)
+    if not isinstance(cert, BallBarCertificate):
+        raise CalibrationError(f"{path}: expected a ball bar certificate, found a {type(cert).__name__}")
+    return cert
+
+
+# ----------------------------------------------------------------- records
+
+
+@dataclass
+class ProbeRecord:
+    """Probe qualification: effective radius + zero-mean directional pre-travel model.
+
+    Convention: a sphere fitted to latched tip centres has radius D/2 + r_eff;
+    the pre-travel constant and the stylus radius cannot be separated on one
+    sphere, so ``tip_radius`` holds the effective radius (nominal radius minus
+    the mean pre-travel) and ``pretravel`` only the directional part, with zero
+    mean over the qualification pattern. Compensation: M = T - pretravel(u) u + tip_radius n.
+    """
+
+    date: str
+    artifact: str
+    tip_radius: float  # effective radius r_eff (mm)
+    pretravel: dict[str, float]  # PretravelModel coefficients (mm), zero mean over the pattern
+    nominal_tip_radius: float
+    sphere_centre: tuple[float, float, float]
+    tip_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sphere centre seen by this tip - master tip
+    probing_speed: float = 0.0
+    n_points: int = 0
+    form_before_um: float = 0.0  # sphere form of the latched centres, constant pre-travel
+    form_after_um: float = 0.0  # after the directional model
+    uncertainty_um: float = 0.0  # expanded (k = 2) uncertainty of r_eff
+    machine: str = ""
+    note: str = ""
+
+    @property
+    def model(self) -> PretravelModel:
+        return PretravelModel(dict(self.pretravel))
+
+    def to_dict(self) -> dict:
+        return {
+            "record": {"kind": "probe", "date": self.date, "artifact": self.artifact, "machine": self.machine,
+                       "probing_speed": self.probing_speed, "note": self.note},
+            "results": {"tip_radius": self.tip_radius, "nominal_tip_radius": self.nominal_tip_radius,
+                        "sphere_centre": list(self.sphere_centre), "tip_offset": list(self.tip_offset),
+                        "n_points": self.n_points, "form_before_um": self.form_before_um,
+                        "form_after_um": self.form_after_um, "pretravel": dict(self.pretravel)},
+            "uncertainty": {"tip_radius_um": self.uncertainty_um},
+        }
+
+
+@dataclass
+class MachineRecord:
+    date: str
+    artifact: str
+    scale_ppm: tuple[float, float, float]
+    squareness_urad: tuple[float, float, float]  # xy, xz, yz
+    uncertainty_scale_ppm: float = 0.0
+    uncertainty_squareness_urad: float = 0.0
+    length_errors_before_um: dict[str, float] = field(default_factory=dict)
+    length_errors_after_um: dict[str, float] = field(default_factory=dict)
+    machine: str = ""
+    note: str = ""
+
+    @property
+    def correction(self) -> GeometryCorrection:
+        return GeometryCorrection(tuple(self.scale_ppm), tuple(self.squareness_urad))  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict:
+        return {
+            "record": {"kind": "machine", "date": self.date, "artifact": self.artifact, "machine": self.machine,
+                       "note": self.note},
+            "results": {"scale_ppm": list(self.scale_ppm), "squareness_urad": list(self.squareness_urad)},
+            "uncertainty": {"scale_ppm": self.uncertainty_scale_ppm, "squareness_urad": self.uncertainty_squareness_urad},
+            "verification": {"length_errors_before_um": dict(self.length_errors_before_um),
+                             "length_errors_after_um": dict(self.length_errors_after_um)},
+        }
+
+
+@dataclass
+class ServoRecord:
+    date: str
+    gains: dict[str, dict[str, int]]  # axis -> {kp, kd, ki, il}
+    accepted: bool = False
+    machine: str = ""
+    note: str = ""
+
+    def to_dict(self) -> dict:
+        return {"record": {"kind": "servo", "date": self.date, "accepted": self.accepted, "machine": self.machine,
+                           "note": self.note},
+                "axes": {a: dict(g) for a, g in self.gains.items()}}
+
+
+def save_record(record: ProbeRecord | MachineRecord | ServoRecord, path: str | Path) -> Path:
+    kind = record.to_dict()["record"]["kind"]
+    header = (f"{kind} calibration record written by `cmm calibrate` (units: mm unless the key says _um/_ppm/_urad).\n"
+              "The station loads it at start; a new calibration replaces it atomically.")
+    return write_atomic(path, dumps(record.to_dict(), header))
+
+
+def _record_table(src: str, data: dict, kind: str) -> dict:
+    rec = _table(src, data, "record")
+    if rec.get("kind") != kind:
+        raise CalibrationError(f"{src}: [record] kind must be \"{kind}\", got {rec.get('kind')!r}")
+    return rec
+
+
+def load_probe_record(path: str | Path) -> ProbeRecord:
+    src = str(path)
+    data = _read(path, "probe calibration record")
+    rec = _record_table(src, data, "probe")
+    res = _table(src, data, "results")
+    pre = res.get("pretravel", {})
+    if not isinstance(pre, dict):
+        raise CalibrationError(f"{src}: [results.pretravel] must be a table of coefficients")
+    unknown = set(pre) - set(ALL_PRETRAVEL_TERMS)
+    if unknown:
+        raise CalibrationError(f"{src}: unknown pre-travel terms {sorted(unknown)}; known: {', '.join(ALL_PRETRAVEL_TERMS)}")
+    coef = {k: _num(src, pre, k) for k in pre}
+    r = _num(src, res, "tip_radius", positive=True)
+    return ProbeRecord(
+        date=str(rec.get("date", "")), artifact=str(rec.get("artifact", "")), tip_radius=r, pretravel=coef,
+        nominal_tip_radius=_num(src, res, "nominal_tip_radius", positive=True, default=r),
+        sphere_centre=_vec(src, res, "sphere_centre", default=(0.0, 0.0, 0.0)),  # type: ignore[arg-type]
+        tip_offset=_vec(src, res, "tip_offset", default=(0.0, 0.0, 0.0)),  # type: ignore[arg-type]
+        probing_speed=_num(src, rec, "probing_speed", default=0.0), n_points=int(_num(src, res, "n_points", default=0)),
+        form_before_um=_num(src, res, "form_before_um", default=0.0),
+        form_after_um=_num(src, res, "form_after_um", default=0.0),
+        uncertainty_um=_num(src, data.get("uncertainty", {}), "tip_radius_um", default=0.0),
+        machine=str(rec.get("machine", "")), note=str(rec.get("note", "")))
+
+
+def load_machine_record(path: str | Path) -> MachineRecord:
+    src = str(path)
+    data = _read(path, "machine calibration record")
+    rec = _record_table(src, data, "machine")
+    res = _table(src, data, "results")
+    scale = _vec(src, res, "scale_ppm")
+    sq = _vec(src, res, "squareness_urad")
+    for k, v in (("scale_ppm", scale), ("squareness_urad", sq)):
+        if any(abs(x) > 5000 for x in v):
+            raise CalibrationError(f"{src}: '{k}' {list(v)} is implausibly large (above 5000): check the record")
+    unc = data.get("uncertainty", {})
+    ver = data.get("verification", {})
+    return MachineRecord(date=str(rec.get("date", "")), artifact=str(rec.get("artifact", "")),
+                         scale_ppm=scale, squareness_urad=sq,  # type: ignore[arg-type]
+                         uncertainty_scale_ppm=_num(src, unc, "scale_ppm", default=0.0),
+                         uncertainty_squareness_urad=_num(src, unc, "squareness_urad", default=0.0),
+                         length_errors_before_um=dict(ver.get("length_errors_before_um", {})),
+                         length_errors_after_um=dict(ver.get("length_errors_after_um", {})),
+                         machine=str(rec.get("machine", "")), note=str(rec.get("note", "")))
+
+
+def load_servo_record(path: str | Path) -> ServoRecord:
+    src = str(path)
+    data = _read(path, "servo tuning record")
+    rec = _record_table(src, data, "servo")
+    axes = _table(src, data, "axes")
+    gains: dict[str, dict[str, int]] = {}
+    for axis, g in axes.items():
+        if axis not in ("x", "y", "z") or not isinstance(g, dict):
+            raise CalibrationError(f"{src}: [axes.{axis}] is not an axis table (x, y or z)")
+        gains[axis] = {k: int(_num(src, g, k)) for k in g}
+    return ServoRecord(date=str(rec.get("date", "")), gains=gains, accepted=bool(rec.get("accepted", False)),
+                       machine=str(rec.get("machine", "")), note=str(rec.get("note", "")))
+
+
+@dataclass
+class LoadedCalibration:
+    """What the station applies at start (None where no record exists); ``problems`` lists refused files."""
+
+    probe: ProbeRecord | None = None
+    machine: MachineRecord | None = None
+    problems: list[str] = field(default_factory=list)
+
+
+def load_station_calibration(directory: str | Path = DEFAULT_DIR) -> LoadedCalibration:
+    """Load calibration/probe.toml and calibration/machine.toml if present; a bad file is reported, not applied."""
+    d = Path(directory)
+    out = LoadedCalibration()
+    for name, loader, attr in ((PROBE_RECORD, load_probe_record, "probe"), (MACHINE_RECORD, load_machine_record, "machine")):
+        if (d / name).is_file():
+            try:
+                setattr(out, attr, loader(d / name))
+            except CalibrationError as exc:
+                out.problems.append(str(exc))
+    return out
+
+
+def apply_calibration(loaded: LoadedCalibration, machine: Any, prober: Any) -> list[str]:
+    """Apply loaded records: machine.correction and prober.settings. Returns what was applied, for a log."""
+    from ..machine.probing import ProbeSettings
+
+    done = []
+    if loaded.machine is not None:
+        machine.correction = loaded.machine.correction
+        done.append(f"machine geometry from {loaded.machine.date}: scale {loaded.machine.scale_ppm} ppm, "
+                    f"squareness {loaded.machine.squareness_urad} urad")
+    if loaded.probe is not None:
+        prober.settings = ProbeSettings(loaded.probe.tip_radius, loaded.probe.model)
+        done.append(f"probe from {loaded.probe.date}: r_eff {loaded.probe.tip_radius:.4f} mm, "
+                    f"{loaded.probe.model.describe()}")
+    return done
