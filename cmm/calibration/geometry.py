@@ -141,16 +141,20 @@ def measure_setups(machine: Machine, settings: ProbeSettings, certificates: dict
             place(s)
         radius = cert.ball_diameter / 2
         lane = np.array(s.lane, float)
+        top = max(s.ball1[2], s.ball2[2]) + sp.safe_radius(radius) + 10.0
+        sp.safe_z = min(machine.config.axis("z").max - 5.0, max(top, machine.position[2]))
         centres = []
         for j, nominal in enumerate((s.ball1, s.ball2)):
             say(0.5 * j, f"set-up {s.name}: ball {j + 1}")
-            located = sp.locate(nominal, radius, lane)
+            if j == 1:  # along the bar on the lane side, clear of both balls
+                machine.move_to(np.asarray(nominal) + sp.safe_radius(radius) * unit(lane)).wait()
+            located = sp.locate(nominal, radius, lane, enter=j == 0)
             t, u, skipped = sp.measure(located, radius, BALL_PATTERN, repeats=repeats)
             if len(t) < 6:
                 raise CalibrationError(f"set-up {s.name}, ball {j + 1}: only {len(t)} valid points ({'; '.join(skipped)})")
             c = t - settings.pretravel(u)[:, None] * u
             centres.append(np.asarray(_fit_sphere(c, f"ball {j + 1} of set-up {s.name}").center, float))
-            sp.leave(located, radius, lane)
+            sp._around(located, radius, located + sp.safe_radius(radius) * unit(lane))
         raw = machine.correction.invert(centres[1]) - machine.correction.invert(centres[0])
         out.append(BarMeasurement(s.name, cert.length, raw, float(np.linalg.norm(centres[1] - centres[0]))))
         say(1.0, f"set-up {s.name}: {out[-1].measured:.4f} mm ({out[-1].error_um:+.2f} um)")

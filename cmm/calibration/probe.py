@@ -171,12 +171,14 @@ class SphereProber:
         self.hits += 1
         return hit
 
-    def locate(self, centre_guess: Any, radius: float, lane: np.ndarray | None = None) -> np.ndarray:
+    def locate(self, centre_guess: Any, radius: float, lane: np.ndarray | None = None, *,
+               enter: bool = True) -> np.ndarray:
         """The sphere's centre (of the tip-centre sphere) from a hit near the top and four at the equator."""
         c = np.asarray(centre_guess, float)
         lane = np.array([1.0, 0.0, 0.0]) if lane is None else lane
         try:
-            self.enter(c, radius, lane)
+            if enter:
+                self.enter(c, radius, lane)
             top = self.hit(c, radius, [0, 0, 1])
             # the top hit fixes the height; the equator hits the centre in X and Y
             c = np.array([c[0], c[1], top.machine[2] - radius - self.tip_radius])
