@@ -179,7 +179,7 @@ class SceneView:
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
         edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
         self.scene.add_line_segments("/machine/envelope", (corners[np.array(edges)] * SCALE).astype(np.float32),
-                                     colors=(120, 120, 120), line_width=1.5)
+                                     colors=(120, 120, 120), thickness=1.5, thickness_units="screen")
         table_z = lo[2] - 5.0
         self.scene.add_box("/machine/table", color=(70, 70, 78), dimensions=(
             (hi[0] - lo[0] + 100) * SCALE, (hi[1] - lo[1] + 100) * SCALE, 10 * SCALE),
