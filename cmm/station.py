@@ -68,7 +68,7 @@ class Station:
 
     def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
                  part_path: str | Path | None = None, session_dir: str | Path = "sessions",
-                 sim_settings: Any = None) -> None:
+                 sim_settings: Any = None, calibration_dir: str | Path | None = None) -> None:
         self.config = config or load()
         if baud is not None:
             self.config = self.config.with_link(baud=baud)
@@ -98,6 +98,9 @@ class Station:
         self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
         self.journal: Journal | None = None
         self.machine.on_event(lambda kind, info: self._notify(kind, info))
+        self.calibration_log: list[str] = []
+        if calibration_dir is not None:
+            self.load_calibration(calibration_dir)
         if part_path is not None and self.sim is None:
             self.load_part(part_path)
 
@@ -171,6 +174,21 @@ class Station:
     @property
     def state(self) -> MachineState | None:
         return self.machine.state
+
+    def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
+        """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
+
+        A missing record leaves the nominal settings; a malformed one is reported and not applied.
+        """
+        from .calibration.records import apply_calibration, load_station_calibration
+
+        loaded = load_station_calibration(directory)
+        with self.lock:
+            applied = apply_calibration(loaded, self.machine, self.prober)
+        for problem in loaded.problems:
+            self.events.append((time.time(), "error", f"calibration record refused: {problem}"))
+        self.calibration_log = applied + [f"refused: {p}" for p in loaded.problems]
+        return self.calibration_log
 
     # --- session ----------------------------------------------------------------
 
