@@ -65,7 +65,8 @@ class HitRecord:
                 "point": list(self.point), "mode": self.mode, "normal": None if self.normal is None else list(self.normal)}
 
 
-_FEATURE_META = ("seq", "time", "kind", "id", "name", "feature_kind", "method", "hit_ids", "nominal", "tolerance")
+_FEATURE_META = ("seq", "time", "recorded_time", "kind", "id", "name", "feature_kind", "method", "hit_ids", "nominal",
+                 "tolerance")
 
 
 @dataclass(frozen=True)
