@@ -29,6 +29,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from ..machine.motion import Machine
 from ..machine.probing import Hit, ProbeSettings, Prober, SurfaceNotFound
@@ -283,13 +284,21 @@ def analyse_qualification(centres: np.ndarray, approach: np.ndarray, certificate
     e0 = np.linalg.norm(t - c0, axis=1) - fit0.radius
     # deeper latch = smaller radius = more pre-travel: the measured directional pre-travel is -e0
     terms = _usable_terms(u)
-    model = PretravelModel.fit(u, -e0, terms)
-    # zero mean over the pattern (the constant goes to r_eff)
-    model.coefficients["const"] -= float(np.mean(model(u)))
+    # joint least squares of sphere and model: |T - c| = R - f(u), f without its constant (which R holds)
+    rest = tuple(k for k in terms if k != "const")
+    basis = pretravel_basis(u, rest) if rest else np.zeros((len(u), 0))
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        return (np.linalg.norm(t - p[:3], axis=1) - p[3] + basis @ p[4:]) * 1000.0
+
+    sol = least_squares(resid, np.concatenate([c0, [fit0.radius], np.zeros(len(rest))]), method="lm")
+    f = basis @ sol.x[4:]
+    const = -float(np.mean(f))  # zero mean over the pattern: the constant goes to r_eff
+    model = PretravelModel({"const": const, **{k: float(v) for k, v in zip(rest, sol.x[4:])}})
     comp = t - model(u)[:, None] * u
     fit1 = _fit_sphere(comp, "compensated tip centres")
+    e1 = np.linalg.norm(comp - np.asarray(fit1.center, float), axis=1) - fit1.radius
     c1 = np.asarray(fit1.center, float)
-    e1 = np.linalg.norm(comp - c1, axis=1) - fit1.radius
     r_eff = fit1.radius - half
     # uncertainty (k = 2) of r_eff: fit scatter over sqrt(n), the certificate, one count of scale in quadrature
     sigma = float(np.std(e1, ddof=min(len(e1) - 1, 4 + len(terms))))
