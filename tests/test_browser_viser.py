@@ -1,0 +1,297 @@
+"""The viser station page in real headless chromium, driving a real (simulated) station in-process.
+
+The station and the viser app run in this process (loopback only), so the tests
+assert on ``station.state`` / ``station.hits`` and on the per-client
+:class:`~cmm.ui.panels.ClientApp` while chromium presses the buttons and clicks
+the 3D canvas. Needs the Python package ``playwright`` and Debian's
+``chromium``; skipped with the reason otherwise. Screenshots go to
+test-artifacts/ (git-ignored).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+import browser_support as bs
+
+_reason = bs.unavailable_reason()
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(120),
+              pytest.mark.skipif(_reason is not None, reason=_reason or "")]
+
+pytest.importorskip("viser")
+
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.scene import SCALE  # noqa: E402
+
+VIEWPORT = (1400, 900)
+STOP_WITHIN = 0.3  # s from the button's release to zero velocity
+TOP_Z = 40.0  # machine Z of the sample part's top face (the part sits on the table at Z=0)
+# candidate points on the top face, part coordinates (mm): clear of the bore, boss, dome and cone
+TOP_FACE_CANDIDATES = ((15.0, 68.0), (10.0, 12.0), (112.0, 72.0), (45.0, 70.0), (110.0, 10.0), (60.0, 40.0))
+
+
+# --- fixtures ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    st = Station(session_dir=tmp_path_factory.mktemp("viser-sessions")).start()
+    yield st
+    st.close()
+
+
+@pytest.fixture(scope="module")
+def app(station):
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
+    yield ui
+    ui.close()
+
+
+@pytest.fixture(scope="module")
+def context():
+    with bs.browser_context(viewport=VIEWPORT) as ctx:
+        yield ctx
+
+
+@pytest.fixture
+def open_page(context, app, station):
+    """Opens viser pages (each one its own viser client); closes them and settles the machine afterwards."""
+    pages = []
+
+    def opener():
+        before = set(app.clients)
+        page = context.new_page()
+        page.log = bs.PageLog()
+        page.log.attach(page)
+        pages.append(page)
+        page.goto(app.url)
+        page.wait_for_selector("canvas", timeout=30_000)
+        page.get_by_role("button", name="Take control").wait_for(timeout=30_000)  # this client's GUI arrived
+        wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
+        (cid,) = set(app.clients) - before
+        page.cid = cid
+        page.capp = app.clients[cid]
+        return page
+
+    yield opener
+    for page in pages:
+        page.close()
+    station.stop()
+    station.wait_idle(20)
+    wait_until(lambda: app.control.holder is None, 5.0, "control released by the closed pages")
+
+
+# --- helpers --------------------------------------------------------------------------------------
+
+def wait_until(predicate, timeout: float, what: str) -> float:
+    start = time.monotonic()
+    while not predicate():
+        if time.monotonic() - start > timeout:
+            raise AssertionError(f"{what} did not happen within {timeout} s")
+        time.sleep(0.005)
+    return time.monotonic() - start
+
+
+def speed(station) -> float:
+    return max(abs(a.velocity) for a in station.state.axes)
+
+
+def take_control(page, app) -> None:
+    page.get_by_role("button", name="Take control").click()
+    page.get_by_text("You control the machine.").wait_for()
+    assert app.control.holder == page.capp.client_id
+
+
+def open_tab(page, name: str) -> None:
+    page.get_by_role("tab", name=name).click()
+    page.wait_for_timeout(300)
+
+
+def button_centre(page, name: str) -> tuple[float, float]:
+    button = page.get_by_role("button", name=name, exact=True)
+    button.scroll_into_view_if_needed()
+    box = button.bounding_box()
+    return box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+
+
+def machine_row(page, axis: str) -> list[str]:
+    row = page.get_by_role("row").filter(has=page.get_by_role("cell", name=axis, exact=True))
+    return [c.strip() for c in row.first.get_by_role("cell").all_inner_texts()]
+
+
+def camera_of(app, cid: int):
+    client = app.server.get_clients()[cid]
+    # the camera properties assert until the page has reported its camera once
+    wait_until(lambda: client.camera._state.update_timestamp and client.camera.image_width > 0, 10.0,
+               "the page's camera report")
+    return client.camera
+
+
+def project(camera, point_scene: np.ndarray) -> tuple[float, float]:
+    """World point (scene metres) -> pixel in the client's canvas image (viser's OpenCV camera: +Z forward)."""
+    w, x, y, z = camera.wxyz
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    p = R.T @ (np.asarray(point_scene, float) - camera.position)
+    assert p[2] > 0, "the point is behind the camera"
+    f = camera.image_height / 2 / np.tan(camera.fov / 2)
+    return camera.image_width / 2 + f * p[0] / p[2], camera.image_height / 2 + f * p[1] / p[2]
+
+
+def visible_top_point(station, camera) -> np.ndarray:
+    """A point of the part's top face (machine mm) that the camera sees directly (nothing in front of it)."""
+    pose = station.part.pose
+    eye_mm = np.asarray(camera.position) / SCALE
+    for u, v in TOP_FACE_CANDIDATES:
+        target = pose[:3, :3] @ np.array([u, v, TOP_Z]) + pose[:3, 3]
+        result = station.pick(eye_mm, target - eye_mm)
+        if result is not None and np.linalg.norm(result[0].point - target) < 0.5:
+            return target
+    raise AssertionError("no candidate point of the top face is visible from the initial camera")
+
+
+# --- tests ------------------------------------------------------------------------------------------
+
+def test_page_loads_and_shows_the_position(open_page, station):
+    page = open_page()
+    page.wait_for_timeout(1500)  # let the scene render and any late errors surface
+    x, y, z = station.state.position
+    for axis, value in zip("XYZ", (x, y, z)):
+        cells = machine_row(page, axis)
+        assert cells[1] == f"{value:.4f}", (axis, cells)
+    assert page.get_by_text("Nobody controls the machine. You observe.").is_visible()
+    bs.screenshot(page, "viser-browser-loaded")
+    # the software-WebGL notice (if any) is a warning, not an error: only errors count
+    assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
+
+
+def hold_jog(page, station, seconds: float = 1.0):
+    """Press and hold "X +" with the mouse; returns (X samples every 0.1 s while held, dead-man events, start)."""
+    page.mouse.move(*button_centre(page, "hold X +"))
+    events = []
+    station.subscribe(lambda kind, info: events.append(kind) if kind == "deadman" else None)
+    start = station.state.position.copy()
+    page.mouse.down()
+    try:
+        wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the hold jog")
+        events.clear()
+        samples = []
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            samples.append(station.state.position[0])
+            page.wait_for_timeout(100)
+        samples.append(station.state.position[0])
+    finally:
+        page.mouse.up()
+    return samples, list(events), start
+
+
+def test_hold_jog_button_moves_while_held_and_stops_on_release(open_page, app, station):
+    page = open_page()
+    take_control(page, app)
+    open_tab(page, "Jog")
+    bs.screenshot(page, "viser-browser-jog-tab")
+    samples, _deadman, start = hold_jog(page, station)
+    released = time.monotonic()
+    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release") < STOP_WITHIN
+    assert time.monotonic() - released < STOP_WITHIN + 0.1
+    # X grows while the button is held (in steps if the hold refreshes come late: see the next test)
+    assert all(b >= a for a, b in zip(samples, samples[1:])), samples
+    assert samples[-1] > samples[0] + 1.0, samples
+    stopped = station.state.position.copy()
+    assert stopped[0] > start[0] + 1.0
+    assert np.allclose(stopped[1:], start[1:])
+    page.wait_for_timeout(400)
+    assert np.array_equal(station.state.position, stopped)  # nothing keeps creeping after the release
+    assert not page.capp._jogging
+    assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
+
+
+@pytest.mark.xfail(strict=False, reason=(
+    "known: viser sends a held button's refresh from a setInterval on the page's main thread (20 Hz, behind a "
+    "50 ms throttle); while software WebGL re-renders the moving probe (~120-200 ms a frame in headless chromium "
+    "without a GPU) the refreshes come every ~300 ms, and the machine's 0.1 s dead-man stops the jog between them"))
+def test_hold_jog_is_continuous(open_page, app, station):
+    page = open_page()
+    take_control(page, app)
+    open_tab(page, "Jog")
+    samples, deadman, _start = hold_jog(page, station)
+    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release")
+    assert deadman == [], f"the jog stopped {len(deadman)} times while the button was held: X {samples}"
+    assert all(b > a for a, b in zip(samples, samples[1:])), samples
+
+
+def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, station):
+    page = open_page()
+    take_control(page, app)
+    open_tab(page, "Go to")
+    camera = camera_of(app, page.cid)
+    target = visible_top_point(station, camera)
+    u, v = project(camera, target * SCALE)
+    box = page.locator("canvas").first.bounding_box()
+    px = box["x"] + u * box["width"] / camera.image_width
+    py = box["y"] + v * box["height"] / camera.image_height
+    page.mouse.click(px, py)
+    wait_until(lambda: page.capp.picked is not None, 5.0, "the pick from the canvas click")
+    hit, nominal = page.capp.picked
+    assert hit.point[2] == pytest.approx(TOP_Z, abs=1e-6)
+    assert np.allclose(hit.normal, (0, 0, 1), atol=1e-6)
+    assert np.linalg.norm(hit.point[:2] - target[:2]) < 5.0, (hit.point, target)  # a few pixels of slack
+    assert nominal is not None and nominal.kind == "plane"
+    shown = "picked X={:.3f} Y={:.3f} Z={:.3f}, normal (".format(*hit.point)
+    page.get_by_text(shown).wait_for(timeout=5_000)  # the Go to panel shows it (refresher, 5 Hz)
+    page.wait_for_timeout(300)  # the pick marker drawn
+    bs.screenshot(page, "viser-browser-picked")
+    bs.screenshot(page, "viser-browser-picked-zoom", clip={"x": max(px - 80, 0), "y": max(py - 80, 0),
+                                                            "width": 160, "height": 160})
+
+    before = len(station.hits)
+    page.get_by_role("button", name="Probe here", exact=True).click()
+    wait_until(lambda: len(station.hits) == before + 1, 40.0, "the hit from Probe here")
+    newest = station.hits[max(station.hits)]
+    assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
+    open_tab(page, "Probe")
+    page.get_by_text("contact point:").wait_for(timeout=5_000)
+    page.wait_for_timeout(500)
+    bs.screenshot(page, "viser-browser-probe-tab")
+    assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
+
+
+def test_observer_cannot_jog(open_page, app, station):
+    observer = open_page()
+    holder = app.add_client(client_id="other-operator", is_local=True)  # another client holds control
+    try:
+        assert holder.take_control()
+        observer.get_by_text("Observing; control is held by").wait_for()
+        open_tab(observer, "Jog")
+        station.wait_idle(20)
+        start = station.state.position.copy()
+        for _ in range(2):  # while another client holds control, then with nobody in control
+            observer.mouse.move(*button_centre(observer, "hold X +"))
+            observer.mouse.down()
+            observer.wait_for_timeout(600)
+            moved = speed(station)
+            observer.mouse.up()
+            assert moved == 0 and np.array_equal(station.state.position, start)
+            # the refusal is told (throttled: the same text at most every 2 s)
+            assert any(title == "Jog" and "only observes" in body for _lvl, title, body in observer.capp.messages), \
+                observer.capp.messages[-3:]
+            holder.release_control()
+            observer.get_by_text("Nobody controls the machine. You observe.").wait_for()
+    finally:
+        holder.release_control()
+    bs.screenshot(observer, "viser-browser-observer")
+    # the same press moves the machine once this page takes control (the refusal above was not a dead button)
+    take_control(observer, app)
+    observer.mouse.move(*button_centre(observer, "hold X +"))
+    observer.mouse.down()
+    try:
+        wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the jog after taking control")
+    finally:
+        observer.mouse.up()
+    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
+    assert station.state.position[0] > start[0]
