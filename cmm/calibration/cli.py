@@ -183,7 +183,8 @@ def _run_geometry(args: Any, rig: _Rig, artifacts: Path) -> int:
             raise CalibrationError("the geometry routine on a real machine needs an operator to place the bar")
 
         def place(s):
-            input(f"Place {certs[s.artifact].describe()} for set-up {s.name}: balls at {s.ball1} and {s.ball2}; "
+            input(f"Place {certs[s.artifact].describe()} for set-up {s.name}: balls at "
+                  "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}; ".format(*s.ball1, *s.ball2) +
                   "press Enter when it is clamped ")
     result = calibrate_geometry(rig.machine, rig.prober.settings, certs, setups, place, repeats=args.repeats or 1,
                                 verify=not args.no_verify, progress=_progress(args))

@@ -99,6 +99,10 @@ class GeometryResult:
             machine=machine)
 
 
+def _xyz(p: Any) -> str:
+    return "X={:.1f} Y={:.1f} Z={:.1f}".format(*p)
+
+
 def fit_geometry(measurements: list[BarMeasurement]) -> tuple[GeometryCorrection, dict[str, float], float, float]:
     """Least-squares scale (ppm) and squareness (urad) from raw bar vectors and certified lengths."""
     if len(measurements) < 6:
@@ -137,7 +141,7 @@ def measure_setups(machine: Machine, settings: ProbeSettings, certificates: dict
         if cert is None:
             raise CalibrationError(f"set-up {s.name} needs the certificate '{s.artifact}', which is not loaded")
         if place is not None:
-            say(0.0, f"set-up {s.name}: place {cert.name} with its balls at {s.ball1} and {s.ball2}")
+            say(0.0, f"set-up {s.name}: place {cert.name} with its balls at {_xyz(s.ball1)} and {_xyz(s.ball2)}")
             place(s)
         radius = cert.ball_diameter / 2
         lane = np.array(s.lane, float)

@@ -96,6 +96,7 @@ def write_atomic(path: str | Path, text: str) -> Path:
             f.flush()
             os.fsync(f.fileno())
         tomllib.loads(text)  # never replace a record by something unreadable
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; records are for everyone to read
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
