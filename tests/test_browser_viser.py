@@ -214,7 +214,7 @@ def test_hold_jog_button_moves_while_held_and_stops_on_release(open_page, app, s
 @pytest.mark.xfail(strict=False, reason=(
     "known: viser sends a held button's refresh from a setInterval on the page's main thread (20 Hz, behind a "
     "50 ms throttle); while software WebGL re-renders the moving probe (~120-200 ms a frame in headless chromium "
-    "without a GPU) the refreshes come every ~300 ms, and the machine's 0.1 s dead-man stops the jog between them"))
+    "without a GPU) the refreshes come every ~300 ms, and the machine's 0.15 s dead-man stops the jog between them"))
 def test_hold_jog_is_continuous(open_page, app, station):
     page = open_page()
     take_control(page, app)

@@ -83,7 +83,7 @@ class MachineConfig:
     speeds: Speeds
     accelerations: Accelerations
     probe: ProbeConfig
-    deadman_timeout: float = 0.1
+    deadman_timeout: float = 0.15
     source: str = "<defaults>"
 
     def axis(self, name: str) -> AxisConfig:
@@ -184,7 +184,7 @@ def parse(data: dict, source: str = "<config>") -> MachineConfig:
     for k in ("tip_radius", "approach_distance", "search_distance", "retract_distance"):
         if getattr(probe, k) <= 0:
             raise _fail(source, f"probe.{k}", f"must be greater than 0, got {getattr(probe, k)}")
-    deadman = _number(source, "jog.deadman_timeout", data.get("jog", {}).get("deadman_timeout", 0.1), positive=True)
+    deadman = _number(source, "jog.deadman_timeout", data.get("jog", {}).get("deadman_timeout", 0.15), positive=True)
     if deadman + speeds.jog_fast / acc.stop > 0.2 + 1e-9:
         raise _fail(source, "jog", f"a released jog must stop within 0.2 s: deadman_timeout {deadman} s plus "
                     f"jog_fast / accelerations.stop = {speeds.jog_fast / acc.stop:.3f} s is longer")

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
-HOLD_HZ = 20.0  # jog refresh rate while a button is held (dead-man timeout is 0.1 s)
+HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
 
 
@@ -252,7 +252,7 @@ class ClientApp:
     def watch_hold(self, now: float | None = None) -> None:
         """Release a jog whose hold refreshes stopped (the tab lost the pointer-up)."""
         now = time.monotonic() if now is None else now
-        if self._jogging and now - self._last_hold > 2.5 / HOLD_HZ:
+        if self._jogging and now - self._last_hold > self.station.config.deadman_timeout:
             self.jog_release()
 
     def _throttled_error(self, title: str, body: str) -> None:

@@ -39,7 +39,7 @@ Dead-man
 --------
 While a pendant jogs, a message must arrive at least every ``deadman`` s
 (0.2 s) or the server releases the jog; a closed connection releases it at
-once. The machine's own dead-man (``config.deadman_timeout``, 0.1 s without
+once. The machine's own dead-man (``config.deadman_timeout``, 0.15 s without
 a jog refresh) applies underneath, so a pendant that goes quiet stops within
 0.1 s plus the deceleration whatever happens to the network.
 
