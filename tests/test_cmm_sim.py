@@ -67,3 +67,16 @@ def test_geometry_correction_cancels_the_injected_errors():
     assert np.abs(m.position - target).max() < 0.003
     m.step("x", 0.002).wait()
     assert m.sample().axes[0].counts == m.mm_to_counts(target)[0] + 1
+
+
+def test_pure_z_move_with_squareness_correction_arrives():
+    """With squareness corrected, a Z move also moves X and Y by a few counts: they must get a rate."""
+    from cmm.machine.geometry import GeometryCorrection
+
+    sim = SimulatedCMM(load())
+    m = Machine(sim.config, sim.transport())
+    m.connect()
+    m.correction = GeometryCorrection((0.0, 0.0, 0.0), (30.0, 40.0, -25.0))
+    start = m.position
+    m.move_to(start - [0.0, 0.0, 250.0]).wait(30)
+    assert np.abs(m.position - (start - [0.0, 0.0, 250.0])).max() < 0.003

@@ -305,15 +305,17 @@ class Machine:
         Per-axis speed and acceleration are scaled by the axis share of the
         path so all axes start on the same tick and arrive together.
         """
-        start = self.position
-        delta = target - start
-        length = float(np.linalg.norm(delta))
+        # shares come from what each axis really travels (encoder counts): with a geometry
+        # correction a move along one machine axis also moves the others a little
+        here = (self.state or self.sample()).counts
         goals = self.mm_to_counts(target)
-        for axis, mod, d, goal in zip(self.config.axes, self.modules, delta, goals):
+        travel = np.array([(g - c) / a.counts_per_mm for a, g, c in zip(self.config.axes, goals, here)])
+        length = float(np.linalg.norm(travel))
+        for axis, mod, d, goal, now in zip(self.config.axes, self.modules, travel, goals, here):
             share = abs(d) / length if length > 0 else 0.0
             vel = codec.velocity_to_fixed(speed * share, axis.counts_per_mm, axis.gains.sr)
             acc = codec.acceleration_to_fixed(accel * share, axis.counts_per_mm, axis.gains.sr)
-            if share > 0 and (vel == 0 or acc == 0):  # a tiny share: move at the smallest non-zero rate
+            if goal != now:  # a tiny share still has to arrive: at least the smallest non-zero rate
                 vel, acc = max(vel, 1), max(acc, 1)
             mod.load_position(goal, vel, acc, start=False)
         self.bus.start_move(GROUP)
