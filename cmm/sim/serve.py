@@ -76,7 +76,9 @@ def _wait_s(network: SimNetwork) -> float:
     with network.lock:
         if not network.busy():
             return _POLL_S
-        due = network.next_event_ns()
+        # a reply is handed over whole when its last byte is due: the host acts only on
+        # complete packets, and one wake-up per reply instead of per byte keeps up with the wire
+        due = network._tx[-1][1] if network._tx else network.next_event_ns()
         if network._rx:  # wire emulation: a command byte still on its way in
             due = min(due, max(network._rx[0][0], (network._rx[0][0] // 512_000 + 1) * 512_000))
     return min(_POLL_S, max(0.0, (due - network.wall_ns()) * 1e-9))
@@ -90,7 +92,7 @@ def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0) -> Se
     handle = ServedSim(network, f"socket://{bound_host}:{bound_port}")
     network.host_baud = None  # TCP carries no line rate
     network.start_realtime()
-    sel = selectors.DefaultSelector()
+    sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(listener, selectors.EVENT_READ)
     client: list[socket.socket] = []
 
@@ -149,7 +151,7 @@ def serve_pty(network: SimNetwork) -> ServedSim:
     os.set_blocking(master, False)
     handle = ServedSim(network, os.ttyname(slave))
     network.start_realtime()
-    sel = selectors.DefaultSelector()
+    sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(master, selectors.EVENT_READ)
 
     def loop() -> None:
