@@ -46,6 +46,7 @@ class AxisState:
     velocity: float  # mm/s (integer counts per tick, as the module reports it)
     status: int
     aux: int
+    current: int | None = None  # motor current sense, raw A/D (0..255)
 
     @property
     def words(self) -> list[str]:
@@ -86,7 +87,10 @@ class Machine:
         self.bus = Bus(port, firmware=config.link.firmware, trace=trace)
         self.clock = self.bus.clock
         self.modules = [Module(self.bus, a.address) for a in config.axes]
-        self.items = codec.SEND_POS | codec.SEND_VEL | codec.SEND_AUX
+        # position, motor current (A/D), velocity, aux and following error: 16 bytes a transaction
+        # at 115200 baud fill three servo ticks (a command executes at the end of its tick), so the
+        # current costs no sample rate
+        self.items = codec.SEND_POS | codec.SEND_AD | codec.SEND_VEL | codec.SEND_AUX
         if config.link.read_following_error:
             self.items |= codec.SEND_PERROR
         self.state: MachineState | None = None
@@ -148,7 +152,7 @@ class Machine:
             for axis, st, p in zip(self.config.axes, sts, mm):
                 tick = codec.tick_seconds(axis.gains.sr)
                 vel = st.velocity / tick / (axis.counts_per_mm * axis.direction) if st.velocity is not None else 0.0
-                axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0))
+                axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0, st.ad))
             self.state = MachineState(
                 now, tuple(axes), any(self._probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
