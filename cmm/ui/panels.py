@@ -26,6 +26,8 @@ from ..machine.status import MotionError
 from ..metrology import fit_criteria
 from ..metrology.features import FitError
 from ..station import FEATURE_KINDS, StationError
+from .panel_calibration import CalibrationPanel
+from .panel_sessions import SessionsPanel
 from .scene import SCALE, draw_pick
 
 if TYPE_CHECKING:
@@ -146,6 +148,8 @@ class ClientApp:
         self._last_error = ("", 0.0)
         self.gui: dict[str, Any] = {}
         self._shown: dict[str, Any] = {}
+        self.sessions = SessionsPanel(self)
+        self.calibration = CalibrationPanel(self)
 
     # --- messages -------------------------------------------------------------
 
@@ -464,6 +468,10 @@ class ClientApp:
                 (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
                            {"label": "Z", "stroke": "blue"}),
                 title="following error (counts)", aspect=1.6)
+        with tabs.add_tab("Sessions"):
+            self.sessions.build(gui)
+        with tabs.add_tab("Calibration"):
+            self.calibration.build(gui)
 
     def _feature_chosen(self, value: str) -> None:
         m = re.match(r"(\d+)", value)
@@ -500,6 +508,8 @@ class ClientApp:
         t, fe = self.app.following_error_series()
         if "plot" in self.gui and len(t) > 1:
             self.gui["plot"].data = (t, *fe)
+        self.sessions.refresh()
+        self.calibration.refresh()
 
     def _set(self, key: str, attr: str, value: Any) -> None:
         if key in self.gui and self._shown.get(key) != value:

@@ -302,6 +302,95 @@ class SceneView:
             self.draw_hits()
 
 
+class ReplayView:
+    """A recorded session's state (``cmm.session.model.SessionState``) drawn into one client's scene.
+
+    The live scene (:class:`SceneView`, shared by every tab) is left alone: a
+    replay is what one browser looks at, so it goes to ``client.scene`` under
+    ``/replay`` (part in amber, hits coloured by deviation, features).
+    ``clear()`` removes it again (back to live).
+    """
+
+    PART_COLOUR = (205, 170, 90)
+
+    def __init__(self, scene: Any, tolerance: float = DEFAULT_TOLERANCE, root: str = "/replay") -> None:
+        self.scene = scene
+        self.tolerance = tolerance
+        self.root = root
+        self.origin_mm = np.zeros(3)
+        self._part: Any = None
+        self._part_key: Any = None
+        self._nodes: list[Any] = []
+        self._lock = threading.Lock()
+
+    def local(self, points_mm: Any) -> np.ndarray:
+        return ((np.asarray(points_mm, float) - self.origin_mm) * SCALE).astype(np.float32)
+
+    def show(self, state: Any, mesh: Any = None, deviations: dict[int, float] | None = None) -> None:
+        """Draw ``state`` (hits, features, part at its pose); replaces the previous replay drawing."""
+        deviations = deviations or {}
+        pose = state.pose_array
+        with self._lock:
+            key = (id(mesh), state.part_pose)
+            if key != self._part_key:
+                if self._part is not None:
+                    self._part.remove()
+                    self._part = None
+                if pose is not None:
+                    self.origin_mm = np.round(pose[:3, 3])
+                elif state.hits:
+                    self.origin_mm = np.round(np.mean([h.point for h in state.hits.values()], axis=0))
+                self._part = self.scene.add_frame(self.root, show_axes=False, position=tuple(self.origin_mm * SCALE))
+                if mesh is not None and pose is not None:
+                    self.scene.add_mesh_simple(
+                        f"{self.root}/part", (np.asarray(mesh.vertices) * SCALE).astype(np.float32),
+                        np.asarray(mesh.faces, np.uint32), color=self.PART_COLOUR,
+                        wxyz=quat_from_matrix(pose[:3, :3]), position=tuple((pose[:3, 3] - self.origin_mm) * SCALE),
+                        flat_shading=False, opacity=0.8)
+                self._part_key = key
+            for node in self._nodes:
+                node.remove()
+            self._nodes = []
+            ids = list(state.hits)
+            if ids:
+                points = np.array([state.hits[h].point for h in ids], float)
+                approach = np.array([state.hits[h].approach for h in ids], float)
+                colours = np.array([deviation_colour(deviations.get(h, float("nan")), self.tolerance) for h in ids],
+                                   dtype=np.uint8).reshape(-1, 3)
+                sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.35 * SCALE)
+                self._nodes.append(self.scene.add_batched_meshes_simple(
+                    f"{self.root}/hits", sphere.vertices.astype(np.float32), sphere.faces,
+                    batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (len(ids), 1)), batched_positions=self.local(points),
+                    batched_colors=colours, lod="off"))
+                segs = np.stack([self.local(points - ARROW_LENGTH * approach), self.local(points)], axis=1)
+                self._nodes.append(self.scene.add_line_segments(
+                    f"{self.root}/approach", segs, np.repeat(colours[:, None, :], 2, axis=1), thickness=2.0,
+                    thickness_units="screen"))
+            all_hits = {**state.deleted_hits, **state.hits}
+            for fid, f in state.features.items():
+                pts = np.array([all_hits[h].point for h in f.hit_ids if h in all_hits]).reshape(-1, 3)
+                try:
+                    mesh_f = feature_mesh(f.kind, f.fit, pts)
+                except (KeyError, ValueError, TypeError):  # an incomplete record: skip its drawing
+                    mesh_f = None
+                if mesh_f is None:
+                    continue
+                self._nodes.append(self.scene.add_mesh_simple(
+                    f"{self.root}/f{fid}", self.local(mesh_f.vertices), np.asarray(mesh_f.faces, np.uint32),
+                    color=FEATURE_COLOURS.get(f.kind, (200, 200, 200)), opacity=0.55, side="double",
+                    cast_shadow=False))
+
+    def clear(self) -> None:
+        with self._lock:
+            for node in self._nodes:
+                node.remove()
+            self._nodes = []
+            if self._part is not None:
+                self._part.remove()  # the frame and the part mesh under it
+            self._part = None
+            self._part_key = None
+
+
 def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") -> None:
     """A marker and a normal arrow at a picked point (client scene, absolute position)."""
     p = np.asarray(point_mm, float)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -25,6 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lan", action="store_true",
                         help="listen on every interface (0.0.0.0) and print an access code for remote operators")
     parser.add_argument("--sessions", metavar="DIR", default="sessions", help="where session journals go")
+    parser.add_argument("--calibration", metavar="DIR", default=None,
+                        help="calibration records folder (probe.toml, machine.toml; artifacts/ for the wizard); "
+                             "default: ./calibration when it exists")
     parser.add_argument("--tolerance", type=float, default=0.01,
                         help="deviation colour band of the hits, mm (default 0.01)")
 
@@ -43,9 +47,14 @@ def run(args: argparse.Namespace) -> int:
         config = load(args.config) if args.config else None
     except (ConfigError, OSError) as exc:
         return _fail(f"cannot use the machine configuration: {exc}")
+    calibration = getattr(args, "calibration", None)
+    if calibration is None and Path("calibration").is_dir():
+        calibration = "calibration"
+    if calibration is not None and not Path(calibration).is_dir():
+        return _fail(f"the calibration folder {calibration} does not exist")
     try:
         station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
-                          session_dir=args.sessions)
+                          session_dir=args.sessions, calibration_dir=calibration)
     except MeshError as exc:
         return _fail(f"cannot load the part: {exc}")
     except ConfigError as exc:
@@ -53,6 +62,13 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001 - serial errors come in many types; say what happened in one line
         where = args.serial or "the simulator"
         return _fail(f"cannot open {where}: {exc}")
+    if getattr(station, "calibration_dir", None) is None:
+        station.calibration_dir = Path(calibration) if calibration is not None else None  # the wizard writes here
+    if calibration is None:
+        print("calibration: no records folder (nominal probe and geometry)")
+    else:
+        for line in station.calibration_log or ["no records: nominal probe and geometry"]:
+            print(f"calibration ({calibration}): {line}")
     try:
         station.start()
     except Exception as exc:  # noqa: BLE001

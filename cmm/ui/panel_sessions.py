@@ -1,0 +1,668 @@
+"""The "Sessions" tab: list recorded sessions, replay one, rename/delete/new, export, report, re-evaluate.
+
+:class:`SessionsPanel` belongs to one :class:`~cmm.ui.panels.ClientApp`
+(``capp.sessions``); every action is a plain method so tests drive exactly
+what a button does. A replay moves nothing: the session's part, hits and
+features are drawn into this browser's own scene
+(:class:`~cmm.ui.scene.ReplayView`), the live scene stays as it is for
+everyone else. Actions that change the record (rename, delete, new session,
+re-evaluate) need control; looking, replaying and exporting do not.
+
+Work that may take a while (opening a big session, exports with deviations,
+reports, re-evaluation) runs in a :class:`Job` thread, never in viser's
+callback thread, and shows its progress (a progress bar, and a notification
+with a loading state). :class:`Job` and :class:`ProgressView` are shared with
+the calibration tab.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+from ..session.journal import JournalError
+from ..session.store import StoreError, check_name, is_url, load_session, open_store
+
+if TYPE_CHECKING:
+    from .panels import ClientApp
+
+METHODS = ("recorded", "ls", "minzone", "mic", "mcc")
+LIST_EVERY = 10  # refresh() calls between re-listing the store (refresh runs at 5 Hz)
+
+
+# --------------------------------------------------------------------------- background work
+
+
+class Job:
+    """Work in its own thread with a progress callback ``(fraction 0..1, sentence)``.
+
+    ``fn(progress)`` returns the result; an exception is kept in ``error``.
+    ``on_done(job)`` runs in the worker thread before ``wait()`` returns.
+    """
+
+    def __init__(self, title: str, fn: Callable[[Callable[[float, str], None]], Any], *,
+                 on_progress: Callable[["Job"], None] | None = None,
+                 on_done: Callable[["Job"], None] | None = None) -> None:
+        self.title = title
+        self.fn = fn
+        self.fraction = 0.0
+        self.message = ""
+        self.result: Any = None
+        self.error: BaseException | None = None
+        self.on_progress = on_progress
+        self.on_done = on_done
+        self._done = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"ui-job-{title}", daemon=True)
+
+    def start(self) -> "Job":
+        self.thread.start()
+        return self
+
+    def progress(self, fraction: float, message: str = "") -> None:
+        self.fraction = min(max(float(fraction), 0.0), 1.0)
+        if message:
+            self.message = message
+        if self.on_progress is not None:
+            try:
+                self.on_progress(self)
+            except Exception:  # noqa: BLE001 - a closed tab must not stop the work
+                pass
+
+    def _run(self) -> None:
+        try:
+            self.result = self.fn(self.progress)
+        except BaseException as exc:  # noqa: BLE001 - reported to the operator by on_done
+            self.error = exc
+        finally:
+            try:
+                if self.on_done is not None:
+                    self.on_done(self)
+            finally:
+                self._done.set()
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._done.wait(timeout)
+
+
+class ProgressView:
+    """A progress bar + status line in a panel, and a notification with a loading state."""
+
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.bar: Any = None
+        self.status: Any = None
+        self._note: Any = None
+        self._last = 0.0
+
+    def build(self, gui: Any) -> None:
+        self.status = gui.add_markdown("")
+        self.bar = gui.add_progress_bar(0.0, visible=False, animated=True)
+
+    def start(self, job: Job) -> None:
+        self._last = 0.0
+        if self.bar is not None:
+            self.bar.value = 0.0
+            self.bar.visible = True
+        if self.status is not None:
+            self.status.content = f"**{job.title}** started"
+        client = self.capp.client
+        if client is not None:
+            try:
+                self._note = client.add_notification(job.title, "started", loading=True, with_close_button=False)
+            except Exception:  # noqa: BLE001 - the tab may have closed
+                self._note = None
+
+    def update(self, job: Job) -> None:
+        now = time.monotonic()
+        if now - self._last < 0.1 and job.fraction < 1.0:
+            return  # at most 10 updates a second
+        self._last = now
+        text = f"{job.fraction * 100:.0f} % · {job.message}"
+        if self.bar is not None:
+            self.bar.value = round(job.fraction * 100, 1)
+        if self.status is not None:
+            self.status.content = f"**{job.title}**: {text}"
+        if self._note is not None:
+            try:
+                self._note.body = text
+            except Exception:  # noqa: BLE001
+                pass
+
+    def finish(self, job: Job, text: str, ok: bool) -> None:
+        if self.bar is not None:
+            self.bar.value = 100.0 if ok else self.bar.value
+            self.bar.visible = False
+        if self.status is not None:
+            self.status.content = f"**{job.title}**: {text}"
+        if self._note is not None:
+            try:
+                self._note.title = job.title + (" done" if ok else " stopped")
+                self._note.body = text
+                self._note.loading = False
+                self._note.color = None if ok else "red"
+                self._note.with_close_button = True
+                self._note.auto_close_seconds = 6.0 if ok else 10.0
+            except Exception:  # noqa: BLE001
+                pass
+            self._note = None
+
+
+# --------------------------------------------------------------------------- words
+
+
+def _when(t: Any) -> str:
+    try:
+        return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(float(t)))
+    except (TypeError, ValueError):
+        return "?"
+
+
+def _xyz(p: Any) -> str:
+    try:
+        return "X={:.3f} Y={:.3f} Z={:.3f}".format(*p)
+    except (TypeError, ValueError, IndexError):
+        return "?"
+
+
+def describe_event(e: dict) -> str:
+    """One recorded event in an operator's words."""
+    kind = e.get("kind")
+    if kind == "start":
+        part = e.get("part")
+        return (f"session started on {e.get('port', '?')}" + (f" with part {part}" if part else "")
+                + (f", tip radius {e['tip_radius']:.4f} mm" if isinstance(e.get("tip_radius"), (int, float)) else "")
+                + (f" (re-evaluated from {e['derived_from'].get('session')})" if e.get("derived_from") else ""))
+    if kind == "hit":
+        return f"hit {e.get('id')} ({e.get('mode', 'programmed')}) at {_xyz(e.get('point'))}"
+    if kind == "hit_deleted":
+        return f"hit {e.get('id')} deleted" + (" (undo)" if e.get("undo") else "")
+    if kind == "hit_restored":
+        return f"hit {e.get('id')} restored" + (" (undo)" if e.get("undo") else "")
+    if kind == "feature":
+        form = e.get("form")
+        return (f"feature {e.get('name')!r} fitted: {e.get('feature_kind')} ({e.get('method')}) from hits "
+                f"{e.get('hit_ids')}" + (f", form {form * 1000:.2f} um" if isinstance(form, (int, float)) else ""))
+    if kind == "feature_deleted":
+        return f"feature {e.get('id')} deleted"
+    if kind == "alignment":
+        rms = e.get("rms")
+        return f"part aligned ({e.get('method', 'manual')})" + (
+            f", RMS {rms * 1000:.2f} um" if isinstance(rms, (int, float)) else "")
+    if kind == "part":
+        return f"part {e.get('name')} loaded"
+    if kind == "note":
+        return f"note: {e.get('text', '')}"
+    if kind == "error":
+        return f"error ({e.get('source', '?')}): {e.get('message', '')}"
+    if kind == "program":
+        return f"program {e.get('name')} ran" + (f" ({e.get('status')})" if e.get("status") else "")
+    return f"{kind} event"
+
+
+# --------------------------------------------------------------------------- the panel
+
+
+class SessionsPanel:
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.station = capp.station
+        self.session: Any = None  # the Session being replayed (None: live)
+        self.replay: Any = None
+        self.index = -1
+        self.state: Any = None
+        self.mesh: Any = None
+        self.deviations: dict[int, float] = {}
+        self.job: Job | None = None
+        self.last_files: list[Path] = []
+        self.gui: dict[str, Any] = {}
+        self.progress_view = ProgressView(capp)
+        self._summaries: dict[str, tuple[Any, dict]] = {}
+        self._view: Any = None
+        self._ticks = 0
+
+    # --- store --------------------------------------------------------------
+
+    def store(self) -> Any:
+        return open_store(self.station.session_dir)
+
+    def live_name(self) -> str | None:
+        """The name of the session the station is recording."""
+        j = self.station.journal
+        if j is None:
+            return None
+        path = getattr(j, "path", None)
+        return Path(path).stem if path is not None else getattr(j, "name", None)
+
+    def export_dir(self) -> Path:
+        d = self.station.session_dir
+        return Path("exports") if is_url(d) else Path(d)
+
+    def sessions(self) -> list[dict[str, Any]]:
+        """name, events, hits, features, recording, modified for every session in the store."""
+        live = self.live_name()
+        rows = []
+        for info in self.store().list():
+            if info.name == live:
+                with self.station.lock:
+                    hits, features = len(self.station.hits), len(self.station.features)
+            else:
+                key = (info.events, info.modified)
+                cached = self._summaries.get(info.name)
+                if cached is None or cached[0] != key:
+                    try:
+                        cached = (key, load_session(self.store(), info.name).summary())
+                    except (StoreError, JournalError, OSError, ValueError, KeyError) as exc:
+                        cached = (key, {"hits": "?", "features": "?", "damage": str(exc)})
+                    self._summaries[info.name] = cached
+                hits, features = cached[1].get("hits"), cached[1].get("features")
+            rows.append({"name": info.name, "events": info.events, "hits": hits, "features": features,
+                         "recording": info.open_for_writing or info.name == live, "modified": info.modified})
+        return rows
+
+    def list_markdown(self) -> str:
+        try:
+            rows = self.sessions()
+        except (StoreError, OSError) as exc:
+            return f"*cannot list the sessions: {exc}*"
+        if not rows:
+            return "*no sessions yet*"
+        lines = ["| session | hits | features | events | |", "|---|---:|---:|---:|---|"]
+        for r in rows:
+            flag = "● recording" if r["recording"] else ""
+            if self.session is not None and r["name"] == self.session.name:
+                flag = (flag + " · replaying").strip(" ·")
+            lines.append(f"| {r['name']} | {r['hits']} | {r['features']} | {r['events']} | {flag} |")
+        return "\n".join(lines)
+
+    def _is_live(self, name: str) -> bool:
+        if name == self.live_name():
+            return True
+        try:
+            return any(i.name == name and i.open_for_writing for i in self.store().list())
+        except (StoreError, OSError):
+            return False
+
+    # --- jobs ---------------------------------------------------------------------
+
+    def _start(self, title: str, fn: Callable[[Callable[[float, str], None]], Any],
+               done: Callable[[Any], str]) -> Job | None:
+        if self.job is not None and not self.job.done:
+            self.capp.error(f"wait until '{self.job.title}' has finished", title)
+            return None
+
+        def on_done(job: Job) -> None:
+            if job.error is not None:
+                exc = job.error
+                text = str(exc) or type(exc).__name__
+                self.capp.error(text, f"{title} failed")
+                self.progress_view.finish(job, text, False)
+                return
+            try:
+                text = done(job.result)
+            except Exception as exc:  # noqa: BLE001 - never a traceback in the UI
+                job.error = exc
+                self.capp.error(str(exc), f"{title} failed")
+                self.progress_view.finish(job, str(exc), False)
+                return
+            self.progress_view.finish(job, text, True)
+            self.capp.notify(title, text)
+            self.refresh_list()
+
+        job = Job(title, fn, on_progress=self.progress_view.update, on_done=on_done)
+        self.job = job
+        self.progress_view.start(job)
+        return job.start()
+
+    # --- replay ------------------------------------------------------------------------
+
+    def _part_mesh(self, session: Any) -> Any:
+        from ..session.export import resolve_part_mesh
+
+        part = self.station.part
+        return resolve_part_mesh(session, part.mesh if part is not None else None)
+
+    def open(self, name: str) -> Job | None:
+        """Open a recorded session for replay (no machine motion); the scrubber goes to its last event."""
+        from ..session.export import hit_deviations
+        from ..session.replay import Replay
+
+        def work(progress: Callable[[float, str], None]) -> Any:
+            progress(0.0, f"reading {name}")
+            session = load_session(self.store(), name)
+            progress(0.2, f"indexing {len(session.events)} events")
+            replay = Replay(session, progress=lambda i, n: progress(0.2 + 0.5 * i / max(n, 1), f"event {i} of {n}"))
+            if len(replay) == 0:
+                raise StoreError(f"session {name!r} has no events")
+            progress(0.75, "finding the part mesh")
+            mesh = self._part_mesh(session)
+            progress(0.85, "deviations of the hits")
+            devs = hit_deviations(session, mesh) if mesh is not None else {}
+            return session, replay, mesh, devs
+
+        def done(result: Any) -> str:
+            self.session, self.replay, self.mesh, self.deviations = result
+            self.index = -1
+            self.scrub(len(self.replay) - 1)
+            if "scrub" in self.gui:
+                self.gui["scrub"].max = max(len(self.replay) - 1, 1)
+                self.gui["scrub"].value = len(self.replay) - 1
+                self.gui["scrub"].disabled = False
+            warn = "; ".join(self.session.warnings)
+            return (f"replaying {name}: {len(self.replay)} events" + ("" if self.mesh is not None or
+                    self.session.part is None else " (part mesh not found: hits only)") + (f". {warn}" if warn else ""))
+
+        return self._start("Open session", work, done)
+
+    def scrub(self, i: int) -> Any:
+        """Show the state after event ``i`` (the slider)."""
+        if self.replay is None:
+            self.capp.error("open a session for replay first", "Replay")
+            return None
+        i = min(max(int(i), 0), len(self.replay) - 1)
+        if i == self.index and self.state is not None:
+            return self.state
+        self.index = i
+        self.state = self.replay.at(i)
+        self._draw()
+        self._set("event", "content", self.event_text())
+        return self.state
+
+    def event_text(self) -> str:
+        if self.replay is None or self.state is None:
+            return "*live: no session is being replayed*"
+        e = self.replay.event(self.index)
+        s = self.state
+        return (f"**{self.session.name}** · event {self.index + 1} of {len(self.replay)} · {_when(e.get('time'))}\n\n"
+                f"{describe_event(e)}\n\n"
+                f"state: {len(s.hits)} hits, {len(s.features)} features"
+                + (f", {len(s.deleted_hits)} deleted" if s.deleted_hits else "")
+                + (f", {len(s.errors)} errors" if s.errors else ""))
+
+    def _draw(self) -> None:
+        client = self.capp.client
+        if client is None or self.state is None:
+            return
+        from .scene import ReplayView
+
+        if self._view is None:
+            self._view = ReplayView(client.scene, self.capp.app.view.tolerance)
+        try:
+            self._view.show(self.state, self.mesh, self.deviations)
+        except Exception as exc:  # noqa: BLE001 - the tab may have closed
+            self.capp.error(str(exc), "Replay drawing")
+
+    def back_to_live(self) -> None:
+        self.session = self.replay = self.state = self.mesh = None
+        self.index = -1
+        self.deviations = {}
+        if self._view is not None:
+            try:
+                self._view.clear()
+            except Exception:  # noqa: BLE001
+                pass
+        if "scrub" in self.gui:
+            self.gui["scrub"].disabled = True
+        self._set("event", "content", self.event_text())
+        self.refresh_list()
+
+    # --- record management -------------------------------------------------------------
+
+    def rename(self, old: str, new: str) -> bool:
+        if not self.capp.allowed("Rename session"):
+            return False
+        try:
+            new = check_name(new.strip())
+            if self._is_live(old):
+                raise StoreError(f"session {old!r} is being recorded: start a new session before you rename it")
+            self.store().rename(old, new)
+        except (StoreError, OSError) as exc:
+            self.capp.error(exc, "Rename refused")
+            return False
+        if self.session is not None and self.session.name == old:
+            self.session.name = new
+        self._summaries.pop(old, None)
+        self.capp.notify("Renamed", f"{old} → {new}")
+        self.refresh_list()
+        return True
+
+    def delete(self, name: str) -> bool:
+        if not self.capp.allowed("Delete session"):
+            return False
+        try:
+            if self._is_live(name):
+                raise StoreError(f"session {name!r} is being recorded: it cannot be deleted")
+            self.store().delete(name)
+        except (StoreError, OSError) as exc:
+            self.capp.error(exc, "Delete refused")
+            return False
+        if self.session is not None and self.session.name == name:
+            self.back_to_live()
+        self._summaries.pop(name, None)
+        self.capp.notify("Deleted", f"session {name}")
+        self.refresh_list()
+        return True
+
+    def new_session(self, name: str = "") -> Any:
+        """Close the live session and start recording a new one (empty name: a time stamp)."""
+        if not self.capp.allowed("New session"):
+            return None
+        try:
+            name = name.strip()
+            if name:
+                check_name(name)
+                if self.store().exists(name):
+                    raise StoreError(f"a session named {name!r} already exists: choose another name")
+            path = self.station.new_session(name or None)
+        except (StoreError, OSError) as exc:
+            self.capp.error(exc, "New session refused")
+            return None
+        self.capp.notify("New session", f"recording {self.live_name()}")
+        self.refresh_list()
+        return path
+
+    # --- exports ----------------------------------------------------------------------------
+
+    def _download(self, path: Path) -> None:
+        client = self.capp.client
+        send = getattr(client, "send_file_download", None) if client is not None else None
+        if send is not None:
+            try:
+                send(path.name, path.read_bytes())
+            except Exception:  # noqa: BLE001 - the file is on disk anyway
+                pass
+
+    def export(self, name: str, csv: bool = True, json: bool = True) -> Job | None:
+        """Write ``<name>.csv`` (hits) and/or ``<name>.json`` (whole session) into the sessions folder."""
+        from ..session.export import write_csv, write_json
+
+        def work(progress: Callable[[float, str], None]) -> list[Path]:
+            progress(0.0, f"reading {name}")
+            session = load_session(self.store(), name)
+            progress(0.3, "finding the part mesh")
+            mesh = self._part_mesh(session)
+            out = self.export_dir()
+            out.mkdir(parents=True, exist_ok=True)
+            files = []
+            if csv:
+                progress(0.5, "writing CSV")
+                files.append(write_csv(session, out / f"{name}.csv", mesh))
+            if json:
+                progress(0.75, "writing JSON")
+                files.append(write_json(session, out / f"{name}.json", mesh))
+            return files
+
+        return self._start("Export", work, self._files_done)
+
+    def _files_done(self, files: list[Path]) -> str:
+        self.last_files = list(files)
+        for f in files:
+            self._download(f)
+        text = "wrote " + ", ".join(str(f) for f in files)
+        self._set("files", "content", text)
+        return text
+
+    def report(self, name: str) -> Job | None:
+        """Write the inspection report ``<name>-report.html`` into the sessions folder (and offer it)."""
+        from ..session.report import write_report
+
+        def work(progress: Callable[[float, str], None]) -> list[Path]:
+            progress(0.0, f"reading {name}")
+            session = load_session(self.store(), name)
+            progress(0.3, "finding the part mesh")
+            mesh = self._part_mesh(session)
+            progress(0.5, "rendering the report")
+            out = self.export_dir()
+            out.mkdir(parents=True, exist_ok=True)
+            return [write_report(session, out / f"{name}-report.html", mesh=mesh)]
+
+        return self._start("Report", work, self._files_done)
+
+    def reevaluate(self, name: str, new: str = "", tip_radius: float = 0.0, method: str = "recorded") -> Job | None:
+        """Recompute hits and features from the raw counts with another tip radius / fit method into a new session."""
+        if not self.capp.allowed("Re-evaluate"):
+            return None
+        from ..session.reevaluate import reevaluate
+        from ..session.store import write_session
+
+        new = (new or "").strip() or f"{name}-reevaluated"
+        try:
+            check_name(new)
+            if self.store().exists(new):
+                raise StoreError(f"a session named {new!r} already exists: choose another name")
+            if method not in METHODS:
+                raise ValueError(f"unknown fit method {method!r}; choose one of {', '.join(METHODS)}")
+            if tip_radius and not 0 < float(tip_radius) < 50:
+                raise ValueError(f"tip radius {tip_radius} mm is not plausible")
+        except (StoreError, ValueError, OSError) as exc:
+            self.capp.error(exc, "Re-evaluate refused")
+            return None
+
+        def work(progress: Callable[[float, str], None]) -> Any:
+            progress(0.0, f"reading {name}")
+            session = load_session(self.store(), name)
+            settings = session.probe_settings()
+            if tip_radius:
+                settings = replace(settings, tip_radius=float(tip_radius))
+            result = reevaluate(session, settings, method=None if method == "recorded" else method, name=new,
+                                progress=lambda i, n: progress(0.1 + 0.7 * i / max(n, 1), f"event {i} of {n}"))
+            progress(0.85, f"writing {new}")
+            write_session(self.store(), new, result.events)
+            return session, result
+
+        def done(result: Any) -> str:
+            old, derived = result
+            errors = derived.state.errors[len(old.state.errors):]
+            return (f"wrote {new}: {len(derived.hits)} hits, {len(derived.features)} features"
+                    + (f"; {len(errors)} feature(s) could not be refitted: {errors[0][1]}" if errors else ""))
+
+        return self._start("Re-evaluate", work, done)
+
+    # --- GUI ----------------------------------------------------------------------------------
+
+    def selected(self) -> str:
+        dd = self.gui.get("session")
+        return "" if dd is None or dd.value == "-" else str(dd.value)
+
+    def _need(self) -> str | None:
+        name = self.selected()
+        if not name:
+            self.capp.error("choose a session first", "Sessions")
+            return None
+        return name
+
+    def build(self, gui: Any) -> None:
+        g = self.gui
+        g["list"] = gui.add_markdown(self.list_markdown())
+        g["session"] = gui.add_dropdown("Session", self._names() or ("-",))
+        gui.add_button("Refresh list").on_click(lambda _: self.refresh_list())
+        with gui.add_folder("Replay"):
+            gui.add_button("Open for replay").on_click(lambda _: (n := self._need()) and self.open(n))
+            g["scrub"] = gui.add_slider("Event", min=0, max=1, step=1, initial_value=0, disabled=True)
+            g["scrub"].on_update(lambda e: self.replay is not None and self.scrub(int(e.target.value)))
+            step = gui.add_button_group("Step", ("|◀", "◀", "▶", "▶|"))
+            step.on_click(lambda e: self._step(e.target.value))
+            g["event"] = gui.add_markdown(self.event_text())
+            gui.add_button("Back to live", color="green").on_click(lambda _: self.back_to_live())
+        with gui.add_folder("Export", expand_by_default=False):
+            gui.add_button("Export CSV + JSON").on_click(lambda _: (n := self._need()) and self.export(n))
+            gui.add_button("Report (HTML)").on_click(lambda _: (n := self._need()) and self.report(n))
+            g["files"] = gui.add_markdown("")
+        with gui.add_folder("Re-evaluate", expand_by_default=False):
+            g["re_name"] = gui.add_text("New session", "", hint="empty: <name>-reevaluated")
+            g["re_tip"] = gui.add_number("Tip radius (mm)", 0.0, min=0.0, step=0.0001, hint="0 = as recorded")
+            g["re_method"] = gui.add_dropdown("Fit method", METHODS, initial_value="recorded")
+            gui.add_button("Re-evaluate").on_click(lambda _: (n := self._need()) and self.reevaluate(
+                n, g["re_name"].value, float(g["re_tip"].value), g["re_method"].value))
+        with gui.add_folder("Manage", expand_by_default=False):
+            g["new_name"] = gui.add_text("Name", "", hint="new session / rename to")
+            gui.add_button("New session").on_click(lambda _: self.new_session(g["new_name"].value))
+            gui.add_button("Rename selected").on_click(
+                lambda _: (n := self._need()) and self.rename(n, g["new_name"].value))
+            gui.add_button("Delete selected", color="red").on_click(lambda _: self._confirm_delete())
+        self.progress_view.build(gui)
+
+    def _step(self, which: str) -> None:
+        if self.replay is None:
+            self.capp.error("open a session for replay first", "Replay")
+            return
+        i = {"|◀": 0, "◀": self.index - 1, "▶": self.index + 1, "▶|": len(self.replay) - 1}.get(which, self.index)
+        self.scrub(i)
+        if "scrub" in self.gui:
+            self.gui["scrub"].value = self.index
+
+    def _confirm_delete(self) -> None:
+        name = self._need()
+        if not name or self.capp.client is None:
+            return
+        if not self.capp.allowed("Delete session"):
+            return
+        with self.capp.client.gui.add_modal("Delete session?") as modal:
+            self.capp.client.gui.add_markdown(f"Delete **{name}** and its journal? This cannot be undone.")
+
+            def yes(_: Any) -> None:
+                modal.close()
+                self.delete(name)
+
+            self.capp.client.gui.add_button("Delete", color="red").on_click(yes)
+            self.capp.client.gui.add_button("Cancel").on_click(lambda _: modal.close())
+
+    def _names(self) -> tuple[str, ...]:
+        try:
+            return tuple(i.name for i in self.store().list())
+        except (StoreError, OSError):
+            return ()
+
+    def refresh_list(self) -> None:
+        if not self.gui:
+            return
+        self._set("list", "content", self.list_markdown())
+        names = self._names() or ("-",)
+        dd = self.gui["session"]
+        if tuple(dd.options) != names:
+            keep = dd.value
+            dd.options = names
+            if keep in names:
+                dd.value = keep
+
+    def refresh(self) -> None:
+        """Called by ClientApp.refresh (5 Hz): re-list the store every couple of seconds."""
+        if not self.gui:
+            return
+        self._ticks += 1
+        if self._ticks % LIST_EVERY == 0:
+            self.refresh_list()
+
+    def _set(self, key: str, attr: str, value: Any) -> None:
+        h = self.gui.get(key)
+        if h is not None and getattr(h, attr, None) != value:
+            setattr(h, attr, value)
+
+
+__all__ = ["SessionsPanel", "Job", "ProgressView", "describe_event"]
