@@ -63,7 +63,7 @@ def main() -> None:
         sim.place_artifacts([(np.add(s.ball1, off), 25.0), (np.add(s.ball2, off), 25.0)])
 
     t0 = time.perf_counter()
-    g = calibrate_geometry(m, q.settings, certs, place=place, repeats=1, verify=not quick)
+    g = calibrate_geometry(m, q.settings, certs, place=place, repeats=2, verify=not quick)
     c = g.correction
     print(f"\nmachine geometry (9 ball-bar set-ups, {time.perf_counter() - t0:.1f} s wall incl. verification):")
     print("  scale ppm       X {:+7.2f} (true +50)  Y {:+7.2f} (0)  Z {:+7.2f} (0)   U(k=2) {:.2f}".format(

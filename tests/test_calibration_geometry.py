@@ -56,7 +56,8 @@ def test_ball_bar_routine_recovers_injected_scale_and_squareness():
 
     seen = []
     try:
-        r = calibrate_geometry(m, settings, CERTS, place=place, repeats=1, verify=False,
+        # two dithered hits per point: with 2 um counts a 200 mm bar resolves squareness to ~5 urad per hit
+        r = calibrate_geometry(m, settings, CERTS, place=place, repeats=2, verify=False,
                                progress=lambda f, s: seen.append(f))
     finally:
         m.close()

@@ -186,7 +186,7 @@ def _run_geometry(args: Any, rig: _Rig, artifacts: Path) -> int:
             input(f"Place {certs[s.artifact].describe()} for set-up {s.name}: balls at "
                   "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}; ".format(*s.ball1, *s.ball2) +
                   "press Enter when it is clamped ")
-    result = calibrate_geometry(rig.machine, rig.prober.settings, certs, setups, place, repeats=args.repeats or 1,
+    result = calibrate_geometry(rig.machine, rig.prober.settings, certs, setups, place, repeats=args.repeats or 2,
                                 verify=not args.no_verify, progress=_progress(args))
     c = result.correction
     print("scale (ppm): X {:+.2f} Y {:+.2f} Z {:+.2f}   U(k=2) {:.2f}".format(*c.scale_ppm, result.uncertainty_scale_ppm))
