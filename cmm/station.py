@@ -99,6 +99,7 @@ class Station:
         self.journal: Journal | None = None
         self.machine.on_event(lambda kind, info: self._notify(kind, info))
         self.calibration_log: list[str] = []
+        self.calibration_dir = None if calibration_dir is None else Path(calibration_dir)  # records are read and written here
         if calibration_dir is not None:
             self.load_calibration(calibration_dir)
         if part_path is not None and self.sim is None:
@@ -182,6 +183,7 @@ class Station:
         """
         from .calibration.records import apply_calibration, load_station_calibration
 
+        self.calibration_dir = Path(directory)
         loaded = load_station_calibration(directory)
         with self.lock:
             applied = apply_calibration(loaded, self.machine, self.prober)

@@ -223,7 +223,7 @@ class CalibrationPanel:
 
     @property
     def records_dir(self) -> Path:
-        d = getattr(self.station, "calibration_dir", None)
+        d = self.station.calibration_dir
         return Path(d) if d is not None else Path("calibration")
 
     @property

@@ -62,8 +62,6 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001 - serial errors come in many types; say what happened in one line
         where = args.serial or "the simulator"
         return _fail(f"cannot open {where}: {exc}")
-    if getattr(station, "calibration_dir", None) is None:
-        station.calibration_dir = Path(calibration) if calibration is not None else None  # the wizard writes here
     if calibration is None:
         print("calibration: no records folder (nominal probe and geometry)")
     else:
