@@ -45,8 +45,7 @@ def records(tmp_path_factory):
 @pytest.fixture(scope="module")
 def app(tmp_path_factory, records):
     station = Station(session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start()
-    if getattr(station, "calibration_dir", None) is None:
-        station.calibration_dir = records  # as `cmm serve --calibration` does
+    assert station.calibration_dir == records
     ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant=False)
     yield ui
     ui.close()
