@@ -19,13 +19,12 @@ from .machine.config import MachineConfig, load
 from .machine.motion import Machine, MachineState
 from .machine.probing import Hit, Prober
 from .machine.status import MotionError, MoveStatus
-from .metrology import fit_criteria
 from .metrology.features import FitError, FitResult
 from .metrology.mesh import signed_deviation
 from .metrology.pick import NominalFeature, PickResult, pick, suggest_feature
-from .metrology.probe_offset import offset_feature
 from .nmc.trace import ByteTrace
 from .session.journal import Journal
+from .session.reevaluate import feature_fields, fit_hits
 from .session.model import file_sha256, machine_snapshot, mesh_sha256
 from .session.store import is_url, open_store
 
@@ -347,17 +346,9 @@ class Station:
             if missing:
                 raise StationError(f"no hits with ids {missing}")
             hits = [self.hits[h] for h in hit_ids]
-        centres = np.array([h.machine for h in hits])
-        approach = np.array([h.approach for h in hits])
-        settings = self.prober.settings
-        centres = centres - settings.pretravel(approach)[:, None] * approach
         try:
-            if kind == "point":
-                result = fit_criteria.fit("point", np.array([h.point for h in hits]), method)
-            else:
-                result = fit_criteria.fit(kind, centres, method)
-                if kind != "line":
-                    result = offset_feature(result, centres, approach, settings.tip_radius)
+            result = fit_hits(kind, method, [h.machine for h in hits], [h.approach for h in hits],
+                              [h.point for h in hits], self.prober.settings, nominal)
         except FitError as exc:
             raise StationError(str(exc)) from None
         with self.lock:
@@ -365,7 +356,8 @@ class Station:
             self._next_feature += 1
             feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal)
             self.features[fid] = feature
-            self._record("feature", **{("feature_kind" if k == "kind" else k): v for k, v in feature.summary().items()})
+            self._record("feature", id=fid, name=feature.name, hit_ids=list(hit_ids), **feature_fields(result),
+                         nominal=None if nominal is None else nominal.to_dict())
         self._notify("feature", feature)
         return feature
 

@@ -178,6 +178,9 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
 # ---------------------------------------------------------------- dispatcher
 
 
+_CLOSED_FORM = frozenset({"point", "line", "plane", "line2d"})
+
+
 def _ls(kind: str) -> Callable[..., FitResult]:
     return fit_ls.LS_FITS[kind]
 
@@ -200,12 +203,14 @@ def methods_for(kind: str) -> tuple[str, ...]:
 
 def fit(kind: str, points: Any, method: str = "ls", nominal: Any = None) -> FitResult:
     """Fit feature `kind` (point, line, plane, circle, sphere, cylinder, cone, torus, line2d,
-    circle2d) to points by `method` (ls, minzone, mic, mcc)."""
+    circle2d) to points by `method` (ls, minzone, mic, mcc).
+
+    `nominal` seeds the iterative fits; the closed-form ones (point, line, plane) do not need it."""
     if kind not in fit_ls.LS_FITS:
         raise FitError(f"unknown feature kind {kind!r}; choose one of: {', '.join(fit_ls.LS_FITS)}")
     if method == "ls":
         fn = _ls(kind)
-        return fn(points, nominal=nominal) if nominal is not None else fn(points)
+        return fn(points, nominal=nominal) if nominal is not None and kind not in _CLOSED_FORM else fn(points)
     if (kind, method) not in _CRITERIA:
         raise FitError(f"method {method!r} is not available for a {kind}; choose one of: {', '.join(methods_for(kind))}")
     return _CRITERIA[(kind, method)](points, nominal=nominal)

@@ -94,7 +94,7 @@ class SessionRecorder:
             hits = [self.hits[h] for h in hit_ids]
         try:
             result = fit_hits(kind, method, [h.machine for h in hits], [h.approach for h in hits],
-                              [h.point for h in hits], self.prober.settings)
+                              [h.point for h in hits], self.prober.settings, nominal)
         except FitError as exc:
             self.error(str(exc), source="fit")
             raise

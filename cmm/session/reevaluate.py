@@ -26,17 +26,44 @@ from ..metrology.probe_offset import offset_feature
 from .model import HitRecord, Session
 
 
-def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, settings: Any) -> FitResult:
-    """The station's feature fit from latched tip centres, approach directions and compensated points."""
+def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, settings: Any,
+             nominal: Any = None) -> FitResult:
+    """The station's feature fit: fit the pre-travel-corrected tip centres, then offset by the tip radius.
+
+    A nominal (e.g. the feature a mesh pick suggested, or a program's) seeds the fit: with few points a
+    short cylinder, say, has other axes that fit nearly as well, and the nominal picks the right one.
+    """
     centres = np.asarray(centres, dtype=np.float64).reshape(-1, 3)
     approach = np.asarray(approach, dtype=np.float64).reshape(-1, 3)
     if kind == "point":
         return fit_criteria.fit("point", np.asarray(points, dtype=np.float64).reshape(-1, 3), method)
     centres = centres - settings.pretravel(approach)[:, None] * approach
-    result = fit_criteria.fit(kind, centres, method)
+    result = fit_criteria.fit(kind, centres, method, nominal=_centre_start(nominal, kind))
     if kind != "line":
         result = offset_feature(result, centres, approach, settings.tip_radius)
     return result
+
+
+def recorded_nominal(event: dict) -> Any:
+    """The nominal a feature event was fitted with (its start values), or None."""
+    nominal = event.get("nominal")
+    if not nominal or "kind" not in nominal:
+        return None
+    from ..metrology.pick import NominalFeature
+
+    return NominalFeature(nominal["kind"], {k: v for k, v in nominal.items() if k != "kind"})
+
+
+def _centre_start(nominal: Any, kind: str) -> dict | None:
+    """Start values for a fit to tip centres from a nominal surface feature of the same kind.
+
+    Positions and directions carry over; sizes do not (tip centres sit a radius off the surface),
+    so the fit takes its size from the data.
+    """
+    if nominal is None or getattr(nominal, "kind", kind) != kind:
+        return None
+    params = getattr(nominal, "params", nominal)
+    return {k: v for k, v in dict(params).items() if k not in ("radius", "minor_radius", "kind")}
 
 
 def feature_fields(result: FitResult) -> dict[str, Any]:
@@ -100,7 +127,7 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
                 if len(recs) != len(ids):
                     raise FitError(f"hits {[h for h in ids if h not in hits]} are not in the journal")
                 result = fit_hits(e["feature_kind"], fmethod, [h.machine for h in recs], [h.approach for h in recs],
-                                  [h.point for h in recs], settings)
+                                  [h.point for h in recs], settings, recorded_nominal(e))
             except (FitError, ValueError) as exc:
                 events.append({**head, "kind": "error", "source": "reevaluate",
                                "message": f"feature {e.get('name')!r} could not be refitted: {exc}"})
