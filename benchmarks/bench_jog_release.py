@@ -116,7 +116,7 @@ def main() -> None:
                     ws.send(json.dumps({"type": "release"}))
                     results.setdefault(key, []).append(watch.wait())
                     time.sleep(0.1)
-            key = f"silent pendant at jog_fast (dead-man)"
+            key = "silent pendant at jog_fast (dead-man)"
             for i in range(args.trials):
                 sign = 1 if i % 2 == 0 else -1
                 last = jog_until_running(ws, station, [sign * speeds.jog_fast, 0, 0])

@@ -22,6 +22,7 @@ from typing import Any
 
 from ..machine.geometry import GeometryCorrection
 from ..metrology.compensation import ALL_PRETRAVEL_TERMS, PretravelModel
+from ..toml_text import toml_value
 
 DEFAULT_DIR = Path("calibration")
 PROBE_RECORD = "probe.toml"
@@ -47,22 +48,7 @@ def _read(path: str | Path, what: str) -> dict:
         raise CalibrationError(f"{what} {p} is not valid TOML: {exc}") from None
 
 
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ValueError(f"cannot write the non-finite number {v} to a record")
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if hasattr(v, "tolist"):
-        return _value(v.tolist())
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+_value = toml_value
 
 
 def dumps(data: dict, header: str = "") -> str:

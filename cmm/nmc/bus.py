@@ -16,7 +16,7 @@ from typing import Any
 
 from . import codec
 from .trace import ByteTrace
-from .transport import Clock, open_port
+from .transport import open_port
 
 
 class NmcError(Exception):

@@ -38,7 +38,6 @@ features with their recorded kind and method.
 from __future__ import annotations
 
 import inspect
-import json
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -49,6 +48,7 @@ import numpy as np
 
 from ..metrology import fit_criteria, fit_ls
 from ..metrology.pick import NominalFeature
+from ..toml_text import toml_value
 from .model import DEFAULT_TOLERANCE, Session, mesh_sha256
 
 FORMAT = "cmm-program/1"
@@ -151,23 +151,10 @@ def teach(session: Session, *, name: str | None = None, clearance: float = 10.0,
 
 
 def _val(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ProgramError(f"a program cannot hold the number {v}")
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_val(x.item() if hasattr(x, "item") else x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_val(x)}" for k, x in v.items()) + " }"
-    if hasattr(v, "item"):
-        return _val(v.item())
-    raise ProgramError(f"cannot write a {type(v).__name__} into a program")
+    try:
+        return toml_value(v)
+    except (TypeError, ValueError) as exc:
+        raise ProgramError(f"cannot write this into a program: {exc}") from None
 
 
 def to_toml(program: Program) -> str:

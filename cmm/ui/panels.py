@@ -396,7 +396,6 @@ class ClientApp:
     def build(self) -> None:
         """Create this client's widgets. Callbacks only call the methods above."""
         gui = self.client.gui
-        cfg = self.station.config
         g = self.gui
         with gui.add_folder("Control"):
             g["control"] = gui.add_markdown(self.control_text())
