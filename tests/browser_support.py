@@ -10,7 +10,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-import socket
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,10 +86,7 @@ def screenshot(page: Any, name: str, **options: Any) -> Path:
     return path
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from netutil import free_port  # noqa: E402,F401 - re-exported for the browser tests
 
 
 # A fake standard-mapping gamepad whose state the test changes through window.__pad.

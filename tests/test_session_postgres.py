@@ -9,12 +9,12 @@ from __future__ import annotations
 import glob
 import os
 import shutil
-import socket
 import subprocess
 import tempfile
 from pathlib import Path
 
 import pytest
+from netutil import free_port
 
 import session_support as sup
 from cmm.session.journal import read_events
@@ -22,11 +22,6 @@ from cmm.session.model import Session
 from cmm.session.replay import Replay
 from cmm.session.store import PostgresStore, SessionBusy, SessionNotFound, StoreError, load_session, open_store, write_session
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +47,7 @@ def pg_url():
             pytest.skip("running as root and there is no 'postgres' user to run the server")
         os.chown(root, pw.pw_uid, pw.pw_gid)
         prefix = ["runuser", "-u", "postgres", "--"]
-    data, port = root / "data", _free_port()
+    data, port = root / "data", free_port()
     run = lambda *cmd: subprocess.run(prefix + list(cmd), capture_output=True, text=True, timeout=120)  # noqa: E731
     r = run(str(bindir / "initdb"), "-D", str(data), "-A", "trust", "-U", "cmm", "--no-sync")
     if r.returncode != 0:
@@ -126,4 +121,4 @@ def test_cli_works_against_postgres(pg_url, capsys, tmp_path):
 def test_a_bad_url_is_an_operator_message():
     pytest.importorskip("psycopg", reason="psycopg is not installed")
     with pytest.raises(StoreError, match="cannot connect to the session database"):
-        open_store(f"postgresql://nobody@127.0.0.1:{_free_port()}/x?connect_timeout=2")
+        open_store(f"postgresql://nobody@127.0.0.1:{free_port()}/x?connect_timeout=2")

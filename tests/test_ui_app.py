@@ -8,12 +8,12 @@ per-client GUI is really built. Browser tests (Playwright) live elsewhere.
 from __future__ import annotations
 
 import math
-import socket
 import time
 import urllib.request
 
 import numpy as np
 import pytest
+from netutil import free_port
 
 pytest.importorskip("viser")
 
@@ -23,16 +23,11 @@ from cmm.ui.panels import nominal_deviation, parse_ids  # noqa: E402
 from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant_port=0)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
     yield ui
     ui.close()
     station.close()

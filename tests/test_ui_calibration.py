@@ -9,13 +9,13 @@ centres; the servo tuning (one axis, ~10 s) runs for real through the panel.
 from __future__ import annotations
 
 import shutil
-import socket
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from netutil import free_port
 
 pytest.importorskip("viser")
 
@@ -27,11 +27,6 @@ from cmm.ui.panel_calibration import residual_series, residual_svg  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +41,7 @@ def records(tmp_path_factory):
 def app(tmp_path_factory, records):
     station = Station(session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start()
     assert station.calibration_dir == records
-    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant=False)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui
     ui.close()
     station.close()

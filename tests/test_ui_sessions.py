@@ -8,11 +8,11 @@ drawing (into that client's scene) really exist.
 from __future__ import annotations
 
 import json
-import socket
 import time
 
 import numpy as np
 import pytest
+from netutil import free_port
 
 pytest.importorskip("viser")
 
@@ -21,16 +21,11 @@ from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_sessions import describe_event  # noqa: E402
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start("first")
-    ui = StationApp(station, host="127.0.0.1", port=_free_port(), pendant=False)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui
     ui.close()
     station.close()
