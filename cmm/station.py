@@ -24,7 +24,7 @@ from .metrology.mesh import signed_deviation
 from .metrology.pick import NominalFeature, PickResult, pick, suggest_feature
 from .nmc.trace import ByteTrace
 from .session.journal import Journal
-from .session.reevaluate import feature_fields, fit_hits
+from .session.reevaluate import feature_fields, fit_hit_records
 from .session.model import file_sha256, machine_snapshot, mesh_sha256
 from .session.store import is_url, open_store
 
@@ -347,8 +347,7 @@ class Station:
                 raise StationError(f"no hits with ids {missing}")
             hits = [self.hits[h] for h in hit_ids]
         try:
-            result = fit_hits(kind, method, [h.machine for h in hits], [h.approach for h in hits],
-                              [h.point for h in hits], self.prober.settings, nominal)
+            result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
         except FitError as exc:
             raise StationError(str(exc)) from None
         with self.lock:

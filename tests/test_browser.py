@@ -81,15 +81,6 @@ def rate(station, seconds: float = 0.3):
     return (s1.position - s0.position) / (s1.time - s0.time)
 
 
-def wait_until(predicate, timeout: float, what: str) -> float:
-    start = time.monotonic()
-    while not predicate():
-        if time.monotonic() - start > timeout:
-            raise AssertionError(f"{what} did not happen within {timeout} s")
-        time.sleep(0.005)
-    return time.monotonic() - start
-
-
 def open_pendant(page, server, take: bool = True, code: str | None = None):
     page.goto(server.url)
     page.wait_for_function("document.getElementById('px').textContent !== '–'")
@@ -131,18 +122,18 @@ def test_gamepad_moves_and_stops(page, server, station):
     start = station.state.position.copy()
     page.evaluate("window.__pad.axes[0] = 1.0")  # left stick full right: +X at jog_fast
     fast = station.config.speeds.jog_fast
-    wait_until(lambda: velocity(station)[0] > 0.9 * fast, 2.0, "the jog at jog_fast")
+    bs.wait_until(lambda: velocity(station)[0] > 0.9 * fast, 2.0, "the jog at jog_fast")
     assert rate(station)[0] == pytest.approx(fast, rel=0.03)
     assert station.state.jogging
     bs.screenshot(page, "pendant-jogging")
     page.evaluate("window.__pad.axes[0] = 0.0")  # back to centre: one release
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop") < STOP_WITHIN
     assert station.state.position[0] > start[0] + 5
 
     # hold A: fine (probing) speed; the cubic curve makes a half deflection much slower than half speed
     page.evaluate("window.__pad.buttons[0] = 1; window.__pad.axes[1] = -1.0")  # stick up: +Y
     fine = station.config.speeds.jog_fine
-    wait_until(lambda: velocity(station)[1] > 0.9 * fine, 2.0, "the fine jog")
+    bs.wait_until(lambda: velocity(station)[1] > 0.9 * fine, 2.0, "the fine jog")
     page.wait_for_timeout(100)
     assert rate(station)[1] == pytest.approx(fine, rel=0.05)
     page.evaluate("window.__pad.buttons[0] = 0; window.__pad.axes[1] = -0.5")
@@ -150,7 +141,7 @@ def test_gamepad_moves_and_stops(page, server, station):
     half = ((0.5 - 0.15) / 0.85) ** 3 * fast
     assert rate(station)[1] == pytest.approx(half, rel=0.05)
     page.evaluate("window.__pad.buttons[1] = 1")  # B: stop
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on B") < STOP_WITHIN + 0.1
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on B") < STOP_WITHIN + 0.1
     page.evaluate("window.__pad.buttons[1] = 0; window.__pad.axes[1] = 0")
     page.wait_for_timeout(200)
     assert page.log.problems == []
@@ -168,25 +159,25 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
     start = station.state.position.copy()
     page.keyboard.down("ArrowRight")
     slow = station.config.speeds.jog_slow
-    wait_until(lambda: velocity(station)[0] > 0.9 * slow, 2.0, "the keyboard jog")
+    bs.wait_until(lambda: velocity(station)[0] > 0.9 * slow, 2.0, "the keyboard jog")
     page.wait_for_timeout(100)
     assert rate(station)[0] == pytest.approx(slow, rel=0.03)
     page.keyboard.up("ArrowRight")
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
     moved = station.state.position - start
     assert moved[0] > 1 and abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-9
     page.keyboard.down("Shift")
     page.keyboard.down("ArrowUp")
     fast = station.config.speeds.jog_fast
-    wait_until(lambda: velocity(station)[1] > 0.9 * fast, 2.0, "the fast keyboard jog")
+    bs.wait_until(lambda: velocity(station)[1] > 0.9 * fast, 2.0, "the fast keyboard jog")
     assert rate(station, 0.2)[1] == pytest.approx(fast, rel=0.03)
     page.keyboard.up("ArrowUp")
     page.keyboard.up("Shift")
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
     page.keyboard.down("PageDown")  # Z-
-    wait_until(lambda: velocity(station)[2] < -0.9 * slow, 2.0, "the Z jog")
+    bs.wait_until(lambda: velocity(station)[2] < -0.9 * slow, 2.0, "the Z jog")
     page.evaluate("window.dispatchEvent(new Event('blur'))")  # focus lost while a key is down
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on blur") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on blur") < STOP_WITHIN
     page.keyboard.up("PageDown")
     assert page.log.problems == []
 
@@ -196,9 +187,9 @@ def test_hold_button(page, server, station):
     box = page.locator(".pad .xp").bounding_box()
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.down()
-    wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 2.0, "the button jog")
+    bs.wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 2.0, "the button jog")
     page.mouse.move(box["x"] - 60, box["y"] + box["height"] / 2)  # slide off the button: pointerleave
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on leaving the button") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on leaving the button") < STOP_WITHIN
     page.mouse.up()
 
 
@@ -221,9 +212,9 @@ def test_observer_cannot_move(page, server, station, control, monkeypatch):
     page.click("#take")
     page.wait_for_function("document.getElementById('control').textContent === 'you have control'")
     page.keyboard.down("ArrowRight")
-    wait_until(lambda: velocity(station)[0] > 1.0, 2.0, "the jog after the right code")
+    bs.wait_until(lambda: velocity(station)[0] > 1.0, 2.0, "the jog after the right code")
     page.keyboard.up("ArrowRight")
-    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
+    bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
 
 
 def test_another_holder_makes_the_page_an_observer(page, server, station, control):

@@ -70,7 +70,7 @@ def open_page(context, app, station):
         page.goto(app.url)
         page.wait_for_selector("canvas", timeout=30_000)
         page.get_by_role("button", name="Take control").wait_for(timeout=30_000)  # this client's GUI arrived
-        wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
+        bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
         (cid,) = set(app.clients) - before
         page.cid = cid
         page.capp = app.clients[cid]
@@ -81,19 +81,10 @@ def open_page(context, app, station):
         page.close()
     station.stop()
     station.wait_idle(20)
-    wait_until(lambda: app.control.holder is None, 5.0, "control released by the closed pages")
+    bs.wait_until(lambda: app.control.holder is None, 5.0, "control released by the closed pages")
 
 
 # --- helpers --------------------------------------------------------------------------------------
-
-def wait_until(predicate, timeout: float, what: str) -> float:
-    start = time.monotonic()
-    while not predicate():
-        if time.monotonic() - start > timeout:
-            raise AssertionError(f"{what} did not happen within {timeout} s")
-        time.sleep(0.005)
-    return time.monotonic() - start
-
 
 def speed(station) -> float:
     return max(abs(a.velocity) for a in station.state.axes)
@@ -125,7 +116,7 @@ def machine_row(page, axis: str) -> list[str]:
 def camera_of(app, cid: int):
     client = app.server.get_clients()[cid]
     # the camera properties assert until the page has reported its camera once
-    wait_until(lambda: client.camera._state.update_timestamp and client.camera.image_width > 0, 10.0,
+    bs.wait_until(lambda: client.camera._state.update_timestamp and client.camera.image_width > 0, 10.0,
                "the page's camera report")
     return client.camera
 
@@ -177,7 +168,7 @@ def hold_jog(page, station, seconds: float = 1.0):
     start = station.state.position.copy()
     page.mouse.down()
     try:
-        wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the hold jog")
+        bs.wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the hold jog")
         events.clear()
         samples = []
         end = time.monotonic() + seconds
@@ -197,7 +188,7 @@ def test_hold_jog_button_moves_while_held_and_stops_on_release(open_page, app, s
     bs.screenshot(page, "viser-browser-jog-tab")
     samples, _deadman, start = hold_jog(page, station)
     released = time.monotonic()
-    assert wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release") < STOP_WITHIN
+    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release") < STOP_WITHIN
     assert time.monotonic() - released < STOP_WITHIN + 0.1
     # X grows while the button is held (in steps if the hold refreshes come late: see the next test)
     assert all(b >= a for a, b in zip(samples, samples[1:])), samples
@@ -222,7 +213,7 @@ def test_hold_jog_is_continuous(open_page, app, station):
     take_control(page, app)
     open_tab(page, "Jog")
     samples, deadman, _start = hold_jog(page, station)
-    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release")
+    bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on release")
     assert deadman == [], f"the jog stopped {len(deadman)} times while the button was held: X {samples}"
     assert all(b > a for a, b in zip(samples, samples[1:])), samples
 
@@ -238,7 +229,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     px = box["x"] + u * box["width"] / camera.image_width
     py = box["y"] + v * box["height"] / camera.image_height
     page.mouse.click(px, py)
-    wait_until(lambda: page.capp.picked is not None, 5.0, "the pick from the canvas click")
+    bs.wait_until(lambda: page.capp.picked is not None, 5.0, "the pick from the canvas click")
     hit, nominal = page.capp.picked
     assert hit.point[2] == pytest.approx(TOP_Z, abs=1e-6)
     assert np.allclose(hit.normal, (0, 0, 1), atol=1e-6)
@@ -253,7 +244,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
 
     before = len(station.hits)
     page.get_by_role("button", name="Probe here", exact=True).click()
-    wait_until(lambda: len(station.hits) == before + 1, 40.0, "the hit from Probe here")
+    bs.wait_until(lambda: len(station.hits) == before + 1, 40.0, "the hit from Probe here")
     newest = station.hits[max(station.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
     open_tab(page, "Probe")
@@ -292,8 +283,8 @@ def test_observer_cannot_jog(open_page, app, station):
     observer.mouse.move(*button_centre(observer, "hold X +"))
     observer.mouse.down()
     try:
-        wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the jog after taking control")
+        bs.wait_until(lambda: station.state.axes[0].velocity > 0, 2.0, "the jog after taking control")
     finally:
         observer.mouse.up()
-    wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
+    bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
     assert station.state.position[0] > start[0]

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..metrology.features import FitError, FitResult
 from .model import machine_snapshot, mesh_sha256
-from .reevaluate import feature_fields, fit_hits
+from .reevaluate import feature_fields, fit_hit_records
 
 
 class RecorderError(RuntimeError):
@@ -93,8 +93,7 @@ class SessionRecorder:
                 raise RecorderError(f"no hits with ids {missing}")
             hits = [self.hits[h] for h in hit_ids]
         try:
-            result = fit_hits(kind, method, [h.machine for h in hits], [h.approach for h in hits],
-                              [h.point for h in hits], self.prober.settings, nominal)
+            result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
         except FitError as exc:
             self.error(str(exc), source="fit")
             raise

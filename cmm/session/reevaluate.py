@@ -44,6 +44,12 @@ def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, s
     return result
 
 
+def fit_hit_records(kind: str, method: str, hits: Any, settings: Any, nominal: Any = None) -> FitResult:
+    """``fit_hits`` for hit records (anything with .machine, .approach and .point)."""
+    return fit_hits(kind, method, [h.machine for h in hits], [h.approach for h in hits], [h.point for h in hits],
+                    settings, nominal)
+
+
 def recorded_nominal(event: dict) -> Any:
     """The nominal a feature event was fitted with (its start values), or None."""
     nominal = event.get("nominal")
@@ -126,8 +132,7 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
             try:
                 if len(recs) != len(ids):
                     raise FitError(f"hits {[h for h in ids if h not in hits]} are not in the journal")
-                result = fit_hits(e["feature_kind"], fmethod, [h.machine for h in recs], [h.approach for h in recs],
-                                  [h.point for h in recs], settings, recorded_nominal(e))
+                result = fit_hit_records(e["feature_kind"], fmethod, recs, settings, recorded_nominal(e))
             except (FitError, ValueError) as exc:
                 events.append({**head, "kind": "error", "source": "reevaluate",
                                "message": f"feature {e.get('name')!r} could not be refitted: {exc}"})

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..machine.config import MachineConfig, load
+from ..metrology.transform import make_pose, rotation_about_axis
 from .network import SimNetwork
 from .probe_world import GeometryErrors, MeshObstacle, PlaneObstacle, ProbeModel, ProbeWorld, SphereObstacle
 
@@ -24,14 +25,10 @@ REFERENCE_SPHERE_DIAMETER = 25.0
 def pose_matrix(xyz: tuple[float, float, float], rz_deg: float = 0.0, rx_deg: float = 0.0,
                 ry_deg: float = 0.0) -> np.ndarray:
     """A 4x4 part -> machine transform: rotations about X, Y then Z, then a translation."""
-    ax, ay, az = np.radians([rx_deg, ry_deg, rz_deg])
-    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
-    ry = np.array([[np.cos(ay), 0, np.sin(ay)], [0, 1, 0], [-np.sin(ay), 0, np.cos(ay)]])
-    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
-    t = np.eye(4)
-    t[:3, :3] = rz @ ry @ rx
-    t[:3, 3] = xyz
-    return t
+    rot = np.eye(3)
+    for axis, deg in ((2, rz_deg), (1, ry_deg), (0, rx_deg)):
+        rot = rot @ rotation_about_axis(np.eye(3)[axis], np.radians(deg))
+    return make_pose(rot, xyz)
 
 
 # Where the station believes the part is (the nominal set-up) ...
