@@ -26,7 +26,7 @@ from .nmc.trace import ByteTrace
 from .session.journal import Journal
 from .session.reevaluate import feature_fields, fit_hit_records
 from .session.model import file_sha256, machine_snapshot, mesh_sha256
-from .session.store import is_url, open_store
+from .session.store import check_name, is_url, open_store
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 
@@ -194,11 +194,11 @@ class Station:
     # --- session ----------------------------------------------------------------
 
     def new_session(self, name: str | None = None) -> Path | str:
+        stamp = time.strftime("session-%Y%m%d-%H%M%S")
+        name = stamp if name is None else check_name(name)  # whatever the caller: no "../x", no absolute paths
         with self.lock:
             if self.journal is not None:
                 self.journal.close()
-            stamp = time.strftime("session-%Y%m%d-%H%M%S")
-            name = name or stamp
             if is_url(self.session_dir):
                 self.journal = open_store(self.session_dir).create(name, append=True)  # type: ignore[assignment]
                 path: Path | str = f"{name}"

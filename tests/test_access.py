@@ -40,11 +40,11 @@ def test_local_client_takes_without_code():
 
 
 def test_remote_client_needs_the_right_code():
-    control = Control(access_code="s3cret")
-    assert not control.take("remote")
-    assert not control.take("remote", "wrong")
-    assert not control.take("remote", "s3cre")
-    assert not control.take("remote", 1234)  # type: ignore[arg-type]
+    clock = FakeClock()
+    control = Control(access_code="s3cret", clock=clock)
+    for code in (None, "wrong", "s3cre", 1234):
+        assert not control.take("remote", code)  # type: ignore[arg-type]
+        clock.t += 1.0  # past the rate limit's wait
     assert control.failed_attempts == 4
     assert control.holder is None
     assert control.take("remote", "s3cret")
@@ -131,5 +131,75 @@ def test_concurrent_takes_leave_one_consistent_holder():
         t.start()
     for t in threads:
         t.join(10)
-    holder = control.holder
-    assert holder is None or control.can_move(holder)
+    # every take is followed by the same thread's release, and after the last take nobody takes again,
+    # so the last taker's release must succeed: anything else means a lost or doubled update
+    assert control.holder is None
+    assert control.failed_attempts == 0
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_wrong_codes_are_rate_limited_per_client_with_a_growing_wait():
+    clock = FakeClock()
+    control = Control(access_code="right", clock=clock)
+    assert control.try_take("a", "wrong", peer="10.0.0.9") == "wrong access code: control refused"
+    # at once again: refused without even looking at the code, even the right one
+    refusal = control.try_take("a", "right", peer="10.0.0.9")
+    assert refusal is not None and "too many wrong access codes" in refusal
+    assert control.holder is None
+    # another address is not held up by the first one
+    assert control.try_take("b", "wrong", peer="10.0.0.7") == "wrong access code: control refused"
+    waits = []
+    for _ in range(9):
+        clock.t += 60.0  # long after any wait: a new attempt is looked at
+        assert "wrong access code" in control.try_take("a", "nope", peer="10.0.0.9")
+        state = control._attempts["10.0.0.9"]
+        waits.append(round(state.not_before - clock.t, 6))
+    # five attempts a second at first, then the wait doubles up to 30 s
+    assert waits[:4] == [0.2] * 4 and waits[4] == 0.4 and waits[5] == 0.8 and waits[-1] == 6.4
+    for _ in range(10):
+        clock.t += 60.0
+        control.try_take("a", "nope", peer="10.0.0.9")
+    assert control._attempts["10.0.0.9"].not_before - clock.t == 30.0
+    clock.t += 30.0
+    assert control.try_take("a", "right", peer="10.0.0.9") is None  # the right code after the wait works
+    assert control.holder == "a" and "10.0.0.9" not in control._attempts
+
+
+def test_a_guessing_loop_gets_at_most_five_tries_a_second():
+    clock = FakeClock()
+    control = Control(access_code="7f3k", clock=clock)
+    looked_at = 0
+    for i in range(1000):  # 1000 attempts spread over one second
+        clock.t = 1000.0 + i / 1000
+        before = control.failed_attempts
+        control.try_take("x", f"guess{i}", peer="192.0.2.1")
+        looked_at += control.failed_attempts - before
+    assert looked_at <= 5
+
+
+def test_local_clients_are_never_rate_limited():
+    clock = FakeClock()
+    control = Control(access_code="c", clock=clock)
+    for _ in range(3):
+        control.try_take("remote", "bad", peer="127.0.0.1")
+    assert control.try_take("me", None, is_local=True, peer="127.0.0.1") is None
+
+
+def test_stop_policy_is_one_rule():
+    control = Control(access_code="c")
+    control.take("holder", "c")
+    assert control.may_stop("holder", is_local=False)
+    assert control.may_stop("someone", is_local=True)  # at the station PC: always
+    assert control.may_stop("lan-user", is_local=False, authenticated=True)  # gave the code
+    assert not control.may_stop("anonymous", is_local=False)
+    with pytest.raises(PermissionError):
+        control.set_lan_stop(True, is_local=False)  # a LAN client cannot open this for itself
+    control.set_lan_stop(True, is_local=True)
+    assert control.may_stop("anonymous", is_local=False)

@@ -194,7 +194,7 @@ def test_hold_button(page, server, station):
 
 
 def test_observer_cannot_move(page, server, station, control, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)  # the browser counts as remote
+    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)  # the browser counts as remote
     open_pendant(page, server, code="wrong-code")
     page.wait_for_function("document.getElementById('message').textContent.includes('wrong access code')")
     start = station.state.position.copy()

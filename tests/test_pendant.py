@@ -175,7 +175,7 @@ def test_observer_cannot_jog(server, station, control, client):
 
 
 def test_remote_pendant_needs_the_code(server, station, control, client, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)  # pretend it is on the LAN
+    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)  # pretend it is on the LAN
     c = client()
     c.send(type="hello", code="guess")
     c.wait_for("error")
@@ -186,13 +186,14 @@ def test_remote_pendant_needs_the_code(server, station, control, client, monkeyp
     start = station.state.position.copy()
     c.jog_for([20, 0, 0], 0.3)
     assert (station.state.position == start).all() and control.holder is None
+    time.sleep(0.25)  # past the access-code rate limit (one attempt per 0.2 s)
     c.send(type="take", code="open-sesame")
     assert c.wait_for("control")["control"] is True
     assert control.holder is not None and control.holder.startswith("pendant-")
 
 
 def test_loopback_only_server_refuses_remote_pendants(station, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "_is_loopback_peer", lambda _addr: False)
+    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)
     control = Control()  # no --lan: no code at all
     with _serve(station, control) as srv:
         c = Client(srv.ws_url)

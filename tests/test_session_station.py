@@ -42,3 +42,15 @@ def test_the_station_journals_config_part_hash_alignment_and_hits(station, tmp_p
     assert s.state.notes[-1][1] == "one hit"
     store.rename("recorded", "renamed")  # closed now: allowed
     assert [i.name for i in store.list()] == ["renamed"]
+
+
+@pytest.mark.parametrize("bad", ["../../escape", "/tmp/absolute", "a/b", "", ".hidden", "x" * 200])
+def test_session_names_are_checked_by_the_station_itself(station, tmp_path, bad):
+    from cmm.session.store import StoreError
+
+    with pytest.raises(StoreError, match="not a usable session name"):
+        station.new_session(bad)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["recorded.jsonl"]  # nothing written elsewhere
+    assert not (tmp_path.parent.parent / "escape.jsonl").exists()
+    station.note("still recording")  # the session that was open goes on
+    assert station.journal is not None and station.journal.path.name == "recorded.jsonl"

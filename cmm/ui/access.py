@@ -15,6 +15,18 @@ Rules (the station's safety contract, kept in this one place):
   and refuses every remote take. Codes are compared with
   :func:`hmac.compare_digest`. With the right code a remote client may also
   take control from another holder (the code is what the operator hands out).
+- Access-code guessing is rate-limited per client (its network address when
+  known): after a wrong code the next attempt from that client is accepted
+  no sooner than 0.2 s later (at most 5 attempts a second), and from the
+  sixth failure on the wait doubles each time, up to 30 s. An attempt made
+  while a client must wait is refused without looking at the code. The right
+  code resets the count. The same rule holds on every port (viser page,
+  pendant, I++ DME), because they all call :meth:`Control.try_take`.
+- STOP and E-STOP (:meth:`Control.may_stop`): the holder may always stop; a
+  local client (at the station PC) may always stop; a LAN client may stop
+  when it has given the access code on its connection, or, as an anonymous
+  observer, only when the operator allowed LAN stops (``lan_stop``, the
+  ``--lan-stop`` option or the operator's switch on a local page).
 - Whenever a holder stops being the holder (it releases, disconnects, or
   another client takes over) the ``on_holder_lost(client_id)`` hook is called,
   so the station can end any jog that client started (``station.jog_release``).
@@ -30,16 +42,33 @@ from __future__ import annotations
 import hmac
 import secrets
 import threading
+import time
+from dataclasses import dataclass
 from typing import Callable
 
 ChangeCallback = Callable[[str | None, str | None], None]
+
+CODE_INTERVAL = 0.2  # s between access-code attempts of one client (5 a second)
+FREE_FAILURES = 5  # wrong codes before the wait starts to double
+MAX_WAIT = 30.0  # s, the longest wait after many wrong codes
+
+
+@dataclass
+class _Attempts:
+    failures: int = 0
+    not_before: float = 0.0
+
+
+class AccessRefused(PermissionError):
+    """Control (or a stop) refused, with the reason an operator reads."""
 
 
 class Control:
     """Thread-safe single-holder control authority."""
 
     def __init__(self, lan: bool = False, *, access_code: str | None = None,
-                 on_holder_lost: Callable[[str], None] | None = None) -> None:
+                 on_holder_lost: Callable[[str], None] | None = None, lan_stop: bool = False,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if access_code is not None and not access_code:
             raise ValueError("an access code must not be empty")
         if access_code is None and lan:
@@ -51,6 +80,9 @@ class Control:
         self._callbacks: list[ChangeCallback] = []
         self.failed_attempts = 0
         self.errors: list[str] = []
+        self.lan_stop = lan_stop  # anonymous LAN observers may press STOP / E-STOP
+        self._clock = clock
+        self._attempts: dict[str, _Attempts] = {}
 
     # --- queries ------------------------------------------------------------
 
@@ -82,21 +114,61 @@ class Control:
                     self._callbacks.remove(fn)
         return unsubscribe
 
-    def take(self, client_id: str, code: str | None = None, is_local: bool = False) -> bool:
-        """Make ``client_id`` the holder; False (and nothing changes) when it is not allowed."""
+    def may_stop(self, client_id: str, *, is_local: bool, authenticated: bool = False) -> bool:
+        """The one STOP / E-STOP policy of every front end (see the module text)."""
+        return is_local or authenticated or self.can_move(client_id) or self.lan_stop
+
+    def stop_refusal(self) -> str:
+        return ("stop refused: this browser is an anonymous LAN observer. Enter the access code, use the "
+                "station's own screen or the machine's E-stop (the operator can allow LAN stops)")
+
+    def set_lan_stop(self, allowed: bool, *, is_local: bool) -> None:
+        """Allow or forbid STOP from anonymous LAN observers; only the person at the station may."""
+        if not is_local:
+            raise AccessRefused("only the station's own computer may change who can stop the machine")
+        self.lan_stop = bool(allowed)
+
+    def try_take(self, client_id: str, code: str | None = None, is_local: bool = False,
+                 peer: str | None = None) -> str | None:
+        """Make ``client_id`` the holder; None when it is, else the reason it was refused.
+
+        ``peer`` names the client for the rate limit (its network address); the
+        client id is used when it is not known.
+        """
         if not client_id:
             raise ValueError("a client needs a non-empty id")
-        allowed = is_local or self.code_ok(code)
+        key = peer or client_id
+        now = self._clock()
         with self._lock:
+            attempts = self._attempts.get(key)
+            if not is_local and attempts is not None and now < attempts.not_before:
+                return (f"too many wrong access codes: wait {attempts.not_before - now:.1f} s "
+                        "before trying again")
+            allowed = is_local or self.code_ok(code)
             if not allowed:
                 self.failed_attempts += 1
-                return False
+                attempts = self._attempts.setdefault(key, _Attempts())
+                attempts.failures += 1
+                extra = max(0, attempts.failures - FREE_FAILURES)
+                attempts.not_before = now + min(MAX_WAIT, CODE_INTERVAL * 2 ** extra)
+                if len(self._attempts) > 1000:  # a flood of addresses must not grow memory without bound
+                    self._attempts.pop(next(iter(self._attempts)))
+                if self.access_code is None:
+                    return ("this station accepts control only from its own computer: "
+                            "start it with --lan to allow control from the network")
+                return "enter the access code shown on the station" if not code else "wrong access code: control refused"
+            self._attempts.pop(key, None)
             previous = self._holder
             if previous == client_id:
-                return True
+                return None
             self._holder = client_id
         self._changed(client_id, previous)
-        return True
+        return None
+
+    def take(self, client_id: str, code: str | None = None, is_local: bool = False,
+             peer: str | None = None) -> bool:
+        """Make ``client_id`` the holder; False (and nothing changes) when it is not allowed."""
+        return self.try_take(client_id, code, is_local, peer) is None
 
     def release(self, client_id: str) -> bool:
         """Give up control; False when ``client_id`` was not the holder."""

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from .access import Control
+from .origin import OriginPolicy, guard_viser, is_loopback_host, is_loopback_peer
 from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
 
@@ -26,21 +27,19 @@ READOUT_EVERY = 4  # refresher ticks between read-out refreshes (5 Hz)
 PLOT_SECONDS = 10.0
 
 
-def _is_loopback(address: Any) -> bool:
-    host = address[0] if isinstance(address, (tuple, list)) and address else address
-    return isinstance(host, str) and (host.startswith("127.") or host in ("::1", "::ffff:127.0.0.1", "localhost"))
-
-
 class StationApp:
     def __init__(self, station: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
-                 tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False) -> None:
+                 tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False,
+                 allow_hosts: tuple[str, ...] = ()) -> None:
         import viser
 
         self.station = station
         self.host = host
         self.control = control or Control(lan=lan, on_holder_lost=lambda _cid: self._holder_lost())
+        self.origins = OriginPolicy(lan=lan or host not in ("127.0.0.1", "localhost", "::1"), allow_hosts=allow_hosts)
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
+        self._refused = guard_viser(self.server, self.origins)
         self.port = self.server.get_port()
         self.clients: dict[int, ClientApp] = {}
         self._clients_lock = threading.Lock()
@@ -79,7 +78,7 @@ class StationApp:
             return
         for p in dict.fromkeys((port, 0)):
             try:
-                self.pendant = start_pendant_server(self.station, self.control, self.host, p)
+                self.pendant = start_pendant_server(self.station, self.control, self.host, p, origins=self.origins)
                 self.pendant_url = self.pendant.url
                 return
             except OSError:
@@ -109,6 +108,14 @@ class StationApp:
         except Exception:  # noqa: BLE001 - unknown: treat as remote
             return None
 
+    def client_is_local(self, client_id: int) -> bool:
+        """Local = at the station PC: a loopback peer that also asked for a loopback host name."""
+        try:
+            host = self.server._websock_server._live_connections[client_id].request.headers.get("Host", "")
+        except Exception:  # noqa: BLE001 - no handshake known: remote
+            return False
+        return is_loopback_peer(self.client_address(client_id)) and is_loopback_host(host)
+
     def pendant_src(self, client_id: int | None) -> str | None:
         """The pendant URL as this browser can reach it: the host it used for the viser page, the pendant's port."""
         if self.pendant is None:
@@ -123,7 +130,7 @@ class StationApp:
     def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
         """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
         if is_local is None:
-            is_local = client is not None and _is_loopback(self.client_address(client.client_id))
+            is_local = client is not None and self.client_is_local(client.client_id)
         capp = ClientApp(self, client, client_id=client_id, is_local=is_local)
         key = client.client_id if client is not None else -len(self.clients) - 1
         with self._clients_lock:
@@ -133,6 +140,8 @@ class StationApp:
         return capp
 
     def _connect(self, client: Any) -> None:
+        if client.client_id in self._refused:  # closed by the origin guard before it could send anything
+            return
         self.add_client(client)
 
     def _disconnect(self, client: Any) -> None:

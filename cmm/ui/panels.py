@@ -9,8 +9,9 @@ into the read-outs a few times a second.
 
 Every action that moves the machine or changes the measurement first asks
 the access :class:`~cmm.ui.access.Control` whether this client holds control
-(a server-side check: hiding buttons is not security). Stop and E-stop are
-open to everyone who can see the machine.
+(a server-side check: hiding buttons is not security). Stop and E-stop follow
+the one policy of :meth:`~cmm.ui.access.Control.may_stop`, the same as the
+pendant's.
 """
 
 from __future__ import annotations
@@ -136,6 +137,7 @@ class ClientApp:
         self.client = client
         self.client_id = client_id or (f"viser-{client.client_id}" if client is not None else "test")
         self.is_local = is_local
+        self.authenticated = is_local  # local, or gave the right access code on this connection
         self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
         self.speed_mode = "probing"
         self.step_size = "1"
@@ -184,14 +186,22 @@ class ClientApp:
 
     # --- machine ------------------------------------------------------------------
 
+    def may_stop(self, action: str) -> bool:
+        if self.control.may_stop(self.client_id, is_local=self.is_local, authenticated=self.authenticated):
+            return True
+        self.error(self.control.stop_refusal(), f"{action} refused")
+        return False
+
     def stop(self) -> None:
         self._jogging = False
-        self._run("Stop", self.station.stop, guarded=False)
+        if self.may_stop("Stop"):
+            self._run("Stop", self.station.stop, guarded=False)
 
     def emergency_stop(self) -> None:
         self._jogging = False
-        self._run("E-stop", self.station.emergency_stop, guarded=False)
-        self.notify("Emergency stop", "Amplifiers off. Press Reset to re-enable the servos.", "error")
+        if self.may_stop("E-stop"):
+            self._run("E-stop", self.station.emergency_stop, guarded=False)
+            self.notify("Emergency stop", "Amplifiers off. Press Reset to re-enable the servos.", "error")
 
     def reset(self) -> None:
         self._run("Reset", self.station.reset)
@@ -371,13 +381,27 @@ class ClientApp:
 
     # --- control ------------------------------------------------------------------------------
 
+    def peer(self) -> str | None:
+        """This tab's network address: the key of the access-code rate limit (new tabs share it)."""
+        if self.client is None:
+            return None
+        address = self.app.client_address(self.client.client_id)
+        return address[0] if isinstance(address, (tuple, list)) and address else None
+
     def take_control(self, code: str | None = None) -> bool:
-        ok = self.control.take(self.client_id, code or None, self.is_local)
-        if ok:
+        refusal = self.control.try_take(self.client_id, code or None, self.is_local, peer=self.peer())
+        if refusal is None:
+            self.authenticated = True
             self.notify("Control", "you control the machine")
         else:
-            self.error("wrong or missing access code" if not self.is_local else "refused", "Take control")
-        return ok
+            self.error(refusal, "Take control")
+        return refusal is None
+
+    def set_lan_stop(self, allowed: bool) -> None:
+        try:
+            self.control.set_lan_stop(allowed, is_local=self.is_local)
+        except PermissionError as exc:
+            self.error(exc, "LAN stops")
 
     def release_control(self) -> None:
         self.jog_release()
@@ -410,6 +434,9 @@ class ClientApp:
         with gui.add_folder("Safety"):
             gui.add_button("STOP", color="orange").on_click(lambda _: self.stop())
             gui.add_button("E-STOP", color="red").on_click(lambda _: self.emergency_stop())
+            if self.is_local and self.control.access_code is not None:  # only the person at the station decides
+                lan_stop = gui.add_checkbox("LAN observers may stop", self.control.lan_stop)
+                lan_stop.on_update(lambda e: self.set_lan_stop(e.target.value))
         tabs = gui.add_tab_group()
         with tabs.add_tab("Machine"):
             info = self.app.link_info()

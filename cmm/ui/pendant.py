@@ -23,10 +23,11 @@ client -> server
   clamped to ``speeds.jog_fast``; all zeros is a release. Only the control
   holder may jog; it must repeat the message (every 50 ms) while the jog lasts.
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
-- ``{"type": "stop"}``: controlled stop of whatever the machine is doing. Any
-  *authenticated* pendant may press it, holder or not: a local one, or one
-  that has given the right access code on this connection. An anonymous LAN
-  observer may not (it could otherwise disturb a measurement it cannot see).
+- ``{"type": "stop"}``: controlled stop of whatever the machine is doing, under
+  the station's one STOP policy (:meth:`~cmm.ui.access.Control.may_stop`, the
+  same as the viser page's): the holder, a local pendant, or one that gave
+  the access code on this connection; an anonymous LAN observer only when the
+  operator allowed LAN stops.
 
 server -> client
 
@@ -45,18 +46,18 @@ a jog refresh) applies underneath, so a pendant that goes quiet stops within
 
 Security
 --------
-A WebSocket handshake whose ``Origin`` is not this server's own origin is
-refused (another web page open in the operator's browser must not drive the
-machine), and a connection counts as *local* only when it comes from a
-loopback address *and* names a loopback host (``localhost``, ``127.x``,
-``[::1]``) in its ``Host`` header, which defeats DNS-rebinding pages.
+A WebSocket handshake is checked by :class:`~cmm.ui.origin.OriginPolicy` (the
+same rules as the viser port): a foreign ``Origin`` or an unknown ``Host``
+(DNS rebinding) is refused with 403. A connection counts as *local* only when
+it comes from a loopback address *and* names a loopback host in its ``Host``
+header. Access codes are rate-limited per network address by the shared
+:class:`~cmm.ui.access.Control`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import ipaddress
 import itertools
 import json
 import logging
@@ -76,10 +77,10 @@ from websockets.exceptions import ConnectionClosed, InvalidMessage
 from websockets.http11 import Request, Response
 
 from .access import Control
+from .origin import OriginPolicy, is_loopback_host, is_loopback_peer
 
 DEADMAN = 0.2  # s without any message from a jogging pendant before the server releases its jog
 STATE_HZ = 20.0
-WRONG_CODE_DELAY = 0.5  # s before answering a refused take (slows down guessing)
 ERROR_INTERVAL = 0.5  # s between repeated errors for refused jogs
 
 log = logging.getLogger(__name__)
@@ -119,28 +120,6 @@ def web_dir() -> Path:
     raise FileNotFoundError("the pendant page web/pendant.html was not found in " + ", ".join(map(str, candidates)))
 
 
-def _is_loopback_host(host_header: str) -> bool:
-    host = host_header.strip()
-    if host.startswith("["):
-        host = host[1:host.find("]")] if "]" in host else host[1:]
-    elif host.count(":") == 1:
-        host = host.split(":", 1)[0]
-    host = host.lower().rstrip(".")
-    if host == "localhost" or host.endswith(".localhost"):
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
-
-
-def _is_loopback_peer(address: Any) -> bool:
-    try:
-        return ipaddress.ip_address(address[0]).is_loopback
-    except (TypeError, ValueError, IndexError):
-        return False
-
-
 @dataclass(eq=False)
 class _Session:
     ws: ServerConnection
@@ -156,9 +135,11 @@ class PendantServer:
     """Handle returned by :func:`start_pendant_server`: ``url``, ``ws_url``, ``port``, ``close()``."""
 
     def __init__(self, station: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
-                 deadman: float = DEADMAN, state_hz: float = STATE_HZ, static_dir: Path | None = None) -> None:
+                 deadman: float = DEADMAN, state_hz: float = STATE_HZ, static_dir: Path | None = None,
+                 origins: OriginPolicy | None = None) -> None:
         self.station = station
         self.control = control
+        self.origins = origins or OriginPolicy(lan=host not in ("127.0.0.1", "localhost", "::1"))
         self.host = host
         self.deadman = deadman
         self.state_hz = state_hz
@@ -234,10 +215,10 @@ class PendantServer:
     def _process_request(self, connection: ServerConnection, request: Request) -> Response | None:
         path = request.path.split("?", 1)[0]
         if path == "/ws":
-            origin = request.headers.get("Origin")
-            host = request.headers.get("Host", "")
-            if origin is not None and origin not in (f"http://{host}", f"https://{host}"):
-                return connection.respond(HTTPStatus.FORBIDDEN, "pendant connections from other web pages are refused\n")
+            reason = self.origins.check(request.headers)
+            if reason is not None:
+                self.origins.refuse(reason)
+                return connection.respond(HTTPStatus.FORBIDDEN, reason + "\n")
             return None
         if path in self._files:
             body, ctype = self._files[path]
@@ -269,7 +250,7 @@ class PendantServer:
 
     async def _handler(self, ws: ServerConnection) -> None:
         host = ws.request.headers.get("Host", "") if ws.request is not None else ""
-        local = _is_loopback_peer(ws.remote_address) and _is_loopback_host(host)
+        local = is_loopback_peer(ws.remote_address) and is_loopback_host(host)
         session = _Session(ws, f"pendant-{next(self._ids)}", local, authenticated=local,
                            last_message=time.monotonic())
         self._sessions.add(session)
@@ -362,9 +343,9 @@ class PendantServer:
                 session.jogging = False
                 await self._call(self._station_call, self.station.jog_release)
         elif kind == "stop":
-            if not (session.authenticated or self.control.can_move(session.client_id)):
-                return await self._error_msg(session, "stop refused: enter the access code first "
-                                                      "(use the stop on the station or the machine's E-stop)")
+            if not self.control.may_stop(session.client_id, is_local=session.local,
+                                         authenticated=session.authenticated):
+                return await self._error_msg(session, self.control.stop_refusal())
             session.jogging = False
             error = await self._call(self._station_call, self.station.stop)
             if error:
@@ -374,18 +355,11 @@ class PendantServer:
 
     async def _take(self, session: _Session, code: Any) -> None:
         code = code if isinstance(code, str) else None
-        ok = await self._call(self.control.take, session.client_id, code, session.local)
-        if ok:
+        peer = session.ws.remote_address[0] if session.ws.remote_address else None
+        reason = await self._call(self.control.try_take, session.client_id, code, session.local, peer)
+        if reason is None:
             session.authenticated = True
             return await self._send(session, {"type": "control", "control": True})
-        await asyncio.sleep(WRONG_CODE_DELAY)
-        if self.control.access_code is None:
-            reason = ("this station accepts control only from its own computer: "
-                      "start it with --lan to allow pendants on the network")
-        elif not code:
-            reason = "enter the access code shown on the station to take control"
-        else:
-            reason = "wrong access code: control refused"
         await self._error_msg(session, reason)
 
     async def _jog(self, session: _Session, v: Any) -> None:
