@@ -63,6 +63,8 @@ class Station:
 
     ``port`` None or "sim" starts the simulated CMM served in real time over
     TCP on loopback, and the driver talks to it through that byte stream.
+    A ``sim://?cmm=1`` URL opens it in-process instead, on the virtual clock
+    by default (tests) or ``&clock=realtime``; ``self.sim`` is the simulated CMM.
     """
 
     def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
@@ -75,10 +77,11 @@ class Station:
         self.sim = None
         self._served = None
         self.lock = threading.RLock()
+        self._sim_world_url: str | None = None
         port = port or self.config.link.port
-        if port == "sim":
-            self.part: Part | None = self._start_simulator(sim_settings, part_path)
-            port = self._served.url
+        if port == "sim" or (isinstance(port, str) and port.startswith("sim://")):
+            self.part: Part | None
+            self.part, port = self._start_simulator(port, sim_settings, part_path)
         else:
             self.part = None
         self.port = port
@@ -104,8 +107,9 @@ class Station:
         if part_path is not None and self.sim is None:
             self.load_part(part_path)
 
-    def _start_simulator(self, settings: Any, part_path: str | Path | None) -> Part:
-        """The simulated CMM served over TCP on loopback; a user's part is placed on its table.
+    def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None) -> tuple[Part, str]:
+        """The simulated CMM ("sim": served over TCP on loopback in real time; "sim://...": in-process
+        on the world that URL names); a user's part is placed on its table. Returns (part, port URL).
 
         The part lies where the station believes it is (its lowest corner at the
         nominal set-up position) up to the simulator's deliberate set-up error.
@@ -126,9 +130,20 @@ class Station:
             nominal_pose = nominal_pose @ shift
             settings = replace(settings, part_mesh=mesh, part_pose=TRUE_PART_POSE @ shift)
             name = Path(part_path).name
-        self.sim = SimulatedCMM(self.config, settings, wire_time=True, realtime=True)
-        self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
-        return Part(name, self.sim.part_mesh, nominal_pose, dict(self.sim.nominal_features))
+        if port == "sim":
+            self.sim = SimulatedCMM(self.config, settings, wire_time=True, realtime=True)
+            self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
+            port = self._served.url
+        else:
+            from .sim.url import open_world, parse
+
+            if not parse(port).cmm:
+                raise StationError(f"the station needs the simulated CMM: add cmm=1 to {port!r}")
+            world = open_world(port, config=self.config, settings=settings)
+            if not parse(port).name:  # a world made for this station goes with it; a named one is its owner's
+                self._sim_world_url = world.url
+            self.sim, port = world.cmm, world.url
+        return Part(name, self.sim.part_mesh, nominal_pose, dict(self.sim.nominal_features)), port
 
     # --- life cycle -----------------------------------------------------------
 
@@ -142,6 +157,10 @@ class Station:
         self.machine.close()
         if self._served is not None:
             self._served.close()
+        if self._sim_world_url is not None:
+            from .sim.url import release
+
+            release(self._sim_world_url)
         if self.journal is not None:
             self.journal.close()
 

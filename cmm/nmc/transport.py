@@ -4,6 +4,10 @@ A transport is anything with pyserial's byte interface (``write``, ``read``
 honouring ``timeout``, ``baudrate``, ``reset_input_buffer``, ``close``).
 Objects that also provide ``now()`` and ``sleep(seconds)`` bring their own
 clock (the simulator's virtual clock); everything else runs on wall time.
+
+``sim://`` URLs open the in-process simulator (cmm/sim/url.py): its pyserial
+handler package is registered here by name, and pyserial imports it only when
+such a URL is opened, so the host never imports the simulator itself.
 """
 
 from __future__ import annotations
@@ -12,6 +16,11 @@ import time
 from typing import Any, Protocol
 
 import serial
+
+
+SIM_HANDLER_PACKAGE = "cmm.sim"  # holds protocol_sim.py, pyserial's handler for sim:// URLs
+if SIM_HANDLER_PACKAGE not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append(SIM_HANDLER_PACKAGE)
 
 
 class Clock(Protocol):
@@ -34,7 +43,8 @@ class TransportError(OSError):
     """A port that cannot be opened or used, in words an operator understands."""
 
 
-URL_FORMS = "a device path (/dev/ttyUSB0), COMn, socket://host:port, rfc2217://host:port, loop:// or spy://..."
+URL_FORMS = ("a device path (/dev/ttyUSB0), COMn, socket://host:port, rfc2217://host:port, loop://, spy://... "
+             "or sim://?cmm=1 (the in-process simulator)")
 
 
 def open_port(port: Any, baudrate: int, timeout: float) -> tuple[Any, Clock]:
@@ -42,8 +52,7 @@ def open_port(port: Any, baudrate: int, timeout: float) -> tuple[Any, Clock]:
     if not isinstance(port, str):
         port.baudrate = baudrate
         port.timeout = timeout
-        clock = port if hasattr(port, "sleep") and hasattr(port, "now") else WallClock()
-        return port, clock
+        return port, _clock_of(port)
     if not port:
         raise TransportError(f"no serial port given; use {URL_FORMS}")
     try:
@@ -52,4 +61,9 @@ def open_port(port: Any, baudrate: int, timeout: float) -> tuple[Any, Clock]:
         )
     except (serial.SerialException, ValueError, OSError) as exc:
         raise TransportError(f"cannot open serial port {port!r}: {exc}. Expected {URL_FORMS}") from exc
-    return ser, WallClock()
+    return ser, _clock_of(ser)
+
+
+def _clock_of(port: Any) -> Clock:
+    """The port's own clock if it has one (sim://), else the wall clock."""
+    return port if hasattr(port, "sleep") and hasattr(port, "now") else WallClock()

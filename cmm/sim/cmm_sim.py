@@ -55,7 +55,10 @@ class SimulatedCMM:
     """Three simulated modules plus the machine world that drives their probe inputs."""
 
     def __init__(self, config: MachineConfig | None = None, settings: CmmSimSettings | None = None, *,
-                 wire_time: bool = False, realtime: bool = False) -> None:
+                 wire_time: bool = False, realtime: bool = False, n_modules: int = 3,
+                 firmware: str | None = None, version: int | None = None) -> None:
+        """``n_modules`` > 3 puts idle modules on the chain after the axes; ``firmware``
+        defaults to the configuration's (its SET_BAUD table and status items)."""
         self.config = config or load()
         self.settings = settings or CmmSimSettings()
         mesh = self.settings.part_mesh
@@ -74,7 +77,10 @@ class SimulatedCMM:
         self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in self.settings.artifacts]
         obstacles += self._artifacts
         self.world = ProbeWorld(obstacles, self.settings.probe, self.settings.errors, seed=self.settings.seed)
-        self.network = SimNetwork(3, wire_time=wire_time, realtime=realtime)
+        if n_modules < 3:
+            raise ValueError(f"the simulated CMM needs 3 modules (one per axis), not {n_modules}")
+        self.network = SimNetwork(n_modules, version=version, wire_time=wire_time, realtime=realtime,
+                                  firmware=firmware or self.config.link.firmware)
         # modules[0] is furthest from the host and takes address 1 first: order the axes by address
         order = sorted(range(3), key=lambda i: self.config.axes[i].address)
         self._axis_module = [order.index(i) for i in range(3)]

@@ -5,6 +5,11 @@ host waits (``read`` blocking, ``sleep``), as fast as the CPU allows: a
 transaction costs exactly the rest of the current servo tick (plus the wire
 time when emulated). With ``SimNetwork(realtime=True)`` the clock is the wall
 clock and reads really wait.
+
+Several host threads may share one transport (a poll thread plus callers):
+every step holds the network's lock. On the virtual clock ``sleep`` is a
+deadline: the caller's time has come once the shared clock reaches call time
++ seconds, whoever advanced it, so two threads sleeping at once do not add up.
 """
 
 from __future__ import annotations
@@ -41,8 +46,9 @@ class SimTransport:
 
     @property
     def in_waiting(self) -> int:
-        self.network.sync()
-        return len(self.network.host_in)
+        with self.network.lock:
+            self.network.sync()
+            return len(self.network.host_in)
 
     @property
     def out_waiting(self) -> int:
@@ -56,7 +62,8 @@ class SimTransport:
     def write(self, data: bytes | bytearray | memoryview) -> int:
         self._check_open()
         data = bytes(data)
-        self.network.host_write(data)
+        with self.network.lock:
+            self.network.host_write(data)
         return len(data)
 
     def read(self, size: int = 1) -> bytes:
@@ -64,32 +71,33 @@ class SimTransport:
         self._check_open()
         net = self.network
         buf = net.host_in
-        if len(buf) >= size:
-            return net.host_read(size)
         wait = VIRTUAL_BLOCK_LIMIT_S if self.timeout is None else self.timeout
         if net.realtime:
             deadline = time.perf_counter() + wait
             while True:
-                net.sync()
-                if len(buf) >= size or time.perf_counter() >= deadline:
-                    break
+                with net.lock:
+                    net.sync()
+                    if len(buf) >= size or time.perf_counter() >= deadline:
+                        return net.host_read(size)
                 time.sleep(0.0002)
+        with net.lock:
+            deadline = net.now_ns + round(wait * 1e9)
+            while len(buf) < size and net.now_ns < deadline:
+                if net.busy():
+                    net.advance_to(min(deadline, net.next_event_ns()))
+                else:
+                    net.advance_to(deadline)  # nothing can arrive: the whole time-out passes
             return net.host_read(size)
-        deadline = net.now_ns + round(wait * 1e9)
-        while len(buf) < size and net.now_ns < deadline:
-            if net.busy():
-                net.advance_to(min(deadline, net.next_event_ns()))
-            else:
-                net.advance_to(deadline)  # nothing can arrive: the whole time-out passes
-        return net.host_read(size)
 
     def read_all(self) -> bytes:
-        self.network.sync()
-        return self.network.host_read()
+        with self.network.lock:
+            self.network.sync()
+            return self.network.host_read()
 
     def reset_input_buffer(self) -> None:
-        self.network.sync()
-        self.network.host_in.clear()
+        with self.network.lock:
+            self.network.sync()
+            self.network.host_in.clear()
 
     def reset_output_buffer(self) -> None:
         pass  # bytes are on the wire as soon as written
@@ -97,8 +105,9 @@ class SimTransport:
     def flush(self) -> None:
         """Wait until written bytes have left (only takes time with wire emulation)."""
         net = self.network
-        if net.wire_time and not net.realtime and net._host_tx_free > net.now_ns:
-            net.advance_to(net._host_tx_free)
+        with net.lock:
+            if net.wire_time and not net.realtime and net._host_tx_free > net.now_ns:
+                net.advance_to(net._host_tx_free)
 
     def close(self) -> None:
         self.is_open = False
@@ -115,14 +124,22 @@ class SimTransport:
     # clock ------------------------------------------------------------------------
     def now(self) -> float:
         """Simulated seconds since power-up (wall time when real time)."""
-        self.network.sync()
-        return self.network.now_ns * 1e-9
+        net = self.network
+        if net.realtime:
+            with net.lock:
+                net.sync()
+        return net.now_ns * 1e-9
 
     def sleep(self, seconds: float) -> None:
+        net = self.network
         if seconds <= 0:
             return
-        if self.network.realtime:
+        if net.realtime:
             time.sleep(seconds)
-            self.network.sync()
-        else:
-            self.network.advance(seconds)
+            with net.lock:
+                net.sync()
+            return
+        wake = net.now_ns + round(seconds * 1e9)  # the deadline counts from the call
+        with net.lock:
+            net.advance_to(wake)
+        time.sleep(0)  # let other threads in (the clock stands still while nobody waits)
