@@ -130,3 +130,18 @@ def test_station_runs_in_process_on_the_virtual_clock(tmp_path):
 def test_station_refuses_a_bare_network_url(tmp_path):
     with pytest.raises(StationError, match="cmm=1"):
         Station(port="sim://?modules=3", session_dir=tmp_path)
+
+
+def test_a_paced_virtual_clock_does_not_run_ahead_of_the_wall():
+    """pace=2: a poll loop may not take more than two simulated seconds per wall second
+    (only the safe direction is asserted: a loaded machine makes wall time longer)."""
+    port, clock = open_port("sim://?modules=1&pace=2", 19200, 0.05)
+    assert port.world.url.endswith("pace=2")
+    w0, t0 = time.perf_counter(), clock.now()
+    for _ in range(20):
+        clock.sleep(0.01)
+    assert clock.now() - t0 == pytest.approx(0.2)
+    assert time.perf_counter() - w0 >= (0.2 - 0.05) / 2  # 50 ms of forgiven lag at most
+    port.close()
+    with pytest.raises(TransportError, match="pace"):
+        Bus("sim://?pace=0")

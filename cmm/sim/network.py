@@ -128,6 +128,9 @@ class SimNetwork:
         self._tx_free = 0
         self.host_in = bytearray()  # bytes the host has received and not read
         self._t0 = time.perf_counter_ns()
+        # virtual clock: at most this many simulated seconds per wall second (None: as fast as the CPU allows)
+        self.pace: float | None = None
+        self._pace_ref: tuple[int, int] | None = None  # (wall ns, simulated ns) the pace counts from
         self.lock = threading.RLock()  # held by a serving thread around every step
         self._update_chain()
 
@@ -199,6 +202,23 @@ class SimNetwork:
         """Switch to the wall clock from the current simulated time on."""
         self.realtime = True
         self._t0 = time.perf_counter_ns() - self.now_ns
+
+    def hold_pace(self) -> None:
+        """On a paced virtual clock, wait (wall time, without the lock) until the wall clock
+        catches up with simulated time / pace. Lag beyond 50 ms is forgiven, not caught up."""
+        pace = self.pace
+        if not pace or self.realtime:
+            return
+        wall, sim = time.perf_counter_ns(), self.now_ns
+        ref = self._pace_ref
+        if ref is None:
+            self._pace_ref = (wall, sim)
+            return
+        ahead_ns = ref[0] + (sim - ref[1]) / pace - wall
+        if ahead_ns > 0:
+            time.sleep(ahead_ns * 1e-9)
+        elif ahead_ns < -50e6:
+            self._pace_ref = (wall, sim)
 
     def sync(self) -> None:
         """In real time, catch the simulation up with the wall clock (in one batch).

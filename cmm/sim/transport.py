@@ -10,6 +10,9 @@ Several host threads may share one transport (a poll thread plus callers):
 every step holds the network's lock. On the virtual clock ``sleep`` is a
 deadline: the caller's time has come once the shared clock reaches call time
 + seconds, whoever advanced it, so two threads sleeping at once do not add up.
+``network.pace`` caps how fast the virtual clock runs (simulated s per wall s):
+a poll thread then cannot race ahead of callers acting in wall time (a jog
+pendant's refreshes against the machine's dead-man time-out).
 """
 
 from __future__ import annotations
@@ -87,7 +90,9 @@ class SimTransport:
                     net.advance_to(min(deadline, net.next_event_ns()))
                 else:
                     net.advance_to(deadline)  # nothing can arrive: the whole time-out passes
-            return net.host_read(size)
+            data = net.host_read(size)
+        net.hold_pace()
+        return data
 
     def read_all(self) -> bytes:
         with self.network.lock:
@@ -142,4 +147,7 @@ class SimTransport:
         wake = net.now_ns + round(seconds * 1e9)  # the deadline counts from the call
         with net.lock:
             net.advance_to(wake)
-        time.sleep(0)  # let other threads in (the clock stands still while nobody waits)
+        if net.pace:
+            net.hold_pace()
+        else:
+            time.sleep(0)  # let other threads in (the clock stands still while nobody waits)

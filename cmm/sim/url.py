@@ -1,13 +1,15 @@
 """``sim://`` URLs: an in-process simulated NMC network opened like any serial port.
 
     sim://[NAME][?cmm=1][&modules=N][&firmware=pic-servo|pic-servo-sc][&module_version=V]
-               [&clock=virtual|realtime][&wire=1|0][&config=PATH]
+               [&clock=virtual|realtime][&pace=X][&wire=1|0][&config=PATH]
 
 - ``cmm=1``: the whole simulated CMM (three axes, part, reference sphere, probe on
   the LIMIT inputs; ``config`` is its machine configuration, default the shipped
   one); otherwise ``modules`` bare modules (default 3).
 - ``clock=virtual`` (default): simulated time advances only while the host waits
-  (reads, ``sleep``), as fast as the CPU allows. ``clock=realtime``: the wall clock.
+  (reads, ``sleep``), as fast as the CPU allows, or at most ``pace`` simulated
+  seconds per wall second (pace=1: a background poll thread keeps step with
+  callers acting in wall time). ``clock=realtime``: the wall clock.
 - ``wire=1`` (default): every byte takes 10 bits at its line rate each way.
 - The port's ``baudrate`` is the host's line rate: after SET_BAUD the host must
   switch, as on a real port.
@@ -35,9 +37,9 @@ from cmm.nmc import codec as c
 from cmm.sim.network import SimNetwork
 
 CLOCKS = ("virtual", "realtime")
-_OPTIONS = ("cmm", "modules", "firmware", "module_version", "clock", "wire", "config")
+_OPTIONS = ("cmm", "modules", "firmware", "module_version", "clock", "pace", "wire", "config")
 FORM = ("sim://[NAME]?cmm=1&modules=N&firmware=pic-servo|pic-servo-sc&module_version=V"
-        "&clock=virtual|realtime&wire=1|0&config=PATH")
+        "&clock=virtual|realtime&pace=X&wire=1|0&config=PATH")
 
 
 class SimUrlError(ValueError):
@@ -52,6 +54,7 @@ class SimOptions:
     firmware: str | None = None  # None: the machine configuration's (cmm) or pic-servo
     module_version: int | None = None
     clock: str = "virtual"
+    pace: float | None = None  # virtual clock: at most this many simulated s per wall s
     wire_time: bool = True
     config: str | None = None
 
@@ -71,6 +74,8 @@ class SimOptions:
         if self.module_version is not None:
             query.append(f"module_version={self.module_version}")
         query.append(f"clock={self.clock}")
+        if self.pace:
+            query.append(f"pace={self.pace:g}")
         if not self.wire_time:
             query.append("wire=0")
         if self.config:
@@ -112,6 +117,14 @@ def parse(url: str) -> SimOptions:
             if value not in c.BAUD_DIVISORS:
                 raise SimUrlError(f"unknown firmware {value!r} in sim:// URL; known: {', '.join(c.BAUD_DIVISORS)}")
             opts[key] = value
+        elif key == "pace":
+            try:
+                opts[key] = float(value)
+            except ValueError:
+                opts[key] = 0.0
+            if not opts[key] > 0:
+                raise SimUrlError(f"sim:// option pace={value!r} must be a positive number "
+                                  f"(simulated seconds per wall second)")
         elif key == "clock":
             if value not in CLOCKS:
                 raise SimUrlError(f"sim:// clock must be one of {', '.join(CLOCKS)}, not {value!r}")
@@ -149,9 +162,11 @@ def build(options: SimOptions, *, config: Any = None, settings: Any = None) -> S
         sim = SimulatedCMM(config, settings, wire_time=options.wire_time, realtime=options.realtime,
                            n_modules=options.modules, firmware=options.firmware,
                            version=options.module_version)
+        sim.network.pace = options.pace
         return SimWorld(options, sim.network, sim)
     network = SimNetwork(options.modules, version=options.module_version, wire_time=options.wire_time,
                          realtime=options.realtime, firmware=options.firmware or "pic-servo")
+    network.pace = options.pace
     return SimWorld(options, network)
 
 
