@@ -81,7 +81,8 @@ def decode_frame(raw: bytes) -> Any:
     return msgspec.msgpack.decode(payload)
 
 
-def attack(port: int, *, origin: str | None, host: str | None = None, seconds: float = 8.0) -> dict:
+def attack(port: int, *, origin: str | None, host: str | None = None, seconds: float = 30.0,
+           until: Any = lambda: False) -> dict:
     """What a page does to take control: open viser's socket, find 'Take control', click it.
 
     Returns how far it got: the messages it received and whether it clicked.
@@ -100,23 +101,27 @@ def attack(port: int, *, origin: str | None, host: str | None = None, seconds: f
                 out["closed"] = exc.rcvd.code if exc.rcvd else None
                 return out
             end = time.monotonic() + seconds
-            while time.monotonic() < end and not out["clicked"]:
+            button = None
+            next_click = 0.0
+            while time.monotonic() < end and not (out["clicked"] and until()):
+                if button is not None and time.monotonic() >= next_click:
+                    # the page clicks again until it works (its first click may beat the button's handler)
+                    click = _messages.GuiUpdateMessage(button, {"value": True})
+                    ws.send(msgspec.msgpack.encode(click.as_serializable_dict()))
+                    out["clicked"] = True
+                    next_click = time.monotonic() + 0.5
                 try:
-                    raw = ws.recv(timeout=0.2)
+                    raw = ws.recv(timeout=0.1)
                 except TimeoutError:
                     continue
                 except ConnectionClosed as exc:
                     out["closed"] = exc.rcvd.code if exc.rcvd else None
                     return out
                 out["messages"] += 1
-                decoded = decode_frame(raw)
-                for d in _walk(decoded):
+                for d in _walk(decode_frame(raw)):
                     props = d.get("props")
                     if isinstance(props, dict) and props.get("label") == "Take control" and "uuid" in d:
-                        click = _messages.GuiUpdateMessage(d["uuid"], {"value": True})
-                        ws.send(msgspec.msgpack.encode(click.as_serializable_dict()))
-                        out["clicked"] = True
-                        break
+                        button = d["uuid"]
             time.sleep(0.5)
     except InvalidStatus as exc:
         out["closed"] = exc.response.status_code
@@ -132,7 +137,7 @@ def _wait_holder(app, timeout: float = 10.0) -> str | None:
 
 def test_the_stations_own_page_can_take_control(app):
     """The control case: the attack script works when the Origin is the station's own."""
-    result = attack(app.port, origin=f"http://127.0.0.1:{app.port}")
+    result = attack(app.port, origin=f"http://127.0.0.1:{app.port}", until=lambda: app.control.holder is not None)
     assert result["clicked"], result
     assert _wait_holder(app) is not None
     app.control.release(app.control.holder)
@@ -150,7 +155,7 @@ def test_a_foreign_page_is_refused_before_any_message(app, origin, host):
     result = attack(app.port, origin=origin, host=host.format(port=app.port) if host else None, seconds=3.0)
     assert result["closed"] == 1008 and result["messages"] == 0 and not result["clicked"], result
     assert app.control.holder is None
-    assert len(app.clients) == before  # no panels were built for it
+    assert len(app.clients) <= before and not set(app.clients) & app._refused  # no panels were built for it
     assert any(origin in r or "unknown host" in r for r in app.origins.refused)
     assert np.allclose(app.station.state.position, position, atol=0.0021)
 

@@ -36,7 +36,9 @@ class StationApp:
 
         self.station = station
         self.host = host
-        self.control = control or Control(lan=lan, on_holder_lost=lambda _cid: self._holder_lost())
+        self.control = control or Control(lan=lan)
+        if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running
+            self.control.on_holder_lost = lambda _cid: self._holder_lost()
         self.origins = OriginPolicy(lan=lan or host not in ("127.0.0.1", "localhost", "::1"), allow_hosts=allow_hosts)
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)

@@ -25,6 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", default=None, help="machine configuration TOML")
     parser.add_argument("--lan", action="store_true",
                         help="listen on every interface (0.0.0.0) and print an access code for remote operators")
+    parser.add_argument("--lan-stop", action="store_true",
+                        help="with --lan: anonymous LAN observers may press STOP / E-STOP too (default: only the "
+                             "station PC, the holder and clients that gave the access code)")
+    parser.add_argument("--allow-host", metavar="NAME", action="append", default=[],
+                        help="another host name browsers may use to reach the station (a DNS alias); "
+                             "unknown names are refused against DNS rebinding")
     parser.add_argument("--sessions", metavar="DIR", default="sessions", help="where session journals go")
     parser.add_argument("--calibration", metavar="DIR", default=None,
                         help="calibration records folder (probe.toml, machine.toml; artifacts/ for the wizard); "
@@ -75,10 +81,14 @@ def run(args: argparse.Namespace) -> int:
 
     from .app import StationApp
 
+    from .access import Control
+
     host = "0.0.0.0" if args.lan else "127.0.0.1"
     try:
         app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
-                         pendant_port=args.pendant_port, tolerance=args.tolerance)
+                         pendant_port=args.pendant_port, tolerance=args.tolerance,
+                         allow_hosts=tuple(args.allow_host),
+                         control=Control(lan=args.lan, lan_stop=args.lan_stop))
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
