@@ -3,7 +3,7 @@
 import pytest
 
 from cmm.nmc import codec
-from cmm.nmc.bus import Bus, NmcError
+from cmm.nmc.bus import Bus, LinkError, NmcError
 from cmm.nmc.module import Module
 from cmm.nmc.transport import TransportError
 from cmm.sim.network import SimNetwork
@@ -29,7 +29,8 @@ def test_init_discovers_modules_and_changes_baud_in_process():
     assert all(i.module_type == 0 and i.version == net.version for i in infos)
     assert bus.baud == 115200 and all(m.baud == 115200 for m in net.modules)
     sent = bus.trace.entries()
-    assert sent[0].data == bytes(20)  # nulls first
+    assert sent[0].data.startswith(bytes(20))  # nulls first, then HARD_RESET to every address
+    assert codec.hard_reset(0x80) in sent[0].data and codec.hard_reset(32) in sent[0].data
     assert any(e.data == bytes.fromhex("AA 00 21 01 FF 21") for e in sent)
     assert any(e.data == codec.set_baud(0xFF, 10) for e in sent)
     # re-initialising finds the modules again although they run at 115200 now
@@ -65,7 +66,7 @@ def test_silent_module_raises_nmc_error_with_its_address():
     bus.initialize()
     bus._write(codec.hard_reset(2))  # module 2 forgets its address: it stays silent at 2
     bus.clock.sleep(0.01)
-    with pytest.raises(NmcError, match="module 2 did not answer NOP") as err:
+    with pytest.raises(LinkError, match=r"module 2 stopped answering \(module 1 still answers\)") as err:
         bus.transact(codec.nop(2))
     assert err.value.address == 2
     assert bus.stats["resyncs"] >= 1

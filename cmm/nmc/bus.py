@@ -4,8 +4,18 @@ Rules from the protocol (shared/docs/picservo-nmc.md):
 - the host sends one command and waits for its status packet before the next;
 - read timeout 50 ms + 2 ms per expected byte (Kerr's library);
 - a reply with cksum_error set means the module ignored the command: resend once;
-- after a timeout or garbage, resynchronise: nulls, wait, flush, NOP each module;
 - group commands are answered by the group leader only, or not at all.
+
+Replies carry no address, so a late reply could be read as the next
+module's. After any time-out or bad reply the bus resynchronises Kerr's way
+(nulls complete a torn packet and abort a reply in progress), then makes it
+certain: it sends a *marker* (READ_STAT of the module type and version, with
+a reply length no normal reply has) to the module that owes the late reply,
+and discards every byte up to the marker's reply. Bytes keep their order on
+the line, so once the marker's reply is in, nothing older can follow. A
+command whose reply was lost is sent again only if doing it twice is
+harmless; a motion start is checked on the module instead (see
+``_after_lost_reply``). Every port failure surfaces as :class:`LinkError`.
 """
 
 from __future__ import annotations
@@ -13,6 +23,8 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from typing import Any
+
+import serial
 
 from . import codec
 from .trace import ByteTrace
@@ -27,6 +39,18 @@ class NmcError(Exception):
         self.address = address
 
 
+class LinkError(NmcError):
+    """The link failed (port error, disconnect, modules silent, time-out storm).
+
+    The only exception a port failure raises from the bus: whoever drives the
+    machine must treat it as "the machine state is unknown" and stop.
+    """
+
+    def __init__(self, message: str, address: int | None = None, port: str = "") -> None:
+        super().__init__(message, address)
+        self.port = port
+
+
 @dataclass(frozen=True)
 class ModuleInfo:
     address: int
@@ -34,16 +58,60 @@ class ModuleInfo:
     version: int
 
 
+@dataclass(frozen=True)
+class StopReport:
+    """What :meth:`Bus.stop_all` achieved: which modules acknowledged the stop."""
+
+    acknowledged: tuple[int, ...]
+    silent: tuple[int, ...]
+    reason: str = ""  # the first link error met, if any
+
+    @property
+    def ok(self) -> bool:
+        return not self.silent
+
+    def sentence(self) -> str:
+        if self.ok:
+            return f"stop acknowledged by every module ({', '.join(map(str, self.acknowledged)) or 'none known'})"
+        return (f"STOP NOT CONFIRMED by module(s) {', '.join(map(str, self.silent))}"
+                f"{': ' + self.reason if self.reason else ''}. Cut the motor power")
+
+
 NULLS_INIT = 20  # the thesis sends 16, Kerr's library 20
 NULLS_RESYNC = 30
-RESYNC_WAIT = 0.1
+RESYNC_WAIT = 0.1  # Kerr's quiet wait, used when there is no module to send a marker to
 BAUD_SWITCH_WAIT = 0.1
 LEADERLESS_WAIT = 0.002  # at least one servo tick before the next command (several at SR > 1)
 MAX_MODULES = 32
+MARKER_WAIT = 0.75  # longest late reply the marker waits through (stalls of up to 0.5 s seen under load)
+DISCOVERY_WAIT = 0.3  # the same while addressing the chain
+SHORT_MARKER_WAIT = 0.1  # a marker on a line known to be clean
+QUIET_CONFIRM = 0.02  # no byte may follow the marker's reply for this long
+RESYNC_ATTEMPTS = 3
+DISCOVERY_ATTEMPTS = 3
+STORM_LIMIT = 6  # transactions in a row that needed a resynchronisation: the link is down
+GOAL_TOLERANCE = 3  # counts: a started move that already arrived
+REST_TOLERANCE = 3  # counts: a move that did not start has not moved
+CONTINUITY_MARGIN = 64  # counts a module may move beyond its fastest loaded speed between two replies
+CONTINUITY_FLOOR = 2000.0  # counts/s always allowed (a servo pushed off, an axis moved by hand slowly)
+
+# Resending these is harmless if the first one was carried out (the second does the same again).
+RESEND_SAFE = {codec.NOP, codec.READ_STAT, codec.DEF_STAT, codec.SET_GAIN, codec.IO_CTRL, codec.STOP_MOTOR,
+               codec.CLEAR_BITS}
+# Marker item sets, in turn; each carries the module id so its content is known.
+MARKER_ITEMS = (codec.SEND_ID, codec.SEND_ID | codec.SEND_AUX, codec.SEND_ID | codec.SEND_AD | codec.SEND_AUX,
+                codec.SEND_ID | codec.SEND_VEL | codec.SEND_AUX)
+CAPTURE_BITS = codec.ON_LIMIT1 | codec.ON_LIMIT2 | codec.ON_INDEX | codec.ON_POS_ERR | codec.ON_CUR_ERR
 
 
 def reply_timeout(n_bytes: int) -> float:
     return 0.050 + 0.002 * n_bytes
+
+
+def _port_name(port: Any) -> str:
+    if isinstance(port, str):
+        return port
+    return str(getattr(port, "port", None) or type(port).__name__)
 
 
 class Bus:
@@ -54,54 +122,139 @@ class Bus:
     are serialised.
     """
 
-    def __init__(self, port: Any, *, firmware: str = "pic-servo", trace: ByteTrace | None = None) -> None:
+    def __init__(self, port: Any, *, firmware: str = "pic-servo", trace: ByteTrace | None = None,
+                 expected_modules: int | None = None) -> None:
         self.firmware = firmware
         self.baud = codec.POWER_UP_BAUD
+        self._url = port
+        self.port_name = _port_name(port)
         self.port, self.clock = open_port(port, self.baud, reply_timeout(2))
         self.trace = trace if trace is not None else ByteTrace()
         self.lock = threading.RLock()
+        self.expected_modules = expected_modules  # initialize() retries discovery until it finds this many
         self.items: dict[int, int] = {}  # address -> DEF_STAT items the module sends
         self.leaders: dict[int, int] = {}  # group address -> leader's individual address
+        self.groups: dict[int, int] = {}  # individual address -> group address
         self.modules: list[ModuleInfo] = []
-        self.stats = {"transactions": 0, "retries": 0, "resyncs": 0}
+        self.stats = {"transactions": 0, "retries": 0, "resyncs": 0, "discarded": 0, "verified": 0,
+                      "suspect": 0}
+        self.link_up = True
+        self._marker_turn = 0
+        self._storm = 0  # transactions in a row that needed a resynchronisation
+        self._last: dict[int, tuple[int, float]] = {}  # address -> (position, time) of the last good reply
+        self._vmax: dict[int, float] = {}  # address -> fastest loaded speed, counts/s
+        self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
+        self._armed: set[int] = set()  # modules with a home capture armed
 
-    # --- low level ------------------------------------------------------
+    # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
-    def close(self) -> None:
+    def _link_error(self, doing: str, exc: BaseException, address: int | None = None) -> LinkError:
+        self.link_up = False
+        who = f" (module {address})" if address is not None and address < 0x80 else (
+            f" (group {address:#04x})" if address is not None else "")
+        return LinkError(f"the serial link {self.port_name} failed while {doing}{who}: {exc or type(exc).__name__}. "
+                         "Check the cable, the adapter and the module power, then reconnect", address, self.port_name)
+
+    def close(self, *, release: bool = False) -> None:
+        """Close the port; with ``release`` first leave the modules in their power-up state."""
         with self.lock:
-            self.port.close()
+            if release and self.link_up:
+                try:
+                    self.release()
+                except LinkError:
+                    pass
+            try:
+                self.port.close()
+            except (serial.SerialException, OSError):
+                pass
+            self.link_up = False
 
-    def _write(self, data: bytes) -> None:
+    def _write(self, data: bytes, address: int | None = None) -> None:
         self.trace.tx(self.clock.now(), data)
-        self.port.write(data)
+        try:
+            self.port.write(data)
+        except (serial.SerialException, OSError) as exc:
+            raise self._link_error("sending", exc, address) from exc
 
-    def _read(self, n: int) -> bytes:
-        timeout = reply_timeout(n)
-        if self.port.timeout != timeout:
-            self.port.timeout = timeout
-        data = self.port.read(n)
+    def _set_timeout(self, timeout: float | None, address: int | None = None) -> None:
+        try:
+            if self.port.timeout != timeout:
+                self.port.timeout = timeout
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise self._link_error("setting the read time-out", exc, address) from exc
+
+    def _read(self, n: int, address: int | None = None, timeout: float | None = None) -> bytes:
+        self._set_timeout(reply_timeout(n) if timeout is None else timeout, address)
+        try:
+            data = self.port.read(n)
+        except (serial.SerialException, OSError) as exc:
+            raise self._link_error("waiting for a reply", exc, address) from exc
         if data:
             self.trace.rx(self.clock.now(), data, "" if len(data) == n else f"short reply: {len(data)} of {n} bytes")
         return data
 
+    def _waiting(self, address: int | None = None) -> int:
+        try:
+            return int(self.port.in_waiting)
+        except (serial.SerialException, OSError) as exc:
+            raise self._link_error("reading the port", exc, address) from exc
+
+    def _read_some(self, timeout: float, address: int | None = None) -> bytes:
+        """Whatever arrives within ``timeout``: waits for one byte, then takes what is there."""
+        self._set_timeout(max(timeout, 0.0), address)
+        try:
+            data = self.port.read(1)
+            if data:
+                n = self.port.in_waiting
+                if n:
+                    data += self.port.read(n)
+        except (serial.SerialException, OSError) as exc:
+            raise self._link_error("waiting for a reply", exc, address) from exc
+        return data
+
     def _set_host_baud(self, baud: int) -> None:
-        self.port.baudrate = baud
+        try:
+            self.port.baudrate = baud
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise self._link_error(f"switching the port to {baud} baud", exc) from exc
         self.baud = baud
 
     def flush_input(self) -> None:
-        self.port.reset_input_buffer()
+        try:
+            self.port.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            raise self._link_error("flushing the input", exc) from exc
+
+    def _discard_stale(self, address: int | None) -> None:
+        """Bytes waiting before a command are late or noise: never part of the coming reply."""
+        n = self._waiting(address)
+        if n:
+            try:
+                data = self.port.read(n)
+            except (serial.SerialException, OSError) as exc:
+                raise self._link_error("reading the port", exc, address) from exc
+            self.stats["discarded"] += len(data)
+            self.trace.rx(self.clock.now(), data, "stale bytes discarded")
+
+    # --- one transaction ----------------------------------------------------------
 
     def _attempt(self, packet: bytes, items: int) -> codec.Status | None:
-        """Send once; the parsed reply, or None on timeout / garbage."""
-        self._write(packet)
+        """Send once; the parsed reply, or None on time-out, garbage or surplus bytes."""
+        address = packet[1]
+        self._discard_stale(address)
+        self._write(packet, address)
         n = codec.status_length(items)
-        data = self._read(n)
+        data = self._read(n, address)
         if len(data) != n:
             return None
         try:
-            return codec.parse_status(data, items)
+            status = codec.parse_status(data, items)
         except codec.CodecError:
             return None
+        if self._waiting(address):  # more bytes than a reply: something else got mixed in
+            self.stats["suspect"] += 1
+            return None
+        return status
 
     def _reply_items(self, address: int) -> int | None:
         """Items in the reply to a command sent to ``address``; None if nobody replies."""
@@ -113,81 +266,382 @@ class Bus:
             return None
         return 0
 
+    def _members(self, address: int) -> list[int]:
+        if address < 0x80:
+            return [address]
+        return [a for a in (m.address for m in self.modules) if self.groups.get(a, codec.GROUP_ALL) == address]
+
+    def _responder(self, address: int) -> int | None:
+        """The individual address that answers commands sent to ``address``."""
+        if address < 0x80:
+            return address
+        return self.leaders.get(address)
+
+    def _before_send(self, packet: bytes) -> None:
+        """Remember what a command sets up that a lost reply would have to be checked against."""
+        address, code, data = packet[1], packet[2] & 0x0F, packet[3:-1]
+        members = self._members(address)
+        if code == codec.LOAD_TRAJ:
+            try:
+                lt = codec.parse_load_traj(data)
+            except codec.CodecError:
+                return
+            for a in members:
+                if lt.velocity is not None:
+                    # 16.16 counts per tick -> counts per second (SR of 1: the fastest it can be)
+                    self._vmax[a] = max(self._vmax.get(a, 0.0), lt.velocity / 65536 / codec.TICK_SECONDS)
+                if lt.control & codec.START_NOW:
+                    self._buffered.pop(a, None)
+                elif lt.position is not None and lt.control & codec.ENABLE_SERVO and not lt.control & codec.VEL_MODE:
+                    self._buffered[a] = lt.position
+                else:
+                    self._buffered.pop(a, None)
+        elif code == codec.SET_HOMING and data:
+            for a in members:
+                (self._armed.add if data[0] & CAPTURE_BITS else self._armed.discard)(a)
+        elif code in (codec.RESET_POS, codec.HARD_RESET):
+            for a in members:
+                self._last.pop(a, None)
+
+    def _plausible(self, address: int, status: codec.Status, code: int) -> bool:
+        """Position continuity: a module cannot have moved faster than it was ever told to."""
+        if status.position is None or address >= 0x80 or code in (codec.RESET_POS, codec.HARD_RESET):
+            return True
+        last = self._last.get(address)
+        if last is None:
+            return True
+        dt = max(self.clock.now() - last[1], 0.0) + 0.002
+        speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
+        return abs(status.position - last[0]) <= speed * dt + CONTINUITY_MARGIN
+
+    def _accept(self, address: int, status: codec.Status) -> codec.Status:
+        responder = self._responder(address)
+        if status.position is not None and responder is not None:
+            self._last[responder] = (status.position, self.clock.now())
+        self._storm = 0
+        return status
+
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.
 
         ``items`` overrides the expected status items (READ_STAT). Group
         commands to a group without a leader return None after a short wait.
+        Raises :class:`LinkError` if no trustworthy reply can be had.
         """
         address = packet[1]
+        code = packet[2] & 0x0F
         with self.lock:
             expected = self._reply_items(address) if items is None else items
             self.stats["transactions"] += 1
+            self._before_send(packet)
             if expected is None:  # leaderless group: nobody answers
-                self._write(packet)
+                self._discard_stale(address)
+                self._write(packet, address)
                 self.clock.sleep(LEADERLESS_WAIT)
                 return None
-            for attempt in range(2):
+            responder = self._responder(address)
+            checksum_rejects = 0
+            lost = 0
+            while True:
                 status = self._attempt(packet, expected)
-                if status is not None and not status.cksum_error:
-                    return status
+                if status is not None and status.cksum_error:  # not carried out: sending again is safe
+                    self.stats["retries"] += 1
+                    checksum_rejects += 1
+                    if checksum_rejects >= 2:
+                        raise LinkError(f"{self._who(address)} rejected {self._name(packet)} twice with a checksum "
+                                        "error: check the wiring and the baud rate", address, self.port_name)
+                    continue
+                if status is not None and responder is not None and not self._plausible(responder, status, code):
+                    status = self._confirm_jump(responder, status)
+                if status is not None:
+                    return self._accept(address, status)
+                # no trustworthy reply: the command may or may not have been carried out
                 self.stats["retries"] += 1
-                if status is None:
-                    self.resync(exclude=address)
-            who = f"module {address}" if address < 0x80 else f"group {address:#04x} leader"
-            name = codec.COMMAND_NAMES[packet[2] & 0x0F]
-            if status is not None:
-                raise NmcError(f"{who} rejected {name} twice with a checksum error: check the wiring and the baud rate", address)
-            raise NmcError(
-                f"{who} did not answer {name} at {self.baud} baud after a resynchronisation: "
-                "check its power, cabling and address",
-                address,
-            )
+                lost += 1
+                self._storm += 1
+                if self._storm > STORM_LIMIT:
+                    raise LinkError(f"{STORM_LIMIT} commands in a row got no clean reply (last: {self._name(packet)} "
+                                    f"to {self._who(address)}): the link is failing", address, self.port_name)
+                self.resync(address)
+                if lost >= 3:
+                    raise LinkError(f"{self._who(address)} did not answer {self._name(packet)} at {self.baud} baud "
+                                    f"{lost} times although the link resynchronised: check its power, cabling and "
+                                    "address", address, self.port_name)
+                done = self._after_lost_reply(packet, expected)
+                if done is not None:
+                    return self._accept(address, done)
 
-    def resync(self, exclude: int | None = None) -> None:
-        """Regain the link: nulls complete any partial packet, then wait, flush, NOP each module."""
+    def _confirm_jump(self, address: int, suspect: codec.Status) -> codec.Status | None:
+        """A reply that jumped: resynchronise and read the position again; keep the reply only if it agrees."""
+        self.stats["suspect"] += 1
+        self.resync(address)
+        check = self._attempt(codec.read_stat(address, codec.SEND_POS), codec.SEND_POS)
+        if check is None or check.cksum_error or check.position is None or suspect.position is None:
+            return None
+        speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
+        if abs(check.position - suspect.position) <= speed * 0.1 + CONTINUITY_MARGIN:
+            return suspect  # a real jump (a servo let go, a capture...): both readings agree
+        return None
+
+    @staticmethod
+    def _who(address: int) -> str:
+        return f"module {address}" if address < 0x80 else f"group {address:#04x} leader"
+
+    @staticmethod
+    def _name(packet: bytes) -> str:
+        return codec.COMMAND_NAMES[packet[2] & 0x0F]
+
+    # --- after a lost reply: resend, or check what the module did --------------
+
+    def _after_lost_reply(self, packet: bytes, items: int) -> codec.Status | None:
+        """The line is clean again. None: send the command again. A status: it was carried out.
+
+        Motion starts are never blindly sent twice: START_MOVE and a started
+        position move are checked on the modules (moving, or already at the
+        goal: done; at rest where they were: not done, send again; anything
+        else: a LinkError, the caller stops the machine).
+        """
+        address, code = packet[1], packet[2] & 0x0F
+        name, who = self._name(packet), self._who(address)
+        if code in RESEND_SAFE:
+            return None
+        if code == codec.SET_ADDR and address < 0x80 and packet[3] == address:
+            return None  # a module keeping its address and joining a group: the same again is harmless
+        if code == codec.SET_HOMING and address < 0x80:
+            st = self._query(address, self.items.get(address, 0))
+            if st.home_in_progress:
+                return st  # armed, as asked
+            raise self._unsure(name, who, address)  # not armed, or armed and already fired: cannot tell
+        goals: dict[int, int] = {}
+        if code == codec.LOAD_TRAJ:
+            try:
+                lt = codec.parse_load_traj(packet[3:-1])
+            except codec.CodecError:
+                return None
+            moves = lt.control & codec.START_NOW and lt.control & codec.ENABLE_SERVO and not lt.control & codec.VEL_MODE
+            if not moves:
+                return None  # a buffered load, a velocity or PWM setting: the same again is harmless
+            if lt.position is None or address >= 0x80:
+                raise self._unsure(name, who, address)
+            goals = {address: lt.position}
+        elif code == codec.START_MOVE:
+            goals = {a: self._buffered[a] for a in self._members(address) if a in self._buffered}
+            if not goals:
+                return None  # nothing buffered to start: sending it again starts nothing
+        else:
+            raise self._unsure(name, who, address)
+        started, at_rest = [], []
+        for a, goal in goals.items():
+            last = self._last.get(a)
+            if last is not None and abs(goal - last[0]) <= GOAL_TOLERANCE:
+                continue  # this axis does not move: it tells nothing
+            st = self._query(a, codec.SEND_POS)
+            if not st.move_done or abs((st.position or 0) - goal) <= GOAL_TOLERANCE:
+                started.append(a)
+            elif (last is not None and abs((st.position or 0) - last[0]) <= REST_TOLERANCE and not st.pos_error
+                  and not (a in self._armed and not st.home_in_progress)):
+                at_rest.append(a)
+            else:
+                raise self._unsure(name, who, address)
+        self.stats["verified"] += 1
+        if started and at_rest:
+            raise self._unsure(name, who, address)
+        if at_rest:
+            return None  # nothing started: sending it again starts it once
+        for a in goals:
+            self._buffered.pop(a, None)
+        responder = self._responder(address)
+        if responder is None:
+            raise self._unsure(name, who, address)
+        return self._query(responder, self.items.get(responder, 0))
+
+    def _unsure(self, name: str, who: str, address: int) -> LinkError:
+        return LinkError(f"the reply of {who} to {name} was lost and whether it was carried out cannot be told, "
+                         "so it was not sent again: stop the machine and check its state", address, self.port_name)
+
+    def _query(self, address: int, items: int) -> codec.Status:
+        """A read-only READ_STAT, resynchronising once if needed."""
+        for _ in range(2):
+            st = self._attempt(codec.read_stat(address, items), items)
+            if st is not None and not st.cksum_error:
+                return st
+            self.resync(address)
+        raise LinkError(f"module {address} did not answer a status read after a resynchronisation: the link is "
+                        "failing", address, self.port_name)
+
+    # --- resynchronisation ------------------------------------------------------------
+
+    def resync(self, address: int | None = None) -> None:
+        """Regain the link so that no late reply can be taken for the next one.
+
+        Nulls complete a torn packet (its reply fails its checksum) and abort a
+        reply in progress; then a marker to the module that may owe a late
+        reply; everything up to the marker's reply is discarded. Without a
+        known module: Kerr's quiet wait and flush.
+        """
         with self.lock:
             self.stats["resyncs"] += 1
-            self._write(bytes(NULLS_RESYNC))
-            self.clock.sleep(RESYNC_WAIT)
-            self.flush_input()
-            for info in self.modules:
-                if info.address == exclude:
-                    continue
-                items = self.items.get(info.address, 0)
-                if self._attempt(codec.nop(info.address), items) is None:
-                    self.clock.sleep(RESYNC_WAIT)
-                    self.flush_input()
-                    if self._attempt(codec.nop(info.address), items) is None:
-                        raise NmcError(
-                            f"module {info.address} stays silent after resynchronisation: check its power and cabling",
-                            info.address,
-                        )
+            targets = self._marker_targets(address)
+            if not targets:
+                self._write(bytes(NULLS_RESYNC))
+                self.clock.sleep(RESYNC_WAIT)
+                self.flush_input()
+                return
+            first = targets[0]
+            self._write(bytes(NULLS_RESYNC), first)
+            if self._marker(first, MARKER_WAIT):
+                return
+            for other in targets[1:2]:  # is it the module or the link?
+                self._write(bytes(NULLS_RESYNC), other)
+                if self._marker(other, MARKER_WAIT):
+                    self._write(bytes(NULLS_RESYNC), first)
+                    if self._marker(first, SHORT_MARKER_WAIT):  # the line is clean now: no need to wait long
+                        return
+                    raise LinkError(f"module {first} stopped answering (module {other} still answers): "
+                                    "check its power and cabling", first, self.port_name)
+            self._write(bytes(NULLS_RESYNC), first)
+            if self._marker(first, MARKER_WAIT):
+                return
+            raise LinkError(f"no module answers on {self.port_name} any more (no reply for "
+                            f"{2 * MARKER_WAIT + (MARKER_WAIT if len(targets) > 1 else 0):.1f} s): the link is down; "
+                            "check the cable, the adapter and the module power", first, self.port_name)
 
-    # --- network set-up ---------------------------------------------------
+    def _marker_targets(self, address: int | None) -> list[int]:
+        known = [m.address for m in self.modules]
+        first = self._responder(address) if address is not None else None
+        out = [first] if first is not None and first in known else []
+        return out + [a for a in known if a not in out]
+
+    def _marker(self, address: int, wait: float, info: ModuleInfo | None = None) -> bool:
+        """Send a marker to ``address``; True once its reply has come, last on a quiet line."""
+        normal = codec.status_length(self.items.get(address, 0))
+        for _ in MARKER_ITEMS:
+            items = MARKER_ITEMS[self._marker_turn % len(MARKER_ITEMS)]
+            self._marker_turn += 1
+            if codec.status_length(items) != normal:
+                break
+        n = codec.status_length(items)
+        if info is None:
+            info = next((m for m in self.modules if m.address == address), None)
+        self._write(codec.read_stat(address, items), address)
+        buf = bytearray()
+        deadline = self.clock.now() + wait
+        while True:
+            left = deadline - self.clock.now()
+            if left <= 0:
+                if buf:
+                    self.stats["discarded"] += len(buf)
+                return False
+            chunk = self._read_some(left, address)
+            if not chunk:
+                continue
+            buf += chunk
+            if not self._is_marker(bytes(buf[-n:]), items, info):
+                continue
+            extra = self._read_some(QUIET_CONFIRM, address)
+            if extra:  # the marker pattern was not the end: keep reading
+                buf += extra
+                continue
+            stale = len(buf) - n
+            self.stats["discarded"] += stale
+            if stale:
+                self.trace.record(self.clock.now(), "rx", bytes(buf[:stale]),
+                                  f"resynchronised on module {address}: {stale} stale bytes discarded")
+            return True
+
+    @staticmethod
+    def _is_marker(data: bytes, items: int, info: ModuleInfo | None) -> bool:
+        try:
+            st = codec.parse_status(data, items)
+        except codec.CodecError:
+            return False
+        if st.cksum_error:
+            return False
+        if info is not None:
+            return st.module_type == info.module_type and st.version == info.version
+        return True  # while addressing the chain: length, checksum and status are all there is
+
+    # --- stopping on a failing link ---------------------------------------------------
+
+    def stop_all(self, mode: str = "abrupt") -> StopReport:
+        """Stop every axis however bad the link is; never raises. Says which modules acknowledged.
+
+        First a burst that asks for no reply (nulls, STOP_MOTOR to every group
+        and every module, back to back: the fastest way to reach a module on a
+        noisy line), then an acknowledged STOP_MOTOR to each module.
+        ``mode``: "abrupt" (servo holds where it is) or "off" (motor off).
+        """
+        control = codec.MOTOR_OFF if mode == "off" else codec.STOP_ABRUPT | codec.AMP_ENABLE
+        addresses = [m.address for m in self.modules]
+        reason = ""
+        with self.lock:
+            burst = bytearray(NULLS_RESYNC)
+            for g in sorted({codec.GROUP_ALL, *self.groups.values()}):
+                burst += codec.stop_motor(g, control)
+            for a in addresses:
+                burst += codec.stop_motor(a, control)
+            try:
+                self._write(bytes(burst))
+                self.clock.sleep(0.01)
+                self.flush_input()
+            except LinkError as exc:
+                reason = str(exc)
+            acked, silent = [], []
+            for a in addresses:
+                try:
+                    st = self.transact(codec.stop_motor(a, control))
+                    (acked if st is not None else silent).append(a)
+                except NmcError as exc:
+                    silent.append(a)
+                    reason = reason or str(exc)
+            return StopReport(tuple(acked), tuple(silent), reason)
+
+    # --- network set-up ---------------------------------------------------------------
 
     def _reset_at(self, baud: int) -> None:
-        """Nulls and HARD_RESET to every module at ``baud`` (no reply), then back to power-up rate."""
+        """Nulls and HARD_RESET (no reply) at ``baud`` to every address a module can be reached at.
+
+        A module answers its individual address whatever group it is in, so
+        resetting 0..MAX_MODULES and group 0xFF reaches every module this
+        driver (or Kerr's library) can have addressed.
+        """
         self._set_host_baud(baud)
-        self._write(bytes(NULLS_INIT))
-        self.clock.sleep(0.01)
-        for _ in range(2):
-            self._write(codec.hard_reset(codec.GROUP_ALL))
-            self.clock.sleep(0.01)
+        burst = bytearray(NULLS_INIT)
+        burst += codec.hard_reset(codec.GROUP_ALL) * 2
+        for a in range(MAX_MODULES + 1):
+            burst += codec.hard_reset(a)
+        for g in sorted(set(self.groups.values()) | {0x80}):
+            burst += codec.hard_reset(g)
+        self._write(bytes(burst))
         self.clock.sleep(0.1)
         self._set_host_baud(codec.POWER_UP_BAUD)
         self.flush_input()
 
     def _discover(self) -> list[int]:
+        """Address the chain one module at a time; each step checked, not assumed."""
         found: list[int] = []
         for addr in range(1, MAX_MODULES + 1):
-            reply = self._attempt(codec.set_addr(0x00, addr, codec.GROUP_ALL), 0)
-            if reply is None:
-                self.flush_input()
+            if not self._address_next(addr, found):
                 break
             found.append(addr)
             self.items[addr] = 0
         return found
+
+    def _address_next(self, addr: int, found: list[int]) -> bool:
+        """SET_ADDR to the module at 0; a lost reply is told apart from the end of the chain."""
+        for _ in range(2):
+            reply = self._attempt(codec.set_addr(0x00, addr, codec.GROUP_ALL), 0)
+            if reply is not None and not reply.cksum_error:
+                return True
+            if reply is not None:
+                continue  # rejected with a checksum error: not carried out
+            # no reply: the end of the chain, or a late reply. A marker to the new address tells:
+            # a module there took it (and the line is clean once its reply is in).
+            self._write(bytes(NULLS_RESYNC))
+            if self._marker(addr, DISCOVERY_WAIT):
+                return True
+            self.flush_input()
+        return False
 
     def initialize(
         self,
@@ -199,24 +653,36 @@ class Bus:
     ) -> list[ModuleInfo]:
         """The full NMC start-up: reset, address chain, type check, baud change.
 
-        Modules left at another rate by an earlier run are reset at every rate
-        the firmware knows before the chain is addressed.
+        Works whatever state an earlier run left the modules in (any address,
+        group, baud rate, servo on): they are reset at the power-up rate and,
+        if the chain is not all there, at every rate the firmware knows.
+        Discovery is repeated while it finds fewer modules than expected.
         """
+        expected = expected_modules if expected_modules is not None else self.expected_modules
         with self.lock:
-            self.items.clear()
-            self.leaders.clear()
-            self.modules = []
-            self._reset_at(codec.POWER_UP_BAUD)
-            found = self._discover()
-            if not found:
-                for other in codec.BAUD_DIVISORS[self.firmware]:
-                    if other != codec.POWER_UP_BAUD:
-                        self._reset_at(other)
+            self.link_up = True
+            found: list[int] = []
+            for attempt in range(DISCOVERY_ATTEMPTS):
+                self.items.clear()
+                self.leaders.clear()
+                self._last.clear()
+                self._buffered.clear()
+                self._armed.clear()
+                self.modules = []
+                bauds = [codec.POWER_UP_BAUD] if attempt == 0 else [
+                    *(b for b in codec.BAUD_DIVISORS[self.firmware] if b != codec.POWER_UP_BAUD), codec.POWER_UP_BAUD]
+                for b in bauds:
+                    self._reset_at(b)
+                self.groups.clear()
                 found = self._discover()
+                if found and (expected is None or len(found) == expected):
+                    break
             if not found:
-                raise NmcError("no PIC-SERVO module answered at address 0: check power, cabling and the port", 0)
-            if expected_modules is not None and len(found) != expected_modules:
-                raise NmcError(f"expected {expected_modules} modules on the network, found {len(found)}")
+                raise LinkError("no PIC-SERVO module answered at address 0 at any baud rate: check power, cabling "
+                                f"and the port ({self.port_name})", 0, self.port_name)
+            if expected is not None and len(found) != expected:
+                raise NmcError(f"expected {expected} modules on the network, found {len(found)} "
+                               f"in {DISCOVERY_ATTEMPTS} attempts: check the address chain (ADDR_IN/ADDR_OUT) wiring")
             modules = []
             for addr in found:
                 st = self.transact(codec.read_stat(addr, codec.SEND_ID), codec.SEND_ID)
@@ -242,12 +708,58 @@ class Bus:
             for info in self.modules:
                 items = self.items.get(info.address, 0)
                 if self._attempt(codec.nop(info.address), items) is None:
-                    raise NmcError(f"module {info.address} does not answer at {baud} baud after SET_BAUD", info.address)
+                    self.resync(info.address)
+                    if self._attempt(codec.nop(info.address), items) is None:
+                        raise LinkError(f"module {info.address} does not answer at {baud} baud after SET_BAUD",
+                                        info.address, self.port_name)
+
+    def release(self) -> None:
+        """Leave every module in its power-up state (motor off, address 0, group 0xFF, 19200 baud).
+
+        HARD_RESET goes to each module's individual address and group, so the
+        next start-up (this driver's or Kerr's) finds a fresh chain.
+        """
+        with self.lock:
+            burst = bytearray(NULLS_RESYNC)
+            for m in reversed(self.modules):
+                burst += codec.hard_reset(m.address)
+            for g in sorted({codec.GROUP_ALL, *self.groups.values()}):
+                burst += codec.hard_reset(g)
+            self._write(bytes(burst))
+            self.clock.sleep(0.1)
+            self._set_host_baud(codec.POWER_UP_BAUD)
+            self.flush_input()
+            self.modules = []
+            self.items.clear()
+            self.leaders.clear()
+            self.groups.clear()
+
+    def reopen(self) -> list[ModuleInfo]:
+        """After a disconnect: open the port again and check every known module still answers.
+
+        The modules keep their addresses, rate and positions (nothing is
+        reset); raises :class:`LinkError` if the port or a module stays away.
+        """
+        with self.lock:
+            if isinstance(self._url, str):
+                try:
+                    self.port.close()
+                except (serial.SerialException, OSError):
+                    pass
+                self.port, self.clock = open_port(self._url, self.baud, reply_timeout(2))
+            self.link_up = True
+            self._storm = 0
+            self.flush_input()
+            for info in self.modules:
+                self.resync(info.address)
+            self._last.clear()
+            return list(self.modules)
 
     def set_group(self, address: int, group: int, *, leader: bool = False) -> None:
         """Put a module in a group (0x80..0xFF); at most one leader per group."""
         with self.lock:
             self.transact(codec.set_addr(address, address, group, leader=leader))
+            self.groups[address] = group
             for g, a in list(self.leaders.items()):
                 if a == address:
                     del self.leaders[g]
