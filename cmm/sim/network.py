@@ -15,11 +15,20 @@ Wire model
 - Any host byte arriving while a reply is pending or being sent aborts the
   rest of that reply (all modules stop transmitting).
 - Baud: each module has its own rate (19200 at power-up; SET_BAUD switches
-  after the reply). If the host's rate differs from a module's, the module
-  receives nothing from the host (framing errors, dropped) and the host
-  receives nothing from it: the host sees a time-out, as with real hardware
-  whose garbage bytes a driver would discard. ``host_baud=None`` means the
-  host always matches (a TCP link, which carries no line rate).
+  after the reply). The rate comes from the divisor and the module's 20 MHz
+  clock (rate = 20 MHz / (16 (BRD + 1)), the PIC's UART formula; it gives the
+  thesis's table 129/63/20/10 and Kerr's library's 64/21/10 alike); a host
+  whose rate is within UART_TOLERANCE of it is understood, as by a real UART.
+  A divisor whose rate is within the tolerance of no standard PC rate would
+  make the module unreachable until a power cycle: the simulated module keeps
+  its rate instead (a choice; the data sheet is silent). If the host's rate
+  does not match a module's, the module receives nothing from the host
+  (framing errors, dropped) and the host receives nothing from it: the host
+  sees a time-out, as with real hardware whose garbage bytes a driver would
+  discard. Each host byte is judged by the host's rate when it was written,
+  so a host may switch its rate as soon as its command is sent, however long
+  the emulated wire takes. ``host_baud=None`` means the host always matches
+  (a TCP link, which carries no line rate).
 - Two modules replying to the same packet (duplicate addresses) collide:
   their bytes are OR-ed, as garbage a host checksum will reject.
 """
@@ -34,7 +43,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from cmm.nmc import codec as c
-from cmm.sim.picservo import PicServo
+from cmm.sim.picservo import PicServo, divisor_rate, rates_match, standard_rate
 from cmm.sim.plant import DEFAULT_PLANT, Plant, PlantParams
 
 if TYPE_CHECKING:
@@ -120,7 +129,7 @@ class SimNetwork:
         self.host_baud: int | None = c.POWER_UP_BAUD
         self.tick = 0  # completed base ticks
         self.now_ns = 0
-        self._rx: deque[tuple[int, int]] = deque()  # (arrival ns, byte) not yet fed
+        self._rx: deque[tuple[int, int, int | None]] = deque()  # (arrival ns, byte, host rate) not yet fed
         self._host_tx_free = 0  # when the host's line is free again
         self._seq = 0  # host bytes fed so far
         self._arrivals: list[_Arrival] = []
@@ -163,16 +172,17 @@ class SimNetwork:
         """Bytes the host puts on the command line now."""
         self.sync()
         t = self.now_ns
+        rate = self.host_baud  # each byte is judged at the rate it was sent with
         if self.wire_time:
-            per = byte_ns(self.host_baud or self.modules[0].baud or c.POWER_UP_BAUD)
+            per = byte_ns(rate or self.modules[0].baud)
             t = max(t, self._host_tx_free)
             for b in data:
                 t += per
-                self._rx.append((t, b))
+                self._rx.append((t, b, rate))
             self._host_tx_free = t
         else:
             for b in data:
-                self._rx.append((t, b))
+                self._rx.append((t, b, rate))
             self._feed_until(t, inclusive=True)
 
     def host_read(self, size: int | None = None) -> bytes:
@@ -268,22 +278,21 @@ class SimNetwork:
     def _feed_until(self, t_ns: int, inclusive: bool) -> None:
         rx = self._rx
         while rx and (rx[0][0] <= t_ns if inclusive else rx[0][0] < t_ns):
-            t, b = rx.popleft()
-            self._feed(t, b)
+            t, b, rate = rx.popleft()
+            self._feed(t, b, rate)
 
-    def _feed(self, t: int, b: int) -> None:
+    def _feed(self, t: int, b: int, host_baud: int | None) -> None:
         self._seq += 1
         tx = self._tx
         if tx:  # a new byte aborts the reply in progress
             while tx and tx[-1][0] >= t:
                 tx.pop()
             self._tx_free = tx[-1][1] if tx else t
-        host_baud = self.host_baud
         tick = t // TICK_NS
         if tick < self.tick:
             tick = self.tick
         for i, m in enumerate(self.modules):
-            if not m.comms_enabled or not m.baud or (host_baud is not None and m.baud != host_baud):
+            if not m.comms_enabled or not rates_match(m.line_rate, host_baud):
                 continue
             packet = self._parsers[i].feed(b)
             if packet is not None:
@@ -317,7 +326,7 @@ class SimNetwork:
         for a in due:  # SET_BAUD takes effect once its reply has been sent
             m = self.modules[a.module]
             if m.pending_baud is not None:
-                m.baud, m.pending_baud = m.pending_baud, None
+                (m.baud, m.line_rate), m.pending_baud = m.pending_baud, None
 
     def _execute_one(self, m: PicServo, packet: bytes) -> bytes | None:
         """Execute a packet a module received; return its reply if it sends one."""
@@ -333,7 +342,10 @@ class SimNetwork:
         data = packet[3:-1]
         reply = m.execute(code, data)
         if code == c.SET_BAUD and len(data) == 1:
-            m.pending_baud = c.baud_from_divisor(data[0], self.firmware) or 0  # unknown: unreachable
+            rate = divisor_rate(data[0], self.firmware)
+            nominal = standard_rate(rate)
+            if nominal is not None:  # else no host could reach the module again: it keeps its rate
+                m.pending_baud = (nominal, rate)
         elif code in (c.SET_ADDR, c.HARD_RESET):
             if code == c.HARD_RESET:
                 self._parsers[self.modules.index(m)].reset()
@@ -345,8 +357,8 @@ class SimNetwork:
         for _, other in group[1:]:  # bus collision
             reply = bytes(x | y for x, y in zip(reply, other))
         m = group[0][0]
-        matched = m.baud and (self.host_baud is None or self.host_baud == m.baud)
-        per = byte_ns(m.baud) if self.wire_time and m.baud else 0
+        matched = rates_match(m.line_rate, self.host_baud)
+        per = byte_ns(m.baud) if self.wire_time else 0
         t = max(tick_end, self._tx_free)
         for b in reply:
             start = t

@@ -18,6 +18,38 @@ import struct
 from cmm.nmc import codec as c
 from cmm.sim.plant import Plant
 
+# A 16x-oversampling UART samples mid-bit; the stop bit of an 8N1 byte (9.5 bit
+# times after the start edge) is still read correctly while the two ends differ
+# by less than (0.5 - 1/16) / 9.5 = 4.6 %.
+UART_TOLERANCE = 0.045
+STANDARD_RATES = (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+MODULE_CLOCK_HZ = 20_000_000  # the thesis's PIC-SERVO crystal; the UART divides it by 16 (BRD + 1)
+
+
+def divisor_rate(divisor: int, firmware: str = "pic-servo") -> float:
+    """The line rate a module runs at after SET_BAUD ``divisor``.
+
+    Kerr's library sends divisor 5 for 230400 baud to SC modules, which the
+    20 MHz formula (208 kbaud, 9.6 % off) cannot give: the simulator takes the
+    library's table for it (a choice; the data sheet facts do not say how)."""
+    if firmware == "pic-servo-sc" and divisor == 5:
+        return 230400.0
+    return MODULE_CLOCK_HZ / (16 * (divisor + 1))
+
+
+def standard_rate(rate: float) -> int | None:
+    """The standard PC rate a UART at ``rate`` can talk to, if any."""
+    for r in STANDARD_RATES:
+        if abs(rate - r) <= UART_TOLERANCE * r:
+            return r
+    return None
+
+
+def rates_match(module_rate: float, host_rate: float | None) -> bool:
+    """Does a UART at ``host_rate`` understand one at ``module_rate``? (None: a link without a rate)"""
+    return host_rate is None or (host_rate > 0 and abs(module_rate - host_rate) <= UART_TOLERANCE * host_rate)
+
+
 # Profile state.
 HOLD, TRAPEZOID, VELOCITY = 0, 1, 2
 
@@ -60,8 +92,9 @@ class PicServo:
         self.leader = False
         self.addr_out_low = False  # ADDR_OUT goes low on the first SET_ADDR
         self.comms_enabled = False  # latched once ADDR_IN is seen low
-        self.baud = c.POWER_UP_BAUD
-        self.pending_baud: int | None = None  # set by SET_BAUD, applied after the reply
+        self.baud = c.POWER_UP_BAUD  # the standard rate the module's UART runs at (nominal)
+        self.line_rate = divisor_rate(c.BAUD_DIVISORS[self.firmware][c.POWER_UP_BAUD], self.firmware)  # actual
+        self.pending_baud: tuple[int, float] | None = None  # (nominal, actual) set by SET_BAUD, applied after the reply
         self.stat_items = 0  # status byte only
         # Gains: all zero, SR for 1.953 kHz.
         self.kp = self.kd = self.ki = self.il = self.ol = self.cl = self.el = self.db = 0

@@ -11,7 +11,12 @@ batch, and sends back the status bytes whose time has come. Hold
   rate, so the host is assumed to follow the modules' baud rate.
 - PTY: the device path works with any serial program. The line rate the
   client sets with termios is the host's baud rate: after SET_BAUD the client
-  must switch, as on a real port.
+  must switch, as on a real port. This is the faithful path for a host's baud
+  handling. The rate is read before the bytes, and bytes are judged by the
+  rate they were sent with. ``tcdrain`` returns at once on a pty, so a host
+  may switch right after writing; when the serving thread sees new bytes and a
+  new rate in the same look (it was late), it cannot tell which came first and
+  takes the rate the modules listen at, new before old.
 """
 
 from __future__ import annotations
@@ -24,7 +29,8 @@ import threading
 import tty
 from dataclasses import dataclass, field
 
-from cmm.sim.network import SimNetwork
+from cmm.nmc import codec as c
+from cmm.sim.network import SimNetwork, rates_match
 
 _POLL_S = 0.0005  # loop period when idle: below one servo tick
 _SPEEDS = {getattr(termios, f"B{r}"): r for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
@@ -62,13 +68,33 @@ class ServedSim:
         self.close()
 
 
-def _pump(network: SimNetwork, data: bytes | None) -> bytes:
-    """One step of the real-time loop: take host bytes, catch up, return reply bytes."""
+_SAME = object()
+
+
+def _pump(network: SimNetwork, data: bytes | None, sent_at: object = _SAME, rate_now: object = _SAME) -> bytes:
+    """One step of the real-time loop: take host bytes (sent at host rate ``sent_at``; the host's
+    rate is ``rate_now`` from then on), catch up, return reply bytes."""
     with network.lock:
-        if data:
-            network.host_write(data)
         network.sync()
+        if data:
+            if sent_at is not _SAME:
+                network.host_baud = sent_at  # type: ignore[assignment]
+            network.host_write(data)
+        if rate_now is not _SAME:
+            network.host_baud = rate_now  # type: ignore[assignment]
         return network.host_read()
+
+
+def _sent_rate(network: SimNetwork, before: int, after: int) -> int:
+    """Bytes that came with a rate change seen in the same look: the rate they were sent at.
+
+    A host switches either right after its SET_BAUD command (modules still at the
+    old rate) or before talking to modules that have switched: take the rate
+    some module listens at, the new one first."""
+    for rate in (after, before):
+        if any(m.comms_enabled and rates_match(m.line_rate, rate) for m in network.modules):
+            return rate
+    return after
 
 
 def _wait_s(network: SimNetwork) -> float:
@@ -154,19 +180,26 @@ def serve_pty(network: SimNetwork) -> ServedSim:
     sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(master, selectors.EVENT_READ)
 
+    def speed(last: int) -> int:
+        try:  # the client's termios speed is the host's line rate
+            return _SPEEDS.get(termios.tcgetattr(slave)[5], 0)
+        except termios.error:
+            return last
+
     def loop() -> None:
+        last = c.POWER_UP_BAUD
         while not handle._stop.is_set():
             data = None
-            if sel.select(_wait_s(network)):
+            ready = sel.select(_wait_s(network))
+            now = speed(last)  # before the bytes: they were written before this look
+            if ready:
                 try:
                     data = os.read(master, 4096)
                 except (BlockingIOError, OSError):
                     data = None
-            try:  # the client's termios speed is the host's line rate
-                network.host_baud = _SPEEDS.get(termios.tcgetattr(slave)[5], 0)
-            except termios.error:
-                pass
-            out = _pump(network, data)
+            sent = _sent_rate(network, last, now) if data and now != last else now
+            last = now
+            out = _pump(network, data, sent, now)
             if out:
                 try:
                     os.write(master, out)
