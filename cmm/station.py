@@ -52,10 +52,15 @@ class Feature:
     hit_ids: list[int]
     result: FitResult
     nominal: NominalFeature | None = None
+    tolerance: dict[str, float] | None = None  # {"size", "form", "location", "position"}: DEFAULT_TOLERANCE otherwise
 
     def summary(self) -> dict[str, Any]:
         return {"id": self.id, "name": self.name, "hit_ids": self.hit_ids, **self.result.summary(),
-                "nominal": None if self.nominal is None else self.nominal.to_dict()}
+                "nominal": None if self.nominal is None else self.nominal.to_dict(), "tolerance": self.tolerance}
+
+
+INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
+TOLERANCE_KEYS = ("size", "form", "location", "position", "angle")
 
 
 class Station:
@@ -101,6 +106,8 @@ class Station:
         self.journal: Journal | None = None
         self.machine.on_event(lambda kind, info: self._notify(kind, info))
         self.calibration_log: list[str] = []
+        self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}
+        self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
         self.calibration_dir = None if calibration_dir is None else Path(calibration_dir)  # records are read and written here
         if calibration_dir is not None:
             self.load_calibration(calibration_dir)
@@ -176,9 +183,12 @@ class Station:
 
     def _notify(self, kind: str, info: Any) -> None:
         if kind in ("contact", "deadman", "limit", "error", "estop"):
-            self.events.append((time.time(), kind, str(info)))
+            from .session.wording import event_text
+
+            text = event_text(kind, info)
+            self.events.append((time.time(), kind, text))
             try:
-                self._record("error", source=f"machine:{kind}", message=str(info))
+                self._record("error", source=f"machine:{kind}", message=text)
             except (OSError, ValueError, TypeError):  # the session may be closing
                 pass
         for fn in list(self._listeners):
@@ -208,6 +218,14 @@ class Station:
         for problem in loaded.problems:
             self.events.append((time.time(), "error", f"calibration record refused: {problem}"))
         self.calibration_log = applied + [f"refused: {p}" for p in loaded.problems]
+        self.calibration_status = {
+            "probe": None if loaded.probe is None else {"date": loaded.probe.date, "tip_radius": loaded.probe.tip_radius,
+                                                        "artifact": loaded.probe.artifact,
+                                                        "probing_speed": loaded.probe.probing_speed},
+            "machine": None if loaded.machine is None else {"date": loaded.machine.date,
+                                                            "scale_ppm": list(loaded.machine.scale_ppm),
+                                                            "squareness_urad": list(loaded.machine.squareness_urad)},
+            "problems": list(loaded.problems)}
         return self.calibration_log
 
     # --- session ----------------------------------------------------------------
@@ -231,11 +249,37 @@ class Station:
             part = self.part
             self.journal.append("start", port=str(self.port),  # configuration + calibration snapshot
                                 **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
+                                calibration=self.calibration_status,
                                 part=None if part is None else part.name,
                                 part_pose=None if part is None else part.pose,
                                 part_sha256=None if part is None else mesh_sha256(part.mesh),
                                 part_path=None if part is None else part.mesh.metadata.get("path"))
+            if self.info:
+                self.journal.append("info", **self.info)
             return path
+
+    def set_info(self, **fields: Any) -> dict[str, Any]:
+        """Report header fields (part_number, drawing, operator, machine_name, temperature in deg C, remarks)."""
+        unknown = sorted(set(fields) - set(INFO_FIELDS))
+        if unknown:
+            raise StationError(f"unknown report field(s) {', '.join(unknown)}; use {', '.join(INFO_FIELDS)}")
+        clean: dict[str, Any] = {}
+        for k, v in fields.items():
+            if k == "temperature" and v not in (None, ""):
+                try:
+                    t = float(v)
+                except (TypeError, ValueError):
+                    raise StationError(f"the temperature must be a number of degrees Celsius, got {v!r}") from None
+                if not -50.0 <= t <= 100.0:
+                    raise StationError(f"a temperature of {t} °C is not plausible for a measuring room")
+                clean[k] = t
+            else:
+                clean[k] = "" if v is None else str(v).strip()
+        with self.lock:
+            self.info.update(clean)
+            self._record("info", **clean)
+        self._notify("info", dict(self.info))
+        return dict(self.info)
 
     def _record(self, kind: str, **data: Any) -> None:
         if self.journal is not None:
@@ -312,9 +356,22 @@ class Station:
         n = np.asarray(normal, float)
         return self.probe(point, -n)
 
+    @property
+    def qualified_probing_speed(self) -> float:
+        """The speed the probe was qualified at (its record), else the configured probing speed (mm/s)."""
+        probe = self.calibration_status.get("probe") or {}
+        speed = float(probe.get("probing_speed") or 0.0)
+        return speed if speed > 0 else float(self.config.speeds.probing)
+
     def jog_probe(self, velocity: Any) -> None:
-        """Jog with the probe armed: a trigger takes a manual hit."""
-        self.prober.jog_probe(velocity)
+        """Jog with the probe armed: a trigger takes a manual hit, at no more than the qualified probing speed
+        (the pre-travel calibration holds only at that speed)."""
+        v = np.asarray(velocity, dtype=np.float64).reshape(3)
+        speed = float(np.linalg.norm(v))
+        limit = self.qualified_probing_speed
+        if speed > limit:
+            v = v * (limit / speed)
+        self.prober.jog_probe(v)
 
     def _on_hit(self, hit: Hit) -> None:
         with self.lock:
@@ -356,8 +413,15 @@ class Station:
     # --- features ----------------------------------------------------------------
 
     def fit_feature(self, kind: str, hit_ids: list[int], method: str = "ls", name: str | None = None,
-                    nominal: NominalFeature | None = None) -> Feature:
-        """Fit a feature to hits: fit the pre-travel-corrected tip centres, then offset by the tip radius."""
+                    nominal: NominalFeature | None = None, tolerance: dict[str, float] | None = None,
+                    *, feature_id: int | None = None) -> Feature:
+        """Fit a feature to hits: fit the pre-travel-corrected tip centres, then offset by the tip radius.
+
+        Without a ``nominal`` the part's CAD surface the hits lie on gives it
+        (:func:`cmm.metrology.nominal_match.nominal_for_points`). ``feature_id``
+        refits an existing feature in place (a hit deleted or re-taken).
+        """
+        tolerance = check_tolerance(tolerance)
         if kind not in FEATURE_KINDS:
             raise StationError(f"unknown feature kind {kind!r}; choose one of {', '.join(FEATURE_KINDS)}")
         with self.lock:
@@ -365,19 +429,59 @@ class Station:
             if missing:
                 raise StationError(f"no hits with ids {missing}")
             hits = [self.hits[h] for h in hit_ids]
+        part = self.part
+        if nominal is None and part is not None:
+            from .metrology.nominal_match import nominal_for_points
+
+            try:
+                nominal = nominal_for_points(part.mesh, part.pose, [h.point for h in hits], kind)
+            except Exception:  # noqa: BLE001 - a nominal is help; the fit stands without one
+                nominal = None
         try:
             result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
         except FitError as exc:
             raise StationError(str(exc)) from None
         with self.lock:
-            fid = self._next_feature
-            self._next_feature += 1
-            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal)
+            if feature_id is None:
+                fid = self._next_feature
+                self._next_feature += 1
+            else:
+                fid = feature_id
+            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal, tolerance)
             self.features[fid] = feature
-            self._record("feature", id=fid, name=feature.name, hit_ids=list(hit_ids), **feature_fields(result),
-                         nominal=None if nominal is None else nominal.to_dict())
+            self._record_feature(feature)
         self._notify("feature", feature)
         return feature
+
+    def _record_feature(self, feature: Feature) -> None:
+        extra = {} if feature.tolerance is None else {"tolerance": feature.tolerance}
+        self._record("feature", id=feature.id, name=feature.name, hit_ids=list(feature.hit_ids),
+                     **feature_fields(feature.result),
+                     nominal=None if feature.nominal is None else feature.nominal.to_dict(), **extra)
+
+    def refit_feature(self, fid: int, hit_ids: list[int]) -> Feature:
+        """Fit feature ``fid`` again to other hits (one deleted or re-taken); keeps its name, nominal, tolerance."""
+        with self.lock:
+            f = self.features.get(fid)
+            if f is None:
+                raise StationError(f"there is no feature {fid}")
+        return self.fit_feature(f.kind, list(hit_ids), f.method, f.name, f.nominal, f.tolerance, feature_id=fid)
+
+    def set_feature_nominal(self, fid: int, nominal: NominalFeature | None = None,
+                            tolerance: dict[str, float] | None = None) -> Feature:
+        """Edit a feature's nominal and/or tolerance (typed or from a CAD pick); recorded as a new fit event."""
+        tolerance = check_tolerance(tolerance)
+        with self.lock:
+            f = self.features.get(fid)
+            if f is None:
+                raise StationError(f"there is no feature {fid}")
+            if nominal is not None:
+                f.nominal = nominal
+            if tolerance is not None:
+                f.tolerance = {**(f.tolerance or {}), **tolerance}
+            self._record_feature(f)
+        self._notify("feature", f)
+        return f
 
     def delete_feature(self, fid: int) -> None:
         with self.lock:
@@ -419,3 +523,21 @@ class Station:
             if time.monotonic() > end:
                 raise MotionError("the machine is still busy")
             time.sleep(0.01)
+
+
+def check_tolerance(tolerance: dict[str, float] | None) -> dict[str, float] | None:
+    """Validate a feature tolerance: known keys, positive finite mm (degrees for ``angle``)."""
+    if tolerance is None:
+        return None
+    out: dict[str, float] = {}
+    for k, v in tolerance.items():
+        if k not in TOLERANCE_KEYS:
+            raise StationError(f"unknown tolerance {k!r}; use {', '.join(TOLERANCE_KEYS)}")
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            raise StationError(f"the {k} tolerance must be a number, got {v!r}") from None
+        if not (x > 0 and x < 1e3):
+            raise StationError(f"the {k} tolerance must be a positive number, got {v!r}")
+        out[k] = x
+    return out

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -54,3 +56,55 @@ def test_session_names_are_checked_by_the_station_itself(station, tmp_path, bad)
     assert not (tmp_path.parent.parent / "escape.jsonl").exists()
     station.note("still recording")  # the session that was open goes on
     assert station.journal is not None and station.journal.path.name == "recorded.jsonl"
+
+
+def test_report_fields_cad_nominals_tolerances_and_refit(station, tmp_path):
+    """Header fields are journaled; a feature fitted without a pick gets the CAD surface its hits lie on;
+    tolerances are validated and kept; deleting a hit from a feature refits it in place."""
+    from cmm.station import StationError
+
+    station.set_info(operator="A. Operator", drawing="DWG-1", temperature="20.5")
+    with pytest.raises(StationError, match="degrees Celsius"):
+        station.set_info(temperature="warm")
+    with pytest.raises(StationError, match="unknown report field"):
+        station.set_info(colour="blue")
+    pose = station.part.pose  # not aligned: the simulator's part is a few tenths off, within the match distance
+    ids = []
+    for a in np.radians([10, 100, 190, 280]):
+        n = np.array([np.cos(a), np.sin(a), 0.0])
+        p = (pose @ np.append(np.array([70.0, 22.0, 47.0]) + 10.0 * n, 1.0))[:3]
+        hit = station.probe(p, -(pose[:3, :3] @ n), clearance_z=70.0).wait(30)
+        ids.append(next(i for i, h in station.hits.items() if h is hit))
+    with pytest.raises(StationError, match="positive"):
+        station.fit_feature("circle", ids, tolerance={"size": -1})
+    f = station.fit_feature("circle", ids, name="boss ring", tolerance={"size": 0.01, "position": 0.05})
+    assert f.nominal is not None and f.nominal.kind == "cylinder" and f.nominal.params["radius"] == pytest.approx(10.0)
+    g = station.refit_feature(f.id, ids[:3])
+    assert g.id == f.id and g.hit_ids == ids[:3] and g.nominal is f.nominal and g.tolerance == f.tolerance
+    station.set_feature_nominal(f.id, tolerance={"form": 0.005})
+    station.journal.close()
+    s = load_session(DirectoryStore(tmp_path), "recorded")
+    assert s.state.info == {"operator": "A. Operator", "drawing": "DWG-1", "temperature": 20.5}
+    assert s.start["calibration"] == {"probe": None, "machine": None, "problems": []}
+    (rec,) = s.features.values()
+    assert rec.hit_ids == tuple(ids[:3]) and rec.tolerance == {"size": 0.01, "position": 0.05, "form": 0.005}
+    assert rec.nominal["kind"] == "cylinder"
+
+
+def test_manual_hits_are_taken_at_the_qualified_probing_speed(station):
+    """An armed jog at the 10 mm/s jog speed probes at the probing speed the probe was qualified at."""
+    assert station.qualified_probing_speed == station.config.speeds.probing
+    station.calibration_status = {**station.calibration_status, "probe": {"date": "x", "probing_speed": 1.5}}
+    assert station.qualified_probing_speed == 1.5
+    pose = station.part.pose
+    above = (pose @ np.array([20.0, 15.0, 41.5, 1.0]))[:3]
+    station.move_to(above).wait(30)
+    before = len(station.hits)
+    end = time.monotonic() + 20
+    while len(station.hits) == before and time.monotonic() < end:
+        station.jog_probe([0.0, 0.0, -10.0])
+        time.sleep(0.05)
+    station.jog_release()
+    assert len(station.hits) == before + 1
+    hit = station.hits[max(station.hits)]
+    assert hit.mode == "manual" and hit.speed == pytest.approx(1.5, rel=1e-6)

@@ -5,7 +5,8 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
 - ``start``: the machine and probe snapshot the session was recorded with:
   ``config`` (file name), ``port``, ``tip_radius``, ``pretravel`` (model
   coefficients), ``part``/``part_pose``/``part_sha256`` and, since format 2,
-  ``format``, ``axes`` (name, counts_per_mm, direction, home, min, max per
+  ``format``, ``calibration`` (the records in force: ``probe`` / ``machine``
+  each with ``date`` and their figures, or None), ``axes`` (name, counts_per_mm, direction, home, min, max per
   axis), ``correction`` (scale_ppm, squareness_urad), ``probe`` (the
   configured probe) and ``speeds``; a derived session adds ``derived_from``.
 - ``part``: ``name``, ``pose`` (4x4 part -> machine), ``sha256``, ``path``.
@@ -20,6 +21,9 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
   ``point``, ``normal``, ``center``, ``radius``, ``diameter``...), ``nominal``
   (machine coordinates) and optional ``tolerance`` ({"size", "form", "location"}).
 - ``feature_deleted``: ``id``.
+- ``info``: the report header an operator filled in: any of ``part_number``,
+  ``drawing``, ``operator``, ``machine_name``, ``temperature`` (deg C), ``remarks``;
+  later events update earlier ones.
 - ``note``: ``text``. ``error``: ``message`` and ``source`` (e.g. "machine:limit").
 - ``program``: ``name``, ``sha256`` of a program that ran (``status``).
 
@@ -35,8 +39,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ..metrology.characteristics import DEFAULT_TOLERANCE  # noqa: F401 - one definition (mm, +- for size/location)
+
 FORMAT = 2
-DEFAULT_TOLERANCE = {"size": 0.02, "form": 0.02, "location": 0.02}  # mm, +- for size/location
 
 
 @dataclass(frozen=True)
@@ -147,13 +152,14 @@ class SessionState:
     hit_pose: dict[int, tuple[tuple[float, ...], ...] | None] = field(default_factory=dict)
     unaligned: list[int] = field(default_factory=list)
     aligned: bool = False  # an alignment was made since the part was (re)loaded
+    info: dict[str, Any] = field(default_factory=dict)  # report header fields (``info`` events)
     last_event: dict | None = None
 
     def copy(self) -> "SessionState":
         """An independent copy (records are immutable, so shallow container copies suffice)."""
         return replace(self, hits=dict(self.hits), deleted_hits=dict(self.deleted_hits), features=dict(self.features),
                        alignments=list(self.alignments), notes=list(self.notes), errors=list(self.errors),
-                       hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned))
+                       hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned), info=dict(self.info))
 
     @property
     def pose_array(self) -> np.ndarray | None:
@@ -215,6 +221,8 @@ class SessionState:
             self.features[rec.id] = rec
         elif kind == "feature_deleted":
             self.features.pop(int(event["id"]), None)
+        elif kind == "info":
+            self.info.update({k: v for k, v in event.items() if k not in ("seq", "time", "kind")})
         elif kind == "note":
             self.notes.append((self.seq, str(event.get("text", ""))))
         elif kind == "error":

@@ -1,100 +1,80 @@
-"""Inspection report: one self-contained HTML file that prints well to PDF.
+"""Inspection report: one self-contained HTML file a quality engineer hands to a customer, and its CSV.
 
-Contents: session header (part, hash, probe, alignment), a feature table
-(nominal, actual, deviation, tolerance, pass/fail for size, location and
-form), a deviation plot of every hit against the part mesh, and top and
-front orthographic views of the part (its feature edges and outline) with
-the hits as dots coloured by deviation. Inline SVG and CSS only: no
-JavaScript, no external files. Tolerances come from a program's feature
-definitions, else from the recorded feature, else ``DEFAULT_TOLERANCE``
-(+-0.02 mm size and location, 0.02 mm form).
+Contents: a header (part and part number, drawing, operator, machine,
+calibration status and date, temperature, session, alignment), the verdict,
+a warning when no alignment was made, the feature table (nominal, tolerances,
+actual, deviation, out of tolerance, pass/fail per characteristic, see
+:mod:`cmm.metrology.characteristics`), a colour-coded deviation plot of every
+hit, top and front views of the part with the hits in the same colour scale
+as the 3D scene (:mod:`cmm.metrology.colour_scale`) and its legend, a form
+plot per feature (residuals of its hits: polar for circles, cylinders and
+spheres), and the machine events worded for people. Inline SVG and CSS
+only: no JavaScript, no external files; the print CSS makes an A4 PDF from
+any browser's *Print*. :func:`features_csv` gives the feature table as CSV.
+
+Tolerances come from a program's feature definitions, else from the recorded
+feature, else ``DEFAULT_TOLERANCE`` (+-0.02 mm size and location, 0.02 mm
+form, position zone diameter 0.04 mm).
 """
 
 from __future__ import annotations
 
+import csv
 import html
+import io
 import math
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..metrology.characteristics import Characteristic, characteristics, verdict
+from ..metrology.colour_scale import ColourScale
+from ..metrology.feature_distance import around_axis, surface_distance
 from .export import hit_deviations
 from .model import DEFAULT_TOLERANCE, FeatureRecord, Session
+from .wording import error_text, grouped
+
+NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "
+                "where it was measured to be. Deviations from the part and positions include the set-up error.")
+HEADER_FIELDS = (("part_number", "part number"), ("drawing", "drawing"), ("operator", "operator"),
+                 ("machine_name", "machine"), ("temperature", "temperature"), ("remarks", "remarks"))
 
 
-@dataclass
-class Row:
-    feature: str
-    characteristic: str
-    nominal: float | None
-    actual: float
-    deviation: float | None
-    tolerance: float
-    ok: bool
-
-
-def _unit(v: Any) -> np.ndarray:
-    v = np.asarray(v, dtype=np.float64)
-    return v / np.linalg.norm(v)
-
-
-def feature_rows(f: FeatureRecord, tolerance: dict[str, float]) -> list[Row]:
-    """Size, location and form characteristics of one feature against its nominal."""
-    g, nom = f.fit, f.nominal or {}
-    tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
-    rows: list[Row] = []
-    if "radius" in g and f.kind in ("circle", "sphere", "cylinder"):
-        n = 2 * float(nom["radius"]) if "radius" in nom else None
-        a = 2 * float(g["radius"])
-        d = None if n is None else a - n
-        rows.append(Row(f.name, "diameter", n, a, d, tol["size"], d is None or abs(d) <= tol["size"]))
-    loc = None
-    if nom:
-        if f.kind == "plane" and "normal" in nom and "point" in g:
-            n = _unit(nom["normal"])
-            loc = float((np.asarray(g["point"]) - np.asarray(nom["point"])) @ n)
-            rows.append(Row(f.name, "location along normal", 0.0, loc, loc, tol["location"], abs(loc) <= tol["location"]))
-        elif f.kind == "sphere" and "center" in nom and "center" in g:
-            loc = float(np.linalg.norm(np.asarray(g["center"]) - np.asarray(nom["center"])))
-        elif f.kind in ("cylinder", "circle") and "direction" in nom:
-            axis = _unit(nom["direction"])
-            p = np.asarray(g.get("point", g.get("center")))
-            rel = p - np.asarray(nom["point"] if "point" in nom else nom["center"])
-            loc = float(np.linalg.norm(rel - (rel @ axis) * axis))
-        elif f.kind == "cone" and "apex" in nom and "apex" in g:
-            loc = float(np.linalg.norm(np.asarray(g["apex"]) - np.asarray(nom["apex"])))
-        if loc is not None and f.kind != "plane":
-            rows.append(Row(f.name, "position (distance)", 0.0, loc, loc, tol["location"], loc <= tol["location"]))
-    if f.kind != "point":
-        form = float(g.get("form", 0.0))
-        rows.append(Row(f.name, "form", 0.0, form, form, tol["form"], form <= tol["form"]))
-    return rows
+def feature_characteristics(f: FeatureRecord, tolerance: dict[str, float]) -> list[Characteristic]:
+    return characteristics(f.name, f.kind, f.fit, f.nominal, tolerance)
 
 
 # ------------------------------------------------------------------------ SVG pieces
 
 
 def deviation_colour(d: float, tol: float) -> str:
-    """Blue (-tol) -> green (0) -> red (+tol); beyond the band the end colours."""
-    t = max(-1.0, min(1.0, d / tol)) if tol > 0 else 0.0
-    green, end = (40, 160, 60), ((30, 80, 220) if t < 0 else (220, 40, 40))
-    r, g, b = (int(round(c0 + abs(t) * (c1 - c0))) for c0, c1 in zip(green, end))
-    return f"rgb({r},{g},{b})"
+    """CSS colour of a deviation on the shared scale (the 3D scene uses the same bands)."""
+    return ColourScale(tol).css(d)
 
 
-def deviation_plot(ids: list[int], devs: list[float], tol: float, width: int = 700, height: int = 220) -> str:
+def legend_html(scale: ColourScale) -> str:
+    items = "".join(f"<span class='sw'><i style='background:rgb{c}'></i>{html.escape(label)}</span>"
+                    for c, label in scale.legend())
+    return f"<div class='legend' aria-label='colour scale'>{items}</div>"
+
+
+def deviation_plot(ids: list[int], devs: list[float], scale: ColourScale, width: int = 700, height: int = 220) -> str:
     if not devs:
         return "<p class='muted'>No deviations: the part mesh is not available.</p>"
-    lim = max(tol * 1.5, max(abs(d) for d in devs) * 1.1)
-    left, right, top, bottom = 56, 10, 10, 28
+    tol = scale.tolerance
+    shown = [d for d in devs if abs(d) <= scale.max_distance] or [tol]
+    lim = max(tol * 2.5, max(abs(d) for d in shown) * 1.1)
+    left, right, top, bottom = 56, 10, 10, 30
     w, h = width - left - right, height - top - bottom
+
     def x(i: int) -> float:
         return left + (i + 0.5) * w / len(devs)
+
     def y(d: float) -> float:
-        return top + h / 2 - d / lim * h / 2
+        return top + h / 2 - max(-lim, min(lim, d)) / lim * h / 2
+
     parts = [f'<svg class="plot" viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
              f'xmlns="http://www.w3.org/2000/svg" role="img" aria-label="deviation of each hit">',
              f'<rect x="{left}" y="{y(tol):.1f}" width="{w}" height="{y(-tol) - y(tol):.1f}" fill="#e8f5e9"/>',
@@ -102,18 +82,24 @@ def deviation_plot(ids: list[int], devs: list[float], tol: float, width: int = 7
     for v in (tol, -tol):
         parts.append(f'<line x1="{left}" x2="{left + w}" y1="{y(v):.1f}" y2="{y(v):.1f}" stroke="#2e7d32" '
                      f'stroke-dasharray="4 3" stroke-width="0.8"/>')
+    # axis labels far enough apart not to overlap (at least 11 px)
+    labels: list[float] = []
     for v in (lim, tol, 0.0, -tol, -lim):
-        parts.append(f'<text x="{left - 4}" y="{y(v) + 3:.1f}" text-anchor="end" font-size="9">{v * 1000:+.1f}</text>')
+        if all(abs(y(v) - y(u)) >= 11 for u in labels):
+            labels.append(v)
+            parts.append(f'<text x="{left - 4}" y="{y(v) + 3:.1f}" text-anchor="end" font-size="9">{v * 1000:+.1f}</text>')
     parts.append(f'<text x="10" y="{top + h / 2:.1f}" font-size="9" transform="rotate(-90 10 {top + h / 2:.1f})" '
-                 'text-anchor="middle">deviation (um)</text>')
-    step = max(1, len(ids) // 20)
+                 'text-anchor="middle">deviation (µm)</text>')
+    step = max(1, math.ceil(len(ids) / max(1, w // 22)))  # hit numbers at least ~22 px apart
     for k, (i, d) in enumerate(zip(ids, devs)):
+        ring = ' stroke="#000"' if abs(d) > lim else ""
         parts.append(f'<line x1="{x(k):.1f}" x2="{x(k):.1f}" y1="{y(0):.1f}" y2="{y(d):.1f}" stroke="#bbb" stroke-width="0.6"/>')
-        parts.append(f'<circle cx="{x(k):.1f}" cy="{y(d):.1f}" r="3" fill="{deviation_colour(d, tol)}">'
-                     f'<title>hit {i}: {d * 1000:+.2f} um</title></circle>')
+        parts.append(f'<circle cx="{x(k):.1f}" cy="{y(d):.1f}" r="3" fill="{scale.css(d)}"'
+                     f'{ring}>'
+                     f'<title>hit {i}: {d * 1000:+.2f} µm</title></circle>')
         if k % step == 0:
-            parts.append(f'<text x="{x(k):.1f}" y="{height - 12}" font-size="8" text-anchor="middle">{i}</text>')
-    parts.append(f'<text x="{left + w / 2:.1f}" y="{height - 1}" font-size="9" text-anchor="middle">hit id</text></svg>')
+            parts.append(f'<text x="{x(k):.1f}" y="{height - 14}" font-size="8" text-anchor="middle">{i}</text>')
+    parts.append(f'<text x="{left + w / 2:.1f}" y="{height - 2}" font-size="9" text-anchor="middle">hit number</text></svg>')
     return "".join(parts)
 
 
@@ -139,7 +125,7 @@ def view_edges(mesh: Any, view: np.ndarray, angle_deg: float = 30.0) -> np.ndarr
     return np.concatenate(segs, axis=0)
 
 
-def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], tol: float, axes: tuple[int, int],
+def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], scale: ColourScale, axes: tuple[int, int],
               view: np.ndarray, title: str, size: tuple[int, int] = (340, 260)) -> str:
     """An orthographic view: mesh edges projected on ``axes`` (e.g. (0, 1) top, (0, 2) front) plus hit dots."""
     a, b = axes
@@ -153,8 +139,10 @@ def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], tol: floa
     W, H = size
     pad = 12
     s = min((W - 2 * pad) / span[0], (H - 2 * pad - 14) / span[1])
+
     def px(p: np.ndarray) -> tuple[float, float]:
         return pad + (p[a] - lo[0]) * s, H - pad - (p[b] - lo[1]) * s
+
     out = [f'<svg class="view" viewBox="0 0 {W} {H}" width="{W}" height="{H}" xmlns="http://www.w3.org/2000/svg" '
            f'role="img" aria-label="{html.escape(title)}"><text x="{pad}" y="12" font-size="10">{html.escape(title)}</text>',
            '<path fill="none" stroke="#555" stroke-width="0.5" d="']
@@ -167,103 +155,281 @@ def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], tol: floa
     for k in order:
         x, y = px(points[k])
         dv = devs[k]
-        colour = "#444" if dv is None else deviation_colour(dv, tol)
-        ring = ' stroke="#000" stroke-width="1"' if dv is not None and abs(dv) > tol else ""
-        out.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.2" fill="{colour}"{ring}/>')
+        ring = ' stroke="#000" stroke-width="1"' if dv is not None and scale.band(dv) != 0 else ""
+        out.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.4" fill="{scale.css(dv)}"{ring}/>')
     out.append("</svg>")
     return "".join(out)
+
+
+def form_plot(f: FeatureRecord, points: np.ndarray, form_tol: float, size: int = 170) -> str:
+    """Residuals of a feature's hits to its fitted geometry: polar (circle, cylinder, sphere, cone) or per hit."""
+    try:
+        res = surface_distance(f.kind, f.fit, points) if len(points) else np.zeros(0)
+        ang = around_axis(f.kind, f.fit, points) if len(points) else None
+    except (KeyError, ValueError, TypeError):
+        return ""
+    if f.kind == "point" or len(res) == 0:
+        return ""
+    title = html.escape(f"{f.name}: form {float(f.fit.get('form', 0.0)) * 1000:.1f} µm")
+    span = max(float(np.max(np.abs(res))), form_tol / 2, 1e-6)
+    W = H = size
+    out = [f'<svg class="form" viewBox="0 0 {W} {H + 14}" width="{W}" height="{H + 14}" '
+           f'xmlns="http://www.w3.org/2000/svg" role="img" aria-label="form plot {html.escape(f.name)}">',
+           f'<text x="2" y="10" font-size="9">{title}</text>']
+    if ang is not None:
+        cx, cy, r0, gain = W / 2, H / 2 + 12, W * 0.28, W * 0.16 / span
+        out.append(f'<circle cx="{cx}" cy="{cy}" r="{r0:.1f}" fill="none" stroke="#888" stroke-width="0.7"/>')
+        for t in (form_tol / 2, -form_tol / 2):
+            out.append(f'<circle cx="{cx}" cy="{cy}" r="{r0 + t * gain:.1f}" fill="none" stroke="#2e7d32" '
+                       'stroke-dasharray="3 2" stroke-width="0.6"/>')
+        order = np.argsort(ang)
+        pts = [(cx + (r0 + res[k] * gain) * math.cos(ang[k]), cy - (r0 + res[k] * gain) * math.sin(ang[k])) for k in order]
+        if len(pts) > 2 and f.kind in ("circle",):
+            out.append('<polygon fill="none" stroke="#1565c0" stroke-width="0.9" points="'
+                       + " ".join(f"{x:.1f},{y:.1f}" for x, y in pts) + '"/>')
+        for (x, y), k in zip(pts, order):
+            out.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.2" fill="#1565c0"><title>hit {f.hit_ids[k] if k < len(f.hit_ids) else k}: '
+                       f'{res[k] * 1000:+.2f} µm</title></circle>')
+        out.append(f'<text x="{W - 2}" y="{H + 12}" font-size="8" text-anchor="end">scale: ring = {span * 1000:.1f} µm</text>')
+    else:
+        left, top, w, h = 8, 16, W - 16, H - 12
+        mid = top + h / 2
+        out.append(f'<line x1="{left}" x2="{left + w}" y1="{mid}" y2="{mid}" stroke="#888" stroke-width="0.7"/>')
+        for t in (form_tol / 2, -form_tol / 2):
+            yy = mid - t / span * h / 2 * 0.9
+            out.append(f'<line x1="{left}" x2="{left + w}" y1="{yy:.1f}" y2="{yy:.1f}" stroke="#2e7d32" '
+                       'stroke-dasharray="3 2" stroke-width="0.6"/>')
+        for k, r in enumerate(res):
+            xx = left + (k + 0.5) * w / len(res)
+            yy = mid - r / span * h / 2 * 0.9
+            out.append(f'<line x1="{xx:.1f}" x2="{xx:.1f}" y1="{mid}" y2="{yy:.1f}" stroke="#1565c0" stroke-width="2">'
+                       f'<title>{r * 1000:+.2f} µm</title></line>')
+        out.append(f'<text x="{W - 2}" y="{H + 12}" font-size="8" text-anchor="end">full height = ±{span * 1000:.1f} µm</text>')
+    out.append("</svg>")
+    return "".join(out)
+
+
+# ------------------------------------------------------------------------ header helpers
+
+
+def _date(t: Any) -> str:
+    try:
+        return time.strftime("%Y-%m-%d %H:%M", time.localtime(float(t)))
+    except (TypeError, ValueError, OverflowError):
+        return "-"
+
+
+def calibration_text(start: dict) -> str:
+    """Calibration status and date from the session's start snapshot."""
+    cal = start.get("calibration")
+    if not isinstance(cal, dict):
+        return "not recorded in this session"
+    parts = []
+    probe, machine = cal.get("probe"), cal.get("machine")
+    if probe:
+        parts.append(f"probe qualified {str(probe.get('date', '?'))[:10]}")
+    else:
+        parts.append("probe not qualified (nominal tip radius)")
+    if machine:
+        parts.append(f"geometry calibrated {str(machine.get('date', '?'))[:10]}")
+    else:
+        parts.append("geometry not calibrated")
+    if cal.get("problems"):
+        parts.append(f"{len(cal['problems'])} record(s) refused")
+    return "; ".join(parts)
+
+
+def _tip_radius(start: dict) -> str:
+    r = start.get("tip_radius")
+    try:
+        return f"{float(r):.4f} mm"
+    except (TypeError, ValueError):
+        return "not recorded"
+
+
+def _pretravel(start: dict) -> str:
+    coef = start.get("pretravel") or {}
+    items = [f"{k} {float(v) * 1000:+.2f} µm" for k, v in coef.items() if isinstance(v, (int, float))]
+    return ", ".join(items) or "none"
+
+
+def _temperature(info: dict) -> str:
+    t = info.get("temperature")
+    if t is None or t == "":
+        return "not recorded"
+    try:
+        return f"{float(t):.1f} °C"
+    except (TypeError, ValueError):
+        return str(t)
 
 
 # ------------------------------------------------------------------------ the page
 
 CSS = """
-body { font: 11pt/1.35 system-ui, sans-serif; color: #111; margin: 24px auto; max-width: 760px; }
-h1 { font-size: 18pt; margin: 0 0 4px; } h2 { font-size: 13pt; margin: 18px 0 6px; border-bottom: 1px solid #ccc; }
-table { border-collapse: collapse; width: 100%; font-size: 9.5pt; }
-th, td { border: 1px solid #bbb; padding: 2px 5px; text-align: right; }
-th { background: #eee; } td.l, th.l { text-align: left; }
-tr.fail td { background: #ffebee; } td.ok { color: #1b5e20; font-weight: 600; } td.ng { color: #b71c1c; font-weight: 700; }
+body { font: 10.5pt/1.35 system-ui, sans-serif; color: #111; margin: 24px auto; max-width: 820px; }
+h1 { font-size: 17pt; margin: 0 0 4px; } h2 { font-size: 12.5pt; margin: 16px 0 6px; border-bottom: 1px solid #ccc; }
+table { border-collapse: collapse; width: 100%; font-size: 9pt; }
+th, td { border: 1px solid #bbb; padding: 2px 4px; text-align: right; white-space: nowrap; }
+th { background: #eee; } td.l, th.l { text-align: left; white-space: normal; }
+tr.fail td { background: #ffebee; } tr.none td { color: #666; }
+td.ok { color: #1b5e20; font-weight: 600; } td.ng { color: #b71c1c; font-weight: 700; }
+tr.feat td { border-top: 2px solid #777; }
 .muted { color: #666; } .warn { color: #b71c1c; border: 1px solid #b71c1c; padding: 4px 8px; }
-.views { display: flex; gap: 12px; flex-wrap: wrap; } svg { background: #fff; }
-dl { display: grid; grid-template-columns: max-content auto; gap: 1px 12px; margin: 0; font-size: 9.5pt; }
-dt { color: #555; } dd { margin: 0; word-break: break-all; }
+.verdict { font-size: 13pt; font-weight: 700; padding: 4px 10px; display: inline-block; border: 2px solid; }
+.verdict.PASS { color: #1b5e20; } .verdict.FAIL { color: #b71c1c; } .verdict.INCOMPLETE { color: #8a6d00; }
+.views, .forms { display: flex; gap: 10px; flex-wrap: wrap; } svg { background: #fff; }
+.head { display: grid; grid-template-columns: 1fr 1fr; gap: 0 24px; }
+dl { display: grid; grid-template-columns: max-content auto; gap: 1px 10px; margin: 0; font-size: 9.5pt;
+  align-content: start; }
+dt { color: #555; } dd { margin: 0; word-break: break-word; }
+.legend { display: flex; flex-wrap: wrap; gap: 4px 12px; font-size: 8.5pt; margin: 4px 0; }
+.legend i { display: inline-block; width: 12px; height: 12px; margin-right: 4px; vertical-align: -2px;
+  border: 1px solid #555; -webkit-print-color-adjust: exact; print-color-adjust: exact; }
+* { -webkit-print-color-adjust: exact; print-color-adjust: exact; }
 @media print {
   @page { size: A4; margin: 12mm; }
-  body { margin: 0; max-width: none; font-size: 9.5pt; }
-  h2 { break-after: avoid; } table, svg, .views { break-inside: avoid; }
+  body { margin: 0; max-width: none; font-size: 9pt; }
+  h2 { break-after: avoid; } table, svg, .views, .legend, .head { break-inside: avoid; }
   thead { display: table-header-group; } tr { break-inside: avoid; }
+  .forms svg { break-inside: avoid; }
 }
 """
 
 
 def _num(v: float | None, digits: int = 4) -> str:
-    return "" if v is None else f"{v:.{digits}f}"
+    return "&mdash;" if v is None else f"{v:.{digits}f}"
 
 
-def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
-           default_tolerance: float | None = None) -> str:
-    """The report as an HTML string."""
-    st = session.state
+def _tolerances(session: Session, program: Any, default_tolerance: float | None) -> dict[int, dict[str, float]]:
     tol_of: dict[str, dict[str, float]] = {}
     if program is not None:
         tol_of = {f.name: f.tolerance for f in program.features}
-    base_tol = dict(DEFAULT_TOLERANCE)
+    base = dict(DEFAULT_TOLERANCE)
     if default_tolerance is not None:
-        base_tol = {k: float(default_tolerance) for k in base_tol}
-    rows: list[Row] = []
-    for f in st.features.values():
-        rows.extend(feature_rows(f, {**base_tol, **(f.tolerance or {}), **tol_of.get(f.name, {})}))
+        base = {k: float(default_tolerance) for k in base}
+    return {fid: {**base, **(f.tolerance or {}), **tol_of.get(f.name, {})} for fid, f in session.state.features.items()}
+
+
+def report_rows(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> list[Characteristic]:
+    """Every characteristic of every feature, in feature order."""
+    tols = _tolerances(session, program, default_tolerance)
+    return [c for fid, f in session.state.features.items() for c in feature_characteristics(f, tols[fid])]
+
+
+def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> str:
+    """The feature table as CSV: one row per characteristic, mm (degrees for angles)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
+                "actual", "deviation", "out_of_tolerance", "result"])
+    tols = _tolerances(session, program, default_tolerance)
+    for fid, f in session.state.features.items():
+        for c in feature_characteristics(f, tols[fid]):
+            w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
+                        "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
+                        "" if c.actual is None else f"{c.actual:.6f}",
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+    return buf.getvalue()
+
+
+def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
+           default_tolerance: float | None = None, colour_tolerance: float | None = None,
+           max_distance: float | None = None) -> str:
+    """The report as an HTML string."""
+    st = session.state
+    tols = _tolerances(session, program, default_tolerance)
+    base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
+    scale = ColourScale(colour_tolerance or base_tol["form"], max_distance)
+    per_feature = [(f, feature_characteristics(f, tols[fid])) for fid, f in st.features.items()]
+    rows = [c for _, cs in per_feature for c in cs]
+    word, n_fail, n_missing = verdict(rows)
+    if word == "FAIL":
+        word_long = f"FAIL ({n_fail} characteristic{'s' if n_fail != 1 else ''} out of tolerance)"
+    elif word == "INCOMPLETE":
+        word_long = f"INCOMPLETE ({n_missing} characteristic{'s' if n_missing != 1 else ''} without a nominal)"
+    else:
+        word_long = "PASS" if rows else "PASS (no features)"
     dev = hit_deviations(session, mesh) if mesh is not None else {}
     ids = list(st.hits)
-    devs = [dev[i] for i in ids if i in dev]
     dev_ids = [i for i in ids if i in dev]
-    hit_tol = base_tol["form"]
-    n_fail = sum(not r.ok for r in rows)
-    verdict = "PASS" if n_fail == 0 else f"FAIL ({n_fail} characteristic{'s' if n_fail != 1 else ''} out of tolerance)"
-    s = session.start
+    devs = [dev[i] for i in dev_ids]
+    s, info = session.start, st.info
     e = html.escape
+    heading = title or "Inspection report"
     out = ["<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-           f"<title>{e(title or 'Inspection report ' + session.name)}</title><style>{CSS}</style></head><body>",
-           f"<h1>{e(title or 'Inspection report')}</h1>",
-           f"<p class='muted'>Session <b>{e(session.name)}</b> &middot; generated {e(time.strftime('%Y-%m-%d %H:%M'))}"
-           f" &middot; result: <b>{e(verdict)}</b></p>"]
-    for w in session.warnings:
+           f"<title>{e(heading + ' ' + session.name)}</title><style>{CSS}</style></head><body>",
+           f"<h1>{e(heading)}</h1>",
+           f"<p class='muted'>Session <b>{e(session.name)}</b> &middot; measured {_date(s.get('time'))} &middot; "
+           f"report generated {e(time.strftime('%Y-%m-%d %H:%M'))}</p>",
+           f"<p>result: <span class='verdict {word}'>{e(word_long)}</span></p>"]
+    warnings = list(session.warnings)
+    if st.part is not None and st.hits and not st.alignments:
+        warnings.insert(0, NO_ALIGNMENT)
+    for w in warnings:
         out.append(f"<p class='warn'>{e(w)}</p>")
-    info = [("part", "none" if st.part is None else st.part.name),
-            ("part sha256", "" if st.part is None or not st.part.sha256 else st.part.sha256),
-            ("machine config", str(s.get("config", ""))),
-            ("tip radius", f"{s.get('tip_radius', '')} mm"),
-            ("pre-travel", ", ".join(f"{k} {v * 1000:+.2f} um" for k, v in (s.get("pretravel") or {}).items()) or "0"),
-            ("alignment", "none" if st.alignment is None else
-             f"{st.alignment.method}" + (f", RMS {st.alignment.info['rms'] * 1000:.2f} um" if "rms" in st.alignment.info else "")),
-            ("hits", f"{len(st.hits)} (+{len(st.deleted_hits)} deleted)"), ("features", str(len(st.features)))]
+    part = "none" if st.part is None else st.part.name
+    left = [("part", part)] + [(label, str(info.get(k) or "—")) for k, label in HEADER_FIELDS[:3]]
+    left += [("temperature", _temperature(info))]
+    if info.get("remarks"):
+        left.append(("remarks", str(info["remarks"])))
+    machine = str(info.get("machine_name") or "")
+    config = Path(str(s.get("config", ""))).name
+    right = [("machine", ", ".join(x for x in (machine, config) if x) or "-"),
+             ("calibration", calibration_text(s)),
+             ("tip radius", _tip_radius(s)), ("pre-travel", _pretravel(s)),
+             ("alignment", "none" if st.alignment is None else
+              st.alignment.method.replace("_", " ")
+              + (f", RMS {st.alignment.info['rms'] * 1000:.2f} µm" if isinstance(st.alignment.info.get("rms"), (int, float)) else "")),
+             ("hits", f"{len(st.hits)}" + (f" (+{len(st.deleted_hits)} deleted)" if st.deleted_hits else "")),
+             ("part sha256", "" if st.part is None or not st.part.sha256 else st.part.sha256[:16] + "…")]
     if session.derived_from:
-        info.append(("derived from", f"{session.derived_from.get('session')} ({session.derived_from.get('how', '')})"))
+        right.append(("derived from", f"{session.derived_from.get('session')} ({session.derived_from.get('how', '')})"))
     if program is not None:
-        info.append(("program", program.name))
-    out.append("<dl>" + "".join(f"<dt>{e(k)}</dt><dd>{e(str(v))}</dd>" for k, v in info) + "</dl>")
-    out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>kind / method</th>"
-               "<th class='l'>characteristic</th><th>nominal</th><th>actual</th><th>deviation</th><th>tolerance</th>"
+        right.append(("program", program.name))
+
+    def dl(items: list[tuple[str, str]]) -> str:
+        return "<dl>" + "".join(f"<dt>{e(k)}</dt><dd>{e(v)}</dd>" for k, v in items) + "</dl>"
+
+    out.append(f"<div class='head'>{dl(left)}{dl(right)}</div>")
+    out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>characteristic</th>"
+               "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>deviation</th><th>out of tol</th>"
                "<th>result</th></tr></thead><tbody>")
-    kinds = {f.name: f"{f.kind} / {f.method} ({len(f.hit_ids)} pts)" for f in st.features.values()}
-    for r in rows:
-        tol_txt = f"&le; {r.tolerance:.4f}" if r.characteristic in ("form", "position (distance)") else f"&plusmn; {r.tolerance:.4f}"
-        out.append(f"<tr class='{'' if r.ok else 'fail'}'><td class='l'>{e(r.feature)}</td><td class='l'>{e(kinds[r.feature])}</td>"
-                   f"<td class='l'>{e(r.characteristic)}</td><td>{_num(r.nominal)}</td><td>{_num(r.actual)}</td>"
-                   f"<td>{_num(r.deviation)}</td><td>{tol_txt}</td>"
-                   f"<td class='{'ok' if r.ok else 'ng'}'>{'pass' if r.ok else 'FAIL'}</td></tr>")
-    if not rows:
-        out.append("<tr><td class='l' colspan='8'>no features were fitted in this session</td></tr>")
-    out.append("</tbody></table><p class='muted'>Lengths in mm. Diameters and positions against the feature's nominal "
-               "(from the part); form is the fitted feature's max - min residual.</p>")
-    out.append("<h2>Deviation of each hit from the part mesh</h2>")
-    out.append(deviation_plot(dev_ids, devs, hit_tol))
+    for f, cs in per_feature:
+        for k, c in enumerate(cs):
+            cls = ("fail" if c.ok is False else "none" if c.ok is None else "") + (" feat" if k == 0 else "")
+            name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(f.name)}</b><br><span class='muted'>{e(f.kind)}, "
+                         f"{e(f.method)}, {len(f.hit_ids)} hits</span></td>") if k == 0 else ""
+            unit = "°" if c.unit == "deg" else ""
+            lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
+            note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and c.ok is None else ""
+            result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
+                      None: "<td class='l muted'>not evaluated</td>"}[c.ok]
+            out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
+                       f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
+                       f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"
+                       f"<td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                       f"{result}</tr>")
+    if not per_feature:
+        out.append("<tr><td class='l' colspan='9'>no features were fitted in this session</td></tr>")
+    out.append("</tbody></table><p class='muted'>Lengths in mm, angles in degrees. Sizes and locations against the "
+               "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
+               "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
+               "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic.</p>")
+    out.append("<h2>Deviation of each hit from the part</h2>")
+    out.append(legend_html(scale))
+    out.append(deviation_plot(dev_ids, devs, scale))
     if devs:
-        a = np.array(devs)
-        out.append(f"<p class='muted'>Signed distance of the compensated points to the mesh (+ = material outside nominal): "
-                   f"min {a.min() * 1000:+.2f} um, max {a.max() * 1000:+.2f} um, RMS {np.sqrt(np.mean(a * a)) * 1000:.2f} um; "
-                   f"band &plusmn;{hit_tol * 1000:.0f} um.</p>")
-    out.append("<h2>Part and hits</h2>")
+        a = np.array([d for d in devs if abs(d) <= scale.max_distance])
+        cut = len(devs) - len(a)
+        if len(a):
+            out.append(f"<p class='muted'>Signed distance of the compensated points to the part surface (+ = material "
+                       f"outside nominal): min {a.min() * 1000:+.2f} µm, max {a.max() * 1000:+.2f} µm, RMS "
+                       f"{np.sqrt(np.mean(a * a)) * 1000:.2f} µm"
+                       + (f"; {cut} hit{'s' if cut != 1 else ''} beyond the {scale.max_distance:g} mm cut-off not counted"
+                          if cut else "") + ".</p>")
+        else:
+            out.append(f"<p class='warn'>Every hit is more than {scale.max_distance:g} mm from the part surface.</p>")
+    out.append("<h2>Colour map: part and hits</h2>")
     if st.hits:
         pts, pdev = [], []
         for i, h in st.hits.items():
@@ -276,18 +442,31 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
             pdev.append(dev.get(i))
         pts_a = np.array(pts)
         frame = "part coordinates" if st.part_pose is not None else "machine coordinates"
+        out.append(legend_html(scale))
         out.append("<div class='views'>")
-        out.append(part_view(mesh, pts_a, pdev, hit_tol, (0, 1), np.array([0.0, 0.0, 1.0]), f"top view (X-Y, {frame})"))
-        out.append(part_view(mesh, pts_a, pdev, hit_tol, (0, 2), np.array([0.0, -1.0, 0.0]), f"front view (X-Z, {frame})"))
+        out.append(part_view(mesh, pts_a, pdev, scale, (0, 1), np.array([0.0, 0.0, 1.0]), f"top view (X-Y, {frame})"))
+        out.append(part_view(mesh, pts_a, pdev, scale, (0, 2), np.array([0.0, -1.0, 0.0]), f"front view (X-Z, {frame})"))
         out.append("</div>")
         if mesh is None:
             out.append("<p class='muted'>The part mesh was not found (or its sha256 does not match): hits only.</p>")
     else:
         out.append("<p class='muted'>No hits.</p>")
-    if st.notes or st.errors:
-        out.append("<h2>Notes and errors</h2><ul>")
+    forms = []
+    all_hits = {**st.deleted_hits, **st.hits}
+    for fid, f in st.features.items():
+        pts = np.array([all_hits[h].point for h in f.hit_ids if h in all_hits], float).reshape(-1, 3)
+        forms.append(form_plot(f, pts, tols[fid]["form"]))
+    forms = [x for x in forms if x]
+    if forms:
+        out.append("<h2>Form plots</h2><p class='muted'>Residual of each hit to its fitted feature, magnified; "
+                   "dashed: the form tolerance band.</p><div class='forms'>" + "".join(forms) + "</div>")
+    texts = [error_text(str(ev.get("source", "")), str(ev.get("message", "")))
+             for ev in session.events if ev.get("kind") == "error"]
+    if st.notes or texts:
+        out.append("<h2>Notes and machine events</h2><ul>")
         out += [f"<li>{e(t)}</li>" for _, t in st.notes]
-        out += [f"<li><b>error:</b> {e(m)}</li>" for _, m in st.errors]
+        out += [f"<li>{e(t)}" + (f" <span class='muted'>(&times;{n})</span>" if n > 1 else "") + "</li>"
+                for t, n in grouped(texts)]
         out.append("</ul>")
     out.append("</body></html>\n")
     return "".join(out)
@@ -296,4 +475,10 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
 def write_report(session: Session, path: str | Path, **kw: Any) -> Path:
     p = Path(path)
     p.write_text(render(session, **kw), encoding="utf-8")
+    return p
+
+
+def write_features_csv(session: Session, path: str | Path, **kw: Any) -> Path:
+    p = Path(path)
+    p.write_text(features_csv(session, **kw), encoding="utf-8")
     return p

@@ -392,7 +392,7 @@ class SessionsPanel:
         from .scene import ReplayView
 
         if self._view is None:
-            self._view = ReplayView(client.scene, self.capp.app.view.tolerance)
+            self._view = ReplayView(client.scene, self.capp.app.view.scale)
         try:
             self._view.show(self.state, self.mesh, self.deviations)
         except Exception as exc:  # noqa: BLE001 - the tab may have closed

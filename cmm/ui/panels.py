@@ -150,6 +150,8 @@ class ClientApp:
         self._last_error = ("", 0.0)
         self.gui: dict[str, Any] = {}
         self._shown: dict[str, Any] = {}
+        self.live_trace = False
+        self._plot_key: bytes | None = None
         self.sessions = SessionsPanel(self)
         self.calibration = CalibrationPanel(self)
 
@@ -488,7 +490,11 @@ class ClientApp:
             g["features"].on_update(lambda e: self._feature_chosen(e.target.value))
             g["feature"] = gui.add_markdown(self.feature_markdown())
         with tabs.add_tab("Diagnostics"):
+            # the trace changes with every poll: sent only while asked for (an idle page stays quiet)
+            live = gui.add_checkbox("Live byte trace", False)
+            live.on_update(lambda e: setattr(self, "live_trace", bool(e.target.value)))
             g["trace"] = gui.add_text("NMC bytes (Tx/Rx)", "", multiline=True, disabled=True)
+            gui.add_button("Snapshot of the bytes").on_click(lambda _: self._show_trace())
             t, fe = self.app.following_error_series()
             g["plot"] = gui.add_uplot(
                 (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
@@ -530,12 +536,21 @@ class ClientApp:
             p, nominal = self.picked
             self._set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
                 *p.point, *p.normal) + (f"; nominal {nominal.kind}" if nominal is not None else ""))
-        self._set("trace", "value", st.trace.dump(last=30))
+        if self.live_trace:
+            self._show_trace()
         t, fe = self.app.following_error_series()
-        if "plot" in self.gui and len(t) > 1:
+        # the plot is re-sent only when a following error changed: 500 samples x 4 float64 (16 kB) five times a
+        # second was most of an idle page's 50-80 kB/s
+        values = np.nan_to_num(np.stack(fe))
+        key = values.tobytes() if np.ptp(values) > 0 else values.flat[0].tobytes()  # flat: however long
+        if "plot" in self.gui and len(t) > 1 and key != self._plot_key:
+            self._plot_key = key
             self.gui["plot"].data = (t, *fe)
         self.sessions.refresh()
         self.calibration.refresh()
+
+    def _show_trace(self) -> None:
+        self._set("trace", "value", self.station.trace.dump(last=30))
 
     def _set(self, key: str, attr: str, value: Any) -> None:
         if key in self.gui and self._shown.get(key) != value:

@@ -23,31 +23,19 @@ from typing import Any, Callable
 import numpy as np
 import trimesh
 
+from ..metrology.colour_scale import ColourScale
+
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0
 STYLUS_LENGTH = 40.0  # mm, drawn above the tip centre
 DEFAULT_TOLERANCE = 0.01  # mm, the green band of the deviation colour map
 ARROW_LENGTH = 4.0  # mm, approach arrows drawn before each hit
 
-GREEN = np.array([40, 190, 70])
-BLUE = np.array([40, 90, 230])
-RED = np.array([220, 40, 40])
 
 
 def deviation_colour(deviation: float, tolerance: float = DEFAULT_TOLERANCE) -> tuple[int, int, int]:
-    """Blue (material missing) - green (within +-tolerance) - red (material outside nominal).
-
-    Inside the band the colour stays green; beyond it it blends to pure
-    blue/red at twice the tolerance. NaN gives grey.
-    """
-    if not math.isfinite(deviation):
-        return (150, 150, 150)
-    tol = max(float(tolerance), 1e-12)
-    if abs(deviation) <= tol:
-        return tuple(int(c) for c in GREEN)  # type: ignore[return-value]
-    t = min((abs(deviation) - tol) / tol, 1.0)
-    end = RED if deviation > 0 else BLUE
-    return tuple(int(round(c)) for c in (1 - t) * GREEN + t * end)  # type: ignore[return-value]
+    """The colour of a deviation on the scale the report uses too (:mod:`cmm.metrology.colour_scale`)."""
+    return ColourScale(tolerance).colour(deviation)
 
 
 def quat_from_matrix(R: np.ndarray) -> tuple[float, float, float, float]:
@@ -140,7 +128,7 @@ class SceneView:
                  on_feature_click: Callable[[int, Any], None] | None = None) -> None:
         self.scene = scene
         self.station = station
-        self.tolerance = tolerance
+        self.scale = ColourScale(tolerance)
         self.on_feature_click = on_feature_click
         self.origin_mm = np.zeros(3)  # the local frame's origin (near the part), machine mm
         self.probe = None
@@ -222,9 +210,16 @@ class SceneView:
 
     # --- hits ---------------------------------------------------------------------
 
+    @property
+    def tolerance(self) -> float:
+        return self.scale.tolerance
+
+    def set_scale(self, tolerance: float, cutoff: float | None = None) -> None:
+        """Change the colour map's tolerance band and max-distance cut-off (every client sees it)."""
+        self.scale = ColourScale(tolerance, cutoff)
+
     def hit_colours(self, ids: list[int], deviations: dict[int, float]) -> np.ndarray:
-        return np.array([deviation_colour(deviations.get(h, float("nan")), self.tolerance) for h in ids],
-                        dtype=np.uint8).reshape(-1, 3)
+        return self.scale.colours(np.array([deviations.get(h, float("nan")) for h in ids], dtype=np.float64))
 
     def draw_hits(self, deviations: dict[int, float] | None = None) -> None:
         st = self.station
@@ -308,29 +303,40 @@ class ReplayView:
     The live scene (:class:`SceneView`, shared by every tab) is left alone: a
     replay is what one browser looks at, so it goes to ``client.scene`` under
     ``/replay`` (part in amber, hits coloured by deviation, features).
-    ``clear()`` removes it again (back to live).
+    While it is shown, the live part, hits and features are hidden in that
+    tab only: an invisible client-scoped node of the same name shadows the
+    shared one (viser shows a client's variant of a name over the broadcast
+    one). ``clear()`` removes both again (back to live).
     """
+
+    LIVE_NODES = ("/local", "/part")
 
     PART_COLOUR = (205, 170, 90)
 
-    def __init__(self, scene: Any, tolerance: float = DEFAULT_TOLERANCE, root: str = "/replay") -> None:
+    def __init__(self, scene: Any, tolerance: float | ColourScale = DEFAULT_TOLERANCE, root: str = "/replay") -> None:
         self.scene = scene
-        self.tolerance = tolerance
+        self.scale = tolerance if isinstance(tolerance, ColourScale) else ColourScale(tolerance)
         self.root = root
         self.origin_mm = np.zeros(3)
         self._part: Any = None
         self._part_key: Any = None
         self._nodes: list[Any] = []
+        self._hidden: list[Any] = []
         self._lock = threading.Lock()
 
     def local(self, points_mm: Any) -> np.ndarray:
         return ((np.asarray(points_mm, float) - self.origin_mm) * SCALE).astype(np.float32)
+
+    def _hide_live(self) -> None:
+        if not self._hidden:
+            self._hidden = [self.scene.add_frame(name, show_axes=False, visible=False) for name in self.LIVE_NODES]
 
     def show(self, state: Any, mesh: Any = None, deviations: dict[int, float] | None = None) -> None:
         """Draw ``state`` (hits, features, part at its pose); replaces the previous replay drawing."""
         deviations = deviations or {}
         pose = state.pose_array
         with self._lock:
+            self._hide_live()
             key = (id(mesh), state.part_pose)
             if key != self._part_key:
                 if self._part is not None:
@@ -355,8 +361,7 @@ class ReplayView:
             if ids:
                 points = np.array([state.hits[h].point for h in ids], float)
                 approach = np.array([state.hits[h].approach for h in ids], float)
-                colours = np.array([deviation_colour(deviations.get(h, float("nan")), self.tolerance) for h in ids],
-                                   dtype=np.uint8).reshape(-1, 3)
+                colours = self.scale.colours(np.array([deviations.get(h, float("nan")) for h in ids], dtype=np.float64))
                 sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.35 * SCALE)
                 self._nodes.append(self.scene.add_batched_meshes_simple(
                     f"{self.root}/hits", sphere.vertices.astype(np.float32), sphere.faces,
@@ -389,6 +394,9 @@ class ReplayView:
                 self._part.remove()  # the frame and the part mesh under it
             self._part = None
             self._part_key = None
+            for node in self._hidden:
+                node.remove()  # the shared live nodes show again
+            self._hidden = []
 
 
 def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") -> None:

@@ -1,0 +1,152 @@
+"""Toleranced characteristics of a fitted feature against its nominal: what the report and feature tree show.
+
+Per feature kind:
+
+- size: diameter of circles, spheres and cylinders; the half angle of cones
+  (``size`` +- mm, ``angle`` +- degrees);
+- location: a plane's distance from its nominal plane along the nominal
+  normal (``location`` +- mm); the true position of axes and centres as a
+  diameter, per ISO 1101 / ASME Y14.5: twice the distance of the actual axis
+  (circle, cylinder: in the plane perpendicular to the nominal axis) or centre
+  (sphere: a spherical zone; cone: its apex) from the nominal, against a
+  cylindrical zone of diameter ``position`` (default 2 x ``location``);
+- form: flatness, straightness, roundness, cylindricity, sphericity, cone
+  form (``form``, upper limit only).
+
+A characteristic that needs a nominal the feature does not have is listed
+with ``nominal`` None and ``ok`` None ("no nominal"): it never shows a pass
+or fail against a blank nominal.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+DEFAULT_TOLERANCE = {"size": 0.02, "form": 0.02, "location": 0.02}  # mm; +- for size and location
+DEFAULT_ANGLE_TOLERANCE = 0.1  # degrees, +- for a cone's half angle
+
+FORM_NAMES = {"plane": "flatness", "line": "straightness", "circle": "roundness", "cylinder": "cylindricity",
+              "sphere": "sphericity", "cone": "cone form"}
+# which nominal kinds a fitted kind compares with (a circle is measured on a cylindrical bore or boss)
+COMPARABLE = {"plane": ("plane", "surface"), "circle": ("cylinder", "circle"), "cylinder": ("cylinder",),
+              "sphere": ("sphere",), "cone": ("cone",), "line": (), "point": ()}
+
+
+@dataclass(frozen=True)
+class Characteristic:
+    feature: str
+    name: str  # "diameter", "position ⌀", "flatness", ...
+    nominal: float | None
+    actual: float | None  # None: it needs a nominal to be measured (location, position)
+    upper: float  # upper tolerance (deviation allowed above the nominal)
+    lower: float  # lower tolerance (negative or 0)
+    unit: str = "mm"
+    note: str = ""
+
+    @property
+    def deviation(self) -> float | None:
+        return None if self.nominal is None or self.actual is None else self.actual - self.nominal
+
+    @property
+    def ok(self) -> bool | None:
+        """True within tolerance, False outside, None when there is no nominal to compare with."""
+        d = self.deviation
+        if d is None:
+            return None
+        return bool(self.lower - 1e-12 <= d <= self.upper + 1e-12)
+
+    @property
+    def out_of_tolerance(self) -> float:
+        d = self.deviation
+        if d is None:
+            return 0.0
+        return max(d - self.upper, self.lower - d, 0.0)
+
+    @property
+    def tolerance_text(self) -> str:
+        u = "°" if self.unit == "deg" else ""
+        if self.lower == 0.0:
+            return f"≤ {self.upper:.4f}{u}" if not self.name.startswith("position") else f"⌀ {self.upper:.4f}"
+        if self.upper == -self.lower:
+            return f"± {self.upper:.4f}{u}"
+        return f"+{self.upper:.4f}/{self.lower:.4f}{u}"
+
+    @property
+    def verdict(self) -> str:
+        ok = self.ok
+        return "no nominal" if ok is None else ("pass" if ok else "FAIL")
+
+
+def _unit(v: Any) -> np.ndarray:
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    return v / np.linalg.norm(v)
+
+
+def _arr(v: Any) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64).reshape(3)
+
+
+def true_position(kind: str, geometry: dict[str, Any], nominal: dict[str, Any]) -> float | None:
+    """Position deviation as a diameter (mm), or None when the geometry and nominal do not compare."""
+    g, n = geometry, nominal
+    if kind in ("circle", "cylinder") and "direction" in n:
+        axis = _unit(n["direction"])
+        origin = _arr(n["point"] if "point" in n else n["center"])
+        actual = _arr(g["center"] if kind == "circle" else g["point"])
+        rel = actual - origin
+        return 2.0 * float(np.linalg.norm(rel - (rel @ axis) * axis))
+    if kind == "circle" and "center" in n:
+        return 2.0 * float(np.linalg.norm(_arr(g["center"]) - _arr(n["center"])))
+    if kind == "sphere" and "center" in n:
+        return 2.0 * float(np.linalg.norm(_arr(g["center"]) - _arr(n["center"])))
+    if kind == "cone" and "apex" in n:
+        return 2.0 * float(np.linalg.norm(_arr(g["apex"]) - _arr(n["apex"])))
+    return None
+
+
+def characteristics(name: str, kind: str, geometry: dict[str, Any], nominal: dict[str, Any] | None,
+                    tolerance: dict[str, float] | None = None) -> list[Characteristic]:
+    """The toleranced characteristics of one feature (see the module docstring)."""
+    tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
+    pos_tol = float(tol.get("position", 2.0 * tol["location"]))
+    ang_tol = float(tol.get("angle", DEFAULT_ANGLE_TOLERANCE))
+    nom = nominal or {}
+    comparable = nom.get("kind") in COMPARABLE.get(kind, ())
+    note = "" if comparable or not nom else f"the nominal is a {nom.get('kind')}, not comparable"
+    g = geometry
+    out: list[Characteristic] = []
+    if kind in ("circle", "sphere", "cylinder") and "radius" in g:
+        n = 2.0 * float(nom["radius"]) if comparable and "radius" in nom else None
+        out.append(Characteristic(name, "diameter", n, 2.0 * float(g["radius"]), tol["size"], -tol["size"],
+                                  note=note or ("" if n is not None else "no nominal diameter")))
+    if kind == "cone" and "half_angle" in g:
+        n = math.degrees(float(nom["half_angle"])) if comparable and "half_angle" in nom else None
+        out.append(Characteristic(name, "half angle", n, math.degrees(float(g["half_angle"])), ang_tol, -ang_tol,
+                                  unit="deg", note=note or ("" if n is not None else "no nominal angle")))
+    if kind == "plane":
+        loc = None
+        if comparable and "normal" in nom and "point" in g:
+            loc = float((_arr(g["point"]) - _arr(nom["point"])) @ _unit(nom["normal"]))
+        out.append(Characteristic(name, "location (along the normal)", None if loc is None else 0.0,
+                                  loc, tol["location"], -tol["location"],
+                                  note=note or ("" if loc is not None else "no nominal plane")))
+    elif kind in ("circle", "sphere", "cylinder", "cone"):
+        tp = true_position(kind, g, nom) if comparable else None
+        out.append(Characteristic(name, "position ⌀", None if tp is None else 0.0, tp,
+                                  pos_tol, 0.0, note=note or ("" if tp is not None else "no nominal location")))
+    if kind in FORM_NAMES and "form" in g:
+        out.append(Characteristic(name, FORM_NAMES[kind], 0.0, float(g["form"]), tol["form"], 0.0))
+    return out
+
+
+def verdict(chars: list[Characteristic]) -> tuple[str, int, int]:
+    """("PASS" | "FAIL" | "INCOMPLETE", failed count, not evaluated count)."""
+    failed = sum(c.ok is False for c in chars)
+    missing = sum(c.ok is None for c in chars)
+    if failed:
+        return "FAIL", failed, missing
+    return ("INCOMPLETE" if missing else "PASS"), failed, missing
