@@ -90,6 +90,9 @@ def test_browser_tab_gets_its_own_gui(app):
         assert f"127.0.0.1:{app.pendant.port}/" in capp.gui["pendant"].content  # the pendant, embedded
         capp.refresh()
         assert "| X |" in capp.gui["machine"].content
+        assert capp.gui["trace"].value == ""  # the byte trace changes with every poll: sent only when asked for
+        capp.live_trace = True
+        capp.refresh()
         assert capp.gui["trace"].value  # raw NMC bytes are shown
         assert not capp.control.can_move(capp.client_id)  # a new tab observes
         # a click in the 3D view arrives as a ray; the tab's app picks the part with it
