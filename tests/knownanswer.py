@@ -133,6 +133,35 @@ def circle3d(center, normal, radius, m=30, arc_deg=360.0, form=0.01, seed=0) -> 
     return KnownAnswer(pts, {"center": np.asarray(center, float), "normal": f[:, 2], "radius": radius}, e, 6)
 
 
+def circle3d_standard(center, normal, radius, m=30, arc_deg=360.0, form=0.01, plane_form=0.01, seed=0) -> KnownAnswer:
+    """Known answer for the standard 3D circle (least-squares plane, then the 2D circle in it).
+
+    The out-of-plane offsets h are a null vector of the plane's Jacobian (1, u, v) and the
+    in-plane radial offsets e one of the 2D circle's (cos t, sin t, 1), so the chosen plane is
+    the points' least-squares plane and the chosen circle the least-squares circle of their
+    projections.  residuals = (h, e); n_params = 6.
+    """
+    rng = np.random.default_rng(seed)
+    f = _frame(np.asarray(normal, float))
+    t = _angles(m, arc_deg, rng)
+    radial = np.outer(np.cos(t), f[:, 0]) + np.outer(np.sin(t), f[:, 1])
+    x = center + radius * radial
+    e = _null_vector(np.column_stack([np.cos(t), np.sin(t), np.ones(m)]), form, rng)
+    inplane = (radius + e)[:, None] * np.column_stack([np.cos(t), np.sin(t)])  # final in-plane coordinates
+    h = _null_vector(np.column_stack([np.ones(m), inplane]), plane_form, rng)
+    pts = x + h[:, None] * f[:, 2] + e[:, None] * radial
+    # the centroid must lie in the plane through the centre: h sums to zero by construction
+    return KnownAnswer(pts, {"center": np.asarray(center, float), "normal": f[:, 2], "radius": radius},
+                       np.concatenate([h, e]), 6)
+
+
+def _null_vector(jac, form, rng):
+    q1, _ = np.linalg.qr(jac)  # e = (I - Q1 Q1^T) c spans the null space of J^T
+    c = rng.standard_normal(len(jac))
+    e = c - q1 @ (q1.T @ c)
+    return e * (form / (e.max() - e.min())) if form > 0 else 0.0 * e
+
+
 def cylinder(point, direction, radius, m=60, length=40.0, arc_deg=360.0, form=0.01, seed=0) -> KnownAnswer:
     rng = np.random.default_rng(seed)
     f = _frame(np.asarray(direction, float))

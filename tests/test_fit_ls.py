@@ -87,14 +87,35 @@ def test_circle_2d(where, arc):
 
 @pytest.mark.parametrize("where", OFFSETS)
 @pytest.mark.parametrize("arc", [360.0, 30.0])
-def test_circle_3d(where, arc):
-    data = ka.circle3d(OFFSETS[where] + [1.0, 1.0, 1.0], TILT, 20.0, arc_deg=arc, form=0.002 if arc < 360 else 0.01)
+def test_circle_3d_standard(where, arc):
+    """Default 3D circle: least-squares plane, then the 2D least-squares circle in it."""
+    data = ka.circle3d_standard(OFFSETS[where] + [1.0, 1.0, 1.0], TILT, 20.0, arc_deg=arc,
+                                form=0.002 if arc < 360 else 0.01)
     res = fit_ls.fit_circle(data.points)
     assert np.abs(res.center - data.answer["center"]).max() < TOL
     assert_dir(res.normal, data.answer["normal"])
     assert abs(res.radius - 20.0) < TOL
     m = len(data.points)
-    assert np.abs(res.plane_residuals - data.residuals[:m]).max() < TOL
+    assert np.abs(res.plane_residuals - data.residuals[:m] * np.sign(res.normal @ data.answer["normal"])).max() < TOL
+    assert np.abs(res.residuals - data.residuals[m:]).max() < TOL
+    assert_stats(res, data)
+    # the 3D-distance circle is a different estimate on the same data
+    if arc < 360:
+        other = fit_ls.fit_circle_3d_distance(data.points)
+        assert np.linalg.norm(other.center - res.center) > 1e-6
+
+
+@pytest.mark.parametrize("where", OFFSETS)
+@pytest.mark.parametrize("arc", [360.0, 30.0])
+def test_circle_3d_distance_option(where, arc):
+    data = ka.circle3d(OFFSETS[where] + [1.0, 1.0, 1.0], TILT, 20.0, arc_deg=arc, form=0.002 if arc < 360 else 0.01)
+    res = fit_ls.fit_circle_3d_distance(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert_dir(res.normal, data.answer["normal"])
+    assert abs(res.radius - 20.0) < TOL
+    m = len(data.points)
+    sign = np.sign(res.normal @ data.answer["normal"])
+    assert np.abs(res.plane_residuals - sign * data.residuals[:m]).max() < TOL
     assert np.abs(res.residuals - data.residuals[m:]).max() < TOL
     assert_stats(res, data)
 

@@ -11,6 +11,13 @@ Every result carries the fit statistics (FitResult fields) and its geometry:
   diameter of the cylinder around the line that holds the points).
 - covariance: sigma^2 (J^T J)^-1 of the minimal parameters named in
   ``param_names`` (local parametrisation at the solution, see fit_ls).
+- uncertainty: standard uncertainties (square roots of the covariance
+  diagonal) keyed by parameter name, mm for lengths and rad for angles;
+  empty when not defined (criteria other than least squares, m == n).
+- warnings: sentences for the operator when the data do not determine the
+  feature well (short arcs and caps, cones that are nearly cylinders), when
+  several distinct solutions fit almost equally well, or when a criterion's
+  global optimum could not be proven.
 
 Conventions: unit vectors are normalised; undirected axes (line, plane
 normal, circle normal, cylinder, torus) have a canonical sign (largest
@@ -40,10 +47,13 @@ class FitResult:
     n_points: int
     method: str
     param_names: tuple[str, ...] = field(default=(), repr=False)
+    uncertainty: dict[str, float] = field(default_factory=dict, repr=False)
+    warnings: tuple[str, ...] = field(default=())
 
     kind: ClassVar[str] = "feature"
     _stat_fields: ClassVar[frozenset[str]] = frozenset(
-        {"residuals", "sigma", "form", "covariance", "n_points", "method", "param_names", "plane_residuals"}
+        {"residuals", "sigma", "form", "covariance", "n_points", "method", "param_names", "plane_residuals",
+         "uncertainty", "warnings"}
     )
 
     def geometry(self) -> dict[str, Any]:
@@ -57,7 +67,8 @@ class FitResult:
         return out
 
     def summary(self) -> dict[str, Any]:
-        """kind, method, n_points, form, sigma plus the geometry (JSON-ready)."""
+        """kind, method, n_points, form, sigma, the geometry, the standard uncertainties
+        (``uncertainty``: name -> mm or rad) and ``warnings`` (JSON-ready)."""
         sigma = float(self.sigma)
         return {
             "kind": self.kind,
@@ -66,6 +77,8 @@ class FitResult:
             "form": float(self.form),
             "sigma": None if math.isnan(sigma) else sigma,
             **self.geometry(),
+            "uncertainty": {k: float(v) for k, v in self.uncertainty.items() if math.isfinite(v)},
+            "warnings": list(self.warnings),
         }
 
 

@@ -53,29 +53,38 @@ def levenberg_marquardt(
     model: Model,
     state: Any,
     *,
-    max_iter: int = 200,
-    step_tol: float = 1e-13,
+    max_iter: int = 300,
+    step_tol: float = 1e-14,
 ) -> Solution:
-    """Minimise |d|^2. Stops when the step (in scaled units) is below step_tol,
-    when the gradient vanishes, when no step reduces the cost, or when the cost
-    is flat to rounding and the steps stop shrinking."""
+    """Minimise |d|^2 (Gauss-Newton, damped only when a step does not descend).
+
+    Convergence is judged on the step and the gradient, never on the cost: near
+    the minimum the cost is flat to rounding (relative 1e-15) long before poorly
+    determined parameters (short arcs, cone apex) have settled, and large-residual
+    problems converge linearly with slowly shrinking steps.  Stops when
+    - the step (scaled units) is below step_tol, or
+    - the residual vector is orthogonal to the Jacobian's range to rounding, or
+    - the steps are small (< 1e-7) and stop shrinking twice in a row (rounding floor), or
+    - no damped step can reduce the cost (at the minimum to rounding).
+    """
     d, jac = model.residuals_jacobian(state)
     cost = float(d @ d)
     lam = 0.0  # start as pure Gauss-Newton: quadratic convergence on small residuals
+    nu = 2.0
     last_size = np.inf
+    stuck = 0
     it = 0
     for it in range(1, max_iter + 1):
         r, qtd = _qr_reduce(jac, d)
-        grad = r.T @ qtd
-        if not np.all(np.isfinite(r)):
+        if not np.all(np.isfinite(r)) or not np.all(np.isfinite(qtd)):
             raise FitError(f"the {model.kind} fit diverged (non-finite values)")
-        scale_d = np.sqrt(np.sum(r * r, axis=0))  # column norms of J (Marquardt scaling)
-        if np.linalg.norm(grad) <= 1e-15 * max(np.linalg.norm(scale_d) * np.sqrt(cost), 1e-300):
-            break
+        scale_d = np.maximum(np.sqrt(np.sum(r * r, axis=0)), 1e-12)  # column norms of J (Marquardt scaling)
+        if np.linalg.norm(qtd) <= 1e-15 * np.sqrt(max(cost, 1e-300)):
+            break  # gradient J^T d vanishes relative to |d|
         accepted = False
         while True:
             if lam > 0.0:
-                a = np.vstack([r, np.diag(np.sqrt(lam) * np.maximum(scale_d, 1e-12))])
+                a = np.vstack([r, np.diag(np.sqrt(lam) * scale_d)])
                 rhs = np.concatenate([-qtd, np.zeros(len(qtd))])
             else:
                 a, rhs = r, -qtd
@@ -83,24 +92,32 @@ def levenberg_marquardt(
             new_state = model.update(state, step)
             new_d, new_jac = model.residuals_jacobian(new_state)
             new_cost = float(new_d @ new_d)
-            # near the solution the cost is flat to rounding (relative 1e-12 for residuals that
-            # cancel, e.g. the cone's), so tiny steps may raise it by that much and still be right
+            # tiny Gauss-Newton steps are trusted even if rounding raises the flat cost a little
             slack = 1e-10 if lam == 0.0 and np.max(np.abs(step)) < 1e-6 else 1e-14
             if np.isfinite(new_cost) and new_cost <= cost * (1.0 + slack):
                 accepted = True
                 break
-            lam = 1e-3 if lam == 0.0 else lam * 10.0
+            # Nielsen's damping update: grow faster after repeated failures
+            lam = 1e-3 if lam == 0.0 else lam * nu
+            nu *= 2.0
             if lam > 1e12:
                 break
         if not accepted:
             break  # no descent possible: at the minimum to rounding
-        # At the minimum the cost stops changing (rounding) before poorly determined
-        # parameters (e.g. a cone apex) settle, so keep going while steps still shrink.
-        stalled = new_cost >= cost
         size = float(np.max(np.abs(step)))
+        # predicted vs actual reduction sets how much damping to keep (Nielsen 1999)
+        if lam > 0.0:
+            pred = float(qtd @ qtd - np.sum((r @ step + qtd) ** 2))
+            rho = (cost - new_cost) / pred if pred > 0 else 0.0
+            lam = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            if lam < 1e-6:
+                lam = 0.0
+        nu = 2.0
         state, d, jac, cost = new_state, new_d, new_jac, new_cost
-        lam = 0.0 if lam <= 1e-3 else lam / 10.0
-        if size <= step_tol or (stalled and size >= 0.5 * last_size):
+        if size <= step_tol:
+            break
+        stuck = stuck + 1 if (size < 1e-7 and size >= last_size) else 0
+        if stuck >= 2:
             break
         last_size = size
     return Solution(state=state, residuals=d, jacobian=jac, cost=cost, iterations=it)
@@ -116,6 +133,23 @@ def check_conditioning(jac: np.ndarray, kind: str) -> None:
         )
 
 
+# Noise amplification (parameter change per unit of point scatter, dimensionless) above
+# which a fit warns that the data determine that parameter poorly.  A full circle or
+# sphere gives about 1.4-1.7; a 30 degree arc about 60 in the radius; a 10 degree arc 500.
+KAPPA_WARN = 100.0
+
+
+def amplification(jac: np.ndarray) -> np.ndarray:
+    """sqrt(m * diag((J^T J)^-1)) per parameter on centred, scaled data: how many units a
+    parameter moves for one unit of independent scatter on every point (1 ~ averaging)."""
+    m = jac.shape[0]
+    try:
+        rinv = np.linalg.inv(np.linalg.qr(jac, mode="r"))
+    except np.linalg.LinAlgError:
+        return np.full(jac.shape[1], np.inf)
+    return np.sqrt(m * np.sum(rinv * rinv, axis=1))
+
+
 def statistics(
     residuals: np.ndarray,
     jac: np.ndarray,
@@ -123,12 +157,17 @@ def statistics(
     scale: float = 1.0,
     units: tuple[int, ...] | None = None,
     form: float | None = None,
+    groups: dict[str, tuple[tuple[int, ...], float]] | None = None,
 ) -> dict[str, Any]:
-    """sigma, form and covariance for a solution found on points divided by `scale`.
+    """sigma, form, covariance and standard uncertainties for a solution found on points
+    divided by `scale`.
 
     `residuals` are already in mm.  `jac` is the Jacobian of the scaled
     residuals w.r.t. the scaled parameters; `units[k]` is the length exponent of
     parameter k (1 length, 0 angle) used to express the covariance in mm / rad.
+    `groups` maps a reported name to (parameter indices, factor): its standard
+    uncertainty is factor * sqrt(sum of their variances) (e.g. a centre's three
+    coordinates, a diameter = 2 x radius).
     """
     m = residuals.size
     dof = m - n_params
@@ -145,4 +184,8 @@ def statistics(
     cov = cov * (sigma**2 if dof > 0 else np.nan)
     if form is None:
         form = float(residuals.max() - residuals.min())
-    return {"sigma": sigma, "form": form, "covariance": cov}
+    out: dict[str, Any] = {"sigma": sigma, "form": form, "covariance": cov}
+    if groups is not None:
+        var = np.diag(cov)
+        out["uncertainty"] = {name: float(f * np.sqrt(np.sum(var[list(idx)]))) for name, (idx, f) in groups.items()}
+    return out

@@ -61,7 +61,7 @@ def check_rank(s: np.ndarray, kind: str, need: int) -> None:
 
 def unit(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
-    n = np.linalg.norm(v)
+    n = np.sqrt(v @ v)
     if not np.isfinite(n) or n == 0.0:
         raise FitError("a direction of zero length was given")
     return v / n
@@ -78,13 +78,18 @@ def axis_point_closest_to_origin(p: np.ndarray, u: np.ndarray) -> np.ndarray:
     return p - np.dot(p, u) * u
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross is slow for single vectors: hot in the fits)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def frame_with_axis(u: np.ndarray) -> np.ndarray:
     """A right-handed orthonormal 3x3 matrix whose third column is u (unit)."""
     u = unit(u)
     helper = np.eye(3)[np.argmin(np.abs(u))]
-    e1 = np.cross(helper, u)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(u, e1)
+    e1 = _cross(helper, u)
+    e1 /= np.sqrt(e1 @ e1)
+    e2 = _cross(u, e1)
     return np.column_stack([e1, e2, u])
 
 
@@ -127,3 +132,25 @@ class ScaledPoints:
 
     def to_scaled(self, p: Any) -> np.ndarray:
         return (np.asarray(p, dtype=np.float64) - self.c) / self.scale
+
+
+def subsample(x: np.ndarray, k: int) -> np.ndarray:
+    """At most k evenly spaced rows of x (all of them when there are fewer)."""
+    return x if len(x) <= k else x[np.linspace(0, len(x) - 1, k).astype(int)]
+
+
+def hemisphere_directions(k: int) -> np.ndarray:
+    """k roughly evenly spread unit vectors on the upper hemisphere (Fibonacci lattice)."""
+    i = np.arange(k) + 0.5
+    z = 1.0 - i / k  # uniform in z on (0, 1]: equal areas
+    phi = np.pi * (1.0 + 5**0.5) * i
+    rho = np.sqrt(1.0 - z * z)
+    return np.column_stack([rho * np.cos(phi), rho * np.sin(phi), z])
+
+
+def angular_coverage_deg(points: np.ndarray, p: np.ndarray, u: np.ndarray) -> float:
+    """Degrees of the circle around axis (p, u) that the points cover (360 - largest gap)."""
+    loc = (points - p) @ frame_with_axis(u)
+    a = np.sort(np.arctan2(loc[:, 1], loc[:, 0]))
+    gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
+    return float(360.0 - np.degrees(gaps.max()))
