@@ -102,3 +102,32 @@ def test_module_entry_point(tmp_path):
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["kind"] == "plane"
+
+
+def test_nist_point_count_first_line(tmp_path, capsys):
+    """NIST data set format: the first line is the number of points."""
+    data = ka.circle3d_standard(np.array([1000.0, -700.0, 650.0]), np.array([0.3, -0.5, 0.81]), 20.0, m=40)
+    path = tmp_path / "c.ds"
+    path.write_text(f"{len(data.points)}\n" + "\n".join(" ".join(repr(float(v)) for v in p) for p in data.points) + "\n")
+    out = run_json(capsys, "circle", str(path))
+    assert out["n_points"] == 40
+    assert np.abs(np.array(out["center"]) - data.answer["center"]).max() < TOL
+    assert abs(out["radius"] - 20.0) < TOL
+    # uncertainties and warnings are in the JSON
+    assert set(out["uncertainty"]) == {"center", "normal", "radius", "diameter"}
+    assert all(v > 0 for v in out["uncertainty"].values()) and out["warnings"] == []
+    path.write_text("41\n" + "\n".join(" ".join(repr(float(v)) for v in p) for p in data.points) + "\n")
+    assert main(["fit", "circle", str(path)]) == 2
+    assert "says 41 points but holds 40" in capsys.readouterr().err
+
+
+def test_warning_in_table_and_json(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    t = np.radians(5.0) * rng.random(30)
+    pts = np.column_stack([50 * np.cos(t), 50 * np.sin(t), rng.uniform(0, 20, 30)]) + 0.001 * rng.standard_normal((30, 3))
+    path = write(tmp_path / "arc.txt", pts)
+    out = run_json(capsys, "cylinder", path)
+    assert any("poorly" in w for w in out["warnings"]) and out["uncertainty"]["radius"] > 0.01
+    assert main(["fit", "cylinder", path]) == 0
+    text = capsys.readouterr().out
+    assert "uncertainty" in text and "! the points determine the cylinder" in text

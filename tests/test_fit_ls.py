@@ -231,3 +231,114 @@ def test_exact_fit_has_undefined_sigma():
     assert res.radius == pytest.approx(10.0, abs=1e-12)
     assert np.isnan(res.sigma)
     assert res.summary()["sigma"] is None
+
+
+# ---------------------------------------------------------------- short arcs, sparse partial features
+
+
+@pytest.mark.parametrize("m", [10, 1000, 100_000])
+def test_circle_10_degree_arc_large_residuals(m):
+    """A 10 degree arc with +-0.2 mm residuals: convergence judged on the step, not the flat cost."""
+    data = ka.circle3d_standard(FAR, TILT, 50.0, m=m, arc_deg=10.0, form=0.4, plane_form=0.02, seed=1)
+    res = fit_ls.fit_circle(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL
+    assert_dir(res.normal, data.answer["normal"])
+    assert abs(res.radius - 50.0) < TOL
+    assert any("poorly" in w for w in res.warnings)  # a 10 degree arc does not fix the circle well
+
+
+@pytest.mark.parametrize("m", [10, 1000])
+def test_circle_2d_10_degree_arc(m):
+    data = ka.circle2d(FAR[:2], 50.0, m=m, arc_deg=10.0, form=0.4, seed=2)
+    res = fit_ls.fit_circle_2d(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL and abs(res.radius - 50.0) < TOL
+
+
+def test_cylinder_10_degree_arc():
+    data = ka.cylinder(FAR, TILT, 50.0, m=1000, length=40.0, arc_deg=10.0, form=0.4, seed=0)
+    res = fit_ls.fit_cylinder(data.points)
+    assert_dir(res.direction, data.answer["direction"])
+    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
+    assert abs(res.radius - 50.0) < TOL
+
+
+def _cost(res):
+    return float(np.sum(res.residuals**2))
+
+
+@pytest.mark.parametrize("seed", [4, 8, 12, 14, 18])
+def test_sparse_partial_cone_global_or_warned(seed):
+    """10 points on a 30 degree arc of a cone: the known answer (or a better fit) or a warning."""
+    data = ka.cone(FAR, TILT, np.radians(20.0), m=10, arc_deg=30.0, form=0.01, seed=seed)
+    res = fit_ls.fit_cone(data.points)
+    ok = np.abs(res.apex - data.answer["apex"]).max() < 1e-6 and abs(res.half_angle - data.answer["half_angle"]) < 1e-9
+    better = _cost(res) < np.sum(data.residuals**2) * (1 - 1e-9)
+    assert ok or better or any("clearly different" in w for w in res.warnings)
+    assert _cost(res) <= np.sum(data.residuals**2) * 1.01  # never a bad local minimum (was 3-218x)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sparse_partial_cylinder_reaches_known_answer(seed):
+    data = ka.cylinder(FAR, TILT, 50.0, m=10, length=40.0, arc_deg=30.0, form=0.1, seed=seed)
+    res = fit_ls.fit_cylinder(data.points)
+    assert abs(res.radius - 50.0) < 1e-8
+    assert np.linalg.norm(np.cross(res.direction, data.answer["direction"])) < 1e-10
+
+
+def test_nominal_far_from_the_best_fit_is_flagged():
+    data = ka.cylinder(FAR, TILT, 50.0, m=10, length=40.0, arc_deg=30.0, form=0.01, seed=0)
+    wrong = {"point": data.answer["point"] + [0.0, 60.0, 0.0], "direction": [1.0, 0.0, 0.0], "radius": 20.0}
+    res = fit_ls.fit_cylinder(data.points, nominal=wrong)
+    assert abs(res.radius - 50.0) < 1e-8  # still the global optimum
+    assert any("not the one near the nominal" in w for w in res.warnings)
+
+
+# ---------------------------------------------------------------- uncertainties and conditioning
+
+
+def test_uncertainty_matches_monte_carlo():
+    """Reported u(radius), u(center) agree with the scatter of repeated fits to noisy data."""
+    rng = np.random.default_rng(7)
+    t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    truth = np.column_stack([20 * np.cos(t), 20 * np.sin(t)]) + FAR[:2]
+    radii, reported = [], []
+    for _ in range(300):
+        noisy = truth + 0.002 * rng.standard_normal(truth.shape)
+        res = fit_ls.fit_circle_2d(noisy)
+        radii.append(res.radius)
+        reported.append(res.uncertainty["radius"])
+    assert np.std(radii) == pytest.approx(np.mean(reported), rel=0.15)
+    assert np.mean(reported) == pytest.approx(0.002 / np.sqrt(24), rel=0.15)  # radius of a full ring
+
+
+def test_uncertainty_from_covariance_in_summary():
+    data = ka.sphere(FAR, 12.5, m=60, form=0.01)
+    res = fit_ls.fit_sphere(data.points)
+    cov = res.covariance
+    assert res.uncertainty["radius"] == pytest.approx(np.sqrt(cov[3, 3]), rel=1e-12)
+    assert res.uncertainty["center"] == pytest.approx(np.sqrt(np.trace(cov[:3, :3])), rel=1e-12)
+    assert res.uncertainty["diameter"] == pytest.approx(2 * res.uncertainty["radius"])
+    s = res.summary()
+    assert s["uncertainty"]["radius"] == res.uncertainty["radius"] and s["warnings"] == []
+
+
+def test_small_cap_sphere_warns():
+    """1 degree cap, 1 um noise: the radius is meaningless and the fit says so."""
+    rng = np.random.default_rng(1)
+    polar, az = np.radians(0.5) * np.sqrt(rng.random(200)), rng.uniform(0, 2 * np.pi, 200)
+    n = np.column_stack([np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar)])
+    pts = FAR + (10.0 + 0.001 * rng.standard_normal(200))[:, None] * n
+    res = fit_ls.fit_sphere(pts)
+    assert any("sphere's center and radius poorly" in w for w in res.warnings)
+    assert res.uncertainty["radius"] > 0.5  # honest: several tenths of a mm at least
+    full = fit_ls.fit_sphere(ka.sphere(FAR, 10.0, m=60, form=0.002).points)
+    assert full.warnings == ()
+
+
+def test_cone_on_cylinder_data_warns():
+    data = ka.cylinder(FAR, TILT, 8.0, m=60, length=40.0)
+    res = fit_ls.fit_cone(data.points)
+    assert any("nearly a cylinder" in w for w in res.warnings)
+    assert res.uncertainty["apex"] > 100.0
+    good = fit_ls.fit_cone(ka.cone(FAR, TILT, np.radians(20.0)).points)
+    assert good.warnings == () and good.uncertainty["apex"] < 0.1

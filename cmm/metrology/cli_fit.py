@@ -1,8 +1,11 @@
 """`cmm fit KIND FILE [--method ls|minzone|mic|mcc] [--json]`
 
 FILE holds one point per line, ``x y z`` separated by commas and/or
-whitespace; one header line is allowed before the first point, blank lines
-and ``#`` comments are skipped; ``-`` reads standard input.  Exit status: 0
+whitespace; one header line is allowed before the first point, or a first
+line with the number of points (NIST data set format); blank lines and ``#``
+comments are skipped; ``-`` reads standard input.  The output (table or
+``--json``) carries the standard uncertainties (``uncertainty``, mm / rad)
+and ``warnings`` (poorly determined fits, ambiguous or unproven optima).  Exit status: 0
 success, 1 the fit was refused (too few / degenerate points, method not
 available for the kind), 2 the file is missing or malformed.
 """
@@ -29,8 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _format(value: Any) -> str:
+    if isinstance(value, dict):
+        return "  ".join(f"{k}={v:.3g}" for k, v in value.items()) or "-"
     if isinstance(value, list):
-        return "  ".join(f"{v:.9f}" for v in value)
+        if value and isinstance(value[0], str):
+            return "\n  ! ".join([""] + value).lstrip("\n")
+        return "  ".join(f"{v:.9f}" for v in value) or "-"
     if isinstance(value, float):
         return f"{value:.9f}"
     return str(value)

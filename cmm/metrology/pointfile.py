@@ -1,7 +1,9 @@
 """Point files for the command line: one `x y z` point per line.
 
 Comma, semicolon or whitespace separated; one header line allowed before the
-first point; blank lines and `#` comments skipped; `-` reads stdin.
+first point; the first line may instead be the number of points (the NIST
+algorithm-testing data set format), which is then checked; blank lines and
+`#` comments skipped; `-` reads stdin.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ def parse_points(lines: Iterable[str], name: str = "<input>") -> list[tuple[floa
     """Rows of three finite numbers; raises PointFileError naming the line."""
     points: list[tuple[float, float, float]] = []
     header_seen = False
+    count: tuple[int, int] | None = None  # (declared number of points, line)
     for number, raw in enumerate(lines, start=1):
         text = raw.split("#", 1)[0].strip()
         if not text:
@@ -29,15 +32,20 @@ def parse_points(lines: Iterable[str], name: str = "<input>") -> list[tuple[floa
         try:
             values = [float(f) for f in _SPLIT.split(text) if f]
         except ValueError:
-            if not points and not header_seen:  # a header such as "x,y,z"
+            if not points and not header_seen and count is None:  # a header such as "x,y,z"
                 header_seen = True
                 continue
             raise PointFileError(f"{name} line {number}: expected 3 finite numbers 'x y z', got {raw.strip()!r}") from None
+        if not points and count is None and len(values) == 1 and values[0].is_integer() and values[0] >= 0:
+            count = (int(values[0]), number)  # NIST format: the first line is the number of points
+            continue
         if len(values) != 3 or not all(math.isfinite(v) for v in values):
             raise PointFileError(f"{name} line {number}: expected 3 finite numbers 'x y z', got {raw.strip()!r}")
         points.append((values[0], values[1], values[2]))
     if not points:
         raise PointFileError(f"{name}: no points found")
+    if count is not None and count[0] != len(points):
+        raise PointFileError(f"{name} line {count[1]}: the file says {count[0]} points but holds {len(points)}")
     return points
 
 
