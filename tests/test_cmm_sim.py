@@ -80,3 +80,42 @@ def test_pure_z_move_with_squareness_correction_arrives():
     start = m.position
     m.move_to(start - [0.0, 0.0, 250.0]).wait(30)
     assert np.abs(m.position - (start - [0.0, 0.0, 250.0])).max() < 0.003
+
+
+def test_cmm_sim_honours_firmware_modules_and_version_and_says_so():
+    """`cmm sim --cmm --firmware pic-servo-sc --module-version 12 --modules 4`: the banner
+    says so, and the modules report it over the wire (READ_STAT item 0x20: type 0, version)."""
+    import serial
+
+    proc = subprocess.Popen([sys.executable, "-m", "cmm.cli", "sim", "--cmm", "--firmware", "pic-servo-sc",
+                             "--module-version", "12", "--modules", "4", "--tcp", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        for _ in range(20):
+            lines.append(proc.stdout.readline())
+            if "socket://" in lines[-1]:
+                break
+        text = "".join(lines)
+        assert "4 simulated PIC-SERVO modules (firmware pic-servo-sc, version 12)" in text, text
+        url = re.search(r"socket://\S+", text).group(0)
+        port = serial.serial_for_url(url, timeout=0.5)
+        try:
+            port.write(bytes(20))
+            versions = []
+            for a in range(1, 6):
+                body = bytes((0, 0x21, a, 0xFF))
+                port.reset_input_buffer()
+                port.write(b"\xaa" + body + bytes((sum(body) & 0xFF,)))
+                if len(port.read(2)) < 2:
+                    break
+                body = bytes((a, 0x13, 0x20))  # READ_STAT item 0x20
+                port.write(b"\xaa" + body + bytes((sum(body) & 0xFF,)))
+                reply = port.read(4)
+                versions.append((reply[1], reply[2]))
+            assert versions == [(0, 12)] * 4  # four modules answer, each a PIC-SERVO of version 12
+        finally:
+            port.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)

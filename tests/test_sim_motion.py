@@ -174,7 +174,9 @@ def test_reset_pos_and_later_firmware_forms(host: Host):
     assert abs(host.nop(1).position) <= 1  # the servo holds: no jump
 
 
-def test_later_firmware_status_items_and_15_byte_gains(host: Host):
+def test_later_firmware_status_items_and_15_byte_gains():
+    host = Host(SimNetwork(3, firmware="pic-servo-sc"))
+    host.init()
     g = c.Gains(**{**DEFAULT_GAINS.__dict__, "sm": 1})
     assert host.cmd(c.set_gain(1, g)) is not None
     s = host.cmd(c.read_stat(1, 0xFF), 0xFF)

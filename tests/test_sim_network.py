@@ -30,7 +30,7 @@ def test_address_chain_answers_one_module_at_a_time():
 def test_power_up_state():
     host = _fresh(1)
     host.raw(c.set_addr(0, 1), 2)
-    s = host.cmd(c.read_stat(1, 0xFF), 0xFF)
+    s = host.cmd(c.read_stat(1, 0x3F), 0x3F)  # every item of the original firmware
     assert s.move_done and s.pos_error and not s.home_in_progress
     assert s.position == 0 and s.aux == 0 and s.status & c.POWER_ON
     assert host.cmd(c.nop(1)).status == s.status  # READ_STAT was one-shot: 2-byte reply again
@@ -136,7 +136,7 @@ def test_hard_reset_power_up_state_and_chain_reforms():
     assert host.raw(c.nop(1), 20) == b""  # addresses forgotten
     for addr in (1, 2, 3):  # the chain re-forms from modules[0]
         assert len(host.raw(c.set_addr(0, addr), 2)) == 2
-    s = host.cmd(c.read_stat(2, 0xFF), 0xFF)
+    s = host.cmd(c.read_stat(2, 0x3F), 0x3F)
     assert s.position == 0 and s.move_done and s.pos_error and s.aux == 0
 
 

@@ -11,11 +11,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="listen on HOST:PORT (default 127.0.0.1:7777; port 0 picks a free one); "
                             "the driver opens socket://HOST:PORT")
     where.add_argument("--pty", action="store_true", help="create a pseudo-terminal and print its device path")
-    parser.add_argument("--modules", type=int, default=3, metavar="N", help="modules on the network (default 3)")
+    parser.add_argument("--modules", type=int, default=3, metavar="N",
+                        help="modules on the network (default 3; with --cmm, modules after the three axes idle)")
     parser.add_argument("--no-wire-time", dest="wire_time", action="store_false",
                         help="deliver bytes instantly instead of 10 bits per baud each way")
-    parser.add_argument("--firmware", choices=("pic-servo", "pic-servo-sc"), default="pic-servo",
-                        help="firmware family: module version and SET_BAUD divisor table (default pic-servo)")
+    parser.add_argument("--firmware", choices=("pic-servo", "pic-servo-sc"), default=None,
+                        help="firmware family: version, SET_BAUD table, SC-only status items and IO_CTRL bits "
+                             "(default pic-servo; with --cmm the machine configuration's)")
     parser.add_argument("--module-version", type=int, default=None, metavar="V",
                         help="version byte reported in status item 0x20 (default 4, SC: 10)")
     cmm = parser.add_argument_group("simulated CMM (--cmm)")
@@ -34,7 +36,11 @@ def banner(network, url: str, pty: bool) -> str:
     from cmm.sim.plant import DEFAULT_GAINS as g
     from cmm.sim.plant import DEFAULT_PLANT as p
 
-    where = f"device {url}   (open it at 19200 8N1)" if pty else f"driver URL {url}"
+    if pty:
+        where = f"device {url}   (open it at 19200 8N1; the rate you set is the host's rate)"
+    else:
+        where = (f"driver URL {url}   (TCP carries no line rate: the host is taken to follow every SET_BAUD, "
+                 f"so a host that never switches passes here; --pty is the faithful path)")
     return "\n".join([
         f"cmm sim: {len(network.modules)} simulated PIC-SERVO modules (firmware {network.firmware}, "
         f"version {network.version}), wire-time emulation {'on' if network.wire_time else 'off'}",
@@ -55,7 +61,8 @@ def _cmm_network(args: argparse.Namespace):
     from cmm.sim.probe_world import GeometryErrors
 
     settings = CmmSimSettings(errors=GeometryErrors(tuple(args.scale_ppm), tuple(args.squareness_urad)))
-    cmm = SimulatedCMM(load(args.config), settings, wire_time=args.wire_time, realtime=True)
+    cmm = SimulatedCMM(load(args.config), settings, wire_time=args.wire_time, realtime=True,
+                       n_modules=args.modules, firmware=args.firmware, version=args.module_version)
     print(f"cmm sim: simulated CMM, part at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
           f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
           f"at {settings.sphere_centre}", flush=True)
@@ -75,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             network = _cmm_network(args)
         else:
             network = SimNetwork(args.modules, version=args.module_version, wire_time=args.wire_time,
-                                 realtime=True, firmware=args.firmware)
+                                 realtime=True, firmware=args.firmware or "pic-servo")
     except ValueError as exc:  # ConfigError is a ValueError
         print(f"cmm sim: {exc}", file=sys.stderr)
         return 2

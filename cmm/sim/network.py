@@ -163,6 +163,16 @@ class SimNetwork:
         for p in self.plants if axis is None else [self.plants[axis]]:
             p.set_power(on)
 
+    def power_cycle(self) -> None:
+        """Switch the modules' logic supply off and on: power-up state (SC modules
+        restore what HARD_RESET saved in EEPROM), the address chain re-forms."""
+        for m, parser in zip(self.modules, self._parsers):
+            m.power_up()
+            parser.reset()
+        self._arrivals.clear()
+        self._tx.clear()
+        self._update_chain()
+
     @property
     def seconds(self) -> float:
         return self.now_ns * 1e-9

@@ -9,6 +9,30 @@ in, status bytes out) and through its :class:`~cmm.sim.plant.Plant` (PWM out,
 encoder count and input levels in).
 
 Addressing, baud rate and reply rules live in :mod:`cmm.sim.network`.
+
+Firmware families (``firmware``): "pic-servo" is the thesis's original module
+(version 4 by default), "pic-servo-sc" the later SC module (version 10). Only
+the SC sends status items 0x40 (position error) and 0x80 (path points): the
+original ignores those DEF_STAT / READ_STAT bits and its packets are shorter.
+SC-only behaviour, from Kerr's public NMC library header (bit names there):
+- IO_CTRL: LIMIT1/LIMIT2 are always inputs; 0x04 turns the motor off and 0x08
+  stops it abruptly on a limit; 0x10 3-phase, 0x20 antiphase, 0x40 fast path,
+  0x80 step & direction are drive options the simulated DC motor ignores.
+  Chosen where the facts are silent: a limit is active while its input is
+  high (the simulator's unwired inputs read low), LIMIT1 guards positive and
+  LIMIT2 negative travel, so an axis can always be moved off its limit.
+- LOAD_TRAJ bit 0x40 in trapezoidal position mode: MOVE_REL, the goal is
+  relative to the command position when the move starts.
+- HARD_RESET with a control byte: 0x01 saves gains, addresses and the
+  power-up options (the other bits) in EEPROM; at every later power-up the
+  saved gains return, 0x02 restores the addresses (the module lowers ADDR_OUT
+  at once), 0x04 raises the amplifier enable, 0x08 starts the servo holding,
+  0x20 turns limit protection on (stop abruptly); 3-phase, antiphase and step
+  mode are recorded only.
+- ADD_PATHPOINT (path mode) is not modelled: its point format is not among the
+  facts; the SC answers it with a status packet and reports 0 path points.
+A 13-byte SET_GAIN (Kerr's header allows 13 or 14 bytes) sets everything up to
+SR and leaves the deadband compensation DB as it was.
 """
 
 from __future__ import annotations
@@ -50,6 +74,14 @@ def rates_match(module_rate: float, host_rate: float | None) -> bool:
     return host_rate is None or (host_rate > 0 and abs(module_rate - host_rate) <= UART_TOLERANCE * host_rate)
 
 
+SC = "pic-servo-sc"
+# SC IO_CTRL bits
+LIMSTOP_OFF, LIMSTOP_ABRUPT = 0x04, 0x08
+# SC HARD_RESET control byte bits
+SAVE_DATA, RESTORE_ADDR, EPU_AMP, EPU_SERVO, EPU_LIMITS = 0x01, 0x02, 0x04, 0x08, 0x20
+MOVE_REL = 0x40  # LOAD_TRAJ, trapezoidal position mode on the SC (REVERSE in velocity / PWM mode)
+CLASSIC_ITEMS = 0x3F  # status items of the original firmware
+
 # Profile state.
 HOLD, TRAPEZOID, VELOCITY = 0, 1, 2
 
@@ -78,6 +110,8 @@ class PicServo:
         self.plant = plant
         self.version = version
         self.firmware = firmware
+        self.sc = firmware == SC
+        self.eeprom: dict | None = None  # SC configuration saved by HARD_RESET 0x01 (survives power cycles)
         self.enc_offset = plant.count
         self.quiet = False  # True when the next tick provably changes nothing
         plant.on_change = self.wake
@@ -140,9 +174,31 @@ class PicServo:
         self.home = 0
         self.home_ctrl = 0
         self.io = c.IO_LIMIT1_IN | c.IO_LIMIT2_IN  # both LIMIT pins are inputs
+        self.sc_io = 0  # SC IO_CTRL byte (limit protection and drive options)
         self._levels = self._input_levels()
-        self.plant.drive(0, False, False)
+        if self.eeprom is not None:
+            self._restore(self.eeprom)
+        self.plant.drive(self.pwm, self.reverse, self.amp_en)
         self.quiet = False
+
+    def _restore(self, saved: dict) -> None:
+        """SC power-up with a saved configuration (see HARD_RESET options)."""
+        self.kp, self.kd, self.ki, self.il, self.ol, self.cl, self.el, self.sr, self.db = saved["gains"]
+        options = saved["options"]
+        if options & RESTORE_ADDR:
+            self.address, self.group, self.leader = saved["address"], saved["group"], saved["leader"]
+            self.addr_out_low = True
+        if options & EPU_AMP:
+            self.amp_en = True
+        if options & EPU_SERVO:
+            self._servo_on_here()
+            self.pos_error = False
+        if options & EPU_LIMITS:
+            self.sc_io |= LIMSTOP_ABRUPT
+
+    def _save(self, options: int) -> None:
+        self.eeprom = {"gains": (self.kp, self.kd, self.ki, self.il, self.ol, self.cl, self.el, self.sr, self.db),
+                       "address": self.address, "group": self.group, "leader": self.leader, "options": options}
 
     def wake(self) -> None:
         self.quiet = False
@@ -174,6 +230,8 @@ class PicServo:
             if ((ctrl & c.ON_LIMIT1 and levels[0] != old[0]) or (ctrl & c.ON_LIMIT2 and levels[1] != old[1])
                     or (ctrl & c.ON_INDEX and levels[2] != old[2])):
                 self._capture()
+        if self.sc_io & (LIMSTOP_OFF | LIMSTOP_ABRUPT):
+            self._limit_protection()
         if not plant.power and self.servo_on:
             # The firmware watches the motor supply and drops the servo itself.
             self._servo_off()
@@ -243,6 +301,21 @@ class PicServo:
         self.quiet = (vel == 0 and plant.v == 0.0 and self.prof == HOLD and pwm == old_pwm
                       and self.reverse == old_rev and cla == old_cla and self.isum == old_isum
                       and self.e_prev == old_e)
+
+    def _limit_protection(self) -> None:
+        """SC: stop travel towards an active limit (LIMIT1 positive, LIMIT2 negative)."""
+        p = self.plant
+        if self.servo_on:
+            v = self.v_fx
+            if self.prof == TRAPEZOID and v == 0:
+                v = self.goal_fx - self.cmd_fx  # about to start
+        else:
+            v = 0 if not self.pwm_reg else (-1 if self.pwm_reverse else 1)
+        if (p.limit1 and v > 0) or (p.limit2 and v < 0):
+            if self.sc_io & LIMSTOP_OFF:
+                self._servo_off()
+            elif self.servo_on:
+                self._stop_abrupt()
 
     # --- profile generator ------------------------------------------------------
     def _trapezoid_step(self) -> None:
@@ -380,6 +453,8 @@ class PicServo:
         """The status packet with ``items`` (default: the DEF_STAT set)."""
         if items is None:
             items = self.stat_items
+        if not self.sc:
+            items &= CLASSIC_ITEMS  # 0x40 / 0x80 do not exist on the original firmware
         out = bytearray((self.status_byte(),))
         if items:
             if items & c.SEND_POS:
@@ -442,14 +517,19 @@ class PicServo:
             self.leader = not data[1] & 0x80
             self.group = data[1] | 0x80
             self.addr_out_low = True
-        elif code == c.SET_GAIN and n in (14, 15):
-            g = c.Gains.from_bytes(data)
-            self.kp, self.kd, self.ki, self.il = g.kp, g.kd, g.ki, g.il
-            self.ol, self.cl, self.el, self.sr, self.db = g.ol, g.cl, g.el, max(1, g.sr), g.db
+        elif code == c.SET_GAIN and n in (13, 14, 15):
+            kp, kd, ki, il, ol, cl, el, sr = struct.unpack_from("<hhhhBBhB", data)
+            self.kp, self.kd, self.ki, self.il = kp, kd, ki, il
+            self.ol, self.cl, self.el, self.sr = ol, cl, el, max(1, sr)
+            if n >= 14:
+                self.db = data[13]  # a 13-byte SET_GAIN leaves DB as it was
         elif code == c.STOP_MOTOR and n in (1, 5):
             self._stop_motor(data[0], struct.unpack_from("<i", data, 1)[0] if n == 5 else None)
         elif code == c.IO_CTRL and n == 1:
-            self.io = data[0] & 0x0F
+            if self.sc:
+                self.sc_io = data[0]  # the LIMIT pins stay inputs
+            else:
+                self.io = data[0] & 0x0F
         elif code == c.SET_HOMING and n == 1:
             self.home_ctrl = data[0]
             self.home_in_prog = bool(data[0] & _CAPTURE_CONDITIONS)
@@ -463,6 +543,8 @@ class PicServo:
         elif code == c.RESET_POS:
             self._reset_pos(data)
         elif code == c.HARD_RESET:
+            if self.sc and n == 1 and data[0] & SAVE_DATA:
+                self._save(data[0])
             self.power_up()
             return None
         return self.status_packet(items)
@@ -523,6 +605,8 @@ class PicServo:
             self.move_done = self.v_fx == self.vtarget
         else:
             self.prof = TRAPEZOID
+            if self.sc and ctrl & MOVE_REL and lt.position is not None:
+                self.goal = (self.cmd_fx >> 16) + lt.position
             self.goal_fx = self.goal << 16
             self.vmax = self.vel_reg
             self.move_done = self.goal_fx == self.cmd_fx and self.v_fx == 0
