@@ -71,7 +71,7 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
             context = p.chromium.launch_persistent_context(
                 profile, executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS,
                 viewport={"width": viewport[0], "height": viewport[1]}, timeout=30_000, **options)
-            context.set_default_timeout(10_000)
+            context.set_default_timeout(30_000)  # software WebGL on a loaded 2-core machine is slow
             try:
                 yield context
             finally:
@@ -83,6 +83,7 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
 def screenshot(page: Any, name: str, **options: Any) -> Path:
     ARTIFACTS.mkdir(exist_ok=True)
     path = ARTIFACTS / f"{name}.png"
+    options.setdefault("timeout", 60_000)  # waits for fonts and a WebGL frame: slow when the machine is busy
     page.screenshot(path=str(path), **options)
     return path
 
@@ -102,6 +103,23 @@ FAKE_GAMEPAD = """
   Object.defineProperty(navigator, "getGamepads", { configurable: true, value: () => [snapshot(), null, null, null] });
 })();
 """
+
+
+def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
+    """Simulated seconds from ``since`` (the station's clock, ``station.state.time``) until every axis stands still.
+
+    The station runs on the simulator's paced virtual clock, so a busy test machine slows the simulated
+    machine down with everything else instead of making a stop look late.
+    """
+    wall_end = time.monotonic() + 60
+    while time.monotonic() < wall_end:
+        state = station.state
+        if max(abs(a.velocity) for a in state.axes) < 1e-9:
+            return state.time - since
+        if state.time - since > limit:
+            break
+        time.sleep(0.005)
+    raise AssertionError(f"{what} did not happen within {limit} s of machine time")
 
 
 def wait_until(predicate, timeout: float, what: str) -> float:

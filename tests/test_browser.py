@@ -14,6 +14,7 @@ import time
 import urllib.request
 
 import pytest
+from netutil import SIM_PACED
 
 import browser_support as bs
 from cmm.station import Station
@@ -30,7 +31,7 @@ STOP_WITHIN = 0.3  # s from the input's release to zero velocity
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(session_dir=tmp_path).start()
+    st = Station(port=SIM_PACED, session_dir=tmp_path).start()
     yield st
     st.close()
 
@@ -126,8 +127,9 @@ def test_gamepad_moves_and_stops(page, server, station):
     assert rate(station)[0] == pytest.approx(fast, rel=0.03)
     assert station.state.jogging
     bs.screenshot(page, "pendant-jogging")
+    t0 = station.state.time
     page.evaluate("window.__pad.axes[0] = 0.0")  # back to centre: one release
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop") < STOP_WITHIN
+    assert bs.stop_time(station, t0, "the stop") < STOP_WITHIN
     assert station.state.position[0] > start[0] + 5
 
     # hold A: fine (probing) speed; the cubic curve makes a half deflection much slower than half speed
@@ -140,8 +142,9 @@ def test_gamepad_moves_and_stops(page, server, station):
     page.wait_for_timeout(200)
     half = ((0.5 - 0.15) / 0.85) ** 3 * fast
     assert rate(station)[1] == pytest.approx(half, rel=0.05)
+    t0 = station.state.time
     page.evaluate("window.__pad.buttons[1] = 1")  # B: stop
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on B") < STOP_WITHIN + 0.1
+    assert bs.stop_time(station, t0, "the stop on B") < STOP_WITHIN + 0.1
     page.evaluate("window.__pad.buttons[1] = 0; window.__pad.axes[1] = 0")
     page.wait_for_timeout(200)
     assert page.log.problems == []
@@ -162,8 +165,9 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
     bs.wait_until(lambda: velocity(station)[0] > 0.9 * slow, 2.0, "the keyboard jog")
     page.wait_for_timeout(100)
     assert rate(station)[0] == pytest.approx(slow, rel=0.03)
+    t0 = station.state.time
     page.keyboard.up("ArrowRight")
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    assert bs.stop_time(station, t0, "the stop on key-up") < STOP_WITHIN
     moved = station.state.position - start
     assert moved[0] > 1 and abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-9
     page.keyboard.down("Shift")
@@ -171,13 +175,15 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
     fast = station.config.speeds.jog_fast
     bs.wait_until(lambda: velocity(station)[1] > 0.9 * fast, 2.0, "the fast keyboard jog")
     assert rate(station, 0.2)[1] == pytest.approx(fast, rel=0.03)
+    t0 = station.state.time
     page.keyboard.up("ArrowUp")
     page.keyboard.up("Shift")
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on key-up") < STOP_WITHIN
+    assert bs.stop_time(station, t0, "the stop on key-up") < STOP_WITHIN
     page.keyboard.down("PageDown")  # Z-
     bs.wait_until(lambda: velocity(station)[2] < -0.9 * slow, 2.0, "the Z jog")
+    t0 = station.state.time
     page.evaluate("window.dispatchEvent(new Event('blur'))")  # focus lost while a key is down
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on blur") < STOP_WITHIN
+    assert bs.stop_time(station, t0, "the stop on blur") < STOP_WITHIN
     page.keyboard.up("PageDown")
     assert page.log.problems == []
 
@@ -188,8 +194,9 @@ def test_hold_button(page, server, station):
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.down()
     bs.wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 2.0, "the button jog")
+    t0 = station.state.time
     page.mouse.move(box["x"] - 60, box["y"] + box["height"] / 2)  # slide off the button: pointerleave
-    assert bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop on leaving the button") < STOP_WITHIN
+    assert bs.stop_time(station, t0, "the stop on leaving the button") < STOP_WITHIN
     page.mouse.up()
 
 

@@ -15,6 +15,7 @@ import threading
 
 import numpy as np
 import pytest
+from netutil import SIM_PACED
 
 import browser_support as bs
 
@@ -52,7 +53,7 @@ open("pendant", "ws://127.0.0.1:%(pendant)d/ws", null, (ws) => {
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start()
+    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
     ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
     yield ui
     ui.close()

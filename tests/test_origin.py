@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from netutil import free_port
+from netutil import free_port, SIM_PACED
 
 pytest.importorskip("viser")
 
@@ -57,7 +57,7 @@ def test_policy_rules():
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(session_dir=tmp_path_factory.mktemp("sessions")).start()
+    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
     yield ui
     ui.close()

@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from netutil import SIM
 
 from cmm.session.model import mesh_sha256
 from cmm.session.store import DirectoryStore, SessionBusy, load_session
@@ -14,7 +15,7 @@ from cmm.station import Station
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(session_dir=tmp_path).start("recorded")
+    st = Station(port=SIM, session_dir=tmp_path).start("recorded")
     yield st
     st.close()
 

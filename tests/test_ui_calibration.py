@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netutil import free_port
+from netutil import free_port, SIM
 
 pytest.importorskip("viser")
 
@@ -39,7 +39,7 @@ def records(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory, records):
-    station = Station(session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start()
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start()
     assert station.calibration_dir == records
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui

@@ -49,6 +49,7 @@ class StationApp:
         self._t0 = time.monotonic()
         self._dirty = {"hits": True, "features": True, "part": False}
         self._deviations: dict[int, float] = {}
+        self._redraw_lock = threading.Lock()
         self.view = SceneView(self.server.scene, station, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)
         self.view.build()
@@ -204,6 +205,10 @@ class StationApp:
 
     def redraw(self) -> None:
         """Redraw whatever station events marked dirty (refresher thread; tests may call it)."""
+        with self._redraw_lock:  # a second caller waits for a redraw in progress instead of seeing stale data
+            self._redraw()
+
+    def _redraw(self) -> None:
         if self._dirty["part"]:
             self._dirty["part"] = False
             self.view.draw_part()
