@@ -92,7 +92,7 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=10)
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        station = Station(session_dir=tmp).start()
+        station = Station(session_dir=tmp).start(home=True)
         control = Control(on_holder_lost=lambda _cid: station.jog_release())
         server = start_pendant_server(station, control)
         watch = StopWatch(station)

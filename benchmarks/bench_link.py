@@ -84,7 +84,7 @@ def main() -> None:
     report("machine.poll in-process, virtual clock", (machine.samples - n0) / (machine.clock.now() - t0), machine.items)
 
     with tempfile.TemporaryDirectory() as tmp:
-        station = Station(session_dir=tmp).start()
+        station = Station(session_dir=tmp).start(home=True)
         try:
             m = station.machine
             n0, t0 = m.samples, time.perf_counter()

@@ -38,7 +38,7 @@ def main() -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    station = Station(session_dir=tempfile.mkdtemp()).start()
+    station = Station(session_dir=tempfile.mkdtemp()).start(home=True)
     app = StationApp(station, host="127.0.0.1", port=port, pendant=False)
     received = [0]
     stop = threading.Event()

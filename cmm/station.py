@@ -1,8 +1,12 @@
-"""The station: one object owning the machine, probe, part and the active session.
+"""The station: the composition root. It builds the machine, the control core, the part and the session.
 
-Every action the UI offers is a method here, usable from scripts and tests
-without a browser. Thread-safe: the UI calls it from several client threads
-while the machine's poll thread publishes state.
+Motion goes through the control core (:mod:`cmm.control`, ``station.controller``):
+front ends call ``station.controller.<command>(client_id, ...)`` so the access
+policy and the state model are checked in one place. The motion methods here
+(``move_to``, ``jog``, ``probe`` ...) are the same commands for scripts and
+tests, sent as the station itself (client ``None``). Measurement actions (hits,
+features, sessions) live here. Thread-safe: the UI calls it from several
+client threads; hits are journalled on the control core's dispatcher thread.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .control import Controller, ControlState, StopReport
 from .machine.config import MachineConfig, load
 from .machine.motion import Machine, MachineState
 from .machine.probing import Hit, Prober
@@ -92,7 +97,8 @@ class Station:
         self.port = port
         self.machine = Machine(self.config, port, trace=self.trace)
         self.prober = Prober(self.machine)
-        self.prober.listeners.append(self._on_hit)
+        self.controller = Controller(self.machine, self.prober)
+        self.controller.on_hit(self._on_hit)
         self.hits: dict[int, Hit] = {}
         self.deleted: dict[int, Hit] = {}
         self._undo: list[tuple[str, int]] = []
@@ -104,7 +110,7 @@ class Station:
         self._listeners: list[Callable[[str, Any], None]] = []
         self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
         self.journal: Journal | None = None
-        self.machine.on_event(lambda kind, info: self._notify(kind, info))
+        self.controller.subscribe(self._notify)
         self.calibration_log: list[str] = []
         self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}
         self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
@@ -139,6 +145,7 @@ class Station:
             name = Path(part_path).name
         if port == "sim":
             self.sim = SimulatedCMM(self.config, settings, wire_time=True, realtime=True)
+            self._add_home_switches()
             self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
             port = self._served.url
         else:
@@ -150,18 +157,30 @@ class Station:
             if not parse(port).name:  # a world made for this station goes with it; a named one is its owner's
                 self._sim_world_url = world.url
             self.sim, port = world.cmm, world.url
+            self._add_home_switches()
         return Part(name, self.sim.part_mesh, nominal_pose, dict(self.sim.nominal_features)), port
+
+    def _add_home_switches(self) -> None:
+        """The simulated machine gets the home switches the configuration's homing cycle looks for."""
+        if self.config.homing.method == "switch" and not getattr(self.sim, "home_switches", None):
+            from .sim.home_switches import HomeSwitches
+
+            self.sim.home_switches = HomeSwitches(self.sim, self.config.homing.input,
+                                                  self.config.homing.active_level == "high")
 
     # --- life cycle -----------------------------------------------------------
 
-    def start(self, session_name: str | None = None) -> "Station":
-        self.machine.connect()
-        self.machine.start_polling()
+    def start(self, session_name: str | None = None, *, home: bool = False) -> "Station":
+        """Connect the modules, run the machine loop, open a session; ``home`` runs the homing cycle too."""
+        self.controller.connect()
+        self.controller.start()
         self.new_session(session_name)
+        if home:
+            self.home()
         return self
 
     def close(self) -> None:
-        self.machine.close()
+        self.controller.close()
         if self._served is not None:
             self._served.close()
         if self._sim_world_url is not None:
@@ -178,18 +197,22 @@ class Station:
         self.close()
 
     def subscribe(self, fn: Callable[[str, Any], None]) -> None:
-        """Station events: 'hit', 'hits', 'feature', 'features', 'part', plus machine events."""
+        """Station events: 'hit', 'hits', 'feature', 'features', 'part', plus the control core's events
+        ('mode', 'fault', 'stop', 'estop', 'contact', 'deadman', 'limit', 'homed', 'error' ...)."""
         self._listeners.append(fn)
 
     def _notify(self, kind: str, info: Any) -> None:
-        if kind in ("contact", "deadman", "limit", "error", "estop"):
+        if kind == "hit" and isinstance(info, dict):
+            return  # the control core's hit event: _on_hit has notified already, with the hit id
+        if kind in ("contact", "deadman", "limit", "error", "estop", "fault", "stop", "reset", "reconnect"):
             from .session.wording import event_text
 
             text = event_text(kind, info)
             self.events.append((time.time(), kind, text))
             try:
-                self._record("error", source=f"machine:{kind}", message=text)
-            except (OSError, ValueError, TypeError):  # the session may be closing
+                self._record("error" if kind in ("contact", "error", "fault", "estop") else "event",
+                             source=f"machine:{kind}", message=text)
+            except Exception:  # noqa: BLE001 - the session may be closing or the disk full; the event is still shown
                 pass
         for fn in list(self._listeners):
             try:
@@ -197,12 +220,17 @@ class Station:
             except Exception as exc:  # a broken listener must not stop the machine
                 self.events.append((time.time(), "error", f"listener failed: {exc}"))
 
-    def subscribe_state(self, fn: Callable[[MachineState], None]) -> Callable[[], None]:
-        return self.machine.subscribe(fn)
+    def subscribe_state(self, fn: Callable[[ControlState], None]) -> Callable[[], None]:
+        """The control state (mode, reason, positions in ``.machine``) after samples, coalesced."""
+        return self.controller.subscribe_state(fn)
 
     @property
     def state(self) -> MachineState | None:
         return self.machine.state
+
+    @property
+    def control_state(self) -> ControlState:
+        return self.controller.state
 
     def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
         """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
@@ -214,7 +242,7 @@ class Station:
         self.calibration_dir = Path(directory)
         loaded = load_station_calibration(directory)
         with self.lock:
-            applied = apply_calibration(loaded, self.machine, self.prober)
+            applied = self.controller.configure(None, lambda: apply_calibration(loaded, self.machine, self.prober))
         for problem in loaded.problems:
             self.events.append((time.time(), "error", f"calibration record refused: {problem}"))
         self.calibration_log = applied + [f"refused: {p}" for p in loaded.problems]
@@ -227,6 +255,13 @@ class Station:
                                                             "squareness_urad": list(loaded.machine.squareness_urad)},
             "problems": list(loaded.problems)}
         return self.calibration_log
+
+    def apply_calibration(self, loaded: Any, client: str | None = None) -> list[str]:
+        """Apply loaded calibration records to the live machine and probe (in the machine loop, while still)."""
+        from .calibration.records import apply_calibration
+
+        with self.lock:
+            return self.controller.configure(client, lambda: apply_calibration(loaded, self.machine, self.prober))
 
     # --- session ----------------------------------------------------------------
 
@@ -313,48 +348,75 @@ class Station:
             nominal = None
         return hit, nominal
 
-    # --- motion ------------------------------------------------------------------
+    # --- motion (the station's own commands: client None; front ends call self.controller with their id) ----
 
-    def move_to(self, target: Any, speed: float | None = None) -> MoveStatus:
-        return self.machine.move_to(target, speed)
+    def move_to(self, target: Any, speed: float | None = None, client: str | None = None) -> MoveStatus:
+        return self.controller.move_to(client, target, speed)
 
-    def move_above(self, point: Any, normal: Any, clearance: float | None = None) -> MoveStatus:
-        """Move the tip to ``clearance`` mm above a picked surface point along its normal."""
+    def above_point(self, point: Any, normal: Any, clearance: float | None = None) -> np.ndarray:
+        """The tip position ``clearance`` mm above a surface point along its normal."""
         clearance = self.config.probe.approach_distance + self.prober.settings.tip_radius if clearance is None else clearance
         n = np.asarray(normal, float) / np.linalg.norm(normal)
-        return self.machine.move_to(np.asarray(point, float) + clearance * n)
+        return np.asarray(point, float) + clearance * n
 
-    def jog(self, velocity: Any) -> None:
-        self.machine.jog(velocity)
+    def move_above(self, point: Any, normal: Any, clearance: float | None = None,
+                   client: str | None = None) -> MoveStatus:
+        """Move the tip to ``clearance`` mm above a picked surface point along its normal, over the clearance
+        height of the part (never straight through it)."""
+        target = self.above_point(point, normal, clearance)
+        here = self.controller.state.position if self.controller.state.machine is not None else self.machine.position
+        z = max(self.clearance_z(), float(here[2]), float(target[2]))
+        z = min(z, self.config.axis("z").max)
+        return self.controller.move_path(client, [[here[0], here[1], z], [target[0], target[1], z], target])
 
-    def jog_release(self) -> None:
-        self.machine.jog_release()
+    def clearance_z(self, margin: float = 10.0) -> float:
+        """A height that clears the part (its top + ``margin``), or the present height without a part."""
+        if self.part is None:
+            return float(self.machine.position[2])
+        corners = np.array([[x, y, z] for x in self.part.mesh.bounds[:, 0] for y in self.part.mesh.bounds[:, 1]
+                            for z in self.part.mesh.bounds[:, 2]])
+        top = float((corners @ self.part.pose[:3, :3].T + self.part.pose[:3, 3])[:, 2].max())
+        return min(top + margin + self.prober.settings.tip_radius, self.config.axis("z").max)
 
-    def step(self, axis: str, step_mm: float) -> MoveStatus:
-        return self.machine.step(axis, step_mm)
+    def jog(self, velocity: Any, client: str | None = None) -> None:
+        self.controller.jog(client, velocity)
 
-    def stop(self) -> None:
-        self.machine.stop()
+    def jog_release(self, client: str | None = None) -> None:
+        self.controller.jog_release(client)
 
-    def emergency_stop(self) -> None:
-        self.machine.emergency_stop()
+    def step(self, axis: str, step_mm: float, client: str | None = None) -> MoveStatus:
+        return self.controller.step(client, axis, step_mm)
 
-    def reset(self) -> None:
-        self.machine.reset()
+    def stop(self, client: str | None = None) -> StopReport:
+        return self.controller.stop(client)
 
-    def zero(self) -> None:
-        self.machine.zero()
+    def emergency_stop(self, client: str | None = None) -> StopReport:
+        return self.controller.emergency_stop(client)
+
+    def reset(self, client: str | None = None) -> None:
+        self.controller.reset(client)
+
+    def home(self, client: str | None = None) -> None:
+        """The homing cycle of the machine configuration (blocks until done)."""
+        self.controller.home(client)
+
+    def zero(self, client: str | None = None, *, confirm: bool = False) -> None:
+        self.controller.zero(client, confirm=confirm)
 
     # --- probing -----------------------------------------------------------------
 
-    def probe(self, point: Any, approach: Any, clearance_z: float | None = None) -> MoveStatus:
-        """Programmed hit at a surface point; ``approach`` points into the surface."""
-        return self.prober.probe(point, approach, clearance_z=clearance_z)
+    def probe(self, point: Any, approach: Any, clearance_z: float | None = None,
+              client: str | None = None) -> MoveStatus:
+        """Programmed hit at a surface point; ``approach`` points into the surface. The rapid climbs to
+        ``clearance_z`` (default: clear of the part) before it crosses."""
+        if clearance_z is None and self.part is not None:
+            clearance_z = self.clearance_z()
+        return self.controller.probe(client, point, approach, clearance_z=clearance_z)
 
-    def probe_here(self, point: Any, normal: Any) -> MoveStatus:
-        """Probe a picked point along its (outward) mesh normal."""
+    def probe_here(self, point: Any, normal: Any, client: str | None = None) -> MoveStatus:
+        """Probe a picked point along its (outward) mesh normal, via the clearance height."""
         n = np.asarray(normal, float)
-        return self.probe(point, -n)
+        return self.probe(point, -n, client=client)
 
     @property
     def qualified_probing_speed(self) -> float:
@@ -363,15 +425,25 @@ class Station:
         speed = float(probe.get("probing_speed") or 0.0)
         return speed if speed > 0 else float(self.config.speeds.probing)
 
-    def jog_probe(self, velocity: Any) -> None:
-        """Jog with the probe armed: a trigger takes a manual hit, at no more than the qualified probing speed
-        (the pre-travel calibration holds only at that speed)."""
+    def manual_probe_velocity(self, velocity: Any) -> np.ndarray:
+        """A manual-probing jog velocity, limited to the qualified probing speed (the pre-travel calibration
+        holds only at that speed)."""
         v = np.asarray(velocity, dtype=np.float64).reshape(3)
         speed = float(np.linalg.norm(v))
         limit = self.qualified_probing_speed
-        if speed > limit:
-            v = v * (limit / speed)
-        self.prober.jog_probe(v)
+        return v * (limit / speed) if speed > limit else v
+
+    def jog_probe(self, velocity: Any, client: str | None = None) -> None:
+        """Jog with the probe armed: a trigger takes a manual hit, at no more than the qualified probing speed."""
+        self.controller.jog(client, self.manual_probe_velocity(velocity), probe=True)
+
+    def hit_id(self, hit: Hit) -> int:
+        """The session id of a recorded hit."""
+        with self.lock:
+            for hid in reversed(list(self.hits)):
+                if self.hits[hid] is hit:
+                    return hid
+        raise StationError("the hit was not recorded")
 
     def _on_hit(self, hit: Hit) -> None:
         with self.lock:
@@ -515,11 +587,12 @@ class Station:
         """Run a taught measurement program (cmm.session.program) on the aligned part."""
         from .session.program import load, run_program
 
-        return run_program(load(program) if isinstance(program, (str, Path)) else program, self, part_pose)
+        prog = load(program) if isinstance(program, (str, Path)) else program
+        return self.controller.run_job(None, f"program {prog.name!r}", lambda: run_program(prog, self, part_pose))
 
     def wait_idle(self, timeout: float = 60.0) -> None:
         end = time.monotonic() + timeout
-        while self.machine.busy:
+        while self.machine.busy or self.controller.state.mode.value in ("moving", "jogging", "probing", "homing"):
             if time.monotonic() > end:
                 raise MotionError("the machine is still busy")
             time.sleep(0.01)

@@ -31,7 +31,7 @@ STOP_WITHIN = 0.3  # s from the input's release to zero velocity
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(port=SIM_PACED, session_dir=tmp_path).start()
+    st = Station(port=SIM_PACED, session_dir=tmp_path).start(home=True)
     yield st
     st.close()
 

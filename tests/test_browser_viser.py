@@ -39,7 +39,7 @@ TOP_FACE_CANDIDATES = ((15.0, 68.0), (10.0, 12.0), (112.0, 72.0), (45.0, 70.0), 
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    st = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("viser-sessions")).start()
+    st = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("viser-sessions")).start(home=True)
     yield st
     st.close()
 

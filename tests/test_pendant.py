@@ -26,7 +26,7 @@ STOP_WITHIN = 0.3  # s from the last message to zero velocity (0.2 s dead-man bu
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(port=SIM_PACED, session_dir=tmp_path).start()
+    st = Station(port=SIM_PACED, session_dir=tmp_path).start(home=True)
     yield st
     st.close()
 

@@ -15,7 +15,7 @@ from cmm.station import Station
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start("recorded")
+    st = Station(port=SIM, session_dir=tmp_path).start("recorded", home=True)
     yield st
     st.close()
 

@@ -26,7 +26,7 @@ from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
+    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
     yield ui
     ui.close()

@@ -39,7 +39,7 @@ def records(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory, records):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start()
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start(home=True)
     assert station.calibration_dir == records
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui

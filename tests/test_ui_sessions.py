@@ -24,7 +24,7 @@ from cmm.ui.panel_sessions import describe_event  # noqa: E402
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions")).start("first")
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions")).start("first", home=True)
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui
     ui.close()

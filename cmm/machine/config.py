@@ -77,6 +77,44 @@ class LinkConfig:
 
 
 @dataclass(frozen=True)
+class JogConfig:
+    """How jogs are commanded.
+
+    ``horizon``: a chain of position-mode moves whose goal is at most ``horizon``
+    seconds of travel ahead (clamped to the travel), re-targeted by the machine
+    loop on every sample; if the station stops refreshing or dies, the modules
+    themselves stop at the last goal. Needs firmware that accepts a new
+    trapezoidal goal while moving (the simulator does). ``velocity``: velocity
+    mode (legal on every PIC-SERVO firmware); only the loop's dead-man stops it.
+    """
+
+    mode: str = "horizon"
+    horizon: float = 0.12  # s of travel; must exceed the stopping time v / (2 a) of jog_fast
+    deadman_timeout: float = 0.15
+
+
+@dataclass(frozen=True)
+class HomingConfig:
+    """The homing cycle the station runs before it measures.
+
+    ``switch``: each axis seeks a home switch on ``input`` (LIMIT2 by default)
+    at its home end, backs off, approaches it again slowly with home capture
+    armed, and the captured position becomes the axis's ``home`` coordinate.
+    ``none``: the counters are trusted as they are at start-up (a machine
+    without switches; the operator can still Zero with confirmation).
+    """
+
+    method: str = "switch"
+    input: str = "limit2"
+    active_level: str = "high"
+    order: tuple[str, ...] = ("z", "xy")  # groups of axes homed together, in turn
+    speed: float = 20.0  # seek speed, mm/s
+    latch_speed: float = 2.0  # final approach, mm/s
+    backoff: float = 1.0  # mm off the switch before the slow approach
+    search: float = 0.0  # mm to search for the switch; 0 = the whole travel + 10 mm
+
+
+@dataclass(frozen=True)
 class MachineConfig:
     link: LinkConfig
     axes: tuple[AxisConfig, AxisConfig, AxisConfig]
@@ -85,6 +123,8 @@ class MachineConfig:
     probe: ProbeConfig
     deadman_timeout: float = 0.15
     source: str = "<defaults>"
+    jog: JogConfig = field(default_factory=JogConfig)
+    homing: HomingConfig = field(default_factory=HomingConfig)
 
     def axis(self, name: str) -> AxisConfig:
         return self.axes[AXES.index(name)]
@@ -135,7 +175,7 @@ def _gains(source: str, key: str, data: dict, base: Gains) -> Gains:
 
 def parse(data: dict, source: str = "<config>") -> MachineConfig:
     """Build a validated configuration from parsed TOML."""
-    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe"}
+    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe", "homing"}
     if unknown:
         raise _fail(source, sorted(unknown)[0], "is not a known section")
     link = LinkConfig(**{k: v for k, v in data.get("link", {}).items()})
@@ -184,11 +224,43 @@ def parse(data: dict, source: str = "<config>") -> MachineConfig:
     for k in ("tip_radius", "approach_distance", "search_distance", "retract_distance"):
         if getattr(probe, k) <= 0:
             raise _fail(source, f"probe.{k}", f"must be greater than 0, got {getattr(probe, k)}")
-    deadman = _number(source, "jog.deadman_timeout", data.get("jog", {}).get("deadman_timeout", 0.15), positive=True)
+    jog = _section(source, "jog", data.get("jog", {}), JogConfig)
+    if jog.mode not in ("horizon", "velocity"):
+        raise _fail(source, "jog.mode", f"must be horizon or velocity, got {jog.mode!r}")
+    if jog.horizon <= speeds.jog_fast / (2 * acc.jog):
+        raise _fail(source, "jog.horizon", f"{jog.horizon} s is shorter than the jog's stopping time "
+                    f"jog_fast / (2 accelerations.jog) = {speeds.jog_fast / (2 * acc.jog):.3f} s")
+    deadman = jog.deadman_timeout
+    homing = _homing(source, dict(data.get("homing", {})))
+    if homing.method == "switch" and homing.input == probe.input:
+        raise _fail(source, "homing.input", f"the home switches need their own input; {probe.input} is the probe's")
     if deadman + speeds.jog_fast / acc.stop > 0.2 + 1e-9:
         raise _fail(source, "jog", f"a released jog must stop within 0.2 s: deadman_timeout {deadman} s plus "
                     f"jog_fast / accelerations.stop = {speeds.jog_fast / acc.stop:.3f} s is longer")
-    return MachineConfig(link, tuple(axes), speeds, acc, probe, deadman, source)  # type: ignore[arg-type]
+    return MachineConfig(link, tuple(axes), speeds, acc, probe, deadman, source, jog, homing)  # type: ignore[arg-type]
+
+
+def _homing(source: str, data: dict) -> HomingConfig:
+    order = data.pop("order", None)
+    homing = _section(source, "homing", data, HomingConfig, positive=False)
+    for k in ("speed", "latch_speed", "backoff"):
+        if getattr(homing, k) <= 0:
+            raise _fail(source, f"homing.{k}", f"must be greater than 0, got {getattr(homing, k)}")
+    if homing.search < 0:
+        raise _fail(source, "homing.search", f"must be 0 (whole travel) or more, got {homing.search}")
+    if homing.method not in ("switch", "none"):
+        raise _fail(source, "homing.method", f"must be switch or none, got {homing.method!r}")
+    if homing.input not in ("limit1", "limit2"):
+        raise _fail(source, "homing.input", f"must be limit1 or limit2, got {homing.input!r}")
+    if homing.active_level not in ("high", "low"):
+        raise _fail(source, "homing.active_level", f"must be high or low, got {homing.active_level!r}")
+    if order is not None:
+        if not isinstance(order, list) or not all(isinstance(g, str) and g and set(g) <= set(AXES) for g in order) \
+                or sorted("".join(order)) != sorted(AXES):
+            raise _fail(source, "homing.order", f"must list groups of axes covering x, y and z once, e.g. "
+                        f'["z", "xy"]; got {order!r}')
+        homing = replace(homing, order=tuple(order))
+    return homing
 
 
 def default_text() -> str:

@@ -1,13 +1,25 @@
 """The CMM machine: three PIC-SERVO axes in millimetres.
 
 One object owns the bus. ``poll()`` samples every axis once and runs the
-watchers (move completion, jog dead-man, soft limits while jogging, probe
-contacts); a background thread may call it in a loop (``start_polling``), or
-a status's ``wait()`` drives it (scripts, tests on the virtual clock).
+watchers (move completion, jog dead-man and horizon, soft limits while
+jogging, probe contacts); the control core's machine loop
+(:mod:`cmm.control`) calls it, or a status's ``wait()`` drives it (scripts,
+tests on the virtual clock). ``driver`` is what statuses drive when they
+wait: the machine itself, or the control core that owns it.
+
+Subscribers and event listeners are called from the polling thread, some of
+them with the motion lock held: they must be cheap and do no I/O (the control
+core only queues what they get). A failing one is logged, never propagated.
+
+Protections on the modules themselves, so they hold when the station dies:
+every jog and every protected move arms home capture on the probe input with
+stop-abrupt, and a horizon jog (``[jog] mode = "horizon"``) commands position
+goals at most ``horizon`` seconds of travel ahead, clamped to the travel.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 from dataclasses import dataclass, field
@@ -28,6 +40,9 @@ POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; t
 JOG_LOOKAHEAD = 0.03  # s of travel allowed for sampling latency before a jog reaches a travel limit
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
+RETARGET_MIN_S = 0.01  # a horizon jog is re-targeted when its goal would move by more than this much travel
+
+log = logging.getLogger(__name__)
 
 
 class LimitError(MotionError):
@@ -84,6 +99,7 @@ class _Motion:
 class Machine:
     def __init__(self, config: MachineConfig, port: Any, *, trace: ByteTrace | None = None) -> None:
         self.config = config
+        self._port = port
         self.bus = Bus(port, firmware=config.link.firmware, trace=trace)
         self.clock = self.bus.clock
         self.modules = [Module(self.bus, a.address) for a in config.axes]
@@ -104,6 +120,9 @@ class Machine:
         self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
         self.samples = 0
         self.correction = GeometryCorrection()  # the calibration routine sets it
+        self.driver: Any = self  # what MoveStatus.wait drives: this machine or the control core owning it
+        self._contact_dir: np.ndarray | None = None  # direction of the last jog that touched
+        self.inhibit: str | None = None  # set by the control core (fault, E-stop): every new motion is refused
 
     # --- connection -------------------------------------------------------
 
@@ -125,6 +144,21 @@ class Machine:
                 mod.set_group(GROUP, leader=axis.name == "x")
             self.sample()
             return infos
+
+    def reconnect(self) -> list[ModuleInfo]:
+        """Open the link again and restart the modules (after a link failure); positions are lost."""
+        with self._lock:
+            try:
+                self.bus.close()
+            except Exception:  # noqa: BLE001 - it is broken already
+                pass
+            self.bus = Bus(self._port, firmware=self.config.link.firmware, trace=self.bus.trace)
+            self.clock = self.bus.clock
+            self.modules = [Module(self.bus, a.address) for a in self.config.axes]
+            motion, self._motion = self._motion, None
+            if motion is not None:
+                motion.status.finish(error=MotionError("the link was restarted"))
+            return self.connect()
 
     def close(self) -> None:
         self.stop_polling()
@@ -161,7 +195,10 @@ class Machine:
             self.samples += 1
             subscribers = list(self._subscribers)
         for fn in subscribers:
-            fn(self.state)
+            try:
+                fn(self.state)
+            except Exception:  # noqa: BLE001 - a broken subscriber must never stop the machine
+                log.exception("machine state subscriber %r failed", fn)
         return self.state
 
     def counts_to_mm(self, counts: Any) -> np.ndarray:
@@ -183,7 +220,10 @@ class Machine:
 
     def _emit(self, kind: str, **info: Any) -> None:
         for fn in list(self._event_listeners):
-            fn(kind, info)
+            try:
+                fn(kind, info)
+            except Exception:  # noqa: BLE001 - a broken listener must never stop the machine
+                log.exception("machine event listener %r failed", fn)
 
     # --- the poll loop ----------------------------------------------------
 
@@ -309,6 +349,8 @@ class Machine:
         Per-axis speed and acceleration are scaled by the axis share of the
         path so all axes start on the same tick and arrive together.
         """
+        if self.inhibit is not None:
+            raise MotionError(f"motion inhibited: {self.inhibit}")
         # shares come from what each axis really travels (encoder counts): with a geometry
         # correction a move along one machine axis also moves the others a little
         here = (self.state or self.sample()).counts
@@ -335,7 +377,7 @@ class Machine:
             raise MotionError(f"speed and acceleration must be positive numbers, got {speed} and {accel}")
         with self._lock:
             self._require_idle()
-            status = MoveStatus("move to X={:.3f} Y={:.3f} Z={:.3f}".format(*t), self)
+            status = MoveStatus("move to X={:.3f} Y={:.3f} Z={:.3f}".format(*t), self.driver)
             armed = self._arm() if protect else False
             motion = _Motion(status, "move", armed=armed)
             self._motion = motion
@@ -350,7 +392,7 @@ class Machine:
     def move_path(self, points: list[Any], speed: float | None = None) -> MoveStatus:
         """Straight moves through ``points`` in turn (all checked first); one status for the whole path."""
         targets = [self.check_target(p) for p in points]
-        status = MoveStatus(f"path of {len(targets)} moves", self)
+        status = MoveStatus(f"path of {len(targets)} moves", self.driver)
 
         def next_leg(i: int) -> None:
             if i == len(targets):
@@ -435,17 +477,22 @@ class Machine:
                 m.reset_position()
             self.sample()
 
-    # --- jogging (velocity mode) ------------------------------------------
+    # --- jogging ------------------------------------------------------------
 
     def jog(self, velocity: Any, *, manual_probe: Callable[[tuple[int, int, int], np.ndarray], None] | None = None) -> None:
-        """Velocity-mode jog, mm/s per axis. Must be refreshed (called again) within the dead-man timeout.
+        """Jog, mm/s per axis. Must be refreshed (called again) within the dead-man timeout.
 
-        With ``manual_probe`` the probe input is armed and a trigger latches a
-        hit with the motion direction as approach direction (thesis experiment 2).
+        The probe input is armed on every axis (stop abruptly on contact); a
+        contact stops the jog, or with ``manual_probe`` latches a hit with the
+        motion direction as approach direction (thesis experiment 2). In horizon
+        mode the modules never hold a goal more than ``jog.horizon`` s of travel
+        ahead, nor outside the travel.
         """
         v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise MotionError(f"a jog needs three finite axis velocities, got {velocity!r}")
+        if self.inhibit is not None:
+            raise MotionError(f"motion inhibited: {self.inhibit}")
         limit = self.config.speeds.jog_fast
         if np.any(np.abs(v) > limit + 1e-9):
             raise MotionError(f"jog speed {np.max(np.abs(v)):.1f} mm/s is above jog_fast ({limit:g} mm/s)")
@@ -459,12 +506,22 @@ class Machine:
                     v[i] = 0.0
             self._jog_refreshed = self.clock.now()
             if motion is None:
-                status = MoveStatus("jog", self)
+                if not np.any(v):
+                    return
+                touched = self._contact_dir
+                if touched is not None and self.state is not None and self.state.probe_triggered \
+                        and float(v @ touched) > 0:
+                    raise ContactError("the probe is deflected: jog away from the part (against the direction "
+                                       "that touched it) first")
+                status = MoveStatus("jog", self.driver)
                 motion = _Motion(status, "jog")
                 self._motion = motion
-                if manual_probe is not None:
-                    motion.armed = self._arm("abrupt")
-                    motion.on_capture = lambda latched: self._manual_hit(motion, latched, manual_probe)
+                motion.armed = self._arm("abrupt")  # a deflected probe may jog (off the part), unarmed
+                motion.on_capture = lambda latched: self._jog_contact(motion, latched, manual_probe)
+            if self.config.jog.mode == "horizon":
+                motion.extra["v"] = v.copy()
+                self._retarget(motion, force=True)
+                return
             prev = motion.extra.get("v")
             acc = self.config.accelerations
             for i, (axis, mod, vi) in enumerate(zip(self.config.axes, self.modules, v)):
@@ -477,27 +534,71 @@ class Machine:
                                   codec.acceleration_to_fixed(a, axis.counts_per_mm, axis.gains.sr))
             motion.extra["v"] = v.copy()
 
+    def horizon_target(self, position: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, str | None]:
+        """Where a horizon jog from ``position`` at ``v`` may aim: ``horizon`` s ahead, inside the travel.
+
+        Also returns the axis whose travel limit shortened the step (None when none did).
+        """
+        t, limiting = self.config.jog.horizon, None
+        for i, axis in enumerate(self.config.axes):  # shorten the whole step so the line stays in the box
+            room = (axis.max - position[i]) / v[i] if v[i] > 0 else (axis.min - position[i]) / v[i] if v[i] < 0 else t
+            if max(0.0, room) < t:
+                t, limiting = max(0.0, room), axis.name
+        target = position + v * t
+        return np.clip(target, [a.min for a in self.config.axes], [a.max for a in self.config.axes]), limiting
+
+    def _retarget(self, motion: _Motion, force: bool = False) -> None:
+        """Horizon jog: load a goal ``horizon`` s of travel ahead (clamped to the travel) on every axis."""
+        v = motion.extra["v"]
+        speed = float(np.linalg.norm(v))
+        if speed == 0:
+            self._halt("smooth")
+            motion.extra.pop("goal", None)
+            return
+        here = self.state.position if self.state is not None else self.position
+        target, limiting = self.horizon_target(here, v)
+        if limiting is not None and not motion.extra.get("limit_told"):
+            motion.extra["limit_told"] = True
+            self._emit("limit", axis=limiting)
+        goal = motion.extra.get("goal")
+        if not force and goal is not None and np.linalg.norm(target - goal) < speed * RETARGET_MIN_S:
+            return
+        motion.extra["goal"] = target
+        self._load_line(target, speed, self.config.accelerations.jog)
+
     def _jog_stop_axes(self, axes: Any) -> None:
+        if self.config.jog.mode == "horizon":
+            self._halt("smooth")
+            return
         for i in axes:
             axis = self.config.axes[i]
             self.modules[i].load_velocity(0, codec.acceleration_to_fixed(self.config.accelerations.stop,
                                                                          axis.counts_per_mm, axis.gains.sr))
 
     def jog_release(self) -> None:
-        """End a jog now (button or key released): decelerate at the stop rate."""
+        """End a jog now (button or key released): decelerate."""
         with self._lock:
             motion = self._motion
             if motion is not None and motion.kind == "jog":
                 self._jog_stop_axes(range(3))
                 motion.extra["v"] = np.zeros(3)
+                motion.extra.pop("goal", None)
 
     def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
         v = motion.extra.get("v", np.zeros(3))
         if np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
             self._jog_stop_axes(range(3))
             motion.extra["v"] = np.zeros(3)
+            motion.extra.pop("goal", None)
             self._emit("deadman", after=state.time - self._jog_refreshed)
             v = motion.extra["v"]
+        if self.config.jog.mode == "horizon":
+            if np.any(v):
+                self._retarget(motion)
+            elif all(a.status & codec.MOVE_DONE for a in state.axes) and all(abs(a.velocity) < 1e-9
+                                                                          for a in state.axes):
+                self._finish(motion, result=state.position)
+            return
         for i, (axis, a) in enumerate(zip(self.config.axes, state.axes)):
             if v[i] == 0:
                 continue
@@ -512,12 +613,18 @@ class Machine:
         if not np.any(v) and all(abs(a.velocity) < 1e-9 for a in state.axes):
             self._finish(motion, result=state.position)
 
-    def _manual_hit(self, motion: _Motion, latched: tuple[int, int, int],
-                    record: Callable[[tuple[int, int, int], np.ndarray], None]) -> None:
+    def _jog_contact(self, motion: _Motion, latched: tuple[int, int, int],
+                     record: Callable[[tuple[int, int, int], np.ndarray], None] | None) -> None:
+        """The probe touched during a jog: the modules stopped on that tick; a manual hit or a contact stop."""
         v = np.array(motion.extra.get("v", np.zeros(3)), dtype=np.float64)
         self._halt("abrupt")
-        self._finish(motion, result=latched)
-        if np.any(v):
+        if record is not None and np.any(v):
+            self._finish(motion, result=latched)
             record(latched, v)  # the jog velocity gives the approach direction and the probing speed
-        else:
-            self._emit("contact", position=self.counts_to_mm(latched).tolist())
+            return
+        pos = self.counts_to_mm(latched).tolist()
+        self._contact_dir = v / max(float(np.linalg.norm(v)), 1e-12)
+        self._emit("contact", position=pos)
+        self._finish(motion, error=ContactError(
+            "probe contact while jogging at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped; "
+            "jog away from the part".format(*pos)))

@@ -98,7 +98,7 @@ class Prober:
         contact = p - self.settings.tip_radius * u
         pre = m.check_target(contact - cfg.approach_distance * u)
         end = m.check_target(contact + cfg.search_distance * u)
-        status = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), m)
+        status = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), m.driver)
 
         def fail(error: BaseException) -> None:
             status.finish(error=error)
@@ -110,7 +110,7 @@ class Prober:
                 with m._lock:
                     if not m._arm("abrupt"):
                         return fail(MotionError("the probe is deflected at the pre-hit point: clear it first"))
-                    motion = _Motion(MoveStatus("probing move", m), "probe", armed=True)
+                    motion = _Motion(MoveStatus("probing move", m.driver), "probe", armed=True)
                     motion.on_capture = lambda latched: on_trigger(motion, latched)
                     motion.extra["on_done"] = lambda state: not_found(motion)
                     m._motion = motion

@@ -39,6 +39,7 @@ class StationApp:
         self.control = control or Control(lan=lan)
         if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running
             self.control.on_holder_lost = lambda _cid: self._holder_lost()
+        station.controller.use_policy_of(self.control)  # machine commands are checked there, once
         self.origins = OriginPolicy(lan=lan or host not in ("127.0.0.1", "localhost", "::1"), allow_hosts=allow_hosts)
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)
@@ -183,12 +184,14 @@ class StationApp:
             self._dirty["features"] = True
         elif kind == "part":
             self._dirty["part"] = True
-        elif kind in ("deadman", "limit", "contact", "error", "estop"):
+        elif kind in ("deadman", "limit", "contact", "error", "estop", "fault", "homed", "reset", "reconnect") or \
+                (kind == "stop" and isinstance(info, dict) and not info.get("ok", True)):
             text = {"deadman": "jog stopped: no refresh from the browser (dead-man)",
                     "limit": f"jog stopped at the end of travel ({info.get('axis', '?') if isinstance(info, dict) else ''})",
-                    "estop": "emergency stop"}.get(kind, str(info.get("message", info) if isinstance(info, dict) else info))
+                    }.get(kind, str(info.get("message", info) if isinstance(info, dict) else info))
+            level = "error" if kind in ("contact", "error", "estop", "fault", "stop") else "info"
             for capp in list(self.clients.values()):
-                capp.notify(kind, text, "error" if kind in ("contact", "error", "estop") else "info")
+                capp.notify(kind, text, level)
 
     def deviations(self) -> dict[int, float]:
         return self._deviations
@@ -229,8 +232,6 @@ class StationApp:
         while not self._stop.wait(1.0 / REFRESH_HZ):
             tick += 1
             clients = list(self.clients.values())
-            for capp in clients:
-                capp.watch_hold()
             try:
                 self.redraw()
             except Exception:  # noqa: BLE001 - keep the UI alive

@@ -31,10 +31,10 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ..calibration.records import (MACHINE_RECORD, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
-                                   BallBarCertificate, CalibrationError, LoadedCalibration, apply_calibration,
+                                   BallBarCertificate, CalibrationError, LoadedCalibration,
                                    dumps, load_certificate, load_machine_record, load_probe_record,
                                    load_servo_record, load_sphere_certificate, now, save_record, write_atomic)
-from ..machine.status import MotionError
+from ..control import MotionError
 from .panel_sessions import Job, ProgressView
 
 if TYPE_CHECKING:
@@ -301,10 +301,10 @@ class CalibrationPanel:
         if self.running:
             self.capp.error(f"'{self._app_job().title}' is running: wait for it or press STOP", f"{label} refused")
             return None
-        machine = self.station.machine
-        if machine.busy:
-            self.capp.error("the machine is moving: wait until it is idle (or press STOP) before calibrating",
-                            f"{label} refused")
+        api = self.station.controller
+        if not api.allowed("job"):
+            self.capp.error(f"the machine is {api.state.mode.value}" + (f" ({api.state.reason})" if api.state.reason else "")
+                            + ": calibrate when it is homed and idle (or press STOP)", f"{label} refused")
             return None
         try:
             certs = self.certificates(routine)
@@ -320,7 +320,14 @@ class CalibrationPanel:
         self._set("plot", "content", "")
         self._show_accept(False)
 
-        job = Job(label, lambda progress: self._work(routine, certs, options, progress),
+        def in_machine_loop(progress: Callable[[float, str], None]) -> Any:
+            # the routine runs in the control core's machine loop, with the machine to itself; its progress
+            # reports reach the browser from the dispatcher thread
+            def posted(fraction: float, message: str) -> None:
+                api.dispatcher.post(progress, fraction, message)
+            return api.run_job(self.capp.client_id, label, lambda: self._work(routine, certs, options, posted))
+
+        job = Job(label, in_machine_loop,
                   on_progress=self.progress_view.update, on_done=self._done)
         self.job = job
         self.capp.app.calibration_job = job
@@ -388,7 +395,7 @@ class CalibrationPanel:
             self._set("instruction", "content", self.instruction)
             self._show_bar(True)
             self.capp.notify("Ball bar", self.instruction.replace("**", ""))
-            while not event.wait(0.2):
+            while not self.station.controller.wait_event(event, 0.2):
                 if self._cancel:
                     raise CalibrationError("the operator cancelled the geometry calibration")
             self._show_bar(False)
@@ -457,14 +464,15 @@ class CalibrationPanel:
         if self.result is None or self.result[0] != "servo":
             self.capp.error("run the servo tuning first", "Accept gains")
             return False
-        if self.running or self.station.machine.busy:
+        if self.running or not self.station.controller.allowed("configure"):
             self.capp.error("wait until the machine is idle", "Accept gains")
             return False
         from ..calibration.servo import apply_gains
 
         r = self.result[1]
         try:
-            apply_gains(self.station.machine, r.proposed)
+            self.station.controller.configure(self.capp.client_id,
+                                              lambda: apply_gains(self.station.machine, r.proposed))
             self.saved = save_record(r.record(True, self.station.config.source), self.records_dir / SERVO_RECORD)
         except calibration_errors() as exc:
             self.capp.error(exc, "Accept gains")
@@ -493,16 +501,14 @@ class CalibrationPanel:
         try:
             if routine == "probe":
                 path = save_record(r.record, self.records_dir / PROBE_RECORD)
-                with st.lock:
-                    applied = apply_calibration(LoadedCalibration(probe=r.record), st.machine, st.prober)
+                applied = st.apply_calibration(LoadedCalibration(probe=r.record), client=self.capp.client_id)
                 self._log(applied)
                 st.note(f"probe calibration applied: r_eff {r.record.tip_radius:.5f} mm, "
                         f"{r.settings.pretravel.describe()}")
             elif routine == "geometry":
                 rec = r.record(self._geometry_artifact(), st.config.source)
                 path = save_record(rec, self.records_dir / MACHINE_RECORD)
-                with st.lock:
-                    applied = apply_calibration(LoadedCalibration(machine=rec), st.machine, st.prober)
+                applied = st.apply_calibration(LoadedCalibration(machine=rec), client=self.capp.client_id)
                 self._log(applied)
                 st.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
             elif routine == "servo":

@@ -7,11 +7,14 @@ drive exactly what a button does without a browser. ``build()`` creates the
 widgets and wires each one to a method; ``refresh()`` copies station state
 into the read-outs a few times a second.
 
-Every action that moves the machine or changes the measurement first asks
-the access :class:`~cmm.ui.access.Control` whether this client holds control
-(a server-side check: hiding buttons is not security). Stop and E-stop follow
-the one policy of :meth:`~cmm.ui.access.Control.may_stop`, the same as the
-pendant's.
+Machine commands go to the control core (``station.controller``, see
+:mod:`cmm.control`) as this client (:meth:`ClientApp.who`): the core checks
+the access policy (the shared :class:`~cmm.ui.access.Control`, STOP and E-stop
+by its one :meth:`~cmm.ui.access.Control.may_stop` policy) and the machine
+state once, and refuses with a sentence that is shown here. Measurement
+changes (hits, features, sessions) ask :meth:`ClientApp.allowed` first (a
+server-side check: hiding buttons is not security). The jog dead-man is the
+machine loop's: held buttons re-send the jog, nothing here times it out.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from ..machine.status import MotionError
+from ..control import MotionError
 from ..metrology import fit_criteria
 from ..metrology.features import FitError
 from ..station import FEATURE_KINDS, StationError
@@ -112,17 +115,23 @@ def _fmt(v: Any) -> str:
 
 
 def machine_markdown(station: Any) -> str:
-    st = station.state
+    cs = station.controller.state
+    st = cs.machine
     if st is None:
-        return "*no state yet*"
+        return f"**{cs.mode.value.upper()}**" + (f": {cs.reason}" if cs.reason else "")
     lines = ["| axis | mm | counts | f.err | status |", "|---|---:|---:|---:|---|"]
     for name, a in zip(AXES, st.axes):
         fe = "-" if a.following_error is None else str(a.following_error)
         lines.append(f"| {name.upper()} | {a.mm:.4f} | {a.counts} | {fe} | {', '.join(a.words)} |")
-    flags = [w for w, on in (("moving", st.moving), ("jogging", st.jogging), ("PROBE DEFLECTED", st.probe_triggered))
-             if on]
+    flags = [w for w, on in (("PROBE DEFLECTED", st.probe_triggered), ("LINK DOWN", not cs.link_ok)) if on]
     lines.append("")
-    lines.append(f"**{' · '.join(flags) or 'idle'}**")
+    mode = cs.mode.value.upper() + (f" ({cs.activity})" if cs.activity else "") + (f": {cs.reason}" if cs.reason else "")
+    lines.append(f"**{' · '.join([mode] + flags)}**")
+    if cs.mode.value == "fault":
+        lines.append("\nWay back: " + ("press **Reset** (the link answers)." if cs.link_ok else
+                                        "press **Reconnect**, then **Home** (positions are lost)."))
+    elif not cs.homed:
+        lines.append("\nPress **Home** before measuring.")
     return "\n".join(lines)
 
 
@@ -148,6 +157,7 @@ class ClientApp:
         self._jogging = False
         self._last_hold = 0.0
         self._last_error = ("", 0.0)
+        self._zero_armed = 0.0
         self.gui: dict[str, Any] = {}
         self._shown: dict[str, Any] = {}
         self.live_trace = False
@@ -186,39 +196,76 @@ class ClientApp:
             self.error(exc, f"{action} refused")
             return None
 
+    @property
+    def api(self) -> Any:
+        """The control core: every machine command goes there with this client's id."""
+        return self.station.controller
+
+    def who(self) -> Any:
+        """This browser as the control core's access policy sees it."""
+        from ..control import Client
+
+        return Client(self.client_id, local=self.is_local, authenticated=bool(getattr(self, "authenticated", False)))
+
+    def _cmd(self, action: str, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any:
+        """A machine command; the control core checks access and state, a refusal is shown to the operator."""
+        try:
+            return fn(self.who(), *args, **kw)
+        except OPERATOR_ERRORS as exc:
+            self.error(exc, f"{action} refused")
+            return None
+
     # --- machine ------------------------------------------------------------------
 
-    def may_stop(self, action: str) -> bool:
-        if self.control.may_stop(self.client_id, is_local=self.is_local, authenticated=self.authenticated):
-            return True
-        self.error(self.control.stop_refusal(), f"{action} refused")
-        return False
-
-    def stop(self) -> None:
+    def stop(self) -> Any:
         self._jogging = False
-        if self.may_stop("Stop"):
-            self._run("Stop", self.station.stop, guarded=False)
+        report = self._cmd("Stop", self.api.stop)
+        if report is not None and not report.ok:
+            self.notify("STOP not confirmed", report.message, "error")
+        return report
 
-    def emergency_stop(self) -> None:
+    def emergency_stop(self) -> Any:
         self._jogging = False
-        if self.may_stop("E-stop"):
-            self._run("E-stop", self.station.emergency_stop, guarded=False)
-            self.notify("Emergency stop", "Amplifiers off. Press Reset to re-enable the servos.", "error")
+        report = self._cmd("E-stop", self.api.emergency_stop)
+        if report is not None:
+            self.notify("Emergency stop" if report.ok else "E-STOP NOT CONFIRMED", report.message, "error")
+        return report
 
     def reset(self) -> None:
-        self._run("Reset", self.station.reset)
+        self._cmd("Reset", self.api.reset)
 
-    def zero(self) -> None:
-        self._run("Zero", self.station.zero)
+    def reconnect(self) -> None:
+        self._cmd("Reconnect", self.api.reconnect)
+
+    def home(self) -> None:
+        """The homing cycle, in a worker thread (it takes seconds); STOP aborts it."""
+        import threading
+
+        def run() -> None:
+            if self._cmd("Home", self.api.home) is None and self.api.state.homed:
+                self.notify("Homed", "the machine is homed")
+        threading.Thread(target=run, name="ui-home", daemon=True).start()
+
+    def zero(self, confirm: bool = False) -> None:
+        """Zero needs a second press within 5 s (or ``confirm``): it redefines the machine origin."""
+        now = time.monotonic()
+        if not confirm and now - self._zero_armed > 5.0:
+            self._zero_armed = now
+            self.notify("Zero: press again to confirm",
+                        "Zero makes the present position the home coordinates (the machine origin). "
+                        "Press Zero again within 5 s to confirm.", "error")
+            return
+        self._zero_armed = 0.0
+        self._cmd("Zero", self.api.zero, confirm=True)
 
     # --- go to -------------------------------------------------------------------
 
     def go_to(self, x: float, y: float, z: float) -> Any:
-        def go() -> Any:
-            self.move_status = self.station.move_to([float(x), float(y), float(z)])
-            self.move_status.add_callback(self._move_done)
-            return self.move_status
-        return self._run("Go to", go)
+        status = self._cmd("Go to", self.api.move_to, [float(x), float(y), float(z)])
+        if status is not None:
+            self.move_status = status
+            status.add_callback(self._move_done)
+        return status
 
     def _move_done(self, status: Any) -> None:
         err = getattr(status, "error", None)
@@ -228,7 +275,7 @@ class ClientApp:
     def cancel(self) -> None:
         status = self.move_status
         if status is not None and not getattr(status, "done", True):
-            self._run("Cancel", status.cancel, guarded=False)
+            self._cmd("Cancel", self.api.cancel, status)
         else:
             self.stop()
 
@@ -240,16 +287,11 @@ class ClientApp:
         return v
 
     def jog_hold(self, axis: int, sign: int) -> None:
-        """Called repeatedly while a jog button is held: refreshes the station's dead-man jog."""
-        if not self.control.can_move(self.client_id):
-            self._throttled_error("Jog", "this browser only observes. Take control first.")
-            return
+        """Called repeatedly while a jog button is held: refreshes the machine loop's dead-man jog."""
         v = self.jog_velocity(axis, sign)
         try:
-            if self.manual_probe:
-                self.station.jog_probe(v)
-            else:
-                self.station.jog(v)
+            self.api.jog(self.who(), self.station.manual_probe_velocity(v) if self.manual_probe else v,
+                         probe=self.manual_probe)
         except OPERATOR_ERRORS as exc:
             self._throttled_error("Jog refused", str(exc))
             return
@@ -261,15 +303,9 @@ class ClientApp:
         if self._jogging:
             self._jogging = False
             try:
-                self.station.jog_release()
+                self.api.jog_release(self.who())
             except OPERATOR_ERRORS as exc:
                 self.error(exc, "Jog release")
-
-    def watch_hold(self, now: float | None = None) -> None:
-        """Release a jog whose hold refreshes stopped (the tab lost the pointer-up)."""
-        now = time.monotonic() if now is None else now
-        if self._jogging and now - self._last_hold > self.station.config.deadman_timeout:
-            self.jog_release()
 
     def _throttled_error(self, title: str, body: str) -> None:
         last, when = self._last_error
@@ -280,7 +316,7 @@ class ClientApp:
     def step(self, axis: int, sign: int) -> Any:
         size = self.step_size
         mm = 1.0 / self.station.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
-        return self._run("Step", lambda: self.station.step(AXES[axis], math.copysign(mm, sign)))
+        return self._cmd("Step", lambda cid: self.station.step(AXES[axis], math.copysign(mm, sign), client=cid))
 
     def set_manual_probe(self, on: bool) -> None:
         self.jog_release()
@@ -314,14 +350,16 @@ class ClientApp:
             self.error("click a point on the part first", "Move above")
             return None
         hit = self.picked[0]
-        return self._run("Move above", lambda: self._track(self.station.move_above(hit.point, hit.normal)))
+        status = self._cmd("Move above", lambda cid: self.station.move_above(hit.point, hit.normal, client=cid))
+        return None if status is None else self._track(status)
 
     def probe_here(self) -> Any:
         if self.picked is None:
             self.error("click a point on the part first", "Probe here")
             return None
         hit = self.picked[0]
-        return self._run("Probe here", lambda: self._track(self.station.probe_here(hit.point, hit.normal)))
+        status = self._cmd("Probe here", lambda cid: self.station.probe_here(hit.point, hit.normal, client=cid))
+        return None if status is None else self._track(status)
 
     def _track(self, status: Any) -> Any:
         self.move_status = status
@@ -444,8 +482,10 @@ class ClientApp:
             info = self.app.link_info()
             gui.add_markdown(info)
             g["machine"] = gui.add_markdown(machine_markdown(self.station))
-            gui.add_button("Zero").on_click(lambda _: self.zero())
+            gui.add_button("Home").on_click(lambda _: self.home())
+            gui.add_button("Zero (press twice)").on_click(lambda _: self.zero())
             gui.add_button("Reset").on_click(lambda _: self.reset())
+            gui.add_button("Reconnect").on_click(lambda _: self.reconnect())
         with tabs.add_tab("Jog"):
             speed = gui.add_button_group("Speed", tuple(SPEEDS))
             speed.value = self.speed_mode

@@ -76,6 +76,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed, InvalidMessage
 from websockets.http11 import Request, Response
 
+from ..control import Client, Refused, StopReport
 from .access import Control
 from .origin import OriginPolicy, is_loopback_host, is_loopback_peer
 
@@ -154,6 +155,8 @@ class PendantServer:
         self._error: BaseException | None = None
         self.port = 0
         self.errors: list[str] = []  # station calls that failed unexpectedly
+        self.api = station.controller  # every machine command goes through the control core with our client id
+        self.api.use_policy_of(control)
         self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
         self._thread.start()
         if not self._ready.wait(10):
@@ -254,7 +257,7 @@ class PendantServer:
         session = _Session(ws, f"pendant-{next(self._ids)}", local, authenticated=local,
                            last_message=time.monotonic())
         self._sessions.add(session)
-        tasks = [asyncio.create_task(self._send_states(session)), asyncio.create_task(self._watch(session))]
+        tasks = [asyncio.create_task(self._send_states(session))]
         try:
             async for raw in ws:
                 session.last_message = time.monotonic()
@@ -270,7 +273,7 @@ class PendantServer:
     def _gone(self, session: _Session) -> None:
         if session.jogging:
             session.jogging = False
-            self._station_call(self.station.jog_release)
+            self._station_call(self.api.jog_release, self._who(session))
         self.control.disconnected(session.client_id)
 
     def _station_call(self, fn: Callable[..., Any], *args: Any) -> str | None:
@@ -286,28 +289,22 @@ class PendantServer:
     async def _send_states(self, session: _Session) -> None:
         period = 1.0 / self.state_hz
         while True:
-            st = self.station.state
+            cs = self.api.state
+            st = cs.machine
             holder = self.control.holder
             msg: dict[str, Any] = {
                 "type": "state",
                 "control": holder == session.client_id,
                 "holder": None if holder is None else ("you" if holder == session.client_id else "other"),
             }
+            msg.update(mode=cs.mode.value, reason=cs.reason, homed=cs.homed)
             if st is not None:
                 msg.update(pos=[round(a.mm, 4) for a in st.axes], vel=[round(a.velocity, 3) for a in st.axes],
                            moving=bool(st.moving), jogging=bool(st.jogging), probe=bool(st.probe_triggered))
+                if session.jogging and not st.jogging:
+                    session.jogging = False  # the machine loop ended it (dead-man, limit, contact, stop)
             await self._send(session, msg)
             await asyncio.sleep(period)
-
-    async def _watch(self, session: _Session) -> None:
-        """Pendant dead-man: a jogging pendant that goes quiet for ``deadman`` s loses its jog."""
-        while True:
-            await asyncio.sleep(min(0.02, self.deadman / 5))
-            if session.jogging and time.monotonic() - session.last_message > self.deadman:
-                session.jogging = False
-                await self._call(self._station_call, self.station.jog_release)
-                await self._error_msg(session, f"jog stopped: no message from this pendant for "
-                                               f"{self.deadman * 1000:.0f} ms")
 
     def _speeds(self) -> dict[str, float]:
         s = self.station.config.speeds
@@ -333,7 +330,7 @@ class PendantServer:
         elif kind == "observe":
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.station.jog_release)
+                await self._call(self._station_call, self.api.jog_release, self._who(session))
             await self._call(self.control.release, session.client_id)
             await self._send(session, {"type": "control", "control": False})
         elif kind == "jog":
@@ -341,15 +338,13 @@ class PendantServer:
         elif kind == "release":
             if session.jogging or self.control.can_move(session.client_id):
                 session.jogging = False
-                await self._call(self._station_call, self.station.jog_release)
+                await self._call(self._station_call, self.api.jog_release, self._who(session))
         elif kind == "stop":
-            if not self.control.may_stop(session.client_id, is_local=session.local,
-                                         authenticated=session.authenticated):
-                return await self._error_msg(session, self.control.stop_refusal())
-            session.jogging = False
-            error = await self._call(self._station_call, self.station.stop)
-            if error:
-                await self._error_msg(session, error)
+            report = await self._call(self._stop_machine, self._who(session))  # the control core checks may_stop
+            if report.ok:
+                session.jogging = False
+            if not report.ok:
+                await self._error_msg(session, report.message)
         else:
             await self._error_msg(session, f"unknown pendant message type {kind!r}")
 
@@ -366,7 +361,7 @@ class PendantServer:
         if not self.control.can_move(session.client_id):
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.station.jog_release)
+                await self._call(self._station_call, self.api.jog_release, self._who(session))
             return await self._error_msg(session, "this pendant is not in control: take control to jog",
                                          throttle=True)
         if not (isinstance(v, list) and len(v) == 3
@@ -377,19 +372,29 @@ class PendantServer:
         if not any(v):
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.station.jog_release)
+                await self._call(self._station_call, self.api.jog_release, self._who(session))
             return
         error = await self._call(self._jog_if_holder, session, v)
         if error:
             await self._error_msg(session, error, throttle=True)
 
     def _jog_if_holder(self, session: _Session, v: list[float]) -> str | None:
-        # checked again on the worker: control may have moved while the jog waited in the queue
-        if not self.control.can_move(session.client_id):
-            return "this pendant is not in control: take control to jog"
-        error = self._station_call(self.station.jog, v)
+        # the control core checks who holds control when the jog reaches the machine loop
+        error = self._station_call(self.api.jog, self._who(session), v)
         session.jogging = error is None
         return error
+
+    @staticmethod
+    def _who(session: _Session) -> Any:
+        return Client(session.client_id, local=session.local, authenticated=session.authenticated)
+
+    def _stop_machine(self, who: Any) -> Any:
+        try:
+            return self.api.stop(who)
+        except Refused as exc:
+            return StopReport(False, str(exc))
+        except Exception as exc:  # noqa: BLE001 - a failed stop is reported, never hidden
+            return StopReport(False, f"STOP failed: {exc}")
 
 
 def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1", port: int = 0,

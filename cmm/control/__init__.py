@@ -1,0 +1,71 @@
+"""The control core: one machine loop owns the bus; every front end sends commands through one API.
+
+Layers (imports go down only; see README "Architecture")::
+
+    ui (viser panels, pendant), cli, I++ DME server      front ends
+    station                                              composition root: builds and wires
+    control      <- this package: the command API, the machine loop, the state model, access policy
+    machine      axes in mm, moves, horizon jogs, probing cycles, homing
+    nmc          PIC-SERVO protocol and bus
+
+The API (:class:`Controller`)
+------------------------------
+Commands in, state and errors out. Every command takes the front end's
+``client`` first: a :class:`Client` (id, local?, authenticated?) or an id
+string; ``None`` is the station itself (scripts, CLI, homing):
+
+=========================  ===================================================================
+``jog(client, v, probe=)``  mm/s per axis; repeat at least every ``[jog] deadman_timeout`` (0.15 s)
+``jog_release(client)``    end the jog now
+``move_to(client, xyz)``   coordinated move -> :class:`~cmm.machine.status.MoveStatus`
+``move_path / step``       path of moves; one-axis step (1 count .. 10 mm)
+``probe(client, p, u)``    programmed hit; the rapid goes over ``clearance_z`` (default: the higher of
+                           here and the pre-hit point); the status's result is the recorded Hit
+``home(client)``           the homing cycle of ``[homing]`` (blocks; STOP aborts it)
+``zero(client, confirm=)`` here becomes the home coordinates: only with ``confirm=True``, probe free
+``stop(client)``           controlled stop -> :class:`StopReport` (``ok`` only if every module acknowledged)
+``emergency_stop(client)`` abrupt stop, amplifiers off, latched -> :class:`StopReport`
+``reset(client)``          clear the E-stop latch / a stop / a fault (when the link answers)
+``reconnect(client)``      after a link fault: reopen the link, restart the modules (home again)
+``run_job(client, name, fn)``  a routine (calibration, program) run in the loop with the machine to itself
+``configure(client, fn)``  change the set-up (correction, probe settings, gains) while the machine is still
+=========================  ===================================================================
+
+Refusals raise :class:`Refused` (a ``MotionError``) with a sentence for the
+operator, before anything is sent. Link failures raise :class:`ControlError`
+and leave the machine in ``fault``.
+
+State: ``controller.state`` is a :class:`ControlState` (``mode``: not homed /
+homing / idle / moving / jogging / probing / stopped / e-stopped / fault, the
+``reason``, ``activity``, ``homed``, ``link_ok``, ``allowed`` commands, the
+last :class:`~cmm.machine.motion.MachineState` with positions).
+``subscribe(fn)`` gets events ``fn(kind, info)`` ('mode', 'fault', 'stop',
+'estop', 'contact', 'deadman', 'limit', 'homed', 'hit', 'error', ...; ``info``
+has a ``message`` for people), ``subscribe_state(fn)`` the latest state
+(coalesced), ``on_hit(fn)`` records hits (the journal) before the probe's
+status completes. All of these run on the dispatcher thread, never in the
+machine loop: a listener that fails is logged and skipped; a hit recorder that
+fails (disk full) puts the machine in fault.
+
+Access: one policy object (``refusal(client, command) -> str | None``),
+checked once per command here. :class:`HolderPolicy` adapts the UI's control
+holder (:class:`cmm.ui.access.Control`); STOP / E-STOP / jog release follow its
+``may_stop`` when it has one, else they are open to every client.
+
+Threads: ``start()`` runs the machine loop (the only thread that talks to the
+bus) and the dispatcher. Without ``start()`` commands run in the caller's
+thread and statuses drive the loop when waited on (tests on the virtual clock).
+
+Safe state: any exception in the loop, a link error, a timeout storm, a STOP
+that is not acknowledged, or a hit that cannot be recorded -> every axis is
+stopped abruptly, mode ``fault`` with the reason; Reset (link up) or
+Reconnect (link down; positions lost, home again) is the way back.
+"""
+
+from ..machine.status import Cancelled, MotionError, MoveStatus
+from .access import AccessPolicy, Client, HolderPolicy, OpenPolicy
+from .core import Controller
+from .modes import ALLOWED, COMMANDS, ControlError, ControlState, Mode, Refused, StopReport
+
+__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "ControlError", "ControlState", "Controller",
+           "HolderPolicy", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused", "StopReport"]

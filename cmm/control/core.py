@@ -1,0 +1,640 @@
+"""The control core: one machine loop that alone talks to the bus, and the command API every front end uses.
+
+See the package docstring (:mod:`cmm.control`) for the API and its rules.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from typing import Any, Callable
+
+import numpy as np
+
+from ..machine.homing import home_axes
+from ..machine.motion import Machine, MachineState
+from ..machine.probing import Hit, Prober
+from ..machine.status import MotionError, MoveStatus
+from ..nmc.bus import NmcError
+from .access import AccessPolicy, HolderPolicy, OpenPolicy
+from .dispatch import Dispatcher
+from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
+
+log = logging.getLogger(__name__)
+
+POLL_PAUSE = 0.0002  # s between samples; the link is the limit
+FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
+COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
+STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
+LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
+
+EventFn = Callable[[str, dict], None]
+
+
+class _Command:
+    __slots__ = ("client", "name", "fn", "future")
+
+    def __init__(self, client: str | None, name: str, fn: Callable[[], Any]) -> None:
+        self.client, self.name, self.fn = client, name, fn
+        self.future: Future = Future()
+
+
+class Controller:
+    """Owns one :class:`Machine` (and its :class:`Prober`); see :mod:`cmm.control`."""
+
+    def __init__(self, machine: Machine, prober: Prober | None = None, *, policy: AccessPolicy | None = None) -> None:
+        self.machine = machine
+        self.prober = prober or Prober(machine)
+        self.config = machine.config
+        self.policy: AccessPolicy = policy or OpenPolicy()
+        self.dispatcher = Dispatcher(inline=True, on_error=lambda msg: self._event("error", message=msg))
+        self._lock = threading.RLock()  # guards the small state below (never held during bus I/O)
+        self._queue: collections.deque[_Command] = collections.deque()
+        self._urgent: collections.deque[_Command] = collections.deque()
+        self._thread: threading.Thread | None = None
+        self._running = False
+        self._fault: str | None = None
+        self._link_ok = True
+        self._estop: str | None = None
+        self._stopped: str | None = None
+        self._homed = self.config.homing.method == "none"
+        self._homing = False
+        self._job: str | None = None
+        self._probing = 0  # probe cycles in progress (rapids included)
+        self._seq = 0
+        self._state = ControlState(Mode.NOT_HOMED if not self._homed else Mode.IDLE)
+        self._listeners: list[EventFn] = []
+        self._state_listeners: list[Callable[[ControlState], None]] = []
+        self._hit_listeners: list[Callable[[Hit], None]] = []
+        self._state_posted = False
+        self.loop_errors = 0
+        self._in_poll = False
+        machine.driver = self
+        machine.subscribe(self._on_sample)
+        machine.on_event(self._on_machine_event)
+        self.prober.listeners.append(self._on_hit)
+
+    # --- life cycle ------------------------------------------------------------------
+
+    def connect(self) -> None:
+        """Start the modules (in the caller's thread, before :meth:`start`)."""
+        self.machine.connect()
+        self._homed = self.config.homing.method == "none"
+        self._publish()
+
+    def start(self) -> "Controller":
+        """Run the machine loop and the dispatcher in their own threads."""
+        if self._thread is None:
+            self.dispatcher = Dispatcher(on_error=self.dispatcher.on_error).start()
+            self._running = True
+            self._thread = threading.Thread(target=self._loop, name="machine-loop", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the loop; the machine is stopped and its servos switched off by ``machine.close``."""
+        self._running = False
+        if self._thread is not None:
+            self._thread.join(timeout=3)
+            self._thread = None
+        self.dispatcher.close()
+        try:
+            self.machine.close()
+        except Exception:  # noqa: BLE001 - a dead link: nothing more to do
+            log.exception("closing the machine failed")
+
+    @property
+    def clock(self) -> Any:
+        return self.machine.clock
+
+    @property
+    def polling(self) -> bool:
+        """For MoveStatus.wait: True when another thread runs the loop (wait on the event), False to drive it."""
+        return self._thread is not None and threading.current_thread() is not self._thread
+
+    @property
+    def threaded(self) -> bool:
+        return self._thread is not None
+
+    def set_policy(self, policy: AccessPolicy) -> None:
+        """Who may send what (pluggable): any object with ``refusal(client, command) -> str | None``."""
+        self.policy = policy
+
+    def use_policy_of(self, control: Any) -> None:
+        """Adopt the UI's control holder (``can_move``, optional ``may_stop``) as the access policy."""
+        if not (isinstance(self.policy, HolderPolicy) and self.policy.control is control):
+            self.policy = HolderPolicy(control)
+
+    # --- observation ------------------------------------------------------------------
+
+    @property
+    def state(self) -> ControlState:
+        return self._state
+
+    def subscribe(self, fn: EventFn) -> Callable[[], None]:
+        """Events ``fn(kind, info)`` on the dispatcher thread: 'state', 'fault', 'estop', 'stop', 'contact',
+        'deadman', 'limit', 'homed', 'error', 'hit' ... A failing listener is logged and skipped."""
+        self._listeners.append(fn)
+        return lambda: self._listeners.remove(fn) if fn in self._listeners else None
+
+    def subscribe_state(self, fn: Callable[[ControlState], None]) -> Callable[[], None]:
+        """The latest state after samples (coalesced: a slow listener sees fewer, never stale, states)."""
+        self._state_listeners.append(fn)
+        return lambda: self._state_listeners.remove(fn) if fn in self._state_listeners else None
+
+    def on_hit(self, fn: Callable[[Hit], None]) -> None:
+        """Hit recorder (the session journal): runs on the dispatcher before the probe's status completes.
+
+        If it raises (disk full), the machine goes to fault: a hit that cannot be recorded stops measuring.
+        """
+        self._hit_listeners.append(fn)
+
+    def allowed(self, command: str) -> bool:
+        return command in self._state.allowed
+
+    # --- commands (any thread) ------------------------------------------------------------
+
+    def jog(self, client: str | None, velocity: Any, *, probe: bool = False) -> None:
+        """Jog (mm/s per axis); repeat within ``[jog] deadman_timeout`` or it stops. ``probe``: a touch is a hit."""
+        v = np.asarray(velocity, dtype=np.float64)
+        if probe:
+            return self._submit(client, "jog", lambda: self.prober.jog_probe(v))
+        return self._submit(client, "jog", lambda: self.machine.jog(v))
+
+    def jog_release(self, client: str | None) -> None:
+        self._submit(client, "jog_release", self.machine.jog_release, urgent=True)
+
+    def cancel(self, client: str | None, status: MoveStatus) -> None:
+        """Cancel one move or probe cycle (decelerates); STOP stops whatever moves."""
+        self._submit(client, "cancel", status.cancel, urgent=True)
+
+    def move_to(self, client: str | None, target: Any, speed: float | None = None) -> MoveStatus:
+        return self._submit(client, "move", lambda: self.machine.move_to(target, speed))
+
+    def move_path(self, client: str | None, points: list[Any], speed: float | None = None) -> MoveStatus:
+        return self._submit(client, "move", lambda: self.machine.move_path(points, speed))
+
+    def step(self, client: str | None, axis: str, step_mm: float) -> MoveStatus:
+        return self._submit(client, "step", lambda: self.machine.step(axis, step_mm))
+
+    def probe(self, client: str | None, nominal: Any, approach: Any, *, clearance_z: float | None = None,
+              normal: Any = None, speed: float | None = None) -> MoveStatus:
+        """A programmed hit. The rapid to the pre-hit point climbs to ``clearance_z`` (default: the present
+        height or the pre-hit point's, whichever is higher), crosses, and descends: never through the part.
+        The status completes with the :class:`Hit` once the hit recorders have stored it."""
+        def start() -> MoveStatus:
+            cz = clearance_z
+            if cz is None:  # straight down only from above: climb to the higher of here and the pre-hit point
+                cz = float(self.machine.position[2])
+            inner = self.prober.probe(nominal, approach, clearance_z=cz, normal=normal, speed=speed)
+            outer = MoveStatus(inner.description, self)
+            outer.on_cancel(inner.cancel)
+            with self._lock:
+                self._probing += 1
+
+            def done(s: MoveStatus) -> None:  # loop thread: the hit was posted before this
+                with self._lock:
+                    self._probing -= 1
+                self.dispatcher.post(self._finish_probe, outer, s)
+            inner.add_callback(done)
+            return outer
+        return self._submit(client, "probe", start)
+
+    def home(self, client: str | None) -> None:
+        """Run the homing cycle (blocks until it ends; STOP aborts it). Raises MotionError when it fails."""
+        self._submit(client, "home", self._home, timeout=None)
+
+    def zero(self, client: str | None, *, confirm: bool = False) -> None:
+        """The thesis's "Cero": here becomes the home coordinates. Needs ``confirm`` and a free probe."""
+        if not confirm:
+            raise Refused("Zero redefines the machine origin at the present position: confirm it first")
+
+        def do() -> None:
+            if self.machine.sample().probe_triggered:
+                raise Refused("cannot zero while the probe is deflected: jog it clear of the part first")
+            self.machine.zero()
+            self._homed = True
+        self._submit(client, "zero", do)
+
+    def stop(self, client: str | None) -> StopReport:
+        """Controlled stop of whatever moves; says whether every module acknowledged it."""
+        return self._stop(client, "stop", self._do_stop)
+
+    def emergency_stop(self, client: str | None) -> StopReport:
+        """Abrupt stop and amplifiers off, latched until :meth:`reset`; says whether every module acknowledged."""
+        with self._lock:
+            self._estop = self._estop or "emergency stop pressed"
+        self.machine.inhibit = "emergency stop latched"
+        return self._stop(client, "estop", self._do_estop)
+
+    def reset(self, client: str | None) -> None:
+        """Clear an E-stop latch, a stop or a fault (when the link answers): servos on where the axes stand."""
+        self._submit(client, "reset", self._reset)
+
+    def reconnect(self, client: str | None) -> None:
+        """After a link fault: open the link again and restart the modules (positions are lost: home again)."""
+        self._submit(client, "reconnect", self._reconnect, timeout=30.0)
+
+    def run_job(self, client: str | None, description: str, fn: Callable[[], Any], *,
+                timeout: float | None = None) -> Any:
+        """Run a routine (calibration, a measurement program) in the machine loop with the machine to itself.
+
+        ``fn`` may use the machine and prober directly and wait on statuses (they drive the loop); other
+        commands are refused while it runs, except STOP / E-STOP, which end its current move.
+        """
+        def run() -> Any:
+            with self._lock:
+                self._job = description
+            self._publish()
+            try:
+                return fn()
+            finally:
+                with self._lock:
+                    self._job = None
+                self._publish()
+        return self._submit(client, "job", run, timeout=timeout)
+
+    def wait_event(self, event: threading.Event, timeout: float) -> bool:
+        """Wait for ``event``; from inside the machine loop (a routine waiting for the operator) keep the loop
+        running meanwhile, so STOP, E-STOP and the link watch still work."""
+        if self._thread is None or threading.current_thread() is not self._thread:
+            return event.wait(timeout)
+        end = time.monotonic() + timeout
+        while not event.is_set() and time.monotonic() < end:
+            self.poll()
+            time.sleep(0.005)
+        return event.is_set()
+
+    def configure(self, client: str | None, fn: Callable[[], Any]) -> Any:
+        """Change the machine set-up (geometry correction, probe settings, gains) in the loop, while still."""
+        return self._submit(client, "configure", fn)
+
+    def fault(self, reason: str) -> None:
+        """Put the machine in the safe state (any thread): all axes stopped abruptly, mode fault."""
+        cmd = _Command(None, "fault", lambda: self._enter_fault(reason))
+        if self._thread is None or threading.current_thread() is self._thread:
+            self._run_command(cmd, check=False)
+        else:
+            self._urgent.append(cmd)
+
+    # --- submission ----------------------------------------------------------------------
+
+    def _check(self, client: str | None, name: str, internal: bool = False) -> None:
+        why = self.policy.refusal(client, name)
+        if why is not None:
+            raise Refused(why)
+        st = self._current_mode()
+        if internal:  # a routine's own moves: only a fault or the E-stop latch stops them
+            if st[0] in (Mode.FAULT, Mode.ESTOPPED):
+                raise Refused(refusal(name, st[0], st[1]) or "refused")
+            return
+        why = refusal(name, st[0], st[1], st[2])
+        if why is None and name in ("move", "probe", "job") and not self._homed:
+            why = refusal(name, Mode.NOT_HOMED)
+        if why is None and name == "reset" and self._fault is not None and not self._link_ok:
+            why = "the link to the modules is down: Reconnect first"
+        if why is not None:
+            raise Refused(why)
+
+    def _submit(self, client: str | None, name: str, fn: Callable[[], Any], *, urgent: bool = False,
+                timeout: float | None = COMMAND_TIMEOUT) -> Any:
+        cmd = _Command(client, name, fn)
+        if self._thread is None or threading.current_thread() is self._thread:
+            return self._run_command(cmd, internal=self._job is not None and name != "job")
+        (self._urgent if urgent else self._queue).append(cmd)
+        try:
+            return cmd.future.result(timeout)
+        except FutureTimeout:
+            raise ControlError(f"{name}: the machine loop did not answer within {timeout:g} s") from None
+
+    def _run_command(self, cmd: _Command, check: bool = True, internal: bool = False) -> Any:
+        """Check and execute one command in the loop (or inline); link failures put the machine in fault."""
+        try:
+            if check:
+                self._check(cmd.client, cmd.name, internal)
+            if cmd.name in ("jog", "move", "step", "probe", "home", "job"):
+                with self._lock:
+                    self._stopped = None
+            return cmd.fn()
+        except LINK_ERRORS as exc:
+            self._enter_fault(f"link failure during {cmd.name}: {exc}", link=True)
+            raise ControlError(f"{cmd.name} failed: the link to the modules failed ({exc}); "
+                               "the machine is in fault") from exc
+        finally:
+            self._publish()
+
+    # --- stops -------------------------------------------------------------------------------
+
+    def _stop(self, client: str | None, name: str, fn: Callable[[], StopReport]) -> StopReport:
+        why = self.policy.refusal(client, name)
+        if why is not None:
+            raise Refused(why)
+        cmd = _Command(client, name, fn)
+        if self._thread is None or threading.current_thread() is self._thread:
+            report = fn()
+        else:
+            self._urgent.appendleft(cmd)
+            try:
+                report = cmd.future.result(STOP_TIMEOUT)
+            except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
+                report = fn()
+                report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
+                                    report.failed_axes)
+                self.fault("the machine loop stopped answering")
+        self._event(name, ok=report.ok, message=report.message)
+        self._publish()
+        return report
+
+    def _halt_all(self, mode: str) -> list[str]:
+        failed = []
+        for axis, mod in zip(self.config.axes, self.machine.modules):
+            try:
+                mod.stop(mode)
+            except Exception:  # noqa: BLE001 - try every axis; report the ones that did not answer
+                failed.append(axis.name.upper())
+        return failed
+
+    def _do_stop(self) -> StopReport:
+        try:
+            self.machine.stop()
+            with self._lock:
+                self._stopped = "stopped by the operator"
+            return StopReport(True, "stopped: every axis acknowledged")
+        except Exception as exc:  # noqa: BLE001
+            failed = self._halt_all("abrupt")
+            ok = not failed
+            self._enter_fault(f"STOP failed on the link ({exc})", link=not ok)
+            return StopReport(ok, "stopped abruptly after a link error" if ok else
+                              f"STOP NOT CONFIRMED by axis {', '.join(failed)}: the link failed ({exc}). "
+                              "Use the machine's emergency stop button.", tuple(failed))
+
+    def _do_estop(self) -> StopReport:
+        failed = sorted(set(self._halt_all("abrupt")) | set(self._halt_all("off")))
+        motion = self.machine._motion
+        if motion is not None:
+            self.machine._finish(motion, error=MotionError("emergency stop"))
+        if failed:
+            self._enter_fault(f"E-STOP not acknowledged by axis {', '.join(failed)}", link=True)
+            return StopReport(False, f"E-STOP NOT CONFIRMED by axis {', '.join(failed)}: the link failed. "
+                              "Use the machine's emergency stop button.", tuple(failed))
+        return StopReport(True, "emergency stop: every axis stopped, amplifiers off. Reset re-enables the servos.")
+
+    # --- loop-side actions ---------------------------------------------------------------------
+
+    def _enter_fault(self, reason: str, link: bool = False) -> None:
+        """The safe state: every axis stopped abruptly (amplifiers stay as they are), the reason kept."""
+        first = self._fault is None
+        self.machine.inhibit = f"fault: {reason}"
+        with self._lock:
+            if first:
+                self._fault = reason
+            if link:
+                self._link_ok = False
+        failed = self._halt_all("abrupt")
+        if failed:
+            with self._lock:
+                self._link_ok = False
+        motion = self.machine._motion
+        if motion is not None:
+            self.machine._finish(motion, error=MotionError(f"fault: {reason}"))
+        if first:
+            log.error("machine fault: %s", reason)
+            self._event("fault", reason=reason, stopped=not failed,
+                        message=f"FAULT: {reason}. " + ("All axes stopped." if not failed else
+                                                        f"Axis {', '.join(failed)} did not confirm the stop."))
+        self._publish()
+
+    def _reset(self) -> None:
+        with self._lock:
+            was_fault = self._fault is not None
+        for mod in self.machine.modules:
+            mod.clear_bits()
+            mod.enable()
+        self.machine.sample()
+        with self._lock:
+            self._estop = None
+            self._stopped = None
+            self._fault = None
+        self.machine.inhibit = None
+        if was_fault:
+            self._event("reset", message="fault cleared: servos on where the axes stand")
+
+    def _reconnect(self) -> None:
+        self.machine.reconnect()
+        self.machine.inhibit = None
+        with self._lock:
+            self._fault = None
+            self._estop = None
+            self._stopped = None
+            self._link_ok = True
+            self._homed = self.config.homing.method == "none"
+        self._event("reconnect", message="link restored; positions were lost: home the machine")
+
+    def _home(self) -> None:
+        with self._lock:
+            self._homing = True
+            self._homed = False
+        self._publish()
+        try:
+            home_axes(self.machine, tick=self._homing_tick)
+        finally:
+            with self._lock:
+                self._homing = False
+        with self._lock:
+            self._homed = True
+        self._event("homed", message="homing cycle done")
+
+    def _homing_tick(self) -> None:
+        """Between homing samples: serve STOP / E-STOP (which abort the cycle)."""
+        if self._urgent:
+            self._serve(self._urgent)
+        if self._estop is not None or self._stopped is not None or self._fault is not None:
+            self.machine._halt("abrupt")
+            raise MotionError("homing aborted: " + (self._fault or self._estop or self._stopped or ""))
+
+    # --- the loop -------------------------------------------------------------------------------
+
+    def _serve(self, q: collections.deque[_Command]) -> None:
+        while q:
+            try:
+                cmd = q.popleft()
+            except IndexError:
+                return
+            if not cmd.future.set_running_or_notify_cancel():
+                continue
+            try:
+                result = self._run_command(cmd, check=cmd.name not in ("fault", "stop", "estop"))
+            except BaseException as exc:  # noqa: BLE001 - the caller gets it
+                cmd.future.set_exception(exc)
+            else:
+                cmd.future.set_result(result)
+
+    def poll(self) -> MachineState | None:
+        """One loop step: urgent commands, queued commands, one sample with its watchers; never raises."""
+        try:
+            if self._urgent:
+                self._serve(self._urgent)
+            if self._queue:
+                self._serve(self._queue)  # while a routine runs they are refused by their checks (busy)
+            if self._fault is not None:
+                return self._poll_in_fault()
+            self._in_poll = True
+            try:
+                state = self.machine.poll()
+            finally:
+                self._in_poll = False
+            self._publish()  # after the watchers: a finished move is idle in the same sample
+            return state
+        except LINK_ERRORS as exc:
+            self._enter_fault(f"link failure: {exc}", link=True)
+        except Exception as exc:  # noqa: BLE001 - a bug must stop the machine, not the loop
+            self.loop_errors += 1
+            log.exception("machine loop error")
+            self._enter_fault(f"machine loop error: {type(exc).__name__}: {exc}")
+        return self.machine.state
+
+    def _poll_in_fault(self) -> MachineState | None:
+        now = self.clock.now()
+        if now - getattr(self, "_fault_tried", -1e9) < FAULT_RETRY:
+            self.clock.sleep(0.005)  # time goes on (also on a virtual clock, so waits can time out)
+            return self.machine.state
+        self._fault_tried = now
+        try:
+            state = self.machine.sample()  # still answering? show live positions; stop again if it moves
+            if any(abs(a.velocity) > 0 for a in state.axes) and self.machine._motion is None:
+                self._halt_all("abrupt")
+            with self._lock:
+                self._link_ok = True
+            self._publish()
+            return state
+        except Exception:  # noqa: BLE001 - still down
+            with self._lock:
+                was = self._link_ok
+                self._link_ok = False
+            if was:
+                self._publish()
+            return self.machine.state
+
+    def _loop(self) -> None:
+        while self._running:
+            self.poll()
+            self.clock.sleep(POLL_PAUSE)
+
+    def run_for(self, seconds: float) -> None:
+        """Drive the loop for ``seconds`` of machine time (no thread: scripts and tests on the virtual clock)."""
+        end = self.clock.now() + seconds
+        while self.clock.now() < end:
+            self.poll()
+            if self._fault is not None:
+                self.clock.sleep(0.01)
+
+    # --- state ----------------------------------------------------------------------------------
+
+    def _current_mode(self) -> tuple[Mode, str, str]:
+        m = self.machine
+        motion = m._motion
+        if self._fault is not None:
+            return Mode.FAULT, self._fault, ""
+        if self._estop is not None:
+            return Mode.ESTOPPED, self._estop, ""
+        if self._homing:
+            return Mode.HOMING, "", "homing cycle"
+        if self._job is not None:
+            return (Mode.PROBING if self._probing or (motion is not None and motion.kind == "probe") else Mode.MOVING,
+                    "", self._job)
+        if motion is not None:
+            if motion.kind == "jog":
+                return Mode.JOGGING, "", "jog"
+            if motion.kind == "probe" or self._probing:
+                return Mode.PROBING, "", motion.status.description
+            return Mode.MOVING, "", motion.status.description
+        if self._probing:
+            return Mode.PROBING, "", "probe cycle"
+        if self._stopped is not None:
+            return Mode.STOPPED, self._stopped, ""
+        if not self._homed:
+            return Mode.NOT_HOMED, "", ""
+        return Mode.IDLE, "", ""
+
+    def _publish(self) -> None:
+        mode, reason, activity = self._current_mode()
+        with self._lock:
+            self._seq += 1
+            allowed = frozenset(c for c, modes in ALLOWED.items() if mode in modes
+                                and not (c in ("move", "probe", "job") and not self._homed))
+            old = self._state
+            self._state = ControlState(mode, reason, activity, self._homed, self._link_ok, self.machine.state,
+                                       self._seq, allowed)
+            changed = old.mode != mode or old.reason != reason or old.link_ok != self._link_ok \
+                or old.homed != self._homed
+            post = not self._state_posted
+            self._state_posted = True
+        if changed:
+            self._event("mode", mode=mode.value, reason=reason, message=f"machine {mode.value}"
+                        + (f": {reason}" if reason else ""))
+        if post:
+            self.dispatcher.post(self._deliver_state)
+
+    def _deliver_state(self) -> None:
+        with self._lock:
+            self._state_posted = False
+            state = self._state
+        for fn in list(self._state_listeners):
+            try:
+                fn(state)
+            except Exception:  # noqa: BLE001
+                log.exception("state listener %r failed", fn)
+
+    def _on_sample(self, _state: MachineState) -> None:
+        if not self._in_poll:  # samples outside poll (homing, commands); poll publishes after its watchers
+            self._publish()
+
+    def _event(self, kind: str, **info: Any) -> None:
+        self.dispatcher.post(self._deliver, kind, info)
+
+    def _deliver(self, kind: str, info: dict) -> None:
+        for fn in list(self._listeners):
+            try:
+                fn(kind, info)
+            except Exception:  # noqa: BLE001 - contained
+                log.exception("control listener %r failed on %s", fn, kind)
+
+    def _on_machine_event(self, kind: str, info: dict) -> None:
+        if kind == "contact":
+            info = {**info, "message": "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f}: the machine stopped"
+                    .format(*info.get("position", (float("nan"),) * 3))}
+        self._event(kind, **info)
+
+    def _finish_probe(self, outer: MoveStatus, inner: MoveStatus) -> None:
+        """Dispatcher: after the hit recorders ran; a fault meanwhile (disk full) fails the probe."""
+        fault = self._fault
+        if inner.error is None and fault is not None:
+            outer.finish(error=ControlError(f"the probe cycle ended in a fault: {fault}"))
+        else:
+            outer.finish(inner.result, inner.error)
+
+    def _on_hit(self, hit: Hit) -> None:
+        self.dispatcher.post(self._record_hit, hit)
+
+    def _record_hit(self, hit: Hit) -> None:
+        for fn in list(self._hit_listeners):
+            try:
+                fn(hit)
+            except Exception as exc:  # noqa: BLE001 - a hit that cannot be stored stops the measurement
+                log.exception("hit recorder failed")
+                self.fault(f"the hit could not be recorded ({exc}); measuring stopped so nothing is lost")
+                return
+        self._deliver("hit", {"hit": hit})
+
+
+def wait_until(pred: Callable[[], bool], timeout: float, step: float = 0.005) -> bool:
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            return False
+        time.sleep(step)
+    return True

@@ -1,0 +1,32 @@
+"""Home switches for the simulated CMM: one per axis at the ``home`` end of its travel (a tick hook).
+
+A switch is active (high) while its axis reads at or beyond the axis's home
+coordinate, towards the end of the travel the home lies at; it drives the
+module's LIMIT2 (``[homing] input``). The probe keeps LIMIT1.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class HomeSwitches:
+    def __init__(self, cmm: Any, input: str = "limit2", active_high: bool = True) -> None:
+        self.cmm = cmm
+        self.input = input
+        self.active_high = active_high
+        axes = cmm.config.axes
+        self._toward_max = [a.home >= (a.min + a.max) / 2 for a in axes]
+        self._home = [a.home for a in axes]
+        self._levels: list[bool | None] = [None, None, None]
+        cmm.network.add_tick_hook(self)
+        self(cmm.network, 0)
+
+    def __call__(self, network: Any, tick: int) -> None:
+        readings = self.cmm.axis_readings()
+        for i, r in enumerate(readings):
+            on = r >= self._home[i] - 1e-9 if self._toward_max[i] else r <= self._home[i] + 1e-9
+            level = on if self.active_high else not on
+            if level != self._levels[i]:
+                self._levels[i] = level
+                network.set_inputs(self.cmm._axis_module[i], **{self.input: level})

@@ -1,0 +1,212 @@
+"""The control core on the simulated CMM (virtual clock): state model, refusals, homing, safe state on failures."""
+
+from __future__ import annotations
+
+import errno
+
+import numpy as np
+import pytest
+from control_support import make_controller
+
+from cmm.control import ControlError, Mode, Refused
+from cmm.machine.status import MotionError
+
+
+@pytest.fixture
+def rig():
+    sim, ctl, port = make_controller(start_at=(3.0, 2.0, 297.0))
+    yield sim, ctl, port
+    port.broken = False
+    ctl.close()
+
+
+@pytest.fixture
+def homed(rig):
+    sim, ctl, port = rig
+    ctl.home(None)
+    return rig
+
+
+def test_starts_not_homed_and_refuses_to_measure(rig):
+    sim, ctl, _ = rig
+    assert ctl.state.mode is Mode.NOT_HOMED and not ctl.state.homed
+    with pytest.raises(Refused, match="not homed"):
+        ctl.move_to(None, [100, 100, 200])
+    with pytest.raises(Refused, match="not homed"):
+        ctl.probe(None, [250, 190, 40], [0, 0, -1])
+    assert "move" not in ctl.state.allowed and "home" in ctl.state.allowed
+
+
+def test_homing_cycle_finds_the_switches():
+    sim, ctl, _ = make_controller(start_at=(60.0, 40.0, 220.0))
+    assert sim.axis_readings() == pytest.approx((60.0, 40.0, 220.0), abs=0.01)
+    modes = []
+    ctl.subscribe(lambda kind, info: modes.append(info["mode"]) if kind == "mode" else None)
+    ctl.home(None)
+    assert ctl.state.mode is Mode.IDLE and ctl.state.homed
+    assert "homing" in modes
+    # the counters now read the home coordinates where the switches are (X min, Y min, Z max)
+    assert ctl.machine.position == pytest.approx([0.0, 0.0, 300.0], abs=0.003)
+    assert sim.axis_readings() == pytest.approx((0.0, 0.0, 300.0), abs=0.003)
+    ctl.move_to(None, [100.0, 50.0, 250.0]).wait()
+    assert sim.axis_readings() == pytest.approx((100.0, 50.0, 250.0), abs=0.003)
+    ctl.close()
+
+
+def _jog_into_the_top_face(ctl):
+    """Jog down onto the part's top face (Z 40) until the probe touches; returns the refusal of the next jog."""
+    ctl.move_to(None, [250.0, 190.0, 44.0]).wait()  # 3 mm above it (tip radius 1)
+    for _ in range(60):
+        try:
+            ctl.jog(None, [0.0, 0.0, -10.0])
+        except MotionError as exc:
+            return exc
+        ctl.run_for(0.03)
+    raise AssertionError("the jog never touched")
+
+
+def test_zero_needs_confirmation_and_a_free_probe(homed):
+    sim, ctl, _ = homed
+    with pytest.raises(Refused, match="confirm"):
+        ctl.zero(None)
+    _jog_into_the_top_face(ctl)
+    assert ctl.machine.sample().probe_triggered
+    before = ctl.machine.position.copy()
+    with pytest.raises(Refused, match="probe is deflected"):
+        ctl.zero(None, confirm=True)
+    assert ctl.machine.position == pytest.approx(before)
+    ctl.move_to(None, [250.0, 190.0, 60.0]).wait()  # away from the part
+    ctl.zero(None, confirm=True)  # free probe, confirmed: here becomes the home coordinates
+    assert ctl.machine.sample().position == pytest.approx([0.0, 0.0, 300.0])
+
+
+def test_estop_is_latched_until_reset_and_says_it_worked(homed):
+    sim, ctl, _ = homed
+    status = ctl.move_to(None, [300.0, 200.0, 250.0])
+    ctl.run_for(0.2)
+    report = ctl.emergency_stop(None)
+    assert report.ok and "amplifiers off" in report.message
+    assert ctl.state.mode is Mode.ESTOPPED
+    with pytest.raises(MotionError, match="emergency stop"):
+        status.wait()
+    with pytest.raises(Refused, match="emergency stop is latched"):
+        ctl.move_to(None, [10.0, 10.0, 250.0])
+    with pytest.raises(Refused, match="emergency stop is latched"):
+        ctl.jog(None, [5.0, 0, 0])
+    ctl.reset(None)
+    assert ctl.state.mode is Mode.IDLE
+    ctl.move_to(None, [10.0, 10.0, 250.0]).wait()
+
+
+def test_stop_reports_and_leaves_stopped(homed):
+    sim, ctl, _ = homed
+    status = ctl.move_to(None, [300.0, 200.0, 250.0])
+    ctl.run_for(0.2)
+    report = ctl.stop(None)
+    assert report.ok
+    with pytest.raises(MotionError, match="stopped by the operator"):
+        status.wait()
+    assert ctl.state.mode is Mode.STOPPED
+    ctl.run_for(0.3)
+    ctl.move_to(None, [10.0, 10.0, 250.0]).wait()  # a new command is accepted after a stop
+    assert ctl.state.mode is Mode.IDLE
+
+
+def test_disconnect_during_a_jog_faults_and_the_horizon_stops_the_axis(homed):
+    sim, ctl, port = homed
+    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    for _ in range(10):
+        ctl.jog(None, [40.0, 0.0, 0.0])
+        ctl.run_for(0.03)
+    x_at_drop = sim.axis_readings()[0]
+    port.broken = True
+    ctl.run_for(0.05)
+    assert ctl.state.mode is Mode.FAULT and not ctl.state.link_ok
+    assert "link failure" in ctl.state.reason
+    with pytest.raises(Refused, match="fault"):
+        ctl.jog(None, [40.0, 0.0, 0.0])
+    ctl.run_for(1.0)  # nobody can reach the modules: they stop on their own at the horizon goal
+    x_end = sim.axis_readings()[0]
+    assert x_end - x_at_drop <= 40.0 * (ctl.config.jog.horizon + 0.03) + 0.05
+    ctl.run_for(0.5)
+    assert sim.axis_readings()[0] == pytest.approx(x_end, abs=0.002)
+    with pytest.raises(Refused, match="Reconnect"):
+        ctl.reset(None)
+    port.broken = False
+    ctl.run_for(0.5)  # the loop sees the link answer again
+    assert ctl.state.link_ok and ctl.state.mode is Mode.FAULT
+    ctl.reset(None)
+    assert ctl.state.mode is Mode.IDLE and ctl.state.homed  # the modules kept power: positions are good
+
+
+def test_stop_on_a_dead_link_says_it_did_not_work(homed):
+    sim, ctl, port = homed
+    port.broken = True
+    report = ctl.stop(None)
+    assert not report.ok and "NOT CONFIRMED" in report.message
+    assert ctl.state.mode is Mode.FAULT
+    report = ctl.emergency_stop(None)
+    assert not report.ok and "NOT CONFIRMED" in report.message
+
+
+def test_link_failure_in_a_command_is_a_clear_error_and_a_fault(homed):
+    sim, ctl, port = homed
+    port.broken = True
+    with pytest.raises(ControlError, match="link to the modules failed"):
+        ctl.move_to(None, [100.0, 100.0, 250.0])
+    assert ctl.state.mode is Mode.FAULT
+
+
+def test_failing_listeners_never_stop_the_loop(homed):
+    sim, ctl, _ = homed
+    ctl.subscribe(lambda kind, info: 1 / 0)
+    ctl.subscribe_state(lambda state: 1 / 0)
+    ctl.machine.subscribe(lambda state: 1 / 0)
+    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    ctl.jog(None, [0.0, 10.0, 0.0])
+    ctl.run_for(0.5)  # no refresh: the dead-man in the loop stops it
+    assert ctl.state.mode is Mode.IDLE
+    assert sim.axis_readings()[1] < 100.0 + 10.0 * 0.3
+
+
+def test_full_disk_while_recording_a_hit_faults_and_stops(homed):
+    sim, ctl, _ = homed
+
+    def full(hit):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    ctl.on_hit(full)
+    status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], clearance_z=60.0)
+    with pytest.raises(MotionError):
+        status.wait(30)
+    assert ctl.state.mode is Mode.FAULT
+    assert "could not be recorded" in ctl.state.reason and "No space" in ctl.state.reason
+    assert all(abs(a.velocity) < 1e-9 for a in ctl.machine.sample().axes)
+
+
+def test_unexpected_contact_while_jogging_stops_on_that_tick(homed):
+    sim, ctl, _ = homed
+    events = []
+    ctl.subscribe(lambda kind, info: events.append(kind))
+    refusal = _jog_into_the_top_face(ctl)
+    assert "jog away from the part" in str(refusal)  # further down is refused while the probe is deflected
+    assert "contact" in events
+    z = ctl.machine.sample().position[2]
+    assert 40.9 < z < 41.0  # the tip centre stopped at the surface (pre-travel), not pushed through it
+    for _ in range(10):  # away from the part is allowed
+        ctl.jog(None, [0.0, 0.0, 10.0])
+        ctl.run_for(0.03)
+    assert ctl.machine.sample().position[2] > 41.5 and not ctl.machine.state.probe_triggered
+
+
+def test_probe_rapids_over_the_clearance_height(homed):
+    """From beyond the part's right side to a hit on its left face (X 190): over the top, not through it."""
+    sim, ctl, _ = homed
+    ctl.move_path(None, [[3.0, 2.0, 60.0], [330.0, 190.0, 60.0], [330.0, 190.0, 20.0]]).wait()  # beside the part
+    path = []
+    sim.network.add_tick_hook(lambda net, tick: path.append(sim.axis_readings()))
+    hit = ctl.probe(None, [190.35, 190.0, 20.0], [1, 0, 0], clearance_z=60.0).wait(60)
+    assert hit.point[0] == pytest.approx(190.0, abs=0.5)  # the left face (the part is turned half a degree)
+    xyz = np.array(path)
+    over = (xyz[:, 0] > 192.0) & (xyz[:, 0] < 312.0)
+    assert over.any() and xyz[over, 2].min() > 59.9  # every point above the part's footprint is at clearance
