@@ -244,3 +244,22 @@ def test_faults_through_the_tcp_proxy_in_front_of_the_served_simulator():
             assert proxy.connections == 2 and proxy.disconnects == 1
         finally:
             bus.close()
+
+
+def test_a_well_formed_reply_that_jumps_to_another_module_position_is_not_accepted():
+    """The cross-check behind the resynchronisation: a late reply that slips in exactly between a
+    command and its own reply (length and checksum right) is caught by position continuity."""
+    net, port, bus, mods = parked()
+    genuine_1 = bytes(codec.encode_status(mods[0].nop().status, codec.SEND_POS | codec.SEND_AUX,
+                                          position=PARK[1], aux=mods[0].last.aux))
+    forged: list[bool] = []
+
+    def slip_in(entry) -> None:
+        if entry.direction == "tx" and entry.data == codec.nop(3) and not forged:
+            forged.append(True)  # module 1's reply arrives just before module 3 answers
+            port.lines.rx.push(genuine_1, bus.clock.now())
+
+    bus.trace.subscribe(slip_in)
+    assert mods[2].nop().position == PARK[3]
+    assert forged and bus.stats["suspect"] >= 1
+    assert positions_ok(mods, PARK) == []
