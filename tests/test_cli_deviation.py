@@ -75,3 +75,18 @@ def test_mesh_errors_go_to_stderr(tmp_path, capsys):
 def test_missing_points_file(tmp_path, box_stl, capsys):
     assert main(["deviation", str(box_stl), str(tmp_path / "none.txt")]) == 1
     assert "none.txt' does not exist" in capsys.readouterr().err
+
+
+def test_progress_bar_and_summary_only(tmp_path, box_stl, capsys, monkeypatch):
+    from cmm.metrology import mesh as mesh_mod
+
+    monkeypatch.setattr(mesh_mod, "CHUNK", 100)
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(0, 100, 450), rng.uniform(0, 50, 450), np.full(450, 20.01)])
+    path = tmp_path / "many.txt"
+    path.write_text("450\n" + "\n".join(f"{x:.6f} {y:.6f} {z:.6f}" for x, y, z in pts) + "\n")  # NIST count line
+    assert main(["deviation", str(box_stl), str(path), "--progress", "--summary-only"]) == 0
+    cap = capsys.readouterr()
+    assert "100%" in cap.err and "450/450 points" in cap.err and cap.err.count("\r") == 5
+    assert "n=450" in cap.out and "max=+0.010000" in cap.out and "min=+0.010000" in cap.out
+    assert len(cap.out.splitlines()) == 2  # no per-point table

@@ -231,3 +231,71 @@ def test_mic_needs_surrounding_points():
 def test_methods_for():
     assert fc.methods_for("circle") == ("ls", "minzone", "mic", "mcc")
     assert fc.methods_for("cone") == ("ls",)
+
+
+# ---------------------------------------------------------------- global optima, partial features
+
+
+def dome_plate(m, seed=0):
+    """100 mm plate with 5 um of convexity and 0.5 um noise, tilted, 1000 mm from the origin."""
+    rng = np.random.default_rng(seed)
+    uv = rng.uniform(-50, 50, (m, 2))
+    w = 0.005 * (1 - (uv**2).sum(axis=1) / 5000.0) + 0.0005 * rng.standard_normal(m)
+    return C3 + np.column_stack([uv, w]) @ rotation(21).T
+
+
+def test_flatness_lp_matches_exact_hull_enumeration_and_is_certified():
+    from cmm.metrology.fit_hull import min_width_3d, min_width_direction
+
+    pts = dome_plate(300)
+    res = fc.fit("plane", pts, "minzone")
+    exact, _ = min_width_direction(pts - pts.mean(axis=0))  # all facet and edge-pair directions
+    assert abs(res.form - exact) < 1e-12
+    _, _, gap = min_width_3d(pts - pts.mean(axis=0), fit_ls.fit_plane(pts).normal)
+    assert gap < 1e-9 and res.warnings == ()
+
+
+def test_flatness_of_a_bulky_point_set_falls_back_to_the_exact_search():
+    rng = np.random.default_rng(4)
+    pts = C3 + rng.uniform(-10, 10, (60, 3)) * [1.0, 1.0, 0.5]  # a box of points, not a plate
+    from cmm.metrology.fit_hull import min_width_direction
+
+    exact, _ = min_width_direction(pts - pts.mean(axis=0))
+    assert fc.fit("plane", pts, "minzone").form == pytest.approx(exact, abs=1e-12)
+
+
+def test_mcc_sphere_of_a_cap_is_exact_and_says_it_is_partial():
+    rng = np.random.default_rng(6)
+    polar, az = np.radians(30) * np.sqrt(rng.random(80)), rng.uniform(0, 2 * np.pi, 80)
+    n = np.column_stack([np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar)])
+    pts = C3 + 10.0 * n
+    res = fc.fit("sphere", pts, "mcc")
+    assert res.residuals.max() == pytest.approx(0.0, abs=1e-12)
+    assert res.radius < 10.0 and any("only part of the sphere" in w for w in res.warnings)
+    with pytest.raises(FitError, match="maximum inscribed sphere is not defined"):
+        fc.fit("sphere", pts, "mic")
+    mz = fc.fit("sphere", pts + 0.001 * rng.standard_normal(pts.shape), "minzone")
+    assert any("global optimum is not proven" in w for w in mz.warnings)
+
+
+def test_mcc_short_cylinder_is_not_beaten_by_any_axis_direction():
+    """The MCC radius is at most the exact 2D enclosing radius along every direction of a grid."""
+    from cmm.metrology.fit_enclosing import min_enclosing_ball
+    from cmm.metrology.geom_basics import frame_with_axis
+
+    rng = np.random.default_rng(2)
+    t, z = rng.uniform(0, 2 * np.pi, 120), rng.uniform(-3, 3, 120)
+    r = 10 + 0.01 * np.cos(3 * t + 1) + 0.004 * np.cos(2 * t) * z / 3 + 0.002 * rng.standard_normal(120)
+    rot = rotation(5)
+    pts = C3 + np.column_stack([r * np.cos(t), r * np.sin(t), z]) @ rot.T
+    res = fc.fit("cylinder", pts, "mcc")
+    assert res.residuals.max() == pytest.approx(0.0, abs=1e-12)
+    assert any("short" in w for w in res.warnings)  # said: global optimum not proven
+    x = pts - pts.mean(axis=0)
+    f = frame_with_axis(rot[:, 2])
+    best = np.inf
+    for a in np.radians([0.0, 0.25, 0.5, 1.0, 2.0, 4.0]):
+        for b in np.linspace(0, 2 * np.pi, 12 if a else 1, endpoint=False):
+            u = f @ np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)])
+            best = min(best, min_enclosing_ball(x @ frame_with_axis(u)[:, :2])[1])
+    assert res.radius <= best + 1e-12

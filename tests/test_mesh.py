@@ -152,3 +152,49 @@ def test_load_warning_free_for_closed_mesh(tmp_path, box):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_part(path)
+
+
+# ---------------------------------------------------------------- libigl engine, chunks, progress
+
+
+@pytest.fixture(scope="module")
+def fine_sphere():
+    return trimesh.creation.icosphere(subdivisions=4, radius=20.0)  # 5,120 faces
+
+
+def _near_surface(mesh, n, seed):
+    pts, faces = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    off = np.random.default_rng(seed).uniform(-0.5, 0.5, n)
+    return pts + off[:, None] * mesh.face_normals[faces]
+
+
+def test_same_results_as_igl_signed_distance_and_the_trimesh_method(fine_sphere):
+    """Float64 agreement with libigl's own signed_distance (same sign convention) and the old search."""
+    import igl
+
+    local = _near_surface(fine_sphere, 3000, seed=5)
+    res = signed_deviation(fine_sphere, _posed(local), POSE)
+    s, _, c, _ = igl.signed_distance(local, np.asarray(fine_sphere.vertices, np.float64),
+                                     np.asarray(fine_sphere.faces, np.int64),
+                                     sign_type=igl.SIGNED_DISTANCE_TYPE_PSEUDONORMAL)
+    np.testing.assert_allclose(res.deviations, s, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(res.closest_points, _posed(c), atol=1e-9, rtol=0)
+    old = signed_deviation(fine_sphere, _posed(local), POSE, method="trimesh")
+    np.testing.assert_allclose(res.deviations, old.deviations, atol=1e-12, rtol=0)
+    assert np.array_equal(np.sign(res.deviations), np.sign(old.deviations))
+    # + = outside the material: points pushed outward along the normal are positive
+    r = np.linalg.norm(local, axis=1)
+    assert np.all(res.deviations[r > 20.05] > 0) and np.all(res.deviations[r < 19.9] < 0)
+
+
+def test_chunked_run_reports_progress_and_matches(fine_sphere, monkeypatch):
+    from cmm.metrology import mesh as mesh_mod
+
+    pts = _posed(_near_surface(fine_sphere, 1000, seed=6))
+    whole = signed_deviation(fine_sphere, pts, POSE)
+    monkeypatch.setattr(mesh_mod, "CHUNK", 128)
+    calls = []
+    chunked = signed_deviation(fine_sphere, pts, POSE, progress=lambda done, total: calls.append((done, total)))
+    assert np.array_equal(chunked.deviations, whole.deviations)
+    assert np.array_equal(chunked.closest_points, whole.closest_points)
+    assert calls[0] == (128, 1000) and calls[-1] == (1000, 1000) and len(calls) == 8

@@ -12,7 +12,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from cmm.metrology.mesh import SurfaceIndex, closest_points, signed_deviation
+from cmm.metrology.mesh import closest_points, signed_deviation, surface_index
 from cmm.metrology.transform import TransformError, apply_points, as_pose, invert, make_pose, rotation_from_rotvec, unit
 
 Array = NDArray[np.float64]
@@ -104,7 +104,7 @@ def best_fit(
         raise AlignmentError(f"initial pose: {exc}") from exc
 
     M = invert(pose)  # machine-to-part: the points move, the mesh stays put
-    index = SurfaceIndex(mesh)
+    index = surface_index(mesh)
     converged = False
     iterations = 0
     for iterations in range(1, max_iterations + 1):

@@ -28,13 +28,14 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import numpy as np
+from scipy.spatial import QhullError
 
 from cmm.metrology import fit_ls
 from cmm.metrology import fit_models as fm
 from cmm.metrology.features import Circle, Circle2D, Cylinder, FitError, FitResult, Line, Line2D, Plane, Sphere
 from cmm.metrology.fit_chebyshev import chebyshev_fit
 from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball
-from cmm.metrology.fit_hull import min_width_direction
+from cmm.metrology.fit_hull import min_width_3d, min_width_direction
 from cmm.metrology.fit_solver import levenberg_marquardt
 from cmm.metrology.geom_basics import (
     algebraic_ball,
@@ -44,7 +45,9 @@ from cmm.metrology.geom_basics import (
     check_rank,
     frame_with_axis,
     ScaledPoints,
+    angular_coverage_deg,
     principal_axes,
+    unit,
 )
 
 METHODS = ("ls", "minzone", "mic", "mcc")
@@ -73,16 +76,39 @@ def _stats(residuals: np.ndarray, n_params: int, method: str, form: float | None
 # ---------------------------------------------------------------- flat features (exact)
 
 
+# flatness results whose certified gap to the global optimum exceeds this get the exact search
+FLATNESS_GAP = 1e-9  # mm
+EXACT_HULL_LIMIT = 400  # hull vertices for the O(h^2) exact search
+
+
 def minzone_plane(points: Any) -> Plane:
-    """Flatness: the thinnest slab holding the points (exact, convex hull). Plane = mid plane."""
+    """Flatness: the thinnest slab holding the points. Plane = mid plane.
+
+    LP iteration on the hull vertices from the least-squares normal with a
+    certificate of global optimality (fit_hull.min_width_3d; 1e5 points in well
+    under a second); when the certified gap exceeds FLATNESS_GAP (bulky point sets,
+    not plates) the exact hull enumeration runs if the hull is small, else the
+    result carries a warning with the gap.
+    """
     ls = fit_ls.fit_plane(points)
     x = np.asarray(points, dtype=np.float64)
     xc = x - ls.point
-    _, n = min_width_direction(xc)
+    width, n, gap = min_width_3d(xc, ls.normal)
+    warnings: tuple[str, ...] = ()
+    if gap > FLATNESS_GAP:
+        from scipy.spatial import ConvexHull
+
+        if len(ConvexHull(xc).vertices) <= EXACT_HULL_LIMIT:
+            w2, n2 = min_width_direction(xc)
+            if w2 < width:
+                n = n2
+        else:
+            warnings = (f"flatness: the global minimum zone is only proven to within {gap:.2g} mm "
+                        "(the points are far from flat)",)
     n = canonical_direction(n)
     h = xc @ n
     mid = 0.5 * (h.max() + h.min())
-    return Plane(point=ls.point + mid * n, normal=n, **_stats(h - mid, 3, "minzone"))
+    return Plane(point=ls.point + mid * n, normal=n, warnings=warnings, **_stats(h - mid, 3, "minzone"))
 
 
 def minzone_line_2d(points: Any) -> Line2D:
@@ -118,35 +144,100 @@ def minzone_line(points: Any) -> Line:
 # ---------------------------------------------------------------- circles and spheres
 
 
-def _criterion_ball(xs: np.ndarray, method: str) -> tuple[np.ndarray, float]:
-    """Centre and radius (scaled units) of a circle (2D) / sphere (3D) by criterion."""
-    if method == "mcc":
-        return min_enclosing_ball(xs)
-    if method == "mic":
-        return max_inscribed_ball(xs)
+def _surrounds(xs: np.ndarray, c: np.ndarray) -> bool:
+    """Whether c lies inside the convex hull of the points (the feature is probed all round)."""
+    from scipy.spatial import ConvexHull
+
+    try:
+        eq = ConvexHull(xs).equations
+    except (QhullError, ValueError):
+        return False
+    return bool(np.all(eq[:, :-1] @ c + eq[:, -1] < 0.0))
+
+
+def _distinct_states(a: Any, b: Any, tol: float = 1e-7) -> bool:
+    return any(float(np.max(np.abs(np.asarray(x) - np.asarray(y)))) > tol for x, y in zip(a, b))
+
+
+def _multi_start(model: Any, starts: list[Any], method: str, merit: Callable[[Any], float]) -> tuple[Any, int, bool]:
+    """SLP from every start; returns the best state, the number of runs and whether clearly
+    different local optima (objective differing by more than 1e-9 relative) were found."""
+    results = []
+    for st in starts:
+        try:
+            results.append(chebyshev_fit(model, st, method))
+        except FitError:
+            continue
+    if not results:
+        raise FitError(f"the {method} fit failed from every start")
+    values = np.array([merit(r) for r in results])
+    best = int(np.argmin(values))
+    spread = float(values.max() - values.min())
+    return results[best], len(results), spread > 1e-9 * max(abs(float(values[best])), 1e-12) + 1e-12
+
+
+def _unproven(kind: str, method: str, runs: int, differ: bool, partial: str | None) -> tuple[str, ...]:
+    name = {"minzone": "minimum zone", "mic": "maximum inscribed", "mcc": "minimum circumscribed"}[method]
+    if partial:
+        return (f"{partial}: the {name} {kind} is the best of {runs} local searches; its global optimum is not proven",)
+    if differ:
+        return (f"the {name} {kind}: {runs} local searches found different optima; the best is reported but "
+                "the global optimum is not proven",)
+    return ()
+
+
+def _criterion_ball(xs: np.ndarray, method: str, kind: str) -> tuple[np.ndarray, float, tuple[str, ...]]:
+    """Centre and radius (scaled units) of a circle (2D) / sphere (3D) by criterion, and warnings.
+
+    mcc: Welzl, exact and global (a convex problem), also for partial features.
+    mic: Voronoi, exact and global when the points surround the centre; refused otherwise
+         (a partial feature has no bounded inscribed circle / sphere).
+    minzone: SLP from the least-squares, MCC and MIC solutions (the best is kept).
+    """
     model = fm.BallModel(xs)
     ls_state = levenberg_marquardt(model, algebraic_ball(xs)).state
-    return chebyshev_fit(model, ls_state, "minzone")
+    around = _surrounds(xs, ls_state[0])
+    partial = None if around else f"the points cover only part of the {kind}"
+    if method == "mcc":
+        c, r = min_enclosing_ball(xs)
+        warn = () if around else (f"{partial}: the minimum circumscribed {kind} is the smallest one holding them "
+                                  "(exact), which for a short arc or cap is smaller than the probed feature",)
+        return c, r, warn
+    if method == "mic":
+        if not around:
+            raise FitError(f"{partial}: a maximum inscribed {kind} is not defined (it could grow without bound); "
+                           "probe all round or use least squares / minimum zone")
+        c, r = max_inscribed_ball(xs)
+        return c, r, ()
+    starts = [ls_state, min_enclosing_ball(xs)]
+    if around:
+        try:
+            starts.append(max_inscribed_ball(xs))
+        except FitError:
+            pass
+    state, runs, differ = _multi_start(model, starts, "minzone",
+                                       lambda st: float(np.ptp(model.residuals_jacobian(st)[0])))
+    return state[0], state[1], _unproven(kind, "minzone", runs, differ, partial)
 
 
-def _ball_fit(points: Any, method: str, kind: str, dim: int) -> tuple[ScaledPoints, np.ndarray, float]:
+def _ball_fit(points: Any, method: str, kind: str, dim: int) -> tuple[ScaledPoints, np.ndarray, float, tuple[str, ...]]:
     data = _prepare(points, kind, dim, dim=dim)
-    c, r = _criterion_ball(data.x, method)
-    return data, data.to_mm(c), r * data.scale
+    c, r, warn = _criterion_ball(data.x, method, kind)
+    return data, data.to_mm(c), r * data.scale, warn
 
 
 def circle_2d(points: Any, method: str) -> Circle2D:
-    """2D circle by criterion: mcc and mic exact, minzone SLP (see module doc)."""
-    data, c, r = _ball_fit(points, method, "circle", 2)
+    """2D circle by criterion: mcc and mic exact, minzone multi-start SLP (see _criterion_ball)."""
+    data, c, r, warn = _ball_fit(points, method, "circle", 2)
     d = np.linalg.norm(data.to_mm(data.x) - c, axis=1) - r
-    return Circle2D(center=c, radius=r, **_stats(d, 3, method))
+    return Circle2D(center=c, radius=r, warnings=warn, **_stats(d, 3, method))
 
 
 def sphere(points: Any, method: str) -> Sphere:
-    """Sphere by criterion: mcc (Welzl) and mic (Voronoi) exact, minzone SLP."""
-    data, c, r = _ball_fit(points, method, "sphere", 3)
+    """Sphere by criterion: mcc (Welzl) and mic (Voronoi) exact, minzone multi-start SLP."""
+    data, c, r, warn = _ball_fit(points, method, "sphere", 3)
     d = np.linalg.norm(data.to_mm(data.x) - c, axis=1) - r
-    return Sphere(center=c, radius=r, **_stats(d, 4, method))
+    return Sphere(center=c, radius=r, warnings=warn, **_stats(d, 4, method))
 
 
 def circle(points: Any, method: str) -> Circle:
@@ -158,21 +249,82 @@ def circle(points: Any, method: str) -> Circle:
     flat = (x - plane.point) @ frame[:, :2]
     c2 = circle_2d(flat, method)
     return Circle(center=plane.point + frame[:, :2] @ c2.center, normal=plane.normal, radius=c2.radius,
-                  plane_residuals=plane.residuals, **_stats(c2.residuals, 6, method))
+                  plane_residuals=plane.residuals, warnings=c2.warnings, **_stats(c2.residuals, 6, method))
+
+
+# axis directions tried around the least-squares axis (degrees off it, azimuths per ring)
+CYLINDER_RINGS_DEG = (1.0, 3.0, 8.0, 15.0)
+CYLINDER_AZIMUTHS = 6
+CYLINDER_REFINE = 3
+
+
+def _cylinder_screen(xs: np.ndarray, u: np.ndarray, method: str) -> tuple[float, np.ndarray, float]:
+    """The 2D criterion of the points projected along u: (value to minimise, axis point, radius)."""
+    frame = frame_with_axis(u)
+    flat = xs @ frame[:, :2]
+    if method == "mcc":
+        c, r = min_enclosing_ball(flat)
+        value = r
+    else:
+        model = fm.BallModel(flat)
+        c, r = levenberg_marquardt(model, algebraic_ball(flat), max_iter=30).state
+        d = model.residuals_jacobian((c, r))[0]
+        if method == "mic":
+            r = r + float(d.min())
+            value = -r
+        else:
+            value = float(np.ptp(d))
+    return value, frame[:, :2] @ c, r
 
 
 def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
-    """Cylinder by criterion: SLP from the least-squares cylinder (local optimum)."""
+    """Cylinder by criterion: global search over axis directions, then SLP.
+
+    Directions: the least-squares axis and rings of CYLINDER_AZIMUTHS directions
+    1 to 15 degrees around it; each is screened by the exact 2D criterion of the
+    projected points (MCC) or the 2D least-squares circle (MIC, minimum zone); the
+    least-squares start and the best CYLINDER_REFINE screened directions are refined
+    by SLP on the full 5-parameter problem and the best optimum is kept.  A warning
+    says when the global optimum is not proven: partial or short cylinders, or
+    searches that ended in different optima.
+    """
     ls = fit_ls.fit_cylinder(points, nominal=nominal)
     data = _prepare(points, "cylinder", 3)
     p = data.to_scaled(ls.point)
     p = p - (p @ ls.direction) * ls.direction
     model = fm.CylinderModel(data.x)
-    p, u, r = chebyshev_fit(model, (p, ls.direction, ls.radius / data.scale), method)
-    d = model.residuals_jacobian((p, u, r))[0] * data.scale
-    u = canonical_direction(u)
-    return Cylinder(point=axis_point_closest_to_origin(data.to_mm(p), u), direction=u, radius=r * data.scale,
-                    **_stats(d, 5, method))
+    u0 = ls.direction
+    frame = frame_with_axis(u0)
+    dirs = [frame @ unit(np.array([np.tan(np.radians(a)) * np.cos(b), np.tan(np.radians(a)) * np.sin(b), 1.0]))
+            for a in CYLINDER_RINGS_DEG
+            for b in np.linspace(0, 2 * np.pi, CYLINDER_AZIMUTHS, endpoint=False) + np.radians(a)]
+    screened = []
+    for u in dirs:
+        try:
+            value, c, r = _cylinder_screen(data.x, u, method)
+        except (FitError, np.linalg.LinAlgError):
+            continue
+        screened.append((value, (c, u, r)))
+    screened.sort(key=lambda vs: vs[0])
+    starts = [(p, u0, ls.radius / data.scale)] + [st for _, st in screened[:CYLINDER_REFINE]]
+
+    def merit(st: Any) -> float:
+        d = model.residuals_jacobian(st)[0]
+        return {"minzone": float(np.ptp(d)), "mcc": float(st[2] + d.max()), "mic": float(-(st[2] + d.min()))}[method]
+
+    state, runs, differ = _multi_start(model, starts, method, merit)
+    pu, uu, ru = state
+    coverage = angular_coverage_deg(data.x, pu, uu)
+    length = float(np.ptp(data.x @ uu))
+    partial = None
+    if coverage < 300.0:
+        partial = f"the points cover only {coverage:.0f} degrees around the axis"
+    elif length < 2.0 * ru:
+        partial = "the cylinder is short (probed length below its diameter)"
+    d = model.residuals_jacobian(state)[0] * data.scale
+    u = canonical_direction(uu)
+    return Cylinder(point=axis_point_closest_to_origin(data.to_mm(pu), u), direction=u, radius=ru * data.scale,
+                    warnings=_unproven("cylinder", method, runs, differ, partial), **_stats(d, 5, method))
 
 
 # ---------------------------------------------------------------- dispatcher

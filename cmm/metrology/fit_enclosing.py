@@ -22,10 +22,19 @@ def _circumball(boundary: list[np.ndarray]) -> tuple[np.ndarray, float]:
     p0 = boundary[0]
     if len(boundary) == 1:
         return p0.copy(), 0.0
+    if len(boundary) == 2:  # hot path: the midpoint (lstsq costs ~10x more)
+        c = 0.5 * (p0 + boundary[1])
+        return c, float(np.sqrt((c - p0) @ (c - p0)))
     a = np.array(boundary[1:]) - p0
-    lam, *_ = np.linalg.lstsq(2.0 * a @ a.T, np.einsum("ij,ij->i", a, a), rcond=None)
+    g, rhs = 2.0 * a @ a.T, np.einsum("ij,ij->i", a, a)
+    try:
+        lam = np.linalg.solve(g, rhs)
+        if not np.all(np.isfinite(lam)):
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:  # (nearly) dependent boundary points
+        lam, *_ = np.linalg.lstsq(g, rhs, rcond=None)
     c = p0 + a.T @ lam
-    return c, float(np.linalg.norm(c - p0))
+    return c, float(np.sqrt((c - p0) @ (c - p0)))
 
 
 def _welzl(pts: np.ndarray, n: int, boundary: list[np.ndarray], tol: float) -> tuple[np.ndarray, float]:

@@ -6,19 +6,30 @@ Sign convention (used everywhere in the station, see SIGN_CONVENTION):
     deviation < 0  the point lies INSIDE the nominal material (material missing).
 This is the opposite of ``trimesh.proximity.signed_distance`` (positive inside).
 
-The sign comes from the angle-weighted pseudo-normal at the closest surface
-point (Baerentzen & Aanaes 2005): the face normal inside a face, the sum of the
-two face normals on an edge and the angle-weighted vertex normal at a vertex.
-That is exact for any consistently wound closed mesh and needs no ray-casting
-containment test.
+Closest points come from libigl's AABB tree (``igl.AABB``, float64; built once
+per mesh and cached), the sign from the angle-weighted pseudo-normal at the
+closest surface point (Baerentzen & Aanaes 2005): the face normal inside a
+face, the sum of the two face normals on an edge and the angle-weighted vertex
+normal at a vertex.  That is exact for any consistently wound closed mesh, needs
+no ray-casting containment test, and is what ``igl.signed_distance`` with
+pseudo-normal signs computes; we keep the tree between calls instead of
+rebuilding it (and its normals) on every call, which matters for chunked runs
+and ICP.  Points are processed in chunks of CHUNK so 1e7 points need bounded
+working memory, with an optional progress callback ``progress(done, total)``.
+
+The previous trimesh R-tree search is kept as ``closest_points_trimesh`` for
+the benchmark (benchmarks/bench_deviation.py prints the speed-up).
 """
 
 from __future__ import annotations
 
 import warnings
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
+import igl
 import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
@@ -38,6 +49,10 @@ _BARY_EPS = 1e-7
 # closest-point query chunk sizes: bound memory for (point, candidate face) pairs
 _QUERY_CHUNK = 4096
 _PAIR_CHUNK = 400_000
+# points per libigl query: bounds the working memory (~200 bytes per point) of huge runs
+CHUNK = 250_000
+
+Progress = Callable[[int, int], None]
 
 
 class MeshError(ValueError):
@@ -137,11 +152,63 @@ class DeviationResult:
 
 
 class SurfaceIndex:
-    """Search structures for repeated closest-point queries on one mesh (e.g. ICP).
+    """libigl AABB tree of one mesh for repeated closest-point queries (deviation, ICP).
 
-    Build once with ``SurfaceIndex(mesh)`` and pass it to closest_points; the
-    mesh must not be edited while the index is in use.
+    ``surface_index(mesh)`` returns a cached one; the mesh must not be edited
+    while an index is in use (the cache notices edits through the mesh's hash).
     """
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        self.vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
+        self.tree = igl.AABB()
+        self.tree.init(self.vertices, self.faces)
+
+    def query(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+        """Squared distances, face ids and closest points of (n, 3) points."""
+        d2, faces, closest = self.tree.squared_distance(self.vertices, self.faces, np.ascontiguousarray(points))
+        return np.asarray(d2, dtype=np.float64), np.asarray(faces, dtype=np.int64), np.asarray(closest, dtype=np.float64)
+
+
+_INDEX_CACHE: "weakref.WeakKeyDictionary[trimesh.Trimesh, tuple[int, SurfaceIndex]]" = weakref.WeakKeyDictionary()
+
+
+def surface_index(mesh: trimesh.Trimesh) -> SurfaceIndex:
+    """The (cached) SurfaceIndex of a mesh; rebuilt when the mesh's geometry changed."""
+    key = hash(mesh)  # trimesh hashes the vertex and face data (cached until they change)
+    hit = _INDEX_CACHE.get(mesh)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    index = SurfaceIndex(mesh)
+    _INDEX_CACHE[mesh] = (key, index)
+    return index
+
+
+def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex | None = None,
+                   progress: Progress | None = None) -> ClosestPoints:
+    """Exact closest points on the mesh for (n, 3) points in mesh coordinates (libigl AABB),
+    with outward unit pseudo-normals; chunked (CHUNK points at a time)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(pts)
+    index = index or surface_index(mesh)
+    best_pt = np.empty((n, 3))
+    dist = np.empty(n)
+    face = np.empty(n, dtype=np.int64)
+    normals = np.empty((n, 3))
+    for start in range(0, n, CHUNK):
+        sl = slice(start, min(start + CHUNK, n))
+        d2, f, c = index.query(pts[sl])
+        best_pt[sl], dist[sl], face[sl] = c, np.sqrt(np.maximum(d2, 0.0)), f
+        normals[sl] = pseudo_normals(mesh, f, c)
+        if progress is not None:
+            progress(sl.stop, n)
+    if not np.all(np.isfinite(dist)):  # cannot happen for finite input; guard the invariant
+        raise MeshError("closest-point search failed (non-finite points?)")
+    return ClosestPoints(best_pt, dist, face, normals)
+
+
+class TrimeshIndex:
+    """Search structures of the previous trimesh method (kept for the benchmark)."""
 
     def __init__(self, mesh: trimesh.Trimesh) -> None:
         from scipy.spatial import cKDTree
@@ -152,20 +219,19 @@ class SurfaceIndex:
         self.pad = 1e-9 * max(1.0, float(mesh.scale))
 
 
-def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex | None = None) -> ClosestPoints:
-    """Exact closest points on the mesh for (n, 3) points in mesh coordinates.
+def closest_points_trimesh(mesh: trimesh.Trimesh, points: ArrayLike, index: TrimeshIndex | None = None) -> ClosestPoints:
+    """The previous method: trimesh R-tree candidates + trimesh closest point on triangles.
 
     Candidate faces come from the triangle R-tree, queried with a box of
     half-size equal to an upper bound of the distance (distance to the nearest
-    of a set of surface samples: vertices plus a grid on large faces). Work is
-    chunked so memory stays bounded for points far from the surface.
+    of a set of surface samples: vertices plus a grid on large faces).
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(pts)
     if n == 0:
         empty = np.empty((0, 3))
         return ClosestPoints(empty, np.empty(0), np.empty(0, dtype=np.int64), empty)
-    index = index or SurfaceIndex(mesh)
+    index = index or TrimeshIndex(mesh)
     triangles, tree = index.triangles, index.tree
     upper, _ = index.samples.query(pts)
     # pad for round-off so the true closest face is never excluded
@@ -193,8 +259,6 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex
             best_d2[o[sel]] = d2[sel]
             best_pt[o[sel]] = cp[sel]
             best_face[o[sel]] = f[sel]
-    if not np.all(np.isfinite(best_d2)):  # cannot happen for finite input; guard the invariant
-        raise MeshError("closest-point search failed (non-finite points?)")
     normals = pseudo_normals(mesh, best_face, best_pt)
     return ClosestPoints(best_pt, np.sqrt(best_d2), best_face, normals)
 
@@ -231,27 +295,45 @@ def pseudo_normals(mesh: trimesh.Trimesh, face_ids: NDArray[np.int64], points: N
     return normals
 
 
-def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike | None = None) -> DeviationResult:
+def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike | None = None,
+                     progress: Progress | None = None, method: str = "igl") -> DeviationResult:
     """Signed deviation of measured points (machine coordinates) to a posed part mesh.
 
     ``pose`` is the 4x4 part-to-machine transform of the mesh (None = identity).
     Sign: + = point outside the nominal material (excess), - = inside (missing);
-    the opposite of trimesh.proximity.signed_distance.
+    the opposite of trimesh.proximity.signed_distance, the same as libigl's.
+    Works in chunks of CHUNK points; ``progress(done, total)`` is called after
+    each.  ``method="trimesh"`` runs the previous (slower) search, for comparison.
     """
     T = as_pose(pose)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if not np.all(np.isfinite(pts)):
-        raise MeshError("measured points contain NaN or infinite coordinates")
     if len(pts) == 0:
         raise MeshError("no measured points were given")
-    local = apply_points(invert(T), pts)
-    cp = closest_points(mesh, local)
-    sign = np.sign(np.einsum("ij,ij->i", local - cp.points, cp.normals))
+    if not np.all(np.isfinite(pts)):
+        raise MeshError("measured points contain NaN or infinite coordinates")
+    n = len(pts)
+    inv = invert(T)
+    deviations = np.empty(n)
+    closest = np.empty((n, 3))
+    faces = np.empty(n, dtype=np.int64)
+    normals = np.empty((n, 3))
+    index = surface_index(mesh) if method == "igl" else TrimeshIndex(mesh)
+    for start in range(0, n, CHUNK):
+        sl = slice(start, min(start + CHUNK, n))
+        local = apply_points(inv, pts[sl])
+        cp = closest_points(mesh, local, index) if method == "igl" else closest_points_trimesh(mesh, local, index)
+        sign = np.sign(np.einsum("ij,ij->i", local - cp.points, cp.normals))
+        deviations[sl] = sign * cp.distances
+        closest[sl] = apply_points(T, cp.points)
+        faces[sl] = cp.face_ids
+        normals[sl] = apply_vectors(T, cp.normals)
+        if progress is not None:
+            progress(sl.stop, n)
     return DeviationResult(
-        deviations=sign * cp.distances,
-        closest_points=apply_points(T, cp.points),
-        face_ids=cp.face_ids,
-        normals=apply_vectors(T, cp.normals),
+        deviations=deviations,
+        closest_points=closest,
+        face_ids=faces,
+        normals=normals,
         watertight=bool(mesh.metadata.get("watertight", mesh.is_watertight)),
     )
 

@@ -13,6 +13,8 @@ import re
 import sys
 from typing import Iterable, TextIO
 
+import numpy as np
+
 _SPLIT = re.compile(r"[,\s;]+")
 
 
@@ -66,3 +68,37 @@ def read_text(path: str, stdin: TextIO | None = None) -> str:
 
 def read_points(path: str, stdin: TextIO | None = None) -> list[tuple[float, float, float]]:
     return parse_points(read_text(path, stdin).splitlines(), "<stdin>" if path == "-" else path)
+
+
+def _fast_array(text: str) -> np.ndarray | None:
+    """The points of a plain numeric file parsed in C (numpy), or None when the file has
+    comments, a header or anything unusual (the line-by-line parser then gives the message)."""
+    if "#" in text:
+        return None
+    body = text.translate(str.maketrans(",;", "  "))
+    lines = body.split("\n", 1)
+    first = lines[0].split()
+    count = None
+    if len(first) == 1 and first[0].isdigit():  # NIST: number of points first
+        count, body = int(first[0]), (lines[1] if len(lines) > 1 else "")
+    try:
+        values = np.array(body.split(), dtype=np.float64)  # rejects words (headers) with ValueError
+    except ValueError:
+        return None
+    rows = sum(1 for line in body.splitlines() if line.strip())
+    if values.size != 3 * rows or values.size == 0 or not np.all(np.isfinite(values)):
+        return None
+    points = values.reshape(-1, 3)
+    if count is not None and count != len(points):
+        return None
+    return points
+
+
+def read_points_array(path: str, stdin: TextIO | None = None) -> np.ndarray:
+    """Like read_points but returns an (n, 3) float64 array; large plain files are parsed
+    by numpy (millions of points in seconds), anything else line by line."""
+    text = read_text(path, stdin)
+    fast = _fast_array(text)
+    if fast is not None:
+        return fast
+    return np.asarray(parse_points(text.splitlines(), "<stdin>" if path == "-" else path), dtype=np.float64)
