@@ -56,6 +56,7 @@ from cmm.metrology.fit_solver import (
     amplification,
     check_conditioning,
     levenberg_marquardt,
+    r_factor,
     statistics,
 )
 from cmm.metrology.geom_basics import (
@@ -105,9 +106,10 @@ GROUPS: dict[str, dict[str, tuple[tuple[int, ...], float]]] = {
 
 
 def conditioning_warnings(jac: np.ndarray, kind: str, groups: dict[str, tuple[tuple[int, ...], float]],
-                          what: str | None = None) -> list[str]:
-    """A warning naming the poorly determined quantities when the data amplify scatter > KAPPA_WARN."""
-    kappa = amplification(jac)
+                          what: str | None = None, m: int | None = None) -> list[str]:
+    """A warning naming the poorly determined quantities when the data amplify scatter > KAPPA_WARN.
+    `jac` may be the R factor of the Jacobian with m its number of rows."""
+    kappa = amplification(jac, m)
     bad = [(name, float(kappa[list(idx)].max())) for name, (idx, f) in groups.items()
            if f == 1 and kappa[list(idx)].max() > KAPPA_WARN]
     if not bad:
@@ -250,15 +252,16 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
         sol = _run(model_cls, xs, starts[0], 300)
         if sol is None:
             raise FitError(f"the {kind} fit diverged")
-    check_conditioning(sol.jacobian, kind)
+    sol.r = r_factor(sol.jacobian)
+    check_conditioning(sol.r, kind)
     return sol, warnings
 
 
 def _finish(sol: Solution, model: Any, data: ScaledPoints, residuals_mm: np.ndarray, group: str,
             warnings: Sequence[str] = (), **extra: Any) -> dict[str, Any]:
-    st = statistics(residuals_mm, sol.jacobian, sol.jacobian.shape[1], data.scale, model.units,
-                    groups=GROUPS[group], **extra)
-    warn = list(warnings) + conditioning_warnings(sol.jacobian, model.kind, GROUPS[group])
+    r = r_factor(sol.jacobian) if sol.r is None else sol.r
+    st = statistics(residuals_mm, r, r.shape[1], data.scale, model.units, groups=GROUPS[group], **extra)
+    warn = list(warnings) + conditioning_warnings(r, model.kind, GROUPS[group], m=sol.jacobian.shape[0])
     return {"n_points": len(data.x), "method": "ls", "warnings": tuple(warn), **st}
 
 
@@ -329,13 +332,13 @@ def fit_circle(points: Any, nominal: Any = None) -> Circle:
     c2, r = sol.state
     m = len(x)
     jac_plane = np.column_stack([-np.ones(m), loc[:, 0], loc[:, 1]])
-    jac = np.zeros((2 * m, 6))
-    jac[:m, :3] = jac_plane
-    jac[m:, 3:] = sol.jacobian
+    rf = np.zeros((6, 6))  # R factor of the block-diagonal Jacobian [plane 0; 0 circle]
+    rf[:3, :3] = r_factor(jac_plane)
+    rf[3:, 3:] = sol.r
     radial, height = sol.residuals * data.scale, h * data.scale
-    st = statistics(np.concatenate([height, radial]), jac, 6, data.scale, (1, 0, 0, 1, 1, 1),
+    st = statistics(np.concatenate([height, radial]), rf, 6, data.scale, (1, 0, 0, 1, 1, 1),
                     form=float(radial.max() - radial.min()), groups=GROUPS["circle"])
-    warn += conditioning_warnings(jac, "circle", GROUPS["circle"])
+    warn += conditioning_warnings(rf, "circle", GROUPS["circle"], m=m)
     return Circle(center=data.to_mm(frame[:, :2] @ c2), normal=n, radius=r * data.scale, residuals=radial,
                   plane_residuals=height, n_points=m, method="ls", warnings=tuple(warn),
                   param_names=("offset", "alpha", "beta", "x", "y", "r"), **st)
@@ -355,9 +358,9 @@ def fit_circle_3d_distance(points: Any, nominal: Any = None) -> Circle:
     c, n, r = sol.state
     m = len(x)
     radial, height = sol.residuals[m:] * data.scale, sol.residuals[:m] * data.scale
-    st = statistics(sol.residuals * data.scale, sol.jacobian, 6, data.scale, fm.Circle3Model.units,
+    st = statistics(sol.residuals * data.scale, sol.r, 6, data.scale, fm.Circle3Model.units,
                     form=float(radial.max() - radial.min()), groups=GROUPS["circle3d"])
-    warn += conditioning_warnings(sol.jacobian, "circle", GROUPS["circle3d"])
+    warn += conditioning_warnings(sol.r, "circle", GROUPS["circle3d"], m=2 * m)
     return Circle(center=data.to_mm(c), normal=canonical_direction(n), radius=r * data.scale, residuals=radial,
                   plane_residuals=height, n_points=m, method="ls", warnings=tuple(warn),
                   param_names=("a", "b", "c_n", "alpha", "beta", "r"), **st)
@@ -390,7 +393,7 @@ def _needs_search(data: ScaledPoints, sol: Solution, p: np.ndarray, u: np.ndarra
     """Partial or poorly determined axis features get the wide multi-start search."""
     if angular_coverage_deg(data.x, p, u) < PARTIAL_DEG:
         return True
-    return bool(amplification(sol.jacobian).max() > KAPPA_WARN)
+    return bool(amplification(sol.r, len(sol.residuals)).max() > KAPPA_WARN)
 
 
 def _cylinder_algebraic(x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

@@ -37,6 +37,7 @@ class Solution:
     jacobian: np.ndarray
     cost: float
     iterations: int
+    r: np.ndarray | None = None  # R factor of the final Jacobian (set once the fit is accepted)
 
 
 # Condition number of the reduced Jacobian beyond which the data do not fix the feature.
@@ -123,8 +124,14 @@ def levenberg_marquardt(
     return Solution(state=state, residuals=d, jacobian=jac, cost=cost, iterations=it)
 
 
+def r_factor(jac: np.ndarray) -> np.ndarray:
+    """The n x n R of J = QR: R^T R = J^T J, so it stands in for J in the statistics (one QR of
+    the tall Jacobian per fit instead of one per use)."""
+    return np.linalg.qr(jac, mode="r")
+
+
 def check_conditioning(jac: np.ndarray, kind: str) -> None:
-    """Refuse fits whose parameters the points do not determine."""
+    """Refuse fits whose parameters the points do not determine (jac: J or its R factor)."""
     s = np.linalg.svd(np.linalg.qr(jac, mode="r"), compute_uv=False)
     if s[-1] <= s[0] / MAX_COND:
         raise FitError(
@@ -139,10 +146,11 @@ def check_conditioning(jac: np.ndarray, kind: str) -> None:
 KAPPA_WARN = 100.0
 
 
-def amplification(jac: np.ndarray) -> np.ndarray:
+def amplification(jac: np.ndarray, m: int | None = None) -> np.ndarray:
     """sqrt(m * diag((J^T J)^-1)) per parameter on centred, scaled data: how many units a
-    parameter moves for one unit of independent scatter on every point (1 ~ averaging)."""
-    m = jac.shape[0]
+    parameter moves for one unit of independent scatter on every point (1 ~ averaging).
+    `jac` may be the n x n R factor of J (same J^T J) when m, the number of rows of J, is given."""
+    m = jac.shape[0] if m is None else m
     try:
         rinv = np.linalg.inv(np.linalg.qr(jac, mode="r"))
     except np.linalg.LinAlgError:
