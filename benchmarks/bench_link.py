@@ -6,7 +6,13 @@ Prints:
              fraction of the wire limit;
   (issue 3)  position samples per second the machine layer publishes for
              3 axes over the served simulator, and the time from the probe
-             trigger to the compensated hit.
+             trigger to the compensated hit;
+  (issue 13) the real-time reply latency distribution (p50, p99, max, and
+             how many replies a host with a 20 ms / 50 ms time-out would
+             have missed) over TCP (served by a thread of this process and
+             by a separate `cmm sim` process) and over a pty, against the
+             protocol's own minimum. ``--latency-only`` runs just that;
+             ``--load N`` adds N busy processes (a loaded machine).
 
 The wire limit counts only bytes on the wire (10 bits per byte). The
 protocol adds an unavoidable wait: a command executes at the end of the
@@ -16,7 +22,13 @@ is also printed.
 
 from __future__ import annotations
 
+import argparse
+import multiprocessing
+import re
+import subprocess
+import sys
 import tempfile
+import threading
 import time
 
 import numpy as np
@@ -57,7 +69,114 @@ def report(name: str, rate: float, items: int) -> None:
           f"{rate / protocol:6.1%} of protocol limit {protocol:.0f}/s")
 
 
+def _busy(stop) -> None:
+    while not stop.is_set():
+        sum(range(10000))
+
+
+def _nop_latencies(port, n: int, address: int = 1) -> np.ndarray:
+    """Wall seconds from writing a NOP to holding its whole reply (items position + aux: 7 bytes)."""
+    packet = codec.nop(address)
+    size = codec.status_length(ITEMS)
+    out = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter()
+        port.write(packet)
+        got = port.read(size)
+        out[i] = time.perf_counter() - t0
+        if len(got) != size:
+            out[i] = np.inf  # no reply within the port's 1 s time-out
+        time.sleep(0.0005)  # a host doing a little work between transactions
+    return out
+
+
+def _prepare(port) -> None:
+    """Address one module, status items position + aux, switch to 115200 (raw bytes)."""
+    port.write(bytes(20))
+    time.sleep(0.05)
+    port.reset_input_buffer()
+    for a in (1, 2, 3):
+        port.write(codec.set_addr(0, a))
+        port.read(2)
+        port.write(codec.def_stat(a, ITEMS))
+        port.read(codec.status_length(ITEMS))
+    port.write(codec.set_baud(0xFF, codec.baud_divisor(BAUD)))
+    time.sleep(0.1)
+    port.baudrate = BAUD
+    port.reset_input_buffer()
+
+
+def report_latency(name: str, lat: np.ndarray) -> None:
+    ms = lat * 1e3
+    minimum = ((4 + codec.status_length(ITEMS)) * 10 / BAUD + codec.TICK_SECONDS / 2) * 1e3
+    print(f"  {name:<31} p50 {np.percentile(ms, 50):6.2f} ms  p99 {np.percentile(ms, 99):6.2f} ms  "
+          f"max {ms.max():7.2f} ms   > 20 ms: {int((ms > 20).sum())}, > 50 ms: {int((ms > 50).sum())} "
+          f"of {len(ms)}   (protocol minimum {minimum:.2f} ms on average)")
+
+
+def latency(n: int, load: int) -> None:
+    import serial
+
+    from cmm.sim.serve import serve_pty
+
+    stop = multiprocessing.Event()
+    hogs = [multiprocessing.Process(target=_busy, args=(stop,), daemon=True) for _ in range(load)]
+    for h in hogs:
+        h.start()
+    try:
+        print(f"real-time NOP reply latency, 3 modules at {BAUD} baud with wire emulation, {n} transactions"
+              + (f", {load} busy processes" if load else ""))
+        with serve_tcp(SimNetwork(3, wire_time=True)) as served:
+            port = serial.serial_for_url(served.url, timeout=1.0)
+            _prepare(port)
+            report_latency("TCP, server thread in-process", _nop_latencies(port, n))
+            busy = threading.Event()
+            worker = threading.Thread(target=_busy, args=(busy,), daemon=True)  # like `cmm serve`'s UI threads
+            worker.start()
+            tight = sys.getswitchinterval()  # what serving set (cmm.sim.serve.SWITCH_INTERVAL_S)
+            for interval in (0.005, tight):  # Python's default GIL switch interval, then the served one
+                sys.setswitchinterval(interval)
+                report_latency(f"  + a busy thread, GIL {interval * 1e3:g} ms", _nop_latencies(port, n))
+            busy.set()
+            worker.join()
+            port.close()
+        proc = subprocess.Popen([sys.executable, "-m", "cmm.cli", "sim", "--tcp", "127.0.0.1:0"],
+                                stdout=subprocess.PIPE, text=True)
+        try:
+            url = None
+            for _ in range(20):
+                m = re.search(r"socket://\S+", proc.stdout.readline())
+                if m:
+                    url = m.group(0)
+                    break
+            port = serial.serial_for_url(url, timeout=1.0)
+            _prepare(port)
+            report_latency("TCP, `cmm sim` process", _nop_latencies(port, n))
+            port.close()
+        finally:
+            proc.terminate()
+            proc.wait(10)
+        if sys.platform != "win32":
+            with serve_pty(SimNetwork(3, wire_time=True)) as served:
+                port = serial.Serial(served.url, 19200, timeout=1.0)
+                _prepare(port)
+                report_latency("pty, server thread in-process", _nop_latencies(port, n))
+                port.close()
+    finally:
+        stop.set()
+        for h in hogs:
+            h.join(5)
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--latency-only", action="store_true", help="only the real-time reply latency")
+    parser.add_argument("--transactions", type=int, default=3000, help="NOPs per latency run (default 3000)")
+    parser.add_argument("--load", type=int, default=0, metavar="N", help="busy processes during the latency runs")
+    args = parser.parse_args()
+    latency(args.transactions, args.load)
+    if args.latency_only:
+        return
     print(f"3-axis status sampling at {BAUD} baud, items position + aux ({codec.status_length(ITEMS)}-byte replies)")
     net = SimNetwork(3, wire_time=True)
     bus = Bus(net.transport())

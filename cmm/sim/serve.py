@@ -24,6 +24,7 @@ from __future__ import annotations
 import os
 import selectors
 import socket
+import sys
 import termios
 import threading
 import tty
@@ -32,7 +33,18 @@ from dataclasses import dataclass, field
 from cmm.nmc import codec as c
 from cmm.sim.network import SimNetwork, rates_match
 
-_POLL_S = 0.0005  # loop period when idle: below one servo tick
+_POLL_S = 0.002  # loop period when idle (new bytes wake it at once; this bounds the catch-up work)
+# A server thread woken by the OS must then take the GIL from any busy Python thread of the host
+# (the UI, the poll loop): it waits up to the interpreter's switch interval (5 ms by default).
+SWITCH_INTERVAL_S = 0.001
+
+
+def _tighten_gil() -> None:
+    """Process-wide: busy threads hand over the GIL every 1 ms instead of 5 (costs them a little)."""
+    if sys.getswitchinterval() > SWITCH_INTERVAL_S:
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+
 _SPEEDS = {getattr(termios, f"B{r}"): r for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
            if hasattr(termios, f"B{r}")}
 
@@ -72,8 +84,13 @@ _SAME = object()
 
 
 def _pump(network: SimNetwork, data: bytes | None, sent_at: object = _SAME, rate_now: object = _SAME) -> bytes:
-    """One step of the real-time loop: take host bytes (sent at host rate ``sent_at``; the host's
-    rate is ``rate_now`` from then on), catch up, return reply bytes."""
+    """One step of the real-time loop: catch up with the wall clock, take host bytes (sent at
+    host rate ``sent_at``; the host's rate is ``rate_now`` from then on), return reply bytes.
+
+    Bytes are taken to arrive now, after the catch-up, also when the thread was
+    held up: a reply computed at an earlier simulated time would report
+    positions a catch-up later jumps past, which a host's continuity check
+    rightly rejects."""
     with network.lock:
         network.sync()
         if data:
@@ -118,6 +135,7 @@ def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0) -> Se
     handle = ServedSim(network, f"socket://{bound_host}:{bound_port}")
     network.host_baud = None  # TCP carries no line rate
     network.start_realtime()
+    _tighten_gil()
     sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(listener, selectors.EVENT_READ)
     client: list[socket.socket] = []
@@ -177,6 +195,7 @@ def serve_pty(network: SimNetwork) -> ServedSim:
     os.set_blocking(master, False)
     handle = ServedSim(network, os.ttyname(slave))
     network.start_realtime()
+    _tighten_gil()
     sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(master, selectors.EVENT_READ)
 
