@@ -212,6 +212,7 @@ def test_pick_probe_here_and_fit(app, operator):
     assert abs(abs(feature.result.normal[2]) - 1) < 1e-4
     text = operator.feature_markdown()
     assert "form error" in text and "vs nominal plane" in text
+    assert "u (1 sigma): position" in text  # standard uncertainties shown
     app.redraw()
     assert feature.id in app.view._feature_nodes
     # undo removes the last hit; a fit needs the hits it names

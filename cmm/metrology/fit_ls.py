@@ -82,6 +82,7 @@ SEARCH_SUBSAMPLE = 300  # points per start in the wide axis search
 SEARCH_DIRECTIONS = 400  # axis directions screened by an algebraic fit
 SEARCH_STARTS = 16  # best screened directions run to convergence
 REFINE = 3  # best clearly different searched solutions refined on all points
+START_CUTOFF = 1e3  # starts whose cost exceeds this multiple of the best start's are not run
 PARTIAL_DEG = 270.0  # cylinders/cones covering less of the circle get the wide search
 SPARSE = 100
 
@@ -218,8 +219,18 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
     warnings: list[str] = []
     if len(starts) > 1:
         sub = subsample(xs, search_points)
+        # starts far worse than the best start (e.g. a long bore started across its axis) are skipped
+        start_cost = []
+        for st in starts:
+            try:
+                d0, _ = model_cls(sub).residuals_jacobian(st)
+                start_cost.append(float(d0 @ d0))
+            except (FitError, np.linalg.LinAlgError, FloatingPointError, ValueError):
+                start_cost.append(np.inf)
+        cutoff = START_CUTOFF * min(start_cost) if np.isfinite(min(start_cost)) else np.inf
         # searching: a coarse convergence is enough to rank the starts
-        trials = [(i, t) for i, st in enumerate(starts) if (t := _run(model_cls, sub, st, 40, 1e-9)) is not None]
+        trials = [(i, t) for i, st in enumerate(starts)
+                  if start_cost[i] <= cutoff and (t := _run(model_cls, sub, st, 40, 1e-9)) is not None]
         if not trials:
             raise FitError(f"the {kind} fit did not converge from any starting value")
         trials.sort(key=lambda it: it[1].cost)

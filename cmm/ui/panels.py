@@ -411,6 +411,11 @@ class ClientApp:
         lines = [f"**{feature.name}** ({feature.kind}, {feature.method}, hits {feature.hit_ids})", "",
                  f"form error: **{s['form'] * 1000:.2f} um**"
                  + (f" · sigma {s['sigma'] * 1000:.2f} um" if s.get("sigma") is not None else "")]
+        if s.get("uncertainty"):  # standard uncertainties: angles (rad) in urad, lengths (mm) in um
+            lines.append("u (1 sigma): " + " · ".join(
+                f"{k} {v * 1e6:.1f} urad" if k in ("normal", "direction", "half_angle") else f"{k} {v * 1000:.2f} um"
+                for k, v in s["uncertainty"].items()))
+        lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
         for k, v in feature.result.geometry().items():
             lines.append(f"- {k}: {_fmt(v)}")
         dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
