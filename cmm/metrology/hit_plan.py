@@ -1,0 +1,196 @@
+"""Auto-measure from the CAD: the hits that measure a picked surface, and a collision-safe path to them.
+
+:func:`plan_feature` takes the nominal feature suggested for a picked face
+(:func:`cmm.metrology.pick.suggest_feature`, with its face region) and
+proposes what a CMM programmer would: the feature kind to fit, the number
+and pattern of hits, and the approach of each hit (into the surface):
+
+- plane: ``n`` hits (default 4) spread over the face, at least ``margin``
+  from its edges (farthest-point sampling of surface samples);
+- cylinder (bore or boss): two rings of ``n`` hits (default 4) at a quarter
+  and three quarters of its length; a short one (< 3 mm) becomes a circle;
+- sphere: the pole (along +Z) and a ring of ``n`` hits (default 4) at 45 deg,
+  kept to the part of the sphere the mesh has;
+- cone: two rings of ``n`` hits on the cone between its ends.
+
+Every planned hit must lie on the picked region of the mesh (a hit that would
+land on another face is dropped) and face upward enough to be reached from
+above (the probe comes down over a clearance plane). The path for the scene
+is, per hit: up to the clearance height, across, down to the pre-hit point,
+in to the contact point.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from .pick import NominalFeature
+from .transform import apply_points, apply_vectors, as_pose, invert
+
+MIN_NORMAL_Z = -0.2  # faces that look further down than this cannot be reached by a vertical stylus
+ON_SURFACE = 0.05  # mm: a planned point must be this close to the picked region
+
+
+class PlanError(ValueError):
+    """A feature that cannot be measured automatically, in an operator's words."""
+
+
+@dataclass
+class HitPlan:
+    kind: str  # the feature to fit: plane, circle, cylinder, sphere, cone
+    nominal: NominalFeature  # machine coordinates
+    points: np.ndarray  # n x 3 nominal surface points, machine mm
+    approaches: np.ndarray  # n x 3 unit directions into the surface
+    clearance_z: float  # machine Z of the clearance plane
+    description: str = ""
+    path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # polyline the probe centre follows
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+def _frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(axis, e1)
+
+
+def _boundary_segments(mesh: trimesh.Trimesh, faces: np.ndarray) -> np.ndarray:
+    edges = np.sort(mesh.faces[faces][:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    return mesh.vertices[uniq[counts == 1]]
+
+
+def _distance_to_segments(p: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    if len(seg) == 0:
+        return np.full(len(p), np.inf)
+    a, b = seg[:, 0], seg[:, 1]
+    ab = b - a
+    t = np.clip(np.einsum("pij,ij->pi", p[:, None, :] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-30), 0, 1)
+    closest = a[None] + t[..., None] * ab[None]
+    return np.linalg.norm(p[:, None, :] - closest, axis=2).min(axis=1)
+
+
+def _spread(points: np.ndarray, n: int) -> np.ndarray:
+    """Farthest-point sampling: ``n`` well spread points (indices), starting far from the centroid."""
+    if len(points) <= n:
+        return np.arange(len(points))
+    chosen = [int(np.argmax(np.linalg.norm(points - points.mean(axis=0), axis=1)))]
+    d = np.linalg.norm(points - points[chosen[0]], axis=1)
+    for _ in range(n - 1):
+        k = int(np.argmax(d))
+        chosen.append(k)
+        d = np.minimum(d, np.linalg.norm(points - points[k], axis=1))
+    return np.array(chosen)
+
+
+def _on_region(mesh: trimesh.Trimesh, region: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Which part-coordinate points lie on the region's faces (closest face in the region, on the surface)."""
+    if len(local) == 0:
+        return np.zeros(0, bool)
+    _, dist, tri = mesh.nearest.on_surface(local)
+    return (np.asarray(dist) <= ON_SURFACE) & np.isin(np.asarray(tri), region)
+
+
+def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature, region: Any, *,
+                 n: int | None = None, margin: float = 3.0, clearance: float = 15.0,
+                 approach_distance: float = 2.0, tip_radius: float = 1.0, seed: int = 0) -> HitPlan:
+    """The hits that measure ``nominal_local`` (part coordinates, on face ``region`` of ``mesh``)."""
+    T = as_pose(pose)
+    region = np.asarray(region, dtype=np.int64)
+    nom = nominal_local
+    p = nom.params
+    kind = nom.kind
+    pts: list[np.ndarray] = []
+    app: list[np.ndarray] = []
+    if kind in ("plane", "surface"):
+        normal = np.asarray(p["normal"], float)
+        count = n or 4
+        samples, _ = trimesh.sample.sample_surface(mesh.submesh([region], append=True), 400, seed=seed)
+        samples = np.asarray(samples, float)
+        inner = samples[_distance_to_segments(samples, _boundary_segments(mesh, region)) >= margin]
+        if len(inner) < count:
+            raise PlanError(f"the face is too small for {count} hits {margin:g} mm from its edges")
+        for q in inner[_spread(inner, count)]:
+            pts.append(q)
+            app.append(-normal)
+        fit_kind, what = "plane", f"plane: {count} hits spread over the face"
+    elif kind in ("cylinder", "cone"):
+        axis = np.asarray(p["direction"], float)
+        axis /= np.linalg.norm(axis)
+        e1, e2 = _frame(axis)
+        verts = mesh.vertices[np.unique(mesh.faces[region])]
+        origin = np.asarray(p["point"] if kind == "cylinder" else p["apex"], float)
+        h = (verts - origin) @ axis
+        lo, hi = float(h.min()), float(h.max())
+        length = hi - lo
+        count = n or 4
+        bore = bool(p.get("bore", False))
+        if kind == "cylinder" and length < 3.0:
+            levels, fit_kind = [lo + length / 2], "circle"
+        else:
+            levels, fit_kind = [lo + length / 4, lo + 3 * length / 4], kind
+        for level in levels:
+            for a in np.linspace(0, 2 * math.pi, count, endpoint=False) + math.pi / count:
+                radial = math.cos(a) * e1 + math.sin(a) * e2
+                if kind == "cylinder":
+                    r = float(p["radius"])
+                    surface_n = radial
+                else:
+                    half = float(p["half_angle"])
+                    r = level * math.tan(half)
+                    surface_n = math.cos(half) * radial - math.sin(half) * axis
+                q = origin + level * axis + r * radial
+                outward = -surface_n if bore else surface_n
+                pts.append(q)
+                app.append(-outward)
+        rings = "one ring" if len(levels) == 1 else "two rings"
+        what = f"{fit_kind} ({'bore' if bore else 'boss'}): {rings} of {count} hits"
+    elif kind == "sphere":
+        c = np.asarray(p["center"], float)
+        r = float(p["radius"])
+        bore = bool(p.get("bore", False))
+        up = apply_vectors(invert(T), np.array([0.0, 0.0, 1.0]))
+        e1, e2 = _frame(up)
+        count = n or 4
+        dirs = [up] + [math.sin(math.radians(45)) * (math.cos(a) * e1 + math.sin(a) * e2) + math.cos(math.radians(45)) * up
+                       for a in np.linspace(0, 2 * math.pi, count, endpoint=False)]
+        for d in dirs:
+            pts.append(c + r * d)
+            app.append(d if bore else -d)
+        fit_kind, what = "sphere", f"sphere: the pole and {count} hits at 45°"
+    else:
+        raise PlanError(f"a {kind} surface cannot be measured automatically")
+    local = np.array(pts, float).reshape(-1, 3)
+    approach_l = np.array(app, float).reshape(-1, 3)
+    keep = _on_region(mesh, region, local)
+    machine_pts = apply_points(T, local)
+    machine_app = apply_vectors(T, approach_l)
+    keep &= (-machine_app[:, 2]) >= MIN_NORMAL_Z  # outward normal not pointing down
+    minimum = {"plane": 3, "circle": 3, "cylinder": 6, "sphere": 4, "cone": 6}[fit_kind]
+    if keep.sum() < minimum:
+        raise PlanError(f"only {int(keep.sum())} of {len(keep)} planned hits for this {fit_kind} are on the picked "
+                        f"surface and reachable from above; a {fit_kind} needs {minimum}")
+    machine_pts, machine_app = machine_pts[keep], machine_app[keep]
+    top = float(apply_points(T, mesh.vertices)[:, 2].max())
+    clearance_z = top + clearance
+    plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
+                   what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""))
+    plan.path = plan_path(plan, approach_distance, tip_radius)
+    return plan
+
+
+def plan_path(plan: HitPlan, approach_distance: float, tip_radius: float) -> np.ndarray:
+    """The probe-centre polyline: per hit up to the clearance plane, across, down to the pre-hit point, in."""
+    path: list[np.ndarray] = []
+    for q, u in zip(plan.points, plan.approaches):
+        contact = q - tip_radius * u
+        pre = contact - approach_distance * u
+        above = np.array([pre[0], pre[1], plan.clearance_z])
+        path += [above, pre, contact, pre, above]
+    return np.array(path, float).reshape(-1, 3)
