@@ -64,6 +64,24 @@ class Feature:
                 "nominal": None if self.nominal is None else self.nominal.to_dict(), "tolerance": self.tolerance}
 
 
+@dataclass
+class ConstructedFeature:
+    """A feature constructed from two others (intersection, distance, angle, mid-point)."""
+
+    id: int
+    name: str
+    operation: str
+    operands: tuple[int, int]
+    result: Any  # cmm.metrology.construct.Constructed
+    nominal: Any = None  # the same construction on the operands' nominals (Constructed) or None
+    tolerance: dict[str, float] | None = None
+
+    def to_event(self) -> dict[str, Any]:
+        return {"id": self.id, "name": self.name, "operation": self.operation, "operands": list(self.operands),
+                "result": self.result.summary(), "nominal": None if self.nominal is None else self.nominal.summary(),
+                "tolerance": self.tolerance}
+
+
 INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
 TOLERANCE_KEYS = ("size", "form", "location", "position", "angle")
 
@@ -103,6 +121,7 @@ class Station:
         self.deleted: dict[int, Hit] = {}
         self._undo: list[tuple[str, int]] = []
         self.features: dict[int, Feature] = {}
+        self.constructed: dict[int, ConstructedFeature] = {}
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Hit | None = None
@@ -114,6 +133,7 @@ class Station:
         self.calibration_log: list[str] = []
         self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}
         self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
+        self.aligned = False  # an alignment was made since the part was loaded
         self.calibration_dir = None if calibration_dir is None else Path(calibration_dir)  # records are read and written here
         if calibration_dir is not None:
             self.load_calibration(calibration_dir)
@@ -329,6 +349,7 @@ class Station:
         mesh.metadata["sha256"], mesh.metadata["path"] = file_sha256(path), str(Path(path).resolve())
         with self.lock:
             self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))
+            self.aligned = False
             self._record("part", name=self.part.name, pose=self.part.pose, sha256=mesh.metadata["sha256"],
                          path=mesh.metadata["path"]) if self.journal else None
         self._notify("part", self.part)
@@ -555,8 +576,46 @@ class Station:
         self._notify("feature", f)
         return f
 
+    def construct_feature(self, operation: str, a: int, b: int, name: str | None = None,
+                          tolerance: dict[str, float] | None = None) -> ConstructedFeature:
+        """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`)."""
+        from .metrology.construct import construct, nominal_geometry
+
+        tolerance = check_tolerance(tolerance)
+        with self.lock:
+            fa, fb = self.features.get(a), self.features.get(b)
+            if fa is None or fb is None:
+                raise StationError(f"there is no feature {a if fa is None else b}")
+            if a == b:
+                raise StationError("a construction needs two different features")
+        try:
+            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()))
+        except (FitError, ValueError, KeyError) as exc:
+            raise StationError(str(exc)) from None
+        nominal = None
+        na = nominal_geometry(fa.kind, None if fa.nominal is None else fa.nominal.to_dict())
+        nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())
+        if na is not None and nb is not None:
+            try:
+                nominal = construct(operation, na, nb)
+            except (FitError, ValueError, KeyError, np.linalg.LinAlgError):
+                nominal = None
+        with self.lock:
+            fid = self._next_feature
+            self._next_feature += 1
+            feature = ConstructedFeature(fid, name or f"{operation} {fa.name} / {fb.name}", operation, (a, b), result,
+                                         nominal, tolerance)
+            self.constructed[fid] = feature
+            self._record("constructed", **feature.to_event())
+        self._notify("feature", feature)
+        return feature
+
     def delete_feature(self, fid: int) -> None:
         with self.lock:
+            if self.constructed.pop(fid, None) is not None:
+                self._record("feature_deleted", id=fid)
+                self._notify("features", None)
+                return
             if self.features.pop(fid, None) is None:
                 raise StationError(f"there is no feature {fid}")
             self._record("feature_deleted", id=fid)
@@ -580,6 +639,7 @@ class Station:
             raise StationError("load a part before aligning it")
         with self.lock:
             self.part.pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+            self.aligned = True
             self._record("alignment", pose=self.part.pose, method=method, **info)
         self._notify("part", self.part)
 

@@ -118,3 +118,69 @@ def test_machine_events_in_words():
     assert error_text("machine:contact", "{'position': [1.0, 2.0, 3.0]}").startswith("Unexpected probe contact at X 1.000")
     assert error_text("recorder", "plain words") == "plain words"
     assert grouped(["a", "b", "a"]) == [("a", 2), ("b", 1)]
+
+
+def test_constructed_features_and_their_nominals():
+    from cmm.metrology.characteristics import constructed_characteristics
+    from cmm.metrology.construct import construct, nominal_geometry
+    from cmm.metrology.features import FitError
+
+    top = ("plane", {"point": [0, 0, 40.0], "normal": [0, 0, 1.0]})
+    front = ("plane", {"point": [0, 0, 0.0], "normal": [0, -1.0, 0]})
+    line = construct("intersection", top, front)
+    assert line.kind == "line" and np.allclose(np.abs(line.geometry["direction"]), [1, 0, 0])
+    assert np.allclose(line.geometry["point"], [0, 0, 40])
+    bore = ("circle", {"center": [30.0, 40.0, 40.0], "normal": [0, 0, 1.0], "radius": 15.0})
+    boss = ("cylinder", {"point": [70.0, 22.0, 0.0], "direction": [0, 0, 1.0], "radius": 10.0})
+    pierce = construct("intersection", boss, top)
+    assert np.allclose(pierce.geometry["point"], [70, 22, 40])
+    assert construct("distance", bore, ("point", pierce.geometry)).value == pytest.approx(math.hypot(40, 18))
+    assert construct("distance", bore, boss).value == pytest.approx(math.hypot(40, 18))  # parallel axes
+    assert construct("distance", ("sphere", {"center": [0, 0, 50.0]}), top).value == pytest.approx(10.0)
+    assert construct("angle", top, front).value == pytest.approx(90.0)
+    assert construct("midpoint", bore, ("sphere", {"center": [70.0, 58.0, 40.0]})).geometry["point"] == [50, 49, 40]
+    with pytest.raises(FitError, match="parallel"):
+        construct("intersection", top, ("plane", {"point": [0, 0, 1.0], "normal": [0, 0, 1.0]}))
+    with pytest.raises(FitError, match="mid-point"):
+        construct("midpoint", top, bore)
+    # the nominal of a circle measured on a cylindrical bore
+    assert nominal_geometry("circle", {"kind": "cylinder", "point": [1, 2, 3], "direction": [0, 0, 1], "radius": 4})[0] == "circle"
+    (dist,) = constructed_characteristics("d", {"kind": "distance", "value": 43.87}, {"kind": "distance", "value": 43.86},
+                                          {"location": 0.005})
+    assert dist.deviation == pytest.approx(0.01) and dist.ok is False
+    (ang,) = constructed_characteristics("a", {"kind": "angle", "value": 90.02}, None)
+    assert ang.ok is None and "no nominal" in ang.note
+
+
+def test_auto_measure_plans_hits_on_the_picked_surface():
+    from cmm.metrology.hit_plan import PlanError, plan_feature
+    from cmm.metrology.pick import pick, suggest_feature
+
+    mesh, _ = sample_part()
+    pose = as_pose(np.eye(4))
+    pose[:3, 3] = [190.0, 150.0, 0.0]
+
+    def plan_at(point, direction, **kw):
+        hit = pick(mesh, None, np.asarray(point, float) - 30 * np.asarray(direction, float), direction)
+        s = suggest_feature(mesh, hit.face_id)
+        return plan_feature(mesh, pose, s.feature, s.face_ids, **kw)
+
+    top = plan_at((10, 70, 40), (0, 0, -1))
+    assert top.kind == "plane" and len(top) == 4 and np.allclose(top.approaches, [0, 0, -1])
+    assert np.allclose(top.points[:, 2], 40.0) and top.clearance_z == pytest.approx(55.0 + 15.0)
+    spread = np.linalg.norm(top.points[:, None] - top.points[None], axis=2)
+    assert spread[spread > 0].min() > 20.0  # spread over the face, not bunched
+    boss = plan_at((80, 22, 47), (-1, 0, 0))
+    assert boss.kind == "cylinder" and len(boss) == 8 and boss.nominal.params["bore"] is False
+    radial = boss.points[:, :2] - [260.0, 172.0]
+    assert np.allclose(np.linalg.norm(radial, axis=1), 10.0)
+    assert np.allclose(np.einsum("ij,ij->i", boss.approaches[:, :2], radial / 10.0), -1.0)  # into the boss
+    bore = plan_at((15, 40, 20), (-1, 0, 0))
+    radial = bore.points[:, :2] - [220.0, 190.0]
+    assert bore.nominal.params["bore"] and np.allclose(np.einsum("ij,ij->i", bore.approaches[:, :2], radial / 15.0), 1.0)
+    dome = plan_at((70, 58, 49), (0, 0, -1))
+    assert dome.kind == "sphere" and len(dome) == 5
+    # the path climbs to the clearance plane before every hit and comes back up after it
+    assert np.allclose(top.path[0::5, 2], top.clearance_z) and np.allclose(top.path[4::5, 2], top.clearance_z)
+    with pytest.raises(PlanError, match="too small"):
+        plan_at((10, 70, 40), (0, 0, -1), n=4, margin=60.0)

@@ -150,3 +150,27 @@ def verdict(chars: list[Characteristic]) -> tuple[str, int, int]:
     if failed:
         return "FAIL", failed, missing
     return ("INCOMPLETE" if missing else "PASS"), failed, missing
+
+
+def constructed_characteristics(name: str, result: dict[str, Any], nominal: dict[str, Any] | None,
+                                tolerance: dict[str, float] | None = None) -> list[Characteristic]:
+    """Characteristics of a constructed feature (``Constructed.summary()`` dicts): a distance (+- location),
+    an angle (+- angle, degrees), a point's true position (diameter); a line has none of its own."""
+    tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
+    kind = result.get("kind")
+    nom = nominal if nominal and nominal.get("kind") == kind else None
+    if kind == "distance":
+        n = None if nom is None else float(nom["value"])
+        return [Characteristic(name, "distance", n, float(result["value"]), tol["location"], -tol["location"],
+                               note="" if n is not None else "no nominal: an operand has none")]
+    if kind == "angle":
+        t = float(tol.get("angle", DEFAULT_ANGLE_TOLERANCE))
+        n = None if nom is None else float(nom["value"])
+        return [Characteristic(name, "angle", n, float(result["value"]), t, -t, unit="deg",
+                               note="" if n is not None else "no nominal: an operand has none")]
+    if kind == "point":
+        tp = None if nom is None else 2.0 * float(np.linalg.norm(_arr(result["point"]) - _arr(nom["point"])))
+        return [Characteristic(name, "position ⌀", None if tp is None else 0.0, tp,
+                               float(tol.get("position", 2.0 * tol["location"])), 0.0,
+                               note="" if tp is not None else "no nominal: an operand has none")]
+    return []

@@ -20,7 +20,10 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
   the fit summary (``n_points``, ``form``, ``sigma`` and geometry such as
   ``point``, ``normal``, ``center``, ``radius``, ``diameter``...), ``nominal``
   (machine coordinates) and optional ``tolerance`` ({"size", "form", "location"}).
-- ``feature_deleted``: ``id``.
+- ``constructed``: ``id``, ``name``, ``operation`` (intersection, distance,
+  angle, midpoint), ``operands`` (feature ids), ``result`` and ``nominal``
+  ({"kind": point/line/distance/angle, geometry or ``value``}), ``tolerance``.
+- ``feature_deleted``: ``id`` (a fitted or constructed feature).
 - ``info``: the report header an operator filled in: any of ``part_number``,
   ``drawing``, ``operator``, ``machine_name``, ``temperature`` (deg C), ``remarks``;
   later events update earlier ones.
@@ -153,13 +156,15 @@ class SessionState:
     unaligned: list[int] = field(default_factory=list)
     aligned: bool = False  # an alignment was made since the part was (re)loaded
     info: dict[str, Any] = field(default_factory=dict)  # report header fields (``info`` events)
+    constructed: dict[int, dict] = field(default_factory=dict)  # ``constructed`` events by id
     last_event: dict | None = None
 
     def copy(self) -> "SessionState":
         """An independent copy (records are immutable, so shallow container copies suffice)."""
         return replace(self, hits=dict(self.hits), deleted_hits=dict(self.deleted_hits), features=dict(self.features),
                        alignments=list(self.alignments), notes=list(self.notes), errors=list(self.errors),
-                       hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned), info=dict(self.info))
+                       hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned), info=dict(self.info),
+                       constructed=dict(self.constructed))
 
     @property
     def pose_array(self) -> np.ndarray | None:
@@ -219,8 +224,11 @@ class SessionState:
         elif kind == "feature":
             rec = FeatureRecord.from_event(event)
             self.features[rec.id] = rec
+        elif kind == "constructed":
+            self.constructed[int(event["id"])] = {k: v for k, v in event.items() if k not in ("seq", "time", "kind")}
         elif kind == "feature_deleted":
             self.features.pop(int(event["id"]), None)
+            self.constructed.pop(int(event["id"]), None)
         elif kind == "info":
             self.info.update({k: v for k, v in event.items() if k not in ("seq", "time", "kind")})
         elif kind == "note":

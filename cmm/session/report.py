@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..metrology.characteristics import Characteristic, characteristics, verdict
+from ..metrology.characteristics import Characteristic, characteristics, constructed_characteristics, verdict
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from .export import hit_deviations
@@ -310,10 +310,18 @@ def _tolerances(session: Session, program: Any, default_tolerance: float | None)
     return {fid: {**base, **(f.tolerance or {}), **tol_of.get(f.name, {})} for fid, f in session.state.features.items()}
 
 
+def _constructed_rows(session: Session, default_tolerance: float | None) -> list[tuple[dict, list[Characteristic]]]:
+    base = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
+    return [(c, constructed_characteristics(str(c.get("name")), c.get("result") or {}, c.get("nominal"),
+                                            {**base, **(c.get("tolerance") or {})}))
+            for c in session.state.constructed.values()]
+
+
 def report_rows(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> list[Characteristic]:
-    """Every characteristic of every feature, in feature order."""
+    """Every characteristic of every feature (fitted, then constructed), in feature order."""
     tols = _tolerances(session, program, default_tolerance)
-    return [c for fid, f in session.state.features.items() for c in feature_characteristics(f, tols[fid])]
+    return ([c for fid, f in session.state.features.items() for c in feature_characteristics(f, tols[fid])]
+            + [c for _, cs in _constructed_rows(session, default_tolerance) for c in cs])
 
 
 def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> str:
@@ -329,6 +337,12 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+    for rec, cs in _constructed_rows(session, default_tolerance):
+        for c in cs:
+            w.writerow([c.feature, "constructed", rec.get("operation", ""), "", c.name, c.unit,
+                        "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
+                        "" if c.actual is None else f"{c.actual:.6f}",
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
     return buf.getvalue()
 
 
@@ -340,7 +354,9 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
     scale = ColourScale(colour_tolerance or base_tol["form"], max_distance)
-    per_feature = [(f, feature_characteristics(f, tols[fid])) for fid, f in st.features.items()]
+    per_feature: list[tuple[Any, list[Characteristic]]] = [(f, feature_characteristics(f, tols[fid]))
+                                                          for fid, f in st.features.items()]
+    per_feature += _constructed_rows(session, default_tolerance)
     rows = [c for _, cs in per_feature for c in cs]
     word, n_fail, n_missing = verdict(rows)
     if word == "FAIL":
@@ -397,8 +413,13 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
     for f, cs in per_feature:
         for k, c in enumerate(cs):
             cls = ("fail" if c.ok is False else "none" if c.ok is None else "") + (" feat" if k == 0 else "")
-            name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(f.name)}</b><br><span class='muted'>{e(f.kind)}, "
-                         f"{e(f.method)}, {len(f.hit_ids)} hits</span></td>") if k == 0 else ""
+            if isinstance(f, dict):  # a constructed feature
+                what = f"constructed: {f.get('operation', '')} of features {', '.join(str(i) for i in f.get('operands', ()))}"
+                fname = str(f.get("name", ""))
+            else:
+                what, fname = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits", f.name
+            name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(fname)}</b><br><span class='muted'>{e(what)}"
+                         "</span></td>") if k == 0 else ""
             unit = "°" if c.unit == "deg" else ""
             lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
             note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and c.ok is None else ""

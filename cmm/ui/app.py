@@ -232,6 +232,11 @@ class StationApp:
         while not self._stop.wait(1.0 / REFRESH_HZ):
             tick += 1
             clients = list(self.clients.values())
+            for capp in clients:
+                try:
+                    capp.fast_refresh()  # the status bar's DRO at 20 Hz (sent only when it changed)
+                except Exception:  # noqa: BLE001 - a closing tab
+                    pass
             try:
                 self.redraw()
             except Exception:  # noqa: BLE001 - keep the UI alive

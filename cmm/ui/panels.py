@@ -27,11 +27,14 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ..control import MotionError
-from ..metrology import fit_criteria
 from ..metrology.features import FitError
-from ..station import FEATURE_KINDS, StationError
+from ..station import StationError
+from .panel_align import AlignPanel
 from .panel_calibration import CalibrationPanel
+from .panel_features import FeaturesPanel
+from .panel_measure import MeasurePanel
 from .panel_sessions import SessionsPanel
+from .panel_status import StatusPanel
 from .scene import SCALE, draw_pick
 
 if TYPE_CHECKING:
@@ -40,6 +43,9 @@ if TYPE_CHECKING:
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
+JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, PageUp/PageDown = Z at the "
+                 "selected speed, **Shift** = fast, Esc or Space = stop; **1-5** = step jog size (1 count, 0.01, "
+                 "0.1, 1, 10 mm) with **S** + arrow for one step. The pendant is its own client: Take control in it.")
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
 
@@ -164,6 +170,10 @@ class ClientApp:
         self._plot_key: bytes | None = None
         self.sessions = SessionsPanel(self)
         self.calibration = CalibrationPanel(self)
+        self.status = StatusPanel(self)
+        self.features = FeaturesPanel(self)
+        self.align = AlignPanel(self)
+        self.measure = MeasurePanel(self)
 
     # --- messages -------------------------------------------------------------
 
@@ -388,8 +398,9 @@ class ClientApp:
     def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
         def do() -> Any:
             ids = self.hit_ids_for(ids_text, last_n)
-            nominal = self.picked[1] if self.picked is not None else None
-            feature = self.station.fit_feature(kind, ids, method, nominal=nominal)
+            # the nominal is the CAD surface the hits lie on (the station finds it), not the last click:
+            # "Nominal from the last CAD pick" in the Features tab applies a pick on purpose
+            feature = self.station.fit_feature(kind, ids, method)
             self.selected_feature = feature.id
             self.app.view.select_feature(feature.id)
             self.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
@@ -466,19 +477,13 @@ class ClientApp:
         """Create this client's widgets. Callbacks only call the methods above."""
         gui = self.client.gui
         g = self.gui
-        with gui.add_folder("Control"):
+        self.status.build(gui)  # first, and sticky: state, DRO, probe, STOP / E-STOP always on screen
+        with gui.add_folder("Control", expand_by_default=False):
             g["control"] = gui.add_markdown(self.control_text())
             g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
             take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
             gui.add_button("Release").on_click(lambda _: self.release_control())
-            src = self.app.pendant_src(self.client.client_id)
-            if src:
-                g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:260px;border:0" '
-                             'title="pendant" allow="gamepad"></iframe>')
-        with gui.add_folder("Safety"):
-            gui.add_button("STOP", color="orange").on_click(lambda _: self.stop())
-            gui.add_button("E-STOP", color="red").on_click(lambda _: self.emergency_stop())
             if self.is_local and self.control.access_code is not None:  # only the person at the station decides
                 lan_stop = gui.add_checkbox("LAN observers may stop", self.control.lan_stop)
                 lan_stop.on_update(lambda e: self.set_lan_stop(e.target.value))
@@ -497,6 +502,8 @@ class ClientApp:
             speed.on_click(lambda e: setattr(self, "speed_mode", e.target.value))
             manual = gui.add_checkbox("Manual probing (armed jog)", False)
             manual.on_update(lambda e: self.set_manual_probe(e.target.value))
+            gui.add_markdown(f"Manual hits are taken at the qualified probing speed "
+                             f"({self.station_probing_speed():g} mm/s), whatever the speed selected.")
             for i, name in enumerate(AXES):
                 for sign, label in ((-1, f"{name.upper()} −"), (1, f"{name.upper()} +")):
                     b = gui.add_button(f"hold {label}")
@@ -507,6 +514,11 @@ class ClientApp:
             for i, name in enumerate(AXES):
                 gui.add_button_group(f"Step {name.upper()}", ("−", "+")).on_click(
                     lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
+            src = self.app.pendant_src(self.client.client_id)
+            if src:
+                gui.add_markdown(JOG_KEYS_HELP)
+                g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
+                                            'title="pendant" allow="gamepad"></iframe>')
         with tabs.add_tab("Go to"):
             pos = self.station.state.position if self.station.state is not None else np.zeros(3)
             g["target"] = gui.add_vector3("Target (mm)", tuple(float(v) for v in pos), step=0.001)
@@ -525,15 +537,11 @@ class ClientApp:
             gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
             gui.add_button("Undo").on_click(lambda _: self.undo())
         with tabs.add_tab("Features"):
-            kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
-            method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
-            kind.on_update(lambda e: setattr(method, "options", fit_criteria.methods_for(e.target.value)))
-            ids = gui.add_text("Hit ids", "", hint="e.g. 1-4, 7; empty = the last N hits")
-            last_n = gui.add_number("Last N hits", 4, min=0, step=1)
-            gui.add_button("Fit").on_click(lambda _: self.fit(kind.value, method.value, ids.value, int(last_n.value)))
-            g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
-            g["features"].on_update(lambda e: self._feature_chosen(e.target.value))
-            g["feature"] = gui.add_markdown(self.feature_markdown())
+            self.features.build(gui)
+        with tabs.add_tab("Align"):
+            self.align.build(gui)
+        with tabs.add_tab("Auto-measure"):
+            self.measure.build(gui)
         with tabs.add_tab("Diagnostics"):
             # the trace changes with every poll: sent only while asked for (an idle page stays quiet)
             live = gui.add_checkbox("Live byte trace", False)
@@ -550,17 +558,13 @@ class ClientApp:
         with tabs.add_tab("Calibration"):
             self.calibration.build(gui)
 
-    def _feature_chosen(self, value: str) -> None:
-        m = re.match(r"(\d+)", value)
-        if m:
-            self.select_feature(int(m.group(1)))
-
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
         if not self.gui:
             return
         st = self.station
         self._set("control", "content", self.control_text())
+        self.status.refresh()
         self._set("machine", "content", machine_markdown(st))
         hit = st.last_hit
         if hit is not None:
@@ -569,14 +573,13 @@ class ClientApp:
                       + "contact point: X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
         with st.lock:
             hits = sorted(st.hits.items())
-            features = sorted(st.features.items())
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]
         self._set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
-        options = tuple(f"{fid} {f.name}" for fid, f in features) or ("-",)
-        self._set("features", "options", options)
-        self._set("feature", "content", self.feature_markdown())
+        self.features.refresh()
+        self.align.refresh()
+        self.measure.refresh()
         if self.picked is not None:
             p, nominal = self.picked
             self._set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
@@ -597,7 +600,20 @@ class ClientApp:
     def _show_trace(self) -> None:
         self._set("trace", "value", self.station.trace.dump(last=30))
 
-    def _set(self, key: str, attr: str, value: Any) -> None:
-        if key in self.gui and self._shown.get(key) != value:
+    def fast_refresh(self) -> None:
+        """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""
+        if self.gui:
+            self.status.refresh()
+
+    def aligned(self) -> bool:
+        return bool(getattr(self.station, "aligned", False))
+
+    def station_probing_speed(self) -> float:
+        return float(getattr(self.station, "qualified_probing_speed", self.station.config.speeds.probing))
+
+    def _set(self, key: str, attr: str, value: Any, handle: Any = None) -> None:
+        """Set a widget attribute only when the value changed (``handle`` for widgets of the sub-panels)."""
+        widget = handle if handle is not None else self.gui.get(key)
+        if widget is not None and self._shown.get(key) != value:
             self._shown[key] = value
-            setattr(self.gui[key], attr, value)
+            setattr(widget, attr, value)

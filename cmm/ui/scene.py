@@ -284,6 +284,19 @@ class SceneView:
     def _highlight(self) -> None:
         for fid, node in self._feature_nodes.items():
             node.opacity = 0.9 if fid == self.selected else 0.55
+        # the selected feature's hits: larger yellow spheres around them
+        with self.station.lock:
+            feature = self.station.features.get(self.selected) if self.selected is not None else None
+            hits = dict(self.station.hits)
+        pts = [hits[h].point for h in (feature.hit_ids if feature is not None else []) if h in hits]
+        if not pts:
+            self.scene.add_frame("/local/selection", show_axes=False)
+            return
+        sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.9 * SCALE)
+        self.scene.add_batched_meshes_simple(
+            "/local/selection", sphere.vertices.astype(np.float32), sphere.faces,
+            batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (len(pts), 1)), batched_positions=self.local(np.array(pts)),
+            batched_colors=np.tile(np.array([[255, 230, 0]], np.uint8), (len(pts), 1)), lod="off", opacity=0.6)
 
     # --- station events ------------------------------------------------------------
 

@@ -1,0 +1,159 @@
+"""Guided part alignment on a station: 3-2-1 from measured features, and best fit of hits to the mesh.
+
+3-2-1: the primary plane fixes part Z, the secondary (a plane, or a line)
+the X direction, the tertiary (a point, circle, sphere centre or a third
+plane) the origin. The same construction on the features' CAD nominals (part
+coordinates) gives where that datum system sits in the part, so the new
+part -> machine pose is ``measured @ inverse(nominal)``. Best fit moves the
+part until the chosen hits lie on the mesh (ICP from the current pose).
+
+Both give an :class:`AlignmentResult` (pose, residuals, the change from the
+previous pose) that :func:`apply` journals through ``station.set_alignment``;
+the features' nominals move with the part so they still compare.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .metrology.align import AlignmentError, align_321, best_fit
+from .metrology.relations import intersect_plane_plane
+from .metrology.transform import invert
+
+
+@dataclass
+class AlignmentResult:
+    method: str  # "3-2-1" or "best_fit"
+    pose: np.ndarray  # part -> machine
+    residuals: dict[str, float] = field(default_factory=dict)  # mm: rms, max (best fit); per datum (3-2-1)
+    info: dict[str, Any] = field(default_factory=dict)  # what to journal with it
+
+    def shift(self, previous: np.ndarray) -> tuple[float, float]:
+        """(translation mm, rotation deg) of this pose against ``previous`` at the part origin."""
+        d = self.pose @ invert(previous)
+        angle = float(np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1.0, 1.0))))
+        return float(np.linalg.norm(self.pose[:3, 3] - previous[:3, 3])), angle
+
+    def text(self, previous: np.ndarray | None = None) -> str:
+        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        lines = [f"**{self.method}**: part origin at X {t[0]:.4f} Y {t[1]:.4f} Z {t[2]:.4f} mm, "
+                 f"part X axis ({R[0, 0]:.6f}, {R[1, 0]:.6f}, {R[2, 0]:.6f})"]
+        if previous is not None:
+            dt, da = self.shift(previous)
+            lines.append(f"moved {dt:.4f} mm and {da:.4f}° from the previous set-up")
+        lines += [f"- {k}: {v * 1000:.2f} µm" for k, v in self.residuals.items()]
+        return "\n\n".join(lines[:2]) + ("\n\n" + "\n".join(lines[2:]) if len(lines) > 2 else "")
+
+
+class _Ns:
+    def __init__(self, **kw: Any) -> None:
+        self.__dict__.update({k: np.asarray(v, float) for k, v in kw.items()})
+
+
+def _plane(kind: str, g: dict[str, Any], what: str) -> tuple[np.ndarray, np.ndarray]:
+    if kind not in ("plane", "surface"):
+        raise AlignmentError(f"the {what} must be a plane, not a {kind}")
+    return np.asarray(g["point"], float), np.asarray(g["normal"], float)
+
+
+def _datums(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary: tuple[str, dict]
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(plane point, normal, line point, line direction, origin point) of a 3-2-1 datum system."""
+    p0, n0 = _plane(*primary, "primary datum")
+    ks, gs = secondary
+    if ks in ("plane", "surface"):
+        ps, ns = _plane(ks, gs, "secondary datum")
+        axis = intersect_plane_plane(_Ns(point=p0, normal=n0), _Ns(point=ps, normal=ns))
+        lp, ld = axis.point, axis.direction
+    elif ks in ("line", "cylinder"):
+        lp, ld = np.asarray(gs["point"], float), np.asarray(gs["direction"], float)
+    else:
+        raise AlignmentError(f"the secondary datum must be a plane or a line, not a {ks}")
+    kt, gt = tertiary
+    if kt in ("point",):
+        q = np.asarray(gt["point"], float)
+    elif kt in ("circle", "sphere"):
+        q = np.asarray(gt["center"], float)
+    elif kt == "cylinder":
+        q = np.asarray(gt["point"], float)
+    elif kt in ("plane", "surface"):
+        pt, nt = _plane(kt, gt, "tertiary datum")
+        A = np.vstack([n0, np.cross(n0, ld), nt])
+        try:
+            q = np.linalg.solve(A, np.array([n0 @ p0, np.cross(n0, ld) @ lp, nt @ pt]))
+        except np.linalg.LinAlgError:
+            raise AlignmentError("the tertiary plane is parallel to the secondary datum: it cannot fix X") from None
+    else:
+        raise AlignmentError(f"the tertiary datum must be a point, circle, sphere or plane, not a {kt}")
+    return p0, n0, lp, ld, q
+
+
+def _nominal_part(feature: Any, pose: np.ndarray) -> tuple[str, dict[str, Any]]:
+    """A feature's CAD nominal in part coordinates, as (kind, geometry) of the fitted kind."""
+    if feature.nominal is None:
+        raise AlignmentError(f"{feature.name} has no CAD nominal: measure it on the part or give it one")
+    n = feature.nominal.transformed(invert(pose))
+    p = n.params
+    if feature.kind == "circle" and n.kind == "cylinder":
+        return "circle", {"center": p["point"], "normal": p["direction"]}
+    if n.kind == "surface":
+        return "plane", dict(p)
+    return n.kind, dict(p)
+
+
+def align_features(station: Any, primary: int, secondary: int, tertiary: int) -> AlignmentResult:
+    """3-2-1 from three measured features with CAD nominals (feature ids)."""
+    part = station.part
+    if part is None:
+        raise AlignmentError("load a part before aligning it")
+    feats = []
+    for fid in (primary, secondary, tertiary):
+        f = station.features.get(fid)
+        if f is None:
+            raise AlignmentError(f"there is no feature {fid}")
+        feats.append(f)
+    if len({primary, secondary, tertiary}) < 3:
+        raise AlignmentError("3-2-1 needs three different features")
+    pose = np.asarray(part.pose, float)
+    p0, n0, lp, ld, q = _datums(*[(f.kind, f.result.geometry()) for f in feats])
+    nominal = _datums(*[_nominal_part(f, pose) for f in feats])
+    # fitted normals and axes carry a canonical sign, not the CAD's: sign them like the nominal seen through
+    # the current pose (the part is within a few degrees of it)
+    R = pose[:3, :3]
+    n0 = n0 if n0 @ (R @ nominal[1]) >= 0 else -n0
+    ld = ld if ld @ (R @ nominal[3]) >= 0 else -ld
+    M = align_321(p0, n0, lp, ld, q)
+    new = M @ invert(align_321(*nominal))
+    # how well the nominal datums land on the measured ones (non-zero when the features are not square)
+    unit_n = n0 / np.linalg.norm(n0)
+    res = {"primary plane offset": abs(float((new[:3, :3] @ nominal[0] + new[:3, 3] - p0) @ unit_n)),
+           "origin point offset": float(np.linalg.norm(new[:3, :3] @ nominal[4] + new[:3, 3] - q))}
+    info = {"features": [primary, secondary, tertiary], "names": [f.name for f in feats]}
+    return AlignmentResult("3-2-1", new, res, info)
+
+
+def best_fit_hits(station: Any, hit_ids: list[int]) -> AlignmentResult:
+    part = station.part
+    if part is None:
+        raise AlignmentError("load a part before aligning it")
+    missing = [h for h in hit_ids if h not in station.hits]
+    if missing:
+        raise AlignmentError(f"no hits with ids {missing}")
+    pts = np.array([station.hits[h].point for h in hit_ids], float)
+    fit = best_fit(part.mesh, pts, initial=part.pose)
+    return AlignmentResult("best_fit", fit.transform, {"RMS": fit.rms, "max residual": fit.max_residual},
+                           {"rms": fit.rms, "max_residual": fit.max_residual, "hit_ids": list(hit_ids),
+                            "converged": fit.converged})
+
+
+def apply(station: Any, result: AlignmentResult) -> None:
+    """Adopt the alignment (journaled); every feature's nominal moves with the part."""
+    previous = np.asarray(station.part.pose, float)
+    move = result.pose @ invert(previous)
+    station.set_alignment(result.pose, result.method, **result.info)
+    for fid, f in list(station.features.items()):
+        if f.nominal is not None:
+            station.set_feature_nominal(fid, f.nominal.transformed(move))

@@ -1,0 +1,44 @@
+"""Auto-measure and constructed features on a station, through its public actions only.
+
+:func:`plan_at_pick` turns a click on the part into a :class:`~cmm.metrology.hit_plan.HitPlan`
+(feature kind, hits, approaches, clearance plane, the path to draw);
+:func:`run_plan` probes the hits one after the other (each rapid goes over the
+clearance plane) and fits the feature against the CAD nominal. A failed hit
+stops the run and says which one; the hits already taken stay recorded.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from .metrology.hit_plan import HitPlan, PlanError, plan_feature
+from .metrology.pick import suggest_feature
+
+
+def plan_at_pick(station: Any, face_id: int, *, n: int | None = None) -> HitPlan:
+    """The measurement the station proposes for the part face ``face_id``."""
+    part = station.part
+    if part is None:
+        raise PlanError("load a part before planning a measurement")
+    suggestion = suggest_feature(part.mesh, int(face_id))  # part coordinates
+    probe = station.config.probe
+    return plan_feature(part.mesh, part.pose, suggestion.feature, suggestion.face_ids, n=n,
+                        approach_distance=probe.approach_distance, tip_radius=station.prober.settings.tip_radius)
+
+
+def run_plan(station: Any, plan: HitPlan, *, name: str | None = None, method: str = "ls",
+             progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
+             cancelled: Callable[[], bool] = lambda: False, client: Any = None) -> Any:
+    """Probe every planned hit (as ``client``, through the control core), then fit the feature with the
+    plan's nominal. Returns the Feature."""
+    ids: list[int] = []
+    for k, (p, u) in enumerate(zip(plan.points, plan.approaches)):
+        if cancelled():
+            raise PlanError(f"cancelled after {k} of {len(plan)} hits")
+        hit = station.probe(np.asarray(p), np.asarray(u), clearance_z=plan.clearance_z, client=client).wait(timeout)
+        ids.append(station.hit_id(hit))
+        if progress is not None:
+            progress(k + 1, len(plan))
+    return station.fit_feature(plan.kind, ids, method, name, plan.nominal)

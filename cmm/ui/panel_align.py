@@ -1,0 +1,101 @@
+"""The "Align" tab: 3-2-1 from measured features and best fit of hits to the part, with the result shown.
+
+Choose the primary plane, the secondary (plane or line) and the tertiary
+(point, circle, sphere or plane) among the measured features, or the hits for
+a best fit; *Compute* shows the transform and residuals, *Apply* journals the
+alignment (:mod:`cmm.alignment`) and switches this tab's DRO to part
+coordinates.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import TYPE_CHECKING, Any
+
+from ..metrology.align import AlignmentError
+from .. import alignment
+
+if TYPE_CHECKING:
+    from .panels import ClientApp
+
+
+def _fid(value: str) -> int | None:
+    m = re.match(r"(\d+)", value or "")
+    return int(m.group(1)) if m else None
+
+
+class AlignPanel:
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.station = capp.station
+        self.gui: dict[str, Any] = {}
+        self.result: alignment.AlignmentResult | None = None
+
+    def compute_321(self, primary: int, secondary: int, tertiary: int) -> Any:
+        try:
+            self.result = alignment.align_features(self.station, primary, secondary, tertiary)
+        except (AlignmentError, ValueError, KeyError) as exc:
+            self.result = None
+            return self.capp.error(exc, "3-2-1")
+        self._show()
+        return self.result
+
+    def compute_best_fit(self, ids_text: str) -> Any:
+        from .panels import parse_ids
+
+        try:
+            ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.hits)
+            self.result = alignment.best_fit_hits(self.station, ids)
+        except (AlignmentError, ValueError) as exc:
+            self.result = None
+            return self.capp.error(exc, "Best fit")
+        self._show()
+        return self.result
+
+    def apply(self) -> bool:
+        result = self.result
+        if result is None:
+            self.capp.error("compute an alignment first", "Align")
+            return False
+        done = self.capp._run("Align", lambda: alignment.apply(self.station, result) or True)
+        if done:
+            self.capp.status.set_frame("Part")
+            self.capp.notify("Aligned", f"{result.method}: the DRO shows part coordinates")
+            self.result = None
+        return bool(done)
+
+    def text(self) -> str:
+        if self.result is None:
+            part = self.station.part
+            return "*no alignment computed*" if part is None else "*no alignment computed*"
+        return self.result.text(None if self.station.part is None else self.station.part.pose)
+
+    def _show(self) -> None:
+        self.capp._set("align:result", "content", self.text(), self.gui.get("result"))
+
+    def build(self, gui: Any) -> None:
+        g = self.gui
+        gui.add_markdown("**3-2-1**: primary plane, secondary plane or line, tertiary point, circle, sphere "
+                         "or plane (features with CAD nominals).")
+        g["p"] = gui.add_dropdown("Primary (plane)", ("-",), initial_value="-")
+        g["s"] = gui.add_dropdown("Secondary", ("-",), initial_value="-")
+        g["t"] = gui.add_dropdown("Tertiary", ("-",), initial_value="-")
+        gui.add_button("Compute 3-2-1").on_click(lambda _: self._compute_321())
+        gui.add_markdown("**Best fit** of hits to the part mesh (at least 6, spread over several faces).")
+        ids = gui.add_text("Hits for best fit", "", hint="e.g. 1-9; empty = all hits")
+        gui.add_button("Compute best fit").on_click(lambda _: self.compute_best_fit(ids.value))
+        g["result"] = gui.add_markdown(self.text())
+        gui.add_button("Apply alignment", color="green").on_click(lambda _: self.apply())
+
+    def _compute_321(self) -> Any:
+        ids = [_fid(self.gui[k].value) for k in ("p", "s", "t")]
+        if None in ids:
+            return self.capp.error("choose the three datum features", "3-2-1")
+        return self.compute_321(*ids)  # type: ignore[arg-type]
+
+    def refresh(self) -> None:
+        with self.station.lock:
+            feats = sorted(self.station.features.items())
+        opts = tuple(f"{fid} {f.name} ({f.kind})" for fid, f in feats) or ("-",)
+        for k in ("p", "s", "t"):
+            self.capp._set(f"align:{k}", "options", opts, self.gui.get(k))

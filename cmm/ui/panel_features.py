@@ -1,0 +1,296 @@
+"""The "Features" tab: a feature tree as in PC-DMIS / CALYPSO, nominals and tolerances, constructions.
+
+The tree lists every fitted and constructed feature with its method and hits,
+and under it each characteristic (nominal, actual, deviation, tolerance) in
+its pass / fail / no-nominal colour (:mod:`cmm.metrology.characteristics`, the
+same rules as the report). Selecting a feature highlights it and its hits in
+the 3D view and lists its hits with their residuals; a hit can be removed
+(the feature refits) or re-taken (the next hit replaces it, then it refits).
+Nominals come from the CAD (where the hits lie, or the last pick) or are
+typed; tolerances are typed. Constructions: intersection, distance, angle,
+mid-point of two features. The colour map's tolerance band and max-distance
+cut-off and the report header (part number, drawing, operator, temperature)
+are set here too.
+"""
+
+from __future__ import annotations
+
+import html
+import re
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..metrology import fit_criteria
+from ..metrology.characteristics import characteristics, constructed_characteristics
+from ..metrology.construct import OPERATIONS
+from ..metrology.feature_distance import surface_distance
+from ..metrology.pick import NominalFeature
+from ..station import FEATURE_KINDS, StationError
+
+if TYPE_CHECKING:
+    from .panels import ClientApp
+
+RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
+RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
+
+
+def feature_chars(f: Any) -> list[Any]:
+    return characteristics(f.name, f.kind, f.result.summary(), None if f.nominal is None else f.nominal.to_dict(),
+                           f.tolerance)
+
+
+def tree_html(station: Any, selected: int | None = None) -> str:
+    """The feature tree (pure: tested without a browser)."""
+    e = html.escape
+    with station.lock:
+        feats = sorted(station.features.items())
+        built = sorted(getattr(station, "constructed", {}).items())
+    if not feats and not built:
+        return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
+    rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11.5px system-ui'>"
+            "<tr style='color:#666'><th align=left>feature</th><th align=right>nominal</th><th align=right>actual</th>"
+            "<th align=right>dev</th><th align=right>tol</th><th></th></tr>"]
+    items = [(fid, f.name, f"{f.kind} · {f.method} · {len(f.hit_ids)} hits", feature_chars(f)) for fid, f in feats]
+    items += [(fid, c.name, f"constructed {c.operation} of {c.operands[0]} and {c.operands[1]}",
+               constructed_characteristics(c.name, c.result.summary(), None if c.nominal is None else c.nominal.summary(),
+                                           c.tolerance)) for fid, c in built]
+    for fid, name, what, chars in items:
+        oks = [c.ok for c in chars]
+        worst = False if False in oks else (None if None in oks else True)
+        mark = "▶ " if fid == selected else ""
+        bg = "background:#fff8c4;" if fid == selected else ""
+        rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
+                    f"<b style='color:{RESULT_COLOURS[worst]}'>{mark}{fid} {e(name)}</b> "
+                    f"<span style='color:#777'>{e(what)}</span></td></tr>")
+        for c in chars:
+            unit = "°" if c.unit == "deg" else ""
+            nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
+            actual = "—" if c.actual is None else f"{c.actual:.4f}{unit}"
+            dev = "" if c.deviation is None else f"{c.deviation:+.4f}"
+            rows.append(f"<tr style='{bg}'><td style='padding-left:14px'>{e(c.name)}</td><td align=right>{nominal}</td>"
+                        f"<td align=right>{actual}</td><td align=right>{dev}</td>"
+                        f"<td align=right>{e(c.tolerance_text)}</td>"
+                        f"<td style='color:{RESULT_COLOURS[c.ok]};font-weight:600'>{RESULT_WORDS[c.ok]}</td></tr>")
+    rows.append("</table>")
+    return "".join(rows)
+
+
+def typed_nominal(feature: Any, centre: Any = None, diameter: float | None = None) -> NominalFeature:
+    """A nominal from typed values, starting from the feature's nominal (or its fitted geometry)."""
+    g = feature.result.geometry()
+    if feature.nominal is not None:
+        base = feature.nominal.copy()
+    elif feature.kind in ("circle", "cylinder"):
+        axis = g["normal"] if feature.kind == "circle" else g["direction"]
+        base = NominalFeature("cylinder", {"point": g["center"] if feature.kind == "circle" else g["point"],
+                                           "direction": axis, "radius": g["radius"]})
+    elif feature.kind == "sphere":
+        base = NominalFeature("sphere", {"center": g["center"], "radius": g["radius"]})
+    elif feature.kind == "plane":
+        base = NominalFeature("plane", {"point": g["point"], "normal": g["normal"]})
+    else:
+        raise StationError(f"a {feature.kind} has no nominal to type")
+    p = base.params
+    if diameter is not None:
+        if base.kind not in ("cylinder", "sphere"):
+            raise StationError(f"a {base.kind} has no diameter")
+        if not (np.isfinite(diameter) and diameter > 0):
+            raise StationError(f"a nominal diameter must be a positive number, got {diameter}")
+        p["radius"] = float(diameter) / 2
+    if centre is not None:
+        c = np.asarray(centre, float)
+        if c.shape != (3,) or not np.all(np.isfinite(c)):
+            raise StationError("the nominal centre needs three finite coordinates")
+        key = "center" if base.kind == "sphere" else "point"
+        p[key] = c
+    return NominalFeature(base.kind, p)
+
+
+class FeaturesPanel:
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.station = capp.station
+        self.gui: dict[str, Any] = {}
+        self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
+
+    # --- actions (each checks control through capp._run) -------------------------------------
+
+    def selected(self) -> Any:
+        fid = self.capp.selected_feature
+        return None if fid is None else self.station.features.get(fid)
+
+    def remove_hit(self, hid: int) -> Any:
+        f = self.selected()
+        if f is None:
+            return self.capp.error("select a feature first", "Remove hit")
+        if hid not in f.hit_ids:
+            return self.capp.error(f"hit {hid} is not in {f.name} (hits {f.hit_ids})", "Remove hit")
+        return self.capp._run("Remove hit", lambda: self.station.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
+
+    def retake_hit(self, hid: int) -> None:
+        f = self.selected()
+        if f is None or hid not in f.hit_ids:
+            return self.capp.error(f"pick a hit of the selected feature to re-take", "Re-take")
+        if not self.capp.allowed("Re-take"):
+            return
+        self.retake = (f.id, hid, max(self.station.hits, default=0))
+        self.capp.notify("Re-take", f"take the new hit for hit {hid} of {f.name} (Probe here, jog or auto)")
+
+    def _check_retake(self) -> None:
+        if self.retake is None:
+            return
+        fid, old, newest = self.retake
+        with self.station.lock:
+            fresh = sorted(h for h in self.station.hits if h > newest)
+            f = self.station.features.get(fid)
+        if not fresh or f is None:
+            return
+        self.retake = None
+        ids = [fresh[0] if h == old else h for h in f.hit_ids]
+        feature = self.capp._run("Re-take", lambda: self.station.refit_feature(fid, ids), guarded=False)
+        if feature is not None:
+            self.capp._run("Re-take", lambda: self.station.delete_hit(old), guarded=False)
+            self.capp.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
+
+    def nominal_from_pick(self) -> Any:
+        f = self.selected()
+        nominal = self.capp.picked[1] if self.capp.picked is not None else None
+        if f is None or nominal is None:
+            return self.capp.error("select a feature and click its surface on the part first", "Nominal")
+        return self.capp._run("Nominal", lambda: self.station.set_feature_nominal(f.id, nominal))
+
+    def type_nominal(self, centre: Any = None, diameter: float | None = None) -> Any:
+        f = self.selected()
+        if f is None:
+            return self.capp.error("select a feature first", "Nominal")
+        return self.capp._run("Nominal", lambda: self.station.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
+
+    def set_tolerance(self, **tol: float) -> Any:
+        fid = self.capp.selected_feature
+        if fid is None:
+            return self.capp.error("select a feature first", "Tolerance")
+        return self.capp._run("Tolerance", lambda: self.station.set_feature_nominal(fid, tolerance=tol))
+
+    def construct(self, operation: str, a: int, b: int, name: str = "") -> Any:
+        c = self.capp._run("Construct", lambda: self.station.construct_feature(operation, a, b, name or None))
+        if c is not None:
+            self.capp.selected_feature = c.id
+        return c
+
+    def delete_feature(self) -> None:
+        fid = self.capp.selected_feature
+        if fid is not None:
+            self.capp._run("Delete feature", lambda: self.station.delete_feature(fid))
+            self.capp.selected_feature = None
+
+    def set_colour_scale(self, tolerance: float, cutoff: float) -> None:
+        try:
+            self.capp.app.view.set_scale(float(tolerance), float(cutoff))
+        except (ValueError, TypeError) as exc:
+            return self.capp.error(exc, "Colour map")
+        self.capp.app.view.draw_hits(self.capp.app.deviations())
+
+    def save_info(self, **fields: Any) -> Any:
+        return self.capp._run("Report header", lambda: self.station.set_info(**fields))
+
+    # --- read-outs -------------------------------------------------------------------------
+
+    def hits_html(self) -> str:
+        f = self.selected()
+        if f is None:
+            return ""
+        with self.station.lock:
+            hits = {**self.station.deleted, **self.station.hits}
+        pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
+        try:
+            res = surface_distance(f.kind, f.result.summary(), pts)
+        except (KeyError, ValueError):
+            res = np.full(len(pts), np.nan)
+        cells = " · ".join(f"{h}: {r * 1000:+.1f} µm" for h, r in zip(f.hit_ids, res))
+        return f"<div style='font:11.5px system-ui'><b>{html.escape(f.name)}</b> hits (residual): {cells}</div>"
+
+    def options(self) -> tuple[str, ...]:
+        with self.station.lock:
+            ids = sorted([(fid, f.name) for fid, f in self.station.features.items()]
+                         + [(fid, c.name) for fid, c in getattr(self.station, "constructed", {}).items()])
+        return tuple(f"{fid} {name}" for fid, name in ids) or ("-",)
+
+    # --- GUI ---------------------------------------------------------------------------------
+
+    def build(self, gui: Any) -> None:
+        g = self.gui
+        capp = self.capp
+        with gui.add_folder("Fit"):
+            kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
+            method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
+            kind.on_update(lambda e: setattr(method, "options", fit_criteria.methods_for(e.target.value)))
+            ids = gui.add_text("Hit ids", "", hint="e.g. 1-4, 7; empty = the last N hits")
+            last_n = gui.add_number("Last N hits", 4, min=0, step=1)
+            gui.add_button("Fit").on_click(lambda _: capp.fit(kind.value, method.value, ids.value, int(last_n.value)))
+        g["tree"] = gui.add_html(tree_html(self.station))
+        g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
+        g["features"].on_update(lambda e: self._chosen(e.target.value))
+        g["hits"] = gui.add_html("")
+        with gui.add_folder("Hits of the feature", expand_by_default=False):
+            hit = gui.add_number("Hit", 1, min=1, step=1)
+            gui.add_button("Remove hit and refit").on_click(lambda _: self.remove_hit(int(hit.value)))
+            gui.add_button("Re-take hit").on_click(lambda _: self.retake_hit(int(hit.value)))
+            gui.add_button("Delete feature").on_click(lambda _: self.delete_feature())
+        with gui.add_folder("Nominal and tolerance", expand_by_default=False):
+            gui.add_button("Nominal from the last CAD pick").on_click(lambda _: self.nominal_from_pick())
+            centre = gui.add_vector3("Nominal centre (mm)", (0.0, 0.0, 0.0), step=0.001)
+            diameter = gui.add_number("Nominal diameter", 0.0, min=0.0, step=0.001)
+            gui.add_button("Apply typed nominal").on_click(lambda _: self.type_nominal(
+                centre.value if any(centre.value) else None, diameter.value or None))
+            size = gui.add_number("Size ± (mm)", 0.02, min=0.0001, step=0.001)
+            form = gui.add_number("Form (mm)", 0.02, min=0.0001, step=0.001)
+            pos = gui.add_number("Position ⌀ (mm)", 0.04, min=0.0001, step=0.001)
+            gui.add_button("Apply tolerances").on_click(lambda _: self.set_tolerance(
+                size=size.value, form=form.value, position=pos.value))
+        with gui.add_folder("Construct", expand_by_default=False):
+            op = gui.add_dropdown("Operation", OPERATIONS, initial_value="distance")
+            g["a"] = gui.add_dropdown("Feature A", ("-",), initial_value="-")
+            g["b"] = gui.add_dropdown("Feature B", ("-",), initial_value="-")
+            name = gui.add_text("Name", "", hint="optional")
+            gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
+                                                                          name.value))
+        with gui.add_folder("Colour map", expand_by_default=False):
+            scale = capp.app.view.scale
+            band = gui.add_number("Tolerance band (mm)", scale.tolerance, min=0.0001, step=0.001)
+            cut = gui.add_number("Max distance (mm)", scale.max_distance, min=0.001, step=0.01)
+            gui.add_button("Apply colour map").on_click(lambda _: self.set_colour_scale(band.value, cut.value))
+            g["legend"] = gui.add_html(self.legend_html())
+        with gui.add_folder("Report header", expand_by_default=False):
+            info = self.station.info if isinstance(getattr(self.station, "info", None), dict) else {}
+            fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
+                      for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
+                                       ("temperature", "Temperature (°C)"))}
+            gui.add_button("Save header").on_click(lambda _: self.save_info(**{k: w.value for k, w in fields.items()}))
+
+    def legend_html(self) -> str:
+        scale = self.capp.app.view.scale
+        return ("<div style='font:11px system-ui;display:flex;flex-wrap:wrap;gap:2px 10px'>"
+                + "".join(f"<span><i style='display:inline-block;width:11px;height:11px;background:rgb{c};"
+                          f"border:1px solid #555;vertical-align:-1px;margin-right:3px'></i>{html.escape(t)}</span>"
+                          for c, t in scale.legend()) + "</div>")
+
+    def _construct(self, op: str, a: str, b: str, name: str) -> Any:
+        ma, mb = re.match(r"(\d+)", a), re.match(r"(\d+)", b)
+        if not (ma and mb):
+            return self.capp.error("choose two features", "Construct")
+        return self.construct(op, int(ma.group(1)), int(mb.group(1)), name)
+
+    def _chosen(self, value: str) -> None:
+        m = re.match(r"(\d+)", value)
+        if m:
+            self.capp.select_feature(int(m.group(1)))
+
+    def refresh(self) -> None:
+        self._check_retake()
+        options = self.options()
+        for key in ("features", "a", "b"):
+            self.capp._set(f"features:{key}", "options", options, self.gui.get(key))
+        self.capp._set("features:tree", "content", tree_html(self.station, self.capp.selected_feature), self.gui.get("tree"))
+        self.capp._set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
+        self.capp._set("features:legend", "content", self.legend_html(), self.gui.get("legend"))

@@ -1,0 +1,135 @@
+"""The "Auto-measure" tab: click a face of the part, the station proposes the feature and its hits.
+
+After a pick (click on the part), *Plan* shows the proposed feature (plane,
+circle / bore / boss, cylinder, sphere, cone), the number and pattern of hits,
+their approach directions and the clearance plane, and draws the planned path
+in this tab's 3D view (up over the clearance plane, across, down, in).
+*Run* measures it (needs control): every hit goes over the clearance plane,
+then the feature is fitted against the CAD nominal. *Cancel* stops after the
+current hit; STOP stops at once.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..measure import plan_at_pick, run_plan
+from ..metrology.hit_plan import PlanError
+from .scene import SCALE
+
+if TYPE_CHECKING:
+    from .panels import ClientApp
+
+
+class MeasurePanel:
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.station = capp.station
+        self.gui: dict[str, Any] = {}
+        self.plan: Any = None
+        self.running: threading.Thread | None = None
+        self.progress = ""
+        self.feature: Any = None
+        self._cancel = threading.Event()
+        self._nodes: list[Any] = []
+
+    def make_plan(self, hits_per_ring: int | None = None) -> Any:
+        if self.capp.picked is None:
+            return self.capp.error("click the face to measure on the part first", "Auto-measure")
+        try:
+            self.plan = plan_at_pick(self.station, self.capp.picked[0].face_id, n=hits_per_ring or None)
+        except (PlanError, ValueError) as exc:
+            self.plan = None
+            return self.capp.error(exc, "Auto-measure")
+        self.progress = ""
+        self.draw()
+        return self.plan
+
+    def text(self) -> str:
+        p = self.plan
+        if p is None:
+            return "*Click a face of the part, then Plan.*"
+        lines = [f"**{p.kind}**: {p.description}", "",
+                 f"{len(p)} hits · clearance plane Z {p.clearance_z:.1f} mm · nominal {p.nominal.kind}"
+                 + (f" ⌀ {2 * p.nominal.params['radius']:.3f}" if "radius" in p.nominal.params else "")]
+        for k, (q, u) in enumerate(zip(p.points, p.approaches), 1):
+            lines.append(f"- hit {k}: X {q[0]:.3f} Y {q[1]:.3f} Z {q[2]:.3f}, approach ({u[0]:+.2f}, {u[1]:+.2f}, {u[2]:+.2f})")
+        if self.progress:
+            lines += ["", self.progress]
+        return "\n".join(lines)
+
+    def draw(self) -> None:
+        client = self.capp.client
+        if client is None:
+            return
+        self.clear_drawing()
+        p = self.plan
+        if p is None:
+            return
+        scene = client.scene
+        path = (p.path * SCALE).astype(np.float32)
+        segs = np.stack([path[:-1], path[1:]], axis=1)
+        self._nodes.append(scene.add_line_segments("/plan/path", segs, (255, 140, 0), thickness=2.0,
+                                                   thickness_units="screen"))
+        arrows = np.stack([(p.points - 6.0 * p.approaches) * SCALE, p.points * SCALE], axis=1).astype(np.float32)
+        self._nodes.append(scene.add_line_segments("/plan/approach", arrows, (255, 60, 200), thickness=4.0,
+                                                   thickness_units="screen"))
+        self._nodes.append(scene.add_point_cloud("/plan/points", (p.points * SCALE).astype(np.float32),
+                                                 colors=(255, 60, 200), point_size=0.0025))
+
+    def clear_drawing(self) -> None:
+        for node in self._nodes:
+            try:
+                node.remove()
+            except Exception:  # noqa: BLE001 - the tab may have closed
+                pass
+        self._nodes = []
+
+    def run(self, name: str = "", wait: bool = False) -> bool:
+        plan = self.plan
+        if plan is None:
+            self.capp.error("plan a measurement first", "Auto-measure")
+            return False
+        if self.running is not None and self.running.is_alive():
+            self.capp.error("a measurement is already running", "Auto-measure")
+            return False
+        if not self.capp.allowed("Auto-measure"):
+            return False
+        self._cancel.clear()
+
+        def work() -> None:
+            try:
+                self.feature = run_plan(self.station, plan, name=name or None, cancelled=self._cancel.is_set,
+                                        client=self.capp.who(),
+                                        progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
+            except Exception as exc:  # noqa: BLE001 - every failure is told; the machine layer stopped itself
+                self.progress = f"stopped: {exc}"
+                self.capp.error(exc, "Auto-measure")
+                return
+            self.progress = f"done: {self.feature.name}"
+            self.capp.selected_feature = self.feature.id
+            self.capp.notify("Auto-measure", f"{self.feature.name} measured ({len(plan)} hits)")
+
+        self.running = threading.Thread(target=work, name="auto-measure", daemon=True)
+        self.running.start()
+        if wait:
+            self.running.join()
+        return True
+
+    def cancel(self) -> None:
+        self._cancel.set()
+
+    def build(self, gui: Any) -> None:
+        g = self.gui
+        n = gui.add_number("Hits (per ring)", 0, min=0, max=24, step=1, hint="0 = the default for the feature")
+        gui.add_button("Plan").on_click(lambda _: self.make_plan(int(n.value)))
+        g["plan"] = gui.add_markdown(self.text())
+        name = gui.add_text("Feature name", "", hint="optional")
+        gui.add_button("Run", color="green").on_click(lambda _: self.run(name.value))
+        gui.add_button("Cancel after this hit").on_click(lambda _: self.cancel())
+
+    def refresh(self) -> None:
+        self.capp._set("measure:plan", "content", self.text(), self.gui.get("plan"))

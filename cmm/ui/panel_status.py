@@ -1,0 +1,154 @@
+"""The status bar at the top of every tab's panel: machine state, control, link, DRO, probe, STOP / E-STOP.
+
+It is the first thing in the panel and stays on screen while the tabs below
+scroll (a sticky block; the page's own CSS, injected once). The read-out
+shows the machine state (not homed / idle / moving / jogging / probing /
+stopped / fault with its reason), who holds control, link health (samples
+per second), the DRO in machine or part coordinates (switchable; part
+coordinates through the alignment), and the probe: armed for manual hits,
+triggered, the tip in use and its qualification. It is re-sent only when
+its text changes.
+"""
+
+from __future__ import annotations
+
+import html
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .panels import ClientApp
+
+FRAMES = ("Machine", "Part")
+# keeps the status block (viser's folder that holds #cmm-status) on screen while the panel scrolls; the
+# containers around it must not clip (a clipping ancestor would become the sticky block's scroll box)
+STICKY_CSS = """<style>
+.mantine-ScrollArea-content .mantine-Paper-root:has(#cmm-status) {
+  position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
+  box-shadow: 0 0 0 10px var(--mantine-color-body, #fff); }
+.mantine-ScrollArea-content div:has(.mantine-Paper-root #cmm-status) { overflow: visible !important; }
+.cmm-status { font: 12.5px/1.35 system-ui, sans-serif; padding: 2px 0 4px; }
+.cmm-status .mode { font-weight: 700; padding: 1px 6px; border-radius: 3px; color: #fff; }
+.cmm-status .dro { font: 600 12.5px/1.3 ui-monospace, monospace; display: grid;
+  grid-template-columns: 4.2em 1fr 1fr 1fr; gap: 0 6px; margin: 3px 0; white-space: nowrap; }
+.cmm-status .muted { color: #777; }
+.cmm-status .warn { color: #c62828; font-weight: 600; }
+</style>"""
+MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "probing": "#6a1b9a",
+                "homing": "#1565c0", "not homed": "#8d6e00", "stopped": "#8d6e00", "e-stopped": "#b71c1c",
+                "fault": "#b71c1c", "no link": "#b71c1c"}
+
+
+def machine_mode(station: Any) -> tuple[str, str, bool]:
+    """(mode, reason, link ok) from the control core's state (not homed / idle / moving / probing / fault ...)."""
+    try:
+        cs = station.control_state
+    except Exception:  # noqa: BLE001 - no control core (an older station object): read the machine state
+        cs = None
+    if cs is not None:
+        mode = getattr(cs.mode, "value", cs.mode)
+        reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
+        return str(mode), str(reason or ""), bool(cs.link_ok)
+    st = station.state
+    if st is None:
+        return "no link", "no state from the machine yet", False
+    return ("jogging" if st.jogging else "moving" if st.moving else "idle"), "", True
+
+
+class LinkMeter:
+    """Machine samples per second between read-out refreshes: the link's health."""
+
+    def __init__(self) -> None:
+        self._last: tuple[float, int] | None = None
+        self.rate = 0.0
+
+    def update(self, samples: int, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        if self._last is not None and now - self._last[0] >= 0.5:
+            self.rate = (samples - self._last[1]) / (now - self._last[0])
+            self._last = (now, samples)
+        elif self._last is None:
+            self._last = (now, samples)
+        return self.rate
+
+
+def part_position(station: Any, position: np.ndarray) -> np.ndarray | None:
+    part = station.part
+    if part is None:
+        return None
+    pose = np.asarray(part.pose, float)
+    return pose[:3, :3].T @ (np.asarray(position, float) - pose[:3, 3])
+
+
+def status_html(station: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
+                armed: bool = False, aligned: bool = False) -> str:
+    """The status block's HTML (pure: every input is passed in, so it is tested without a browser)."""
+    e = html.escape
+    mode, reason, link_ok = machine_mode(station)
+    st = station.state
+    colour = MODE_COLOURS.get(mode, "#555")
+    out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
+    if reason:
+        out.append(f" <span class='warn'>{e(reason)}</span>")
+    out.append(f" &middot; {e(control_text)}")
+    if link_rate is not None:
+        ok = link_ok and link_rate > 5.0
+        # no figure: a rate that changes every refresh would re-send the bar from an idle page
+        out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
+    if st is not None:
+        pos = st.position
+        label = "machine"
+        if frame == "Part":
+            pp = part_position(station, pos)
+            if pp is not None:
+                pos, label = pp, "part" if aligned else "part (not aligned)"
+        out.append(f"<div class='dro' aria-label='DRO {label}'><span class='muted'>{e(label)}</span>"
+                   + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + "</div>")
+        settings = getattr(getattr(station, "prober", None), "settings", None)
+        tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
+        probe_cal = (getattr(station, "calibration_status", {}) or {}).get("probe")
+        qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
+        probe_state = "TRIGGERED" if st.probe_triggered else ("armed (manual hits)" if armed else "free")
+        cls = "warn" if st.probe_triggered else ""
+        out.append(f"probe <span class='{cls}'>{probe_state}</span> &middot; {tip}, {qual}")
+    out.append("</div>")
+    return "".join(out)
+
+
+class StatusPanel:
+    """The status block and the STOP / E-STOP buttons of one tab."""
+
+    def __init__(self, capp: "ClientApp") -> None:
+        self.capp = capp
+        self.frame = "Machine"
+        self.link = LinkMeter()
+        self.gui: dict[str, Any] = {}
+        self._shown = ""
+
+    def build(self, gui: Any) -> None:
+        gui.add_html(STICKY_CSS)
+        with gui.add_folder("Status"):
+            self.gui["status"] = gui.add_html(self.html())
+            gui.add_button("STOP", color="orange").on_click(lambda _: self.capp.stop())
+            gui.add_button("E-STOP", color="red").on_click(lambda _: self.capp.emergency_stop())
+            frame = gui.add_button_group("DRO", FRAMES)
+            frame.on_click(lambda e: self.set_frame(e.target.value))
+
+    def set_frame(self, frame: str) -> None:
+        if frame in FRAMES:
+            self.frame = frame
+            self.refresh()
+
+    def html(self) -> str:
+        st = self.capp.station
+        rate = self.link.update(int(getattr(st.machine, "samples", 0)))
+        return status_html(st, self.capp.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
+                           armed=self.capp.manual_probe, aligned=self.capp.aligned())
+
+    def refresh(self) -> None:
+        text = self.html()
+        if "status" in self.gui and text != self._shown:
+            self._shown = text
+            self.gui["status"].content = text
