@@ -103,9 +103,11 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         if frame == "Part":
             pp = part_position(station, pos)
             if pp is not None:
-                pos, label = pp, "part" if aligned else "part (not aligned)"
+                pos, label = pp, "part"
         out.append(f"<div class='dro' aria-label='DRO {label}'><span class='muted'>{e(label)}</span>"
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + "</div>")
+        if label == "part" and not aligned:
+            out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
         settings = getattr(getattr(station, "prober", None), "settings", None)
         tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
         probe_cal = (getattr(station, "calibration_status", {}) or {}).get("probe")

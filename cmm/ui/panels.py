@@ -478,7 +478,7 @@ class ClientApp:
         gui = self.client.gui
         g = self.gui
         self.status.build(gui)  # first, and sticky: state, DRO, probe, STOP / E-STOP always on screen
-        with gui.add_folder("Control", expand_by_default=False):
+        with gui.add_folder("Control"):
             g["control"] = gui.add_markdown(self.control_text())
             g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
             take = gui.add_button("Take control", color="green")
