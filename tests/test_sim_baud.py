@@ -111,3 +111,61 @@ def test_switching_right_after_the_command_works_on_the_pty(after_ms):
         group_set_baud_then_switch(port, 64, 19200, after_ms / 1000)
         assert [len(nop(port, a)) for a in (1, 2)] == [2, 2]
         port.close()
+
+
+def test_rfc2217_server_enforces_the_announced_rate():
+    """Over RFC 2217 the client announces its rate in the stream: a host that switches right after
+    its SET_BAUD works, one that never switches loses the modules (which plain TCP would hide)."""
+    from cmm.sim.network import SimNetwork
+    from cmm.sim.serve import serve_tcp
+
+    with serve_tcp(SimNetwork(2, wire_time=True), rfc2217=True) as sim:
+        assert sim.url.startswith("rfc2217://")
+        port = serial.serial_for_url(sim.url, baudrate=19200, timeout=0.5)
+        address_chain(port, 2)
+        port.write(packet(0xFF, SET_BAUD, bytes((21,))))
+        port.baudrate = 57600  # announced in order after the command: no wait needed
+        time.sleep(0.02)
+        assert [len(nop(port, a)) for a in (1, 2)] == [2, 2]
+        port.close()
+        careless = serial.serial_for_url(sim.url, baudrate=57600, timeout=0.2)
+        careless.write(packet(0xFF, SET_BAUD, bytes((10,))))  # to 115200, but the host stays at 57600
+        time.sleep(0.1)
+        assert nop(careless, 1) == b""
+        careless.close()
+    with serve_tcp(SimNetwork(1, wire_time=True)) as plain:  # the same careless host passes plain TCP
+        port = serial.serial_for_url(plain.url, timeout=0.2)
+        address_chain(port, 1)
+        port.write(packet(0xFF, SET_BAUD, bytes((10,))))
+        time.sleep(0.1)
+        assert len(nop(port, 1)) == 2
+        port.close()
+
+
+def test_cmm_sim_rfc2217_serves_the_driver():
+    """`cmm sim --rfc2217`: the driver opens rfc2217://, initialises and switches to 115200."""
+    import re
+    import subprocess
+
+    from cmm.nmc.bus import Bus
+
+    proc = subprocess.Popen([sys.executable, "-m", "cmm.cli", "sim", "--rfc2217", "127.0.0.1:0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        url = None
+        for _ in range(20):
+            line = proc.stdout.readline()
+            m = re.search(r"rfc2217://\S+", line)
+            if m:
+                url = m.group(0)
+                assert "enforced" in line
+                break
+        assert url, "cmm sim printed no rfc2217:// URL"
+        bus = Bus(url)
+        try:
+            assert len(bus.initialize(115200)) == 3 and bus.baud == 115200
+        finally:
+            bus.close()
+    finally:
+        proc.terminate()
+        proc.wait(10)

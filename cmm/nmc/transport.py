@@ -55,9 +55,12 @@ def open_port(port: Any, baudrate: int, timeout: float) -> tuple[Any, Clock]:
         return port, _clock_of(port)
     if not port:
         raise TransportError(f"no serial port given; use {URL_FORMS}")
+    options: dict[str, Any] = {"write_timeout": 1.0}
+    if port.lower().startswith("rfc2217://"):
+        options = {}  # pyserial's RFC 2217 client refuses a write time-out
     try:
         ser = serial.serial_for_url(
-            port, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout, write_timeout=1.0
+            port, baudrate=baudrate, bytesize=8, parity="N", stopbits=1, timeout=timeout, **options
         )
     except (serial.SerialException, ValueError, OSError) as exc:
         raise TransportError(f"cannot open serial port {port!r}: {exc}. Expected {URL_FORMS}") from exc

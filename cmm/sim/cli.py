@@ -1,4 +1,4 @@
-"""`cmm sim`: serve the simulated PIC-SERVO network over TCP or a pseudo-terminal."""
+"""`cmm sim`: serve the simulated PIC-SERVO network over TCP (plain or RFC 2217) or a pseudo-terminal."""
 
 from __future__ import annotations
 
@@ -11,6 +11,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="listen on HOST:PORT (default 127.0.0.1:7777; port 0 picks a free one); "
                             "the driver opens socket://HOST:PORT")
     where.add_argument("--pty", action="store_true", help="create a pseudo-terminal and print its device path")
+    where.add_argument("--rfc2217", metavar="HOST:PORT", default=None,
+                       help="listen for RFC 2217 clients (rfc2217://HOST:PORT): the client's announced baud rate "
+                            "is enforced, as on the pty")
     parser.add_argument("--modules", type=int, default=3, metavar="N",
                         help="modules on the network (default 3; with --cmm, modules after the three axes idle)")
     parser.add_argument("--no-wire-time", dest="wire_time", action="store_false",
@@ -38,6 +41,8 @@ def banner(network, url: str, pty: bool) -> str:
 
     if pty:
         where = f"device {url}   (open it at 19200 8N1; the rate you set is the host's rate)"
+    elif url.startswith("rfc2217://"):
+        where = f"driver URL {url}   (RFC 2217: the baud rate the client announces is enforced, 19200 until then)"
     else:
         where = (f"driver URL {url}   (TCP carries no line rate: the host is taken to follow every SET_BAUD, "
                  f"so a host that never switches passes here; --pty is the faithful path)")
@@ -89,11 +94,12 @@ def run(args: argparse.Namespace) -> int:
     if args.pty:
         handle = serve_pty(network)
     else:
-        host, _, port = (args.tcp or "127.0.0.1:7777").rpartition(":")
+        address = args.rfc2217 or args.tcp or "127.0.0.1:7777"
+        host, _, port = address.rpartition(":")
         try:
-            handle = serve_tcp(network, host or "127.0.0.1", int(port))
+            handle = serve_tcp(network, host or "127.0.0.1", int(port), rfc2217=args.rfc2217 is not None)
         except (OSError, ValueError) as exc:
-            print(f"cmm sim: cannot listen on {args.tcp}: {exc}", file=sys.stderr)
+            print(f"cmm sim: cannot listen on {address}: {exc}", file=sys.stderr)
             return 1
     print(banner(network, handle.url, args.pty), flush=True)
     stop = threading.Event()

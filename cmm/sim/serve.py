@@ -7,8 +7,13 @@ batch, and sends back the status bytes whose time has come. Hold
 ``handle.lock`` to touch the network (inputs, power) from another thread.
 
 - TCP: one client at a time; a new connection replaces the old one; a client
-  disconnecting leaves the modules as they are. A TCP link carries no line
-  rate, so the host is assumed to follow the modules' baud rate.
+  disconnecting leaves the modules as they are. A plain TCP link carries no
+  line rate, so the host is assumed to follow the modules' baud rate (a host
+  that never switches passes). With ``rfc2217=True`` the server speaks RFC 2217
+  (Telnet COM-PORT-OPTION, pyserial's ``rfc2217://`` URLs): the client
+  announces its line rate in the byte stream, in order with its data, and the
+  modules judge every byte by it, as on a real port; a client that announces
+  nothing stays at 19200.
 - PTY: the device path works with any serial program. The line rate the
   client sets with termios is the host's baud rate: after SET_BAUD the client
   must switch, as on a real port. This is the faithful path for a host's baud
@@ -127,56 +132,120 @@ def _wait_s(network: SimNetwork) -> float:
     return min(_POLL_S, max(0.0, (due - network.wall_ns()) * 1e-9))
 
 
-def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0) -> ServedSim:
-    """Serve on ``host:port`` (port 0: an ephemeral port, see ``.url``)."""
+class _AnnouncedLine:
+    """The serial settings an RFC 2217 client sets, seen as a port by pyserial's PortManager.
+
+    A rate change first hands the bytes the client sent before it to the
+    network (``flush``), so every byte is judged at the rate it was sent with."""
+
+    def __init__(self, network: SimNetwork, flush) -> None:
+        self.network = network
+        self.flush = flush
+        self.bytesize, self.parity, self.stopbits = 8, "N", 1
+        self.xonxoff = self.rtscts = self.break_condition = False
+        self.dtr = self.rts = True
+        self.cts = self.dsr = self.cd = True  # modem lines are not wired on an NMC network
+        self.ri = False
+
+    @property
+    def baudrate(self) -> int:
+        return self.network.host_baud or c.POWER_UP_BAUD
+
+    @baudrate.setter
+    def baudrate(self, rate: int) -> None:
+        self.flush()
+        with self.network.lock:
+            self.network.host_baud = int(rate)
+
+    def reset_input_buffer(self) -> None:  # PURGE receive buffer: replies not yet sent
+        with self.network.lock:
+            self.network.host_in.clear()
+
+    def reset_output_buffer(self) -> None:
+        pass
+
+
+def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0, *, rfc2217: bool = False) -> ServedSim:
+    """Serve on ``host:port`` (port 0: an ephemeral port, see ``.url``); ``rfc2217``: the
+    client announces its line rate by RFC 2217 and it is enforced (``.url`` is rfc2217://...)."""
     listener = socket.create_server((host, port))
     listener.setblocking(False)
     bound_host, bound_port = listener.getsockname()[:2]
-    handle = ServedSim(network, f"socket://{bound_host}:{bound_port}")
-    network.host_baud = None  # TCP carries no line rate
+    handle = ServedSim(network, f"{'rfc2217' if rfc2217 else 'socket'}://{bound_host}:{bound_port}")
+    network.host_baud = c.POWER_UP_BAUD if rfc2217 else None  # plain TCP carries no line rate
     network.start_realtime()
     _tighten_gil()
     sel = selectors.SelectSelector()  # microsecond time-outs: epoll and poll round up to whole milliseconds
     sel.register(listener, selectors.EVENT_READ)
     client: list[socket.socket] = []
+    telnet: list = []  # the client's RFC 2217 PortManager
+    pending = bytearray()  # client data not yet handed to the network
+    out = bytearray()  # replies not yet sent
 
     def drop_client() -> None:
         for s in client:
             sel.unregister(s)
             s.close()
         client.clear()
+        telnet.clear()
+
+    def send(data: bytes) -> None:
+        if data and client:
+            try:
+                client[0].sendall(b"".join(telnet[0].escape(data)) if telnet else data)
+            except OSError:
+                drop_client()
+
+    def flush() -> None:
+        out.extend(_pump(network, bytes(pending)))
+        pending.clear()
+
+    def accept(conn: socket.socket) -> None:
+        drop_client()  # a new connection replaces the old one
+        conn.setblocking(False)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sel.register(conn, selectors.EVENT_READ)
+        client.append(conn)
+        with network.lock:
+            network.host_in.clear()
+            if rfc2217:
+                network.host_baud = c.POWER_UP_BAUD  # until the client announces its rate
+        if rfc2217:
+            from serial.rfc2217 import PortManager
+
+            class _Conn:
+                def write(self, data: bytes) -> None:
+                    try:
+                        conn.sendall(data)
+                    except OSError:
+                        pass
+
+            telnet.append(PortManager(_AnnouncedLine(network, flush), _Conn()))
 
     def loop() -> None:
         while not handle._stop.is_set():
-            data = None
             for key, _ in sel.select(_wait_s(network)):
                 if key.fileobj is listener:
                     try:
                         conn, _ = listener.accept()
                     except OSError:
                         continue
-                    drop_client()  # a new connection replaces the old one
-                    conn.setblocking(False)
-                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    sel.register(conn, selectors.EVENT_READ)
-                    client.append(conn)
-                    with network.lock:
-                        network.host_in.clear()
+                    accept(conn)
                 else:
                     try:
                         chunk = key.fileobj.recv(4096)
                     except OSError:
                         chunk = b""
-                    if chunk:
-                        data = (data or b"") + chunk
-                    else:
+                    if not chunk:
                         drop_client()
-            out = _pump(network, data)
-            if out and client:
-                try:
-                    client[0].sendall(out)
-                except OSError:
-                    drop_client()
+                    elif telnet:  # Telnet commands out, rate changes applied in order with the data
+                        for byte in telnet[0].filter(chunk):  # one by one: a rate change flushes what came before
+                            pending.extend(byte)
+                    else:
+                        pending.extend(chunk)
+            flush()
+            send(bytes(out))
+            out.clear()
         drop_client()
 
     handle._closers += [sel.close, listener.close]
