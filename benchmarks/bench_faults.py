@@ -183,6 +183,7 @@ def main() -> None:
     doubled = hangs = 0
     op_times: list[float] = []
     wrong_examples: list[str] = []
+    errors: Counter = Counter()
     t_start = time.monotonic()
     for i in range(args.faults):
         kind = kinds[i % len(kinds)]
@@ -207,6 +208,7 @@ def main() -> None:
                 bad = bench.poll()
             result = "wrong state" if bad else "recovered"
         except NmcError as exc:
+            errors[f"{fault.kind}: {exc}"[:110]] += 1
             bad = bench.recover(args.hang)
             result = "wrong state" if bad else "clear error"
             if not bad and not str(exc):
@@ -242,6 +244,8 @@ def main() -> None:
           f"discarded, {s['verified']} motion starts checked on the modules, {s['suspect']} suspect replies")
     for line in wrong_examples:
         print(f"  ! {line}")
+    for text, n in errors.most_common(8):
+        print(f"  clear error x{n}: {text}")
     bus.close()
     proxy.close()
     if served is not None:

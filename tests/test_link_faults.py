@@ -263,3 +263,19 @@ def test_a_well_formed_reply_that_jumps_to_another_module_position_is_not_accept
     assert mods[2].nop().position == PARK[3]
     assert forged and bus.stats["suspect"] >= 1
     assert positions_ok(mods, PARK) == []
+
+
+def test_stop_all_on_a_dead_link_reports_quickly_and_on_one_silent_module_stops_the_others():
+    net, port, bus, mods = parked()
+    for m in mods:
+        m.load_velocity(codec.velocity_to_fixed(20, 500), ACC)
+    bus.transact(codec.hard_reset(2))  # module 2 loses its address (and stops): it cannot answer any more
+    report = bus.stop_all()
+    assert report.acknowledged == (1, 3) and report.silent == (2,)
+    assert "module 2 stopped answering" in report.reason and "STOP NOT CONFIRMED by module(s) 2" in report.sentence()
+    assert all(m.nop().move_done for m in (mods[0], mods[2]))
+    port.inject(Fault("blackout", "both", duration=30.0))
+    t0 = bus.clock.now()
+    report = bus.stop_all()
+    assert report.silent == (1, 2, 3) and "link is down" in report.reason
+    assert bus.clock.now() - t0 < 3.0  # not a resynchronisation per module

@@ -46,9 +46,11 @@ class LinkError(NmcError):
     machine must treat it as "the machine state is unknown" and stop.
     """
 
-    def __init__(self, message: str, address: int | None = None, port: str = "") -> None:
+    def __init__(self, message: str, address: int | None = None, port: str = "", *,
+                 module_only: bool = False) -> None:
         super().__init__(message, address)
         self.port = port
+        self.module_only = module_only  # this module is silent or unsure; the others may still answer
 
 
 @dataclass(frozen=True)
@@ -334,7 +336,11 @@ class Bus:
             expected = self._reply_items(address) if items is None else items
             self.stats["transactions"] += 1
             self._before_send(packet)
-            if expected is None:  # leaderless group: nobody answers
+            if code == codec.HARD_RESET:  # never answered: the module is back at its power-up state
+                expected = None
+                for a in self._members(address):
+                    self.items.pop(a, None)
+            if expected is None:  # leaderless group or HARD_RESET: nobody answers
                 self._discard_stale(address)
                 self._write(packet, address)
                 self.clock.sleep(LEADERLESS_WAIT)
@@ -457,7 +463,8 @@ class Bus:
 
     def _unsure(self, name: str, who: str, address: int) -> LinkError:
         return LinkError(f"the reply of {who} to {name} was lost and whether it was carried out cannot be told, "
-                         "so it was not sent again: stop the machine and check its state", address, self.port_name)
+                         "so it was not sent again: stop the machine and check its state", address, self.port_name,
+                         module_only=True)
 
     def _query(self, address: int, items: int) -> codec.Status:
         """A read-only READ_STAT, resynchronising once if needed."""
@@ -498,7 +505,7 @@ class Bus:
                     if self._marker(first, SHORT_MARKER_WAIT):  # the line is clean now: no need to wait long
                         return
                     raise LinkError(f"module {first} stopped answering (module {other} still answers): "
-                                    "check its power and cabling", first, self.port_name)
+                                    "check its power and cabling", first, self.port_name, module_only=True)
             self._write(bytes(NULLS_RESYNC), first)
             if self._marker(first, MARKER_WAIT):
                 return
@@ -528,7 +535,7 @@ class Bus:
         deadline = self.clock.now() + wait
         while True:
             left = deadline - self.clock.now()
-            if left <= 0:
+            if left <= 1e-4:  # (a clock that counts whole nanoseconds never reaches a float deadline exactly)
                 if buf:
                     self.stats["discarded"] += len(buf)
                 return False
@@ -587,13 +594,17 @@ class Bus:
             except LinkError as exc:
                 reason = str(exc)
             acked, silent = [], []
-            for a in addresses:
+            self._storm = 0  # a stop deserves its own resynchronisations
+            for i, a in enumerate(addresses):
                 try:
                     st = self.transact(codec.stop_motor(a, control))
                     (acked if st is not None else silent).append(a)
                 except NmcError as exc:
                     silent.append(a)
                     reason = reason or str(exc)
+                    if isinstance(exc, LinkError) and not exc.module_only:  # the link is down: do not wait per module
+                        silent += addresses[i + 1:]
+                        break
             return StopReport(tuple(acked), tuple(silent), reason)
 
     # --- network set-up ---------------------------------------------------------------
