@@ -35,8 +35,6 @@ def _format(value: Any) -> str:
     if isinstance(value, dict):
         return "  ".join(f"{k}={v:.3g}" for k, v in value.items()) or "-"
     if isinstance(value, list):
-        if value and isinstance(value[0], str):
-            return "\n  ! ".join([""] + value).lstrip("\n")
         return "  ".join(f"{v:.9f}" for v in value) or "-"
     if isinstance(value, float):
         return f"{value:.9f}"
@@ -45,7 +43,13 @@ def _format(value: Any) -> str:
 
 def format_table(summary: dict[str, Any]) -> str:
     width = max(len(k) for k in summary)
-    return "\n".join(f"{k.ljust(width)}  {_format(v) if v is not None else '-'}" for k, v in summary.items())
+    rows = []
+    for k, v in summary.items():
+        if isinstance(v, list) and v and isinstance(v[0], str):  # warnings: one per line
+            rows.extend(f"{(k if i == 0 else '').ljust(width)}  ! {w}" for i, w in enumerate(v))
+        else:
+            rows.append(f"{k.ljust(width)}  {_format(v) if v is not None else '-'}")
+    return "\n".join(rows)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -532,7 +532,8 @@ def fit_cone(points: Any, nominal: Any = None) -> Cone:
     out["uncertainty"]["apex"] = float(np.sqrt(max(np.trace(g @ cov @ g.T), 0.0))) \
         if np.all(np.isfinite(cov)) else float("nan")
     u_psi = out["uncertainty"].get("half_angle", float("nan"))
-    if abs(t) > 100.0 or (np.isfinite(u_psi) and psi < 3.0 * u_psi):
+    # nearly a cylinder: the apex is far away, or a small half angle is not significantly above 0
+    if abs(t) > 100.0 or (np.isfinite(u_psi) and psi < 3.0 * u_psi and psi < np.radians(5.0)):
         out["warnings"] += (
             f"the cone is nearly a cylinder (half angle {np.degrees(psi):.4g} deg, apex {abs(t_mm):.4g} mm from the "
             "points): its apex and half angle are poorly determined; fit a cylinder instead",)
