@@ -131,3 +131,18 @@ def test_warning_in_table_and_json(tmp_path, capsys):
     assert main(["fit", "cylinder", path]) == 0
     text = capsys.readouterr().out
     assert "uncertainty" in text and "! the points determine the cylinder" in text
+
+
+def test_fast_reader_agrees_with_the_line_parser_and_keeps_line_errors(tmp_path):
+    from cmm.metrology.pointfile import PointFileError, parse_points, read_points_array
+
+    pts = np.random.default_rng(1).uniform(-1000, 1000, (500, 3))
+    text = "\n".join(f"{float(x)!r}, {float(y)!r}; {float(z)!r}" for x, y, z in pts) + "\n"
+    path = tmp_path / "plain.txt"
+    path.write_text(text)
+    fast = read_points_array(str(path))
+    assert np.array_equal(fast, np.array(parse_points(text.splitlines())))
+    assert np.array_equal(fast, pts)
+    path.write_text("1 2 3 4\n5 6\n")  # right number of values, wrong rows
+    with pytest.raises(PointFileError, match="line 1"):
+        read_points_array(str(path))

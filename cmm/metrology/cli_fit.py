@@ -16,7 +16,7 @@ import argparse
 import sys
 from typing import Any
 
-from .pointfile import PointFileError, read_points
+from .pointfile import PointFileError, read_points_array
 
 KINDS = ("line", "plane", "circle", "sphere", "cylinder", "cone")
 METHODS = ("ls", "minzone", "mic", "mcc")
@@ -61,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
     from cmm.metrology.fit_criteria import fit
 
     try:
-        points = read_points(args.file)
-        result = fit(args.kind, np.asarray(points, dtype=np.float64).reshape(-1, 3), args.method)
+        points = read_points_array(args.file)
+        result = fit(args.kind, points, args.method)
     except PointFileError as exc:
         print(f"cmm fit: {exc}", file=sys.stderr)
         return 2

@@ -8,6 +8,7 @@ algorithm-testing data set format), which is then checked; blank lines and
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import sys
@@ -72,23 +73,25 @@ def read_points(path: str, stdin: TextIO | None = None) -> list[tuple[float, flo
 
 def _fast_array(text: str) -> np.ndarray | None:
     """The points of a plain numeric file parsed in C (numpy), or None when the file has
-    comments, a header or anything unusual (the line-by-line parser then gives the message)."""
+    comments, a header, blank lines or anything unusual (the line-by-line parser then
+    reads it and names the bad line)."""
     if "#" in text:
         return None
-    body = text.translate(str.maketrans(",;", "  "))
-    lines = body.split("\n", 1)
-    first = lines[0].split()
+    body = text.translate(str.maketrans(",;\r", "   ")).strip()
+    if not body or "\n\n" in body or "\n \n" in body:
+        return None
+    first_end = body.find("\n")
+    first = body[: first_end if first_end >= 0 else len(body)].split()
     count = None
-    if len(first) == 1 and first[0].isdigit():  # NIST: number of points first
-        count, body = int(first[0]), (lines[1] if len(lines) > 1 else "")
-    try:
-        values = np.array(body.split(), dtype=np.float64)  # rejects words (headers) with ValueError
+    if len(first) == 1 and first[0].isdigit():  # NIST: the number of points first
+        count, body = int(first[0]), body[first_end + 1:] if first_end >= 0 else ""
+    try:  # numpy's C reader; it refuses rows whose number of columns changes
+        values = np.loadtxt(io.StringIO(body), dtype=np.float64, ndmin=2) if body else np.empty((0, 3))
     except ValueError:
         return None
-    rows = sum(1 for line in body.splitlines() if line.strip())
-    if values.size != 3 * rows or values.size == 0 or not np.all(np.isfinite(values)):
+    if values.shape[0] == 0 or values.shape[1] != 3 or not np.all(np.isfinite(values)):
         return None
-    points = values.reshape(-1, 3)
+    points = values
     if count is not None and count != len(points):
         return None
     return points
