@@ -44,9 +44,33 @@ class Solution:
 MAX_COND = 1e12
 
 
+# Above this many rows the triangular factor comes from a Cholesky factor of the Gram matrix
+# (one BLAS pass, 10-50x faster than Householder QR on 1e6 x 6); below it, and whenever the
+# Gram matrix is too ill-conditioned to factor, from QR.  Both give the same R up to signs;
+# the fixed point J^T d = 0 and hence the solution do not depend on which is used.
+GRAM_ROWS = 20_000
+
+
+def _triangular(a: np.ndarray) -> np.ndarray:
+    """Upper triangular R with R^T R = A^T A (rows of R with a non-negative diagonal)."""
+    if a.shape[0] > GRAM_ROWS:
+        g = a.T @ a
+        try:
+            r = np.linalg.cholesky(g).T
+            if np.all(np.isfinite(r)) and np.min(np.abs(np.diag(r))) > 1e-7 * np.max(np.abs(np.diag(r))):
+                return r
+        except np.linalg.LinAlgError:
+            pass
+    return np.linalg.qr(a, mode="r")
+
+
 def _qr_reduce(jac: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    r = np.linalg.qr(np.column_stack([jac, d]), mode="r")
     n = jac.shape[1]
+    if jac.shape[0] > GRAM_ROWS:
+        r = _triangular(jac)
+        if r.shape == (n, n) and not np.allclose(r, 0):
+            return r, np.linalg.solve(r.T, jac.T @ d)  # Q^T d = R^-T J^T d
+    r = np.linalg.qr(np.column_stack([jac, d]), mode="r")
     return r[:n, :n], r[:n, n]
 
 
@@ -127,7 +151,7 @@ def levenberg_marquardt(
 def r_factor(jac: np.ndarray) -> np.ndarray:
     """The n x n R of J = QR: R^T R = J^T J, so it stands in for J in the statistics (one QR of
     the tall Jacobian per fit instead of one per use)."""
-    return np.linalg.qr(jac, mode="r")
+    return _triangular(jac)
 
 
 def check_conditioning(jac: np.ndarray, kind: str) -> None:

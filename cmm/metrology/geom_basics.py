@@ -44,8 +44,13 @@ def centre(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def principal_axes(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Singular values (descending) and principal directions (rows) of centred points."""
-    _, s, vt = np.linalg.svd(centred, full_matrices=False)
+    """Singular values (descending) and principal directions (rows) of centred points.
+
+    Computed from the small triangular factor R (R^T R = X^T X, same singular values and
+    right vectors), so 1e6 points need no 1e6 x 3 U matrix."""
+    from cmm.metrology.fit_solver import _triangular
+
+    _, s, vt = np.linalg.svd(_triangular(centred), full_matrices=False)
     return s, vt
 
 
