@@ -279,3 +279,24 @@ def test_stop_all_on_a_dead_link_reports_quickly_and_on_one_silent_module_stops_
     report = bus.stop_all()
     assert report.silent == (1, 2, 3) and "link is down" in report.reason
     assert bus.clock.now() - t0 < 3.0  # not a resynchronisation per module
+
+
+@pytest.mark.parametrize("fault", [Fault("drop", "rx", count=2), Fault("stall", "rx", duration=0.3)],
+                         ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_reply_to_arming_the_probe_capture_is_checked_on_the_module(fault):
+    net, port, bus, mods = parked()
+    port.inject(fault)
+    st = mods[0].arm_home("limit1", "abrupt")
+    assert st.home_in_progress and bus.stats["verified"] == 1 and bus.stats["resyncs"] >= 1
+    net.set_inputs(0, limit1=True)  # the capture works: it was armed once, as asked
+    bus.clock.sleep(0.01)
+    assert mods[0].home_captured()
+
+
+def test_a_lost_reply_to_a_jog_velocity_is_simply_sent_again():
+    net, port, bus, mods = parked()
+    port.inject(Fault("drop", "rx", count=2))
+    mods[1].load_velocity(codec.velocity_to_fixed(10, 500), ACC)  # velocity mode: the same setting twice is harmless
+    bus.clock.sleep(0.3)
+    assert mods[1].velocity() == pytest.approx(10 * 500 * codec.TICK_SECONDS, abs=1)
+    assert bus.stats["retries"] >= 1 and bus.stats["verified"] == 0

@@ -415,6 +415,7 @@ class Bus:
             return None  # a module keeping its address and joining a group: the same again is harmless
         if code == codec.SET_HOMING and address < 0x80:
             st = self._query(address, self.items.get(address, 0))
+            self.stats["verified"] += 1
             if st.home_in_progress:
                 return st  # armed, as asked
             raise self._unsure(name, who, address)  # not armed, or armed and already fired: cannot tell
