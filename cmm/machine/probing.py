@@ -79,7 +79,10 @@ class Prober:
         return hit
 
     def probe(self, nominal: np.ndarray, approach: np.ndarray, *, speed: float | None = None,
-              normal: np.ndarray | None = None, clearance_z: float | None = None) -> MoveStatus:
+              normal: np.ndarray | None = None, clearance_z: float | None = None,
+              approach_distance: float | None = None, search_distance: float | None = None,
+              retract_distance: float | None = None, accel: float | None = None,
+              rapid_speed: float | None = None) -> MoveStatus:
         """Programmed hit at a nominal surface point along an approach direction (into the surface).
 
         Rapid to the pre-hit point at the approach distance, arm capture, move
@@ -87,6 +90,8 @@ class Prober:
         latched positions, retract. The status's result is the :class:`Hit`.
         With ``clearance_z`` the rapid climbs to that height, crosses, and
         descends to the pre-hit point, so it clears features in between.
+        The distances, the probing acceleration and the rapid speed default to
+        the configuration's (an I++ DME client sets its own per tool).
         """
         m = self.machine
         cfg = m.config.probe
@@ -96,8 +101,11 @@ class Prober:
             raise MotionError(f"a nominal point needs three finite coordinates, got {nominal!r}")
         speed = m.config.speeds.probing if speed is None else speed
         contact = p - self.settings.tip_radius * u
-        pre = m.check_target(contact - cfg.approach_distance * u)
-        end = m.check_target(contact + cfg.search_distance * u)
+        approach_distance = cfg.approach_distance if approach_distance is None else approach_distance
+        search_distance = cfg.search_distance if search_distance is None else search_distance
+        accel = m.config.accelerations.probing if accel is None else accel
+        pre = m.check_target(contact - approach_distance * u)
+        end = m.check_target(contact + search_distance * u)
         status = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), m.driver)
 
         def fail(error: BaseException) -> None:
@@ -115,7 +123,7 @@ class Prober:
                     motion.extra["on_done"] = lambda state: not_found(motion)
                     m._motion = motion
                     status.on_cancel(lambda: m._cancel(motion))
-                    m._load_line(end, speed, m.config.accelerations.probing)
+                    m._load_line(end, speed, accel)
             except BaseException as exc:  # noqa: BLE001 - reported through the status
                 m._motion = None
                 fail(exc)
@@ -123,25 +131,30 @@ class Prober:
         def on_trigger(motion: _Motion, latched: tuple[int, int, int]) -> None:
             m._finish(motion, result=latched)
             hit = self._make_hit(latched, u, speed, "programmed", normal)
-            self._retract(u, hit_status=status, result=hit)
+            if retract_distance is not None and retract_distance < 0:  # back to the pre-hit point
+                self._retract(u, hit_status=status, result=hit, target=pre)
+            else:
+                self._retract(u, hit_status=status, result=hit, distance=retract_distance)
 
         def not_found(motion: _Motion) -> None:
             m._finish(motion)
             back = m.move_to(pre, protect=False)
             back.add_callback(lambda s: fail(SurfaceNotFound(
                 "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
-                .format(cfg.approach_distance + cfg.search_distance, *p))))
+                .format(approach_distance + search_distance, *p))))
 
         path = [pre]
         if clearance_z is not None:
             here = m.position
             path = [[here[0], here[1], max(clearance_z, here[2])], [pre[0], pre[1], max(clearance_z, pre[2])], pre]
-        m.move_path(path).add_callback(after_rapid)
+        m.move_path(path, rapid_speed).add_callback(after_rapid)
         return status
 
-    def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit) -> None:
+    def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit, distance: float | None = None,
+                 target: np.ndarray | None = None) -> None:
         m = self.machine
-        target = m.position - m.config.probe.retract_distance * u
+        if target is None:
+            target = m.position - (m.config.probe.retract_distance if distance is None else distance) * u
         try:
             back = m.move_to(target, m.config.speeds.probing * 5, protect=False)
         except MotionError as exc:

@@ -1,0 +1,678 @@
+"""One I++ DME client connection: the queues, the error model, the session state and the command set.
+
+``receive(line)`` is called for each command line in arrival order (the
+connection's reader thread). Fast-queue commands (their names end in E) run
+at once in that thread, so they are answered while a move runs; the others
+are acknowledged and queued for a worker thread that runs them in order.
+Responses go out through ``send(line)``, which must be thread-safe.
+
+Error model (spec 6.2.5, 6.3.1.5): an error of severity >= 2 aborts the
+pending commands ("Transaction aborted") and puts the server in the error
+state, where everything but ClearAllErrors, GetErrStatusE, GetXtdErrStatus,
+GetErrorInfo and EndSession is refused with 0514 until ClearAllErrors.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from typing import Any, Callable
+
+import numpy as np
+
+from ..machine.motion import ContactError, LimitError
+from ..machine.probing import SurfaceNotFound
+from ..machine.status import MotionError
+from . import protocol as P
+from .backend import Backend
+from .csy import CoordinateSystems
+from .errors import ERRORS, IppError
+from .status import IppStatus
+from .tools import Limits, ToolChanger, children, resolve
+
+DME_VERSION = "1.4.3"
+MAX_PENDING = 64  # queued commands before acknowledgements are delayed (spec 6.2.3)
+ALLOWED_IN_ERROR = {"ClearAllErrors", "GetErrStatusE", "GetXtdErrStatus", "GetErrorInfo", "EndSession", "AbortE"}
+OUTSIDE_SESSION = {"StartSession", "EndSession", "ClearAllErrors", "GetErrStatusE", "AbortE"}
+AXES = ("X", "Y", "Z")
+ANGLES = ("Tool.A", "Tool.B", "Tool.C", "R")  # a fixed stylus and no rotary table: always 0
+REPORT_ITEMS = set(AXES) | set(ANGLES)
+PTMEAS_ITEMS = REPORT_ITEMS | {"IJK", "ER", "Q"}
+MIN_REPORT_INTERVAL = 0.1  # s: OnMoveReportE sends at most 10 reports a second
+DRIFT = 0.05  # mm: within this the last commanded position stands in for the actual one (no drift)
+
+
+class _Aborted(Exception):
+    pass
+
+
+class Dme:
+    def __init__(self, backend: Backend, send: Callable[[str], None], *, client: str = "client",
+                 status: IppStatus | None = None, tools: ToolChanger | None = None,
+                 csy: CoordinateSystems | None = None) -> None:
+        self.backend = backend
+        self.send = send
+        self.client = client
+        self.status = status or IppStatus()
+        # tools and coordinate systems outlive a session (spec 6.3.1.2): the server passes them in
+        self.tools = tools or ToolChanger.build(Limits.from_config(backend.config), backend.probes())
+        self.csy = csy or CoordinateSystems()
+        self.in_session = False
+        self.error_state = False
+        self.last_errors: list[IppError] = []
+        self.user_enabled = False
+        self.report_format: tuple[str, ...] = ("X", "Y", "Z")
+        self.nominal: np.ndarray | None = None  # last commanded machine position
+        self._queue: queue.Queue[P.Command | None] = queue.Queue()
+        self._active: set[str] = set()  # tags acknowledged and not yet complete
+        self._lock = threading.RLock()
+        self._idle = threading.Condition(self._lock)
+        self._running: P.Command | None = None
+        self._aborting = False
+        self._closed = False
+        self._daemon: _MoveDaemon | None = None
+        self._worker = threading.Thread(target=self._work, name=f"ippdme-{client}", daemon=True)
+        self._worker.start()
+
+    # --- the reader side -------------------------------------------------------------
+
+    def receive(self, line: str) -> None:
+        try:
+            cmd = P.parse_line(line)
+        except P.ParseError as exc:
+            self._reject(exc.tag, exc.error, line)
+            return
+        with self._lock:
+            if cmd.tag in self._active:
+                self._report(P.UNSOLICITED, IppError(1, cmd.name, f"tag {cmd.tag} is still in use"))
+                return
+            if cmd.is_event_tag and not cmd.fast:
+                self._report(P.UNSOLICITED, IppError(1, cmd.name, f"{cmd.name} is not an event command"))
+                return
+            self._active.add(cmd.tag)
+        if cmd.fast:
+            self.send(P.ack(cmd.tag))
+            self._execute(cmd)
+            return
+        with self._idle:  # delay the acknowledgement while the queue is full
+            while self._queue.qsize() >= MAX_PENDING and not self._closed:
+                self._idle.wait(0.2)
+        self.send(P.ack(cmd.tag))
+        self._queue.put(cmd)
+
+    def _reject(self, tag: str, err: IppError, line: str) -> None:
+        """A malformed line: answered on its tag if it has a usable one, else as an unsolicited error."""
+        err.detail = f"{err.detail} in {line[:80]!r}"
+        if tag == P.UNSOLICITED:
+            self._report(tag, err)
+            return
+        with self._lock:
+            if tag in self._active:
+                self._report(P.UNSOLICITED, IppError(1, "", f"tag {tag} is still in use"))
+                return
+        self.send(P.ack(tag))
+        self._report(tag, err)
+        self.send(P.complete(tag))
+
+    def _report(self, tag: str, err: IppError) -> None:
+        self.send(P.error(tag, err))
+        self.status.failed(str(err))
+        if err.severity >= 2 and err.sticky:
+            with self._lock:
+                self.error_state = True
+                self.last_errors.append(err)
+                del self.last_errors[:-10]
+
+    # --- the worker side ---------------------------------------------------------------
+
+    def _work(self) -> None:
+        while True:
+            cmd = self._queue.get()
+            if cmd is None:
+                return
+            with self._lock:
+                self._running = cmd
+            try:
+                self._execute(cmd)
+            finally:
+                with self._idle:
+                    self._running = None
+                    self._idle.notify_all()
+
+    def _execute(self, cmd: P.Command) -> None:
+        self.status.running(cmd.text)
+        try:
+            with self._lock:
+                aborted = self._aborting or self._closed
+                outside = not self.in_session and cmd.name not in OUTSIDE_SESSION
+                refused = self.error_state and cmd.name not in ALLOWED_IN_ERROR
+            if aborted:
+                raise IppError(6, cmd.name, "aborted before it started")
+            if outside:  # refused, but no error state: there is no session to protect
+                err = IppError(507, cmd.name, "no session: send StartSession() first")
+                err.sticky = False
+                raise err
+            if refused:
+                raise IppError(514, cmd.name)
+            handler = getattr(self, f"_do_{cmd.name}", None)
+            if handler is None:
+                raise IppError(501, cmd.name, f"{cmd.name} is not supported by this server")
+            for body in handler(cmd) or ():
+                if not self._aborting or cmd.fast:  # (d): no more data of an aborted command
+                    self.send(P.data(cmd.tag, body))
+        except IppError as err:
+            if not err.method:
+                err.method = cmd.name
+            self._report(cmd.tag, err)
+            if err.severity >= 2 and not cmd.fast:
+                self._flush_pending()
+        except _Aborted:
+            self._report(cmd.tag, IppError(6, cmd.name, "stopped by AbortE"))
+        except Exception as exc:  # noqa: BLE001 - a server bug must still close the transaction
+            self._report(cmd.tag, IppError(511, cmd.name, f"{type(exc).__name__}: {exc}"))
+        finally:
+            self.status.running("")
+            self.send(P.complete(cmd.tag))
+            with self._lock:
+                self._active.discard(cmd.tag)
+                daemon = self._daemon
+            if daemon is not None and daemon.tag == cmd.tag:
+                daemon.start()  # its reports follow the transaction complete
+
+    def _flush_pending(self) -> None:
+        """Abort every queued command (spec 6.2.5 and AbortE (c))."""
+        while True:
+            try:
+                cmd = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            if cmd is None:
+                self._queue.put(None)
+                return
+            self._report(cmd.tag, IppError(6, cmd.name, "aborted after an earlier error"))
+            self.send(P.complete(cmd.tag))
+            with self._lock:
+                self._active.discard(cmd.tag)
+
+    def close(self) -> None:
+        """The client went away: stop the machine if it moves, stop daemons, drop pending commands."""
+        with self._lock:
+            self._closed = True
+            self._aborting = True
+            busy = self._running is not None
+        self._stop_daemon()
+        if busy:
+            self.backend.stop()
+        while True:  # drop pending commands silently: nobody reads the answers
+            try:
+                self._queue.get_nowait()
+            except queue.Empty:
+                break
+        self._queue.put(None)
+        self._worker.join(timeout=10)
+        if self.in_session:
+            self.in_session = False
+            try:
+                self.backend.note(f"I++ DME client {self.client} disconnected" + (" during a move: stopped"
+                                                                                    if busy else ""))
+            except Exception:  # noqa: BLE001 - the journal may be closing with the station
+                pass
+        self.status.disconnected()
+
+    # --- helpers --------------------------------------------------------------------------
+
+    def _motion(self, fn: Callable[[], Any], method: str) -> Any:
+        """Run a blocking backend motion, mapping its failures to I++ errors."""
+        if self._aborting:
+            raise _Aborted()
+        self.user_enabled = False  # moves imply DisableUser() (6.3.2.4)
+        try:
+            return fn()
+        except LimitError as exc:
+            raise IppError(1008, method, str(exc)) from None
+        except ContactError as exc:
+            raise IppError(1001, method, str(exc)) from None
+        except SurfaceNotFound as exc:
+            raise IppError(1006, method, str(exc)) from None
+        except MotionError as exc:
+            if self._aborting:
+                raise _Aborted() from None
+            raise IppError(1011, method, str(exc)) from None
+
+    def _tool_for_motion(self, method: str, measuring: bool = False):
+        if not self.backend.homed:
+            raise IppError(507, method, "the machine is not homed: send Home() first")
+        tool = self.tools.tool
+        if tool is None:
+            raise IppError(1503, method, "the active tool is UnDefTool: ChangeTool first")
+        if measuring and tool.ptmeas is None:
+            raise IppError(507, method, f"{tool.name} cannot measure")
+        return tool
+
+    def _here(self) -> np.ndarray:
+        """The position moves start from (machine): the last commanded one unless the machine was moved."""
+        actual = self.backend.position()
+        if self.nominal is not None and np.linalg.norm(actual - self.nominal) < DRIFT:
+            return self.nominal
+        return actual
+
+    def _value(self, name: str, method: str, machine_pos: np.ndarray | None = None) -> float:
+        if self.tools.tool is None:
+            raise IppError(1503, method, "the active tool is UnDefTool")
+        if name in ANGLES:
+            return 0.0
+        p = self.csy.from_machine(self.backend.position() if machine_pos is None else machine_pos)
+        return float(p[AXES.index(name)])
+
+    @staticmethod
+    def _props(cmd: P.Command, allowed: set[str] | None = None, nargs: int | None = None) -> list[P.Prop]:
+        out = []
+        for a in cmd.args:
+            if not isinstance(a, P.Prop):
+                raise IppError(502, cmd.name, f"expected properties like X(), got {a!r}")
+            if allowed is not None and a.name not in allowed:
+                raise IppError(510, cmd.name, f"{a.name}() is not one of {', '.join(sorted(allowed))}")
+            if nargs is not None and len(a.args) != nargs:
+                raise IppError(502, cmd.name, f"{a.name} takes {nargs} value(s)")
+            out.append(a)
+        if len({a.name for a in out}) != len(out):
+            raise IppError(502, cmd.name, "an item appears twice")
+        return out
+
+    @staticmethod
+    def _one(cmd: P.Command, kind: type):
+        if len(cmd.args) != 1 or not isinstance(cmd.args[0], kind):
+            raise IppError(502, cmd.name, f"{cmd.name} takes one {kind.__name__} argument")
+        return cmd.args[0]
+
+    # --- server methods (6.3.1) -------------------------------------------------------------
+
+    def _do_StartSession(self, cmd: P.Command):
+        if self.in_session:
+            raise IppError(8, cmd.name, "a session is already active: EndSession() first")
+        self._stop_daemon()
+        with self._lock:
+            self.error_state = False
+            self.last_errors.clear()
+        self.report_format = ("X", "Y", "Z")
+        self.in_session = True
+        self.status.in_session = True
+        self.backend.begin_session(self.client)
+
+    def _do_EndSession(self, cmd: P.Command):
+        self._stop_daemon()
+        with self._lock:
+            self.error_state = False  # the session is over; the next one starts clean (StartSession clears too)
+        if self.in_session:
+            self.in_session = False
+            self.status.in_session = False
+            self.backend.end_session()
+
+    def _do_ClearAllErrors(self, cmd: P.Command):
+        with self._lock:
+            self.error_state = False
+
+    def _do_GetErrorInfo(self, cmd: P.Command):
+        number = self._one(cmd, float)
+        if number != int(number) or int(number) not in ERRORS:
+            raise IppError(504, cmd.name, f"{number:g} is not an I++ DME error number")
+        yield P.quote(ERRORS[int(number)][1])
+
+    def _do_GetErrStatusE(self, cmd: P.Command):
+        yield P.prop("ErrStatus", int(self.error_state))
+
+    def _do_GetXtdErrStatus(self, cmd: P.Command):
+        yield P.prop("IsHomed", int(self.backend.homed))
+        yield P.prop("IsUserEnabled", int(self.user_enabled))
+        if self.error_state:
+            for err in self.last_errors:
+                yield f"Error({err.severity}, {err.number:04d}, {P.quote(err.method)}, {P.quote(err.text)})"
+
+    def _do_AbortE(self, cmd: P.Command):
+        """Stop motion, abort the running and pending commands, answer when they are answered (6.3.1.5)."""
+        with self._idle:
+            self._aborting = True
+            busy = self._running is not None
+        if busy:
+            self.backend.stop()
+        with self._idle:
+            while self._running is not None:
+                self._idle.wait(0.2)
+                if self._running is not None:
+                    self.backend.stop()
+            self._flush_pending()
+            self._aborting = False
+            self.error_state = True  # the next command must be ClearAllErrors (0514 otherwise)
+            self.last_errors.append(IppError(6, cmd.name, "AbortE"))
+        return ()
+
+    def _do_GetDMEVersion(self, cmd: P.Command):
+        yield P.prop("DMEVersion", P.quote(DME_VERSION))
+
+    # --- properties ---------------------------------------------------------------------------
+
+    def _do_GetProp(self, cmd: P.Command):
+        items = []
+        for p in self._props(cmd, nargs=0):
+            tool, block, param, sub = resolve(self.tools, p.name, cmd.name)
+            if block == "Name":
+                items.append(P.prop(p.name, P.quote(tool.name)))
+            elif block == "Id":
+                items.append(P.prop(p.name, P.quote(tool.id)))
+            elif block == "AvrRadius":
+                items.append(P.prop(p.name, tool.radius))
+            elif block == "Alignment":
+                items.append(P.prop(p.name, *self.csy.vector_from_machine([0.0, 0.0, 1.0])))
+            elif block == "CollisionVolume":
+                items.append(P.prop(p.name))  # not modelled: no volume (the client keeps its own)
+            elif param is None:
+                raise IppError(510, cmd.name, f"{p.name} is a property block, not a value")
+            else:
+                items.append(P.prop(p.name, param.get(sub or "Act")))
+        yield ", ".join(items)
+
+    _do_GetPropE = _do_GetProp
+
+    def _do_SetProp(self, cmd: P.Command):
+        props = self._props(cmd, nargs=1)
+        targets = []
+        for p in props:  # all checked before any is set
+            tool, block, param, sub = resolve(self.tools, p.name, cmd.name)
+            if param is None or sub not in (None, "Act"):
+                raise IppError(509, cmd.name, f"{p.name} cannot be set (only the Act values can)")
+            if not math.isfinite(p.args[0]):
+                raise IppError(509, cmd.name, f"{p.name}: not a number")
+            targets.append((p, param))
+        clamped = [p.name for p, param in targets if not param.set(p.args[0])]
+        if clamped:
+            raise IppError(504, cmd.name, f"clamped to Min..Max: {', '.join(clamped)}")
+        return ()
+
+    _do_SetPropE = _do_SetProp
+
+    def _enum(self, cmd: P.Command, recursive: bool):
+        p = self._one(cmd, P.Prop)
+        if p.args:
+            raise IppError(502, cmd.name, "EnumProp takes a property pointer like Tool.PtMeasPar()")
+        for name, kind in children(self.tools, p.name, cmd.name, recursive):
+            yield f"{P.quote(name)}, {P.quote(kind)}"
+
+    def _do_EnumProp(self, cmd: P.Command):
+        return self._enum(cmd, False)
+
+    def _do_EnumAllProp(self, cmd: P.Command):
+        return self._enum(cmd, True)
+
+    # --- DME methods (6.3.2) ----------------------------------------------------------------------
+
+    def _do_Home(self, cmd: P.Command):
+        self._motion(self.backend.home, cmd.name)
+        self.nominal = self.backend.position()
+
+    def _do_IsHomed(self, cmd: P.Command):
+        yield P.prop("IsHomed", int(self.backend.homed))
+
+    def _do_EnableUser(self, cmd: P.Command):
+        self.user_enabled = True
+
+    def _do_DisableUser(self, cmd: P.Command):
+        self.user_enabled = False
+
+    def _do_IsUserEnabled(self, cmd: P.Command):
+        yield P.prop("IsUserEnabled", int(self.user_enabled))
+
+    def _do_GetMachineClass(self, cmd: P.Command):
+        yield "GetMachineClass(CartCMM)"
+
+    def _do_Get(self, cmd: P.Command):
+        props = self._props(cmd, REPORT_ITEMS, nargs=0)
+        if not props:
+            raise IppError(502, cmd.name, "Get needs at least one of X(), Y(), Z(), Tool.A(), ...")
+        here = self.backend.position()
+        yield ", ".join(P.prop(p.name, round(self._value(p.name, cmd.name, here), 5)) for p in props)
+
+    def _do_GoTo(self, cmd: P.Command):
+        props = self._props(cmd, REPORT_ITEMS, nargs=1)
+        if not props:
+            raise IppError(502, cmd.name, "GoTo needs at least one of X(..), Y(..), Z(..)")
+        tool = self._tool_for_motion(cmd.name)
+        target = self.csy.from_machine(self._here())
+        for p in props:
+            if p.name in AXES:
+                target[AXES.index(p.name)] = p.args[0]
+        machine = self.csy.to_machine(target)
+        try:
+            self.backend.check_target(machine)
+        except LimitError as exc:
+            raise IppError(1008, cmd.name, str(exc)) from None
+        angles = [p.name for p in props if p.name in ANGLES and p.args[0] != 0.0]
+        if any(p.name in AXES for p in props):
+            g = tool.goto
+            self._motion(lambda: self.backend.move_to(machine, g["Speed"].act, g["Accel"].act), cmd.name)
+            self.nominal = machine
+        if angles:  # a fixed stylus and no rotary table: the angles stay 0 (like a clamped property)
+            raise IppError(504, cmd.name, f"{', '.join(angles)}: this machine has no rotary axes (0 only)")
+
+    def _do_OnPtMeasReport(self, cmd: P.Command):
+        props = self._props(cmd, PTMEAS_ITEMS, nargs=0)
+        if not props:
+            raise IppError(502, cmd.name, "the report format may not be empty")
+        self.report_format = tuple(p.name for p in props)
+
+    def _do_PtMeas(self, cmd: P.Command):
+        props = {p.name: p for p in self._props(cmd, set(AXES) | {"IJK"})}
+        if not any(a in props for a in AXES):
+            raise IppError(502, cmd.name, "PtMeas needs at least one of X(..), Y(..), Z(..)")
+        for name, p in props.items():
+            if len(p.args) != (3 if name == "IJK" else 1):
+                raise IppError(502, cmd.name, f"{name} takes {3 if name == 'IJK' else 1} value(s)")
+        tool = self._tool_for_motion(cmd.name, measuring=True)
+        here = self._here()
+        nominal = self.csy.from_machine(here)
+        for a in AXES:
+            if a in props:
+                nominal[AXES.index(a)] = props[a].args[0]
+        nominal_m = self.csy.to_machine(nominal)
+        if "IJK" in props:
+            direction = self.csy.vector_to_machine(np.array(props["IJK"].args, dtype=float))
+        else:  # from the nominal point towards where the tool is (6.3.2.13)
+            direction = here - nominal_m
+        norm = float(np.linalg.norm(direction))
+        if not math.isfinite(norm) or norm < 1e-9:
+            raise IppError(1010, cmd.name, "the approach direction has no length")
+        direction = direction / norm
+        t, g = tool.ptmeas, tool.goto
+        assert t is not None
+        centre = self._motion(lambda: self.backend.probe(
+            nominal_m, direction, speed=t["Speed"].act, accel=t["Accel"].act, approach=t["Approach"].act,
+            search=t["Search"].act, retract=t["Retract"].act, rapid_speed=g["Speed"].act), cmd.name)
+        self.nominal = None
+        self.status.measured(centre)
+        p = self.csy.from_machine(centre)
+        ijk = self.csy.vector_from_machine(direction)
+        items = []
+        for name in self.report_format:
+            if name in AXES:
+                items.append(P.prop(name, round(float(p[AXES.index(name)]), 5)))
+            elif name == "IJK":
+                items.append(P.prop(name, *(round(float(v), 6) for v in ijk)))
+            elif name == "ER":
+                items.append(P.prop(name, tool.radius))
+            else:  # Q (a touch-trigger point is good), R, Tool.A/B/C
+                items.append(P.prop(name, 0))
+        yield ", ".join(items)
+
+    # --- daemons -------------------------------------------------------------------------------
+
+    def _do_OnMoveReportE(self, cmd: P.Command):
+        period = distance = None
+        items = []
+        for p in self._props(cmd):
+            if p.name in ("Time", "Dis"):
+                if len(p.args) != 1 or not math.isfinite(p.args[0]):
+                    raise IppError(502, cmd.name, f"{p.name} takes one number")
+                if p.name == "Time":
+                    if p.args[0] < MIN_REPORT_INTERVAL:
+                        raise IppError(510, cmd.name, "Time must be at least 0.1 s")
+                    period = p.args[0]
+                else:
+                    if p.args[0] <= 0:
+                        raise IppError(510, cmd.name, "Dis must be positive")
+                    distance = p.args[0]
+            elif p.name in REPORT_ITEMS and not p.args:
+                items.append(p.name)
+            else:
+                raise IppError(510, cmd.name, f"{p.name}() cannot be reported")
+        with self._lock:
+            if self._daemon is not None and self._daemon.tag == cmd.tag:
+                raise IppError(515, cmd.name, f"the daemon {cmd.tag} runs already")
+        self._stop_daemon()  # one move report at a time: a new one replaces the old (the client should stop it)
+        with self._lock:
+            self._daemon = _MoveDaemon(self, cmd.tag, items, period, distance)
+        return ()
+
+    def _do_StopDaemon(self, cmd: P.Command):
+        tag = self._one(cmd, P.ETag)
+        with self._lock:
+            if self._daemon is None or self._daemon.tag != tag.tag:
+                raise IppError(513, cmd.name, f"no daemon {tag.tag}")
+        self._stop_daemon()
+
+    def _do_StopAllDaemons(self, cmd: P.Command):
+        if not self._stop_daemon():
+            raise IppError(512, cmd.name)
+
+    def _stop_daemon(self) -> bool:
+        with self._lock:
+            daemon, self._daemon = self._daemon, None
+        if daemon is not None:
+            daemon.stop()
+        return daemon is not None
+
+    # --- tools (6.3.2.14 ...) ------------------------------------------------------------------
+
+    def _do_EnumTools(self, cmd: P.Command):
+        for name in self.tools.names():
+            yield P.quote(name)
+
+    def _do_FindTool(self, cmd: P.Command):
+        name = self._one(cmd, P.Text).value
+        self.tools.found = "UnDefTool"
+        self.tools.found = self.tools.lookup(name, cmd.name).name
+
+    def _do_ChangeTool(self, cmd: P.Command):
+        name = self._one(cmd, P.Text).value
+        self.user_enabled = False
+        self.tools.select(name, cmd.name)  # one stylus on the machine: a switch, nothing moves
+        self._refresh_daemon()
+
+    _do_SetTool = _do_ChangeTool
+
+    def _do_GetChangeToolAction(self, cmd: P.Command):
+        name = self._one(cmd, P.Text).value
+        self.tools.lookup(name, cmd.name)
+        yield "ChangeToolAction(Switch, X(0), Y(0), Z(0))"
+
+    def _do_AlignTool(self, cmd: P.Command):
+        if not all(isinstance(a, float) for a in cmd.args) or len(cmd.args) not in (4, 8):
+            raise IppError(502, cmd.name, "AlignTool(i, j, k, alpha) or AlignTool(i1, j1, k1, i2, j2, k2, alpha, beta)")
+        v = np.array(cmd.args, dtype=float)
+        vectors = [v[0:3]] if len(v) == 4 else [v[0:3], v[3:6]]
+        for vec in vectors:
+            if abs(np.linalg.norm(vec) - 1.0) > 1e-3:
+                raise IppError(502, cmd.name, f"{vec.tolist()} is not a unit vector")
+        self._tool_for_motion(cmd.name)
+        alpha = v[3] if len(v) == 4 else v[6]
+        shaft = self.csy.vector_from_machine([0.0, 0.0, 1.0])  # the fixed vertical stylus, away from the surface
+        off = math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(vectors[0], shaft))))))
+        if alpha != 0 and off > alpha:
+            raise IppError(1502, cmd.name, f"the stylus is fixed vertical: {off:.1f} deg from the request")
+        reached = list(shaft) + ([] if len(vectors) == 1 else list(vectors[1]))
+        yield P.fmt_args(round(float(x), 6) for x in reached)
+
+    # --- coordinate systems (6.3.3) --------------------------------------------------------------
+
+    def _do_SetCoordSystem(self, cmd: P.Command):
+        self.csy.select(self._one(cmd, P.Enum).name, cmd.name)
+        self._refresh_daemon()
+
+    def _do_GetCoordSystem(self, cmd: P.Command):
+        yield f"CoordSystem({self.csy.current})"
+
+    def _do_GetCsyTransformation(self, cmd: P.Command):
+        t = self.csy.get(self._one(cmd, P.Enum).name, cmd.name)
+        yield P.prop("GetCsyTransformation", *t.values)
+
+    def _do_SetCsyTransformation(self, cmd: P.Command):
+        if len(cmd.args) != 7 or not isinstance(cmd.args[0], P.Enum) or \
+                not all(isinstance(a, float) for a in cmd.args[1:]):
+            raise IppError(502, cmd.name, "SetCsyTransformation(Csy, X0, Y0, Z0, Theta, Psi, Phi)")
+        self.csy.set(cmd.args[0].name, list(cmd.args[1:]), cmd.name)  # type: ignore[union-attr,arg-type]
+        self._refresh_daemon()
+
+    def _refresh_daemon(self) -> None:
+        with self._lock:
+            daemon = self._daemon
+        if daemon is not None:
+            daemon.report_now()
+
+
+class _MoveDaemon:
+    """OnMoveReportE: reports the position every ``period`` s of machine time or ``distance`` mm of travel.
+
+    Driven by the machine's state updates (so it runs on the simulator's
+    virtual clock as on hardware); at most one report per 0.1 s.
+    """
+
+    def __init__(self, dme: Dme, tag: str, items: list[str], period: float | None, distance: float | None) -> None:
+        self.dme, self.tag, self.items = dme, tag, items
+        self.period, self.distance = period, distance
+        self._lock = threading.Lock()
+        self._running = True
+        self._last_time: float | None = None
+        self._last_pos: np.ndarray | None = None
+        self._first = True
+        self._unsubscribe: Callable[[], None] | None = None
+
+    def start(self) -> None:
+        if self._unsubscribe is None:
+            self._unsubscribe = self.dme.backend.subscribe_state(self._on_state)
+
+    def _line(self, machine_pos: np.ndarray) -> str:
+        return P.data(self.tag, ", ".join(
+            P.prop(n, round(self.dme._value(n, "OnMoveReportE", machine_pos), 5)) for n in self.items))
+
+    def _on_state(self, state: Any) -> None:
+        if not self.items:
+            return
+        pos = np.asarray(state.position, dtype=float)
+        with self._lock:
+            if not self._running:
+                return
+            if self._first:  # the first report once the daemon is established
+                due = True
+            else:
+                dt = state.time - self._last_time
+                if dt < MIN_REPORT_INTERVAL:
+                    return
+                due = (self.period is not None and dt >= self.period) or \
+                    (self.distance is not None and float(np.linalg.norm(pos - self._last_pos)) >= self.distance)
+            if not due:
+                return
+            self._first = False
+            self._last_time, self._last_pos = state.time, pos
+            try:
+                self.dme.send(self._line(pos))
+            except IppError:  # UnDefTool: nothing to report
+                pass
+
+    def report_now(self) -> None:
+        with self._lock:
+            self._first = True
+
+    def stop(self) -> None:
+        if self._unsubscribe is not None:
+            self._unsubscribe()
+        with self._lock:  # after this no report with our tag goes out
+            self._running = False

@@ -1,0 +1,54 @@
+"""A station on the simulator's virtual clock with an I++ DME server in front of it, for the ippdme tests."""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from dataclasses import replace
+
+from cmm.ippdme.backend import StationBackend
+from cmm.ippdme.client import IppClient
+from cmm.ippdme.server import IppServer
+from cmm.machine.config import load
+from cmm.sim.cmm_sim import SimulatedCMM
+from cmm.sim.probe_world import PlaneObstacle
+from cmm.station import Station
+
+
+def nist_config():
+    """Our machine with its travel around the origin: the NIST programs move near (0, 0, 0) and home there."""
+    config = load()
+    axes = tuple(replace(a, min=-100.0, max=300.0, home=0.0) for a in config.axes)
+    return replace(config, axes=axes)
+
+
+@contextmanager
+def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeout: float = 10.0, trace=None):
+    """(server, station): the simulated CMM in-process on its virtual clock, polled in the background.
+
+    ``empty_world`` removes the table, the part and the reference sphere (the
+    NIST programs move through the region they occupy); tests place their
+    own artifacts with ``station.sim.place_artifacts``.
+    """
+    config = config or load()
+    sim = SimulatedCMM(config, wire_time=True)  # virtual clock; wire time paces the polling
+    if empty_world:
+        sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
+        sim.world._safe_from = None
+    station = Station(config, port=sim.transport(), session_dir=tmp_path / "sessions")
+    station.sim = sim
+    station.start()
+    server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout, trace=trace).start()
+    try:
+        yield server, station
+    finally:
+        server.close()
+        station.close()
+
+
+@contextmanager
+def connected(server: IppServer, timeout: float = 60.0):
+    client = IppClient("127.0.0.1", server.port, timeout=timeout)
+    try:
+        yield client
+    finally:
+        client.close()
