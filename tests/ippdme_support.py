@@ -9,9 +9,13 @@ from cmm.ippdme.backend import StationBackend
 from cmm.ippdme.client import IppClient
 from cmm.ippdme.server import IppServer
 from cmm.machine.config import load
-from cmm.sim.cmm_sim import SimulatedCMM
 from cmm.sim.probe_world import PlaneObstacle
 from cmm.station import Station
+
+# in-process simulated CMM on the virtual clock, at most 25 machine seconds per wall second: the poll
+# thread then sleeps instead of spinning, so the server's threads (and the other tests) get the CPU
+SIM_URL = "sim://?cmm=1&pace=25"
+POLL_PAUSE = 0.01  # s of machine time between the station's samples in these tests (10 ms: moves end within it)
 
 
 def nist_config():
@@ -30,12 +34,10 @@ def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeou
     own artifacts with ``station.sim.place_artifacts``.
     """
     config = config or load()
-    sim = SimulatedCMM(config, wire_time=True)  # virtual clock; wire time paces the polling
+    station = Station(config, port=SIM_URL, session_dir=tmp_path / "sessions")  # in-process, virtual clock
     if empty_world:
-        sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
-        sim.world._safe_from = None
-    station = Station(config, port=sim.transport(), session_dir=tmp_path / "sessions")
-    station.sim = sim
+        station.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
+    station.machine.poll_pause = POLL_PAUSE
     station.start()
     server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout, trace=trace).start()
     try:

@@ -40,11 +40,10 @@ from cmm.ippdme.protocol import ParseError, Response, data_items, parse_line, pa
 from cmm.ippdme.server import IppServer
 from cmm.ippdme.tools import Limits, ToolChanger, resolve
 from cmm.machine.config import load
-from cmm.sim.cmm_sim import SimulatedCMM
 from cmm.sim.probe_world import PlaneObstacle
 from cmm.station import Station
 
-from ippdme_support import nist_config
+from ippdme_support import POLL_PAUSE, SIM_URL, nist_config
 
 DATA = Path(__file__).parent / "data" / "nist_ippdme"
 PROGRAMS = sorted(p.stem for p in DATA.glob("*.prg") if (DATA / f"{p.stem}.res").exists())
@@ -200,10 +199,9 @@ def names(body: str) -> list[str]:
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
     config = nist_config()
-    sim = SimulatedCMM(config, wire_time=True)
-    sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # no table, part or sphere where the NIST programs move
-    st = Station(config, port=sim.transport(), session_dir=tmp_path_factory.mktemp("sessions"))
-    st.sim = sim
+    st = Station(config, port=SIM_URL, session_dir=tmp_path_factory.mktemp("sessions"))
+    st.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # no table, part or sphere where the NIST programs move
+    st.machine.poll_pause = POLL_PAUSE
     st.start()
     yield st
     st.close()

@@ -55,6 +55,7 @@ class IppClient:
     def __init__(self, host: str = "127.0.0.1", port: int = 1294, timeout: float = 60.0) -> None:
         self.timeout = timeout
         self.sock = socket.create_connection((host, port), timeout=timeout)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.received: list[Response] = []  # every response line, in arrival order
         self._cond = threading.Condition()
         self._closed = False

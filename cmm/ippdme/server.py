@@ -49,7 +49,8 @@ class _Connection:
         self.out: queue.Queue[str | None] = queue.Queue(OUT_QUEUE)
         self.alive = True
         self.reason = ""
-        sock.settimeout(server.send_timeout)  # bounds sendall; the reader waits with select-free recv loops
+        sock.settimeout(server.send_timeout)  # bounds sendall (a client that does not read)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # "&" then "%": no 40 ms Nagle/delayed-ACK stall
         self.dme = Dme(server.backend, self.send, client=peer, status=server.status, tools=server.tools,
                        csy=server.csy)
         self.trace = server.trace

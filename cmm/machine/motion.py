@@ -119,6 +119,7 @@ class Machine:
         self._event_listeners: list[Callable[[str, dict], None]] = []
         self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
         self.samples = 0
+        self.poll_pause = POLL_PAUSE  # s between background samples (tests on the virtual clock may sample less often)
         self.correction = GeometryCorrection()  # the calibration routine sets it
         self.driver: Any = self  # what MoveStatus.wait drives: this machine or the control core owning it
         self._contact_dir: np.ndarray | None = None  # direction of the last jog that touched
@@ -287,7 +288,7 @@ class Machine:
                 except NmcError as exc:
                     self._emit("error", message=str(exc))
                     self.clock.sleep(0.05)
-                self.clock.sleep(POLL_PAUSE)
+                self.clock.sleep(self.poll_pause)
 
         self._thread = threading.Thread(target=loop, name="machine-poll", daemon=True)
         self._thread.start()
@@ -359,6 +360,8 @@ class Machine:
         length = float(np.linalg.norm(travel))
         for axis, mod, d, goal, now in zip(self.config.axes, self.modules, travel, goals, here):
             share = abs(d) / length if length > 0 else 0.0
+            if goal == now:  # no travel, but after a stop the trajectory may lack a few counts: full rate for those
+                share = 1.0
             vel = codec.velocity_to_fixed(speed * share, axis.counts_per_mm, axis.gains.sr)
             acc = codec.acceleration_to_fixed(accel * share, axis.counts_per_mm, axis.gains.sr)
             if goal != now:  # a tiny share still has to arrive: at least the smallest non-zero rate
