@@ -26,7 +26,8 @@ def nist_config():
 
 
 @contextmanager
-def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeout: float = 10.0, trace=None):
+def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeout: float = 10.0,
+                send_buffer: int | None = None, trace=None):
     """(server, station): the simulated CMM in-process on its virtual clock, polled in the background.
 
     ``empty_world`` removes the table, the part and the reference sphere (the
@@ -39,7 +40,8 @@ def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeou
         station.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
     station.machine.poll_pause = POLL_PAUSE
     station.start()
-    server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout, trace=trace).start()
+    server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout,
+                       send_buffer=send_buffer, trace=trace).start()
     try:
         yield server, station
     finally:

@@ -51,6 +51,8 @@ class _Connection:
         self.reason = ""
         sock.settimeout(server.send_timeout)  # bounds sendall (a client that does not read)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # "&" then "%": no 40 ms Nagle/delayed-ACK stall
+        if server.send_buffer:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, server.send_buffer)
         self.dme = Dme(server.backend, self.send, client=peer, status=server.status, tools=server.tools,
                        csy=server.csy)
         self.trace = server.trace
@@ -112,7 +114,12 @@ class _Connection:
         finally:
             self.alive = False
             self.dme.close()
-            self.out.put(None)
+            while True:  # nothing more goes out: wake the writer (the queue may be full)
+                try:
+                    self.out.get_nowait()
+                except queue.Empty:
+                    break
+            self.out.put_nowait(None)
             try:
                 self.sock.close()
             except OSError:
@@ -132,10 +139,12 @@ class IppServer:
     """``IppServer(backend).start()``; ``close()`` stops it and any client's motion."""
 
     def __init__(self, backend: Backend, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
-                 status: IppStatus | None = None, send_timeout: float = 10.0, trace: list | None = None) -> None:
+                 status: IppStatus | None = None, send_timeout: float = 10.0, send_buffer: int | None = None,
+                 trace: list | None = None) -> None:
         self.backend = backend
         self.status = status or IppStatus()
-        self.send_timeout = send_timeout
+        self.send_timeout = send_timeout  # s a response may wait for the client to read before it is dropped
+        self.send_buffer = send_buffer  # bytes of kernel send buffer per client (None: the system's)
         self.trace = trace  # (direction, line) pairs, for tests and debugging
         self.tools = ToolChanger.build(Limits.from_config(backend.config), backend.probes())
         self.csy = CoordinateSystems()

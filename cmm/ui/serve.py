@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibration", metavar="DIR", default=None,
                         help="calibration records folder (probe.toml, machine.toml; artifacts/ for the wizard); "
                              "default: ./calibration when it exists")
+    parser.add_argument("--ippdme", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:1294", default=None,
+                        help="also serve I++ DME clients (PC-DMIS, CALYPSO, ...) on ADDR:PORT "
+                             "(default 127.0.0.1:1294; 0.0.0.0:1294 to accept them from the LAN)")
     parser.add_argument("--tolerance", type=float, default=0.01,
                         help="deviation colour band of the hits, mm (default 0.01)")
 
@@ -102,6 +105,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"Pendant page: {app.pendant_url}")
     if app.control.access_code:
         print(f"Access code for remote operators: {app.control.access_code}")
+    ippdme = None
+    if getattr(args, "ippdme", None):
+        from ..ippdme.serve import start as start_ippdme
+
+        try:
+            ippdme = start_ippdme(station, args.ippdme)
+        except (OSError, ValueError) as exc:
+            app.close()
+            station.close()
+            return _fail(str(exc))
     print("Press Ctrl-C to stop.")
     try:
         while True:
@@ -109,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nstopping...")
     finally:
+        if ippdme is not None:
+            ippdme.close()
         app.close()
         station.close()
     return 0

@@ -1,0 +1,26 @@
+"""`cmm serve --ippdme [ADDR:PORT]`: the I++ DME server beside the browser station, on the same station."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .backend import StationBackend
+from .server import IppServer, parse_address
+
+
+def start(station: Any, address: str) -> IppServer:
+    """Start the I++ DME server for ``station``; raises ValueError/OSError with an operator's message.
+
+    ``station.ippdme`` is then the server's :class:`~cmm.ippdme.status.IppStatus`
+    (connected client, current command, measured points) for the browser.
+    """
+    host, port = parse_address(address)
+    try:
+        server = IppServer(StationBackend(station), host, port).start()
+    except OSError as exc:
+        raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
+    station.ippdme = server.status
+    print(f"I++ DME server on {server.address}: point PC-DMIS, CALYPSO, ... at this address (one client at a time)")
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        print("I++ DME: listening beyond this PC; anyone on the network can connect and move the machine")
+    return server

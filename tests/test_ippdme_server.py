@@ -1,0 +1,232 @@
+"""The I++ DME server on the simulated station: robustness, the error model, queues, measuring, the journal."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from cmm.cli import main
+from cmm.ippdme.client import IppClient
+from cmm.ippdme.protocol import parse_response
+from cmm.ippdme.server import parse_address
+from cmm.session.store import DirectoryStore, load_session
+
+from ippdme_support import connected, ipp_station
+
+FAR = "GoTo(X(400), Y(300), Z(250))"  # from home (0, 0, 300): 500 mm, 100 s at 5 mm/s
+
+
+def wait_until(predicate, timeout: float = 30.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, "condition not reached"
+        time.sleep(0.01)
+
+
+def ready(c: IppClient, speed: float = 5.0) -> None:
+    for cmd in ("StartSession()", "Home()", 'ChangeTool("Probe1")', f"SetProp(Tool.GoToPar.Speed({speed}))"):
+        assert c.call(cmd).ok, cmd
+
+
+@pytest.fixture
+def served(tmp_path):
+    with ipp_station(tmp_path) as (server, station):
+        yield server, station
+
+
+def test_malformed_lines_and_unknown_commands_get_errors_and_the_server_carries_on(served):
+    server, station = served
+    with connected(server) as c:
+        c.call("StartSession()")
+        c.send_line("12 Home()")  # illegal tag: answered as an unsolicited error (severity 2: error state)
+        c.wait("E0000", "!")
+        assert c.call("GetErrStatusE()").data == ["ErrStatus(1)"]
+        assert c.call("ClearAllErrors()").ok
+        t = c.call("Frobnicate(X(1))")
+        assert [(r.kind, r.error_number, r.severity) for r in t.responses] == [("&", None, None), ("!", 501, 3),
+                                                                               ("%", None, None)]
+        assert c.call("Get(X())").errors[0].error_number == 514  # error state until ClearAllErrors
+        assert c.call("GetErrStatusE()").data == ["ErrStatus(1)"]
+        assert c.call("ClearAllErrors()").ok
+        c.send_line("00077 GoTo(X(1)")
+        c.wait("00077", "%")
+        assert [r.error_number for r in c.received if r.tag == "00077" and r.kind == "!"] == [502]
+        c.call("ClearAllErrors()")
+        c.sock.sendall(b"00078 Get(X(\xff))\r\n")
+        c.wait("00078", "%")
+        assert [r.error_number for r in c.received if r.tag == "00078" and r.kind == "!"] == [7]
+        c.call("ClearAllErrors()")
+        assert c.call("GetDMEVersion()").data == ['DMEVersion("1.4.3")']
+        assert c.call("GetErrStatusE()").data == ["ErrStatus(0)"]
+        assert parse_response(f"{c.received[0].tag} {c.received[0].kind}").tag == "00001"
+
+
+def test_a_fast_query_is_answered_during_a_move_and_a_reused_tag_is_refused(served):
+    server, station = served
+    with connected(server) as c:
+        ready(c)
+        c.send(FAR, tag="00100")
+        c.wait("00100", "&")
+        wait_until(lambda: station.machine.busy)
+        c.send_line("00100 Get(X())")  # the tag is still in use
+        c.wait("E0000", "!")
+        assert [r.error_number for r in c.received if r.tag == "E0000"] == [1]
+        t = c.call("GetErrStatusE()")
+        assert t.data == ["ErrStatus(1)"] and station.machine.busy  # answered while the move runs
+        assert not any(r.tag == "00100" and r.kind == "%" for r in c.received)
+        abort = c.send("AbortE()")
+        c.wait(abort, "%")
+        mine = [(r.tag, r.kind, r.error_number) for r in c.received if r.tag in ("00100", abort)]
+        assert mine == [("00100", "&", None), (abort, "&", None), ("00100", "!", 6), ("00100", "%", None),
+                        (abort, "%", None)]
+        assert not station.machine.busy
+
+
+def test_an_error_aborts_the_pending_commands(served):
+    server, station = served
+    with connected(server) as c:
+        ready(c, speed=50)
+        first = c.send(FAR)
+        second = c.send("GoTo(X(1e6))")  # queued behind the move; out of the volume
+        third = c.send("Get(X())")  # queued: aborted by the error
+        c.wait(third, "%")
+        errors = {tag: [(r.severity, r.error_number) for r in c.received if r.tag == tag and r.kind == "!"]
+                  for tag in (first, second, third)}
+        assert errors == {first: [], second: [(3, 1008)], third: [(2, 6)]}
+        assert c.call("ClearAllErrors()").ok and c.call("Get(X())").ok
+
+
+def test_a_client_that_disconnects_during_a_move_leaves_the_machine_stopped(served):
+    server, station = served
+    c = IppClient("127.0.0.1", server.port)
+    ready(c)
+    tag = c.send(FAR)
+    c.wait(tag, "&")
+    wait_until(lambda: station.machine.busy and station.machine.position[0] > 1.0)
+    c.close()
+    wait_until(lambda: not station.machine.busy and all(a.velocity == 0 for a in station.machine.state.axes))
+    stopped = station.machine.position.copy()
+    time.sleep(0.2)  # five seconds of machine time
+    assert np.allclose(station.machine.position, stopped, atol=0.005)  # it stays where it stopped
+    assert stopped[0] < 300.0  # far from the target: stopped, not finished
+    wait_until(lambda: server.client is None)
+    assert "disconnected during a move" in open(station.journal.path).read()
+    with connected(server) as again:  # the next client gets the machine
+        assert again.call("StartSession()").ok
+
+
+def test_a_second_client_is_refused_while_the_first_keeps_the_machine(served):
+    server, station = served
+    with connected(server) as first:
+        assert first.call("StartSession()").ok
+        second = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+        reply = b""
+        while not reply.endswith(b"\r\n"):
+            chunk = second.recv(1000)
+            assert chunk, "closed without saying why"
+            reply += chunk
+        r = parse_response(reply.decode().strip())
+        assert (r.tag, r.kind, r.error_number) == ("E0000", "!", 508)
+        assert second.recv(1000) == b""  # and closed
+        second.close()
+        assert first.call("IsHomed()").ok
+        assert server.status.snapshot()["client"] == server.client
+
+
+def test_a_client_that_never_reads_is_dropped_and_the_machine_stops(tmp_path):
+    with ipp_station(tmp_path, send_timeout=0.5, send_buffer=4096) as (server, station):
+        c = socket.socket()
+        c.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # small buffers: the backlog shows at once
+        c.connect(("127.0.0.1", server.port))
+        c.settimeout(10)
+        for line in ("00001 StartSession()", "00002 Home()", '00003 ChangeTool("Probe1")',
+                     "00004 SetProp(Tool.GoToPar.Speed(5))", f"00005 {FAR}"):
+            c.sendall(line.encode() + b"\r\n")
+        wait_until(lambda: station.machine.busy)
+        filler = b"".join(b"E%04d GetErrStatusE()\r\n" % (i % 9999 + 1) for i in range(500))
+        try:
+            for _ in range(20):  # the responses back up: the server gives up on this client
+                c.sendall(filler)
+                if server.client is None:
+                    break
+        except OSError:
+            pass
+        wait_until(lambda: server.client is None)
+        wait_until(lambda: not station.machine.busy)
+        assert station.machine.position[0] < 300.0
+        c.close()
+        with connected(server) as again:
+            assert again.call("StartSession()").ok
+
+
+def test_ptmeas_reports_the_tip_centre_and_the_session_is_recorded(served, tmp_path):
+    server, station = served
+    part = station.part
+    top = (part.pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face (part coordinates)
+    with connected(server) as c:
+        ready(c, speed=50)
+        assert c.call(f"GoTo(X({top[0]}), Y({top[1]}), Z(70))").ok
+        assert c.call("OnPtMeasReport(X(), Y(), Z(), IJK(), ER())").ok
+        t = c.call(f"PtMeas(X({top[0]}), Y({top[1]}), Z({top[2]}), IJK(0, 0, 1))")
+        assert t.ok, t.responses
+        v = t.values()
+        assert v["IJK"] == [0, 0, 1] and v["ER"] == [pytest.approx(station.prober.settings.tip_radius)]
+        # the sample part is where the station believes it, up to the simulator's set-up error
+        assert v["Z"][0] == pytest.approx(top[2] + 1.0, abs=0.05)
+        assert (v["X"][0], v["Y"][0]) == (pytest.approx(top[0], abs=0.002), pytest.approx(top[1], abs=0.002))
+        snap = server.status.snapshot()
+        assert snap["points"] == [tuple(pytest.approx(x, abs=0.001) for x in (v["X"][0], v["Y"][0], v["Z"][0]))]
+        beside = (part.pose @ np.array([-30.0, 15.0, 20.0, 1.0]))[:3]  # off the part, above the table
+        assert c.call(f"GoTo(Z(70))").ok and c.call(f"GoTo(X({beside[0]}), Y({beside[1]}))").ok
+        t = c.call(f"PtMeas(X({beside[0]}), Y({beside[1]}), Z({beside[2]}), IJK(0, 0, 1))")
+        assert [e.error_number for e in t.errors] == [1006]  # surface not found
+        c.call("EndSession()")
+    journal = station.journal.path
+    session = load_session(DirectoryStore(journal.parent), journal.stem)
+    assert journal.stem.startswith("ippdme-") and len(session.hits) == 1
+    (hit,) = session.hits.values()
+    assert hit.machine == pytest.approx([v["X"][0], v["Y"][0], v["Z"][0]], abs=0.001)
+    text = journal.read_text()
+    assert "I++ DME session started" in text and "I++ DME session ended" in text
+
+
+def test_move_reports_come_at_most_ten_a_second_along_the_path(served):
+    server, station = served
+    with connected(server) as c:
+        ready(c, speed=20)
+        start = station.machine.clock.now()
+        d = c.send("OnMoveReportE(Time(0.1), Dis(0.01), X(), Y(), Z())")  # as often as allowed
+        c.wait(d, "%")
+        assert c.call("GoTo(X(60), Y(0), Z(300))").ok
+        assert c.call(f"StopDaemon({d})").ok
+        elapsed = station.machine.clock.now() - start
+        reports = [r for r in c.received if r.tag == d and r.kind == "#"]
+        assert 30 <= len(reports) <= 10 * elapsed + 1  # 3 s of travel
+        xs = [float(r.body.split("X(")[1].split(")")[0]) for r in reports]
+        assert xs == sorted(xs) and xs[-1] > 50
+        n = len(c.received)
+        time.sleep(0.3)
+        assert not [r for r in c.received[n:] if r.tag == d]  # none after StopDaemon
+
+
+def test_the_command_line_client_runs_commands_and_nist_programs(served, capsys, tmp_path):
+    server, station = served
+    assert main(["ippdme-client", server.address, "--session", "-c", "GetDMEVersion()", "-c", "IsHomed()"]) == 0
+    out = capsys.readouterr().out
+    assert '# DMEVersion("1.4.3")' in out and "# IsHomed(" in out
+    prg = tmp_path / "p.prg"
+    prg.write_bytes(b"00001 StartSession()\r\n\\\\\r\n00002 Foo()\r\n\\\\\r\n00003 EndSession()\r\n\\\\\r\n:\r\n:\r\n")
+    assert main(["ippdme-client", server.address, "-f", str(prg)]) == 1  # an error: exit status 1
+    assert "00002 ! Error(3, 0501" in capsys.readouterr().out
+    assert main(["ippdme-client", "nohost:notaport"]) == 2
+
+
+def test_addresses():
+    assert parse_address(None) == ("127.0.0.1", 1294)
+    assert parse_address("0.0.0.0:1295") == ("0.0.0.0", 1295)
+    assert parse_address("1300") == ("127.0.0.1", 1300)
+    with pytest.raises(ValueError, match="ADDRESS:PORT"):
+        parse_address("host:x")
