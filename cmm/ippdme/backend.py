@@ -9,13 +9,11 @@ stopped.
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any, Callable, Protocol
 
 import numpy as np
 
-from ..machine.status import MotionError, MoveStatus
 
 
 class Backend(Protocol):
@@ -32,31 +30,70 @@ class Backend(Protocol):
     def probes(self) -> list[tuple[str, float]]: ...
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]: ...
     def begin_session(self, client: str) -> str: ...
+    def for_client(self, peer: str) -> "Backend": ...
+    def acquire(self) -> str | None: ...
+    def release(self) -> None: ...
     def end_session(self) -> None: ...
     def note(self, text: str) -> None: ...
 
 
 class StationBackend:
-    """The I++ DME backend on a started :class:`~cmm.station.Station`.
+    """The I++ DME backend on a started :class:`~cmm.station.Station`, through its control core.
 
-    The station records every probed point (journal, browser), so the I++
-    session is a recorded session like a browser one.
+    Every command carries this connection's client id, so the core's access
+    policy applies: the I++ client takes the station's control (browsers then
+    observe and can still stop the machine). GoTo and PtMeas run as control
+    core jobs because they use the client's GoToPar/PtMeasPar (acceleration,
+    approach, search and retract distances), which the core's plain move and
+    probe commands do not take. The station records every probed point
+    (journal, browser), so an I++ session is recorded like a browser one.
     """
 
-    STALL = 1.0  # s (wall) a blocked call tolerates the machine idle with the motion unfinished (stopped elsewhere)
+    def __init__(self, station: Any, client: str = "ippdme", *, local: bool = True, peer: str | None = None,
+                 probe_name: str = "Probe1") -> None:
+        from ..control import Client
 
-    def __init__(self, station: Any, probe_name: str = "Probe1") -> None:
         self.station = station
+        self.controller = station.controller
         self.config = station.config
-        self.homed = False  # set by Home(); the station keeps it while it runs
+        self.client = Client(client, local=local, authenticated=local)
+        self.peer = peer
         self.probe_name = probe_name
-        self._status: MoveStatus | None = None
-        self._lock = threading.Lock()
-        self._stopped = threading.Event()
+
+    def for_client(self, peer: str) -> "StationBackend":
+        """The backend of one connection: its own client id for the control core (``peer`` is host:port)."""
+        host = peer.rsplit(":", 1)[0].strip("[]")
+        local = host in ("127.0.0.1", "::1", "localhost") or host.startswith("127.")
+        return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name)
+
+    @property
+    def _control(self) -> Any:
+        """The UI's single-holder control object, when a browser station runs beside the server."""
+        return getattr(self.controller.policy, "control", None)
+
+    # --- control --------------------------------------------------------------------
+    def acquire(self) -> str | None:
+        """Take the station's control for this client; the reason when refused."""
+        control = self._control
+        if control is None:
+            return None
+        # an I++ client has no way to give the access code: listening beyond this PC was the operator's
+        # decision at start-up (--ippdme ADDR:PORT), which stands in for it
+        return control.try_take(self.client.id, is_local=True, peer=self.peer)
+
+    def release(self) -> None:
+        control = self._control
+        if control is not None:
+            control.disconnected(self.client.id)
 
     # --- queries --------------------------------------------------------------------
+    @property
+    def homed(self) -> bool:
+        return bool(self.controller.state.homed)
+
     def position(self) -> np.ndarray:
-        return np.asarray(self.station.machine.position, dtype=float)
+        state = self.station.machine.state
+        return np.asarray(state.position if state is not None else self.controller.state.position, dtype=float)
 
     def check_target(self, target: np.ndarray) -> np.ndarray:
         return self.station.machine.check_target(target)
@@ -65,37 +102,19 @@ class StationBackend:
         return [(self.probe_name, float(self.station.prober.settings.tip_radius))]
 
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
-        return self.station.subscribe_state(fn)
+        """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""
+        def forward(state: Any) -> None:
+            if state.machine is not None:
+                fn(state.machine)
+        return self.controller.subscribe_state(forward)
 
     # --- motion ---------------------------------------------------------------------
-    def _run(self, start: Callable[[], MoveStatus]) -> Any:
-        with self._lock:
-            self._stopped.clear()
-            status = start()
-            self._status = status
-        try:
-            idle_since = None
-            while True:
-                try:
-                    return status.wait(0.1)
-                except TimeoutError:
-                    pass
-                if self._stopped.is_set():
-                    status.cancel()
-                    raise MotionError("stopped by the I++ DME client (AbortE or disconnect)")
-                if self.station.machine.busy:
-                    idle_since = None
-                elif idle_since is None:
-                    idle_since = time.monotonic()
-                elif time.monotonic() - idle_since > self.STALL and not status.done:
-                    status.cancel()  # the machine was stopped from elsewhere (browser, pendant)
-                    raise MotionError("the machine was stopped by the operator")
-        finally:
-            with self._lock:
-                self._status = None
+    def _job(self, description: str, fn: Callable[[], Any]) -> Any:
+        return self.controller.run_job(self.client, description, fn)
 
     def move_to(self, target: np.ndarray, speed: float, accel: float) -> np.ndarray:
-        return self._run(lambda: self.station.machine.move_to(target, speed, accel))
+        m = self.station.machine
+        return self._job("I++ DME GoTo", lambda: m.move_to(target, speed, accel).wait())
 
     def probe(self, nominal: np.ndarray, direction: np.ndarray, *, speed: float, accel: float, approach: float,
               search: float, retract: float, rapid_speed: float) -> np.ndarray:
@@ -103,23 +122,23 @@ class StationBackend:
 
         Returns the latched tip centre (what I++ DME reports); the station records the hit.
         """
-        hit = self._run(lambda: self.station.prober.probe(
+        prober = self.station.prober
+        hit = self._job("I++ DME PtMeas", lambda: prober.probe(
             nominal, -np.asarray(direction, float), speed=speed, accel=accel, approach_distance=approach,
-            search_distance=search, retract_distance=retract, rapid_speed=rapid_speed))
+            search_distance=search, retract_distance=retract, rapid_speed=rapid_speed).wait())
         return np.asarray(hit.machine, dtype=float)
 
     def home(self) -> None:
-        self._run(self.station.machine.home)
-        self.homed = True
+        """The homing cycle; on a machine without home switches, a move to the home coordinates."""
+        if self.config.homing.method == "none":
+            m = self.station.machine
+            self._job("I++ DME Home", lambda: m.home().wait())
+        else:
+            self.controller.home(self.client)
 
     def stop(self) -> None:
         """Stop any motion now (AbortE, client gone); a blocked call returns with an error."""
-        self._stopped.set()
-        with self._lock:
-            status = self._status
-        if status is not None:
-            status.cancel()
-        self.station.stop()
+        self.controller.stop(None)  # the station's own stop: never refused
 
     # --- journal ----------------------------------------------------------------------
     def begin_session(self, client: str) -> str:

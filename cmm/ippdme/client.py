@@ -173,8 +173,8 @@ def run_program(client: IppClient, commands: list[str], timeout: float | None = 
     """Send tagged command lines one transaction at a time, as the NIST test client does.
 
     The next command goes out after the previous one is complete, except
-    that an AbortE goes out as soon as the previous command is acknowledged,
-    so it stops what that command does.
+    that an AbortE after a move goes out as soon as the move is acknowledged,
+    so it stops the move.
     Returns everything received from the first command on. ``before(line)``
     runs before each line is sent (a test sets up its artifacts there).
     """
@@ -188,7 +188,8 @@ def run_program(client: IppClient, commands: list[str], timeout: float | None = 
             sent_at = len(client.received)
         client.send_line(line)
         nxt = commands[i + 1] if i + 1 < len(commands) else ""
-        abort_next = nxt[6:].split("(", 1)[0].strip() == "AbortE"
+        moving = line[6:].split("(", 1)[0].strip() in ("GoTo", "PtMeas", "Home")
+        abort_next = moving and nxt[6:].split("(", 1)[0].strip() == "AbortE"
         try:
             acked = client.wait(tag, "&", timeout, sent_at)
             if not abort_next:

@@ -21,6 +21,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..control import ControlError
 from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import MotionError
@@ -235,6 +236,8 @@ class Dme:
             raise IppError(1001, method, str(exc)) from None
         except SurfaceNotFound as exc:
             raise IppError(1006, method, str(exc)) from None
+        except ControlError as exc:  # the link to the modules failed: the machine is in fault
+            raise IppError(503, method, str(exc)) from None
         except MotionError as exc:
             if self._aborting:
                 raise _Aborted() from None
@@ -644,6 +647,7 @@ class _MoveDaemon:
             P.prop(n, round(self.dme._value(n, "OnMoveReportE", machine_pos), 5)) for n in self.items))
 
     def _on_state(self, state: Any) -> None:
+        """``state``: the machine's latest sample (time in machine seconds, position in mm)."""
         if not self.items:
             return
         pos = np.asarray(state.position, dtype=float)

@@ -44,8 +44,8 @@ def parse_address(text: str | None, default_host: str = "127.0.0.1") -> tuple[st
 
 
 class _Connection:
-    def __init__(self, server: "IppServer", sock: socket.socket, peer: str) -> None:
-        self.server, self.sock, self.peer = server, sock, peer
+    def __init__(self, server: "IppServer", sock: socket.socket, peer: str, backend: Backend) -> None:
+        self.server, self.sock, self.peer, self.backend = server, sock, peer, backend
         self.out: queue.Queue[str | None] = queue.Queue(OUT_QUEUE)
         self.alive = True
         self.reason = ""
@@ -53,7 +53,7 @@ class _Connection:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # "&" then "%": no 40 ms Nagle/delayed-ACK stall
         if server.send_buffer:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, server.send_buffer)
-        self.dme = Dme(server.backend, self.send, client=peer, status=server.status, tools=server.tools,
+        self.dme = Dme(backend, self.send, client=peer, status=server.status, tools=server.tools,
                        csy=server.csy)
         self.trace = server.trace
         self.writer = threading.Thread(target=self._write, name=f"ippdme-out-{peer}", daemon=True)
@@ -114,6 +114,7 @@ class _Connection:
         finally:
             self.alive = False
             self.dme.close()
+            self.backend.release()
             while True:  # nothing more goes out: wake the writer (the queue may be full)
                 try:
                     self.out.get_nowait()
@@ -177,20 +178,24 @@ class IppServer:
             peer = f"{addr[0]}:{addr[1]}"
             with self._lock:
                 busy = self._client is not None
-                if not busy:
-                    self._client = _Connection(self, sock, peer)
-                    self.status.connected(peer)
-                    conn = self._client
             if busy:
-                self._refuse(sock)
+                self._refuse(sock, "another I++ DME client holds the machine")
                 continue
+            backend = self.backend.for_client(peer)
+            why = backend.acquire()  # the station's control: browsers observe meanwhile
+            if why is not None:
+                self._refuse(sock, f"the station refused control: {why}")
+                continue
+            with self._lock:
+                self._client = conn = _Connection(self, sock, peer, backend)
+            self.status.connected(peer)
             conn.start()
 
-    def _refuse(self, sock: socket.socket) -> None:
-        """A second client: one line saying why, then the connection is closed."""
+    def _refuse(self, sock: socket.socket, why: str) -> None:
+        """A client that cannot have the machine: one line saying so, then the connection is closed."""
         try:
             sock.settimeout(1.0)
-            err = IppError(508, "Connect", "another I++ DME client holds the machine")
+            err = IppError(508, "Connect", why)
             sock.sendall(P.error(P.UNSOLICITED, err).encode("ascii") + b"\r\n")
             sock.shutdown(socket.SHUT_RDWR)
         except OSError:
