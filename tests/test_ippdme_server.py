@@ -13,6 +13,7 @@ from cmm.ippdme.client import IppClient
 from cmm.ippdme.protocol import parse_response
 from cmm.ippdme.server import parse_address
 from cmm.session.store import DirectoryStore, load_session
+from cmm.ui.panels import machine_markdown
 
 from ippdme_support import connected, ipp_station
 
@@ -134,6 +135,10 @@ def test_a_second_client_is_refused_while_the_first_keeps_the_machine(served):
         second.close()
         assert first.call("IsHomed()").ok
         assert server.status.snapshot()["client"] == server.client
+        station.ippdme = server.status  # as cmm serve --ippdme does: the browser's status panel shows the client
+        assert f"I++ DME client {server.client} has control" in machine_markdown(station)
+    wait_until(lambda: server.client is None)
+    assert "no client" in machine_markdown(station)
 
 
 def test_a_client_that_never_reads_is_dropped_and_the_machine_stops(tmp_path):
@@ -217,10 +222,15 @@ def test_the_command_line_client_runs_commands_and_nist_programs(served, capsys,
     assert main(["ippdme-client", server.address, "--session", "-c", "GetDMEVersion()", "-c", "IsHomed()"]) == 0
     out = capsys.readouterr().out
     assert '# DMEVersion("1.4.3")' in out and "# IsHomed(" in out
+    wait_until(lambda: server.client is None)  # the first run has let go of the machine
     prg = tmp_path / "p.prg"
     prg.write_bytes(b"00001 StartSession()\r\n\\\\\r\n00002 Foo()\r\n\\\\\r\n00003 EndSession()\r\n\\\\\r\n:\r\n:\r\n")
     assert main(["ippdme-client", server.address, "-f", str(prg)]) == 1  # an error: exit status 1
     assert "00002 ! Error(3, 0501" in capsys.readouterr().out
+    wait_until(lambda: server.client is None)
+    with connected(server):  # a second client while one holds the machine: told why
+        assert main(["ippdme-client", server.address, "-c", "IsHomed()"]) == 1
+    assert "0508" in (err := capsys.readouterr().err) and "another I++ DME client holds the machine" in err
     assert main(["ippdme-client", "nohost:notaport"]) == 2
 
 
@@ -230,3 +240,27 @@ def test_addresses():
     assert parse_address("1300") == ("127.0.0.1", 1300)
     with pytest.raises(ValueError, match="ADDRESS:PORT"):
         parse_address("host:x")
+
+
+def test_the_i_client_holds_the_control_browsers_observe_and_may_stop(served):
+    from cmm.control import Client, Refused
+    from cmm.ui.access import Control
+
+    server, station = served
+    tab = Client("tab-1", local=True)  # a browser on the station's own screen
+    control = Control()  # the browser station's single-holder control, as cmm serve wires it
+    station.controller.use_policy_of(control)
+    assert control.take(tab.id, is_local=True)  # a browser held the machine
+    with connected(server) as c:
+        ready(c, speed=20)
+        assert control.holder == f"ippdme {server.client}"
+        with pytest.raises(Refused, match="observes"):
+            station.controller.move_to(tab, [10.0, 10.0, 290.0])
+        tag = c.send(FAR)
+        c.wait(tag, "&")
+        wait_until(lambda: station.machine.busy)
+        assert station.controller.stop(tab).ok  # the browser still stops it
+        c.wait(tag, "%")
+        assert [r.error_number for r in c.received if r.tag == tag and r.kind == "!"] == [1011]
+        assert not station.machine.busy
+    wait_until(lambda: control.holder is None)  # released when the client goes

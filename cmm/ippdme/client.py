@@ -227,6 +227,20 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"cmm ippdme-client: cannot connect to {host}:{port}: {exc}", file=sys.stderr)
         return 1
+    try:
+        return _run(client, args)
+    except (OSError, IppClientError) as exc:
+        refusal = [r for r in client.received if r.tag == "E0000" and r.kind == "!"]
+        said = ""
+        if refusal:
+            said = f"; the server said: {refusal[-1].body}"
+            if refusal[-1].error_number == 508:
+                said += " (another I++ DME client holds the machine, or the station refused control)"
+        print(f"cmm ippdme-client: {exc}{said}", file=sys.stderr)
+        return 1
+
+
+def _run(client: IppClient, args: argparse.Namespace) -> int:
     failed = False
     with client:
         if args.file:
@@ -237,20 +251,12 @@ def run(args: argparse.Namespace) -> int:
                 return 2
             for line in lines:
                 print(f"> {line}")
-            try:
-                for r in run_program(client, lines, args.timeout):
-                    print(f"< {r.tag} {r.kind} {r.body}".rstrip())
-                    failed |= r.kind == "!" and (r.severity or 0) >= 2
-            except IppClientError as exc:
-                print(f"cmm ippdme-client: {exc}", file=sys.stderr)
-                return 1
+            for r in run_program(client, lines, args.timeout):
+                print(f"< {r.tag} {r.kind} {r.body}".rstrip())
+                failed |= r.kind == "!" and (r.severity or 0) >= 2
         commands = (["StartSession()"] if args.session else []) + args.command + (["EndSession()"] if args.session else [])
         for command in commands:
-            try:
-                t = client.call(command, args.timeout)
-            except IppClientError as exc:
-                print(f"cmm ippdme-client: {exc}", file=sys.stderr)
-                return 1
+            t = client.call(command, args.timeout)
             print(f"> {t.tag} {command}")
             for r in t.responses:
                 print(f"< {r.tag} {r.kind} {r.body}".rstrip())

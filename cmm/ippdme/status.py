@@ -52,3 +52,18 @@ class IppStatus:
             return {"listening": self.listening, "client": self.client, "connected_at": self.connected_at,
                     "in_session": self.in_session, "command": self.command, "last_error": self.last_error,
                     "commands": self.commands, "points": list(self.points)}
+
+
+def ippdme_markdown(status: IppStatus) -> str:
+    """One line for the station's status panel: is an I++ DME client driving the machine, and what is it doing."""
+    snap = status.snapshot()
+    if snap["client"] is None:
+        return f"I++ DME: listening on {snap['listening']}, no client" if snap["listening"] else ""
+    parts = [f"**I++ DME client {snap['client']} has control** (this page observes; STOP still works)"]
+    if snap["command"]:
+        text = snap["command"] if len(snap["command"]) <= 60 else snap["command"][:57] + "..."
+        parts.append(f"running `{text}`")
+    parts.append(f"{len(snap['points'])} points measured")
+    if snap["last_error"]:
+        parts.append(f"last error: {snap['last_error'][:120]}")
+    return " · ".join(parts)

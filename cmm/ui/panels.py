@@ -138,6 +138,10 @@ def machine_markdown(station: Any) -> str:
                                         "press **Reconnect**, then **Home** (positions are lost)."))
     elif not cs.homed:
         lines.append("\nPress **Home** before measuring.")
+    if getattr(station, "ippdme", None) is not None:  # cmm serve --ippdme: who drives the machine from outside
+        from ..ippdme.status import ippdme_markdown
+
+        lines.append("\n" + ippdme_markdown(station.ippdme))
     return "\n".join(lines)
 
 
