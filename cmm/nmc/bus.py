@@ -350,6 +350,8 @@ class Bus:
             lost = 0
             while True:
                 status = self._attempt(packet, expected)
+                if status is not None and responder is not None and not self._plausible(responder, status, code):
+                    status = self._confirm_jump(responder, status)
                 if status is not None and status.cksum_error:  # not carried out: sending again is safe
                     self.stats["retries"] += 1
                     checksum_rejects += 1
@@ -357,8 +359,6 @@ class Bus:
                         raise LinkError(f"{self._who(address)} rejected {self._name(packet)} twice with a checksum "
                                         "error: check the wiring and the baud rate", address, self.port_name)
                     continue
-                if status is not None and responder is not None and not self._plausible(responder, status, code):
-                    status = self._confirm_jump(responder, status)
                 if status is not None:
                     return self._accept(address, status)
                 # no trustworthy reply: the command may or may not have been carried out
@@ -747,13 +747,13 @@ class Bus:
             self.groups.clear()
 
     def reopen(self) -> list[ModuleInfo]:
-        """After a disconnect: open the port again and check every known module still answers.
+        """After a link error: open the port again if it failed, and check every known module still answers.
 
         The modules keep their addresses, rate and positions (nothing is
         reset); raises :class:`LinkError` if the port or a module stays away.
         """
         with self.lock:
-            if isinstance(self._url, str):
+            if isinstance(self._url, str) and not self.link_up:  # the port failed: open it again
                 try:
                     self.port.close()
                 except (serial.SerialException, OSError):
