@@ -84,6 +84,16 @@ def test_a_fast_query_is_answered_during_a_move_and_a_reused_tag_is_refused(serv
         assert mine == [("00100", "&", None), (abort, "&", None), ("00100", "!", 6), ("00100", "%", None),
                         (abort, "%", None)]
         assert not station.machine.busy
+        assert c.call("Get(X())").errors[0].error_number == 514  # AbortE: ClearAllErrors comes next
+        assert c.call("ClearAllErrors()").ok
+        # after the stop, a move that leaves Y and Z where they are still arrives
+        assert c.call("SetProp(Tool.GoToPar.Speed(50))").ok
+        here = c.call("Get(X(), Y(), Z())").values()
+        assert c.call(f"GoTo(X({here['X'][0] + 20}))").ok
+        there = c.call("Get(X(), Y(), Z())").values()
+        assert there["X"][0] == pytest.approx(here["X"][0] + 20, abs=0.005)
+        # Y and Z stay (up to the few counts the servo had left to settle when the abort stopped it)
+        assert (there["Y"], there["Z"]) == (pytest.approx(here["Y"], abs=0.01), pytest.approx(here["Z"], abs=0.01))
 
 
 def test_an_error_aborts_the_pending_commands(served):
@@ -264,3 +274,31 @@ def test_the_i_client_holds_the_control_browsers_observe_and_may_stop(served):
         assert [r.error_number for r in c.received if r.tag == tag and r.kind == "!"] == [1011]
         assert not station.machine.busy
     wait_until(lambda: control.holder is None)  # released when the client goes
+
+
+def test_cmm_serve_starts_the_server_on_the_station(tmp_path, capsys):
+    from cmm.cli import build_parser
+    from cmm.ippdme.serve import start
+    from cmm.station import Station
+
+    args = build_parser().parse_args(["serve", "--ippdme"])
+    assert args.ippdme == "127.0.0.1:1294"  # loopback unless asked
+    assert build_parser().parse_args(["serve", "--ippdme", "0.0.0.0:1300"]).ippdme == "0.0.0.0:1300"
+    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start()
+    try:
+        server = start(station, "127.0.0.1:0")
+        try:
+            assert "I++ DME server on 127.0.0.1:" in capsys.readouterr().out
+            with connected(server) as c:
+                assert c.call("StartSession()").ok
+                wait_until(lambda: station.ippdme.snapshot()["in_session"])
+        finally:
+            server.close()
+        taken = socket.create_server(("127.0.0.1", 0))  # the port is in use: one sentence, no traceback
+        try:
+            with pytest.raises(OSError, match="cannot listen for I\\+\\+ DME clients"):
+                start(station, f"127.0.0.1:{taken.getsockname()[1]}")
+        finally:
+            taken.close()
+    finally:
+        station.close()
