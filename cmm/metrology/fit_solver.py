@@ -156,7 +156,7 @@ def r_factor(jac: np.ndarray) -> np.ndarray:
 
 def check_conditioning(jac: np.ndarray, kind: str) -> None:
     """Refuse fits whose parameters the points do not determine (jac: J or its R factor)."""
-    s = np.linalg.svd(np.linalg.qr(jac, mode="r"), compute_uv=False)
+    s = np.linalg.svd(_triangular(jac), compute_uv=False)
     if s[-1] <= s[0] / MAX_COND:
         raise FitError(
             f"the points do not determine a {kind} (the fit is ill-conditioned): "
@@ -176,7 +176,7 @@ def amplification(jac: np.ndarray, m: int | None = None) -> np.ndarray:
     `jac` may be the n x n R factor of J (same J^T J) when m, the number of rows of J, is given."""
     m = jac.shape[0] if m is None else m
     try:
-        rinv = np.linalg.inv(np.linalg.qr(jac, mode="r"))
+        rinv = np.linalg.inv(_triangular(jac))
     except np.linalg.LinAlgError:
         return np.full(jac.shape[1], np.inf)
     return np.sqrt(m * np.sum(rinv * rinv, axis=1))
@@ -205,7 +205,7 @@ def statistics(
     dof = m - n_params
     sigma = float(np.sqrt(residuals @ residuals / dof)) if dof > 0 else float("nan")
     try:
-        r = np.linalg.qr(jac, mode="r")
+        r = _triangular(jac)
         rinv = np.linalg.inv(r)
         cov = rinv @ rinv.T
     except np.linalg.LinAlgError:
