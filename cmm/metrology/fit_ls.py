@@ -237,8 +237,8 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
         # the searches ran coarsely: refine the best few clearly different ones on all points
         picked: list[tuple[int, Solution]] = []
         for i, t in trials:
-            if len(picked) == (REFINE if len(xs) <= 20_000 else 1):
-                break
+            if len(picked) == (REFINE if len(xs) <= 20_000 else 1) or t.cost > 10.0 * trials[0][1].cost:
+                break  # enough, or the rest fit far worse (a rival must fit almost as well)
             if all(_distinct(t.residuals, o.residuals) for _, o in picked):
                 picked.append((i, t))
         refined = [(i, r) for i, t in picked if (r := _run(model_cls, xs, t.state, 300)) is not None]
