@@ -228,6 +228,7 @@ class Dme:
         if self._aborting:
             raise _Aborted()
         self.user_enabled = False  # moves imply DisableUser() (6.3.2.4)
+        self.nominal = None  # until the move ends where it was sent, the commanded position is unknown
         try:
             return fn()
         except LimitError as exc:
