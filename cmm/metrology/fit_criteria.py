@@ -47,10 +47,12 @@ from cmm.metrology.geom_basics import (
     ScaledPoints,
     angular_coverage_deg,
     principal_axes,
+    subsample,
     unit,
 )
 
 METHODS = ("ls", "minzone", "mic", "mcc")
+SEARCH_POINTS = 2000  # points per start in the multi-start searches of the criteria
 
 
 def _prepare(points: Any, kind: str, rank: int, dim: int = 3) -> ScaledPoints:
@@ -209,14 +211,19 @@ def _criterion_ball(xs: np.ndarray, method: str, kind: str) -> tuple[np.ndarray,
                            "probe all round or use least squares / minimum zone")
         c, r = max_inscribed_ball(xs)
         return c, r, ()
-    starts = [ls_state, min_enclosing_ball(xs)]
+    # the search runs on a subsample (an LP per SLP step grows with the points), the best on all
+    sub = subsample(xs, SEARCH_POINTS)
+    starts = [ls_state, min_enclosing_ball(sub)]
     if around:
         try:
-            starts.append(max_inscribed_ball(xs))
+            starts.append(max_inscribed_ball(sub))
         except FitError:
             pass
-    state, runs, differ = _multi_start(model, starts, "minzone",
-                                       lambda st: float(np.ptp(model.residuals_jacobian(st)[0])))
+    sub_model = fm.BallModel(sub)
+    state, runs, differ = _multi_start(sub_model, starts, "minzone",
+                                       lambda st: float(np.ptp(sub_model.residuals_jacobian(st)[0])))
+    if len(sub) < len(xs):
+        state = chebyshev_fit(model, state, "minzone")
     return state[0], state[1], _unproven(kind, "minzone", runs, differ, partial)
 
 
@@ -298,21 +305,26 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     dirs = [frame @ unit(np.array([np.tan(np.radians(a)) * np.cos(b), np.tan(np.radians(a)) * np.sin(b), 1.0]))
             for a in CYLINDER_RINGS_DEG
             for b in np.linspace(0, 2 * np.pi, CYLINDER_AZIMUTHS, endpoint=False) + np.radians(a)]
+    sub = subsample(data.x, SEARCH_POINTS)
     screened = []
     for u in dirs:
         try:
-            value, c, r = _cylinder_screen(data.x, u, method)
+            value, c, r = _cylinder_screen(sub, u, method)
         except (FitError, np.linalg.LinAlgError):
             continue
         screened.append((value, (c, u, r)))
     screened.sort(key=lambda vs: vs[0])
     starts = [(p, u0, ls.radius / data.scale)] + [st for _, st in screened[:CYLINDER_REFINE]]
 
+    sub_model = fm.CylinderModel(sub)
+
     def merit(st: Any) -> float:
-        d = model.residuals_jacobian(st)[0]
+        d = sub_model.residuals_jacobian(st)[0]
         return {"minzone": float(np.ptp(d)), "mcc": float(st[2] + d.max()), "mic": float(-(st[2] + d.min()))}[method]
 
-    state, runs, differ = _multi_start(model, starts, method, merit)
+    state, runs, differ = _multi_start(sub_model, starts, method, merit)
+    if len(sub) < len(data.x):
+        state = chebyshev_fit(model, state, method)  # the best search result, on all points
     pu, uu, ru = state
     coverage = angular_coverage_deg(data.x, pu, uu)
     length = float(np.ptp(data.x @ uu))
