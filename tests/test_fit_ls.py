@@ -247,6 +247,14 @@ def test_circle_10_degree_arc_large_residuals(m):
     assert any("poorly" in w for w in res.warnings)  # a 10 degree arc does not fix the circle well
 
 
+@pytest.mark.parametrize("radius, seed", [(20.0, 5), (50.0, 8), (100.0, 4), (100.0, 15)])
+def test_circle_10_points_10_degree_arc_flat_cost(radius, seed):
+    """Cases where the cost is flat to 1e-13 while the centre is still 1e-6 mm off."""
+    data = ka.circle3d_standard(FAR, TILT, radius, m=10, arc_deg=10.0, form=0.4, plane_form=0.02, seed=seed)
+    res = fit_ls.fit_circle(data.points)
+    assert np.abs(res.center - data.answer["center"]).max() < TOL and abs(res.radius - radius) < TOL
+
+
 @pytest.mark.parametrize("m", [10, 1000])
 def test_circle_2d_10_degree_arc(m):
     data = ka.circle2d(FAR[:2], 50.0, m=m, arc_deg=10.0, form=0.4, seed=2)

@@ -106,6 +106,9 @@ def levenberg_marquardt(
         scale_d = np.maximum(np.sqrt(np.sum(r * r, axis=0)), 1e-12)  # column norms of J (Marquardt scaling)
         if np.linalg.norm(qtd) <= 1e-15 * np.sqrt(max(cost, 1e-300)):
             break  # gradient J^T d vanishes relative to |d|
+        # Gauss-Newton's predicted reduction |Q^T d|^2: when it is below rounding of the cost,
+        # comparing costs says nothing and the (tiny-gradient) GN step is trusted
+        flat = float(qtd @ qtd) <= 1e-10 * cost
         accepted = False
         while True:
             if lam > 0.0:
@@ -118,7 +121,7 @@ def levenberg_marquardt(
             new_d, new_jac = model.residuals_jacobian(new_state)
             new_cost = float(new_d @ new_d)
             # tiny Gauss-Newton steps are trusted even if rounding raises the flat cost a little
-            slack = 1e-10 if lam == 0.0 and np.max(np.abs(step)) < 1e-6 else 1e-14
+            slack = 1e-10 if lam == 0.0 and (flat or np.max(np.abs(step)) < 1e-6) else 1e-14
             if np.isfinite(new_cost) and new_cost <= cost * (1.0 + slack):
                 accepted = True
                 break
