@@ -210,3 +210,25 @@ def test_probe_rapids_over_the_clearance_height(homed):
     xyz = np.array(path)
     over = (xyz[:, 0] > 192.0) & (xyz[:, 0] < 312.0)
     assert over.any() and xyz[over, 2].min() > 59.9  # every point above the part's footprint is at clearance
+
+
+def test_a_jog_goal_is_never_beyond_the_travel_even_if_nobody_polls_again(homed):
+    """Item 6: the modules themselves hold the limit. One jog command near the end of X, then silence."""
+    sim, ctl, _ = homed
+    ctl.move_to(None, [498.5, 100.0, 250.0]).wait()
+    ctl.jog(None, [40.0, 0.0, 0.0])  # the loaded goal: 0.12 s ahead would be 503.3; clamped to 500
+    ctl.clock.sleep(1.0)  # the station is dead: no poll, no dead-man, no re-target
+    assert sim.axis_readings()[0] == pytest.approx(500.0, abs=0.004)
+    ctl.clock.sleep(0.5)
+    assert sim.axis_readings()[0] == pytest.approx(500.0, abs=0.004)
+
+
+def test_a_jog_stops_by_itself_one_horizon_ahead_when_the_loop_stalls(homed):
+    sim, ctl, _ = homed
+    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    for _ in range(10):
+        ctl.jog(None, [0.0, 40.0, 0.0])
+        ctl.run_for(0.03)
+    y = sim.axis_readings()[1]
+    ctl.clock.sleep(1.0)  # the loop stalls (GIL, a hung listener, kill -9): the module stops at its goal
+    assert 0 < sim.axis_readings()[1] - y <= 40.0 * ctl.config.jog.horizon + 0.05
