@@ -1,63 +1,86 @@
-"""Pendant jog release -> zero velocity, over the real WebSocket, against the real-time simulator.
+"""Jog release -> machine standing still, idle and under web load (issue 12 item 5: p99 <= 0.2 s).
 
-For each trial: take control, jog one axis through the pendant protocol (a jog message every 50 ms,
-as pendant.js does) until it runs at speed, then send {"type": "release"} and time until every
-axis reports zero velocity (a station state subscriber timestamps the first all-zero sample).
-The same for a pendant that just goes silent (the dead-man path) and for a closed connection.
-Then the pendant's state update rate as a client sees it.
+The station runs the built-in simulated CMM in real time over TCP (``cmm serve``'s default) with the
+viser UI and the pendant server. A pendant client jogs one axis at jog_fast through the pendant protocol
+(a jog message every 50 ms, as pendant.js does) until it runs at speed, then either sends
+{"type": "release"} or just goes silent (the dead-man path). The stop is timed on the simulator's own
+clock: from the moment the release was sent to the first servo tick after which every module reports
+zero velocity for 20 ms. So a station that is slow to *see* the stop does not hide a machine that is slow
+to stop.
 
-    python benchmarks/bench_jog_release.py [--trials 10]
+Load phase: 20 observer browsers (viser WebSocket clients that receive the scene and their panels) are
+connected, and worker threads keep opening a 200,000-hit session journal and rendering its report in
+the station process, as an observer opening a large session does.
+
+    python benchmarks/bench_jog_release.py [--trials 30] [--observers 20] [--hits 200000]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import random
 import statistics
 import tempfile
 import threading
 import time
+from pathlib import Path
 
 from websockets.sync.client import connect
 
+from cmm.session.journal import encode_event
+from cmm.session.report import render
+from cmm.session.store import DirectoryStore, load_session
 from cmm.station import Station
-from cmm.ui.access import Control
-from cmm.ui.pendant import start_pendant_server
+from cmm.ui.app import StationApp
+
+ZERO_FOR_NS = 20_000_000  # every module at zero velocity this long = standing still
 
 
-class StopWatch:
-    """Timestamps (monotonic) the first state sample with all axes at zero velocity after ``arm()``."""
+class SimStopWatch:
+    """A tick hook on the simulated network: when, in simulated time, did every axis stop after ``arm()``."""
 
-    def __init__(self, station: Station) -> None:
-        self.event = threading.Event()
-        self.armed_at: float | None = None
-        self.stopped_at: float | None = None
-        station.subscribe_state(self._on_state)
+    def __init__(self, network) -> None:  # noqa: ANN001 - cmm.sim.network.SimNetwork
+        self.net = network
+        self.armed_ns: int | None = None
+        self.zero_since: int | None = None
+        self.stop_ns: int | None = None
+        network.add_tick_hook(self)
 
-    def arm(self, at: float | None = None) -> float:
-        self.stopped_at = None
-        self.event.clear()
-        self.armed_at = time.monotonic() if at is None else at
-        return self.armed_at
+    def arm(self) -> None:
+        self.zero_since = self.stop_ns = None
+        self.armed_ns = self.net.wall_ns()
 
-    def _on_state(self, state) -> None:
-        if self.armed_at is not None and self.stopped_at is None and all(a.velocity == 0 for a in state.axes):
-            self.stopped_at = time.monotonic()
-            self.event.set()
+    def __call__(self, net, tick) -> None:  # noqa: ANN001
+        if self.armed_ns is None or self.stop_ns is not None or net.now_ns < self.armed_ns:
+            return
+        if all(m.velocity == 0 for m in net.modules[:3]):
+            if self.zero_since is None:
+                self.zero_since = net.now_ns
+            elif net.now_ns - self.zero_since >= ZERO_FOR_NS:
+                self.stop_ns = self.zero_since
+        else:
+            self.zero_since = None
 
-    def wait(self, timeout: float = 3.0) -> float:
-        if not self.event.wait(timeout):
-            raise RuntimeError("the machine did not stop")
-        assert self.armed_at is not None and self.stopped_at is not None
-        t = self.stopped_at - self.armed_at
-        self.armed_at = None
+    def wait(self, timeout: float = 5.0) -> float:
+        end = time.monotonic() + timeout
+        while self.stop_ns is None:
+            z = self.zero_since  # idle ticks may be skipped once all is quiet
+            if z is not None and self.net.wall_ns() - z > 2 * ZERO_FOR_NS:
+                self.stop_ns = z
+                break
+            if time.monotonic() > end:
+                raise RuntimeError("the machine did not stop")
+            time.sleep(0.002)
+        assert self.armed_ns is not None
+        t = (self.stop_ns - self.armed_ns) / 1e9
+        self.armed_ns = None
         return t
 
 
-def open_pendant(url: str):
-    """A pendant connection whose incoming state messages are read (and dropped) in the background:
-    a client that stops reading cannot answer the server's keepalive pings and is disconnected."""
-    ws = connect(url)
+def open_ws(url: str, **kw):
+    """A WebSocket whose incoming messages are drained in the background (a reading browser)."""
+    ws = connect(url, **kw)
 
     def drain() -> None:
         try:
@@ -70,98 +93,131 @@ def open_pendant(url: str):
     return ws
 
 
-def jog_until_running(ws, station: Station, v: list[float], seconds: float = 0.3) -> float:
-    """Jog for ``seconds`` with a message every 50 ms; returns the time of the last message."""
+def viser_observer(port: int):
+    import msgspec
+    import viser
+    from viser import _messages
+
+    ws = open_ws(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+    camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
+                                           (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+    return ws
+
+
+def write_big_session(root: Path, hits: int) -> str:
+    """A session journal with ``hits`` hits (written without fsync: it only has to exist)."""
+    rng = random.Random(1)
+    name = f"big-{hits}"
+    start = {"config": "default", "tip_radius": 1.0, "pretravel": {"const": 0.0}, "part": "p",
+             "part_pose": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+             "axes": [{"name": n, "counts_per_mm": 500.0, "direction": 1, "home": h, "min": 0.0, "max": 500.0}
+                      for n, h in (("x", 0.0), ("y", 0.0), ("z", 300.0))]}
+    with open(root / f"{name}.jsonl", "w") as f:
+        f.write(encode_event({"seq": 1, "time": time.time(), "kind": "start", **start}) + "\n")
+        for k in range(1, hits + 1):
+            c = [rng.randint(0, 250000), rng.randint(0, 200000), rng.randint(-150000, 0)]
+            m = [c[0] / 500, c[1] / 500, 300 + c[2] / 500]
+            f.write(encode_event({"seq": k + 1, "time": time.time(), "kind": "hit", "id": k, "counts": c,
+                                  "machine": m, "approach": [0.0, 0.0, -1.0], "speed": 2.0, "hit_time": time.time(),
+                                  "point": [m[0], m[1], m[2] - 1.0], "mode": "programmed", "normal": None}) + "\n")
+    return name
+
+
+def jog(ws, v: list[float], seconds: float = 0.3) -> None:
     end = time.monotonic() + seconds
-    while True:
+    while time.monotonic() < end:
         ws.send(json.dumps({"type": "jog", "v": v}))
-        last = time.monotonic()
-        if last > end:
-            return last
         time.sleep(0.05)
+    ws.send(json.dumps({"type": "jog", "v": v}))
 
 
-def summary(name: str, values: list[float]) -> None:
+def run_trials(ws, station: Station, watch: SimStopWatch, trials: int) -> dict[str, list[float]]:
+    fast = station.config.speeds.jog_fast
+    out: dict[str, list[float]] = {"release": [], "silent (dead-man)": []}
+    for i in range(trials):
+        for kind in out:
+            sign = 1 if (i + len(out[kind])) % 2 == 0 else -1  # back and forth inside the travel
+            jog(ws, [sign * fast, 0.0, 0.0])
+            watch.arm()
+            if kind == "release":
+                ws.send(json.dumps({"type": "release"}))
+            out[kind].append(watch.wait())
+            time.sleep(0.1)
+    return out
+
+
+def line(name: str, values: list[float]) -> str:
     ms = sorted(v * 1000 for v in values)
-    print(f"{name:44s} n={len(ms):3d}  median {statistics.median(ms):6.1f} ms  max {ms[-1]:6.1f} ms  "
-          f"min {ms[0]:6.1f} ms")
+    p99 = ms[min(len(ms) - 1, int(round(0.99 * (len(ms) - 1))))]
+    return (f"{name:34s} n={len(ms):3d}  median {statistics.median(ms):6.1f} ms  p99 {p99:6.1f} ms  "
+            f"max {ms[-1]:6.1f} ms")
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=10)
-    args = parser.parse_args()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=30)
+    ap.add_argument("--observers", type=int, default=20)
+    ap.add_argument("--hits", type=int, default=200_000)
+    ap.add_argument("--loaders", type=int, default=2, help="threads opening + reporting the big session")
+    args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        station = Station(session_dir=tmp).start(home=True)
-        control = Control(on_holder_lost=lambda _cid: station.jog_release())
-        server = start_pendant_server(station, control)
-        watch = StopWatch(station)
-        station.move_to([250.0, 200.0, 150.0]).wait(60)  # mid-travel: room to jog both ways
-        speeds = station.config.speeds
-        print(f"machine: jog_fast {speeds.jog_fast:g} mm/s, jog_slow {speeds.jog_slow:g} mm/s, "
-              f"stop deceleration {station.config.accelerations.stop:g} mm/s^2, "
-              f"machine dead-man {station.config.deadman_timeout * 1000:.0f} ms, pendant dead-man "
-              f"{server.deadman * 1000:.0f} ms")
+        root = Path(tmp)
+        t0 = time.perf_counter()
+        big = write_big_session(root, args.hits)
+        print(f"{args.hits:,}-hit session written in {time.perf_counter() - t0:.1f} s "
+              f"({(root / f'{big}.jsonl').stat().st_size / 1e6:.0f} MB)")
+        station = Station(session_dir=root).start(home=True)
+        app = StationApp(station, port=0, pendant_port=0)
+        cfg = station.config
+        print(f"machine: jog_fast {cfg.speeds.jog_fast:g} mm/s, jog mode {cfg.jog.mode} "
+              f"(horizon {cfg.jog.horizon * 1000:.0f} ms of travel), dead-man {cfg.deadman_timeout * 1000:.0f} ms, "
+              f"accelerations jog {cfg.accelerations.jog:g} / stop {cfg.accelerations.stop:g} mm/s^2")
+        watch = SimStopWatch(station.sim.network)
+        stop_load = threading.Event()
+        loads = {"opened": 0, "reported": 0}
         try:
-            ws = open_pendant(server.ws_url)
+            station.move_to([250.0, 200.0, 150.0]).wait(60)
+            ws = open_ws(app.pendant.ws_url)
             ws.send(json.dumps({"type": "take"}))
-            results: dict[str, list[float]] = {}
-            for speed_name in ("jog_fast", "jog_slow"):
-                speed = getattr(speeds, speed_name)
-                key = f"release at {speed_name} ({speed:g} mm/s)"
-                for i in range(args.trials):
-                    sign = 1 if i % 2 == 0 else -1  # back and forth, staying inside the travel
-                    jog_until_running(ws, station, [sign * speed, sign * speed, 0])
-                    watch.arm()
-                    ws.send(json.dumps({"type": "release"}))
-                    results.setdefault(key, []).append(watch.wait())
-                    time.sleep(0.1)
-            key = "silent pendant at jog_fast (dead-man)"
-            for i in range(args.trials):
-                sign = 1 if i % 2 == 0 else -1
-                last = jog_until_running(ws, station, [sign * speeds.jog_fast, 0, 0])
-                watch.arm(at=last)  # nothing more comes after the last jog message
-                results.setdefault(key, []).append(watch.wait())
-                time.sleep(0.1)
-            ws.close()
-            key = "closed connection at jog_fast"
-            for i in range(max(3, args.trials // 2)):
-                c = open_pendant(server.ws_url)
-                c.send(json.dumps({"type": "take"}))
-                sign = 1 if i % 2 == 0 else -1
-                jog_until_running(c, station, [sign * speeds.jog_fast, 0, 0])
-                watch.arm()
-                c.close()
-                results.setdefault(key, []).append(watch.wait())
-                time.sleep(0.1)
-            print("time from the last pendant message to zero velocity on every axis:")
-            for name, values in results.items():
-                summary(name, values)
+            time.sleep(0.3)
+            idle = run_trials(ws, station, watch, args.trials)
+            print("release -> every axis standing still (simulated machine time), idle:")
+            for k, v in idle.items():
+                print("  " + line(k, v))
 
-            # state update rate as a pendant sees it, with two pendants connected
-            clients = [connect(server.ws_url) for _ in range(2)]
-            stamps: list[float] = []
-            end = time.monotonic() + 3.0
-            while time.monotonic() < end:
-                try:
-                    msg = json.loads(clients[0].recv(timeout=0.5))
-                except TimeoutError:
-                    continue
-                if msg.get("type") == "state":
-                    stamps.append(time.monotonic())
-                try:
-                    while True:
-                        clients[1].recv(timeout=0)
-                except TimeoutError:
-                    pass
-            gaps = [b - a for a, b in zip(stamps, stamps[1:])]
-            rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
-            print(f"pendant state updates: {rate:.1f} Hz (target {server.state_hz:g} Hz); interval median "
-                  f"{statistics.median(gaps) * 1000:.1f} ms, max {max(gaps) * 1000:.1f} ms")
-            for c in clients:
-                c.close()
+            observers = [viser_observer(app.port) for _ in range(args.observers)]
+
+            def loader() -> None:
+                store = DirectoryStore(root)
+                while not stop_load.is_set():
+                    session = load_session(store, big)
+                    loads["opened"] += 1
+                    render(session)
+                    loads["reported"] += 1
+
+            threads = [threading.Thread(target=loader, daemon=True) for _ in range(args.loaders)]
+            for t in threads:
+                t.start()
+            time.sleep(3.0)  # let the observers' pages build and the loaders get going
+            t_load = time.perf_counter()
+            loaded = run_trials(ws, station, watch, args.trials)
+            dt = time.perf_counter() - t_load
+            print(f"under load: {len(app.clients)} viser clients connected, {args.loaders} threads opening + "
+                  f"reporting the {args.hits:,}-hit session ({loads['opened']} opened, {loads['reported']} reported "
+                  f"during the whole phase, {dt:.0f} s):")
+            for k, v in loaded.items():
+                print("  " + line(k, v))
+            allv = loaded["release"] + loaded["silent (dead-man)"]
+            p99 = sorted(allv)[min(len(allv) - 1, int(round(0.99 * (len(allv) - 1))))]
+            print(f"target: p99 <= 200 ms under load -> {p99 * 1000:.1f} ms "
+                  f"({'met' if p99 <= 0.2 else 'NOT met'})")
+            for o in observers:
+                o.close()
+            ws.close()
         finally:
-            server.close()
+            stop_load.set()
+            app.close()
             station.close()
 
 

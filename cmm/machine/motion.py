@@ -569,9 +569,20 @@ class Machine:
         motion.extra["goal"] = target
         self._load_line(target, speed, self.config.accelerations.jog)
 
+    def _horizon_stop(self, motion: _Motion | None) -> None:
+        """Stop a horizon jog at the stop deceleration: re-target to where it can stand still."""
+        v = None if motion is None else motion.extra.get("v")
+        speed = 0.0 if v is None else float(np.linalg.norm(v))
+        if speed == 0 or self.state is None or self.inhibit is not None:
+            self._halt("smooth")  # a stop is never inhibited
+            return
+        a = self.config.accelerations.stop
+        target, _ = self.horizon_target(self.state.position, v * (speed / (2 * a)) / self.config.jog.horizon)
+        self._load_line(target, speed, a)
+
     def _jog_stop_axes(self, axes: Any) -> None:
         if self.config.jog.mode == "horizon":
-            self._halt("smooth")
+            self._horizon_stop(self._motion)
             return
         for i in axes:
             axis = self.config.axes[i]
