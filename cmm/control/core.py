@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import sys
 import threading
 import time
 from concurrent.futures import Future
@@ -27,6 +28,7 @@ from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopRepor
 log = logging.getLogger(__name__)
 
 POLL_PAUSE = 0.0002  # s between samples; the link is the limit
+SWITCH_INTERVAL = 0.001  # s: how long another Python thread may hold the interpreter lock when the loop waits
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
@@ -72,6 +74,7 @@ class Controller:
         self._hit_listeners: list[Callable[[Hit], None]] = []
         self._state_posted = False
         self.loop_errors = 0
+        self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
         self._in_poll = False
         machine.driver = self
         machine.subscribe(self._on_sample)
@@ -89,6 +92,9 @@ class Controller:
     def start(self) -> "Controller":
         """Run the machine loop and the dispatcher in their own threads."""
         if self._thread is None:
+            # the loop needs the interpreter lock after every bus reply; with web and report threads busy the
+            # default 5 ms switch interval per waiting thread adds up to a slow loop
+            sys.setswitchinterval(min(sys.getswitchinterval(), SWITCH_INTERVAL))
             self.dispatcher = Dispatcher(on_error=self.dispatcher.on_error).start()
             self._running = True
             self._thread = threading.Thread(target=self._loop, name="machine-loop", daemon=True)
@@ -158,15 +164,34 @@ class Controller:
 
     # --- commands (any thread) ------------------------------------------------------------
 
-    def jog(self, client: str | None, velocity: Any, *, probe: bool = False) -> None:
+    def release_seq(self, client: Any) -> int:
+        """How many jog releases this client has sent: a front end that queues jog messages passes the value
+        it saw when a message arrived (``jog(..., after=)``), so a release is never undone by an older jog."""
+        return self._releases.get(getattr(client, "id", client), 0)
+
+    def jog(self, client: str | None, velocity: Any, *, probe: bool = False, after: int | None = None) -> None:
         """Jog (mm/s per axis); repeat within ``[jog] deadman_timeout`` or it stops. ``probe``: a touch is a hit."""
         v = np.asarray(velocity, dtype=np.float64)
-        if probe:
-            return self._submit(client, "jog", lambda: self.prober.jog_probe(v))
-        return self._submit(client, "jog", lambda: self.machine.jog(v))
+        key = getattr(client, "id", client)
+        seq = self._releases.get(key, 0) if after is None else after
 
-    def jog_release(self, client: str | None) -> None:
-        self._submit(client, "jog_release", self.machine.jog_release, urgent=True)
+        def start() -> None:
+            if self._releases.get(key, 0) != seq:
+                return  # released while this jog waited: a release is never undone by an older jog
+            if probe:
+                self.prober.jog_probe(v)
+            else:
+                self.machine.jog(v)
+        return self._submit(client, "jog", start)
+
+    def jog_release(self, client: str | None, *, wait: bool = False) -> None:
+        """End the jog now. Does not wait for the loop unless ``wait``: a release must never queue behind
+        anything (it goes first in the loop's next step)."""
+        key = getattr(client, "id", client)
+        self._releases[key] = self._releases.get(key, 0) + 1
+        if wait or self._thread is None or threading.current_thread() is self._thread:
+            return self._submit(client, "jog_release", self.machine.jog_release, urgent=True)
+        self._urgent.append(_Command(client, "jog_release", self.machine.jog_release))
 
     def cancel(self, client: str | None, status: MoveStatus) -> None:
         """Cancel one move or probe cycle (decelerates); STOP stops whatever moves."""

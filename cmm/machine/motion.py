@@ -40,7 +40,8 @@ POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; t
 JOG_LOOKAHEAD = 0.03  # s of travel allowed for sampling latency before a jog reaches a travel limit
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
-RETARGET_MIN_S = 0.01  # a horizon jog is re-targeted when its goal would move by more than this much travel
+STOP_MARGIN_S = 0.02  # s of travel added to a horizon stop's goal (sampling and command latency)
+RETARGET_MIN_S = 0.03  # a horizon jog is re-targeted when its goal would move by more than this much travel
 
 log = logging.getLogger(__name__)
 
@@ -577,7 +578,12 @@ class Machine:
             self._halt("smooth")  # a stop is never inhibited
             return
         a = self.config.accelerations.stop
-        target, _ = self.horizon_target(self.state.position, v * (speed / (2 * a)) / self.config.jog.horizon)
+        # where the axes are now: the last sample moved on by the time since it was taken (at most the horizon)
+        here = self.state.position + v * min(max(self.clock.now() - self.state.time, 0.0), self.config.jog.horizon)
+        # the stopping distance, plus a margin for the commands' own latency: a goal short of where the axes
+        # can stop would make them overshoot and come back
+        distance = speed * speed / (2 * a) + speed * STOP_MARGIN_S
+        target, _ = self.horizon_target(here, v * (distance / speed) / self.config.jog.horizon)
         self._load_line(target, speed, a)
 
     def _jog_stop_axes(self, axes: Any) -> None:

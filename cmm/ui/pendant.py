@@ -128,6 +128,7 @@ class _Session:
     local: bool
     authenticated: bool = False  # local, or gave the right code on this connection
     jogging: bool = False
+    epoch: int = 0  # bumped by every release: jogs queued before it are dropped
     last_message: float = 0.0
     last_error: float = 0.0
 
@@ -273,7 +274,7 @@ class PendantServer:
     def _gone(self, session: _Session) -> None:
         if session.jogging:
             session.jogging = False
-            self._station_call(self.api.jog_release, self._who(session))
+            self._release(session)
         self.control.disconnected(session.client_id)
 
     def _station_call(self, fn: Callable[..., Any], *args: Any) -> str | None:
@@ -330,7 +331,7 @@ class PendantServer:
         elif kind == "observe":
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.api.jog_release, self._who(session))
+                self._release(session)
             await self._call(self.control.release, session.client_id)
             await self._send(session, {"type": "control", "control": False})
         elif kind == "jog":
@@ -338,9 +339,10 @@ class PendantServer:
         elif kind == "release":
             if session.jogging or self.control.can_move(session.client_id):
                 session.jogging = False
-                await self._call(self._station_call, self.api.jog_release, self._who(session))
+                self._release(session)
         elif kind == "stop":
-            report = await self._call(self._stop_machine, self._who(session))  # the control core checks may_stop
+            session.epoch += 1  # queued jogs of this pendant are dropped; the stop does not wait behind them
+            report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
             if report.ok:
                 session.jogging = False
             if not report.ok:
@@ -361,7 +363,7 @@ class PendantServer:
         if not self.control.can_move(session.client_id):
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.api.jog_release, self._who(session))
+                self._release(session)
             return await self._error_msg(session, "this pendant is not in control: take control to jog",
                                          throttle=True)
         if not (isinstance(v, list) and len(v) == 3
@@ -372,15 +374,23 @@ class PendantServer:
         if not any(v):
             if session.jogging:
                 session.jogging = False
-                await self._call(self._station_call, self.api.jog_release, self._who(session))
+                self._release(session)
             return
-        error = await self._call(self._jog_if_holder, session, v)
+        error = await self._call(self._jog_if_holder, session, v, session.epoch, self.api.release_seq(self._who(session)))
         if error:
             await self._error_msg(session, error, throttle=True)
 
-    def _jog_if_holder(self, session: _Session, v: list[float]) -> str | None:
-        # the control core checks who holds control when the jog reaches the machine loop
-        error = self._station_call(self.api.jog, self._who(session), v)
+    def _release(self, session: _Session) -> None:
+        """End this pendant's jog at once: straight to the machine loop, not behind queued jog messages."""
+        session.epoch += 1
+        self._station_call(self.api.jog_release, self._who(session))
+
+    def _jog_if_holder(self, session: _Session, v: list[float], epoch: int, seq: int) -> str | None:
+        if epoch != session.epoch:
+            return None  # released while this jog waited in the queue
+        # the control core checks who holds control when the jog reaches the machine loop, and drops it
+        # if this pendant released after the message arrived
+        error = self._station_call(lambda: self.api.jog(self._who(session), v, after=seq))
         session.jogging = error is None
         return error
 
