@@ -278,7 +278,7 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=30)
     ap.add_argument("--observers", type=int, default=20)
     ap.add_argument("--hits", type=int, default=200_000)
-    ap.add_argument("--loaders", type=int, default=2, help="threads opening + reporting the big session")
+    ap.add_argument("--loaders", type=int, default=1, help="threads opening + reporting the big session")
     ap.add_argument("--role", choices=("sim", "station"), help=argparse.SUPPRESS)
     ap.add_argument("--url", help=argparse.SUPPRESS)
     ap.add_argument("--sessions", help=argparse.SUPPRESS)

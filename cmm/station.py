@@ -20,7 +20,8 @@ from typing import Any, Callable
 import numpy as np
 
 from .control import Controller, ControlState, StopReport
-from .machine.config import MachineConfig, load
+from .machine.config import ConfigError, MachineConfig, load
+from .machine.config import load as load_config  # front ends read the machine configuration through the station
 from .machine.motion import Machine, MachineState
 from .machine.probing import Hit, Prober
 from .machine.status import MotionError, MoveStatus

@@ -62,10 +62,13 @@ stopped abruptly, mode ``fault`` with the reason; Reset (link up) or
 Reconnect (link down; positions lost, home again) is the way back.
 """
 
+from ..machine.motion import ContactError, LimitError
+from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
 from .access import AccessPolicy, Client, HolderPolicy, OpenPolicy
 from .core import Controller
 from .modes import ALLOWED, COMMANDS, ControlError, ControlState, Mode, Refused, StopReport
 
-__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "ControlError", "ControlState", "Controller",
-           "HolderPolicy", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused", "StopReport"]
+__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "ContactError", "ControlError", "ControlState",
+           "Controller", "HolderPolicy", "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused",
+           "StopReport", "SurfaceNotFound"]

@@ -49,7 +49,7 @@ BAR_CERTIFICATES = ("ball_bar_300", "ball_bar_200")
 
 
 def calibration_errors() -> tuple[type[BaseException], ...]:
-    from ..machine.probing import SurfaceNotFound
+    from ..control import SurfaceNotFound
     from ..metrology.features import FitError
 
     return (CalibrationError, SurfaceNotFound, MotionError, FitError, ValueError, OSError)

@@ -48,7 +48,8 @@ def _fail(message: str) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..machine.config import ConfigError, load
+    from ..station import ConfigError
+    from ..station import load_config as load
     from ..metrology.mesh import MeshError
     from ..station import Station
 

@@ -1,0 +1,117 @@
+"""The architecture holds: imports go down the layers only, and no module imports itself in a circle.
+
+Layers (README "Architecture"): front ends (ui, cli) -> station (composition root) -> control -> machine
+-> nmc; metrology, session and calibration beside them; the simulator speaks only bytes. Every import
+that runs counts, also those inside functions; imports for type checkers only (``if TYPE_CHECKING:``)
+do not.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import networkx as nx
+
+ROOT = Path(__file__).resolve().parents[1] / "cmm"
+
+# package -> the cmm packages it may import (itself always)
+ALLOWED = {
+    "nmc": set(),
+    "metrology": set(),
+    "toml_text": set(),
+    "data": set(),
+    "machine": {"nmc", "metrology", "data"},
+    "control": {"machine", "nmc"},
+    "sim": {"nmc", "machine", "metrology"},  # machine.config: the axes it simulates; never the driver
+    "session": {"machine", "metrology", "toml_text", "sim"},
+    "calibration": {"machine", "metrology", "nmc", "sim", "toml_text", "session"},
+    "station": {"control", "machine", "metrology", "nmc", "session", "sim", "calibration"},
+    "ui": {"control", "station", "metrology", "session"},
+    "cli": {"station", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc"},
+}
+# known exceptions, each with the reason it is still there
+EXCEPTIONS = {
+    ("cmm.ui.panel_calibration", "calibration"): "the calibration tab still drives the routines and records itself",
+    ("cmm.sim.cmm_sim", "machine"): "the simulated CMM reads the machine configuration",
+}
+# modules that must not be imported from the given package at all
+FORBIDDEN = {("ui", "cmm.machine.motion"), ("ui", "cmm.sim.cmm_sim"), ("ui", "cmm.nmc.bus"),
+             ("control", "cmm.ui.access"), ("machine", "cmm.control.core")}
+
+
+def _modules() -> dict[str, Path]:
+    mods = {}
+    for p in ROOT.rglob("*.py"):
+        parts = p.relative_to(ROOT.parent).with_suffix("").parts
+        name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+        mods[name] = p
+    return mods
+
+
+def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
+    pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    out = set()
+    tree = ast.parse(path.read_text())
+    typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
+                   for n in ast.walk(block)}
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            for alias in node.names:
+                full = f"{mod}.{alias.name}"
+                out.add(full if full in mods else mod)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+    return {m for m in out if m.split(".")[0] == "cmm" and m in mods}
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "cmm"
+
+
+def _graph() -> nx.DiGraph:
+    mods = _modules()
+    g = nx.DiGraph()
+    for name, path in mods.items():
+        g.add_node(name)
+        for target in _imports(name, path, mods):
+            if target != name and not name.startswith(target + "."):  # a package's own __init__ is not a cycle
+                g.add_edge(name, target)
+    return g
+
+
+def test_imports_go_down_the_layers():
+    bad = []
+    for a, b in _graph().edges:
+        la, lb = _layer(a), _layer(b)
+        if la == lb or lb == "cmm" or la == "cmm":
+            continue
+        if la in ALLOWED and lb not in ALLOWED[la] and (a, lb) not in EXCEPTIONS:
+            bad.append(f"{a} -> {b}")
+        if (la, b) in FORBIDDEN:
+            bad.append(f"{a} -> {b} (forbidden)")
+    assert not bad, "imports against the layers:\n" + "\n".join(sorted(bad))
+
+
+KNOWN_CYCLES = [{"cmm.sim.network", "cmm.sim.transport"}]  # the simulator's (a lazy import in network.transport())
+
+
+def test_no_import_cycles():
+    cycles = [c for c in nx.simple_cycles(_graph()) if len(c) > 1 and set(c) not in KNOWN_CYCLES]
+    assert not cycles, f"import cycles: {cycles[:5]}"
+
+
+def test_the_ui_reaches_the_machine_only_through_the_command_api():
+    g = _graph()
+    ui = [n for n in g if n.startswith("cmm.ui")]
+    reached = {t for n in ui for t in g.successors(n)}
+    assert not {t for t in reached if t.startswith(("cmm.machine", "cmm.nmc", "cmm.sim"))}
+    assert any(t.startswith("cmm.control") for t in reached)
