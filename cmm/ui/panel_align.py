@@ -41,7 +41,7 @@ class AlignPanel:
         return self.result
 
     def compute_best_fit(self, ids_text: str) -> Any:
-        from .panels import parse_ids
+        from .ids import parse_ids
 
         try:
             ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.hits)

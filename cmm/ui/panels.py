@@ -30,6 +30,7 @@ from ..control import MotionError
 from ..metrology.features import FitError
 from ..station import StationError
 from .panel_align import AlignPanel
+from .ids import parse_ids  # noqa: F401 - part of this module's interface (tests, other panels)
 from .panel_calibration import CalibrationPanel
 from .panel_features import FeaturesPanel
 from .panel_measure import MeasurePanel
@@ -48,23 +49,6 @@ JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, Pa
                  "0.1, 1, 10 mm) with **S** + arrow for one step. The pendant is its own client: Take control in it.")
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
-
-
-def parse_ids(text: str) -> list[int]:
-    """'1-4, 7 9' -> [1, 2, 3, 4, 7, 9]."""
-    ids: list[int] = []
-    for part in re.split(r"[,\s]+", text.strip()):
-        if not part:
-            continue
-        m = re.fullmatch(r"(\d+)\s*-\s*(\d+)", part)
-        if m:
-            a, b = int(m.group(1)), int(m.group(2))
-            ids.extend(range(min(a, b), max(a, b) + 1))
-        elif part.isdigit():
-            ids.append(int(part))
-        else:
-            raise ValueError(f"'{part}' is not a hit number or a range like 3-7")
-    return ids
 
 
 def _unit(v: Any) -> np.ndarray:
