@@ -232,3 +232,16 @@ def test_a_jog_stops_by_itself_one_horizon_ahead_when_the_loop_stalls(homed):
     y = sim.axis_readings()[1]
     ctl.clock.sleep(1.0)  # the loop stalls (GIL, a hung listener, kill -9): the module stops at its goal
     assert 0 < sim.axis_readings()[1] - y <= 40.0 * ctl.config.jog.horizon + 0.05
+
+
+def test_reconnect_after_a_link_fault_keeps_positions_when_the_modules_kept_them(homed):
+    sim, ctl, port = homed
+    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    port.broken = True
+    ctl.run_for(0.1)
+    assert ctl.state.mode is Mode.FAULT and not ctl.state.link_ok
+    port.broken = False
+    ctl.reconnect(None)
+    assert ctl.state.mode is Mode.IDLE and ctl.state.homed
+    assert ctl.machine.sample().position == pytest.approx([100.0, 100.0, 250.0], abs=0.003)
+    ctl.move_to(None, [110.0, 100.0, 250.0]).wait()

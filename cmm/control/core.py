@@ -375,6 +375,16 @@ class Controller:
         return report
 
     def _halt_all(self, mode: str) -> list[str]:
+        """Stop every axis however bad the link is (the bus's stop-all: a no-reply burst, then an acknowledged
+        stop per module); returns the axes that did not acknowledge."""
+        stop_all = getattr(self.machine.bus, "stop_all", None)
+        if stop_all is not None:
+            try:
+                report = stop_all(mode)
+                silent = set(report.silent)
+                return [a.name.upper() for a in self.config.axes if a.address in silent]
+            except Exception:  # noqa: BLE001 - it never should; then axis by axis below
+                log.exception("stop_all failed")
         failed = []
         for axis, mod in zip(self.config.axes, self.machine.modules):
             try:
@@ -449,15 +459,28 @@ class Controller:
             self._event("reset", message="fault cleared: servos on where the axes stand")
 
     def _reconnect(self) -> None:
-        self.machine.reconnect()
+        kept = False
+        reopen = getattr(self.machine.bus, "reopen", None)
+        if reopen is not None:
+            try:  # the same modules, addresses, rate and positions: nothing was reset
+                reopen()
+                self._halt_all("abrupt")
+                self.machine.sample()
+                kept = True
+            except Exception as exc:  # noqa: BLE001 - they were reset or replaced: start them again
+                log.warning("reopening the link failed (%s): restarting the modules", exc)
+        if not kept:
+            self.machine.reconnect()
         self.machine.inhibit = None
         with self._lock:
             self._fault = None
             self._estop = None
             self._stopped = None
             self._link_ok = True
-            self._homed = self.config.homing.method == "none"
-        self._event("reconnect", message="link restored; positions were lost: home the machine")
+            if not kept:
+                self._homed = self.config.homing.method == "none"
+        self._event("reconnect", message="link restored; positions kept" if kept else
+                    "link restored by restarting the modules; positions were lost: home the machine")
 
     def _home(self) -> None:
         with self._lock:
