@@ -21,10 +21,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..control import ControlError
-from ..machine.motion import ContactError, LimitError
-from ..machine.probing import SurfaceNotFound
-from ..machine.status import MotionError
+from ..control import ContactError, ControlError, LimitError, MotionError, SurfaceNotFound
 from . import protocol as P
 from .backend import Backend
 from .csy import CoordinateSystems
