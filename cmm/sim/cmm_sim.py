@@ -117,11 +117,12 @@ class SimulatedCMM:
 
     def place_artifacts(self, spheres: list) -> None:
         """The operator sets up an artifact: replace the extra spheres by ``spheres`` [(centre, diameter)]."""
-        for ob in self._artifacts:
-            self.world.obstacles.remove(ob)
-        self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in spheres]
-        self.world.obstacles.extend(self._artifacts)
-        self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
+        with self.network.lock:  # not between two servo ticks' probe checks of the host's poll thread
+            for ob in self._artifacts:
+                self.world.obstacles.remove(ob)
+            self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in spheres]
+            self.world.obstacles.extend(self._artifacts)
+            self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
 
     def transport(self):
         """An in-process byte transport to this machine's NMC network (virtual clock)."""

@@ -5,7 +5,8 @@
 
 - ``cmm=1``: the whole simulated CMM (three axes, part, reference sphere, probe on
   the LIMIT inputs; ``config`` is its machine configuration, default the shipped
-  one); otherwise ``modules`` bare modules (default 3).
+  one, whose firmware it runs unless ``firmware`` says otherwise); otherwise
+  ``modules`` bare modules (default 3, firmware pic-servo).
 - ``clock=virtual`` (default): simulated time advances only while the host waits
   (reads, ``sleep``), as fast as the CPU allows, or at most ``pace`` simulated
   seconds per wall second (pace=1: a background poll thread keeps step with
