@@ -69,3 +69,21 @@ def test_pty_serving_follows_the_client_baud_rate():
         port.reset_input_buffer()
         assert len(_transact(port, c.nop(1), 6)) == 6
         port.close()
+
+
+def test_bytes_seen_with_a_rate_change_take_the_rate_the_modules_listen_at():
+    """A late pty server sees new bytes and a new termios speed in one look: a host switching right
+    after its SET_BAUD sent them at the old rate, one talking to switched modules at the new."""
+    from cmm.sim.serve import _sent_rate
+
+    net = SimNetwork(2)
+    net.host_write(bytes(4))
+    for a in (1, 2):
+        net.host_write(c.set_addr(0, a))
+        net.advance(0.002)
+    assert _sent_rate(net, 19200, 57600) == 19200  # modules still at 19200: the SET_BAUD went out first
+    net.host_write(c.set_baud(0xFF, 21))
+    net.advance(0.01)
+    assert {m.baud for m in net.modules} == {57600}
+    assert _sent_rate(net, 19200, 57600) == 57600  # the host switched, then wrote
+    assert _sent_rate(net, 19200, 9600) == 9600  # nobody listens at either: the new rate, and it fails
