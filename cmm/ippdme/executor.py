@@ -116,6 +116,11 @@ class Dme:
     def _report(self, tag: str, err: IppError) -> None:
         self.send(P.error(tag, err))
         self.status.failed(str(err))
+        if self.in_session and err.severity >= 2 and err.number not in (6, 514):  # the cause, not its echoes
+            try:
+                self.backend.note(f"I++ DME error on {tag} {err.method}: {err}")
+            except Exception:  # noqa: BLE001 - the journal may be closing; the client has its answer
+                pass
         if err.severity >= 2 and err.sticky:
             with self._lock:
                 self.error_state = True
@@ -297,6 +302,9 @@ class Dme:
             self.error_state = False
             self.last_errors.clear()
         self.report_format = ("X", "Y", "Z")
+        for name, radius in self.backend.probes():  # a re-qualification since the last session changes the radius
+            if name in self.tools.tools:
+                self.tools.tools[name].radius = radius
         self.in_session = True
         self.status.in_session = True
         self.backend.begin_session(self.client)
