@@ -113,8 +113,9 @@ def test_export_report_and_reevaluate(app, operator, recorded):
     csv_file, json_file = files
     assert csv_file.read_text().count("\n") == 4  # header + 3 hits
     assert json.loads(json_file.read_text())["session"]["hits"] == 3
-    (html,) = _wait(panel.report("first"))
+    html, table = _wait(panel.report("first"))
     assert html.name == "first-report.html" and "<html" in html.read_text()
+    assert table.name == "first-features.csv" and table.read_text().startswith("feature,kind,method,hits,")
     assert panel.last_files == [html]
     _wait(panel.reevaluate("first", "first-r12", tip_radius=1.2, method="ls"))
     rows = {r["name"]: r for r in panel.sessions()}

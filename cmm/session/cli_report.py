@@ -20,6 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--program", metavar="PROGRAM.toml", help="take the feature tolerances from this program")
     parser.add_argument("--tolerance", type=float, help="default tolerance in mm (size, location, form; default 0.02)")
     parser.add_argument("--title", help="report title")
+    parser.add_argument("--csv", metavar="FILE", help="also write the feature table (one row per characteristic) as CSV")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         from .export import resolve_part_mesh
         from .program import load as load_program
-        from .report import write_report
+        from .report import write_features_csv, write_report
         from .store import open_session
 
         session = open_session(args.session, args.store)
@@ -38,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
         program = load_program(args.program) if args.program else None
         write_report(session, args.output, mesh=mesh, program=program, title=args.title,
                      default_tolerance=args.tolerance)
+        if getattr(args, "csv", None):
+            write_features_csv(session, args.csv, program=program, default_tolerance=args.tolerance)
     except (StoreError, JournalError, ProgramError, OSError) as exc:
         print(f"cmm report: {exc}", file=sys.stderr)
         return 1

@@ -210,6 +210,16 @@ class FeaturesPanel:
         cells = " · ".join(f"{h}: {r * 1000:+.1f} µm" for h, r in zip(f.hit_ids, res))
         return f"<div style='font:11.5px system-ui'><b>{html.escape(f.name)}</b> hits (residual): {cells}</div>"
 
+    def detail_markdown(self) -> str:
+        fid = self.capp.selected_feature
+        c = getattr(self.station, "constructed", {}).get(fid) if fid is not None else None
+        if c is None:
+            return self.capp.feature_markdown()
+        r = c.result.summary()
+        value = f"{r['value']:.4f}{'°' if r['kind'] == 'angle' else ' mm'}" if "value" in r else ", ".join(
+            f"{k} ({', '.join(f'{x:.4f}' for x in v)})" for k, v in r.items() if isinstance(v, list))
+        return f"**{c.name}**: constructed {c.operation} of features {c.operands[0]} and {c.operands[1]}: {value}"
+
     def options(self) -> tuple[str, ...]:
         with self.station.lock:
             ids = sorted([(fid, f.name) for fid, f in self.station.features.items()]
@@ -232,6 +242,7 @@ class FeaturesPanel:
         g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
         g["features"].on_update(lambda e: self._chosen(e.target.value))
         g["hits"] = gui.add_html("")
+        g["detail"] = gui.add_markdown(capp.feature_markdown())  # fit details: geometry, uncertainties, warnings
         with gui.add_folder("Hits of the feature", expand_by_default=False):
             hit = gui.add_number("Hit", 1, min=1, step=1)
             gui.add_button("Remove hit and refit").on_click(lambda _: self.remove_hit(int(hit.value)))
@@ -261,7 +272,7 @@ class FeaturesPanel:
             cut = gui.add_number("Max distance (mm)", scale.max_distance, min=0.001, step=0.01)
             gui.add_button("Apply colour map").on_click(lambda _: self.set_colour_scale(band.value, cut.value))
             g["legend"] = gui.add_html(self.legend_html())
-        with gui.add_folder("Report header", expand_by_default=False):
+        with gui.add_folder("Report header"):
             info = self.station.info if isinstance(getattr(self.station, "info", None), dict) else {}
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
                       for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
@@ -293,4 +304,5 @@ class FeaturesPanel:
             self.capp._set(f"features:{key}", "options", options, self.gui.get(key))
         self.capp._set("features:tree", "content", tree_html(self.station, self.capp.selected_feature), self.gui.get("tree"))
         self.capp._set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
+        self.capp._set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))
         self.capp._set("features:legend", "content", self.legend_html(), self.gui.get("legend"))

@@ -509,8 +509,9 @@ class SessionsPanel:
         return text
 
     def report(self, name: str) -> Job | None:
-        """Write the inspection report ``<name>-report.html`` into the sessions folder (and offer it)."""
-        from ..session.report import write_report
+        """Write the inspection report ``<name>-report.html`` and its feature table ``<name>-features.csv``
+        into the sessions folder (and offer them)."""
+        from ..session.report import write_features_csv, write_report
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.0, f"reading {name}")
@@ -520,7 +521,8 @@ class SessionsPanel:
             progress(0.5, "rendering the report")
             out = self.export_dir()
             out.mkdir(parents=True, exist_ok=True)
-            return [write_report(session, out / f"{name}-report.html", mesh=mesh)]
+            return [write_report(session, out / f"{name}-report.html", mesh=mesh),
+                    write_features_csv(session, out / f"{name}-features.csv")]
 
         return self._start("Report", work, self._files_done)
 
@@ -592,7 +594,7 @@ class SessionsPanel:
             gui.add_button("Back to live", color="green").on_click(lambda _: self.back_to_live())
         with gui.add_folder("Export", expand_by_default=False):
             gui.add_button("Export CSV + JSON").on_click(lambda _: (n := self._need()) and self.export(n))
-            gui.add_button("Report (HTML)").on_click(lambda _: (n := self._need()) and self.report(n))
+            gui.add_button("Report (HTML + CSV)").on_click(lambda _: (n := self._need()) and self.report(n))
             g["files"] = gui.add_markdown("")
         with gui.add_folder("Re-evaluate", expand_by_default=False):
             g["re_name"] = gui.add_text("New session", "", hint="empty: <name>-reevaluated")

@@ -45,8 +45,9 @@ AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
 JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, PageUp/PageDown = Z at the "
-                 "selected speed, **Shift** = fast, Esc or Space = stop; **1-5** = step jog size (1 count, 0.01, "
-                 "0.1, 1, 10 mm) with **S** + arrow for one step. The pendant is its own client: Take control in it.")
+                 "pendant's selected speed (Fine / Slow / Fast), hold **Shift** = fast; releasing the key stops; "
+                 "**Esc** or **Space** = stop. Step jogs: the Step size above and the Step X/Y/Z buttons. "
+                 "The pendant is its own client: press Take control in it. A tablet opens the pendant page alone.")
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
 
