@@ -264,3 +264,35 @@ def test_probe_node_follows_micrometre_moves(app, operator):
     time.sleep(0.1)  # a few updater ticks
     assert np.allclose(np.asarray(app.view.probe.position) / SCALE, st.state.position, atol=1e-9)
     assert app.updater.pushes > 0
+
+
+def test_status_bar_auto_measure_and_feature_tree(app, operator):
+    """The status bar's read-out, a face measured from a pick (plan, run), and the tree's verdicts."""
+    from cmm.ui.panel_features import tree_html, typed_nominal
+    from cmm.ui.panel_status import status_html
+
+    st = app.station
+    text = status_html(st, operator.control_text(), frame="Machine", link_rate=100.0)
+    x, y, z = st.state.position
+    mode = str(st.control_state.mode.value).upper()  # idle, or stopped after the previous test's STOP
+    assert f">{mode}</span>" in text and f"X {x:.4f}" in text and "link <span class=''>ok" in text
+    assert "SILENT" in status_html(st, "", link_rate=0.0)
+    part = status_html(st, "", frame="Part")
+    assert "no alignment made" in part
+    above = _above_part(st)
+    assert operator.pick(above, [0, 0, -1]) is not None
+    plan = operator.measure.make_plan(3)
+    assert plan is not None and plan.kind == "plane" and len(plan) == 3
+    assert "3 hits · clearance plane" in operator.measure.text()
+    assert operator.measure.run(name="top face", wait=True), operator.messages[-2:]
+    feature = operator.measure.feature
+    assert feature.name == "top face" and len(feature.hit_ids) == 3 and feature.nominal.kind == "plane"
+    tree = tree_html(st, feature.id)
+    assert "▶" in tree and "top face" in tree and "flatness" in tree and ">pass<" in tree
+    with pytest.raises(Exception, match="no diameter"):
+        typed_nominal(feature, diameter=10.0)
+    # an observer cannot run a measurement
+    viewer = app.add_client(client_id="viewer-2")
+    viewer.picked = operator.picked
+    viewer.measure.make_plan()
+    assert viewer.measure.run() is False and viewer.messages[-1][1] == "Not in control"

@@ -116,7 +116,7 @@ def test_export_report_and_reevaluate(app, operator, recorded):
     html, table = _wait(panel.report("first"))
     assert html.name == "first-report.html" and "<html" in html.read_text()
     assert table.name == "first-features.csv" and table.read_text().startswith("feature,kind,method,hits,")
-    assert panel.last_files == [html]
+    assert panel.last_files == [html, table]
     _wait(panel.reevaluate("first", "first-r12", tip_radius=1.2, method="ls"))
     rows = {r["name"]: r for r in panel.sessions()}
     assert rows["first-r12"]["hits"] == 3 and rows["first-r12"]["features"] == 1

@@ -1,0 +1,241 @@
+"""The operator's station in headless chromium: status bar, auto-measure, feature tree, alignment, report.
+
+One walk through what an operator does on the simulated CMM (1280 x 800, the
+laptop layout): the always-visible status bar, auto-measure of faces picked
+on the part (plan drawn, Run), the feature tree with pass/fail colours, a hit
+removed and the feature refitted, a constructed angle, a 3-2-1 alignment
+from the measured planes (the DRO switches to part coordinates), the report
+header, and the customer report printed to PDF by chromium. Then the idle
+page's bandwidth and the tablet (pendant-only) layout. Screenshots go to
+test-artifacts/station-*.png.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import browser_support as bs
+from netutil import SIM
+
+_reason = bs.unavailable_reason()
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
+              pytest.mark.skipif(_reason is not None, reason=_reason or "")]
+
+pytest.importorskip("viser")
+
+from cmm.session.model import Session  # noqa: E402
+from cmm.session.journal import read_events  # noqa: E402
+from cmm.session.report import features_csv, render  # noqa: E402
+from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+
+LAPTOP = (1280, 800)
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("station-sessions")).start("walk", home=True)
+    yield st
+    st.close()
+
+
+@pytest.fixture(scope="module")
+def app(station):
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
+    yield ui
+    ui.close()
+
+
+def open_station(context, app):
+    before = set(app.clients)
+    page = context.new_page()
+    page.log = bs.PageLog()
+    page.log.attach(page)
+    page.goto(app.url)
+    page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
+    bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
+    (cid,) = set(app.clients) - before
+    page.capp = app.clients[cid]
+    return page
+
+
+def tab(page, name):
+    page.get_by_role("tab", name=name, exact=True).click(force=True)
+    page.wait_for_timeout(300)
+
+
+def choose(page, label, option):
+    """Pick ``option`` in the viser dropdown labelled ``label``."""
+    page.get_by_label(label, exact=True).click(force=True)
+    page.get_by_role("option", name=option, exact=True).click(force=True)
+    page.wait_for_timeout(200)
+
+
+def part_point(station, local):
+    pose = station.part.pose
+    return pose[:3, :3] @ np.asarray(local, float) + pose[:3, 3]
+
+
+def pick_face(page, station, local_point, outward):
+    """The pick a click on the face sends (a ray from outside along the face normal)."""
+    target = part_point(station, local_point)
+    n = station.part.pose[:3, :3] @ np.asarray(outward, float)
+    assert page.capp.pick(target + 40 * n, -n) is not None
+
+
+def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.0):
+    """Auto-measure a face with what the Plan and Run buttons call (the buttons themselves are pressed once,
+    for the top face, in the walk below)."""
+    pick_face(page, station, local_point, outward)
+    assert page.capp.measure.make_plan(hits_per_ring) is not None, page.capp.messages[-2:]
+    before = set(station.features)
+    assert page.capp.measure.run(wait=True), page.capp.messages[-2:]
+    (fid,) = set(station.features) - before
+    return page.capp.measure.plan, station.features[fid]
+
+
+def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
+    with bs.browser_context(viewport=LAPTOP) as context:
+        context.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine: seconds per frame
+        page = open_station(context, app)
+        # --- status bar: state, who has control, DRO, probe; STOP / E-STOP
+        status = page.locator("#cmm-status")
+        status.get_by_text("IDLE").wait_for()
+        x, y, z = station.state.position
+        text = status.inner_text()
+        assert f"X {x:.4f}" in text and f"Z {z:.4f}" in text, text
+        assert "Nobody controls the machine" in text and "not qualified" in text, text
+        page.get_by_role("button", name="Take control").click(force=True)
+        status.get_by_text("You control the machine.").wait_for()
+
+        # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
+        pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
+        tab(page, "Auto-measure")
+        page.get_by_role("button", name="Plan", exact=True).click(force=True)
+        page.get_by_text("4 hits · clearance plane").wait_for()
+        assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
+        bs.screenshot(page, "station-automeasure-plan", timeout=60_000)
+        page.get_by_role("button", name="Run", exact=True).click(force=True)
+        bs.wait_until(lambda: station.features, 90.0, "the auto-measured top face")
+        (top,) = station.features.values()
+        assert top.kind == "plane" and len(top.hit_ids) == 4
+        assert top.nominal is not None and top.nominal.kind == "plane"
+        page.get_by_text("done: plane").wait_for()
+        # the front and left faces (3 hits each) and the boss (two rings of 3: a cylinder)
+        _, front = measure_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0), 3)
+        _, left = measure_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0), 3)
+        _, boss = measure_face(page, station, (80.0, 22.0, 47.0), (1, 0, 0), 3)
+        assert boss.kind == "cylinder" and boss.nominal.params["radius"] == pytest.approx(10.0)
+
+        # --- feature tree: every feature with its characteristics and pass / fail colours
+        tab(page, "Features")
+        tree = page.locator(".cmm-tree")
+        tree.get_by_text("cylindricity").wait_for()
+        for f in (top, front, left, boss):
+            assert f.name in tree.inner_text()
+        assert "position ⌀" in tree.inner_text() and "flatness" in tree.inner_text()
+        # select the top plane (it and its hits highlighted); remove a hit and it refits
+        page.capp.features._chosen(f"{top.id} {top.name}")  # what choosing it in the Feature dropdown calls
+        assert page.capp.selected_feature == top.id and app.view.selected == top.id
+        page.get_by_text(f"{top.name} hits (residual)").wait_for()
+        page.get_by_text("Hits of the feature", exact=True).click(force=True)
+        page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
+        page.get_by_role("button", name="Remove hit and refit").click(force=True)
+        bs.wait_until(lambda: len(station.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
+        assert station.features[top.id].hit_ids == top.hit_ids[1:]
+        # a constructed angle between the front and left faces: 90 degrees, its nominal from the CAD
+        angle = page.capp.features.construct("angle", front.id, left.id)
+        assert angle.result.value == pytest.approx(90.0, abs=0.05) and angle.nominal.value == pytest.approx(90.0)
+        tree.get_by_text("angle", exact=True).wait_for()
+        page.mouse.move(1100, 600)
+        page.mouse.wheel(0, -5000)  # back to the top of the tab: the tree under the tab bar
+        page.wait_for_timeout(500)
+        bs.screenshot(page, "station-feature-tree", timeout=60_000)
+
+        # --- the status bar stays on screen while the panel scrolls to the end of a long tab
+
+        def text_input(label):  # viser's text fields: the input after their label text
+            return page.get_by_text(label, exact=True).locator("xpath=following::input[1]")
+
+        text_input("Operator").fill("A. Operator")
+        text_input("Temperature (°C)").fill("20.3")
+        page.get_by_role("button", name="Save header").click(force=True)
+        bs.wait_until(lambda: station.info.get("temperature") == 20.3, 20.0, "the report header saved")
+        stop_box = page.get_by_role("button", name="E-STOP").bounding_box()
+        save_box = page.get_by_role("button", name="Save header").bounding_box()
+        assert save_box["y"] > LAPTOP[1] / 2  # scrolled down to the end of the tab ...
+        assert 0 <= stop_box["y"] and stop_box["y"] + stop_box["height"] <= LAPTOP[1], stop_box  # ... STOP on screen
+        bs.screenshot(page, "station-scrolled-status-bar", timeout=60_000)
+
+        # --- 3-2-1 alignment from the top, front and left planes; the DRO switches to part coordinates
+        tab(page, "Align")
+        page.capp.align.refresh()
+        for key, f in (("p", top), ("s", front), ("t", left)):
+            page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
+        page.get_by_role("button", name="Compute 3-2-1").click(force=True)
+        page.get_by_text("part origin at").wait_for()
+        before = np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
+        page.get_by_role("button", name="Apply alignment").click(force=True)
+        bs.wait_until(lambda: station.aligned, 20.0, "the alignment applied")
+        after = np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
+        assert before > 0.1 and after < 0.01, (before, after)  # the set-up error is found to a few um
+        assert page.capp.status.frame == "Part"
+        status.get_by_text("part", exact=True).wait_for()
+        pos = station.part.pose[:3, :3].T @ (station.state.position - station.part.pose[:3, 3])
+        assert f"X {pos[0]:.4f}" in status.inner_text()
+        bs.screenshot(page, "station-aligned", timeout=60_000)
+        assert page.log.page_errors == [], page.log.problems
+
+        # --- the customer report of this session, printed to PDF by chromium
+        session = Session.from_events(read_events(station.journal.path).events, "walk")  # fsync'ed per event
+        html = render(session, mesh=station.part.mesh)
+        assert "A. Operator" in html and "20.3 °C" in html
+        assert "No alignment was made" not in html  # aligned; the features measured before it moved with the part
+        assert "angle" in html and "position ⌀" in html
+        rows = features_csv(session).splitlines()
+        assert rows[0].startswith("feature,kind,method") and any(",angle,deg," in r for r in rows)
+        report = bs.ARTIFACTS / "station-report.html"
+        report.write_text(html, encoding="utf-8")
+        rp = context.new_page()
+        rp.goto(report.as_uri())
+        bs.screenshot(rp, "station-report", full_page=True)
+        pdf = rp.pdf(format="A4")
+        (bs.ARTIFACTS / "station-report.pdf").write_bytes(pdf)
+        assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page") >= 2
+
+
+def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
+    """An idle station page receives (almost) nothing; the Jog tab documents the keyboard at 1280 x 800; the
+    pendant page alone fits a tablet with the position, STOP and the jog pad on screen."""
+    with bs.browser_context(viewport=LAPTOP) as context:
+        context.set_default_timeout(60_000)
+        received = []
+        page = context.new_page()
+        page.on("websocket", lambda ws: ws.on("framereceived", lambda payload: received.append(
+            (ws.url, len(payload) if isinstance(payload, (bytes, str)) else 0))) if f":{app.port}" in ws.url else None)
+        page.goto(app.url)
+        page.get_by_role("button", name="E-STOP").wait_for()
+        page.wait_for_timeout(3000)  # the initial GUI and scene
+        received.clear()
+        page.wait_for_timeout(4000)
+        rate = sum(n for _, n in received) / 4.0
+        assert rate < 2000, f"an idle page received {rate:.0f} B/s"  # was ~80 kB/s (the plot re-sent 5x/s)
+        tab(page, "Jog")
+        page.get_by_text("Keyboard").first.wait_for()
+        page.get_by_text("PageUp/PageDown").scroll_into_view_if_needed()
+        page.wait_for_timeout(500)
+        bs.screenshot(page, "station-jog-laptop", timeout=60_000)
+
+    with bs.browser_context(viewport=(800, 1280), has_touch=True, is_mobile=True) as context:
+        context.set_default_timeout(60_000)
+        pendant = context.new_page()
+        pendant.goto(app.pendant.url)
+        pendant.locator("#stop").wait_for()
+        for sel in ("#stop", ".pad"):
+            box = pendant.locator(sel).bounding_box()
+            assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= 1280, (sel, box)
+        x = station.state.position[0]
+        pendant.get_by_text(f"{x:.3f}").first.wait_for()  # the DRO
+        bs.screenshot(pendant, "station-pendant-tablet")
