@@ -350,6 +350,16 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
            default_tolerance: float | None = None, colour_tolerance: float | None = None,
            max_distance: float | None = None) -> str:
     """The report as an HTML string."""
+    from .bulk import gc_paused
+
+    with gc_paused():  # see cmm.session.bulk: no collector passes over a big session while it is drawn
+        return _render(session, mesh=mesh, program=program, title=title, default_tolerance=default_tolerance,
+                       colour_tolerance=colour_tolerance, max_distance=max_distance)
+
+
+def _render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
+            default_tolerance: float | None = None, colour_tolerance: float | None = None,
+            max_distance: float | None = None) -> str:
     st = session.state
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}

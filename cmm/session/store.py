@@ -89,8 +89,11 @@ class SessionStore(Protocol):
 
 def load_session(store: SessionStore, name: str) -> Session:
     """Open a recorded session (no machine needed); a damaged tail is reported in ``session.damage``."""
-    contents = store.read(name)
-    return Session.from_events(contents.events, name, contents.damage)
+    from .bulk import gc_paused
+
+    with gc_paused():  # a big journal would otherwise stall every thread of the station for seconds
+        contents = store.read(name)
+        return Session.from_events(contents.events, name, contents.damage)
 
 
 # --------------------------------------------------------------------------- directory
