@@ -189,6 +189,18 @@ class Station:
             self.sim.home_switches = HomeSwitches(self.sim, self.config.homing.input,
                                                   self.config.homing.active_level == "high")
 
+    @property
+    def simulated(self) -> bool:
+        return self.sim is not None
+
+    def place_sim_artifacts(self, spheres: list) -> None:
+        """On the simulator: the operator sets up artifacts [(centre, diameter)]; under the simulator's lock, so
+        its servo ticks never see the world half changed."""
+        if self.sim is None:
+            raise StationError("there is no simulator: place the artifact by hand")
+        with self.sim.network.lock:
+            self.sim.place_artifacts(spheres)
+
     # --- life cycle -----------------------------------------------------------
 
     def start(self, session_name: str | None = None, *, home: bool = False) -> "Station":

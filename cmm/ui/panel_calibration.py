@@ -376,14 +376,13 @@ class CalibrationPanel:
         raise CalibrationError(f"unknown routine {routine!r}")
 
     def _placer(self, certs: dict[str, BallBarCertificate]) -> Callable[[Any], None]:
-        sim = self.station.sim
-        if sim is not None:
+        if self.station.simulated:
             rng = np.random.default_rng(7)
 
             def place_sim(s: Any) -> None:  # the simulated operator clamps the bar within 0.3 mm
                 d = certs[s.artifact].ball_diameter
                 off = rng.uniform(-0.3, 0.3, 3)
-                sim.place_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
+                self.station.place_sim_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
             return place_sim
 
         def place_operator(s: Any) -> None:
