@@ -1,9 +1,9 @@
 """Jog release -> machine standing still, idle and under web load (issue 12 item 5: p99 <= 0.2 s).
 
-Three processes, as in use: the simulated CMM (real time, served over TCP, with home switches; it
+Four processes, as in use: the simulated CMM (real time, served over TCP, with home switches; it
 stands in for the hardware and keeps the stop-watch), the station (``Station`` on
-``socket://...`` with the viser UI and the pendant server), and this script, which plays the
-browsers. A pendant client jogs X at jog_fast through the pendant protocol (a jog message every
+``socket://...`` with the viser UI and the pendant server), the observer browsers, and this script,
+which plays the operator's pendant. A pendant client jogs X at jog_fast through the pendant protocol (a jog message every
 50 ms, as pendant.js does) until it runs at speed, then either sends {"type": "release"} or just
 goes silent (the dead-man path). The stop is timed on the simulator's clock: from the moment the
 release was sent (CLOCK_MONOTONIC, shared by the processes) to the first servo tick after which
@@ -279,7 +279,7 @@ def main() -> None:
     ap.add_argument("--observers", type=int, default=20)
     ap.add_argument("--hits", type=int, default=200_000)
     ap.add_argument("--loaders", type=int, default=1, help="threads opening + reporting the big session")
-    ap.add_argument("--role", choices=("sim", "station"), help=argparse.SUPPRESS)
+    ap.add_argument("--role", choices=("sim", "station", "observers"), help=argparse.SUPPRESS)
     ap.add_argument("--url", help=argparse.SUPPRESS)
     ap.add_argument("--sessions", help=argparse.SUPPRESS)
     ap.add_argument("--big", help=argparse.SUPPRESS)
@@ -288,6 +288,15 @@ def main() -> None:
         return run_sim()
     if args.role == "station":
         return run_station(args.url, args.sessions, args.big, args.loaders)
+    if args.role == "observers":  # the observer browsers: a process of their own, as browsers are
+        clients = [viser_observer(int(args.url)) for _ in range(args.observers)]
+        print("connected", len(clients), flush=True)
+        for line in sys.stdin:
+            if line.strip() == "quit":
+                break
+        for c in clients:
+            c.close()
+        return None
     from cmm.machine.config import load
 
     fast = load().speeds.jog_fast
@@ -309,7 +318,8 @@ def main() -> None:
             print("release -> every axis standing still (simulated machine time, separate processes):")
             for k, v in run_trials(ws, sim, fast, args.trials).items():
                 print("  idle        " + line(k, v))
-            observers = [viser_observer(int(viser_port)) for _ in range(args.observers)]
+            observers = Proc("--role", "observers", "--url", viser_port, "--observers", str(args.observers))
+            observers.expect("connected")
             station.send("load")
             station.expect("loading")
             time.sleep(3.0)  # the observers' pages build, the loaders get going
@@ -325,8 +335,7 @@ def main() -> None:
             p99 = pct(loaded["release"], 0.99)
             print(f"target: release-to-stop p99 <= 200 ms under load -> {p99 * 1000:.1f} ms "
                   f"({'met' if p99 <= 0.2 else 'NOT met'})")
-            for o in observers:
-                o.close()
+            observers.close()
             ws.close()
         finally:
             if station is not None:
