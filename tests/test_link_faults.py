@@ -325,3 +325,17 @@ def test_the_machine_never_publishes_one_axis_reading_for_another_under_stalls()
         assert machine.bus.stats["resyncs"] >= 6
     finally:
         machine.close()
+
+
+def test_a_real_jump_is_confirmed_by_the_module_and_accepted():
+    """Continuity is a cross-check, not a filter: an axis that really jumped (pushed with the servo
+    off, a slipped encoder) is re-read after a resynchronisation and then reported as it is."""
+    net, port, bus, mods = parked()
+    net.modules[0].enc_offset -= 4000  # the encoder suddenly reads 4000 counts further
+    net.modules[0].quiet = False  # (a module at rest is skipped by the simulator until something changes)
+    bus.clock.sleep(0.002)
+    st = mods[0].nop()
+    assert st.position == pytest.approx(PARK[1] + 4000, abs=50)
+    assert st.pos_error  # (the servo saw it too: position error limit)
+    assert bus.stats["suspect"] == 1
+    assert positions_ok(mods[1:], PARK) == []

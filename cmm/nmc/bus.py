@@ -380,12 +380,13 @@ class Bus:
     def _confirm_jump(self, address: int, suspect: codec.Status) -> codec.Status | None:
         """A reply that jumped: resynchronise and read the position again; keep the reply only if it agrees."""
         self.stats["suspect"] += 1
+        t0 = self.clock.now()
         self.resync(address)
         check = self._attempt(codec.read_stat(address, codec.SEND_POS), codec.SEND_POS)
         if check is None or check.cksum_error or check.position is None or suspect.position is None:
             return None
         speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
-        if abs(check.position - suspect.position) <= speed * 0.1 + CONTINUITY_MARGIN:
+        if abs(check.position - suspect.position) <= speed * (self.clock.now() - t0 + 0.002) + CONTINUITY_MARGIN:
             return suspect  # a real jump (a servo let go, a capture...): both readings agree
         return None
 
