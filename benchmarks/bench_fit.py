@@ -77,7 +77,7 @@ BUILDERS: dict[str, Callable[[int], ka.KnownAnswer]] = {
 
 # criteria and the largest size each is run at (LP / Voronoi / hull cost grows faster than LS)
 CRITERIA_CAPS = {
-    ("plane", "minzone"): 10**5,   # exact hull width, O(h^2) in hull vertices
+    ("plane", "minzone"): 10**5,   # LP on the hull vertices with a certificate (bench_flatness.py)
     ("line", "minzone"): 10**4,    # SLP, 2m LP rows
     ("circle", "minzone"): 10**4,  # SLP
     ("circle", "mic"): 10**4,      # exact, 2D Voronoi: qhull is slow on cocircular points (22 s at 1e5)
