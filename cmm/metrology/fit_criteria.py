@@ -1,18 +1,22 @@
 """Minimum zone, maximum inscribed and minimum circumscribed features.
 
-method      line        plane      circle         sphere         cylinder
-"minzone"   SLP (3D)    exact      SLP (vertex)   SLP            SLP
+method      line        plane        circle           sphere           cylinder
+"minzone"   SLP (3D)    LP, certified multi-start SLP  multi-start SLP  axis search + SLP
             exact (2D)
-"mic"       -           -          exact          exact          SLP
-"mcc"       -           -          exact          exact          SLP
+"mic"       -           -            exact            exact            axis search + SLP
+"mcc"       -           -            exact            exact            axis search + SLP
 
-exact: convex-hull width (fit_hull) for straightness in a plane and
-flatness; Welzl minimum enclosing ball and Voronoi maximum empty ball
-(fit_enclosing) for MCC / MIC circles and spheres.  SLP: sequential linear
-programming from the least-squares solution (fit_chebyshev); for the
-minimum-zone circle it converges to the exact optimum when, as generically,
-four points are active (two on each limiting circle), and otherwise gives a
-local optimum near the least-squares solution.
+exact: convex-hull width (fit_hull) for straightness in a plane; Welzl
+minimum enclosing ball (a convex problem: global, also for partial features)
+and Voronoi maximum empty ball (global when the points surround the centre;
+refused otherwise, as it is unbounded) for MCC / MIC circles and spheres.
+Flatness: linear programs on the hull vertices with a certificate of global
+optimality (fit_hull.min_width_3d), the exact hull enumeration as fallback.
+SLP: sequential linear programming (fit_chebyshev); minimum-zone circles and
+spheres start from the least-squares, MCC and MIC solutions; cylinders search
+axis directions around the least-squares axis (see ``cylinder``).  Where the
+global optimum is not proven (partial or short features, searches ending in
+different optima) the result carries a warning.
 
 3D circles are evaluated in the least-squares plane of their points
 (points projected into it).  Results use the feature classes of
@@ -20,7 +24,7 @@ local optimum near the least-squares solution.
 the mid surface of the zone for minzone, to the surface itself for
 mic / mcc), form = max - min residual (the zone width for minzone; 3D line:
 the diameter of the cylindrical zone), sigma as for least squares;
-covariance is NaN (not defined for these criteria).
+covariance is NaN and uncertainty empty (not defined for these criteria).
 """
 
 from __future__ import annotations
