@@ -147,6 +147,7 @@ class Bus:
         self._vmax: dict[int, float] = {}  # address -> fastest loaded speed, counts/s
         self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
         self._armed: set[int] = set()  # modules with a home capture armed
+        self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -294,6 +295,7 @@ class Bus:
                     self._vmax[a] = max(self._vmax.get(a, 0.0), lt.velocity / 65536 / codec.TICK_SECONDS)
                 if lt.control & codec.START_NOW:
                     self._buffered.pop(a, None)
+                    (self._free.discard if lt.control & codec.ENABLE_SERVO else self._free.add)(a)
                 elif lt.position is not None and lt.control & codec.ENABLE_SERVO and not lt.control & codec.VEL_MODE:
                     self._buffered[a] = lt.position
                 else:
@@ -301,13 +303,21 @@ class Bus:
         elif code == codec.SET_HOMING and data:
             for a in members:
                 (self._armed.add if data[0] & CAPTURE_BITS else self._armed.discard)(a)
+        elif code == codec.STOP_MOTOR and data:
+            for a in members:
+                (self._free.add if data[0] & codec.MOTOR_OFF else self._free.discard)(a)
         elif code in (codec.RESET_POS, codec.HARD_RESET):
             for a in members:
                 self._last.pop(a, None)
+                if code == codec.HARD_RESET:
+                    self._free.add(a)
 
     def _plausible(self, address: int, status: codec.Status, code: int) -> bool:
-        """Position continuity: a module cannot have moved faster than it was ever told to."""
-        if status.position is None or address >= 0x80 or code in (codec.RESET_POS, codec.HARD_RESET):
+        """Position continuity: a module under servo cannot have moved faster than it was ever told to.
+
+        (In PWM mode or with the motor off nothing bounds the speed: no check.)"""
+        if (status.position is None or address >= 0x80 or address in self._free
+                or code in (codec.RESET_POS, codec.HARD_RESET)):
             return True
         last = self._last.get(address)
         if last is None:
@@ -386,7 +396,7 @@ class Bus:
         if check is None or check.cksum_error or check.position is None or suspect.position is None:
             return None
         speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
-        if abs(check.position - suspect.position) <= speed * (self.clock.now() - t0 + 0.002) + CONTINUITY_MARGIN:
+        if abs(check.position - suspect.position) <= speed * (self.clock.now() - t0 + 0.02) + CONTINUITY_MARGIN:
             return suspect  # a real jump (a servo let go, a capture...): both readings agree
         return None
 
@@ -681,6 +691,7 @@ class Bus:
                 self._last.clear()
                 self._buffered.clear()
                 self._armed.clear()
+                self._free.clear()
                 self.modules = []
                 bauds = [codec.POWER_UP_BAUD] if attempt == 0 else [
                     *(b for b in codec.BAUD_DIVISORS[self.firmware] if b != codec.POWER_UP_BAUD), codec.POWER_UP_BAUD]
@@ -688,6 +699,7 @@ class Bus:
                     self._reset_at(b)
                 self.groups.clear()
                 found = self._discover()
+                self._free.update(found)  # power-up state: PWM mode until a servo command
                 if found and (expected is None or len(found) == expected):
                     break
             if not found:
