@@ -306,3 +306,27 @@ def test_viser_app_loads(context, tmp_path):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(5)
+
+
+def test_keyboard_step_mode_one_press_one_step(page, server, station):
+    """Keys 1-4 pick a step size (shown on the page); each arrow press is one step; 0 returns to hold-to-jog."""
+    open_pendant(page, server)
+    start = station.state.position.copy()
+    page.keyboard.press("3")  # 1 mm steps
+    assert page.locator(".steps button.sel").inner_text() == "1"
+    page.keyboard.press("ArrowRight")
+    bs.wait_until(lambda: abs(station.state.position[0] - start[0] - 1.0) < 0.003 and not station.state.moving,
+                  10.0, "the 1 mm step")
+    page.keyboard.press("PageDown")
+    bs.wait_until(lambda: abs(station.state.position[2] - start[2] + 1.0) < 0.003 and not station.state.moving,
+                  10.0, "the Z- step")
+    page.keyboard.press("2")
+    page.keyboard.down("ArrowUp")  # held: still one 0.1 mm step (no auto-repeat steps)
+    page.wait_for_timeout(600)
+    page.keyboard.up("ArrowUp")
+    bs.wait_until(lambda: not station.state.moving, 5.0, "the end of the step")
+    moved = station.state.position - start
+    assert moved == pytest.approx([1.0, 0.1, -1.0], abs=0.003)
+    page.keyboard.press("0")
+    assert page.locator(".steps button.sel").inner_text() == "Hold"
+    assert page.log.page_errors == [], page.log.problems

@@ -142,18 +142,42 @@
   var JOG_KEYS = { ArrowRight: 1, ArrowLeft: 1, ArrowUp: 1, ArrowDown: 1, PageUp: 1, PageDown: 1 };
   function typing(e) { var t = e.target; return t && (t.tagName === "INPUT" || t.tagName === "TEXTAREA"); }
 
+  // step mode (keys 1-4): one press of an arrow / PageUp / PageDown = one step of that size
+  var stepSize = 0;
+  var STEP_KEYS = { "0": 0, "1": 0.01, "2": 0.1, "3": 1, "4": 10 };
+  var STEP_AXIS = { ArrowRight: [0, 1], ArrowLeft: [0, -1], ArrowUp: [1, 1], ArrowDown: [1, -1],
+                    PageUp: [2, 1], PageDown: [2, -1] };
+  function selectStep(size) {
+    stepSize = size;
+    Array.prototype.forEach.call(document.querySelectorAll(".steps button"), function (b) {
+      b.classList.toggle("sel", +b.dataset.step === size);
+    });
+  }
+  Array.prototype.forEach.call(document.querySelectorAll(".steps button"), function (btn) {
+    btn.addEventListener("click", function () { selectStep(+btn.dataset.step); });
+  });
+
   window.addEventListener("keydown", function (e) {
     if (typing(e)) return;
     if (e.key === "Shift") { keyboard.Shift = true; tick(); return; }
     if (e.key === "Escape" || e.key === " ") { e.preventDefault(); stopNow(); return; }
+    if (e.key in STEP_KEYS) { e.preventDefault(); releaseAll(false); selectStep(STEP_KEYS[e.key]); return; }
     if (!JOG_KEYS[e.key]) return;
     e.preventDefault();
+    if (stepSize > 0) {
+      if (!e.repeat) {
+        if (!hasControl) { showMessage("take control to jog", true); return; }
+        var a = STEP_AXIS[e.key];
+        send({ type: "step", axis: a[0], mm: a[1] * stepSize });
+      }
+      return;
+    }
     keyboard.Shift = e.shiftKey;
     if (!keyboard[e.key]) { keyboard[e.key] = true; tick(); }
   });
   window.addEventListener("keyup", function (e) {
     if (e.key === "Shift") { keyboard.Shift = false; tick(); return; }
-    if (!JOG_KEYS[e.key]) return;
+    if (!JOG_KEYS[e.key] || stepSize > 0) return;
     e.preventDefault();
     delete keyboard[e.key];
     tick();                      // sends the release now when nothing else is held

@@ -23,6 +23,8 @@ client -> server
   clamped to ``speeds.jog_fast``; all zeros is a release. Only the control
   holder may jog; it must repeat the message (every 50 ms) while the jog lasts.
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
+- ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
+  10 mm; only the control holder.
 - ``{"type": "stop"}``: controlled stop of whatever the machine is doing, under
   the station's one STOP policy (:meth:`~cmm.ui.access.Control.may_stop`, the
   same as the viser page's): the holder, a local pendant, or one that gave
@@ -340,6 +342,8 @@ class PendantServer:
             if session.jogging or self.control.can_move(session.client_id):
                 session.jogging = False
                 self._release(session)
+        elif kind == "step":
+            await self._step(session, msg.get("axis"), msg.get("mm"))
         elif kind == "stop":
             session.epoch += 1  # queued jogs of this pendant are dropped; the stop does not wait behind them
             report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
@@ -377,6 +381,17 @@ class PendantServer:
                 self._release(session)
             return
         error = await self._call(self._jog_if_holder, session, v, session.epoch, self.api.release_seq(self._who(session)))
+        if error:
+            await self._error_msg(session, error, throttle=True)
+
+    async def _step(self, session: _Session, axis: Any, mm: Any) -> None:
+        """One step jog (keyboard step mode): holder only, 1 count .. 10 mm along X, Y or Z."""
+        if not self.control.can_move(session.client_id):
+            return await self._error_msg(session, "this pendant is not in control: take control to jog", throttle=True)
+        if not (axis in (0, 1, 2) and isinstance(mm, (int, float)) and not isinstance(mm, bool) and math.isfinite(mm)
+                and 0 < abs(mm) <= 10.0):
+            return await self._error_msg(session, "a step needs an axis 0..2 and a size of up to 10 mm", throttle=True)
+        error = await self._call(self._station_call, lambda: self.api.step(self._who(session), "xyz"[axis], float(mm)))
         if error:
             await self._error_msg(session, error, throttle=True)
 
