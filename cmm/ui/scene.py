@@ -197,7 +197,7 @@ class SceneView:
         self.origin_mm = np.round(pose[:3, 3])
         self.scene.add_frame("/local", show_axes=False, position=tuple(self.origin_mm * SCALE))
         self.scene.add_mesh_simple("/part", (np.asarray(part.mesh.vertices) * SCALE).astype(np.float32),
-                                   np.asarray(part.mesh.faces, np.uint32), color=(150, 170, 190),
+                                   np.asarray(part.mesh.faces, np.uint32), color=(96, 128, 170),  # darker: the part reads against the table
                                    wxyz=quat_from_matrix(pose[:3, :3]), position=tuple(pose[:3, 3] * SCALE),
                                    flat_shading=False, opacity=0.85)
 
