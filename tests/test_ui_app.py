@@ -296,3 +296,29 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator):
     viewer.picked = operator.picked
     viewer.measure.make_plan()
     assert viewer.measure.run() is False and viewer.messages[-1][1] == "Not in control"
+
+
+def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, operator):
+    """Another local client takes over: the previous holder gets an alert. Re-take: the next hit replaces
+    the chosen one in the selected feature, which refits."""
+    st = app.station
+    assert operator.pick(_above_part(st), [0, 0, -1]) is not None
+    plan = operator.measure.make_plan(3)
+    assert operator.measure.run(wait=True), operator.messages[-2:]
+    feature = operator.measure.feature
+    operator.select_feature(feature.id)
+    old = feature.hit_ids[1]
+    operator.features.retake_hit(old)
+    assert operator.features.retake is not None
+    p, u = plan.points[1], plan.approaches[1]
+    _wait_done(st.probe(p, u, client=operator.who()), 40)
+    operator.features.refresh()
+    refit = st.features[feature.id]
+    assert old not in refit.hit_ids and len(refit.hit_ids) == 3 and old not in st.hits
+    assert refit.hit_ids[1] == max(st.hits)
+    operator.refresh()
+    other = app.add_client(client_id="second-operator", is_local=True)
+    assert other.take_control()
+    operator.refresh()
+    assert operator.messages[-1][:2] == ("error", "Control taken"), operator.messages[-2:]
+    other.release_control()

@@ -156,6 +156,7 @@ class ClientApp:
         self.gui: dict[str, Any] = {}
         self._shown: dict[str, Any] = {}
         self.live_trace = False
+        self._had_control = False
         self._plot_key: bytes | None = None
         self.sessions = SessionsPanel(self)
         self.calibration = CalibrationPanel(self)
@@ -450,7 +451,16 @@ class ClientApp:
 
     def release_control(self) -> None:
         self.jog_release()
+        self._had_control = False
         self.control.release(self.client_id)
+
+    def watch_control(self) -> None:
+        """Tell this tab when another client took control from it (it may have been about to jog)."""
+        holder = self.control.holder
+        if self._had_control and holder != self.client_id:
+            self.notify("Control taken", f"{holder or 'nobody'} now controls the machine; this tab observes.",
+                        "error")
+        self._had_control = holder == self.client_id
 
     def control_text(self) -> str:
         holder = self.control.holder
@@ -549,6 +559,7 @@ class ClientApp:
 
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
+        self.watch_control()
         if not self.gui:
             return
         st = self.station
