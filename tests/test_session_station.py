@@ -110,3 +110,35 @@ def test_manual_hits_are_taken_at_the_qualified_probing_speed(station):
     assert len(station.hits) == before + 1
     hit = station.hits[max(station.hits)]
     assert hit.mode == "manual" and hit.speed == pytest.approx(1.5, rel=1e-6)
+
+
+def test_best_fit_alignment_is_journaled_and_moves_the_nominals(station, tmp_path):
+    """Best fit of hits on three faces finds the simulator's set-up error; applying it journals the
+    alignment (with residuals) and carries every feature's CAD nominal along with the part."""
+    from cmm import alignment
+    from cmm.sim.cmm_sim import TRUE_PART_POSE
+    from session_support import ALIGN_HITS
+
+    pose = station.part.pose.copy()
+    ids = []
+    for p, u in ALIGN_HITS:
+        target = (pose @ np.append(np.asarray(p, float), 1.0))[:3]
+        hit = station.probe(target, pose[:3, :3] @ np.asarray(u, float), clearance_z=70.0).wait(30)
+        ids.append(station.hit_id(hit))
+    top = station.fit_feature("plane", ids[:4], name="top")
+    before = top.nominal.params["point"].copy()
+    result = alignment.best_fit_hits(station, ids)
+    assert result.residuals["RMS"] < 0.002 and result.info["converged"]
+    assert np.abs(result.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
+    shift, angle = result.shift(pose)
+    assert shift > 0.1 and 0.3 < angle < 0.7  # the simulator's part is ~0.5 deg and a few tenths off
+    assert "moved" in result.text(pose) and "RMS" in result.text(pose)
+    alignment.apply(station, result)
+    assert station.aligned and np.allclose(station.part.pose, result.pose)
+    moved = result.pose @ np.linalg.inv(pose)
+    assert np.allclose(station.features[top.id].nominal.params["point"], moved[:3, :3] @ before + moved[:3, 3])
+    station.journal.close()
+    s = load_session(DirectoryStore(tmp_path), "recorded")
+    assert s.state.alignment.method == "best_fit" and s.state.alignment.info["hit_ids"] == ids
+    with pytest.raises(ValueError, match="at least 6"):
+        alignment.best_fit_hits(station, ids[:3])
