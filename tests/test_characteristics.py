@@ -13,7 +13,7 @@ from cmm.metrology.colour_scale import BLUE, CYAN, GREEN, GREY, RED, AMBER, Colo
 from cmm.metrology.feature_distance import around_axis, surface_distance
 from cmm.metrology.nominal_match import nominal_for_points
 from cmm.metrology.transform import as_pose
-from cmm.session.wording import error_text, event_text, grouped
+from cmm.session.wording import error_text, event_text, event_title, grouped
 from cmm.sim.sample_part import sample_part
 
 
@@ -118,6 +118,8 @@ def test_machine_events_in_words():
     assert error_text("machine:contact", "{'position': [1.0, 2.0, 3.0]}").startswith("Unexpected probe contact at X 1.000")
     assert error_text("recorder", "plain words") == "plain words"
     assert grouped(["a", "b", "a"]) == [("a", 2), ("b", 1)]
+    assert event_title("contact") == "Unexpected probe contact" and event_title("deadman") == "Jog stopped"
+    assert event_text("fault", {"message": "module 2 did not answer"}) == "module 2 did not answer"
 
 
 def test_constructed_features_and_their_nominals():

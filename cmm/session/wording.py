@@ -13,7 +13,8 @@ from collections import Counter
 from typing import Any
 
 TITLES = {"contact": "Unexpected probe contact", "deadman": "Jog stopped", "limit": "End of travel",
-          "error": "Machine error", "estop": "Emergency stop", "fault": "Machine fault"}
+          "error": "Machine error", "estop": "Emergency stop", "fault": "Machine fault", "homed": "Homed",
+          "reset": "Reset", "reconnect": "Reconnected", "stop": "STOP not confirmed"}
 
 
 def _xyz(v: Any) -> str:
@@ -38,7 +39,7 @@ def event_text(kind: str, info: Any = None) -> str:
         return "The jog stopped: the browser stopped refreshing it (dead-man)."
     if kind == "limit":
         return f"The jog stopped at the end of travel of the {str(d.get('axis', '?')).upper()} axis."
-    if kind == "estop":
+    if kind == "estop" and not d.get("message"):
         return "Emergency stop: amplifiers off. Reset re-enables the servos."
     message = d.get("message") or d.get("reason") or (info if isinstance(info, str) else "")
     if message:

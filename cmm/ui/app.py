@@ -186,12 +186,13 @@ class StationApp:
             self._dirty["part"] = True
         elif kind in ("deadman", "limit", "contact", "error", "estop", "fault", "homed", "reset", "reconnect") or \
                 (kind == "stop" and isinstance(info, dict) and not info.get("ok", True)):
-            text = {"deadman": "jog stopped: no refresh from the browser (dead-man)",
-                    "limit": f"jog stopped at the end of travel ({info.get('axis', '?') if isinstance(info, dict) else ''})",
-                    }.get(kind, str(info.get("message", info) if isinstance(info, dict) else info))
+            from ..session.wording import event_text, event_title
+
+            # toasts in words: "Unexpected probe contact at X ... Y ... Z ...", not "contact {'position': [...]}"
+            text = event_text(kind, info)
             level = "error" if kind in ("contact", "error", "estop", "fault", "stop") else "info"
             for capp in list(self.clients.values()):
-                capp.notify(kind, text, level)
+                capp.notify(event_title(kind), text, level)
 
     def deviations(self) -> dict[int, float]:
         return self._deviations
