@@ -27,7 +27,6 @@ from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopRepor
 
 log = logging.getLogger(__name__)
 
-POLL_PAUSE = 0.0002  # s between samples; the link is the limit
 SWITCH_INTERVAL = 0.001  # s: how long another Python thread may hold the interpreter lock when the loop waits
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
@@ -567,18 +566,21 @@ class Controller:
                 self._publish()
             return self.machine.state
 
+    @property
+    def poll_pause(self) -> float:
+        return self.machine.poll_pause  # longer on the virtual clock, where samples cost CPU only
+
     def _loop(self) -> None:
         while self._running:
             self.poll()
-            self.clock.sleep(POLL_PAUSE)
+            self.clock.sleep(self.poll_pause)
 
     def run_for(self, seconds: float) -> None:
         """Drive the loop for ``seconds`` of machine time (no thread: scripts and tests on the virtual clock)."""
         end = self.clock.now() + seconds
         while self.clock.now() < end:
             self.poll()
-            if self._fault is not None:
-                self.clock.sleep(0.01)
+            self.clock.sleep(0.01 if self._fault is not None else self.poll_pause)
 
     # --- state ----------------------------------------------------------------------------------
 

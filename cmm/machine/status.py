@@ -85,6 +85,9 @@ class MoveStatus:
                 if deadline is not None and clock.now() > deadline:
                     raise TimeoutError(f"{self.description} not finished after {timeout} s")
                 drv.poll()
+                pause = getattr(drv, "poll_pause", 0.0)
+                if pause and not self.done:
+                    clock.sleep(pause)
         elif not self._event.wait(timeout):
             raise TimeoutError(f"{self.description} not finished after {timeout} s")
         if self.error is not None:

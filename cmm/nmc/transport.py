@@ -27,9 +27,18 @@ class Clock(Protocol):
     def now(self) -> float: ...
     def sleep(self, seconds: float) -> None: ...
 
+    # optional: ``virtual`` True for a simulated clock that only runs while the host waits
+
+
+def is_virtual(clock: object) -> bool:
+    """True for the simulator's virtual clock (time passes only when the host waits)."""
+    return bool(getattr(clock, "virtual", False))
+
 
 class WallClock:
     """Real time, for real ports and served simulators."""
+
+    virtual = False
 
     def now(self) -> float:
         return time.monotonic()

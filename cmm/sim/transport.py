@@ -128,6 +128,11 @@ class SimTransport:
         self.close()
 
     # clock ------------------------------------------------------------------------
+    @property
+    def virtual(self) -> bool:
+        """Simulated time that runs only while the host waits (not the wall clock)."""
+        return not self.network.realtime
+
     def now(self) -> float:
         """Simulated seconds since power-up (wall time when real time)."""
         net = self.network
