@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM
+from netutil import SIM, SIM_PACED
 
 from cmm.session.model import mesh_sha256
 from cmm.session.store import DirectoryStore, SessionBusy, load_session
@@ -92,8 +92,17 @@ def test_report_fields_cad_nominals_tolerances_and_refit(station, tmp_path):
     assert rec.nominal["kind"] == "cylinder"
 
 
-def test_manual_hits_are_taken_at_the_qualified_probing_speed(station):
+@pytest.fixture
+def paced_station(tmp_path):
+    # a person's jog refreshes come in wall time: the simulated clock must not race past the dead-man
+    st = Station(port=SIM_PACED, session_dir=tmp_path).start("manual", home=True)
+    yield st
+    st.close()
+
+
+def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):
     """An armed jog at the 10 mm/s jog speed probes at the probing speed the probe was qualified at."""
+    station = paced_station
     assert station.qualified_probing_speed == station.config.speeds.probing
     station.calibration_status = {**station.calibration_status, "probe": {"date": "x", "probing_speed": 1.5}}
     assert station.qualified_probing_speed == 1.5
