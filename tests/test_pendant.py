@@ -8,6 +8,7 @@ import urllib.error
 import urllib.request
 
 import pytest
+from browser_support import stop_time
 from netutil import SIM_PACED
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
@@ -118,17 +119,9 @@ def now(station) -> float:
     return station.state.time
 
 
-def time_to_stop(station, since: float, limit: float = 2.0) -> float:
+def time_to_stop(station, since: float) -> float:
     """Simulated seconds from ``since`` (simulated) until every axis stands still."""
-    wall_end = time.monotonic() + 60
-    while time.monotonic() < wall_end:
-        state = station.state
-        if max(abs(a.velocity) for a in state.axes) < 1e-9:
-            return state.time - since
-        if state.time - since > limit:
-            break
-        time.sleep(0.002)
-    raise AssertionError(f"the machine still moves {limit} s after the last message ({speed(station):.2f} mm/s)")
+    return stop_time(station, since, "the stop after the last message")
 
 
 def wait_moving(station, timeout: float = 1.0) -> None:
