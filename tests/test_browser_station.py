@@ -181,7 +181,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: station.aligned, 20.0, "the alignment applied")
         after = np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         assert before > 0.1 and after < 0.01, (before, after)  # the set-up error is found to a few um
-        assert page.capp.status.frame == "Part"
+        bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates")
         status.get_by_text("part", exact=True).wait_for()
         pos = station.part.pose[:3, :3].T @ (station.state.position - station.part.pose[:3, 3])
         assert f"X {pos[0]:.4f}" in status.inner_text()
