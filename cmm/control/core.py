@@ -496,9 +496,12 @@ class Controller:
         self._event("homed", message="homing cycle done")
 
     def _homing_tick(self) -> None:
-        """Between homing samples: serve STOP / E-STOP (which abort the cycle)."""
+        """Between homing samples: serve STOP / E-STOP (which abort the cycle); other commands are answered
+        at once (refused: the machine is homing)."""
         if self._urgent:
             self._serve(self._urgent)
+        if self._queue:
+            self._serve(self._queue)
         if self._estop is not None or self._stopped is not None or self._fault is not None:
             self.machine._halt("abrupt")
             raise MotionError("homing aborted: " + (self._fault or self._estop or self._stopped or ""))
