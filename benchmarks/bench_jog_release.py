@@ -291,8 +291,8 @@ def main() -> None:
     if args.role == "observers":  # the observer browsers: a process of their own, as browsers are
         clients = [viser_observer(int(args.url)) for _ in range(args.observers)]
         print("connected", len(clients), flush=True)
-        for line in sys.stdin:
-            if line.strip() == "quit":
+        for text in sys.stdin:
+            if text.strip() == "quit":
                 break
         for c in clients:
             c.close()

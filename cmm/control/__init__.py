@@ -16,7 +16,10 @@ string; ``None`` is the station itself (scripts, CLI, homing):
 
 =========================  ===================================================================
 ``jog(client, v, probe=)``  mm/s per axis; repeat at least every ``[jog] deadman_timeout`` (0.15 s)
-``jog_release(client)``    end the jog now
+``jog_release(client)``    end the jog now (does not wait: goes first in the loop's next step, and
+                           drops this client's jogs still queued; ``release_seq``/``jog(after=)`` for
+                           front ends that queue jog messages themselves)
+``cancel(client, status)`` cancel one move or probe cycle
 ``move_to(client, xyz)``   coordinated move -> :class:`~cmm.machine.status.MoveStatus`
 ``move_path / step``       path of moves; one-axis step (1 count .. 10 mm)
 ``probe(client, p, u)``    programmed hit; the rapid goes over ``clearance_z`` (default: the higher of
