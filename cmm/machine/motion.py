@@ -282,7 +282,9 @@ class Machine:
         motion.status.finish(result, error)
 
     def start_polling(self) -> None:
-        """Sample continuously in a background thread (for the UI)."""
+        """Sample continuously in a background thread (scripts; the station uses the control core's loop).
+
+        Any failure stops every axis abruptly and fails the running move; the thread goes on sampling."""
         if self._thread is not None:
             return
         self.polling = True
@@ -291,13 +293,23 @@ class Machine:
             while self.polling:
                 try:
                     self.poll()
-                except NmcError as exc:
+                except Exception as exc:  # noqa: BLE001 - never a dead poll thread under a moving machine
                     self._emit("error", message=str(exc))
+                    self._safe_stop(exc)
                     self.clock.sleep(0.05)
                 self.clock.sleep(self.poll_pause)
 
         self._thread = threading.Thread(target=loop, name="machine-poll", daemon=True)
         self._thread.start()
+
+    def _safe_stop(self, exc: BaseException) -> None:
+        try:
+            self.bus.stop_all("abrupt")
+        except Exception:  # noqa: BLE001 - stop_all never raises; a broken bus object might
+            pass
+        motion, self._motion = self._motion, None
+        if motion is not None:
+            motion.status.finish(error=MotionError(f"stopped after a failure: {exc}"))
 
     def stop_polling(self) -> None:
         self.polling = False
