@@ -131,6 +131,8 @@ class _Session:
     authenticated: bool = False  # local, or gave the right code on this connection
     jogging: bool = False
     epoch: int = 0  # bumped by every release: jogs queued before it are dropped
+    pending: Any = None  # the newest jog not yet sent to the machine: (v, epoch, release count)
+    jog_task: Any = None
     last_message: float = 0.0
     last_error: float = 0.0
 
@@ -380,9 +382,18 @@ class PendantServer:
                 session.jogging = False
                 self._release(session)
             return
-        error = await self._call(self._jog_if_holder, session, v, session.epoch, self.api.release_seq(self._who(session)))
-        if error:
-            await self._error_msg(session, error, throttle=True)
+        # the newest jog replaces one still waiting; the message loop never waits for the machine (a slow
+        # loop must not stop this connection from reading, or its keepalive pongs would go unanswered)
+        session.pending = (v, session.epoch, self.api.release_seq(self._who(session)))
+        if session.jog_task is None or session.jog_task.done():
+            session.jog_task = asyncio.create_task(self._run_jogs(session))
+
+    async def _run_jogs(self, session: _Session) -> None:
+        while session.pending is not None:
+            (v, epoch, seq), session.pending = session.pending, None
+            error = await self._call(self._jog_if_holder, session, v, epoch, seq)
+            if error:
+                await self._error_msg(session, error, throttle=True)
 
     async def _step(self, session: _Session, axis: Any, mm: Any) -> None:
         """One step jog (keyboard step mode): holder only, 1 count .. 10 mm along X, Y or Z."""
