@@ -48,7 +48,7 @@ def tree_html(station: Any, selected: int | None = None) -> str:
         built = sorted(getattr(station, "constructed", {}).items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
-    rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11.5px system-ui'>"
+    rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11px system-ui'>"
             "<tr style='color:#666'><th align=left>feature</th><th align=right>nominal</th><th align=right>actual</th>"
             "<th align=right>dev</th><th align=right>tol</th><th></th></tr>"]
     items = [(fid, f.name, f"{f.kind} · {f.method} · {len(f.hit_ids)} hits", feature_chars(f)) for fid, f in feats]
@@ -68,9 +68,10 @@ def tree_html(station: Any, selected: int | None = None) -> str:
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
             actual = "—" if c.actual is None else f"{c.actual:.4f}{unit}"
             dev = "" if c.deviation is None else f"{c.deviation:+.4f}"
-            rows.append(f"<tr style='{bg}'><td style='padding-left:14px'>{e(c.name)}</td><td align=right>{nominal}</td>"
+            rows.append(f"<tr style='{bg}'><td style='padding-left:10px'>{e(c.name.replace(' (along the normal)', ''))}"
+                        f"</td><td align=right>{nominal}</td>"
                         f"<td align=right>{actual}</td><td align=right>{dev}</td>"
-                        f"<td align=right>{e(c.tolerance_text)}</td>"
+                        f"<td align=right style='white-space:nowrap'>{e(c.tolerance_text)}</td>"
                         f"<td style='color:{RESULT_COLOURS[c.ok]};font-weight:600'>{RESULT_WORDS[c.ok]}</td></tr>")
     rows.append("</table>")
     return "".join(rows)
@@ -231,18 +232,18 @@ class FeaturesPanel:
     def build(self, gui: Any) -> None:
         g = self.gui
         capp = self.capp
-        with gui.add_folder("Fit"):
+        g["tree"] = gui.add_html(tree_html(self.station))
+        g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
+        g["features"].on_update(lambda e: self._chosen(e.target.value))
+        g["hits"] = gui.add_html("")
+        g["detail"] = gui.add_markdown(capp.feature_markdown())  # fit details: geometry, uncertainties, warnings
+        with gui.add_folder("Fit hits"):
             kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
             method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
             kind.on_update(lambda e: setattr(method, "options", fit_criteria.methods_for(e.target.value)))
             ids = gui.add_text("Hit ids", "", hint="e.g. 1-4, 7; empty = the last N hits")
             last_n = gui.add_number("Last N hits", 4, min=0, step=1)
             gui.add_button("Fit").on_click(lambda _: capp.fit(kind.value, method.value, ids.value, int(last_n.value)))
-        g["tree"] = gui.add_html(tree_html(self.station))
-        g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
-        g["features"].on_update(lambda e: self._chosen(e.target.value))
-        g["hits"] = gui.add_html("")
-        g["detail"] = gui.add_markdown(capp.feature_markdown())  # fit details: geometry, uncertainties, warnings
         with gui.add_folder("Hits of the feature", expand_by_default=False):
             hit = gui.add_number("Hit", 1, min=1, step=1)
             gui.add_button("Remove hit and refit").on_click(lambda _: self.remove_hit(int(hit.value)))
