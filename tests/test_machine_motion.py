@@ -156,3 +156,33 @@ def test_jog_stops_inside_the_travel(sim_machine):
     assert "limit" in events
     assert 0.0 <= m.position[1] < 1.5
     m.step("y", 0.1).wait()  # and it can still step
+
+
+def test_velocity_mode_jog_for_firmware_without_goal_changes():
+    """[jog] mode = "velocity": the dead-man in the loop stops it, the travel limit watch too."""
+    from dataclasses import replace
+
+    from cmm.machine.config import load
+    from cmm.machine.motion import Machine
+    from cmm.sim.cmm_sim import SimulatedCMM
+
+    config = load()
+    config = replace(config, jog=replace(config.jog, mode="velocity"))
+    sim = SimulatedCMM(config)
+    m = Machine(config, sim.transport())
+    m.connect()
+    try:
+        m.move_to([100.0, 100.0, 200.0]).wait()
+        for _ in range(6):
+            m.jog([20.0, 0.0, 0.0])
+            m.run_for(0.05)
+        last = m.clock.now()
+        assert m.position[0] > 103
+        while m.busy and m.clock.now() - last < 1.0:
+            m.poll()
+        assert not m.busy and m.clock.now() - last <= 0.25
+        x = m.position[0]
+        m.run_for(0.3)
+        assert m.position[0] == pytest.approx(x, abs=0.003)
+    finally:
+        m.close()
