@@ -93,7 +93,7 @@ def speed(station) -> float:
 
 def take_control(page, app) -> None:
     page.get_by_role("button", name="Take control").click()
-    page.get_by_text("You control the machine.").wait_for()
+    page.get_by_text("You control the machine.").first.wait_for()
     assert app.control.holder == page.capp.client_id
 
 
@@ -155,7 +155,7 @@ def test_page_loads_and_shows_the_position(open_page, station):
     for axis, value in zip("XYZ", (x, y, z)):
         cells = machine_row(page, axis)
         assert cells[1] == f"{value:.4f}", (axis, cells)
-    assert page.get_by_text("Nobody controls the machine. You observe.").is_visible()
+    assert page.get_by_text("Nobody controls the machine. You observe.").first.is_visible()
     bs.screenshot(page, "viser-browser-loaded")
     # the software-WebGL notice (if any) is a warning, not an error: only errors count
     assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
@@ -245,7 +245,7 @@ def test_observer_cannot_jog(open_page, app, station):
     holder = app.add_client(client_id="other-operator", is_local=True)  # another client holds control
     try:
         assert holder.take_control()
-        observer.get_by_text("Observing; control is held by").wait_for()
+        observer.get_by_text("Observing; control is held by").first.wait_for()
         open_tab(observer, "Jog")
         station.wait_idle(20)
         start = station.state.position.copy()
@@ -260,7 +260,7 @@ def test_observer_cannot_jog(open_page, app, station):
             assert any(title == "Jog" and "only observes" in body for _lvl, title, body in observer.capp.messages), \
                 observer.capp.messages[-3:]
             holder.release_control()
-            observer.get_by_text("Nobody controls the machine. You observe.").wait_for()
+            observer.get_by_text("Nobody controls the machine. You observe.").first.wait_for()
     finally:
         holder.release_control()
     bs.screenshot(observer, "viser-browser-observer")

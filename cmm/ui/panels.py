@@ -48,6 +48,7 @@ JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, Pa
                  "pendant's selected speed (Fine / Slow / Fast), hold **Shift** = fast; releasing the key stops; "
                  "**Esc** or **Space** = stop. Step jogs: the Step size above and the Step X/Y/Z buttons. "
                  "The pendant is its own client: press Take control in it. A tablet opens the pendant page alone.")
+LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser may run callbacks out of order)
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
 
@@ -153,6 +154,7 @@ class ClientApp:
         self._last_hold = 0.0
         self._last_error = ("", 0.0)
         self._zero_armed = 0.0
+        self._released_at = 0.0
         self.gui: dict[str, Any] = {}
         self._shown: dict[str, Any] = {}
         self.live_trace = False
@@ -288,18 +290,21 @@ class ClientApp:
 
     def jog_hold(self, axis: int, sign: int) -> None:
         """Called repeatedly while a jog button is held: refreshes the machine loop's dead-man jog."""
+        if time.monotonic() - self._released_at < LATE_HOLD_S:
+            return  # a hold event that arrived after the button's release must not start the jog again
         v = self.jog_velocity(axis, sign)
         try:
             self.api.jog(self.who(), self.station.manual_probe_velocity(v) if self.manual_probe else v,
                          probe=self.manual_probe)
         except OPERATOR_ERRORS as exc:
-            self._throttled_error("Jog refused", str(exc))
+            self._throttled_error("Jog", str(exc))
             return
         self._jogging = True
         self._last_hold = time.monotonic()
 
     def jog_release(self) -> None:
         """The button was released (viser's click event fires on release) or the holds stopped coming."""
+        self._released_at = time.monotonic()
         if self._jogging:
             self._jogging = False
             try:
@@ -560,6 +565,9 @@ class ClientApp:
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
         self.watch_control()
+        st_now = self.station.state
+        if self._jogging and st_now is not None and not st_now.jogging:
+            self._jogging = False  # the machine loop ended the jog (dead-man, limit, contact, stop)
         if not self.gui:
             return
         st = self.station
