@@ -136,7 +136,9 @@ class Machine:
     def connect(self) -> list[ModuleInfo]:
         """Initialise the network and every axis: gains, status items, inputs, group, servo on."""
         with self._lock:
-            infos = self.bus.initialize(self.config.link.baud)
+            # a truncated chain (a module that missed its address under load) is retried, not accepted
+            infos = self.bus.initialize(self.config.link.baud,
+                                        expected_modules=max(a.address for a in self.config.axes))
             found = {m.address for m in infos}
             for axis in self.config.axes:
                 if axis.address not in found:
