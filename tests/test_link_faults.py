@@ -15,24 +15,15 @@ import serial
 from cmm.nmc import codec
 from cmm.nmc.bus import Bus, LinkError, NmcError
 from cmm.nmc.faults import Fault, FaultProxy, FaultyTransport
-from cmm.nmc.module import Module
 from cmm.sim.network import SimNetwork
-from cmm.sim.plant import DEFAULT_GAINS
 from cmm.sim.serve import serve_tcp
+from test_bus import ready  # one start-up helper for the bus tests
 
 PARK = {1: 5000, 2: 10000, 3: -25000}  # the swap: [-25000, 5000, 10000] published for these
 VEL = codec.velocity_to_fixed(50, 500)
 ACC = codec.acceleration_to_fixed(500, 500)
 
 
-def ready(bus: Bus) -> list[Module]:
-    mods = [Module(bus, m.address) for m in bus.modules]
-    for m in mods:
-        m.define_status(codec.SEND_POS | codec.SEND_AUX)
-        m.set_gains(DEFAULT_GAINS)
-        m.clear_bits()
-        m.enable()
-    return mods
 
 
 def parked(seed: int = 1) -> tuple[SimNetwork, FaultyTransport, Bus, list[Module]]:
