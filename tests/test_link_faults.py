@@ -15,6 +15,7 @@ import serial
 from cmm.nmc import codec
 from cmm.nmc.bus import Bus, LinkError, NmcError
 from cmm.nmc.faults import Fault, FaultProxy, FaultyTransport
+from cmm.nmc.module import Module
 from cmm.sim.network import SimNetwork
 from cmm.sim.serve import serve_tcp
 from test_bus import ready  # one start-up helper for the bus tests
