@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from .lines import read_lines
 from .protocol import Response, data_items, parse_response
 
 
@@ -65,24 +66,14 @@ class IppClient:
         self._thread.start()
 
     def _read(self) -> None:
-        buf = b""
+        def take(raw: bytes) -> None:
+            resp = parse_response(raw.decode("ascii"))
+            with self._cond:
+                self.received.append(resp)
+                self._cond.notify_all()
+
         try:
-            while True:
-                try:
-                    chunk = self.sock.recv(65536)
-                except socket.timeout:
-                    continue
-                except OSError:
-                    break
-                if not chunk:
-                    break
-                buf += chunk
-                while b"\r\n" in buf:
-                    raw, buf = buf.split(b"\r\n", 1)
-                    resp = parse_response(raw.decode("ascii"))
-                    with self._cond:
-                        self.received.append(resp)
-                        self._cond.notify_all()
+            read_lines(self.sock, take)
         finally:
             with self._cond:
                 self._closed = True

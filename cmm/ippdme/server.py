@@ -20,6 +20,7 @@ from .backend import Backend
 from .csy import CoordinateSystems
 from .errors import IppError
 from .executor import Dme
+from .lines import read_lines
 from .status import IppStatus
 from .tools import Limits, ToolChanger
 
@@ -93,24 +94,9 @@ class _Connection:
                 return
 
     def _read(self) -> None:
-        buf = b""
         try:
-            while self.alive:
-                try:
-                    chunk = self.sock.recv(65536)
-                except socket.timeout:
-                    continue
-                except OSError:
-                    break
-                if not chunk:
-                    break
-                buf += chunk
-                while b"\n" in buf:
-                    raw, buf = buf.split(b"\n", 1)
-                    self._line(raw[:-1] if raw.endswith(b"\r") else raw)
-                if len(buf) > P.MAX_LINE:
-                    buf = b""
-                    self.send(P.error(P.UNSOLICITED, IppError(8, "Server", "line too long")))
+            read_lines(self.sock, self._line, alive=lambda: self.alive, max_line=P.MAX_LINE,
+                       on_overflow=lambda: self.send(P.error(P.UNSOLICITED, IppError(8, "Server", "line too long"))))
         finally:
             self.alive = False
             self.dme.close()
