@@ -40,14 +40,11 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from cmm.nmc import codec as c
 from cmm.sim.picservo import PicServo, divisor_rate, rates_match, standard_rate
 from cmm.sim.plant import DEFAULT_PLANT, Plant, PlantParams
-
-if TYPE_CHECKING:
-    from cmm.sim.transport import SimTransport
+from cmm.sim.transport import SimTransport
 
 TICK_NS = 512_000
 MAX_LAG_NS = 250_000_000
@@ -143,10 +140,8 @@ class SimNetwork:
         self.lock = threading.RLock()  # held by a serving thread around every step
         self._update_chain()
 
-    def transport(self, baudrate: int = c.POWER_UP_BAUD, timeout: float | None = 0.1) -> "SimTransport":
+    def transport(self, baudrate: int = c.POWER_UP_BAUD, timeout: float | None = 0.1) -> SimTransport:
         """An in-process pyserial-like port on this network."""
-        from cmm.sim.transport import SimTransport
-
         return SimTransport(self, baudrate=baudrate, timeout=timeout)
 
     # --- world API ------------------------------------------------------------

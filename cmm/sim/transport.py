@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import TYPE_CHECKING
 
-from cmm.sim.network import SimNetwork
+if TYPE_CHECKING:  # the network makes its transports: importing it here would make a circle
+    from cmm.sim.network import SimNetwork
 
 # A blocking read (timeout None) on a virtual clock still gives up after this
 # much simulated time, so a host waiting for a reply that never comes ends.
