@@ -63,6 +63,13 @@ def test_malformed_lines_and_unknown_commands_get_errors_and_the_server_carries_
         assert c.call("GetDMEVersion()").data == ['DMEVersion("1.4.3")']
         assert c.call("GetErrStatusE()").data == ["ErrStatus(0)"]
         assert parse_response(f"{c.received[0].tag} {c.received[0].kind}").tag == "00001"
+        before = len([r for r in c.received if r.tag == "E0000"])
+        c.sock.sendall(b"00079 Get(X(" + b"1" * 70000)  # over the 65,536-character line limit, no terminator yet
+        wait_until(lambda: len([r for r in c.received if r.tag == "E0000"]) > before)
+        assert [r.error_number for r in c.received if r.tag == "E0000"][before:] == [8]
+        c.sock.sendall(b"))\r\n")  # the rest of the dropped line is one more malformed line; then on as before
+        c.call("ClearAllErrors()")
+        assert c.call("GetDMEVersion()").data == ['DMEVersion("1.4.3")']
 
 
 def test_a_fast_query_is_answered_during_a_move_and_a_reused_tag_is_refused(served):
