@@ -252,6 +252,26 @@ def test_the_command_line_client_runs_commands_and_nist_programs(served, capsys,
     assert main(["ippdme-client", "nohost:notaport"]) == 2
 
 
+def test_an_estop_from_a_browser_is_error_0500_on_the_move_and_unsolicited(served):
+    from cmm.control import Client
+
+    server, station = served
+    with connected(server) as c:
+        ready(c, speed=20)
+        tag = c.send(FAR)
+        c.wait(tag, "&")
+        wait_until(lambda: station.machine.busy)
+        assert station.controller.emergency_stop(Client("tab-1", local=True)).ok
+        c.wait(tag, "%")
+        assert [r.error_number for r in c.received if r.tag == tag and r.kind == "!"] == [500]
+        wait_until(lambda: any(r.tag == "E0000" and r.error_number == 500 for r in c.received))
+        assert c.call("GetErrStatusE()").data == ["ErrStatus(1)"]  # severity 3: the client must clear it
+        assert c.call("GoTo(X(1))").errors[0].error_number == 514
+        station.controller.reset(None)  # the operator releases the latch at the station
+        assert c.call("ClearAllErrors()").ok
+        assert c.call("GoTo(X(10), Y(10), Z(290))").ok
+
+
 def test_addresses():
     assert parse_address(None) == ("127.0.0.1", 1294)
     assert parse_address("0.0.0.0:1295") == ("0.0.0.0", 1295)

@@ -19,6 +19,7 @@ import numpy as np
 class Backend(Protocol):
     config: Any  # MachineConfig: travel, speeds, probe distances
     homed: bool
+    estopped: bool  # latched until the operator resets it
 
     def position(self) -> np.ndarray: ...
     def check_target(self, target: np.ndarray) -> np.ndarray: ...
@@ -29,6 +30,7 @@ class Backend(Protocol):
     def stop(self) -> None: ...
     def probes(self) -> list[tuple[str, float]]: ...
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]: ...
+    def on_emergency_stop(self, fn: Callable[[str], None]) -> Callable[[], None]: ...
     def begin_session(self, client: str) -> str: ...
     def for_client(self, peer: str) -> "Backend": ...
     def acquire(self) -> str | None: ...
@@ -107,6 +109,19 @@ class StationBackend:
             if state.machine is not None:
                 fn(state.machine)
         return self.controller.subscribe_state(forward)
+
+    def on_emergency_stop(self, fn: Callable[[str], None]) -> Callable[[], None]:
+        """``fn(message)`` when anyone (browser, pendant, this or another client) E-stops the machine."""
+        def forward(kind: str, info: dict) -> None:
+            if kind == "estop":
+                fn(str(info.get("message") or "emergency stop"))
+        return self.controller.subscribe(forward)
+
+    @property
+    def estopped(self) -> bool:
+        from ..control import Mode
+
+        return self.controller.state.mode is Mode.ESTOPPED
 
     # --- motion ---------------------------------------------------------------------
     def _job(self, description: str, fn: Callable[[], Any]) -> Any:

@@ -70,6 +70,9 @@ class Dme:
         self._aborting = False
         self._closed = False
         self._daemon: _MoveDaemon | None = None
+        # an E-stop from any front end is an unsolicited error 0500 (spec 6.2.4.1), severity 3: error state
+        self._unsubscribe_estop = backend.on_emergency_stop(
+            lambda message: self._report(P.UNSOLICITED, IppError(500, "EmergencyStop", message)))
         self._worker = threading.Thread(target=self._work, name=f"ippdme-{client}", daemon=True)
         self._worker.start()
 
@@ -204,6 +207,7 @@ class Dme:
             self._closed = True
             self._aborting = True
             busy = self._running is not None
+        self._unsubscribe_estop()
         self._stop_daemon()
         if busy:
             self.backend.stop()
@@ -244,6 +248,8 @@ class Dme:
         except MotionError as exc:
             if self._aborting:
                 raise _Aborted() from None
+            if self.backend.estopped:  # the move ended because somebody pressed E-STOP
+                raise IppError(500, method, str(exc)) from None
             raise IppError(1011, method, str(exc)) from None
 
     def _tool_for_motion(self, method: str, measuring: bool = False):
