@@ -1,9 +1,15 @@
 """Probing cycles on the simulated CMM: hits against the true geometry the simulator holds."""
 
+import ast
+import inspect
+
 import numpy as np
 import pytest
 
+from cmm.machine import probing
+from cmm.machine.motion import ContactError
 from cmm.machine.probing import SurfaceNotFound
+from cmm.machine.status import Cancelled, MotionError
 from cmm.metrology.compensation import PretravelModel
 
 COUNT = 0.002  # mm
@@ -85,3 +91,74 @@ def test_bad_probe_requests_are_refused(sim_machine):
         prober.probe([100, 100, 40], [0, 0, 0])
     with pytest.raises(Exception, match="outside the travel"):
         prober.probe([100, 100, 299.5], [0, 0, 1])
+
+
+def test_the_guarded_move_returns_latched_counts_or_none(sim_machine):
+    sim, m, _ = sim_machine
+    top = part_to_machine(sim, [60.0, 40.0, 40.0])
+    m.move_to(top + [0, 0, 2.0]).wait()
+    latched = m.probing_move(top - [0, 0, 1.0], 2.0, 400.0).wait()
+    assert len(latched) == 3 and all(isinstance(c, int) for c in latched)
+    assert m.config.axes[2].to_mm(latched[2]) == pytest.approx(40.0 + m.config.probe.tip_radius, abs=0.05)
+    assert m.state.probe_triggered and not m.busy  # stopped on the trigger tick, resting on the part
+    with pytest.raises(ContactError, match="deflected"):
+        m.probing_move(top + [0, 0, 3.0], 2.0, 400.0)
+    m.move_to(top + [0, 0, 2.0], protect=False).wait()
+    assert m.probing_move(top + [0, 0, 4.0], 2.0, 400.0).wait() is None  # away from the part: no trigger
+
+
+def _spy_guarded_moves(m) -> list:
+    started = []
+    plain = m.probing_move
+
+    def spy(*args, **kwargs):
+        started.append(plain(*args, **kwargs))
+        return started[-1]
+
+    m.probing_move = spy
+    return started
+
+
+def _run_until(m, condition, seconds: float) -> None:
+    end = m.clock.now() + seconds
+    while not condition() and m.clock.now() < end:
+        m.poll()
+        m.clock.sleep(m.poll_pause)
+    assert condition()
+
+
+def test_cancelling_a_probe_cycle_stops_its_guarded_move(sim_machine):
+    _, m, prober = sim_machine
+    started = _spy_guarded_moves(m)
+    cycle = prober.probe([450.0, 50.0, 150.0], [0, 0, -1])
+    _run_until(m, lambda: bool(started), 10.0)
+    m.run_for(0.3)
+    cycle.cancel()
+    assert started[0].done and isinstance(started[0].error, Cancelled)
+    with pytest.raises(Cancelled, match="probe at X=450.000"):
+        cycle.wait()
+    m.run_for(0.3)
+    assert not m.busy and all(a.velocity == 0 for a in m.sample().axes)
+
+
+def test_an_emergency_stop_during_the_guarded_move_ends_the_cycle(sim_machine):
+    _, m, prober = sim_machine
+    started = _spy_guarded_moves(m)
+    cycle = prober.probe([450.0, 50.0, 150.0], [0, 0, -1])
+    _run_until(m, lambda: bool(started), 10.0)
+    m.run_for(0.2)
+    m.emergency_stop()
+    assert cycle.done  # it used to wait for a trigger that could no longer come
+    with pytest.raises(MotionError, match="emergency stop"):
+        cycle.wait()
+
+
+def test_the_prober_uses_only_public_machine_members():
+    tree = ast.parse(inspect.getsource(probing))
+    private = sorted({node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                      and isinstance(node.value, ast.Name) and node.value.id == "m" and node.attr.startswith("_")})
+    via_self = sorted({node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                       and isinstance(node.value, ast.Attribute) and node.value.attr == "machine"
+                       and node.attr.startswith("_")})
+    assert private == [] and via_self == []
+    assert "_Motion" not in {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}

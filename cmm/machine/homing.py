@@ -65,15 +65,15 @@ def home_axes(machine: Machine, tick: Callable[[], None] | None = None) -> None:
             axes = sample()
             for i in idx:
                 if capture and latched[i] is None and not axes[i].status & codec.HOME_IN_PROG:
-                    if machine._probe_active(axes[i].status):
-                        machine._halt("abrupt")
+                    if machine.probe_active(axes[i].status):
+                        machine.halt("abrupt")
                         raise HomingError(f"the probe touched something while homing {AXES[i].upper()}: "
                                           "the machine stopped; clear the probe and home again")
                     latched[i] = machine.modules[i].home_position()
             if all(axes[i].status & codec.MOVE_DONE for i in idx):
                 return latched
             if machine.clock.now() > end:
-                machine._halt("abrupt")
+                machine.halt("abrupt")
                 raise HomingError(f"homing {''.join(AXES[i] for i in idx).upper()} took longer than {timeout:.0f} s")
 
     for group in h.order:

@@ -181,7 +181,8 @@ class Machine:
 
     # --- sampling ---------------------------------------------------------
 
-    def _probe_active(self, status: int) -> bool:
+    def probe_active(self, status: int) -> bool:
+        """Is the probe deflected, from one module's status byte?"""
         level = bool(status & self._probe_mask)
         return level if self.config.probe.active_level == "high" else not level
 
@@ -197,7 +198,7 @@ class Machine:
                 vel = st.velocity / tick / (axis.counts_per_mm * axis.direction) if st.velocity is not None else 0.0
                 axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0, st.ad))
             self.state = MachineState(
-                now, tuple(axes), any(self._probe_active(s.status) for s in sts),  # type: ignore[arg-type]
+                now, tuple(axes), any(self.probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
                 self._motion is not None,
             )
@@ -227,7 +228,8 @@ class Machine:
         """Events: 'contact' (unexpected), 'deadman', 'limit', 'hit', 'error'."""
         self._event_listeners.append(fn)
 
-    def _emit(self, kind: str, **info: Any) -> None:
+    def emit(self, kind: str, **info: Any) -> None:
+        """Tell the event listeners (see :meth:`on_event`); a failing listener is logged."""
         for fn in list(self._event_listeners):
             try:
                 fn(kind, info)
@@ -256,16 +258,16 @@ class Machine:
             if motion.on_capture is not None:
                 motion.on_capture(latched)  # type: ignore[arg-type]
             else:
-                self._halt("abrupt")
+                self.halt("abrupt")
                 pos = self.counts_to_mm(latched).tolist()
-                self._emit("contact", position=pos)
+                self.emit("contact", position=pos)
                 self._finish(motion, error=ContactError(
                     "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped and no hit was "
                     "recorded".format(*pos)))
             return
         if any(a.status & codec.POS_ERROR for a in state.axes) and motion.kind != "jog":
             bad = [n.upper() for n, a in zip(AXES, state.axes) if a.status & codec.POS_ERROR]
-            self._halt("abrupt")
+            self.halt("abrupt")
             self._finish(motion, error=MotionError(f"position error limit tripped on axis {', '.join(bad)}: "
                                                    "servo disabled (collision?)"))
             return
@@ -296,7 +298,7 @@ class Machine:
                 try:
                     self.poll()
                 except Exception as exc:  # noqa: BLE001 - never a dead poll thread under a moving machine
-                    self._emit("error", message=str(exc))
+                    self.emit("error", message=str(exc))
                     self._safe_stop(exc)
                     self.clock.sleep(0.05)
                 self.clock.sleep(self.poll_pause)
@@ -413,6 +415,37 @@ class Machine:
                 raise
             return status
 
+    def probing_move(self, target: Any, speed: float, accel: float, *,
+                     description: str = "probing move") -> MoveStatus:
+        """The guarded move of a probing cycle: a straight line with the probe armed on every axis.
+
+        The modules stop abruptly on the servo tick of a trigger and latch the
+        three positions. The status's result is the latched raw counts
+        ``(x, y, z)``, or None when the line ended without a trigger. Its
+        callbacks run in the polling thread with the motion lock held: they may
+        start the next move (a retract), nothing slow. Raises
+        :class:`ContactError` before anything moves if the probe is deflected.
+        """
+        t = self.check_target(target)
+        if not (math.isfinite(speed) and speed > 0 and math.isfinite(accel) and accel > 0):
+            raise MotionError(f"speed and acceleration must be positive numbers, got {speed} and {accel}")
+        with self._lock:
+            self._require_idle()
+            if not self._arm("abrupt"):
+                raise ContactError("the probe is deflected at the start of the probing move: clear it first")
+            status = MoveStatus(description, self.driver)
+            motion = _Motion(status, "probe", armed=True)
+            motion.on_capture = lambda latched: self._finish(motion, result=tuple(latched))
+            motion.extra["on_done"] = lambda state: self._finish(motion, result=None)
+            self._motion = motion
+            status.on_cancel(lambda: self._cancel(motion))
+            try:
+                self._load_line(t, speed, accel)
+            except BaseException as exc:
+                self._finish(motion, error=exc)
+                raise
+            return status
+
     def move_path(self, points: list[Any], speed: float | None = None) -> MoveStatus:
         """Straight moves through ``points`` in turn (all checked first); one status for the whole path."""
         targets = [self.check_target(p) for p in points]
@@ -449,13 +482,17 @@ class Machine:
 
     def _cancel(self, motion: _Motion) -> None:
         with self._lock:
-            self._halt("smooth")
+            self.halt("smooth")
             if self._motion is motion:
                 self._motion = None
 
-    def _halt(self, mode: str) -> None:
-        for m in self.modules:
-            m.stop(mode)
+    def halt(self, mode: str) -> None:
+        """STOP_MOTOR to every axis ("abrupt", "smooth", "off"); what is running is not finished (see ``stop``)."""
+        with self._lock:
+            for m in self.modules:
+                m.stop(mode)
+
+    _halt = halt  # the control core's name for it
 
     def stop(self) -> None:
         """Controlled stop of whatever is moving (decelerates)."""
@@ -464,19 +501,19 @@ class Machine:
             if motion is not None and motion.kind == "jog":
                 self._jog_stop_axes(range(3))
             else:
-                self._halt("smooth")
+                self.halt("smooth")
             if motion is not None:
                 self._finish(motion, error=MotionError("stopped by the operator"))
 
     def emergency_stop(self) -> None:
         """Abrupt stop, then amplifiers off. Motion needs ``reset()`` afterwards."""
         with self._lock:
-            self._halt("abrupt")
-            self._halt("off")
+            self.halt("abrupt")
+            self.halt("off")
             motion = self._motion
             if motion is not None:
                 self._finish(motion, error=MotionError("emergency stop"))
-            self._emit("estop")
+            self.emit("estop")
 
     def reset(self) -> None:
         """Clear sticky error bits and re-enable the servos at the present position."""
@@ -576,14 +613,14 @@ class Machine:
         v = motion.extra["v"]
         speed = float(np.linalg.norm(v))
         if speed == 0:
-            self._halt("smooth")
+            self.halt("smooth")
             motion.extra.pop("goal", None)
             return
         here = self.state.position if self.state is not None else self.position
         target, limiting = self.horizon_target(here, v)
         if limiting is not None and not motion.extra.get("limit_told"):
             motion.extra["limit_told"] = True
-            self._emit("limit", axis=limiting)
+            self.emit("limit", axis=limiting)
         goal = motion.extra.get("goal")
         if not force and goal is not None and np.linalg.norm(target - goal) < speed * RETARGET_MIN_S:
             return
@@ -595,7 +632,7 @@ class Machine:
         v = None if motion is None else motion.extra.get("v")
         speed = 0.0 if v is None else float(np.linalg.norm(v))
         if speed == 0 or self.state is None or self.inhibit is not None:
-            self._halt("smooth")  # a stop is never inhibited
+            self.halt("smooth")  # a stop is never inhibited
             return
         a = self.config.accelerations.stop
         # where the axes are now: the last sample moved on by the time since it was taken (at most the horizon)
@@ -630,7 +667,7 @@ class Machine:
             self._jog_stop_axes(range(3))
             motion.extra["v"] = np.zeros(3)
             motion.extra.pop("goal", None)
-            self._emit("deadman", after=state.time - self._jog_refreshed)
+            self.emit("deadman", after=state.time - self._jog_refreshed)
             v = motion.extra["v"]
         if self.config.jog.mode == "horizon":
             if np.any(v):
@@ -649,7 +686,7 @@ class Machine:
                 v = v.copy()
                 v[i] = 0
                 motion.extra["v"] = v
-                self._emit("limit", axis=axis.name)
+                self.emit("limit", axis=axis.name)
         if not np.any(v) and all(abs(a.velocity) < 1e-9 for a in state.axes):
             self._finish(motion, result=state.position)
 
@@ -657,14 +694,14 @@ class Machine:
                      record: Callable[[tuple[int, int, int], np.ndarray], None] | None) -> None:
         """The probe touched during a jog: the modules stopped on that tick; a manual hit or a contact stop."""
         v = np.array(motion.extra.get("v", np.zeros(3)), dtype=np.float64)
-        self._halt("abrupt")
+        self.halt("abrupt")
         if record is not None and np.any(v):
             self._finish(motion, result=latched)
             record(latched, v)  # the jog velocity gives the approach direction and the probing speed
             return
         pos = self.counts_to_mm(latched).tolist()
         self._contact_dir = v / max(float(np.linalg.norm(v)), 1e-12)
-        self._emit("contact", position=pos)
+        self.emit("contact", position=pos)
         self._finish(motion, error=ContactError(
             "probe contact while jogging at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped; "
             "jog away from the part".format(*pos)))

@@ -16,8 +16,8 @@ from typing import Callable
 import numpy as np
 
 from ..metrology.compensation import PretravelModel, compensate
-from .motion import Machine, _Motion
-from .status import MotionError, MoveStatus
+from .motion import ContactError, Machine
+from .status import Cancelled, MotionError, MoveStatus
 
 
 class SurfaceNotFound(MotionError):
@@ -112,32 +112,34 @@ class Prober:
             status.finish(error=error)
 
         def after_rapid(s: MoveStatus) -> None:
+            if isinstance(s.error, Cancelled):
+                return status.cancel()  # cancelled as a whole, in the cycle's own words
             if s.error is not None:
                 return fail(s.error)
             try:
-                with m._lock:
-                    if not m._arm("abrupt"):
-                        return fail(MotionError("the probe is deflected at the pre-hit point: clear it first"))
-                    motion = _Motion(MoveStatus("probing move", m.driver), "probe", armed=True)
-                    motion.on_capture = lambda latched: on_trigger(motion, latched)
-                    motion.extra["on_done"] = lambda state: not_found(motion)
-                    m._motion = motion
-                    status.on_cancel(lambda: m._cancel(motion))
-                    m._load_line(end, speed, accel)
+                guarded = m.probing_move(end, speed, accel)
+            except ContactError:
+                return fail(MotionError("the probe is deflected at the pre-hit point: clear it first"))
             except BaseException as exc:  # noqa: BLE001 - reported through the status
-                m._motion = None
-                fail(exc)
+                return fail(exc)
+            status.on_cancel(guarded.cancel)
+            guarded.add_callback(after_guarded)
 
-        def on_trigger(motion: _Motion, latched: tuple[int, int, int]) -> None:
-            m._finish(motion, result=latched)
+        def after_guarded(s: MoveStatus) -> None:
+            if isinstance(s.error, Cancelled):
+                return status.cancel()  # cancelled as a whole, in the cycle's own words
+            if s.error is not None:
+                return fail(s.error)
+            if s.result is None:
+                return not_found()
+            latched = s.result
             hit = self._make_hit(latched, u, speed, "programmed", normal)
             if retract_distance is not None and retract_distance < 0:  # back to the pre-hit point
                 self._retract(u, hit_status=status, result=hit, target=pre)
             else:
                 self._retract(u, hit_status=status, result=hit, distance=retract_distance)
 
-        def not_found(motion: _Motion) -> None:
-            m._finish(motion)
+        def not_found() -> None:
             back = m.move_to(pre, protect=False)
             back.add_callback(lambda s: fail(SurfaceNotFound(
                 "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
@@ -147,7 +149,9 @@ class Prober:
         if clearance_z is not None:
             here = m.position
             path = [[here[0], here[1], max(clearance_z, here[2])], [pre[0], pre[1], max(clearance_z, pre[2])], pre]
-        m.move_path(path, rapid_speed).add_callback(after_rapid)
+        rapid = m.move_path(path, rapid_speed)
+        status.on_cancel(rapid.cancel)
+        rapid.add_callback(after_rapid)
         return status
 
     def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit, distance: float | None = None,
@@ -159,12 +163,12 @@ class Prober:
             back = m.move_to(target, m.config.speeds.probing * 5, protect=False)
         except MotionError as exc:
             hit_status.finish(result, None)
-            m._emit("error", message=f"retract after the hit failed: {exc}")
+            m.emit("error", message=f"retract after the hit failed: {exc}")
             return
 
         def done(s: MoveStatus) -> None:
             if s.error is None and m.sample().probe_triggered:
-                m._emit("error", message="the probe is still deflected after the retract")
+                m.emit("error", message="the probe is still deflected after the retract")
             hit_status.finish(result, None)
 
         back.add_callback(done)
