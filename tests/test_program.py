@@ -138,3 +138,45 @@ def test_bad_program_files_are_refused_with_a_message(tmp_path):
                        'approach = [0, 0, -1]\nclearance_z = 50.0\n')
     with pytest.raises(prog.ProgramError, match="cannot read"):
         prog.load(tmp_path / "missing.toml")
+
+
+def test_station_and_recorder_are_both_program_targets(tmp_path):
+    from cmm.station import Station
+
+    rec, machine = _recorder(tmp_path)
+    try:
+        assert isinstance(rec, prog.ProgramTarget)
+    finally:
+        rec.close()
+        machine.close()
+    station = Station(port="sim://?cmm=1", session_dir=tmp_path / "sessions")
+    try:
+        assert isinstance(station, prog.ProgramTarget)
+    finally:
+        station.close()
+    with pytest.raises(TypeError, match="Station or a SessionRecorder"):
+        prog.run_program(prog.Program("x", "p", "ab", [], [], 10.0), object())
+
+
+def test_a_program_run_on_the_station_journals_its_features_with_their_tolerances(taught, tmp_path):
+    """The front ends' path (Station.run_program, in the machine loop) records each feature's tolerance."""
+    from cmm.station import Station
+
+    program = prog.from_toml(prog.to_toml(taught))
+    program.features = [f for f in program.features if f.name != "boss"]  # fewer hits: a faster test
+    used = {i for f in program.features for i in f.hits}
+    program.hits = [h for h in program.hits if h.id in used]
+    tolerances = {f.name: {"size": 0.031 + k / 1000, "form": 0.017, "location": 0.023}
+                  for k, f in enumerate(program.features)}
+    for f in program.features:
+        f.tolerance = tolerances[f.name]
+    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start("station-run", home=True)
+    try:
+        run = station.run_program(program)
+        assert set(run.features) == {"top_plane", "dome"}
+        assert {f.name: f.tolerance for f in station.features.values()} == tolerances
+    finally:
+        station.close()
+    s = load_session(DirectoryStore(tmp_path), "station-run")
+    assert {f.name: f.tolerance for f in s.features.values()} == tolerances
+    assert any("program 'sample-part check' finished" in text for _, text in s.state.notes)

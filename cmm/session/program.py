@@ -27,7 +27,8 @@ writes a readable, editable TOML file::
     approach = [-1.0, 0.0, 0.0]   # unit direction into the surface, part coordinates
     clearance_z = 65.0            # part Z to climb to before moving to this hit
 
-``run_program(program, station_or_recorder, part_pose)`` checks the program
+``run_program(program, target, part_pose)`` (``target``: a :class:`ProgramTarget`,
+the Station or a SessionRecorder) checks the program
 against the loaded part (content hash, feature references, kinds, methods,
 point counts, machine travel) BEFORE anything moves and raises
 :class:`ProgramError` with a sentence naming the mismatch; then it probes
@@ -37,12 +38,11 @@ features with their recorded kind and method.
 
 from __future__ import annotations
 
-import inspect
 import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -325,42 +325,57 @@ class ProgramRun:
     features: dict[str, Any]  # name -> the station's / recorder's feature object (with .result)
 
 
-def _session_hit_id(target: Any, hit: Any) -> int:
-    if hasattr(target, "hit_id"):
-        return target.hit_id(hit)
-    with target.lock:
-        for hid in reversed(list(target.hits)):
-            if target.hits[hid] is hit:
-                return hid
-    raise ProgramError("the station did not record the hit")
+@runtime_checkable
+class ProgramTarget(Protocol):
+    """What a program runs on: the Station (front ends run programs there, ``Station.run_program``) and the
+    headless SessionRecorder both implement exactly this, so a program journals the same on either (features
+    with their tolerances); no guessing which one it got."""
+
+    part: Any  # the loaded part (``pose``, ``nominal_features``, its content hash) or None
+    machine: Any  # travel limits and the probe configuration, for the checks before anything moves
+    prober: Any  # its ``settings.tip_radius``
+
+    def probe(self, point: Any, approach: Any, clearance_z: float | None = None) -> Any:
+        """A programmed hit; the returned status's ``wait()`` gives the recorded hit."""
+        ...
+
+    def hit_id(self, hit: Any) -> int:
+        """The session id the recorded ``hit`` got."""
+        ...
+
+    def fit_feature(self, kind: str, hit_ids: list[int], method: str = "ls", name: str | None = None,
+                    nominal: Any = None, tolerance: dict[str, float] | None = None) -> Any:
+        """Fit and journal a feature (with its tolerance)."""
+        ...
+
+    def note(self, text: str) -> None:
+        """A note in the session journal."""
+        ...
 
 
-def run_program(program: Program, target: Any, part_pose: Any = None, *,
+def run_program(program: Program, target: ProgramTarget, part_pose: Any = None, *,
                 progress: Callable[[int, int], None] | None = None, timeout: float = 120.0) -> ProgramRun:
-    """Run ``program`` on ``target`` (a Station or a SessionRecorder) with the part at ``part_pose``
+    """Run ``program`` on ``target`` (the Station or a SessionRecorder) with the part at ``part_pose``
     (part -> machine; default: the target's current part pose, i.e. its last alignment)."""
-    part = getattr(target, "part", None)
+    if not isinstance(target, ProgramTarget):
+        raise TypeError(f"a program runs on a Station or a SessionRecorder, not on {type(target).__name__}")
+    part = target.part
     pose = np.asarray(part_pose if part_pose is not None else (None if part is None else part.pose), dtype=np.float64)
-    prober = getattr(target, "prober", None)
-    check(program, part, pose, getattr(target, "machine", None),
-          None if prober is None else prober.settings.tip_radius)
-    if hasattr(target, "note"):
-        target.note(f"program {program.name!r} started ({len(program.hits)} hits, {len(program.features)} features)")
+    check(program, part, pose, target.machine, target.prober.settings.tip_radius)
+    target.note(f"program {program.name!r} started ({len(program.hits)} hits, {len(program.features)} features)")
     ids: dict[int, int] = {}
     targets = machine_targets(program, pose)
     for k, (h, p, u, cz) in enumerate(targets):
         hit = target.probe(p, u, clearance_z=cz).wait(timeout)
-        ids[h.id] = _session_hit_id(target, hit)
+        ids[h.id] = target.hit_id(hit)
         if progress is not None:
             progress(k + 1, len(targets))
-    tol_ok = "tolerance" in inspect.signature(target.fit_feature).parameters
     feats = {}
     for f in program.features:
         nominal = None
         if f.nominal:
             nominal = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
-        extra = {"tolerance": f.tolerance} if tol_ok else {}
-        feats[f.name] = target.fit_feature(f.kind, [ids[i] for i in f.hits], f.method, f.name, nominal, **extra)
-    if hasattr(target, "note"):
-        target.note(f"program {program.name!r} finished")
+        feats[f.name] = target.fit_feature(f.kind, [ids[i] for i in f.hits], f.method, f.name, nominal,
+                                           tolerance=f.tolerance)
+    target.note(f"program {program.name!r} finished")
     return ProgramRun(program, ids, feats)
