@@ -19,6 +19,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .calibration.service import CalibrationService
 from .control import Controller, ControlState, StopReport
 from .machine.config import ConfigError, MachineConfig, load
 from .machine.config import load as load_config  # front ends read the machine configuration through the station
@@ -136,6 +137,7 @@ class Station:
         self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
         self.aligned = False  # an alignment was made since the part was loaded
         self.calibration_dir = None if calibration_dir is None else Path(calibration_dir)  # records are read and written here
+        self.calibration = CalibrationService(self)  # the routines, records and results, for every front end
         if calibration_dir is not None:
             self.load_calibration(calibration_dir)
         if part_path is not None and self.sim is None:

@@ -21,6 +21,7 @@ pytest.importorskip("viser")
 
 from cmm.calibration.probe import analyse_qualification, qualification_pattern  # noqa: E402
 from cmm.calibration.records import load_probe_record, load_servo_record, load_sphere_certificate  # noqa: E402
+from cmm.control import Refused  # noqa: E402
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_calibration import residual_series, residual_svg  # noqa: E402
@@ -75,6 +76,10 @@ def test_run_refused_for_observer_busy_machine_and_missing_certificate(app, oper
     observer = app.add_client(client_id="observer-c", is_local=False)
     assert observer.calibration.run("servo", axes=("x",)) is None
     assert "observes" in _errors(observer)[0][2]
+    # the command API checks access too: an observer calling the station's calibration service directly
+    with pytest.raises(Refused):
+        st.calibration.run("observer-c", "servo", axes=("x",))
+    assert not st.calibration.running
     # busy: a move is under way
     start = st.state.position
     status = operator.go_to(start[0] + 20.0, start[1], start[2])
@@ -175,7 +180,7 @@ def test_routine_failure_is_a_notification_and_changes_nothing(app, operator, re
     assert job.error is not None
     level, title, body = _errors(operator)[0]
     assert "stopped" in title and "previous calibration stays in force" in body
-    from cmm.ui.panel_calibration import calibration_errors
+    from cmm.calibration.service import calibration_errors
 
     assert isinstance(job.error, calibration_errors()), repr(job.error)  # an operator's error, not a crash
     assert panel.result is None
@@ -184,28 +189,34 @@ def test_routine_failure_is_a_notification_and_changes_nothing(app, operator, re
 
 
 def test_geometry_bar_placement(app, operator):
+    """The station's calibration service places the bar on the simulator; on real hardware the tab shows the
+    service's set-up instruction and its "Bar placed, continue" lets the routine go on."""
     from cmm.calibration.geometry import default_setups
 
+    service = app.station.calibration
     panel = operator.calibration
-    certs = panel.certificates("geometry")
+    certs = service.certificates("geometry")
     setup = default_setups(lengths={k: c.length for k, c in certs.items()})[0]
-    panel._placer(certs)(setup)  # the simulator: the panel places the bar itself
+    service.placer(certs)(setup)  # the simulator: the service places the bar itself, under the simulator's lock
     balls = app.station.sim._artifacts
     assert len(balls) == 2 and np.linalg.norm(balls[0].centre - np.array(setup.ball1)) < 1.0
     # on real hardware the routine waits for the operator's "Bar placed, continue"
+    assert panel.bar_placed() is False and "no set-up is waiting" in _errors(operator)[0][2]
     sim, app.station.sim = app.station.sim, None
     try:
-        place = panel._placer(certs)
+        place = service.placer(certs)
         t = threading.Thread(target=place, args=(setup,))
         t.start()
         end = time.monotonic() + 5
-        while panel._bar_event is None and time.monotonic() < end:
+        while not service.instruction and time.monotonic() < end:
             time.sleep(0.01)
-        assert "set-up **X**" in panel.instruction and t.is_alive()
+        assert "set-up **X**" in service.instruction and t.is_alive()
         time.sleep(0.3)
         assert t.is_alive()  # still waiting
+        observer = app.add_client(client_id="observer-bar", is_local=False)
+        assert observer.calibration.bar_placed() is False and t.is_alive()  # only the operator in control
         assert panel.bar_placed()
         t.join(2)
-        assert not t.is_alive()
+        assert not t.is_alive() and service.instruction == ""
     finally:
         app.station.sim = sim

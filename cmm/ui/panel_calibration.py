@@ -9,50 +9,40 @@ routine runs in its own thread (never in viser's callback thread) and its
 uncalibrated / radius only / calibrated; geometry: scale, squareness and the
 bar errors before / after; servo: original and proposed gains).
 
-Nothing is applied by running: **Save record** writes the record
-(atomically, ``records.save_record``) and, for the probe and the geometry,
-applies it to the live station; servo gains are sent to the modules only by
-**Accept gains**. A routine that fails (CalibrationError, SurfaceNotFound,
-MotionError ...) is reported as a notification and the previous calibration
-stays in force.
+The tab drives nothing itself: the station's calibration service
+(``station.calibration``, :mod:`cmm.calibration.service`) runs each routine
+through the command API (``controller.run_job``), writes the records and applies
+them (``controller.configure``); this module only calls it and renders what it
+returns.
+
+Nothing is applied by running: **Save record** writes the record and, for the
+probe and the geometry, applies it to the live station; servo gains are sent to
+the modules only by **Accept gains**. A routine that fails (CalibrationError,
+SurfaceNotFound, MotionError ...) is reported as a notification and the
+previous calibration stays in force.
 
 Machine geometry needs the ball bar placed for each set-up: on the simulator
-the panel places it (``SimulatedCMM.place_artifacts``); on a real machine it
-shows the set-up instruction and waits for **Bar placed, continue**.
+the service places it; on a real machine the tab shows the service's set-up
+instruction and the **Bar placed, continue** button.
 """
 
 from __future__ import annotations
 
 import html
-import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..calibration.records import (MACHINE_RECORD, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
-                                   BallBarCertificate, CalibrationError, LoadedCalibration,
-                                   dumps, load_certificate, load_machine_record, load_probe_record,
-                                   load_servo_record, load_sphere_certificate, now, save_record, write_atomic)
-from ..control import MotionError
 from .panel_sessions import Job, ProgressView
 
 if TYPE_CHECKING:
     from .panels import ClientApp
 
+# the wizard's labels (the service accepts either; cmm.calibration.service.ROUTINES is the same table)
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
             "Servo tuning": "servo"}
 LABELS = {v: k for k, v in ROUTINES.items()}
-ISO_RECORD = "iso10360-5.toml"
-SERVO_PROPOSAL = "servo-proposal.toml"
-BAR_CERTIFICATES = ("ball_bar_300", "ball_bar_200")
-
-
-def calibration_errors() -> tuple[type[BaseException], ...]:
-    from ..control import SurfaceNotFound
-    from ..metrology.features import FitError
-
-    return (CalibrationError, SurfaceNotFound, MotionError, FitError, ValueError, OSError)
 
 
 # --------------------------------------------------------------------------- tables and plots
@@ -161,46 +151,6 @@ def servo_markdown(result: Any, accepted: bool = False) -> str:
     return "\n".join(lines)
 
 
-def records_summary(directory: Path) -> list[dict[str, str]]:
-    """The records in ``directory``: kind, file, date, result (or the problem that makes them unusable)."""
-    rows: list[dict[str, str]] = []
-    entries: list[tuple[str, str, Callable[[Path], Any], Callable[[Any], str]]] = [
-        ("probe", PROBE_RECORD, load_probe_record,
-         lambda r: f"r_eff {r.tip_radius:.4f} mm, form {r.form_before_um:.2f} → {r.form_after_um:.2f} um, "
-                   f"{r.n_points} points"),
-        ("machine", MACHINE_RECORD, load_machine_record,
-         lambda r: "scale {} ppm, squareness {} urad".format(", ".join(f"{x:+.1f}" for x in r.scale_ppm),
-                                                              ", ".join(f"{x:+.1f}" for x in r.squareness_urad))),
-        ("servo", SERVO_RECORD, load_servo_record,
-         lambda r: "; ".join(f"{a.upper()} Kp {g.get('kp')} Kd {g.get('kd')} Ki {g.get('ki')}" for a, g in r.gains.items())
-                   + (" (accepted)" if r.accepted else "")),
-        ("servo proposal", SERVO_PROPOSAL, load_servo_record,
-         lambda r: "; ".join(f"{a.upper()} Kp {g.get('kp')} Kd {g.get('kd')}" for a, g in r.gains.items())),
-    ]
-    for kind, name, loader, describe in entries:
-        p = directory / name
-        if not p.is_file():
-            continue
-        try:
-            r = loader(p)
-            rows.append({"kind": kind, "file": str(p), "date": r.date, "result": describe(r)})
-        except CalibrationError as exc:
-            rows.append({"kind": kind, "file": str(p), "date": "", "result": f"refused: {exc}"})
-    p = directory / ISO_RECORD
-    if p.is_file():
-        import tomllib
-
-        try:
-            data = tomllib.loads(p.read_text())
-            cal = data.get("results", {}).get("calibrated", {})
-            rows.append({"kind": "ISO 10360-5", "file": str(p), "date": str(data.get("record", {}).get("date", "")),
-                         "result": f"P_Form {cal.get('form_um', float('nan')):.2f} um, "
-                                   f"P_Size {cal.get('size_um', float('nan')):+.2f} um"})
-        except (tomllib.TOMLDecodeError, OSError, TypeError, ValueError) as exc:
-            rows.append({"kind": "ISO 10360-5", "file": str(p), "date": "", "result": f"unreadable: {exc}"})
-    return rows
-
-
 # --------------------------------------------------------------------------- the panel
 
 
@@ -208,62 +158,25 @@ class CalibrationPanel:
     def __init__(self, capp: "ClientApp") -> None:
         self.capp = capp
         self.station = capp.station
+        self.service = capp.station.calibration  # the station's calibration service: runs, records, applies
         self.routine = "probe"
         self.job: Job | None = None
         self.result: tuple[str, Any] | None = None  # (routine, result object) of the last successful run
         self.accepted = False
         self.saved: Path | None = None
-        self.instruction = ""
-        self._bar_event: threading.Event | None = None
-        self._cancel = False
+        self._shown_instruction = ""
         self.gui: dict[str, Any] = {}
         self.progress_view = ProgressView(capp)
 
-    # --- where things are -------------------------------------------------------
-
     @property
     def records_dir(self) -> Path:
-        d = self.station.calibration_dir
-        return Path(d) if d is not None else Path("calibration")
-
-    @property
-    def artifacts_dir(self) -> Path:
-        return self.records_dir / "artifacts"
-
-    def certificates(self, routine: str) -> Any:
-        """The certificate(s) a routine uses; CalibrationError says what is missing."""
-        if routine in ("probe", "iso"):
-            return load_sphere_certificate(self.artifacts_dir / SPHERE_CERTIFICATE)
-        if routine == "geometry":
-            certs = {}
-            for f in sorted(self.artifacts_dir.glob("*.toml")):
-                c = load_certificate(f)
-                if isinstance(c, BallBarCertificate):
-                    certs[f.stem.replace("-", "_")] = c
-            missing = [k for k in BAR_CERTIFICATES if k not in certs]
-            if missing:
-                raise CalibrationError(f"the geometry routine needs the ball bar certificates "
-                                       f"{', '.join(k.replace('_', '-') + '.toml' for k in missing)} in {self.artifacts_dir}")
-            return certs
-        return None
+        return self.service.records_dir
 
     def certificate_markdown(self, routine: str | None = None) -> str:
-        routine = routine or self.routine
-        if routine == "servo":
-            return "Servo tuning uses no artifact: small step moves on each axis at mid-travel."
-        try:
-            cert = self.certificates(routine)
-        except CalibrationError as exc:
-            return f"**certificate problem:** {exc}"
-        if isinstance(cert, dict):
-            return "certificates: " + "; ".join(f"{c.describe()} (certified {c.certified})" for c in cert.values())
-        centre = "" if cert.approx_centre is None else " · set-up centre X={:.1f} Y={:.1f} Z={:.1f}".format(
-            *cert.approx_centre)
-        return (f"certificate: **{cert.describe()}**, form {cert.form * 1000:.2f} um, U {cert.uncertainty * 1000:.2f} um"
-                f" (certified {cert.certified}){centre}")
+        return self.service.certificate_text(routine or self.routine)
 
     def records(self) -> list[dict[str, str]]:
-        return records_summary(self.records_dir)
+        return self.service.records()
 
     def records_markdown(self) -> str:
         rows = self.records()
@@ -273,7 +186,7 @@ class CalibrationPanel:
             lines += [f"| {r['kind']} | {r['date']} | {r['result']} |" for r in rows]
         else:
             lines.append("*no records yet: the nominal settings are in force*")
-        log = getattr(self.station, "calibration_log", None) or []
+        log = self.service.in_force()
         if log:
             lines += ["", "in force: " + "; ".join(log)]
         return "\n".join(lines)
@@ -289,8 +202,9 @@ class CalibrationPanel:
         return job is not None and not job.done
 
     def run(self, routine: str | None = None, **options: Any) -> Job | None:
-        """Start a routine in a background thread. Options: probe ``per_ring``, ``polar_deg``, ``repeats``;
-        iso ``repeats``; geometry ``repeats``, ``verify``; servo ``axes``."""
+        """Start a routine (the service runs it in the machine loop; this tab waits in its own thread, never in
+        viser's). Options: probe ``per_ring``, ``polar_deg``, ``repeats``; iso ``repeats``; geometry
+        ``repeats``, ``verify``; servo ``axes``."""
         routine = ROUTINES.get(routine, routine) if routine else self.routine  # type: ignore[arg-type]
         if routine not in LABELS:
             self.capp.error(f"unknown routine {routine!r}; choose one of {', '.join(ROUTINES)}", "Calibration")
@@ -298,132 +212,54 @@ class CalibrationPanel:
         label = LABELS[routine]
         if not self.capp.allowed(label):
             return None
-        if self.running:
-            self.capp.error(f"'{self._app_job().title}' is running: wait for it or press STOP", f"{label} refused")
+        if self.running or self.service.running:
+            title = self._app_job().title if self.running else "a calibration routine"  # type: ignore[union-attr]
+            self.capp.error(f"'{title}' is running: wait for it or press STOP", f"{label} refused")
             return None
         api = self.station.controller
         if not api.allowed("job"):
             self.capp.error(f"the machine is {api.state.mode.value}" + (f" ({api.state.reason})" if api.state.reason else "")
                             + ": calibrate when it is homed and idle (or press STOP)", f"{label} refused")
             return None
-        try:
-            certs = self.certificates(routine)
-        except CalibrationError as exc:
-            self.capp.error(f"{exc}. The previous calibration stays in force.", f"{label} refused")
+        problem = self.service.certificate_problem(routine)
+        if problem is not None:
+            self.capp.error(f"{problem}. The previous calibration stays in force.", f"{label} refused")
             return None
         self.routine = routine
         self.result = None
         self.accepted = False
         self.saved = None
-        self._cancel = False
         self._set("results", "content", f"*{label} running...*")
         self._set("plot", "content", "")
         self._show_accept(False)
-
-        def in_machine_loop(progress: Callable[[float, str], None]) -> Any:
-            # the routine runs in the control core's machine loop, with the machine to itself; its progress
-            # reports reach the browser from the dispatcher thread
-            def posted(fraction: float, message: str) -> None:
-                api.dispatcher.post(progress, fraction, message)
-            return api.run_job(self.capp.client_id, label, lambda: self._work(routine, certs, options, posted))
-
-        job = Job(label, in_machine_loop,
+        job = Job(label, lambda progress: self.service.run(self.capp.client_id, routine, progress, **options),
                   on_progress=self.progress_view.update, on_done=self._done)
         self.job = job
         self.capp.app.calibration_job = job
         self.progress_view.start(job)
         return job.start()
 
-    def _work(self, routine: str, certs: Any, options: dict[str, Any], progress: Callable[[float, str], None]) -> Any:
-        st = self.station
-        machine = st.machine
-        if routine == "probe":
-            from ..calibration.probe import qualify_probe
-
-            master = None
-            try:
-                if (self.records_dir / PROBE_RECORD).is_file():
-                    master = load_probe_record(self.records_dir / PROBE_RECORD).sphere_centre
-            except CalibrationError:
-                master = None
-            kw = {k: options[k] for k in ("per_ring", "polar_deg", "repeats", "approx_centre") if k in options}
-            kw.setdefault("repeats", 2)
-            return qualify_probe(machine, certs, master_centre=master, progress=progress, **kw)
-        if routine == "iso":
-            from ..calibration.iso10360 import run_iso10360_5
-
-            return run_iso10360_5(machine, certs, st.prober.settings, repeats=int(options.get("repeats", 1)),
-                                  approx_centre=options.get("approx_centre"), progress=progress)
-        if routine == "geometry":
-            from ..calibration.geometry import calibrate_geometry, default_setups
-
-            setups = default_setups(lengths={k: c.length for k, c in certs.items() if k in BAR_CERTIFICATES})
-            previous = machine.correction
-            try:
-                result = calibrate_geometry(machine, st.prober.settings, certs, setups, self._placer(certs),
-                                            repeats=int(options.get("repeats", 1)),
-                                            verify=bool(options.get("verify", True)), progress=progress)
-            finally:
-                machine.correction = previous  # the new correction is applied by Save record only
-                self.instruction = ""
-                self._bar_event = None
-            return result
-        if routine == "servo":
-            from ..calibration.servo import tune_servos
-
-            axes = tuple(options.get("axes") or ("x", "y", "z"))
-            return tune_servos(machine, axes, progress=progress)
-        raise CalibrationError(f"unknown routine {routine!r}")
-
-    def _placer(self, certs: dict[str, BallBarCertificate]) -> Callable[[Any], None]:
-        if self.station.simulated:
-            rng = np.random.default_rng(7)
-
-            def place_sim(s: Any) -> None:  # the simulated operator clamps the bar within 0.3 mm
-                d = certs[s.artifact].ball_diameter
-                off = rng.uniform(-0.3, 0.3, 3)
-                self.station.place_sim_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
-            return place_sim
-
-        def place_operator(s: Any) -> None:
-            event = threading.Event()
-            self.instruction = (f"Place **{certs[s.artifact].describe()}** for set-up **{s.name}**: balls at "
-                                "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}, ".format(*s.ball1, *s.ball2)
-                                + "clamp it, then press **Bar placed, continue**.")
-            self._bar_event = event
-            self._set("instruction", "content", self.instruction)
-            self._show_bar(True)
-            self.capp.notify("Ball bar", self.instruction.replace("**", ""))
-            while not self.station.controller.wait_event(event, 0.2):
-                if self._cancel:
-                    raise CalibrationError("the operator cancelled the geometry calibration")
-            self._show_bar(False)
-            self._set("instruction", "content", "")
-        return place_operator
-
     def bar_placed(self) -> bool:
         """The operator has clamped the bar for the set-up shown: the routine goes on."""
         if not self.capp.allowed("Bar placed"):
             return False
-        if self._bar_event is None:
+        if not self.service.bar_placed():
             self.capp.error("no set-up is waiting for the bar", "Bar placed")
             return False
-        self._bar_event.set()
+        self._show_instruction()
         return True
 
     def cancel(self) -> None:
         """Stop the running routine (it ends with an error; the previous calibration stays in force)."""
         if not self.running:
             return
-        self._cancel = True
-        if self._bar_event is not None:
-            self._bar_event.set()
+        self.service.cancel()
         self.capp.stop()
 
     def _done(self, job: Job) -> None:
         if job.error is not None:
             exc = job.error
-            known = isinstance(exc, calibration_errors())
+            known = isinstance(exc, self.service.errors)
             text = (str(exc) if known else f"{type(exc).__name__}: {exc}") + ". The previous calibration stays in force."
             self.capp.error(text, f"{job.title} stopped")
             self.progress_view.finish(job, text, False)
@@ -466,19 +302,12 @@ class CalibrationPanel:
         if self.running or not self.station.controller.allowed("configure"):
             self.capp.error("wait until the machine is idle", "Accept gains")
             return False
-        from ..calibration.servo import apply_gains
-
-        r = self.result[1]
         try:
-            self.station.controller.configure(self.capp.client_id,
-                                              lambda: apply_gains(self.station.machine, r.proposed))
-            self.saved = save_record(r.record(True, self.station.config.source), self.records_dir / SERVO_RECORD)
-        except calibration_errors() as exc:
+            self.saved = self.service.accept_gains(self.capp.client_id, self.result[1])
+        except self.service.errors as exc:
             self.capp.error(exc, "Accept gains")
             return False
         self.accepted = True
-        self.station.note("servo gains accepted: " + "; ".join(
-            f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in r.proposed.items()))
         self.capp.notify("Gains applied", f"recorded in {self.saved}; copy them into the machine configuration "
                                           "[gains] to keep them after a restart")
         self._show_results()
@@ -496,50 +325,15 @@ class CalibrationPanel:
             self.capp.error("wait until the routine has finished", "Save record")
             return None
         routine, r = self.result
-        st = self.station
         try:
-            if routine == "probe":
-                path = save_record(r.record, self.records_dir / PROBE_RECORD)
-                applied = st.apply_calibration(LoadedCalibration(probe=r.record), client=self.capp.client_id)
-                self._log(applied)
-                st.note(f"probe calibration applied: r_eff {r.record.tip_radius:.5f} mm, "
-                        f"{r.settings.pretravel.describe()}")
-            elif routine == "geometry":
-                rec = r.record(self._geometry_artifact(), st.config.source)
-                path = save_record(rec, self.records_dir / MACHINE_RECORD)
-                applied = st.apply_calibration(LoadedCalibration(machine=rec), client=self.capp.client_id)
-                self._log(applied)
-                st.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
-            elif routine == "servo":
-                path = save_record(r.record(self.accepted, st.config.source),
-                                   self.records_dir / (SERVO_RECORD if self.accepted else SERVO_PROPOSAL))
-            else:
-                data = {"record": {"kind": "iso10360-5", "date": now(), "machine": st.config.source,
-                                   "repeats": r.repeats},
-                        "results": {k: {"form_um": f.form_um, "size_um": f.size_um, "diameter": f.diameter}
-                                    for k, f in r.figures.items()}}
-                path = write_atomic(self.records_dir / ISO_RECORD,
-                                    dumps(data, "ISO 10360-5 style probing test written by the station's calibration tab."))
-        except calibration_errors() + (TypeError,) as exc:
+            path, applied = self.service.save(self.capp.client_id, routine, r, accepted=self.accepted)
+        except self.service.errors + (TypeError,) as exc:
             self.capp.error(f"{exc}. The previous calibration stays in force.", "Save record failed")
             return None
         self.saved = path
-        self.capp.notify("Record saved", str(path) + (" and applied to the station" if routine in ("probe", "geometry")
-                                                      else ""))
+        self.capp.notify("Record saved", str(path) + (" and applied to the station" if applied else ""))
         self._refresh_records()
         return path
-
-    def _geometry_artifact(self) -> str:
-        try:
-            return ", ".join(sorted(c.describe() for c in self.certificates("geometry").values()))
-        except CalibrationError:
-            return "ball bar"
-
-    def _log(self, applied: list[str]) -> None:
-        log = list(getattr(self.station, "calibration_log", None) or [])
-        kinds = {a.split(" ", 1)[0] for a in applied}
-        log = [line for line in log if line.split(" ", 1)[0] not in kinds] + applied
-        self.station.calibration_log = log
 
     # --- GUI -----------------------------------------------------------------------------------
 
@@ -610,8 +404,20 @@ class CalibrationPanel:
     def _refresh_records(self) -> None:
         self._set("records", "content", self.records_markdown())
 
+    def _show_instruction(self) -> None:
+        """The ball-bar set-up the service waits for (shown in every tab; a toast in the tab that started it)."""
+        text = self.service.instruction
+        if text == self._shown_instruction:
+            return
+        self._shown_instruction = text
+        self._set("instruction", "content", text)
+        self._show_bar(bool(text))
+        if text and self.job is not None and not self.job.done:
+            self.capp.notify("Ball bar", text.replace("**", ""))
+
     def refresh(self) -> None:
-        """Called by ClientApp.refresh (5 Hz): a running routine started in another tab shows here too."""
+        """Called by ClientApp.refresh (5 Hz): the set-up to place, and a routine started in another tab."""
+        self._show_instruction()
         job = self._app_job()
         if job is not None and job is not self.job and not job.done:
             if self.progress_view.status is not None:
@@ -625,4 +431,4 @@ class CalibrationPanel:
             setattr(h, attr, value)
 
 
-__all__ = ["CalibrationPanel", "ROUTINES", "residual_svg", "residual_series", "records_summary"]
+__all__ = ["CalibrationPanel", "ROUTINES", "residual_svg", "residual_series"]

@@ -1,0 +1,346 @@
+"""The station's calibration service: front ends run the calibration routines here, never on the machine.
+
+The station (the composition root) builds one ``CalibrationService`` over
+itself (``station.calibration``); the Calibration tab only calls it and shows
+what it returns, so the UI imports neither the routines nor the records.
+
+- ``run(client, routine, ...)`` runs one routine through the command API
+  (``controller.run_job``: in the machine loop, with the machine to itself, the
+  client's access checked there); its result is returned, nothing is applied.
+- ``save(client, routine, result)`` writes the record atomically and, for the
+  probe and the geometry, applies it through ``controller.configure`` (while the
+  machine is still); ``accept_gains`` sends proposed servo gains the same way.
+- ``records()``, ``certificate_text()``, ``certificate_problem()``,
+  ``in_force()``, ``instruction`` (a ball-bar set-up the operator must place)
+  are plain data for any front end.
+
+Machine geometry places the ball bar for each set-up: on the simulator the
+service places it (under the simulator's lock, ``station.place_sim_artifacts``);
+on a real machine it publishes the set-up in ``instruction`` and waits (keeping
+the machine loop running) for ``bar_placed()`` or ``cancel()``.
+"""
+
+from __future__ import annotations
+
+import threading
+import tomllib
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Protocol
+
+import numpy as np
+
+from ..machine.probing import SurfaceNotFound
+from ..machine.status import MotionError
+from ..metrology.features import FitError
+from .records import (MACHINE_RECORD, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE, BallBarCertificate,
+                      CalibrationError, LoadedCalibration, dumps, load_certificate, load_machine_record,
+                      load_probe_record, load_servo_record, load_sphere_certificate, now, save_record, write_atomic)
+
+if TYPE_CHECKING:
+    from ..control import Controller
+
+ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
+            "Servo tuning": "servo"}
+LABELS = {v: k for k, v in ROUTINES.items()}
+ISO_RECORD = "iso10360-5.toml"
+SERVO_PROPOSAL = "servo-proposal.toml"
+BAR_CERTIFICATES = ("ball_bar_300", "ball_bar_200")
+Progress = Callable[[float, str], None]
+
+
+def calibration_errors() -> tuple[type[BaseException], ...]:
+    """The errors a routine or a save ends with that are an operator's message, not a crash."""
+    return (CalibrationError, SurfaceNotFound, MotionError, FitError, ValueError, OSError)
+
+
+class CalibrationHost(Protocol):
+    """What the service needs from the station (the composition root that builds it)."""
+
+    controller: "Controller"
+    machine: Any
+    prober: Any
+    config: Any
+    calibration_dir: Path | None
+    calibration_log: list[str]
+
+    @property
+    def simulated(self) -> bool: ...
+
+    def place_sim_artifacts(self, spheres: list) -> None: ...
+
+    def apply_calibration(self, loaded: Any, client: str | None = None) -> list[str]: ...
+
+    def note(self, text: str) -> None: ...
+
+
+def records_summary(directory: Path) -> list[dict[str, str]]:
+    """The records in ``directory``: kind, file, date, result (or the problem that makes them unusable)."""
+    rows: list[dict[str, str]] = []
+    entries: list[tuple[str, str, Callable[[Path], Any], Callable[[Any], str]]] = [
+        ("probe", PROBE_RECORD, load_probe_record,
+         lambda r: f"r_eff {r.tip_radius:.4f} mm, form {r.form_before_um:.2f} → {r.form_after_um:.2f} um, "
+                   f"{r.n_points} points"),
+        ("machine", MACHINE_RECORD, load_machine_record,
+         lambda r: "scale {} ppm, squareness {} urad".format(", ".join(f"{x:+.1f}" for x in r.scale_ppm),
+                                                              ", ".join(f"{x:+.1f}" for x in r.squareness_urad))),
+        ("servo", SERVO_RECORD, load_servo_record,
+         lambda r: "; ".join(f"{a.upper()} Kp {g.get('kp')} Kd {g.get('kd')} Ki {g.get('ki')}" for a, g in r.gains.items())
+                   + (" (accepted)" if r.accepted else "")),
+        ("servo proposal", SERVO_PROPOSAL, load_servo_record,
+         lambda r: "; ".join(f"{a.upper()} Kp {g.get('kp')} Kd {g.get('kd')}" for a, g in r.gains.items())),
+    ]
+    for kind, name, loader, describe in entries:
+        p = directory / name
+        if not p.is_file():
+            continue
+        try:
+            r = loader(p)
+            rows.append({"kind": kind, "file": str(p), "date": r.date, "result": describe(r)})
+        except CalibrationError as exc:
+            rows.append({"kind": kind, "file": str(p), "date": "", "result": f"refused: {exc}"})
+    p = directory / ISO_RECORD
+    if p.is_file():
+        try:
+            data = tomllib.loads(p.read_text())
+            cal = data.get("results", {}).get("calibrated", {})
+            rows.append({"kind": "ISO 10360-5", "file": str(p), "date": str(data.get("record", {}).get("date", "")),
+                         "result": f"P_Form {cal.get('form_um', float('nan')):.2f} um, "
+                                   f"P_Size {cal.get('size_um', float('nan')):+.2f} um"})
+        except (tomllib.TOMLDecodeError, OSError, TypeError, ValueError) as exc:
+            rows.append({"kind": "ISO 10360-5", "file": str(p), "date": "", "result": f"unreadable: {exc}"})
+    return rows
+
+
+class CalibrationService:
+    def __init__(self, host: CalibrationHost) -> None:
+        self.host = host
+        self.errors = calibration_errors()
+        self.instruction = ""  # the ball-bar set-up the operator is asked to place ("" when none waits)
+        self._bar_event: threading.Event | None = None
+        self._cancel = False
+        self._running = threading.Lock()  # one routine at a time, whichever front end started it
+
+    # --- where things are ---------------------------------------------------------
+
+    @property
+    def records_dir(self) -> Path:
+        d = self.host.calibration_dir
+        return Path(d) if d is not None else Path("calibration")
+
+    @property
+    def artifacts_dir(self) -> Path:
+        return self.records_dir / "artifacts"
+
+    @property
+    def running(self) -> bool:
+        return self._running.locked()
+
+    def certificates(self, routine: str) -> Any:
+        """The certificate(s) a routine uses; CalibrationError says what is missing."""
+        if routine in ("probe", "iso"):
+            return load_sphere_certificate(self.artifacts_dir / SPHERE_CERTIFICATE)
+        if routine == "geometry":
+            certs = {}
+            for f in sorted(self.artifacts_dir.glob("*.toml")):
+                c = load_certificate(f)
+                if isinstance(c, BallBarCertificate):
+                    certs[f.stem.replace("-", "_")] = c
+            missing = [k for k in BAR_CERTIFICATES if k not in certs]
+            if missing:
+                raise CalibrationError(f"the geometry routine needs the ball bar certificates "
+                                       f"{', '.join(k.replace('_', '-') + '.toml' for k in missing)} in {self.artifacts_dir}")
+            return certs
+        if routine == "servo":
+            return None
+        raise CalibrationError(f"unknown routine {routine!r}; choose one of {', '.join(LABELS)}")
+
+    def certificate_problem(self, routine: str) -> str | None:
+        """Why ``routine`` cannot run with the certificates on disk (None: it can)."""
+        try:
+            self.certificates(routine)
+        except CalibrationError as exc:
+            return str(exc)
+        return None
+
+    def certificate_text(self, routine: str) -> str:
+        """The artifact certificate(s) in use, one line of markdown."""
+        if routine == "servo":
+            return "Servo tuning uses no artifact: small step moves on each axis at mid-travel."
+        try:
+            cert = self.certificates(routine)
+        except CalibrationError as exc:
+            return f"**certificate problem:** {exc}"
+        if isinstance(cert, dict):
+            return "certificates: " + "; ".join(f"{c.describe()} (certified {c.certified})" for c in cert.values())
+        centre = "" if cert.approx_centre is None else " · set-up centre X={:.1f} Y={:.1f} Z={:.1f}".format(
+            *cert.approx_centre)
+        return (f"certificate: **{cert.describe()}**, form {cert.form * 1000:.2f} um, U {cert.uncertainty * 1000:.2f} um"
+                f" (certified {cert.certified}){centre}")
+
+    def records(self) -> list[dict[str, str]]:
+        return records_summary(self.records_dir)
+
+    def in_force(self) -> list[str]:
+        """What the station applied from the records (and the records it refused)."""
+        return list(self.host.calibration_log or [])
+
+    # --- run --------------------------------------------------------------------------
+
+    def run(self, client: Any, routine: str, progress: Progress | None = None, **options: Any) -> Any:
+        """Run ``routine`` (probe, iso, geometry, servo) through the command API; blocks until it ends and returns
+        its result (nothing applied). Options: probe ``per_ring``, ``polar_deg``, ``repeats``, ``approx_centre``;
+        iso ``repeats``, ``approx_centre``; geometry ``repeats``, ``verify``; servo ``axes``.
+        Raises Refused (machine busy, no control), CalibrationError, or the routine's error."""
+        routine = ROUTINES.get(routine, routine)
+        if routine not in LABELS:
+            raise CalibrationError(f"unknown routine {routine!r}; choose one of {', '.join(ROUTINES)}")
+        if not self._running.acquire(blocking=False):
+            raise CalibrationError("a calibration routine is running: wait for it or press STOP")
+        try:
+            certs = self.certificates(routine)
+            self._cancel = False
+            api = self.host.controller
+
+            def posted(fraction: float, message: str) -> None:  # to the front end from the dispatcher thread
+                if progress is not None:
+                    api.dispatcher.post(progress, fraction, message)
+            return api.run_job(client, LABELS[routine], lambda: self._work(routine, certs, options, posted))
+        finally:
+            self.instruction = ""
+            self._bar_event = None
+            self._running.release()
+
+    def _work(self, routine: str, certs: Any, options: dict[str, Any], progress: Progress) -> Any:
+        """In the machine loop (run_job): the routine has the machine to itself."""
+        machine, settings = self.host.machine, self.host.prober.settings
+        if routine == "probe":
+            from .probe import qualify_probe
+
+            master = None
+            try:
+                if (self.records_dir / PROBE_RECORD).is_file():
+                    master = load_probe_record(self.records_dir / PROBE_RECORD).sphere_centre
+            except CalibrationError:
+                master = None
+            kw = {k: options[k] for k in ("per_ring", "polar_deg", "repeats", "approx_centre") if k in options}
+            kw.setdefault("repeats", 2)
+            return qualify_probe(machine, certs, master_centre=master, progress=progress, **kw)
+        if routine == "iso":
+            from .iso10360 import run_iso10360_5
+
+            return run_iso10360_5(machine, certs, settings, repeats=int(options.get("repeats", 1)),
+                                  approx_centre=options.get("approx_centre"), progress=progress)
+        if routine == "geometry":
+            from .geometry import calibrate_geometry, default_setups
+
+            setups = default_setups(lengths={k: c.length for k, c in certs.items() if k in BAR_CERTIFICATES})
+            previous = machine.correction
+            try:
+                return calibrate_geometry(machine, settings, certs, setups, self.placer(certs),
+                                          repeats=int(options.get("repeats", 1)),
+                                          verify=bool(options.get("verify", True)), progress=progress)
+            finally:
+                machine.correction = previous  # still in the job: the new correction is applied by save() only
+        from .servo import tune_servos
+
+        return tune_servos(machine, tuple(options.get("axes") or ("x", "y", "z")), progress=progress)
+
+    def placer(self, certs: dict[str, BallBarCertificate]) -> Callable[[Any], None]:
+        """How each ball-bar set-up gets its bar: the simulated operator, or the real one (instruction + wait)."""
+        if self.host.simulated:
+            rng = np.random.default_rng(7)
+
+            def place_sim(s: Any) -> None:  # the simulated operator clamps the bar within 0.3 mm
+                d = certs[s.artifact].ball_diameter
+                off = rng.uniform(-0.3, 0.3, 3)
+                self.host.place_sim_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
+            return place_sim
+
+        def place_operator(s: Any) -> None:
+            event = threading.Event()
+            self._bar_event = event
+            self.instruction = (f"Place **{certs[s.artifact].describe()}** for set-up **{s.name}**: balls at "
+                                "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}, ".format(*s.ball1, *s.ball2)
+                                + "clamp it, then press **Bar placed, continue**.")
+            try:
+                while not self.host.controller.wait_event(event, 0.2):
+                    if self._cancel:
+                        break
+                if self._cancel:
+                    raise CalibrationError("the operator cancelled the geometry calibration")
+            finally:
+                self.instruction = ""
+                self._bar_event = None
+        return place_operator
+
+    def bar_placed(self) -> bool:
+        """The operator has clamped the bar for the set-up shown: the routine goes on. False: nothing waits."""
+        event = self._bar_event
+        if event is None:
+            return False
+        event.set()
+        return True
+
+    def cancel(self) -> None:
+        """End a routine that waits for the operator (the front end also sends STOP for one that moves)."""
+        if not self.running:
+            return
+        self._cancel = True
+        event = self._bar_event
+        if event is not None:
+            event.set()
+
+    # --- results ---------------------------------------------------------------------------
+
+    def save(self, client: Any, routine: str, result: Any, *, accepted: bool = False) -> tuple[Path, bool]:
+        """Write ``result``'s record; the probe and the geometry are also applied to the live machine (through
+        ``controller.configure``). Returns (path, applied)."""
+        host = self.host
+        if routine == "probe":
+            path = save_record(result.record, self.records_dir / PROBE_RECORD)
+            self._log(host.apply_calibration(LoadedCalibration(probe=result.record), client=client))
+            host.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
+                      f"{result.settings.pretravel.describe()}")
+            return path, True
+        if routine == "geometry":
+            rec = result.record(self._geometry_artifact(), host.config.source)
+            path = save_record(rec, self.records_dir / MACHINE_RECORD)
+            self._log(host.apply_calibration(LoadedCalibration(machine=rec), client=client))
+            host.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
+            return path, True
+        if routine == "servo":
+            return save_record(result.record(accepted, host.config.source),
+                               self.records_dir / (SERVO_RECORD if accepted else SERVO_PROPOSAL)), False
+        if routine == "iso":
+            data = {"record": {"kind": "iso10360-5", "date": now(), "machine": host.config.source,
+                               "repeats": result.repeats},
+                    "results": {k: {"form_um": f.form_um, "size_um": f.size_um, "diameter": f.diameter}
+                                for k, f in result.figures.items()}}
+            return write_atomic(self.records_dir / ISO_RECORD,
+                                dumps(data, "ISO 10360-5 style probing test written by the station's calibration tab.")), False
+        raise CalibrationError(f"unknown routine {routine!r}")
+
+    def accept_gains(self, client: Any, result: Any) -> Path:
+        """Send a servo tuning's proposed gains to the modules (``controller.configure``) and record them."""
+        from .servo import apply_gains
+
+        host = self.host
+        host.controller.configure(client, lambda: apply_gains(host.machine, result.proposed))
+        path = save_record(result.record(True, host.config.source), self.records_dir / SERVO_RECORD)
+        host.note("servo gains accepted: " + "; ".join(
+            f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in result.proposed.items()))
+        return path
+
+    def _geometry_artifact(self) -> str:
+        try:
+            return ", ".join(sorted(c.describe() for c in self.certificates("geometry").values()))
+        except CalibrationError:
+            return "ball bar"
+
+    def _log(self, applied: list[str]) -> None:
+        kinds = {a.split(" ", 1)[0] for a in applied}
+        self.host.calibration_log = [line for line in self.in_force() if line.split(" ", 1)[0] not in kinds] + applied
+
+
+__all__ = ["BAR_CERTIFICATES", "CalibrationHost", "CalibrationService", "LABELS", "ROUTINES", "calibration_errors",
+           "records_summary"]
