@@ -1,11 +1,16 @@
 """Machine layer on the simulated CMM, through the NMC byte stream."""
 
+import logging
+
 import numpy as np
 import pytest
 
-from cmm.machine.motion import ContactError, LimitError
+from cmm.machine.config import load
+from cmm.machine.motion import ContactError, LimitError, Machine
 from cmm.machine.status import MotionError
 from cmm.nmc import codec
+from cmm.nmc.faults import Fault, FaultyTransport
+from cmm.sim.cmm_sim import SimulatedCMM
 
 
 def test_connect_sets_up_three_axes_at_home(sim_machine):
@@ -186,3 +191,42 @@ def test_velocity_mode_jog_for_firmware_without_goal_changes():
         assert m.position[0] == pytest.approx(x, abs=0.003)
     finally:
         m.close()
+
+
+def test_close_leaves_the_modules_at_power_up_for_the_next_start_up():
+    config = load()
+    sim = SimulatedCMM(config)
+    first = Machine(config, sim.transport())
+    first.connect()
+    moving = first.move_to([60.0, 40.0, 250.0])
+    first.run_for(0.3)
+    first.close()
+    assert moving.done and "closed" in str(moving.error)
+    assert all(m.address == 0 and m.group == 0xFF and m.baud == 19200 and not m.servo_on
+               for m in sim.network.modules)
+    second = Machine(config, sim.transport())  # a second station on the same modules
+    second.connect()
+    try:
+        here = second.position
+        second.move_to(here + [5.0, 0.0, -5.0]).wait(10)
+        assert second.position == pytest.approx(here + [5.0, 0.0, -5.0], abs=0.0021)
+    finally:
+        second.close()
+
+
+def test_close_on_a_dead_link_does_not_raise_and_says_what_it_could_not_do(caplog):
+    config = load()
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport(), seed=1)
+    m = Machine(config, port)
+    m.connect()
+    port.inject(Fault("disconnect"))
+    with caplog.at_level(logging.WARNING, logger="cmm.machine.motion"):
+        m.close()
+    text = caplog.text
+    assert "motor off was not confirmed" in text and "STOP NOT CONFIRMED" in text
+    assert "modules were not reset to their power-up state" in text and "next start-up resets them" in text
+    port.restore()
+    again = Machine(config, sim.transport())  # the modules, still addressed and servoing, are found again
+    again.connect()
+    again.close()

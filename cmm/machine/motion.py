@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..nmc import codec
-from ..nmc.bus import Bus, ModuleInfo, NmcError
+from ..nmc.bus import Bus, LinkError, ModuleInfo, NmcError
 from ..nmc.module import Module
 from ..nmc.trace import ByteTrace
 from ..nmc.transport import is_virtual
@@ -170,13 +170,30 @@ class Machine:
             return self.connect()
 
     def close(self) -> None:
+        """Stop every axis (motor off), leave the modules in their power-up state and close the port.
+
+        The modules are reset (HARD_RESET to their addresses and groups), so
+        the next start-up, this driver's or Kerr's, finds a fresh chain. On a
+        dead link nothing is raised: what could not be done is logged.
+        """
         self.stop_polling()
         with self._lock:
+            motion, self._motion = self._motion, None
+            if motion is not None:
+                motion.status.finish(error=MotionError("the machine was closed"))
             try:
                 for mod in self.modules:
                     mod.stop("off")
-            except NmcError:
-                pass
+            except NmcError as exc:
+                report = self.bus.stop_all("off")  # never raises
+                log.warning("closing the machine: motor off was not confirmed (%s); %s", exc, report.sentence())
+            try:
+                if not self.bus.link_up:
+                    raise LinkError(f"the link {self.bus.port_name} is down")
+                self.bus.release()
+            except LinkError as exc:
+                log.warning("closing the machine: the modules were not reset to their power-up state (%s); the "
+                            "next start-up resets them", exc)
             self.bus.close()
 
     # --- sampling ---------------------------------------------------------
