@@ -220,3 +220,31 @@ def test_geometry_bar_placement(app, operator):
         assert not t.is_alive() and service.instruction == ""
     finally:
         app.station.sim = sim
+
+
+def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_nothing(app, operator):
+    """A real geometry run through the tab and the service (on "hardware": no simulator to place the bar): the
+    routine waits in the machine loop for the bar, every tab shows the set-up, Cancel ends it with a message and
+    the correction in force is the one before."""
+    st = app.station
+    panel = operator.calibration
+    correction = st.machine.correction
+    sim, st.sim = st.sim, None
+    try:
+        job = panel.run("geometry", repeats=1)
+        assert job is not None, operator.messages[-2:]
+        end = time.monotonic() + 10
+        while not st.calibration.instruction and time.monotonic() < end:
+            time.sleep(0.01)
+        assert "set-up **X**" in st.calibration.instruction and not job.done
+        assert st.control_state.activity and "Machine geometry" in st.control_state.activity  # a job of the loop
+        other = app.add_client(client_id="other-tab", is_local=True)
+        assert other.calibration.run("probe") is None  # one routine at a time, whichever tab
+        panel.cancel()
+        assert job.wait(10) and job.error is not None
+        assert "cancelled" in str(job.error) and "previous calibration stays in force" in _errors(operator)[0][2]
+        assert st.calibration.instruction == "" and not st.calibration.running
+        assert st.machine.correction is correction
+    finally:
+        st.sim = sim
+        st.reset()

@@ -204,7 +204,11 @@ class CalibrationService:
             def posted(fraction: float, message: str) -> None:  # to the front end from the dispatcher thread
                 if progress is not None:
                     api.dispatcher.post(progress, fraction, message)
-            return api.run_job(client, LABELS[routine], lambda: self._work(routine, certs, options, posted))
+            try:
+                return api.run_job(client, LABELS[routine], lambda: self._work(routine, certs, options, posted))
+            finally:
+                if progress is not None:
+                    api.dispatcher.flush()  # the last progress report reaches the front end before the result
         finally:
             self.instruction = ""
             self._bar_event = None
