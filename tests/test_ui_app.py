@@ -19,6 +19,7 @@ pytest.importorskip("viser")
 
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.panels import HOLD_GRACE_S  # noqa: E402
 from cmm.ui.panels import nominal_deviation, parse_ids  # noqa: E402
 from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
 
@@ -159,7 +160,7 @@ def test_jog_hold_moves_and_stops_when_refresh_stops(app, operator):
         time.sleep(0.005)
     stopped_after = st.state.time - released
     assert not st.machine.busy
-    assert stopped_after < 0.2, stopped_after
+    assert stopped_after < HOLD_GRACE_S + 0.2, stopped_after  # the hold keeper bridges late holds, then releases
     x = st.state.position[0]
     time.sleep(0.1)
     assert abs(st.state.position[0] - x) < 0.01  # settled (a count or two of servo settling)

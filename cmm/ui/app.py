@@ -2,9 +2,10 @@
 
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
-tab, and runs two light threads: the probe updater (50 Hz, also samples the
-following-error plot) and the panel refresher (20 Hz hold watchdog, 5 Hz
-read-outs). Who may move the machine is decided by the access
+tab, and runs three light threads: the probe updater (50 Hz, also samples the
+following-error plot), the hold keeper (25 Hz: keeps a held jog button's jog
+alive between late hold events, :meth:`~cmm.ui.panels.ClientApp.keep_hold`) and
+the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
 :class:`~cmm.ui.access.Control`, shared with the pendant page.
 """
 
@@ -23,6 +24,7 @@ from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
 
 REFRESH_HZ = 20.0
+HOLD_KEEP_HZ = 25.0  # well inside the machine's 0.15 s dead-man, on its own thread (a slow refresh cannot delay it)
 READOUT_EVERY = 4  # refresher ticks between read-out refreshes (5 Hz)
 PLOT_SECONDS = 10.0
 
@@ -67,6 +69,8 @@ class StationApp:
         self._stop = threading.Event()
         self._refresher = threading.Thread(target=self._refresh_loop, name="ui-refresh", daemon=True)
         self._refresher.start()
+        self._keeper = threading.Thread(target=self._keep_loop, name="ui-hold", daemon=True)
+        self._keeper.start()
 
     # --- life cycle ------------------------------------------------------------
 
@@ -91,8 +95,9 @@ class StationApp:
     def close(self) -> None:
         self._stop.set()
         self.updater.close()
-        if self._refresher.is_alive():
-            self._refresher.join(timeout=2)
+        for thread in (self._refresher, self._keeper):
+            if thread.is_alive():
+                thread.join(timeout=2)
         if self.pendant is not None:
             self.pendant.close()
         self.server.stop()
@@ -227,6 +232,14 @@ class StationApp:
         if self._dirty["features"]:
             self._dirty["features"] = False
             self.view.draw_features()
+
+    def _keep_loop(self) -> None:
+        while not self._stop.wait(1.0 / HOLD_KEEP_HZ):
+            for capp in list(self.clients.values()):
+                try:
+                    capp.keep_hold()
+                except Exception:  # noqa: BLE001 - a closing tab; the machine's dead-man still applies
+                    pass
 
     def _refresh_loop(self) -> None:
         tick = 0

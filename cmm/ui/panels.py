@@ -14,7 +14,11 @@ by its one :meth:`~cmm.ui.access.Control.may_stop` policy) and the machine
 state once, and refuses with a sentence that is shown here. Measurement
 changes (hits, features, sessions) ask :meth:`ClientApp.allowed` first (a
 server-side check: hiding buttons is not security). The jog dead-man is the
-machine loop's: held buttons re-send the jog, nothing here times it out.
+machine loop's: held buttons re-send the jog. A busy browser sends viser's hold
+events late (a WebGL frame on a slow PC blocks the page for up to ~1 s), which stopped the jog on the dead-man again
+and again; so the app's hold keeper (:meth:`ClientApp.keep_hold`, 25 Hz)
+re-sends a held button's jog between its hold events, for at most
+``HOLD_GRACE_S`` of machine time after the newest one, then releases it.
 """
 
 from __future__ import annotations
@@ -50,6 +54,9 @@ JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, Pa
                  "The pendant is its own client: press Take control in it. A tablet opens the pendant page alone.")
 LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser may run callbacks out of order)
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
+# machine seconds a held button's jog is kept alive after its newest hold event (a busy browser sends them late);
+# a lost pointer-up or a frozen tab therefore stops within this plus the stop (a closed tab releases at once)
+HOLD_GRACE_S = 1.0
 OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
 
 
@@ -152,6 +159,7 @@ class ClientApp:
         self.selected_feature: int | None = None
         self._jogging = False
         self._last_hold = 0.0
+        self._hold: tuple[np.ndarray, bool, int, float] | None = None  # (v, probe, release seq, machine time)
         self._last_error = ("", 0.0)
         self._zero_armed = 0.0
         self._released_at = 0.0
@@ -220,6 +228,7 @@ class ClientApp:
     # --- machine ------------------------------------------------------------------
 
     def stop(self) -> Any:
+        self._hold = None
         self._jogging = False
         report = self._cmd("Stop", self.api.stop)
         if report is not None and not report.ok:
@@ -227,6 +236,7 @@ class ClientApp:
         return report
 
     def emergency_stop(self) -> Any:
+        self._hold = None
         self._jogging = False
         report = self._cmd("E-stop", self.api.emergency_stop)
         if report is not None:
@@ -293,17 +303,43 @@ class ClientApp:
         if time.monotonic() - self._released_at < LATE_HOLD_S:
             return  # a hold event that arrived after the button's release must not start the jog again
         v = self.jog_velocity(axis, sign)
+        v = self.station.manual_probe_velocity(v) if self.manual_probe else v
+        who = self.who()
+        seq = self.api.release_seq(who)  # a release after this point drops this jog and the keeper's re-sends
         try:
-            self.api.jog(self.who(), self.station.manual_probe_velocity(v) if self.manual_probe else v,
-                         probe=self.manual_probe)
+            self.api.jog(who, v, probe=self.manual_probe, after=seq)
         except OPERATOR_ERRORS as exc:
+            self._hold = None
             self._throttled_error("Jog", str(exc))
             return
         self._jogging = True
         self._last_hold = time.monotonic()
+        self._hold = (v, self.manual_probe, seq, self._machine_time())
+
+    def keep_hold(self) -> None:
+        """The hold keeper (app thread, 25 Hz): re-send a held button's jog between its (late) hold events; release
+        it once none came for ``HOLD_GRACE_S`` of machine time (lost pointer-up, frozen tab)."""
+        hold = self._hold
+        if hold is None:
+            return
+        v, probe, seq, since = hold
+        if self._machine_time() - since > HOLD_GRACE_S:
+            if self._hold is hold:
+                self._hold = None
+                self.jog_release()
+            return
+        try:
+            self.api.jog(self.who(), v, probe=probe, after=seq)
+        except OPERATOR_ERRORS:
+            pass  # refused (control taken, fault, contact back-off): the next hold event tells the operator
+
+    def _machine_time(self) -> float:
+        st = self.station.state
+        return float(st.time) if st is not None and getattr(st, "time", None) is not None else time.monotonic()
 
     def jog_release(self) -> None:
         """The button was released (viser's click event fires on release) or the holds stopped coming."""
+        self._hold = None
         self._released_at = time.monotonic()
         if self._jogging:
             self._jogging = False
