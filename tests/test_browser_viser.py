@@ -10,7 +10,6 @@ test-artifacts/ (git-ignored).
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import pytest
