@@ -9,8 +9,10 @@
     replay.changes(i)           # what event i changed: {"hits_added": [...], "hits_removed": [...], ...}
     for i, state in replay: ... # every state in order (incremental, O(1) per step)
 
-``at(i)`` is O(K) with checkpoints every K = 256 events, so dragging a
-slider over a 10,000-hit session stays interactive. States are independent
+``at(i)`` is O(K) with checkpoints every K = 256 events (more for sessions
+of more than 8,192 events: at most 32 checkpoints, each a copy of the state,
+so a 200,000-hit session needs a few hundred MB, not tens of GB), so
+dragging a slider over a 10,000-hit session stays interactive. States are independent
 copies: the UI may keep them. ``SessionState`` (see :mod:`cmm.session.model`)
 has ``hits`` / ``deleted_hits`` (HitRecord: id, counts, machine, approach,
 point, ...), ``features`` (FeatureRecord: name, kind, method, hit_ids, fit,
@@ -28,22 +30,39 @@ from .journal import read_events
 from .model import Session, SessionState
 
 CHECKPOINT_EVERY = 256
+MAX_CHECKPOINTS = 32  # each is a full copy of the state: their number, not their spacing, bounds the memory
 
 
 class Replay:
     def __init__(self, session: Session, *, progress: Callable[[int, int], None] | None = None) -> None:
         self.session = session
-        self.events = session.events
-        self._checkpoints: list[SessionState] = [SessionState()]  # state before event k * CHECKPOINT_EVERY
-        state = SessionState()
+        self._build(progress)
+
+    def _build(self, progress: Callable[[int, int], None] | None) -> SessionState:
+        """Checkpoints and times from one pass over the events; returns the final state."""
+        self.events = self.session.events
         n = len(self.events)
+        self.every = max(CHECKPOINT_EVERY, -(-n // MAX_CHECKPOINTS))
+        self._checkpoints: list[SessionState] = [SessionState()]  # state before event k * self.every
+        state = SessionState()
         for i, e in enumerate(self.events):
             state.apply(e, i)
-            if (i + 1) % CHECKPOINT_EVERY == 0:
+            if (i + 1) % self.every == 0:
                 self._checkpoints.append(state.copy())
                 if progress is not None:
                     progress(i + 1, n)
         self._times = [float(e.get("time", 0.0)) for e in self.events]
+        return state
+
+    @classmethod
+    def from_events(cls, events: list[dict], name: str = "session", damage: str | None = None, *,
+                    progress: Callable[[int, int], None] | None = None) -> "Replay":
+        """The replay and its :class:`Session` in one pass over the events (half the work of
+        ``Replay(Session.from_events(...))`` on a big journal)."""
+        replay = cls.__new__(cls)
+        replay.session = Session(name, events, damage)
+        replay.session.state = replay._build(progress)
+        return replay
 
     @classmethod
     def open(cls, path: str | Path) -> "Replay":
@@ -63,9 +82,9 @@ class Replay:
             i += n
         if not 0 <= i < n:
             raise IndexError(f"scrubber position {i} is outside the session's {n} events")
-        k = (i + 1) // CHECKPOINT_EVERY
+        k = (i + 1) // self.every
         state = self._checkpoints[k].copy()
-        for j in range(k * CHECKPOINT_EVERY, i + 1):
+        for j in range(k * self.every, i + 1):
             state.apply(self.events[j], j)
         return state
 

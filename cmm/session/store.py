@@ -98,6 +98,26 @@ def load_session(store: SessionStore, name: str) -> Session:
 
 # --------------------------------------------------------------------------- directory
 
+_line_counts: dict[str, tuple[int, int, int]] = {}  # path -> (size, mtime_ns, lines): every open tab lists the store
+
+
+def count_lines(path: Path, st: os.stat_result | None = None) -> int:
+    """Lines (events) of a journal; cached by size and modification time, counted in 1 MB blocks."""
+    st = st or path.stat()
+    key = str(path)
+    cached = _line_counts.get(key)
+    if cached is not None and cached[:2] == (st.st_size, st.st_mtime_ns):
+        return cached[2]
+    n, last = 0, b"\n"
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            n += block.count(b"\n")
+            last = block[-1:]
+    if last != b"\n":
+        n += 1  # a torn last line counts, as it did when lines were iterated
+    _line_counts[key] = (st.st_size, st.st_mtime_ns, n)
+    return n
+
 
 class DirectoryStore:
     """The embedded store: ``<root>/<name>.jsonl`` journals."""
@@ -114,9 +134,8 @@ class DirectoryStore:
             return []
         out = []
         for p in sorted(self.root.glob("*.jsonl")):
-            with open(p, "rb") as fh:
-                n = sum(1 for _ in fh)
-            out.append(SessionInfo(p.stem, n, p.stat().st_mtime, is_locked(p), str(p)))
+            st = p.stat()
+            out.append(SessionInfo(p.stem, count_lines(p, st), st.st_mtime, is_locked(p), str(p)))
         return out
 
     def exists(self, name: str) -> bool:

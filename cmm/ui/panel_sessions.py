@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import threading
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
+from ..session.bulk import gc_paused
 from ..session.journal import JournalError
-from ..session.store import StoreError, check_name, is_url, load_session, open_store
+from ..session.store import StoreError, check_name, is_url, open_store
+from ..session.worker import WorkerError, shared_summaries, shared_worker
 
 if TYPE_CHECKING:
     from .panels import ClientApp
@@ -223,7 +224,6 @@ class SessionsPanel:
         self.last_files: list[Path] = []
         self.gui: dict[str, Any] = {}
         self.progress_view = ProgressView(capp)
-        self._summaries: dict[str, tuple[Any, dict]] = {}
         self._view: Any = None
         self._ticks = 0
 
@@ -244,8 +244,11 @@ class SessionsPanel:
         d = self.station.session_dir
         return Path("exports") if is_url(d) else Path(d)
 
-    def sessions(self) -> list[dict[str, Any]]:
-        """name, events, hits, features, recording, modified for every session in the store."""
+    def sessions(self, wait: bool = True) -> list[dict[str, Any]]:
+        """name, events, hits, features, recording, modified for every session in the store.
+
+        The summaries are read by the session worker process, once per journal version for every tab;
+        ``wait=False`` (the list the tab shows) gives "…" for one still being read."""
         live = self.live_name()
         rows = []
         for info in self.store().list():
@@ -253,22 +256,20 @@ class SessionsPanel:
                 with self.station.lock:
                     hits, features = len(self.station.hits), len(self.station.features)
             else:
-                key = (info.events, info.modified)
-                cached = self._summaries.get(info.name)
-                if cached is None or cached[0] != key:
-                    try:
-                        cached = (key, load_session(self.store(), info.name).summary())
-                    except (StoreError, JournalError, OSError, ValueError, KeyError) as exc:
-                        cached = (key, {"hits": "?", "features": "?", "damage": str(exc)})
-                    self._summaries[info.name] = cached
-                hits, features = cached[1].get("hits"), cached[1].get("features")
+                try:
+                    summary = shared_summaries().get(self.station.session_dir, info.name,
+                                                     (info.events, info.modified), wait=wait)
+                except (StoreError, JournalError, OSError, ValueError, KeyError, WorkerError) as exc:
+                    summary = {"hits": "?", "features": "?", "damage": str(exc)}
+                summary = summary or {"hits": "…", "features": "…"}
+                hits, features = summary.get("hits"), summary.get("features")
             rows.append({"name": info.name, "events": info.events, "hits": hits, "features": features,
                          "recording": info.open_for_writing or info.name == live, "modified": info.modified})
         return rows
 
     def list_markdown(self) -> str:
         try:
-            rows = self.sessions()
+            rows = self.sessions(wait=False)
         except (StoreError, OSError) as exc:
             return f"*cannot list the sessions: {exc}*"
         if not rows:
@@ -325,8 +326,11 @@ class SessionsPanel:
     def _part_mesh(self, session: Any) -> Any:
         from ..session.export import resolve_part_mesh
 
+        return resolve_part_mesh(session, self._live_mesh())
+
+    def _live_mesh(self) -> Any:
         part = self.station.part
-        return resolve_part_mesh(session, part.mesh if part is not None else None)
+        return part.mesh if part is not None else None
 
     def open(self, name: str) -> Job | None:
         """Open a recorded session for replay (no machine motion); the scrubber goes to its last event."""
@@ -335,9 +339,12 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> Any:
             progress(0.0, f"reading {name}")
-            session = load_session(self.store(), name)
-            progress(0.2, f"indexing {len(session.events)} events")
-            replay = Replay(session, progress=lambda i, n: progress(0.2 + 0.5 * i / max(n, 1), f"event {i} of {n}"))
+            with gc_paused():  # millions of new objects: no full collector passes that stall the machine loop
+                contents = self.store().read(name)
+                progress(0.2, f"indexing {len(contents.events)} events")
+                replay = Replay.from_events(contents.events, name, contents.damage, progress=lambda i, n: progress(
+                    0.2 + 0.5 * i / max(n, 1), f"event {i} of {n}"))
+            session = replay.session
             if len(replay) == 0:
                 raise StoreError(f"session {name!r} has no events")
             progress(0.75, "finding the part mesh")
@@ -427,7 +434,7 @@ class SessionsPanel:
             return False
         if self.session is not None and self.session.name == old:
             self.session.name = new
-        self._summaries.pop(old, None)
+        shared_summaries().forget(self.station.session_dir, old)
         self.capp.notify("Renamed", f"{old} → {new}")
         self.refresh_list()
         return True
@@ -444,7 +451,7 @@ class SessionsPanel:
             return False
         if self.session is not None and self.session.name == name:
             self.back_to_live()
-        self._summaries.pop(name, None)
+        shared_summaries().forget(self.station.session_dir, name)
         self.capp.notify("Deleted", f"session {name}")
         self.refresh_list()
         return True
@@ -479,24 +486,14 @@ class SessionsPanel:
                 pass
 
     def export(self, name: str, csv: bool = True, json: bool = True) -> Job | None:
-        """Write ``<name>.csv`` (hits) and/or ``<name>.json`` (whole session) into the sessions folder."""
-        from ..session.export import write_csv, write_json
+        """Write ``<name>.csv`` (hits) and/or ``<name>.json`` (whole session) into the sessions folder
+        (in the session worker process)."""
+        from ..session import worker
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
-            progress(0.0, f"reading {name}")
-            session = load_session(self.store(), name)
-            progress(0.3, "finding the part mesh")
-            mesh = self._part_mesh(session)
-            out = self.export_dir()
-            out.mkdir(parents=True, exist_ok=True)
-            files = []
-            if csv:
-                progress(0.5, "writing CSV")
-                files.append(write_csv(session, out / f"{name}.csv", mesh))
-            if json:
-                progress(0.75, "writing JSON")
-                files.append(write_json(session, out / f"{name}.json", mesh))
-            return files
+            progress(0.1, f"exporting {name} (session worker)")
+            return shared_worker().call(worker.export, self.station.session_dir, name, self.export_dir(),
+                                        self._live_mesh(), csv, json)
 
         return self._start("Export", work, self._files_done)
 
@@ -510,19 +507,13 @@ class SessionsPanel:
 
     def report(self, name: str) -> Job | None:
         """Write the inspection report ``<name>-report.html`` and its feature table ``<name>-features.csv``
-        into the sessions folder (and offer them)."""
-        from ..session.report import write_features_csv, write_report
+        into the sessions folder (and offer them); rendered in the session worker process."""
+        from ..session import worker
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
-            progress(0.0, f"reading {name}")
-            session = load_session(self.store(), name)
-            progress(0.3, "finding the part mesh")
-            mesh = self._part_mesh(session)
-            progress(0.5, "rendering the report")
-            out = self.export_dir()
-            out.mkdir(parents=True, exist_ok=True)
-            return [write_report(session, out / f"{name}-report.html", mesh=mesh),
-                    write_features_csv(session, out / f"{name}-features.csv")]
+            progress(0.1, f"rendering the report of {name} (session worker)")
+            return shared_worker().call(worker.report, self.station.session_dir, name, self.export_dir(),
+                                        self._live_mesh())
 
         return self._start("Report", work, self._files_done)
 
@@ -530,8 +521,7 @@ class SessionsPanel:
         """Recompute hits and features from the raw counts with another tip radius / fit method into a new session."""
         if not self.capp.allowed("Re-evaluate"):
             return None
-        from ..session.reevaluate import reevaluate
-        from ..session.store import write_session
+        from ..session import worker
 
         new = (new or "").strip() or f"{name}-reevaluated"
         try:
@@ -547,22 +537,14 @@ class SessionsPanel:
             return None
 
         def work(progress: Callable[[float, str], None]) -> Any:
-            progress(0.0, f"reading {name}")
-            session = load_session(self.store(), name)
-            settings = session.probe_settings()
-            if tip_radius:
-                settings = replace(settings, tip_radius=float(tip_radius))
-            result = reevaluate(session, settings, method=None if method == "recorded" else method, name=new,
-                                progress=lambda i, n: progress(0.1 + 0.7 * i / max(n, 1), f"event {i} of {n}"))
-            progress(0.85, f"writing {new}")
-            write_session(self.store(), new, result.events)
-            return session, result
+            progress(0.1, f"re-evaluating {name} (session worker)")
+            return shared_worker().call(worker.reevaluate, self.station.session_dir, name, new, float(tip_radius or 0.0),
+                                        None if method == "recorded" else method)
 
         def done(result: Any) -> str:
-            old, derived = result
-            errors = derived.state.errors[len(old.state.errors):]
-            return (f"wrote {new}: {len(derived.hits)} hits, {len(derived.features)} features"
-                    + (f"; {len(errors)} feature(s) could not be refitted: {errors[0][1]}" if errors else ""))
+            errors = result["errors"]
+            return (f"wrote {new}: {result['hits']} hits, {result['features']} features"
+                    + (f"; {len(errors)} feature(s) could not be refitted: {errors[0]}" if errors else ""))
 
         return self._start("Re-evaluate", work, done)
 
