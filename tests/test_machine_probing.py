@@ -2,15 +2,19 @@
 
 import ast
 import inspect
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from cmm.machine import probing
-from cmm.machine.motion import ContactError
-from cmm.machine.probing import SurfaceNotFound
+from cmm.machine.config import load
+from cmm.machine.motion import ContactError, Machine
+from cmm.machine.probing import Prober, SurfaceNotFound
 from cmm.machine.status import Cancelled, MotionError
 from cmm.metrology.compensation import PretravelModel
+from cmm.nmc import codec
+from cmm.sim.cmm_sim import SimulatedCMM
 
 COUNT = 0.002  # mm
 
@@ -162,3 +166,47 @@ def test_the_prober_uses_only_public_machine_members():
                        and node.attr.startswith("_")})
     assert private == [] and via_self == []
     assert "_Motion" not in {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) for a in n.names}
+
+
+def _on_firmware(firmware: str):
+    config = load()
+    config = replace(config, link=replace(config.link, firmware=firmware,
+                                          read_following_error=firmware == "pic-servo-sc"))
+    sim = SimulatedCMM(config)
+    m = Machine(config, sim.transport())
+    m.connect()
+    return sim, m
+
+
+@pytest.mark.parametrize("firmware", ["pic-servo", "pic-servo-sc"])
+def test_the_probe_on_limit1_stops_nothing_by_itself_on_either_firmware(firmware):
+    sim, m = _on_firmware(firmware)
+    try:
+        if firmware == "pic-servo-sc":
+            assert [mod.sc_io for mod in sim.network.modules] == [0x00] * 3  # no limit stop, no drive option
+        else:
+            assert [mod.io for mod in sim.network.modules] == [0x0C] * 3  # both LIMIT pins inputs
+        errors = []
+        m.on_event(lambda kind, info: errors.append(info) if kind == "error" else None)
+        hit = Prober(m).probe(part_to_machine(sim, [60.0, 40.0, 40.0]), [0, 0, -1]).wait()
+        assert abs(hit.machine[2] - 41.0) < 0.05
+        st = m.sample()
+        # the retract climbed with the stylus deflected (LIMIT1 active): the servos stayed on
+        assert all(a.aux & codec.AUX_SERVO_ON and not a.status & codec.POS_ERROR for a in st.axes)
+        assert not st.probe_triggered and st.position[2] > hit.machine[2] + 0.5 and errors == []
+    finally:
+        m.close()
+
+
+def test_the_original_firmwares_inputs_byte_would_stop_an_sc_axis_on_the_probe():
+    """Why the byte depends on the firmware: 0x0C on an SC turns the motor off while the probe is deflected."""
+    sim, m = _on_firmware("pic-servo-sc")
+    try:
+        for mod in m.modules:
+            mod.io_control(limit1_input=True, limit2_input=True)  # 0x0C, the original firmware's "both inputs"
+        hit = Prober(m).probe(part_to_machine(sim, [60.0, 40.0, 40.0]), [0, 0, -1]).wait()
+        st = m.sample()
+        assert not st.axes[2].aux & codec.AUX_SERVO_ON  # Z went limp on the retract, still on the part
+        assert st.probe_triggered and st.position[2] < hit.machine[2] + 0.1
+    finally:
+        m.close()

@@ -147,7 +147,7 @@ class Machine:
             for axis, mod in zip(self.config.axes, self.modules):
                 mod.define_status(self.items)
                 mod.set_gains(axis.gains)
-                mod.io_control(limit1_input=True, limit2_input=True)
+                mod.plain_inputs()  # probe and home switches are captured, never acted on by the firmware
                 mod.clear_bits()
                 mod.enable()
                 mod.set_group(GROUP, leader=axis.name == "x")

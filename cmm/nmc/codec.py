@@ -127,6 +127,11 @@ IO_LIMIT1_OUT = 0x01  # output value when LIMIT1 is an output
 IO_LIMIT2_OUT = 0x02
 IO_LIMIT1_IN = 0x04  # 1 = LIMIT1 is an input
 IO_LIMIT2_IN = 0x08
+# IO_CTRL on SC firmware (Kerr's NMC library header): the LIMIT pins are always inputs and the byte says what
+# the module does by itself on an active limit; 0x10..0x80 are drive options (3-phase, antiphase, fast path,
+# step & direction) a DC servo leaves clear.
+SC_IO_LIMIT_OFF = 0x04  # motor off on a limit
+SC_IO_LIMIT_STOP = 0x08  # stop abruptly on a limit
 
 # RESET_POS control byte (later firmware only).
 RESET_REL_HOME = 0x01
@@ -375,7 +380,21 @@ def stop_motor(address: int, control: int, position: int | None = None) -> bytes
 
 
 def io_ctrl(address: int, control: int) -> bytes:
-    return encode(address, IO_CTRL, bytes((_check_byte("I/O control", control, 0, 0x0F),)))
+    return encode(address, IO_CTRL, bytes((_check_byte("I/O control", control),)))
+
+
+def plain_inputs_io(firmware: str) -> int:
+    """The IO_CTRL byte that makes LIMIT1 and LIMIT2 inputs the module reads and captures but never acts on.
+
+    Original firmware: 0x0C (bits 2/3: both pins inputs). SC firmware: 0x00,
+    because there the same 0x0C turns the motor off (0x04) and stops it (0x08)
+    while a LIMIT input is active: with the probe wired to a LIMIT input every
+    trigger, and every retract with the stylus still deflected, would kill the
+    axis; home switches would too.
+    """
+    if firmware not in BAUD_DIVISORS:
+        raise CodecError(f"unknown firmware family {firmware!r}; known: {', '.join(BAUD_DIVISORS)}")
+    return 0x00 if firmware == "pic-servo-sc" else IO_LIMIT1_IN | IO_LIMIT2_IN
 
 
 def set_homing(address: int, control: int) -> bytes:

@@ -91,8 +91,13 @@ class Module:
         """Amplifier on and servo holding the present position."""
         return self._send(codec.stop_motor(self.address, codec.AMP_ENABLE | codec.STOP_ABRUPT))
 
+    def plain_inputs(self) -> codec.Status:
+        """LIMIT1 and LIMIT2 as inputs with no action of their own, in this bus's firmware's IO_CTRL byte."""
+        return self._send(codec.io_ctrl(self.address, codec.plain_inputs_io(self.bus.firmware)))
+
     def io_control(self, *, limit1_input: bool = True, limit2_input: bool = True, limit1_out: bool = False,
                    limit2_out: bool = False) -> codec.Status:
+        """IO_CTRL in the original firmware's meaning (pin directions); on SC firmware see :meth:`plain_inputs`."""
         control = (codec.IO_LIMIT1_IN if limit1_input else 0) | (codec.IO_LIMIT2_IN if limit2_input else 0)
         control |= (codec.IO_LIMIT1_OUT if limit1_out else 0) | (codec.IO_LIMIT2_OUT if limit2_out else 0)
         return self._send(codec.io_ctrl(self.address, control))
