@@ -32,6 +32,7 @@ from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 
 LAPTOP = (1280, 800)
+TABLET = (820, 1180)  # a 10.9" tablet, portrait
 
 
 @pytest.fixture(scope="module")
@@ -71,6 +72,30 @@ def choose(page, label, option):
     page.get_by_label(label, exact=True).click(force=True)
     page.get_by_role("option", name=option, exact=True).click(force=True)
     page.wait_for_timeout(200)
+
+
+def scrolled_by(page) -> float:
+    """How far the scroll box around the status bar (viser's side panel) is scrolled down, px."""
+    return page.evaluate("""() => { let e = document.getElementById("cmm-status");
+        while (e && !/(auto|scroll)/.test(getComputedStyle(e).overflowY)) e = e.parentElement;
+        return e ? e.scrollTop : -1; }""")
+
+
+def assert_status_bar_on_screen(page, viewport, where):
+    """The status bar, STOP and E-STOP lie inside the viewport and on top (a click there reaches them, not the
+    content scrolled under them)."""
+    w, h = viewport
+    for name, loc, sel in (("status", page.locator("#cmm-status"), "#cmm-status"),
+                           ("STOP", page.get_by_role("button", name="STOP", exact=True), "button"),
+                           ("E-STOP", page.get_by_role("button", name="E-STOP", exact=True), "button")):
+        box = loc.bounding_box()
+        assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= h and 0 <= box["x"] \
+            and box["x"] + box["width"] <= w, f"{where}: {name} is off screen at {box}"
+        centre = [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2]
+        top = page.evaluate("""([x, y, sel]) => { const e = document.elementFromPoint(x, y);
+            const hit = e && e.closest(sel); return hit ? (sel === "button" ? hit.textContent.trim() : hit.id) : null; }""",
+                            [*centre, sel])
+        assert top == (name if sel == "button" else "cmm-status"), f"{where}: {name} is covered ({top!r} is on top)"
 
 
 def part_point(station, local):
@@ -163,10 +188,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         text_input("Temperature (°C)").fill("20.3")
         page.get_by_role("button", name="Save header").click(force=True)
         bs.wait_until(lambda: station.info.get("temperature") == 20.3, 20.0, "the report header saved")
-        stop_box = page.get_by_role("button", name="E-STOP").bounding_box()
         save_box = page.get_by_role("button", name="Save header").bounding_box()
-        assert save_box["y"] > LAPTOP[1] / 2  # scrolled down to the end of the tab ...
-        assert 0 <= stop_box["y"] and stop_box["y"] + stop_box["height"] <= LAPTOP[1], stop_box  # ... STOP on screen
+        assert save_box["y"] > LAPTOP[1] / 2 and scrolled_by(page) > 200  # scrolled down to the end of the tab ...
+        assert_status_bar_on_screen(page, LAPTOP, "laptop, Features tab scrolled")  # ... the bar on screen
         bs.screenshot(page, "station-scrolled-status-bar", timeout=60_000)
 
         # --- 3-2-1 alignment from the top, front and left planes; the DRO switches to part coordinates
@@ -228,14 +252,25 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         page.wait_for_timeout(500)
         bs.screenshot(page, "station-jog-laptop", timeout=60_000)
 
-    with bs.browser_context(viewport=(800, 1280), has_touch=True, is_mobile=True) as context:
+    with bs.browser_context(viewport=TABLET, has_touch=True, is_mobile=True) as context:
         context.set_default_timeout(60_000)
+        # the station page on a tablet: the status bar stays on screen at the end of a long tab
+        page = context.new_page()
+        page.goto(app.url)
+        page.locator("#cmm-status").wait_for()
+        tab(page, "Features")
+        page.get_by_role("button", name="Save header").scroll_into_view_if_needed()
+        page.wait_for_timeout(500)
+        assert scrolled_by(page) > 80, scrolled_by(page)  # more than the bar's top margin: unpinned, it would leave
+        assert_status_bar_on_screen(page, TABLET, "tablet, Features tab scrolled")
+        bs.screenshot(page, "station-tablet-scrolled-status-bar")
+        page.close()
         pendant = context.new_page()
         pendant.goto(app.pendant.url)
         pendant.locator("#stop").wait_for()
         for sel in ("#stop", ".pad"):
             box = pendant.locator(sel).bounding_box()
-            assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= 1280, (sel, box)
+            assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= TABLET[1], (sel, box)
         x = station.state.position[0]
         pendant.get_by_text(f"{x:.3f}").first.wait_for()  # the DRO
         bs.screenshot(pendant, "station-pendant-tablet")

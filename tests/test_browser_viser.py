@@ -10,7 +10,6 @@ test-artifacts/ (git-ignored).
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from netutil import SIM_PACED

@@ -1,7 +1,7 @@
 """The status bar at the top of every tab's panel: machine state, control, link, DRO, probe, STOP / E-STOP.
 
 It is the first thing in the panel and stays on screen while the tabs below
-scroll (a sticky block; the page's own CSS, injected once). The read-out
+scroll (a sticky block: CSS plus a layout-only script, see ``STICKY_CSS``). The read-out
 shows the machine state (not homed / idle / moving / jogging / probing /
 stopped / fault with its reason), who holds control, link health (samples
 per second), the DRO in machine or part coordinates (switchable; part
@@ -22,9 +22,18 @@ if TYPE_CHECKING:
     from .panels import ClientApp
 
 FRAMES = ("Machine", "Part")
-# keeps the status block (viser's folder that holds #cmm-status) on screen while the panel scrolls; the
-# containers around it must not clip (a clipping ancestor would become the sticky block's scroll box)
+# Keeps the status block on screen while the panel scrolls, in two layers that do not depend on one another:
+# 1. CSS on Mantine's static class names (part of Mantine's styling API, not viser's generated ones): the
+#    folder (Paper) that holds #cmm-status is sticky; the containers around it must not clip (a clipping
+#    ancestor would become the sticky block's scroll box);
+# 2. a script sent once per tab (viser's RunJavascriptMessage) that finds the block by layout alone: the
+#    nearest scrolling ancestor of #cmm-status, and below it the largest ancestor of the bar that is not yet
+#    as tall as the scrolled content. It marks that block data-cmm-sticky (and any clipping ancestor
+#    data-cmm-unclip), and re-checks once a second (tabs change the content height; React may re-create nodes).
 STICKY_CSS = """<style>
+[data-cmm-sticky] { position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
+  box-shadow: 0 0 0 10px var(--mantine-color-body, #fff); }
+[data-cmm-unclip] { overflow: visible !important; }
 .mantine-ScrollArea-content .mantine-Paper-root:has(#cmm-status) {
   position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
   box-shadow: 0 0 0 10px var(--mantine-color-body, #fff); }
@@ -36,6 +45,31 @@ STICKY_CSS = """<style>
 .cmm-status .muted { color: #777; }
 .cmm-status .warn { color: #c62828; font-weight: 600; }
 </style>"""
+STICKY_JS = """
+if (!window.__cmmSticky) {
+  window.__cmmSticky = true;
+  const pin = () => {
+    const bar = document.getElementById("cmm-status");
+    if (!bar) return;
+    let box = bar.parentElement;
+    while (box && !/(auto|scroll)/.test(getComputedStyle(box).overflowY)) box = box.parentElement;
+    if (!box) return;
+    const full = box.scrollHeight - 2;
+    let block = bar;
+    while (block.parentElement && block.parentElement !== box
+           && block.parentElement.getBoundingClientRect().height < full) block = block.parentElement;
+    if (!block.hasAttribute("data-cmm-sticky")) {
+      document.querySelectorAll("[data-cmm-sticky]").forEach(e => e.removeAttribute("data-cmm-sticky"));
+      block.setAttribute("data-cmm-sticky", "");
+    }
+    for (let e = block.parentElement; e && e !== box; e = e.parentElement) {
+      if (getComputedStyle(e).overflowY !== "visible") e.setAttribute("data-cmm-unclip", "");
+    }
+  };
+  pin();
+  setInterval(pin, 1000);
+}
+"""
 MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "probing": "#6a1b9a",
                 "homing": "#1565c0", "not homed": "#8d6e00", "stopped": "#8d6e00", "e-stopped": "#b71c1c",
                 "fault": "#b71c1c", "no link": "#b71c1c"}
@@ -119,6 +153,18 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     return "".join(out)
 
 
+def run_script(gui: Any, source: str) -> bool:
+    """Run ``source`` in this client's page through viser's own script message (it loads plotly that way).
+    False when this viser version has no such message: the sticky CSS rule alone keeps the bar on screen."""
+    try:
+        from viser import _messages
+
+        gui._websock_interface.queue_message(_messages.RunJavascriptMessage(source=source))
+        return True
+    except Exception:  # noqa: BLE001 - an internal of viser: its absence must not break the page
+        return False
+
+
 class StatusPanel:
     """The status block and the STOP / E-STOP buttons of one tab."""
 
@@ -131,6 +177,7 @@ class StatusPanel:
 
     def build(self, gui: Any) -> None:
         gui.add_html(STICKY_CSS)
+        run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
             self.gui["status"] = gui.add_html(self.html())
             gui.add_button("STOP", color="orange").on_click(lambda _: self.capp.stop())
