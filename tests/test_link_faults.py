@@ -165,11 +165,66 @@ def test_a_lost_reply_to_a_started_move_is_checked_on_the_module(fault):
     assert bus.stats["verified"] == 1
 
 
-def test_a_lost_reply_whose_effect_cannot_be_told_is_a_link_error_not_a_resend():
+def count_commands(net: SimNetwork, code: int) -> list[int]:
+    """How many times each simulated module carried out a command (a doubled reset shows as 2)."""
+    counts = [0] * len(net.modules)
+    for i, m in enumerate(net.modules):
+        def counted(c, data, i=i, execute=m.execute):
+            counts[i] += c == code
+            return execute(c, data)
+        m.execute = counted
+    return counts
+
+
+LOST = [Fault("drop", "rx", count=2), Fault("stall", "rx", duration=0.3), Fault("drop", "tx")]  # done, done, not
+
+
+@pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_reset_pos_reply_is_recovered_and_never_doubles_the_reset(fault):
     net, port, bus, mods = parked()
+    resets = count_commands(net, codec.RESET_POS)
+    port.inject(fault)
+    mods[1].reset_position()
+    assert abs(mods[1].position()) <= 3 and abs(net.modules[1].pos) <= 3
+    assert resets == [0, 1, 0] and bus.stats["verified"] == 1
+    # the set-position form, to a group: every member checked, none reset twice
+    for m in mods:
+        m.set_group(0x80, leader=m.address == 1)
+    resets[:] = [0, 0, 0]
+    port.inject(fault)
+    bus.transact(codec.reset_pos(0x80, position=12345))
+    assert resets == [1, 1, 1] and [abs(m.position() - 12345) <= 3 for m in mods] == [True] * 3
+
+
+def test_a_lost_reset_pos_reply_that_cannot_be_told_is_a_link_error_not_a_resend():
+    net, port, bus, mods = parked()
+    resets = count_commands(net, codec.RESET_POS)
     port.inject(Fault("drop", "rx", count=2))
-    with pytest.raises(LinkError, match="reply of module 1 to SAVE_AS_HOME was lost .* not sent again"):
+    with pytest.raises(LinkError, match="reply of module 1 to RESET_POS was lost .* not sent again"):
+        bus.transact(codec.reset_pos(1, position=PARK[1] + 2))  # 2 counts from where it reads: done or not?
+    assert resets == [1, 0, 0]
+
+
+@pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_save_as_home_reply_is_recovered(fault):
+    net, port, bus, mods = parked()
+    port.inject(fault)
+    mods[2].save_as_home()  # at rest: carried out once or twice, the home register holds the same position
+    assert mods[2].home_position() == net.modules[2].home == PARK[3]
+    assert bus.stats["verified"] == 1
+    # moving, it is told by the home register changing (it never does if the command was lost)
+    assert mods[0].home_position() == 0
+    mods[0].load_velocity(codec.velocity_to_fixed(20, 500), ACC)
+    bus.clock.sleep(0.2)
+    saves = count_commands(net, codec.SAVE_AS_HOME)
+    port.inject(fault)
+    if fault.direction == "tx":
+        with pytest.raises(LinkError, match="reply of module 1 to SAVE_AS_HOME was lost .* not sent again"):
+            mods[0].save_as_home()
+        assert saves == [0, 0, 0] and net.modules[0].home == 0
+    else:
         mods[0].save_as_home()
+        assert saves == [1, 0, 0] and net.modules[0].home > PARK[1]
 
 
 def test_start_up_works_whatever_state_an_earlier_run_left():
@@ -273,16 +328,47 @@ def test_stop_all_on_a_dead_link_reports_quickly_and_on_one_silent_module_stops_
     assert bus.clock.now() - t0 < 3.0  # not a resynchronisation per module
 
 
-@pytest.mark.parametrize("fault", [Fault("drop", "rx", count=2), Fault("stall", "rx", duration=0.3)],
-                         ids=lambda f: f.describe().replace(" ", "-"))
+@pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
 def test_a_lost_reply_to_arming_the_probe_capture_is_checked_on_the_module(fault):
     net, port, bus, mods = parked()
+    arms = count_commands(net, codec.SET_HOMING)
     port.inject(fault)
     st = mods[0].arm_home("limit1", "abrupt")
     assert st.home_in_progress and bus.stats["verified"] == 1 and bus.stats["resyncs"] >= 1
-    net.set_inputs(0, limit1=True)  # the capture works: it was armed once, as asked
+    assert arms == [1, 0, 0]  # carried out once: a command lost on the way (tx) was sent again
+    net.set_inputs(0, limit1=True)  # the capture works: it was armed, as asked
     bus.clock.sleep(0.01)
     assert mods[0].home_captured()
+
+
+def trigger_when_armed(net: SimNetwork, axis: int) -> None:
+    """The probe touches on the servo tick after the module's capture is armed."""
+    net.add_tick_hook(lambda network, tick: network.set_inputs(axis, limit1=True)
+                      if network.modules[axis].home_in_prog else None)
+
+
+@pytest.mark.parametrize("fault", LOST[:2], ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_arming_reply_after_the_capture_fired_reports_the_capture(fault):
+    net, port, bus, mods = parked()
+    assert mods[0].home_position() == 0  # the home register as it was before arming
+    trigger_when_armed(net, 0)
+    arms = count_commands(net, codec.SET_HOMING)
+    port.inject(fault)
+    st = mods[0].arm_home("limit1", "abrupt")
+    # the reply the module would have sent a moment later: capture done, not re-armed (that would hide the touch)
+    assert not st.home_in_progress and arms == [1, 0, 0] and bus.stats["verified"] == 1
+    assert not mods[0].nop().home_in_progress and abs(mods[0].home_position() - PARK[1]) <= 3
+
+
+def test_a_lost_arming_reply_is_a_link_error_when_the_home_register_was_never_read():
+    net, port, bus, mods = parked()
+    net.modules[0].home = PARK[1]  # an earlier capture here, never read by this bus
+    trigger_when_armed(net, 0)
+    arms = count_commands(net, codec.SET_HOMING)
+    port.inject(Fault("drop", "rx", count=2))
+    with pytest.raises(LinkError, match="reply of module 1 to SET_HOMING was lost .* not sent again"):
+        mods[0].arm_home("limit1", "abrupt")  # fired here, or never armed? both latch this position
+    assert arms == [1, 0, 0]
 
 
 def test_a_lost_reply_to_a_jog_velocity_is_simply_sent_again():

@@ -147,6 +147,13 @@ class Bus:
         self._vmax: dict[int, float] = {}  # address -> fastest loaded speed, counts/s
         self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
         self._armed: set[int] = set()  # modules with a home capture armed
+        # The home register, for telling whether a command whose reply was lost took effect. It changes only when
+        # a capture fires, on SAVE_AS_HOME, RESET_POS and HARD_RESET; a value is dropped when one of these may
+        # have changed it unseen (a capture seen to have fired, or one of those commands sent).
+        self._home: dict[int, int] = {}  # address -> home register value as last read and still valid
+        self._capturing: set[int] = set()  # modules whose capture was armed after their home value was read
+        self._before: dict[int, tuple[tuple[int, float] | None, int | None]] = {}  # address -> (last position
+        # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
@@ -303,12 +310,18 @@ class Bus:
         elif code == codec.SET_HOMING and data:
             for a in members:
                 (self._armed.add if data[0] & CAPTURE_BITS else self._armed.discard)(a)
+                self._before[a] = (self._last.get(a), self._home.get(a))
+                if data[0] & CAPTURE_BITS:
+                    self._capturing.add(a)
+        elif code == codec.SAVE_AS_HOME:
+            for a in members:
+                self._before[a] = (self._last.get(a), self._home.pop(a, None))
         elif code == codec.STOP_MOTOR and data:
             for a in members:
                 (self._free.add if data[0] & codec.MOTOR_OFF else self._free.discard)(a)
         elif code in (codec.RESET_POS, codec.HARD_RESET):
             for a in members:
-                self._last.pop(a, None)
+                self._before[a] = (self._last.pop(a, None), self._home.pop(a, None))
                 if code == codec.HARD_RESET:
                     self._free.add(a)
 
@@ -328,10 +341,20 @@ class Bus:
 
     def _accept(self, address: int, status: codec.Status) -> codec.Status:
         responder = self._responder(address)
-        if status.position is not None and responder is not None:
-            self._last[responder] = (status.position, self.clock.now())
+        if responder is not None:
+            self._observe(responder, status)
         self._storm = 0
         return status
+
+    def _observe(self, address: int, status: codec.Status) -> None:
+        """Keep what a trusted reply of one module tells: its position, and its home register."""
+        if status.position is not None:
+            self._last[address] = (status.position, self.clock.now())
+        if address in self._capturing and not status.home_in_progress:
+            self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
+            self._home.pop(address, None)
+        if status.home is not None and address not in self._capturing:
+            self._home[address] = status.home
 
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.
@@ -350,6 +373,7 @@ class Bus:
                 expected = None
                 for a in self._members(address):
                     self.items.pop(a, None)
+                    self._capturing.discard(a)
             if expected is None:  # leaderless group or HARD_RESET: nobody answers
                 self._discard_stale(address)
                 self._write(packet, address)
@@ -416,7 +440,10 @@ class Bus:
         Motion starts are never blindly sent twice: START_MOVE and a started
         position move are checked on the modules (moving, or already at the
         goal: done; at rest where they were: not done, send again; anything
-        else: a LinkError, the caller stops the machine).
+        else: a LinkError, the caller stops the machine). SET_HOMING,
+        SAVE_AS_HOME and RESET_POS are judged from the status, position and
+        home register (``_check_homing``, ``_check_save_as_home``,
+        ``_check_reset``); a position reset never runs twice.
         """
         address, code = packet[1], packet[2] & 0x0F
         name, who = self._name(packet), self._who(address)
@@ -424,12 +451,14 @@ class Bus:
             return None
         if code == codec.SET_ADDR and address < 0x80 and packet[3] == address:
             return None  # a module keeping its address and joining a group: the same again is harmless
+        if code == codec.SET_HOMING and not packet[3] & CAPTURE_BITS:
+            return None  # disarming twice is harmless
         if code == codec.SET_HOMING and address < 0x80:
-            st = self._query(address, self.items.get(address, 0))
-            self.stats["verified"] += 1
-            if st.home_in_progress:
-                return st  # armed, as asked
-            raise self._unsure(name, who, address)  # not armed, or armed and already fired: cannot tell
+            return self._check_homing(address, name, who)
+        if code == codec.SAVE_AS_HOME:
+            return self._check_members(address, name, who, self._check_save_as_home)
+        if code == codec.RESET_POS:
+            return self._check_members(address, name, who, lambda a: self._check_reset(a, packet))
         goals: dict[int, int] = {}
         if code == codec.LOAD_TRAJ:
             try:
@@ -472,6 +501,91 @@ class Bus:
         if responder is None:
             raise self._unsure(name, who, address)
         return self._query(responder, self.items.get(responder, 0))
+
+    def _home_query(self, address: int) -> codec.Status:
+        """The module's usual reply items plus position and home register, read after a lost reply."""
+        st = self._query(address, self.items.get(address, 0) | codec.SEND_POS | codec.SEND_HOME)
+        self.stats["verified"] += 1
+        self._observe(address, st)
+        return st
+
+    def _settled(self, address: int, st: codec.Status) -> bool:
+        """At rest from the last reply before the command until now (move done, same position)."""
+        last = self._before.get(address, (None, None))[0]
+        return (last is not None and st.move_done and st.position is not None
+                and abs(st.position - last[0]) <= REST_TOLERANCE)
+
+    def _check_homing(self, address: int, name: str, who: str) -> codec.Status | None:
+        """A lost reply to SET_HOMING (arming a capture): armed, armed and fired already, or not carried out.
+
+        Fired: the home register changed since it was last read (the caller
+        then sees the capture as if the reply had come: HOME_IN_PROG clear).
+        Not carried out: not armed, at rest all along and nothing latched
+        where the module stands (a capture at rest latches that position).
+        """
+        st = self._home_query(address)
+        if st.home_in_progress:
+            return st  # armed, as asked
+        home_before = self._before.get(address, (None, None))[1]
+        if home_before is not None and st.home != home_before:
+            return st  # armed, and it fired already
+        if self._settled(address, st) and abs((st.home or 0) - (st.position or 0)) > REST_TOLERANCE:
+            return None  # not armed and nothing latched: it was not carried out, send it again
+        raise self._unsure(name, who, address)
+
+    def _check_save_as_home(self, address: int) -> tuple[str, codec.Status]:
+        """SAVE_AS_HOME: at rest it is harmless twice (the same position again); moving, only a changed home tells."""
+        st = self._home_query(address)
+        home_before = self._before.get(address, (None, None))[1]
+        if self._settled(address, st):
+            return ("done" if abs((st.home or 0) - (st.position or 0)) <= REST_TOLERANCE else "not done"), st
+        if home_before is not None and st.home != home_before:
+            return "done", st
+        return "unsure", st
+
+    def _check_reset(self, address: int, packet: bytes) -> tuple[str, codec.Status]:
+        """RESET_POS: at rest, the position reads either the new value (done) or the old one (not done).
+
+        Never sent twice unless the module shows it was not carried out: when
+        the old and the new reading are too close to tell apart, it is unsure.
+        """
+        last, home_before = self._before.get(address, (None, None))
+        data = packet[3:-1]
+        if len(data) == 5 and data[0] & codec.RESET_SET_POS:
+            target: int | None = int.from_bytes(data[1:5], "little", signed=True)
+        elif data and data[0] & codec.RESET_REL_HOME:
+            target = None if last is None or home_before is None else last[0] - home_before
+        else:
+            target = 0
+        st = self._query(address, self.items.get(address, 0) | codec.SEND_POS)
+        self.stats["verified"] += 1
+        if last is None or target is None or not st.move_done or st.position is None:
+            return "unsure", st
+        old, now = last[0], st.position
+        if old == target and abs(now - target) <= REST_TOLERANCE:
+            return "done", st  # already there: done or not, the counter reads the same
+        if abs(old - target) <= 2 * REST_TOLERANCE:
+            return "unsure", st
+        if abs(now - target) <= REST_TOLERANCE:
+            return "done", st
+        if abs(now - old) <= REST_TOLERANCE:
+            return "not done", st
+        return "unsure", st
+
+    def _check_members(self, address: int, name: str, who: str, check) -> codec.Status | None:  # noqa: ANN001
+        """Run a per-module check on every module the command went to: all done, all not done, or a LinkError."""
+        verdicts = [check(a) for a in self._members(address)]
+        kinds = {v for v, _ in verdicts}
+        if kinds == {"not done"}:
+            return None  # carried out nowhere: sending it again does it once
+        if kinds != {"done"}:
+            raise self._unsure(name, who, address)
+        responder = self._responder(address)
+        if responder is None:
+            raise self._unsure(name, who, address)
+        st = self._query(responder, self.items.get(responder, 0))
+        self._observe(responder, st)
+        return st
 
     def _unsure(self, name: str, who: str, address: int) -> LinkError:
         return LinkError(f"the reply of {who} to {name} was lost and whether it was carried out cannot be told, "
@@ -692,6 +806,9 @@ class Bus:
                 self._buffered.clear()
                 self._armed.clear()
                 self._free.clear()
+                self._home.clear()
+                self._capturing.clear()
+                self._before.clear()
                 self.modules = []
                 bauds = [codec.POWER_UP_BAUD] if attempt == 0 else [
                     *(b for b in codec.BAUD_DIVISORS[self.firmware] if b != codec.POWER_UP_BAUD), codec.POWER_UP_BAUD]
