@@ -230,3 +230,15 @@ def test_close_on_a_dead_link_does_not_raise_and_says_what_it_could_not_do(caplo
     again = Machine(config, sim.transport())  # the modules, still addressed and servoing, are found again
     again.connect()
     again.close()
+
+
+def test_the_shipped_configuration_reads_the_following_error(sim_machine):
+    _, m, _ = sim_machine
+    assert m.config.link.firmware == "pic-servo-sc" and m.items & codec.SEND_PERROR
+    status = m.move_to([40.0, 30.0, 280.0])
+    seen = []
+    while not status.done:
+        seen.append([a.following_error for a in m.poll().axes])
+    status.wait()
+    assert all(isinstance(e, int) for row in seen for e in row)
+    assert max(abs(e) for row in seen for e in row) > 0  # the servo lags while it accelerates

@@ -116,6 +116,8 @@ def test_go_to_moves_the_machine(app, operator):
     target = start + np.array([3.0, 2.0, -4.0])
     _wait_done(operator.go_to(*target))
     assert np.allclose(app.station.state.position, target, atol=0.0021)
+    _, fe = app.following_error_series()  # the shipped SC configuration reads it: the plot has data
+    assert all(np.isfinite(f).any() for f in fe)
 
 
 def test_nan_target_is_an_error_notification_and_no_motion(app, operator):
