@@ -196,6 +196,17 @@ def test_a_lost_reset_pos_reply_is_recovered_and_never_doubles_the_reset(fault):
     assert resets == [1, 1, 1] and [abs(m.position() - 12345) <= 3 for m in mods] == [True] * 3
 
 
+@pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_reply_to_a_reset_relative_to_home_is_recovered_once(fault):
+    net, port, bus, mods = parked()
+    net.modules[0].home = 1000  # a capture latched here earlier
+    assert mods[0].home_position() == 1000  # ... and read: the bus knows the home register
+    resets = count_commands(net, codec.RESET_POS)
+    port.inject(fault)
+    bus.transact(codec.reset_pos(1, relative_to_home=True))
+    assert resets == [1, 0, 0] and abs(mods[0].position() - (PARK[1] - 1000)) <= 3
+
+
 def test_a_lost_reset_pos_reply_that_cannot_be_told_is_a_link_error_not_a_resend():
     net, port, bus, mods = parked()
     resets = count_commands(net, codec.RESET_POS)
@@ -360,9 +371,9 @@ def test_a_lost_arming_reply_after_the_capture_fired_reports_the_capture(fault):
     assert not mods[0].nop().home_in_progress and abs(mods[0].home_position() - PARK[1]) <= 3
 
 
-def test_a_lost_arming_reply_is_a_link_error_when_the_home_register_was_never_read():
+def test_a_lost_arming_reply_is_a_link_error_when_the_home_register_is_unknown():
     net, port, bus, mods = parked()
-    net.modules[0].home = PARK[1]  # an earlier capture here, never read by this bus
+    net.modules[0].home = PARK[1]  # an earlier capture here, not read since the parking RESET_POS
     trigger_when_armed(net, 0)
     arms = count_commands(net, codec.SET_HOMING)
     port.inject(Fault("drop", "rx", count=2))
@@ -417,3 +428,44 @@ def test_a_real_jump_is_confirmed_by_the_module_and_accepted():
     assert st.pos_error  # (the servo saw it too: position error limit)
     assert bus.stats["suspect"] == 1
     assert positions_ok(mods[1:], PARK) == []
+
+
+def test_the_machine_stops_on_a_touch_whose_arming_reply_was_lost():
+    """End to end: the probe touches just after X's capture is armed, and that SET_HOMING reply is lost.
+    The move must not start as if nothing had happened: the bus reports the capture, the machine stops."""
+    from cmm.machine.config import load
+    from cmm.machine.motion import ContactError, Machine
+    from cmm.sim.cmm_sim import SimulatedCMM
+
+    config = load()
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport(), seed=12)
+    machine = Machine(config, port)
+    machine.connect()
+    try:
+        machine.move_to([30.0, 20.0, 280.0]).wait(30)  # away from 0 counts, where the home register reads 0
+        x = machine.modules[0]
+        arms = count_commands(sim.network, codec.SET_HOMING)
+
+        def probe(network, tick):
+            if arms[0]:  # deflected from the tick after X is armed for this move, for good
+                for i in range(3):
+                    network.set_inputs(i, limit1=True)
+
+        sim.network.add_tick_hook(probe)
+        plain_arm = x.arm_home
+
+        def arm_with_lost_reply(*args, **kwargs):
+            port.inject(Fault("drop", "rx", count=2))
+            return plain_arm(*args, **kwargs)
+
+        x.arm_home = arm_with_lost_reply
+        start = machine.position
+        move = machine.move_to(start + [20.0, 0.0, -5.0])
+        with pytest.raises(ContactError, match="unexpected probe contact"):
+            move.wait(10)
+        assert arms[0] == 1 and machine.bus.stats["verified"] >= 1  # X was not armed again over the touch
+        machine.run_for(0.2)
+        assert not machine.busy and machine.position == pytest.approx(start, abs=0.01)
+    finally:
+        machine.close()

@@ -148,10 +148,10 @@ class Bus:
         self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
         self._armed: set[int] = set()  # modules with a home capture armed
         # The home register, for telling whether a command whose reply was lost took effect. It changes only when
-        # a capture fires, on SAVE_AS_HOME, RESET_POS and HARD_RESET; a value is dropped when one of these may
-        # have changed it unseen (a capture seen to have fired, or one of those commands sent).
+        # a capture fires, on SAVE_AS_HOME, RESET_POS and HARD_RESET; the value is read at start-up and dropped
+        # when one of these may have changed it (a reply shows a capture fired, or one of those commands is sent).
         self._home: dict[int, int] = {}  # address -> home register value as last read and still valid
-        self._capturing: set[int] = set()  # modules whose capture was armed after their home value was read
+        self._capturing: set[int] = set()  # modules with a capture armed that no reply has yet shown fired
         self._before: dict[int, tuple[tuple[int, float] | None, int | None]] = {}  # address -> (last position
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
@@ -353,7 +353,7 @@ class Bus:
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
             self._home.pop(address, None)
-        if status.home is not None and address not in self._capturing:
+        if status.home is not None:
             self._home[address] = status.home
 
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
@@ -826,8 +826,9 @@ class Bus:
                 raise NmcError(f"expected {expected} modules on the network, found {len(found)} "
                                f"in {DISCOVERY_ATTEMPTS} attempts: check the address chain (ADDR_IN/ADDR_OUT) wiring")
             modules = []
-            for addr in found:
-                st = self.transact(codec.read_stat(addr, codec.SEND_ID), codec.SEND_ID)
+            for addr in found:  # type and version; the home register too (see _check_homing)
+                st = self.transact(codec.read_stat(addr, codec.SEND_ID | codec.SEND_HOME),
+                                   codec.SEND_ID | codec.SEND_HOME)
                 assert st is not None
                 if st.module_type != module_type:
                     raise NmcError(f"module {addr} is of type {st.module_type}, expected {module_type} (PIC-SERVO)", addr)
