@@ -9,6 +9,7 @@ from cmm.machine.config import load
 from cmm.machine.motion import ContactError, LimitError, Machine
 from cmm.machine.status import MotionError
 from cmm.nmc import codec
+from cmm.nmc.bus import NmcError
 from cmm.nmc.faults import Fault, FaultyTransport
 from cmm.sim.cmm_sim import SimulatedCMM
 
@@ -242,3 +243,14 @@ def test_the_shipped_configuration_reads_the_following_error(sim_machine):
     status.wait()
     assert all(isinstance(e, int) for row in seen for e in row)
     assert max(abs(e) for row in seen for e in row) > 0  # the servo lags while it accelerates
+
+
+def test_an_sc_configuration_on_original_modules_says_which_setting_to_change():
+    config = load()  # the shipped configuration is for SC modules and reads the following error
+    sim = SimulatedCMM(config, firmware="pic-servo")  # the thesis's modules: no status item 0x40
+    m = Machine(config, sim.transport())
+    with pytest.raises(NmcError, match='module 1 .X. does not answer .* needs SC firmware. For original PIC-SERVO '
+                                       'modules set .link. firmware = "pic-servo" and read_following_error = false'):
+        m.connect()
+    m.close()  # the replies are understood again: the modules are stopped and released
+    assert all(mod.address == 0 and not mod.servo_on for mod in sim.network.modules)

@@ -145,7 +145,20 @@ class Machine:
                     raise NmcError(f"axis {axis.name.upper()} expects a module at address {axis.address}, "
                                    f"found modules {sorted(found)}", axis.address)
             for axis, mod in zip(self.config.axes, self.modules):
-                mod.define_status(self.items)
+                try:
+                    mod.define_status(self.items)
+                except NmcError as exc:
+                    if not self.items & codec.SEND_PERROR:
+                        raise
+                    try:  # so the replies are understood again (the close that follows stops the motors)
+                        mod.define_status(self.items & ~codec.SEND_PERROR)
+                    except NmcError:
+                        pass
+                    raise NmcError(f"module {axis.address} ({axis.name.upper()}) does not answer with the status "
+                                   "items the configuration reads: reading the following error (status item 0x40) "
+                                   "needs SC firmware. For original PIC-SERVO modules set [link] firmware = "
+                                   f"\"pic-servo\" and read_following_error = false (the link said: {exc})",
+                                   axis.address) from exc
                 mod.set_gains(axis.gains)
                 mod.plain_inputs()  # probe and home switches are captured, never acted on by the firmware
                 mod.clear_bits()
