@@ -118,8 +118,8 @@ def test_shipped_config_needs_sc_firmware_to_read_the_following_error():
     config = load()
     assert not config.link.read_following_error or config.link.firmware == "pic-servo-sc"
     wrong = config.with_link(read_following_error=True, firmware="pic-servo")
-    machine = Machine(wrong, "sim://?cmm=1")
-    with pytest.raises(NmcError):
+    machine = Machine(wrong, "sim://?cmm=1&firmware=pic-servo")
+    with pytest.raises(NmcError, match="needs SC firmware"):
         machine.connect()  # original modules do not send item 0x40: every reply is 2 bytes short
     machine.close()
     right = config.with_link(read_following_error=True, firmware="pic-servo-sc")
