@@ -105,17 +105,21 @@ class SimStopWatch:
 
 
 def run_sim() -> None:
+    from cmm.control.priority import raise_thread_priority
     from cmm.machine.config import load
     from cmm.sim.cmm_sim import SimulatedCMM
     from cmm.sim.home_switches import HomeSwitches
     from cmm.sim.serve import serve_tcp
 
+    # the simulator stands in for the modules, whose processors do not share the station's CPU: like the
+    # machine loop it runs ahead of other work (its threads inherit this), so a busy PC does not delay the replies
+    raised = raise_thread_priority()
     config = load()
     sim = SimulatedCMM(config, wire_time=True, realtime=True)
     HomeSwitches(sim, config.homing.input, config.homing.active_level == "high")
     served = serve_tcp(sim.network, "127.0.0.1", 0)
     watch = SimStopWatch(sim.network, config.axes[0].counts_per_mm)
-    print("url", served.url, flush=True)
+    print("url", served.url, "raised" if raised else "normal", flush=True)
     for line in sys.stdin:
         cmd = line.split()
         if cmd and cmd[0] == "arm":  # the release instant, CLOCK_MONOTONIC ns in the client process
@@ -147,7 +151,10 @@ def watch_stalls(controller, stop: threading.Event, gap: float = 0.05) -> collec
     step = controller.poll
 
     def poll():  # noqa: ANN202
-        last[0] = time.perf_counter()
+        now = time.perf_counter()
+        if now - last[0] > gap:
+            seen[("gap", f"{int((now - last[0]) * 1000) // 25 * 25:4d} ms")] += 1
+        last[0] = now
         return step()
     controller.poll = poll
 
@@ -181,6 +188,9 @@ def run_station(url: str, sessions: str, big: str, loaders: int) -> None:
     station.move_to([250.0, 200.0, 150.0]).wait(60)
     cfg = station.config
     print("ready", app.port, app.pendant.ws_url, flush=True)
+    time.sleep(0.2)
+    print(f"station: machine loop at {'raised' if station.controller.loop_priority_raised else 'normal'} priority",
+          flush=True)
     print(f"machine: jog_fast {cfg.speeds.jog_fast:g} mm/s, jog mode {cfg.jog.mode} "
           f"(horizon {cfg.jog.horizon * 1000:.0f} ms of travel), dead-man {cfg.deadman_timeout * 1000:.0f} ms, "
           f"accelerations jog {cfg.accelerations.jog:g} / stop {cfg.accelerations.stop:g} mm/s^2", flush=True)
@@ -210,7 +220,9 @@ def run_station(url: str, sessions: str, big: str, loaders: int) -> None:
                 threading.Thread(target=loader, args=(capp,), daemon=True).start()
             print("loading", flush=True)
         elif cmd and cmd[0] == "status":
+            stats = getattr(station.machine.bus, "stats", {})
             print("status", len(app.clients), counts["opened"], counts["reported"], station.controller.state.mode.value,
+                  ",".join(f"{k}={v}" for k, v in stats.items() if k in ("transactions", "retries", "resyncs", "suspect")) or "-",
                   *errors[:3], flush=True)
         elif cmd and cmd[0] == "quit":
             break
@@ -286,7 +298,7 @@ class Proc:
         for line in self.p.stdout:
             if line.startswith(word):
                 return line.split()[1:]
-            if line.startswith("machine:"):
+            if line.startswith(("machine:", "station:")):
                 print(line.rstrip())
         raise RuntimeError(f"the child process ended before saying {word!r}")
 
@@ -375,7 +387,8 @@ def main() -> None:
         sim = Proc("--role", "sim")
         station = None
         try:
-            url = sim.expect("url")[0]
+            url, sim_priority = sim.expect("url")
+            print(f"simulator at {sim_priority} priority")
             station = Proc("--role", "station", "--url", url, "--sessions", tmp, "--big", big,
                            "--loaders", str(args.loaders))
             viser_port, pendant_url = station.expect("ready")
@@ -386,6 +399,8 @@ def main() -> None:
             idle, idle_speeds = run_trials(ws, sim, fast, args.trials)
             for k, v in idle.items():
                 print("  idle        " + line(k, v, idle_speeds[k], fast))
+            station.send("status")
+            print(f"  idle link: {station.expect('status')[4]}")
             observers = Proc("--role", "observers", "--url", viser_port, "--observers", str(args.observers))
             observers.expect("connected")
             station.send("load")
@@ -394,12 +409,12 @@ def main() -> None:
             t_load = time.perf_counter()
             loaded, loaded_speeds = run_trials(ws, sim, fast, args.trials)
             station.send("status")
-            clients, opened, reported, mode, *errors = station.expect("status")
+            clients, opened, reported, mode, link, *errors = station.expect("status")
             for k, v in loaded.items():
                 print("  under load  " + line(k, v, loaded_speeds[k], fast))
             print(f"  load: {clients} viser clients, {args.loaders} observer tab(s) opening (replay) + reporting the "
                   f"{args.hits:,}-hit session through the Sessions tab: {opened} opened, {reported} reported in "
-                  f"{time.perf_counter() - t_load + 3:.0f} s; machine {mode}" + (f"; errors: {' '.join(errors)}" if errors else ""))
+                  f"{time.perf_counter() - t_load + 3:.0f} s; machine {mode}; link since start: {link}" + (f"; errors: {' '.join(errors)}" if errors else ""))
             p99 = pct(loaded["release"], 0.99)
             slow = sum(v < 0.9 * fast for v in loaded_speeds["release"])
             met = p99 <= 0.2 and not slow and int(opened) > 0 and int(reported) > 0

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
+import sys
+import time
 
 import pytest
 
@@ -114,3 +117,30 @@ def test_replay_of_a_big_session_keeps_a_bounded_number_of_checkpoints():
         expected = Session.from_events(events[: i + 1]).state
         state = replay.at(i)
         assert state.hits == expected.hits and state.deleted_hits == expected.deleted_hits, i
+
+
+def test_workers_end_when_the_station_process_is_killed(tmp_path):
+    script = ("import os, sys, time\n"
+              "from cmm.session.worker import SessionWorker\n"
+              "w = SessionWorker(1)\n"
+              "print(w.call(os.getpid), flush=True)\n"
+              "time.sleep(60)\n")
+    station = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        worker_pid = int(station.stdout.readline())
+        assert _alive(worker_pid)
+    finally:
+        station.kill()  # SIGKILL: no exit hooks run
+        station.wait(10)
+    end = time.monotonic() + 10
+    while _alive(worker_pid) and time.monotonic() < end:
+        time.sleep(0.1)
+    assert not _alive(worker_pid), "the worker outlived the killed station"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False

@@ -58,6 +58,10 @@ holder (:class:`cmm.ui.access.Control`); STOP / E-STOP / jog release follow its
 Threads: ``start()`` runs the machine loop (the only thread that talks to the
 bus) and the dispatcher. Without ``start()`` commands run in the caller's
 thread and statuses drive the loop when waited on (tests on the virtual clock).
+The loop thread raises its own CPU priority (nice -10, :mod:`cmm.control.priority`;
+``loop_priority_raised`` says whether it could), and heavy session work runs in
+another process (:mod:`cmm.session.worker`), so web and report load do not
+delay a jog release.
 
 Safe state: any exception in the loop, a link error, a timeout storm, a STOP
 that is not acknowledged, or a hit that cannot be recorded -> every axis is

@@ -24,6 +24,7 @@ from ..nmc.bus import NmcError
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
+from .priority import raise_priority_on
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,7 @@ class Controller:
         self._hit_listeners: list[Callable[[Hit], None]] = []
         self._state_posted = False
         self.loop_errors = 0
+        self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
         self._in_poll = False
         machine.driver = self
@@ -574,6 +576,8 @@ class Controller:
         return self.machine.poll_pause  # longer on the virtual clock, where samples cost CPU only
 
     def _loop(self) -> None:
+        # the CPU goes to the loop first (priority.py); not on the virtual clock, where the loop never sleeps
+        self.loop_priority_raised = raise_priority_on(self.clock)
         while self._running:
             self.poll()
             self.clock.sleep(self.poll_pause)

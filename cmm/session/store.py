@@ -24,6 +24,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -99,15 +100,23 @@ def load_session(store: SessionStore, name: str) -> Session:
 # --------------------------------------------------------------------------- directory
 
 _line_counts: dict[str, tuple[int, int, int]] = {}  # path -> (size, mtime_ns, lines): every open tab lists the store
+_count_lock = threading.Lock()  # twenty tabs listing at once count a big journal once
 
 
 def count_lines(path: Path, st: os.stat_result | None = None) -> int:
     """Lines (events) of a journal; cached by size and modification time, counted in 1 MB blocks."""
     st = st or path.stat()
     key = str(path)
-    cached = _line_counts.get(key)
-    if cached is not None and cached[:2] == (st.st_size, st.st_mtime_ns):
-        return cached[2]
+    with _count_lock:
+        cached = _line_counts.get(key)
+        if cached is not None and cached[:2] == (st.st_size, st.st_mtime_ns):
+            return cached[2]
+        n = _count(path)
+        _line_counts[key] = (st.st_size, st.st_mtime_ns, n)
+        return n
+
+
+def _count(path: Path) -> int:
     n, last = 0, b"\n"
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -115,7 +124,6 @@ def count_lines(path: Path, st: os.stat_result | None = None) -> int:
             last = block[-1:]
     if last != b"\n":
         n += 1  # a torn last line counts, as it did when lines were iterated
-    _line_counts[key] = (st.st_size, st.st_mtime_ns, n)
     return n
 
 

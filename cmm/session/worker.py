@@ -27,9 +27,11 @@ A worker that dies (out of memory, killed) fails the job with
 
 from __future__ import annotations
 
+import atexit
 import multiprocessing
 import os
 import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import replace
@@ -44,11 +46,22 @@ class WorkerError(RuntimeError):
     """The worker process failed as a whole (not the job's own error)."""
 
 
-def _start_worker() -> None:
+def _start_worker(station_pid: int) -> None:
     try:
         os.nice(WORKER_NICE)
     except OSError:  # not permitted here: run at the station's priority
         pass
+
+    def watch() -> None:  # a killed station cannot tell its workers to stop: they see it is gone
+        while True:
+            time.sleep(1.0)
+            try:
+                os.kill(station_pid, 0)
+            except ProcessLookupError:
+                os._exit(0)
+            except OSError:
+                pass
+    threading.Thread(target=watch, name="station-watch", daemon=True).start()
 
 
 class SessionWorker:
@@ -64,7 +77,8 @@ class SessionWorker:
             if self._pool is None:
                 methods = multiprocessing.get_all_start_methods()
                 ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-                self._pool = ProcessPoolExecutor(self.processes, mp_context=ctx, initializer=_start_worker)
+                self._pool = ProcessPoolExecutor(self.processes, mp_context=ctx, initializer=_start_worker,
+                                                 initargs=(os.getpid(),))
             return self._pool
 
     def _broken(self, pool: ProcessPoolExecutor) -> None:
@@ -104,12 +118,22 @@ class SessionWorker:
         pool = self._pool
         return [] if pool is None else list(getattr(pool, "_processes", {}) or {})
 
-    def close(self) -> None:
-        """Stop the worker processes (a new job starts them again)."""
+    def close(self, grace: float = 5.0) -> None:
+        """Stop the worker processes (a new job starts them again): queued jobs are cancelled, a running one
+        gets ``grace`` seconds to finish before its process is terminated (a report file may then be missing;
+        the journals are never written by the worker, except a re-evaluation's new session)."""
         with self._lock:
             pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+        if pool is None:
+            return
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        end = time.monotonic() + grace
+        for p in processes:
+            p.join(max(0.0, end - time.monotonic()))
+            if p.is_alive():
+                p.terminate()
+                p.join(1.0)
 
 
 _shared: SessionWorker | None = None
@@ -123,6 +147,15 @@ def shared_worker() -> SessionWorker:
         if _shared is None:
             _shared = SessionWorker(1)
         return _shared
+
+
+def _close_shared() -> None:
+    if _shared is not None:
+        _shared.close(grace=2.0)
+
+
+# at interpreter exit, before concurrent.futures waits for the running job (its exit hooks run in reverse order)
+getattr(threading, "_register_atexit", atexit.register)(_close_shared)
 
 
 # --- tasks (run in the worker process) --------------------------------------------------------------------

@@ -79,6 +79,7 @@ from websockets.exceptions import ConnectionClosed, InvalidMessage
 from websockets.http11 import Request, Response
 
 from ..control import Client, Refused, StopReport
+from ..control.priority import raise_priority_on
 from .access import Control
 from .origin import OriginPolicy, is_loopback_host, is_loopback_peer
 
@@ -189,6 +190,7 @@ class PendantServer:
     # --- life cycle ----------------------------------------------------------
 
     def _run_thread(self, port: int) -> None:
+        raise_priority_on(self.api.clock)  # a release reaches the machine loop first, whatever the web load
         try:
             asyncio.run(self._main(port))
         except BaseException as exc:  # noqa: BLE001 - reported to the starting thread
