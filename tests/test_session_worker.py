@@ -144,3 +144,28 @@ def _alive(pid: int) -> bool:
             return f.read().split(")")[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_dispose_empties_a_replay_piece_by_piece_in_the_background():
+    from cmm.session.bulk import dispose
+
+    events = _hit_events(6000)
+    replay = Replay.from_events(events, "big")
+    state = replay.at(len(replay) - 1)
+    session = replay.session
+    assert len(session.hits) == 6000 and len(state.hits) == 6000
+    thread = dispose(session, replay, state)
+    assert thread is not None and thread.name == "session-dispose"
+    thread.join(30)
+    assert not thread.is_alive()
+    assert replay._checkpoints == [] and replay.events == [] and session.events == []
+    assert len(session.hits) == 0 and len(state.hits) == 0 and len(state.hit_pose) == 0
+    assert dispose(None) is None
+
+
+def _hit_events(n: int) -> list[dict]:
+    events = [{"seq": 1, "time": 0.0, "kind": "start"}]
+    for k in range(1, n + 1):
+        events.append({"seq": k + 1, "time": float(k), "kind": "hit", "id": k, "counts": [k, 0, 0],
+                       "machine": [k / 500, 0.0, 0.0], "approach": [0.0, 0.0, -1.0], "point": [k / 500, 0.0, -1.0]})
+    return events

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
-from ..session.bulk import gc_paused
+from ..session.bulk import dispose, gc_paused
 from ..session.journal import JournalError
 from ..session.store import StoreError, check_name, is_url, open_store
 from ..session.worker import WorkerError, shared_summaries, shared_worker
@@ -351,10 +351,15 @@ class SessionsPanel:
             mesh = self._part_mesh(session)
             progress(0.85, "deviations of the hits")
             devs = hit_deviations(session, mesh) if mesh is not None else {}
-            return session, replay, mesh, devs
+            return [session, replay, mesh, devs]
 
         def done(result: Any) -> str:
+            old = (self.session, self.replay, self.state)
             self.session, self.replay, self.mesh, self.deviations = result
+            result.clear()  # the job keeps no reference: closing the replay frees it (in pieces)
+            self.state = None
+            if old[1] is not self.replay:
+                dispose(*old)
             self.index = -1
             self.scrub(len(self.replay) - 1)
             if "scrub" in self.gui:
@@ -406,7 +411,9 @@ class SessionsPanel:
             self.capp.error(str(exc), "Replay drawing")
 
     def back_to_live(self) -> None:
+        old = (self.session, self.replay, self.state)
         self.session = self.replay = self.state = self.mesh = None
+        dispose(*old)  # a 200,000-hit replay freed at once would hold the interpreter (and the machine loop) ~1 s
         self.index = -1
         self.deviations = {}
         if self._view is not None:
