@@ -18,21 +18,29 @@ from cmm.sim.sample_part import sample_part
 
 
 def test_colour_scale_bands_cutoff_and_legend():
-    s = ColourScale(0.01, cutoff=0.5)
-    assert [s.colour(d) for d in (0.0, 0.01, -0.01)] == [GREEN] * 3  # the band edges are within tolerance
-    assert s.colour(0.015) == AMBER and s.colour(0.03) == RED
-    assert s.colour(-0.015) == CYAN and s.colour(-0.03) == BLUE
+    s = ColourScale(0.02, cutoff=0.5)  # out of tolerance beyond +-20 um, warning from +-10 um (50 %)
+    assert [s.colour(d) for d in (0.0, 0.01, -0.01)] == [GREEN] * 3  # the warning limits are still green
+    assert s.colour(0.015) == AMBER and s.colour(0.02) == AMBER and s.colour(0.03) == RED
+    assert s.colour(-0.015) == CYAN and s.colour(-0.02) == CYAN and s.colour(-0.03) == BLUE
     assert s.colour(0.6) == GREY and s.colour(-0.6) == GREY and s.colour(math.nan) == GREY and s.colour(None) == GREY
-    assert ColourScale(0.01).max_distance == pytest.approx(0.25)  # default cut-off: 25 x the tolerance
-    colours = s.colours(np.array([0.0, 0.03, math.nan]))
-    assert colours.dtype == np.uint8 and colours.tolist() == [list(GREEN), list(RED), list(GREY)]
+    assert ColourScale(0.02).max_distance == pytest.approx(0.5)  # default cut-off: 25 x the tolerance
+    assert ColourScale(0.02, warning=0.8).colour(0.015) == GREEN  # a warning limit at 80 % of the tolerance
+    colours = s.colours(np.array([0.0, 0.03, math.nan, -0.015]))
+    assert colours.dtype == np.uint8 and colours.tolist() == [list(GREEN), list(RED), list(GREY), list(CYAN)]
+    assert [s.colour(d) for d in (0.0, 0.03, math.nan, -0.015)] == [tuple(c) for c in colours.tolist()]
     legend = s.legend()
     assert [c for c, _ in legend] == [RED, AMBER, GREEN, CYAN, BLUE, GREY]
-    assert legend[2][1] == "within ±10 µm" and "0.5 mm" in legend[-1][1]
-    assert s.counts([0.0, 0.02, 1.0, None]) == {2: 0, 1: 1, 0: 1, -1: 0, -2: 0, 3: 2}
+    assert legend[0][1] == "> +20 µm out of tolerance" and legend[1][1] == "+10 .. +20 µm warning"
+    assert legend[2][1] == "within ±10 µm" and "0.5 mm" in legend[-1][1] and "15 mm" in legend[-1][1]
+    assert [c for c, _ in ColourScale(0.02, warning=1.0).legend()] == [RED, GREEN, BLUE, GREY]  # no warning band
+    assert s.counts([0.0, 0.015, 1.0, None]) == {2: 0, 1: 1, 0: 1, -1: 0, -2: 0, 3: 2}
     for bad in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError, match="positive"):
             ColourScale(bad)
+    with pytest.raises(ValueError, match="reach"):
+        ColourScale(reach=0.0)
+    with pytest.raises(ValueError, match="warning"):
+        ColourScale(warning=1.5)
 
 
 def test_true_position_is_the_diameter_of_the_zone():

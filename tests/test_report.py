@@ -42,8 +42,8 @@ def test_the_report_contains_every_feature_with_its_verdict(session):
     assert "@media print" in page and "@page" in page
     for f in session.features.values():
         assert f"<b>{f.name}</b>" in page
-    # deviation plot, top and front views, one form plot per feature
-    assert page.count("<svg") == 3 + len(session.features)
+    # deviation plot, top, front and isometric colour map views, one form plot per feature
+    assert page.count("<svg") == 4 + len(session.features)
     assert page.count("aria-label=\"form plot ") == len(session.features)
     assert len(re.findall(r"<title>hit \d+:", page)) >= len(session.hits)
     assert "class='verdict PASS'>PASS<" in page

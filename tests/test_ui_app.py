@@ -236,7 +236,7 @@ def test_pick_miss_and_move_above_without_pick(app):
 
 
 def test_colour_map_and_helpers():
-    assert deviation_colour(0.0, 0.01) == deviation_colour(0.009, 0.01)  # inside the band: green
+    assert deviation_colour(0.0, 0.01) == deviation_colour(0.004, 0.01)  # within the warning limit: green
     red, blue = deviation_colour(0.05, 0.01), deviation_colour(-0.05, 0.01)
     assert red[0] > 200 and red[2] < 60 and blue[2] > 200 and blue[0] < 60
     assert deviation_colour(math.nan) == (150, 150, 150)

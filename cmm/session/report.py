@@ -5,8 +5,10 @@ calibration status and date, temperature, session, alignment), the verdict,
 a warning when no alignment was made, the feature table (nominal, tolerances,
 actual, deviation, out of tolerance, pass/fail per characteristic, see
 :mod:`cmm.metrology.characteristics`), a colour-coded deviation plot of every
-hit, top and front views of the part with the hits in the same colour scale
-as the 3D scene (:mod:`cmm.metrology.colour_scale`) and its legend, a form
+hit, colour map views (top, front, isometric: the part's faces painted by the
+interpolated deviation of the hits, :mod:`cmm.metrology.colour_map`, with the
+hits on top) in the same colour scale as the 3D scene
+(:mod:`cmm.metrology.colour_scale`) and its legend, a form
 plot per feature (residuals of its hits: polar for circles, cylinders and
 spheres), and the machine events worded for people. Inline SVG and CSS
 only: no JavaScript, no external files; the print CSS makes an A4 PDF from
@@ -103,15 +105,19 @@ def deviation_plot(ids: list[int], devs: list[float], scale: ColourScale, width:
     return "".join(parts)
 
 
-def view_edges(mesh: Any, view: np.ndarray, angle_deg: float = 30.0) -> np.ndarray:
+def view_edges(mesh: Any, view: np.ndarray, angle_deg: float = 30.0, front_only: bool = False) -> np.ndarray:
     """Edges (n x 2 x 3, part coordinates) to draw: feature edges sharper than ``angle_deg``
-    plus the outline seen along ``view`` (edges between a front- and a back-facing face) and open edges."""
+    plus the outline seen along ``view`` (edges between a front- and a back-facing face) and open edges.
+    ``front_only``: only edges of a face turned to the viewer (the painted views hide the back edges)."""
     adj = mesh.face_adjacency
     edges = mesh.face_adjacency_edges
     sharp = mesh.face_adjacency_angles > math.radians(angle_deg)
     facing = mesh.face_normals @ view
     outline = np.sign(facing[adj[:, 0]]) != np.sign(facing[adj[:, 1]])
-    keep = edges[sharp | outline]
+    keep_mask = sharp | outline
+    if front_only:
+        keep_mask &= (facing[adj[:, 0]] > 1e-9) | (facing[adj[:, 1]] > 1e-9)
+    keep = edges[keep_mask]
     v = mesh.vertices
     segs = [v[keep]]
     try:  # open edges (a mesh that is not watertight)
@@ -125,38 +131,78 @@ def view_edges(mesh: Any, view: np.ndarray, angle_deg: float = 30.0) -> np.ndarr
     return np.concatenate(segs, axis=0)
 
 
-def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], scale: ColourScale, axes: tuple[int, int],
-              view: np.ndarray, title: str, size: tuple[int, int] = (340, 260)) -> str:
-    """An orthographic view: mesh edges projected on ``axes`` (e.g. (0, 1) top, (0, 2) front) plus hit dots."""
-    a, b = axes
-    segs = view_edges(mesh, view) if mesh is not None else np.zeros((0, 2, 3))
-    coords = [segs.reshape(-1, 3)] if len(segs) else []
-    if len(points):
-        coords.append(points)
-    allp = np.concatenate(coords) if coords else np.zeros((1, 3))
-    lo, hi = allp[:, [a, b]].min(axis=0), allp[:, [a, b]].max(axis=0)
+RASTER = 1.5  # colour map image pixels per SVG unit (sharp enough in print)
+# orthographic views of the colour map: (title, direction towards the viewer)
+VIEWS = (("top view (X-Y)", (0.0, 0.0, 1.0)), ("front view (X-Z)", (0.0, -1.0, 0.0)),
+         ("isometric view", (1.0, -1.0, 1.0)))
+
+
+def view_basis(view: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(right, up, towards the viewer) of an orthographic view; +Z is up unless looking along Z (then +Y)."""
+    v = np.asarray(view, float)
+    v = v / np.linalg.norm(v)
+    up = np.array([0.0, 1.0, 0.0]) if abs(v[2]) > 0.99 else np.array([0.0, 0.0, 1.0])
+    up = up - (up @ v) * v
+    up /= np.linalg.norm(up)
+    return np.cross(up, v), up, v
+
+
+def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], scale: ColourScale, view: Any, title: str,
+              dmap: Any = None, size: tuple[int, int] = (264, 230)) -> str:
+    """An orthographic view along ``view`` (towards the viewer): the colour map (``dmap``, a
+    :class:`~cmm.metrology.colour_map.DeviationMap`) as a z-buffered image when given, the mesh's feature
+    edges and outline, and the hits as dots in the same colour scale."""
+    right, up, towards = view_basis(view)
+    P = np.stack([right, up])  # 2 x 3: part mm -> view mm
+    segs = view_edges(mesh, towards, front_only=dmap is not None) if mesh is not None else np.zeros((0, 2, 3))
+    pts = np.asarray(points, float).reshape(-1, 3)
+    devs = list(devs)
+    if dmap is not None and len(pts):  # hits on the far side of the part are hidden by it
+        from ..metrology.colour_map import hits_on_surface
+
+        _, normals = hits_on_surface(mesh, pts)
+        front = normals @ towards > -1e-6
+        pts, devs = pts[front], [d for d, f in zip(devs, front) if f]
+    coords = [np.asarray(mesh.vertices)] if mesh is not None else []
+    if len(pts):
+        coords.append(pts)
+    allp = np.concatenate(coords) @ P.T if coords else np.zeros((1, 2))
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
     span = np.maximum(hi - lo, 1e-9)
     W, H = size
     pad = 12
     s = min((W - 2 * pad) / span[0], (H - 2 * pad - 14) / span[1])
 
-    def px(p: np.ndarray) -> tuple[float, float]:
-        return pad + (p[a] - lo[0]) * s, H - pad - (p[b] - lo[1]) * s
+    def px(q: np.ndarray) -> np.ndarray:  # n x 3 -> n x 2 pixels
+        uv = np.asarray(q, float).reshape(-1, 3) @ P.T
+        return np.column_stack([pad + (uv[:, 0] - lo[0]) * s, H - pad - (uv[:, 1] - lo[1]) * s])
 
     out = [f'<svg class="view" viewBox="0 0 {W} {H}" width="{W}" height="{H}" xmlns="http://www.w3.org/2000/svg" '
-           f'role="img" aria-label="{html.escape(title)}"><text x="{pad}" y="12" font-size="10">{html.escape(title)}</text>',
-           '<path fill="none" stroke="#555" stroke-width="0.5" d="']
+           f'role="img" aria-label="{html.escape(title)}"><text x="{pad}" y="12" font-size="10">{html.escape(title)}</text>']
+    if dmap is not None:  # the map as an image under the vector edges and dots (exact band colours per pixel)
+        import base64
+
+        from ..metrology.colour_map import png, view_image
+
+        def from_pixels(xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
+            u = (xy[:, 0] / RASTER - pad) / s + lo[0]
+            v = (H - pad - xy[:, 1] / RASTER) / s + lo[1]
+            return u[:, None] * right + v[:, None] * up + depth[:, None] * towards
+
+        img = view_image(dmap, lambda q: px(q) * RASTER, from_pixels, towards, round(W * RASTER), round(H * RASTER))
+        out.append(f'<image class="map" x="0" y="0" width="{W}" height="{H}" '
+                   f'href="data:image/png;base64,{base64.b64encode(png(img)).decode()}"/>')
     d = []
-    for p, q in segs:
-        (x1, y1), (x2, y2) = px(p), px(q)
-        d.append(f"M{x1:.1f} {y1:.1f}L{x2:.1f} {y2:.1f}")
-    out.append("".join(d) + '"/>')
-    order = np.argsort(points[:, 3 - a - b]) if len(points) else []  # draw nearer dots last
-    for k in order:
-        x, y = px(points[k])
-        dv = devs[k]
-        ring = ' stroke="#000" stroke-width="1"' if dv is not None and scale.band(dv) != 0 else ""
-        out.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="3.4" fill="{scale.css(dv)}"{ring}/>')
+    for a, b in zip(px(segs[:, 0]) if len(segs) else [], px(segs[:, 1]) if len(segs) else []):
+        d.append(f"M{a[0]:.1f} {a[1]:.1f}L{b[0]:.1f} {b[1]:.1f}")
+    out.append(f'<path fill="none" stroke="{"#333" if dmap is not None else "#555"}" stroke-width="0.5" d="'
+               + "".join(d) + '"/>')
+    if len(pts):
+        xy = px(pts)
+        for k in np.argsort(pts @ towards):  # nearer dots last
+            dv = devs[k]
+            ring = ' stroke="#000" stroke-width="1"' if dv is not None and scale.band(dv) != 0 else ' stroke="#fff" stroke-width="0.6"'
+            out.append(f'<circle cx="{xy[k, 0]:.1f}" cy="{xy[k, 1]:.1f}" r="3.2" fill="{scale.css(dv)}"{ring}/>')
     out.append("</svg>")
     return "".join(out)
 
@@ -348,22 +394,47 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
 
 def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
            default_tolerance: float | None = None, colour_tolerance: float | None = None,
-           max_distance: float | None = None) -> str:
-    """The report as an HTML string."""
+           max_distance: float | None = None, colour_scale: ColourScale | None = None) -> str:
+    """The report as an HTML string. ``colour_scale`` (e.g. the 3D scene's) sets the colour map's bands;
+    else ``colour_tolerance`` (default: the form tolerance) and ``max_distance`` (the max-deviation cut-off)."""
     from .bulk import gc_paused
 
     with gc_paused():  # see cmm.session.bulk: no collector passes over a big session while it is drawn
         return _render(session, mesh=mesh, program=program, title=title, default_tolerance=default_tolerance,
-                       colour_tolerance=colour_tolerance, max_distance=max_distance)
+                       colour_tolerance=colour_tolerance, max_distance=max_distance, colour_scale=colour_scale)
+
+
+def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int, float] | None = None) -> tuple[
+        np.ndarray, list[float | None], Any]:
+    """The active hits in part coordinates (each at the alignment in force for it), their deviations, and the
+    colour map (:func:`cmm.metrology.colour_map.deviation_map`, report-sized mesh; None without a mesh)."""
+    from ..metrology.colour_map import REPORT_FACES, deviation_map
+
+    st = session.state
+    dev = hit_deviations(session, mesh) if dev is None and mesh is not None else (dev or {})
+    pts, pdev = [], []
+    for i, h in st.hits.items():
+        pose = st.hit_pose.get(i) or st.part_pose
+        p = np.array(h.point, float)
+        if pose is not None:
+            T = np.array(pose, float)
+            p = T[:3, :3].T @ (p - T[:3, 3])
+        pts.append(p)
+        pdev.append(dev.get(i))
+    pts_a = np.array(pts, float).reshape(-1, 3)
+    dmap = None
+    if mesh is not None and st.part_pose is not None:
+        dmap = deviation_map(mesh, pts_a, [math.nan if d is None else d for d in pdev], scale, faces=REPORT_FACES)
+    return pts_a, pdev, dmap
 
 
 def _render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
             default_tolerance: float | None = None, colour_tolerance: float | None = None,
-            max_distance: float | None = None) -> str:
+            max_distance: float | None = None, colour_scale: ColourScale | None = None) -> str:
     st = session.state
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
-    scale = ColourScale(colour_tolerance or base_tol["form"], max_distance)
+    scale = colour_scale or ColourScale(colour_tolerance or base_tol["form"], max_distance)
     per_feature: list[tuple[Any, list[Characteristic]]] = [(f, feature_characteristics(f, tols[fid]))
                                                           for fid, f in st.features.items()]
     per_feature += _constructed_rows(session, default_tolerance)
@@ -460,25 +531,21 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                           if cut else "") + ".</p>")
         else:
             out.append(f"<p class='warn'>Every hit is more than {scale.max_distance:g} mm from the part surface.</p>")
-    out.append("<h2>Colour map: part and hits</h2>")
+    out.append("<h2>Colour map</h2>")
     if st.hits:
-        pts, pdev = [], []
-        for i, h in st.hits.items():
-            pose = st.hit_pose.get(i) or st.part_pose
-            p = np.array(h.point)
-            if pose is not None:
-                P = np.array(pose)
-                p = P[:3, :3].T @ (p - P[:3, 3])
-            pts.append(p)
-            pdev.append(dev.get(i))
-        pts_a = np.array(pts)
+        pts_a, pdev, dmap = colour_map_of(session, mesh, scale, dev)
         frame = "part coordinates" if st.part_pose is not None else "machine coordinates"
         out.append(legend_html(scale))
         out.append("<div class='views'>")
-        out.append(part_view(mesh, pts_a, pdev, scale, (0, 1), np.array([0.0, 0.0, 1.0]), f"top view (X-Y, {frame})"))
-        out.append(part_view(mesh, pts_a, pdev, scale, (0, 2), np.array([0.0, -1.0, 0.0]), f"front view (X-Z, {frame})"))
+        for name, view in (VIEWS if mesh is not None else VIEWS[:2]):
+            out.append(part_view(mesh, pts_a, pdev, scale, np.array(view), f"{name}, {frame}", dmap=dmap))
         out.append("</div>")
-        if mesh is None:
+        if dmap is not None:
+            out.append(f"<p class='muted'>The part's surface in the colour of the deviation of the hits around it "
+                       f"(inverse-distance weighted, hits on the same surface within {scale.reach:g} mm); grey: "
+                       f"no hit within {scale.reach:g} mm. {dmap.hits_used} hit{'s' if dmap.hits_used != 1 else ''} "
+                       f"colour {dmap.coverage * 100:.0f} % of the surface. Dots: the hits.</p>")
+        elif mesh is None:
             out.append("<p class='muted'>The part mesh was not found (or its sha256 does not match): hits only.</p>")
     else:
         out.append("<p class='muted'>No hits.</p>")

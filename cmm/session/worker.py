@@ -178,15 +178,16 @@ def summary(store: StoreSpec, name: str) -> dict[str, Any]:
     return _load(store, name).summary()
 
 
-def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None) -> list[Path]:
-    """Write ``<name>-report.html`` and ``<name>-features.csv`` into ``out_dir``; their paths."""
+def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, colour_scale: Any = None) -> list[Path]:
+    """Write ``<name>-report.html`` and ``<name>-features.csv`` into ``out_dir``; their paths. ``colour_scale``:
+    the colour map's bands (the 3D view's :class:`~cmm.metrology.colour_scale.ColourScale`)."""
     from .report import write_features_csv, write_report
 
     session = _load(store, name)
     mesh = _mesh(session, part)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    return [write_report(session, out / f"{name}-report.html", mesh=mesh),
+    return [write_report(session, out / f"{name}-report.html", mesh=mesh, colour_scale=colour_scale),
             write_features_csv(session, out / f"{name}-features.csv")]
 
 

@@ -229,6 +229,8 @@ class StationApp:
             except Exception:  # noqa: BLE001
                 self._deviations = {}
             self.view.draw_hits(self._deviations)
+            if self.view.map_on:
+                self.view.draw_colour_map(self._deviations)
         if self._dirty["features"]:
             self._dirty["features"] = False
             self.view.draw_features()

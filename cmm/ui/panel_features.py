@@ -8,9 +8,9 @@ the 3D view and lists its hits with their residuals; a hit can be removed
 (the feature refits) or re-taken (the next hit replaces it, then it refits).
 Nominals come from the CAD (where the hits lie, or the last pick) or are
 typed; tolerances are typed. Constructions: intersection, distance, angle,
-mid-point of two features. The colour map's tolerance band and max-distance
-cut-off and the report header (part number, drawing, operator, temperature)
-are set here too.
+mid-point of two features. The report header (part number, drawing,
+operator, temperature) is set here too; the colour map has its own tab
+(:mod:`cmm.ui.panel_colour_map`).
 """
 
 from __future__ import annotations
@@ -185,13 +185,6 @@ class FeaturesPanel:
             self.capp._run("Delete feature", lambda: self.station.delete_feature(fid))
             self.capp.selected_feature = None
 
-    def set_colour_scale(self, tolerance: float, cutoff: float) -> None:
-        try:
-            self.capp.app.view.set_scale(float(tolerance), float(cutoff))
-        except (ValueError, TypeError) as exc:
-            return self.capp.error(exc, "Colour map")
-        self.capp.app.view.draw_hits(self.capp.app.deviations())
-
     def save_info(self, **fields: Any) -> Any:
         return self.capp._run("Report header", lambda: self.station.set_info(**fields))
 
@@ -267,25 +260,12 @@ class FeaturesPanel:
             name = gui.add_text("Name", "", hint="optional")
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
                                                                           name.value))
-        with gui.add_folder("Colour map", expand_by_default=False):
-            scale = capp.app.view.scale
-            band = gui.add_number("Tolerance band (mm)", scale.tolerance, min=0.0001, step=0.001)
-            cut = gui.add_number("Max distance (mm)", scale.max_distance, min=0.001, step=0.01)
-            gui.add_button("Apply colour map").on_click(lambda _: self.set_colour_scale(band.value, cut.value))
-            g["legend"] = gui.add_html(self.legend_html())
         with gui.add_folder("Report header"):
             info = self.station.info if isinstance(getattr(self.station, "info", None), dict) else {}
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
                       for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
                                        ("temperature", "Temperature (°C)"))}
             gui.add_button("Save header").on_click(lambda _: self.save_info(**{k: w.value for k, w in fields.items()}))
-
-    def legend_html(self) -> str:
-        scale = self.capp.app.view.scale
-        return ("<div style='font:11px system-ui;display:flex;flex-wrap:wrap;gap:2px 10px'>"
-                + "".join(f"<span><i style='display:inline-block;width:11px;height:11px;background:rgb{c};"
-                          f"border:1px solid #555;vertical-align:-1px;margin-right:3px'></i>{html.escape(t)}</span>"
-                          for c, t in scale.legend()) + "</div>")
 
     def _construct(self, op: str, a: str, b: str, name: str) -> Any:
         ma, mb = re.match(r"(\d+)", a), re.match(r"(\d+)", b)
@@ -306,4 +286,3 @@ class FeaturesPanel:
         self.capp._set("features:tree", "content", tree_html(self.station, self.capp.selected_feature), self.gui.get("tree"))
         self.capp._set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
         self.capp._set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))
-        self.capp._set("features:legend", "content", self.legend_html(), self.gui.get("legend"))

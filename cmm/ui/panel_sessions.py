@@ -520,7 +520,7 @@ class SessionsPanel:
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"rendering the report of {name} (session worker)")
             return shared_worker().call(worker.report, self.station.session_dir, name, self.export_dir(),
-                                        self._live_mesh())
+                                        self._live_mesh(), self.capp.app.view.scale)  # the colour map's bands
 
         return self._start("Report", work, self._files_done)
 

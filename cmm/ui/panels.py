@@ -36,6 +36,7 @@ from ..station import StationError
 from .panel_align import AlignPanel
 from .ids import parse_ids  # noqa: F401 - part of this module's interface (tests, other panels)
 from .panel_calibration import CalibrationPanel
+from .panel_colour_map import ColourMapPanel
 from .panel_features import FeaturesPanel
 from .panel_measure import MeasurePanel
 from .panel_sessions import SessionsPanel
@@ -174,6 +175,7 @@ class ClientApp:
         self.features = FeaturesPanel(self)
         self.align = AlignPanel(self)
         self.measure = MeasurePanel(self)
+        self.colour_map = ColourMapPanel(self)
 
     # --- messages -------------------------------------------------------------
 
@@ -580,6 +582,8 @@ class ClientApp:
             self.features.build(gui)
         with tabs.add_tab("Align"):
             self.align.build(gui)
+        with tabs.add_tab("Colour map"):
+            self.colour_map.build(gui)
         with tabs.add_tab("Auto-measure"):
             self.measure.build(gui)
         with tabs.add_tab("Diagnostics"):
@@ -623,6 +627,7 @@ class ClientApp:
         self._set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
         self.features.refresh()
         self.align.refresh()
+        self.colour_map.refresh()
         self.measure.refresh()
         if self.picked is not None:
             p, nominal = self.picked

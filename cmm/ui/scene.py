@@ -23,12 +23,12 @@ from typing import Any, Callable
 import numpy as np
 import trimesh
 
-from ..metrology.colour_scale import ColourScale
+from ..metrology.colour_map import DeviationMap, deviation_map
+from ..metrology.colour_scale import DEFAULT_TOLERANCE, ColourScale
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0
 STYLUS_LENGTH = 40.0  # mm, drawn above the tip centre
-DEFAULT_TOLERANCE = 0.01  # mm, the green band of the deviation colour map
 ARROW_LENGTH = 4.0  # mm, approach arrows drawn before each hit
 
 
@@ -135,6 +135,11 @@ class SceneView:
         self._feature_nodes: dict[int, Any] = {}
         self.selected: int | None = None
         self._lock = threading.Lock()
+        self._part_node: Any = None
+        self._map_node: Any = None
+        self.map_on = False  # the deviation colour map on the part (shared: every client sees it)
+        self.map: DeviationMap | None = None  # the map last drawn
+        self.map_error = ""
 
     # --- coordinates --------------------------------------------------------
 
@@ -196,10 +201,58 @@ class SceneView:
         pose = np.asarray(part.pose, float)
         self.origin_mm = np.round(pose[:3, 3])
         self.scene.add_frame("/local", show_axes=False, position=tuple(self.origin_mm * SCALE))
-        self.scene.add_mesh_simple("/part", (np.asarray(part.mesh.vertices) * SCALE).astype(np.float32),
-                                   np.asarray(part.mesh.faces, np.uint32), color=(96, 128, 170),  # darker: the part reads against the table
-                                   wxyz=quat_from_matrix(pose[:3, :3]), position=tuple(pose[:3, 3] * SCALE),
-                                   flat_shading=False, opacity=0.85)
+        self._part_node = self.scene.add_mesh_simple(
+            "/part", (np.asarray(part.mesh.vertices) * SCALE).astype(np.float32),
+            np.asarray(part.mesh.faces, np.uint32), color=(96, 128, 170),  # darker: the part reads against the table
+            wxyz=quat_from_matrix(pose[:3, :3]), position=tuple(pose[:3, 3] * SCALE),
+            flat_shading=False, opacity=0.85, visible=not (self.map_on and self._map_node is not None))
+
+    # --- deviation colour map ---------------------------------------------------
+
+    def show_colour_map(self, on: bool, deviations: dict[int, float] | None = None) -> DeviationMap | None:
+        """Turn the colour map on the part on or off (in every client's scene)."""
+        self.map_on = bool(on)
+        return self.draw_colour_map(deviations)
+
+    def draw_colour_map(self, deviations: dict[int, float] | None = None) -> DeviationMap | None:
+        """(Re)draw the colour map from the hits' deviations (see :mod:`cmm.metrology.colour_map`): the part
+        mesh painted by the interpolated deviation, grey beyond the scale's reach; the plain part while off."""
+        st = self.station
+        part = st.part
+        with st.lock:
+            hits = dict(st.hits)
+        if self.map_on and part is not None:
+            if deviations is None:
+                try:
+                    deviations = st.hit_deviations()
+                except Exception:  # noqa: BLE001 - no deviations: an all-grey map
+                    deviations = {}
+            pose = np.asarray(part.pose, float)
+            ids = sorted(hits)
+            pts = np.array([hits[h].point for h in ids], float).reshape(-1, 3)
+            local = (pts - pose[:3, 3]) @ pose[:3, :3]  # machine -> part coordinates (the alignment in force)
+            try:
+                dmap = deviation_map(part.mesh, local, [deviations.get(h, math.nan) for h in ids], self.scale)
+                self.map_error = ""
+            except Exception as exc:  # noqa: BLE001 - a map that cannot be made must not break the scene
+                dmap, self.map_error = None, f"no colour map: {exc}"
+        else:
+            dmap = None
+        with self._lock:
+            self.map = dmap
+            if dmap is None:
+                if self._map_node is not None:
+                    self._map_node.remove()
+                    self._map_node = None
+                if self._part_node is not None:
+                    self._part_node.visible = True
+                return None
+            self._map_node = self.scene.add_mesh_trimesh(
+                "/part_map", dmap.coloured_mesh(), scale=SCALE, wxyz=quat_from_matrix(pose[:3, :3]),
+                position=tuple(pose[:3, 3] * SCALE), cast_shadow=False)
+            if self._part_node is not None:
+                self._part_node.visible = False
+            return dmap
 
     # --- live probe -------------------------------------------------------------
 
@@ -214,9 +267,9 @@ class SceneView:
     def tolerance(self) -> float:
         return self.scale.tolerance
 
-    def set_scale(self, tolerance: float, cutoff: float | None = None) -> None:
-        """Change the colour map's tolerance band and max-distance cut-off (every client sees it)."""
-        self.scale = ColourScale(tolerance, cutoff)
+    def set_scale(self, tolerance: float | ColourScale, cutoff: float | None = None) -> None:
+        """Change the colour scale (tolerance bands, max-deviation cut-off, map reach); every client sees it."""
+        self.scale = tolerance if isinstance(tolerance, ColourScale) else ColourScale(tolerance, cutoff)
 
     def hit_colours(self, ids: list[int], deviations: dict[int, float]) -> np.ndarray:
         return self.scale.colours(np.array([deviations.get(h, float("nan")) for h in ids], dtype=np.float64))
@@ -308,6 +361,7 @@ class SceneView:
         elif kind == "part":
             self.draw_part()
             self.draw_hits()
+            self.draw_colour_map()
 
 
 class ReplayView:
@@ -322,7 +376,7 @@ class ReplayView:
     one). ``clear()`` removes both again (back to live).
     """
 
-    LIVE_NODES = ("/local", "/part")
+    LIVE_NODES = ("/local", "/part", "/part_map")
 
     PART_COLOUR = (205, 170, 90)
 

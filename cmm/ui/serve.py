@@ -38,8 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ippdme", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:1294", default=None,
                         help="also serve I++ DME clients (PC-DMIS, CALYPSO, ...) on ADDR:PORT "
                              "(default 127.0.0.1:1294; 0.0.0.0:1294 to accept them from the LAN)")
-    parser.add_argument("--tolerance", type=float, default=0.01,
-                        help="deviation colour band of the hits, mm (default 0.01)")
+    parser.add_argument("--tolerance", type=float, default=0.02,
+                        help="colour map tolerance, mm: red / blue beyond it, amber / cyan (warning) beyond half "
+                             "of it (default 0.02)")
 
 
 def _fail(message: str) -> int:
