@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cmm.metrology.colour_map import deviation_map, display_mesh, interpolate, png
+from cmm.metrology.colour_map import deviation_map, display_mesh, interpolate, png, to_linear, to_srgb
 from cmm.metrology.colour_scale import AMBER, CYAN, GREEN, GREY, RED, ColourScale
 from cmm.session.report import part_view
 
@@ -131,7 +131,11 @@ def test_scene_and_report_show_the_same_colour_for_the_same_deviation(box):
     dmap = deviation_map(box, pts, dev, scale)
     # the scene: what SceneView sends (add_mesh_trimesh exports a GLB with COLOR_0)
     glb = trimesh.load(io.BytesIO(dmap.coloured_mesh().export(file_type="glb")), file_type="glb", force="mesh")
-    rgb = np.asarray(glb.visual.vertex_colors)[:, :3]
+    stored = np.asarray(glb.visual.vertex_colors)[:, :3]
+    assert np.array_equal(stored, to_linear(dmap.vertex_colours))  # glTF vertex colours are linear ...
+    rgb = to_srgb(stored)  # ... and shown as sRGB: the scale's colours, to 8-bit rounding
+    assert np.abs(rgb.astype(int) - dmap.vertex_colours).max() <= 2
+    rgb = dmap.vertex_colours
     near = np.linalg.norm(glb.vertices - [0.0, 0.0, 20.0], axis=1) < 4
     assert {tuple(c) for c in rgb[near].tolist()} == {RED}
     near_green = np.linalg.norm(glb.vertices - [-40.0, 30.0, 20.0], axis=1) < 3

@@ -47,7 +47,7 @@ SHARP_ANGLE = 30.0  # degrees: faces meeting at a sharper edge are separate surf
 NORMAL_ANGLE = 60.0  # degrees: a hit colours surface whose normal is within this angle of its own
 NEIGHBOURS = 10  # at most this many nearest hits enter a point's weighted mean
 POWER = 2.0  # inverse-distance weighting exponent
-SCENE_FACES = 40_000  # display mesh budget for the 3D scene
+SCENE_FACES = 16_000  # display mesh budget for the 3D scene
 REPORT_FACES = 20_000  # ... and for the report's views (z-buffered images)
 
 
@@ -117,7 +117,7 @@ def display_mesh(mesh: trimesh.Trimesh, faces: int = SCENE_FACES, sharp_angle: f
         _DISPLAY_CACHE[mesh] = (hash(mesh), cached)
     if key in cached:
         return cached[key]
-    src = mesh if len(mesh.faces) <= faces // 2 else _decimate(mesh, faces // 2)
+    src = mesh if len(mesh.faces) <= faces else _decimate(mesh, faces // 2)  # half: room to split slivers
     labels = _surface_labels(src, sharp_angle)
     v, f = np.asarray(src.vertices, float), np.asarray(src.faces, np.int64)
     # long faces are split (a box's 12 faces, the slivers of a fan-triangulated plate) so the colour
@@ -209,11 +209,26 @@ class DeviationMap:
         return float(area[coloured].sum() / max(area.sum(), 1e-300))
 
     def coloured_mesh(self) -> trimesh.Trimesh:
-        """The display mesh with RGBA vertex colours (what the 3D scene shows, e.g. exported as GLB)."""
+        """The display mesh with RGBA vertex colours for a glTF (GLB) viewer: the scale's sRGB colours stored
+        as the linear values glTF's COLOR_0 holds, so the viewer shows the scale's colours (see ``to_srgb``)."""
         m = trimesh.Trimesh(self.mesh.vertices, self.mesh.faces, process=False)
-        rgba = np.column_stack([self.vertex_colours, np.full(len(m.vertices), 255, np.uint8)])
+        rgba = np.column_stack([to_linear(self.vertex_colours), np.full(len(m.vertices), 255, np.uint8)])
         m.visual = trimesh.visual.ColorVisuals(m, vertex_colors=rgba)
         return m
+
+
+def to_linear(srgb: ArrayLike) -> NDArray[np.uint8]:
+    """sRGB 8-bit colours -> linear 8-bit (glTF vertex colours are linear; three.js turns them back to sRGB)."""
+    c = np.asarray(srgb, float) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return np.round(lin * 255.0).astype(np.uint8)
+
+
+def to_srgb(linear: ArrayLike) -> NDArray[np.uint8]:
+    """Linear 8-bit colours -> sRGB 8-bit (what a glTF viewer shows for a vertex colour)."""
+    c = np.asarray(linear, float) / 255.0
+    s = np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
 
 
 def hits_on_surface(mesh: trimesh.Trimesh, points_part: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
