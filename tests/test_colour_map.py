@@ -33,6 +33,17 @@ def colours_at(dmap, where):
     return {tuple(c) for c in dmap.vertex_colours[sel].tolist()}
 
 
+def colours_on(dmap, points, normal):
+    """The map's colours at surface points with one normal (where the mesh may have no vertex)."""
+    pts = np.asarray(points, float)
+    return {tuple(c) for c in dmap.scale.colours(dmap.deviation_at(pts, np.tile(normal, (len(pts), 1)))).tolist()}
+
+
+def grid(x, y, z):
+    """Points on an axis-aligned grid (each argument: a value or a range)."""
+    return np.stack(np.meshgrid(*(np.atleast_1d(a) for a in (x, y, z)), indexing="ij"), -1).reshape(-1, 3)
+
+
 def test_box_map_bands_reach_other_surfaces_and_cutoff(box):
     scale = ColourScale(0.02, reach=15.0)  # warning from 10 um, out of tolerance beyond 20 um
     # compensated points in part coordinates, off the surface by their deviation (+ = outside the material)
@@ -51,9 +62,11 @@ def test_box_map_bands_reach_other_surfaces_and_cutoff(box):
     far = lambda v, n: top(v, n) & (np.hypot(v[:, 0] + 25, v[:, 1] + 35) > 5 + 15.5)  # noqa: E731
     assert colours_at(dmap, far) == {GREY}
     # the front face right below the top hits (5 mm away in space, but another surface): grey
-    assert colours_at(dmap, lambda v, n: front(v, n) & (np.abs(v[:, 0] + 25) < 6) & (v[:, 2] > 10)) == {GREY}
+    assert colours_on(dmap, grid(np.linspace(-30, -20, 5), -40.0, np.linspace(10, 20, 5)), (0, -1, 0)) == {GREY}
     # the bottom face around the hit beyond the cut-off: grey
-    assert colours_at(dmap, lambda v, n: (n[:, 2] < -0.9) & (np.hypot(v[:, 0] - 30, v[:, 1]) < 10)) == {GREY}
+    assert colours_on(dmap, grid(np.linspace(25, 35, 5), np.linspace(-5, 5, 5), -20.0), (0, 0, -1)) == {GREY}
+    # ... while the map evaluates the same everywhere: amber on the top next to its hits
+    assert colours_on(dmap, grid(np.linspace(-30, -20, 5), np.linspace(-38, -30, 5), 20.0), (0, 0, 1)) == {AMBER}
     assert 0 < dmap.coverage < 0.1
     # a longer reach paints more of the part, in the same colours
     wide = deviation_map(box, pts, dev, ColourScale(0.02, reach=40.0))
@@ -85,18 +98,26 @@ def test_cylinder_map_stays_on_its_side():
     assert colours_at(dmap, lambda v, n: n[:, 2] > 0.9) == {GREY}
 
 
-def test_display_mesh_is_refined_split_and_big_meshes_decimated(box):
+def test_display_mesh_is_split_refined_near_hits_and_big_meshes_decimated(box):
     m = display_mesh(box, 4000)
-    assert 2000 < len(m.faces) <= 4000 and len(set(m.metadata["surface"])) == 6
-    # every vertex lies on one face of the box: its normal is that face's
-    assert np.allclose(np.abs(m.vertex_normals).max(axis=1), 1.0)
+    assert len(m.faces) == 12 and len(m.vertices) == 24  # each corner once per face of the box that meets there
+    assert len(set(m.metadata["surface"])) == 6
+    assert np.allclose(np.abs(m.vertex_normals).max(axis=1), 1.0)  # every vertex has its face's normal
+    # the map refines the faces around the hits (edges of about reach / 5), not the rest of the part
+    dmap = deviation_map(box, [[0.0, 0.0, 20.0]], [0.0], ColourScale(reach=10.0), faces=4000)
+    f = dmap.mesh
+    top = f.face_normals[:, 2] > 0.9
+    assert f.edges_unique_length.max() > 40  # faces far from the hit stay coarse
+    near = top & (np.linalg.norm(f.triangles_center - [0, 0, 20], axis=1) < 10)
+    assert near.sum() > 10 and f.edges_unique_length[f.faces_unique_edges[near]].max() < 10 / 3 * 1.01
+    assert (f.face_normals[:, 2] < -0.9).sum() == 2  # the bottom: untouched
     sphere = trimesh.creation.icosphere(subdivisions=6, radius=20.0)  # 81920 faces
     small = display_mesh(sphere, 4000)
-    assert len(small.faces) <= 4000
+    assert len(small.faces) < 4000  # about half the budget (vertex clustering is approximate)
     assert np.allclose(np.linalg.norm(small.vertices, axis=1), 20.0, atol=1.0)
     hit = np.array([[0.0, 0.0, 20.03]])
     dmap = deviation_map(sphere, hit, [0.03], ColourScale(0.02, reach=8.0), faces=4000)
-    assert RED in {tuple(c) for c in dmap.vertex_colours.tolist()}
+    assert len(dmap.mesh.faces) <= 4000 and RED in {tuple(c) for c in dmap.vertex_colours.tolist()}
 
 
 def _png_pixels(data: bytes) -> np.ndarray:

@@ -47,8 +47,8 @@ SHARP_ANGLE = 30.0  # degrees: faces meeting at a sharper edge are separate surf
 NORMAL_ANGLE = 60.0  # degrees: a hit colours surface whose normal is within this angle of its own
 NEIGHBOURS = 10  # at most this many nearest hits enter a point's weighted mean
 POWER = 2.0  # inverse-distance weighting exponent
-SCENE_FACES = 16_000  # display mesh budget for the 3D scene
-REPORT_FACES = 20_000  # ... and for the report's views (z-buffered images)
+SCENE_FACES = 24_000  # display mesh budget for the 3D scene (meshes up to half of it are not decimated)
+REPORT_FACES = 30_000  # ... and for the report's views (z-buffered images)
 
 
 # ------------------------------------------------------------------ display mesh
@@ -79,16 +79,25 @@ def _surface_labels(mesh: trimesh.Trimesh, angle: float) -> NDArray[np.int64]:
 
 
 def _bisect_long_edges(v: NDArray[np.float64], f: NDArray[np.int64], labels: NDArray[np.int64], max_edge: float,
-                       max_faces: int) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+                       max_faces: int, near: Any = None) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """Split every face whose longest edge exceeds ``max_edge`` in two at that edge's midpoint, until none does
-    (or ``max_faces`` is reached, longest first). Unlike 1-to-4 subdivision this shortens slivers without
-    multiplying them: a fan-triangulated plate gets an even colour resolution for few faces."""
-    for _ in range(64):
+    (or ``max_faces`` is reached, longest first); ``near(centres, radii, normals)`` limits it to the faces it
+    marks (a face lies within ``radii`` of its centre).
+    Unlike 1-to-4 subdivision this shortens slivers without multiplying their neighbours."""
+    for _ in range(200):
         corners = v[f]  # F x 3 x 3
         lengths = np.linalg.norm(corners[:, [1, 2, 0]] - corners, axis=2)  # edge k: corner k -> k+1
         k = lengths.argmax(axis=1)
         longest = lengths[np.arange(len(f)), k]
-        split = np.nonzero(longest > max_edge)[0]
+        wanted = longest > max_edge
+        if near is not None and wanted.any():
+            c = corners[wanted]
+            centres = c.mean(axis=1)
+            radius = np.linalg.norm(c - centres[:, None, :], axis=2).max(axis=1)
+            normals = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+            normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
+            wanted[wanted] = near(centres, radius, normals)
+        split = np.nonzero(wanted)[0]
         room = max_faces - len(f)
         if len(split) == 0 or room <= 0:
             break
@@ -109,7 +118,8 @@ def _bisect_long_edges(v: NDArray[np.float64], f: NDArray[np.int64], labels: NDA
 
 
 def display_mesh(mesh: trimesh.Trimesh, faces: int = SCENE_FACES, sharp_angle: float = SHARP_ANGLE) -> trimesh.Trimesh:
-    """The mesh to paint (part coordinates): about ``faces`` faces, vertices split at sharp edges (cached)."""
+    """The mesh to paint (part coordinates): vertices split at sharp edges, decimated to half of ``faces`` when
+    bigger (cached). :func:`deviation_map` refines it where the hits are."""
     key = (faces, sharp_angle)
     version, cached = _DISPLAY_CACHE.get(mesh, (None, {}))
     if version != hash(mesh):  # trimesh hashes the geometry: an edited mesh is built again
@@ -117,12 +127,9 @@ def display_mesh(mesh: trimesh.Trimesh, faces: int = SCENE_FACES, sharp_angle: f
         _DISPLAY_CACHE[mesh] = (hash(mesh), cached)
     if key in cached:
         return cached[key]
-    src = mesh if len(mesh.faces) <= faces else _decimate(mesh, faces // 2)  # half: room to split slivers
+    src = mesh if len(mesh.faces) <= faces // 2 else _decimate(mesh, faces // 2)  # half: room to refine
     labels = _surface_labels(src, sharp_angle)
     v, f = np.asarray(src.vertices, float), np.asarray(src.faces, np.int64)
-    # long faces are split (a box's 12 faces, the slivers of a fan-triangulated plate) so the colour
-    # resolution is about even over the part
-    v, f, labels = _bisect_long_edges(v, f, labels, math.sqrt(2.5 * float(src.area) / max(faces, 1)), faces)
     # one vertex per (position, surface): a vertex on a sharp edge belongs to each surface meeting there
     corner_pos = np.round(v[f.ravel()] / (1e-6 * max(float(np.ptp(v, axis=0).max()), 1e-9))).astype(np.int64)
     corner_key = np.column_stack([corner_pos, np.repeat(labels, 3)])
@@ -250,7 +257,33 @@ def deviation_map(mesh: trimesh.Trimesh, points_part: ArrayLike, deviations: Arr
     if not keep.any():
         return DeviationMap(disp, scale, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     src, src_n = hits_on_surface(mesh, pts[keep])
-    return DeviationMap(disp, scale, src, src_n, dev[keep])
+    return DeviationMap(refine_near(disp, src, src_n, scale.reach, faces), scale, src, src_n, dev[keep])
+
+
+def refine_near(disp: trimesh.Trimesh, sources: NDArray[np.float64], source_normals: NDArray[np.float64],
+                reach: float, faces: int) -> trimesh.Trimesh:
+    """The display mesh with its faces within ``reach`` of a hit bisected to edges of about reach / 3 (at most
+    ``faces`` faces in all): vertex colours need vertices near every hit, whatever the CAD triangulation
+    (a fan of 100 mm slivers around a bore has none), while surface far from the hits stays coarse and grey."""
+    edge = max(reach / 3.0, math.sqrt(2.0 * float(disp.area) / max(faces, 1)))
+    tree = cKDTree(sources)
+    k = min(NEIGHBOURS, len(sources))
+    cos_min = math.cos(math.radians(NORMAL_ANGLE))
+
+    def near(centres: NDArray[np.float64], radii: NDArray[np.float64], normals: NDArray[np.float64]) -> NDArray[np.bool_]:
+        # a face some hit can colour: a hit within reach of it, on a surface facing the same way
+        d, i = tree.query(centres, k=k)
+        d, i = d.reshape(len(centres), k), i.reshape(len(centres), k)
+        facing = np.einsum("ij,ikj->ik", normals, source_normals[i]) >= cos_min
+        return np.any((d < reach + radii[:, None]) & facing, axis=1)
+
+    v, f, labels = _bisect_long_edges(np.asarray(disp.vertices, float), np.asarray(disp.faces, np.int64),
+                                      np.asarray(disp.metadata["surface"]), edge, faces, near)
+    if len(f) == len(disp.faces):
+        return disp
+    out = trimesh.Trimesh(v, f, process=False)
+    out.metadata["surface"] = labels
+    return out
 
 
 # ------------------------------------------------------------------ raster views (the report)
@@ -260,53 +293,62 @@ def rasterize(mesh: trimesh.Trimesh, to_pixels: Any, towards: ArrayLike, width: 
               max_candidates: int = 2_000_000) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """Z-buffer of the faces turned to the viewer: (pixel index y * width + x, face, depth) of each covered
     pixel. ``to_pixels`` maps n x 3 part mm to n x 2 pixel coordinates (x right, y down) of an orthographic
-    view along ``towards`` (unit vector to the viewer). Vectorised: every (face, pixel of its bounding box)
-    pair is tested at once, in chunks of about ``max_candidates``."""
+    view along ``towards`` (unit vector to the viewer). Vectorised scanlines: every (face, pixel row) pair
+    gets the span of pixel centres inside the triangle, then every pixel of the spans its depth (in chunks of
+    about ``max_candidates`` pixels); long thin faces cost their pixels, not their bounding box."""
     towards = np.asarray(towards, float)
     shown = np.nonzero(mesh.face_normals @ towards > 1e-9)[0]
     xy = np.asarray(to_pixels(mesh.vertices), float)
     depth_v = np.asarray(mesh.vertices) @ towards
     tri = xy[np.asarray(mesh.faces)[shown]]  # n x 3 x 2
     tri_d = depth_v[np.asarray(mesh.faces)[shown]]
-    x0 = np.clip(np.floor(tri[:, :, 0].min(axis=1) - 0.5), 0, width - 1).astype(np.int64)
-    x1 = np.clip(np.ceil(tri[:, :, 0].max(axis=1) - 0.5), 0, width - 1).astype(np.int64)
-    y0 = np.clip(np.floor(tri[:, :, 1].min(axis=1) - 0.5), 0, height - 1).astype(np.int64)
-    y1 = np.clip(np.ceil(tri[:, :, 1].max(axis=1) - 0.5), 0, height - 1).astype(np.int64)
-    w, h = x1 - x0 + 1, y1 - y0 + 1
-    # barycentric coordinates l1, l2 and the depth as linear functions of the pixel position, per face
     a, b, c3 = tri[:, 0], tri[:, 1], tri[:, 2]
     area = (b[:, 0] - a[:, 0]) * (c3[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c3[:, 0] - a[:, 0])
-    area = np.where(np.abs(area) < 1e-12, 1e-12, area)
+    ok = np.abs(area) > 1e-9  # faces seen edge-on cover no pixel centre
+    shown, tri, tri_d, area = shown[ok], tri[ok], tri_d[ok], area[ok]
+    a, b, c3 = tri[:, 0], tri[:, 1], tri[:, 2]
+    # the depth as a linear function of the pixel position, per face: depth = A x + B y + C
     l1x, l1y = (c3[:, 1] - a[:, 1]) / area, -(c3[:, 0] - a[:, 0]) / area
     l2x, l2y = -(b[:, 1] - a[:, 1]) / area, (b[:, 0] - a[:, 0]) / area
-    l1c = -(l1x * a[:, 0] + l1y * a[:, 1])
-    l2c = -(l2x * a[:, 0] + l2y * a[:, 1])
     d0, d1, d2 = tri_d[:, 0], tri_d[:, 1] - tri_d[:, 0], tri_d[:, 2] - tri_d[:, 0]
-    coef = np.column_stack([l1x, l1y, l1c, l2x, l2y, l2c, d1 * l1x + d2 * l2x, d1 * l1y + d2 * l2y,
-                            d0 + d1 * l1c + d2 * l2c])
-    counts = w * h
+    dA, dB = d1 * l1x + d2 * l2x, d1 * l1y + d2 * l2y
+    dC = d0 - dA * a[:, 0] - dB * a[:, 1]
+    # rows whose centre (y + 0.5) lies within each face
+    y0 = np.clip(np.ceil(tri[:, :, 1].min(axis=1) - 0.5), 0, height).astype(np.int64)
+    y1 = np.clip(np.floor(tri[:, :, 1].max(axis=1) - 0.5), -1, height - 1).astype(np.int64)
+    rows = np.maximum(y1 - y0 + 1, 0)
+    f_of = np.repeat(np.arange(len(shown)), rows)
+    py = y0[f_of] + np.arange(int(rows.sum())) - np.repeat(np.cumsum(rows) - rows, rows)
+    cy = py + 0.5
+    xl, xr = np.full(len(py), np.inf), np.full(len(py), -np.inf)
+    for i, j in ((0, 1), (1, 2), (2, 0)):  # where the row crosses each edge
+        p, q = tri[f_of, i], tri[f_of, j]
+        dy = q[:, 1] - p[:, 1]
+        t = (cy - p[:, 1]) / np.where(dy == 0, np.inf, dy)
+        cross = (dy != 0) & (t >= -1e-9) & (t <= 1 + 1e-9)
+        x = p[:, 0] + t * (q[:, 0] - p[:, 0])
+        xl = np.where(cross, np.minimum(xl, x), xl)
+        xr = np.where(cross, np.maximum(xr, x), xr)
+    x0 = np.clip(np.ceil(xl - 0.5), 0, width).astype(np.int64)
+    x1 = np.clip(np.floor(xr - 0.5), -1, width - 1).astype(np.int64)
+    counts = np.maximum(x1 - x0 + 1, 0)
     pid_all, face_all, depth_all = [], [], []
     cum = np.cumsum(counts)
     start = 0
-    while start < len(shown):
+    while start < len(counts):
         done = int(cum[start - 1]) if start else 0
         stop = max(int(np.searchsorted(cum, done + max_candidates, side="right")), start + 1)
         sl = slice(start, stop)
         start = stop
         c = counts[sl]
-        rep = np.repeat(np.arange(sl.start, sl.stop), c)
-        local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
-        wr = w[rep]
-        px = x0[rep] + local % wr
-        py = y0[rep] + local // wr
-        cx, cy = px + 0.5, py + 0.5
-        k = coef[rep]  # the face's plane equations in pixel coordinates: l1, l2 and depth = A x + B y + C
-        l1 = k[:, 0] * cx + k[:, 1] * cy + k[:, 2]
-        l2 = k[:, 3] * cx + k[:, 4] * cy + k[:, 5]
-        inside = (l1 >= -1e-9) & (l2 >= -1e-9) & (l1 + l2 <= 1 + 1e-9)
-        pid_all.append((py * width + px)[inside])
-        face_all.append(shown[rep[inside]])
-        depth_all.append((k[:, 6] * cx + k[:, 7] * cy + k[:, 8])[inside])
+        if not c.sum():
+            continue
+        span = np.repeat(np.arange(sl.start, sl.stop), c)
+        px = x0[span] + np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        f = f_of[span]
+        pid_all.append(py[span] * width + px)
+        face_all.append(shown[f])
+        depth_all.append(dA[f] * (px + 0.5) + dB[f] * cy[span] + dC[f])
     if not pid_all:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
     pid, face, depth = np.concatenate(pid_all), np.concatenate(face_all), np.concatenate(depth_all)
