@@ -291,3 +291,59 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     assert len(speeds) >= 4, f"only {len(speeds)} of {len(windows)} windows bridged: the browser sent no holds"
     assert min(speeds) > 0.9 * jog, np.round(speeds, 2)
     assert page.log.page_errors == [], page.log.problems
+
+
+def test_embedded_pendant_shares_the_page_control(open_page, app, station, context):
+    """The pendant in the Jog tab acts for its page: it shows "you have control" when the page takes control, jogs
+    as the page, and follows the page's release. Its grant cannot be used by another tab (nor a forged one, nor
+    after the page closed), and a page from another origin is refused at the handshake as before."""
+    page = open_page()
+    open_tab(page, "Jog")
+    frame_el = page.locator('iframe[title="pendant"]')
+    frame_el.scroll_into_view_if_needed()
+    frame = page.frame_locator('iframe[title="pendant"]')
+    control = frame.locator("#control")
+    bs.wait_until(lambda: control.inner_text() == "observer", 30.0, "the embedded pendant connected")
+    take_control(page, app)
+    bs.wait_until(lambda: control.inner_text() == "you have control (with the station page)", 10.0,
+                  f"the embedded pendant sharing the page's control (shows {control.inner_text()!r})")
+    # hold X + in the embedded pendant: the machine jogs for the page's client, and stops on release
+    station.wait_idle(20)
+    start = station.state.position.copy()
+    # the pad is below the fold of the 300 px frame (scrolled by script: a cross-origin frame's animation frames,
+    # which Playwright's own scrolling waits for, may be throttled while it is partly hidden)
+    frame.locator(".pad .xp").evaluate("e => e.scrollIntoView({block: 'center'})")
+    page.wait_for_timeout(300)
+    box = frame.locator(".pad .xp").bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    try:
+        bs.wait_until(lambda: station.state.position[0] > start[0] + 0.5, 20.0, "the embedded pendant's jog")
+        bs.screenshot(page, "viser-browser-embedded-pendant-shared")
+    finally:
+        page.mouse.up()
+    assert bs.stop_time(station, station.state.time, "the stop on release") < STOP_WITHIN
+    assert app.control.holder == page.capp.client_id  # the pendant never became a holder of its own
+
+    # another tab that copied the token: refused while the embedded pendant uses it; it stays an observer
+    token = page.capp.pendant_token
+    other = context.new_page()
+    try:
+        other.goto(f"{app.pendant.url}#as={token}")
+        other.get_by_text("already open in another frame").wait_for(timeout=30_000)
+        assert other.locator("#control").inner_text() == "observer: another client has control"
+        forged = context.new_page()
+        forged.goto(f"{app.pendant.url}#as={token[:-2]}xx")
+        forged.get_by_text("grant is not valid").wait_for(timeout=30_000)
+        forged.close()
+        # the page releases control: the embedded pendant follows
+        page.get_by_role("button", name="Release").click()
+        bs.wait_until(lambda: control.inner_text() == "observer", 10.0, "the embedded pendant following the release")
+        # the page closes: its grant dies with it
+        page.close()
+        bs.wait_until(lambda: token not in app.pendant.grants._grants, 10.0, "the grant revoked")
+        other.reload()
+        other.get_by_text("grant is not valid").wait_for(timeout=30_000)
+        assert other.locator("#control").inner_text() == "observer"
+    finally:
+        other.close()

@@ -325,3 +325,34 @@ def test_close_with_connected_clients(station, control):
     srv.close()
     assert time_to_stop(station, now(station)) < 1.0
     assert control.holder is None
+
+
+def test_a_grant_makes_the_pendant_act_as_the_page_and_only_from_its_computer(server, client, control):
+    """A station page's grant: the pendant that presents it acts as the page's client (shares its control, does
+    not release it when it closes); a grant issued to another computer's page is refused from this one."""
+    from cmm.control import Client as Who
+
+    page = Who("viser-7", local=True, authenticated=True)
+    assert control.take(page.id, is_local=True)
+    token = server.grants.issue(lambda: page, "127.0.0.1")
+    embedded = client()
+    embedded.send(type="hello", **{"as": token})
+    hello = embedded.wait_for("hello")
+    assert hello["shared"] is True and hello["client"] == "viser-7"
+    state = embedded.wait_for("state")
+    assert state["control"] is True and state["holder"] == "you"
+    second = client()  # the same grant in another connection while the first uses it
+    second.send(type="hello", **{"as": token})
+    assert second.wait_for("hello")["shared"] is False
+    assert any("already open" in e for e in second.errors())  # the refusal comes before the hello answer
+    embedded.close()
+    time.sleep(0.3)
+    assert control.holder == "viser-7"  # the page keeps its control when its pendant frame goes
+    remote = server.grants.issue(lambda: Who("viser-8"), "192.0.2.10")
+    thief = client()
+    thief.send(type="hello", **{"as": remote})
+    assert "another computer" in thief.wait_for("error")["message"]
+    server.revoke(token)
+    late = client()
+    late.send(type="hello", **{"as": token})
+    assert "not valid" in late.wait_for("error")["message"]

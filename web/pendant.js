@@ -26,6 +26,9 @@
   var lastSent = [0, 0, 0], lastSendTime = 0, jogging = false;
   var messageTimer = null;
   var selectedSpeed = "jog_slow";
+  // embedded in the station page: the page's grant (#as=TOKEN) makes this pendant act as the page's client
+  var grant = (location.hash.match(/[#&]as=([^&]+)/) || [])[1] || null;
+  var shared = false;
 
   var $ = function (id) { return document.getElementById(id); };
   if (window.self !== window.top) document.body.classList.add("embedded");
@@ -237,7 +240,8 @@
     }
     var el = $("control");
     el.className = control ? "you" : holder ? "other" : "";
-    el.textContent = control ? "you have control" : holder ? "observer: another client has control" : "observer";
+    el.textContent = control ? (shared ? "you have control (with the station page)" : "you have control")
+      : holder ? "observer: another client has control" : "observer";
     $("observe").disabled = !control;
     $("take").disabled = !connected || control;
     $("pad").classList.toggle("enabled", control);
@@ -254,7 +258,7 @@
       setControl(!!msg.control, msg.holder);
     } else if (msg.type === "hello") {
       if (msg.speeds) speeds = msg.speeds;
-      isLocal = !!msg.local; lanEnabled = !!msg.lan;
+      isLocal = !!msg.local; lanEnabled = !!msg.lan; shared = !!msg.shared;
       $("code").placeholder = isLocal ? "no code needed here" : "access code";
       if (!isLocal && !lanEnabled) showMessage("this station only accepts control from its own computer", true);
     } else if (msg.type === "control") {
@@ -270,7 +274,7 @@
     ws = new WebSocket(url);
     ws.onopen = function () {
       connected = true; $("link").classList.add("on");
-      send({ type: "hello" });
+      send(grant ? { type: "hello", as: decodeURIComponent(grant) } : { type: "hello" });
       setControl(false, null);
     };
     ws.onmessage = onMessage;

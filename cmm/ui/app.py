@@ -136,6 +136,11 @@ class StationApp:
         except Exception:  # noqa: BLE001 - fall back to the address the pendant reports
             return self.pendant_url
 
+    def pendant_grant(self, capp: ClientApp) -> str | None:
+        """A grant for ``capp``'s embedded pendant: it then acts as that client (see cmm.ui.pendant_grants)."""
+        grants = getattr(self.pendant, "grants", None)
+        return None if grants is None else grants.issue(capp.who, capp.peer())
+
     def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
         """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
         if is_local is None:
@@ -157,6 +162,8 @@ class StationApp:
         with self._clients_lock:
             capp = self.clients.pop(client.client_id, None)
         if capp is not None:
+            if capp.pendant_token and self.pendant is not None:
+                self.pendant.revoke(capp.pendant_token)
             capp.jog_release()
             self.control.disconnected(capp.client_id)
 

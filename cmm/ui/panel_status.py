@@ -63,7 +63,9 @@ if (!window.__cmmSticky) {
       block.setAttribute("data-cmm-sticky", "");
     }
     for (let e = block.parentElement; e && e !== box; e = e.parentElement) {
-      if (getComputedStyle(e).overflowY !== "visible") e.setAttribute("data-cmm-unclip", "");
+      if (!e.hasAttribute("data-cmm-unclip") && getComputedStyle(e).overflowY !== "visible") {
+        e.setAttribute("data-cmm-unclip", "");
+      }
     }
   };
   pin();

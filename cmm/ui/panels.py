@@ -52,7 +52,8 @@ STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
 JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, PageUp/PageDown = Z at the "
                  "pendant's selected speed (Fine / Slow / Fast), hold **Shift** = fast; releasing the key stops; "
                  "**Esc** or **Space** = stop. Step jogs: the Step size above and the Step X/Y/Z buttons. "
-                 "The pendant is its own client: press Take control in it. A tablet opens the pendant page alone.")
+                 "The pendant below acts for this page: it shares this page's control. A tablet opens the "
+                 "pendant page alone (its own client: Take control there).")
 LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser may run callbacks out of order)
 HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
 # machine seconds a held button's jog is kept alive after its newest hold event (a busy browser sends them late);
@@ -158,6 +159,7 @@ class ClientApp:
         self.picked: Any = None  # (PickResult, NominalFeature | None)
         self.move_status: Any = None
         self.selected_feature: int | None = None
+        self.pendant_token: str | None = None  # the embedded pendant's grant (acts as this client)
         self._jogging = False
         self._last_hold = 0.0
         self._hold: tuple[np.ndarray, bool, int, float] | None = None  # (v, probe, release seq, machine time)
@@ -557,7 +559,10 @@ class ClientApp:
                 gui.add_button_group(f"Step {name.upper()}", ("−", "+")).on_click(
                     lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
             src = self.app.pendant_src(self.client.client_id)
+            self.pendant_token = self.app.pendant_grant(self) if src else None
             if src:
+                if self.pendant_token:
+                    src += f"#as={self.pendant_token}"
                 gui.add_markdown(JOG_KEYS_HELP)
                 g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
                                             'title="pendant" allow="gamepad"></iframe>')

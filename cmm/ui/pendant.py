@@ -14,7 +14,10 @@ client -> server
   "local": bool, "code_required": bool, "speeds": {"jog_fast", "jog_slow",
   "jog_fine"}, "deadman_ms": 200, "state_hz": 20}``. The connection stays an
   observer. ``hello`` with a ``"code"`` member (``null`` from a local
-  pendant) also asks for control, exactly like ``take``.
+  pendant) also asks for control, exactly like ``take``. ``hello`` with an
+  ``"as"`` member (the station page's grant token, :mod:`cmm.ui.pendant_grants`)
+  makes the connection act as that page's client (its control, its standing);
+  the answer then has ``"shared": true``, or an error says why the grant was refused.
 - ``{"type": "take", "code": "..."}``: take control (:class:`~cmm.ui.access.Control`
   rules: local clients need no code, remote clients need the LAN access code).
   Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
@@ -82,6 +85,7 @@ from ..control import Client, Refused, StopReport
 from ..control.priority import raise_priority_on
 from .access import Control
 from .origin import OriginPolicy, is_loopback_host, is_loopback_peer
+from .pendant_grants import Grant, Grants
 
 DEADMAN = 0.2  # s without any message from a jogging pendant before the server releases its jog
 STATE_HZ = 20.0
@@ -136,6 +140,7 @@ class _Session:
     jog_task: Any = None
     last_message: float = 0.0
     last_error: float = 0.0
+    grant: Grant | None = None  # the embedded pendant of a station page acts as that page's client
 
 
 class PendantServer:
@@ -162,6 +167,7 @@ class PendantServer:
         self.port = 0
         self.errors: list[str] = []  # station calls that failed unexpectedly
         self.api = station.controller  # every machine command goes through the control core with our client id
+        self.grants = Grants()  # station pages' embedded pendants (see revoke)
         self.api.use_policy_of(control)
         self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
         self._thread.start()
@@ -281,7 +287,30 @@ class PendantServer:
         if session.jogging:
             session.jogging = False
             self._release(session)
+        if session.grant is not None:
+            self.grants.unclaim(session.grant)  # the page keeps its control
+            return
         self.control.disconnected(session.client_id)
+
+    def revoke(self, token: str | None) -> None:
+        """The station page behind a grant went away: the token dies, its pendant connections are closed."""
+        grant = self.grants.revoke(token)
+        if grant is None or self._loop is None:
+            return
+        for session in list(self._sessions):
+            if session.grant is grant:
+                self._loop.call_soon_threadsafe(lambda ws=session.ws: asyncio.ensure_future(
+                    ws.close(1008, "the station page closed")))
+
+    async def _adopt(self, session: _Session, token: Any) -> None:
+        peer = session.ws.remote_address[0] if session.ws.remote_address else None
+        grant = self.grants.claim(token, peer)
+        if isinstance(grant, str):
+            return await self._error_msg(session, grant)
+        if session.grant is not None:
+            self.grants.unclaim(session.grant)
+        session.grant = grant
+        session.client_id = grant.owner().id
 
     def _station_call(self, fn: Callable[..., Any], *args: Any) -> str | None:
         """Run a station action; an error comes back as the operator's sentence."""
@@ -326,7 +355,10 @@ class PendantServer:
             return await self._error_msg(session, "a pendant message must be a JSON object")
         kind = msg.get("type")
         if kind == "hello":
+            if "as" in msg:
+                await self._adopt(session, msg.get("as"))
             await self._send(session, {
+                "shared": session.grant is not None,
                 "type": "hello", "client": session.client_id, "local": session.local,
                 "code_required": not session.local, "lan": self.control.access_code is not None,
                 "speeds": self._speeds(), "deadman_ms": round(self.deadman * 1000), "state_hz": self.state_hz})
@@ -424,6 +456,10 @@ class PendantServer:
 
     @staticmethod
     def _who(session: _Session) -> Any:
+        if session.grant is not None:  # the station page's client, with what this connection adds
+            page = session.grant.owner()
+            return Client(page.id, local=session.local and page.local,
+                          authenticated=session.authenticated or page.authenticated)
         return Client(session.client_id, local=session.local, authenticated=session.authenticated)
 
     def _stop_machine(self, who: Any) -> Any:
