@@ -53,6 +53,7 @@ def app(station):
 @pytest.fixture(scope="module")
 def context():
     with bs.browser_context(viewport=VIEWPORT) as ctx:
+        ctx.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine: a frame can take seconds
         yield ctx
 
 
