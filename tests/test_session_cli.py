@@ -71,3 +71,11 @@ def test_report_command(store, tmp_path, capsys):
     assert main(["report", str(store / "taught.jsonl"), "-o", str(out)]) == 0  # a journal path works too
     assert main(["report", "nope", "--store", str(store), "-o", str(out)]) == 1
     assert "there is no session 'nope'" in capsys.readouterr().err
+    # the colour map's bands and reach
+    assert main(["report", "taught", "--store", str(store), "-o", str(out), "--map-tolerance", "0.004",
+                 "--warning", "75", "--reach", "30"]) == 0
+    text = out.read_text()
+    assert "&gt; +4 µm out of tolerance" in text and "+3 .. +4 µm warning" in text and "no hit within 30 mm" in text
+    assert text.count('class="map"') == 3  # top, front and isometric map views
+    assert main(["report", "taught", "--store", str(store), "-o", str(out), "--warning", "0"]) == 2
+    assert "warning limit must be a fraction" in capsys.readouterr().err

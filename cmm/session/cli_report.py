@@ -20,6 +20,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--program", metavar="PROGRAM.toml", help="take the feature tolerances from this program")
     parser.add_argument("--tolerance", type=float, help="default tolerance in mm (size, location, form; default 0.02)")
     parser.add_argument("--title", help="report title")
+    parser.add_argument("--map-tolerance", type=float, metavar="MM",
+                        help="colour map: out of tolerance (red / blue) beyond +-MM (default: the form tolerance)")
+    parser.add_argument("--warning", type=float, default=50.0, metavar="PERCENT",
+                        help="colour map: warning (amber / cyan) beyond this %% of the map tolerance (default 50)")
+    parser.add_argument("--max-deviation", type=float, metavar="MM",
+                        help="colour map: hits deviating more are grey and not used (default 25 x the map tolerance)")
+    parser.add_argument("--reach", type=float, default=15.0, metavar="MM",
+                        help="colour map: surface farther than MM from every hit stays grey (default 15)")
     parser.add_argument("--csv", metavar="FILE", help="also write the feature table (one row per characteristic) as CSV")
 
 
@@ -28,6 +36,16 @@ def run(args: argparse.Namespace) -> int:
     from .program import ProgramError
     from .store import StoreError
 
+    from ..metrology.colour_scale import ColourScale
+    from .model import DEFAULT_TOLERANCE
+
+    try:  # the colour map's bands (the 3D view's defaults unless given)
+        scale = ColourScale(getattr(args, "map_tolerance", None) or args.tolerance or DEFAULT_TOLERANCE["form"],
+                            getattr(args, "max_deviation", None), getattr(args, "warning", 50.0) / 100.0,
+                            getattr(args, "reach", 15.0))
+    except ValueError as exc:
+        print(f"cmm report: {exc}", file=sys.stderr)
+        return 2
     try:
         from .export import resolve_part_mesh
         from .program import load as load_program
@@ -38,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         mesh = resolve_part_mesh(session, args.part)
         program = load_program(args.program) if args.program else None
         write_report(session, args.output, mesh=mesh, program=program, title=args.title,
-                     default_tolerance=args.tolerance)
+                     default_tolerance=args.tolerance, colour_scale=scale)
         if getattr(args, "csv", None):
             write_features_csv(session, args.csv, program=program, default_tolerance=args.tolerance)
     except (StoreError, JournalError, ProgramError, OSError) as exc:
