@@ -121,6 +121,30 @@ def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.
     return page.capp.measure.plan, station.features[fid]
 
 
+def automeasure_in_page(page, station, local_point, outward, hits_per_ring, proposal, shot=None):
+    """Auto-measure a feature through the page: the pick a click on it sends, the hits per ring typed, Plan (the
+    proposal and its path shown), Run (the feature measured and fitted against its CAD nominal)."""
+    pick_face(page, station, local_point, outward)
+    page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
+    page.get_by_label("Hits (per ring)", exact=True).press("Enter")
+    page.wait_for_timeout(300)
+    page.get_by_role("button", name="Plan", exact=True).click(force=True)
+    page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
+    plan = page.capp.measure.plan
+    page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
+    assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
+    if shot:
+        bs.screenshot(page, shot, timeout=60_000)
+    before = set(station.features)
+    page.get_by_role("button", name="Run", exact=True).click(force=True)
+    bs.wait_until(lambda: set(station.features) - before, 90.0, f"the auto-measured {proposal}")
+    (fid,) = set(station.features) - before
+    feature = station.features[fid]
+    page.get_by_text(f"done: {feature.name}").wait_for()
+    assert len(feature.hit_ids) == len(plan)
+    return plan, feature
+
+
 def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
     with bs.browser_context(viewport=LAPTOP) as context:
         context.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine: seconds per frame
@@ -148,11 +172,24 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert top.kind == "plane" and len(top.hit_ids) == 4
         assert top.nominal is not None and top.nominal.kind == "plane"
         page.get_by_text("done: plane").wait_for()
-        # the front and left faces (3 hits each) and the boss (two rings of 3: a cylinder)
+        # the front and left faces (3 hits each)
         _, front = measure_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0), 3)
         _, left = measure_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0), 3)
-        _, boss = measure_face(page, station, (80.0, 22.0, 47.0), (1, 0, 0), 3)
+        # the boss (two rings of 3: a cylinder), the dome (pole + 4 at 45 deg: a sphere), the conical boss (two
+        # rings of 3), each through the page: Plan, the proposal shown, Run
+        _, boss = automeasure_in_page(page, station, (80.0, 22.0, 47.0), (1, 0, 0), 3, "cylinder (boss): two rings of 3 hits")
         assert boss.kind == "cylinder" and boss.nominal.params["radius"] == pytest.approx(10.0)
+        assert abs(boss.result.geometry()["radius"] - 10.0) < 0.005
+        _, dome = automeasure_in_page(page, station, (70.0, 58.0, 49.0), (0, 0, 1), 4,
+                                      "sphere: the pole and 4 hits at 45°", shot="station-automeasure-sphere-plan")
+        assert dome.kind == "sphere" and dome.nominal.kind == "sphere"
+        assert abs(dome.result.geometry()["radius"] - 10.0) < 0.005
+        z = 46.0  # the cone's flank: radius 12.5 at z 39 to 6 at z 52
+        r = 12.5 - 6.5 * (z - 39.0) / 13.0
+        _, cone = automeasure_in_page(page, station, (100.0 + r, 40.0, z), (2 / 5 ** 0.5, 0, 1 / 5 ** 0.5), 3,
+                                      "cone (boss): two rings of 3 hits", shot="station-automeasure-cone-plan")
+        assert cone.kind == "cone" and cone.nominal.kind == "cone"
+        assert abs(np.degrees(cone.result.geometry()["half_angle"]) - np.degrees(np.arctan(6.5 / 13.0))) < 0.2
 
         # --- feature tree: every feature with its characteristics and pass / fail colours
         tab(page, "Features")
@@ -210,6 +247,22 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         pos = station.part.pose[:3, :3].T @ (station.state.position - station.part.pose[:3, 3])
         assert f"X {pos[0]:.4f}" in status.inner_text()
         bs.screenshot(page, "station-aligned", timeout=60_000)
+
+        # --- best fit of all hits to the mesh from the Align tab: transform and residuals shown, then applied
+        page.get_by_role("button", name="Machine", exact=True).click(force=True)  # the DRO back in machine axes
+        status.get_by_text("machine", exact=True).wait_for()
+        page.get_by_role("button", name="Compute best fit").click(force=True)
+        page.get_by_text("best_fit", exact=True).wait_for()
+        page.get_by_text("RMS:").wait_for()
+        fit = page.capp.align.result
+        assert fit.method == "best_fit" and fit.residuals["RMS"] < 0.005, fit.residuals  # um-level on a true part
+        assert np.abs(fit.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
+        page.get_by_text("moved ").wait_for()  # the shift from the 3-2-1 set-up it replaces
+        bs.screenshot(page, "station-best-fit", timeout=60_000)
+        page.get_by_role("button", name="Apply alignment").click(force=True)
+        bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
+        status.get_by_text("part", exact=True).wait_for()
+        assert np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
         assert page.log.page_errors == [], page.log.problems
 
         # --- the customer report of this session, printed to PDF by chromium
