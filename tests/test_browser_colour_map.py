@@ -1,7 +1,7 @@
 """The deviation colour map in headless chromium: hits probed on the simulated part, a best-fit alignment, the
 map turned on in the Colour map tab (the part mesh in the scene gets vertex colours in the scale's bands), the
 legend with the band limits, new bands applied from the page, the map off again, and the report's map views.
-Screenshots: test-artifacts/colour-map-*.png.
+Screenshots: test-artifacts/colour-map-*.png (and the report, HTML and PDF).
 """
 
 from __future__ import annotations
@@ -133,7 +133,18 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         session = Session.from_events(read_events(station.journal.path).events, "map")
         page_html = render(session, mesh=station.part.mesh, colour_scale=app.view.scale)
         assert page_html.count('class="map"') == 3 and "&gt; +4 µm out of tolerance" in page_html
-        (bs.ARTIFACTS / "colour-map-report.html").write_text(page_html, encoding="utf-8")
+        report = bs.ARTIFACTS / "colour-map-report.html"
+        report.write_text(page_html, encoding="utf-8")
+        rp = context.new_page()  # printed to PDF: the map images print with the page (print CSS)
+        rp.goto(report.as_uri())
+        views = rp.locator(".views")
+        views.scroll_into_view_if_needed()
+        assert views.locator("image.map").count() == 3
+        bs.screenshot(rp, "colour-map-report-views", clip=views.bounding_box())
+        pdf = rp.pdf(format="A4")
+        (bs.ARTIFACTS / "colour-map-report.pdf").write_bytes(pdf)
+        assert pdf.startswith(b"%PDF") and b"/Subtype /Image" in pdf
+        rp.close()
 
         # --- off again: the plain part is back
         page.get_by_text("Show the colour map", exact=True).click(force=True)

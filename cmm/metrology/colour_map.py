@@ -47,7 +47,7 @@ SHARP_ANGLE = 30.0  # degrees: faces meeting at a sharper edge are separate surf
 NORMAL_ANGLE = 60.0  # degrees: a hit colours surface whose normal is within this angle of its own
 NEIGHBOURS = 10  # at most this many nearest hits enter a point's weighted mean
 POWER = 2.0  # inverse-distance weighting exponent
-SCENE_FACES = 24_000  # display mesh budget for the 3D scene (meshes up to half of it are not decimated)
+SCENE_FACES = 24_000  # display mesh budget for the 3D scene (meshes up to it are not decimated)
 REPORT_FACES = 30_000  # ... and for the report's views (z-buffered images)
 
 
@@ -81,8 +81,8 @@ def _surface_labels(mesh: trimesh.Trimesh, angle: float) -> NDArray[np.int64]:
 def _bisect_long_edges(v: NDArray[np.float64], f: NDArray[np.int64], labels: NDArray[np.int64], max_edge: float,
                        max_faces: int, near: Any = None) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """Split every face whose longest edge exceeds ``max_edge`` in two at that edge's midpoint, until none does
-    (or ``max_faces`` is reached, longest first); ``near(centres, radii, normals)`` limits it to the faces it
-    marks (a face lies within ``radii`` of its centre).
+    (or ``max_faces`` is reached, longest first); ``near(centres, radii, normals)`` limits it to the faces for
+    which it gives a finite gap (a face lies within ``radii`` of its centre), smallest gap first.
     Unlike 1-to-4 subdivision this shortens slivers without multiplying their neighbours."""
     for _ in range(200):
         corners = v[f]  # F x 3 x 3
@@ -90,19 +90,23 @@ def _bisect_long_edges(v: NDArray[np.float64], f: NDArray[np.int64], labels: NDA
         k = lengths.argmax(axis=1)
         longest = lengths[np.arange(len(f)), k]
         wanted = longest > max_edge
+        priority = -longest  # longest first ...
         if near is not None and wanted.any():
             c = corners[wanted]
             centres = c.mean(axis=1)
             radius = np.linalg.norm(c - centres[:, None, :], axis=2).max(axis=1)
             normals = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
             normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
-            wanted[wanted] = near(centres, radius, normals)
+            gap = near(centres, radius, normals)
+            priority = np.full(len(f), np.inf)
+            priority[wanted] = gap  # ... or the nearest first
+            wanted[wanted] = np.isfinite(gap)
         split = np.nonzero(wanted)[0]
         room = max_faces - len(f)
         if len(split) == 0 or room <= 0:
             break
         if len(split) > room:
-            split = split[np.argsort(-longest[split])[:room]]
+            split = split[np.argsort(priority[split], kind="stable")[:room]]
         ks = k[split]
         fs = f[split]
         a, b, c = fs[np.arange(len(fs)), ks], fs[np.arange(len(fs)), (ks + 1) % 3], fs[np.arange(len(fs)), (ks + 2) % 3]
@@ -118,8 +122,8 @@ def _bisect_long_edges(v: NDArray[np.float64], f: NDArray[np.int64], labels: NDA
 
 
 def display_mesh(mesh: trimesh.Trimesh, faces: int = SCENE_FACES, sharp_angle: float = SHARP_ANGLE) -> trimesh.Trimesh:
-    """The mesh to paint (part coordinates): vertices split at sharp edges, decimated to half of ``faces`` when
-    bigger (cached). :func:`deviation_map` refines it where the hits are."""
+    """The mesh to paint (part coordinates): vertices split at sharp edges, decimated to about half of ``faces``
+    when it has more (cached). :func:`deviation_map` refines it where the hits are."""
     key = (faces, sharp_angle)
     version, cached = _DISPLAY_CACHE.get(mesh, (None, {}))
     if version != hash(mesh):  # trimesh hashes the geometry: an edited mesh is built again
@@ -127,7 +131,7 @@ def display_mesh(mesh: trimesh.Trimesh, faces: int = SCENE_FACES, sharp_angle: f
         _DISPLAY_CACHE[mesh] = (hash(mesh), cached)
     if key in cached:
         return cached[key]
-    src = mesh if len(mesh.faces) <= faces // 2 else _decimate(mesh, faces // 2)  # half: room to refine
+    src = mesh if len(mesh.faces) <= faces else _decimate(mesh, faces // 2)  # half: room to refine
     labels = _surface_labels(src, sharp_angle)
     v, f = np.asarray(src.vertices, float), np.asarray(src.faces, np.int64)
     # one vertex per (position, surface): a vertex on a sharp edge belongs to each surface meeting there
@@ -270,12 +274,14 @@ def refine_near(disp: trimesh.Trimesh, sources: NDArray[np.float64], source_norm
     k = min(NEIGHBOURS, len(sources))
     cos_min = math.cos(math.radians(NORMAL_ANGLE))
 
-    def near(centres: NDArray[np.float64], radii: NDArray[np.float64], normals: NDArray[np.float64]) -> NDArray[np.bool_]:
-        # a face some hit can colour: a hit within reach of it, on a surface facing the same way
+    def near(centres: NDArray[np.float64], radii: NDArray[np.float64], normals: NDArray[np.float64]) -> NDArray[np.float64]:
+        # a face some hit can colour (a hit within reach of it, on a surface facing the same way): how far the
+        # face may be from that hit (nearest first when the budget runs out); inf for the others
         d, i = tree.query(centres, k=k)
         d, i = d.reshape(len(centres), k), i.reshape(len(centres), k)
         facing = np.einsum("ij,ikj->ik", normals, source_normals[i]) >= cos_min
-        return np.any((d < reach + radii[:, None]) & facing, axis=1)
+        gap = np.where(facing, d - radii[:, None], np.inf).min(axis=1)
+        return np.where(gap < reach, np.maximum(gap, 0.0), np.inf)
 
     v, f, labels = _bisect_long_edges(np.asarray(disp.vertices, float), np.asarray(disp.faces, np.int64),
                                       np.asarray(disp.metadata["surface"]), edge, faces, near)
