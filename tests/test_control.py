@@ -245,3 +245,24 @@ def test_reconnect_after_a_link_fault_keeps_positions_when_the_modules_kept_them
     assert ctl.state.mode is Mode.IDLE and ctl.state.homed
     assert ctl.machine.sample().position == pytest.approx([100.0, 100.0, 250.0], abs=0.003)
     ctl.move_to(None, [110.0, 100.0, 250.0]).wait()
+
+
+def test_state_listeners_get_coalesced_states_and_every_move_end_at_once(homed):
+    """During a move listeners get a state at most every STATE_INTERVAL of machine time, not one per sample;
+    a move's end and every mode change reach them in the sample that shows it."""
+    from cmm.control.core import STATE_INTERVAL
+
+    sim, ctl, _ = homed
+    states = []
+    ctl.subscribe_state(states.append)
+    s0, t0 = ctl.machine.samples, ctl.machine.state.time
+    ctl.move_to(None, [200.0, 150.0, 250.0]).wait()
+    samples, elapsed = ctl.machine.samples - s0, ctl.machine.state.time - t0
+    assert len(states) < samples / 1.5  # coalesced
+    assert len(states) <= elapsed / STATE_INTERVAL + 4
+    gaps = np.diff([s.machine.time for s in states if s.machine.moving])
+    assert gaps.max() < STATE_INTERVAL + 0.02  # positions still reach listeners at that rate
+    last = states[-1]  # the sample that ended the move: idle, at the target
+    assert last.mode is Mode.IDLE and last is ctl.state
+    assert last.machine.position == pytest.approx([200.0, 150.0, 250.0], abs=0.003)
+    assert [s.mode for s in states].count(Mode.MOVING) >= 1

@@ -32,6 +32,7 @@ SWITCH_INTERVAL = 0.001  # s: how long another Python thread may hold the interp
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
+STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
 
 EventFn = Callable[[str, dict], None]
@@ -73,6 +74,9 @@ class Controller:
         self._state_listeners: list[Callable[[ControlState], None]] = []
         self._hit_listeners: list[Callable[[Hit], None]] = []
         self._state_posted = False
+        self._posted_key: tuple | None = None  # what the last state sent to listeners showed (see _publish)
+        self._posted_time = -1e9  # its sample's machine time
+        self._allowed: dict[tuple[Mode, bool], frozenset[str]] = {}
         self.loop_errors = 0
         self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
@@ -618,18 +622,30 @@ class Controller:
         return Mode.IDLE, "", ""
 
     def _publish(self) -> None:
+        """Update ``state`` (every sample); tell the listeners what they can use: mode changes at once, states
+        to state listeners at once when anything but the positions changed (a move ending, the probe, the
+        mode), else at most every STATE_INTERVAL of machine time. Nothing is posted for nobody."""
         mode, reason, activity = self._current_mode()
+        machine = self.machine.state
         with self._lock:
             self._seq += 1
-            allowed = frozenset(c for c, modes in ALLOWED.items() if mode in modes
-                                and not (c in ("move", "probe", "job") and not self._homed))
+            homed = self._homed
+            allowed = self._allowed.get((mode, homed))
+            if allowed is None:
+                allowed = self._allowed[(mode, homed)] = frozenset(
+                    c for c, modes in ALLOWED.items() if mode in modes and not (c in ("move", "probe", "job") and not homed))
             old = self._state
-            self._state = ControlState(mode, reason, activity, self._homed, self._link_ok, self.machine.state,
-                                       self._seq, allowed)
-            changed = old.mode != mode or old.reason != reason or old.link_ok != self._link_ok \
-                or old.homed != self._homed
-            post = not self._state_posted
-            self._state_posted = True
+            self._state = ControlState(mode, reason, activity, homed, self._link_ok, machine, self._seq, allowed)
+            changed = old.mode != mode or old.reason != reason or old.link_ok != self._link_ok or old.homed != homed
+            post = False
+            if self._state_listeners and not self._state_posted:
+                key = (mode, reason, activity, homed, self._link_ok) if machine is None else \
+                    (mode, reason, activity, homed, self._link_ok, machine.moving, machine.jogging, machine.probe_triggered)
+                t = -1e9 if machine is None else machine.time
+                post = key != self._posted_key or not 0 <= t - self._posted_time < STATE_INTERVAL
+                if post:
+                    self._state_posted = True
+                    self._posted_key, self._posted_time = key, t
         if changed:
             self._event("mode", mode=mode.value, reason=reason, message=f"machine {mode.value}"
                         + (f": {reason}" if reason else ""))
