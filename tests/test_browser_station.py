@@ -207,6 +207,28 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_role("button", name="Remove hit and refit").click(force=True)
         bs.wait_until(lambda: len(station.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
         assert station.features[top.id].hit_ids == top.hit_ids[1:]
+        # a nominal and a tolerance typed for the boss: a 20.1 mm nominal fails it, a +-0.15 mm size tolerance passes it
+        def fails():
+            return tree.inner_text().count("FAIL")
+
+        clean = fails()
+        page.capp.features._chosen(f"{boss.id} {boss.name}")  # what choosing it in the Feature dropdown calls
+        page.get_by_text("Nominal and tolerance", exact=True).click(force=True)
+        page.get_by_label("Nominal diameter", exact=True).fill("20.1")
+        page.get_by_label("Nominal diameter", exact=True).press("Enter")
+        page.wait_for_timeout(300)
+        page.get_by_role("button", name="Apply typed nominal").click(force=True)
+        bs.wait_until(lambda: station.features[boss.id].nominal.params["radius"] == pytest.approx(10.05), 20.0,
+                      "the typed nominal diameter")
+        bs.wait_until(lambda: fails() > clean, 20.0, "the boss shown as FAIL in the tree")
+        page.get_by_label("Size ± (mm)", exact=True).fill("0.15")
+        page.get_by_label("Size ± (mm)", exact=True).press("Enter")
+        page.wait_for_timeout(300)
+        page.get_by_role("button", name="Apply tolerances").click(force=True)
+        bs.wait_until(lambda: (station.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
+                      "the typed size tolerance")
+        bs.wait_until(lambda: fails() == clean, 20.0, "the boss passing with its typed tolerance")
+        bs.screenshot(page, "station-typed-nominal-tolerance", timeout=60_000)
         # a constructed angle between the front and left faces: 90 degrees, its nominal from the CAD
         angle = page.capp.features.construct("angle", front.id, left.id)
         assert angle.result.value == pytest.approx(90.0, abs=0.05) and angle.nominal.value == pytest.approx(90.0)

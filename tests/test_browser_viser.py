@@ -348,3 +348,40 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
         assert other.locator("#control").inner_text() == "observer"
     finally:
         other.close()
+
+
+def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app, station):
+    """Manual probing from the Jog tab: with the armed jog ticked and the *positioning* speed chosen, holding "Z −"
+    above the part descends at the probe's qualified speed (position over machine time) and the touch is a hit."""
+    page = open_page()
+    take_control(page, app)
+    open_tab(page, "Jog")
+    target = station.part.pose[:3, :3] @ np.array([15.0, 68.0, TOP_Z + 4.0]) + station.part.pose[:3, 3]
+    page.capp.go_to(*target).wait(60)
+    page.get_by_role("button", name="positioning", exact=True).click()
+    page.get_by_text("Manual probing (armed jog)").click()
+    bs.wait_until(lambda: page.capp.manual_probe and page.capp.speed_mode == "positioning", 10.0, "armed, fast")
+    qualified = page.capp.station_probing_speed()
+    assert qualified < station.config.speeds.jog_fast / 4
+    hits = len(station.hits)
+    page.mouse.move(*button_centre(page, "hold Z −"))
+    samples = []  # (machine time, Z) while descending
+    page.mouse.down()
+    try:
+        bs.wait_until(lambda: station.state.position[2] < target[2] - 0.05, 30.0, "the armed jog down")
+        end = station.state.time + 20.0
+        while len(station.hits) == hits and station.state.time < end:
+            st = station.state
+            samples.append((st.time, st.position[2]))
+            page.wait_for_timeout(30)
+    finally:
+        page.mouse.up()
+    bs.wait_until(lambda: len(station.hits) == hits + 1, 20.0, "the manual hit")
+    hit = station.hits[max(station.hits)]
+    assert hit.mode == "manual" and hit.point[2] == pytest.approx(TOP_Z, abs=0.01)
+    t, z = np.array(samples).T
+    moving = (t > t[0] + 0.3) & (z > TOP_Z + 1.5)  # past the acceleration, before the touch
+    speed = -np.polyfit(t[moving], z[moving], 1)[0]
+    assert speed == pytest.approx(qualified, rel=0.1), (speed, qualified)
+    bs.screenshot(page, "viser-browser-manual-hit")
+    assert page.log.page_errors == [], page.log.problems
