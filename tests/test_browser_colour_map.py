@@ -114,6 +114,14 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         page.wait_for_timeout(1000)
         bs.screenshot(page, "colour-map-on", timeout=60_000)
 
+        # --- a new hit while the map is on: the map follows (drawn in the background, the DRO keeps its rate)
+        target = station.part.pose[:3, :3] @ np.array([95.0, 70.0, 40.0]) + station.part.pose[:3, 3]
+        station.probe(target, -station.part.pose[:3, 2]).wait(60)
+        bs.wait_until(lambda: app.view.map is not None and app.view.map.hits_used == len(HITS) + 1, 30.0,
+                      "the map with the new hit")
+        page.get_by_text(f"{len(HITS) + 1} hits paint").wait_for()
+        covered = app.view.map.coverage
+
         # --- new bands and reach from the page: the legend and the map follow
         page.get_by_label("Tolerance ± (mm)", exact=True).fill("0.004")
         page.get_by_label("Reach (mm)", exact=True).fill("40")

@@ -237,7 +237,7 @@ class StationApp:
                 self._deviations = {}
             self.view.draw_hits(self._deviations)
             if self.view.map_on:
-                self.view.draw_colour_map(self._deviations)
+                self.view.request_colour_map(self._deviations)
         if self._dirty["features"]:
             self._dirty["features"] = False
             self.view.draw_features()

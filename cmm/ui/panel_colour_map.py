@@ -77,8 +77,13 @@ class ColourMapPanel:
         m = v.map
         if m is None:
             return "*drawing ...*"
-        return (f"{m.hits_used} hit{'s' if m.hits_used != 1 else ''} paint "
+        text = (f"{m.hits_used} hit{'s' if m.hits_used != 1 else ''} paint "
                 f"{m.coverage * 100:.0f} % of the surface ({len(m.mesh.faces)} faces); the rest is grey.")
+        left_out = len(self.station.hits) - m.hits_used
+        if left_out > 0:
+            text += (f" {left_out} hit{'s' if left_out != 1 else ''} deviating more than "
+                     f"±{m.scale.max_distance:g} mm (another surface, or the part not aligned?) take no part.")
+        return text
 
     # --- GUI -------------------------------------------------------------------------------------------
 

@@ -140,6 +140,9 @@ class SceneView:
         self.map_on = False  # the deviation colour map on the part (shared: every client sees it)
         self.map: DeviationMap | None = None  # the map last drawn
         self.map_error = ""
+        self._map_cond = threading.Condition()
+        self._map_pending: tuple[dict[int, float] | None] | None = None
+        self._map_thread: threading.Thread | None = None
 
     # --- coordinates --------------------------------------------------------
 
@@ -213,6 +216,31 @@ class SceneView:
         """Turn the colour map on the part on or off (in every client's scene)."""
         self.map_on = bool(on)
         return self.draw_colour_map(deviations)
+
+    def request_colour_map(self, deviations: dict[int, float] | None = None) -> None:
+        """Redraw the map in a background thread (the latest request wins): a new hit during a measurement
+        must not hold up the refresher's 20 Hz DRO while the map (0.2-1 s) is computed."""
+        with self._map_cond:
+            self._map_pending = (deviations,)
+            if self._map_thread is None:
+                self._map_thread = threading.Thread(target=self._map_loop, name="colour-map", daemon=True)
+                self._map_thread.start()
+            self._map_cond.notify()
+
+    def _map_loop(self) -> None:
+        while True:
+            with self._map_cond:
+                if self._map_pending is None:
+                    self._map_cond.wait(timeout=5.0)
+                if self._map_pending is None:  # idle: the thread ends (the next request starts one)
+                    self._map_thread = None
+                    return
+                (deviations,) = self._map_pending
+                self._map_pending = None
+            try:
+                self.draw_colour_map(deviations)
+            except Exception:  # noqa: BLE001 - a closing server; the next request draws again
+                pass
 
     def draw_colour_map(self, deviations: dict[int, float] | None = None) -> DeviationMap | None:
         """(Re)draw the colour map from the hits' deviations (see :mod:`cmm.metrology.colour_map`): the part
