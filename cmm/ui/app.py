@@ -243,7 +243,14 @@ class StationApp:
             self.view.draw_features()
 
     def _keep_loop(self) -> None:
-        while not self._stop.wait(1.0 / HOLD_KEEP_HZ):
+        # paced from the start of each round, not the end: a refresh waits for the machine loop (a busy loop
+        # step would otherwise add to the period and let the 0.15 s dead-man expire)
+        period = 1.0 / HOLD_KEEP_HZ
+        due = time.monotonic()
+        while True:
+            due = max(due + period, time.monotonic())
+            if self._stop.wait(max(0.0, due - time.monotonic())):
+                return
             for capp in list(self.clients.values()):
                 try:
                     capp.keep_hold()
