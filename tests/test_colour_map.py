@@ -180,3 +180,12 @@ def test_scene_and_report_show_the_same_colour_for_the_same_deviation(box):
     assert front.count("<circle") == 2  # top hits are on the outline (edge-on), still shown
     back = part_view(box, pts, dev, scale, np.array([0.0, 0.0, -1.0]), "bottom", dmap=dmap)
     assert back.count("<circle") == 0  # looking from below, the top's hits are hidden
+
+
+def test_no_usable_hits_give_an_all_grey_map(box):
+    for pts, dev in ((np.zeros((0, 3)), []), ([[0.0, 0.0, 20.0]], [np.nan]), ([[0.0, 0.0, 20.9]], [0.9])):
+        dmap = deviation_map(box, pts, dev, ColourScale(0.02))  # none, unknown, beyond the 0.5 mm cut-off
+        assert dmap.hits_used == 0 and dmap.coverage == 0.0
+        assert {tuple(c) for c in dmap.vertex_colours.tolist()} == {GREY}
+    with pytest.raises(ValueError, match="2 points but 1 deviations"):
+        deviation_map(box, [[0, 0, 20.0], [0, 0, -20.0]], [0.0], ColourScale())
