@@ -119,6 +119,7 @@ class CalibrationService:
         self._bar_event: threading.Event | None = None
         self._cancel = False
         self._running = threading.Lock()  # one routine at a time, whichever front end started it
+        self._artifacts: Path | None = None
 
     # --- where things are ---------------------------------------------------------
 
@@ -129,7 +130,12 @@ class CalibrationService:
 
     @property
     def artifacts_dir(self) -> Path:
-        return self.records_dir / "artifacts"
+        """The artifact certificates (default: ``<records>/artifacts``; a front end may point elsewhere)."""
+        return self._artifacts if self._artifacts is not None else self.records_dir / "artifacts"
+
+    @artifacts_dir.setter
+    def artifacts_dir(self, path: Path | None) -> None:
+        self._artifacts = None if path is None else Path(path)
 
     @property
     def running(self) -> bool:
@@ -189,7 +195,9 @@ class CalibrationService:
     def run(self, client: Any, routine: str, progress: Progress | None = None, **options: Any) -> Any:
         """Run ``routine`` (probe, iso, geometry, servo) through the command API; blocks until it ends and returns
         its result (nothing applied). Options: probe ``per_ring``, ``polar_deg``, ``repeats``, ``approx_centre``;
-        iso ``repeats``, ``approx_centre``; geometry ``repeats``, ``verify``; servo ``axes``.
+        iso ``repeats``, ``approx_centre``; geometry ``repeats``, ``verify``, ``place`` (how the operator is asked
+        to place the bar, ``place(setup)`` in the machine loop: a terminal prompt; default :meth:`placer`);
+        servo ``axes``.
         Raises Refused (machine busy, no control), CalibrationError, or the routine's error."""
         routine = ROUTINES.get(routine, routine)
         if routine not in LABELS:
@@ -240,7 +248,7 @@ class CalibrationService:
             setups = default_setups(lengths={k: c.length for k, c in certs.items() if k in BAR_CERTIFICATES})
             previous = machine.correction
             try:
-                return calibrate_geometry(machine, settings, certs, setups, self.placer(certs),
+                return calibrate_geometry(machine, settings, certs, setups, options.get("place") or self.placer(certs),
                                           repeats=int(options.get("repeats", 1)),
                                           verify=bool(options.get("verify", True)), progress=progress)
             finally:
@@ -337,7 +345,8 @@ class CalibrationService:
 
     def _geometry_artifact(self) -> str:
         try:
-            return ", ".join(sorted(c.describe() for c in self.certificates("geometry").values()))
+            certs = self.certificates("geometry")
+            return ", ".join(sorted({certs[k].describe() for k in BAR_CERTIFICATES}))  # the bars the set-ups use
         except CalibrationError:
             return "ball bar"
 

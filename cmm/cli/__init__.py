@@ -17,7 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "fit": ("cmm.metrology.cli_fit", "fit a feature to points from a text file"),
     "deviation": ("cmm.metrology.cli_deviation", "signed deviation of points to a part mesh"),
     "serve": ("cmm.ui.serve", "start the browser station"),
-    "calibrate": ("cmm.calibration.cli", "calibrate the probe, test it (ISO 10360-5), machine geometry, servo tuning"),
+    "calibrate": ("cmm.cli.calibrate", "calibrate the probe, test it (ISO 10360-5), machine geometry, servo tuning"),
     "sessions": ("cmm.session.cli", "list, show, rename, delete, export and re-evaluate recorded sessions"),
     "report": ("cmm.session.cli_report", "HTML inspection report of a recorded session"),
     "ippdme-client": ("cmm.ippdme.client", "send I++ DME commands (or a NIST .prg file) to an I++ DME server"),

@@ -1,8 +1,14 @@
 """`cmm calibrate probe|iso10360-5|geometry|servo`: run a routine, print results, write its record.
 
-By default the routine runs on the in-process simulator (virtual clock, fast).
-Records are written only when the routine succeeds, atomically; on failure the
-message says why and the previous calibration stays in force.
+A front end of the command API like the station's Calibration tab: it builds a
+station (no UI, no session) on the machine, homes it, applies the records in
+force, and runs the routine through the station's calibration service
+(``controller.run_job``); records are saved and gains applied through the
+service too (``controller.configure``). By default the machine is the
+in-process simulator (virtual clock, fast); the control core then runs without
+threads (the routine's waits drive the machine loop). Records are written only
+when the routine succeeds, atomically; on failure the message says why and the
+previous calibration stays in force.
 """
 
 from __future__ import annotations
@@ -13,8 +19,10 @@ from pathlib import Path
 from typing import Any
 
 ROUTINES = ("probe", "iso10360-5", "geometry", "servo")
-
-
+SIM_URL = "sim://?cmm=1"  # the simulated CMM in-process on the virtual clock, released with the station
+# s of machine time between samples on the virtual clock, as on a bare Machine with the simulator's transport (the
+# sim:// port does not tell the machine its clock is virtual, so it would sample every 0.2 ms like hardware)
+SIM_POLL_PAUSE = 0.004
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("routine", choices=ROUTINES, help="what to calibrate")
     p.add_argument("--serial", metavar="URL", help="pyserial URL of the NMC network (default: in-process simulator)")
@@ -31,38 +39,50 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class _Rig:
-    """The machine (simulator in-process or a serial URL) with the current calibration applied."""
+    """The station (simulator in-process or a serial URL): connected, homed, the current calibration applied."""
 
     def __init__(self, args: Any) -> None:
-        from ..machine.config import load
-        from ..machine.motion import Machine
-        from ..machine.probing import Prober
-        from .records import apply_calibration, load_station_calibration
+        from ..station import Station, load_config
 
-        self.config = load(args.config)
-        self.sim = None
-        if args.serial:
-            port: Any = args.serial
-        else:
-            from ..sim.cmm_sim import CmmSimSettings, SimulatedCMM
+        config = load_config(args.config)
+        settings = None
+        if not args.serial:
+            from ..sim.cmm_sim import CmmSimSettings
             from ..sim.probe_world import GeometryErrors
 
             settings = CmmSimSettings()
             if args.inject_errors:
                 settings.errors = GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))
-            self.sim = SimulatedCMM(self.config, settings)
-            port = self.sim.transport()
-        self.machine = Machine(self.config, port)
-        self.machine.connect()
-        self.prober = Prober(self.machine)
-        self.loaded = load_station_calibration(args.records)
-        for problem in self.loaded.problems:
+        self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings)
+        try:
+            if self.station.simulated:
+                self.station.machine.poll_pause = SIM_POLL_PAUSE
+            self.api = self.station.controller
+            self.api.connect()
+            if not self.api.state.homed:
+                if not args.quiet:
+                    print("homing cycle ...", flush=True)
+                self.station.home()
+            self.station.load_calibration(args.records)
+        except BaseException:
+            self.station.close()
+            raise
+        self.service = self.station.calibration
+        if args.artifacts:
+            self.service.artifacts_dir = Path(args.artifacts)
+        status = self.station.calibration_status
+        for problem in status["problems"]:
             print(f"warning: {problem} (not applied)", file=sys.stderr)
-        for line in apply_calibration(self.loaded, self.machine, self.prober):
-            print(f"in force: {line}")
+        for line in self.station.calibration_log:
+            if not line.startswith("refused: "):
+                print(f"in force: {line}")
+
+    @property
+    def probe_in_force(self) -> bool:
+        return self.station.calibration_status["probe"] is not None
 
     def close(self) -> None:
-        self.machine.close()
+        self.station.close()
 
 
 def _progress(args: Any):
@@ -95,38 +115,27 @@ def _ask(question: str) -> bool:
 
 
 def run(args: Any) -> int:
-    from .records import CalibrationError
+    from ..calibration.service import calibration_errors
+    from ..control import ControlError
 
-    artifacts = Path(args.artifacts) if args.artifacts else Path(args.records) / "artifacts"
     try:
         rig = _Rig(args)
     except Exception as exc:  # noqa: BLE001 - an operator's message, not a traceback
         print(f"error: cannot start the machine: {exc}", file=sys.stderr)
         return 1
     try:
-        return _ROUTINES[args.routine](args, rig, artifacts)
-    except CalibrationError as exc:
+        return _ROUTINES[args.routine](args, rig)
+    except (*calibration_errors(), ControlError) as exc:  # ControlError: refused, or the link failed (fault)
         print(f"calibration stopped: {exc}\nThe previous calibration stays in force.", file=sys.stderr)
         return 1
-    except Exception as exc:  # noqa: BLE001
-        from ..machine.status import MotionError
-
-        if isinstance(exc, MotionError):
-            print(f"calibration stopped: {exc}\nThe previous calibration stays in force.", file=sys.stderr)
-            return 1
-        raise
     finally:
         rig.close()
 
 
-def _run_probe(args: Any, rig: _Rig, artifacts: Path) -> int:
-    from .probe import qualify_probe
-    from .records import PROBE_RECORD, load_sphere_certificate, save_record
-
-    cert = load_sphere_certificate(artifacts / "reference-sphere.toml")
-    master = rig.loaded.probe.sphere_centre if rig.loaded.probe is not None else None
-    q = qualify_probe(rig.machine, cert, approx_centre=_centre(args), repeats=args.repeats or 2,
-                      master_centre=master, progress=_progress(args))
+def _run_probe(args: Any, rig: _Rig) -> int:
+    svc = rig.service
+    cert = svc.certificates("probe")
+    q = svc.run(None, "probe", _progress(args), repeats=args.repeats or 2, approx_centre=_centre(args))
     r = q.record
     print(f"reference sphere {cert.describe()}: centre X={q.centre[0]:.4f} Y={q.centre[1]:.4f} Z={q.centre[2]:.4f}")
     print(f"effective tip radius r_eff = {r.tip_radius:.5f} mm (nominal {r.nominal_tip_radius}), U(k=2) {r.uncertainty_um:.2f} um")
@@ -135,59 +144,36 @@ def _run_probe(args: Any, rig: _Rig, artifacts: Path) -> int:
     print(f"tip-centre sphere form: {r.form_before_um:.2f} um -> {r.form_after_um:.2f} um with the model ({r.n_points} points)")
     for row in q.by_ring():
         print("  polar {polar_deg:5.1f} deg: {n:2d} points, range {range_before_um:5.2f} -> {range_after_um:5.2f} um".format(**row))
-    path = save_record(r, Path(args.records) / PROBE_RECORD)
+    path, _ = svc.save(None, "probe", q)
     print(f"wrote {path}")
     return 0
 
 
-def _run_iso(args: Any, rig: _Rig, artifacts: Path) -> int:
-    from .iso10360 import run_iso10360_5
-    from .records import load_sphere_certificate
-
-    cert = load_sphere_certificate(artifacts / "reference-sphere.toml")
-    if rig.loaded.probe is None:
+def _run_iso(args: Any, rig: _Rig) -> int:
+    if not rig.probe_in_force:
         print("note: no probe record in force: run `cmm calibrate probe` first; testing the nominal settings")
-    result = run_iso10360_5(rig.machine, cert, rig.prober.settings, approx_centre=_centre(args),
-                            repeats=args.repeats or 1, progress=_progress(args))
+    result = rig.service.run(None, "iso", _progress(args), repeats=args.repeats or 1, approx_centre=_centre(args))
     print(result.table())
     return 0
 
 
-def _run_geometry(args: Any, rig: _Rig, artifacts: Path) -> int:
-    import numpy as np
+def _run_geometry(args: Any, rig: _Rig) -> int:
+    from ..calibration.records import CalibrationError
 
-    from .geometry import calibrate_geometry, default_setups
-    from .records import MACHINE_RECORD, BallBarCertificate, load_certificate, save_record
-
-    certs = {}
-    for f in sorted(artifacts.glob("*.toml")):
-        c = load_certificate(f)
-        if isinstance(c, BallBarCertificate):
-            certs[f.stem.replace("-", "_")] = c
-    if not {"ball_bar_300", "ball_bar_200"} <= set(certs):
-        from .records import CalibrationError
-
-        raise CalibrationError(f"the geometry routine needs ball-bar-300.toml and ball-bar-200.toml in {artifacts}")
-    setups = default_setups(lengths={k: c.length for k, c in certs.items() if k in ("ball_bar_300", "ball_bar_200")})
-    if rig.sim is not None:
-        rng = np.random.default_rng(7)
-
-        def place(s):  # the simulated operator puts the bar within 0.3 mm of the set-up
-            d = certs[s.artifact].ball_diameter
-            off = rng.uniform(-0.3, 0.3, 3)
-            rig.sim.place_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
-    else:
+    svc = rig.service
+    certs = svc.certificates("geometry")
+    options: dict[str, Any] = {}
+    if not rig.station.simulated:  # on the simulator the service's simulated operator places the bar
         if not sys.stdin.isatty():
-            from .records import CalibrationError
-
             raise CalibrationError("the geometry routine on a real machine needs an operator to place the bar")
 
-        def place(s):
+        def place(s: Any) -> None:  # in the machine loop, between set-ups (the machine stands still)
             input(f"Place {certs[s.artifact].describe()} for set-up {s.name}: balls at "
                   "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}; ".format(*s.ball1, *s.ball2) +
                   "press Enter when it is clamped ")
-    result = calibrate_geometry(rig.machine, rig.prober.settings, certs, setups, place, repeats=args.repeats or 2,
-                                verify=not args.no_verify, progress=_progress(args))
+        options["place"] = place
+    result = svc.run(None, "geometry", _progress(args), repeats=args.repeats or 2, verify=not args.no_verify,
+                     **options)
     c = result.correction
     print("scale (ppm): X {:+.2f} Y {:+.2f} Z {:+.2f}   U(k=2) {:.2f}".format(*c.scale_ppm, result.uncertainty_scale_ppm))
     print("squareness (urad): XY {:+.2f} XZ {:+.2f} YZ {:+.2f}   U(k=2) {:.2f}".format(
@@ -197,28 +183,27 @@ def _run_geometry(args: Any, rig: _Rig, artifacts: Path) -> int:
     for m in result.measurements:
         a = after.get(m.setup)
         print(f"{m.setup:<6} {m.error_um:>+10.2f} {'' if a is None else f'{a:+10.2f}':>10}")
-    artifact = ", ".join(sorted({certs[s.artifact].describe() for s in setups}))
-    path = save_record(result.record(artifact, rig.config.source), Path(args.records) / MACHINE_RECORD)
+    path, _ = svc.save(None, "geometry", result)
     print(f"wrote {path}")
     return 0
 
 
-def _run_servo(args: Any, rig: _Rig, artifacts: Path) -> int:
-    from .records import SERVO_RECORD, save_record
-    from .servo import apply_gains, svg_plot, tune_servos
+def _run_servo(args: Any, rig: _Rig) -> int:
+    from ..calibration.records import SERVO_RECORD
+    from ..calibration.servo import svg_plot
 
-    result = tune_servos(rig.machine, progress=_progress(args))
+    svc = rig.service
+    result = svc.run(None, "servo", _progress(args))
     print(result.table())
-    out = Path(args.records)
+    out = svc.records_dir
     for a in result.proposed:
         p = svg_plot([t for t in result.trials if t.axis == a], out / f"servo-{a}.svg", f"{a.upper()} step responses")
         print(f"plot: {p}")
-    accepted = args.accept or _ask("apply the proposed gains now?")
-    save_record(result.record(accepted, rig.config.source), out / ("servo.toml" if accepted else "servo-proposal.toml"))
-    if accepted:
-        apply_gains(rig.machine, result.proposed)
+    if args.accept or _ask("apply the proposed gains now?"):
+        svc.accept_gains(None, result)  # sent to the modules through the command API, then recorded
         print(f"applied and recorded in {out / SERVO_RECORD}; copy them into the machine configuration [gains] to keep them")
     else:
+        svc.save(None, "servo", result, accepted=False)
         print("not applied (no --accept); proposal written to servo-proposal.toml")
     return 0
 

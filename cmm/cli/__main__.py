@@ -1,0 +1,7 @@
+"""`python -m cmm.cli ...`: the same as the `cmm` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
