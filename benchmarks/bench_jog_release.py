@@ -1,5 +1,10 @@
 """Jog release -> machine standing still, idle and under web load (issue 12 item 5: p99 <= 0.2 s).
 
+Priorities: the station runs as `cmm serve` runs it: at raised priority (nice -10, see
+cmm/control/priority.py; its session worker at nice 5). The simulator and this pendant client stand in for devices with processors of
+their own (the modules, the operator's phone), so they run at that raised priority too; the observer
+browsers run at normal priority on the same cores. Each run prints the host's load average.
+
 Four processes, as in use: the simulated CMM (real time, served over TCP, with home switches; it
 stands in for the hardware and keeps the stop-watch), the station (``Station`` on
 ``socket://...`` with the viser UI and the pendant server), the observer browsers, and this script,
@@ -184,6 +189,9 @@ def run_station(url: str, sessions: str, big: str, loaders: int) -> None:
     from cmm.station import Station
     from cmm.ui.app import StationApp
 
+    from cmm.control.priority import raise_station_priority
+
+    raise_station_priority()  # as `cmm serve` does, before any thread starts
     station = Station(port=url, session_dir=sessions).start(home=True)
     app = StationApp(station, port=0, pendant_port=0)
     station.move_to([250.0, 200.0, 150.0]).wait(60)
@@ -377,8 +385,12 @@ def main() -> None:
         for c in clients:
             c.close()
         return None
+    from cmm.control.priority import raise_thread_priority
     from cmm.machine.config import load
 
+    # this process plays the operator's pendant, a device of its own: like the simulator it runs ahead of other
+    # work on this PC (the observer browsers, which in use run on other PCs too, stay at normal priority)
+    print(f"pendant client at {'raised' if raise_thread_priority() else 'normal'} priority")
     fast = load().speeds.jog_fast
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()

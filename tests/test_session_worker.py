@@ -36,6 +36,7 @@ def pool():
 
 def test_tasks_run_in_another_process_and_match_the_in_process_results(store_dir, pool, tmp_path):
     assert pool.call(os.getpid) != os.getpid()
+    assert pool.call(os.getpriority, os.PRIO_PROCESS, 0) >= worker.WORKER_NICE  # behind the station for the CPU
     session = load_session(DirectoryStore(store_dir), "taught")
     assert pool.call(worker.summary, str(store_dir), "taught") == session.summary()
     html, table = pool.call(worker.report, str(store_dir), "taught", tmp_path)

@@ -1,9 +1,15 @@
-"""CPU priority for the threads on the jog path (the machine loop, the pendant server).
+"""CPU priority for the station and the threads on the jog path (the machine loop, the pendant server).
 
-The station shares its CPU with the web servers, report work and whatever else
-runs on the PC. The machine loop must get the CPU when a bus reply or a jog
+The station shares its CPU with whatever else runs on the PC (a desktop browser,
+other programs). The machine loop must get the CPU when a bus reply or a jog
 release arrives, so it asks the kernel for a higher priority for its own
 thread (Linux: ``setpriority`` on the thread id; niceness is per thread there).
+That alone is not enough in one Python process: the loop also needs the
+interpreter lock, and a station thread at normal priority that holds it and is
+pre-empted by another program keeps the loop waiting (priority inversion). So
+``cmm serve`` raises the whole station (:func:`raise_station_priority`, before
+it starts any thread: threads inherit it); heavy session work runs in a worker
+process at a lower priority (:mod:`cmm.session.worker`).
 That needs the right to raise priority (root, ``CAP_SYS_NICE``, or an
 ``RLIMIT_NICE`` such as ``@cmm - nice -10`` in /etc/security/limits.conf);
 without it the thread keeps its priority and the station says so once in its
@@ -47,6 +53,20 @@ def raise_priority_on(clock: object, nice: int = LOOP_NICE) -> bool:
     """Raise the calling thread's priority unless ``clock`` is the simulator's virtual clock (tests: a loop on
     it never sleeps, and a raised spinning thread would starve everything else)."""
     return not getattr(clock, "virtual", False) and raise_thread_priority(nice)
+
+
+def raise_station_priority(nice: int = LOOP_NICE) -> bool:
+    """At start-up, before any thread exists: the station's threads (which inherit it) run at ``nice``."""
+    return raise_thread_priority(nice)
+
+
+def lower_process_priority(nice: int) -> None:
+    """Run the calling process (a worker) at niceness ``nice`` or lower priority (always permitted)."""
+    try:
+        if os.getpriority(os.PRIO_PROCESS, 0) < nice:
+            os.setpriority(os.PRIO_PROCESS, 0, nice)
+    except (AttributeError, OSError):
+        pass
 
 
 def thread_nice() -> int | None:

@@ -38,7 +38,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
-WORKER_NICE = 5  # the worker yields the CPU to the station (machine loop, web) and the machine itself
+WORKER_NICE = 5  # niceness of the worker: it yields the CPU to the station (machine loop, web)
 StoreSpec = Any  # a directory path or a postgresql:// URL (what open_store takes)
 
 
@@ -47,9 +47,10 @@ class WorkerError(RuntimeError):
 
 
 def _start_worker(station_pid: int) -> None:
-    try:
-        os.nice(WORKER_NICE)
-    except OSError:  # not permitted here: run at the station's priority
+    try:  # absolute: a station at raised priority must not pass it on to its bulk work
+        if os.getpriority(os.PRIO_PROCESS, 0) < WORKER_NICE:
+            os.setpriority(os.PRIO_PROCESS, 0, WORKER_NICE)
+    except (AttributeError, OSError):
         pass
 
     def watch() -> None:  # a killed station cannot tell its workers to stop: they see it is gone

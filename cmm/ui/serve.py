@@ -63,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
         calibration = "calibration"
     if calibration is not None and not Path(calibration).is_dir():
         return _fail(f"the calibration folder {calibration} does not exist")
+    from ..control.priority import raise_station_priority
+
+    raise_station_priority()  # before any thread starts: the station's threads inherit it (control/priority.py)
     try:
         station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
                           session_dir=args.sessions, calibration_dir=calibration)
