@@ -26,3 +26,17 @@ def test_tuning_proposes_gains_and_restores_the_old_ones(sim_machine, tmp_path):
     assert "proposed X" in r.table()
     apply_gains(m, {"x": Gains(**{**g.__dict__})})
     assert m.modules[0].gains == g
+
+
+def test_cli_accepts_gains_through_the_station(tmp_path, capsys):
+    """`cmm calibrate servo --accept`: tuned on a station (homed first), the gains sent through the command API
+    and recorded (no proposal left)."""
+    from cmm.calibration.records import load_servo_record
+    from cmm.cli import main
+
+    assert main(["calibrate", "servo", "--records", str(tmp_path), "--quiet", "--accept"]) == 0
+    out = capsys.readouterr().out
+    assert "applied and recorded in" in out and (tmp_path / "servo-x.svg").is_file()
+    rec = load_servo_record(tmp_path / "servo.toml")
+    assert rec.accepted and set(rec.gains) == {"x", "y", "z"} and all(g["kp"] > 0 for g in rec.gains.values())
+    assert not (tmp_path / "servo-proposal.toml").exists()
