@@ -5,7 +5,8 @@ sampling pause on every path): on a bare ``Machine`` (what `cmm calibrate` did b
 as ``controller.run_job`` inline (no threads: the CLI), with the machine loop and dispatcher threads
 (the browser station), and threaded with a state listener (an I++ DME OnMoveReport, the UI). Prints CPU
 seconds, samples (3 NOPs each), and the number of items posted to the dispatcher thread. Run:
-    python benchmarks/bench_control_jobs.py [machine|inline|threaded|listener ...]
+    python benchmarks/bench_control_jobs.py [--repeat N] [machine|inline|threaded|listener ...]
+CPU is the least of N runs (the machine is shared: the least is the cost, the rest is contention).
 """
 
 from __future__ import annotations
@@ -84,11 +85,18 @@ PATHS = {"machine": ("bare Machine", bare_machine), "inline": ("run_job inline",
 
 
 def main() -> None:
-    which = sys.argv[1:] or list(PATHS)
+    args = sys.argv[1:]
+    repeat = 1
+    if "--repeat" in args:
+        i = args.index("--repeat")
+        repeat = int(args[i + 1])
+        del args[i:i + 2]
+    which = args or list(PATHS)
     print(f"{'path':<26} {'CPU s':>6} {'samples':>8} {'posts':>7} {'CPU ms/sample':>13}  r_eff")
     for w in which:
         name, fn = PATHS[w]
-        cpu, samples, n, r = fn()
+        runs = [fn() for _ in range(repeat)]
+        cpu, samples, n, r = min(runs)
         print(f"{name:<26} {cpu:6.2f} {samples:8d} {n:7d} {1000 * cpu / max(samples, 1):13.3f}  {r:.5f}", flush=True)
 
 
