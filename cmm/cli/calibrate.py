@@ -60,8 +60,8 @@ class _Rig:
             self.api = self.station.controller
             self.api.connect()
             if not self.api.state.homed:
-                if not args.quiet:
-                    print("homing cycle ...", flush=True)
+                if not self.station.simulated:  # the operator is told before the machine moves to its switches
+                    print("homing cycle: the machine moves to its home switches", flush=True)
                 self.station.home()
             self.station.load_calibration(args.records)
         except BaseException:
