@@ -69,8 +69,8 @@ def open_page(context, app, station):
         page.log.attach(page)
         pages.append(page)
         page.goto(app.url)
-        page.wait_for_selector("canvas", timeout=30_000)
-        page.get_by_role("button", name="Take control").wait_for(timeout=30_000)  # this client's GUI arrived
+        page.wait_for_selector("canvas", timeout=60_000)
+        page.get_by_role("button", name="Take control").wait_for(timeout=60_000)  # this client's GUI arrived
         bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
         (cid,) = set(app.clients) - before
         page.cid = cid
@@ -376,7 +376,8 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
             page.wait_for_timeout(30)
     finally:
         page.mouse.up()
-    bs.wait_until(lambda: len(station.hits) == hits + 1, 20.0, "the manual hit")
+    bs.wait_until(lambda: len(station.hits) == hits + 1, 20.0,
+                  f"the manual hit (Z {station.state.position[2]:.3f}; told {page.capp.messages[-3:]})")
     hit = station.hits[max(station.hits)]
     assert hit.mode == "manual" and hit.point[2] == pytest.approx(TOP_Z, abs=0.01)
     t, z = np.array(samples).T
