@@ -20,9 +20,8 @@ from typing import Any
 
 ROUTINES = ("probe", "iso10360-5", "geometry", "servo")
 SIM_URL = "sim://?cmm=1"  # the simulated CMM in-process on the virtual clock, released with the station
-# s of machine time between samples on the virtual clock, as on a bare Machine with the simulator's transport (the
-# sim:// port does not tell the machine its clock is virtual, so it would sample every 0.2 ms like hardware)
-SIM_POLL_PAUSE = 0.004
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("routine", choices=ROUTINES, help="what to calibrate")
     p.add_argument("--serial", metavar="URL", help="pyserial URL of the NMC network (default: in-process simulator)")
@@ -55,8 +54,6 @@ class _Rig:
                 settings.errors = GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))
         self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings)
         try:
-            if self.station.simulated:
-                self.station.machine.poll_pause = SIM_POLL_PAUSE
             self.api = self.station.controller
             self.api.connect()
             if not self.api.state.homed:

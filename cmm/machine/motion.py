@@ -116,6 +116,7 @@ class Machine:
         if config.link.read_following_error:
             self.items |= codec.SEND_PERROR
         self.state: MachineState | None = None
+        self._talked = False  # connect() was tried: close() has modules to stop and release
         self.polling = False
         self._thread: threading.Thread | None = None
         self._lock = threading.RLock()
@@ -136,6 +137,7 @@ class Machine:
     def connect(self) -> list[ModuleInfo]:
         """Initialise the network and every axis: gains, status items, inputs, group, servo on."""
         with self._lock:
+            self._talked = True
             # a truncated chain (a module that missed its address under load) is retried, not accepted
             infos = self.bus.initialize(self.config.link.baud,
                                         expected_modules=max(a.address for a in self.config.axes))
@@ -194,6 +196,9 @@ class Machine:
             motion, self._motion = self._motion, None
             if motion is not None:
                 motion.status.finish(error=MotionError("the machine was closed"))
+            if not self._talked:  # never started: nothing was commanded, the modules are as they were
+                self.bus.close()
+                return
             try:
                 for mod in self.modules:
                     mod.stop("off")

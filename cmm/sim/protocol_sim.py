@@ -106,6 +106,12 @@ class Serial(SerialBase):
         return True
 
     # --- the world's clock ------------------------------------------------------
+    @property
+    def virtual(self) -> bool:
+        """True on the virtual clock: the machine then samples every few ms of machine time (a sample costs CPU,
+        not time), as on the simulator's own transport."""
+        return self._link is not None and self._link.virtual
+
     def now(self) -> float:
         return self._linked().now()
 
