@@ -183,7 +183,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         _, dome = automeasure_in_page(page, station, (70.0, 58.0, 49.0), (0, 0, 1), 4,
                                       "sphere: the pole and 4 hits at 45°", shot="station-automeasure-sphere-plan")
         assert dome.kind == "sphere" and dome.nominal.kind == "sphere"
-        assert abs(dome.result.geometry()["radius"] - 10.0) < 0.005
+        # 5 hits on a 45-degree cap: its radius is ~3x less certain than one hit (2 um counts, pre-travel of a probe
+        # not yet qualified), so 10 um here, not the 5 um of the boss's two full rings
+        assert abs(dome.result.geometry()["radius"] - 10.0) < 0.010
         z = 46.0  # the cone's flank: radius 12.5 at z 39 to 6 at z 52
         r = 12.5 - 6.5 * (z - 39.0) / 13.0
         _, cone = automeasure_in_page(page, station, (100.0 + r, 40.0, z), (2 / 5 ** 0.5, 0, 1 / 5 ** 0.5), 3,
