@@ -198,6 +198,22 @@ def test_hold_button(page, server, station):
     page.mouse.move(box["x"] - 60, box["y"] + box["height"] / 2)  # slide off the button: pointerleave
     assert bs.stop_time(station, t0, "the stop on leaving the button") < STOP_WITHIN
     page.mouse.up()
+    # the speed buttons: Fine, then Fast chosen on the page; holding X+ jogs at that speed (position over machine time)
+    for label, expected in (("Fine", station.config.speeds.jog_fine), ("Fast", station.config.speeds.jog_fast)):
+        page.get_by_role("button", name=label, exact=True).click()
+        assert page.locator(".speeds button.sel").inner_text() == label
+        x0 = station.state.position[0]
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        page.mouse.down()
+        try:
+            bs.wait_until(lambda: station.state.position[0] > x0 + 0.01, 2.0, f"the {label} button jog")
+            page.wait_for_timeout(150)  # past the acceleration
+            v = rate(station)[0]
+        finally:
+            page.mouse.up()
+        assert bs.stop_time(station, station.state.time, f"the stop after the {label} jog") < STOP_WITHIN
+        assert v == pytest.approx(expected, rel=0.05), (label, v)
+    bs.screenshot(page, "pendant-speed-fast")
 
 
 def test_observer_cannot_move(page, server, station, control, monkeypatch):

@@ -3,19 +3,25 @@
 One walk through what an operator does on the simulated CMM (1280 x 800, the
 laptop layout): the always-visible status bar, auto-measure of faces picked
 on the part (plan drawn, Run), the feature tree with pass/fail colours, a hit
-removed and the feature refitted, a constructed angle, a 3-2-1 alignment
-from the measured planes (the DRO switches to part coordinates), the report
-header, and the customer report printed to PDF by chromium. Then the idle
+removed and the feature refitted, a hit re-taken (Probe here) and the feature
+refitted, a constructed angle, a 3-2-1 alignment from the measured planes (the
+DRO switches to part coordinates), the report header, the customer report
+printed to PDF by chromium, and a fault: the link to the modules drops, the
+status bar says FAULT and why, a move is refused with the reason, Reset is
+refused until the link answers, then Reset from the page. Then the idle
 page's bandwidth and the tablet (pendant-only) layout. Screenshots go to
 test-artifacts/station-*.png.
 """
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 import browser_support as bs
+from control_support import BreakablePort
 from netutil import SIM
 
 _reason = bs.unavailable_reason()
@@ -209,6 +215,34 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_role("button", name="Remove hit and refit").click(force=True)
         bs.wait_until(lambda: len(station.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
         assert station.features[top.id].hit_ids == top.hit_ids[1:]
+        # re-take a hit: Re-take arms it, the next hit (Probe here at the same point of the face, from the Go to
+        # tab) replaces it in the plane, which refits; the old hit goes to the deleted ones
+        kept = station.features[top.id].hit_ids
+        old = kept[0]
+        old_point = station.hits[old].point.copy()
+        page.get_by_label("Hit", exact=True).fill(str(old))
+        page.get_by_label("Hit", exact=True).press("Enter")
+        page.wait_for_timeout(300)
+        page.get_by_role("button", name="Re-take hit").click(force=True)
+        bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
+        assert page.capp.features.retake[:2] == (top.id, old)
+        pose = station.part.pose
+        pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
+        tab(page, "Go to")
+        page.get_by_role("button", name="Probe here", exact=True).click(force=True)
+        bs.wait_until(lambda: old not in station.hits, 90.0,
+                      f"hit {old} replaced by the re-taken one (told {page.capp.messages[-3:]})")
+        refit = station.features[top.id]
+        new = refit.hit_ids[0]
+        assert new not in kept and refit.hit_ids[1:] == kept[1:] and old in station.deleted
+        assert np.linalg.norm(station.hits[new].point - old_point) < 0.01  # the same point, probed again
+        assert any(t == "Re-take" and f"hit {old} replaced by hit {new}" in b for _l, t, b in page.capp.messages)
+        tab(page, "Features")
+        residuals = page.get_by_text(f"{top.name} hits (residual)")
+        bs.wait_until(lambda: re.search(rf"\b{new}: ", residuals.inner_text())
+                      and not re.search(rf"\b{old}: ", residuals.inner_text()), 20.0,
+                      "the re-taken hit listed with its residual")
+        bs.screenshot(page, "station-retaken-hit", timeout=60_000)
         # a nominal and a tolerance typed for the boss: a 20.1 mm nominal fails it, a +-0.15 mm size tolerance passes it
         def fails():
             return tree.inner_text().count("FAIL")
@@ -305,6 +339,48 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         pdf = rp.pdf(format="A4")
         (bs.ARTIFACTS / "station-report.pdf").write_bytes(pdf)
         assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page") >= 2
+        rp.close()
+
+        # --- a fault the way a real failure makes one: the link to the modules drops (the simulated port's plug
+        # pulled under the running station), the machine loop stops every axis and enters fault with the reason
+        bus = station.machine.bus
+        plug = BreakablePort(bus.port)
+        bus.port = plug
+        try:
+            tab(page, "Go to")
+            plug.broken = True
+            bs.wait_until(lambda: station.controller.state.mode.value == "fault", 20.0, "the fault on the dropped link")
+            status.get_by_text("FAULT", exact=True).wait_for()
+            bs.wait_until(lambda: "link failure" in status.inner_text() and "SILENT" in status.inner_text(), 20.0,
+                          f"the fault's reason and the silent link in the status bar ({status.inner_text()!r})")
+            # a motion button is refused with the reason, on the page
+            page.get_by_role("button", name="Go", exact=True).click(force=True)
+            page.get_by_text("cannot move: the machine is in fault (link failure").first.wait_for()
+            assert any(t == "Go to refused" and "Reset (or reconnect) first" in b for _l, t, b in page.capp.messages)
+            assert not station.state.moving
+            bs.screenshot(page, "station-fault", timeout=60_000)
+            # Reset while the link is down: refused (Reconnect first); the Machine tab says the way back
+            tab(page, "Machine")
+            page.get_by_text("then Home (positions are lost)").wait_for()
+            page.get_by_role("button", name="Reset", exact=True).click(force=True)
+            bs.wait_until(lambda: any(t == "Reset refused" and "Reconnect first" in b
+                                      for _l, t, b in page.capp.messages), 20.0, "Reset refused on a dead link")
+            assert station.controller.state.mode.value == "fault"
+            # the plug back in: the loop finds the modules answering; Reset from the page clears the fault
+            plug.broken = False
+            bs.wait_until(lambda: station.controller.state.link_ok, 20.0, "the link answering again")
+            page.get_by_text("press Reset (the link answers)").wait_for()
+            page.get_by_role("button", name="Reset", exact=True).click(force=True)
+            status.get_by_text("IDLE", exact=True).wait_for()
+            bs.wait_until(lambda: "link ok" in status.inner_text() and "link failure" not in status.inner_text(),
+                          20.0, f"the status bar clear of the fault ({status.inner_text()!r})")
+            cs = station.controller.state
+            assert cs.mode.value == "idle" and cs.homed and cs.link_ok  # the modules kept power: still homed
+            bs.screenshot(page, "station-fault-reset", timeout=60_000)
+        finally:
+            plug.broken = False
+            bus.port = plug.inner
+        assert page.log.page_errors == [], page.log.problems
 
 
 def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):

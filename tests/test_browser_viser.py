@@ -239,7 +239,8 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     """Holding "X +" for 2.5 s of machine time moves smoothly: no dead-man stop while held, and the speed (position
     over the machine's own clock) stays at the jog speed through every gap between viser's hold events that the
     hold keeper bridges (a busy browser renders WebGL frames of a few hundred ms and sends its 20 Hz holds late).
-    Releasing the button stops the machine at once, and nothing creeps afterwards."""
+    Releasing the button stops the machine at once, and nothing creeps afterwards. Then the Speed selector: a
+    held jog at "fine" and at "positioning" moves at that speed."""
     page = open_page()
     take_control(page, app)
     open_tab(page, "Jog")
@@ -291,6 +292,34 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     speeds = [(np.interp(b, t, x) - np.interp(a, t, x)) / 0.2 for a, b in windows if bridged(a, b)]
     assert len(speeds) >= 4, f"only {len(speeds)} of {len(windows)} windows bridged: the browser sent no holds"
     assert min(speeds) > 0.9 * jog, np.round(speeds, 2)
+
+    # the speed selector: "fine", then "positioning" chosen on the page; a held jog runs at that speed (position
+    # over the machine's clock, past the acceleration). X - at the fast speed retraces the path just jogged.
+    page.capp.jog_hold = capp_hold  # no more hold times to collect
+    for mode, button, expected, hold_s in (("fine", "hold X +", station.config.speeds.jog_fine, 1.2),
+                                            ("positioning", "hold X −", station.config.speeds.jog_fast, 0.5)):
+        page.get_by_role("button", name=mode, exact=True).click()
+        bs.wait_until(lambda: page.capp.speed_mode == mode, 10.0, f"the {mode} speed chosen")
+        x0 = station.state.position[0]
+        page.mouse.move(*button_centre(page, button))
+        page.mouse.down()
+        samples = []
+        try:
+            bs.wait_until(lambda: abs(station.state.position[0] - x0) > 0.01, 10.0, f"the {mode} jog")
+            t0 = station.state.time
+            while station.state.time - t0 < hold_s:
+                st = station.state
+                samples.append((st.time, st.position[0]))
+                page.wait_for_timeout(20)
+        finally:
+            page.mouse.up()
+        assert bs.stop_time(station, station.state.time, f"the stop after the {mode} jog") < STOP_WITHIN
+        t, x = np.array(samples).T
+        steady = t > t[0] + 0.1  # 400 mm/s^2: at 40 mm/s within 0.1 s
+        v = abs(np.polyfit(t[steady], x[steady], 1)[0])
+        assert v == pytest.approx(expected, rel=0.1), (mode, v, expected)
+        if mode == "positioning":
+            bs.screenshot(page, "viser-browser-jog-speed-positioning")
     assert page.log.page_errors == [], page.log.problems
 
 
