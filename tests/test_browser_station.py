@@ -219,7 +219,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # tab) replaces it in the plane, which refits; the old hit goes to the deleted ones
         kept = station.features[top.id].hit_ids
         old = kept[0]
-        old_point = station.hits[old].point.copy()
+        old_point = np.array(station.hits[old].point, float)
         page.get_by_label("Hit", exact=True).fill(str(old))
         page.get_by_label("Hit", exact=True).press("Enter")
         page.wait_for_timeout(300)
@@ -235,8 +235,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         refit = station.features[top.id]
         new = refit.hit_ids[0]
         assert new not in kept and refit.hit_ids[1:] == kept[1:] and old in station.deleted
-        assert np.linalg.norm(station.hits[new].point - old_point) < 0.01  # the same point, probed again
-        assert any(t == "Re-take" and f"hit {old} replaced by hit {new}" in b for _l, t, b in page.capp.messages)
+        assert np.linalg.norm(np.asarray(station.hits[new].point) - old_point) < 0.01  # the same point, probed again
+        bs.wait_until(lambda: any(t == "Re-take" and f"hit {old} replaced by hit {new}" in b
+                                  for _l, t, b in page.capp.messages), 20.0, "the page told of the re-take")
         tab(page, "Features")
         residuals = page.get_by_text(f"{top.name} hits (residual)")
         bs.wait_until(lambda: re.search(rf"\b{new}: ", residuals.inner_text())
@@ -340,6 +341,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         (bs.ARTIFACTS / "station-report.pdf").write_bytes(pdf)
         assert pdf.startswith(b"%PDF") and pdf.count(b"/Type /Page") >= 2
         rp.close()
+        page.bring_to_front()
 
         # --- a fault the way a real failure makes one: the link to the modules drops (the simulated port's plug
         # pulled under the running station), the machine loop stops every axis and enters fault with the reason
@@ -347,19 +349,25 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         plug = BreakablePort(bus.port)
         bus.port = plug
         try:
+            page.mouse.move(1100, 600)
+            page.mouse.wheel(0, -5000)  # the panel back to the top: the tab bar out from under the status bar
+            page.wait_for_timeout(500)
             tab(page, "Go to")
             plug.broken = True
             bs.wait_until(lambda: station.controller.state.mode.value == "fault", 20.0, "the fault on the dropped link")
             status.get_by_text("FAULT", exact=True).wait_for()
             bs.wait_until(lambda: "link failure" in status.inner_text() and "SILENT" in status.inner_text(), 20.0,
                           f"the fault's reason and the silent link in the status bar ({status.inner_text()!r})")
-            # a motion button is refused with the reason, on the page
-            page.get_by_role("button", name="Go", exact=True).click(force=True)
-            page.get_by_text("cannot move: the machine is in fault (link failure").first.wait_for()
-            assert any(t == "Go to refused" and "Reset (or reconnect) first" in b for _l, t, b in page.capp.messages)
+            # a motion button (Probe here, at the point picked for the re-take) is refused with the reason, on the page
+            page.get_by_role("button", name="Probe here", exact=True).click(force=True)
+            page.get_by_text("cannot probe: the machine is in fault (link failure").first.wait_for()
+            assert any(t == "Probe here refused" and "Reset (or reconnect) first" in b
+                       for _l, t, b in page.capp.messages), page.capp.messages[-3:]
             assert not station.state.moving
             bs.screenshot(page, "station-fault", timeout=60_000)
             # Reset while the link is down: refused (Reconnect first); the Machine tab says the way back
+            page.mouse.wheel(0, -5000)
+            page.wait_for_timeout(500)
             tab(page, "Machine")
             page.get_by_text("then Home (positions are lost)").wait_for()
             page.get_by_role("button", name="Reset", exact=True).click(force=True)
