@@ -25,7 +25,7 @@ def plan_at_pick(station: Any, face_id: int, *, n: int | None = None) -> HitPlan
     suggestion = suggest_feature(part.mesh, int(face_id))  # part coordinates
     probe = station.config.probe
     return plan_feature(part.mesh, part.pose, suggestion.feature, suggestion.face_ids, n=n,
-                        approach_distance=probe.approach_distance, tip_radius=station.prober.settings.tip_radius)
+                        approach_distance=probe.approach_distance, tip_radius=station.probe_settings.tip_radius)
 
 
 def run_plan(station: Any, plan: HitPlan, *, name: str | None = None, method: str = "ls",

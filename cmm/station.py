@@ -267,6 +267,24 @@ class Station:
     def control_state(self) -> ControlState:
         return self.controller.state
 
+    @property
+    def probe_settings(self) -> Any:
+        """The probe in use (stylus radius, pre-travel), for front ends to show (read only)."""
+        return self.prober.settings
+
+    def link_modules(self) -> list[Any]:
+        """The modules found on the link at start-up (address, type, version), for front ends to show."""
+        return list(getattr(self.machine.bus, "modules", None) or [])
+
+    @property
+    def samples(self) -> int:
+        """Samples read from the modules so far (the status bar's link rate)."""
+        return int(getattr(self.machine, "samples", 0))
+
+    @property
+    def link_baud(self) -> int:
+        return int(getattr(self.machine.bus, "baud", self.config.link.baud))
+
     def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
         """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
 

@@ -179,11 +179,9 @@ class StationApp:
 
     def link_info(self) -> str:
         st, cfg = self.station, self.station.config
-        bus = st.machine.bus
-        modules = getattr(bus, "modules", None) or []
-        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in modules) or "-"
+        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in st.link_modules()) or "-"
         kind = "simulator over TCP" if st.sim is not None else "serial"
-        return (f"port `{st.port}` ({kind}) · {getattr(bus, 'baud', cfg.link.baud)} baud · "
+        return (f"port `{st.port}` ({kind}) · {st.link_baud} baud · "
                 f"firmware {cfg.link.firmware}\n\nmodules: {mods}")
 
     # --- station state -------------------------------------------------------------------

@@ -144,7 +144,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + "</div>")
         if label == "part" and not aligned:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
-        settings = getattr(getattr(station, "prober", None), "settings", None)
+        settings = getattr(station, "probe_settings", None)
         tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
         probe_cal = (getattr(station, "calibration_status", {}) or {}).get("probe")
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
@@ -194,7 +194,7 @@ class StatusPanel:
 
     def html(self) -> str:
         st = self.capp.station
-        rate = self.link.update(int(getattr(st.machine, "samples", 0)))
+        rate = self.link.update(int(getattr(st, "samples", 0)))
         return status_html(st, self.capp.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
                            armed=self.capp.manual_probe, aligned=self.capp.aligned())
 

@@ -575,7 +575,7 @@ class ClientApp:
             gui.add_button("Move above").on_click(lambda _: self.move_above())
             gui.add_button("Probe here").on_click(lambda _: self.probe_here())
         with tabs.add_tab("Probe"):
-            settings = self.station.prober.settings
+            settings = self.station.probe_settings
             gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
                              f"{settings.pretravel.describe()}")
             g["contact"] = gui.add_markdown("*no hit yet*")

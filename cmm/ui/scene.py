@@ -184,7 +184,7 @@ class SceneView:
         self.draw_part()
         start = st.state.position if st.state is not None else (lo + hi) / 2
         self.probe = self.scene.add_frame("/probe", show_axes=False, position=tuple(np.asarray(start) * SCALE))
-        r = float(st.prober.settings.tip_radius)
+        r = float(st.probe_settings.tip_radius)
         self.scene.add_icosphere("/probe/tip", radius=r * SCALE, color=(230, 30, 30), subdivisions=3)
         stylus = trimesh.creation.cylinder(radius=max(r * 0.4, 0.2), segment=[[0, 0, r * 0.8], [0, 0, STYLUS_LENGTH]],
                                            sections=24)
