@@ -247,11 +247,14 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     bs.screenshot(page, "viser-browser-jog-tab")
     start = station.state.position.copy()
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
-    events = []
-    station.subscribe(lambda kind, info: events.append(kind) if kind == "deadman" else None)
+    events = []  # machine time of each dead-man stop
+    station.subscribe(lambda kind, info: events.append(station.state.time) if kind == "deadman" else None)
     holds = []  # machine time of each hold event from the browser
     capp_hold = page.capp.jog_hold
     page.capp.jog_hold = lambda *a: (holds.append(station.state.time), capp_hold(*a))
+    kept = []  # machine time of each round of the station's hold keeper (25 Hz)
+    capp_keep = page.capp.keep_hold
+    page.capp.keep_hold = lambda: (kept.append(station.state.time), capp_keep())
     page.mouse.move(*button_centre(page, "hold X +"))
     page.mouse.down()
     samples = []  # (machine time, X)
@@ -265,9 +268,23 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     finally:
         page.mouse.up()
     held = list(events)
+    page.capp.keep_hold = capp_keep
     t_release = station.state.time
     assert bs.stop_time(station, t_release, "the stop on release") < STOP_WITHIN
-    assert held == [], f"{len(held)} dead-man stop(s) while the button was held"
+    # A dead-man stop while held is a failure unless this test process was starved of CPU (other tests or jobs on
+    # a 2-core machine): then neither the browser's holds nor the keeper's refreshes came for half the dead-man
+    # time before the stop, and stopping is what the machine must do.
+    refreshes = np.sort(np.array(holds + kept))
+    timeout = station.config.deadman_timeout
+    starved = []
+    for td in held:
+        window = refreshes[(refreshes > td - 2 * timeout) & (refreshes <= td)]
+        gaps = np.diff(np.concatenate([window, [td]]))
+        assert len(window) and gaps.max() >= timeout / 2, \
+            f"a dead-man stop at {td:.2f} s while the button was held and refreshed on time: {np.round(gaps, 3)}"
+        starved.append(td)
+    if starved:
+        print(f"{len(starved)} dead-man stop(s) while the test process was starved of CPU (refreshes late)")
     stopped = station.state.position.copy()
     assert stopped[0] > start[0] + 10.0 and np.allclose(stopped[1:], start[1:])
     page.wait_for_timeout(400)
@@ -288,7 +305,8 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
         return np.diff(chain).max() < HOLD_GRACE_S - 0.05
 
     # every 0.2 s window of machine time moves at the jog speed: a stop and re-start would show as a dip
-    windows = [(a, a + 0.2) for a in np.arange(t[0] + 0.3, t[-1] - 0.2, 0.2)]
+    windows = [(a, a + 0.2) for a in np.arange(t[0] + 0.3, t[-1] - 0.2, 0.2)
+               if not any(a - 0.5 < td < a + 0.2 for td in starved)]  # a starved stop and its re-acceleration
     speeds = [(np.interp(b, t, x) - np.interp(a, t, x)) / 0.2 for a, b in windows if bridged(a, b)]
     assert len(speeds) >= 4, f"only {len(speeds)} of {len(windows)} windows bridged: the browser sent no holds"
     assert min(speeds) > 0.9 * jog, np.round(speeds, 2)
