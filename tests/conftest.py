@@ -19,3 +19,12 @@ def sim_machine():
     machine.connect()
     yield sim, machine, Prober(machine)
     machine.close()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Two xdist workers (``--dist loadgroup``): a test file stays in one worker (its module fixtures are built once),
+    and all browser tests share one worker, so two software-rendered WebGL browsers never compete for the two
+    cores while their wall-time-paced jogs are timed."""
+    for item in items:
+        group = "browser" if item.get_closest_marker("browser") else item.nodeid.split("::", 1)[0]
+        item.add_marker(pytest.mark.xdist_group(group))
