@@ -440,15 +440,7 @@ class Machine:
             self._require_idle()
             status = MoveStatus("move to X={:.3f} Y={:.3f} Z={:.3f}".format(*t), self.driver)
             armed = self._arm() if protect else False
-            motion = _Motion(status, "move", armed=armed)
-            self._motion = motion
-            status.on_cancel(lambda: self._cancel(motion))
-            try:
-                self._load_line(t, speed, accel)
-            except BaseException as exc:
-                self._finish(motion, error=exc)
-                raise
-            return status
+            return self._start_line(_Motion(status, "move", armed=armed), t, speed, accel)
 
     def probing_move(self, target: Any, speed: float, accel: float, *,
                      description: str = "probing move") -> MoveStatus:
@@ -472,14 +464,18 @@ class Machine:
             motion = _Motion(status, "probe", armed=True)
             motion.on_capture = lambda latched: self._finish(motion, result=tuple(latched))
             motion.extra["on_done"] = lambda state: self._finish(motion, result=None)
-            self._motion = motion
-            status.on_cancel(lambda: self._cancel(motion))
-            try:
-                self._load_line(t, speed, accel)
-            except BaseException as exc:
-                self._finish(motion, error=exc)
-                raise
-            return status
+            return self._start_line(motion, t, speed, accel)
+
+    def _start_line(self, motion: _Motion, target: np.ndarray, speed: float, accel: float) -> MoveStatus:
+        """Make ``motion`` the current one and send its straight line (lock held); a failed send finishes it."""
+        self._motion = motion
+        motion.status.on_cancel(lambda: self._cancel(motion))
+        try:
+            self._load_line(target, speed, accel)
+        except BaseException as exc:
+            self._finish(motion, error=exc)
+            raise
+        return motion.status
 
     def move_path(self, points: list[Any], speed: float | None = None) -> MoveStatus:
         """Straight moves through ``points`` in turn (all checked first); one status for the whole path."""
