@@ -179,6 +179,22 @@ def count_commands(net: SimNetwork, code: int) -> list[int]:
 LOST = [Fault("drop", "rx", count=2), Fault("stall", "rx", duration=0.3), Fault("drop", "tx")]  # done, done, not
 
 
+def inject_at(bus: Bus, port: FaultyTransport, code: int, fault: Fault) -> list[bytes]:
+    """Arm ``fault`` as the bus sends the first command ``code``: it hits that command (tx) or its reply (rx),
+    not a status read the bus makes before it. Returns the packets it was armed at (one)."""
+    hit: list[bytes] = []
+
+    def arm(entry) -> None:
+        data = entry.data
+        if (entry.direction == "tx" and not hit and len(data) > 3 and data[0] == codec.HEADER
+                and data[2] & 0x0F == code):
+            hit.append(data)
+            port.inject(fault)
+
+    bus.trace.subscribe(arm)
+    return hit
+
+
 @pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
 def test_a_lost_reset_pos_reply_is_recovered_and_never_doubles_the_reset(fault):
     net, port, bus, mods = parked()
@@ -219,23 +235,21 @@ def test_a_lost_reset_pos_reply_that_cannot_be_told_is_a_link_error_not_a_resend
 @pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
 def test_a_lost_save_as_home_reply_is_recovered(fault):
     net, port, bus, mods = parked()
-    port.inject(fault)
+    inject_at(bus, port, codec.SAVE_AS_HOME, fault)
     mods[2].save_as_home()  # at rest: carried out once or twice, the home register holds the same position
     assert mods[2].home_position() == net.modules[2].home == PARK[3]
     assert bus.stats["verified"] == 1
-    # moving, it is told by the home register changing (it never does if the command was lost)
+    # moving, it is told by the home register changing; if it holds no position the axis passed since the
+    # command (here 0, thousands of counts behind), the command was lost on the way: sent once more
     assert mods[0].home_position() == 0
     mods[0].load_velocity(codec.velocity_to_fixed(20, 500), ACC)
     bus.clock.sleep(0.2)
     saves = count_commands(net, codec.SAVE_AS_HOME)
-    port.inject(fault)
-    if fault.direction == "tx":
-        with pytest.raises(LinkError, match="reply of module 1 to SAVE_AS_HOME was lost .* not sent again"):
-            mods[0].save_as_home()
-        assert saves == [0, 0, 0] and net.modules[0].home == 0
-    else:
-        mods[0].save_as_home()
-        assert saves == [1, 0, 0] and net.modules[0].home > PARK[1]
+    inject_at(bus, port, codec.SAVE_AS_HOME, fault)
+    before = bus._last[1][0]  # the last reading before the command
+    mods[0].save_as_home()
+    assert saves == [1, 0, 0] and bus.stats["verified"] == 2
+    assert net.modules[0].home > before + 1000 and mods[0].home_position() == net.modules[0].home
 
 
 def test_start_up_works_whatever_state_an_earlier_run_left():
@@ -343,7 +357,7 @@ def test_stop_all_on_a_dead_link_reports_quickly_and_on_one_silent_module_stops_
 def test_a_lost_reply_to_arming_the_probe_capture_is_checked_on_the_module(fault):
     net, port, bus, mods = parked()
     arms = count_commands(net, codec.SET_HOMING)
-    port.inject(fault)
+    inject_at(bus, port, codec.SET_HOMING, fault)  # (the home register, unknown since RESET_POS, is read first)
     st = mods[0].arm_home("limit1", "abrupt")
     assert st.home_in_progress and bus.stats["verified"] == 1 and bus.stats["resyncs"] >= 1
     assert arms == [1, 0, 0]  # carried out once: a command lost on the way (tx) was sent again
@@ -371,15 +385,16 @@ def test_a_lost_arming_reply_after_the_capture_fired_reports_the_capture(fault):
     assert not mods[0].nop().home_in_progress and abs(mods[0].home_position() - PARK[1]) <= 3
 
 
-def test_a_lost_arming_reply_is_a_link_error_when_the_home_register_is_unknown():
+@pytest.mark.parametrize("fault", LOST[::2], ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_arming_reply_is_a_link_error_when_a_capture_would_have_latched_the_old_home(fault):
     net, port, bus, mods = parked()
-    net.modules[0].home = PARK[1]  # an earlier capture here, not read since the parking RESET_POS
+    net.modules[0].home = PARK[1]  # an earlier capture here, where the axis stands
     trigger_when_armed(net, 0)
     arms = count_commands(net, codec.SET_HOMING)
-    port.inject(Fault("drop", "rx", count=2))
+    inject_at(bus, port, codec.SET_HOMING, fault)
     with pytest.raises(LinkError, match="reply of module 1 to SET_HOMING was lost .* not sent again"):
-        mods[0].arm_home("limit1", "abrupt")  # fired here, or never armed? both latch this position
-    assert arms == [1, 0, 0]
+        mods[0].arm_home("limit1", "abrupt")  # fired here, or never armed? the home register reads the same
+    assert arms == [1, 0, 0] if fault.direction == "rx" else arms == [0, 0, 0]
 
 
 def test_a_lost_reply_to_a_jog_velocity_is_simply_sent_again():
@@ -469,3 +484,104 @@ def test_the_machine_stops_on_a_touch_whose_arming_reply_was_lost():
         assert not machine.busy and machine.position == pytest.approx(start, abs=0.01)
     finally:
         machine.close()
+
+
+def test_a_reply_the_host_read_late_is_not_a_continuity_suspect_but_a_swapped_one_still_is():
+    """The continuity window starts when the previous request was sent (the module samples after it
+    arrives), not when its reply was read: a host thread scheduled late after reading a reply must not
+    make the next correct reply look like a jump. A reply of another module still is one."""
+    net, port, bus, mods = parked()
+    mods[0].load_velocity(codec.velocity_to_fixed(20, 500), ACC)  # 10,000 counts/s
+    bus.clock.sleep(0.3)  # at speed
+    sent: list[bytes] = []
+
+    def read_late(entry) -> None:  # every other reply of module 1 is read 50 ms late (host thread preempted)
+        if entry.direction == "tx":
+            sent.append(entry.data)
+        elif (entry.direction == "rx" and not entry.note and sent and sent[-1] == codec.nop(1)
+              and sent.count(sent[-1]) % 2):
+            bus.clock.sleep(0.05)  # 500 counts of travel that the reply's receipt time knows nothing of
+
+    unsubscribe = bus.trace.subscribe(read_late)
+    readings = [mods[0].nop().position for _ in range(20)]
+    assert bus.stats["suspect"] == 0 and bus.stats["resyncs"] == 0
+    assert max(b - a for a, b in zip(readings, readings[1:])) >= 450  # it did travel while a reading waited
+    # the same late reading with module 2's reply slipped in before module 1's own: caught
+    genuine_2 = bytes(codec.encode_status(mods[1].nop().status, codec.SEND_POS | codec.SEND_AUX,
+                                          position=PARK[2], aux=mods[1].last.aux))
+    forged: list[bool] = []
+
+    def slip_in(entry) -> None:
+        if entry.direction == "tx" and entry.data == codec.nop(1) and not forged:
+            forged.append(True)
+            port.lines.rx.push(genuine_2, bus.clock.now())
+
+    bus.trace.subscribe(slip_in)
+    st = mods[0].nop()
+    unsubscribe()
+    assert forged and bus.stats["suspect"] == 1
+    assert abs(st.position - net.modules[0].pos) <= 600 and abs(st.position - PARK[2]) > 1000  # its own reply
+    assert positions_ok(mods[1:], PARK) == []
+
+
+JOG = codec.velocity_to_fixed(20, 500)  # 10,000 counts/s
+
+
+def jogging(fault_seed: int = 1) -> tuple[SimNetwork, FaultyTransport, Bus, list[Module]]:
+    """Parked, then module 1 jogs at speed; its home register is unknown to the bus (not read since RESET_POS)."""
+    net, port, bus, mods = parked(fault_seed)
+    mods[0].load_velocity(JOG, ACC)
+    bus.clock.sleep(0.2)
+    assert 1 not in bus._home  # what this test is about: a command whose home register was not known before
+    return net, port, bus, mods
+
+
+@pytest.mark.parametrize("fault", LOST[:2], ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_capture_that_fired_while_moving_with_the_home_register_unknown_is_reported(fault):
+    """Arming right after RESET_POS on a moving axis, the probe touches at once, the reply is lost: the home
+    register is read back before arming, so its change tells the capture fired (never re-armed over it)."""
+    net, port, bus, mods = jogging()
+    trigger_when_armed(net, 0)
+    arms = count_commands(net, codec.SET_HOMING)
+    inject_at(bus, port, codec.SET_HOMING, fault)
+    st = mods[0].arm_home("limit1", "abrupt")
+    assert not st.home_in_progress and arms == [1, 0, 0] and bus.stats["verified"] == 1
+    latched = net.modules[0].home
+    assert latched > PARK[1] + 1000 and mods[0].home_position() == latched
+    assert mods[0].nop().move_done and abs(mods[0].position() - latched) <= 50  # the capture stopped it
+
+
+def test_an_arming_lost_on_the_way_to_a_moving_axis_is_sent_again_once():
+    """Not armed, and the home register holds no position the axis can have passed since the command
+    (the continuity bound): nothing fired, so arming again is harmless."""
+    net, port, bus, mods = jogging()
+    arms = count_commands(net, codec.SET_HOMING)
+    inject_at(bus, port, codec.SET_HOMING, Fault("drop", "tx"))
+    st = mods[0].arm_home("limit1", "abrupt")
+    assert st.home_in_progress and arms == [1, 0, 0] and bus.stats["verified"] == 1
+    net.set_inputs(0, limit1=True)  # armed, as asked: the capture works
+    bus.clock.sleep(0.01)
+    assert mods[0].home_captured() and mods[0].nop().move_done
+
+
+@pytest.mark.parametrize("fault", LOST, ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_lost_save_as_home_reply_on_a_moving_axis_with_the_home_register_unknown_is_recovered(fault):
+    net, port, bus, mods = jogging()
+    saves = count_commands(net, codec.SAVE_AS_HOME)
+    inject_at(bus, port, codec.SAVE_AS_HOME, fault)
+    before = bus._last[1][0]  # the last reading before the command
+    st = mods[0].save_as_home()
+    assert saves == [1, 0, 0] and bus.stats["verified"] == 1  # done (rx) or sent once more (tx), never twice
+    assert before < net.modules[0].home <= st.position + 3 and mods[0].home_position() == net.modules[0].home
+
+
+def test_a_lost_save_as_home_that_cannot_be_told_is_a_link_error_not_a_resend():
+    """Moving, the command lost on the way, and the old home value lies just ahead on the axis's path:
+    it may have been saved there, or not at all; saving again would latch another position."""
+    net, port, bus, mods = jogging()
+    net.modules[0].home = net.modules[0].pos + 200  # passed 20 ms from now
+    saves = count_commands(net, codec.SAVE_AS_HOME)
+    inject_at(bus, port, codec.SAVE_AS_HOME, Fault("drop", "tx"))
+    with pytest.raises(LinkError, match="reply of module 1 to SAVE_AS_HOME was lost .* not sent again"):
+        mods[0].save_as_home()
+    assert saves == [0, 0, 0]

@@ -143,7 +143,10 @@ class Bus:
         self.link_up = True
         self._marker_turn = 0
         self._storm = 0  # transactions in a row that needed a resynchronisation
-        self._last: dict[int, tuple[int, float]] = {}  # address -> (position, time) of the last good reply
+        # address -> (position, time) of the last good reply, the time being when its request was sent: the module
+        # samples after the request arrives, so (unlike the time the reply was read) it never follows the sample
+        self._last: dict[int, tuple[int, float]] = {}
+        self._sent_at = 0.0  # when the request of the reply being read was sent
         self._vmax: dict[int, float] = {}  # address -> fastest loaded speed, counts/s
         self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
         self._armed: set[int] = set()  # modules with a home capture armed
@@ -155,6 +158,7 @@ class Bus:
         self._before: dict[int, tuple[tuple[int, float] | None, int | None]] = {}  # address -> (last position
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
+        self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -252,6 +256,7 @@ class Bus:
         """Send once; the parsed reply, or None on time-out, garbage or surplus bytes."""
         address = packet[1]
         self._discard_stale(address)
+        self._sent_at = self.clock.now()
         self._write(packet, address)
         n = codec.status_length(items)
         data = self._read(n, address)
@@ -287,9 +292,22 @@ class Bus:
             return address
         return self.leaders.get(address)
 
+    def _read_home_before(self, packet: bytes) -> None:
+        """Before arming a capture or SAVE_AS_HOME, read the home register if it is not known (after RESET_POS, a
+        capture, a SAVE_AS_HOME): should the reply be lost, a changed register is what tells the command took effect.
+        One READ_STAT, only then (a group SET_HOMING is not checked after a lost reply, so not read for)."""
+        address, code = packet[1], packet[2] & 0x0F
+        if code == codec.SAVE_AS_HOME or (code == codec.SET_HOMING and address < 0x80 and len(packet) > 4
+                                          and packet[3] & CAPTURE_BITS):
+            for a in self._members(address):
+                if a not in self._home and a in self.items:
+                    items = self.items[a] | codec.SEND_POS | codec.SEND_HOME
+                    self.transact(codec.read_stat(a, items), items)
+
     def _before_send(self, packet: bytes) -> None:
         """Remember what a command sets up that a lost reply would have to be checked against."""
         address, code, data = packet[1], packet[2] & 0x0F, packet[3:-1]
+        self._command_at = self.clock.now()
         members = self._members(address)
         if code == codec.LOAD_TRAJ:
             try:
@@ -335,6 +353,7 @@ class Bus:
         last = self._last.get(address)
         if last is None:
             return True
+        # the two samples lie between the previous request's send time and now: however late a reply is read
         dt = max(self.clock.now() - last[1], 0.0) + 0.002
         speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
         return abs(status.position - last[0]) <= speed * dt + CONTINUITY_MARGIN
@@ -349,7 +368,7 @@ class Bus:
     def _observe(self, address: int, status: codec.Status) -> None:
         """Keep what a trusted reply of one module tells: its position, and its home register."""
         if status.position is not None:
-            self._last[address] = (status.position, self.clock.now())
+            self._last[address] = (status.position, self._sent_at)
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
             self._home.pop(address, None)
@@ -367,6 +386,7 @@ class Bus:
         code = packet[2] & 0x0F
         with self.lock:
             expected = self._reply_items(address) if items is None else items
+            self._read_home_before(packet)
             self.stats["transactions"] += 1
             self._before_send(packet)
             if code == codec.HARD_RESET:  # never answered: the module is back at its power-up state
@@ -414,13 +434,14 @@ class Bus:
     def _confirm_jump(self, address: int, suspect: codec.Status) -> codec.Status | None:
         """A reply that jumped: resynchronise and read the position again; keep the reply only if it agrees."""
         self.stats["suspect"] += 1
-        t0 = self.clock.now()
+        t0 = sent = self._sent_at
         self.resync(address)
         check = self._attempt(codec.read_stat(address, codec.SEND_POS), codec.SEND_POS)
         if check is None or check.cksum_error or check.position is None or suspect.position is None:
             return None
         speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
         if abs(check.position - suspect.position) <= speed * (self.clock.now() - t0 + 0.02) + CONTINUITY_MARGIN:
+            self._sent_at = sent  # the suspect reply is kept: its own request's time goes with it
             return suspect  # a real jump (a servo let go, a capture...): both readings agree
         return None
 
@@ -454,7 +475,7 @@ class Bus:
         if code == codec.SET_HOMING and not packet[3] & CAPTURE_BITS:
             return None  # disarming twice is harmless
         if code == codec.SET_HOMING and address < 0x80:
-            return self._check_homing(address, name, who)
+            return self._check_homing(address, name, who, coasting=bool(packet[3] & codec.HOME_MOTOR_OFF))
         if code == codec.SAVE_AS_HOME:
             return self._check_members(address, name, who, self._check_save_as_home)
         if code == codec.RESET_POS:
@@ -515,13 +536,37 @@ class Bus:
         return (last is not None and st.move_done and st.position is not None
                 and abs(st.position - last[0]) <= REST_TOLERANCE)
 
-    def _check_homing(self, address: int, name: str, who: str) -> codec.Status | None:
+    def _passed(self, address: int, value: int, st: codec.Status, *, coasting: bool = False) -> bool:
+        """Could the axis have been at ``value`` at some moment since the command was sent (so a capture or a
+        SAVE_AS_HOME there may have latched it)? ``st`` is a status read after the command.
+
+        Under servo an axis moves no faster than the fastest speed it was given (the continuity bound): from
+        where the last reply before the command saw it, to ``value``, to where ``st`` sees it. ``coasting``
+        (the capture switches the motor off) or a servo that let go: only the way there bounds it. In PWM mode
+        or with the motor off nothing does.
+        """
+        if address in self._free or st.position is None:
+            return True
+        speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
+        now = self.clock.now() + 0.002
+        last = self._before.get(address, (None, None))[0]
+        if coasting or st.pos_error:
+            return last is None or abs(value - last[0]) <= speed * (now - last[1]) + CONTINUITY_MARGIN
+        if abs(value - st.position) > speed * (now - self._command_at) + CONTINUITY_MARGIN:
+            return False
+        return last is None or (abs(value - last[0]) + abs(value - st.position)
+                                <= speed * (now - last[1]) + 2 * CONTINUITY_MARGIN)
+
+    def _check_homing(self, address: int, name: str, who: str, *, coasting: bool = False) -> codec.Status | None:
         """A lost reply to SET_HOMING (arming a capture): armed, armed and fired already, or not carried out.
 
-        Fired: the home register changed since it was last read (the caller
-        then sees the capture as if the reply had come: HOME_IN_PROG clear).
-        Not carried out: not armed, at rest all along and nothing latched
-        where the module stands (a capture at rest latches that position).
+        Fired: the home register changed since it was last read (it is read
+        before arming when unknown; the caller then sees the capture as if the
+        reply had come: HOME_IN_PROG clear). Not carried out: not armed and the
+        home register holds nothing latched since the command: no position the
+        axis can have passed (``_passed``), or at rest all along and not where
+        it stands. Re-arming is harmless only then: after a capture it would
+        hide the touch.
         """
         st = self._home_query(address)
         if st.home_in_progress:
@@ -529,18 +574,24 @@ class Bus:
         home_before = self._before.get(address, (None, None))[1]
         if home_before is not None and st.home != home_before:
             return st  # armed, and it fired already
+        if st.home is not None and not self._passed(address, st.home, st, coasting=coasting):
+            return None  # not armed and nothing latched since: it was not carried out, send it again
         if self._settled(address, st) and abs((st.home or 0) - (st.position or 0)) > REST_TOLERANCE:
             return None  # not armed and nothing latched: it was not carried out, send it again
         raise self._unsure(name, who, address)
 
     def _check_save_as_home(self, address: int) -> tuple[str, codec.Status]:
-        """SAVE_AS_HOME: at rest it is harmless twice (the same position again); moving, only a changed home tells."""
+        """SAVE_AS_HOME: at rest it is harmless twice (the same position again); moving, a changed home register
+        tells it was done (it is read before the command when unknown), one holding no position the axis can
+        have passed since the command that it was not (sent again: once)."""
         st = self._home_query(address)
         home_before = self._before.get(address, (None, None))[1]
         if self._settled(address, st):
             return ("done" if abs((st.home or 0) - (st.position or 0)) <= REST_TOLERANCE else "not done"), st
         if home_before is not None and st.home != home_before:
             return "done", st
+        if st.home is not None and not self._passed(address, st.home, st):
+            return "not done", st
         return "unsure", st
 
     def _check_reset(self, address: int, packet: bytes) -> tuple[str, codec.Status]:
