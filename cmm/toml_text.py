@@ -1,4 +1,4 @@
-"""TOML values as text, for the files the station writes (calibration records, programs).
+"""TOML values and keys as text, for the files the station writes (calibration records, programs).
 
 Python reads TOML with tomllib but has no writer; the files are small and
 hand-laid-out, so only values need formatting.
@@ -8,7 +8,15 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from typing import Any
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def toml_key(k: str) -> str:
+    """A key as written: bare when TOML allows it, else quoted (a set-up named "XY+" needs the quotes)."""
+    return k if _BARE_KEY.fullmatch(k) else json.dumps(k)
 
 
 def toml_value(v: Any) -> str:
@@ -28,5 +36,5 @@ def toml_value(v: Any) -> str:
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
+        return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + " }"
     raise TypeError(f"cannot write a {type(v).__name__} to TOML")

@@ -42,13 +42,16 @@ def test_bad_certificates_name_the_problem(tmp_path, text, message):
 
 def test_records_round_trip_and_write_atomically(tmp_path):
     pr = rec.ProbeRecord("2025-01-01", "sphere", 0.9961, {"const": 1e-4, "s2_cos3": 0.0015}, 1.0, (400, 300, 100))
-    mr = rec.MachineRecord("2025-01-01", "bars", (50.0, 0.0, -1.0), (30.0, 0.0, 0.0))
+    mr = rec.MachineRecord("2025-01-01", "bars", (50.0, 0.0, -1.0), (30.0, 0.0, 0.0),
+                           length_errors_before_um={"X": -15.0, "XY+": -11.7}, length_errors_after_um={"XY-": 0.4})
     sr = rec.ServoRecord("2025-01-01", {"x": {"kp": 4000, "kd": 16000, "ki": 0, "il": 0}}, True)
     rec.save_record(pr, tmp_path / "probe.toml")
     rec.save_record(mr, tmp_path / "machine.toml")
     rec.save_record(sr, tmp_path / "servo.toml")
     assert rec.load_probe_record(tmp_path / "probe.toml").pretravel == pr.pretravel
-    assert rec.load_machine_record(tmp_path / "machine.toml").correction == mr.correction
+    got = rec.load_machine_record(tmp_path / "machine.toml")
+    assert got.correction == mr.correction  # set-up names such as "XY+" are written as quoted keys
+    assert got.length_errors_before_um == mr.length_errors_before_um and got.length_errors_after_um == {"XY-": 0.4}
     assert rec.load_servo_record(tmp_path / "servo.toml").gains == sr.gains
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporaries left
     with pytest.raises(ValueError):

@@ -22,7 +22,7 @@ from typing import Any
 
 from ..machine.geometry import GeometryCorrection
 from ..metrology.compensation import ALL_PRETRAVEL_TERMS, PretravelModel
-from ..toml_text import toml_value
+from ..toml_text import toml_key, toml_value
 
 DEFAULT_DIR = Path("calibration")
 PROBE_RECORD = "probe.toml"
@@ -63,9 +63,9 @@ def dumps(data: dict, header: str = "") -> str:
             lines.append(f"[{prefix}]")
         for k, v in scalars.items():
             if v is not None:
-                lines.append(f"{k} = {_value(v)}")
+                lines.append(f"{toml_key(k)} = {_value(v)}")
         for k, v in tables.items():
-            table(f"{prefix}.{k}" if prefix else k, v)
+            table(f"{prefix}.{toml_key(k)}" if prefix else toml_key(k), v)
 
     table("", data)
     return "\n".join(lines).lstrip("\n") + "\n"
