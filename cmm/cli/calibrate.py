@@ -34,7 +34,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inject-errors", action="store_true",
                    help="simulator: X scale +50 ppm and XY squareness 30 urad (the probe is 3-lobed anyway)")
     p.add_argument("--no-verify", action="store_true", help="geometry: skip the verification pass")
+    p.add_argument("--no-home", dest="home", action="store_false",
+                   help="do not run the homing cycle: refuse unless the machine is homed already "
+                        "(a machine configured with [homing] method = \"none\")")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+class RigError(Exception):
+    """The machine could not be made ready to measure (the message says why and what to do)."""
 
 
 class _Rig:
@@ -57,9 +64,7 @@ class _Rig:
             self.api = self.station.controller
             self.api.connect()
             if not self.api.state.homed:
-                if not self.station.simulated:  # the operator is told before the machine moves to its switches
-                    print("homing cycle: the machine moves to its home switches", flush=True)
-                self.station.home()
+                self._home(args)
             self.station.load_calibration(args.records)
         except BaseException:
             self.station.close()
@@ -73,6 +78,24 @@ class _Rig:
         for line in self.station.calibration_log:
             if not line.startswith("refused: "):
                 print(f"in force: {line}")
+
+    def _home(self, args: Any) -> None:
+        """The homing cycle before measuring, announced; or a refusal that says how to get one."""
+        if not args.home:
+            raise RigError("the machine is not homed and --no-home was given: run without --no-home to home it "
+                           "first (the machine moves to its home switches)")
+        if not self.station.simulated:  # the operator is told before the machine moves to its switches
+            print("homing cycle: the machine moves to its home switches", flush=True)
+        try:
+            self.station.home()
+        except Exception as exc:  # noqa: BLE001 - said to the operator with what to check
+            hint = ("the routines measure only on a homed machine; on a machine without home switches set "
+                    "[homing] method = \"none\" in the configuration given with --config")
+            if args.serial and args.serial.startswith(("socket://", "rfc2217://")):
+                hint += "; `cmm sim` serves the CMM with its home switches only with --cmm"
+            raise RigError(f"homing failed: {exc} ({hint})") from exc
+        if not self.station.simulated:
+            print("homed", flush=True)
 
     @property
     def probe_in_force(self) -> bool:
@@ -117,6 +140,9 @@ def run(args: Any) -> int:
 
     try:
         rig = _Rig(args)
+    except RigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except Exception as exc:  # noqa: BLE001 - an operator's message, not a traceback
         print(f"error: cannot start the machine: {exc}", file=sys.stderr)
         return 1

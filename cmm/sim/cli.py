@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="serve the whole simulated CMM: 3 axes, the sample part on the table, a 25 mm reference "
                           "sphere and a touch-trigger probe on the LIMIT inputs")
     cmm.add_argument("--config", metavar="FILE", help="machine configuration (axes, probe wiring); default shipped")
+    cmm.add_argument("--no-home-switches", dest="home_switches", action="store_false",
+                     help="serve the CMM without home switches (by default it has the ones the configuration's "
+                          "[homing] cycle looks for, as the real machine does)")
     cmm.add_argument("--scale-ppm", type=float, nargs=3, metavar=("X", "Y", "Z"), default=(0.0, 0.0, 0.0),
                      help="injected per-axis scale errors, ppm")
     cmm.add_argument("--squareness-urad", type=float, nargs=3, metavar=("XY", "XZ", "YZ"), default=(0.0, 0.0, 0.0),
@@ -65,12 +68,19 @@ def _cmm_network(args: argparse.Namespace):
     from cmm.sim.cmm_sim import CmmSimSettings, SimulatedCMM
     from cmm.sim.probe_world import GeometryErrors
 
+    config = load(args.config)
     settings = CmmSimSettings(errors=GeometryErrors(tuple(args.scale_ppm), tuple(args.squareness_urad)))
-    cmm = SimulatedCMM(load(args.config), settings, wire_time=args.wire_time, realtime=True,
+    cmm = SimulatedCMM(config, settings, wire_time=args.wire_time, realtime=True,
                        n_modules=args.modules, firmware=args.firmware, version=args.module_version)
+    switches = ""
+    if args.home_switches and config.homing.method == "switch":  # as the station's own simulator has them
+        from cmm.sim.home_switches import HomeSwitches
+
+        HomeSwitches(cmm, config.homing.input, config.homing.active_level == "high")
+        switches = f", home switches on {config.homing.input.upper()}"
     print(f"cmm sim: simulated CMM, part at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
           f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
-          f"at {settings.sphere_centre}", flush=True)
+          f"at {settings.sphere_centre}{switches}", flush=True)
     return cmm.network
 
 
