@@ -126,3 +126,21 @@ def test_the_calibration_cli_reaches_the_machine_only_through_the_command_api():
     assert "cmm.station" in reached and "cmm.calibration.service" in reached
     assert not {t for t in reached if t.startswith(("cmm.machine", "cmm.nmc"))
                 or t in ("cmm.calibration.probe", "cmm.calibration.iso10360", "cmm.calibration.geometry")}
+
+
+def test_the_control_core_uses_only_the_machines_public_surface():
+    """cmm/control reads and drives the machine through its public API (``motion``, ``abort``, ``halt``, ...):
+    no ``<anything but self>._name`` attribute, no ``getattr(x, "_name")`` on another object."""
+    bad = []
+    for path in sorted((ROOT / "control").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
+                owner = node.value
+                if not (isinstance(owner, ast.Name) and owner.id in ("self", "cls")):
+                    bad.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
+            elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("getattr", "setattr")
+                  and len(node.args) >= 2 and isinstance(node.args[1], ast.Constant)
+                  and str(node.args[1].value).startswith("_") and not str(node.args[1].value).startswith("__")
+                  and not (isinstance(node.args[0], ast.Name) and node.args[0].id in ("self", "cls"))):
+                bad.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
+    assert not bad, "private attributes of other objects used in cmm/control:\n" + "\n".join(bad)

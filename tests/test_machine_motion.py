@@ -70,6 +70,32 @@ def test_move_status_cancel_stops_the_axes(sim_machine):
         status.wait()
 
 
+def test_motion_view_and_abort_are_the_control_cores_public_surface(sim_machine):
+    """``machine.motion`` says what runs (kind, status) without handing out the machine's own record;
+    ``abort(error)`` fails the running motion with that error (the caller stops the axes, here with ``halt``)."""
+    _, m, _ = sim_machine
+    assert m.motion is None and m.abort(MotionError("nothing")) is False
+    status = m.move_to([200.0, 100.0, 250.0])
+    m.run_for(0.2)
+    view = m.motion
+    assert view is not None and view.kind == "move" and view.status is status and not status.done
+    with pytest.raises(AttributeError):
+        view.kind = "jog"  # read-only
+    m.halt("abrupt")
+    assert m.abort(MotionError("fault: test")) is True
+    assert m.motion is None and not m.busy and status.done
+    with pytest.raises(MotionError, match="fault: test"):
+        status.wait()
+    m.run_for(0.1)
+    p1 = m.sample().position
+    m.run_for(0.3)
+    assert np.allclose(m.position, p1, atol=0.0021) and p1[0] < 199  # stopped on the way, nothing running
+    m.jog([5.0, 0.0, 0.0])
+    assert m.motion.kind == "jog"
+    m.stop()
+    assert m.motion is None
+
+
 def test_jog_dead_man_stops_within_200_ms(sim_machine):
     _, m, _ = sim_machine
     m.move_to([100.0, 100.0, 200.0]).wait()

@@ -414,9 +414,7 @@ class Controller:
 
     def _do_estop(self) -> StopReport:
         failed = sorted(set(self._halt_all("abrupt")) | set(self._halt_all("off")))
-        motion = self.machine._motion
-        if motion is not None:
-            self.machine._finish(motion, error=MotionError("emergency stop"))
+        self.machine.abort(MotionError("emergency stop"))
         if failed:
             self._enter_fault(f"E-STOP not acknowledged by axis {', '.join(failed)}", link=True)
             return StopReport(False, f"E-STOP NOT CONFIRMED by axis {', '.join(failed)}: the link failed. "
@@ -438,9 +436,7 @@ class Controller:
         if failed:
             with self._lock:
                 self._link_ok = False
-        motion = self.machine._motion
-        if motion is not None:
-            self.machine._finish(motion, error=MotionError(f"fault: {reason}"))
+        self.machine.abort(MotionError(f"fault: {reason}"))
         if first:
             log.error("machine fault: %s", reason)
             self._event("fault", reason=reason, stopped=not failed,
@@ -509,7 +505,7 @@ class Controller:
         if self._queue:
             self._serve(self._queue)
         if self._estop is not None or self._stopped is not None or self._fault is not None:
-            self.machine._halt("abrupt")
+            self.machine.halt("abrupt")
             raise MotionError("homing aborted: " + (self._fault or self._estop or self._stopped or ""))
 
     # --- the loop -------------------------------------------------------------------------------
@@ -561,7 +557,7 @@ class Controller:
         self._fault_tried = now
         try:
             state = self.machine.sample()  # still answering? show live positions; stop again if it moves
-            if any(abs(a.velocity) > 0 for a in state.axes) and self.machine._motion is None:
+            if any(abs(a.velocity) > 0 for a in state.axes) and self.machine.motion is None:
                 self._halt_all("abrupt")
             with self._lock:
                 self._link_ok = True
@@ -597,7 +593,7 @@ class Controller:
 
     def _current_mode(self) -> tuple[Mode, str, str]:
         m = self.machine
-        motion = m._motion
+        motion = m.motion
         if self._fault is not None:
             return Mode.FAULT, self._fault, ""
         if self._estop is not None:

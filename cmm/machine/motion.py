@@ -102,6 +102,14 @@ class _Motion:
     extra: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class MotionView:
+    """What the machine is doing, read-only (for the control core): the kind and its status."""
+
+    kind: str  # "move", "probe", "jog"
+    status: MoveStatus
+
+
 class Machine:
     def __init__(self, config: MachineConfig, port: Any, *, trace: ByteTrace | None = None) -> None:
         self.config = config
@@ -392,6 +400,22 @@ class Machine:
     def busy(self) -> bool:
         return self._motion is not None
 
+    @property
+    def motion(self) -> MotionView | None:
+        """The motion running (kind and status), or None when the machine stands idle."""
+        motion = self._motion
+        return None if motion is None else MotionView(motion.kind, motion.status)
+
+    def abort(self, error: BaseException) -> bool:
+        """Finish the running motion with ``error`` (its waiter sees it); the caller has stopped the axes.
+        False if nothing was running. Takes no lock: the control core calls it on its E-stop and fault paths,
+        also when the loop is stuck with the lock held; only the motion read here is cleared."""
+        motion = self._motion
+        if motion is None:
+            return False
+        self._finish(motion, error=error)
+        return True
+
     # --- motion -------------------------------------------------------------
 
     def _arm(self, action: str = "abrupt") -> bool:
@@ -522,8 +546,6 @@ class Machine:
         with self._lock:
             for m in self.modules:
                 m.stop(mode)
-
-    _halt = halt  # the control core's name for it
 
     def stop(self) -> None:
         """Controlled stop of whatever is moving (decelerates)."""
