@@ -542,15 +542,15 @@ class Bus:
 
         Under servo an axis moves no faster than the fastest speed it was given (the continuity bound): from
         where the last reply before the command saw it, to ``value``, to where ``st`` sees it. ``coasting``
-        (the capture switches the motor off) or a servo that let go: only the way there bounds it. In PWM mode
-        or with the motor off nothing does.
+        (the capture switches the motor off): only the way there bounds it. In PWM mode, with the motor off
+        or after a position error (the servo let go, maybe before the command) nothing does.
         """
-        if address in self._free or st.position is None:
+        if address in self._free or st.position is None or st.pos_error:
             return True
         speed = max(self._vmax.get(address, 0.0) * 1.5, CONTINUITY_FLOOR)
         now = self.clock.now() + 0.002
         last = self._before.get(address, (None, None))[0]
-        if coasting or st.pos_error:
+        if coasting:
             return last is None or abs(value - last[0]) <= speed * (now - last[1]) + CONTINUITY_MARGIN
         if abs(value - st.position) > speed * (now - self._command_at) + CONTINUITY_MARGIN:
             return False
