@@ -69,3 +69,30 @@ def test_ball_bar_routine_recovers_injected_scale_and_squareness():
     assert m.correction == r.correction  # applied for the verification pass; the caller saves the record
     rec = r.record("ball bars")
     assert rec.correction == GeometryCorrection(rec.scale_ppm, rec.squareness_urad)
+
+
+def test_the_station_saves_a_geometry_result_and_applies_it(tmp_path):
+    """The save step of `cmm calibrate geometry` and the tab (the station's calibration service) on a fitted
+    result with its nine set-ups ("XY+" ... as record keys): the record loads again and the machine has the
+    correction. (The routine itself through the CLI costs ~45 s CPU on the virtual clock: not run here.)"""
+    from cmm.calibration.geometry import GeometryResult
+    from cmm.calibration.records import load_machine_record
+    from cmm.station import Station
+
+    meas = synthetic((50.0, 0.0, 0.0), (30.0, 0.0, 0.0), noise=0.0005, seed=1)
+    corr, res, us, ua = fit_geometry(meas)
+    result = GeometryResult(corr, meas, res, us, ua, verification=synthetic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    station = Station(port="sim://?cmm=1")
+    try:
+        station.controller.connect()
+        station.load_calibration(tmp_path)
+        path, applied = station.calibration.save(None, "geometry", result)
+        assert applied and path == tmp_path / "machine.toml"
+        rec = load_machine_record(path)
+        assert rec.correction == GeometryCorrection(tuple(round(x, 3) for x in corr.scale_ppm),
+                                                    tuple(round(x, 3) for x in corr.squareness_urad))
+        assert set(rec.length_errors_before_um) == {s.name for s in default_setups()} and "XY+" in rec.length_errors_after_um
+        assert station.machine.correction == rec.correction
+        assert any(line.startswith("machine") for line in station.calibration_log), station.calibration_log
+    finally:
+        station.close()
