@@ -285,6 +285,10 @@ class Station:
     def link_baud(self) -> int:
         return int(getattr(self.machine.bus, "baud", self.config.link.baud))
 
+    def link_trace(self, last: int = 30) -> str:
+        """The last NMC bytes sent and received (read from the link process on a real port)."""
+        return self.machine.bus.trace.dump(last=last)
+
     def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
         """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
 

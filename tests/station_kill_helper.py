@@ -17,7 +17,7 @@ def main() -> None:
     ctl.connect()
     ctl.start()
     ctl.move_to(None, start).wait(60)
-    print("ready", flush=True)
+    print("ready", getattr(ctl.machine.bus, "pid", 0), flush=True)  # the link process, on a real port
     v = [0.0, 0.0, 0.0]
     v[axis] = 40.0
     while True:  # an operator holding the jog button: refreshed every 50 ms until the process dies

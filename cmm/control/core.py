@@ -194,6 +194,7 @@ class Controller:
         anything (it goes first in the loop's next step)."""
         key = getattr(client, "id", client)
         self._releases[key] = self._releases.get(key, 0) + 1
+        self.machine.release_now()  # with a link process: it stops the jog now, whatever this process is doing
         if wait or self._thread is None or threading.current_thread() is self._thread:
             return self._submit(client, "jog_release", self.machine.jog_release, urgent=True)
         self._urgent.append(_Command(client, "jog_release", self.machine.jog_release))

@@ -74,6 +74,7 @@ class LinkConfig:
     baud: int = 115200
     firmware: str = "pic-servo"
     read_following_error: bool = True  # status item 0x40 (SC firmware and the simulator); false on original PIC-SERVOs
+    process: str = "auto"  # link process (cmm/nmc/link_process.py): "auto" = own process for real ports, "same"
 
 
 @dataclass(frozen=True)
@@ -179,6 +180,8 @@ def parse(data: dict, source: str = "<config>") -> MachineConfig:
     if unknown:
         raise _fail(source, sorted(unknown)[0], "is not a known section")
     link = LinkConfig(**{k: v for k, v in data.get("link", {}).items()})
+    if link.process not in ("auto", "same"):
+        raise _fail(source, "link.process", f"must be \"auto\" or \"same\", got {link.process!r}")
     if link.firmware not in BAUD_DIVISORS:
         raise _fail(source, "link.firmware", f"must be one of {', '.join(BAUD_DIVISORS)}, got {link.firmware!r}")
     if link.baud not in BAUD_DIVISORS[link.firmware]:

@@ -28,7 +28,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..nmc import codec
-from ..nmc.bus import Bus, LinkError, ModuleInfo, NmcError
+from ..nmc.bus import LinkError, ModuleInfo, NmcError
+from ..nmc.link_process import GuardAxis, GuardHeld, GuardSpec, open_bus
 from ..nmc.module import Module
 from ..nmc.trace import ByteTrace
 from ..nmc.transport import is_virtual
@@ -114,7 +115,8 @@ class Machine:
     def __init__(self, config: MachineConfig, port: Any, *, trace: ByteTrace | None = None) -> None:
         self.config = config
         self._port = port
-        self.bus = Bus(port, firmware=config.link.firmware, trace=trace)
+        # a real port gets a link process of its own, which also runs the jog dead-man and release
+        self.bus = open_bus(port, firmware=config.link.firmware, trace=trace, process=config.link.process)
         self.clock = self.bus.clock
         self.modules = [Module(self.bus, a.address) for a in config.axes]
         # position, motor current (A/D), velocity, aux and following error: 16 bytes a transaction
@@ -184,7 +186,8 @@ class Machine:
                 self.bus.close()
             except Exception:  # noqa: BLE001 - it is broken already
                 pass
-            self.bus = Bus(self._port, firmware=self.config.link.firmware, trace=self.bus.trace)
+            self.bus = open_bus(self._port, firmware=self.config.link.firmware, trace=self.bus.trace,
+                                process=self.config.link.process)
             self.clock = self.bus.clock
             self.modules = [Module(self.bus, a.address) for a in self.config.axes]
             motion, self._motion = self._motion, None
@@ -326,6 +329,11 @@ class Machine:
     def _finish(self, motion: _Motion, result: Any = None, error: BaseException | None = None) -> None:
         if self._motion is motion:
             self._motion = None
+        if motion.kind == "jog" and self.guarded:
+            try:
+                self.bus.guard_clear()  # nothing left to guard; motion starts pass again
+            except NmcError as exc:
+                log.warning("the jog ended but the link process did not hear it: %s", exc)
         motion.status.finish(result, error)
 
     def start_polling(self) -> None:
@@ -632,21 +640,65 @@ class Machine:
                 self._motion = motion
                 motion.armed = self._arm("abrupt")  # a deflected probe may jog (off the part), unarmed
                 motion.on_capture = lambda latched: self._jog_contact(motion, latched, manual_probe)
-            if self.config.jog.mode == "horizon":
-                motion.extra["v"] = v.copy()
-                self._retarget(motion, force=True)
-                return
-            prev = motion.extra.get("v")
-            acc = self.config.accelerations
-            for i, (axis, mod, vi) in enumerate(zip(self.config.axes, self.modules, v)):
-                old = 0.0 if prev is None else prev[i]
-                if prev is not None and vi == old:
-                    continue
-                a = acc.jog if abs(vi) >= abs(old) and vi * old >= 0 else acc.stop
-                fixed = codec.velocity_to_fixed(vi, axis.counts_per_mm, axis.gains.sr)
-                mod.load_velocity(int(math.copysign(fixed, vi * axis.direction)) if vi else 0,
-                                  codec.acceleration_to_fixed(a, axis.counts_per_mm, axis.gains.sr))
+            if self.guarded:
+                if not np.any(v):  # all zeros: a release
+                    self._guard_stop(motion)
+                    return
+                motion.extra["epoch"] = self.bus.guard_jog(self._guard_spec(v))
+            try:
+                self._command_jog(motion, v)
+            except GuardHeld:  # released (link process) while this refresh was on its way: the release wins
+                self._guard_stop(motion)
+
+    def _command_jog(self, motion: _Motion, v: np.ndarray) -> None:
+        if self.config.jog.mode == "horizon":
             motion.extra["v"] = v.copy()
+            self._retarget(motion, force=True)
+            return
+        prev = motion.extra.get("v")
+        acc = self.config.accelerations
+        for i, (axis, mod, vi) in enumerate(zip(self.config.axes, self.modules, v)):
+            old = 0.0 if prev is None else prev[i]
+            if prev is not None and vi == old:
+                continue
+            a = acc.jog if abs(vi) >= abs(old) and vi * old >= 0 else acc.stop
+            fixed = codec.velocity_to_fixed(vi, axis.counts_per_mm, axis.gains.sr)
+            mod.load_velocity(int(math.copysign(fixed, vi * axis.direction)) if vi else 0,
+                              codec.acceleration_to_fixed(a, axis.counts_per_mm, axis.gains.sr))
+        motion.extra["v"] = v.copy()
+
+    # --- the link process's jog guard (real ports: cmm/nmc/link_process.py) ---------------
+
+    @property
+    def guarded(self) -> bool:
+        """True when the jog dead-man and release run in the link process (not in this loop)."""
+        return bool(getattr(self.bus, "guarded", False))
+
+    def _guard_spec(self, v: np.ndarray) -> GuardSpec:
+        speed = float(np.linalg.norm(v))
+        a = self.config.accelerations.stop
+        horizon = self.config.jog.mode == "horizon"
+        axes = []
+        for axis, vi in zip(self.config.axes, v):
+            share = abs(vi) / speed if horizon and speed > 0 else 1.0  # a line stops as a line
+            lo, hi = sorted((axis.to_counts(axis.min), axis.to_counts(axis.max)))
+            axes.append(GuardAxis(axis.address, float(vi * axis.counts_per_mm * axis.direction),
+                                  max(a * share * axis.counts_per_mm, 1.0), lo, hi, axis.gains.sr))
+        return GuardSpec(tuple(axes), self.config.deadman_timeout, self.config.jog.mode,
+                         STOP_MARGIN_S, self.config.jog.horizon)
+
+    def _guard_stop(self, motion: _Motion) -> None:
+        """Stop the jog from the link process (it has the freshest readings) and stop re-targeting it."""
+        self.bus.guard_release()
+        motion.extra["v"] = np.zeros(3)
+        motion.extra.pop("goal", None)
+
+    def release_now(self) -> None:
+        """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows).
+
+        Without a link process this does nothing: the loop's own release is the only one."""
+        if self.guarded:
+            self.bus.release_now()
 
     def horizon_target(self, position: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, str | None]:
         """Where a horizon jog from ``position`` at ``v`` may aim: ``horizon`` s ahead, inside the travel.
@@ -710,13 +762,23 @@ class Machine:
         with self._lock:
             motion = self._motion
             if motion is not None and motion.kind == "jog":
+                if self.guarded:
+                    self._guard_stop(motion)
+                    return
                 self._jog_stop_axes(range(3))
                 motion.extra["v"] = np.zeros(3)
                 motion.extra.pop("goal", None)
 
     def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
         v = motion.extra.get("v", np.zeros(3))
-        if np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
+        if self.guarded:  # the dead-man runs in the link process: did it (or a release) stop this jog?
+            epoch, fired = self.bus.guard
+            if fired is not None and epoch == motion.extra.get("epoch") and np.any(v):
+                v = motion.extra["v"] = np.zeros(3)
+                motion.extra.pop("goal", None)
+                if fired == "deadman":
+                    self.emit("deadman", after=state.time - self._jog_refreshed)
+        elif np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
             self._jog_stop_axes(range(3))
             motion.extra["v"] = np.zeros(3)
             motion.extra.pop("goal", None)
@@ -724,7 +786,10 @@ class Machine:
             v = motion.extra["v"]
         if self.config.jog.mode == "horizon":
             if np.any(v):
-                self._retarget(motion)
+                try:
+                    self._retarget(motion)
+                except GuardHeld:  # the link process stopped it a moment ago: the next sample shows why
+                    return
             elif all(a.status & codec.MOVE_DONE for a in state.axes) and all(abs(a.velocity) < 1e-9
                                                                           for a in state.axes):
                 self._finish(motion, result=state.position)

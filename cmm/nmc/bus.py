@@ -159,6 +159,7 @@ class Bus:
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
         self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
+        self._reading: dict[int, tuple[int, int | None, float]] = {}  # address -> (position, velocity, time)
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -369,11 +370,20 @@ class Bus:
         """Keep what a trusted reply of one module tells: its position, and its home register."""
         if status.position is not None:
             self._last[address] = (status.position, self._sent_at)
+            self._reading[address] = (status.position, status.velocity, self._sent_at)  # sampled after this
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
             self._home.pop(address, None)
         if status.home is not None:
             self._home[address] = status.home
+
+    def last_reading(self, address: int) -> tuple[int, int | None, float] | None:
+        """The last trusted reply's position (counts), velocity (counts per tick, None if not read) and time."""
+        return self._reading.get(address)
+
+    def pending_goal(self, address: int) -> int | None:
+        """The goal of the last buffered position move loaded into ``address`` (a horizon jog's goal)."""
+        return self._buffered.get(address)
 
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.

@@ -652,7 +652,7 @@ class ClientApp:
         self.calibration.refresh()
 
     def _show_trace(self) -> None:
-        self._set("trace", "value", self.station.trace.dump(last=30))
+        self._set("trace", "value", self.station.link_trace(30))
 
     def fast_refresh(self) -> None:
         """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""

@@ -1,0 +1,482 @@
+"""The link process: on a real serial link, one process of its own talks to the modules.
+
+Why: the station process also serves the web pages, draws sessions and writes reports. Its threads share
+one interpreter lock, so a jog release or a dead-man that waits for that process can come hundreds of ms
+late under web load (issue 12 item 5). Here the port and the whole :class:`~cmm.nmc.bus.Bus` (resync,
+lost-reply recovery, stop-all) live in a small child process that does nothing else; the station's machine
+loop sends it transactions over a pipe (:class:`RemoteBus`, the same interface as ``Bus``).
+
+The child also holds the *jog guard*, which acts between two of the station's transactions:
+- the jog dead-man: no refresh of the jog (``guard_jog``) for ``deadman`` s and it stops the axes;
+- the release: ``release_now`` (any station thread, its own pipe, no reply awaited) stops them at once;
+- a dead station: when the station's pipe closes (crash, ``kill -9``) it stops every axis and exits.
+A guard stop re-targets each moving axis to where it can stand still at the stop deceleration (from the last
+reply's position and velocity, clamped to the travel and never past the jog's own goal); after it the
+station's own jog re-targets are refused (:class:`GuardHeld`) until the station has seen the stop.
+
+The in-process simulator (``sim://``) keeps its bus in the station's process: it runs on the virtual clock
+that the tests drive, and stands for hardware whose timing needs no such protection.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from multiprocessing.connection import Connection
+from dataclasses import dataclass, field
+from typing import Any
+
+from . import codec
+from .bus import Bus, LinkError, NmcError, StopReport
+from .trace import ByteTrace
+from .transport import TransportError, WallClock
+
+log = logging.getLogger(__name__)
+
+START_TIMEOUT = 30.0  # s for the child to start and open the port
+CALL_TIMEOUT = 10.0  # s for one call (a transaction takes ms; a resync with retries well under a second)
+LONG_CALLS = {"initialize": 120.0, "reopen": 60.0, "release": 30.0, "change_baud": 30.0}  # discovery retries
+FORWARDED = {"transact", "define_status", "set_group", "initialize", "stop_all", "release", "start_move",
+             "reopen", "change_baud", "flush_input", "resync"}
+MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups")
+STILL = 0.5  # counts per servo tick: below this an axis is taken as standing
+
+
+class GuardHeld(Exception):
+    """The jog guard stopped the jog; the station's re-target of it is refused until it has seen the stop."""
+
+
+@dataclass(frozen=True)
+class GuardAxis:
+    address: int
+    velocity: float  # counts/s the jog commands (signed)
+    accel: float  # counts/s^2: this axis's share of the stop deceleration
+    lo: int  # travel, counts
+    hi: int
+    sr: int = 1  # servo rate divisor (the module's tick)
+
+
+@dataclass(frozen=True)
+class GuardSpec:
+    """What the guard needs to stop one jog."""
+
+    axes: tuple[GuardAxis, ...]
+    deadman: float  # s without a refresh before it stops the jog
+    mode: str = "horizon"  # "horizon" (position goals) or "velocity"
+    margin: float = 0.02  # s of travel added to a stop goal (latency between the reading and the command)
+    horizon: float = 0.12  # s: the longest extrapolation of the last reading
+
+
+@dataclass
+class GuardState:
+    epoch: int = 0  # bumped by every new jog (or a refresh after a stop)
+    fired: str | None = None  # why the guard stopped this epoch's jog: "release", "deadman", "station gone"
+    stops: int = 0
+    errors: list[str] = field(default_factory=list)
+
+
+# --- the child ------------------------------------------------------------------------------------------------
+
+class JogGuard:
+    """The dead-man, the release and the last-resort stop, run next to the bus (child process)."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.bus = bus
+        self.cond = threading.Condition()
+        self.spec: GuardSpec | None = None
+        self.deadline = math.inf
+        self.held = False
+        self.state = GuardState()
+        self.running = True
+
+    # station calls (through the pipe, in order with its transactions)
+    def arm(self, spec: GuardSpec) -> int:
+        with self.cond:
+            if self.spec is None or self.state.fired is not None:
+                self.state.epoch += 1
+                self.state.fired = None
+            self.spec = spec
+            self.held = False
+            self.deadline = self.bus.clock.now() + spec.deadman
+            self.cond.notify_all()
+            return self.state.epoch
+
+    def clear(self) -> None:
+        """The station saw the jog end: nothing to guard, nothing held."""
+        with self.cond:
+            self.spec = None
+            self.held = False
+            self.deadline = math.inf
+            self.cond.notify_all()
+
+    def check(self, name: str, args: tuple) -> None:
+        """Refuse a motion start while a guard stop holds (the station has not yet seen it)."""
+        if not self.held:
+            return
+        if name == "start_move":
+            raise GuardHeld("the jog was stopped (released or dead-man); the station has not yet seen it")
+        if name == "transact" and args:
+            packet = args[0]
+            if len(packet) > 3 and packet[2] & 0x0F == codec.LOAD_TRAJ and packet[3] & codec.START_NOW:
+                try:
+                    lt = codec.parse_load_traj(bytes(packet[3:-1]))
+                except codec.CodecError:
+                    return
+                stop = lt.control & codec.VEL_MODE and not lt.velocity
+                if not stop and self.spec is not None and packet[1] in {a.address for a in self.spec.axes}:
+                    raise GuardHeld("the jog was stopped (released or dead-man); the station has not yet seen it")
+
+    # the stop itself
+    def stop(self, reason: str) -> None:
+        with self.cond:
+            spec = self.spec
+            if spec is None or self.state.fired is not None:
+                return
+            self.state.fired = reason
+            self.held = True
+            self.deadline = math.inf
+        try:
+            with self.bus.lock:  # between two of the station's transactions
+                self._send_stop(spec)
+            self.state.stops += 1
+        except Exception as exc:  # noqa: BLE001 - the link failed: stop however it can
+            self.state.errors.append(f"{reason}: {exc}")
+            log.error("jog guard: the %s stop failed (%s): stopping every axis abruptly", reason, exc)
+            self.bus.stop_all("abrupt")
+
+    def _send_stop(self, spec: GuardSpec) -> None:
+        now = self.bus.clock.now()
+        for ax in spec.axes:
+            if ax.velocity == 0:
+                continue
+            tick = codec.tick_seconds(ax.sr)
+            acc = max(int(ax.accel * tick * tick * 65536), 1)
+            if spec.mode != "horizon":
+                self.bus.transact(codec.load_traj(ax.address, velocity=0, acceleration=acc, velocity_mode=True))
+                continue
+            reading = self.bus.last_reading(ax.address)
+            if reading is None or reading[1] is None or abs(reading[1]) < STILL:
+                # standing (or unknown): a smooth stop never starts a motion
+                self.bus.transact(codec.stop_motor(ax.address, codec.STOP_SMOOTH | codec.AMP_ENABLE))
+                continue
+            pos, vel_tick, t = reading
+            v = vel_tick / tick  # counts/s, signed
+            sign = 1.0 if v > 0 else -1.0
+            ahead = v * min(max(now - t, 0.0), spec.horizon)
+            goal = pos + ahead + sign * (v * v / (2 * ax.accel) + abs(v) * spec.margin)
+            pending = self.bus.pending_goal(ax.address)
+            if pending is not None and (pending - goal) * sign < 0:
+                goal = pending  # it was going to stand still nearer than that anyway
+            goal = int(round(min(max(goal, ax.lo), ax.hi)))
+            vel = max(int(abs(v) * tick * 65536), 1)
+            self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+
+    def station_gone(self) -> None:
+        self.stop("station gone")
+        self.bus.stop_all("abrupt")  # whatever else moved: the station that commanded it is gone
+
+    # threads
+    def run_deadman(self) -> None:
+        while self.running:
+            with self.cond:
+                wait = self.deadline - self.bus.clock.now()
+                if wait > 0:
+                    self.cond.wait(min(wait, 1.0))
+                    continue
+            self.stop("deadman")
+
+    def run_urgent(self, urgent: Any) -> None:
+        while self.running:
+            try:
+                msg = urgent.recv()
+            except (EOFError, OSError):
+                return
+            if msg == "release":
+                self.stop("release")
+
+
+def _mirror(bus: Bus, guard: JogGuard) -> dict:
+    m = {name: getattr(bus, name) for name in MIRRORED}
+    m["guard"] = (guard.state.epoch, guard.state.fired)
+    return m
+
+
+def _raise_priority() -> None:
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, -10)
+    except OSError:
+        pass  # not permitted: normal priority, still a process of its own
+
+
+def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
+    """The child's main: open the port, then serve the station's calls until its pipe closes."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the station, which closes us in order
+    _raise_priority()
+    try:
+        bus = Bus(port, firmware=firmware)
+    except Exception as exc:  # noqa: BLE001 - told to the station, which raises it
+        conn.send(("err", type(exc).__name__, str(exc), None, {}))
+        return
+    guard = JogGuard(bus)
+    conn.send(("ok", None, _mirror(bus, guard)))
+    threading.Thread(target=guard.run_deadman, name="jog-deadman", daemon=True).start()
+    threading.Thread(target=guard.run_urgent, args=(urgent,), name="jog-release", daemon=True).start()
+    try:
+        while True:
+            try:
+                op, name, args, kwargs = conn.recv()
+            except (EOFError, OSError):
+                log.error("link process: the station is gone; stopping every axis")
+                guard.station_gone()
+                return
+            if op == "exit":
+                return
+            try:
+                if op == "call" and name in FORWARDED:
+                    with bus.lock:  # checked and sent with no guard stop in between
+                        guard.check(name, args)
+                        result = getattr(bus, name)(*args, **kwargs)
+                elif op == "get":
+                    result = {"stats": dict(bus.stats), "port_name": bus.port_name}.get(name)
+                elif op == "trace":
+                    result = bus.trace.entries(*args)
+                elif op == "guard_jog":
+                    result = guard.arm(args[0])
+                elif op == "guard_clear":
+                    result = guard.clear()
+                elif op == "guard_release":
+                    guard.stop("release")
+                    result = guard.state.epoch
+                elif op == "close":
+                    guard.clear()
+                    result = bus.close(**kwargs)
+                else:
+                    raise NmcError(f"link process: unknown request {op} {name}")
+                reply: tuple = ("ok", result, _mirror(bus, guard))
+            except BaseException as exc:  # noqa: BLE001 - every failure goes back to the caller
+                reply = ("err", type(exc).__name__, str(exc), getattr(exc, "address", None), _mirror(bus, guard))
+            try:
+                conn.send(reply)
+            except (EOFError, OSError):
+                guard.station_gone()
+                return
+    finally:
+        guard.running = False
+        with guard.cond:
+            guard.cond.notify_all()
+        bus.close()
+
+
+# --- the station's side ---------------------------------------------------------------------------------------
+
+class RemoteBus:
+    """A :class:`Bus` that lives in the link process; same interface, plus the jog guard's calls."""
+
+    guarded = True
+
+    def __init__(self, port: str, *, firmware: str = "pic-servo", trace: ByteTrace | None = None) -> None:
+        self.firmware = firmware
+        self.port_name = str(port)
+        self.clock = WallClock()
+        self.trace = _RemoteTrace(self)  # the bytes are traced where they pass: in the link process
+        self.lock = threading.RLock()  # one call at a time on the pipe
+        self._urgent_lock = threading.Lock()
+        self.items: dict[int, int] = {}
+        self.link_up = False
+        self.baud = codec.POWER_UP_BAUD
+        self.modules: list = []
+        self.leaders: dict[int, int] = {}
+        self.groups: dict[int, int] = {}
+        self.guard: tuple[int, str | None] = (0, None)
+        self._dead: str | None = None
+        # a fresh interpreter (never a fork of a process full of threads, and unlike multiprocessing's spawn
+        # it does not re-run the caller's main script), joined by two socket pairs: calls and releases
+        calls, child_calls = socket.socketpair()
+        urgent, child_urgent = socket.socketpair()
+        self._conn, self._urgent = Connection(calls.detach()), Connection(urgent.detach(), readable=False)
+        fds = (child_calls.fileno(), child_urgent.fileno())
+        self._proc = subprocess.Popen([sys.executable, "-m", "cmm.nmc.link_process", str(port), firmware, *map(str, fds)],
+                                      pass_fds=fds, stdin=subprocess.DEVNULL)
+        child_calls.close()
+        child_urgent.close()
+        try:
+            self._reply(START_TIMEOUT, "starting the link process")
+        except Exception:
+            self._kill()
+            raise
+
+    # --- calls --------------------------------------------------------------------
+
+    def _reply(self, timeout: float, what: str) -> Any:
+        if not self._conn.poll(timeout):
+            self._dead = f"the link process did not answer {what} within {timeout:g} s"
+            self._kill()
+            raise LinkError(self._dead, None, self.port_name)
+        try:
+            reply = self._conn.recv()
+        except (EOFError, OSError) as exc:
+            self._dead = f"the link process ended ({exc or 'pipe closed'})"
+            self.link_up = False
+            raise LinkError(self._dead, None, self.port_name) from exc
+        if reply[0] == "ok":
+            self._update(reply[2])
+            return reply[1]
+        _, cls, message, address, mirror = reply
+        self._update(mirror)
+        raise _rebuild(cls, message, address, self.port_name)
+
+    def _update(self, mirror: dict) -> None:
+        for name in MIRRORED:
+            if name in mirror:
+                setattr(self, name, mirror[name])
+        self.guard = mirror.get("guard", self.guard)
+
+    def _request(self, op: str, name: str = "", *args: Any, timeout: float = CALL_TIMEOUT, **kwargs: Any) -> Any:
+        with self.lock:
+            if self._dead is not None:
+                self.link_up = False
+                raise LinkError(self._dead, None, self.port_name)
+            try:
+                self._conn.send((op, name, args, kwargs))
+            except (OSError, ValueError) as exc:
+                self._dead = f"the link process is gone ({exc})"
+                self.link_up = False
+                raise LinkError(self._dead, None, self.port_name) from exc
+            return self._reply(timeout, f"{op} {name}".strip())
+
+    def __getattr__(self, name: str) -> Any:
+        if name in FORWARDED:
+            timeout = LONG_CALLS.get(name, CALL_TIMEOUT)
+            return lambda *args, **kwargs: self._request("call", name, *args, timeout=timeout, **kwargs)
+        raise AttributeError(name)
+
+    @property
+    def stats(self) -> dict:
+        try:
+            return self._request("get", "stats")
+        except LinkError:
+            return {}
+
+    # --- the jog guard ----------------------------------------------------------------
+
+    def guard_jog(self, spec: GuardSpec) -> int:
+        """A jog started or was refreshed: (re)arm the dead-man; returns the jog's epoch."""
+        return self._request("guard_jog", "", spec)
+
+    def guard_clear(self) -> None:
+        """The jog ended (the station saw it): disarm, and let motion starts through again."""
+        self._request("guard_clear")
+
+    def guard_release(self) -> None:
+        """Stop the jog now and wait until the stop was sent (machine loop)."""
+        self._request("guard_release")
+
+    def release_now(self) -> None:
+        """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock)."""
+        try:
+            with self._urgent_lock:
+                self._urgent.send("release")
+        except (OSError, ValueError):
+            pass  # the process is gone: the station's next call says so
+
+    # --- life cycle --------------------------------------------------------------------
+
+    def close(self, *, release: bool = False) -> None:
+        try:
+            if self._dead is None:
+                self._request("close", timeout=LONG_CALLS["release"], release=release)
+        except LinkError:
+            pass
+        finally:
+            self.link_up = False
+            self._stop_process()
+
+    def _stop_process(self) -> None:
+        with self.lock:
+            try:
+                if self._dead is None:
+                    self._conn.send(("exit", "", (), {}))
+            except (OSError, ValueError):
+                pass
+            self._dead = self._dead or "the link is closed"
+        try:
+            self._proc.wait(5)
+        except subprocess.TimeoutExpired:
+            pass
+        self._kill()
+        for c in (self._conn, self._urgent):
+            c.close()
+
+    def _kill(self) -> None:
+        if self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait(2)
+
+    @property
+    def alive(self) -> bool:
+        return self._proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid
+
+
+class _RemoteTrace(ByteTrace):
+    """The link process's byte trace, read on demand (the UI's snapshot and live view)."""
+
+    def __init__(self, bus: RemoteBus) -> None:
+        super().__init__()
+        self._bus = bus
+
+    def entries(self, last: int | None = None) -> list:
+        try:
+            return self._bus._request("trace", "", last)
+        except LinkError:
+            return []
+
+
+def _rebuild(cls: str, message: str, address: int | None, port: str) -> Exception:
+    if cls == "GuardHeld":
+        return GuardHeld(message)
+    if cls == "LinkError":
+        return LinkError(message, address, port)
+    if cls == "TransportError":
+        return TransportError(message)
+    if cls in ("NmcError", "CodecError"):
+        return NmcError(message, address)
+    return NmcError(f"link process: {cls}: {message}", address)
+
+
+def separate_process(port: Any, setting: str) -> bool:
+    """Does this port get a link process? ``setting``: "auto" (real ports yes, in-process simulator no),
+    "separate" or "same"."""
+    if setting == "same" or not isinstance(port, str) or port.lower().startswith(("sim://", "loop://")):
+        return False
+    return True
+
+
+def open_bus(port: Any, *, firmware: str, trace: ByteTrace | None, process: str = "auto") -> Bus | RemoteBus:
+    if separate_process(port, process):
+        return RemoteBus(port, firmware=firmware, trace=trace)
+    return Bus(port, firmware=firmware, trace=trace)
+
+
+__all__ = ["GuardAxis", "GuardHeld", "GuardSpec", "JogGuard", "RemoteBus", "StopReport", "open_bus",
+           "separate_process"]
+
+
+def main(argv: list[str]) -> None:
+    """``python -m cmm.nmc.link_process PORT FIRMWARE CALLS_FD URGENT_FD`` (started by :class:`RemoteBus`)."""
+    logging.basicConfig(level=logging.WARNING, format="cmm-link: %(levelname)s %(message)s")
+    port, firmware, calls, urgent = argv
+    serve(port, firmware, Connection(int(calls)), Connection(int(urgent), writable=False))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

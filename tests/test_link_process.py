@@ -1,0 +1,201 @@
+"""The link process (cmm/nmc/link_process.py): a real port is driven from a process of its own, which runs the
+jog dead-man and the release next to the bus, and stops every axis when the station dies.
+
+The simulated CMM runs as its own process in real time (`cmm sim --cmm --tcp`), as hardware would; the
+station side is a Machine (or a Controller) on its socket:// URL. No test asserts wall-clock timing: they
+check who stopped the jog (the guard's record), that the axes stand still, and what the station shows.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmm.control import Controller, Mode
+from cmm.machine.config import load
+from cmm.machine.motion import GROUP, Machine
+from cmm.nmc import codec
+from cmm.nmc.bus import Bus, LinkError
+from cmm.nmc.link_process import GuardHeld, RemoteBus, separate_process
+from test_kill9 import _config, _start_sim
+
+pytestmark = pytest.mark.timeout(120)
+HERE = Path(__file__).parent
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    config = _config(tmp_path_factory.mktemp("link"))
+    sim, url = _start_sim(config)
+    yield config, url
+    sim.send_signal(signal.SIGINT)
+    try:
+        sim.wait(5)
+    except subprocess.TimeoutExpired:
+        sim.kill()
+
+
+@pytest.fixture
+def ctl(served):
+    config, url = served
+    c = Controller(Machine(load(config), url))
+    c.connect()
+    c.start()
+    c.move_to(None, [40.0, 0.0, 300.0]).wait(60)
+    yield c
+    c.close()
+
+
+def _jog_until_fast(c: Controller, v=(40.0, 0.0, 0.0)) -> None:
+    """Hold the jog (a refresh every 50 ms, as the pendant does) until X runs at speed."""
+    end = time.monotonic() + 5
+    while time.monotonic() < end:
+        c.jog(None, list(v))
+        time.sleep(0.05)
+        if abs(c.state.machine.axes[0].velocity) > 35:
+            return
+    raise AssertionError("the jog never reached speed")
+
+
+def _wait(pred, timeout=5.0) -> bool:
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def _still(url_bus: RemoteBus, address: int) -> bool:
+    st = url_bus.transact(codec.read_stat(address, codec.SEND_VEL), codec.SEND_VEL)
+    return st.velocity == 0
+
+
+def test_real_ports_get_a_link_process_and_the_simulator_does_not():
+    assert separate_process("socket://127.0.0.1:7777", "auto")
+    assert separate_process("/dev/ttyUSB0", "auto")
+    assert not separate_process("sim://?cmm=1", "auto")
+    assert not separate_process("/dev/ttyUSB0", "same")
+
+
+def test_release_from_another_thread_is_carried_out_by_the_link_process(ctl):
+    m = ctl.machine
+    assert isinstance(m.bus, RemoteBus) and m.guarded and m.bus.alive
+    _jog_until_fast(ctl)
+    # the pendant's thread: no machine loop, no lock, no reply awaited
+    t = threading.Thread(target=ctl.jog_release, args=(None,))
+    t.start()
+    t.join(5)
+    assert _wait(lambda: ctl.state.mode == Mode.IDLE), ctl.state
+    epoch, fired = m.bus.guard
+    assert fired == "release" and epoch >= 1
+    assert _still(m.bus, 1)
+    # the station saw the stop: the guard holds nothing, the next move starts
+    ctl.move_to(None, [40.0, 0.0, 300.0]).wait(60)
+    assert np.allclose(ctl.state.machine.position, [40.0, 0.0, 300.0], atol=0.01)
+
+
+def test_a_jog_nobody_refreshes_is_stopped_by_the_link_process_dead_man(ctl):
+    events = []
+    ctl.subscribe(lambda kind, info: events.append(kind))
+    _jog_until_fast(ctl)
+    # no more refreshes: the station keeps sampling, but only the link process decides
+    assert _wait(lambda: ctl.state.mode == Mode.IDLE), ctl.state
+    assert ctl.machine.bus.guard[1] == "deadman"
+    assert _wait(lambda: "deadman" in events), events
+    assert _still(ctl.machine.bus, 1)
+
+
+def test_after_a_guard_stop_the_stations_restart_of_the_jog_is_refused_until_it_saw_the_stop(ctl):
+    m = ctl.machine
+    bus = m.bus
+    spec = m._guard_spec(np.array([10.0, 0.0, 0.0]))
+    bus.guard_jog(spec)
+    bus.guard_release()
+    with pytest.raises(GuardHeld):
+        bus.start_move(GROUP)  # a re-target still on its way when the operator let go: never carried out
+    pos = ctl.state.machine.axes[0].counts
+    with pytest.raises(GuardHeld):
+        bus.transact(codec.load_traj(1, position=pos + 5000, velocity=100000, acceleration=1000))
+    bus.transact(codec.load_traj(1, velocity=0, acceleration=1000, velocity_mode=True))  # a stop always passes
+    bus.guard_clear()
+    assert bus.transact(codec.stop_motor(1, codec.STOP_ABRUPT | codec.AMP_ENABLE)) is not None
+
+
+def test_a_dead_link_process_puts_the_station_in_fault_and_the_axis_stops(ctl, served):
+    url = served[1]
+    _jog_until_fast(ctl)
+    os.kill(ctl.machine.bus.pid, signal.SIGKILL)
+    end = time.monotonic() + 5
+    while time.monotonic() < end and ctl.state.mode != Mode.FAULT:
+        try:
+            ctl.jog(None, [40.0, 0.0, 0.0])  # still held: refused once the fault is seen
+        except Exception:  # noqa: BLE001 - a refusal or the failure itself
+            pass
+        time.sleep(0.05)
+    assert ctl.state.mode == Mode.FAULT
+    assert "link process" in ctl.state.reason, ctl.state.reason
+    # nobody drives the link now: the modules stop at the jog's horizon goal by themselves
+    time.sleep(0.5)
+    bus = Bus(url)
+    bus._set_host_baud(115200)
+    st = bus.transact(codec.read_stat(1, codec.SEND_VEL), codec.SEND_VEL)
+    bus.close()
+    assert st.velocity == 0
+
+
+def test_an_unreachable_port_is_a_clear_error_and_leaves_no_process(served):
+    config, _ = served
+    with pytest.raises(OSError) as err:  # TransportError (an OSError), raised in the station's thread
+        Machine(load(config), "socket://127.0.0.1:9")
+    assert "cannot open serial port" in str(err.value)
+
+
+def test_kill_9_of_the_station_the_link_process_stops_the_axis_and_exits(served):
+    config, url = served
+    cfg = load(config)
+    station = subprocess.Popen([sys.executable, str(HERE / "station_kill_helper.py"), url, str(config), "0",
+                                "40", "0", "300"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        first = station.stdout.readline().split()
+        assert first[0] == "ready", first
+        link_pid = int(first[1])
+        xs = []
+        while len(xs) < 8:
+            line = station.stdout.readline()
+            if line.startswith("pos"):
+                xs.append(float(line.split()[2]))
+        assert xs[-1] > xs[0] + 2  # it was jogging
+        os.kill(station.pid, signal.SIGKILL)
+        station.wait(10)
+        for line in station.stdout:
+            if line.startswith("pos"):
+                xs.append(float(line.split()[2]))
+        # the link process saw the station's pipe close, stopped every axis and ended
+        assert _wait(lambda: not os.path.exists(f"/proc/{link_pid}") or _zombie(link_pid), 10)
+        bus = Bus(url)
+        bus._set_host_baud(115200)
+        st = bus.transact(codec.read_stat(1, codec.SEND_POS | codec.SEND_VEL), codec.SEND_POS | codec.SEND_VEL)
+        bus.close()
+        assert st.velocity == 0
+        x = cfg.axes[0].to_mm(st.position)
+        # stopped short of the jog's own horizon goal (the modules' last-resort stop)
+        assert x - xs[-1] <= 40.0 * (cfg.jog.horizon + 0.06) + 0.05, (xs[-1], x)
+    finally:
+        if station.poll() is None:
+            station.kill()
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+    except OSError:
+        return True
