@@ -185,21 +185,27 @@ def watch_stalls(controller, stop: threading.Event, gap: float = 0.05) -> collec
     return seen
 
 
-def run_station(url: str, sessions: str, big: str, loaders: int) -> None:
+def run_station(url: str, sessions: str, big: str, loaders: int, link_process: str) -> None:
+    import dataclasses
+
+    from cmm.machine.config import load
     from cmm.station import Station
     from cmm.ui.app import StationApp
 
     from cmm.control.priority import raise_station_priority
 
     raise_station_priority()  # as `cmm serve` does, before any thread starts
-    station = Station(port=url, session_dir=sessions).start(home=True)
+    config = load()
+    config = dataclasses.replace(config, link=dataclasses.replace(config.link, process=link_process))
+    station = Station(config, port=url, session_dir=sessions).start(home=True)
     app = StationApp(station, port=0, pendant_port=0)
     station.move_to([250.0, 200.0, 150.0]).wait(60)
     cfg = station.config
     print("ready", app.port, app.pendant.ws_url, flush=True)
     time.sleep(0.2)
-    print(f"station: machine loop at {'raised' if station.controller.loop_priority_raised else 'normal'} priority",
-          flush=True)
+    print(f"station: machine loop at {'raised' if station.controller.loop_priority_raised else 'normal'} priority; "
+          + ("bus, jog dead-man and release in the link process" if station.machine.guarded else
+             "bus, dead-man and release in the station process ([link] process = \"same\")"), flush=True)
     print(f"machine: jog_fast {cfg.speeds.jog_fast:g} mm/s, jog mode {cfg.jog.mode} "
           f"(horizon {cfg.jog.horizon * 1000:.0f} ms of travel), dead-man {cfg.deadman_timeout * 1000:.0f} ms, "
           f"accelerations jog {cfg.accelerations.jog:g} / stop {cfg.accelerations.stop:g} mm/s^2", flush=True)
@@ -367,6 +373,8 @@ def main() -> None:
     ap.add_argument("--observers", type=int, default=20)
     ap.add_argument("--hits", type=int, default=200_000)
     ap.add_argument("--loaders", type=int, default=1, help="observer tabs opening + reporting the big session")
+    ap.add_argument("--link-process", choices=("auto", "same"), default="auto",
+                    help='[link] process: "auto" = the link process (as shipped), "same" = bus in the station process')
     ap.add_argument("--role", choices=("sim", "station", "observers"), help=argparse.SUPPRESS)
     ap.add_argument("--url", help=argparse.SUPPRESS)
     ap.add_argument("--sessions", help=argparse.SUPPRESS)
@@ -375,7 +383,7 @@ def main() -> None:
     if args.role == "sim":
         return run_sim()
     if args.role == "station":
-        return run_station(args.url, args.sessions, args.big, args.loaders)
+        return run_station(args.url, args.sessions, args.big, args.loaders, args.link_process)
     if args.role == "observers":  # the observer browsers: a process of their own, as browsers are
         clients = [viser_observer(int(args.url)) for _ in range(args.observers)]
         print("connected", len(clients), flush=True)
@@ -403,7 +411,7 @@ def main() -> None:
             url, sim_priority = sim.expect("url")
             print(f"simulator at {sim_priority} priority")
             station = Proc("--role", "station", "--url", url, "--sessions", tmp, "--big", big,
-                           "--loaders", str(args.loaders))
+                           "--loaders", str(args.loaders), "--link-process", args.link_process)
             viser_port, pendant_url = station.expect("ready")
             ws = open_ws(pendant_url)
             ws.send(json.dumps({"type": "take"}))
