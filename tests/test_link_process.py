@@ -199,3 +199,74 @@ def _zombie(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
     except OSError:
         return True
+
+
+# --- the guard itself, next to an in-process bus on the virtual clock (deterministic) -------------------------
+
+def _read(bus, address):
+    items = codec.SEND_POS | codec.SEND_VEL | codec.SEND_AUX
+    return bus.transact(codec.read_stat(address, items), items)
+
+
+def test_a_guard_stop_stands_the_jog_still_within_its_stopping_distance(sim_machine):
+    from cmm.nmc.link_process import JogGuard
+
+    _, m, _ = sim_machine
+    m.move_to([100.0, 100.0, 200.0]).wait()
+    v = np.array([40.0, 0.0, 0.0])
+    for _ in range(8):  # at speed, as the station jogs it
+        m.jog(v)
+        m.run_for(0.05)
+    guard = JogGuard(m.bus)
+    guard.arm(m._guard_spec(v))
+    pos, vel, t = m.bus.last_reading(1)
+    assert abs(vel) > 0
+    guard.stop("release")
+    assert guard.held and guard.state.fired == "release"
+    m.bus.clock.sleep(0.3)  # nobody re-targets: only the guard's stop acts
+    st = _read(m.bus, 1)
+    assert st.velocity == 0
+    cpm = m.config.axes[0].counts_per_mm
+    travelled = (st.position - pos) / cpm
+    a = m.config.accelerations.stop
+    # from the last reading: the time since it, the braking distance at the stop deceleration, the margin
+    bound = 40.0 * (m.bus.clock.now() - 0.3 - t) + 40.0 ** 2 / (2 * a) + 40.0 * 0.02 + 0.01
+    assert 0 < travelled <= bound, (travelled, bound)
+    with pytest.raises(GuardHeld):
+        guard.check("start_move", ())
+
+
+def test_when_the_station_dies_the_guard_never_switches_a_motor_off_axis_back_on(sim_machine):
+    from cmm.nmc.link_process import JogGuard
+
+    _, m, _ = sim_machine
+    m.modules[0].stop("off")  # X: amplifier off (an E-stop, or a servo off for the operator)
+    guard = JogGuard(m.bus)
+    guard.station_gone()
+    x, y = _read(m.bus, 1), _read(m.bus, 2)
+    assert not x.aux & codec.AUX_SERVO_ON  # still off
+    assert y.aux & codec.AUX_SERVO_ON and y.velocity == 0  # held where it stands
+
+
+def test_stop_all_and_guard_clear_do_not_wait_for_the_loops_pipe(ctl):
+    bus = ctl.machine.bus
+    _jog_until_fast(ctl)
+    held, done = threading.Event(), threading.Event()
+
+    def stuck_loop() -> None:  # as if the machine loop were waiting on a call to the link process
+        with bus.lock:
+            held.set()
+            done.wait(10)
+    t = threading.Thread(target=stuck_loop)
+    t.start()
+    try:
+        assert held.wait(5)
+        report = bus.stop_all("abrupt")  # STOP and E-STOP go by the second pipe
+        assert report.ok and set(report.acknowledged) == {1, 2, 3}, report
+        bus.guard_clear()  # a fault path finishing a jog: deferred, not waited for
+        assert bus._clear_due
+    finally:
+        done.set()
+        t.join(5)
+    assert _still(bus, 1)  # this call also sends the deferred clear first
+    assert not bus._clear_due

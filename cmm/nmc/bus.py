@@ -381,6 +381,10 @@ class Bus:
         """The last trusted reply's position (counts), velocity (counts per tick, None if not read) and time."""
         return self._reading.get(address)
 
+    def servoing(self, address: int) -> bool:
+        """Is ``address`` under position servo as far as the commands sent tell (not motor off, not PWM)?"""
+        return address not in self._free
+
     def pending_goal(self, address: int) -> int | None:
         """The goal of the last buffered position move loaded into ``address`` (a horizon jog's goal)."""
         return self._buffered.get(address)

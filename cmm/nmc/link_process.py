@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 START_TIMEOUT = 30.0  # s for the child to start and open the port
 CALL_TIMEOUT = 10.0  # s for one call (a transaction takes ms; a resync with retries well under a second)
 LONG_CALLS = {"initialize": 120.0, "reopen": 60.0, "release": 30.0, "change_baud": 30.0}  # discovery retries
-FORWARDED = {"transact", "define_status", "set_group", "initialize", "stop_all", "release", "start_move",
+FORWARDED = {"transact", "define_status", "set_group", "initialize", "release", "start_move",
              "reopen", "change_baud", "flush_input", "resync"}
 MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups")
 STILL = 0.5  # counts per servo tick: below this an axis is taken as standing
@@ -153,8 +153,8 @@ class JogGuard:
     def _send_stop(self, spec: GuardSpec) -> None:
         now = self.bus.clock.now()
         for ax in spec.axes:
-            if ax.velocity == 0:
-                continue
+            if ax.velocity == 0 or not self.bus.servoing(ax.address):
+                continue  # a stop command would switch a motor-off axis's servo back on
             tick = codec.tick_seconds(ax.sr)
             acc = max(int(ax.accel * tick * tick * 65536), 1)
             if spec.mode != "horizon":
@@ -178,8 +178,17 @@ class JogGuard:
             self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
 
     def station_gone(self) -> None:
+        """The station that commanded the axes is gone: stop the jog, then every axis as it is (servo holds
+        where it stands; an axis without servo, in PWM or motor off, gets motor off: never servo on)."""
         self.stop("station gone")
-        self.bus.stop_all("abrupt")  # whatever else moved: the station that commanded it is gone
+        with self.bus.lock:
+            for info in self.bus.modules:
+                a = info.address
+                control = codec.STOP_ABRUPT | codec.AMP_ENABLE if self.bus.servoing(a) else codec.MOTOR_OFF
+                try:
+                    self.bus.transact(codec.stop_motor(a, control))
+                except NmcError as exc:
+                    log.error("link process: module %d did not confirm the stop: %s", a, exc)
 
     # threads
     def run_deadman(self) -> None:
@@ -192,6 +201,7 @@ class JogGuard:
             self.stop("deadman")
 
     def run_urgent(self, urgent: Any) -> None:
+        """The station's second pipe: releases (no reply) and stop-all (replied), never behind its loop's calls."""
         while self.running:
             try:
                 msg = urgent.recv()
@@ -199,6 +209,12 @@ class JogGuard:
                 return
             if msg == "release":
                 self.stop("release")
+            elif isinstance(msg, tuple) and msg[0] == "stop_all":
+                report = self.bus.stop_all(msg[1])  # never raises
+                try:
+                    urgent.send(report)
+                except (EOFError, OSError):
+                    return
 
 
 def _mirror(bus: Bus, guard: JogGuard) -> dict:
@@ -295,11 +311,12 @@ class RemoteBus:
         self.groups: dict[int, int] = {}
         self.guard: tuple[int, str | None] = (0, None)
         self._dead: str | None = None
+        self._clear_due = False  # a guard_clear that could not be sent at once: sent before the next call
         # a fresh interpreter (never a fork of a process full of threads, and unlike multiprocessing's spawn
         # it does not re-run the caller's main script), joined by two socket pairs: calls and releases
         calls, child_calls = socket.socketpair()
         urgent, child_urgent = socket.socketpair()
-        self._conn, self._urgent = Connection(calls.detach()), Connection(urgent.detach(), readable=False)
+        self._conn, self._urgent = Connection(calls.detach()), Connection(urgent.detach())
         fds = (child_calls.fileno(), child_urgent.fileno())
         self._proc = subprocess.Popen([sys.executable, "-m", "cmm.nmc.link_process", str(port), firmware, *map(str, fds)],
                                       pass_fds=fds, stdin=subprocess.DEVNULL)
@@ -342,6 +359,9 @@ class RemoteBus:
             if self._dead is not None:
                 self.link_up = False
                 raise LinkError(self._dead, None, self.port_name)
+            if self._clear_due and op != "guard_clear":
+                self._clear_due = False
+                self._request("guard_clear")
             try:
                 self._conn.send((op, name, args, kwargs))
             except (OSError, ValueError) as exc:
@@ -370,8 +390,30 @@ class RemoteBus:
         return self._request("guard_jog", "", spec)
 
     def guard_clear(self) -> None:
-        """The jog ended (the station saw it): disarm, and let motion starts through again."""
-        self._request("guard_clear")
+        """The jog ended (the station saw it): disarm, and let motion starts through again. Never waits for
+        another thread's call (an E-stop or fault path may run while the loop waits on the link): then it is
+        sent first thing with the next call."""
+        if not self.lock.acquire(blocking=False):
+            self._clear_due = True
+            return
+        try:
+            self._clear_due = False
+            self._request("guard_clear")
+        finally:
+            self.lock.release()
+
+    def stop_all(self, mode: str = "abrupt") -> StopReport:
+        """The bus's stop-all, over the second pipe: STOP and E-STOP never wait behind the loop's calls."""
+        with self._urgent_lock:
+            try:
+                self._urgent.send(("stop_all", mode))
+                if self._urgent.poll(LONG_CALLS["release"]):
+                    return self._urgent.recv()
+                why = "the link process did not answer the stop"
+            except (EOFError, OSError, ValueError) as exc:
+                why = f"the link process is gone ({exc or 'pipe closed'})"
+        addresses = tuple(m.address for m in self.modules)
+        return StopReport((), addresses, why)
 
     def guard_release(self) -> None:
         """Stop the jog now and wait until the stop was sent (machine loop)."""
@@ -379,11 +421,14 @@ class RemoteBus:
 
     def release_now(self) -> None:
         """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock)."""
+        if not self._urgent_lock.acquire(blocking=False):
+            return  # a stop-all is on its way: it stops the jog too
         try:
-            with self._urgent_lock:
-                self._urgent.send("release")
+            self._urgent.send("release")
         except (OSError, ValueError):
             pass  # the process is gone: the station's next call says so
+        finally:
+            self._urgent_lock.release()
 
     # --- life cycle --------------------------------------------------------------------
 
@@ -475,7 +520,7 @@ def main(argv: list[str]) -> None:
     """``python -m cmm.nmc.link_process PORT FIRMWARE CALLS_FD URGENT_FD`` (started by :class:`RemoteBus`)."""
     logging.basicConfig(level=logging.WARNING, format="cmm-link: %(levelname)s %(message)s")
     port, firmware, calls, urgent = argv
-    serve(port, firmware, Connection(int(calls)), Connection(int(urgent), writable=False))
+    serve(port, firmware, Connection(int(calls)), Connection(int(urgent)))
 
 
 if __name__ == "__main__":
