@@ -499,11 +499,11 @@ def _rebuild(cls: str, message: str, address: int | None, port: str) -> Exceptio
 
 
 def separate_process(port: Any, setting: str) -> bool:
-    """Does this port get a link process? ``setting``: "auto" (real ports yes, in-process simulator no),
-    "separate" or "same"."""
+    """Does this port get a link process? ``setting``: "auto" (real ports yes, in-process simulator no; on
+    POSIX systems) or "same"."""
     if setting == "same" or not isinstance(port, str) or port.lower().startswith(("sim://", "loop://")):
         return False
-    return True
+    return os.name == "posix"  # the child is joined by inherited socket fds (pass_fds): POSIX only
 
 
 def open_bus(port: Any, *, firmware: str, trace: ByteTrace | None, process: str = "auto") -> Bus | RemoteBus:
