@@ -130,6 +130,19 @@ def test_after_a_guard_stop_the_stations_restart_of_the_jog_is_refused_until_it_
     assert bus.transact(codec.stop_motor(1, codec.STOP_ABRUPT | codec.AMP_ENABLE)) is not None
 
 
+def test_a_jog_sent_before_a_release_is_refused_by_the_link_process(ctl):
+    bus = ctl.machine.bus
+    spec = ctl.machine._guard_spec(np.array([10.0, 0.0, 0.0]))
+    bus.guard_jog(spec, 0)
+    bus.release_now(1)  # the operator let go (release number 1)
+    assert _wait(lambda: bus.stats is not None and bus.guard[1] == "release")  # any call brings the guard's state
+    with pytest.raises(GuardHeld):
+        bus.guard_jog(spec, 0)  # a refresh the loop was still carrying when the release came
+    bus.guard_jog(spec, 1)  # pressed again after the release: a new jog
+    bus.guard_release()
+    bus.guard_clear()
+
+
 def test_a_dead_link_process_puts_the_station_in_fault_and_the_axis_stops(ctl, served):
     url = served[1]
     _jog_until_fast(ctl)

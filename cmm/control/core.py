@@ -80,6 +80,7 @@ class Controller:
         self.loop_errors = 0
         self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
+        self._release_epoch = 0  # all clients' releases: the link process refuses a jog sent before the last one
         self._in_poll = False
         machine.driver = self
         machine.subscribe(self._on_sample)
@@ -179,14 +180,15 @@ class Controller:
         v = np.asarray(velocity, dtype=np.float64)
         key = getattr(client, "id", client)
         seq = self._releases.get(key, 0) if after is None else after
+        epoch = self._release_epoch
 
         def start() -> None:
             if self._releases.get(key, 0) != seq:
                 return  # released while this jog waited: a release is never undone by an older jog
             if probe:
-                self.prober.jog_probe(v)
+                self.prober.jog_probe(v, release_epoch=epoch)
             else:
-                self.machine.jog(v)
+                self.machine.jog(v, release_epoch=epoch)
         return self._submit(client, "jog", start)
 
     def jog_release(self, client: str | None, *, wait: bool = False) -> None:
@@ -194,7 +196,9 @@ class Controller:
         anything (it goes first in the loop's next step)."""
         key = getattr(client, "id", client)
         self._releases[key] = self._releases.get(key, 0) + 1
-        self.machine.release_now()  # with a link process: it stops the jog now, whatever this process is doing
+        self._release_epoch += 1
+        # with a link process: it stops the jog now, whatever this process is doing, and refuses jogs sent before
+        self.machine.release_now(self._release_epoch)
         if wait or self._thread is None or threading.current_thread() is self._thread:
             return self._submit(client, "jog_release", self.machine.jog_release, urgent=True)
         self._urgent.append(_Command(client, "jog_release", self.machine.jog_release))

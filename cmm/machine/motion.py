@@ -601,14 +601,16 @@ class Machine:
 
     # --- jogging ------------------------------------------------------------
 
-    def jog(self, velocity: Any, *, manual_probe: Callable[[tuple[int, int, int], np.ndarray], None] | None = None) -> None:
+    def jog(self, velocity: Any, *, manual_probe: Callable[[tuple[int, int, int], np.ndarray], None] | None = None,
+            release_epoch: int | None = None) -> None:
         """Jog, mm/s per axis. Must be refreshed (called again) within the dead-man timeout.
 
         The probe input is armed on every axis (stop abruptly on contact); a
         contact stops the jog, or with ``manual_probe`` latches a hit with the
         motion direction as approach direction (thesis experiment 2). In horizon
         mode the modules never hold a goal more than ``jog.horizon`` s of travel
-        ahead, nor outside the travel.
+        ahead, nor outside the travel. ``release_epoch``: the releases the sender had seen (the control core's
+        count); the link process refuses a jog sent before a later release.
         """
         v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         if v.shape != (3,) or not np.all(np.isfinite(v)):
@@ -644,8 +646,9 @@ class Machine:
                 if not np.any(v):  # all zeros: a release
                     self._guard_stop(motion)
                     return
-                motion.extra["epoch"] = self.bus.guard_jog(self._guard_spec(v))
             try:
+                if self.guarded:
+                    motion.extra["epoch"] = self.bus.guard_jog(self._guard_spec(v), release_epoch)
                 self._command_jog(motion, v)
             except GuardHeld:  # released (link process) while this refresh was on its way: the release wins
                 self._guard_stop(motion)
@@ -693,12 +696,13 @@ class Machine:
         motion.extra["v"] = np.zeros(3)
         motion.extra.pop("goal", None)
 
-    def release_now(self) -> None:
-        """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows).
+    def release_now(self, release_epoch: int | None = None) -> None:
+        """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows)
+        and from then on refuses jogs sent before release number ``release_epoch``.
 
         Without a link process this does nothing: the loop's own release is the only one."""
         if self.guarded:
-            self.bus.release_now()
+            self.bus.release_now(release_epoch)
 
     def horizon_target(self, position: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, str | None]:
         """Where a horizon jog from ``position`` at ``v`` may aim: ``horizon`` s ahead, inside the travel.

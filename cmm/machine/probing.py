@@ -173,7 +173,7 @@ class Prober:
 
         back.add_callback(done)
 
-    def jog_probe(self, velocity: np.ndarray) -> None:
+    def jog_probe(self, velocity: np.ndarray, *, release_epoch: int | None = None) -> None:
         """Jog in velocity mode with the probe armed (thesis experiment 2): a trigger records a manual hit."""
 
         def record(latched: tuple[int, int, int], v: np.ndarray) -> None:
@@ -182,4 +182,4 @@ class Prober:
             hit = self._make_hit(latched, direction, speed, "manual")
             self._retract(direction, hit_status=MoveStatus("manual hit retract"), result=hit)
 
-        self.machine.jog(velocity, manual_probe=record)
+        self.machine.jog(velocity, manual_probe=record, release_epoch=release_epoch)

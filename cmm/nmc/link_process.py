@@ -94,10 +94,13 @@ class JogGuard:
         self.held = False
         self.state = GuardState()
         self.running = True
+        self.released = 0  # the station's release count at the last release: older jogs are refused
 
     # station calls (through the pipe, in order with its transactions)
-    def arm(self, spec: GuardSpec) -> int:
+    def arm(self, spec: GuardSpec, release_epoch: int | None = None) -> int:
         with self.cond:
+            if release_epoch is not None and release_epoch < self.released:
+                raise GuardHeld("this jog was sent before the operator's last release: it is not carried out")
             if self.spec is None or self.state.fired is not None:
                 self.state.epoch += 1
                 self.state.fired = None
@@ -133,9 +136,13 @@ class JogGuard:
                     raise GuardHeld("the jog was stopped (released or dead-man); the station has not yet seen it")
 
     # the stop itself
-    def stop(self, reason: str) -> None:
+    def stop(self, reason: str, release_epoch: int | None = None) -> None:
         with self.cond:
+            if release_epoch is not None:
+                self.released = max(self.released, release_epoch)
             spec = self.spec
+            if spec is not None and reason == "release":
+                self.held = True  # also after a dead-man stop: a re-target on its way must not restart it
             if spec is None or self.state.fired is not None:
                 return
             self.state.fired = reason
@@ -207,8 +214,8 @@ class JogGuard:
                 msg = urgent.recv()
             except (EOFError, OSError):
                 return
-            if msg == "release":
-                self.stop("release")
+            if isinstance(msg, tuple) and msg[0] == "release":
+                self.stop("release", msg[1])
             elif isinstance(msg, tuple) and msg[0] == "stop_all":
                 report = self.bus.stop_all(msg[1])  # never raises
                 try:
@@ -263,7 +270,7 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
                 elif op == "trace":
                     result = bus.trace.entries(*args)
                 elif op == "guard_jog":
-                    result = guard.arm(args[0])
+                    result = guard.arm(*args)
                 elif op == "guard_clear":
                     result = guard.clear()
                 elif op == "guard_release":
@@ -385,9 +392,10 @@ class RemoteBus:
 
     # --- the jog guard ----------------------------------------------------------------
 
-    def guard_jog(self, spec: GuardSpec) -> int:
-        """A jog started or was refreshed: (re)arm the dead-man; returns the jog's epoch."""
-        return self._request("guard_jog", "", spec)
+    def guard_jog(self, spec: GuardSpec, release_epoch: int | None = None) -> int:
+        """A jog started or was refreshed: (re)arm the dead-man; returns the jog's epoch. Raises
+        :class:`GuardHeld` if it was sent before a later release (``release_epoch`` older than the last)."""
+        return self._request("guard_jog", "", spec, release_epoch)
 
     def guard_clear(self) -> None:
         """The jog ended (the station saw it): disarm, and let motion starts through again. Never waits for
@@ -419,12 +427,13 @@ class RemoteBus:
         """Stop the jog now and wait until the stop was sent (machine loop)."""
         self._request("guard_release")
 
-    def release_now(self) -> None:
-        """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock)."""
+    def release_now(self, release_epoch: int | None = None) -> None:
+        """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock);
+        jogs sent before release number ``release_epoch`` are refused from then on."""
         if not self._urgent_lock.acquire(blocking=False):
             return  # a stop-all is on its way: it stops the jog too
         try:
-            self._urgent.send("release")
+            self._urgent.send(("release", release_epoch))
         except (OSError, ValueError):
             pass  # the process is gone: the station's next call says so
         finally:
