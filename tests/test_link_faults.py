@@ -17,6 +17,7 @@ from cmm.nmc.bus import Bus, LinkError, NmcError
 from cmm.nmc.faults import Fault, FaultProxy, FaultyTransport
 from cmm.nmc.module import Module
 from cmm.sim.network import SimNetwork
+from cmm.sim.plant import DEFAULT_GAINS
 from cmm.sim.serve import serve_tcp
 from test_bus import ready  # one start-up helper for the bus tests
 
@@ -587,3 +588,27 @@ def test_a_lost_save_as_home_that_cannot_be_told_is_a_link_error_not_a_resend():
     with pytest.raises(LinkError, match="reply of module 1 to SAVE_AS_HOME was lost .* not sent again"):
         mods[0].save_as_home()
     assert saves == [0, 0, 0]
+
+
+@pytest.mark.parametrize("code", [codec.SET_HOMING, codec.SAVE_AS_HOME], ids=["SET_HOMING", "SAVE_AS_HOME"])
+def test_a_command_lost_on_the_way_right_after_start_up_is_sent_again_once(code):
+    """Start-up: the replies carry no position yet (status byte only), so nothing told where the axis stood
+    before the command; the bus reads it back first, so at rest a home register away from the axis says the
+    command was not carried out."""
+    net = SimNetwork(3, wire_time=True)
+    port = FaultyTransport(net.transport(), seed=2)
+    bus = Bus(port)
+    bus.initialize(115200, expected_modules=3)
+    x = Module(bus, 1)
+    x.set_gains(DEFAULT_GAINS)
+    x.enable()
+    x.load_position(1500, VEL, ACC)
+    x.wait_move_done(5.0)
+    bus.clock.sleep(0.1)
+    assert 1 not in bus._last and bus._home[1] == 0  # home read at start-up, position never
+    done = count_commands(net, code)
+    inject_at(bus, port, code, Fault("drop", "tx"))
+    x.arm_home("limit1", "abrupt") if code == codec.SET_HOMING else x.save_as_home()
+    assert done == [1, 0, 0] and bus.stats["verified"] == 1
+    st = x.read_status(codec.SEND_POS | codec.SEND_HOME)
+    assert st.home_in_progress if code == codec.SET_HOMING else abs(st.home - 1500) <= 3

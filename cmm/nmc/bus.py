@@ -294,14 +294,15 @@ class Bus:
         return self.leaders.get(address)
 
     def _read_home_before(self, packet: bytes) -> None:
-        """Before arming a capture or SAVE_AS_HOME, read the home register if it is not known (after RESET_POS, a
-        capture, a SAVE_AS_HOME): should the reply be lost, a changed register is what tells the command took effect.
-        One READ_STAT, only then (a group SET_HOMING is not checked after a lost reply, so not read for)."""
+        """Before arming a capture or SAVE_AS_HOME, read the home register and position if either is not known
+        (after RESET_POS, a capture, a SAVE_AS_HOME; replies without position): should the reply be lost, a changed
+        register tells the command took effect, and the position whether the axis stood still. One READ_STAT, only
+        then (a group SET_HOMING is not checked after a lost reply, so not read for)."""
         address, code = packet[1], packet[2] & 0x0F
         if code == codec.SAVE_AS_HOME or (code == codec.SET_HOMING and address < 0x80 and len(packet) > 4
                                           and packet[3] & CAPTURE_BITS):
             for a in self._members(address):
-                if a not in self._home and a in self.items:
+                if (a not in self._home or a not in self._last) and a in self.items:
                     items = self.items[a] | codec.SEND_POS | codec.SEND_HOME
                     self.transact(codec.read_stat(a, items), items)
 
