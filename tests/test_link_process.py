@@ -60,7 +60,7 @@ def _jog_until_fast(c: Controller, v=(40.0, 0.0, 0.0)) -> None:
     while time.monotonic() < end:
         c.jog(None, list(v))
         time.sleep(0.05)
-        if abs(c.state.machine.axes[0].velocity) > 35:
+        if max(abs(a.velocity) for a in c.state.machine.axes) > 35:
             return
     raise AssertionError("the jog never reached speed")
 
@@ -232,7 +232,7 @@ def test_a_guard_stop_stands_the_jog_still_within_its_stopping_distance(sim_mach
         m.run_for(0.05)
     guard = JogGuard(m.bus)
     guard.arm(m._guard_spec(v))
-    pos, vel, t = m.bus.last_reading(1)
+    pos, vel, t, _ = m.bus.last_reading(1)
     assert abs(vel) > 0
     guard.stop("release")
     assert guard.held and guard.state.fired == "release"
@@ -243,7 +243,8 @@ def test_a_guard_stop_stands_the_jog_still_within_its_stopping_distance(sim_mach
     travelled = (st.position - pos) / cpm
     a = m.config.accelerations.stop
     # from the last reading: the time since it, the braking distance at the stop deceleration, the margin
-    bound = 40.0 * (m.bus.clock.now() - 0.3 - t) + 40.0 ** 2 / (2 * a) + 40.0 * 0.02 + 0.01
+    # (+0.5 mm: the quantised velocity reading, the module re-planning at speed); a horizon-only stop is 4.8 mm on
+    bound = 40.0 * (m.bus.clock.now() - 0.3 - t) + 40.0 ** 2 / (2 * a) + 40.0 * 0.02 + 0.5
     assert 0 < travelled <= bound, (travelled, bound)
     with pytest.raises(GuardHeld):
         guard.check("start_move", ())
@@ -283,3 +284,57 @@ def test_stop_all_and_guard_clear_do_not_wait_for_the_loops_pipe(ctl):
         t.join(5)
     assert _still(bus, 1)  # this call also sends the deferred clear first
     assert not bus._clear_due
+
+
+def test_a_driven_jog_runs_on_the_link_process_readings_and_never_pushes_on_after_a_contact(sim_machine):
+    from cmm.nmc.link_process import JogGuard
+
+    _, m, _ = sim_machine
+    m.move_to([250.0, 190.0, 44.0]).wait()  # 3 mm above the part's top face (Z 40, tip radius 1)
+    v = np.array([0.0, 0.0, -10.0])
+    m.jog(v)  # the station starts the jog (capture armed on the probe input) ...
+    guard = JogGuard(m.bus)
+    spec = m._guard_spec(v)
+    assert spec.drive
+    guard.arm(spec)  # ... and from here only the link process re-targets it (the station loop is silent)
+    zs = []
+    for _ in range(100):  # 1 s: long past the horizon (0.12 s) the station's last goal allowed
+        m.bus.clock.sleep(0.01)
+        guard.refresh(None)  # the operator holds the button
+        guard.drive(spec)
+        zs.append(m.config.axes[2].to_mm(m.bus.last_reading(3)[0]))
+    assert guard.state.fired == "contact" and guard.held
+    assert min(zs) < 42.0  # past where the station's own last goal (one horizon, 1.2 mm below 44) ended
+    z = m.config.axes[2].to_mm(_read(m.bus, 3).position)
+    assert 40.9 < z < 41.1, z  # the tip centre stopped at the surface (pre-travel), not pushed through it
+    with pytest.raises(GuardHeld):
+        guard.check("start_move", ())
+
+
+def test_a_driven_jog_goes_on_while_the_station_loop_is_stuck(ctl):
+    m = ctl.machine
+    _jog_until_fast(ctl, (0.0, 40.0, 0.0))
+    y0 = ctl.state.machine.position[1]
+    held, done = threading.Event(), threading.Event()
+
+    def stuck_loop() -> None:  # the station's machine loop gets nothing through to the link process
+        with m.bus.lock:
+            held.set()
+            done.wait(10)
+    t = threading.Thread(target=stuck_loop)
+    t.start()
+    try:
+        assert held.wait(5)
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:  # the pendant's thread still hears the operator
+            m.jog_alive(ctl._release_epoch)
+            time.sleep(0.05)
+        m.release_now(ctl._release_epoch + 1)  # ... and the release
+    finally:
+        done.set()
+        t.join(5)
+    ctl.jog_release(None)
+    assert _wait(lambda: ctl.state.mode == Mode.IDLE), ctl.state
+    # far beyond one horizon (4.8 mm) and its braking: the link process drove the jog on its own readings
+    assert ctl.state.machine.position[1] - y0 > 15.0, (y0, ctl.state.machine.position[1])
+    assert m.bus.guard[1] == "release"

@@ -181,6 +181,8 @@ class Controller:
         key = getattr(client, "id", client)
         seq = self._releases.get(key, 0) if after is None else after
         epoch = self._release_epoch
+        if np.any(v) and self.policy.refusal(client, "jog") is None:
+            self.machine.jog_alive(epoch)  # with a link process: its dead-man hears the operator at once
 
         def start() -> None:
             if self._releases.get(key, 0) != seq:

@@ -648,7 +648,11 @@ class Machine:
                     return
             try:
                 if self.guarded:
-                    motion.extra["epoch"] = self.bus.guard_jog(self._guard_spec(v), release_epoch)
+                    spec = self._guard_spec(v)
+                    motion.extra["v"] = v.copy()
+                    motion.extra["epoch"] = self.bus.guard_jog(spec, release_epoch)
+                    if spec.drive:
+                        return  # the link process runs the horizon (and its dead-man) from here
                 self._command_jog(motion, v)
             except GuardHeld:  # released (link process) while this refresh was on its way: the release wins
                 self._guard_stop(motion)
@@ -678,23 +682,31 @@ class Machine:
         return bool(getattr(self.bus, "guarded", False))
 
     def _guard_spec(self, v: np.ndarray) -> GuardSpec:
+        """The jog as the link process runs it: in horizon mode it re-targets the goals itself (``drive``)."""
         speed = float(np.linalg.norm(v))
-        a = self.config.accelerations.stop
+        acc = self.config.accelerations
         horizon = self.config.jog.mode == "horizon"
         axes = []
         for axis, vi in zip(self.config.axes, v):
-            share = abs(vi) / speed if horizon and speed > 0 else 1.0  # a line stops as a line
+            share = abs(vi) / speed if horizon and speed > 0 else 1.0  # a line runs and stops as a line
             lo, hi = sorted((axis.to_counts(axis.min), axis.to_counts(axis.max)))
             axes.append(GuardAxis(axis.address, float(vi * axis.counts_per_mm * axis.direction),
-                                  max(a * share * axis.counts_per_mm, 1.0), lo, hi, axis.gains.sr))
+                                  max(acc.stop * share * axis.counts_per_mm, 1.0), lo, hi, axis.gains.sr,
+                                  max(acc.jog * share * axis.counts_per_mm, 1.0)))
         return GuardSpec(tuple(axes), self.config.deadman_timeout, self.config.jog.mode,
-                         STOP_MARGIN_S, self.config.jog.horizon)
+                         STOP_MARGIN_S, self.config.jog.horizon, drive=horizon)
 
     def _guard_stop(self, motion: _Motion) -> None:
         """Stop the jog from the link process (it has the freshest readings) and stop re-targeting it."""
         self.bus.guard_release()
         motion.extra["v"] = np.zeros(3)
         motion.extra.pop("goal", None)
+
+    def jog_alive(self, release_epoch: int | None = None) -> None:
+        """Any thread, no wait: the operator still holds the jog; the link process's dead-man restarts (the
+        loop's own refresh follows). Does nothing without a link process."""
+        if self.guarded:
+            self.bus.alive_now(release_epoch)
 
     def release_now(self, release_epoch: int | None = None) -> None:
         """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows)
@@ -789,11 +801,12 @@ class Machine:
             self.emit("deadman", after=state.time - self._jog_refreshed)
             v = motion.extra["v"]
         if self.config.jog.mode == "horizon":
-            if np.any(v):
-                try:
-                    self._retarget(motion)
-                except GuardHeld:  # the link process stopped it a moment ago: the next sample shows why
-                    return
+            if np.any(v) and self.guarded:  # the link process drives it: only say when the travel limits it
+                if self.horizon_target(state.position, v)[1] is not None and not motion.extra.get("limit_told"):
+                    motion.extra["limit_told"] = True
+                    self.emit("limit", axis=self.horizon_target(state.position, v)[1])
+            elif np.any(v):
+                self._retarget(motion)
             elif all(a.status & codec.MOVE_DONE for a in state.axes) and all(abs(a.velocity) < 1e-9
                                                                           for a in state.axes):
                 self._finish(motion, result=state.position)

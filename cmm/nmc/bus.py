@@ -159,7 +159,8 @@ class Bus:
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
         self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
-        self._reading: dict[int, tuple[int, int | None, float]] = {}  # address -> (position, velocity, time)
+        self._reading: dict[int, tuple[int, int | None, float, int]] = {}  # address -> (position, velocity, time,
+        # status byte) of the last trusted reply that carried a position
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -371,16 +372,21 @@ class Bus:
         """Keep what a trusted reply of one module tells: its position, and its home register."""
         if status.position is not None:
             self._last[address] = (status.position, self._sent_at)
-            self._reading[address] = (status.position, status.velocity, self._sent_at)  # sampled after this
+            self._reading[address] = (status.position, status.velocity, self._sent_at, status.status)  # sampled after
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
             self._home.pop(address, None)
         if status.home is not None:
             self._home[address] = status.home
 
-    def last_reading(self, address: int) -> tuple[int, int | None, float] | None:
-        """The last trusted reply's position (counts), velocity (counts per tick, None if not read) and time."""
+    def last_reading(self, address: int) -> tuple[int, int | None, float, int] | None:
+        """The last trusted reply's position (counts), velocity (counts per tick, None if not read), time (its
+        request's send time: the module sampled after it) and status byte."""
         return self._reading.get(address)
+
+    def capture_armed(self, address: int) -> bool:
+        """Was a home capture armed on ``address`` (SET_HOMING with a capture condition) and not disarmed?"""
+        return address in self._armed
 
     def servoing(self, address: int) -> bool:
         """Is ``address`` under position servo as far as the commands sent tell (not motor off, not PWM)?"""

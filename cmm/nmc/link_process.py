@@ -46,6 +46,9 @@ FORWARDED = {"transact", "define_status", "set_group", "initialize", "release", 
              "reopen", "change_baud", "flush_input", "resync"}
 MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups")
 STILL = 0.5  # counts per servo tick: below this an axis is taken as standing
+RUN_PERIOD = 0.01  # s between the link process's looks at a jog it drives (re-target, dead-man)
+FRESH = 0.015  # s: a reading older than this is taken again by the link process itself (the station is slow)
+RETARGET_MIN_S = 0.03  # a driven jog is re-targeted when its goal would move by more than this much travel
 
 
 class GuardHeld(Exception):
@@ -60,6 +63,7 @@ class GuardAxis:
     lo: int  # travel, counts
     hi: int
     sr: int = 1  # servo rate divisor (the module's tick)
+    jog_accel: float = 0.0  # counts/s^2: this axis's share of the jog acceleration (a driven jog)
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,8 @@ class GuardSpec:
     deadman: float  # s without a refresh before it stops the jog
     mode: str = "horizon"  # "horizon" (position goals) or "velocity"
     margin: float = 0.02  # s of travel added to a stop goal (latency between the reading and the command)
-    horizon: float = 0.12  # s: the longest extrapolation of the last reading
+    horizon: float = 0.12  # s: the longest extrapolation of the last reading; a driven jog's goal distance
+    drive: bool = False  # horizon jog re-targeted by the link process itself (the station only refreshes it)
 
 
 @dataclass
@@ -95,6 +100,7 @@ class JogGuard:
         self.state = GuardState()
         self.running = True
         self.released = 0  # the station's release count at the last release: older jogs are refused
+        self.goals: dict[int, int] = {}  # address -> goal of a driven jog last sent
 
     # station calls (through the pipe, in order with its transactions)
     def arm(self, spec: GuardSpec, release_epoch: int | None = None) -> int:
@@ -104,22 +110,92 @@ class JogGuard:
             if self.spec is None or self.state.fired is not None:
                 self.state.epoch += 1
                 self.state.fired = None
+            if spec != self.spec:
+                self.goals.clear()  # a new direction or speed: re-target at once
             self.spec = spec
             self.held = False
             self.deadline = self.bus.clock.now() + spec.deadman
             self.cond.notify_all()
-            return self.state.epoch
+            epoch = self.state.epoch
+        if spec.drive:
+            self.drive(spec)  # the first goal now, not one period later
+        return epoch
+
+    def refresh(self, release_epoch: int | None) -> None:
+        """The operator still holds the jog (a front end's message, straight from its thread): the dead-man
+        restarts, unless the jog was stopped or the message is older than the last release."""
+        with self.cond:
+            if self.spec is None or self.state.fired is not None:
+                return
+            if release_epoch is not None and release_epoch < self.released:
+                return
+            self.deadline = self.bus.clock.now() + self.spec.deadman
+
+    def drive(self, spec: GuardSpec) -> None:
+        """One step of a driven horizon jog: goals ``horizon`` s of travel ahead of fresh readings, the line
+        kept inside the travel; nothing after a probe contact (the modules stopped on it: never push on)."""
+        with self.bus.lock:
+            with self.cond:
+                if self.spec != spec or self.state.fired is not None:
+                    return
+            now = self.bus.clock.now()
+            pos: dict[int, int] = {}
+            for ax in spec.axes:
+                reading = self.bus.last_reading(ax.address)
+                if reading is None or now - reading[2] > FRESH:
+                    self.bus.transact(codec.nop(ax.address))  # the station is slow to sample: look ourselves
+                    reading = self.bus.last_reading(ax.address)
+                if reading is None:
+                    return
+                if self.bus.capture_armed(ax.address) and not reading[3] & codec.HOME_IN_PROG:
+                    with self.cond:  # the probe touched: the station takes it from here
+                        if self.state.fired is None:
+                            self.state.fired = "contact"
+                        self.held = True
+                        self.deadline = math.inf
+                    return
+                pos[ax.address] = reading[0]
+            t = spec.horizon
+            for ax in spec.axes:  # shorten the whole step so the line stays inside the travel
+                if ax.velocity:
+                    room = ((ax.hi if ax.velocity > 0 else ax.lo) - pos[ax.address]) / ax.velocity
+                    t = min(t, max(room, 0.0))
+            for ax in spec.axes:
+                if not ax.velocity:
+                    continue
+                goal = int(round(min(max(pos[ax.address] + ax.velocity * t, ax.lo), ax.hi)))
+                last = self.goals.get(ax.address)
+                if last is not None and abs(goal - last) < abs(ax.velocity) * RETARGET_MIN_S:
+                    continue
+                tick = codec.tick_seconds(ax.sr)
+                vel = max(int(abs(ax.velocity) * tick * 65536), 1)
+                acc = max(int(ax.jog_accel * tick * tick * 65536), 1)
+                self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+                self.goals[ax.address] = goal
 
     def clear(self) -> None:
         """The station saw the jog end: nothing to guard, nothing held."""
         with self.cond:
+            self.goals.clear()
             self.spec = None
             self.held = False
             self.deadline = math.inf
             self.cond.notify_all()
 
+    def halted(self, reason: str) -> None:
+        """A stop from the station (STOP_MOTOR, stop-all) ends the jog here too: never re-target after it."""
+        with self.cond:
+            if self.spec is not None and self.state.fired is None:
+                self.state.fired = reason
+                self.held = True
+                self.deadline = math.inf
+
     def check(self, name: str, args: tuple) -> None:
-        """Refuse a motion start while a guard stop holds (the station has not yet seen it)."""
+        """Refuse a motion start while a guard stop holds (the station has not yet seen it); a stop the
+        station sends ends a jog this process drives."""
+        if name == "transact" and args and len(args[0]) > 2 and args[0][2] & 0x0F == codec.STOP_MOTOR:
+            self.halted("stop")
+            return
         if not self.held:
             return
         if name == "start_move":
@@ -172,12 +248,12 @@ class JogGuard:
                 # standing (or unknown): a smooth stop never starts a motion
                 self.bus.transact(codec.stop_motor(ax.address, codec.STOP_SMOOTH | codec.AMP_ENABLE))
                 continue
-            pos, vel_tick, t = reading
+            pos, vel_tick, t, _ = reading
             v = vel_tick / tick  # counts/s, signed
             sign = 1.0 if v > 0 else -1.0
             ahead = v * min(max(now - t, 0.0), spec.horizon)
             goal = pos + ahead + sign * (v * v / (2 * ax.accel) + abs(v) * spec.margin)
-            pending = self.bus.pending_goal(ax.address)
+            pending = self.goals.get(ax.address, self.bus.pending_goal(ax.address))
             if pending is not None and (pending - goal) * sign < 0:
                 goal = pending  # it was going to stand still nearer than that anyway
             goal = int(round(min(max(goal, ax.lo), ax.hi)))
@@ -198,14 +274,26 @@ class JogGuard:
                     log.error("link process: module %d did not confirm the stop: %s", a, exc)
 
     # threads
-    def run_deadman(self) -> None:
+    def run(self) -> None:
+        """The dead-man, and the re-targets of a jog this process drives (every RUN_PERIOD)."""
         while self.running:
             with self.cond:
-                wait = self.deadline - self.bus.clock.now()
+                spec = self.spec if self.state.fired is None else None
+                wait = 1.0 if spec is None else self.deadline - self.bus.clock.now()
+                if spec is not None and spec.drive:
+                    wait = min(wait, RUN_PERIOD)
                 if wait > 0:
-                    self.cond.wait(min(wait, 1.0))
-                    continue
-            self.stop("deadman")
+                    self.cond.wait(wait)
+                spec = self.spec if self.state.fired is None else None
+                expired = spec is not None and self.bus.clock.now() >= self.deadline
+            if expired:
+                self.stop("deadman")
+            elif spec is not None and spec.drive:
+                try:
+                    self.drive(spec)
+                except Exception as exc:  # noqa: BLE001 - a jog that cannot be driven is stopped
+                    log.error("link process: driving the jog failed (%s): stopping it", exc)
+                    self.stop("link error")
 
     def run_urgent(self, urgent: Any) -> None:
         """The station's second pipe: releases (no reply) and stop-all (replied), never behind its loop's calls."""
@@ -216,7 +304,10 @@ class JogGuard:
                 return
             if isinstance(msg, tuple) and msg[0] == "release":
                 self.stop("release", msg[1])
+            elif isinstance(msg, tuple) and msg[0] == "alive":
+                self.refresh(msg[1])
             elif isinstance(msg, tuple) and msg[0] == "stop_all":
+                self.halted("stop")
                 report = self.bus.stop_all(msg[1])  # never raises
                 try:
                     urgent.send(report)
@@ -248,7 +339,7 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
         return
     guard = JogGuard(bus)
     conn.send(("ok", None, _mirror(bus, guard)))
-    threading.Thread(target=guard.run_deadman, name="jog-deadman", daemon=True).start()
+    threading.Thread(target=guard.run, name="jog-guard", daemon=True).start()
     threading.Thread(target=guard.run_urgent, args=(urgent,), name="jog-release", daemon=True).start()
     try:
         while True:
@@ -427,13 +518,21 @@ class RemoteBus:
         """Stop the jog now and wait until the stop was sent (machine loop)."""
         self._request("guard_release")
 
+    def alive_now(self, release_epoch: int | None = None) -> None:
+        """The operator still holds the jog: restart the dead-man now, from any thread, without waiting."""
+        self._urgent_send(("alive", release_epoch))
+
     def release_now(self, release_epoch: int | None = None) -> None:
         """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock);
         jogs sent before release number ``release_epoch`` are refused from then on."""
-        if not self._urgent_lock.acquire(blocking=False):
-            return  # a stop-all is on its way: it stops the jog too
+        self._urgent_send(("release", release_epoch), wait=0.05)
+
+    def _urgent_send(self, msg: tuple, wait: float = 0.0) -> None:
+        # another thread's message takes microseconds; a stop-all holds the pipe longer, and stops the jog too
+        if not (self._urgent_lock.acquire(timeout=wait) if wait else self._urgent_lock.acquire(blocking=False)):
+            return
         try:
-            self._urgent.send(("release", release_epoch))
+            self._urgent.send(msg)
         except (OSError, ValueError):
             pass  # the process is gone: the station's next call says so
         finally:
