@@ -23,7 +23,10 @@ The speed at the release is measured too (on the simulator's clock): a starved s
 the jog up to speed stops "fast" for the wrong reason, so the p99 is also given over the releases made
 at >= 90 % of jog_fast, and the target needs both (and at least half the jogs at full speed).
 
-    python benchmarks/bench_jog_release.py [--trials 30] [--observers 20] [--hits 200000]
+On ``socket://`` the station drives the link through its link process (cmm/nmc/link_process.py), as on
+hardware; ``--link-process same`` keeps the bus in the station's process, to compare in one sitting.
+
+    python benchmarks/bench_jog_release.py [--trials 30] [--observers 20] [--hits 200000] [--link-process same]
 """
 
 from __future__ import annotations
