@@ -338,3 +338,36 @@ def test_a_driven_jog_goes_on_while_the_station_loop_is_stuck(ctl):
     # far beyond one horizon (4.8 mm) and its braking: the link process drove the jog on its own readings
     assert ctl.state.machine.position[1] - y0 > 15.0, (y0, ctl.state.machine.position[1])
     assert m.bus.guard[1] == "release"
+
+
+def test_a_goal_sent_just_after_a_contact_is_undone_at_once(sim_machine):
+    """The race: the probe touches after the reading the link process re-targets from. The reply to the new
+    goal shows the capture fired, and the axis is stopped again before it pushes into the part."""
+    from cmm.nmc.link_process import JogGuard
+
+    _, m, _ = sim_machine
+    m.move_to([250.0, 190.0, 44.0]).wait()
+    v = np.array([0.0, 0.0, -10.0])
+    m.jog(v)
+    guard = JogGuard(m.bus)
+    spec = m._guard_spec(v)
+    guard.arm(spec)
+    stale = None
+    for _ in range(100):
+        before = {a: m.bus.last_reading(a) for a in (1, 2, 3)}
+        m.bus.clock.sleep(0.01)
+        guard.drive(spec)
+        if guard.state.fired == "contact":
+            stale = before  # the last readings that still showed the capture armed
+            break
+    assert stale is not None and all(r[3] & codec.HOME_IN_PROG for r in stale.values())
+    z_touch = m.config.axes[2].to_mm(_read(m.bus, 3).position)
+    # replay the race: a reading from before the contact, a jog still armed, a goal due
+    now = m.bus.clock.now()  # readings that look fresh, so no new reading is taken first
+    m.bus._reading.update({a: (r[0], r[1], now, r[3]) for a, r in stale.items()})
+    guard.state.fired, guard.held, guard.goals = None, False, {}
+    guard.drive(spec)
+    assert guard.state.fired == "contact"
+    m.bus.clock.sleep(0.3)
+    z = m.config.axes[2].to_mm(_read(m.bus, 3).position)
+    assert z > z_touch - 0.01, (z_touch, z)  # not pushed on (a goal 1.2 mm further down was sent and undone)

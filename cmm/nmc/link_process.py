@@ -147,12 +147,8 @@ class JogGuard:
                     reading = self.bus.last_reading(ax.address)
                 if reading is None:
                     return
-                if self.bus.capture_armed(ax.address) and not reading[3] & codec.HOME_IN_PROG:
-                    with self.cond:  # the probe touched: the station takes it from here
-                        if self.state.fired is None:
-                            self.state.fired = "contact"
-                        self.held = True
-                        self.deadline = math.inf
+                if self._touched(ax.address, reading[3]):
+                    self._contact()  # the probe touched: the station takes it from here
                     return
                 pos[ax.address] = reading[0]
             t = spec.horizon
@@ -170,8 +166,28 @@ class JogGuard:
                 tick = codec.tick_seconds(ax.sr)
                 vel = max(int(abs(ax.velocity) * tick * 65536), 1)
                 acc = max(int(ax.jog_accel * tick * tick * 65536), 1)
-                self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+                st = self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
                 self.goals[ax.address] = goal
+                if st is not None and self._touched(ax.address, st.status):
+                    self._contact(spec)  # it touched just before this goal arrived: undo the goal at once
+                    return
+
+    def _touched(self, address: int, status: int) -> bool:
+        """Has the probe's capture fired on ``address`` (armed, and the status byte says no longer in progress)?"""
+        return self.bus.capture_armed(address) and not status & codec.HOME_IN_PROG
+
+    def _contact(self, undo: GuardSpec | None = None) -> None:
+        """A probe contact ends the jog here. The modules stopped abruptly on that tick; a goal sent after it
+        (``undo``: the reply showed the capture had fired) would push on, so every jog axis is stopped again."""
+        with self.cond:
+            if self.state.fired is None:
+                self.state.fired = "contact"
+            self.held = True
+            self.deadline = math.inf
+        if undo is not None:
+            for ax in undo.axes:
+                if self.bus.servoing(ax.address):
+                    self.bus.transact(codec.stop_motor(ax.address, codec.STOP_ABRUPT | codec.AMP_ENABLE))
 
     def clear(self) -> None:
         """The station saw the jog end: nothing to guard, nothing held."""
@@ -244,6 +260,8 @@ class JogGuard:
                 self.bus.transact(codec.load_traj(ax.address, velocity=0, acceleration=acc, velocity_mode=True))
                 continue
             reading = self.bus.last_reading(ax.address)
+            if reading is not None and self._touched(ax.address, reading[3]):
+                continue  # the probe touched: the module stopped on that tick by itself
             if reading is None or reading[1] is None or abs(reading[1]) < STILL:
                 # standing (or unknown): a smooth stop never starts a motion
                 self.bus.transact(codec.stop_motor(ax.address, codec.STOP_SMOOTH | codec.AMP_ENABLE))
@@ -258,7 +276,9 @@ class JogGuard:
                 goal = pending  # it was going to stand still nearer than that anyway
             goal = int(round(min(max(goal, ax.lo), ax.hi)))
             vel = max(int(abs(v) * tick * 65536), 1)
-            self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+            st = self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+            if st is not None and self._touched(ax.address, st.status):
+                self.bus.transact(codec.stop_motor(ax.address, codec.STOP_ABRUPT | codec.AMP_ENABLE))
 
     def station_gone(self) -> None:
         """The station that commanded the axes is gone: stop the jog, then every axis as it is (servo holds
