@@ -7,12 +7,16 @@ lost-reply recovery, stop-all) live in a small child process that does nothing e
 loop sends it transactions over a pipe (:class:`RemoteBus`, the same interface as ``Bus``).
 
 The child also holds the *jog guard*, which acts between two of the station's transactions:
-- the jog dead-man: no refresh of the jog (``guard_jog``) for ``deadman`` s and it stops the axes;
-- the release: ``release_now`` (any station thread, its own pipe, no reply awaited) stops them at once;
+- the jog: a horizon jog (``guard_jog`` with ``drive``) is re-targeted here, from the replies the child sees
+  (it reads the axes itself when the station's samples are late); a probe contact ends it;
+- the jog dead-man: no refresh for ``deadman`` s (``guard_jog`` from the loop, ``alive_now`` straight from a
+  front end's thread) and it stops the axes;
+- the release: ``release_now`` (any station thread, its own pipe, no reply awaited) stops them at once, and
+  jogs sent before it are refused; STOP's stop-all takes that pipe too;
 - a dead station: when the station's pipe closes (crash, ``kill -9``) it stops every axis and exits.
 A guard stop re-targets each moving axis to where it can stand still at the stop deceleration (from the last
-reply's position and velocity, clamped to the travel and never past the jog's own goal); after it the
-station's own jog re-targets are refused (:class:`GuardHeld`) until the station has seen the stop.
+reply's position and velocity, clamped to the travel and never past the jog's own goal); after it motion
+starts to the jog's axes are refused (:class:`GuardHeld`) until the station has seen the stop.
 
 The in-process simulator (``sim://``) keeps its bus in the station's process: it runs on the virtual clock
 that the tests drive, and stands for hardware whose timing needs no such protection.
