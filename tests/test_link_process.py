@@ -371,3 +371,23 @@ def test_a_goal_sent_just_after_a_contact_is_undone_at_once(sim_machine):
     m.bus.clock.sleep(0.3)
     z = m.config.axes[2].to_mm(_read(m.bus, 3).position)
     assert z > z_touch - 0.01, (z_touch, z)  # not pushed on (a goal 1.2 mm further down was sent and undone)
+
+
+def test_cmm_serves_default_simulator_is_driven_through_a_link_process(tmp_path):
+    """`cmm serve` with no port runs the simulated CMM served on loopback in real time: the station reaches
+    it as it reaches hardware, through its link process, which runs the jog and its release."""
+    from cmm.station import Station
+
+    station = Station(session_dir=tmp_path).start()
+    try:
+        m = station.machine
+        assert m.guarded and isinstance(m.bus, RemoteBus) and m.bus.port_name.startswith("socket://127.0.0.1:")
+        for _ in range(6):
+            station.jog([0.0, 20.0, 0.0])
+            time.sleep(0.05)
+        station.jog_release()
+        assert _wait(lambda: station.controller.state.mode in (Mode.IDLE, Mode.NOT_HOMED)
+                     and not station.controller.state.machine.moving), station.controller.state
+        assert m.bus.guard[1] == "release"
+    finally:
+        station.close()
