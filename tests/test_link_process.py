@@ -163,6 +163,10 @@ def test_a_dead_link_process_puts_the_station_in_fault_and_the_axis_stops(ctl, s
     st = bus.transact(codec.read_stat(1, codec.SEND_VEL), codec.SEND_VEL)
     bus.close()
     assert st.velocity == 0
+    # the way back: Reconnect starts a new link process (the modules are restarted)
+    ctl.reconnect(None)
+    assert ctl.state.mode != Mode.FAULT and ctl.machine.bus.alive, ctl.state
+    ctl.move_to(None, [40.0, 0.0, 300.0]).wait(60)
 
 
 def test_an_unreachable_port_is_a_clear_error_and_leaves_no_process(served):
