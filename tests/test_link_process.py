@@ -8,6 +8,7 @@ check who stopped the jog (the guard's record), that the axes stand still, and w
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -72,6 +73,25 @@ def _wait(pred, timeout=5.0) -> bool:
             return False
         time.sleep(0.01)
     return True
+
+
+@contextlib.contextmanager
+def _stuck_loop(bus: RemoteBus):
+    """Another thread holds the pipe to the link process, as a machine loop stuck in a call would."""
+    held, done = threading.Event(), threading.Event()
+
+    def hold() -> None:
+        with bus.lock:
+            held.set()
+            done.wait(10)
+    t = threading.Thread(target=hold)
+    t.start()
+    try:
+        assert held.wait(5)
+        yield
+    finally:
+        done.set()
+        t.join(5)
 
 
 def _still(url_bus: RemoteBus, address: int) -> bool:
@@ -269,23 +289,11 @@ def test_when_the_station_dies_the_guard_never_switches_a_motor_off_axis_back_on
 def test_stop_all_and_guard_clear_do_not_wait_for_the_loops_pipe(ctl):
     bus = ctl.machine.bus
     _jog_until_fast(ctl)
-    held, done = threading.Event(), threading.Event()
-
-    def stuck_loop() -> None:  # as if the machine loop were waiting on a call to the link process
-        with bus.lock:
-            held.set()
-            done.wait(10)
-    t = threading.Thread(target=stuck_loop)
-    t.start()
-    try:
-        assert held.wait(5)
+    with _stuck_loop(bus):  # as if the machine loop were waiting on a call to the link process
         report = bus.stop_all("abrupt")  # STOP and E-STOP go by the second pipe
         assert report.ok and set(report.acknowledged) == {1, 2, 3}, report
         bus.guard_clear()  # a fault path finishing a jog: deferred, not waited for
         assert bus._clear_due
-    finally:
-        done.set()
-        t.join(5)
     assert _still(bus, 1)  # this call also sends the deferred clear first
     assert not bus._clear_due
 
@@ -319,24 +327,12 @@ def test_a_driven_jog_goes_on_while_the_station_loop_is_stuck(ctl):
     m = ctl.machine
     _jog_until_fast(ctl, (0.0, 40.0, 0.0))
     y0 = ctl.state.machine.position[1]
-    held, done = threading.Event(), threading.Event()
-
-    def stuck_loop() -> None:  # the station's machine loop gets nothing through to the link process
-        with m.bus.lock:
-            held.set()
-            done.wait(10)
-    t = threading.Thread(target=stuck_loop)
-    t.start()
-    try:
-        assert held.wait(5)
+    with _stuck_loop(m.bus):  # the station's machine loop gets nothing through to the link process
         end = time.monotonic() + 1.0
         while time.monotonic() < end:  # the pendant's thread still hears the operator
             m.jog_alive(ctl._release_epoch)
             time.sleep(0.05)
         m.release_now(ctl._release_epoch + 1)  # ... and the release
-    finally:
-        done.set()
-        t.join(5)
     ctl.jog_release(None)
     assert _wait(lambda: ctl.state.mode == Mode.IDLE), ctl.state
     # far beyond one horizon (4.8 mm) and its braking: the link process drove the jog on its own readings
