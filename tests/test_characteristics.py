@@ -28,6 +28,8 @@ def test_colour_scale_bands_cutoff_and_legend():
     colours = s.colours(np.array([0.0, 0.03, math.nan, -0.015]))
     assert colours.dtype == np.uint8 and colours.tolist() == [list(GREEN), list(RED), list(GREY), list(CYAN)]
     assert [s.colour(d) for d in (0.0, 0.03, math.nan, -0.015)] == [tuple(c) for c in colours.tolist()]
+    edges = [0.01, -0.01, 0.02, -0.02, 0.5, -0.5, 0.50001, -0.0, math.inf, -math.inf]  # the scalar twin agrees
+    assert [s.band(d) for d in edges] == s.bands(np.array(edges)).tolist()
     legend = s.legend()
     assert [c for c, _ in legend] == [RED, AMBER, GREEN, CYAN, BLUE, GREY]
     assert legend[0][1] == "> +20 µm out of tolerance" and legend[1][1] == "+10 .. +20 µm warning"
