@@ -15,7 +15,7 @@ import time
 import numpy as np
 import trimesh
 
-from cmm.metrology.colour_map import REPORT_FACES, SCENE_FACES, deviation_map, display_mesh
+from cmm.metrology.colour_map import REPORT_FACES, SCENE_FACES, deviation_map, display_mesh, hits_on_surface
 from cmm.metrology.colour_scale import ColourScale
 from cmm.session.report import VIEWS, part_view
 from cmm.sim.sample_part import sample_part
@@ -45,7 +45,9 @@ def run(name: str, mesh: trimesh.Trimesh, counts: list[int]) -> None:
         t_glb = time.perf_counter() - t
         t = time.perf_counter()
         rmap = deviation_map(mesh, pts, dev, scale, faces=REPORT_FACES)
-        svgs = [part_view(mesh, pts, list(dev), scale, np.array(v), title, dmap=rmap) for title, v in VIEWS]
+        normals = hits_on_surface(mesh, pts)[1]  # once for the three views, as the report does
+        svgs = [part_view(mesh, pts, list(dev), scale, np.array(v), title, dmap=rmap, hit_normals=normals)
+                for title, v in VIEWS]
         t_report = time.perf_counter() - t
         print(f"  {n:5d} hits: map {t_map * 1000:6.0f} ms ({len(dmap.mesh.faces)} faces, "
               f"{len(colours)} vertex colours, {dmap.coverage * 100:3.0f} % coloured) · GLB {len(glb) / 1e6:.2f} MB "

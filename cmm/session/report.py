@@ -148,20 +148,22 @@ def view_basis(view: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def part_view(mesh: Any, points: np.ndarray, devs: list[float | None], scale: ColourScale, view: Any, title: str,
-              dmap: Any = None, size: tuple[int, int] = (264, 230)) -> str:
+              dmap: Any = None, size: tuple[int, int] = (264, 230), hit_normals: np.ndarray | None = None) -> str:
     """An orthographic view along ``view`` (towards the viewer): the colour map (``dmap``, a
     :class:`~cmm.metrology.colour_map.DeviationMap`) as a z-buffered image when given, the mesh's feature
-    edges and outline, and the hits as dots in the same colour scale."""
+    edges and outline, and the hits as dots in the same colour scale. ``hit_normals``: the hits' surface
+    normals (``hits_on_surface``) when the caller draws several views of them (found here otherwise)."""
     right, up, towards = view_basis(view)
     P = np.stack([right, up])  # 2 x 3: part mm -> view mm
     segs = view_edges(mesh, towards, front_only=dmap is not None) if mesh is not None else np.zeros((0, 2, 3))
     pts = np.asarray(points, float).reshape(-1, 3)
     devs = list(devs)
     if dmap is not None and len(pts):  # hits on the far side of the part are hidden by it
-        from ..metrology.colour_map import hits_on_surface
+        if hit_normals is None:
+            from ..metrology.colour_map import hits_on_surface
 
-        _, normals = hits_on_surface(mesh, pts)
-        front = normals @ towards > -1e-6
+            _, hit_normals = hits_on_surface(mesh, pts)
+        front = hit_normals @ towards > -1e-6
         pts, devs = pts[front], [d for d, f in zip(devs, front) if f]
     coords = [np.asarray(mesh.vertices)] if mesh is not None else []
     if len(pts):
@@ -537,8 +539,14 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
         frame = "part coordinates" if st.part_pose is not None else "machine coordinates"
         out.append(legend_html(scale))
         out.append("<div class='views'>")
+        normals = None
+        if dmap is not None:  # the hits' surface normals, found once for the three views (which hide hits)
+            from ..metrology.colour_map import hits_on_surface
+
+            normals = hits_on_surface(mesh, pts_a)[1]
         for name, view in (VIEWS if mesh is not None else VIEWS[:2]):
-            out.append(part_view(mesh, pts_a, pdev, scale, np.array(view), f"{name}, {frame}", dmap=dmap))
+            out.append(part_view(mesh, pts_a, pdev, scale, np.array(view), f"{name}, {frame}", dmap=dmap,
+                                 hit_normals=normals))
         out.append("</div>")
         if dmap is not None:
             out.append(f"<p class='muted'>The part's surface in the colour of the deviation of the hits around it "
