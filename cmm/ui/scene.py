@@ -25,6 +25,7 @@ import trimesh
 
 from ..metrology.colour_map import DeviationMap, deviation_map
 from ..metrology.colour_scale import DEFAULT_TOLERANCE, ColourScale
+from ..metrology.transform import apply_points, invert
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0
@@ -258,7 +259,7 @@ class SceneView:
             pose = np.asarray(part.pose, float)
             ids = sorted(hits)
             pts = np.array([hits[h].point for h in ids], float).reshape(-1, 3)
-            local = (pts - pose[:3, 3]) @ pose[:3, :3]  # machine -> part coordinates (the alignment in force)
+            local = apply_points(invert(pose), pts)  # machine -> part coordinates (the alignment in force)
             try:
                 dmap = deviation_map(part.mesh, local, [deviations.get(h, math.nan) for h in ids], self.scale)
                 self.map_error = ""
