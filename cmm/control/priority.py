@@ -60,15 +60,6 @@ def raise_station_priority(nice: int = LOOP_NICE) -> bool:
     return raise_thread_priority(nice)
 
 
-def lower_process_priority(nice: int) -> None:
-    """Run the calling process (a worker) at niceness ``nice`` or lower priority (always permitted)."""
-    try:
-        if os.getpriority(os.PRIO_PROCESS, 0) < nice:
-            os.setpriority(os.PRIO_PROCESS, 0, nice)
-    except (AttributeError, OSError):
-        pass
-
-
 def thread_nice() -> int | None:
     """The calling thread's niceness (None where unknown)."""
     try:
