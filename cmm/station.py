@@ -185,11 +185,10 @@ class Station:
 
     def _add_home_switches(self) -> None:
         """The simulated machine gets the home switches the configuration's homing cycle looks for."""
-        if self.config.homing.method == "switch" and not getattr(self.sim, "home_switches", None):
-            from .sim.home_switches import HomeSwitches
+        if not getattr(self.sim, "home_switches", None):
+            from .sim.home_switches import for_homing
 
-            self.sim.home_switches = HomeSwitches(self.sim, self.config.homing.input,
-                                                  self.config.homing.active_level == "high")
+            self.sim.home_switches = for_homing(self.sim, self.config.homing)
 
     @property
     def simulated(self) -> bool:

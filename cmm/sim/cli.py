@@ -73,11 +73,11 @@ def _cmm_network(args: argparse.Namespace):
     cmm = SimulatedCMM(config, settings, wire_time=args.wire_time, realtime=True,
                        n_modules=args.modules, firmware=args.firmware, version=args.module_version)
     switches = ""
-    if args.home_switches and config.homing.method == "switch":  # as the station's own simulator has them
-        from cmm.sim.home_switches import HomeSwitches
+    if args.home_switches:  # as the station's own simulator has them
+        from cmm.sim.home_switches import for_homing
 
-        HomeSwitches(cmm, config.homing.input, config.homing.active_level == "high")
-        switches = f", home switches on {config.homing.input.upper()}"
+        if for_homing(cmm, config.homing) is not None:
+            switches = f", home switches on {config.homing.input.upper()}"
     print(f"cmm sim: simulated CMM, part at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
           f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
           f"at {settings.sphere_centre}{switches}", flush=True)

@@ -30,3 +30,11 @@ class HomeSwitches:
             if level != self._levels[i]:
                 self._levels[i] = level
                 network.set_inputs(self.cmm._axis_module[i], **{self.input: level})
+
+
+def for_homing(cmm: Any, homing: Any) -> HomeSwitches | None:
+    """The switches a configuration's homing cycle (``[homing]``) looks for, fitted to ``cmm``; None when it
+    homes without switches."""
+    if homing.method != "switch":
+        return None
+    return HomeSwitches(cmm, homing.input, homing.active_level == "high")
