@@ -142,6 +142,11 @@ class _Session:
     last_error: float = 0.0
     grant: Grant | None = None  # the embedded pendant of a station page acts as that page's client
 
+    @property
+    def peer(self) -> str | None:
+        """The network address this pendant connected from."""
+        return self.ws.remote_address[0] if self.ws.remote_address else None
+
 
 class PendantServer:
     """Handle returned by :func:`start_pendant_server`: ``url``, ``ws_url``, ``port``, ``close()``."""
@@ -303,8 +308,7 @@ class PendantServer:
                     ws.close(1008, "the station page closed")))
 
     async def _adopt(self, session: _Session, token: Any) -> None:
-        peer = session.ws.remote_address[0] if session.ws.remote_address else None
-        grant = self.grants.claim(token, peer)
+        grant = self.grants.claim(token, session.peer)
         if isinstance(grant, str):
             return await self._error_msg(session, grant)
         if session.grant is not None:
@@ -392,8 +396,7 @@ class PendantServer:
 
     async def _take(self, session: _Session, code: Any) -> None:
         code = code if isinstance(code, str) else None
-        peer = session.ws.remote_address[0] if session.ws.remote_address else None
-        reason = await self._call(self.control.try_take, session.client_id, code, session.local, peer)
+        reason = await self._call(self.control.try_take, session.client_id, code, session.local, session.peer)
         if reason is None:
             session.authenticated = True
             return await self._send(session, {"type": "control", "control": True})
