@@ -104,12 +104,11 @@ def test_line_counts_follow_the_journal(tmp_path):
 
 
 def test_replay_of_a_big_session_keeps_a_bounded_number_of_checkpoints():
-    events = [{"seq": 1, "time": 0.0, "kind": "start"}]
-    for k in range(1, 20_001):
-        events.append({"seq": k + 1, "time": float(k), "kind": "hit", "id": k, "counts": [k, 0, 0],
-                       "machine": [k / 500, 0.0, 0.0], "approach": [0.0, 0.0, -1.0], "point": [k / 500, 0.0, -1.0]})
-        if k % 5000 == 0:
-            events.append({"seq": k + 1, "time": float(k), "kind": "hit_deleted", "id": k - 1})
+    events = []
+    for e in _hit_events(20_000):
+        events.append(e)
+        if e["kind"] == "hit" and e["id"] % 5000 == 0:
+            events.append({"seq": e["seq"], "time": e["time"], "kind": "hit_deleted", "id": e["id"] - 1})
     replay = Replay.from_events(events, "big")
     assert len(replay._checkpoints) <= MAX_CHECKPOINTS + 1
     session = Session.from_events(events, "big")
