@@ -184,9 +184,9 @@ def _run_geometry(args: Any, rig: _Rig) -> int:
     from ..calibration.records import CalibrationError
 
     svc = rig.service
-    certs = svc.certificates("geometry")
     options: dict[str, Any] = {}
     if not rig.station.simulated:  # on the simulator the service's simulated operator places the bar
+        certs = svc.certificates("geometry")  # for the prompt (a missing one is said before the tty check)
         if not sys.stdin.isatty():
             raise CalibrationError("the geometry routine on a real machine needs an operator to place the bar")
 
