@@ -34,11 +34,9 @@ from typing import Any, Callable
 
 @dataclass(eq=False)
 class Grant:
-    token: str
     owner: Callable[[], Any]  # the page's client now (cmm.control.Client: id, local, authenticated)
     peer: str | None  # the page's network address; the pendant must come from the same one
     claimed: bool = False
-    revoked: bool = False
 
 
 class Grants:
@@ -51,15 +49,12 @@ class Grants:
     def issue(self, owner: Callable[[], Any], peer: str | None) -> str:
         token = secrets.token_urlsafe(18)
         with self._lock:
-            self._grants[token] = Grant(token, owner, peer)
+            self._grants[token] = Grant(owner, peer)
         return token
 
     def revoke(self, token: str | None) -> Grant | None:
         with self._lock:
-            grant = self._grants.pop(token, None) if token else None
-        if grant is not None:
-            grant.revoked = True
-        return grant
+            return self._grants.pop(token, None) if token else None
 
     def claim(self, token: Any, peer: str | None) -> Grant | str:
         """The grant for ``token`` presented from ``peer``, now in use; else the reason it is refused."""
