@@ -52,7 +52,7 @@ def bare_machine() -> tuple:
     m = Machine(cfg, sim.transport())
     m.connect()
     m.poll_pause = PAUSE
-    cert = load_sphere_certificate(_records() / "artifacts/reference-sphere.toml")
+    cert = load_sphere_certificate(REPO / "calibration/artifacts/reference-sphere.toml")
     posts[0], s0, c0 = 0, m.samples, time.process_time()
     q = qualify_probe(m, cert, repeats=1)
     out = (time.process_time() - c0, m.samples - s0, posts[0], q.record.tip_radius)
