@@ -88,7 +88,27 @@ def screenshot(page: Any, name: str, **options: Any) -> Path:
     return path
 
 
-from netutil import free_port  # noqa: E402,F401 - re-exported for the browser tests
+from netutil import SIM, free_port  # noqa: E402,F401 - free_port re-exported for the browser tests
+
+
+def sim_station(tmp_path_factory: Any, session: str) -> Iterator[Any]:
+    """A homed station on the simulator recording ``session``; a module fixture's body:
+    ``yield from bs.sim_station(tmp_path_factory, "walk")`` (closed after the module)."""
+    from cmm.station import Station
+
+    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp(f"{session}-sessions")).start(session, home=True)
+    yield st
+    st.close()
+
+
+def station_app(station: Any, **options: Any) -> Iterator[Any]:
+    """The station's web UI on a free 127.0.0.1 port (``options``: StationApp's, e.g. ``pendant=False``);
+    a module fixture's body: ``yield from bs.station_app(station, ...)`` (closed after the module)."""
+    from cmm.ui.app import StationApp
+
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), **options)
+    yield ui
+    ui.close()
 
 
 # A fake standard-mapping gamepad whose state the test changes through window.__pad.

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import browser_support as bs
-from netutil import SIM
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
@@ -28,8 +27,6 @@ from cmm.metrology.colour_scale import GREEN, GREY  # noqa: E402
 from cmm.session.journal import read_events  # noqa: E402
 from cmm.session.model import Session  # noqa: E402
 from cmm.session.report import render  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 
 LAPTOP = (1280, 800)
@@ -40,16 +37,12 @@ HITS = [((10.0, 70.0, 40.0), (0, 0, 1)), ((50.0, 8.0, 40.0), (0, 0, 1)), ((110.0
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("map-sessions")).start("map", home=True)
-    yield st
-    st.close()
+    yield from bs.sim_station(tmp_path_factory, "map")
 
 
 @pytest.fixture(scope="module")
 def app(station):
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant=False)
-    yield ui
-    ui.close()
+    yield from bs.station_app(station, pendant=False)
 
 
 def glb_colours(handle) -> tuple[trimesh.Trimesh, np.ndarray]:

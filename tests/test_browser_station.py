@@ -22,7 +22,6 @@ import pytest
 
 import browser_support as bs
 from control_support import BreakablePort
-from netutil import SIM
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
@@ -34,8 +33,6 @@ from cmm.session.model import Session  # noqa: E402
 from cmm.session.journal import read_events  # noqa: E402
 from cmm.session.report import features_csv, render  # noqa: E402
 from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 
 LAPTOP = (1280, 800)
 TABLET = (820, 1180)  # a 10.9" tablet, portrait
@@ -43,16 +40,12 @@ TABLET = (820, 1180)  # a 10.9" tablet, portrait
 
 @pytest.fixture(scope="module")
 def station(tmp_path_factory):
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("station-sessions")).start("walk", home=True)
-    yield st
-    st.close()
+    yield from bs.sim_station(tmp_path_factory, "walk")
 
 
 @pytest.fixture(scope="module")
 def app(station):
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
-    yield ui
-    ui.close()
+    yield from bs.station_app(station, pendant_port=0)
 
 
 def open_station(context, app):
