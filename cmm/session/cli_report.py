@@ -40,9 +40,8 @@ def run(args: argparse.Namespace) -> int:
     from .model import DEFAULT_TOLERANCE
 
     try:  # the colour map's bands (the 3D view's defaults unless given)
-        scale = ColourScale(getattr(args, "map_tolerance", None) or args.tolerance or DEFAULT_TOLERANCE["form"],
-                            getattr(args, "max_deviation", None), getattr(args, "warning", 50.0) / 100.0,
-                            getattr(args, "reach", 15.0))
+        scale = ColourScale(args.map_tolerance or args.tolerance or DEFAULT_TOLERANCE["form"], args.max_deviation,
+                            args.warning / 100.0, args.reach)
     except ValueError as exc:
         print(f"cmm report: {exc}", file=sys.stderr)
         return 2
