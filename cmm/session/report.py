@@ -406,14 +406,14 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
                        colour_tolerance=colour_tolerance, max_distance=max_distance, colour_scale=colour_scale)
 
 
-def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int, float] | None = None) -> tuple[
+def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int, float]) -> tuple[
         np.ndarray, list[float | None], Any]:
-    """The active hits in part coordinates (each at the alignment in force for it), their deviations, and the
-    colour map (:func:`cmm.metrology.colour_map.deviation_map`, report-sized mesh; None without a mesh)."""
+    """The active hits in part coordinates (each at the alignment in force for it), their deviations (``dev``:
+    :func:`~cmm.session.export.hit_deviations`), and the colour map
+    (:func:`cmm.metrology.colour_map.deviation_map`, report-sized mesh; None without a mesh)."""
     from ..metrology.colour_map import REPORT_FACES, deviation_map
 
     st = session.state
-    dev = hit_deviations(session, mesh) if dev is None and mesh is not None else (dev or {})
     pts, pdev = [], []
     for i, h in st.hits.items():
         pose = st.hit_pose.get(i) or st.part_pose
