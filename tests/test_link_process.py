@@ -282,7 +282,7 @@ def test_a_guard_stop_stands_the_jog_still_within_its_stopping_distance(sim_mach
         m.run_for(0.05)
     guard = JogGuard(m.bus)
     guard.arm(m._guard_spec(v))
-    pos, vel, t, _ = m.bus.last_reading(1)
+    pos, t, vel, _ = m.bus.last_reading(1)
     assert abs(vel) > 0
     guard.stop("release")
     assert guard.held and guard.state.fired == "release"
@@ -388,11 +388,11 @@ def test_a_goal_sent_just_after_a_contact_is_undone_at_once(sim_machine):
         if guard.state.fired == "contact":
             stale = before  # the last readings that still showed the capture armed
             break
-    assert stale is not None and all(r[3] & codec.HOME_IN_PROG for r in stale.values())
+    assert stale is not None and all(r.status & codec.HOME_IN_PROG for r in stale.values())
     z_touch = m.config.axes[2].to_mm(_read(m.bus, 3).position)
     # replay the race: a reading from before the contact, a jog still armed, a goal due
     now = m.bus.clock.now()  # readings that look fresh, so no new reading is taken first
-    m.bus._reading.update({a: (r[0], r[1], now, r[3]) for a, r in stale.items()})
+    m.bus._last.update({a: r._replace(time=now) for a, r in stale.items()})
     guard.state.fired, guard.held, guard.goals = None, False, {}
     guard.drive(spec)
     assert guard.state.fired == "contact"

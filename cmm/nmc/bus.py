@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import serial
 
@@ -51,6 +51,15 @@ class LinkError(NmcError):
         super().__init__(message, address)
         self.port = port
         self.module_only = module_only  # this module is silent or unsure; the others may still answer
+
+
+class Reading(NamedTuple):
+    """What the last trusted reply of one module said (see :meth:`Bus.last_reading`)."""
+
+    position: int  # counts
+    time: float  # when its request was sent: the module sampled after it, never before
+    velocity: int | None  # counts per servo tick (None when the reply does not carry it)
+    status: int  # the status byte
 
 
 @dataclass(frozen=True)
@@ -143,9 +152,9 @@ class Bus:
         self.link_up = True
         self._marker_turn = 0
         self._storm = 0  # transactions in a row that needed a resynchronisation
-        # address -> (position, time) of the last good reply, the time being when its request was sent: the module
-        # samples after the request arrives, so (unlike the time the reply was read) it never follows the sample
-        self._last: dict[int, tuple[int, float]] = {}
+        # address -> the last good reply's reading, its time being when its request was sent: the module samples
+        # after the request arrives, so (unlike the time the reply was read) it never follows the sample
+        self._last: dict[int, Reading] = {}
         self._sent_at = 0.0  # when the request of the reply being read was sent
         self._vmax: dict[int, float] = {}  # address -> fastest loaded speed, counts/s
         self._buffered: dict[int, int] = {}  # address -> goal of a buffered position move
@@ -155,12 +164,10 @@ class Bus:
         # when one of these may have changed it (a reply shows a capture fired, or one of those commands is sent).
         self._home: dict[int, int] = {}  # address -> home register value as last read and still valid
         self._capturing: set[int] = set()  # modules with a capture armed that no reply has yet shown fired
-        self._before: dict[int, tuple[tuple[int, float] | None, int | None]] = {}  # address -> (last position
+        self._before: dict[int, tuple[Reading | None, int | None]] = {}  # address -> (last position
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
         self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
-        self._reading: dict[int, tuple[int, int | None, float, int]] = {}  # address -> (position, velocity, time,
-        # status byte) of the last trusted reply that carried a position
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -371,18 +378,16 @@ class Bus:
     def _observe(self, address: int, status: codec.Status) -> None:
         """Keep what a trusted reply of one module tells: its position, and its home register."""
         if status.position is not None:
-            self._last[address] = (status.position, self._sent_at)
-            self._reading[address] = (status.position, status.velocity, self._sent_at, status.status)  # sampled after
+            self._last[address] = Reading(status.position, self._sent_at, status.velocity, status.status)
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
             self._home.pop(address, None)
         if status.home is not None:
             self._home[address] = status.home
 
-    def last_reading(self, address: int) -> tuple[int, int | None, float, int] | None:
-        """The last trusted reply's position (counts), velocity (counts per tick, None if not read), time (its
-        request's send time: the module sampled after it) and status byte."""
-        return self._reading.get(address)
+    def last_reading(self, address: int) -> Reading | None:
+        """The last trusted reply that carried a position (None after a reset, until one comes)."""
+        return self._last.get(address)
 
     def capture_armed(self, address: int) -> bool:
         """Was a home capture armed on ``address`` (SET_HOMING with a capture condition) and not disarmed?"""
@@ -391,10 +396,6 @@ class Bus:
     def servoing(self, address: int) -> bool:
         """Is ``address`` under position servo as far as the commands sent tell (not motor off, not PWM)?"""
         return address not in self._free
-
-    def pending_goal(self, address: int) -> int | None:
-        """The goal of the last buffered position move loaded into ``address`` (a horizon jog's goal)."""
-        return self._buffered.get(address)
 
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.

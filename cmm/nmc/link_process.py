@@ -146,15 +146,15 @@ class JogGuard:
             pos: dict[int, int] = {}
             for ax in spec.axes:
                 reading = self.bus.last_reading(ax.address)
-                if reading is None or now - reading[2] > FRESH:
+                if reading is None or now - reading.time > FRESH:
                     self.bus.transact(codec.nop(ax.address))  # the station is slow to sample: look ourselves
                     reading = self.bus.last_reading(ax.address)
                 if reading is None:
                     return
-                if self._touched(ax.address, reading[3]):
+                if self._touched(ax.address, reading.status):
                     self._contact()  # the probe touched: the station takes it from here
                     return
-                pos[ax.address] = reading[0]
+                pos[ax.address] = reading.position
             t = spec.horizon
             for ax in spec.axes:  # shorten the whole step so the line stays inside the travel
                 if ax.velocity:
@@ -264,18 +264,17 @@ class JogGuard:
                 self.bus.transact(codec.load_traj(ax.address, velocity=0, acceleration=acc, velocity_mode=True))
                 continue
             reading = self.bus.last_reading(ax.address)
-            if reading is not None and self._touched(ax.address, reading[3]):
+            if reading is not None and self._touched(ax.address, reading.status):
                 continue  # the probe touched: the module stopped on that tick by itself
-            if reading is None or reading[1] is None or abs(reading[1]) < STILL:
+            if reading is None or reading.velocity is None or abs(reading.velocity) < STILL:
                 # standing (or unknown): a smooth stop never starts a motion
                 self.bus.transact(codec.stop_motor(ax.address, codec.STOP_SMOOTH | codec.AMP_ENABLE))
                 continue
-            pos, vel_tick, t, _ = reading
-            v = vel_tick / tick  # counts/s, signed
+            v = reading.velocity / tick  # counts/s, signed
             sign = 1.0 if v > 0 else -1.0
-            ahead = v * min(max(now - t, 0.0), spec.horizon)
-            goal = pos + ahead + sign * (v * v / (2 * ax.accel) + abs(v) * spec.margin)
-            pending = self.goals.get(ax.address, self.bus.pending_goal(ax.address))
+            ahead = v * min(max(now - reading.time, 0.0), spec.horizon)
+            goal = reading.position + ahead + sign * (v * v / (2 * ax.accel) + abs(v) * spec.margin)
+            pending = self.goals.get(ax.address)
             if pending is not None and (pending - goal) * sign < 0:
                 goal = pending  # it was going to stand still nearer than that anyway
             goal = int(round(min(max(goal, ax.lo), ax.hi)))
