@@ -694,7 +694,7 @@ class Machine:
                                   max(acc.stop * share * axis.counts_per_mm, 1.0), lo, hi, axis.gains.sr,
                                   max(acc.jog * share * axis.counts_per_mm, 1.0)))
         return GuardSpec(tuple(axes), self.config.deadman_timeout, self.config.jog.mode,
-                         STOP_MARGIN_S, self.config.jog.horizon, drive=horizon)
+                         STOP_MARGIN_S, self.config.jog.horizon)
 
     def _guard_stop(self, motion: _Motion) -> None:
         """Stop the jog from the link process (it has the freshest readings) and stop re-targeting it."""

@@ -7,7 +7,7 @@ lost-reply recovery, stop-all) live in a small child process that does nothing e
 loop sends it transactions over a pipe (:class:`RemoteBus`, the same interface as ``Bus``).
 
 The child also holds the *jog guard*, which acts between two of the station's transactions:
-- the jog: a horizon jog (``guard_jog`` with ``drive``) is re-targeted here, from the replies the child sees
+- the jog: a horizon jog (``guard_jog``; ``GuardSpec.drive``) is re-targeted here, from the replies the child sees
   (it reads the axes itself when the station's samples are late); a probe contact ends it;
 - the jog dead-man: no refresh for ``deadman`` s (``guard_jog`` from the loop, ``alive_now`` straight from a
   front end's thread) and it stops the axes;
@@ -79,7 +79,11 @@ class GuardSpec:
     mode: str = "horizon"  # "horizon" (position goals) or "velocity"
     margin: float = 0.02  # s of travel added to a stop goal (latency between the reading and the command)
     horizon: float = 0.12  # s: the longest extrapolation of the last reading; a driven jog's goal distance
-    drive: bool = False  # horizon jog re-targeted by the link process itself (the station only refreshes it)
+
+    @property
+    def drive(self) -> bool:
+        """A horizon jog is re-targeted by the link process itself (the station only refreshes it)."""
+        return self.mode == "horizon"
 
 
 @dataclass
@@ -167,14 +171,20 @@ class JogGuard:
                 last = self.goals.get(ax.address)
                 if last is not None and abs(goal - last) < abs(ax.velocity) * RETARGET_MIN_S:
                     continue
-                tick = codec.tick_seconds(ax.sr)
-                vel = max(int(abs(ax.velocity) * tick * 65536), 1)
-                acc = max(int(ax.jog_accel * tick * tick * 65536), 1)
-                st = self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
                 self.goals[ax.address] = goal
-                if st is not None and self._touched(ax.address, st.status):
-                    self._contact(spec)  # it touched just before this goal arrived: undo the goal at once
+                if self._send_goal(ax, goal, ax.velocity, ax.jog_accel, spec):
                     return
+
+    def _send_goal(self, ax: GuardAxis, goal: int, speed: float, accel: float, spec: GuardSpec) -> bool:
+        """Load a position goal (``speed`` counts/s, ``accel`` counts/s^2) and start it. True when its reply shows
+        the probe's capture had fired just before it arrived: then every jog axis is stopped again at once."""
+        vel = max(codec.velocity_to_fixed(speed, 1.0, ax.sr), 1)  # counts: one count per "mm"
+        acc = max(codec.acceleration_to_fixed(accel, 1.0, ax.sr), 1)
+        st = self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
+        if st is not None and self._touched(ax.address, st.status):
+            self._contact(spec)
+            return True
+        return False
 
     def _touched(self, address: int, status: int) -> bool:
         """Has the probe's capture fired on ``address`` (armed, and the status byte says no longer in progress)?"""
@@ -182,7 +192,7 @@ class JogGuard:
 
     def _contact(self, undo: GuardSpec | None = None) -> None:
         """A probe contact ends the jog here. The modules stopped abruptly on that tick; a goal sent after it
-        (``undo``: the reply showed the capture had fired) would push on, so every jog axis is stopped again."""
+        (``undo``: its reply showed the capture had fired) would push on, so every jog axis is stopped again."""
         with self.cond:
             if self.state.fired is None:
                 self.state.fired = "contact"
@@ -258,9 +268,8 @@ class JogGuard:
         for ax in spec.axes:
             if ax.velocity == 0 or not self.bus.servoing(ax.address):
                 continue  # a stop command would switch a motor-off axis's servo back on
-            tick = codec.tick_seconds(ax.sr)
-            acc = max(int(ax.accel * tick * tick * 65536), 1)
             if spec.mode != "horizon":
+                acc = max(codec.acceleration_to_fixed(ax.accel, 1.0, ax.sr), 1)
                 self.bus.transact(codec.load_traj(ax.address, velocity=0, acceleration=acc, velocity_mode=True))
                 continue
             reading = self.bus.last_reading(ax.address)
@@ -270,18 +279,15 @@ class JogGuard:
                 # standing (or unknown): a smooth stop never starts a motion
                 self.bus.transact(codec.stop_motor(ax.address, codec.STOP_SMOOTH | codec.AMP_ENABLE))
                 continue
-            v = reading.velocity / tick  # counts/s, signed
+            v = reading.velocity / codec.tick_seconds(ax.sr)  # counts/s, signed
             sign = 1.0 if v > 0 else -1.0
             ahead = v * min(max(now - reading.time, 0.0), spec.horizon)
             goal = reading.position + ahead + sign * (v * v / (2 * ax.accel) + abs(v) * spec.margin)
             pending = self.goals.get(ax.address)
             if pending is not None and (pending - goal) * sign < 0:
                 goal = pending  # it was going to stand still nearer than that anyway
-            goal = int(round(min(max(goal, ax.lo), ax.hi)))
-            vel = max(int(abs(v) * tick * 65536), 1)
-            st = self.bus.transact(codec.load_traj(ax.address, position=goal, velocity=vel, acceleration=acc))
-            if st is not None and self._touched(ax.address, st.status):
-                self.bus.transact(codec.stop_motor(ax.address, codec.STOP_ABRUPT | codec.AMP_ENABLE))
+            if self._send_goal(ax, int(round(min(max(goal, ax.lo), ax.hi))), abs(v), ax.accel, spec):
+                return
 
     def station_gone(self) -> None:
         """The station that commanded the axes is gone: stop the jog, then every axis as it is (servo holds
