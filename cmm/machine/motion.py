@@ -111,6 +111,13 @@ class MotionView:
     status: MoveStatus
 
 
+def _jog_stopped(motion: _Motion) -> np.ndarray:
+    """A jog was told to stop (release, dead-man, link process): no velocity, no goal to re-target."""
+    motion.extra["v"] = v = np.zeros(3)
+    motion.extra.pop("goal", None)
+    return v
+
+
 class Machine:
     def __init__(self, config: MachineConfig, port: Any, *, trace: ByteTrace | None = None) -> None:
         self.config = config
@@ -699,8 +706,7 @@ class Machine:
     def _guard_stop(self, motion: _Motion) -> None:
         """Stop the jog from the link process (it has the freshest readings) and stop re-targeting it."""
         self.bus.guard_release()
-        motion.extra["v"] = np.zeros(3)
-        motion.extra.pop("goal", None)
+        _jog_stopped(motion)
 
     def jog_alive(self, release_epoch: int | None = None) -> None:
         """Any thread, no wait: the operator still holds the jog; the link process's dead-man restarts (the
@@ -739,14 +745,18 @@ class Machine:
             return
         here = self.state.position if self.state is not None else self.position
         target, limiting = self.horizon_target(here, v)
-        if limiting is not None and not motion.extra.get("limit_told"):
-            motion.extra["limit_told"] = True
-            self.emit("limit", axis=limiting)
+        self._tell_limit(motion, limiting)
         goal = motion.extra.get("goal")
         if not force and goal is not None and np.linalg.norm(target - goal) < speed * RETARGET_MIN_S:
             return
         motion.extra["goal"] = target
         self._load_line(target, speed, self.config.accelerations.jog)
+
+    def _tell_limit(self, motion: _Motion, limiting: str | None) -> None:
+        """Once per jog: the travel limit of axis ``limiting`` shortens the horizon."""
+        if limiting is not None and not motion.extra.get("limit_told"):
+            motion.extra["limit_told"] = True
+            self.emit("limit", axis=limiting)
 
     def _horizon_stop(self, motion: _Motion | None) -> None:
         """Stop a horizon jog at the stop deceleration: re-target to where it can stand still."""
@@ -782,29 +792,23 @@ class Machine:
                     self._guard_stop(motion)
                     return
                 self._jog_stop_axes(range(3))
-                motion.extra["v"] = np.zeros(3)
-                motion.extra.pop("goal", None)
+                _jog_stopped(motion)
 
     def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
         v = motion.extra.get("v", np.zeros(3))
         if self.guarded:  # the dead-man runs in the link process: did it (or a release) stop this jog?
             epoch, fired = self.bus.guard
             if fired is not None and epoch == motion.extra.get("epoch") and np.any(v):
-                v = motion.extra["v"] = np.zeros(3)
-                motion.extra.pop("goal", None)
+                v = _jog_stopped(motion)
                 if fired == "deadman":
                     self.emit("deadman", after=state.time - self._jog_refreshed)
         elif np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
             self._jog_stop_axes(range(3))
-            motion.extra["v"] = np.zeros(3)
-            motion.extra.pop("goal", None)
+            v = _jog_stopped(motion)
             self.emit("deadman", after=state.time - self._jog_refreshed)
-            v = motion.extra["v"]
         if self.config.jog.mode == "horizon":
             if np.any(v) and self.guarded:  # the link process drives it: only say when the travel limits it
-                if self.horizon_target(state.position, v)[1] is not None and not motion.extra.get("limit_told"):
-                    motion.extra["limit_told"] = True
-                    self.emit("limit", axis=self.horizon_target(state.position, v)[1])
+                self._tell_limit(motion, self.horizon_target(state.position, v)[1])
             elif np.any(v):
                 self._retarget(motion)
             elif all(a.status & codec.MOVE_DONE for a in state.axes) and all(abs(a.velocity) < 1e-9
