@@ -6,6 +6,7 @@ wrong module shows as a wrong position.
 
 from __future__ import annotations
 
+import contextlib
 import random
 import zlib
 
@@ -37,6 +38,24 @@ def parked(seed: int = 1) -> tuple[SimNetwork, FaultyTransport, Bus, list[Module
     for m in mods:  # put each module where no other is: RESET_POS with a set position
         bus.transact(codec.reset_pos(m.address, position=PARK[m.address]))
     return net, port, bus, mods
+
+
+@contextlib.contextmanager
+def faulty_machine(seed: int):
+    """(simulated CMM, fault-injecting transport, connected machine) for machine-level fault tests."""
+    from cmm.machine.config import load
+    from cmm.machine.motion import Machine
+    from cmm.sim.cmm_sim import SimulatedCMM
+
+    config = load()
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport(), seed=seed)
+    machine = Machine(config, port)
+    machine.connect()
+    try:
+        yield sim, port, machine
+    finally:
+        machine.close()
 
 
 def count_starts(net: SimNetwork) -> list[int]:
@@ -409,16 +428,7 @@ def test_a_lost_reply_to_a_jog_velocity_is_simply_sent_again():
 
 def test_the_machine_never_publishes_one_axis_reading_for_another_under_stalls():
     """The issue's symptom end to end: the machine layer on the simulated CMM through stalled bytes."""
-    from cmm.machine.config import load
-    from cmm.machine.motion import Machine
-    from cmm.sim.cmm_sim import SimulatedCMM
-
-    config = load()
-    sim = SimulatedCMM(config)
-    port = FaultyTransport(sim.transport(), seed=11)
-    machine = Machine(config, port)
-    machine.connect()
-    try:
+    with faulty_machine(seed=11) as (_, port, machine):
         machine.move_to([4.0, 2.0, 298.0]).wait(60)  # three different readings
         truth = machine.sample().counts
         assert len(set(truth)) == 3
@@ -428,8 +438,6 @@ def test_the_machine_never_publishes_one_axis_reading_for_another_under_stalls()
             for _ in range(2):
                 assert machine.sample().counts == pytest.approx(truth, abs=3)
         assert machine.bus.stats["resyncs"] >= 6
-    finally:
-        machine.close()
 
 
 def test_a_real_jump_is_confirmed_by_the_module_and_accepted():
@@ -449,16 +457,9 @@ def test_a_real_jump_is_confirmed_by_the_module_and_accepted():
 def test_the_machine_stops_on_a_touch_whose_arming_reply_was_lost():
     """End to end: the probe touches just after X's capture is armed, and that SET_HOMING reply is lost.
     The move must not start as if nothing had happened: the bus reports the capture, the machine stops."""
-    from cmm.machine.config import load
-    from cmm.machine.motion import ContactError, Machine
-    from cmm.sim.cmm_sim import SimulatedCMM
+    from cmm.machine.motion import ContactError
 
-    config = load()
-    sim = SimulatedCMM(config)
-    port = FaultyTransport(sim.transport(), seed=12)
-    machine = Machine(config, port)
-    machine.connect()
-    try:
+    with faulty_machine(seed=12) as (sim, port, machine):
         machine.move_to([30.0, 20.0, 280.0]).wait(30)  # away from 0 counts, where the home register reads 0
         x = machine.modules[0]
         arms = count_commands(sim.network, codec.SET_HOMING)
@@ -483,8 +484,6 @@ def test_the_machine_stops_on_a_touch_whose_arming_reply_was_lost():
         assert arms[0] == 1 and machine.bus.stats["verified"] >= 1  # X was not armed again over the touch
         machine.run_for(0.2)
         assert not machine.busy and machine.position == pytest.approx(start, abs=0.01)
-    finally:
-        machine.close()
 
 
 def test_a_reply_the_host_read_late_is_not_a_continuity_suspect_but_a_swapped_one_still_is():
