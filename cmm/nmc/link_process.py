@@ -344,10 +344,21 @@ class JogGuard:
                     return
 
 
-def _mirror(bus: Bus, guard: JogGuard) -> dict:
-    m = {name: getattr(bus, name) for name in MIRRORED}
-    m["guard"] = (guard.state.epoch, guard.state.fired)
-    return m
+class _Mirror:
+    """What the station's RemoteBus keeps a copy of: the bus attributes it reads, sent only when they changed
+    (they change at start-up and on reconnects, not per transaction), and the guard's state, always."""
+
+    def __init__(self, bus: Bus, guard: JogGuard) -> None:
+        self.bus, self.guard = bus, guard
+        self.sent: tuple | None = None
+
+    def __call__(self) -> dict:
+        b = self.bus
+        now = (dict(b.items), b.link_up, b.baud, list(b.modules), dict(b.leaders), dict(b.groups))
+        m = {} if now == self.sent else dict(zip(MIRRORED, now))
+        self.sent = now
+        m["guard"] = (self.guard.state.epoch, self.guard.state.fired)
+        return m
 
 
 def _raise_priority() -> None:
@@ -367,7 +378,8 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
         conn.send(("err", type(exc).__name__, str(exc), None, {}))
         return
     guard = JogGuard(bus)
-    conn.send(("ok", None, _mirror(bus, guard)))
+    mirror = _Mirror(bus, guard)
+    conn.send(("ok", None, mirror()))
     threading.Thread(target=guard.run, name="jog-guard", daemon=True).start()
     threading.Thread(target=guard.run_urgent, args=(urgent,), name="jog-release", daemon=True).start()
     try:
@@ -385,8 +397,8 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
                     with bus.lock:  # checked and sent with no guard stop in between
                         guard.check(name, args)
                         result = getattr(bus, name)(*args, **kwargs)
-                elif op == "get":
-                    result = {"stats": dict(bus.stats), "port_name": bus.port_name}.get(name)
+                elif op == "get" and name == "stats":
+                    result = dict(bus.stats)
                 elif op == "trace":
                     result = bus.trace.entries(*args)
                 elif op == "guard_jog":
@@ -401,9 +413,9 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
                     result = bus.close(**kwargs)
                 else:
                     raise NmcError(f"link process: unknown request {op} {name}")
-                reply: tuple = ("ok", result, _mirror(bus, guard))
+                reply: tuple = ("ok", result, mirror())
             except BaseException as exc:  # noqa: BLE001 - every failure goes back to the caller
-                reply = ("err", type(exc).__name__, str(exc), getattr(exc, "address", None), _mirror(bus, guard))
+                reply = ("err", type(exc).__name__, str(exc), getattr(exc, "address", None), mirror())
             try:
                 conn.send(reply)
             except (EOFError, OSError):
