@@ -296,9 +296,9 @@ class SceneView:
     def tolerance(self) -> float:
         return self.scale.tolerance
 
-    def set_scale(self, tolerance: float | ColourScale, cutoff: float | None = None) -> None:
+    def set_scale(self, scale: ColourScale) -> None:
         """Change the colour scale (tolerance bands, max-deviation cut-off, map reach); every client sees it."""
-        self.scale = tolerance if isinstance(tolerance, ColourScale) else ColourScale(tolerance, cutoff)
+        self.scale = scale
 
     def hit_colours(self, ids: list[int], deviations: dict[int, float]) -> np.ndarray:
         return self.scale.colours(np.array([deviations.get(h, float("nan")) for h in ids], dtype=np.float64))
