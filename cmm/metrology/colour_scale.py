@@ -124,4 +124,4 @@ class ColourScale:
 
 
 _BAND_COLOURS: dict[int, RGB] = {-2: BLUE, -1: CYAN, 0: GREEN, 1: AMBER, 2: RED, 3: GREY}
-_PALETTE = np.array([BLUE, CYAN, GREEN, AMBER, RED, GREY], dtype=np.uint8)  # index = band + 2
+_PALETTE = np.array([_BAND_COLOURS[b] for b in range(-2, 4)], dtype=np.uint8)  # index = band + 2
