@@ -395,15 +395,14 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
 
 
 def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
-           default_tolerance: float | None = None, colour_tolerance: float | None = None,
-           max_distance: float | None = None, colour_scale: ColourScale | None = None) -> str:
-    """The report as an HTML string. ``colour_scale`` (e.g. the 3D scene's) sets the colour map's bands;
-    else ``colour_tolerance`` (default: the form tolerance) and ``max_distance`` (the max-deviation cut-off)."""
+           default_tolerance: float | None = None, colour_scale: ColourScale | None = None) -> str:
+    """The report as an HTML string. ``colour_scale`` (e.g. the 3D scene's) sets the colour map's bands, cut-off
+    and reach; by default the form tolerance's bands."""
     from .bulk import gc_paused
 
     with gc_paused():  # see cmm.session.bulk: no collector passes over a big session while it is drawn
         return _render(session, mesh=mesh, program=program, title=title, default_tolerance=default_tolerance,
-                       colour_tolerance=colour_tolerance, max_distance=max_distance, colour_scale=colour_scale)
+                       colour_scale=colour_scale)
 
 
 def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int, float]) -> tuple[
@@ -431,12 +430,11 @@ def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int
 
 
 def _render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
-            default_tolerance: float | None = None, colour_tolerance: float | None = None,
-            max_distance: float | None = None, colour_scale: ColourScale | None = None) -> str:
+            default_tolerance: float | None = None, colour_scale: ColourScale | None = None) -> str:
     st = session.state
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
-    scale = colour_scale or ColourScale(colour_tolerance or base_tol["form"], max_distance)
+    scale = colour_scale or ColourScale(base_tol["form"])
     per_feature: list[tuple[Any, list[Characteristic]]] = [(f, feature_characteristics(f, tols[fid]))
                                                           for fid, f in st.features.items()]
     per_feature += _constructed_rows(session, default_tolerance)
