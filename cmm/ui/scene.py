@@ -380,18 +380,6 @@ class SceneView:
             batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (len(pts), 1)), batched_positions=self.local(np.array(pts)),
             batched_colors=np.tile(np.array([[255, 230, 0]], np.uint8), (len(pts), 1)), lod="off", opacity=0.6)
 
-    # --- station events ------------------------------------------------------------
-
-    def on_station_event(self, kind: str, info: Any) -> None:
-        if kind in ("hit", "hits"):
-            self.draw_hits()
-        elif kind in ("feature", "features"):
-            self.draw_features()
-        elif kind == "part":
-            self.draw_part()
-            self.draw_hits()
-            self.draw_colour_map()
-
 
 class ReplayView:
     """A recorded session's state (``cmm.session.model.SessionState``) drawn into one client's scene.
