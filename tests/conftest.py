@@ -21,10 +21,16 @@ def sim_machine():
     machine.close()
 
 
+REAL_TIME_FILES = {"test_link_process.py", "test_kill9.py", "test_calibrate_tcp.py"}
+
+
 def pytest_collection_modifyitems(config, items):
     """Two xdist workers (``--dist loadgroup``): a test file stays in one worker (its module fixtures are built once),
     and all browser tests share one worker, so two software-rendered WebGL browsers never compete for the two
-    cores while their wall-time-paced jogs are timed."""
+    cores while their wall-time-paced jogs are timed. The real-time tests on a served simulator join that worker:
+    their simulator and link processes run at raised priority and starved a browser beside them of CPU (its hold
+    events came over 1 s apart)."""
     for item in items:
-        group = "browser" if item.get_closest_marker("browser") else item.nodeid.split("::", 1)[0]
-        item.add_marker(pytest.mark.xdist_group(group))
+        path = item.nodeid.split("::", 1)[0]
+        timed = item.get_closest_marker("browser") or path.rsplit("/", 1)[-1] in REAL_TIME_FILES
+        item.add_marker(pytest.mark.xdist_group("browser" if timed else path))
