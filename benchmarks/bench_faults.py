@@ -1,7 +1,7 @@
 """Link faults: N injected faults through a TCP fault proxy in front of the served simulator.
 
-    python benchmarks/bench_faults.py --faults 1000 --kinds stall      # issue 12, item 3
-    python benchmarks/bench_faults.py --faults 300                      # every kind, item 8
+    python benchmarks/bench_faults.py --faults 1000 --kinds stall      # stalled replies only
+    python benchmarks/bench_faults.py --faults 300                      # every kind
 
 The simulator is served over TCP in this process (the code ``cmm sim --tcp``
 runs), so each module's trajectory starts can be counted; ``--target

@@ -1,4 +1,4 @@
-"""Jog release -> machine standing still, idle and under web load (issue 12 item 5: p99 <= 0.2 s).
+"""Jog release -> machine standing still, idle and under web load (target: p99 <= 0.2 s).
 
 Priorities: the station runs as `cmm serve` runs it: at raised priority (nice -10, see
 cmm/control/priority.py; its session worker at nice 5). The simulator and this pendant client stand in for devices with processors of

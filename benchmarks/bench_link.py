@@ -1,18 +1,18 @@
 """NMC link and machine-layer throughput, and trigger-to-hit latency.
 
 Prints:
-  (issue 2b) 3-axis status sample rate with wire emulation at 115200 baud,
-             in-process (virtual clock) and over TCP (real time), as a
-             fraction of the wire limit;
-  (issue 3)  position samples per second the machine layer publishes for
-             3 axes over the served simulator, and the time from the probe
-             trigger to the compensated hit;
-  (issue 13) the real-time reply latency distribution (p50, p99, max, and
-             how many replies a host with a 20 ms / 50 ms time-out would
-             have missed) over TCP (served by a thread of this process and
-             by a separate `cmm sim` process) and over a pty, against the
-             protocol's own minimum. ``--latency-only`` runs just that;
-             ``--load N`` adds N busy processes (a loaded machine).
+  - 3-axis status sample rate with wire emulation at 115200 baud,
+    in-process (virtual clock) and over TCP (real time), as a
+    fraction of the wire limit;
+  - position samples per second the machine layer publishes for
+    3 axes over the served simulator, and the time from the probe
+    trigger to the compensated hit;
+  - the real-time reply latency distribution (p50, p99, max, and
+    how many replies a host with a 20 ms / 50 ms time-out would
+    have missed) over TCP (served by a thread of this process and
+    by a separate `cmm sim` process) and over a pty, against the
+    protocol's own minimum. ``--latency-only`` runs just that;
+    ``--load N`` adds N busy processes (a loaded machine).
 
 The wire limit counts only bytes on the wire (10 bits per byte). The
 protocol adds an unavoidable wait: a command executes at the end of the

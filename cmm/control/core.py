@@ -132,10 +132,6 @@ class Controller:
     def threaded(self) -> bool:
         return self._thread is not None
 
-    def set_policy(self, policy: AccessPolicy) -> None:
-        """Who may send what (pluggable): any object with ``refusal(client, command) -> str | None``."""
-        self.policy = policy
-
     def use_policy_of(self, control: Any) -> None:
         """Adopt the UI's control holder (``can_move``, optional ``may_stop``) as the access policy."""
         if not (isinstance(self.policy, HolderPolicy) and self.policy.control is control):

@@ -534,9 +534,6 @@ class Machine:
         next_leg(0)
         return status
 
-    def move_by(self, delta: Any, speed: float | None = None) -> MoveStatus:
-        return self.move_to(self.position + np.asarray(delta, dtype=np.float64), speed)
-
     def step(self, axis: str, step_mm: float, speed: float | None = None) -> MoveStatus:
         """Incremental step jog of one axis, from 1 count to 10 mm."""
         cfg = self.config.axis(axis)

@@ -161,10 +161,6 @@ def _surrounds(xs: np.ndarray, c: np.ndarray) -> bool:
     return bool(np.all(eq[:, :-1] @ c + eq[:, -1] < 0.0))
 
 
-def _distinct_states(a: Any, b: Any, tol: float = 1e-7) -> bool:
-    return any(float(np.max(np.abs(np.asarray(x) - np.asarray(y)))) > tol for x, y in zip(a, b))
-
-
 def _multi_start(model: Any, starts: list[Any], method: str, merit: Callable[[Any], float]) -> tuple[Any, int, bool]:
     """SLP from every start; returns the best state, the number of runs and whether clearly
     different local optima (objective differing by more than 1e-9 relative) were found."""

@@ -16,9 +16,6 @@ pseudo-normal signs computes; we keep the tree between calls instead of
 rebuilding it (and its normals) on every call, which matters for chunked runs
 and ICP.  Points are processed in chunks of CHUNK so 1e7 points need bounded
 working memory, with an optional progress callback ``progress(done, total)``.
-
-The previous trimesh R-tree search is kept as ``closest_points_trimesh`` for
-the benchmark (benchmarks/bench_deviation.py prints the speed-up).
 """
 
 from __future__ import annotations
@@ -46,9 +43,6 @@ SIGN_CONVENTION = (
 
 # barycentric coordinate below which the closest point counts as on an edge/vertex
 _BARY_EPS = 1e-7
-# closest-point query chunk sizes: bound memory for (point, candidate face) pairs
-_QUERY_CHUNK = 4096
-_PAIR_CHUNK = 400_000
 # points per libigl query: bounds the working memory (~200 bytes per point) of huge runs
 CHUNK = 250_000
 
@@ -227,62 +221,6 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex
     return ClosestPoints(best_pt, dist, face, normals)
 
 
-class TrimeshIndex:
-    """Search structures of the previous trimesh method (kept for the benchmark)."""
-
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
-        from scipy.spatial import cKDTree
-
-        self.triangles = np.asarray(mesh.triangles, dtype=np.float64)
-        self.tree = mesh.triangles_tree
-        self.samples = cKDTree(_surface_samples(mesh))
-        self.pad = 1e-9 * max(1.0, float(mesh.scale))
-
-
-def closest_points_trimesh(mesh: trimesh.Trimesh, points: ArrayLike, index: TrimeshIndex | None = None) -> ClosestPoints:
-    """The previous method: trimesh R-tree candidates + trimesh closest point on triangles.
-
-    Candidate faces come from the triangle R-tree, queried with a box of
-    half-size equal to an upper bound of the distance (distance to the nearest
-    of a set of surface samples: vertices plus a grid on large faces).
-    """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    n = len(pts)
-    if n == 0:
-        empty = np.empty((0, 3))
-        return ClosestPoints(empty, np.empty(0), np.empty(0, dtype=np.int64), empty)
-    index = index or TrimeshIndex(mesh)
-    triangles, tree = index.triangles, index.tree
-    upper, _ = index.samples.query(pts)
-    # pad for round-off so the true closest face is never excluded
-    upper = upper * (1 + 1e-9) + index.pad
-
-    best_pt = np.empty((n, 3))
-    best_d2 = np.full(n, np.inf)
-    best_face = np.zeros(n, dtype=np.int64)
-    for start in range(0, n, _QUERY_CHUNK):
-        sl = slice(start, min(start + _QUERY_CHUNK, n))
-        p, r = pts[sl], upper[sl, None]
-        faces, counts = tree.intersection_v(p - r, p + r)
-        owner = np.repeat(np.arange(sl.start, sl.stop), counts.astype(np.int64))
-        for a in range(0, len(faces), _PAIR_CHUNK):
-            f = faces[a : a + _PAIR_CHUNK].astype(np.int64)
-            o = owner[a : a + _PAIR_CHUNK]
-            cp = trimesh.triangles.closest_point(triangles[f], pts[o])
-            d2 = np.einsum("ij,ij->i", cp - pts[o], cp - pts[o])
-            # per owner keep the smallest: sort by (owner, d2), take first of each owner
-            order = np.lexsort((d2, o))
-            o_s = o[order]
-            first = order[np.r_[True, o_s[1:] != o_s[:-1]]]
-            better = d2[first] < best_d2[o[first]]
-            sel = first[better]
-            best_d2[o[sel]] = d2[sel]
-            best_pt[o[sel]] = cp[sel]
-            best_face[o[sel]] = f[sel]
-    normals = pseudo_normals(mesh, best_face, best_pt)
-    return ClosestPoints(best_pt, np.sqrt(best_d2), best_face, normals)
-
-
 def pseudo_normals(mesh: trimesh.Trimesh, face_ids: NDArray[np.int64], points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Unit angle-weighted pseudo-normals at surface points lying on the given faces."""
     face_normals = np.asarray(mesh.face_normals, dtype=np.float64)
@@ -316,14 +254,14 @@ def pseudo_normals(mesh: trimesh.Trimesh, face_ids: NDArray[np.int64], points: N
 
 
 def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike | None = None,
-                     progress: Progress | None = None, method: str = "igl") -> DeviationResult:
+                     progress: Progress | None = None) -> DeviationResult:
     """Signed deviation of measured points (machine coordinates) to a posed part mesh.
 
     ``pose`` is the 4x4 part-to-machine transform of the mesh (None = identity).
     Sign: + = point outside the nominal material (excess), - = inside (missing);
     the opposite of trimesh.proximity.signed_distance, the same as libigl's.
     Works in chunks of CHUNK points; ``progress(done, total)`` is called after
-    each.  ``method="trimesh"`` runs the previous (slower) search, for comparison.
+    each.
     """
     T = as_pose(pose)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -337,11 +275,11 @@ def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike |
     closest = np.empty((n, 3))
     faces = np.empty(n, dtype=np.int64)
     normals = np.empty((n, 3))
-    index = surface_index(mesh) if method == "igl" else TrimeshIndex(mesh)
+    index = surface_index(mesh)
     for start in range(0, n, CHUNK):
         sl = slice(start, min(start + CHUNK, n))
         local = apply_points(inv, pts[sl])
-        cp = closest_points(mesh, local, index) if method == "igl" else closest_points_trimesh(mesh, local, index)
+        cp = closest_points(mesh, local, index)
         sign = np.sign(np.einsum("ij,ij->i", local - cp.points, cp.normals))
         deviations[sl] = sign * cp.distances
         closest[sl] = apply_points(T, cp.points)
@@ -356,14 +294,3 @@ def signed_deviation(mesh: trimesh.Trimesh, points: ArrayLike, pose: ArrayLike |
         normals=normals,
         watertight=bool(mesh.metadata.get("watertight", mesh.is_watertight)),
     )
-
-
-def _surface_samples(mesh: trimesh.Trimesh, count: int = 50_000) -> NDArray[np.float64]:
-    """Vertices plus area-weighted surface samples (fixed seed, so deterministic).
-
-    Their distance to a query point bounds its distance to the surface from
-    above; the area samples keep that bound tight over large flat faces whose
-    vertices are far away.
-    """
-    sampled, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
-    return np.concatenate([np.asarray(mesh.vertices, dtype=np.float64), np.asarray(sampled, dtype=np.float64)])

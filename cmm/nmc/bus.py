@@ -1,6 +1,6 @@
 """The NMC bus: one command, one reply, over any byte transport.
 
-Rules from the protocol (shared/docs/picservo-nmc.md):
+Rules from the protocol:
 - the host sends one command and waits for its status packet before the next;
 - read timeout 50 ms + 2 ms per expected byte (Kerr's library);
 - a reply with cksum_error set means the module ignored the command: resend once;

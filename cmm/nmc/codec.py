@@ -8,7 +8,7 @@ command byte and data (the 0xAA header excluded).
 Status packet (module -> host): ``status | items... | checksum`` with the
 items chosen by DEF_STAT (permanent) or READ_STAT (one reply), always in bit
 order; the checksum is the 8-bit sum of the status byte and the items.
-Multi-byte fields are little-endian. See shared/docs/picservo-nmc.md.
+Multi-byte fields are little-endian.
 """
 
 from __future__ import annotations

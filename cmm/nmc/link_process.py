@@ -2,7 +2,7 @@
 
 Why: the station process also serves the web pages, draws sessions and writes reports. Its threads share
 one interpreter lock, so a jog release or a dead-man that waits for that process can come hundreds of ms
-late under web load (issue 12 item 5). Here the port and the whole :class:`~cmm.nmc.bus.Bus` (resync,
+late under web load. Here the port and the whole :class:`~cmm.nmc.bus.Bus` (resync,
 lost-reply recovery, stop-all) live in a small child process that does nothing else; the station's machine
 loop sends it transactions over a pipe (:class:`RemoteBus`, the same interface as ``Bus``).
 

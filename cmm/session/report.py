@@ -365,11 +365,6 @@ def _constructed_rows(session: Session, default_tolerance: float | None) -> list
             for c in session.state.constructed.values()]
 
 
-def report_rows(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> list[Characteristic]:
-    """Every characteristic of every feature (fitted, then constructed), in feature order."""
-    tols = _tolerances(session, program, default_tolerance)
-    return ([c for fid, f in session.state.features.items() for c in feature_characteristics(f, tols[fid])]
-            + [c for _, cs in _constructed_rows(session, default_tolerance) for c in cs])
 
 
 def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> str:

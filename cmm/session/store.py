@@ -21,7 +21,6 @@ asks for confirmation unless ``--yes``.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import threading
@@ -360,6 +359,3 @@ def write_session(store: SessionStore, name: str, events: Iterator[dict] | list[
     finally:
         writer.close()
 
-
-def dumps_event(event: dict) -> str:
-    return json.dumps(event, allow_nan=False)

@@ -113,12 +113,6 @@ class SessionWorker:
             raise WorkerError("the session worker process stopped unexpectedly (out of memory?): "
                               "nothing was written; try again") from None
 
-    @property
-    def pids(self) -> list[int]:
-        """Process ids of the running workers (for tests and diagnostics)."""
-        pool = self._pool
-        return [] if pool is None else list(getattr(pool, "_processes", {}) or {})
-
     def close(self, grace: float = 5.0) -> None:
         """Stop the worker processes (a new job starts them again): queued jobs are cancelled, a running one
         gets ``grace`` seconds to finish before its process is terminated (a report file may then be missing;
