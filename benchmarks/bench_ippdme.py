@@ -45,7 +45,7 @@ def main() -> None:
                     times.sort()
                     print(f"{cmd:22s} round trip p50 {statistics.median(times) * 1e3:.2f} ms, "
                           f"p99 {times[int(0.99 * len(times)) - 1] * 1e3:.2f} ms, {len(times) / sum(times):.0f}/s")
-                pose = station.part.pose
+                pose = station.measurement.part.pose
                 assert c.call("GoTo(Z(70))").ok
                 wall, machine = time.perf_counter(), station.machine.clock.now()
                 for k in range(args.points):

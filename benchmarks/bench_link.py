@@ -214,7 +214,7 @@ def main() -> None:
             got = []
             station.prober.listeners.append(lambda hit: got.append(time.perf_counter()))
             for xy in [(230, 180), (240, 180), (250, 185), (260, 190), (270, 195)]:
-                st = station.probe([*xy, 40.0], [0, 0, -1], clearance_z=60.0)
+                st = station.measurement.probe([*xy, 40.0], [0, 0, -1], clearance_z=60.0)
                 st.wait(60)
                 latencies.append((got[-1] - station.sim.last_trigger_wall) * 1e3)
             print(f"trigger -> compensated hit: median {np.median(latencies):.1f} ms, max {max(latencies):.1f} ms "

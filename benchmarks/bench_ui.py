@@ -63,7 +63,7 @@ def main() -> None:
         capp = app.add_client(client_id="bench", is_local=True)
         capp.take_control()
         # a long move so the probe keeps moving for the whole window
-        start = station.state.position
+        start = station.machine.state.position
         target = start + np.array([200.0, 150.0, -150.0])
         status = capp.go_to(*target)
         time.sleep(0.3)

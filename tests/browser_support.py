@@ -126,14 +126,14 @@ FAKE_GAMEPAD = """
 
 
 def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
-    """Simulated seconds from ``since`` (the station's clock, ``station.state.time``) until every axis stands still.
+    """Simulated seconds from ``since`` (the station's clock, ``station.machine.state.time``) until every axis stands still.
 
     The station runs on the simulator's paced virtual clock, so a busy test machine slows the simulated
     machine down with everything else instead of making a stop look late.
     """
     wall_end = time.monotonic() + 60
     while time.monotonic() < wall_end:
-        state = station.state
+        state = station.machine.state
         if max(abs(a.velocity) for a in state.axes) < 1e-9:
             return state.time - since
         if state.time - since > limit:

@@ -14,7 +14,8 @@ from cmm.machine.motion import Machine
 from cmm.machine.probing import Prober
 from cmm.metrology.align import best_fit
 from cmm.metrology.compensation import PretravelModel
-from cmm.session.recorder import PartInfo, SessionRecorder
+from cmm.measurement.model import Part
+from cmm.measurement.recording import record
 from cmm.session.store import DirectoryStore
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE, CmmSimSettings, SimulatedCMM, pose_matrix
 
@@ -94,9 +95,9 @@ def measure(rec, pose, nominals):
 def record_session(store, name, part_pose=None, guess_pose=None):
     """A complete session: start, alignment (9 hits + best fit), 3 features (17 hits), a note."""
     sim, machine, prober = setup(part_pose)
-    part = PartInfo("sample part", sim.part_mesh, (NOMINAL_PART_POSE if guess_pose is None else guess_pose).copy(),
+    part = Part("sample part", sim.part_mesh, (NOMINAL_PART_POSE if guess_pose is None else guess_pose).copy(),
                     dict(sim.nominal_features))
-    rec = SessionRecorder(store.create(name), machine, prober, part, port="in-process")
+    rec = record(store.create(name), machine, prober, part, port="in-process")
     try:
         pose = align(rec, part.pose)
         measure(rec, pose, sim.nominal_features)

@@ -38,7 +38,7 @@ def station(tmp_path):
 
 @pytest.fixture
 def control(station):
-    return Control(access_code="right-code", on_holder_lost=lambda _cid: station.jog_release())
+    return Control(access_code="right-code", on_holder_lost=lambda _cid: station.controller.jog_release(None))
 
 
 @pytest.fixture
@@ -66,7 +66,7 @@ def page(context):
 
 
 def velocity(station):
-    return [a.velocity for a in station.state.axes]
+    return [a.velocity for a in station.machine.state.axes]
 
 
 def speed(station) -> float:
@@ -76,9 +76,9 @@ def speed(station) -> float:
 def rate(station, seconds: float = 0.3):
     """Mean axis speeds from the position change (the reported velocity is whole counts per servo tick,
     3.9 mm/s steps on the simulated machine, too coarse to compare speeds)."""
-    s0 = station.state
+    s0 = station.machine.state
     time.sleep(seconds)
-    s1 = station.state
+    s1 = station.machine.state
     return (s1.position - s0.position) / (s1.time - s0.time)
 
 
@@ -96,7 +96,7 @@ def open_pendant(page, server, take: bool = True, code: str | None = None):
 
 def test_pendant_loads_and_shows_position(page, server, station):
     open_pendant(page, server, take=False)
-    x, y, z = station.state.position
+    x, y, z = station.machine.state.position
     assert page.text_content("#px") == f"{x:.3f}"
     assert page.text_content("#pz") == f"{z:.3f}"
     assert page.text_content("#control") == "observer"
@@ -120,17 +120,17 @@ def test_pendant_in_an_iframe(page, server):
 
 def test_gamepad_moves_and_stops(page, server, station):
     open_pendant(page, server)
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     page.evaluate("window.__pad.axes[0] = 1.0")  # left stick full right: +X at jog_fast
     fast = station.config.speeds.jog_fast
     bs.wait_until(lambda: velocity(station)[0] > 0.9 * fast, 2.0, "the jog at jog_fast")
     assert rate(station)[0] == pytest.approx(fast, rel=0.03)
-    assert station.state.jogging
+    assert station.machine.state.jogging
     bs.screenshot(page, "pendant-jogging")
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.evaluate("window.__pad.axes[0] = 0.0")  # back to centre: one release
     assert bs.stop_time(station, t0, "the stop") < STOP_WITHIN
-    assert station.state.position[0] > start[0] + 5
+    assert station.machine.state.position[0] > start[0] + 5
 
     # hold A: fine (probing) speed; the cubic curve makes a half deflection much slower than half speed
     page.evaluate("window.__pad.buttons[0] = 1; window.__pad.axes[1] = -1.0")  # stick up: +Y
@@ -142,7 +142,7 @@ def test_gamepad_moves_and_stops(page, server, station):
     page.wait_for_timeout(200)
     half = ((0.5 - 0.15) / 0.85) ** 3 * fast
     assert rate(station)[1] == pytest.approx(half, rel=0.05)
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.evaluate("window.__pad.buttons[1] = 1")  # B: stop
     assert bs.stop_time(station, t0, "the stop on B") < STOP_WITHIN + 0.1
     page.evaluate("window.__pad.buttons[1] = 0; window.__pad.axes[1] = 0")
@@ -159,29 +159,29 @@ def test_gamepad_inside_dead_zone_does_not_move(page, server, station):
 
 def test_keyboard_jog_and_keyup_stop(page, server, station):
     open_pendant(page, server)
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     page.keyboard.down("ArrowRight")
     slow = station.config.speeds.jog_slow
     bs.wait_until(lambda: velocity(station)[0] > 0.9 * slow, 2.0, "the keyboard jog")
     page.wait_for_timeout(100)
     assert rate(station)[0] == pytest.approx(slow, rel=0.03)
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.keyboard.up("ArrowRight")
     assert bs.stop_time(station, t0, "the stop on key-up") < STOP_WITHIN
-    moved = station.state.position - start
+    moved = station.machine.state.position - start
     assert moved[0] > 1 and abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-9
     page.keyboard.down("Shift")
     page.keyboard.down("ArrowUp")
     fast = station.config.speeds.jog_fast
     bs.wait_until(lambda: velocity(station)[1] > 0.9 * fast, 2.0, "the fast keyboard jog")
     assert rate(station, 0.2)[1] == pytest.approx(fast, rel=0.03)
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.keyboard.up("ArrowUp")
     page.keyboard.up("Shift")
     assert bs.stop_time(station, t0, "the stop on key-up") < STOP_WITHIN
     page.keyboard.down("PageDown")  # Z-
     bs.wait_until(lambda: velocity(station)[2] < -0.9 * slow, 2.0, "the Z jog")
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.evaluate("window.dispatchEvent(new Event('blur'))")  # focus lost while a key is down
     assert bs.stop_time(station, t0, "the stop on blur") < STOP_WITHIN
     page.keyboard.up("PageDown")
@@ -194,7 +194,7 @@ def test_hold_button(page, server, station):
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.down()
     bs.wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 2.0, "the button jog")
-    t0 = station.state.time
+    t0 = station.machine.state.time
     page.mouse.move(box["x"] - 60, box["y"] + box["height"] / 2)  # slide off the button: pointerleave
     assert bs.stop_time(station, t0, "the stop on leaving the button") < STOP_WITHIN
     page.mouse.up()
@@ -202,16 +202,16 @@ def test_hold_button(page, server, station):
     for label, expected in (("Fine", station.config.speeds.jog_fine), ("Fast", station.config.speeds.jog_fast)):
         page.get_by_role("button", name=label, exact=True).click()
         assert page.locator(".speeds button.sel").inner_text() == label
-        x0 = station.state.position[0]
+        x0 = station.machine.state.position[0]
         page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
         page.mouse.down()
         try:
-            bs.wait_until(lambda: station.state.position[0] > x0 + 0.01, 2.0, f"the {label} button jog")
+            bs.wait_until(lambda: station.machine.state.position[0] > x0 + 0.01, 2.0, f"the {label} button jog")
             page.wait_for_timeout(150)  # past the acceleration
             v = rate(station)[0]
         finally:
             page.mouse.up()
-        assert bs.stop_time(station, station.state.time, f"the stop after the {label} jog") < STOP_WITHIN
+        assert bs.stop_time(station, station.machine.state.time, f"the stop after the {label} jog") < STOP_WITHIN
         assert v == pytest.approx(expected, rel=0.05), (label, v)
     bs.screenshot(page, "pendant-speed-fast")
 
@@ -220,11 +220,11 @@ def test_observer_cannot_move(page, server, station, control, monkeypatch):
     monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)  # the browser counts as remote
     open_pendant(page, server, code="wrong-code")
     page.wait_for_function("document.getElementById('message').textContent.includes('wrong access code')")
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     page.keyboard.down("ArrowRight")
     page.evaluate("window.__pad.axes[0] = 1.0")
     page.wait_for_timeout(500)
-    assert speed(station) == 0 and (station.state.position == start).all()
+    assert speed(station) == 0 and (station.machine.state.position == start).all()
     assert control.holder is None
     assert page.text_content("#control") == "observer"
     bs.screenshot(page, "pendant-wrong-code")
@@ -327,21 +327,21 @@ def test_viser_app_loads(context, tmp_path):
 def test_keyboard_step_mode_one_press_one_step(page, server, station):
     """Keys 1-4 pick a step size (shown on the page); each arrow press is one step; 0 returns to hold-to-jog."""
     open_pendant(page, server)
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     page.keyboard.press("3")  # 1 mm steps
     assert page.locator(".steps button.sel").inner_text() == "1"
     page.keyboard.press("ArrowRight")
-    bs.wait_until(lambda: abs(station.state.position[0] - start[0] - 1.0) < 0.003 and not station.state.moving,
+    bs.wait_until(lambda: abs(station.machine.state.position[0] - start[0] - 1.0) < 0.003 and not station.machine.state.moving,
                   10.0, "the 1 mm step")
     page.keyboard.press("PageDown")
-    bs.wait_until(lambda: abs(station.state.position[2] - start[2] + 1.0) < 0.003 and not station.state.moving,
+    bs.wait_until(lambda: abs(station.machine.state.position[2] - start[2] + 1.0) < 0.003 and not station.machine.state.moving,
                   10.0, "the Z- step")
     page.keyboard.press("2")
     page.keyboard.down("ArrowUp")  # held: still one 0.1 mm step (no auto-repeat steps)
     page.wait_for_timeout(600)
     page.keyboard.up("ArrowUp")
-    bs.wait_until(lambda: not station.state.moving, 5.0, "the end of the step")
-    moved = station.state.position - start
+    bs.wait_until(lambda: not station.machine.state.moving, 5.0, "the end of the step")
+    moved = station.machine.state.position - start
     assert moved == pytest.approx([1.0, 0.1, -1.0], abs=0.003)
     page.keyboard.press("0")
     assert page.locator(".steps button.sel").inner_text() == "Hold"

@@ -21,7 +21,7 @@ pytest.importorskip("viser")
 
 import trimesh  # noqa: E402
 
-from cmm import alignment  # noqa: E402
+from cmm.measurement import alignment  # noqa: E402
 from cmm.metrology.colour_map import to_linear  # noqa: E402
 from cmm.metrology.colour_scale import GREEN, GREY  # noqa: E402
 from cmm.session.journal import read_events  # noqa: E402
@@ -52,14 +52,14 @@ def glb_colours(handle) -> tuple[trimesh.Trimesh, np.ndarray]:
 
 
 def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
-    pose = station.part.pose
+    pose = station.measurement.part.pose
     for p, n in HITS:  # probed along the nominal normal at the nominal set-up
         target = pose[:3, :3] @ np.array(p) + pose[:3, 3]
-        station.probe(target, -(pose[:3, :3] @ np.array(n, float))).wait(60)
-    assert len(station.hits) == len(HITS)
-    alignment.apply(station, alignment.best_fit_hits(station, sorted(station.hits)))  # in part coordinates
+        station.measurement.probe(target, -(pose[:3, :3] @ np.array(n, float))).wait(60)
+    assert len(station.measurement.hits) == len(HITS)
+    alignment.apply(station.measurement, alignment.best_fit_hits(station.measurement, sorted(station.measurement.hits)))  # in part coordinates
     app.redraw()
-    devs = station.hit_deviations()
+    devs = station.measurement.hit_deviations()
     assert max(abs(d) for d in devs.values()) < 0.01  # aligned: a few um
 
     with bs.browser_context(viewport=LAPTOP) as context:
@@ -94,22 +94,22 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         colours = {tuple(c) for c in dmap.vertex_colours.tolist()}
         assert colours == {GREY, GREEN}  # aligned: green around the hits, grey away from them
         # at each hit the surface has that hit's colour (the vertex nearest to it)
-        local = (np.array([station.hits[h].point for h in sorted(station.hits)]) - station.part.pose[:3, 3]) \
-            @ station.part.pose[:3, :3]
+        local = (np.array([station.measurement.hits[h].point for h in sorted(station.measurement.hits)]) - station.measurement.part.pose[:3, 3]) \
+            @ station.measurement.part.pose[:3, :3]
         nearest = np.linalg.norm(dmap.mesh.vertices[:, None, :] - local[None], axis=2).argmin(axis=0)
         assert {tuple(c) for c in dmap.vertex_colours[nearest].tolist()} == {GREEN}
         page.get_by_text(f"{len(HITS)} hits paint").wait_for()  # "6 hits paint N % of the surface"
         covered = dmap.coverage
         # look at the part for the screenshot
-        centre = (station.part.pose[:3, :3] @ np.array([60.0, 40.0, 20.0]) + station.part.pose[:3, 3]) * SCALE
+        centre = (station.measurement.part.pose[:3, :3] @ np.array([60.0, 40.0, 20.0]) + station.measurement.part.pose[:3, 3]) * SCALE
         capp.client.camera.look_at = tuple(centre)
         capp.client.camera.position = tuple(centre + np.array([0.09, -0.16, 0.14]))
         page.wait_for_timeout(1000)
         bs.screenshot(page, "colour-map-on", timeout=60_000)
 
         # --- a new hit while the map is on: the map follows (drawn in the background, the DRO keeps its rate)
-        target = station.part.pose[:3, :3] @ np.array([95.0, 70.0, 40.0]) + station.part.pose[:3, 3]
-        station.probe(target, -station.part.pose[:3, 2]).wait(60)
+        target = station.measurement.part.pose[:3, :3] @ np.array([95.0, 70.0, 40.0]) + station.measurement.part.pose[:3, 3]
+        station.measurement.probe(target, -station.measurement.part.pose[:3, 2]).wait(60)
         bs.wait_until(lambda: app.view.map is not None and app.view.map.hits_used == len(HITS) + 1, 30.0,
                       "the map with the new hit")
         page.get_by_text(f"{len(HITS) + 1} hits paint").wait_for()
@@ -131,8 +131,8 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         assert np.array_equal(wide.vertex_colours, app.view.scale.colours(wide.vertex_deviations))
 
         # --- the report of this session draws its map views in the same bands
-        session = Session.from_events(read_events(station.journal.path).events, "map")
-        page_html = render(session, mesh=station.part.mesh, colour_scale=app.view.scale)
+        session = Session.from_events(read_events(station.measurement.journal.path).events, "map")
+        page_html = render(session, mesh=station.measurement.part.mesh, colour_scale=app.view.scale)
         assert page_html.count('class="map"') == 3 and "&gt; +4 µm out of tolerance" in page_html
         report = bs.ARTIFACTS / "colour-map-report.html"
         report.write_text(page_html, encoding="utf-8")

@@ -83,7 +83,7 @@ def evil_site(app):
 
 def test_a_page_from_another_origin_cannot_take_control_or_move(app, evil_site):
     station = app.station
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     clients_before = len(app.clients)
     with bs.browser_context(viewport=(800, 600)) as context:
         page = context.new_page()
@@ -103,6 +103,6 @@ def test_a_page_from_another_origin_cannot_take_control_or_move(app, evil_site):
     # the pendant refuses the handshake itself (403): the socket never opens
     assert result["pendant"]["opened"] is False and result["pendant"]["messages"] == 0, result
     assert app.control.holder is None
-    assert np.allclose(station.state.position, start, atol=0.0021)
+    assert np.allclose(station.machine.state.position, start, atol=0.0021)
     assert not station.machine.busy
     assert any("another web page" in r for r in app.origins.refused)

@@ -98,14 +98,14 @@ def assert_status_bar_on_screen(page, viewport, where):
 
 
 def part_point(station, local):
-    pose = station.part.pose
+    pose = station.measurement.part.pose
     return pose[:3, :3] @ np.asarray(local, float) + pose[:3, 3]
 
 
 def pick_face(page, station, local_point, outward):
     """The pick a click on the face sends (a ray from outside along the face normal)."""
     target = part_point(station, local_point)
-    n = station.part.pose[:3, :3] @ np.asarray(outward, float)
+    n = station.measurement.part.pose[:3, :3] @ np.asarray(outward, float)
     assert page.capp.pick(target + 40 * n, -n) is not None
 
 
@@ -114,10 +114,10 @@ def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.
     for the top face, in the walk below)."""
     pick_face(page, station, local_point, outward)
     assert page.capp.measure.make_plan(hits_per_ring) is not None, page.capp.messages[-2:]
-    before = set(station.features)
+    before = set(station.measurement.features)
     assert page.capp.measure.run(wait=True), page.capp.messages[-2:]
-    (fid,) = set(station.features) - before
-    return page.capp.measure.plan, station.features[fid]
+    (fid,) = set(station.measurement.features) - before
+    return page.capp.measure.plan, station.measurement.features[fid]
 
 
 def automeasure_in_page(page, station, local_point, outward, hits_per_ring, proposal, shot=None):
@@ -134,11 +134,11 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
     if shot:
         bs.screenshot(page, shot, timeout=60_000)
-    before = set(station.features)
+    before = set(station.measurement.features)
     page.get_by_role("button", name="Run", exact=True).click(force=True)
-    bs.wait_until(lambda: set(station.features) - before, 90.0, f"the auto-measured {proposal}")
-    (fid,) = set(station.features) - before
-    feature = station.features[fid]
+    bs.wait_until(lambda: set(station.measurement.features) - before, 90.0, f"the auto-measured {proposal}")
+    (fid,) = set(station.measurement.features) - before
+    feature = station.measurement.features[fid]
     page.get_by_text(f"done: {feature.name}").wait_for()
     assert len(feature.hit_ids) == len(plan)
     return plan, feature
@@ -151,7 +151,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # --- status bar: state, who has control, DRO, probe; STOP / E-STOP
         status = page.locator("#cmm-status")
         status.get_by_text("IDLE").wait_for()
-        x, y, z = station.state.position
+        x, y, z = station.machine.state.position
         text = status.inner_text()
         assert f"X {x:.4f}" in text and f"Z {z:.4f}" in text, text
         assert "Nobody controls the machine" in text and "not qualified" in text, text
@@ -166,8 +166,8 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
         bs.screenshot(page, "station-automeasure-plan", timeout=60_000)
         page.get_by_role("button", name="Run", exact=True).click(force=True)
-        bs.wait_until(lambda: station.features, 90.0, "the auto-measured top face")
-        (top,) = station.features.values()
+        bs.wait_until(lambda: station.measurement.features, 90.0, "the auto-measured top face")
+        (top,) = station.measurement.features.values()
         assert top.kind == "plane" and len(top.hit_ids) == 4
         assert top.nominal is not None and top.nominal.kind == "plane"
         page.get_by_text("done: plane").wait_for()
@@ -206,29 +206,29 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_text("Hits of the feature", exact=True).click(force=True)
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
         page.get_by_role("button", name="Remove hit and refit").click(force=True)
-        bs.wait_until(lambda: len(station.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
-        assert station.features[top.id].hit_ids == top.hit_ids[1:]
+        bs.wait_until(lambda: len(station.measurement.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
+        assert station.measurement.features[top.id].hit_ids == top.hit_ids[1:]
         # re-take a hit: Re-take arms it, the next hit (Probe here at the same point of the face, from the Go to
         # tab) replaces it in the plane, which refits; the old hit goes to the deleted ones
-        kept = station.features[top.id].hit_ids
+        kept = station.measurement.features[top.id].hit_ids
         old = kept[0]
-        old_point = np.array(station.hits[old].point, float)
+        old_point = np.array(station.measurement.hits[old].point, float)
         page.get_by_label("Hit", exact=True).fill(str(old))
         page.get_by_label("Hit", exact=True).press("Enter")
         page.wait_for_timeout(300)
         page.get_by_role("button", name="Re-take hit").click(force=True)
         bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
         assert page.capp.features.retake[:2] == (top.id, old)
-        pose = station.part.pose
+        pose = station.measurement.part.pose
         pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
         tab(page, "Go to")
         page.get_by_role("button", name="Probe here", exact=True).click(force=True)
-        bs.wait_until(lambda: old not in station.hits, 90.0,
+        bs.wait_until(lambda: old not in station.measurement.hits, 90.0,
                       f"hit {old} replaced by the re-taken one (told {page.capp.messages[-3:]})")
-        refit = station.features[top.id]
+        refit = station.measurement.features[top.id]
         new = refit.hit_ids[0]
-        assert new not in kept and refit.hit_ids[1:] == kept[1:] and old in station.deleted
-        assert np.linalg.norm(np.asarray(station.hits[new].point) - old_point) < 0.01  # the same point, probed again
+        assert new not in kept and refit.hit_ids[1:] == kept[1:] and old in station.measurement.deleted
+        assert np.linalg.norm(np.asarray(station.measurement.hits[new].point) - old_point) < 0.01  # the same point, probed again
         bs.wait_until(lambda: any(t == "Re-take" and f"hit {old} replaced by hit {new}" in b
                                   for _l, t, b in page.capp.messages), 20.0, "the page told of the re-take")
         tab(page, "Features")
@@ -248,14 +248,14 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_label("Nominal diameter", exact=True).press("Enter")
         page.wait_for_timeout(300)
         page.get_by_role("button", name="Apply typed nominal").click(force=True)
-        bs.wait_until(lambda: station.features[boss.id].nominal.params["radius"] == pytest.approx(10.05), 20.0,
+        bs.wait_until(lambda: station.measurement.features[boss.id].nominal.params["radius"] == pytest.approx(10.05), 20.0,
                       "the typed nominal diameter")
         bs.wait_until(lambda: fails() > clean, 20.0, "the boss shown as FAIL in the tree")
         page.get_by_label("Size ± (mm)", exact=True).fill("0.15")
         page.get_by_label("Size ± (mm)", exact=True).press("Enter")
         page.wait_for_timeout(300)
         page.get_by_role("button", name="Apply tolerances").click(force=True)
-        bs.wait_until(lambda: (station.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
+        bs.wait_until(lambda: (station.measurement.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
                       "the typed size tolerance")
         bs.wait_until(lambda: fails() == clean, 20.0, "the boss passing with its typed tolerance")
         bs.screenshot(page, "station-typed-nominal-tolerance", timeout=60_000)
@@ -276,7 +276,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         text_input("Operator").fill("A. Operator")
         text_input("Temperature (°C)").fill("20.3")
         page.get_by_role("button", name="Save header").click(force=True)
-        bs.wait_until(lambda: station.info.get("temperature") == 20.3, 20.0, "the report header saved")
+        bs.wait_until(lambda: station.measurement.info.get("temperature") == 20.3, 20.0, "the report header saved")
         save_box = page.get_by_role("button", name="Save header").bounding_box()
         assert save_box["y"] > LAPTOP[1] / 2 and scrolled_by(page) > 200  # scrolled down to the end of the tab ...
         assert_status_bar_on_screen(page, LAPTOP, "laptop, Features tab scrolled")  # ... the bar on screen
@@ -289,14 +289,14 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
         page.get_by_role("button", name="Compute 3-2-1").click(force=True)
         page.get_by_text("part origin at").wait_for()
-        before = np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
+        before = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         page.get_by_role("button", name="Apply alignment").click(force=True)
-        bs.wait_until(lambda: station.aligned, 20.0, "the alignment applied")
-        after = np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
+        bs.wait_until(lambda: station.measurement.aligned, 20.0, "the alignment applied")
+        after = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         assert before > 0.1 and after < 0.01, (before, after)  # the set-up error is found to a few um
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates")
         status.get_by_text("part", exact=True).wait_for()
-        pos = station.part.pose[:3, :3].T @ (station.state.position - station.part.pose[:3, 3])
+        pos = station.measurement.part.pose[:3, :3].T @ (station.machine.state.position - station.measurement.part.pose[:3, 3])
         assert f"X {pos[0]:.4f}" in status.inner_text()
         bs.screenshot(page, "station-aligned", timeout=60_000)
 
@@ -314,12 +314,12 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_role("button", name="Apply alignment").click(force=True)
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
         status.get_by_text("part", exact=True).wait_for()
-        assert np.abs(station.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
+        assert np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
         assert page.log.page_errors == [], page.log.problems
 
         # --- the customer report of this session, printed to PDF by chromium
-        session = Session.from_events(read_events(station.journal.path).events, "walk")  # fsync'ed per event
-        html = render(session, mesh=station.part.mesh)
+        session = Session.from_events(read_events(station.measurement.journal.path).events, "walk")  # fsync'ed per event
+        html = render(session, mesh=station.measurement.part.mesh)
         assert "A. Operator" in html and "20.3 °C" in html
         assert "No alignment was made" not in html  # aligned; the features measured before it moved with the part
         assert "angle" in html and "position ⌀" in html
@@ -356,7 +356,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.get_by_text("cannot probe: the machine is in fault (link failure").first.wait_for()
             assert any(t == "Probe here refused" and "Reset (or reconnect) first" in b
                        for _l, t, b in page.capp.messages), page.capp.messages[-3:]
-            assert not station.state.moving
+            assert not station.machine.state.moving
             bs.screenshot(page, "station-fault", timeout=60_000)
             # Reset while the link is down: refused (Reconnect first); the Machine tab says the way back
             page.mouse.wheel(0, -5000)
@@ -425,6 +425,6 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         for sel in ("#stop", ".pad"):
             box = pendant.locator(sel).bounding_box()
             assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= TABLET[1], (sel, box)
-        x = station.state.position[0]
+        x = station.machine.state.position[0]
         pendant.get_by_text(f"{x:.3f}").first.wait_for()  # the DRO
         bs.screenshot(pendant, "station-pendant-tablet")

@@ -1,7 +1,7 @@
 """The viser station page in real headless chromium, driving a real (simulated) station in-process.
 
 The station and the viser app run in this process (loopback only), so the tests
-assert on ``station.state`` / ``station.hits`` and on the per-client
+assert on ``station.machine.state`` / ``station.measurement.hits`` and on the per-client
 :class:`~cmm.ui.panels.ClientApp` while chromium presses the buttons and clicks
 the 3D canvas. Needs the Python package ``playwright`` and Debian's
 ``chromium``; skipped with the reason otherwise. Screenshots go to
@@ -84,7 +84,7 @@ def open_page(context, app, station):
     yield opener
     for page in pages:
         page.close()
-    station.stop()
+    station.controller.stop(None)
     station.wait_idle(20)
     bs.wait_until(lambda: app.control.holder is None, 5.0, "control released by the closed pages")
 
@@ -92,7 +92,7 @@ def open_page(context, app, station):
 # --- helpers --------------------------------------------------------------------------------------
 
 def speed(station) -> float:
-    return max(abs(a.velocity) for a in station.state.axes)
+    return max(abs(a.velocity) for a in station.machine.state.axes)
 
 
 def take_control(page, app) -> None:
@@ -140,11 +140,11 @@ def project(camera, point_scene: np.ndarray) -> tuple[float, float]:
 
 def visible_top_point(station, camera) -> np.ndarray:
     """A point of the part's top face (machine mm) that the camera sees directly (nothing in front of it)."""
-    pose = station.part.pose
+    pose = station.measurement.part.pose
     eye_mm = np.asarray(camera.position) / SCALE
     for u, v in TOP_FACE_CANDIDATES:
         target = pose[:3, :3] @ np.array([u, v, TOP_Z]) + pose[:3, 3]
-        result = station.pick(eye_mm, target - eye_mm)
+        result = station.measurement.pick(eye_mm, target - eye_mm)
         if result is not None and np.linalg.norm(result[0].point - target) < 0.5:
             return target
     raise AssertionError("no candidate point of the top face is visible from the initial camera")
@@ -155,7 +155,7 @@ def visible_top_point(station, camera) -> np.ndarray:
 def test_page_loads_and_shows_the_position(open_page, station):
     page = open_page()
     page.wait_for_timeout(1500)  # let the scene render and any late errors surface
-    x, y, z = station.state.position
+    x, y, z = station.machine.state.position
     for axis, value in zip("XYZ", (x, y, z)):
         cells = machine_row(page, axis)
         assert cells[1] == f"{value:.4f}", (axis, cells)
@@ -189,10 +189,10 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     bs.screenshot(page, "viser-browser-picked-zoom", clip={"x": max(px - 80, 0), "y": max(py - 80, 0),
                                                             "width": 160, "height": 160})
 
-    before = len(station.hits)
+    before = len(station.measurement.hits)
     page.get_by_role("button", name="Probe here", exact=True).click()
-    bs.wait_until(lambda: len(station.hits) == before + 1, 40.0, "the hit from Probe here")
-    newest = station.hits[max(station.hits)]
+    bs.wait_until(lambda: len(station.measurement.hits) == before + 1, 40.0, "the hit from Probe here")
+    newest = station.measurement.hits[max(station.measurement.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
     open_tab(page, "Probe")
     page.get_by_text("contact point:").wait_for(timeout=5_000)
@@ -209,14 +209,14 @@ def test_observer_cannot_jog(open_page, app, station):
         observer.get_by_text("Observing; control is held by").first.wait_for()
         open_tab(observer, "Jog")
         station.wait_idle(20)
-        start = station.state.position.copy()
+        start = station.machine.state.position.copy()
         for _ in range(2):  # while another client holds control, then with nobody in control
             observer.mouse.move(*button_centre(observer, "hold X +"))
             observer.mouse.down()
             observer.wait_for_timeout(600)
             moved = speed(station)
             observer.mouse.up()
-            assert moved == 0 and np.array_equal(station.state.position, start)
+            assert moved == 0 and np.array_equal(station.machine.state.position, start)
             # the refusal is told (throttled: the same text at most every 2 s)
             assert any(title == "Jog" and "only observes" in body for _lvl, title, body in observer.capp.messages), \
                 observer.capp.messages[-3:]
@@ -232,11 +232,11 @@ def test_observer_cannot_jog(open_page, app, station):
     try:
         # the position, not the sampled velocity: at the probing jog speed a tick moves less than a count,
         # and software WebGL on a busy machine can delay viser's first hold refresh
-        bs.wait_until(lambda: station.state.position[0] > start[0] + 0.01, 10.0, "the jog after taking control")
+        bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 10.0, "the jog after taking control")
     finally:
         observer.mouse.up()
     bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
-    assert station.state.position[0] > start[0]
+    assert station.machine.state.position[0] > start[0]
 
 
 def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app, station):
@@ -249,31 +249,31 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     take_control(page, app)
     open_tab(page, "Jog")
     bs.screenshot(page, "viser-browser-jog-tab")
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
     events = []  # machine time of each dead-man stop
-    station.subscribe(lambda kind, info: events.append(station.state.time) if kind == "deadman" else None)
+    station.measurement.subscribe(lambda kind, info: events.append(station.machine.state.time) if kind == "deadman" else None)
     holds = []  # machine time of each hold event from the browser
     capp_hold = page.capp.jog_hold
-    page.capp.jog_hold = lambda *a: (holds.append(station.state.time), capp_hold(*a))
+    page.capp.jog_hold = lambda *a: (holds.append(station.machine.state.time), capp_hold(*a))
     kept = []  # machine time of each round of the station's hold keeper (25 Hz)
     capp_keep = page.capp.keep_hold
-    page.capp.keep_hold = lambda: (kept.append(station.state.time), capp_keep())
+    page.capp.keep_hold = lambda: (kept.append(station.machine.state.time), capp_keep())
     page.mouse.move(*button_centre(page, "hold X +"))
     page.mouse.down()
     samples = []  # (machine time, X)
     try:
-        bs.wait_until(lambda: station.state.axes[0].velocity > 0, 10.0, "the hold jog")
-        t0 = station.state.time
-        while station.state.time - t0 < 2.5:  # machine seconds (a busy test machine slows both sides alike)
-            st = station.state
+        bs.wait_until(lambda: station.machine.state.axes[0].velocity > 0, 10.0, "the hold jog")
+        t0 = station.machine.state.time
+        while station.machine.state.time - t0 < 2.5:  # machine seconds (a busy test machine slows both sides alike)
+            st = station.machine.state
             samples.append((st.time, st.position[0]))
             page.wait_for_timeout(20)
     finally:
         page.mouse.up()
     held = list(events)
     page.capp.keep_hold = capp_keep
-    t_release = station.state.time
+    t_release = station.machine.state.time
     assert bs.stop_time(station, t_release, "the stop on release") < STOP_WITHIN
     # A dead-man stop while held is a failure unless this test process was starved of CPU (other tests or jobs on
     # a 2-core machine): then neither the browser's holds nor the keeper's refreshes came for half the dead-man
@@ -289,12 +289,12 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
         starved.append(td)
     if starved:
         print(f"{len(starved)} dead-man stop(s) while the test process was starved of CPU (refreshes late)")
-    stopped = station.state.position.copy()
+    stopped = station.machine.state.position.copy()
     assert stopped[0] > start[0] + 10.0 and np.allclose(stopped[1:], start[1:])
     page.wait_for_timeout(400)
     # nothing keeps creeping after the release: the reported velocity is whole counts per tick, so the
     # last few micrometres of the stop (servo settling) may still come in after it reads 0
-    assert np.abs(station.state.position - stopped).max() <= 0.0041
+    assert np.abs(station.machine.state.position - stopped).max() <= 0.0041
     assert not page.capp._jogging and page.capp._hold is None
     t, x = np.array(samples).T
     holds = np.array(holds)
@@ -322,20 +322,20 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
                                             ("positioning", "hold X −", station.config.speeds.jog_fast, 0.5)):
         page.get_by_role("button", name=mode, exact=True).click()
         bs.wait_until(lambda: page.capp.speed_mode == mode, 10.0, f"the {mode} speed chosen")
-        x0 = station.state.position[0]
+        x0 = station.machine.state.position[0]
         page.mouse.move(*button_centre(page, button))
         page.mouse.down()
         samples = []
         try:
-            bs.wait_until(lambda: abs(station.state.position[0] - x0) > 0.01, 10.0, f"the {mode} jog")
-            t0 = station.state.time
-            while station.state.time - t0 < hold_s:
-                st = station.state
+            bs.wait_until(lambda: abs(station.machine.state.position[0] - x0) > 0.01, 10.0, f"the {mode} jog")
+            t0 = station.machine.state.time
+            while station.machine.state.time - t0 < hold_s:
+                st = station.machine.state
                 samples.append((st.time, st.position[0]))
                 page.wait_for_timeout(20)
         finally:
             page.mouse.up()
-        assert bs.stop_time(station, station.state.time, f"the stop after the {mode} jog") < STOP_WITHIN
+        assert bs.stop_time(station, station.machine.state.time, f"the stop after the {mode} jog") < STOP_WITHIN
         t, x = np.array(samples).T
         steady = t > t[0] + 0.1  # 400 mm/s^2: at 40 mm/s within 0.1 s
         v = abs(np.polyfit(t[steady], x[steady], 1)[0])
@@ -361,7 +361,7 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
                   f"the embedded pendant sharing the page's control (shows {control.inner_text()!r})")
     # hold X + in the embedded pendant: the machine jogs for the page's client, and stops on release
     station.wait_idle(20)
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     # the pad is below the fold of the 300 px frame (scrolled by script: a cross-origin frame's animation frames,
     # which Playwright's own scrolling waits for, may be throttled while it is partly hidden)
     frame.locator(".pad .xp").evaluate("e => e.scrollIntoView({block: 'center'})")
@@ -370,11 +370,11 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
     page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
     page.mouse.down()
     try:
-        bs.wait_until(lambda: station.state.position[0] > start[0] + 0.5, 20.0, "the embedded pendant's jog")
+        bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.5, 20.0, "the embedded pendant's jog")
         bs.screenshot(page, "viser-browser-embedded-pendant-shared")
     finally:
         page.mouse.up()
-    assert bs.stop_time(station, station.state.time, "the stop on release") < STOP_WITHIN
+    assert bs.stop_time(station, station.machine.state.time, "the stop on release") < STOP_WITHIN
     assert app.control.holder == page.capp.client_id  # the pendant never became a holder of its own
 
     # another tab that copied the token: refused while the embedded pendant uses it; it stays an observer
@@ -407,29 +407,29 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     page = open_page()
     take_control(page, app)
     open_tab(page, "Jog")
-    target = station.part.pose[:3, :3] @ np.array([15.0, 68.0, TOP_Z + 4.0]) + station.part.pose[:3, 3]
+    target = station.measurement.part.pose[:3, :3] @ np.array([15.0, 68.0, TOP_Z + 4.0]) + station.measurement.part.pose[:3, 3]
     page.capp.go_to(*target).wait(60)
     page.get_by_role("button", name="positioning", exact=True).click()
     page.get_by_text("Manual probing (armed jog)").click()
     bs.wait_until(lambda: page.capp.manual_probe and page.capp.speed_mode == "positioning", 10.0, "armed, fast")
     qualified = page.capp.station_probing_speed()
     assert qualified < station.config.speeds.jog_fast / 4
-    hits = len(station.hits)
+    hits = len(station.measurement.hits)
     page.mouse.move(*button_centre(page, "hold Z −"))
     samples = []  # (machine time, Z) while descending
     page.mouse.down()
     try:
-        bs.wait_until(lambda: station.state.position[2] < target[2] - 0.05, 30.0, "the armed jog down")
-        end = station.state.time + 20.0
-        while len(station.hits) == hits and station.state.time < end:
-            st = station.state
+        bs.wait_until(lambda: station.machine.state.position[2] < target[2] - 0.05, 30.0, "the armed jog down")
+        end = station.machine.state.time + 20.0
+        while len(station.measurement.hits) == hits and station.machine.state.time < end:
+            st = station.machine.state
             samples.append((st.time, st.position[2]))
             page.wait_for_timeout(30)
     finally:
         page.mouse.up()
-    bs.wait_until(lambda: len(station.hits) == hits + 1, 20.0,
-                  f"the manual hit (Z {station.state.position[2]:.3f}; told {page.capp.messages[-3:]})")
-    hit = station.hits[max(station.hits)]
+    bs.wait_until(lambda: len(station.measurement.hits) == hits + 1, 20.0,
+                  f"the manual hit (Z {station.machine.state.position[2]:.3f}; told {page.capp.messages[-3:]})")
+    hit = station.measurement.hits[max(station.measurement.hits)]
     assert hit.mode == "manual" and hit.point[2] == pytest.approx(TOP_Z, abs=0.01)
     t, z = np.array(samples).T
     moving = (t > t[0] + 0.3) & (z > TOP_Z + 1.5)  # past the acceleration, before the touch

@@ -131,7 +131,7 @@ def test_a_client_that_disconnects_during_a_move_leaves_the_machine_stopped(serv
     assert np.allclose(station.machine.position, stopped, atol=0.005)  # it stays where it stopped
     assert stopped[0] < 300.0  # far from the target: stopped, not finished
     wait_until(lambda: server.client is None)
-    assert "disconnected during a move" in open(station.journal.path).read()
+    assert "disconnected during a move" in open(station.measurement.journal.path).read()
     with connected(server) as again:  # the next client gets the machine
         assert again.call("StartSession()").ok
 
@@ -186,7 +186,7 @@ def test_a_client_that_never_reads_is_dropped_and_the_machine_stops(tmp_path):
 
 def test_ptmeas_reports_the_tip_centre_and_the_session_is_recorded(served, tmp_path):
     server, station = served
-    part = station.part
+    part = station.measurement.part
     top = (part.pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face (part coordinates)
     with connected(server) as c:
         ready(c, speed=50)
@@ -206,7 +206,7 @@ def test_ptmeas_reports_the_tip_centre_and_the_session_is_recorded(served, tmp_p
         t = c.call(f"PtMeas(X({beside[0]}), Y({beside[1]}), Z({beside[2]}), IJK(0, 0, 1))")
         assert [e.error_number for e in t.errors] == [1006]  # surface not found
         c.call("EndSession()")
-    journal = station.journal.path
+    journal = station.measurement.journal.path
     session = load_session(DirectoryStore(journal.parent), journal.stem)
     assert journal.stem.startswith("ippdme-") and len(session.hits) == 1
     (hit,) = session.hits.values()

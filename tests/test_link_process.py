@@ -411,9 +411,9 @@ def test_cmm_serves_default_simulator_is_driven_through_a_link_process(tmp_path)
         m = station.machine
         assert m.guarded and isinstance(m.bus, RemoteBus) and m.bus.port_name.startswith("socket://127.0.0.1:")
         for _ in range(6):
-            station.jog([0.0, 20.0, 0.0])
+            station.controller.jog(None, [0.0, 20.0, 0.0])
             time.sleep(0.05)
-        station.jog_release()
+        station.controller.jog_release(None)
         assert _wait(lambda: station.controller.state.mode in (Mode.IDLE, Mode.NOT_HOMED)
                      and not station.controller.state.machine.moving), station.controller.state
         assert m.bus.guard[1] == "release"

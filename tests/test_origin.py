@@ -152,14 +152,14 @@ def test_the_stations_own_page_can_take_control(app):
 ])
 def test_a_foreign_page_is_refused_before_any_message(app, origin, host):
     before = len(app.clients)
-    position = app.station.state.position.copy()
+    position = app.station.machine.state.position.copy()
     origin = origin.format(port=app.port)
     result = attack(app.port, origin=origin, host=host.format(port=app.port) if host else None, seconds=3.0)
     assert result["closed"] == 1008 and result["messages"] == 0 and not result["clicked"], result
     assert app.control.holder is None
     assert len(app.clients) <= before and not set(app.clients) & app._refused  # no panels were built for it
     assert any(origin in r or "unknown host" in r for r in app.origins.refused)
-    assert np.allclose(app.station.state.position, position, atol=0.0021)
+    assert np.allclose(app.station.machine.state.position, position, atol=0.0021)
 
 
 def test_the_pendant_port_refuses_foreign_pages_too(app):

@@ -38,7 +38,7 @@ def _serve(station, control):
 
 @pytest.fixture
 def control(station):
-    return Control(access_code="open-sesame", on_holder_lost=lambda _cid: station.jog_release())
+    return Control(access_code="open-sesame", on_holder_lost=lambda _cid: station.controller.jog_release(None))
 
 
 @pytest.fixture
@@ -111,12 +111,12 @@ def client(server, station):
 
 
 def speed(station) -> float:
-    return max(abs(a.velocity) for a in station.state.axes)
+    return max(abs(a.velocity) for a in station.machine.state.axes)
 
 
 def now(station) -> float:
     """The station's clock: simulated seconds of the last published state."""
-    return station.state.time
+    return station.machine.state.time
 
 
 def time_to_stop(station, since: float) -> float:
@@ -167,17 +167,17 @@ def test_hello_reports_speeds_and_state(server, station, client):
     assert hello["local"] is True and hello["deadman_ms"] == 200
     state = c.wait_for("state")
     assert state["control"] is False and state["holder"] is None
-    assert state["pos"] == pytest.approx(list(station.state.position), abs=1e-3)
+    assert state["pos"] == pytest.approx(list(station.machine.state.position), abs=1e-3)
 
 
 def test_observer_cannot_jog(server, station, control, client):
     c = client()
     c.send(type="hello")
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     c.jog_for([20, 20, 0], 0.4)
     assert any("not in control" in e for e in c.errors())
     assert speed(station) == 0
-    assert (station.state.position == start).all()
+    assert (station.machine.state.position == start).all()
     assert control.holder is None
 
 
@@ -190,9 +190,9 @@ def test_remote_pendant_needs_the_code(server, station, control, client, monkeyp
     c.send(type="stop")  # an anonymous LAN observer may not stop a measurement it cannot see
     c.wait_for("error")
     assert "stop refused" in c.errors()[-1]
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     c.jog_for([20, 0, 0], 0.3)
-    assert (station.state.position == start).all() and control.holder is None
+    assert (station.machine.state.position == start).all() and control.holder is None
     time.sleep(0.25)  # past the access-code rate limit (one attempt per 0.2 s)
     c.send(type="take", code="open-sesame")
     assert c.wait_for("control")["control"] is True
@@ -215,9 +215,9 @@ def test_holder_jogs_and_release_stops(server, station, client):
     c = client()
     c.send(type="hello", code=None)  # local: no code needed
     assert c.wait_for("control")["control"] is True
-    start = station.state.position.copy()
+    start = station.machine.state.position.copy()
     c.jog_for([20, 10, 0], 0.5)
-    moved = station.state.position - start
+    moved = station.machine.state.position - start
     assert moved[0] > 4 and moved[1] > 2 and abs(moved[2]) < 1e-6, moved
     state = [m for m in c.messages if m["type"] == "state"][-1]
     assert state["control"] is True and state["holder"] == "you" and state["jogging"] is True
@@ -230,9 +230,9 @@ def test_silence_stops_the_jog(server, station, client):
     c = client()
     c.send(type="take")
     c.wait_for("control")
-    x0 = station.state.position[0]
+    x0 = station.machine.state.position[0]
     last = c.jog_for([20, 0, 0], 0.3)
-    assert station.state.position[0] > x0 + 2
+    assert station.machine.state.position[0] > x0 + 2
     assert time_to_stop(station, last) < STOP_WITHIN  # no release, no message: the dead-man stops it
 
 

@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 import session_support as sup
+from cmm.measurement.model import Part
+from cmm.measurement.program import run_on, run_program
+from cmm.measurement.recording import record
 from cmm.session import program as prog
-from cmm.session.recorder import PartInfo, SessionRecorder
 from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.sample_part import reference_sphere
 
@@ -63,11 +65,11 @@ def test_program_taught_on_one_pose_measures_the_same_on_a_second_pose(taught, t
     results = []
     for true_pose, guess in ((None, sup.NOMINAL_PART_POSE), (sup.SECOND_POSE, sup.SECOND_GUESS)):
         sim, machine, prober = sup.setup(true_pose)
-        part = PartInfo("sample part", sim.part_mesh, guess.copy(), dict(sim.nominal_features))
-        rec = SessionRecorder(DirectoryStore(tmp_path).create(f"run{len(results)}"), machine, prober, part)
+        part = Part("sample part", sim.part_mesh, guess.copy(), dict(sim.nominal_features))
+        rec = record(DirectoryStore(tmp_path).create(f"run{len(results)}"), machine, prober, part)
         try:
             pose = sup.align(rec, guess)
-            run = prog.run_program(taught, rec, pose)
+            run = run_program(taught, rec, pose)
         finally:
             rec.close()
             machine.close()
@@ -91,9 +93,9 @@ def test_program_taught_on_one_pose_measures_the_same_on_a_second_pose(taught, t
 
 def _recorder(tmp_path, mesh=None, nominals=None):
     sim, machine, prober = sup.setup()
-    part = PartInfo("other", mesh if mesh is not None else sim.part_mesh, sup.NOMINAL_PART_POSE.copy(),
+    part = Part("other", mesh if mesh is not None else sim.part_mesh, sup.NOMINAL_PART_POSE.copy(),
                     dict(sim.nominal_features) if nominals is None else nominals)
-    return SessionRecorder(DirectoryStore(tmp_path).create("refused"), machine, prober, part), machine
+    return record(DirectoryStore(tmp_path).create("refused"), machine, prober, part), machine
 
 
 def _refused(program, tmp_path, match, **kw):
@@ -101,7 +103,7 @@ def _refused(program, tmp_path, match, **kw):
     start = machine.position.copy()
     try:
         with pytest.raises(prog.ProgramError, match=match):
-            prog.run_program(program, rec, sup.NOMINAL_PART_POSE)
+            run_program(program, rec, sup.NOMINAL_PART_POSE)
         assert np.allclose(machine.position, start)  # nothing moved
         assert rec.hits == {}
     finally:
@@ -140,26 +142,13 @@ def test_bad_program_files_are_refused_with_a_message(tmp_path):
         prog.load(tmp_path / "missing.toml")
 
 
-def test_station_and_recorder_are_both_program_targets(tmp_path):
-    from cmm.station import Station
-
-    rec, machine = _recorder(tmp_path)
-    try:
-        assert isinstance(rec, prog.ProgramTarget)
-    finally:
-        rec.close()
-        machine.close()
-    station = Station(port="sim://?cmm=1", session_dir=tmp_path / "sessions")
-    try:
-        assert isinstance(station, prog.ProgramTarget)
-    finally:
-        station.close()
-    with pytest.raises(TypeError, match="Station or a SessionRecorder"):
-        prog.run_program(prog.Program("x", "p", "ab", [], [], 10.0), object())
+def test_a_program_runs_on_a_measurement_model_only(tmp_path):
+    with pytest.raises(TypeError, match="runs on a measurement model, not on object"):
+        run_program(prog.Program("x", "p", "ab", [], [], 10.0), object())
 
 
 def test_a_program_run_on_the_station_journals_its_features_with_their_tolerances(taught, tmp_path):
-    """The front ends' path (Station.run_program, in the machine loop) records each feature's tolerance."""
+    """The front ends' path (a job of the control core, on the station's model) records each feature's tolerance."""
     from cmm.station import Station
 
     program = prog.from_toml(prog.to_toml(taught))
@@ -172,9 +161,9 @@ def test_a_program_run_on_the_station_journals_its_features_with_their_tolerance
         f.tolerance = tolerances[f.name]
     station = Station(port="sim://?cmm=1", session_dir=tmp_path).start("station-run", home=True)
     try:
-        run = station.run_program(program)
+        run = run_on(station.controller, station.measurement, program)
         assert set(run.features) == {"top_plane", "dome"}
-        assert {f.name: f.tolerance for f in station.features.values()} == tolerances
+        assert {f.name: f.tolerance for f in station.measurement.features.values()} == tolerances
     finally:
         station.close()
     s = load_session(DirectoryStore(tmp_path), "station-run")

@@ -1,4 +1,4 @@
-"""Journal durability: a killed recorder loses no acknowledged hit; damaged journals open with every intact event."""
+"""Journal durability: a killed recording loses no acknowledged hit; damaged journals open with every intact event."""
 
 from __future__ import annotations
 
@@ -24,11 +24,12 @@ CHILD = textwrap.dedent("""
     sys.path.insert(0, {tests!r})
     import numpy as np
     import session_support as sup
-    from cmm.session.recorder import PartInfo, SessionRecorder
+    from cmm.measurement.model import Part
+    from cmm.measurement.recording import record
     from cmm.session.store import DirectoryStore
     sim, machine, prober = sup.setup()
-    part = PartInfo("sample part", sim.part_mesh, sim.settings.part_pose.copy())
-    rec = SessionRecorder(DirectoryStore({root!r}).create("killed"), machine, prober, part)
+    part = Part("sample part", sim.part_mesh, sim.settings.part_pose.copy())
+    rec = record(DirectoryStore({root!r}).create("killed"), machine, prober, part)
     print("ready", flush=True)
     k = 0
     while True:
@@ -39,7 +40,7 @@ CHILD = textwrap.dedent("""
 """)
 
 
-def test_killing_the_recorder_loses_no_acknowledged_hit(tmp_path):
+def test_killing_the_recording_loses_no_acknowledged_hit(tmp_path):
     tests = str(Path(__file__).parent)
     child = subprocess.Popen([sys.executable, "-c", CHILD.format(tests=tests, root=str(tmp_path))],
                              stdout=subprocess.PIPE, text=True)

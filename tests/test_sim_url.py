@@ -118,8 +118,8 @@ def test_station_runs_in_process_on_the_virtual_clock(tmp_path):
     try:
         assert st.port.startswith("sim://world") and st.sim is not None
         assert sim_url.get(st.port).cmm is st.sim  # the composition root reaches the world it opened
-        top = (st.part.pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]
-        hit = st.probe(top, [0, 0, -1], clearance_z=70.0).wait(30)
+        top = (st.measurement.part.pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]
+        hit = st.measurement.probe(top, [0, 0, -1], clearance_z=70.0).wait(30)
         assert abs(hit.point[2] - top[2]) < 0.5  # the simulated part is where the set-up says, give or take
         assert st.sim.triggers >= 1
     finally:

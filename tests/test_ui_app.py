@@ -40,7 +40,7 @@ def operator(app):
     assert capp.take_control()
     yield capp
     capp.release_control()
-    app.station.stop()
+    app.station.controller.stop(None)
     app.station.wait_idle(10)
 
 
@@ -52,9 +52,9 @@ def _wait_done(status, timeout=30.0, capp=None):
 
 def _above_part(station) -> np.ndarray:
     """A point 30 mm above the sample part's top, over a flat face (part X=60, Y=40)."""
-    b = station.part.mesh.bounds
+    b = station.measurement.part.mesh.bounds
     local = np.array([60.0, 40.0, b[1][2] + 30.0])
-    return station.part.pose[:3, :3] @ local + station.part.pose[:3, 3]
+    return station.measurement.part.pose[:3, :3] @ local + station.measurement.part.pose[:3, 3]
 
 
 def test_page_is_served(app):
@@ -112,29 +112,29 @@ def test_browser_tab_gets_its_own_gui(app):
 
 
 def test_go_to_moves_the_machine(app, operator):
-    start = app.station.state.position
+    start = app.station.machine.state.position
     target = start + np.array([3.0, 2.0, -4.0])
     _wait_done(operator.go_to(*target))
-    assert np.allclose(app.station.state.position, target, atol=0.0021)
+    assert np.allclose(app.station.machine.state.position, target, atol=0.0021)
     _, fe = app.following_error_series()  # the shipped SC configuration reads it: the plot has data
     assert all(np.isfinite(f).any() for f in fe)
 
 
 def test_nan_target_is_an_error_notification_and_no_motion(app, operator):
-    before = app.station.state.position
+    before = app.station.machine.state.position
     assert operator.go_to(float("nan"), 10.0, 10.0) is None
     level, title, body = operator.messages[-1]
     assert level == "error" and "not a number" in body
     time.sleep(0.1)
     assert not app.station.machine.busy
-    assert np.allclose(app.station.state.position, before, atol=0.0021)  # servo settling of a count is not motion
+    assert np.allclose(app.station.machine.state.position, before, atol=0.0021)  # servo settling of a count is not motion
     operator.go_to(1e6, 0, 0)
     assert "outside the travel" in operator.messages[-1][2]
 
 
 def test_observer_cannot_move(app, operator):
     observer = app.add_client(client_id="observer", is_local=False)
-    before = app.station.state.position
+    before = app.station.machine.state.position
     assert observer.go_to(*(before + 1.0)) is None
     observer.jog_hold(0, 1)
     observer.step(0, 1)
@@ -142,30 +142,30 @@ def test_observer_cannot_move(app, operator):
     assert all(level == "error" for level, _, _ in observer.messages)
     time.sleep(0.15)
     assert not app.station.machine.busy
-    assert np.allclose(app.station.state.position, before)
+    assert np.allclose(app.station.machine.state.position, before)
     observer.stop()  # stopping is open to everyone
     assert operator.control.can_move("operator")
 
 
 def test_jog_hold_moves_and_stops_when_refresh_stops(app, operator):
     st = app.station
-    start = st.state.position.copy()
+    start = st.machine.state.position.copy()
     operator.speed_mode = "probing"
     end = time.monotonic() + 0.5
     while time.monotonic() < end:  # the browser's on_hold at 20 Hz
         operator.jog_hold(0, 1)
         time.sleep(0.05)
-    assert st.state.position[0] > start[0] + 1.0
-    released = st.state.time  # no more refreshes; no release event either (lost pointer-up). Machine time:
+    assert st.machine.state.position[0] > start[0] + 1.0
+    released = st.machine.state.time  # no more refreshes; no release event either (lost pointer-up). Machine time:
     wall_end = time.monotonic() + 30  # a loaded test machine slows the simulated one down with it
     while st.machine.busy and time.monotonic() < wall_end:
         time.sleep(0.005)
-    stopped_after = st.state.time - released
+    stopped_after = st.machine.state.time - released
     assert not st.machine.busy
     assert stopped_after < HOLD_GRACE_S + 0.2, stopped_after  # the hold keeper bridges late holds, then releases
-    x = st.state.position[0]
+    x = st.machine.state.position[0]
     time.sleep(0.1)
-    assert abs(st.state.position[0] - x) < 0.01  # settled (a count or two of servo settling)
+    assert abs(st.machine.state.position[0] - x) < 0.01  # settled (a count or two of servo settling)
 
 
 def test_jog_release_event_stops_at_once(app, operator):
@@ -173,20 +173,20 @@ def test_jog_release_event_stops_at_once(app, operator):
     for _ in range(5):
         operator.jog_hold(1, 1)
         time.sleep(0.04)
-    t0 = st.state.time  # the simulator's clock: load on the test machine cannot make the stop look late
+    t0 = st.machine.state.time  # the simulator's clock: load on the test machine cannot make the stop look late
     operator.jog_release()
     wall_end = time.monotonic() + 30
     while st.machine.busy and time.monotonic() < wall_end:
         time.sleep(0.005)
-    assert not st.machine.busy and st.state.time - t0 < 0.2
+    assert not st.machine.busy and st.machine.state.time - t0 < 0.2
 
 
 def test_step_jog_one_count(app, operator):
     st = app.station
     operator.step_size = "1 count"
-    before = st.state.counts[2]
+    before = st.machine.state.counts[2]
     _wait_done(operator.step(2, -1), 10, operator)
-    assert st.state.counts[2] == before - 1
+    assert st.machine.state.counts[2] == before - 1
 
 
 def test_pick_probe_here_and_fit(app, operator):
@@ -199,17 +199,17 @@ def test_pick_probe_here_and_fit(app, operator):
     target = hit.point
     assert np.allclose(hit.normal, [0, 0, 1])
     assert nominal is not None and nominal.kind == "plane"
-    n_before = len(st.hits)
+    n_before = len(st.measurement.hits)
     _wait_done(operator.probe_here(), 40)
-    assert len(st.hits) == n_before + 1
-    assert abs(st.last_hit.point[2] - target[2]) < 0.01
+    assert len(st.measurement.hits) == n_before + 1
+    assert abs(st.measurement.last_hit.point[2] - target[2]) < 0.01
     for dx, dy in ((6, 0), (6, 6), (0, 6)):  # three more hits on the same face
         p = target + [dx, dy, 0]
         again = operator.pick(p + [0, 0, 30], [0, 0, -1])
         assert again is not None and abs(again[0].point[2] - target[2]) < 1e-9
         _wait_done(operator.probe_here(), 20)
     app.redraw()
-    assert set(app.deviations()) == set(st.hits)
+    assert set(app.deviations()) == set(st.measurement.hits)
     feature = operator.fit("plane", "ls", last_n=4)
     assert feature is not None, operator.messages[-3:]
     assert feature.kind == "plane" and len(feature.hit_ids) == 4
@@ -221,9 +221,9 @@ def test_pick_probe_here_and_fit(app, operator):
     app.redraw()
     assert feature.id in app.view._feature_nodes
     # undo removes the last hit; a fit needs the hits it names
-    last = max(st.hits)
+    last = max(st.measurement.hits)
     operator.undo()
-    assert last not in st.hits
+    assert last not in st.measurement.hits
     assert operator.fit("sphere", "ls", ids_text=str(last)) is None
     assert operator.messages[-1][0] == "error"
 
@@ -266,7 +266,7 @@ def test_probe_node_follows_micrometre_moves(app, operator):
     operator.step_size = "1 count"
     _wait_done(operator.step(0, 1), 10)
     time.sleep(0.1)  # a few updater ticks
-    assert np.allclose(np.asarray(app.view.probe.position) / SCALE, st.state.position, atol=1e-9)
+    assert np.allclose(np.asarray(app.view.probe.position) / SCALE, st.machine.state.position, atol=1e-9)
     assert app.updater.pushes > 0
 
 
@@ -277,8 +277,8 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator):
 
     st = app.station
     text = status_html(st, operator.control_text(), frame="Machine", link_rate=100.0)
-    x, y, z = st.state.position
-    mode = str(st.control_state.mode.value).upper()  # idle, or stopped after the previous test's STOP
+    x, y, z = st.machine.state.position
+    mode = str(st.controller.state.mode.value).upper()  # idle, or stopped after the previous test's STOP
     assert f">{mode}</span>" in text and f"X {x:.4f}" in text and "link <span class=''>ok" in text
     assert "SILENT" in status_html(st, "", link_rate=0.0)
     part = status_html(st, "", frame="Part")
@@ -315,11 +315,11 @@ def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, o
     operator.features.retake_hit(old)
     assert operator.features.retake is not None
     p, u = plan.points[1], plan.approaches[1]
-    _wait_done(st.probe(p, u, client=operator.who()), 40)
+    _wait_done(st.measurement.probe(p, u, client=operator.who()), 40)
     operator.features.refresh()
-    refit = st.features[feature.id]
-    assert old not in refit.hit_ids and len(refit.hit_ids) == 3 and old not in st.hits
-    assert refit.hit_ids[1] == max(st.hits)
+    refit = st.measurement.features[feature.id]
+    assert old not in refit.hit_ids and len(refit.hit_ids) == 3 and old not in st.measurement.hits
+    assert refit.hit_ids[1] == max(st.measurement.hits)
     operator.refresh()
     other = app.add_client(client_id="second-operator", is_local=True)
     assert other.take_control()

@@ -81,7 +81,7 @@ def test_run_refused_for_observer_busy_machine_and_missing_certificate(app, oper
         st.calibration.run("observer-c", "servo", axes=("x",))
     assert not st.calibration.running
     # busy: a move is under way
-    start = st.state.position
+    start = st.machine.state.position
     status = operator.go_to(start[0] + 20.0, start[1], start[2])
     assert status is not None
     assert operator.calibration.run("Servo tuning", axes=("x",)) is None
@@ -173,7 +173,7 @@ def test_routine_failure_is_a_notification_and_changes_nothing(app, operator, re
     panel = operator.calibration
     settings = st.prober.settings
     text = (records / "probe.toml").read_text()
-    pos = st.state.position
+    pos = st.machine.state.position
     job = panel.run("iso", approx_centre=(pos[0], pos[1], max(pos[2] - 40.0, 20.0)))
     assert job is not None, operator.messages[-2:]
     assert job.wait(40)
@@ -185,7 +185,7 @@ def test_routine_failure_is_a_notification_and_changes_nothing(app, operator, re
     assert isinstance(job.error, calibration_errors()), repr(job.error)  # an operator's error, not a crash
     assert panel.result is None
     assert st.prober.settings is settings and (records / "probe.toml").read_text() == text
-    st.reset()
+    st.controller.reset(None)
 
 
 def test_geometry_bar_placement(app, operator):
@@ -237,7 +237,7 @@ def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_
         while not st.calibration.instruction and time.monotonic() < end:
             time.sleep(0.01)
         assert "set-up **X**" in st.calibration.instruction and not job.done
-        assert st.control_state.activity and "Machine geometry" in st.control_state.activity  # a job of the loop
+        assert st.controller.state.activity and "Machine geometry" in st.controller.state.activity  # a job of the loop
         other = app.add_client(client_id="other-tab", is_local=True)
         assert other.calibration.run("probe") is None  # one routine at a time, whichever tab
         panel.cancel()
@@ -247,4 +247,4 @@ def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_
         assert st.machine.correction is correction
     finally:
         st.sim = sim
-        st.reset()
+        st.controller.reset(None)

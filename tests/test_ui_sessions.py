@@ -42,12 +42,12 @@ def operator(app):
 def recorded(app, operator):
     """Three hits and a plane in session 'first', then a new live session 'second'."""
     st = app.station
-    b = st.part.mesh.bounds
+    b = st.measurement.part.mesh.bounds
     for dx, dy in ((60.0, 40.0), (70.0, 40.0), (65.0, 50.0)):
         local = np.array([dx, dy, b[1][2] + 30.0])
-        hit, _ = st.pick(st.part.pose[:3, :3] @ local + st.part.pose[:3, 3], [0.0, 0.0, -1.0])
-        st.probe_here(hit.point, hit.normal).wait(40)
-    assert len(st.hits) == 3
+        hit, _ = st.measurement.pick(st.measurement.part.pose[:3, :3] @ local + st.measurement.part.pose[:3, 3], [0.0, 0.0, -1.0])
+        st.measurement.probe_here(hit.point, hit.normal).wait(40)
+    assert len(st.measurement.hits) == 3
     assert operator.fit("plane", "ls", last_n=3) is not None, operator.messages[-2:]
     assert operator.sessions.new_session("second") is not None, operator.messages[-2:]
     assert operator.sessions.live_name() == "second"

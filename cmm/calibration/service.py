@@ -311,14 +311,14 @@ class CalibrationService:
         if routine == "probe":
             path = save_record(result.record, self.records_dir / PROBE_RECORD)
             self._log(host.apply_calibration(LoadedCalibration(probe=result.record), client=client))
-            host.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
+            host.measurement.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
                       f"{result.settings.pretravel.describe()}")
             return path, True
         if routine == "geometry":
             rec = result.record(self._geometry_artifact(), host.config.source)
             path = save_record(rec, self.records_dir / MACHINE_RECORD)
             self._log(host.apply_calibration(LoadedCalibration(machine=rec), client=client))
-            host.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
+            host.measurement.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
             return path, True
         if routine == "servo":
             return save_record(result.record(accepted, host.config.source),
@@ -339,7 +339,7 @@ class CalibrationService:
         host = self.host
         host.controller.configure(client, lambda: apply_gains(host.machine, result.proposed))
         path = save_record(result.record(True, host.config.source), self.records_dir / SERVO_RECORD)
-        host.note("servo gains accepted: " + "; ".join(
+        host.measurement.note("servo gains accepted: " + "; ".join(
             f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in result.proposed.items()))
         return path
 

@@ -87,7 +87,7 @@ class _Rig:
         if not self.station.simulated:  # the operator is told before the machine moves to its switches
             print("homing cycle: the machine moves to its home switches", flush=True)
         try:
-            self.station.home()
+            self.station.controller.home(None)
         except Exception as exc:  # noqa: BLE001 - said to the operator with what to check
             hint = ("the routines measure only on a homed machine; on a machine without home switches set "
                     "[homing] method = \"none\" in the configuration given with --config")

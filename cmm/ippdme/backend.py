@@ -157,12 +157,12 @@ class StationBackend:
 
     # --- journal ----------------------------------------------------------------------
     def begin_session(self, client: str) -> str:
-        path = self.station.new_session(time.strftime("ippdme-%Y%m%d-%H%M%S"))
-        self.station.note(f"I++ DME session started by {client}")
+        path = self.station.measurement.new_session(time.strftime("ippdme-%Y%m%d-%H%M%S"))
+        self.station.measurement.note(f"I++ DME session started by {client}")
         return str(path)
 
     def end_session(self) -> None:
-        self.station.note("I++ DME session ended")
+        self.station.measurement.note("I++ DME session ended")
 
     def note(self, text: str) -> None:
-        self.station.note(text)
+        self.station.measurement.note(text)

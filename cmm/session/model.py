@@ -324,7 +324,7 @@ class Session:
                 "derived_from": self.derived_from, "damage": self.damage}
 
 
-# --- snapshots and helpers used by the station and the recorder --------------------
+# --- snapshots and helpers used by the measurement model --------------------
 
 
 def axis_snapshot(axis: Any) -> dict:

@@ -27,13 +27,12 @@ writes a readable, editable TOML file::
     approach = [-1.0, 0.0, 0.0]   # unit direction into the surface, part coordinates
     clearance_z = 65.0            # part Z to climb to before moving to this hit
 
-``run_program(program, target, part_pose)`` (``target``: a :class:`ProgramTarget`,
-the Station or a SessionRecorder) checks the program
-against the loaded part (content hash, feature references, kinds, methods,
-point counts, machine travel) BEFORE anything moves and raises
-:class:`ProgramError` with a sentence naming the mismatch; then it probes
-every hit in position mode (``probe(..., clearance_z=...)``) and fits the
-features with their recorded kind and method.
+``check(program, part, pose, machine)`` refuses a program that does not fit
+the loaded part (content hash, feature references, kinds, methods, point
+counts, machine travel) with :class:`ProgramError` and a sentence naming the
+mismatch; :func:`cmm.measurement.program.run_program` checks BEFORE anything
+moves, then probes every hit and fits the features with their recorded kind
+and method.
 """
 
 from __future__ import annotations
@@ -42,13 +41,13 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 
 from ..metrology import fit_criteria, fit_ls
 from ..metrology.pick import NominalFeature
-from ..toml_text import toml_value
+from .toml_text import toml_value
 from .model import DEFAULT_TOLERANCE, Session, mesh_sha256
 
 FORMAT = "cmm-program/1"
@@ -249,7 +248,7 @@ def load(path: str | Path) -> Program:
 
 
 def part_hash(part: Any) -> str:
-    """The content hash of a loaded part (station Part or recorder PartInfo)."""
+    """The content hash of a loaded part (:class:`cmm.measurement.model.Part` or anything with a mesh)."""
     if getattr(part, "sha256", None):
         return str(part.sha256)
     return mesh_sha256(part.mesh)
@@ -316,66 +315,3 @@ def check(program: Program, part: Any, pose: Any = None, machine: Any = None, ti
                 machine.check_target([*(contact - cfg.approach_distance * u)[:2], cz])
             except Exception as exc:  # noqa: BLE001 - travel errors are operator sentences
                 raise ProgramError(f"hit {h.id} cannot be reached on this set-up: {exc}") from None
-
-
-@dataclass
-class ProgramRun:
-    program: Program
-    hit_ids: dict[int, int]  # program hit id -> session hit id
-    features: dict[str, Any]  # name -> the station's / recorder's feature object (with .result)
-
-
-@runtime_checkable
-class ProgramTarget(Protocol):
-    """What a program runs on: the Station (front ends run programs there, ``Station.run_program``) and the
-    headless SessionRecorder both implement exactly this, so a program journals the same on either (features
-    with their tolerances); no guessing which one it got."""
-
-    part: Any  # the loaded part (``pose``, ``nominal_features``, its content hash) or None
-    machine: Any  # travel limits and the probe configuration, for the checks before anything moves
-    prober: Any  # its ``settings.tip_radius``
-
-    def probe(self, point: Any, approach: Any, clearance_z: float | None = None) -> Any:
-        """A programmed hit; the returned status's ``wait()`` gives the recorded hit."""
-        ...
-
-    def hit_id(self, hit: Any) -> int:
-        """The session id the recorded ``hit`` got."""
-        ...
-
-    def fit_feature(self, kind: str, hit_ids: list[int], method: str = "ls", name: str | None = None,
-                    nominal: Any = None, tolerance: dict[str, float] | None = None) -> Any:
-        """Fit and journal a feature (with its tolerance)."""
-        ...
-
-    def note(self, text: str) -> None:
-        """A note in the session journal."""
-        ...
-
-
-def run_program(program: Program, target: ProgramTarget, part_pose: Any = None, *,
-                progress: Callable[[int, int], None] | None = None, timeout: float = 120.0) -> ProgramRun:
-    """Run ``program`` on ``target`` (the Station or a SessionRecorder) with the part at ``part_pose``
-    (part -> machine; default: the target's current part pose, i.e. its last alignment)."""
-    if not isinstance(target, ProgramTarget):
-        raise TypeError(f"a program runs on a Station or a SessionRecorder, not on {type(target).__name__}")
-    part = target.part
-    pose = np.asarray(part_pose if part_pose is not None else (None if part is None else part.pose), dtype=np.float64)
-    check(program, part, pose, target.machine, target.prober.settings.tip_radius)
-    target.note(f"program {program.name!r} started ({len(program.hits)} hits, {len(program.features)} features)")
-    ids: dict[int, int] = {}
-    targets = machine_targets(program, pose)
-    for k, (h, p, u, cz) in enumerate(targets):
-        hit = target.probe(p, u, clearance_z=cz).wait(timeout)
-        ids[h.id] = target.hit_id(hit)
-        if progress is not None:
-            progress(k + 1, len(targets))
-    feats = {}
-    for f in program.features:
-        nominal = None
-        if f.nominal:
-            nominal = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
-        feats[f.name] = target.fit_feature(f.kind, [ids[i] for i in f.hits], f.method, f.name, nominal,
-                                           tolerance=f.tolerance)
-    target.note(f"program {program.name!r} finished")
-    return ProgramRun(program, ids, feats)

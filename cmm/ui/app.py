@@ -61,7 +61,7 @@ class StationApp:
         self.pendant_url: str | None = None
         if pendant:
             self._start_pendant(pendant_port if pendant_port is not None else (port + 1 if port else 0))
-        station.subscribe(self._on_station_event)
+        station.measurement.subscribe(self._on_station_event)
         self.server.scene.on_click()(self._scene_clicked)
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -104,7 +104,7 @@ class StationApp:
 
     def _holder_lost(self) -> None:
         try:
-            self.station.jog_release()
+            self.station.controller.jog_release(None)
         except Exception:  # noqa: BLE001 - nothing was jogging
             pass
 
@@ -230,7 +230,7 @@ class StationApp:
         if self._dirty["hits"]:
             self._dirty["hits"] = False
             try:
-                self._deviations = self.station.hit_deviations()
+                self._deviations = self.station.measurement.hit_deviations()
             except Exception:  # noqa: BLE001
                 self._deviations = {}
             self.view.draw_hits(self._deviations)

@@ -3,7 +3,7 @@
 Choose the primary plane, the secondary (plane or line) and the tertiary
 (point, circle, sphere or plane) among the measured features, or the hits for
 a best fit; *Compute* shows the transform and residuals, *Apply* journals the
-alignment (:mod:`cmm.alignment`) and switches this tab's DRO to part
+alignment (:mod:`cmm.measurement.alignment`) and switches this tab's DRO to part
 coordinates.
 """
 
@@ -13,7 +13,7 @@ import re
 from typing import TYPE_CHECKING, Any
 
 from ..metrology.align import AlignmentError
-from .. import alignment
+from ..measurement import alignment
 
 if TYPE_CHECKING:
     from .panels import ClientApp
@@ -33,7 +33,7 @@ class AlignPanel:
 
     def compute_321(self, primary: int, secondary: int, tertiary: int) -> Any:
         try:
-            self.result = alignment.align_features(self.station, primary, secondary, tertiary)
+            self.result = alignment.align_features(self.station.measurement, primary, secondary, tertiary)
         except (AlignmentError, ValueError, KeyError) as exc:
             self.result = None
             return self.capp.error(exc, "3-2-1")
@@ -44,8 +44,8 @@ class AlignPanel:
         from .ids import parse_ids
 
         try:
-            ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.hits)
-            self.result = alignment.best_fit_hits(self.station, ids)
+            ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.measurement.hits)
+            self.result = alignment.best_fit_hits(self.station.measurement, ids)
         except (AlignmentError, ValueError) as exc:
             self.result = None
             return self.capp.error(exc, "Best fit")
@@ -57,7 +57,7 @@ class AlignPanel:
         if result is None:
             self.capp.error("compute an alignment first", "Align")
             return False
-        done = self.capp._run("Align", lambda: alignment.apply(self.station, result) or True)
+        done = self.capp._run("Align", lambda: alignment.apply(self.station.measurement, result) or True)
         if done:
             self.capp.status.set_frame("Part")
             self.capp.notify("Aligned", f"{result.method}: the DRO shows part coordinates")
@@ -66,9 +66,9 @@ class AlignPanel:
 
     def text(self) -> str:
         if self.result is None:
-            part = self.station.part
+            part = self.station.measurement.part
             return "*no alignment computed*" if part is None else "*no alignment computed*"
-        return self.result.text(None if self.station.part is None else self.station.part.pose)
+        return self.result.text(None if self.station.measurement.part is None else self.station.measurement.part.pose)
 
     def _show(self) -> None:
         self.capp._set("align:result", "content", self.text(), self.gui.get("result"))
@@ -94,8 +94,8 @@ class AlignPanel:
         return self.compute_321(*ids)  # type: ignore[arg-type]
 
     def refresh(self) -> None:
-        with self.station.lock:
-            feats = sorted(self.station.features.items())
+        with self.station.measurement.lock:
+            feats = sorted(self.station.measurement.features.items())
         opts = tuple(f"{fid} {f.name} ({f.kind})" for fid, f in feats) or ("-",)
         for k in ("p", "s", "t"):
             self.capp._set(f"align:{k}", "options", opts, self.gui.get(k))

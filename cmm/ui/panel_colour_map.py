@@ -43,7 +43,7 @@ class ColourMapPanel:
 
     def show(self, on: bool) -> Any:
         """Turn the map on or off; returns the map drawn (None when off or without a part)."""
-        if on and self.station.part is None:
+        if on and self.station.measurement.part is None:
             self.capp.error("load a part first: the map is painted on its mesh", "Colour map")
         dmap = self.view.show_colour_map(on, self.capp.app.deviations() or None)
         if on and self.view.map_error:
@@ -70,7 +70,7 @@ class ColourMapPanel:
         v = self.view
         if not v.map_on:
             return "*The map is off: the hits alone are coloured.*"
-        if self.station.part is None:
+        if self.station.measurement.part is None:
             return "*No part loaded.*"
         if v.map_error:
             return v.map_error
@@ -79,7 +79,7 @@ class ColourMapPanel:
             return "*drawing ...*"
         text = (f"{m.hits_used} hit{'s' if m.hits_used != 1 else ''} paint "
                 f"{m.coverage * 100:.0f} % of the surface ({len(m.mesh.faces)} faces); the rest is grey.")
-        left_out = len(self.station.hits) - m.hits_used
+        left_out = len(self.station.measurement.hits) - m.hits_used
         if left_out > 0:
             text += (f" {left_out} hit{'s' if left_out != 1 else ''} deviating more than "
                      f"±{m.scale.max_distance:g} mm (another surface, or the part not aligned?) take no part.")

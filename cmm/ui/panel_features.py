@@ -26,7 +26,7 @@ from ..metrology.characteristics import characteristics, constructed_characteris
 from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
 from ..metrology.pick import NominalFeature
-from ..station import FEATURE_KINDS, StationError
+from ..measurement.model import FEATURE_KINDS, MeasurementError
 
 if TYPE_CHECKING:
     from .panels import ClientApp
@@ -43,8 +43,8 @@ def feature_chars(f: Any) -> list[Any]:
 def tree_html(station: Any, selected: int | None = None) -> str:
     """The feature tree (pure: tested without a browser)."""
     e = html.escape
-    with station.lock:
-        feats = sorted(station.features.items())
+    with station.measurement.lock:
+        feats = sorted(station.measurement.features.items())
         built = sorted(getattr(station, "constructed", {}).items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
@@ -91,18 +91,18 @@ def typed_nominal(feature: Any, centre: Any = None, diameter: float | None = Non
     elif feature.kind == "plane":
         base = NominalFeature("plane", {"point": g["point"], "normal": g["normal"]})
     else:
-        raise StationError(f"a {feature.kind} has no nominal to type")
+        raise MeasurementError(f"a {feature.kind} has no nominal to type")
     p = base.params
     if diameter is not None:
         if base.kind not in ("cylinder", "sphere"):
-            raise StationError(f"a {base.kind} has no diameter")
+            raise MeasurementError(f"a {base.kind} has no diameter")
         if not (np.isfinite(diameter) and diameter > 0):
-            raise StationError(f"a nominal diameter must be a positive number, got {diameter}")
+            raise MeasurementError(f"a nominal diameter must be a positive number, got {diameter}")
         p["radius"] = float(diameter) / 2
     if centre is not None:
         c = np.asarray(centre, float)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
-            raise StationError("the nominal centre needs three finite coordinates")
+            raise MeasurementError("the nominal centre needs three finite coordinates")
         key = "center" if base.kind == "sphere" else "point"
         p[key] = c
     return NominalFeature(base.kind, p)
@@ -119,7 +119,7 @@ class FeaturesPanel:
 
     def selected(self) -> Any:
         fid = self.capp.selected_feature
-        return None if fid is None else self.station.features.get(fid)
+        return None if fid is None else self.station.measurement.features.get(fid)
 
     def remove_hit(self, hid: int) -> Any:
         f = self.selected()
@@ -127,7 +127,7 @@ class FeaturesPanel:
             return self.capp.error("select a feature first", "Remove hit")
         if hid not in f.hit_ids:
             return self.capp.error(f"hit {hid} is not in {f.name} (hits {f.hit_ids})", "Remove hit")
-        return self.capp._run("Remove hit", lambda: self.station.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
+        return self.capp._run("Remove hit", lambda: self.station.measurement.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
 
     def retake_hit(self, hid: int) -> None:
         f = self.selected()
@@ -135,23 +135,23 @@ class FeaturesPanel:
             return self.capp.error(f"pick a hit of the selected feature to re-take", "Re-take")
         if not self.capp.allowed("Re-take"):
             return
-        self.retake = (f.id, hid, max(self.station.hits, default=0))
+        self.retake = (f.id, hid, max(self.station.measurement.hits, default=0))
         self.capp.notify("Re-take", f"take the new hit for hit {hid} of {f.name} (Probe here, jog or auto)")
 
     def _check_retake(self) -> None:
         if self.retake is None:
             return
         fid, old, newest = self.retake
-        with self.station.lock:
-            fresh = sorted(h for h in self.station.hits if h > newest)
-            f = self.station.features.get(fid)
+        with self.station.measurement.lock:
+            fresh = sorted(h for h in self.station.measurement.hits if h > newest)
+            f = self.station.measurement.features.get(fid)
         if not fresh or f is None:
             return
         self.retake = None
         ids = [fresh[0] if h == old else h for h in f.hit_ids]
-        feature = self.capp._run("Re-take", lambda: self.station.refit_feature(fid, ids), guarded=False)
+        feature = self.capp._run("Re-take", lambda: self.station.measurement.refit_feature(fid, ids), guarded=False)
         if feature is not None:
-            self.capp._run("Re-take", lambda: self.station.delete_hit(old), guarded=False)
+            self.capp._run("Re-take", lambda: self.station.measurement.delete_hit(old), guarded=False)
             self.capp.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
 
     def nominal_from_pick(self) -> Any:
@@ -159,22 +159,22 @@ class FeaturesPanel:
         nominal = self.capp.picked[1] if self.capp.picked is not None else None
         if f is None or nominal is None:
             return self.capp.error("select a feature and click its surface on the part first", "Nominal")
-        return self.capp._run("Nominal", lambda: self.station.set_feature_nominal(f.id, nominal))
+        return self.capp._run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, nominal))
 
     def type_nominal(self, centre: Any = None, diameter: float | None = None) -> Any:
         f = self.selected()
         if f is None:
             return self.capp.error("select a feature first", "Nominal")
-        return self.capp._run("Nominal", lambda: self.station.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
+        return self.capp._run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
 
     def set_tolerance(self, **tol: float) -> Any:
         fid = self.capp.selected_feature
         if fid is None:
             return self.capp.error("select a feature first", "Tolerance")
-        return self.capp._run("Tolerance", lambda: self.station.set_feature_nominal(fid, tolerance=tol))
+        return self.capp._run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
 
     def construct(self, operation: str, a: int, b: int, name: str = "") -> Any:
-        c = self.capp._run("Construct", lambda: self.station.construct_feature(operation, a, b, name or None))
+        c = self.capp._run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None))
         if c is not None:
             self.capp.selected_feature = c.id
         return c
@@ -182,11 +182,11 @@ class FeaturesPanel:
     def delete_feature(self) -> None:
         fid = self.capp.selected_feature
         if fid is not None:
-            self.capp._run("Delete feature", lambda: self.station.delete_feature(fid))
+            self.capp._run("Delete feature", lambda: self.station.measurement.delete_feature(fid))
             self.capp.selected_feature = None
 
     def save_info(self, **fields: Any) -> Any:
-        return self.capp._run("Report header", lambda: self.station.set_info(**fields))
+        return self.capp._run("Report header", lambda: self.station.measurement.set_info(**fields))
 
     # --- read-outs -------------------------------------------------------------------------
 
@@ -194,8 +194,8 @@ class FeaturesPanel:
         f = self.selected()
         if f is None:
             return ""
-        with self.station.lock:
-            hits = {**self.station.deleted, **self.station.hits}
+        with self.station.measurement.lock:
+            hits = {**self.station.measurement.deleted, **self.station.measurement.hits}
         pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
         try:
             res = surface_distance(f.kind, f.result.summary(), pts)
@@ -215,8 +215,8 @@ class FeaturesPanel:
         return f"**{c.name}**: constructed {c.operation} of features {c.operands[0]} and {c.operands[1]}: {value}"
 
     def options(self) -> tuple[str, ...]:
-        with self.station.lock:
-            ids = sorted([(fid, f.name) for fid, f in self.station.features.items()]
+        with self.station.measurement.lock:
+            ids = sorted([(fid, f.name) for fid, f in self.station.measurement.features.items()]
                          + [(fid, c.name) for fid, c in getattr(self.station, "constructed", {}).items()])
         return tuple(f"{fid} {name}" for fid, name in ids) or ("-",)
 
@@ -261,7 +261,7 @@ class FeaturesPanel:
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
                                                                           name.value))
         with gui.add_folder("Report header"):
-            info = self.station.info if isinstance(getattr(self.station, "info", None), dict) else {}
+            info = self.station.measurement.info if isinstance(getattr(self.station, "info", None), dict) else {}
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
                       for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
                                        ("temperature", "Temperature (°C)"))}

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..measure import plan_at_pick, run_plan
+from ..measurement.plan import plan_at_pick, run_plan
 from ..metrology.hit_plan import PlanError
 from .scene import SCALE
 
@@ -40,7 +40,7 @@ class MeasurePanel:
         if self.capp.picked is None:
             return self.capp.error("click the face to measure on the part first", "Auto-measure")
         try:
-            self.plan = plan_at_pick(self.station, self.capp.picked[0].face_id, n=hits_per_ring or None)
+            self.plan = plan_at_pick(self.station.measurement, self.capp.picked[0].face_id, n=hits_per_ring or None)
         except (PlanError, ValueError) as exc:
             self.plan = None
             return self.capp.error(exc, "Auto-measure")
@@ -102,7 +102,7 @@ class MeasurePanel:
 
         def work() -> None:
             try:
-                self.feature = run_plan(self.station, plan, name=name or None, cancelled=self._cancel.is_set,
+                self.feature = run_plan(self.station.measurement, plan, name=name or None, cancelled=self._cancel.is_set,
                                         client=self.capp.who(),
                                         progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
             except Exception as exc:  # noqa: BLE001 - every failure is told; the machine layer stopped itself

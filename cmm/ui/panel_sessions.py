@@ -230,18 +230,18 @@ class SessionsPanel:
     # --- store --------------------------------------------------------------
 
     def store(self) -> Any:
-        return open_store(self.station.session_dir)
+        return open_store(self.station.measurement.session_dir)
 
     def live_name(self) -> str | None:
         """The name of the session the station is recording."""
-        j = self.station.journal
+        j = self.station.measurement.journal
         if j is None:
             return None
         path = getattr(j, "path", None)
         return Path(path).stem if path is not None else getattr(j, "name", None)
 
     def export_dir(self) -> Path:
-        d = self.station.session_dir
+        d = self.station.measurement.session_dir
         return Path("exports") if is_url(d) else Path(d)
 
     def sessions(self, wait: bool = True) -> list[dict[str, Any]]:
@@ -253,11 +253,11 @@ class SessionsPanel:
         rows = []
         for info in self.store().list():
             if info.name == live:
-                with self.station.lock:
-                    hits, features = len(self.station.hits), len(self.station.features)
+                with self.station.measurement.lock:
+                    hits, features = len(self.station.measurement.hits), len(self.station.measurement.features)
             else:
                 try:
-                    summary = shared_summaries().get(self.station.session_dir, info.name,
+                    summary = shared_summaries().get(self.station.measurement.session_dir, info.name,
                                                      (info.events, info.modified), wait=wait)
                 except (StoreError, JournalError, OSError, ValueError, KeyError, WorkerError) as exc:
                     summary = {"hits": "?", "features": "?", "damage": str(exc)}
@@ -329,7 +329,7 @@ class SessionsPanel:
         return resolve_part_mesh(session, self._live_mesh())
 
     def _live_mesh(self) -> Any:
-        part = self.station.part
+        part = self.station.measurement.part
         return part.mesh if part is not None else None
 
     def open(self, name: str) -> Job | None:
@@ -441,7 +441,7 @@ class SessionsPanel:
             return False
         if self.session is not None and self.session.name == old:
             self.session.name = new
-        shared_summaries().forget(self.station.session_dir, old)
+        shared_summaries().forget(self.station.measurement.session_dir, old)
         self.capp.notify("Renamed", f"{old} → {new}")
         self.refresh_list()
         return True
@@ -458,7 +458,7 @@ class SessionsPanel:
             return False
         if self.session is not None and self.session.name == name:
             self.back_to_live()
-        shared_summaries().forget(self.station.session_dir, name)
+        shared_summaries().forget(self.station.measurement.session_dir, name)
         self.capp.notify("Deleted", f"session {name}")
         self.refresh_list()
         return True
@@ -473,7 +473,7 @@ class SessionsPanel:
                 check_name(name)
                 if self.store().exists(name):
                     raise StoreError(f"a session named {name!r} already exists: choose another name")
-            path = self.station.new_session(name or None)
+            path = self.station.measurement.new_session(name or None)
         except (StoreError, OSError) as exc:
             self.capp.error(exc, "New session refused")
             return None
@@ -499,7 +499,7 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"exporting {name} (session worker)")
-            return shared_worker().call(worker.export, self.station.session_dir, name, self.export_dir(),
+            return shared_worker().call(worker.export, self.station.measurement.session_dir, name, self.export_dir(),
                                         self._live_mesh(), csv, json)
 
         return self._start("Export", work, self._files_done)
@@ -519,7 +519,7 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"rendering the report of {name} (session worker)")
-            return shared_worker().call(worker.report, self.station.session_dir, name, self.export_dir(),
+            return shared_worker().call(worker.report, self.station.measurement.session_dir, name, self.export_dir(),
                                         self._live_mesh(), self.capp.app.view.scale)  # the colour map's bands
 
         return self._start("Report", work, self._files_done)
@@ -545,7 +545,7 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> Any:
             progress(0.1, f"re-evaluating {name} (session worker)")
-            return shared_worker().call(worker.reevaluate, self.station.session_dir, name, new, float(tip_radius or 0.0),
+            return shared_worker().call(worker.reevaluate, self.station.measurement.session_dir, name, new, float(tip_radius or 0.0),
                                         None if method == "recorded" else method)
 
         def done(result: Any) -> str:

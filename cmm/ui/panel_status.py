@@ -80,14 +80,14 @@ MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "p
 def machine_mode(station: Any) -> tuple[str, str, bool]:
     """(mode, reason, link ok) from the control core's state (not homed / idle / moving / probing / fault ...)."""
     try:
-        cs = station.control_state
+        cs = station.controller.state
     except Exception:  # noqa: BLE001 - no control core (an older station object): read the machine state
         cs = None
     if cs is not None:
         mode = getattr(cs.mode, "value", cs.mode)
         reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
         return str(mode), str(reason or ""), bool(cs.link_ok)
-    st = station.state
+    st = station.machine.state
     if st is None:
         return "no link", "no state from the machine yet", False
     return ("jogging" if st.jogging else "moving" if st.moving else "idle"), "", True
@@ -111,7 +111,7 @@ class LinkMeter:
 
 
 def part_position(station: Any, position: np.ndarray) -> np.ndarray | None:
-    part = station.part
+    part = station.measurement.part
     if part is None:
         return None
     pose = np.asarray(part.pose, float)
@@ -123,7 +123,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     """The status block's HTML (pure: every input is passed in, so it is tested without a browser)."""
     e = html.escape
     mode, reason, link_ok = machine_mode(station)
-    st = station.state
+    st = station.machine.state
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
     if reason:

@@ -32,7 +32,7 @@ import numpy as np
 
 from ..control import MotionError
 from ..metrology.features import FitError
-from ..station import StationError
+from ..measurement.model import MeasurementError
 from .panel_align import AlignPanel
 from .ids import parse_ids  # noqa: F401 - part of this module's interface (tests, other panels)
 from .panel_calibration import CalibrationPanel
@@ -59,7 +59,7 @@ HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout 
 # machine seconds a held button's jog is kept alive after its newest hold event (a busy browser sends them late);
 # a lost pointer-up or a frozen tab therefore stops within this plus the stop (a closed tab releases at once)
 HOLD_GRACE_S = 1.0
-OPERATOR_ERRORS = (MotionError, StationError, FitError, ValueError, OSError)
+OPERATOR_ERRORS = (MotionError, MeasurementError, FitError, ValueError, OSError)
 
 
 def _unit(v: Any) -> np.ndarray:
@@ -338,7 +338,7 @@ class ClientApp:
             pass  # refused (control taken, fault, contact back-off): the next hold event tells the operator
 
     def _machine_time(self) -> float:
-        st = self.station.state
+        st = self.station.machine.state
         return float(st.time) if st is not None and getattr(st, "time", None) is not None else time.monotonic()
 
     def jog_release(self) -> None:
@@ -361,7 +361,7 @@ class ClientApp:
     def step(self, axis: int, sign: int) -> Any:
         size = self.step_size
         mm = 1.0 / self.station.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
-        return self._cmd("Step", lambda cid: self.station.step(AXES[axis], math.copysign(mm, sign), client=cid))
+        return self._cmd("Step", lambda cid: self.station.controller.step(cid, AXES[axis], math.copysign(mm, sign)))
 
     def set_manual_probe(self, on: bool) -> None:
         self.jog_release()
@@ -372,7 +372,7 @@ class ClientApp:
     def pick(self, origin_mm: Any, direction: Any) -> Any:
         """Ray pick on the part (machine mm). Anyone may pick: it moves nothing."""
         try:
-            result = self.station.pick(origin_mm, direction)
+            result = self.station.measurement.pick(origin_mm, direction)
         except OPERATOR_ERRORS as exc:
             self.error(exc, "Pick")
             return None
@@ -403,7 +403,7 @@ class ClientApp:
             self.error("click a point on the part first", "Probe here")
             return None
         hit = self.picked[0]
-        status = self._cmd("Probe here", lambda cid: self.station.probe_here(hit.point, hit.normal, client=cid))
+        status = self._cmd("Probe here", lambda cid: self.station.measurement.probe_here(hit.point, hit.normal, client=cid))
         return None if status is None else self._track(status)
 
     def _track(self, status: Any) -> Any:
@@ -414,10 +414,10 @@ class ClientApp:
     # --- hits ---------------------------------------------------------------------------
 
     def delete_hit(self, hid: int) -> None:
-        self._run("Delete hit", lambda: self.station.delete_hit(int(hid)))
+        self._run("Delete hit", lambda: self.station.measurement.delete_hit(int(hid)))
 
     def undo(self) -> None:
-        message = self._run("Undo", self.station.undo)
+        message = self._run("Undo", self.station.measurement.undo)
         if message:
             self.notify("Undo", message)
 
@@ -426,8 +426,8 @@ class ClientApp:
     def hit_ids_for(self, ids_text: str, last_n: int) -> list[int]:
         if ids_text.strip():
             return parse_ids(ids_text)
-        with self.station.lock:
-            ids = sorted(self.station.hits)
+        with self.station.measurement.lock:
+            ids = sorted(self.station.measurement.hits)
         return ids[-int(last_n):] if last_n > 0 else ids
 
     def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
@@ -435,7 +435,7 @@ class ClientApp:
             ids = self.hit_ids_for(ids_text, last_n)
             # the nominal is the CAD surface the hits lie on (the station finds it), not the last click:
             # "Nominal from the last CAD pick" in the Features tab applies a pick on purpose
-            feature = self.station.fit_feature(kind, ids, method)
+            feature = self.station.measurement.fit_feature(kind, ids, method)
             self.selected_feature = feature.id
             self.app.view.select_feature(feature.id)
             self.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
@@ -450,7 +450,7 @@ class ClientApp:
 
     def feature_markdown(self) -> str:
         fid = self.selected_feature
-        feature = self.station.features.get(fid) if fid is not None else None
+        feature = self.station.measurement.features.get(fid) if fid is not None else None
         if feature is None:
             return "*no feature selected*"
         s = feature.result.summary()
@@ -567,7 +567,7 @@ class ClientApp:
                 g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
                                             'title="pendant" allow="gamepad"></iframe>')
         with tabs.add_tab("Go to"):
-            pos = self.station.state.position if self.station.state is not None else np.zeros(3)
+            pos = self.station.machine.state.position if self.station.machine.state is not None else np.zeros(3)
             g["target"] = gui.add_vector3("Target (mm)", tuple(float(v) for v in pos), step=0.001)
             gui.add_button("Go").on_click(lambda _: self.go_to(*g["target"].value))
             gui.add_button("Cancel").on_click(lambda _: self.cancel())
@@ -575,7 +575,7 @@ class ClientApp:
             gui.add_button("Move above").on_click(lambda _: self.move_above())
             gui.add_button("Probe here").on_click(lambda _: self.probe_here())
         with tabs.add_tab("Probe"):
-            settings = self.station.probe_settings
+            settings = self.station.prober.settings
             gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
                              f"{settings.pretravel.describe()}")
             g["contact"] = gui.add_markdown("*no hit yet*")
@@ -610,7 +610,7 @@ class ClientApp:
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
         self.watch_control()
-        st_now = self.station.state
+        st_now = self.station.machine.state
         if self._jogging and st_now is not None and not st_now.jogging:
             self._jogging = False  # the machine loop ended the jog (dead-man, limit, contact, stop)
         if not self.gui:
@@ -619,13 +619,13 @@ class ClientApp:
         self._set("control", "content", self.control_text())
         self.status.refresh()
         self._set("machine", "content", machine_markdown(st))
-        hit = st.last_hit
+        hit = st.measurement.last_hit
         if hit is not None:
             self._set("contact", "content",
                       "last trigger (tip centre): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
                       + "contact point: X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
-        with st.lock:
-            hits = sorted(st.hits.items())
+        with st.measurement.lock:
+            hits = sorted(st.measurement.hits.items())
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]

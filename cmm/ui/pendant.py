@@ -321,7 +321,7 @@ class PendantServer:
         try:
             fn(*args)
         except Exception as exc:  # noqa: BLE001 - every station refusal is reported, never raised into the loop
-            if not isinstance(exc, RuntimeError):  # MotionError / StationError are RuntimeErrors
+            if not isinstance(exc, RuntimeError):  # MotionError / MeasurementError are RuntimeErrors
                 self.errors.append(f"{type(exc).__name__}: {exc}")
             return str(exc) or type(exc).__name__
         return None

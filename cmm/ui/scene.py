@@ -183,9 +183,9 @@ class SceneView:
             position=(float((lo[0] + hi[0]) / 2 * SCALE), float((lo[1] + hi[1]) / 2 * SCALE), table_z * SCALE),
             receive_shadow=True, cast_shadow=False)
         self.draw_part()
-        start = st.state.position if st.state is not None else (lo + hi) / 2
+        start = st.machine.state.position if st.machine.state is not None else (lo + hi) / 2
         self.probe = self.scene.add_frame("/probe", show_axes=False, position=tuple(np.asarray(start) * SCALE))
-        r = float(st.probe_settings.tip_radius)
+        r = float(st.prober.settings.tip_radius)
         self.scene.add_icosphere("/probe/tip", radius=r * SCALE, color=(230, 30, 30), subdivisions=3)
         stylus = trimesh.creation.cylinder(radius=max(r * 0.4, 0.2), segment=[[0, 0, r * 0.8], [0, 0, STYLUS_LENGTH]],
                                            sections=24)
@@ -198,7 +198,7 @@ class SceneView:
         self.draw_features()
 
     def draw_part(self) -> None:
-        part = self.station.part
+        part = self.station.measurement.part
         if part is None:
             self.scene.add_frame("/local", show_axes=False)
             return
@@ -247,13 +247,13 @@ class SceneView:
         """(Re)draw the colour map from the hits' deviations (see :mod:`cmm.metrology.colour_map`): the part
         mesh painted by the interpolated deviation, grey beyond the scale's reach; the plain part while off."""
         st = self.station
-        part = st.part
-        with st.lock:
-            hits = dict(st.hits)
+        part = st.measurement.part
+        with st.measurement.lock:
+            hits = dict(st.measurement.hits)
         if self.map_on and part is not None:
             if deviations is None:
                 try:
-                    deviations = st.hit_deviations()
+                    deviations = st.measurement.hit_deviations()
                 except Exception:  # noqa: BLE001 - no deviations: an all-grey map
                     deviations = {}
             pose = np.asarray(part.pose, float)
@@ -305,8 +305,8 @@ class SceneView:
 
     def draw_hits(self, deviations: dict[int, float] | None = None) -> None:
         st = self.station
-        with st.lock:
-            hits = dict(st.hits)
+        with st.measurement.lock:
+            hits = dict(st.measurement.hits)
         with self._lock:
             if not hits:
                 self.scene.add_frame("/local/hits", show_axes=False)  # replaces the previous hits with nothing
@@ -314,7 +314,7 @@ class SceneView:
             ids = sorted(hits)
             if deviations is None:
                 try:
-                    deviations = st.hit_deviations()
+                    deviations = st.measurement.hit_deviations()
                 except Exception:  # noqa: BLE001 - colour is a help, not a requirement
                     deviations = {}
             points = np.array([hits[h].point for h in ids])
@@ -335,9 +335,9 @@ class SceneView:
 
     def draw_features(self) -> None:
         st = self.station
-        with st.lock:
-            features = dict(st.features)
-            hits = dict(st.hits) | dict(st.deleted)
+        with st.measurement.lock:
+            features = dict(st.measurement.features)
+            hits = dict(st.measurement.hits) | dict(st.measurement.deleted)
         with self._lock:
             for fid in list(self._feature_nodes):
                 if fid not in features:
@@ -367,9 +367,9 @@ class SceneView:
         for fid, node in self._feature_nodes.items():
             node.opacity = 0.9 if fid == self.selected else 0.55
         # the selected feature's hits: larger yellow spheres around them
-        with self.station.lock:
-            feature = self.station.features.get(self.selected) if self.selected is not None else None
-            hits = dict(self.station.hits)
+        with self.station.measurement.lock:
+            feature = self.station.measurement.features.get(self.selected) if self.selected is not None else None
+            hits = dict(self.station.measurement.hits)
         pts = [hits[h].point for h in (feature.hit_ids if feature is not None else []) if h in hits]
         if not pts:
             self.scene.add_frame("/local/selection", show_axes=False)
@@ -530,7 +530,7 @@ class ProbeUpdater:
 
     def step(self) -> bool:
         """One tick: push the probe if it moved. Returns True when it pushed."""
-        state = self.station.state
+        state = self.station.machine.state
         self.ticks += 1
         if state is None:
             return False

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
-    print(f"CMM station on {station.port}; session journal {station.journal.path if station.journal else '-'}")
+    print(f"CMM station on {station.port}; session journal {station.measurement.journal.path if station.measurement.journal else '-'}")
     print(f"Open {app.url} in a browser")
     if args.lan:
         import socket

@@ -1,4 +1,4 @@
-"""Auto-measure and constructed features on a station, through its public actions only.
+"""Auto-measure on a measurement model: a planned feature probed hit by hit and fitted.
 
 :func:`plan_at_pick` turns a click on the part into a :class:`~cmm.metrology.hit_plan.HitPlan`
 (feature kind, hits, approaches, clearance plane, the path to draw);
@@ -13,22 +13,22 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .metrology.hit_plan import HitPlan, PlanError, plan_feature
-from .metrology.pick import suggest_feature
+from ..metrology.hit_plan import HitPlan, PlanError, plan_feature
+from ..metrology.pick import suggest_feature
 
 
-def plan_at_pick(station: Any, face_id: int, *, n: int | None = None) -> HitPlan:
-    """The measurement the station proposes for the part face ``face_id``."""
-    part = station.part
+def plan_at_pick(model: Any, face_id: int, *, n: int | None = None) -> HitPlan:
+    """The measurement proposed for the part face ``face_id``."""
+    part = model.part
     if part is None:
         raise PlanError("load a part before planning a measurement")
     suggestion = suggest_feature(part.mesh, int(face_id))  # part coordinates
-    probe = station.config.probe
+    probe = model.config.probe
     return plan_feature(part.mesh, part.pose, suggestion.feature, suggestion.face_ids, n=n,
-                        approach_distance=probe.approach_distance, tip_radius=station.probe_settings.tip_radius)
+                        approach_distance=probe.approach_distance, tip_radius=model.prober.settings.tip_radius)
 
 
-def run_plan(station: Any, plan: HitPlan, *, name: str | None = None, method: str = "ls",
+def run_plan(model: Any, plan: HitPlan, *, name: str | None = None, method: str = "ls",
              progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
              cancelled: Callable[[], bool] = lambda: False, client: Any = None) -> Any:
     """Probe every planned hit (as ``client``, through the control core), then fit the feature with the
@@ -37,8 +37,8 @@ def run_plan(station: Any, plan: HitPlan, *, name: str | None = None, method: st
     for k, (p, u) in enumerate(zip(plan.points, plan.approaches)):
         if cancelled():
             raise PlanError(f"cancelled after {k} of {len(plan)} hits")
-        hit = station.probe(np.asarray(p), np.asarray(u), clearance_z=plan.clearance_z, client=client).wait(timeout)
-        ids.append(station.hit_id(hit))
+        hit = model.probe(np.asarray(p), np.asarray(u), clearance_z=plan.clearance_z, client=client).wait(timeout)
+        ids.append(model.hit_id(hit))
         if progress is not None:
             progress(k + 1, len(plan))
-    return station.fit_feature(plan.kind, ids, method, name, plan.nominal)
+    return model.fit_feature(plan.kind, ids, method, name, plan.nominal)

@@ -1,4 +1,4 @@
-"""Guided part alignment on a station: 3-2-1 from measured features, and best fit of hits to the mesh.
+"""Guided part alignment on a measurement model: 3-2-1 from measured features, and best fit of hits to the mesh.
 
 3-2-1: the primary plane fixes part Z, the secondary (a plane, or a line)
 the X direction, the tertiary (a point, circle, sphere centre or a third
@@ -8,7 +8,7 @@ part -> machine pose is ``measured @ inverse(nominal)``. Best fit moves the
 part until the chosen hits lie on the mesh (ICP from the current pose).
 
 Both give an :class:`AlignmentResult` (pose, residuals, the change from the
-previous pose) that :func:`apply` journals through ``station.set_alignment``;
+previous pose) that :func:`apply` journals through ``model.set_alignment``;
 the features' nominals move with the part so they still compare.
 """
 
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from .metrology.align import AlignmentError, align_321, best_fit
-from .metrology.relations import intersect_plane_plane
-from .metrology.transform import invert
+from ..metrology.align import AlignmentError, align_321, best_fit
+from ..metrology.relations import intersect_plane_plane
+from ..metrology.transform import invert
 
 
 @dataclass
@@ -104,14 +104,14 @@ def _nominal_part(feature: Any, pose: np.ndarray) -> tuple[str, dict[str, Any]]:
     return n.kind, dict(p)
 
 
-def align_features(station: Any, primary: int, secondary: int, tertiary: int) -> AlignmentResult:
+def align_features(model: Any, primary: int, secondary: int, tertiary: int) -> AlignmentResult:
     """3-2-1 from three measured features with CAD nominals (feature ids)."""
-    part = station.part
+    part = model.part
     if part is None:
         raise AlignmentError("load a part before aligning it")
     feats = []
     for fid in (primary, secondary, tertiary):
-        f = station.features.get(fid)
+        f = model.features.get(fid)
         if f is None:
             raise AlignmentError(f"there is no feature {fid}")
         feats.append(f)
@@ -135,25 +135,25 @@ def align_features(station: Any, primary: int, secondary: int, tertiary: int) ->
     return AlignmentResult("3-2-1", new, res, info)
 
 
-def best_fit_hits(station: Any, hit_ids: list[int]) -> AlignmentResult:
-    part = station.part
+def best_fit_hits(model: Any, hit_ids: list[int]) -> AlignmentResult:
+    part = model.part
     if part is None:
         raise AlignmentError("load a part before aligning it")
-    missing = [h for h in hit_ids if h not in station.hits]
+    missing = [h for h in hit_ids if h not in model.hits]
     if missing:
         raise AlignmentError(f"no hits with ids {missing}")
-    pts = np.array([station.hits[h].point for h in hit_ids], float)
+    pts = np.array([model.hits[h].point for h in hit_ids], float)
     fit = best_fit(part.mesh, pts, initial=part.pose)
     return AlignmentResult("best_fit", fit.transform, {"RMS": fit.rms, "max residual": fit.max_residual},
                            {"rms": fit.rms, "max_residual": fit.max_residual, "hit_ids": list(hit_ids),
                             "converged": fit.converged})
 
 
-def apply(station: Any, result: AlignmentResult) -> None:
+def apply(model: Any, result: AlignmentResult) -> None:
     """Adopt the alignment (journaled); every feature's nominal moves with the part."""
-    previous = np.asarray(station.part.pose, float)
+    previous = np.asarray(model.part.pose, float)
     move = result.pose @ invert(previous)
-    station.set_alignment(result.pose, result.method, **result.info)
-    for fid, f in list(station.features.items()):
+    model.set_alignment(result.pose, result.method, **result.info)
+    for fid, f in list(model.features.items()):
         if f.nominal is not None:
-            station.set_feature_nominal(fid, f.nominal.transformed(move))
+            model.set_feature_nominal(fid, f.nominal.transformed(move))

@@ -1,0 +1,498 @@
+"""The measurement model: the part, its hits and features, undo, constructions, alignment and the session journal.
+
+One :class:`MeasurementModel` per station (``station.measurement``) and one per headless recording
+(:func:`cmm.measurement.recording.record`): hits arrive through :meth:`MeasurementModel.add_hit` (the control
+core's hit recorder, or the prober's listener), are journalled (fsync'ed / committed) before anyone is shown
+them, and features are fitted from them the same way everywhere: fit the pre-travel-corrected tip centres, then
+offset by the tip radius (:func:`cmm.session.reevaluate.fit_hit_records`, which re-evaluation uses too).
+
+Probing goes through the ``probe`` callable the owner gives (the station: its control core; headless: the
+prober). Listeners (:meth:`subscribe`) get 'hit', 'hits', 'feature', 'features', 'part', 'info' and the machine
+events the owner passes to :meth:`machine_event` (which the journal records). Thread-safe: front ends call it
+from several threads; hits are journalled on the control core's dispatcher thread.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..metrology.features import FitError, FitResult
+from ..metrology.mesh import signed_deviation
+from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
+from ..session.journal import Journal
+from ..session.model import file_sha256, machine_snapshot, mesh_sha256
+from ..session.reevaluate import feature_fields, fit_hit_records
+from ..session.store import check_name, is_url, open_store
+
+FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
+INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
+TOLERANCE_KEYS = ("size", "form", "location", "position", "angle")
+# machine events the journal records, and which of them as errors
+MACHINE_EVENTS = ("contact", "deadman", "limit", "error", "estop", "fault", "stop", "reset", "reconnect")
+MACHINE_ERRORS = ("contact", "error", "fault", "estop")
+
+
+class MeasurementError(RuntimeError):
+    """An action the measurement model refuses, in an operator's words."""
+
+
+@dataclass
+class Part:
+    name: str
+    mesh: Any  # trimesh.Trimesh in part coordinates
+    pose: np.ndarray  # part -> machine (the station's belief; alignment refines it)
+    nominal_features: dict[str, NominalFeature] = field(default_factory=dict)
+    sha256: str | None = None  # content hash; the mesh's when not given
+
+    def __post_init__(self) -> None:
+        if self.sha256 is None and self.mesh is not None:
+            self.sha256 = mesh_sha256(self.mesh)
+
+
+@dataclass
+class Feature:
+    id: int
+    name: str
+    kind: str
+    method: str
+    hit_ids: list[int]
+    result: FitResult
+    nominal: NominalFeature | None = None
+    tolerance: dict[str, float] | None = None  # {"size", "form", "location", "position"}: DEFAULT_TOLERANCE otherwise
+
+    def summary(self) -> dict[str, Any]:
+        return {"id": self.id, "name": self.name, "hit_ids": self.hit_ids, **self.result.summary(),
+                "nominal": None if self.nominal is None else self.nominal.to_dict(), "tolerance": self.tolerance}
+
+
+@dataclass
+class ConstructedFeature:
+    """A feature constructed from two others (intersection, distance, angle, mid-point)."""
+
+    id: int
+    name: str
+    operation: str
+    operands: tuple[int, int]
+    result: Any  # cmm.metrology.construct.Constructed
+    nominal: Any = None  # the same construction on the operands' nominals (Constructed) or None
+    tolerance: dict[str, float] | None = None
+
+    def to_event(self) -> dict[str, Any]:
+        return {"id": self.id, "name": self.name, "operation": self.operation, "operands": list(self.operands),
+                "result": self.result.summary(), "nominal": None if self.nominal is None else self.nominal.summary(),
+                "tolerance": self.tolerance}
+
+
+def check_tolerance(tolerance: dict[str, float] | None) -> dict[str, float] | None:
+    """Validate a feature tolerance: known keys, positive finite mm (degrees for ``angle``)."""
+    if tolerance is None:
+        return None
+    out: dict[str, float] = {}
+    for k, v in tolerance.items():
+        if k not in TOLERANCE_KEYS:
+            raise MeasurementError(f"unknown tolerance {k!r}; use {', '.join(TOLERANCE_KEYS)}")
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            raise MeasurementError(f"the {k} tolerance must be a number, got {v!r}") from None
+        if not (x > 0 and x < 1e3):
+            raise MeasurementError(f"the {k} tolerance must be a positive number, got {v!r}")
+        out[k] = x
+    return out
+
+
+class MeasurementModel:
+    """Hits, features and the session journal of one measuring set-up.
+
+    ``machine`` is read for the configuration, the travel limits and the geometry correction, ``prober`` for the
+    probe settings (tip radius, pre-travel), both live: a calibration applied later counts. ``probe(point,
+    approach, clearance_z, client)`` takes a programmed hit and returns a status whose ``wait()`` gives the hit;
+    ``start_fields()`` adds to each session's ``start`` event (port, calibration).
+    """
+
+    def __init__(self, machine: Any, prober: Any, probe: Callable[..., Any], *, part: Part | None = None,
+                 session_dir: str | Path = "sessions", start_fields: Callable[[], dict[str, Any]] = dict,
+                 lock: Any = None) -> None:
+        self.machine = machine
+        self.prober = prober
+        self.config = machine.config
+        self._probe = probe
+        self._start_fields = start_fields
+        self.lock = lock if lock is not None else threading.RLock()
+        self.part = part
+        self.hits: dict[int, Any] = {}
+        self.deleted: dict[int, Any] = {}
+        self._undo: list[tuple[str, int]] = []
+        self.features: dict[int, Feature] = {}
+        self.constructed: dict[int, ConstructedFeature] = {}
+        self._next_hit = 1
+        self._next_feature = 1
+        self.last_hit: Any = None
+        self.events: list[tuple[float, str, str]] = []  # (time, kind, message) for the UI
+        self._listeners: list[Callable[[str, Any], None]] = []
+        self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
+        self.journal: Any = None
+        self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
+        self.aligned = False  # an alignment was made since the part was loaded
+        self._on_close: list[Callable[[], None]] = []
+
+    # --- events -------------------------------------------------------------------
+
+    def subscribe(self, fn: Callable[[str, Any], None]) -> None:
+        """Events: 'hit', 'hits', 'feature', 'features', 'part', 'info', plus the machine events the owner
+        passes on ('mode', 'fault', 'stop', 'estop', 'contact', 'deadman', 'limit', 'homed', 'error' ...)."""
+        self._listeners.append(fn)
+
+    def machine_event(self, kind: str, info: Any) -> None:
+        """A control core event: journalled (stops, faults, contacts ...) and passed to the listeners."""
+        if kind == "hit" and isinstance(info, dict):
+            return  # the control core's hit event: add_hit has notified already, with the hit id
+        if kind in MACHINE_EVENTS:
+            from ..session.wording import event_text
+
+            text = event_text(kind, info)
+            self.events.append((time.time(), kind, text))
+            try:
+                self.record("error" if kind in MACHINE_ERRORS else "event", source=f"machine:{kind}", message=text)
+            except Exception:  # noqa: BLE001 - the session may be closing or the disk full; the event is still shown
+                pass
+        self._notify(kind, info)
+
+    def log(self, kind: str, message: str) -> None:
+        """A line for the operator's event log (not journalled)."""
+        self.events.append((time.time(), kind, message))
+
+    def _notify(self, kind: str, info: Any) -> None:
+        for fn in list(self._listeners):
+            try:
+                fn(kind, info)
+            except Exception as exc:  # a broken listener must not stop the machine
+                self.events.append((time.time(), "error", f"listener failed: {exc}"))
+
+    # --- session -------------------------------------------------------------------
+
+    def new_session(self, name: str | None = None) -> Path | str:
+        """Open a new session journal (in ``session_dir``) with a ``start`` event: configuration and calibration."""
+        stamp = time.strftime("session-%Y%m%d-%H%M%S")
+        name = stamp if name is None else check_name(name)  # whatever the caller: no "../x", no absolute paths
+        with self.lock:
+            if self.journal is not None:
+                self.journal.close()
+            if is_url(self.session_dir):
+                self.journal = open_store(self.session_dir).create(name, append=True)
+                path: Path | str = f"{name}"
+            else:
+                path = self.session_dir / f"{name}.jsonl"
+                for n in range(2, 100):  # two stations started in the same second get their own sessions
+                    if name != stamp or not path.exists():
+                        break
+                    path = self.session_dir / f"{stamp}-{n}.jsonl"
+                self.journal = Journal(path)
+            self._start(self.journal, **self._start_fields())
+            if self.info:
+                self.journal.append("info", **self.info)
+            return path
+
+    def record_into(self, writer: Any, **start: Any) -> None:
+        """Journal into ``writer`` (a store's session writer), beginning with its ``start`` event."""
+        with self.lock:
+            self.journal = writer
+            self._start(writer, **start)
+
+    def _start(self, writer: Any, **start: Any) -> None:
+        part = self.part
+        port = start.pop("port", "")
+        writer.append("start", port=port, **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
+                      **start, part=None if part is None else part.name,
+                      part_pose=None if part is None else part.pose,
+                      part_sha256=None if part is None else part.sha256,
+                      part_path=None if part is None or part.mesh is None else part.mesh.metadata.get("path"))
+
+    def record(self, kind: str, **data: Any) -> None:
+        """An event in the session journal (if one is open)."""
+        if self.journal is not None:
+            self.journal.append(kind, **data)
+
+    def note(self, text: str) -> None:
+        self.record("note", text=text)
+
+    def set_info(self, **fields: Any) -> dict[str, Any]:
+        """Report header fields (part_number, drawing, operator, machine_name, temperature in deg C, remarks)."""
+        unknown = sorted(set(fields) - set(INFO_FIELDS))
+        if unknown:
+            raise MeasurementError(f"unknown report field(s) {', '.join(unknown)}; use {', '.join(INFO_FIELDS)}")
+        clean: dict[str, Any] = {}
+        for k, v in fields.items():
+            if k == "temperature" and v not in (None, ""):
+                try:
+                    t = float(v)
+                except (TypeError, ValueError):
+                    raise MeasurementError(f"the temperature must be a number of degrees Celsius, got {v!r}") from None
+                if not -50.0 <= t <= 100.0:
+                    raise MeasurementError(f"a temperature of {t} °C is not plausible for a measuring room")
+                clean[k] = t
+            else:
+                clean[k] = "" if v is None else str(v).strip()
+        with self.lock:
+            self.info.update(clean)
+            self.record("info", **clean)
+        self._notify("info", dict(self.info))
+        return dict(self.info)
+
+    def on_close(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` when the model closes, before its journal closes (detach a hit listener)."""
+        self._on_close.append(fn)
+
+    def close(self) -> None:
+        for fn in self._on_close:
+            fn()
+        if self.journal is not None:
+            self.journal.close()
+
+    # --- part -------------------------------------------------------------------
+
+    def load_part(self, path: str | Path, pose: np.ndarray | None = None) -> Part:
+        from ..metrology.mesh import load_part
+
+        mesh = load_part(path)
+        mesh.metadata["sha256"], mesh.metadata["path"] = file_sha256(path), str(Path(path).resolve())
+        with self.lock:
+            self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))
+            self.aligned = False
+            if self.journal is not None:
+                self.record("part", name=self.part.name, pose=self.part.pose, sha256=mesh.metadata["sha256"],
+                            path=mesh.metadata["path"])
+        self._notify("part", self.part)
+        return self.part
+
+    def pick(self, origin: Any, direction: Any) -> tuple[PickResult, NominalFeature | None] | None:
+        """Ray pick on the part: hit point and normal (machine coordinates) and a suggested nominal feature."""
+        if self.part is None:
+            raise MeasurementError("no part is loaded")
+        hit = pick(self.part.mesh, self.part.pose, origin, direction)
+        if hit is None:
+            return None
+        try:
+            suggestion = suggest_feature(self.part.mesh, hit.face_id, self.part.pose)
+            nominal = suggestion.feature if suggestion is not None else None
+        except Exception:  # noqa: BLE001 - a suggestion is optional help
+            nominal = None
+        return hit, nominal
+
+    def set_alignment(self, pose: Any, method: str = "manual", **info: Any) -> None:
+        """Adopt a part -> machine pose from an alignment (3-2-1, best fit) and record it."""
+        if self.part is None:
+            raise MeasurementError("load a part before aligning it")
+        with self.lock:
+            self.part.pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+            self.aligned = True
+            self.record("alignment", pose=self.part.pose, method=method, **info)
+        self._notify("part", self.part)
+
+    def above_point(self, point: Any, normal: Any, clearance: float | None = None) -> np.ndarray:
+        """The tip position ``clearance`` mm above a surface point along its normal."""
+        clearance = self.config.probe.approach_distance + self.prober.settings.tip_radius if clearance is None else clearance
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+        return np.asarray(point, float) + clearance * n
+
+    def clearance_z(self, margin: float = 10.0) -> float:
+        """A height that clears the part (its top + ``margin``), or the present height without a part."""
+        if self.part is None:
+            return float(self.machine.position[2])
+        corners = np.array([[x, y, z] for x in self.part.mesh.bounds[:, 0] for y in self.part.mesh.bounds[:, 1]
+                            for z in self.part.mesh.bounds[:, 2]])
+        top = float((corners @ self.part.pose[:3, :3].T + self.part.pose[:3, 3])[:, 2].max())
+        return min(top + margin + self.prober.settings.tip_radius, self.config.axis("z").max)
+
+    # --- hits -----------------------------------------------------------------------
+
+    def probe(self, point: Any, approach: Any, clearance_z: float | None = None, client: Any = None) -> Any:
+        """Programmed hit at a surface point; ``approach`` points into the surface. The rapid climbs to
+        ``clearance_z`` (default: clear of the part) before it crosses."""
+        if clearance_z is None and self.part is not None:
+            clearance_z = self.clearance_z()
+        return self._probe(point, approach, clearance_z, client)
+
+    def probe_here(self, point: Any, normal: Any, client: Any = None) -> Any:
+        """Probe a picked point along its (outward) mesh normal, via the clearance height."""
+        return self.probe(point, -np.asarray(normal, float), client=client)
+
+    def add_hit(self, hit: Any) -> int:
+        """Record a hit: journalled before anyone is shown it; returns its session id."""
+        with self.lock:
+            hid = self._next_hit
+            self._next_hit += 1
+            self.record("hit", id=hid, counts=hit.counts, machine=hit.machine, approach=hit.approach,
+                        speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal)
+            self.hits[hid] = hit  # on disk before anyone is shown it
+            self.last_hit = hit
+            self._undo.append(("add", hid))
+        self._notify("hit", (hid, hit))
+        return hid
+
+    def hit_id(self, hit: Any) -> int:
+        """The session id of a recorded hit."""
+        with self.lock:
+            for hid in reversed(list(self.hits)):
+                if self.hits[hid] is hit:
+                    return hid
+        raise MeasurementError("the hit was not recorded")
+
+    def delete_hit(self, hid: int) -> None:
+        with self.lock:
+            if hid not in self.hits:
+                raise MeasurementError(f"there is no hit {hid}")
+            self.deleted[hid] = self.hits.pop(hid)
+            self._undo.append(("delete", hid))
+            self.record("hit_deleted", id=hid)
+        self._notify("hits", None)
+
+    def undo(self) -> str:
+        """Undo the last hit added or deleted."""
+        with self.lock:
+            if not self._undo:
+                raise MeasurementError("nothing to undo")
+            action, hid = self._undo.pop()
+            if action == "add":
+                self.deleted[hid] = self.hits.pop(hid)
+                self.record("hit_deleted", id=hid, undo=True)
+                message = f"removed hit {hid}"
+            else:
+                self.hits[hid] = self.deleted.pop(hid)
+                self.record("hit_restored", id=hid, undo=True)
+                message = f"restored hit {hid}"
+        self._notify("hits", None)
+        return message
+
+    def hit_deviations(self) -> dict[int, float]:
+        """Signed deviation of each compensated hit from the part mesh (+ = material outside nominal)."""
+        with self.lock:
+            items = list(self.hits.items())
+        if self.part is None or not items:
+            return {}
+        result = signed_deviation(self.part.mesh, np.array([h.point for _, h in items]), self.part.pose)
+        return {hid: float(d) for (hid, _), d in zip(items, result.deviations)}
+
+    # --- features ----------------------------------------------------------------
+
+    def fit_feature(self, kind: str, hit_ids: list[int], method: str = "ls", name: str | None = None,
+                    nominal: NominalFeature | None = None, tolerance: dict[str, float] | None = None,
+                    *, feature_id: int | None = None) -> Feature:
+        """Fit a feature to hits: fit the pre-travel-corrected tip centres, then offset by the tip radius.
+
+        Without a ``nominal`` the part's CAD surface the hits lie on gives it
+        (:func:`cmm.metrology.nominal_match.nominal_for_points`). ``feature_id``
+        refits an existing feature in place (a hit deleted or re-taken).
+        """
+        tolerance = check_tolerance(tolerance)
+        if kind not in FEATURE_KINDS:
+            raise MeasurementError(f"unknown feature kind {kind!r}; choose one of {', '.join(FEATURE_KINDS)}")
+        with self.lock:
+            missing = [h for h in hit_ids if h not in self.hits]
+            if missing:
+                raise MeasurementError(f"no hits with ids {missing}")
+            hits = [self.hits[h] for h in hit_ids]
+        part = self.part
+        if nominal is None and part is not None:
+            from ..metrology.nominal_match import nominal_for_points
+
+            try:
+                nominal = nominal_for_points(part.mesh, part.pose, [h.point for h in hits], kind)
+            except Exception:  # noqa: BLE001 - a nominal is help; the fit stands without one
+                nominal = None
+        try:
+            result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
+        except FitError as exc:
+            raise MeasurementError(str(exc)) from None
+        with self.lock:
+            if feature_id is None:
+                fid = self._next_feature
+                self._next_feature += 1
+            else:
+                fid = feature_id
+            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal, tolerance)
+            self.features[fid] = feature
+            self._record_feature(feature)
+        self._notify("feature", feature)
+        return feature
+
+    def _record_feature(self, feature: Feature) -> None:
+        extra = {} if feature.tolerance is None else {"tolerance": feature.tolerance}
+        self.record("feature", id=feature.id, name=feature.name, hit_ids=list(feature.hit_ids),
+                    **feature_fields(feature.result),
+                    nominal=None if feature.nominal is None else feature.nominal.to_dict(), **extra)
+
+    def refit_feature(self, fid: int, hit_ids: list[int]) -> Feature:
+        """Fit feature ``fid`` again to other hits (one deleted or re-taken); keeps its name, nominal, tolerance."""
+        with self.lock:
+            f = self.features.get(fid)
+            if f is None:
+                raise MeasurementError(f"there is no feature {fid}")
+        return self.fit_feature(f.kind, list(hit_ids), f.method, f.name, f.nominal, f.tolerance, feature_id=fid)
+
+    def set_feature_nominal(self, fid: int, nominal: NominalFeature | None = None,
+                            tolerance: dict[str, float] | None = None) -> Feature:
+        """Edit a feature's nominal and/or tolerance (typed or from a CAD pick); recorded as a new fit event."""
+        tolerance = check_tolerance(tolerance)
+        with self.lock:
+            f = self.features.get(fid)
+            if f is None:
+                raise MeasurementError(f"there is no feature {fid}")
+            if nominal is not None:
+                f.nominal = nominal
+            if tolerance is not None:
+                f.tolerance = {**(f.tolerance or {}), **tolerance}
+            self._record_feature(f)
+        self._notify("feature", f)
+        return f
+
+    def construct_feature(self, operation: str, a: int, b: int, name: str | None = None,
+                          tolerance: dict[str, float] | None = None) -> ConstructedFeature:
+        """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`)."""
+        from ..metrology.construct import construct, nominal_geometry
+
+        tolerance = check_tolerance(tolerance)
+        with self.lock:
+            fa, fb = self.features.get(a), self.features.get(b)
+            if fa is None or fb is None:
+                raise MeasurementError(f"there is no feature {a if fa is None else b}")
+            if a == b:
+                raise MeasurementError("a construction needs two different features")
+        try:
+            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()))
+        except (FitError, ValueError, KeyError) as exc:
+            raise MeasurementError(str(exc)) from None
+        nominal = None
+        na = nominal_geometry(fa.kind, None if fa.nominal is None else fa.nominal.to_dict())
+        nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())
+        if na is not None and nb is not None:
+            try:
+                nominal = construct(operation, na, nb)
+            except (FitError, ValueError, KeyError, np.linalg.LinAlgError):
+                nominal = None
+        with self.lock:
+            fid = self._next_feature
+            self._next_feature += 1
+            feature = ConstructedFeature(fid, name or f"{operation} {fa.name} / {fb.name}", operation, (a, b), result,
+                                         nominal, tolerance)
+            self.constructed[fid] = feature
+            self.record("constructed", **feature.to_event())
+        self._notify("feature", feature)
+        return feature
+
+    def delete_feature(self, fid: int) -> None:
+        with self.lock:
+            if self.constructed.pop(fid, None) is not None:
+                self.record("feature_deleted", id=fid)
+                self._notify("features", None)
+                return
+            if self.features.pop(fid, None) is None:
+                raise MeasurementError(f"there is no feature {fid}")
+            self.record("feature_deleted", id=fid)
+        self._notify("features", None)

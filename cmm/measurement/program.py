@@ -1,0 +1,62 @@
+"""Run a taught measurement program (:mod:`cmm.session.program`) on a measurement model.
+
+:func:`run_program` checks the program against the loaded part and the machine's travel BEFORE anything moves
+(:func:`cmm.session.program.check`), then probes every hit through the model (over its clearance height) and
+fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
+as a job of the control core (:func:`run_on`), so it holds the machine like any other command.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..metrology.pick import NominalFeature
+from ..session.program import Program, check, load, machine_targets
+from .model import Feature, MeasurementModel
+
+
+@dataclass
+class ProgramRun:
+    program: Program
+    hit_ids: dict[int, int]  # program hit id -> session hit id
+    features: dict[str, Feature]  # name -> the fitted feature
+
+
+def run_program(program: Program, model: MeasurementModel, part_pose: Any = None, *,
+                progress: Callable[[int, int], None] | None = None, timeout: float = 120.0) -> ProgramRun:
+    """Run ``program`` on ``model`` with the part at ``part_pose`` (part -> machine; default: the model's
+    current part pose, i.e. its last alignment)."""
+    if not isinstance(model, MeasurementModel):
+        raise TypeError(f"a program runs on a measurement model, not on {type(model).__name__}")
+    part = model.part
+    pose = np.asarray(part_pose if part_pose is not None else (None if part is None else part.pose), dtype=np.float64)
+    check(program, part, pose, model.machine, model.prober.settings.tip_radius)
+    model.note(f"program {program.name!r} started ({len(program.hits)} hits, {len(program.features)} features)")
+    ids: dict[int, int] = {}
+    targets = machine_targets(program, pose)
+    for k, (h, p, u, cz) in enumerate(targets):
+        hit = model.probe(p, u, clearance_z=cz).wait(timeout)
+        ids[h.id] = model.hit_id(hit)
+        if progress is not None:
+            progress(k + 1, len(targets))
+    feats = {}
+    for f in program.features:
+        nominal = None
+        if f.nominal:
+            nominal = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
+        feats[f.name] = model.fit_feature(f.kind, [ids[i] for i in f.hits], f.method, f.name, nominal,
+                                          tolerance=f.tolerance)
+    model.note(f"program {program.name!r} finished")
+    return ProgramRun(program, ids, feats)
+
+
+def run_on(controller: Any, model: MeasurementModel, program: Program | str | Path, part_pose: Any = None,
+           client: Any = None) -> ProgramRun:
+    """Run a program (or the program file at that path) as a job of the control core: it holds the machine
+    for the whole run, as ``client``."""
+    prog = load(program) if isinstance(program, (str, Path)) else program
+    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(prog, model, part_pose))
