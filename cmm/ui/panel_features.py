@@ -45,7 +45,7 @@ def tree_html(station: Any, selected: int | None = None) -> str:
     e = html.escape
     with station.measurement.lock:
         feats = sorted(station.measurement.features.items())
-        built = sorted(getattr(station, "constructed", {}).items())
+        built = sorted(station.measurement.constructed.items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
     rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11px system-ui'>"
@@ -206,7 +206,7 @@ class FeaturesPanel:
 
     def detail_markdown(self) -> str:
         fid = self.capp.selected_feature
-        c = getattr(self.station, "constructed", {}).get(fid) if fid is not None else None
+        c = self.station.measurement.constructed.get(fid) if fid is not None else None
         if c is None:
             return self.capp.feature_markdown()
         r = c.result.summary()
@@ -217,7 +217,7 @@ class FeaturesPanel:
     def options(self) -> tuple[str, ...]:
         with self.station.measurement.lock:
             ids = sorted([(fid, f.name) for fid, f in self.station.measurement.features.items()]
-                         + [(fid, c.name) for fid, c in getattr(self.station, "constructed", {}).items()])
+                         + [(fid, c.name) for fid, c in self.station.measurement.constructed.items()])
         return tuple(f"{fid} {name}" for fid, name in ids) or ("-",)
 
     # --- GUI ---------------------------------------------------------------------------------
@@ -261,7 +261,7 @@ class FeaturesPanel:
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
                                                                           name.value))
         with gui.add_folder("Report header"):
-            info = self.station.measurement.info if isinstance(getattr(self.station, "info", None), dict) else {}
+            info = self.station.measurement.info
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
                       for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
                                        ("temperature", "Temperature (°C)"))}

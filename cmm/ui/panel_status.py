@@ -144,7 +144,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + "</div>")
         if label == "part" and not aligned:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
-        settings = getattr(station, "probe_settings", None)
+        settings = station.prober.settings
         tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
         probe_cal = (getattr(station, "calibration_status", {}) or {}).get("probe")
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"

@@ -660,7 +660,7 @@ class ClientApp:
             self.status.refresh()
 
     def aligned(self) -> bool:
-        return bool(getattr(self.station, "aligned", False))
+        return bool(self.station.measurement.aligned)
 
     def station_probing_speed(self) -> float:
         return float(getattr(self.station, "qualified_probing_speed", self.station.config.speeds.probing))
