@@ -43,7 +43,10 @@ def test_cylinder_and_cone_keys(tmp_path, capsys):
     out = run_json(capsys, "cylinder", write(tmp_path / "c.txt", cyl.points, sep=" "))
     assert {"point", "direction", "radius", "form", "sigma"} <= out.keys()
     p, u = np.array(out["point"]), np.array(out["direction"])
-    assert abs(p @ u) < TOL  # axis point closest to the origin
+    c = cyl.points.mean(axis=0)
+    assert abs((c - p) @ u) < 1e-9  # the location point is the foot of the data centroid on the axis
+    rel = p - [10.0, 0, 0]
+    assert np.linalg.norm(rel - (rel @ u) * u) < TOL  # ... and lies on the axis
     cone = ka.cone(np.array([0.0, 0, 5]), [0, 0, 1.0], np.radians(15.0))
     out = run_json(capsys, "cone", write(tmp_path / "k.txt", cone.points))
     assert np.abs(np.array(out["apex"]) - [0, 0, 5]).max() < TOL

@@ -14,9 +14,10 @@ FAR = np.array([1000.0, -700.0, 650.0])  # 1000 mm class distance from the origi
 TILT = np.array([0.3, -0.5, 0.81])
 
 
-def closest(p, u):
+def foot(p, u, q):
+    """The location point of an axis feature: the foot of the data centroid q on the axis (p, u)."""
     u = u / np.linalg.norm(u)
-    return p - (p @ u) * u
+    return p + ((q - p) @ u) * u
 
 
 def assert_dir(u, v):
@@ -66,8 +67,8 @@ def test_line(where):
     data = ka.line(OFFSETS[where], TILT)
     res = fit_ls.fit_line(data.points)
     assert_dir(res.direction, data.answer["direction"])
-    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
-    assert abs(res.point @ res.direction) < 1e-9  # closest to origin
+    assert np.abs(res.point - foot(data.answer["point"], res.direction, data.points.mean(axis=0))).max() < TOL
+    assert np.abs(res.point - data.points.mean(axis=0)).max() < TOL  # the LS line passes through the centroid
     dist = np.hypot(*data.residuals.reshape(2, -1))
     assert np.abs(res.residuals - dist).max() < TOL
     assert res.form == pytest.approx(2 * dist.max(), abs=TOL)
@@ -127,7 +128,7 @@ def test_cylinder(where, arc):
                        arc_deg=arc, form=0.002 if arc < 360 else 0.01)
     res = fit_ls.fit_cylinder(data.points)
     assert_dir(res.direction, data.answer["direction"])
-    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
+    assert np.abs(res.point - foot(data.answer["point"], res.direction, data.points.mean(axis=0))).max() < TOL
     assert abs(res.radius - 8.0) < TOL
     assert np.abs(res.residuals - data.residuals).max() < TOL
     assert_stats(res, data)
@@ -266,7 +267,7 @@ def test_cylinder_10_degree_arc():
     data = ka.cylinder(FAR, TILT, 50.0, m=1000, length=40.0, arc_deg=10.0, form=0.4, seed=0)
     res = fit_ls.fit_cylinder(data.points)
     assert_dir(res.direction, data.answer["direction"])
-    assert np.abs(res.point - closest(data.answer["point"], res.direction)).max() < TOL
+    assert np.abs(res.point - foot(data.answer["point"], res.direction, data.points.mean(axis=0))).max() < TOL
     assert abs(res.radius - 50.0) < TOL
 
 
@@ -297,8 +298,35 @@ def test_nominal_far_from_the_best_fit_is_flagged():
     data = ka.cylinder(FAR, TILT, 50.0, m=10, length=40.0, arc_deg=30.0, form=0.01, seed=0)
     wrong = {"point": data.answer["point"] + [0.0, 60.0, 0.0], "direction": [1.0, 0.0, 0.0], "radius": 20.0}
     res = fit_ls.fit_cylinder(data.points, nominal=wrong)
-    assert abs(res.radius - 50.0) < 1e-8  # still the global optimum
-    assert any("not the one near the nominal" in w for w in res.warnings)
+    # the minimum near the nominal is reported; the global optimum far from it is kept for the operator's check
+    assert abs(res.radius - 50.0) > 1.0 and res.check
+    assert abs(res.alternative.radius - 50.0) < 1e-8
+    assert np.linalg.norm(np.cross(res.alternative.direction, data.answer["direction"])) < 1e-10
+    assert res.warnings[0].startswith("check: a different cylinder fits the hits better")
+    assert "alternative" in res.summary() and res.summary()["alternative"]["radius"] == pytest.approx(50.0)
+    # the nominal near the true cylinder: no check
+    good = fit_ls.fit_cylinder(data.points, nominal={"point": data.answer["point"], "direction": TILT})
+    assert abs(good.radius - 50.0) < 1e-8 and not good.check and good.warnings == res.alternative.warnings
+
+
+def test_two_rings_at_the_same_angles_lie_on_a_cylinder_across_the_axis():
+    """Two rings of four hits at the same angles (z = +-3, radii 10.01 and 9.99): a cylinder along y fits them
+    exactly (axis at z0 = (10.01^2 - 9.99^2) / 24, radius sqrt(10.01^2 / 2 + (3 - z0)^2)); the nominal's
+    vertical cylinder fits with residuals +-0.01 at radius 10. With the nominal, the vertical one is reported
+    and the exact one across the axis is kept as the alternative to check; without one, the best fit wins."""
+    pts = np.array([[r * np.cos(a), r * np.sin(a), z] for z, r in ((3.0, 10.01), (-3.0, 9.99))
+                    for a in np.radians([45, 135, 225, 315])]) + FAR
+    z0 = (10.01**2 - 9.99**2) / 24.0
+    across = np.sqrt(10.01**2 / 2 + (3.0 - z0) ** 2)
+    res = fit_ls.fit_cylinder(pts, nominal={"point": FAR, "direction": [0, 0, 1.0]})
+    assert abs(res.radius - 10.0) < 1e-9 and abs(res.direction[2]) == pytest.approx(1.0, abs=1e-12)
+    assert np.abs(res.point - FAR).max() < 1e-9  # the foot of the data centroid on the axis
+    assert np.abs(res.residuals).max() == pytest.approx(0.01, rel=1e-6)
+    alt = res.alternative
+    assert res.check and alt.radius == pytest.approx(across, abs=1e-9) and abs(alt.direction[2]) < 1e-9
+    assert alt.point[2] == pytest.approx(FAR[2] + z0, abs=1e-9) and np.abs(alt.residuals).max() < 1e-9
+    best = fit_ls.fit_cylinder(pts)
+    assert best.radius == pytest.approx(across, abs=1e-9) and not best.check
 
 
 # ---------------------------------------------------------------- uncertainties and conditioning

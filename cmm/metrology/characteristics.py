@@ -16,12 +16,17 @@ Per feature kind:
 A characteristic that needs a nominal the feature does not have is listed
 with ``nominal`` None and ``ok`` None ("no nominal"): it never shows a pass
 or fail against a blank nominal.
+
+A feature whose fit found a clearly different solution that fits the hits
+better than the one near its nominal (``alternative`` in the fit summary)
+has every characteristic marked ``check``, with the alternative's value in
+``check``: the operator decides; the result is never swapped silently.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +51,7 @@ class Characteristic:
     lower: float  # lower tolerance (negative or 0)
     unit: str = "mm"
     note: str = ""
+    check: str = ""  # why the operator must check this value (another solution fits better), or ""
 
     @property
     def deviation(self) -> float | None:
@@ -78,6 +84,8 @@ class Characteristic:
     @property
     def verdict(self) -> str:
         ok = self.ok
+        if self.check:
+            return "check"
         return "no nominal" if ok is None else ("pass" if ok else "FAIL")
 
 
@@ -140,13 +148,25 @@ def characteristics(name: str, kind: str, geometry: dict[str, Any], nominal: dic
                                   pos_tol, 0.0, note=note or ("" if tp is not None else "no nominal location")))
     if kind in FORM_NAMES and "form" in g:
         out.append(Characteristic(name, FORM_NAMES[kind], 0.0, float(g["form"]), tol["form"], 0.0))
+    alternative = g.get("alternative")
+    if alternative:
+        alt = {c.name: c for c in characteristics(name, kind, alternative, nominal, tolerance)}
+        out = [replace(c, check=f"another {kind} fits the hits better: {c.name} "
+                                f"{_value_text(alt[c.name].actual, c.unit)} there") for c in out]
     return out
 
 
+def _value_text(v: float | None, unit: str) -> str:
+    return "—" if v is None else (f"{v:.4f}°" if unit == "deg" else f"{v:.4f}")
+
+
 def verdict(chars: list[Characteristic]) -> tuple[str, int, int]:
-    """("PASS" | "FAIL" | "INCOMPLETE", failed count, not evaluated count)."""
+    """("CHECK" | "PASS" | "FAIL" | "INCOMPLETE", failed count, not evaluated count); CHECK: a feature
+    needs the operator's check (another solution fits its hits better), whatever its values."""
     failed = sum(c.ok is False for c in chars)
     missing = sum(c.ok is None for c in chars)
+    if any(c.check for c in chars):
+        return "CHECK", failed, missing
     if failed:
         return "FAIL", failed, missing
     return ("INCOMPLETE" if missing else "PASS"), failed, missing

@@ -18,11 +18,17 @@ Every result carries the fit statistics (FitResult fields) and its geometry:
   feature well (short arcs and caps, cones that are nearly cylinders), when
   several distinct solutions fit almost equally well, or when a criterion's
   global optimum could not be proven.
+- alternative: a fit with a nominal reports the minimum near the nominal; when
+  a clearly different solution far from it fits the points better, that
+  solution is kept here (same kind, same units) and the result needs a
+  ``check`` by the operator: it is never silently swapped in.
 
 Conventions: unit vectors are normalised; undirected axes (line, plane
 normal, circle normal, cylinder, torus) have a canonical sign (largest
-component positive); line and cylinder axis points are the axis points
-closest to the origin; the cone direction points from the apex into the cone.
+component positive); the location ``point`` of lines, cylinders and cones is
+the projection of the data centroid onto the axis (plane: the centroid), and
+the reported position uncertainty holds at that point; the cone direction
+points from the apex into the cone.
 """
 
 from __future__ import annotations
@@ -49,12 +55,18 @@ class FitResult:
     param_names: tuple[str, ...] = field(default=(), repr=False)
     uncertainty: dict[str, float] = field(default_factory=dict, repr=False)
     warnings: tuple[str, ...] = field(default=())
+    alternative: FitResult | None = field(default=None, repr=False)
 
     kind: ClassVar[str] = "feature"
     _stat_fields: ClassVar[frozenset[str]] = frozenset(
         {"residuals", "sigma", "form", "covariance", "n_points", "method", "param_names", "plane_residuals",
-         "uncertainty", "warnings"}
+         "uncertainty", "warnings", "alternative"}
     )
+
+    @property
+    def check(self) -> bool:
+        """True when a clearly different solution fits better than the reported one (see ``alternative``)."""
+        return self.alternative is not None
 
     def geometry(self) -> dict[str, Any]:
         """The geometric parameters as plain Python floats / lists."""
@@ -70,7 +82,7 @@ class FitResult:
         """kind, method, n_points, form, sigma, the geometry, the standard uncertainties
         (``uncertainty``: name -> mm or rad) and ``warnings`` (JSON-ready)."""
         sigma = float(self.sigma)
-        return {
+        out = {
             "kind": self.kind,
             "method": self.method,
             "n_points": int(self.n_points),
@@ -80,6 +92,10 @@ class FitResult:
             "uncertainty": {k: float(v) for k, v in self.uncertainty.items() if math.isfinite(v)},
             "warnings": list(self.warnings),
         }
+        if self.alternative is not None:  # the better-fitting solution far from the nominal: the result needs a check
+            alt = self.alternative.summary()
+            out["alternative"] = {k: v for k, v in alt.items() if k not in ("warnings", "uncertainty")}
+        return out
 
 
 class _Sized:
@@ -105,7 +121,7 @@ class Point(FitResult):
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Line(FitResult):
-    point: np.ndarray  # axis point closest to the origin
+    point: np.ndarray  # the data centroid (on the LS line; other criteria: its projection onto the line)
     direction: np.ndarray
     kind: ClassVar[str] = "line"
 
@@ -135,7 +151,7 @@ class Sphere(_Sized, FitResult):
 
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Cylinder(_Sized, FitResult):
-    point: np.ndarray  # axis point closest to the origin
+    point: np.ndarray  # the projection of the data centroid onto the axis
     direction: np.ndarray
     radius: float
     kind: ClassVar[str] = "cylinder"
@@ -144,6 +160,7 @@ class Cylinder(_Sized, FitResult):
 @dataclass(frozen=True, kw_only=True, eq=False)
 class Cone(FitResult):
     apex: np.ndarray
+    point: np.ndarray  # the projection of the data centroid onto the axis
     direction: np.ndarray  # from the apex into the cone
     half_angle: float  # radians
 
@@ -172,7 +189,7 @@ class Torus(FitResult):
 class Line2D(FitResult):
     """A line in a plane's 2D coordinates; residuals signed along ``normal``."""
 
-    point: np.ndarray  # point closest to the 2D origin
+    point: np.ndarray  # the projection of the data centroid onto the line
     direction: np.ndarray
     normal: np.ndarray
     kind: ClassVar[str] = "line2d"

@@ -44,7 +44,7 @@ from cmm.metrology.fit_solver import levenberg_marquardt
 from cmm.metrology.geom_basics import (
     algebraic_ball,
     as_points,
-    axis_point_closest_to_origin,
+    axis_foot,
     canonical_direction,
     check_rank,
     frame_with_axis,
@@ -127,7 +127,7 @@ def minzone_line_2d(points: Any) -> Line2D:
     h = (x - c) @ n
     mid = 0.5 * (h.max() + h.min())
     p = c + mid * n
-    return Line2D(point=p - (p @ t) * t, direction=t, normal=n, **_stats(h - mid, 2, "minzone"))
+    return Line2D(point=p, direction=t, normal=n, **_stats(h - mid, 2, "minzone"))
 
 
 def minzone_line(points: Any) -> Line:
@@ -143,7 +143,7 @@ def minzone_line(points: Any) -> Line:
     p, u, r = chebyshev_fit(model, (p, ls.direction, 0.0), "mcc")
     dist = model.residuals_jacobian((p, u, 0.0))[0] * data.scale
     u = canonical_direction(u)
-    return Line(point=axis_point_closest_to_origin(data.to_mm(p), u), direction=u,
+    return Line(point=axis_foot(data.to_mm(p), u, data.c), direction=u,
                 **_stats(dist, 4, "minzone", form=2.0 * float(dist.max())))
 
 
@@ -335,7 +335,7 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
         partial = "the cylinder is short (probed length below its diameter)"
     d = model.residuals_jacobian(state)[0] * data.scale
     u = canonical_direction(uu)
-    return Cylinder(point=axis_point_closest_to_origin(data.to_mm(pu), u), direction=u, radius=ru * data.scale,
+    return Cylinder(point=axis_foot(data.to_mm(pu), u, data.c), direction=u, radius=ru * data.scale,
                     warnings=_unproven("cylinder", method, runs, differ, partial), **_stats(d, 5, method))
 
 

@@ -32,6 +32,7 @@ apex, half_angle (rad) or half_angle_deg, major_radius, minor_radius.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -62,7 +63,6 @@ from cmm.metrology.fit_solver import (
 from cmm.metrology.geom_basics import (
     algebraic_ball,
     as_points,
-    axis_point_closest_to_origin,
     canonical_direction,
     centre,
     check_rank,
@@ -157,7 +157,7 @@ def fit_line(points: Any) -> Line:
     dist = np.hypot(loc[:, 0], loc[:, 1])
     st = statistics(np.concatenate([loc[:, 0], loc[:, 1]]), jac, 4, form=2.0 * float(dist.max()),
                     groups=GROUPS["line"])
-    return Line(point=axis_point_closest_to_origin(c, u), direction=u, residuals=dist, n_points=m,
+    return Line(point=c, direction=u, residuals=dist, n_points=m,
                 method="ls", param_names=("a", "b", "alpha", "beta"), **st)
 
 
@@ -186,7 +186,7 @@ def fit_line_2d(points: Any) -> Line2D:
     d = xc @ n
     jac = np.column_stack([-np.ones(len(x)), xc @ t])
     st = statistics(d, jac, 2, groups=GROUPS["line2d"])
-    return Line2D(point=c - (c @ t) * t, direction=t, normal=n, residuals=d, n_points=len(x), method="ls",
+    return Line2D(point=c, direction=t, normal=n, residuals=d, n_points=len(x), method="ls",
                   param_names=("offset", "angle"), **st)
 
 
@@ -210,10 +210,9 @@ def _distinct(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Sequence[Any], kind: str,
-           *, search_points: int = SUBSAMPLE, preferred: int | None = None) -> tuple[Solution, list[str]]:
+           *, search_points: int = SUBSAMPLE) -> tuple[Solution, list[str]]:
     """Run LM from each start (on a subsample when there are several), refine the best on all
-    points; warn when a clearly different solution fits almost as well, or when the solution
-    from the nominal start (index `preferred`) is not the best."""
+    points; warn when a clearly different solution fits almost as well."""
     if not starts:
         raise FitError(f"no usable starting values for the {kind} fit")
     warnings: list[str] = []
@@ -245,8 +244,7 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
         if not refined:
             raise FitError(f"the {kind} fit diverged")
         refined.sort(key=lambda it: it[1].cost)
-        best_i, sol = refined[0]
-        best = next(t for i, t in trials if i == best_i)
+        sol = refined[0][1]
         # a clearly different competitor that fits almost as well makes the result ambiguous
         rival = next((o for _, o in refined[1:] if _distinct(o.residuals, sol.residuals)), None)
         if rival is not None and rival.cost <= 1.25 * sol.cost:
@@ -254,11 +252,6 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
                 f"the points fit two clearly different {kind}s almost equally well (rms "
                 f"{np.sqrt(sol.cost / sol.residuals.size):.3g} vs {np.sqrt(rival.cost / rival.residuals.size):.3g} "
                 "in scaled units); the better one is reported: probe more of the surface or give a nominal")
-        if preferred is not None and best_i != preferred:
-            near = next((t for i, t in trials if i == preferred), None)
-            if near is None or _distinct(near.residuals, best.residuals):
-                warnings.append(f"the best-fitting {kind} is not the one near the nominal: check the nominal "
-                                "or probe more of the surface")
     else:
         sol = _run(model_cls, xs, starts[0], 300)
         if sol is None:
@@ -266,6 +259,31 @@ def _solve(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, starts: Seque
     sol.r = r_factor(sol.jacobian)
     check_conditioning(sol.r, kind)
     return sol, warnings
+
+
+def _near_nominal(model_cls: Callable[[np.ndarray], Any], xs: np.ndarray, start: Any, kind: str,
+                  search: Callable[[], tuple[Solution, list[str]]]) -> tuple[Solution, list[str], Solution | None]:
+    """The minimum reached from the nominal's start values, and (third) a clearly different solution
+    found by the global ``search`` that fits the points better, or None.
+
+    The nominal decides which of several minima is the measured feature: with few hits a cone or a
+    short cylinder has other minima far from it (two rings of four hits at the same angles lie exactly
+    on a cylinder across the axis), and the best-fitting one is not the probed feature. The better
+    far solution is returned for the operator to check, never swapped in."""
+    near = _run(model_cls, xs, start, 300)
+    found, warn = search()
+    if near is not None:
+        near.r = r_factor(near.jacobian)
+        try:
+            check_conditioning(near.r, kind)
+        except FitError:
+            near = None
+    if near is None:
+        return found, [f"the {kind} fit did not converge from the nominal; the best-fitting {kind} is reported: "
+                       "check the nominal"] + warn, None
+    if not _distinct(found.residuals, near.residuals):  # the same minimum: keep the better-converged run
+        return (found if found.cost < near.cost else near), [], None
+    return near, [], (found if found.cost < near.cost else None)
 
 
 def _finish(sol: Solution, model: Any, data: ScaledPoints, residuals_mm: np.ndarray, group: str,
@@ -448,22 +466,49 @@ def _screen(model_cls: Callable[[np.ndarray], Any], x: np.ndarray, builder: Call
 
 
 def _wide_solve(model_cls: Callable[[np.ndarray], Any], data: ScaledPoints, first: Solution | None,
-                first_warn: list[str], starts: list[Any], kind: str, preferred: int | None,
+                first_warn: list[str], starts: list[Any], kind: str,
                 builder: Callable[[np.ndarray, np.ndarray], Any]) -> tuple[Solution, list[str]]:
     """Re-solve from the first solution, the given starts and the best of SEARCH_DIRECTIONS
     axis directions screened with an algebraic start each."""
     sub = subsample(data.x, SEARCH_SUBSAMPLE)
     screened = _screen(model_cls, sub, builder, hemisphere_directions(SEARCH_DIRECTIONS), SEARCH_STARTS)
     lead = [] if first is None else [first.state]
-    sol, warn = _solve(model_cls, data.x, lead + starts + screened, kind, search_points=SEARCH_SUBSAMPLE,
-                       preferred=None if preferred is None else preferred + len(lead))
+    sol, warn = _solve(model_cls, data.x, lead + starts + screened, kind, search_points=SEARCH_SUBSAMPLE)
     if first is not None and sol.cost > first.cost * (1.0 + 1e-12):
         return first, first_warn  # the search did not beat the first solution
     return sol, warn
 
 
+def _axis_solve(model_cls: Callable[[np.ndarray], Any], data: ScaledPoints, starts: list[Any], kind: str,
+                has_nominal: bool, builder: Callable[[np.ndarray, np.ndarray], Any]
+                ) -> tuple[Solution, list[str], Solution | None]:
+    """Cylinder / cone solve: multi-start, widened for sparse, partial or poorly determined data; with a
+    nominal (its start first in ``starts``) the minimum near the nominal and any better far one."""
+    def search() -> tuple[Solution, list[str]]:
+        sol, warn = (None, []) if len(data.x) <= SPARSE else _solve(model_cls, data.x, starts, kind)
+        if sol is None or _needs_search(data, sol, sol.state[0], sol.state[1]):
+            sol, warn = _wide_solve(model_cls, data, sol, warn, starts, kind, builder)
+        return sol, warn
+
+    if has_nominal:
+        return _near_nominal(model_cls, data.x, starts[0], kind, search)
+    return (*search(), None)
+
+
+def _check_warning(kind: str, reported: Any, alternative: Any, detail: str) -> str:
+    """The operator's sentence for a better-fitting solution far from the nominal (both described)."""
+    rms = lambda f: float(np.sqrt(np.mean(np.square(f.residuals))))  # noqa: E731 - one-line helper
+    tilt = np.degrees(np.arccos(min(1.0, abs(float(reported.direction @ alternative.direction)))))
+    return (f"check: a different {kind} fits the hits better ({detail(alternative)}, axis {tilt:.3g} deg from the "
+            f"reported one, rms {rms(alternative) * 1000:.3g} um) than the one near the nominal, which is reported "
+            f"({detail(reported)}, rms {rms(reported) * 1000:.3g} um): check the nominal, or probe more of the surface")
+
+
 def fit_cylinder(points: Any, nominal: Any = None) -> Cylinder:
-    """Cylinder: LM with axis point in the centroid plane, two tilt angles, radius."""
+    """Cylinder: LM with axis point in the centroid plane, two tilt angles, radius.
+
+    The reported axis point is the projection of the data centroid onto the axis; its
+    ``axis_position`` uncertainty holds there."""
     x = as_points(points, "cylinder", MIN_POINTS["cylinder"])
     data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "cylinder", 3)
@@ -471,15 +516,22 @@ def fit_cylinder(points: Any, nominal: Any = None) -> Cylinder:
     starts = [(*_axis_start(data, u, nominal if (i == 0 and has_nominal) else None), u)
               for i, u in enumerate(_axis_candidates(data, nominal))]
     starts = [(p, u, r) for p, r, u in starts]
-    sol, warn = (None, []) if len(x) <= SPARSE else \
-        _solve(fm.CylinderModel, data.x, starts, "cylinder", preferred=0 if has_nominal else None)
-    if sol is None or _needs_search(data, sol, sol.state[0], sol.state[1]):
-        sol, warn = _wide_solve(fm.CylinderModel, data, sol, warn, starts, "cylinder",
-                                0 if has_nominal else None, _cylinder_algebraic)
+    sol, warn, far = _axis_solve(fm.CylinderModel, data, starts, "cylinder", has_nominal, _cylinder_algebraic)
+    result = _cylinder_result(sol, data, warn)
+    if far is None:
+        return result
+    far.r = r_factor(far.jacobian)
+    alt = _cylinder_result(far, data, [])
+    detail = lambda f: f"diameter {f.diameter:.4f} mm"  # noqa: E731
+    return replace(result, alternative=alt,
+                   warnings=(_check_warning("cylinder", result, alt, detail),) + result.warnings)
+
+
+def _cylinder_result(sol: Solution, data: ScaledPoints, warn: list[str]) -> Cylinder:
     p, u, r = sol.state
     u = canonical_direction(u)
     out = _finish(sol, fm.CylinderModel(data.x), data, sol.residuals * data.scale, "cylinder", warn)
-    return Cylinder(point=axis_point_closest_to_origin(data.to_mm(p), u), direction=u, radius=r * data.scale,
+    return Cylinder(point=data.to_mm(p), direction=u, radius=r * data.scale,
                     residuals=sol.residuals * data.scale, param_names=("a", "b", "alpha", "beta", "r"), **out)
 
 
@@ -503,19 +555,32 @@ def _cone_start(data: ScaledPoints, u: np.ndarray, nominal: Any) -> tuple[np.nda
 
 
 def fit_cone(points: Any, nominal: Any = None) -> Cone:
-    """Cone: LM on d = (rho - s) cos(psi) - z sin(psi), s = radius in the centroid plane."""
+    """Cone: LM on d = (rho - s) cos(psi) - z sin(psi), s = radius in the centroid plane.
+
+    ``point`` is the projection of the data centroid onto the axis (its ``axis_position``
+    uncertainty holds there); the apex is reported with its own uncertainty."""
     x = as_points(points, "cone", MIN_POINTS["cone"])
     data = ScaledPoints(x)
     check_rank(principal_axes(data.x)[0], "cone", 3)
     has_nominal = nominal_value(nominal, "direction", "normal") is not None
     starts = [_cone_start(data, u, nominal if (i == 0 and has_nominal) else None)
               for i, u in enumerate(_axis_candidates(data, nominal))]
-    sol, warn = (None, []) if len(x) <= SPARSE else \
-        _solve(fm.ConeModel, data.x, starts, "cone", preferred=0 if has_nominal else None)
-    if sol is None or _needs_search(data, sol, sol.state[0], sol.state[1]):
-        sol, warn = _wide_solve(fm.ConeModel, data, sol, warn, starts, "cone", 0 if has_nominal else None,
-                                _cone_algebraic)
+    sol, warn, far = _axis_solve(fm.ConeModel, data, starts, "cone", has_nominal, _cone_algebraic)
+    result = _cone_result(sol, data, warn)
+    if far is None:
+        return result
+    far.r = r_factor(far.jacobian)
+    try:
+        alt = _cone_result(far, data, [])
+    except FitError:
+        return result  # the far solution is no valid cone (half angle out of range): nothing to check
+    detail = lambda f: f"half angle {f.half_angle_deg:.4g} deg"  # noqa: E731
+    return replace(result, alternative=alt, warnings=(_check_warning("cone", result, alt, detail),) + result.warnings)
+
+
+def _cone_result(sol: Solution, data: ScaledPoints, warn: list[str]) -> Cone:
     p, u, s, psi = sol.state
+    psi = float(psi)
     if psi < 0:
         u, psi = -u, -psi
     if not 0.0 < psi < np.pi / 2:
@@ -537,8 +602,8 @@ def fit_cone(points: Any, nominal: Any = None) -> Cone:
         out["warnings"] += (
             f"the cone is nearly a cylinder (half angle {np.degrees(psi):.4g} deg, apex {abs(t_mm):.4g} mm from the "
             "points): its apex and half angle are poorly determined; fit a cylinder instead",)
-    return Cone(apex=apex, direction=unit(u), half_angle=float(psi), residuals=sol.residuals * data.scale,
-                param_names=("a", "b", "alpha", "beta", "s", "psi"), **out)
+    return Cone(apex=apex, point=data.to_mm(p), direction=unit(u), half_angle=psi,
+                residuals=sol.residuals * data.scale, param_names=("a", "b", "alpha", "beta", "s", "psi"), **out)
 
 
 def fit_torus(points: Any, nominal: Any = None) -> Torus:

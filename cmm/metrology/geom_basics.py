@@ -83,6 +83,12 @@ def axis_point_closest_to_origin(p: np.ndarray, u: np.ndarray) -> np.ndarray:
     return p - np.dot(p, u) * u
 
 
+def axis_foot(p: np.ndarray, u: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The point of the line p + t u nearest q (u unit): a feature's location point is the foot of
+    its data centroid q on its axis."""
+    return p + np.dot(q - p, u) * u
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product of two 3-vectors (np.cross is slow for single vectors: hot in the fits)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])

@@ -7,11 +7,19 @@ and pattern of hits, and the approach of each hit (into the surface):
 
 - plane: ``n`` hits (default 4) spread over the face, at least ``margin``
   from its edges (farthest-point sampling of surface samples);
-- cylinder (bore or boss): two rings of ``n`` hits (default 4) at a quarter
-  and three quarters of its length; a short one (< 3 mm) becomes a circle;
+- cylinder (bore or boss): two rings of ``n`` hits (default 4) at a fifth
+  and four fifths of its length; a short one (< 3 mm) becomes a circle;
 - sphere: the pole (along +Z) and a ring of ``n`` hits (default 4) at 45 deg,
   kept to the part of the sphere the mesh has;
-- cone: two rings of ``n`` hits on the cone between its ends.
+- cone: two rings of ``n`` hits at a fifth and four fifths of its length.
+
+The hits determine the feature: the two rings of a cylinder or cone are far
+apart in height and the second ring is turned by half the angle between hits
+(two rings of four hits at the same angles lie exactly on a cylinder across
+the axis as well, so the fit could not tell the probed feature from it), and
+every ring has at least ``MIN_PER_RING`` hits. When the operator asks for
+fewer, the plan is made as asked and ``HitPlan.notes`` says what the fit
+then cannot determine.
 
 Every planned hit must lie on the picked region of the mesh (a hit that would
 land on another face is dropped) and face upward enough to be reached from
@@ -34,6 +42,8 @@ from .transform import apply_points, apply_vectors, as_pose, invert
 
 MIN_NORMAL_Z = -0.2  # faces that look further down than this cannot be reached by a vertical stylus
 ON_SURFACE = 0.05  # mm: a planned point must be this close to the picked region
+MIN_PER_RING = 4  # hits per ring of a cylinder or cone: a circle (3 parameters) with one hit to check it
+RING_LEVELS = (0.2, 0.8)  # fractions of a cylinder's or cone's length where its two rings go
 
 
 class PlanError(ValueError):
@@ -49,6 +59,7 @@ class HitPlan:
     clearance_z: float  # machine Z of the clearance plane
     description: str = ""
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # polyline the probe centre follows
+    notes: tuple[str, ...] = ()  # what the hits do not determine (fewer hits than the feature needs)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -108,6 +119,7 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
     kind = nom.kind
     pts: list[np.ndarray] = []
     app: list[np.ndarray] = []
+    notes: list[str] = []
     if kind in ("plane", "surface"):
         normal = np.asarray(p["normal"], float)
         count = n or 4
@@ -134,9 +146,14 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
         if kind == "cylinder" and length < 3.0:
             levels, fit_kind = [lo + length / 2], "circle"
         else:
-            levels, fit_kind = [lo + length / 4, lo + 3 * length / 4], kind
-        for level in levels:
-            for a in np.linspace(0, 2 * math.pi, count, endpoint=False) + math.pi / count:
+            levels, fit_kind = [lo + f * length for f in RING_LEVELS], kind
+        if count < MIN_PER_RING:
+            notes.append(f"{count} hits per ring do not determine a {fit_kind}: each ring needs {MIN_PER_RING} "
+                         "(a circle and one hit to check it); the fit may find another "
+                         f"{fit_kind} through the hits, or none")
+        for ring, level in enumerate(levels):
+            # the second ring turned by half a step: rings at the same angles fit a cylinder across the axis too
+            for a in np.linspace(0, 2 * math.pi, count, endpoint=False) + math.pi / count * (1 + ring):
                 radial = math.cos(a) * e1 + math.sin(a) * e2
                 if kind == "cylinder":
                     r = float(p["radius"])
@@ -179,8 +196,12 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
     machine_pts, machine_app = machine_pts[keep], machine_app[keep]
     top = float(apply_points(T, mesh.vertices)[:, 2].max())
     clearance_z = top + clearance
+    if fit_kind in ("cylinder", "cone") and (~keep).any():
+        notes.append(f"{int((~keep).sum())} planned hits are not on the surface or not reachable: the rest may not "
+                     f"determine the {fit_kind}")
     plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
-                   what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""))
+                   what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""),
+                   notes=tuple(notes))
     plan.path = plan_path(plan, approach_distance, tip_radius)
     return plan
 

@@ -97,7 +97,19 @@ def probing_side(feature: FitResult, tips: Any, approach: Any) -> int:
 def offset_feature(feature: FitResult, tips: Any, approach: Any, r_eff: float) -> FitResult:
     """The surface feature from a feature fitted to tip centres (see module doc).
 
-    Residuals and form are unchanged (offset surfaces are parallel)."""
+    Residuals and form are unchanged (offset surfaces are parallel). A better-fitting alternative
+    solution (see FitResult.alternative) is offset the same way, so both read as surfaces."""
+    result = _offset(feature, tips, approach, r_eff)
+    if feature.alternative is None:
+        return result
+    try:
+        alt = _offset(feature.alternative, tips, approach, r_eff)
+    except FitError:
+        alt = feature.alternative  # the far solution has no valid surface offset: kept as fitted
+    return replace(result, alternative=alt)
+
+
+def _offset(feature: FitResult, tips: Any, approach: Any, r_eff: float) -> FitResult:
     side = probing_side(feature, tips, approach)
     delta = side * float(r_eff)  # outward offset of the surface
     if isinstance(feature, Plane):

@@ -325,6 +325,7 @@ tr.feat td { border-top: 2px solid #777; }
 .muted { color: #666; } .warn { color: #b71c1c; border: 1px solid #b71c1c; padding: 4px 8px; }
 .verdict { font-size: 13pt; font-weight: 700; padding: 4px 10px; display: inline-block; border: 2px solid; }
 .verdict.PASS { color: #1b5e20; } .verdict.FAIL { color: #b71c1c; } .verdict.INCOMPLETE { color: #8a6d00; }
+.verdict.CHECK { color: #e65100; } td.chk { color: #e65100; font-weight: 700; } .checknote { color: #e65100; }
 .views, .forms { display: flex; gap: 10px; flex-wrap: wrap; } svg { background: #fff; }
 .head { display: grid; grid-template-columns: 1fr 1fr; gap: 0 24px; }
 dl { display: grid; grid-template-columns: max-content auto; gap: 1px 10px; margin: 0; font-size: 9.5pt;
@@ -435,7 +436,11 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     per_feature += _constructed_rows(session, default_tolerance)
     rows = [c for _, cs in per_feature for c in cs]
     word, n_fail, n_missing = verdict(rows)
-    if word == "FAIL":
+    if word == "CHECK":
+        n_check = sum(bool(c.check) for c in rows)
+        word_long = (f"CHECK ({n_check} characteristic{'s' if n_check != 1 else ''} of features another solution "
+                     "fits better: see the warnings)")
+    elif word == "FAIL":
         word_long = f"FAIL ({n_fail} characteristic{'s' if n_fail != 1 else ''} out of tolerance)"
     elif word == "INCOMPLETE":
         word_long = f"INCOMPLETE ({n_missing} characteristic{'s' if n_missing != 1 else ''} without a nominal)"
@@ -499,8 +504,11 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
             unit = "°" if c.unit == "deg" else ""
             lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
             note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and c.ok is None else ""
-            result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
-                      None: "<td class='l muted'>not evaluated</td>"}[c.ok]
+            if c.check:
+                note += f"<br><span class='checknote'>check: {e(c.check)}</span>"
+            result = "<td class='chk'>check</td>" if c.check else {
+                True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
+                None: "<td class='l muted'>not evaluated</td>"}[c.ok]
             out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
                        f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
                        f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"

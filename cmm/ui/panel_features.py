@@ -33,6 +33,7 @@ if TYPE_CHECKING:
 
 RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
 RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
+CHECK_COLOUR = "#e65100"  # another solution fits the hits better: the operator checks (see characteristics)
 
 
 def feature_chars(f: Any) -> list[Any]:
@@ -58,10 +59,11 @@ def tree_html(station: Any, selected: int | None = None) -> str:
     for fid, name, what, chars in items:
         oks = [c.ok for c in chars]
         worst = False if False in oks else (None if None in oks else True)
+        head = CHECK_COLOUR if any(c.check for c in chars) else RESULT_COLOURS[worst]
         mark = "▶ " if fid == selected else ""
         bg = "background:#fff8c4;" if fid == selected else ""
         rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
-                    f"<b style='color:{RESULT_COLOURS[worst]}'>{mark}{fid} {e(name)}</b> "
+                    f"<b style='color:{head}'>{mark}{fid} {e(name)}</b> "
                     f"<span style='color:#777'>{e(what)}</span></td></tr>")
         for c in chars:
             unit = "°" if c.unit == "deg" else ""
@@ -72,7 +74,9 @@ def tree_html(station: Any, selected: int | None = None) -> str:
                         f"</td><td align=right>{nominal}</td>"
                         f"<td align=right>{actual}</td><td align=right>{dev}</td>"
                         f"<td align=right style='white-space:nowrap'>{e(c.tolerance_text)}</td>"
-                        f"<td style='color:{RESULT_COLOURS[c.ok]};font-weight:600'>{RESULT_WORDS[c.ok]}</td></tr>")
+                        + (f"<td style='color:{CHECK_COLOUR};font-weight:600' title='{e(c.check)}'>check</td></tr>"
+                           if c.check else
+                           f"<td style='color:{RESULT_COLOURS[c.ok]};font-weight:600'>{RESULT_WORDS[c.ok]}</td></tr>"))
     rows.append("</table>")
     return "".join(rows)
 

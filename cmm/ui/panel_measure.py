@@ -52,7 +52,7 @@ class MeasurePanel:
         p = self.plan
         if p is None:
             return "*Click a face of the part, then Plan.*"
-        lines = [f"**{p.description}**", "",
+        lines = [f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",
                  f"{len(p)} hits · clearance plane Z {p.clearance_z:.1f} mm · nominal {p.nominal.kind}"
                  + (f" ⌀ {2 * p.nominal.params['radius']:.3f}" if "radius" in p.nominal.params else "")]
         for k, (q, u) in enumerate(zip(p.points, p.approaches), 1):
