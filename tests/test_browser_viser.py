@@ -176,8 +176,8 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     px = box["x"] + u * box["width"] / camera.image_width
     py = box["y"] + v * box["height"] / camera.image_height
     page.mouse.click(px, py)
-    bs.wait_until(lambda: page.capp.picked is not None, 5.0, "the pick from the canvas click")
-    hit, nominal = page.capp.picked
+    bs.wait_until(lambda: page.capp.ctx.picked is not None, 5.0, "the pick from the canvas click")
+    hit, nominal = page.capp.ctx.picked
     assert hit.point[2] == pytest.approx(TOP_Z, abs=1e-6)
     assert np.allclose(hit.normal, (0, 0, 1), atol=1e-6)
     assert np.linalg.norm(hit.point[:2] - target[:2]) < 5.0, (hit.point, target)  # a few pixels of slack
@@ -411,7 +411,7 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     page.capp.go_to(*target).wait(60)
     page.get_by_role("button", name="positioning", exact=True).click()
     page.get_by_text("Manual probing (armed jog)").click()
-    bs.wait_until(lambda: page.capp.manual_probe and page.capp.speed_mode == "positioning", 10.0, "armed, fast")
+    bs.wait_until(lambda: page.capp.ctx.manual_probe and page.capp.speed_mode == "positioning", 10.0, "armed, fast")
     qualified = page.capp.station_probing_speed()
     assert qualified < station.config.speeds.jog_fast / 4
     hits = len(station.measurement.hits)

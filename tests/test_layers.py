@@ -3,8 +3,8 @@
 Layers (README "Architecture"): front ends (ui, ippdme, cli) -> station (composition root) -> control -> machine
 -> nmc, and station -> measurement -> session -> metrology; calibration beside them; the simulator speaks only
 bytes. Every import
-that runs counts, also those inside functions; imports for type checkers only (``if TYPE_CHECKING:``)
-do not.
+counts: those inside functions, and those for type checkers only (``if TYPE_CHECKING:``), which draw the
+same circle for a reader and for the type checker.
 """
 
 from __future__ import annotations
@@ -52,12 +52,7 @@ def _modules() -> dict[str, Path]:
 def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
     pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
     out = set()
-    tree = ast.parse(path.read_text())
-    typing_only = {id(n) for block in ast.walk(tree) if isinstance(block, ast.If) and "TYPE_CHECKING" in ast.unparse(block.test)
-                   for n in ast.walk(block)}
-    for node in ast.walk(tree):
-        if id(node) in typing_only:
-            continue
+    for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]

@@ -20,7 +20,8 @@ pytest.importorskip("viser")
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panels import HOLD_GRACE_S  # noqa: E402
-from cmm.ui.panels import nominal_deviation, parse_ids  # noqa: E402
+from cmm.ui.ids import parse_ids  # noqa: E402
+from cmm.ui.panel_features import nominal_deviation  # noqa: E402
 from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
 
 
@@ -102,9 +103,9 @@ def test_browser_tab_gets_its_own_gui(app):
         click = _messages.ScenePointerMessage("click", tuple(above * SCALE), (0.0, 0.0, -1.0), ((0.5, 0.5),), None)
         ws.send(msgspec.msgpack.encode(click.as_serializable_dict()))
         end = time.monotonic() + 5
-        while capp.picked is None and time.monotonic() < end:
+        while capp.ctx.picked is None and time.monotonic() < end:
             time.sleep(0.02)
-        assert capp.picked is not None and np.allclose(capp.picked[0].normal, [0, 0, 1])
+        assert capp.ctx.picked is not None and np.allclose(capp.ctx.picked[0].normal, [0, 0, 1])
     end = time.monotonic() + 5
     while len(app.clients) > before and time.monotonic() < end:
         time.sleep(0.05)
@@ -210,12 +211,12 @@ def test_pick_probe_here_and_fit(app, operator):
         _wait_done(operator.probe_here(), 20)
     app.redraw()
     assert set(app.deviations()) == set(st.measurement.hits)
-    feature = operator.fit("plane", "ls", last_n=4)
+    feature = operator.features.fit("plane", "ls", last_n=4)
     assert feature is not None, operator.messages[-3:]
     assert feature.kind == "plane" and len(feature.hit_ids) == 4
     assert feature.result.form < 0.01
     assert abs(abs(feature.result.normal[2]) - 1) < 1e-4
-    text = operator.feature_markdown()
+    text = operator.features.feature_markdown()
     assert "form error" in text and "vs nominal plane" in text
     assert "u (1 sigma): position" in text  # standard uncertainties shown
     app.redraw()
@@ -224,7 +225,7 @@ def test_pick_probe_here_and_fit(app, operator):
     last = max(st.measurement.hits)
     operator.undo()
     assert last not in st.measurement.hits
-    assert operator.fit("sphere", "ls", ids_text=str(last)) is None
+    assert operator.features.fit("sphere", "ls", ids_text=str(last)) is None
     assert operator.messages[-1][0] == "error"
 
 
@@ -276,7 +277,7 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator):
     from cmm.ui.panel_status import status_html
 
     st = app.station
-    text = status_html(st, operator.control_text(), frame="Machine", link_rate=100.0)
+    text = status_html(st, operator.ctx.control_text(), frame="Machine", link_rate=100.0)
     x, y, z = st.machine.state.position
     mode = str(st.controller.state.mode.value).upper()  # idle, or stopped after the previous test's STOP
     assert f">{mode}</span>" in text and f"X {x:.4f}" in text and "link <span class=''>ok" in text
@@ -297,7 +298,7 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator):
         typed_nominal(feature, diameter=10.0)
     # an observer cannot run a measurement
     viewer = app.add_client(client_id="viewer-2")
-    viewer.picked = operator.picked
+    viewer.ctx.picked = operator.ctx.picked
     viewer.measure.make_plan()
     assert viewer.measure.run() is False and viewer.messages[-1][1] == "Not in control"
 
@@ -315,7 +316,7 @@ def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, o
     operator.features.retake_hit(old)
     assert operator.features.retake is not None
     p, u = plan.points[1], plan.approaches[1]
-    _wait_done(st.measurement.probe(p, u, client=operator.who()), 40)
+    _wait_done(st.measurement.probe(p, u, client=operator.ctx.who()), 40)
     operator.features.refresh()
     refit = st.measurement.features[feature.id]
     assert old not in refit.hit_ids and len(refit.hit_ids) == 3 and old not in st.measurement.hits

@@ -48,7 +48,7 @@ def recorded(app, operator):
         hit, _ = st.measurement.pick(st.measurement.part.pose[:3, :3] @ local + st.measurement.part.pose[:3, 3], [0.0, 0.0, -1.0])
         st.measurement.probe_here(hit.point, hit.normal).wait(40)
     assert len(st.measurement.hits) == 3
-    assert operator.fit("plane", "ls", last_n=3) is not None, operator.messages[-2:]
+    assert operator.features.fit("plane", "ls", last_n=3) is not None, operator.messages[-2:]
     assert operator.sessions.new_session("second") is not None, operator.messages[-2:]
     assert operator.sessions.live_name() == "second"
     return "first"

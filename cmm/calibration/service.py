@@ -25,7 +25,7 @@ from __future__ import annotations
 import threading
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
@@ -35,9 +35,6 @@ from ..metrology.features import FitError
 from .records import (MACHINE_RECORD, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE, BallBarCertificate,
                       CalibrationError, LoadedCalibration, dumps, load_certificate, load_machine_record,
                       load_probe_record, load_servo_record, load_sphere_certificate, now, save_record, write_atomic)
-
-if TYPE_CHECKING:
-    from ..control import Controller
 
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
             "Servo tuning": "servo"}
@@ -56,7 +53,8 @@ def calibration_errors() -> tuple[type[BaseException], ...]:
 class CalibrationHost(Protocol):
     """What the service needs from the station (the composition root that builds it)."""
 
-    controller: "Controller"
+    controller: Any  # the control core (cmm.control.Controller): run_job, configure
+    measurement: Any  # the measurement model: notes go into the session journal
     machine: Any
     prober: Any
     config: Any
@@ -69,8 +67,6 @@ class CalibrationHost(Protocol):
     def place_sim_artifacts(self, spheres: list) -> None: ...
 
     def apply_calibration(self, loaded: Any, client: str | None = None) -> list[str]: ...
-
-    def note(self, text: str) -> None: ...
 
 
 def records_summary(directory: Path) -> list[dict[str, str]]:

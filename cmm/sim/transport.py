@@ -19,10 +19,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:  # the network makes its transports: importing it here would make a circle
-    from cmm.sim.network import SimNetwork
+from typing import Any
 
 # A blocking read (timeout None) on a virtual clock still gives up after this
 # much simulated time, so a host waiting for a reply that never comes ends.
@@ -30,9 +27,10 @@ VIRTUAL_BLOCK_LIMIT_S = 10.0
 
 
 class SimTransport:
-    """``serial.Serial``-like byte pipe to a simulated NMC network."""
+    """``serial.Serial``-like byte pipe to a simulated NMC network (the :class:`cmm.sim.network.SimNetwork` that
+    made it: its lock, clock and host byte queues)."""
 
-    def __init__(self, network: SimNetwork, baudrate: int = 19200, timeout: float | None = 0.1) -> None:
+    def __init__(self, network: Any, baudrate: int = 19200, timeout: float | None = 0.1) -> None:
         self.network = network
         self.timeout = timeout
         self.write_timeout: float | None = None

@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -53,6 +54,7 @@ class StationApp:
         self._dirty = {"hits": True, "features": True, "part": False}
         self._deviations: dict[int, float] = {}
         self._redraw_lock = threading.Lock()
+        self.shared = SimpleNamespace(calibration_job=None)  # state every tab's panels share (a running calibration)
         self.view = SceneView(self.server.scene, station, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)
         self.view.build()
@@ -139,7 +141,7 @@ class StationApp:
     def pendant_grant(self, capp: ClientApp) -> str | None:
         """A grant for ``capp``'s embedded pendant: it then acts as that client (see cmm.ui.pendant_grants)."""
         grants = getattr(self.pendant, "grants", None)
-        return None if grants is None else grants.issue(capp.who, capp.peer())
+        return None if grants is None else grants.issue(capp.ctx.who, capp.peer())
 
     def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
         """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
@@ -202,7 +204,7 @@ class StationApp:
             text = event_text(kind, info)
             level = "error" if kind in ("contact", "error", "estop", "fault", "stop") else "info"
             for capp in list(self.clients.values()):
-                capp.notify(event_title(kind), text, level)
+                capp.ctx.notify(event_title(kind), text, level)
 
     def deviations(self) -> dict[int, float]:
         return self._deviations

@@ -10,13 +10,11 @@ coordinates.
 from __future__ import annotations
 
 import re
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..metrology.align import AlignmentError
 from ..measurement import alignment
-
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
 
 
 def _fid(value: str) -> int | None:
@@ -25,9 +23,9 @@ def _fid(value: str) -> int | None:
 
 
 class AlignPanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.result: alignment.AlignmentResult | None = None
 
@@ -36,7 +34,7 @@ class AlignPanel:
             self.result = alignment.align_features(self.station.measurement, primary, secondary, tertiary)
         except (AlignmentError, ValueError, KeyError) as exc:
             self.result = None
-            return self.capp.error(exc, "3-2-1")
+            return self.ctx.error(exc, "3-2-1")
         self._show()
         return self.result
 
@@ -48,19 +46,19 @@ class AlignPanel:
             self.result = alignment.best_fit_hits(self.station.measurement, ids)
         except (AlignmentError, ValueError) as exc:
             self.result = None
-            return self.capp.error(exc, "Best fit")
+            return self.ctx.error(exc, "Best fit")
         self._show()
         return self.result
 
     def apply(self) -> bool:
         result = self.result
         if result is None:
-            self.capp.error("compute an alignment first", "Align")
+            self.ctx.error("compute an alignment first", "Align")
             return False
-        done = self.capp._run("Align", lambda: alignment.apply(self.station.measurement, result) or True)
+        done = self.ctx.run("Align", lambda: alignment.apply(self.station.measurement, result) or True)
         if done:
-            self.capp.status.set_frame("Part")
-            self.capp.notify("Aligned", f"{result.method}: the DRO shows part coordinates")
+            self.ctx.show_frame("Part")
+            self.ctx.notify("Aligned", f"{result.method}: the DRO shows part coordinates")
             self.result = None
         return bool(done)
 
@@ -71,7 +69,7 @@ class AlignPanel:
         return self.result.text(None if self.station.measurement.part is None else self.station.measurement.part.pose)
 
     def _show(self) -> None:
-        self.capp._set("align:result", "content", self.text(), self.gui.get("result"))
+        self.ctx.set("align:result", "content", self.text(), self.gui.get("result"))
 
     def build(self, gui: Any) -> None:
         g = self.gui
@@ -90,7 +88,7 @@ class AlignPanel:
     def _compute_321(self) -> Any:
         ids = [_fid(self.gui[k].value) for k in ("p", "s", "t")]
         if None in ids:
-            return self.capp.error("choose the three datum features", "3-2-1")
+            return self.ctx.error("choose the three datum features", "3-2-1")
         return self.compute_321(*ids)  # type: ignore[arg-type]
 
     def refresh(self) -> None:
@@ -98,4 +96,4 @@ class AlignPanel:
             feats = sorted(self.station.measurement.features.items())
         opts = tuple(f"{fid} {f.name} ({f.kind})" for fid, f in feats) or ("-",)
         for k in ("p", "s", "t"):
-            self.capp._set(f"align:{k}", "options", opts, self.gui.get(k))
+            self.ctx.set(f"align:{k}", "options", opts, self.gui.get(k))

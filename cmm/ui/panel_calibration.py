@@ -30,14 +30,12 @@ from __future__ import annotations
 
 import html
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from .panel_sessions import Job, ProgressView
-
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
+from .jobs import Job, ProgressView
 
 # the wizard's labels (the service accepts either; cmm.calibration.service.ROUTINES is the same table)
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
@@ -155,10 +153,10 @@ def servo_markdown(result: Any, accepted: bool = False) -> str:
 
 
 class CalibrationPanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
-        self.service = capp.station.calibration  # the station's calibration service: runs, records, applies
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
+        self.service = ctx.station.calibration  # the station's calibration service: runs, records, applies
         self.routine = "probe"
         self.job: Job | None = None
         self.result: tuple[str, Any] | None = None  # (routine, result object) of the last successful run
@@ -166,7 +164,7 @@ class CalibrationPanel:
         self.saved: Path | None = None
         self._shown_instruction = ""
         self.gui: dict[str, Any] = {}
-        self.progress_view = ProgressView(capp)
+        self.progress_view = ProgressView(ctx)
 
     @property
     def records_dir(self) -> Path:
@@ -194,7 +192,7 @@ class CalibrationPanel:
     # --- run -----------------------------------------------------------------------
 
     def _app_job(self) -> Job | None:
-        return getattr(self.capp.app, "calibration_job", None)
+        return self.ctx.shared.calibration_job
 
     @property
     def running(self) -> bool:
@@ -207,23 +205,23 @@ class CalibrationPanel:
         ``repeats``, ``verify``; servo ``axes``."""
         routine = ROUTINES.get(routine, routine) if routine else self.routine  # type: ignore[arg-type]
         if routine not in LABELS:
-            self.capp.error(f"unknown routine {routine!r}; choose one of {', '.join(ROUTINES)}", "Calibration")
+            self.ctx.error(f"unknown routine {routine!r}; choose one of {', '.join(ROUTINES)}", "Calibration")
             return None
         label = LABELS[routine]
-        if not self.capp.allowed(label):
+        if not self.ctx.allowed(label):
             return None
         if self.running or self.service.running:
             title = self._app_job().title if self.running else "a calibration routine"  # type: ignore[union-attr]
-            self.capp.error(f"'{title}' is running: wait for it or press STOP", f"{label} refused")
+            self.ctx.error(f"'{title}' is running: wait for it or press STOP", f"{label} refused")
             return None
         api = self.station.controller
         if not api.allowed("job"):
-            self.capp.error(f"the machine is {api.state.mode.value}" + (f" ({api.state.reason})" if api.state.reason else "")
+            self.ctx.error(f"the machine is {api.state.mode.value}" + (f" ({api.state.reason})" if api.state.reason else "")
                             + ": calibrate when it is homed and idle (or press STOP)", f"{label} refused")
             return None
         problem = self.service.certificate_problem(routine)
         if problem is not None:
-            self.capp.error(f"{problem}. The previous calibration stays in force.", f"{label} refused")
+            self.ctx.error(f"{problem}. The previous calibration stays in force.", f"{label} refused")
             return None
         self.routine = routine
         self.result = None
@@ -232,19 +230,19 @@ class CalibrationPanel:
         self._set("results", "content", f"*{label} running...*")
         self._set("plot", "content", "")
         self._show_accept(False)
-        job = Job(label, lambda progress: self.service.run(self.capp.client_id, routine, progress, **options),
+        job = Job(label, lambda progress: self.service.run(self.ctx.client_id, routine, progress, **options),
                   on_progress=self.progress_view.update, on_done=self._done)
         self.job = job
-        self.capp.app.calibration_job = job
+        self.ctx.shared.calibration_job = job
         self.progress_view.start(job)
         return job.start()
 
     def bar_placed(self) -> bool:
         """The operator has clamped the bar for the set-up shown: the routine goes on."""
-        if not self.capp.allowed("Bar placed"):
+        if not self.ctx.allowed("Bar placed"):
             return False
         if not self.service.bar_placed():
-            self.capp.error("no set-up is waiting for the bar", "Bar placed")
+            self.ctx.error("no set-up is waiting for the bar", "Bar placed")
             return False
         self._show_instruction()
         return True
@@ -254,20 +252,20 @@ class CalibrationPanel:
         if not self.running:
             return
         self.service.cancel()
-        self.capp.stop()
+        self.ctx.stop()
 
     def _done(self, job: Job) -> None:
         if job.error is not None:
             exc = job.error
             known = isinstance(exc, self.service.errors)
             text = (str(exc) if known else f"{type(exc).__name__}: {exc}") + ". The previous calibration stays in force."
-            self.capp.error(text, f"{job.title} stopped")
+            self.ctx.error(text, f"{job.title} stopped")
             self.progress_view.finish(job, text, False)
             self._set("results", "content", f"**stopped:** {html.escape(text)}")
             return
         self.result = (self.routine, job.result)
         self.progress_view.finish(job, job.message or "done", True)
-        self.capp.notify(f"{job.title} done", job.message)
+        self.ctx.notify(f"{job.title} done", job.message)
         self._show_results()
 
     # --- results -------------------------------------------------------------------------
@@ -294,21 +292,21 @@ class CalibrationPanel:
 
     def accept_gains(self) -> bool:
         """Send the proposed servo gains to the modules and record them (servo.toml, accepted)."""
-        if not self.capp.allowed("Accept gains"):
+        if not self.ctx.allowed("Accept gains"):
             return False
         if self.result is None or self.result[0] != "servo":
-            self.capp.error("run the servo tuning first", "Accept gains")
+            self.ctx.error("run the servo tuning first", "Accept gains")
             return False
         if self.running or not self.station.controller.allowed("configure"):
-            self.capp.error("wait until the machine is idle", "Accept gains")
+            self.ctx.error("wait until the machine is idle", "Accept gains")
             return False
         try:
-            self.saved = self.service.accept_gains(self.capp.client_id, self.result[1])
+            self.saved = self.service.accept_gains(self.ctx.client_id, self.result[1])
         except self.service.errors as exc:
-            self.capp.error(exc, "Accept gains")
+            self.ctx.error(exc, "Accept gains")
             return False
         self.accepted = True
-        self.capp.notify("Gains applied", f"recorded in {self.saved}; copy them into the machine configuration "
+        self.ctx.notify("Gains applied", f"recorded in {self.saved}; copy them into the machine configuration "
                                           "[gains] to keep them after a restart")
         self._show_results()
         self._refresh_records()
@@ -316,22 +314,22 @@ class CalibrationPanel:
 
     def save_record(self) -> Path | None:
         """Write the last result's record; probe and geometry are also applied to the live station."""
-        if not self.capp.allowed("Save record"):
+        if not self.ctx.allowed("Save record"):
             return None
         if self.result is None:
-            self.capp.error("run a routine first: there is nothing to save", "Save record")
+            self.ctx.error("run a routine first: there is nothing to save", "Save record")
             return None
         if self.running:
-            self.capp.error("wait until the routine has finished", "Save record")
+            self.ctx.error("wait until the routine has finished", "Save record")
             return None
         routine, r = self.result
         try:
-            path, applied = self.service.save(self.capp.client_id, routine, r, accepted=self.accepted)
+            path, applied = self.service.save(self.ctx.client_id, routine, r, accepted=self.accepted)
         except self.service.errors + (TypeError,) as exc:
-            self.capp.error(f"{exc}. The previous calibration stays in force.", "Save record failed")
+            self.ctx.error(f"{exc}. The previous calibration stays in force.", "Save record failed")
             return None
         self.saved = path
-        self.capp.notify("Record saved", str(path) + (" and applied to the station" if applied else ""))
+        self.ctx.notify("Record saved", str(path) + (" and applied to the station" if applied else ""))
         self._refresh_records()
         return path
 
@@ -413,7 +411,7 @@ class CalibrationPanel:
         self._set("instruction", "content", text)
         self._show_bar(bool(text))
         if text and self.job is not None and not self.job.done:
-            self.capp.notify("Ball bar", text.replace("**", ""))
+            self.ctx.notify("Ball bar", text.replace("**", ""))
 
     def refresh(self) -> None:
         """Called by ClientApp.refresh (5 Hz): the set-up to place, and a routine started in another tab."""

@@ -13,12 +13,10 @@ from the Sessions tab uses the same scale.
 from __future__ import annotations
 
 import html
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..metrology.colour_scale import ColourScale
-
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
 
 
 def legend_html(scale: ColourScale) -> str:
@@ -30,24 +28,24 @@ def legend_html(scale: ColourScale) -> str:
 
 
 class ColourMapPanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
         self.gui: dict[str, Any] = {}
 
     @property
     def view(self) -> Any:
-        return self.capp.app.view
+        return self.ctx.view
 
     # --- actions ---------------------------------------------------------------------------------
 
     def show(self, on: bool) -> Any:
         """Turn the map on or off; returns the map drawn (None when off or without a part)."""
         if on and self.station.measurement.part is None:
-            self.capp.error("load a part first: the map is painted on its mesh", "Colour map")
-        dmap = self.view.show_colour_map(on, self.capp.app.deviations() or None)
+            self.ctx.error("load a part first: the map is painted on its mesh", "Colour map")
+        dmap = self.view.show_colour_map(on, self.ctx.deviations() or None)
         if on and self.view.map_error:
-            self.capp.error(self.view.map_error, "Colour map")
+            self.ctx.error(self.view.map_error, "Colour map")
         return dmap
 
     def apply(self, tolerance: float, warning_percent: float, cutoff: float, reach: float) -> ColourScale | None:
@@ -55,10 +53,10 @@ class ColourMapPanel:
         try:
             scale = ColourScale(float(tolerance), float(cutoff), float(warning_percent) / 100.0, float(reach))
         except (TypeError, ValueError) as exc:
-            self.capp.error(exc, "Colour map")
+            self.ctx.error(exc, "Colour map")
             return None
         self.view.set_scale(scale)
-        devs = self.capp.app.deviations()
+        devs = self.ctx.deviations()
         self.view.draw_hits(devs)
         if self.view.map_on:
             self.view.draw_colour_map(devs or None)
@@ -107,6 +105,6 @@ class ColourMapPanel:
         gui.add_markdown("The report (Sessions tab) draws its colour map views with these bands.")
 
     def refresh(self) -> None:
-        self.capp._set("colour_map:on", "value", self.view.map_on, self.gui.get("on"))
-        self.capp._set("colour_map:legend", "content", legend_html(self.view.scale), self.gui.get("legend"))
-        self.capp._set("colour_map:summary", "content", self.summary(), self.gui.get("summary"))
+        self.ctx.set("colour_map:on", "value", self.view.map_on, self.gui.get("on"))
+        self.ctx.set("colour_map:legend", "content", legend_html(self.view.scale), self.gui.get("legend"))
+        self.ctx.set("colour_map:summary", "content", self.summary(), self.gui.get("summary"))

@@ -16,8 +16,9 @@ operator, temperature) is set here too; the colour map has its own tab
 from __future__ import annotations
 
 import html
+import math
 import re
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -27,9 +28,8 @@ from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
 from ..metrology.pick import NominalFeature
 from ..measurement.model import FEATURE_KINDS, MeasurementError
-
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
+from .ids import parse_ids
 
 RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
 RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
@@ -112,35 +112,131 @@ def typed_nominal(feature: Any, centre: Any = None, diameter: float | None = Non
     return NominalFeature(base.kind, p)
 
 
+def _unit(v: Any) -> np.ndarray:
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v)
+
+
+def _angle(u: Any, v: Any) -> float:
+    """Angle between two axes (sign ignored), degrees."""
+    c = abs(float(np.dot(_unit(u), _unit(v))))
+    return math.degrees(math.acos(min(c, 1.0)))
+
+
+def _dist_to_axis(p: Any, point: Any, direction: Any) -> float:
+    d = _unit(direction)
+    r = np.asarray(p, float) - np.asarray(point, float)
+    return float(np.linalg.norm(r - (r @ d) * d))
+
+
+def nominal_deviation(kind: str, geometry: dict[str, Any], nominal: Any) -> dict[str, float]:
+    """Deviations of a fitted feature from a nominal one (mm, degrees); empty when they do not compare."""
+    if nominal is None:
+        return {}
+    g = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in geometry.items()}
+    n, p = nominal.kind, nominal.params
+    out: dict[str, float] = {}
+    if kind == "plane" and n in ("plane", "surface"):
+        out["distance"] = float((g["point"] - p["point"]) @ _unit(p["normal"]))
+        out["angle_deg"] = _angle(g["normal"], p["normal"])
+    elif kind == "sphere" and n == "sphere":
+        out["centre_offset"] = float(np.linalg.norm(g["center"] - p["center"]))
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+    elif kind == "cylinder" and n == "cylinder":
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+        out["axis_offset"] = _dist_to_axis(g["point"], p["point"], p["direction"])
+        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
+    elif kind == "circle" and n == "cylinder":
+        out["radius_dev"] = float(g["radius"] - p["radius"])
+        out["centre_to_axis"] = _dist_to_axis(g["center"], p["point"], p["direction"])
+        out["axis_angle_deg"] = _angle(g["normal"], p["direction"])
+    elif kind == "cone" and n == "cone":
+        out["apex_offset"] = float(np.linalg.norm(g["apex"] - p["apex"]))
+        out["half_angle_dev_deg"] = math.degrees(float(g["half_angle"]) - float(p["half_angle"]))
+        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
+    return out
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4f}"
+    if isinstance(v, list):
+        return "(" + ", ".join(f"{x:.4f}" for x in v) + ")"
+    return str(v)
+
+
 class FeaturesPanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
 
-    # --- actions (each checks control through capp._run) -------------------------------------
+    # --- actions (each checks control through ctx.run) -------------------------------------
+
+    def hit_ids_for(self, ids_text: str, last_n: int) -> list[int]:
+        if ids_text.strip():
+            return parse_ids(ids_text)
+        with self.station.measurement.lock:
+            ids = sorted(self.station.measurement.hits)
+        return ids[-int(last_n):] if last_n > 0 else ids
+
+    def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
+        def do() -> Any:
+            ids = self.hit_ids_for(ids_text, last_n)
+            # the nominal is the CAD surface the hits lie on (the station finds it), not the last click:
+            # "Nominal from the last CAD pick" in the Features tab applies a pick on purpose
+            feature = self.station.measurement.fit_feature(kind, ids, method)
+            self.ctx.selected_feature = feature.id
+            self.ctx.view.select_feature(feature.id)
+            self.ctx.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
+                                      f"from {len(ids)} hits")
+            return feature
+        return self.ctx.run("Fit", do)
+
+    def feature_markdown(self) -> str:
+        fid = self.ctx.selected_feature
+        feature = self.station.measurement.features.get(fid) if fid is not None else None
+        if feature is None:
+            return "*no feature selected*"
+        s = feature.result.summary()
+        lines = [f"**{feature.name}** ({feature.kind}, {feature.method}, hits {feature.hit_ids})", "",
+                 f"form error: **{s['form'] * 1000:.2f} um**"
+                 + (f" · sigma {s['sigma'] * 1000:.2f} um" if s.get("sigma") is not None else "")]
+        if s.get("uncertainty"):  # standard uncertainties: angles (rad) in urad, lengths (mm) in um
+            lines.append("u (1 sigma): " + " · ".join(
+                f"{k} {v * 1e6:.1f} urad" if k in ("normal", "direction", "half_angle") else f"{k} {v * 1000:.2f} um"
+                for k, v in s["uncertainty"].items()))
+        lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
+        for k, v in feature.result.geometry().items():
+            lines.append(f"- {k}: {_fmt(v)}")
+        dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
+        if dev:
+            lines.append(f"\nvs nominal {feature.nominal.kind}:")
+            lines.extend(f"- {k}: {v:+.4f}" for k, v in dev.items())
+        return "\n".join(lines)
+
 
     def selected(self) -> Any:
-        fid = self.capp.selected_feature
+        fid = self.ctx.selected_feature
         return None if fid is None else self.station.measurement.features.get(fid)
 
     def remove_hit(self, hid: int) -> Any:
         f = self.selected()
         if f is None:
-            return self.capp.error("select a feature first", "Remove hit")
+            return self.ctx.error("select a feature first", "Remove hit")
         if hid not in f.hit_ids:
-            return self.capp.error(f"hit {hid} is not in {f.name} (hits {f.hit_ids})", "Remove hit")
-        return self.capp._run("Remove hit", lambda: self.station.measurement.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
+            return self.ctx.error(f"hit {hid} is not in {f.name} (hits {f.hit_ids})", "Remove hit")
+        return self.ctx.run("Remove hit", lambda: self.station.measurement.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
 
     def retake_hit(self, hid: int) -> None:
         f = self.selected()
         if f is None or hid not in f.hit_ids:
-            return self.capp.error(f"pick a hit of the selected feature to re-take", "Re-take")
-        if not self.capp.allowed("Re-take"):
+            return self.ctx.error(f"pick a hit of the selected feature to re-take", "Re-take")
+        if not self.ctx.allowed("Re-take"):
             return
         self.retake = (f.id, hid, max(self.station.measurement.hits, default=0))
-        self.capp.notify("Re-take", f"take the new hit for hit {hid} of {f.name} (Probe here, jog or auto)")
+        self.ctx.notify("Re-take", f"take the new hit for hit {hid} of {f.name} (Probe here, jog or auto)")
 
     def _check_retake(self) -> None:
         if self.retake is None:
@@ -153,44 +249,44 @@ class FeaturesPanel:
             return
         self.retake = None
         ids = [fresh[0] if h == old else h for h in f.hit_ids]
-        feature = self.capp._run("Re-take", lambda: self.station.measurement.refit_feature(fid, ids), guarded=False)
+        feature = self.ctx.run("Re-take", lambda: self.station.measurement.refit_feature(fid, ids), guarded=False)
         if feature is not None:
-            self.capp._run("Re-take", lambda: self.station.measurement.delete_hit(old), guarded=False)
-            self.capp.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
+            self.ctx.run("Re-take", lambda: self.station.measurement.delete_hit(old), guarded=False)
+            self.ctx.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
 
     def nominal_from_pick(self) -> Any:
         f = self.selected()
-        nominal = self.capp.picked[1] if self.capp.picked is not None else None
+        nominal = self.ctx.picked[1] if self.ctx.picked is not None else None
         if f is None or nominal is None:
-            return self.capp.error("select a feature and click its surface on the part first", "Nominal")
-        return self.capp._run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, nominal))
+            return self.ctx.error("select a feature and click its surface on the part first", "Nominal")
+        return self.ctx.run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, nominal))
 
     def type_nominal(self, centre: Any = None, diameter: float | None = None) -> Any:
         f = self.selected()
         if f is None:
-            return self.capp.error("select a feature first", "Nominal")
-        return self.capp._run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
+            return self.ctx.error("select a feature first", "Nominal")
+        return self.ctx.run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
 
     def set_tolerance(self, **tol: float) -> Any:
-        fid = self.capp.selected_feature
+        fid = self.ctx.selected_feature
         if fid is None:
-            return self.capp.error("select a feature first", "Tolerance")
-        return self.capp._run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
+            return self.ctx.error("select a feature first", "Tolerance")
+        return self.ctx.run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
 
     def construct(self, operation: str, a: int, b: int, name: str = "") -> Any:
-        c = self.capp._run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None))
+        c = self.ctx.run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None))
         if c is not None:
-            self.capp.selected_feature = c.id
+            self.ctx.selected_feature = c.id
         return c
 
     def delete_feature(self) -> None:
-        fid = self.capp.selected_feature
+        fid = self.ctx.selected_feature
         if fid is not None:
-            self.capp._run("Delete feature", lambda: self.station.measurement.delete_feature(fid))
-            self.capp.selected_feature = None
+            self.ctx.run("Delete feature", lambda: self.station.measurement.delete_feature(fid))
+            self.ctx.selected_feature = None
 
     def save_info(self, **fields: Any) -> Any:
-        return self.capp._run("Report header", lambda: self.station.measurement.set_info(**fields))
+        return self.ctx.run("Report header", lambda: self.station.measurement.set_info(**fields))
 
     # --- read-outs -------------------------------------------------------------------------
 
@@ -209,10 +305,10 @@ class FeaturesPanel:
         return f"<div style='font:11.5px system-ui'><b>{html.escape(f.name)}</b> hits (residual): {cells}</div>"
 
     def detail_markdown(self) -> str:
-        fid = self.capp.selected_feature
+        fid = self.ctx.selected_feature
         c = self.station.measurement.constructed.get(fid) if fid is not None else None
         if c is None:
-            return self.capp.feature_markdown()
+            return self.feature_markdown()
         r = c.result.summary()
         value = f"{r['value']:.4f}{'°' if r['kind'] == 'angle' else ' mm'}" if "value" in r else ", ".join(
             f"{k} ({', '.join(f'{x:.4f}' for x in v)})" for k, v in r.items() if isinstance(v, list))
@@ -228,19 +324,18 @@ class FeaturesPanel:
 
     def build(self, gui: Any) -> None:
         g = self.gui
-        capp = self.capp
         g["tree"] = gui.add_html(tree_html(self.station))
         g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
         g["features"].on_update(lambda e: self._chosen(e.target.value))
         g["hits"] = gui.add_html("")
-        g["detail"] = gui.add_markdown(capp.feature_markdown())  # fit details: geometry, uncertainties, warnings
+        g["detail"] = gui.add_markdown(self.feature_markdown())  # fit details: geometry, uncertainties, warnings
         with gui.add_folder("Fit hits"):
             kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
             method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
             kind.on_update(lambda e: setattr(method, "options", fit_criteria.methods_for(e.target.value)))
             ids = gui.add_text("Hit ids", "", hint="e.g. 1-4, 7; empty = the last N hits")
             last_n = gui.add_number("Last N hits", 4, min=0, step=1)
-            gui.add_button("Fit").on_click(lambda _: capp.fit(kind.value, method.value, ids.value, int(last_n.value)))
+            gui.add_button("Fit").on_click(lambda _: self.fit(kind.value, method.value, ids.value, int(last_n.value)))
         with gui.add_folder("Hits of the feature", expand_by_default=False):
             hit = gui.add_number("Hit", 1, min=1, step=1)
             gui.add_button("Remove hit and refit").on_click(lambda _: self.remove_hit(int(hit.value)))
@@ -274,19 +369,19 @@ class FeaturesPanel:
     def _construct(self, op: str, a: str, b: str, name: str) -> Any:
         ma, mb = re.match(r"(\d+)", a), re.match(r"(\d+)", b)
         if not (ma and mb):
-            return self.capp.error("choose two features", "Construct")
+            return self.ctx.error("choose two features", "Construct")
         return self.construct(op, int(ma.group(1)), int(mb.group(1)), name)
 
     def _chosen(self, value: str) -> None:
         m = re.match(r"(\d+)", value)
         if m:
-            self.capp.select_feature(int(m.group(1)))
+            self.ctx.select_feature(int(m.group(1)))
 
     def refresh(self) -> None:
         self._check_retake()
         options = self.options()
         for key in ("features", "a", "b"):
-            self.capp._set(f"features:{key}", "options", options, self.gui.get(key))
-        self.capp._set("features:tree", "content", tree_html(self.station, self.capp.selected_feature), self.gui.get("tree"))
-        self.capp._set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
-        self.capp._set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))
+            self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
+        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature), self.gui.get("tree"))
+        self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
+        self.ctx.set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))

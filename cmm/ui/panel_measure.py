@@ -12,22 +12,20 @@ current hit; STOP stops at once.
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from ..measurement.plan import plan_at_pick, run_plan
 from ..metrology.hit_plan import PlanError
+from .context import PanelContext
 from .scene import SCALE
-
-if TYPE_CHECKING:
-    from .panels import ClientApp
 
 
 class MeasurePanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.plan: Any = None
         self.running: threading.Thread | None = None
@@ -37,13 +35,13 @@ class MeasurePanel:
         self._nodes: list[Any] = []
 
     def make_plan(self, hits_per_ring: int | None = None) -> Any:
-        if self.capp.picked is None:
-            return self.capp.error("click the face to measure on the part first", "Auto-measure")
+        if self.ctx.picked is None:
+            return self.ctx.error("click the face to measure on the part first", "Auto-measure")
         try:
-            self.plan = plan_at_pick(self.station.measurement, self.capp.picked[0].face_id, n=hits_per_ring or None)
+            self.plan = plan_at_pick(self.station.measurement, self.ctx.picked[0].face_id, n=hits_per_ring or None)
         except (PlanError, ValueError) as exc:
             self.plan = None
-            return self.capp.error(exc, "Auto-measure")
+            return self.ctx.error(exc, "Auto-measure")
         self.progress = ""
         self.draw()
         return self.plan
@@ -62,7 +60,7 @@ class MeasurePanel:
         return "\n".join(lines)
 
     def draw(self) -> None:
-        client = self.capp.client
+        client = self.ctx.client
         if client is None:
             return
         self.clear_drawing()
@@ -91,27 +89,27 @@ class MeasurePanel:
     def run(self, name: str = "", wait: bool = False) -> bool:
         plan = self.plan
         if plan is None:
-            self.capp.error("plan a measurement first", "Auto-measure")
+            self.ctx.error("plan a measurement first", "Auto-measure")
             return False
         if self.running is not None and self.running.is_alive():
-            self.capp.error("a measurement is already running", "Auto-measure")
+            self.ctx.error("a measurement is already running", "Auto-measure")
             return False
-        if not self.capp.allowed("Auto-measure"):
+        if not self.ctx.allowed("Auto-measure"):
             return False
         self._cancel.clear()
 
         def work() -> None:
             try:
                 self.feature = run_plan(self.station.measurement, plan, name=name or None, cancelled=self._cancel.is_set,
-                                        client=self.capp.who(),
+                                        client=self.ctx.who(),
                                         progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
             except Exception as exc:  # noqa: BLE001 - every failure is told; the machine layer stopped itself
                 self.progress = f"stopped: {exc}"
-                self.capp.error(exc, "Auto-measure")
+                self.ctx.error(exc, "Auto-measure")
                 return
             self.progress = f"done: {self.feature.name}"
-            self.capp.selected_feature = self.feature.id
-            self.capp.notify("Auto-measure", f"{self.feature.name} measured ({len(plan)} hits)")
+            self.ctx.selected_feature = self.feature.id
+            self.ctx.notify("Auto-measure", f"{self.feature.name} measured ({len(plan)} hits)")
 
         self.running = threading.Thread(target=work, name="auto-measure", daemon=True)
         self.running.start()
@@ -132,4 +130,4 @@ class MeasurePanel:
         gui.add_button("Cancel after this hit").on_click(lambda _: self.cancel())
 
     def refresh(self) -> None:
-        self.capp._set("measure:plan", "content", self.text(), self.gui.get("plan"))
+        self.ctx.set("measure:plan", "content", self.text(), self.gui.get("plan"))

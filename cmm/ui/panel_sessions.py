@@ -1,7 +1,7 @@
 """The "Sessions" tab: list recorded sessions, replay one, rename/delete/new, export, report, re-evaluate.
 
-:class:`SessionsPanel` belongs to one :class:`~cmm.ui.panels.ClientApp`
-(``capp.sessions``); every action is a plain method so tests drive exactly
+:class:`SessionsPanel` belongs to one browser tab (``capp.sessions``; it
+gets the tab's :class:`~cmm.ui.context.PanelContext`); every action is a plain method so tests drive exactly
 what a button does. A replay moves nothing: the session's part, hits and
 features are drawn into this browser's own scene
 (:class:`~cmm.ui.scene.ReplayView`), the live scene stays as it is for
@@ -11,148 +11,25 @@ re-evaluate) need control; looking, replaying and exporting do not.
 Work that may take a while (opening a big session, exports with deviations,
 reports, re-evaluation) runs in a :class:`Job` thread, never in viser's
 callback thread, and shows its progress (a progress bar, and a notification
-with a loading state). :class:`Job` and :class:`ProgressView` are shared with
-the calibration tab.
+with a loading state): :class:`~cmm.ui.jobs.Job` and :class:`~cmm.ui.jobs.ProgressView`.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from ..session.bulk import dispose, gc_paused
 from ..session.journal import JournalError
 from ..session.store import StoreError, check_name, is_url, open_store
 from ..session.worker import WorkerError, shared_summaries, shared_worker
 
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
+from .jobs import Job, ProgressView
 
 METHODS = ("recorded", "ls", "minzone", "mic", "mcc")
 LIST_EVERY = 10  # refresh() calls between re-listing the store (refresh runs at 5 Hz)
-
-
-# --------------------------------------------------------------------------- background work
-
-
-class Job:
-    """Work in its own thread with a progress callback ``(fraction 0..1, sentence)``.
-
-    ``fn(progress)`` returns the result; an exception is kept in ``error``.
-    ``on_done(job)`` runs in the worker thread before ``wait()`` returns.
-    """
-
-    def __init__(self, title: str, fn: Callable[[Callable[[float, str], None]], Any], *,
-                 on_progress: Callable[["Job"], None] | None = None,
-                 on_done: Callable[["Job"], None] | None = None) -> None:
-        self.title = title
-        self.fn = fn
-        self.fraction = 0.0
-        self.message = ""
-        self.result: Any = None
-        self.error: BaseException | None = None
-        self.on_progress = on_progress
-        self.on_done = on_done
-        self._done = threading.Event()
-        self.thread = threading.Thread(target=self._run, name=f"ui-job-{title}", daemon=True)
-
-    def start(self) -> "Job":
-        self.thread.start()
-        return self
-
-    def progress(self, fraction: float, message: str = "") -> None:
-        self.fraction = min(max(float(fraction), 0.0), 1.0)
-        if message:
-            self.message = message
-        if self.on_progress is not None:
-            try:
-                self.on_progress(self)
-            except Exception:  # noqa: BLE001 - a closed tab must not stop the work
-                pass
-
-    def _run(self) -> None:
-        try:
-            self.result = self.fn(self.progress)
-        except BaseException as exc:  # noqa: BLE001 - reported to the operator by on_done
-            self.error = exc
-        finally:
-            try:
-                if self.on_done is not None:
-                    self.on_done(self)
-            finally:
-                self._done.set()
-
-    @property
-    def done(self) -> bool:
-        return self._done.is_set()
-
-    def wait(self, timeout: float | None = None) -> bool:
-        return self._done.wait(timeout)
-
-
-class ProgressView:
-    """A progress bar + status line in a panel, and a notification with a loading state."""
-
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.bar: Any = None
-        self.status: Any = None
-        self._note: Any = None
-        self._last = 0.0
-
-    def build(self, gui: Any) -> None:
-        self.status = gui.add_markdown("")
-        self.bar = gui.add_progress_bar(0.0, visible=False, animated=True)
-
-    def start(self, job: Job) -> None:
-        self._last = 0.0
-        if self.bar is not None:
-            self.bar.value = 0.0
-            self.bar.visible = True
-        if self.status is not None:
-            self.status.content = f"**{job.title}** started"
-        client = self.capp.client
-        if client is not None:
-            try:
-                self._note = client.add_notification(job.title, "started", loading=True, with_close_button=False)
-            except Exception:  # noqa: BLE001 - the tab may have closed
-                self._note = None
-
-    def update(self, job: Job) -> None:
-        now = time.monotonic()
-        if now - self._last < 0.1 and job.fraction < 1.0:
-            return  # at most 10 updates a second
-        self._last = now
-        text = f"{job.fraction * 100:.0f} % · {job.message}"
-        if self.bar is not None:
-            self.bar.value = round(job.fraction * 100, 1)
-        if self.status is not None:
-            self.status.content = f"**{job.title}**: {text}"
-        if self._note is not None:
-            try:
-                self._note.body = text
-            except Exception:  # noqa: BLE001
-                pass
-
-    def finish(self, job: Job, text: str, ok: bool) -> None:
-        if self.bar is not None:
-            self.bar.value = 100.0 if ok else self.bar.value
-            self.bar.visible = False
-        if self.status is not None:
-            self.status.content = f"**{job.title}**: {text}"
-        if self._note is not None:
-            try:
-                self._note.title = job.title + (" done" if ok else " stopped")
-                self._note.body = text
-                self._note.loading = False
-                self._note.color = None if ok else "red"
-                self._note.with_close_button = True
-                self._note.auto_close_seconds = 6.0 if ok else 10.0
-            except Exception:  # noqa: BLE001
-                pass
-            self._note = None
 
 
 # --------------------------------------------------------------------------- words
@@ -211,9 +88,9 @@ def describe_event(e: dict) -> str:
 
 
 class SessionsPanel:
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
-        self.station = capp.station
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
         self.session: Any = None  # the Session being replayed (None: live)
         self.replay: Any = None
         self.index = -1
@@ -223,7 +100,7 @@ class SessionsPanel:
         self.job: Job | None = None
         self.last_files: list[Path] = []
         self.gui: dict[str, Any] = {}
-        self.progress_view = ProgressView(capp)
+        self.progress_view = ProgressView(ctx)
         self._view: Any = None
         self._ticks = 0
 
@@ -295,25 +172,25 @@ class SessionsPanel:
     def _start(self, title: str, fn: Callable[[Callable[[float, str], None]], Any],
                done: Callable[[Any], str]) -> Job | None:
         if self.job is not None and not self.job.done:
-            self.capp.error(f"wait until '{self.job.title}' has finished", title)
+            self.ctx.error(f"wait until '{self.job.title}' has finished", title)
             return None
 
         def on_done(job: Job) -> None:
             if job.error is not None:
                 exc = job.error
                 text = str(exc) or type(exc).__name__
-                self.capp.error(text, f"{title} failed")
+                self.ctx.error(text, f"{title} failed")
                 self.progress_view.finish(job, text, False)
                 return
             try:
                 text = done(job.result)
             except Exception as exc:  # noqa: BLE001 - never a traceback in the UI
                 job.error = exc
-                self.capp.error(str(exc), f"{title} failed")
+                self.ctx.error(str(exc), f"{title} failed")
                 self.progress_view.finish(job, str(exc), False)
                 return
             self.progress_view.finish(job, text, True)
-            self.capp.notify(title, text)
+            self.ctx.notify(title, text)
             self.refresh_list()
 
         job = Job(title, fn, on_progress=self.progress_view.update, on_done=on_done)
@@ -375,7 +252,7 @@ class SessionsPanel:
     def scrub(self, i: int) -> Any:
         """Show the state after event ``i`` (the slider)."""
         if self.replay is None:
-            self.capp.error("open a session for replay first", "Replay")
+            self.ctx.error("open a session for replay first", "Replay")
             return None
         i = min(max(int(i), 0), len(self.replay) - 1)
         if i == self.index and self.state is not None:
@@ -398,17 +275,17 @@ class SessionsPanel:
                 + (f", {len(s.errors)} errors" if s.errors else ""))
 
     def _draw(self) -> None:
-        client = self.capp.client
+        client = self.ctx.client
         if client is None or self.state is None:
             return
         from .scene import ReplayView
 
         if self._view is None:
-            self._view = ReplayView(client.scene, self.capp.app.view.scale)
+            self._view = ReplayView(client.scene, self.ctx.view.scale)
         try:
             self._view.show(self.state, self.mesh, self.deviations)
         except Exception as exc:  # noqa: BLE001 - the tab may have closed
-            self.capp.error(str(exc), "Replay drawing")
+            self.ctx.error(str(exc), "Replay drawing")
 
     def back_to_live(self) -> None:
         old = (self.session, self.replay, self.state)
@@ -429,7 +306,7 @@ class SessionsPanel:
     # --- record management -------------------------------------------------------------
 
     def rename(self, old: str, new: str) -> bool:
-        if not self.capp.allowed("Rename session"):
+        if not self.ctx.allowed("Rename session"):
             return False
         try:
             new = check_name(new.strip())
@@ -437,35 +314,35 @@ class SessionsPanel:
                 raise StoreError(f"session {old!r} is being recorded: start a new session before you rename it")
             self.store().rename(old, new)
         except (StoreError, OSError) as exc:
-            self.capp.error(exc, "Rename refused")
+            self.ctx.error(exc, "Rename refused")
             return False
         if self.session is not None and self.session.name == old:
             self.session.name = new
         shared_summaries().forget(self.station.measurement.session_dir, old)
-        self.capp.notify("Renamed", f"{old} → {new}")
+        self.ctx.notify("Renamed", f"{old} → {new}")
         self.refresh_list()
         return True
 
     def delete(self, name: str) -> bool:
-        if not self.capp.allowed("Delete session"):
+        if not self.ctx.allowed("Delete session"):
             return False
         try:
             if self._is_live(name):
                 raise StoreError(f"session {name!r} is being recorded: it cannot be deleted")
             self.store().delete(name)
         except (StoreError, OSError) as exc:
-            self.capp.error(exc, "Delete refused")
+            self.ctx.error(exc, "Delete refused")
             return False
         if self.session is not None and self.session.name == name:
             self.back_to_live()
         shared_summaries().forget(self.station.measurement.session_dir, name)
-        self.capp.notify("Deleted", f"session {name}")
+        self.ctx.notify("Deleted", f"session {name}")
         self.refresh_list()
         return True
 
     def new_session(self, name: str = "") -> Any:
         """Close the live session and start recording a new one (empty name: a time stamp)."""
-        if not self.capp.allowed("New session"):
+        if not self.ctx.allowed("New session"):
             return None
         try:
             name = name.strip()
@@ -475,16 +352,16 @@ class SessionsPanel:
                     raise StoreError(f"a session named {name!r} already exists: choose another name")
             path = self.station.measurement.new_session(name or None)
         except (StoreError, OSError) as exc:
-            self.capp.error(exc, "New session refused")
+            self.ctx.error(exc, "New session refused")
             return None
-        self.capp.notify("New session", f"recording {self.live_name()}")
+        self.ctx.notify("New session", f"recording {self.live_name()}")
         self.refresh_list()
         return path
 
     # --- exports ----------------------------------------------------------------------------
 
     def _download(self, path: Path) -> None:
-        client = self.capp.client
+        client = self.ctx.client
         send = getattr(client, "send_file_download", None) if client is not None else None
         if send is not None:
             try:
@@ -520,13 +397,13 @@ class SessionsPanel:
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"rendering the report of {name} (session worker)")
             return shared_worker().call(worker.report, self.station.measurement.session_dir, name, self.export_dir(),
-                                        self._live_mesh(), self.capp.app.view.scale)  # the colour map's bands
+                                        self._live_mesh(), self.ctx.view.scale)  # the colour map's bands
 
         return self._start("Report", work, self._files_done)
 
     def reevaluate(self, name: str, new: str = "", tip_radius: float = 0.0, method: str = "recorded") -> Job | None:
         """Recompute hits and features from the raw counts with another tip radius / fit method into a new session."""
-        if not self.capp.allowed("Re-evaluate"):
+        if not self.ctx.allowed("Re-evaluate"):
             return None
         from ..session import worker
 
@@ -540,7 +417,7 @@ class SessionsPanel:
             if tip_radius and not 0 < float(tip_radius) < 50:
                 raise ValueError(f"tip radius {tip_radius} mm is not plausible")
         except (StoreError, ValueError, OSError) as exc:
-            self.capp.error(exc, "Re-evaluate refused")
+            self.ctx.error(exc, "Re-evaluate refused")
             return None
 
         def work(progress: Callable[[float, str], None]) -> Any:
@@ -564,7 +441,7 @@ class SessionsPanel:
     def _need(self) -> str | None:
         name = self.selected()
         if not name:
-            self.capp.error("choose a session first", "Sessions")
+            self.ctx.error("choose a session first", "Sessions")
             return None
         return name
 
@@ -601,7 +478,7 @@ class SessionsPanel:
 
     def _step(self, which: str) -> None:
         if self.replay is None:
-            self.capp.error("open a session for replay first", "Replay")
+            self.ctx.error("open a session for replay first", "Replay")
             return
         i = {"|◀": 0, "◀": self.index - 1, "▶": self.index + 1, "▶|": len(self.replay) - 1}.get(which, self.index)
         self.scrub(i)
@@ -610,19 +487,19 @@ class SessionsPanel:
 
     def _confirm_delete(self) -> None:
         name = self._need()
-        if not name or self.capp.client is None:
+        if not name or self.ctx.client is None:
             return
-        if not self.capp.allowed("Delete session"):
+        if not self.ctx.allowed("Delete session"):
             return
-        with self.capp.client.gui.add_modal("Delete session?") as modal:
-            self.capp.client.gui.add_markdown(f"Delete **{name}** and its journal? This cannot be undone.")
+        with self.ctx.client.gui.add_modal("Delete session?") as modal:
+            self.ctx.client.gui.add_markdown(f"Delete **{name}** and its journal? This cannot be undone.")
 
             def yes(_: Any) -> None:
                 modal.close()
                 self.delete(name)
 
-            self.capp.client.gui.add_button("Delete", color="red").on_click(yes)
-            self.capp.client.gui.add_button("Cancel").on_click(lambda _: modal.close())
+            self.ctx.client.gui.add_button("Delete", color="red").on_click(yes)
+            self.ctx.client.gui.add_button("Cancel").on_click(lambda _: modal.close())
 
     def _names(self) -> tuple[str, ...]:
         try:
@@ -656,4 +533,4 @@ class SessionsPanel:
             setattr(h, attr, value)
 
 
-__all__ = ["SessionsPanel", "Job", "ProgressView", "describe_event"]
+__all__ = ["SessionsPanel", "describe_event"]

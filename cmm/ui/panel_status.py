@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import html
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .panels import ClientApp
+from .context import PanelContext
 
 FRAMES = ("Machine", "Part")
 # Keeps the status block on screen while the panel scrolls, in two layers that do not depend on one another:
@@ -170,8 +169,8 @@ def run_script(gui: Any, source: str) -> bool:
 class StatusPanel:
     """The status block and the STOP / E-STOP buttons of one tab."""
 
-    def __init__(self, capp: "ClientApp") -> None:
-        self.capp = capp
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
         self.frame = "Machine"
         self.link = LinkMeter()
         self.gui: dict[str, Any] = {}
@@ -182,8 +181,8 @@ class StatusPanel:
         run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
             self.gui["status"] = gui.add_html(self.html())
-            gui.add_button("STOP", color="orange").on_click(lambda _: self.capp.stop())
-            gui.add_button("E-STOP", color="red").on_click(lambda _: self.capp.emergency_stop())
+            gui.add_button("STOP", color="orange").on_click(lambda _: self.ctx.stop())
+            gui.add_button("E-STOP", color="red").on_click(lambda _: self.ctx.emergency_stop())
             frame = gui.add_button_group("DRO", FRAMES)
             frame.on_click(lambda e: self.set_frame(e.target.value))
 
@@ -193,10 +192,10 @@ class StatusPanel:
             self.refresh()
 
     def html(self) -> str:
-        st = self.capp.station
+        st = self.ctx.station
         rate = self.link.update(int(getattr(st, "samples", 0)))
-        return status_html(st, self.capp.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
-                           armed=self.capp.manual_probe, aligned=self.capp.aligned())
+        return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
+                           armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned)
 
     def refresh(self) -> None:
         text = self.html()

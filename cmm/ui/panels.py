@@ -26,15 +26,12 @@ from __future__ import annotations
 import math
 import re
 import time
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
-from ..control import MotionError
-from ..metrology.features import FitError
-from ..measurement.model import MeasurementError
+from .context import OPERATOR_ERRORS, PanelContext
 from .panel_align import AlignPanel
-from .ids import parse_ids  # noqa: F401 - part of this module's interface (tests, other panels)
 from .panel_calibration import CalibrationPanel
 from .panel_colour_map import ColourMapPanel
 from .panel_features import FeaturesPanel
@@ -42,9 +39,6 @@ from .panel_measure import MeasurePanel
 from .panel_sessions import SessionsPanel
 from .panel_status import StatusPanel
 from .scene import SCALE, draw_pick
-
-if TYPE_CHECKING:
-    from .app import StationApp
 
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
@@ -59,60 +53,6 @@ HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout 
 # machine seconds a held button's jog is kept alive after its newest hold event (a busy browser sends them late);
 # a lost pointer-up or a frozen tab therefore stops within this plus the stop (a closed tab releases at once)
 HOLD_GRACE_S = 1.0
-OPERATOR_ERRORS = (MotionError, MeasurementError, FitError, ValueError, OSError)
-
-
-def _unit(v: Any) -> np.ndarray:
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v)
-
-
-def _angle(u: Any, v: Any) -> float:
-    """Angle between two axes (sign ignored), degrees."""
-    c = abs(float(np.dot(_unit(u), _unit(v))))
-    return math.degrees(math.acos(min(c, 1.0)))
-
-
-def _dist_to_axis(p: Any, point: Any, direction: Any) -> float:
-    d = _unit(direction)
-    r = np.asarray(p, float) - np.asarray(point, float)
-    return float(np.linalg.norm(r - (r @ d) * d))
-
-
-def nominal_deviation(kind: str, geometry: dict[str, Any], nominal: Any) -> dict[str, float]:
-    """Deviations of a fitted feature from a nominal one (mm, degrees); empty when they do not compare."""
-    if nominal is None:
-        return {}
-    g = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in geometry.items()}
-    n, p = nominal.kind, nominal.params
-    out: dict[str, float] = {}
-    if kind == "plane" and n in ("plane", "surface"):
-        out["distance"] = float((g["point"] - p["point"]) @ _unit(p["normal"]))
-        out["angle_deg"] = _angle(g["normal"], p["normal"])
-    elif kind == "sphere" and n == "sphere":
-        out["centre_offset"] = float(np.linalg.norm(g["center"] - p["center"]))
-        out["radius_dev"] = float(g["radius"] - p["radius"])
-    elif kind == "cylinder" and n == "cylinder":
-        out["radius_dev"] = float(g["radius"] - p["radius"])
-        out["axis_offset"] = _dist_to_axis(g["point"], p["point"], p["direction"])
-        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
-    elif kind == "circle" and n == "cylinder":
-        out["radius_dev"] = float(g["radius"] - p["radius"])
-        out["centre_to_axis"] = _dist_to_axis(g["center"], p["point"], p["direction"])
-        out["axis_angle_deg"] = _angle(g["normal"], p["direction"])
-    elif kind == "cone" and n == "cone":
-        out["apex_offset"] = float(np.linalg.norm(g["apex"] - p["apex"]))
-        out["half_angle_dev_deg"] = math.degrees(float(g["half_angle"]) - float(p["half_angle"]))
-        out["axis_angle_deg"] = _angle(g["direction"], p["direction"])
-    return out
-
-
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.4f}"
-    if isinstance(v, list):
-        return "(" + ", ".join(f"{x:.4f}" for x in v) + ")"
-    return str(v)
 
 
 def machine_markdown(station: Any) -> str:
@@ -143,7 +83,7 @@ def machine_markdown(station: Any) -> str:
 class ClientApp:
     """One browser client (or a test standing in for one)."""
 
-    def __init__(self, app: "StationApp", client: Any = None, *, client_id: str | None = None,
+    def __init__(self, app: Any, client: Any = None, *, client_id: str | None = None,
                  is_local: bool = False) -> None:
         self.app = app
         self.station = app.station
@@ -151,14 +91,16 @@ class ClientApp:
         self.client = client
         self.client_id = client_id or (f"viser-{client.client_id}" if client is not None else "test")
         self.is_local = is_local
-        self.authenticated = is_local  # local, or gave the right access code on this connection
-        self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
+        # what this tab's panels share (selection, messages, widgets, the control check); they get it, not the tab
+        self.ctx = PanelContext(app.station, app.control, app.view, client, client_id=self.client_id,
+                                is_local=is_local, deviations=app.deviations, shared=app.shared)
+        self.ctx.stop, self.ctx.emergency_stop = self.stop, self.emergency_stop
+        self.ctx.select_feature = self.select_feature
+        self.messages = self.ctx.messages  # (level, title, body): what the operator was told
+        self.gui = self.ctx.gui
         self.speed_mode = "probing"
         self.step_size = "1"
-        self.manual_probe = False
-        self.picked: Any = None  # (PickResult, NominalFeature | None)
         self.move_status: Any = None
-        self.selected_feature: int | None = None
         self.pendant_token: str | None = None  # the embedded pendant's grant (acts as this client)
         self._jogging = False
         self._last_hold = 0.0
@@ -166,67 +108,29 @@ class ClientApp:
         self._last_error = ("", 0.0)
         self._zero_armed = 0.0
         self._released_at = 0.0
-        self.gui: dict[str, Any] = {}
-        self._shown: dict[str, Any] = {}
         self.live_trace = False
         self._had_control = False
         self._plot_key: bytes | None = None
-        self.sessions = SessionsPanel(self)
-        self.calibration = CalibrationPanel(self)
-        self.status = StatusPanel(self)
-        self.features = FeaturesPanel(self)
-        self.align = AlignPanel(self)
-        self.measure = MeasurePanel(self)
-        self.colour_map = ColourMapPanel(self)
-
-    # --- messages -------------------------------------------------------------
-
-    def notify(self, title: str, body: str = "", level: str = "info") -> None:
-        self.messages.append((level, title, body))
-        del self.messages[:-50]
-        if self.client is not None:
-            try:
-                self.client.add_notification(title, body, auto_close_seconds=6.0 if level != "error" else 10.0,
-                                             color="red" if level == "error" else None)
-            except Exception:  # noqa: BLE001 - the tab may have closed
-                pass
-
-    def error(self, exc: BaseException | str, title: str = "Refused") -> None:
-        self.notify(title, str(exc), "error")
-
-    def allowed(self, action: str) -> bool:
-        """The server-side control check every machine- or measurement-changing action makes first."""
-        if self.control.can_move(self.client_id):
-            return True
-        self.error(f"{action}: this browser only observes. Take control first.", "Not in control")
-        return False
-
-    def _run(self, action: str, fn: Callable[[], Any], *, guarded: bool = True) -> Any:
-        if guarded and not self.allowed(action):
-            return None
-        try:
-            return fn()
-        except OPERATOR_ERRORS as exc:
-            self.error(exc, f"{action} refused")
-            return None
+        self.sessions = SessionsPanel(self.ctx)
+        self.calibration = CalibrationPanel(self.ctx)
+        self.status = StatusPanel(self.ctx)
+        self.features = FeaturesPanel(self.ctx)
+        self.align = AlignPanel(self.ctx)
+        self.measure = MeasurePanel(self.ctx)
+        self.colour_map = ColourMapPanel(self.ctx)
+        self.ctx.show_frame = self.status.set_frame
 
     @property
     def api(self) -> Any:
         """The control core: every machine command goes there with this client's id."""
         return self.station.controller
 
-    def who(self) -> Any:
-        """This browser as the control core's access policy sees it."""
-        from ..control import Client
-
-        return Client(self.client_id, local=self.is_local, authenticated=bool(getattr(self, "authenticated", False)))
-
     def _cmd(self, action: str, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any:
         """A machine command; the control core checks access and state, a refusal is shown to the operator."""
         try:
-            return fn(self.who(), *args, **kw)
+            return fn(self.ctx.who(), *args, **kw)
         except OPERATOR_ERRORS as exc:
-            self.error(exc, f"{action} refused")
+            self.ctx.error(exc, f"{action} refused")
             return None
 
     # --- machine ------------------------------------------------------------------
@@ -236,7 +140,7 @@ class ClientApp:
         self._jogging = False
         report = self._cmd("Stop", self.api.stop)
         if report is not None and not report.ok:
-            self.notify("STOP not confirmed", report.message, "error")
+            self.ctx.notify("STOP not confirmed", report.message, "error")
         return report
 
     def emergency_stop(self) -> Any:
@@ -244,7 +148,7 @@ class ClientApp:
         self._jogging = False
         report = self._cmd("E-stop", self.api.emergency_stop)
         if report is not None:
-            self.notify("Emergency stop" if report.ok else "E-STOP NOT CONFIRMED", report.message, "error")
+            self.ctx.notify("Emergency stop" if report.ok else "E-STOP NOT CONFIRMED", report.message, "error")
         return report
 
     def reset(self) -> None:
@@ -259,7 +163,7 @@ class ClientApp:
 
         def run() -> None:
             if self._cmd("Home", self.api.home) is None and self.api.state.homed:
-                self.notify("Homed", "the machine is homed")
+                self.ctx.notify("Homed", "the machine is homed")
         threading.Thread(target=run, name="ui-home", daemon=True).start()
 
     def zero(self, confirm: bool = False) -> None:
@@ -267,7 +171,7 @@ class ClientApp:
         now = time.monotonic()
         if not confirm and now - self._zero_armed > 5.0:
             self._zero_armed = now
-            self.notify("Zero: press again to confirm",
+            self.ctx.notify("Zero: press again to confirm",
                         "Zero makes the present position the home coordinates (the machine origin). "
                         "Press Zero again within 5 s to confirm.", "error")
             return
@@ -286,7 +190,7 @@ class ClientApp:
     def _move_done(self, status: Any) -> None:
         err = getattr(status, "error", None)
         if err is not None and "stopped by the operator" not in str(err):
-            self.error(err, "Move ended")
+            self.ctx.error(err, "Move ended")
 
     def cancel(self) -> None:
         status = self.move_status
@@ -307,18 +211,18 @@ class ClientApp:
         if time.monotonic() - self._released_at < LATE_HOLD_S:
             return  # a hold event that arrived after the button's release must not start the jog again
         v = self.jog_velocity(axis, sign)
-        v = self.station.manual_probe_velocity(v) if self.manual_probe else v
-        who = self.who()
+        v = self.station.manual_probe_velocity(v) if self.ctx.manual_probe else v
+        who = self.ctx.who()
         seq = self.api.release_seq(who)  # a release after this point drops this jog and the keeper's re-sends
         try:
-            self.api.jog(who, v, probe=self.manual_probe, after=seq)
+            self.api.jog(who, v, probe=self.ctx.manual_probe, after=seq)
         except OPERATOR_ERRORS as exc:
             self._hold = None
             self._throttled_error("Jog", str(exc))
             return
         self._jogging = True
         self._last_hold = time.monotonic()
-        self._hold = (v, self.manual_probe, seq, self._machine_time())
+        self._hold = (v, self.ctx.manual_probe, seq, self._machine_time())
 
     def keep_hold(self) -> None:
         """The hold keeper (app thread, 25 Hz): re-send a held button's jog between its (late) hold events; release
@@ -333,7 +237,7 @@ class ClientApp:
                 self.jog_release()
             return
         try:
-            self.api.jog(self.who(), v, probe=probe, after=seq)
+            self.api.jog(self.ctx.who(), v, probe=probe, after=seq)
         except OPERATOR_ERRORS:
             pass  # refused (control taken, fault, contact back-off): the next hold event tells the operator
 
@@ -348,15 +252,15 @@ class ClientApp:
         if self._jogging:
             self._jogging = False
             try:
-                self.api.jog_release(self.who())
+                self.api.jog_release(self.ctx.who())
             except OPERATOR_ERRORS as exc:
-                self.error(exc, "Jog release")
+                self.ctx.error(exc, "Jog release")
 
     def _throttled_error(self, title: str, body: str) -> None:
         last, when = self._last_error
         if body != last or time.monotonic() - when > 2.0:
             self._last_error = (body, time.monotonic())
-            self.error(body, title)
+            self.ctx.error(body, title)
 
     def step(self, axis: int, sign: int) -> Any:
         size = self.step_size
@@ -365,7 +269,7 @@ class ClientApp:
 
     def set_manual_probe(self, on: bool) -> None:
         self.jog_release()
-        self.manual_probe = bool(on)
+        self.ctx.manual_probe = bool(on)
 
     # --- pick ------------------------------------------------------------------------
 
@@ -374,16 +278,16 @@ class ClientApp:
         try:
             result = self.station.measurement.pick(origin_mm, direction)
         except OPERATOR_ERRORS as exc:
-            self.error(exc, "Pick")
+            self.ctx.error(exc, "Pick")
             return None
         if result is None:
-            self.notify("Pick", "the ray missed the part")
+            self.ctx.notify("Pick", "the ray missed the part")
             return None
-        self.picked = result
+        self.ctx.picked = result
         hit, nominal = result
         if self.client is not None:
             draw_pick(self.client.scene, hit.point, hit.normal)
-        self.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f}".format(*hit.point)
+        self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f}".format(*hit.point)
                     + (f" · {nominal.kind}" if nominal is not None else ""))
         return result
 
@@ -391,18 +295,18 @@ class ClientApp:
         return self.pick(np.asarray(origin_scene, float) / SCALE, direction)
 
     def move_above(self) -> Any:
-        if self.picked is None:
-            self.error("click a point on the part first", "Move above")
+        if self.ctx.picked is None:
+            self.ctx.error("click a point on the part first", "Move above")
             return None
-        hit = self.picked[0]
+        hit = self.ctx.picked[0]
         status = self._cmd("Move above", lambda cid: self.station.move_above(hit.point, hit.normal, client=cid))
         return None if status is None else self._track(status)
 
     def probe_here(self) -> Any:
-        if self.picked is None:
-            self.error("click a point on the part first", "Probe here")
+        if self.ctx.picked is None:
+            self.ctx.error("click a point on the part first", "Probe here")
             return None
-        hit = self.picked[0]
+        hit = self.ctx.picked[0]
         status = self._cmd("Probe here", lambda cid: self.station.measurement.probe_here(hit.point, hit.normal, client=cid))
         return None if status is None else self._track(status)
 
@@ -414,61 +318,20 @@ class ClientApp:
     # --- hits ---------------------------------------------------------------------------
 
     def delete_hit(self, hid: int) -> None:
-        self._run("Delete hit", lambda: self.station.measurement.delete_hit(int(hid)))
+        self.ctx.run("Delete hit", lambda: self.station.measurement.delete_hit(int(hid)))
 
     def undo(self) -> None:
-        message = self._run("Undo", self.station.measurement.undo)
+        message = self.ctx.run("Undo", self.station.measurement.undo)
         if message:
-            self.notify("Undo", message)
+            self.ctx.notify("Undo", message)
 
     # --- features --------------------------------------------------------------------------
 
-    def hit_ids_for(self, ids_text: str, last_n: int) -> list[int]:
-        if ids_text.strip():
-            return parse_ids(ids_text)
-        with self.station.measurement.lock:
-            ids = sorted(self.station.measurement.hits)
-        return ids[-int(last_n):] if last_n > 0 else ids
-
-    def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
-        def do() -> Any:
-            ids = self.hit_ids_for(ids_text, last_n)
-            # the nominal is the CAD surface the hits lie on (the station finds it), not the last click:
-            # "Nominal from the last CAD pick" in the Features tab applies a pick on purpose
-            feature = self.station.measurement.fit_feature(kind, ids, method)
-            self.selected_feature = feature.id
-            self.app.view.select_feature(feature.id)
-            self.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
-                                  f"from {len(ids)} hits")
-            return feature
-        return self._run("Fit", do)
-
     def select_feature(self, fid: int) -> None:
-        self.selected_feature = fid
+        """Select a feature in every panel of this tab and in the 3-D view."""
+        self.ctx.selected_feature = fid
         self.app.view.select_feature(fid)
         self.refresh()
-
-    def feature_markdown(self) -> str:
-        fid = self.selected_feature
-        feature = self.station.measurement.features.get(fid) if fid is not None else None
-        if feature is None:
-            return "*no feature selected*"
-        s = feature.result.summary()
-        lines = [f"**{feature.name}** ({feature.kind}, {feature.method}, hits {feature.hit_ids})", "",
-                 f"form error: **{s['form'] * 1000:.2f} um**"
-                 + (f" · sigma {s['sigma'] * 1000:.2f} um" if s.get("sigma") is not None else "")]
-        if s.get("uncertainty"):  # standard uncertainties: angles (rad) in urad, lengths (mm) in um
-            lines.append("u (1 sigma): " + " · ".join(
-                f"{k} {v * 1e6:.1f} urad" if k in ("normal", "direction", "half_angle") else f"{k} {v * 1000:.2f} um"
-                for k, v in s["uncertainty"].items()))
-        lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
-        for k, v in feature.result.geometry().items():
-            lines.append(f"- {k}: {_fmt(v)}")
-        dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
-        if dev:
-            lines.append(f"\nvs nominal {feature.nominal.kind}:")
-            lines.extend(f"- {k}: {v:+.4f}" for k, v in dev.items())
-        return "\n".join(lines)
 
     # --- control ------------------------------------------------------------------------------
 
@@ -482,17 +345,17 @@ class ClientApp:
     def take_control(self, code: str | None = None) -> bool:
         refusal = self.control.try_take(self.client_id, code or None, self.is_local, peer=self.peer())
         if refusal is None:
-            self.authenticated = True
-            self.notify("Control", "you control the machine")
+            self.ctx.authenticated = True
+            self.ctx.notify("Control", "you control the machine")
         else:
-            self.error(refusal, "Take control")
+            self.ctx.error(refusal, "Take control")
         return refusal is None
 
     def set_lan_stop(self, allowed: bool) -> None:
         try:
             self.control.set_lan_stop(allowed, is_local=self.is_local)
         except PermissionError as exc:
-            self.error(exc, "LAN stops")
+            self.ctx.error(exc, "LAN stops")
 
     def release_control(self) -> None:
         self.jog_release()
@@ -503,17 +366,9 @@ class ClientApp:
         """Tell this tab when another client took control from it (it may have been about to jog)."""
         holder = self.control.holder
         if self._had_control and holder != self.client_id:
-            self.notify("Control taken", f"{holder or 'nobody'} now controls the machine; this tab observes.",
+            self.ctx.notify("Control taken", f"{holder or 'nobody'} now controls the machine; this tab observes.",
                         "error")
         self._had_control = holder == self.client_id
-
-    def control_text(self) -> str:
-        holder = self.control.holder
-        if holder == self.client_id:
-            return "**You control the machine.**"
-        if holder is None:
-            return "Nobody controls the machine. You observe."
-        return f"Observing; control is held by `{holder}`."
 
     # --- GUI ---------------------------------------------------------------------------------------
 
@@ -523,7 +378,7 @@ class ClientApp:
         g = self.gui
         self.status.build(gui)  # first, and sticky: state, DRO, probe, STOP / E-STOP always on screen
         with gui.add_folder("Control"):
-            g["control"] = gui.add_markdown(self.control_text())
+            g["control"] = gui.add_markdown(self.ctx.control_text())
             g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
             take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
@@ -616,12 +471,12 @@ class ClientApp:
         if not self.gui:
             return
         st = self.station
-        self._set("control", "content", self.control_text())
+        self.ctx.set("control", "content", self.ctx.control_text())
         self.status.refresh()
-        self._set("machine", "content", machine_markdown(st))
+        self.ctx.set("machine", "content", machine_markdown(st))
         hit = st.measurement.last_hit
         if hit is not None:
-            self._set("contact", "content",
+            self.ctx.set("contact", "content",
                       "last trigger (tip centre): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
                       + "contact point: X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
         with st.measurement.lock:
@@ -629,14 +484,14 @@ class ClientApp:
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]
-        self._set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
+        self.ctx.set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
         self.features.refresh()
         self.align.refresh()
         self.colour_map.refresh()
         self.measure.refresh()
-        if self.picked is not None:
-            p, nominal = self.picked
-            self._set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
+        if self.ctx.picked is not None:
+            p, nominal = self.ctx.picked
+            self.ctx.set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
                 *p.point, *p.normal) + (f"; nominal {nominal.kind}" if nominal is not None else ""))
         if self.live_trace:
             self._show_trace()
@@ -652,22 +507,12 @@ class ClientApp:
         self.calibration.refresh()
 
     def _show_trace(self) -> None:
-        self._set("trace", "value", self.station.link_trace(30))
+        self.ctx.set("trace", "value", self.station.link_trace(30))
 
     def fast_refresh(self) -> None:
         """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""
         if self.gui:
             self.status.refresh()
 
-    def aligned(self) -> bool:
-        return bool(self.station.measurement.aligned)
-
     def station_probing_speed(self) -> float:
         return float(getattr(self.station, "qualified_probing_speed", self.station.config.speeds.probing))
-
-    def _set(self, key: str, attr: str, value: Any, handle: Any = None) -> None:
-        """Set a widget attribute only when the value changed (``handle`` for widgets of the sub-panels)."""
-        widget = handle if handle is not None else self.gui.get(key)
-        if widget is not None and self._shown.get(key) != value:
-            self._shown[key] = value
-            setattr(widget, attr, value)

@@ -1,0 +1,112 @@
+"""What the panels of one browser tab share: :class:`PanelContext`.
+
+Each tab (:class:`~cmm.ui.panels.ClientApp`) builds one context and hands it to its panels (status bar,
+features, alignment, auto-measure, colour map, sessions, calibration) instead of itself. It holds the
+station, the tab's viser client, the shared 3-D view, the tab's selection (picked point, selected feature,
+manual probing armed), what the operator was told, and the two ways a panel acts:
+
+- :meth:`PanelContext.run`: a measurement- or record-changing action: the control check first (a server-side
+  check: hiding buttons is not security), an operator error shown as a notification;
+- :meth:`PanelContext.set`: set a widget attribute only when the value changed (idle pages send nothing).
+
+The few things only the tab can do (STOP and E-STOP with its held jog, selecting a feature across the
+panels, switching the DRO's frame) are callables the tab installs (``stop``, ``emergency_stop``,
+``select_feature``, ``show_frame``).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any, Callable
+
+from ..control import Client, MotionError
+from ..measurement.model import MeasurementError
+from ..metrology.features import FitError
+
+# what an action may raise that is the operator's to read (not a bug): shown as a notification
+OPERATOR_ERRORS = (MotionError, MeasurementError, FitError, ValueError, OSError)
+
+
+def _none(*_: Any) -> None:
+    return None
+
+
+class PanelContext:
+    def __init__(self, station: Any, control: Any, view: Any, client: Any = None, *, client_id: str,
+                 is_local: bool = False, deviations: Callable[[], dict[int, float]] = dict,
+                 shared: Any = None) -> None:
+        self.station = station
+        self.control = control  # the access holder shared with the pendant (cmm.ui.access.Control)
+        self.view = view  # the shared 3-D scene (cmm.ui.scene.SceneView)
+        self.client = client  # the tab's viser client; None in tests standing in for a tab
+        self.client_id = client_id
+        self.is_local = is_local
+        self.authenticated = is_local  # local, or gave the right access code on this connection
+        self.deviations = deviations  # hit id -> deviation from the part (mm), computed once for every tab
+        self.shared = shared if shared is not None else SimpleNamespace(calibration_job=None)  # the app's, all tabs
+        self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
+        self.gui: dict[str, Any] = {}  # the tab's own widgets by key
+        self.picked: Any = None  # (PickResult, NominalFeature | None) of the last click on the part
+        self.selected_feature: int | None = None
+        self.manual_probe = False  # jogs are armed: a trigger takes a manual hit
+        self._shown: dict[str, Any] = {}
+        # installed by the tab
+        self.stop: Callable[[], Any] = _none
+        self.emergency_stop: Callable[[], Any] = _none
+        self.select_feature: Callable[[int], None] = _none
+        self.show_frame: Callable[[str], None] = _none
+
+    # --- telling the operator ---------------------------------------------------------
+
+    def notify(self, title: str, body: str = "", level: str = "info") -> None:
+        self.messages.append((level, title, body))
+        del self.messages[:-50]
+        if self.client is not None:
+            try:
+                self.client.add_notification(title, body, auto_close_seconds=6.0 if level != "error" else 10.0,
+                                             color="red" if level == "error" else None)
+            except Exception:  # noqa: BLE001 - the tab may have closed
+                pass
+
+    def error(self, exc: BaseException | str, title: str = "Refused") -> None:
+        self.notify(title, str(exc), "error")
+
+    # --- acting -------------------------------------------------------------------------
+
+    def who(self) -> Client:
+        """This browser as the control core's access policy sees it."""
+        return Client(self.client_id, local=self.is_local, authenticated=bool(self.authenticated))
+
+    def allowed(self, action: str) -> bool:
+        """The server-side control check every machine- or measurement-changing action makes first."""
+        if self.control.can_move(self.client_id):
+            return True
+        self.error(f"{action}: this browser only observes. Take control first.", "Not in control")
+        return False
+
+    def run(self, action: str, fn: Callable[[], Any], *, guarded: bool = True) -> Any:
+        """``fn()`` if this tab may act (``guarded``); an operator error is shown and gives None."""
+        if guarded and not self.allowed(action):
+            return None
+        try:
+            return fn()
+        except OPERATOR_ERRORS as exc:
+            self.error(exc, f"{action} refused")
+            return None
+
+    def control_text(self) -> str:
+        holder = self.control.holder
+        if holder == self.client_id:
+            return "**You control the machine.**"
+        if holder is None:
+            return "Nobody controls the machine. You observe."
+        return f"Observing; control is held by `{holder}`."
+
+    # --- widgets ------------------------------------------------------------------------
+
+    def set(self, key: str, attr: str, value: Any, handle: Any = None) -> None:
+        """Set a widget attribute only when the value changed (``handle`` for widgets of the sub-panels)."""
+        widget = handle if handle is not None else self.gui.get(key)
+        if widget is not None and self._shown.get(key) != value:
+            self._shown[key] = value
+            setattr(widget, attr, value)
