@@ -299,3 +299,16 @@ def test_mcc_short_cylinder_is_not_beaten_by_any_axis_direction():
             u = f @ np.array([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)])
             best = min(best, min_enclosing_ball(x @ frame_with_axis(u)[:, :2])[1])
     assert res.radius <= best + 1e-12
+
+
+@pytest.mark.parametrize("kind,method", [("plane", "ls"), ("plane", "minzone"), ("circle", "mcc"), ("cylinder", "ls"),
+                                         ("cylinder", "minzone"), ("sphere", "ls"), ("line", "ls"), ("cone", "ls")])
+def test_huge_coordinates_are_refused_as_too_large_not_as_coincident(kind, method):
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-10, 10, (40, 3))
+    pts[7] = [1e308, 0.0, 0.0]
+    with pytest.raises(FitError, match=r"^coordinates too large: point 8 of 40 has a coordinate of 1e\+308 mm"):
+        fc.fit(kind, pts, method)
+    pts[7] = [0.0, -2e9, 0.0]
+    with pytest.raises(FitError, match="coordinates too large"):
+        fc.fit(kind, pts, method)

@@ -13,6 +13,11 @@ from cmm.metrology.features import FitError
 RANK_TOL = 1e-10
 
 
+# mm: no measured coordinate is this large; beyond it squares and sums of the fits lose all precision (1e308
+# would overflow them and read as "all points coincide")
+MAX_COORDINATE = 1e9
+
+
 def as_points(points: Any, kind: str, min_points: int, dim: int = 3) -> np.ndarray:
     """Validate and return points as a float64 (m, dim) array.
 
@@ -34,6 +39,12 @@ def as_points(points: Any, kind: str, min_points: int, dim: int = 3) -> np.ndarr
     bad = ~np.isfinite(arr).all(axis=1)
     if bad.any():
         raise FitError(f"point {int(np.argmax(bad)) + 1} of {m} has a NaN or infinite coordinate")
+    huge = (np.abs(arr) > MAX_COORDINATE).any(axis=1)
+    if huge.any():
+        k = int(np.argmax(huge))
+        raise FitError(f"coordinates too large: point {k + 1} of {m} has a coordinate of "
+                       f"{float(np.abs(arr[k]).max()):.3g} mm, beyond {MAX_COORDINATE:.0e} mm (1000 km): "
+                       "check the units and the file's columns")
     return arr
 
 

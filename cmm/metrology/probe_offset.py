@@ -120,7 +120,11 @@ def _offset(feature: FitResult, tips: Any, approach: Any, r_eff: float) -> FitRe
             raise FitError(f"the compensated radius {radius:.6g} mm is not positive: check r_eff and the side")
         return replace(feature, radius=radius)
     if isinstance(feature, Cone):
-        return replace(feature, apex=feature.apex - delta / np.sin(feature.half_angle) * feature.direction)
+        # the contact points lie delta along the outward normal from the tips, whose axial part is -sin(psi) u:
+        # their centroid's foot on the axis (the location point) moves by -delta sin(psi) u
+        u = feature.direction
+        return replace(feature, apex=feature.apex - delta / np.sin(feature.half_angle) * u,
+                       point=feature.point - delta * np.sin(feature.half_angle) * u)
     if isinstance(feature, Torus):
         return replace(feature, minor_radius=feature.minor_radius + delta)
     raise FitError(f"probe compensation is not defined for a {feature.kind}")

@@ -1,0 +1,100 @@
+"""Auto-measure of the sample part's conical boss on the simulator (virtual clock), end to end: the plan
+determines the cone, the fit reports the cone near the CAD nominal, and the feature tree and the report show
+the same numbers from the same result."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from netutil import SIM
+
+from cmm.measurement.plan import plan_at_pick, run_plan
+from cmm.metrology.characteristics import characteristics
+from cmm.metrology.fit_ls import fit_cone
+from cmm.session.report import feature_characteristics, features_csv, render
+from cmm.sim.cmm_sim import TRUE_PART_POSE
+from cmm.session.store import DirectoryStore, load_session
+from cmm.station import Station
+from cmm.ui.panel_features import feature_chars, tree_html
+
+HALF_ANGLE = math.degrees(math.atan(0.5))  # the sample part's cone: radius 12 at z 40, 6 at z 52
+
+
+@pytest.fixture
+def station(tmp_path):
+    st = Station(port=SIM, session_dir=tmp_path).start("cone", home=True)
+    yield st
+    st.close()
+
+
+def _cone_face(model) -> int:
+    pose = model.part.pose
+    origin = (pose @ np.array([109.0, 40.0, 100.0, 1.0]))[:3]  # above the cone's flank (radius 9 at z 46)
+    hit, nominal = model.pick(origin, [0.0, 0.0, -1.0])
+    assert nominal is not None and nominal.kind == "cone"
+    return hit.face_id
+
+
+def test_the_conical_boss_is_measured_as_the_cone_near_its_nominal(station, tmp_path):
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    face = _cone_face(model)
+    plan = plan_at_pick(model, face, n=4)
+    assert plan.kind == "cone" and len(plan) == 8 and plan.notes == ()
+    z = np.sort(plan.points[:, 2])
+    assert z[4:].mean() - z[:4].mean() > 0.5 * 12.0  # the rings are more than half the cone's height apart
+    axis = plan.nominal.params["apex"]
+    angles = np.degrees(np.arctan2(plan.points[:, 1] - axis[1], plan.points[:, 0] - axis[0]))
+    lower, upper = np.sort(angles[:4] % 360), np.sort(angles[4:] % 360)
+    assert np.allclose(np.abs(((upper - lower) + 180) % 360 - 180), 45.0, atol=1.0)  # staggered by half a step
+
+    feature = run_plan(model, plan, name="cone")
+    r = feature.result
+    assert r.half_angle_deg == pytest.approx(HALF_ANGLE, abs=0.02) and not r.check and not r.warnings
+    chars = {c.name: c for c in feature_chars(feature)}
+    assert chars["half angle"].ok and chars["position ⌀"].actual < 0.05 and chars["position ⌀"].ok
+    # the location point is the foot of the hits' centroid on the axis
+    centroid = np.mean([model.hits[i].point for i in feature.hit_ids], axis=0)
+    assert abs((centroid - r.point) @ r.direction) < 0.05 and np.linalg.norm(np.cross(centroid - r.point,
+                                                                                      r.direction)) < 10.0
+
+    # fewer hits than the cone needs: planned as asked, and the plan says so
+    few = plan_at_pick(model, face, n=3)
+    assert len(few) == 6 and "do not determine a cone" in few.notes[0]
+
+    # the feature tree and the report read the same numbers
+    model.journal.close()
+    session = load_session(DirectoryStore(tmp_path), "cone")
+    (rec,) = session.state.features.values()
+    from_report = feature_characteristics(rec, {**(rec.tolerance or {}), "size": 0.02, "form": 0.02,
+                                                "location": 0.02})
+    assert from_report == feature_chars(feature)
+    tree = tree_html(station)
+    html = render(session)
+    csv = features_csv(session)
+    for c in from_report:
+        assert f"{c.actual:.4f}" in tree and f"{c.actual:.4f}" in html and f"{c.actual:.6f}" in csv
+
+
+def test_a_better_cone_far_from_the_nominal_is_shown_as_check_not_reported():
+    """Eight tip centres from the simulator's cone (two rings of four at the same angles: the old plan) with
+    0.5 um of noise: a cone across the axis (half angle 1.94 deg) fits them better than the probed one.
+    With the CAD nominal the probed cone is reported and the other is the alternative to check."""
+    tips = np.array([[284.3420629, 184.3399339, 49.2523202], [283.8040525, 196.1937322, 49.6301808],
+                     [296.192652, 196.1924735, 49.6296481], [295.6533673, 184.3436884, 49.2480207],
+                     [282.2168375, 182.2178906, 43.251377], [281.6796339, 198.3177279, 43.6318418],
+                     [298.3162058, 198.3165213, 43.6299357], [297.7786832, 182.2196674, 43.2501758]])
+    nominal = {"kind": "cone", "apex": [290.0, 190.0, 64.0], "direction": [0.0, 0.0, -1.0],
+               "half_angle": math.atan(0.5)}
+    alone = fit_cone(tips)
+    assert alone.half_angle_deg < 5.0  # without a nominal the best fit wins: not the probed cone
+    r = fit_cone(tips, nominal)
+    assert r.half_angle_deg == pytest.approx(HALF_ANGLE, abs=0.02) and r.check
+    assert r.alternative.half_angle_deg == pytest.approx(alone.half_angle_deg, abs=1e-6)
+    assert r.warnings[0].startswith("check: a different cone fits the hits better (half angle 1.9")
+    chars = characteristics("cone", "cone", r.summary(), nominal)
+    assert {c.verdict for c in chars} == {"check"}
+    angle = next(c for c in chars if c.name == "half angle")
+    assert angle.actual == pytest.approx(HALF_ANGLE, abs=0.02) and "half angle 1.9" in angle.check
