@@ -1,0 +1,528 @@
+"""Trends across parts and stations: every run of a routine or program is a part in a series.
+
+A part (:class:`PartResult`) is the series key (the routine or program name), the station that measured it,
+its run id (unique per station), its serial, the time, and per characteristic the measured value, nominal,
+tolerance limits and unit (:class:`Measured`). :meth:`Trends.record_part` is the one call a runner makes
+(:func:`feature_values` turns fitted features into characteristics).
+
+Storage, built like the session store (:mod:`cmm.session.store`):
+
+- **local** (always): ``<dir>/parts.jsonl``, an append-only journal (:class:`cmm.session.journal.Journal`:
+  fsync'ed before ``record_part`` returns) and ``<dir>/index.sqlite``, a query index rebuilt from the journal
+  whenever it is behind or missing (it holds nothing the journal does not);
+- **shared** (optional): a PostgreSQL database several stations point at (:mod:`cmm.session.trends_pg`).
+  Each part is uploaded after it is journalled; a part that cannot be uploaded (the database is down) waits
+  in the journal and goes up with the next part or the next :meth:`Trends.sync`. The upload is idempotent,
+  keyed by (station, run id): a part uploaded twice (a crash between the commit and the local mark) is
+  stored once.
+
+Chart queries (:meth:`Trends.history`) ask the database when one is configured and reachable (every station's
+parts) and the local index otherwise (this station's parts, :attr:`Trends.source` says which).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import sqlite3
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics
+from .journal import Journal, JournalBusy, _decode
+
+SEP = " / "  # feature / characteristic
+
+
+class TrendError(RuntimeError):
+    """A trends action refused, in an operator's words."""
+
+
+@dataclass(frozen=True)
+class Measured:
+    """One characteristic of one part: limits are absolute (nominal + tolerance); None: no limit that side."""
+
+    name: str  # "boss / diameter"
+    value: float
+    nominal: float | None = None
+    lower: float | None = None
+    upper: float | None = None
+    unit: str = "mm"
+
+    @property
+    def ok(self) -> bool | None:
+        if self.lower is None and self.upper is None:
+            return None
+        return not ((self.upper is not None and self.value > self.upper + 1e-12)
+                    or (self.lower is not None and self.value < self.lower - 1e-12))
+
+    def row(self) -> list[Any]:
+        return [self.name, self.value, self.nominal, self.lower, self.upper, self.unit]
+
+
+@dataclass(frozen=True)
+class PartResult:
+    series: str
+    station: str
+    run_id: str
+    time: float
+    serial: str
+    values: tuple[Measured, ...]
+
+
+@dataclass
+class History:
+    """One characteristic of a series over its parts, in time order (what a chart is drawn from)."""
+
+    series: str
+    characteristic: str
+    unit: str
+    time: np.ndarray
+    value: np.ndarray
+    nominal: np.ndarray  # NaN: none
+    lower: np.ndarray  # NaN: no lower limit
+    upper: np.ndarray
+    station: list[str]
+    run_id: list[str]
+    serial: list[str]
+    source: str = "local"  # "database" (every station) or "local" (this station)
+
+    def __len__(self) -> int:
+        return len(self.value)
+
+
+def measured(c: Characteristic) -> Measured | None:
+    """A report characteristic as a trend value; None when it was not measured (it needs a nominal).
+    Form and position (nominal 0, tolerance zone from 0 up) have an upper limit only."""
+    if c.actual is None:
+        return None
+    name = f"{c.feature}{SEP}{c.name}"
+    if c.nominal is None:
+        return Measured(name, float(c.actual), None, None, None, c.unit)
+    one_sided = c.lower == 0.0 and c.nominal == 0.0
+    return Measured(name, float(c.actual), float(c.nominal), None if one_sided else c.nominal + c.lower,
+                    c.nominal + c.upper, c.unit)
+
+
+def feature_values(features: Iterable[Any], default_tolerance: dict[str, float] | None = None) -> list[Measured]:
+    """The characteristics of fitted features (the measurement model's :class:`~cmm.measurement.model.Feature`:
+    ``name``, ``kind``, ``result.summary()``, ``nominal``, ``tolerance``) as trend values."""
+    out = []
+    for f in features:
+        nominal = None if f.nominal is None else f.nominal.to_dict()
+        tol = {**DEFAULT_TOLERANCE, **(default_tolerance or {}), **(f.tolerance or {})}
+        for c in characteristics(f.name, f.kind, f.result.summary(), nominal, tol):
+            m = measured(c)
+            if m is not None:
+                out.append(m)
+    return out
+
+
+def check_values(values: Iterable[Measured | dict | list | tuple]) -> tuple[Measured, ...]:
+    out: list[Measured] = []
+    seen: set[str] = set()
+    for v in values:
+        if isinstance(v, dict):
+            v = Measured(**v)
+        elif isinstance(v, (list, tuple)):
+            v = Measured(*v)
+        if not isinstance(v.name, str) or not v.name.strip():
+            raise TrendError("a characteristic needs a name")
+        if v.name in seen:
+            raise TrendError(f"the characteristic {v.name!r} is given twice for one part")
+        seen.add(v.name)
+        nums = [v.value] + [x for x in (v.nominal, v.lower, v.upper) if x is not None]
+        if not all(isinstance(x, (int, float)) and math.isfinite(x) for x in nums):
+            raise TrendError(f"the characteristic {v.name!r} has a value or limit that is not a number: "
+                             f"value {v.value!r}, nominal {v.nominal!r}, limits {v.lower!r} .. {v.upper!r}")
+        if v.lower is not None and v.upper is not None and v.lower > v.upper:
+            raise TrendError(f"the characteristic {v.name!r} has its lower limit {v.lower} above its upper "
+                             f"limit {v.upper}")
+        out.append(Measured(v.name, float(v.value), *(None if x is None else float(x)
+                                                      for x in (v.nominal, v.lower, v.upper)), str(v.unit)))
+    if not out:
+        raise TrendError("a part needs at least one measured characteristic")
+    return tuple(out)
+
+
+def default_station() -> str:
+    return os.environ.get("CMM_STATION") or socket.gethostname() or "station"
+
+
+# --------------------------------------------------------------------------- local index
+
+INDEX_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
+CREATE TABLE IF NOT EXISTS parts (
+    seq INTEGER PRIMARY KEY, station TEXT NOT NULL, run_id TEXT NOT NULL, series TEXT NOT NULL,
+    serial TEXT NOT NULL, time REAL NOT NULL, UNIQUE (station, run_id));
+CREATE TABLE IF NOT EXISTS vals (
+    seq INTEGER NOT NULL, series TEXT NOT NULL, characteristic TEXT NOT NULL, time REAL NOT NULL,
+    value REAL NOT NULL, nominal REAL, lower REAL, upper REAL, unit TEXT NOT NULL);
+CREATE INDEX IF NOT EXISTS vals_chart ON vals (series, characteristic, time, seq, value, nominal, lower, upper);
+CREATE TABLE IF NOT EXISTS chars (series TEXT NOT NULL, characteristic TEXT NOT NULL, unit TEXT NOT NULL,
+    PRIMARY KEY (series, characteristic));
+"""
+
+
+class LocalIndex:
+    """SQLite index of a parts journal; caught up from the journal's byte offset it last read."""
+
+    def __init__(self, journal_path: Path, path: Path) -> None:
+        self.journal_path = journal_path
+        self.path = path
+        self._lock = threading.Lock()
+        self.db = self._open()
+
+    def _open(self) -> sqlite3.Connection:
+        # autocommit; catch_up and the upload mark take their own transactions
+        try:
+            db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
+            db.executescript(INDEX_SCHEMA)
+            return db
+        except sqlite3.DatabaseError:  # a damaged index: it is only a cache of the journal, so rebuild it
+            self.path.unlink(missing_ok=True)
+            db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
+            db.executescript(INDEX_SCHEMA)
+            return db
+
+    def meta(self, key: str) -> int:
+        row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return 0 if row is None else int(row[0])
+
+    def set_meta(self, key: str, value: int) -> None:
+        self.db.execute("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET value = "
+                        "excluded.value", (key, int(value)))
+
+    def catch_up(self) -> int:
+        """Index the journal's complete lines past the last offset read; returns how many parts were added."""
+        with self._lock:
+            try:
+                size = self.journal_path.stat().st_size
+            except FileNotFoundError:
+                return 0
+            if size == self.meta("journal_bytes"):
+                return 0
+            # BEGIN IMMEDIATE: two processes catching up at once index each line once
+            self.db.execute("BEGIN IMMEDIATE")
+            try:
+                offset = self.meta("journal_bytes")
+                if size < offset:  # the journal was replaced: index it afresh
+                    for table in ("parts", "vals", "chars", "meta"):
+                        self.db.execute(f"DELETE FROM {table}")
+                    offset = 0
+                with open(self.journal_path, "rb") as fh:
+                    fh.seek(offset)
+                    data = fh.read(max(size - offset, 0))
+                end = data.rfind(b"\n") + 1  # a torn last line waits (the journal's writer cuts it on reopen)
+                events = []
+                for raw in data[:end].splitlines():
+                    try:
+                        e = _decode(raw)
+                    except ValueError:
+                        continue
+                    if isinstance(e, dict) and e.get("kind") == "part":
+                        events.append(e)
+                self.add(events)
+                self.set_meta("journal_bytes", offset + end)
+                self.db.execute("COMMIT")
+            except BaseException:
+                self.db.execute("ROLLBACK")
+                raise
+            return len(events)
+
+    def add(self, events: list[dict]) -> None:
+        parts, vals, chars = [], [], {}
+        for e in events:
+            parts.append((e["seq"], e["station"], e["run_id"], e["series"], e.get("serial", ""), e["part_time"]))
+            for name, value, nominal, lower, upper, unit in e["values"]:
+                vals.append((e["seq"], e["series"], name, e["part_time"], value, nominal, lower, upper, unit))
+                chars[(e["series"], name)] = unit
+        self.db.executemany("INSERT OR IGNORE INTO parts VALUES (?, ?, ?, ?, ?, ?)", parts)
+        self.db.executemany("INSERT INTO vals VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", vals)
+        self.db.executemany("INSERT OR IGNORE INTO chars VALUES (?, ?, ?)", [(s, c, u) for (s, c), u in chars.items()])
+
+    def series(self) -> list[str]:
+        return [r[0] for r in self.db.execute("SELECT DISTINCT series FROM chars ORDER BY series")]
+
+    def characteristics(self, series: str) -> list[tuple[str, str]]:
+        return [(r[0], r[1]) for r in self.db.execute(
+            "SELECT characteristic, unit FROM chars WHERE series = ? ORDER BY rowid", (series,))]
+
+    def stations(self, series: str) -> list[str]:
+        return [r[0] for r in self.db.execute("SELECT DISTINCT station FROM parts WHERE series = ? ORDER BY station",
+                                              (series,))]
+
+    def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
+        sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial, v.unit "
+               "FROM vals v JOIN parts p ON p.seq = v.seq WHERE v.series = ? AND v.characteristic = ?")
+        args: list[Any] = [series, characteristic]
+        if station:
+            sql += " AND p.station = ?"
+            args.append(station)
+        return self.db.execute(sql + " ORDER BY v.time, v.seq", args).fetchall()
+
+    def pending(self, after_seq: int, limit: int) -> list[PartResult]:
+        """Parts journalled after ``after_seq`` (in order), with their values, for the upload."""
+        parts = self.db.execute("SELECT seq, station, run_id, series, serial, time FROM parts WHERE seq > ? "
+                                "ORDER BY seq LIMIT ?", (after_seq, limit)).fetchall()
+        if not parts:
+            return []
+        by_seq: dict[int, list[Measured]] = {p[0]: [] for p in parts}
+        for seq, name, value, nominal, lower, upper, unit in self.db.execute(
+                "SELECT seq, characteristic, value, nominal, lower, upper, unit FROM vals WHERE seq BETWEEN ? AND ? "
+                "ORDER BY rowid", (parts[0][0], parts[-1][0])):
+            if seq in by_seq:
+                by_seq[seq].append(Measured(name, value, nominal, lower, upper, unit))
+        return [PartSeq(seq, PartResult(series, station, run_id, t, serial, tuple(by_seq[seq])))
+                for seq, station, run_id, series, serial, t in parts]
+
+    def close(self) -> None:
+        self.db.close()
+
+
+@dataclass(frozen=True)
+class PartSeq:
+    seq: int  # the part's line in the local journal
+    part: PartResult
+
+
+def history_from_rows(series: str, characteristic: str, rows: list[tuple], source: str) -> History:
+    """A :class:`History` from (time, value, nominal, lower, upper, station, run_id, serial, unit) rows."""
+    if not rows:
+        return History(series, characteristic, "mm", *(np.zeros(0) for _ in range(5)), [], [], [], source)
+    cols = list(zip(*rows))
+    num = [np.array([np.nan if v is None else v for v in c], dtype=np.float64) for c in cols[:5]]
+    return History(series, characteristic, str(cols[8][-1]), *num, list(cols[5]), list(cols[6]), list(cols[7]),
+                   source)
+
+
+# --------------------------------------------------------------------------- the station's trends
+
+
+@dataclass
+class SyncState:
+    connected: bool = False
+    error: str = ""  # the last database error, in words
+    since: float = 0.0  # when the database was last lost
+    uploaded: int = 0  # parts uploaded by this process
+    last_try: float = 0.0
+
+
+class Trends:
+    """One station's trends: the local journal and index, and optionally the shared database.
+
+    ``database``: a ``postgresql://`` URL (several stations point at the same one), or None for local only.
+    """
+
+    RETRY_S = 5.0  # after a failed connection, queries use the local index for this long before trying again
+    BATCH = 500  # parts per upload transaction
+
+    def __init__(self, directory: str | Path = "trends", *, station: str | None = None,
+                 database: str | None = None, connect_timeout: float = 3.0) -> None:
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.station = station or default_station()
+        if not self.station.strip() or len(self.station) > 128:
+            raise TrendError(f"{self.station!r} is not a usable station name (1 to 128 characters)")
+        self.journal_path = self.directory / "parts.jsonl"
+        self.index = LocalIndex(self.journal_path, self.directory / "index.sqlite")
+        self.database_url = database
+        self.connect_timeout = connect_timeout
+        self.state = SyncState()
+        self._journal: Journal | None = None
+        self._db: Any = None
+        self._lock = threading.RLock()
+        self._sync_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.index.catch_up()
+
+    # --- recording -------------------------------------------------------------------------------
+
+    def record_part(self, series: str, values: Iterable[Measured | dict | list | tuple], *, run_id: str | None = None,
+                    serial: str = "", when: float | None = None, sync: bool = True) -> PartResult:
+        """Journal one part (fsync'ed before this returns), index it, and upload what is waiting when a
+        database is configured (a database that is down only delays the upload)."""
+        if not isinstance(series, str) or not series.strip():
+            raise TrendError("a part needs the name of its series (the routine or program)")
+        part = PartResult(series.strip(), self.station, run_id or uuid.uuid4().hex, time.time() if when is None else
+                          float(when), str(serial or ""), check_values(values))
+        self.index.catch_up()
+        if self.index.db.execute("SELECT 1 FROM parts WHERE station = ? AND run_id = ?",
+                                 (part.station, part.run_id)).fetchone():
+            raise TrendError(f"run {part.run_id!r} of station {part.station!r} is already recorded")
+        with self._lock:
+            if self._journal is None:
+                try:
+                    self._journal = Journal(self.journal_path)
+                except JournalBusy:
+                    raise TrendError(f"the trends journal {self.journal_path} is open for writing by another "
+                                     "station: give each station its own trends folder") from None
+            self._journal.append("part", series=part.series, station=part.station, run_id=part.run_id,
+                                 serial=part.serial, part_time=part.time, values=[v.row() for v in part.values])
+        self.index.catch_up()
+        if sync and self.database_url:
+            self.sync()
+        return part
+
+    # --- the shared database ---------------------------------------------------------------------
+
+    def _database(self) -> Any:
+        """The open database connection, or None while it is unreachable (tried again after RETRY_S)."""
+        from .trends_pg import TrendDatabase, TrendDatabaseError
+
+        if not self.database_url:
+            return None
+        with self._lock:
+            if self._db is not None and not self._db.closed:
+                return self._db
+            now = time.monotonic()
+            if not self.state.connected and self.state.last_try and now - self.state.last_try < self.RETRY_S:
+                return None
+            self.state.last_try = now
+            try:
+                self._db = TrendDatabase(self.database_url, self.connect_timeout)
+            except TrendDatabaseError as exc:
+                self._lost(exc)
+                return None
+            self.state.connected, self.state.error = True, ""
+            return self._db
+
+    def _lost(self, exc: BaseException) -> None:
+        with self._lock:
+            if self.state.connected or not self.state.since:
+                self.state.since = time.time()
+            self.state.connected, self.state.error = False, str(exc)
+            self.state.last_try = time.monotonic()
+            if self._db is not None:
+                self._db.close()
+            self._db = None
+
+    def pending(self) -> int:
+        """Parts journalled here and not yet uploaded."""
+        self.index.catch_up()
+        up = self.index.meta("uploaded_seq")
+        return int(self.index.db.execute("SELECT count(*) FROM parts WHERE seq > ?", (up,)).fetchone()[0])
+
+    def sync(self, *, force: bool = False) -> int:
+        """Upload every part not yet in the database; returns how many were sent (0 when it is down)."""
+        from .trends_pg import TrendDatabaseError
+
+        if not self.database_url:
+            return 0
+        if force:
+            self.state.last_try = 0.0
+        with self._sync_lock:
+            self.index.catch_up()
+            sent = 0
+            while True:
+                batch = self.index.pending(self.index.meta("uploaded_seq"), self.BATCH)
+                if not batch:
+                    return sent
+                for _attempt in range(2):  # as in _ask: a stale connection is replaced once
+                    fresh = self._db is None
+                    db = self._database()
+                    if db is None:
+                        return sent
+                    try:
+                        db.upload([b.part for b in batch])
+                        break
+                    except TrendDatabaseError as exc:
+                        self._lost(exc)
+                        if fresh:
+                            return sent
+                        self.state.last_try = 0.0
+                self.index.set_meta("uploaded_seq", batch[-1].seq)
+                sent += len(batch)
+                self.state.uploaded += len(batch)
+
+    def start(self, every: float = 10.0) -> "Trends":
+        """Catch up in the background: upload what waits every ``every`` seconds while a database is configured."""
+        if self.database_url and self._thread is None:
+            def loop() -> None:
+                while not self._stop.wait(every):
+                    try:
+                        if self.pending():
+                            self.sync()
+                    except Exception:  # noqa: BLE001 - the next round tries again; the journal holds the parts
+                        pass
+
+            self._thread = threading.Thread(target=loop, name="trends-sync", daemon=True)
+            self._thread.start()
+        return self
+
+    # --- queries ---------------------------------------------------------------------------------
+
+    def _ask(self, fn_db: Any, fn_local: Any) -> tuple[Any, str]:
+        from .trends_pg import TrendDatabaseError
+
+        for _attempt in range(2):  # a connection that died since its last use is replaced once at once
+            fresh = self._db is None
+            db = self._database()
+            if db is None:
+                break
+            try:
+                return fn_db(db), "database"
+            except TrendDatabaseError as exc:
+                self._lost(exc)
+                if fresh:
+                    break
+                self.state.last_try = 0.0
+        self.index.catch_up()
+        return fn_local(self.index), "local"
+
+    @property
+    def source(self) -> str:
+        return "database" if self.database_url and self.state.connected else "local"
+
+    def series(self) -> list[str]:
+        return self._ask(lambda d: d.series(), lambda i: i.series())[0]
+
+    def characteristics(self, series: str) -> list[tuple[str, str]]:
+        return self._ask(lambda d: d.characteristics(series), lambda i: i.characteristics(series))[0]
+
+    def stations(self, series: str) -> list[str]:
+        return self._ask(lambda d: d.stations(series), lambda i: i.stations(series))[0]
+
+    def history(self, series: str, characteristic: str, station: str | None = None) -> History:
+        rows, source = self._ask(lambda d: d.rows(series, characteristic, station),
+                                 lambda i: i.rows(series, characteristic, station))
+        return history_from_rows(series, characteristic, rows, source)
+
+    def status_text(self) -> str:
+        """One line for the page and the CLI: where the charts come from and what waits."""
+        if not self.database_url:
+            return f"station **{self.station}**, local trends only ({self.directory})"
+        waiting = self.pending()
+        if self.state.connected:
+            tail = f"; {waiting} part{'s' if waiting != 1 else ''} waiting to upload" if waiting else ""
+            return f"station **{self.station}**, shared database: connected (every station's parts){tail}"
+        lost = time.strftime("%H:%M:%S", time.localtime(self.state.since)) if self.state.since else "start-up"
+        return (f"station **{self.station}**: the shared database is unreachable since {lost} "
+                f"({self.state.error or 'not tried yet'}); showing this station's parts; {waiting} "
+                f"part{'s' if waiting != 1 else ''} journalled here will upload when it is back")
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        with self._lock:
+            if self._journal is not None:
+                self._journal.close()
+            if self._db is not None:
+                self._db.close()
+        self.index.close()
+
+    def __enter__(self) -> "Trends":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
