@@ -453,8 +453,9 @@ class MeasurementModel:
         return f
 
     def construct_feature(self, operation: str, a: int, b: int, name: str | None = None,
-                          tolerance: dict[str, float] | None = None) -> ConstructedFeature:
-        """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`)."""
+                          tolerance: dict[str, float] | None = None, three_d: bool = False) -> ConstructedFeature:
+        """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`): distances
+        between parallel axes along the alignment's Z in its XY plane, or in 3-D with ``three_d``."""
         from ..metrology.construct import construct, nominal_geometry
 
         tolerance = check_tolerance(tolerance)
@@ -464,8 +465,11 @@ class MeasurementModel:
                 raise MeasurementError(f"there is no feature {a if fa is None else b}")
             if a == b:
                 raise MeasurementError("a construction needs two different features")
+            # the alignment's Z in machine coordinates (the nominal set-up's without an alignment)
+            workplane = None if self.part is None else np.asarray(self.part.pose, float)[:3, 2]
+        how = {"workplane": workplane, "three_d": three_d}
         try:
-            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()))
+            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()), **how)
         except (FitError, ValueError, KeyError) as exc:
             raise MeasurementError(str(exc)) from None
         nominal = None
@@ -473,7 +477,7 @@ class MeasurementModel:
         nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())
         if na is not None and nb is not None:
             try:
-                nominal = construct(operation, na, nb)
+                nominal = construct(operation, na, nb, **how)
             except (FitError, ValueError, KeyError, np.linalg.LinAlgError):
                 nominal = None
         with self.lock:

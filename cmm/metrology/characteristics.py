@@ -172,6 +172,11 @@ def verdict(chars: list[Characteristic]) -> tuple[str, int, int]:
     return ("INCOMPLETE" if missing else "PASS"), failed, missing
 
 
+def _how(result: dict[str, Any], note: str) -> str:
+    """A constructed value's note: how it was measured (its projection), then what is missing."""
+    return "; ".join(x for x in (str(result.get("projection") or ""), note) if x)
+
+
 def constructed_characteristics(name: str, result: dict[str, Any], nominal: dict[str, Any] | None,
                                 tolerance: dict[str, float] | None = None) -> list[Characteristic]:
     """Characteristics of a constructed feature (``Constructed.summary()`` dicts): a distance (+- location),
@@ -182,12 +187,12 @@ def constructed_characteristics(name: str, result: dict[str, Any], nominal: dict
     if kind == "distance":
         n = None if nom is None else float(nom["value"])
         return [Characteristic(name, "distance", n, float(result["value"]), tol["location"], -tol["location"],
-                               note="" if n is not None else "no nominal: an operand has none")]
+                               note=_how(result, "" if n is not None else "no nominal: an operand has none"))]
     if kind == "angle":
         t = float(tol.get("angle", DEFAULT_ANGLE_TOLERANCE))
         n = None if nom is None else float(nom["value"])
         return [Characteristic(name, "angle", n, float(result["value"]), t, -t, unit="deg",
-                               note="" if n is not None else "no nominal: an operand has none")]
+                               note=_how(result, "" if n is not None else "no nominal: an operand has none"))]
     if kind == "point":
         tp = None if nom is None else 2.0 * float(np.linalg.norm(_arr(result["point"]) - _arr(nom["point"])))
         return [Characteristic(name, "position ⌀", None if tp is None else 0.0, tp,

@@ -9,10 +9,22 @@ toleranced against the drawing's distance.
 
 - ``intersection``: plane x plane -> line; axis x plane -> point (an axis is a
   line, cylinder, cone or circle normal through its centre);
-- ``distance``: between two point-like features (centres, points, apexes),
-  a point-like feature and a plane, a point-like feature and an axis, two
-  parallel planes, two axes (shortest distance);
-- ``angle``: between two directions (plane normals, axes), degrees in [0, 90];
+- ``distance``: between two point-like features (centres, points, apexes:
+  3-D), a point-like feature and a plane, a point-like feature and an axis,
+  two parallel planes, two axes. Two parallel axes (cylinders, circles,
+  lines, cones within ``PARALLEL_DEG``; ISO / PC-DMIS): the axis-to-axis
+  distance between their location points (the foot of the data centroid on
+  the axis; a circle's centre) in the plane of the alignment (perpendicular to
+  its Z, when the axes run along Z within ``WORKPLANE_DEG``), else
+  perpendicular to the mean axis; ``three_d`` asks for the latter always.
+  Skew axes: the shortest distance between them. The projection used is named
+  in the result (``projection``). The shortest distance of two nearly
+  parallel axes is not their distance: it is measured along their common
+  perpendicular, whose direction the axes' tiny tilts decide (43.86 mm
+  between bore and boss read 41.01 that way);
+- ``angle``: degrees in [0, 90]: between two planes (their normals), two
+  axes, or an axis and a plane (the axis against the plane: 90 minus its
+  angle to the normal), 3-D;
 - ``midpoint``: the point half-way between two point-like features.
 """
 
@@ -40,12 +52,51 @@ class Constructed:
     kind: str
     geometry: dict[str, Any] = field(default_factory=dict)
     value: float | None = None  # mm for a distance, degrees for an angle
+    projection: str = ""  # how a distance or angle was taken (the plane it was projected into, or 3-D)
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind, **self.geometry}
         if self.value is not None:
             out["value"] = self.value
+        if self.projection:
+            out["projection"] = self.projection
         return out
+
+
+PARALLEL_DEG = 5.0  # axes closer to parallel than this have an axis-to-axis distance
+WORKPLANE_DEG = 10.0  # parallel axes this close to the alignment's Z are measured in its XY plane
+
+
+def _unit(v: Any) -> np.ndarray:
+    v = np.asarray(v, float).reshape(3)
+    return v / np.linalg.norm(v)
+
+
+def _axis_distance(a: tuple[str, dict[str, Any]], b: tuple[str, dict[str, Any]], workplane: Any,
+                   three_d: bool) -> tuple[float, str]:
+    """Distance between two axes (see the module doc) and the projection it was taken in."""
+    (ka, ga), (kb, gb) = a, b
+    pa, ua = _location(ka, ga), _unit(_direction_of(ka, ga))
+    pb, ub = _location(kb, gb), _unit(_direction_of(kb, gb))
+    if math.degrees(rel.angle_between(ua, ub)) > PARALLEL_DEG and \
+            math.degrees(rel.angle_between(ua, -ub)) > PARALLEL_DEG:
+        return rel.distance_line_line(_ns(ka, ga), _ns(kb, gb)), "3-D, shortest distance between the skew axes"
+    mean = _unit(ua + (ub if ua @ ub >= 0 else -ub))
+    d = pb - pa
+    if not three_d and workplane is not None:
+        w = _unit(workplane)
+        if math.degrees(min(rel.angle_between(mean, w), rel.angle_between(mean, -w))) <= WORKPLANE_DEG:
+            v = d - (d @ w) * w
+            return float(np.linalg.norm(v)), "axis to axis in the alignment's XY plane (perpendicular to its Z)"
+    v = d - (d @ mean) * mean
+    return float(np.linalg.norm(v)), "axis to axis, 3-D, perpendicular to the mean axis"
+
+
+def _location(kind: str, g: dict[str, Any]) -> np.ndarray:
+    """A feature's location point: circle and sphere centre, else ``point`` (cones: apex without one)."""
+    if kind in ("circle", "sphere"):
+        return np.asarray(g["center"], float)
+    return np.asarray(g["point"] if "point" in g else g["apex"], float)
 
 
 def _ns(kind: str, g: dict[str, Any]) -> SimpleNamespace:
@@ -74,14 +125,26 @@ def _direction_of(kind: str, g: dict[str, Any]) -> np.ndarray:
     raise FitError(f"a {kind} has no direction for an angle")
 
 
-def construct(operation: str, a: tuple[str, dict[str, Any]], b: tuple[str, dict[str, Any]]) -> Constructed:
-    """Construct ``operation`` from two (kind, geometry) operands; FitError in words when they do not combine."""
+def construct(operation: str, a: tuple[str, dict[str, Any]], b: tuple[str, dict[str, Any]], *,
+              workplane: Any = None, three_d: bool = False) -> Constructed:
+    """Construct ``operation`` from two (kind, geometry) operands; FitError in words when they do not combine.
+
+    ``workplane``: the alignment's Z (machine coordinates), whose XY plane a distance between parallel axes
+    along it is measured in; ``three_d``: measure such distances in 3-D instead (see the module doc)."""
     if operation not in OPERATIONS:
         raise FitError(f"unknown construction {operation!r}; choose one of {', '.join(OPERATIONS)}")
     (ka, ga), (kb, gb) = a, b
     if operation == "angle":
         ang = rel.angle_between(_direction_of(ka, ga), _direction_of(kb, gb))
-        return Constructed("angle", value=math.degrees(min(ang, math.pi - ang)))
+        ang = math.degrees(min(ang, math.pi - ang))
+        if (ka == "plane") != (kb == "plane"):  # an axis and a plane: the axis against the plane, not its normal
+            axis_kind = kb if ka == "plane" else ka
+            return Constructed("angle", value=90.0 - ang,
+                               projection=f"3-D, between the axis of the {axis_kind} and the plane, 0 to 90 degrees")
+        what = {"plane": "normal", "circle": "normal"}
+        return Constructed("angle", value=ang,
+                           projection=f"3-D, between the {what.get(ka, 'axis')} of the {ka} and the "
+                                      f"{what.get(kb, 'axis')} of the {kb}, 0 to 90 degrees")
     if operation == "midpoint":
         if ka not in POINT_LIKE + ("cone",) or kb not in POINT_LIKE + ("cone",):
             raise FitError("a mid-point needs two points, circles or spheres (their centres)")
@@ -97,21 +160,26 @@ def construct(operation: str, a: tuple[str, dict[str, Any]], b: tuple[str, dict[
         raise FitError(f"a {ka} and a {kb} do not intersect in a point or a line here; "
                        "use two planes, or an axis and a plane")
     # distance
-    if ka in POINT_LIKE + ("cone",) and kb in POINT_LIKE + ("cone",):
+    projection = "3-D"
+    if ka in AXIS_LIKE and kb in AXIS_LIKE and not (ka == "cone" and kb == "cone"):
+        d, projection = _axis_distance(a, b, workplane, three_d)
+    elif ka in POINT_LIKE + ("cone",) and kb in POINT_LIKE + ("cone",):
         d = float(np.linalg.norm(_point_of(ka, ga) - _point_of(kb, gb)))
+        projection = "3-D, between the centres (cone: apex)"
     elif "plane" in (ka, kb) and (ka in POINT_LIKE or kb in POINT_LIKE):
         (pk, pg), (qk, qg) = (a, b) if kb == "plane" else (b, a)
         d = abs(rel.distance_point_plane(_point_of(pk, pg), _ns(qk, qg)))
+        projection = "3-D, from the centre perpendicular to the plane"
     elif ka == "plane" and kb == "plane":
         d = rel.distance_plane_plane(_ns(ka, ga), _ns(kb, gb))
-    elif ka in AXIS_LIKE and kb in AXIS_LIKE:
-        d = rel.distance_line_line(_ns(ka, ga), _ns(kb, gb))
+        projection = "3-D, perpendicular to the parallel planes"
     elif (ka in POINT_LIKE and kb in AXIS_LIKE) or (kb in POINT_LIKE and ka in AXIS_LIKE):
         (pk, pg), (lk, lg) = (a, b) if kb in AXIS_LIKE else (b, a)
         d = rel.distance_point_line(_point_of(pk, pg), _ns(lk, lg))
+        projection = "3-D, from the centre perpendicular to the axis"
     else:
         raise FitError(f"no distance between a {ka} and a {kb}")
-    return Constructed("distance", value=float(d))
+    return Constructed("distance", value=float(d), projection=projection)
 
 
 def nominal_geometry(kind: str, nominal: dict[str, Any] | None) -> tuple[str, dict[str, Any]] | None:

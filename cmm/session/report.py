@@ -503,7 +503,9 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                          "</span></td>") if k == 0 else ""
             unit = "°" if c.unit == "deg" else ""
             lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
-            note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and c.ok is None else ""
+            # notes: why a value is missing; for a constructed value also how it was measured (its projection)
+            note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and (c.ok is None or isinstance(f, dict)) \
+                else ""
             if c.check:
                 note += f"<br><span class='checknote'>check: {e(c.check)}</span>"
             result = "<td class='chk'>check</td>" if c.check else {
