@@ -1,0 +1,459 @@
+"""Geometric tolerances (ISO 1101 / ASME Y14.5) of measured features, with datum reference frames.
+
+Every function is pure (numpy, trimesh for profiles) and returns a :class:`GdtResult`: the measured
+``value`` (the width or diameter of the smallest zone of the tolerance's shape and orientation that contains
+the feature), the stated ``tolerance``, a material-condition ``bonus``, the datum frame used (``drf``:
+"A|B|C" with modifiers) and ``ok``. Features come as fit summaries (``kind`` + ``geometry`` dict, as
+:meth:`cmm.metrology.features.FitResult.summary` gives) and their measured ``points``; datums as a
+:class:`~cmm.metrology.datums.DRF`. The zones:
+
+- form (no datum): flatness (two planes), straightness (cylinder), circularity (two concentric circles in
+  the feature's plane), cylindricity (two coaxial cylinders): minimum zone;
+- orientation: parallelism, perpendicularity, angularity (basic angle between the toleranced feature and
+  the datum: planes and axes as drawn). A plane: two parallel planes at that angle to the datum direction
+  (the DRF's Z); an axis: a cylinder at that angle containing the axis over the feature's length. The
+  rotation about the datum direction is free (minimised) unless a ``nominal_direction`` in DRF
+  coordinates and a DRF that fixes X say where it is;
+- location: position of an axis (cylinder: over its length; circle: its centre in its plane) or centre
+  (sphere, point: a spherical zone) as a diameter against its nominal; with a DRF the actual feature is
+  expressed in the actual DRF and the nominal in the nominal DRF (built from the datum features' nominals),
+  so the part is compared as if held on its datums; translations and rotations the DRF leaves free float
+  (their deviation is not counted). Material condition (MMC/LMC): bonus = the departure of the actual size
+  from the MMC (LMC) size. Datum shift: a datum feature of size at MMB/LMB lets the frame move by up to
+  half its shift across its axis (or around its centre);
+- concentricity / coaxiality: the diameter of the cylinder coaxial with the datum axis containing the
+  feature's centre / axis; runout: circular (per section, radial: the range of the radius about the
+  datum axis; axial: of the axial position) and total (all points);
+- profile of a surface / a line: twice the largest distance of the points from the CAD mesh (zone equally
+  disposed); without datums the points are first best-fitted to the mesh (the profile is then form only),
+  with datums only in the DOF the frame leaves free. A line profile's points lie in one section; their
+  best fit without datums stays in that section's plane.
+
+Refusals are :class:`GdtError` in words ("profile tolerance needs the part mesh").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import relations
+from .datums import DRF, DatumError
+from .fit_hull import min_width_direction
+from .geom_basics import frame_with_axis
+
+FORM = ("flatness", "straightness", "circularity", "cylindricity")
+ORIENTATION = ("parallelism", "perpendicularity", "angularity")
+CHARACTERISTICS = FORM + ORIENTATION + ("position", "concentricity", "coaxiality", "circular runout",
+                                        "total runout", "profile of a surface", "profile of a line")
+SYMBOLS = {"flatness": "⏥", "straightness": "⏤", "circularity": "○", "cylindricity": "⌭", "parallelism": "∥",
+           "perpendicularity": "⟂", "angularity": "∠", "position": "⌖", "concentricity": "◎", "coaxiality": "◎",
+           "circular runout": "↗", "total runout": "⌰", "profile of a surface": "⌓", "profile of a line": "⌒"}
+NEEDS_DATUMS = ORIENTATION + ("concentricity", "coaxiality", "circular runout", "total runout")
+AXIS_KINDS = ("cylinder", "cone", "line")
+
+
+class GdtError(DatumError):
+    """A geometric tolerance that cannot be evaluated, in an operator's words."""
+
+
+@dataclass(frozen=True)
+class GdtResult:
+    characteristic: str
+    value: float  # mm: zone width, or diameter for position / coaxiality
+    tolerance: float  # the stated tolerance
+    bonus: float = 0.0  # material-condition bonus added to the tolerance
+    drf: str = ""  # "A|B|C" with modifiers; "" without datums
+    material: str = ""  # "MMC" / "LMC" / "" (RFS)
+    note: str = ""  # how it was measured: shift used, free DOF, zone shape
+
+    @property
+    def allowed(self) -> float:
+        return self.tolerance + self.bonus
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.value <= self.allowed + 1e-12)
+
+    @property
+    def label(self) -> str:
+        return f"{SYMBOLS.get(self.characteristic, '')} {self.characteristic}".strip()
+
+    def summary(self) -> dict[str, Any]:
+        return {"characteristic": self.characteristic, "value": self.value, "tolerance": self.tolerance,
+                "bonus": self.bonus, "allowed": self.allowed, "ok": self.ok, "drf": self.drf,
+                "material": self.material, "note": self.note}
+
+
+def _points(points: Any, what: str, n: int = 1) -> np.ndarray:
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(p) < n:
+        raise GdtError(f"{what} needs at least {n} measured points, got {len(p)}")
+    if not np.all(np.isfinite(p)):
+        raise GdtError(f"{what}: the points contain NaN or infinite coordinates")
+    if np.abs(p).max() > 1e9:
+        raise GdtError(f"{what}: coordinates too large")
+    return p
+
+
+def _check_tol(tolerance: float, what: str) -> float:
+    t = float(tolerance)
+    if not (math.isfinite(t) and t > 0):
+        raise GdtError(f"the {what} tolerance must be a positive number of mm, got {tolerance!r}")
+    return t
+
+
+def _drf_text(drf: DRF | None) -> str:
+    return "" if drf is None else drf.labels
+
+
+# ---------------------------------------------------------------- form
+
+
+def form(characteristic: str, points: Any, tolerance: float) -> GdtResult:
+    """Flatness, straightness (3-D line: cylinder zone), circularity (points of one section), cylindricity."""
+    funcs = {"flatness": relations.flatness, "straightness": relations.straightness,
+             "circularity": relations.roundness, "cylindricity": relations.cylindricity}
+    if characteristic not in funcs:
+        raise GdtError(f"{characteristic} is not a form tolerance; use {', '.join(FORM)}")
+    p = _points(points, characteristic, {"flatness": 3, "straightness": 2, "circularity": 3}.get(characteristic, 5))
+    return GdtResult(characteristic, float(funcs[characteristic](p)), _check_tol(tolerance, characteristic),
+                     note="minimum zone")
+
+
+# ---------------------------------------------------------------- orientation
+
+
+def _datum_direction(drf: DRF | None, what: str) -> tuple[np.ndarray, bool]:
+    """The DRF's Z and whether it came from a plane (True) or an axis / points (False)."""
+    if drf is None or not drf.z_set:
+        raise GdtError(f"{what} needs a datum that sets a direction (a plane or an axis)")
+    first = next(d for d in drf.datums if d.direction is not None) if any(
+        d.direction is not None for d in drf.datums) else None
+    return drf.rotation[:, 2], bool(first is not None and first.kind == "plane")
+
+
+def axis_ends(geometry: dict[str, Any], points: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The ends of a feature's axis over its length: the axis (point, direction or apex, direction)
+    between the extreme projections of its measured points."""
+    o = np.asarray(geometry.get("point", geometry.get("apex", geometry.get("center"))), dtype=np.float64)
+    u = np.asarray(geometry.get("direction", geometry.get("normal")), dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    t = (np.asarray(points, dtype=np.float64).reshape(-1, 3) - o) @ u
+    return o + t.min() * u, o + t.max() * u
+
+
+def orientation(characteristic: str, kind: str, geometry: dict[str, Any], points: Any, drf: DRF,
+                tolerance: float, angle_deg: float | None = None, nominal_direction: Any = None) -> GdtResult:
+    """Parallelism (angle 0), perpendicularity (90) or angularity (``angle_deg``, the basic angle between
+    the toleranced feature and the datum as drawn) of a plane (its points) or an axis (cylinder, cone,
+    line: over the length its points span)."""
+    if characteristic not in ORIENTATION:
+        raise GdtError(f"{characteristic} is not an orientation tolerance; use {', '.join(ORIENTATION)}")
+    alpha = {"parallelism": 0.0, "perpendicularity": 90.0}.get(characteristic, angle_deg)
+    if alpha is None or not (0.0 <= float(alpha) <= 90.0):
+        raise GdtError("angularity needs the basic angle in degrees (0 to 90)")
+    tol = _check_tol(tolerance, characteristic)
+    z, datum_plane = _datum_direction(drf, characteristic)
+    if kind == "plane":
+        feature_plane = True
+    elif kind in AXIS_KINDS:
+        feature_plane = False
+    else:
+        raise GdtError(f"{characteristic} of a {kind}: measure a plane or an axis (cylinder, cone, line)")
+    beta = math.radians(alpha if feature_plane == datum_plane else 90.0 - float(alpha))
+    x = drf.rotation[:, 0]
+    y = drf.rotation[:, 1]
+    fixed = None
+    if nominal_direction is not None and drf.x_set:
+        nd = np.asarray(nominal_direction, dtype=np.float64)
+        fixed = math.atan2(float(nd[1]), float(nd[0]))
+    if feature_plane:
+        p = _points(points, characteristic, 3)
+
+        def width(phi: float) -> float:
+            n = math.cos(beta) * z + math.sin(beta) * (math.cos(phi) * x + math.sin(phi) * y)
+            h = p @ n
+            return float(h.max() - h.min())
+
+        if abs(beta) < 1e-12:
+            value, how = width(0.0), "two planes parallel to the datum"
+        elif fixed is not None:
+            value, how = width(fixed), "two planes at the basic angle, oriented by the DRF"
+        elif abs(beta - math.pi / 2) < 1e-12:
+            flat = p @ np.column_stack([x, y])
+            value, how = float(min_width_direction(flat - flat.mean(axis=0))[0]), "two planes, rotation free"
+        else:
+            value, how = _min_over_azimuth(width), "two planes at the basic angle, rotation free"
+    else:
+        e1, e2 = axis_ends(geometry, _points(points, characteristic, 2))
+        seg = e2 - e1
+        length = float(np.linalg.norm(seg))
+        u = seg / length if length > 0 else np.asarray(geometry["direction"], float)
+        theta = math.acos(min(1.0, abs(float(u @ z))))
+        if fixed is not None:
+            w = math.cos(beta) * z + math.sin(beta) * (math.cos(fixed) * x + math.sin(fixed) * y)
+            value = float(np.linalg.norm(seg - (seg @ w) * w))
+        else:
+            value = length * math.sin(abs(theta - beta))
+        how = f"cylinder zone over the axis length {length:.3f} mm"
+    return GdtResult(characteristic, value, tol, drf=drf.labels, note=how)
+
+
+def _min_over_azimuth(f: Any) -> float:
+    """Minimum of a zone width over the rotation about the datum direction: a 1-degree scan, then golden
+    section search in the best bracket."""
+    phis = np.radians(np.arange(0.0, 360.0, 1.0))
+    vals = [f(float(a)) for a in phis]
+    k = int(np.argmin(vals))
+    a, b = float(phis[k]) - math.radians(1.0), float(phis[k]) + math.radians(1.0)
+    g = (math.sqrt(5) - 1) / 2
+    for _ in range(60):
+        c, d = b - g * (b - a), a + g * (b - a)
+        if f(c) < f(d):
+            b = d
+        else:
+            a = c
+    return min(float(vals[k]), f((a + b) / 2))
+
+
+# ---------------------------------------------------------------- location
+
+
+def material_bonus(material: str, actual_size: float, size_limits: tuple[float, float], internal: bool) -> float:
+    """Bonus tolerance (mm) at MMC / LMC: how far the actual size departs from that condition's size,
+    within the size limits (low, high diameters)."""
+    low, high = float(size_limits[0]), float(size_limits[1])
+    if not (low <= high):
+        raise GdtError(f"size limits must be (low, high) diameters, got {size_limits}")
+    s = min(max(float(actual_size), low), high)
+    if material == "MMC":
+        return s - low if internal else high - s
+    if material == "LMC":
+        return high - s if internal else s - low
+    return 0.0
+
+
+def _location(kind: str, g: dict[str, Any]) -> tuple[np.ndarray, np.ndarray | None]:
+    if kind in ("cylinder", "line"):
+        return np.asarray(g["point"], float), np.asarray(g["direction"], float)
+    if kind == "cone":
+        return np.asarray(g["apex"], float), np.asarray(g["direction"], float)
+    if kind == "circle":
+        return np.asarray(g["center"], float), np.asarray(g["normal"], float)
+    if kind in ("sphere", "point"):
+        return np.asarray(g.get("center", g.get("point")), float), None
+    raise GdtError(f"position of a {kind}: measure a cylinder, circle, cone, sphere or point")
+
+
+def _float_free(drf: DRF, act: np.ndarray, nom_ref: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Actual points (DRF coordinates) with the DRF's free rotation (about Z, or any with no Z) and free
+    translations used to bring them onto the nominal reference point (their deviation does not count)."""
+    notes = []
+    ref = act.mean(axis=0)
+    if "Rz" not in drf.constrained and drf.z_set:
+        a0, a1 = math.atan2(ref[1], ref[0]), math.atan2(nom_ref[1], nom_ref[0])
+        if math.hypot(ref[0], ref[1]) > 1e-9 and math.hypot(nom_ref[0], nom_ref[1]) > 1e-9:
+            c, s = math.cos(a1 - a0), math.sin(a1 - a0)
+            act = act @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        notes.append("rotation about the datum axis free")
+    for k, t in enumerate(("Tx", "Ty", "Tz")):
+        if t not in drf.constrained:
+            act = act.copy()
+            act[:, k] += nom_ref[k] - act.mean(axis=0)[k]
+            notes.append(f"{t} free")
+    return act, notes
+
+
+def position(kind: str, geometry: dict[str, Any], nominal: dict[str, Any], tolerance: float, *,
+             drf: DRF | None = None, nominal_drf: DRF | None = None, points: Any = None,
+             material: str = "", size_limits: tuple[float, float] | None = None,
+             internal: bool | None = None) -> GdtResult:
+    """True position (diameter) of an axis or centre against its nominal (see the module docstring).
+
+    ``nominal`` holds the nominal location (``point``/``center``/``apex`` and ``direction``/``normal``) in
+    the coordinates of ``nominal_drf``'s datum features; with a ``drf`` and no ``nominal_drf`` the nominal is
+    in DRF coordinates (basic dimensions). ``points``: the feature's measured points (a cylinder's position is
+    checked at both ends of its length). ``material`` "MMC" / "LMC" with ``size_limits`` (low, high
+    diameter) and ``internal`` (hole True, pin False) gives a bonus."""
+    tol = _check_tol(tolerance, "position")
+    act_o, act_u = _location(kind, geometry)
+    nom_o = np.asarray(nominal.get("point", nominal.get("center", nominal.get("apex"))), dtype=np.float64)
+    nom_u = nominal.get("direction", nominal.get("normal"))
+    if nom_o.shape != (3,) or not np.all(np.isfinite(nom_o)):
+        raise GdtError("position needs the nominal location (three finite coordinates)")
+    ends = np.array([act_o])
+    if act_u is not None and kind != "circle" and points is not None:
+        ends = np.array(axis_ends(geometry, _points(points, "position", 2)))
+    notes: list[str] = []
+    if drf is not None:
+        ends = drf.to_local(ends)
+        if nominal_drf is not None:
+            nom_o = nominal_drf.to_local(nom_o)
+            nom_u = None if nom_u is None else nominal_drf.vector_to_local(np.asarray(nom_u, float))
+        ends, notes = _float_free(drf, ends, nom_o)
+    if nom_u is None and act_u is not None and kind != "circle":
+        raise GdtError("position of an axis needs the nominal axis direction")
+    dev = ends - nom_o
+    if nom_u is not None and kind not in ("sphere", "point"):
+        n = np.asarray(nom_u, float) / np.linalg.norm(nom_u)
+        dev = dev - np.outer(dev @ n, n)  # the zone is a cylinder about the nominal axis
+    shift = 0.0
+    if drf is not None:
+        dev, shift = _datum_shift(drf, dev)
+        if shift:
+            notes.append(f"datum shift up to ⌀{shift:.4f} used")
+    value = 2.0 * float(np.linalg.norm(dev, axis=1).max())
+    bonus = 0.0
+    if material:
+        if material not in ("MMC", "LMC"):
+            raise GdtError(f"unknown material condition {material!r}; use MMC, LMC or none (RFS)")
+        if size_limits is None or internal is None or "radius" not in geometry:
+            raise GdtError(f"position at {material} needs a feature of size, its size limits and whether it is "
+                           "a hole or a pin")
+        bonus = material_bonus(material, 2.0 * float(geometry["radius"]), size_limits, internal)
+        notes.append(f"actual size ⌀{2.0 * float(geometry['radius']):.4f}, bonus {bonus:.4f}")
+    zone = "spherical zone" if kind in ("sphere", "point") else "cylindrical zone"
+    return GdtResult("position", value, tol, bonus, _drf_text(drf), material, "; ".join([zone] + notes))
+
+
+def _datum_shift(drf: DRF, dev: np.ndarray) -> tuple[np.ndarray, float]:
+    """Deviations (DRF coordinates) after the frame moves within the datum features' shift: each datum of
+    size at MMB/LMB may move up to half its shift across its axis (all ways for a point)."""
+    total = 0.0
+    for d in drf.datums:
+        s = d.shift
+        if s <= 0 or d.kind == "plane":
+            continue
+        total += s
+        if d.kind == "axis":
+            u = drf.vector_to_local(d.direction)
+            basis = frame_with_axis(u)[:, :2].T
+        else:
+            basis = np.eye(3)
+        mean = dev.mean(axis=0)
+        move = basis.T @ (basis @ mean)
+        norm = float(np.linalg.norm(move))
+        if norm > s / 2:
+            move = move * (s / 2 / norm)
+        dev = dev - move
+    return dev, total
+
+
+def coaxiality(characteristic: str, kind: str, geometry: dict[str, Any], drf: DRF, tolerance: float,
+               points: Any = None) -> GdtResult:
+    """Concentricity (a circle's or sphere's centre) or coaxiality (an axis over its length): the diameter
+    of the zone coaxial with the datum axis (the DRF's Z through its origin) containing it."""
+    tol = _check_tol(tolerance, characteristic)
+    _datum_axis(drf, characteristic)
+    o, u = _location(kind, geometry)
+    if u is not None and kind not in ("circle",) and points is not None:
+        ends = np.array(axis_ends(geometry, _points(points, characteristic, 2)))
+    else:
+        ends = o[None, :]
+    local = drf.to_local(ends)
+    value = 2.0 * float(np.hypot(local[:, 0], local[:, 1]).max())
+    return GdtResult(characteristic, value, tol, drf=drf.labels, note="zone coaxial with the datum axis")
+
+
+def _datum_axis(drf: DRF, what: str) -> None:
+    if drf is None or not drf.z_set or not {"Tx", "Ty"} <= set(drf.constrained):
+        raise GdtError(f"{what} needs a datum axis: the frame {_drf_text(drf) or '(none)'} does not locate one")
+
+
+def runout(characteristic: str, points: Any, drf: DRF, tolerance: float, direction: str = "radial") -> GdtResult:
+    """Circular runout (per section) or total runout of surface points about the datum axis; ``direction``
+    "radial" (a surface around the axis) or "axial" (a face across it)."""
+    if characteristic not in ("circular runout", "total runout"):
+        raise GdtError(f"{characteristic} is not a runout; use circular runout or total runout")
+    if direction not in ("radial", "axial"):
+        raise GdtError(f"runout direction is radial or axial, got {direction!r}")
+    tol = _check_tol(tolerance, characteristic)
+    _datum_axis(drf, characteristic)
+    local = drf.to_local(_points(points, characteristic, 3))
+    r = np.hypot(local[:, 0], local[:, 1])
+    z = local[:, 2]
+    measured, across = (r, z) if direction == "radial" else (z, r)
+    if characteristic == "total runout":
+        value = float(np.ptp(measured))
+        how = f"total {direction} runout over {len(measured)} points"
+    else:
+        groups = _sections(across)
+        value = max(float(np.ptp(measured[g])) for g in groups)
+        how = f"circular {direction} runout, worst of {len(groups)} section(s)"
+    return GdtResult(characteristic, value, tol, drf=drf.labels, note=how)
+
+
+def _sections(t: np.ndarray) -> list[np.ndarray]:
+    """Indices of points grouped into sections along t (a gap wider than 0.2 mm or 2 % of the span)."""
+    order = np.argsort(t)
+    gap = max(0.2, 0.02 * float(np.ptp(t)))
+    cuts = np.nonzero(np.diff(t[order]) > gap)[0] + 1
+    return [g for g in np.split(order, cuts) if len(g)]
+
+
+# ---------------------------------------------------------------- profile
+
+
+def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: float, *, drf: DRF | None = None,
+            nominal_drf: DRF | None = None, iterations: int = 30) -> GdtResult:
+    """Profile of a surface or of a line against the CAD ``mesh`` (part coordinates) at ``pose`` (part ->
+    measured coordinates): twice the largest |distance| of the points from the surface after the fit the
+    datums allow (none: a best fit in all DOF, a line's in its section plane)."""
+    if characteristic not in ("profile of a surface", "profile of a line"):
+        raise GdtError(f"{characteristic} is not a profile; use profile of a surface or profile of a line")
+    if mesh is None:
+        raise GdtError("profile tolerance needs the part mesh: load the part (CAD) the points were measured on")
+    tol = _check_tol(tolerance, characteristic)
+    from .mesh import closest_points, surface_index
+    from .transform import as_pose, invert, rotation_from_rotvec
+
+    p = _points(points, characteristic, 3 if characteristic == "profile of a line" else 6)
+    T = as_pose(pose)
+    to_part = invert(T)
+    # the points in a working frame W whose axes are the DRF's (or the measured ones), and W -> part
+    if drf is not None:
+        local = drf.to_local(p)
+        ndrf = nominal_drf or drf
+        w_to_meas = np.eye(4)
+        w_to_meas[:3, :3], w_to_meas[:3, 3] = ndrf.rotation, ndrf.origin
+        free = [k for k, n in enumerate(("Tx", "Ty", "Tz", "Rx", "Ry", "Rz")) if n not in drf.constrained]
+    else:
+        local, w_to_meas = p.copy(), np.eye(4)
+        free = list(range(6))
+        if characteristic == "profile of a line":
+            n = relations.fit_criteria.fit("plane", p, "ls").normal if len(p) >= 3 else np.array([0, 0, 1.0])
+            f = frame_with_axis(np.asarray(n, float))
+            w_to_meas[:3, :3] = f
+            local = p @ f
+            free = [0, 1, 5]  # in the section plane: two translations and the rotation about its normal
+    M = to_part @ w_to_meas
+    index = surface_index(mesh)
+    q = local.copy()
+    for _ in range(iterations if free else 0):
+        qp = q @ M[:3, :3].T + M[:3, 3]
+        cp = closest_points(mesh, qp, index)
+        nrm = cp.normals @ M[:3, :3]  # part -> working frame
+        c = q.mean(axis=0) if drf is None else np.zeros(3)  # a DRF's free rotations turn about its origin
+        A = np.c_[nrm, np.cross(q - c, nrm)][:, free]
+        b = -np.einsum("ij,ij->i", qp - cp.points, cp.normals)
+        step, *_ = np.linalg.lstsq(A, b, rcond=1e-12)
+        full = np.zeros(6)
+        full[free] = step
+        R = rotation_from_rotvec(full[3:])
+        q = (q - c) @ R.T + c + full[:3]
+        if np.abs(step).max() < 1e-10:
+            break
+    qp = q @ M[:3, :3].T + M[:3, 3]
+    cp = closest_points(mesh, qp, index)
+    signed = np.einsum("ij,ij->i", qp - cp.points, cp.normals)
+    d = np.sign(signed) * cp.distances
+    value = 2.0 * float(np.abs(d).max())
+    how = ("best fit to the CAD (form only)" if drf is None else
+           "located by the datums" + (f"; {', '.join(n for n in ('Tx', 'Ty', 'Tz', 'Rx', 'Ry', 'Rz') if n not in drf.constrained)} free"
+                                      if len(free) else ""))
+    how += f"; deviations {d.min():+.4f} .. {d.max():+.4f} mm"
+    return GdtResult(characteristic, value, tol, drf=_drf_text(drf), note=how)
