@@ -6,7 +6,7 @@ import threading
 
 import pytest
 
-from cmm.ui.access import Control
+from cmm.control.access import Control
 
 
 def test_everybody_starts_as_observer():

@@ -19,7 +19,7 @@ from netutil import SIM_PACED
 import browser_support as bs
 from cmm.station import Station
 from cmm.ui import pendant as pendant_mod
-from cmm.ui.access import Control
+from cmm.control.access import Control
 from cmm.ui.pendant import start_pendant_server
 
 _reason = bs.unavailable_reason()
@@ -217,7 +217,7 @@ def test_hold_button(page, server, station):
 
 
 def test_observer_cannot_move(page, server, station, control, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)  # the browser counts as remote
+    monkeypatch.setattr(pendant_mod, "is_local_connection", lambda _addr, _host=None: False)  # the browser counts as remote
     open_pendant(page, server, code="wrong-code")
     page.wait_for_function("document.getElementById('message').textContent.includes('wrong access code')")
     start = station.machine.state.position.copy()

@@ -282,7 +282,7 @@ def test_addresses():
 
 def test_the_i_client_holds_the_control_browsers_observe_and_may_stop(served):
     from cmm.control import Client, Refused
-    from cmm.ui.access import Control
+    from cmm.control.access import Control
 
     server, station = served
     tab = Client("tab-1", local=True)  # a browser on the station's own screen

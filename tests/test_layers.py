@@ -36,7 +36,7 @@ ALLOWED = {
 EXCEPTIONS: dict[tuple[str, str], str] = {}
 # modules that must not be imported from the given package at all
 FORBIDDEN = {("ui", "cmm.machine.motion"), ("ui", "cmm.sim.cmm_sim"), ("ui", "cmm.nmc.bus"),
-             ("control", "cmm.ui.access"), ("machine", "cmm.control.core"),
+             ("ippdme", "cmm.ui.origin"), ("machine", "cmm.control.core"),
              ("cli", "cmm.machine.motion"), ("cli", "cmm.machine.probing"), ("cli", "cmm.nmc.bus")}
 
 

@@ -29,9 +29,9 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus  # noqa: E402
 from websockets.sync.client import connect  # noqa: E402
 
 from cmm.station import Station  # noqa: E402
-from cmm.ui.access import Control  # noqa: E402
+from cmm.control.access import Control  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
-from cmm.ui.origin import OriginPolicy, is_loopback_peer  # noqa: E402
+from cmm.control.access import OriginPolicy, is_loopback_peer  # noqa: E402
 
 
 def test_policy_rules():

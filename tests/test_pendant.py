@@ -15,7 +15,7 @@ from websockets.sync.client import connect
 
 from cmm.station import Station
 from cmm.ui import pendant as pendant_mod
-from cmm.ui.access import Control
+from cmm.control.access import Control
 from cmm.ui.pendant import start_pendant_server
 
 pytestmark = pytest.mark.timeout(60)
@@ -182,7 +182,7 @@ def test_observer_cannot_jog(server, station, control, client):
 
 
 def test_remote_pendant_needs_the_code(server, station, control, client, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)  # pretend it is on the LAN
+    monkeypatch.setattr(pendant_mod, "is_local_connection", lambda _addr, _host=None: False)  # pretend it is on the LAN
     c = client()
     c.send(type="hello", code="guess")
     c.wait_for("error")
@@ -200,7 +200,7 @@ def test_remote_pendant_needs_the_code(server, station, control, client, monkeyp
 
 
 def test_loopback_only_server_refuses_remote_pendants(station, monkeypatch):
-    monkeypatch.setattr(pendant_mod, "is_loopback_peer", lambda _addr: False)
+    monkeypatch.setattr(pendant_mod, "is_local_connection", lambda _addr, _host=None: False)
     control = Control()  # no --lan: no code at all
     with _serve(station, control) as srv:
         c = Client(srv.ws_url)

@@ -52,7 +52,7 @@ fails (disk full) puts the machine in fault.
 
 Access: one policy object (``refusal(client, command) -> str | None``),
 checked once per command here. :class:`HolderPolicy` adapts the UI's control
-holder (:class:`cmm.ui.access.Control`); STOP / E-STOP / jog release follow its
+holder (:class:`cmm.control.access.Control`); STOP / E-STOP / jog release follow its
 ``may_stop`` when it has one, else they are open to every client.
 
 Threads: ``start()`` runs the machine loop (the only thread that talks to the

@@ -133,9 +133,14 @@ class Controller:
         return self._thread is not None
 
     def use_policy_of(self, control: Any) -> None:
-        """Adopt the UI's control holder (``can_move``, optional ``may_stop``) as the access policy."""
+        """Adopt the station's one control holder (:class:`~cmm.control.access.Control`) as the access policy."""
         if not (isinstance(self.policy, HolderPolicy) and self.policy.control is control):
             self.policy = HolderPolicy(control)
+
+    @property
+    def holder(self) -> Any:
+        """The one control holder every front end shares (None while the station runs without one: scripts)."""
+        return self.policy.control if isinstance(self.policy, HolderPolicy) else None
 
     # --- observation ------------------------------------------------------------------
 

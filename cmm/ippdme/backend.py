@@ -64,14 +64,16 @@ class StationBackend:
 
     def for_client(self, peer: str) -> "StationBackend":
         """The backend of one connection: its own client id for the control core (``peer`` is host:port)."""
+        from ..control.access import is_local_connection
+
         host = peer.rsplit(":", 1)[0].strip("[]")
-        local = host in ("127.0.0.1", "::1", "localhost") or host.startswith("127.")
+        local = is_local_connection(host)
         return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name)
 
     @property
     def _control(self) -> Any:
-        """The UI's single-holder control object, when a browser station runs beside the server."""
-        return getattr(self.controller.policy, "control", None)
+        """The station's one control holder, when front ends share the station (None: this client alone)."""
+        return self.controller.holder
 
     # --- control --------------------------------------------------------------------
     def acquire(self) -> str | None:

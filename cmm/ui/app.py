@@ -6,7 +6,7 @@ tab, and runs three light threads: the probe updater (50 Hz, also samples the
 following-error plot), the hold keeper (25 Hz: keeps a held jog button's jog
 alive between late hold events, :meth:`~cmm.ui.panels.ClientApp.keep_hold`) and
 the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
-:class:`~cmm.ui.access.Control`, shared with the pendant page.
+:class:`~cmm.control.access.Control`, shared with the pendant page.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from .access import Control
-from .origin import OriginPolicy, guard_viser, is_loopback_host, is_loopback_peer
+from ..control.access import Control, OriginPolicy, is_local_connection
+from .origin import guard_viser
 from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
 
@@ -125,7 +125,7 @@ class StationApp:
             host = self.server._websock_server._live_connections[client_id].request.headers.get("Host", "")
         except Exception:  # noqa: BLE001 - no handshake known: remote
             return False
-        return is_loopback_peer(self.client_address(client_id)) and is_loopback_host(host)
+        return is_local_connection(self.client_address(client_id), host)
 
     def pendant_src(self, client_id: int | None) -> str | None:
         """The pendant URL as this browser can reach it: the host it used for the viser page, the pendant's port."""

@@ -9,8 +9,8 @@ into the read-outs a few times a second.
 
 Machine commands go to the control core (``station.controller``, see
 :mod:`cmm.control`) as this client (:meth:`ClientApp.who`): the core checks
-the access policy (the shared :class:`~cmm.ui.access.Control`, STOP and E-stop
-by its one :meth:`~cmm.ui.access.Control.may_stop` policy) and the machine
+the access policy (the shared :class:`~cmm.control.access.Control`, STOP and E-stop
+by its one :meth:`~cmm.control.access.Control.may_stop` policy) and the machine
 state once, and refuses with a sentence that is shown here. Measurement
 changes (hits, features, sessions) ask :meth:`ClientApp.allowed` first (a
 server-side check: hiding buttons is not security). The jog dead-man is the

@@ -18,7 +18,7 @@ client -> server
   ``"as"`` member (the station page's grant token, :mod:`cmm.ui.pendant_grants`)
   makes the connection act as that page's client (its control, its standing);
   the answer then has ``"shared": true``, or an error says why the grant was refused.
-- ``{"type": "take", "code": "..."}``: take control (:class:`~cmm.ui.access.Control`
+- ``{"type": "take", "code": "..."}``: take control (:class:`~cmm.control.access.Control`
   rules: local clients need no code, remote clients need the LAN access code).
   Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
 - ``{"type": "observe"}``: give control back (any jog of this pendant is ended).
@@ -29,7 +29,7 @@ client -> server
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
   10 mm; only the control holder.
 - ``{"type": "stop"}``: controlled stop of whatever the machine is doing, under
-  the station's one STOP policy (:meth:`~cmm.ui.access.Control.may_stop`, the
+  the station's one STOP policy (:meth:`~cmm.control.access.Control.may_stop`, the
   same as the viser page's): the holder, a local pendant, or one that gave
   the access code on this connection; an anonymous LAN observer only when the
   operator allowed LAN stops.
@@ -51,12 +51,12 @@ a jog refresh) applies underneath, so a pendant that goes quiet stops within
 
 Security
 --------
-A WebSocket handshake is checked by :class:`~cmm.ui.origin.OriginPolicy` (the
+A WebSocket handshake is checked by :class:`~cmm.control.access.OriginPolicy` (the
 same rules as the viser port): a foreign ``Origin`` or an unknown ``Host``
 (DNS rebinding) is refused with 403. A connection counts as *local* only when
 it comes from a loopback address *and* names a loopback host in its ``Host``
 header. Access codes are rate-limited per network address by the shared
-:class:`~cmm.ui.access.Control`.
+:class:`~cmm.control.access.Control`.
 """
 
 from __future__ import annotations
@@ -83,8 +83,7 @@ from websockets.http11 import Request, Response
 
 from ..control import Client, Refused, StopReport
 from ..control.priority import raise_priority_on
-from .access import Control
-from .origin import OriginPolicy, is_loopback_host, is_loopback_peer
+from ..control.access import Control, OriginPolicy, is_local_connection
 from .pendant_grants import Grant, Grants
 
 DEADMAN = 0.2  # s without any message from a jogging pendant before the server releases its jog
@@ -271,7 +270,7 @@ class PendantServer:
 
     async def _handler(self, ws: ServerConnection) -> None:
         host = ws.request.headers.get("Host", "") if ws.request is not None else ""
-        local = is_loopback_peer(ws.remote_address) and is_loopback_host(host)
+        local = is_local_connection(ws.remote_address, host)
         session = _Session(ws, f"pendant-{next(self._ids)}", local, authenticated=local,
                            last_message=time.monotonic())
         self._sessions.add(session)

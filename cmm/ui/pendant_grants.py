@@ -11,7 +11,7 @@ its local / access-code standing, its STOP rights.
 What keeps another tab out:
 
 - the WebSocket handshake passes the same Origin / Host checks as before
-  (:mod:`cmm.ui.origin`): a page from another origin never gets to send a token;
+  (:class:`cmm.control.access.OriginPolicy`): a page from another origin never gets to send a token;
 - the token is 144 random bits, compared in constant time;
 - it is bound to the network address the page connected from;
 - one pendant connection at a time may use it (a second is refused while the
@@ -19,8 +19,8 @@ What keeps another tab out:
 - it dies with the page's viser connection (:meth:`Grants.revoke`), and the
   pendant connections that used it are closed then.
 
-Taking control itself is unchanged: :class:`~cmm.ui.access.Control` decides,
-with the access code rules of :mod:`cmm.ui.access`.
+Taking control itself is unchanged: :class:`~cmm.control.access.Control` decides,
+with the access code rules of :mod:`cmm.control.access`.
 """
 
 from __future__ import annotations

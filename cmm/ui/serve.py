@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
 
     from .app import StationApp
 
-    from .access import Control
+    from ..control.access import Control
 
     host = "0.0.0.0" if args.lan else "127.0.0.1"
     try:
