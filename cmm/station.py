@@ -32,6 +32,26 @@ StationError = MeasurementError  # the station's refusals and the model's are on
 __all__ = ["ConfigError", "Station", "StationError", "load_config"]
 
 
+class PartWorkspace:
+    """The measurement model's part as the control core's motion rails see it (:class:`cmm.control.rails.Workspace`)."""
+
+    def __init__(self, measurement: MeasurementModel) -> None:
+        self.measurement = measurement
+
+    def part_pose(self) -> np.ndarray | None:
+        part = self.measurement.part
+        return None if part is None else np.asarray(part.pose, float)
+
+    def clearance_z(self) -> float | None:
+        return None if self.measurement.part is None else self.measurement.clearance_z()
+
+    def surface_distance(self, points: np.ndarray) -> np.ndarray:
+        from .metrology.mesh import signed_deviation
+
+        part = self.measurement.part
+        return signed_deviation(part.mesh, points, part.pose).deviations
+
+
 class Station:
     """Build the machine, the control core, the measurement model and the calibration service; wire them.
 
@@ -62,10 +82,12 @@ class Station:
         self.controller = Controller(self.machine, self.prober)
         self.measurement = MeasurementModel(
             self.machine, self.prober, lambda point, approach, clearance_z, client: self.controller.probe(
-                client, point, approach, clearance_z=clearance_z),
+                client, point, approach, frame="machine", clearance_z=clearance_z),
             part=part, session_dir=session_dir, lock=self.lock,
             start_fields=lambda: {"port": str(self.port), "calibration": self.calibration_status})
         self.controller.on_hit(self.measurement.add_hit)
+        self.controller.set_workspace(PartWorkspace(self.measurement))
+        self.controller.jogs.probe_speed = lambda: self.qualified_probing_speed  # armed jogs: the qualified speed
         self.controller.subscribe(self.measurement.machine_event)
         self.calibration_log: list[str] = []
         self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}
@@ -210,17 +232,12 @@ class Station:
         with self.lock:
             return self.controller.configure(client, lambda: apply_calibration(loaded, self.machine, self.prober))
 
-    # --- motion the station composes (the control core's clearance-plane rails will take it over) ---
-
     def move_above(self, point: Any, normal: Any, clearance: float | None = None,
                    client: str | None = None) -> MoveStatus:
-        """Move the tip to ``clearance`` mm above a picked surface point along its normal, over the clearance
-        height of the part (never straight through it)."""
+        """Move the tip to ``clearance`` mm above a picked surface point along its normal (machine coordinates),
+        over the clearance plane."""
         target = self.measurement.above_point(point, normal, clearance)
-        here = self.controller.state.position if self.controller.state.machine is not None else self.machine.position
-        z = max(self.measurement.clearance_z(), float(here[2]), float(target[2]))
-        z = min(z, self.config.axis("z").max)
-        return self.controller.move_path(client, [[here[0], here[1], z], [target[0], target[1], z], target])
+        return self.controller.move(client, target, frame="machine")
 
     @property
     def qualified_probing_speed(self) -> float:
@@ -228,18 +245,6 @@ class Station:
         probe = self.calibration_status.get("probe") or {}
         speed = float(probe.get("probing_speed") or 0.0)
         return speed if speed > 0 else float(self.config.speeds.probing)
-
-    def manual_probe_velocity(self, velocity: Any) -> np.ndarray:
-        """A manual-probing jog velocity, limited to the qualified probing speed (the pre-travel calibration
-        holds only at that speed)."""
-        v = np.asarray(velocity, dtype=np.float64).reshape(3)
-        speed = float(np.linalg.norm(v))
-        limit = self.qualified_probing_speed
-        return v * (limit / speed) if speed > limit else v
-
-    def jog_probe(self, velocity: Any, client: str | None = None) -> None:
-        """Jog with the probe armed: a trigger takes a manual hit, at no more than the qualified probing speed."""
-        self.controller.jog(client, self.manual_probe_velocity(velocity), probe=True)
 
     def wait_idle(self, timeout: float = 60.0) -> None:
         end = time.monotonic() + timeout

@@ -42,6 +42,7 @@ def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeou
     station = Station(config, port=SIM_URL, session_dir=tmp_path / "sessions")  # in-process, virtual clock
     if empty_world:
         station.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
+        station.measurement.part = None  # no part for the motion rails either
     station.machine.poll_pause = POLL_PAUSE
     station.start()
     server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout,

@@ -16,7 +16,7 @@ def main() -> None:
     ctl = Controller(Machine(load(config), url))
     ctl.connect()
     ctl.start()
-    ctl.move_to(None, start).wait(60)
+    ctl.move(None, start, frame="machine").wait(60)
     print("ready", getattr(ctl.machine.bus, "pid", 0), flush=True)  # the link process, on a real port
     v = [0.0, 0.0, 0.0]
     v[axis] = 40.0

@@ -31,9 +31,9 @@ def test_starts_not_homed_and_refuses_to_measure(rig):
     sim, ctl, _ = rig
     assert ctl.state.mode is Mode.NOT_HOMED and not ctl.state.homed
     with pytest.raises(Refused, match="not homed"):
-        ctl.move_to(None, [100, 100, 200])
+        ctl.move(None, [100, 100, 200], frame="machine")
     with pytest.raises(Refused, match="not homed"):
-        ctl.probe(None, [250, 190, 40], [0, 0, -1])
+        ctl.probe(None, [250, 190, 40], [0, 0, -1], frame="machine")
     assert "move" not in ctl.state.allowed and "home" in ctl.state.allowed
 
 
@@ -48,14 +48,14 @@ def test_homing_cycle_finds_the_switches():
     # the counters now read the home coordinates where the switches are (X min, Y min, Z max)
     assert ctl.machine.position == pytest.approx([0.0, 0.0, 300.0], abs=0.003)
     assert sim.axis_readings() == pytest.approx((0.0, 0.0, 300.0), abs=0.003)
-    ctl.move_to(None, [100.0, 50.0, 250.0]).wait()
+    ctl.move(None, [100.0, 50.0, 250.0], frame="machine").wait()
     assert sim.axis_readings() == pytest.approx((100.0, 50.0, 250.0), abs=0.003)
     ctl.close()
 
 
 def _jog_into_the_top_face(ctl):
     """Jog down onto the part's top face (Z 40) until the probe touches; returns the refusal of the next jog."""
-    ctl.move_to(None, [250.0, 190.0, 44.0]).wait()  # 3 mm above it (tip radius 1)
+    ctl.move(None, [250.0, 190.0, 44.0], frame="machine").wait()  # 3 mm above it (tip radius 1)
     for _ in range(60):
         try:
             ctl.jog(None, [0.0, 0.0, -10.0])
@@ -75,14 +75,14 @@ def test_zero_needs_confirmation_and_a_free_probe(homed):
     with pytest.raises(Refused, match="probe is deflected"):
         ctl.zero(None, confirm=True)
     assert ctl.machine.position == pytest.approx(before)
-    ctl.move_to(None, [250.0, 190.0, 60.0]).wait()  # away from the part
+    ctl.move(None, [250.0, 190.0, 60.0], frame="machine").wait()  # away from the part
     ctl.zero(None, confirm=True)  # free probe, confirmed: here becomes the home coordinates
     assert ctl.machine.sample().position == pytest.approx([0.0, 0.0, 300.0])
 
 
 def test_estop_is_latched_until_reset_and_says_it_worked(homed):
     sim, ctl, _ = homed
-    status = ctl.move_to(None, [300.0, 200.0, 250.0])
+    status = ctl.move(None, [300.0, 200.0, 250.0], frame="machine")
     ctl.run_for(0.2)
     report = ctl.emergency_stop(None)
     assert report.ok and "amplifiers off" in report.message
@@ -90,17 +90,17 @@ def test_estop_is_latched_until_reset_and_says_it_worked(homed):
     with pytest.raises(MotionError, match="emergency stop"):
         status.wait()
     with pytest.raises(Refused, match="emergency stop is latched"):
-        ctl.move_to(None, [10.0, 10.0, 250.0])
+        ctl.move(None, [10.0, 10.0, 250.0], frame="machine")
     with pytest.raises(Refused, match="emergency stop is latched"):
         ctl.jog(None, [5.0, 0, 0])
     ctl.reset(None)
     assert ctl.state.mode is Mode.IDLE
-    ctl.move_to(None, [10.0, 10.0, 250.0]).wait()
+    ctl.move(None, [10.0, 10.0, 250.0], frame="machine").wait()
 
 
 def test_stop_reports_and_leaves_stopped(homed):
     sim, ctl, _ = homed
-    status = ctl.move_to(None, [300.0, 200.0, 250.0])
+    status = ctl.move(None, [300.0, 200.0, 250.0], frame="machine")
     ctl.run_for(0.2)
     report = ctl.stop(None)
     assert report.ok
@@ -108,13 +108,13 @@ def test_stop_reports_and_leaves_stopped(homed):
         status.wait()
     assert ctl.state.mode is Mode.STOPPED
     ctl.run_for(0.3)
-    ctl.move_to(None, [10.0, 10.0, 250.0]).wait()  # a new command is accepted after a stop
+    ctl.move(None, [10.0, 10.0, 250.0], frame="machine").wait()  # a new command is accepted after a stop
     assert ctl.state.mode is Mode.IDLE
 
 
 def test_disconnect_during_a_jog_faults_and_the_horizon_stops_the_axis(homed):
     sim, ctl, port = homed
-    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    ctl.move(None, [100.0, 100.0, 250.0], frame="machine").wait()
     for _ in range(10):
         ctl.jog(None, [40.0, 0.0, 0.0])
         ctl.run_for(0.03)
@@ -153,7 +153,7 @@ def test_link_failure_in_a_command_is_a_clear_error_and_a_fault(homed):
     sim, ctl, port = homed
     port.broken = True
     with pytest.raises(ControlError, match="link to the modules failed"):
-        ctl.move_to(None, [100.0, 100.0, 250.0])
+        ctl.move(None, [100.0, 100.0, 250.0], frame="machine")
     assert ctl.state.mode is Mode.FAULT
 
 
@@ -162,7 +162,7 @@ def test_failing_listeners_never_stop_the_loop(homed):
     ctl.subscribe(lambda kind, info: 1 / 0)
     ctl.subscribe_state(lambda state: 1 / 0)
     ctl.machine.subscribe(lambda state: 1 / 0)
-    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    ctl.move(None, [100.0, 100.0, 250.0], frame="machine").wait()
     ctl.jog(None, [0.0, 10.0, 0.0])
     ctl.run_for(0.5)  # no refresh: the dead-man in the loop stops it
     assert ctl.state.mode is Mode.IDLE
@@ -176,7 +176,7 @@ def test_full_disk_while_recording_a_hit_faults_and_stops(homed):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     ctl.on_hit(full)
-    status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], clearance_z=60.0)
+    status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], frame="machine", clearance_z=60.0)
     with pytest.raises(MotionError):
         status.wait(30)
     assert ctl.state.mode is Mode.FAULT
@@ -202,10 +202,10 @@ def test_unexpected_contact_while_jogging_stops_on_that_tick(homed):
 def test_probe_rapids_over_the_clearance_height(homed):
     """From beyond the part's right side to a hit on its left face (X 190): over the top, not through it."""
     sim, ctl, _ = homed
-    ctl.move_path(None, [[3.0, 2.0, 60.0], [330.0, 190.0, 60.0], [330.0, 190.0, 20.0]]).wait()  # beside the part
+    ctl.move(None, [330.0, 190.0, 20.0], frame="machine").wait()  # beside the part
     path = []
     sim.network.add_tick_hook(lambda net, tick: path.append(sim.axis_readings()))
-    hit = ctl.probe(None, [190.35, 190.0, 20.0], [1, 0, 0], clearance_z=60.0).wait(60)
+    hit = ctl.probe(None, [190.35, 190.0, 20.0], [1, 0, 0], frame="machine", clearance_z=60.0).wait(60)
     assert hit.point[0] == pytest.approx(190.0, abs=0.5)  # the left face (the part is turned half a degree)
     xyz = np.array(path)
     over = (xyz[:, 0] > 192.0) & (xyz[:, 0] < 312.0)
@@ -215,7 +215,7 @@ def test_probe_rapids_over_the_clearance_height(homed):
 def test_a_jog_goal_is_never_beyond_the_travel_even_if_nobody_polls_again(homed):
     """Item 6: the modules themselves hold the limit. One jog command near the end of X, then silence."""
     sim, ctl, _ = homed
-    ctl.move_to(None, [498.5, 100.0, 250.0]).wait()
+    ctl.move(None, [498.5, 100.0, 250.0], frame="machine").wait()
     ctl.jog(None, [40.0, 0.0, 0.0])  # the loaded goal: 0.12 s ahead would be 503.3; clamped to 500
     ctl.clock.sleep(1.0)  # the station is dead: no poll, no dead-man, no re-target
     assert sim.axis_readings()[0] == pytest.approx(500.0, abs=0.004)
@@ -225,7 +225,7 @@ def test_a_jog_goal_is_never_beyond_the_travel_even_if_nobody_polls_again(homed)
 
 def test_a_jog_stops_by_itself_one_horizon_ahead_when_the_loop_stalls(homed):
     sim, ctl, _ = homed
-    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    ctl.move(None, [100.0, 100.0, 250.0], frame="machine").wait()
     for _ in range(10):
         ctl.jog(None, [0.0, 40.0, 0.0])
         ctl.run_for(0.03)
@@ -236,7 +236,7 @@ def test_a_jog_stops_by_itself_one_horizon_ahead_when_the_loop_stalls(homed):
 
 def test_reconnect_after_a_link_fault_keeps_positions_when_the_modules_kept_them(homed):
     sim, ctl, port = homed
-    ctl.move_to(None, [100.0, 100.0, 250.0]).wait()
+    ctl.move(None, [100.0, 100.0, 250.0], frame="machine").wait()
     port.broken = True
     ctl.run_for(0.1)
     assert ctl.state.mode is Mode.FAULT and not ctl.state.link_ok
@@ -244,7 +244,7 @@ def test_reconnect_after_a_link_fault_keeps_positions_when_the_modules_kept_them
     ctl.reconnect(None)
     assert ctl.state.mode is Mode.IDLE and ctl.state.homed
     assert ctl.machine.sample().position == pytest.approx([100.0, 100.0, 250.0], abs=0.003)
-    ctl.move_to(None, [110.0, 100.0, 250.0]).wait()
+    ctl.move(None, [110.0, 100.0, 250.0], frame="machine").wait()
 
 
 def test_state_listeners_get_coalesced_states_and_every_move_end_at_once(homed):
@@ -256,7 +256,7 @@ def test_state_listeners_get_coalesced_states_and_every_move_end_at_once(homed):
     states = []
     ctl.subscribe_state(states.append)
     s0, t0 = ctl.machine.samples, ctl.machine.state.time
-    ctl.move_to(None, [200.0, 150.0, 250.0]).wait()
+    ctl.move(None, [200.0, 150.0, 250.0], frame="machine").wait()
     samples, elapsed = ctl.machine.samples - s0, ctl.machine.state.time - t0
     assert len(states) < samples / 1.5  # coalesced
     assert len(states) <= elapsed / STATE_INTERVAL + 4

@@ -206,6 +206,7 @@ def station(tmp_path_factory):
     config = nist_config()
     st = Station(config, port=SIM_URL, session_dir=tmp_path_factory.mktemp("sessions"))
     st.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # no table, part or sphere where the NIST programs move
+    st.measurement.part = None  # ... and the station knows it: no part for the motion rails to keep clear of
     st.machine.poll_pause = POLL_PAUSE
     st.start()
     yield st

@@ -293,7 +293,7 @@ def test_the_i_client_holds_the_control_browsers_observe_and_may_stop(served):
         ready(c, speed=20)
         assert control.holder == f"ippdme {server.client}"
         with pytest.raises(Refused, match="observes"):
-            station.controller.move_to(tab, [10.0, 10.0, 290.0])
+            station.controller.move(tab, [10.0, 10.0, 290.0], frame="machine")
         tag = c.send(FAR)
         c.wait(tag, "&")
         wait_until(lambda: station.machine.busy)

@@ -51,7 +51,7 @@ def ctl(served):
     c = Controller(Machine(load(config), url))
     c.connect()
     c.start()
-    c.move_to(None, [40.0, 0.0, 300.0]).wait(60)
+    c.move(None, [40.0, 0.0, 300.0], frame="machine").wait(60)
     yield c
     c.close()
 
@@ -144,7 +144,7 @@ def test_release_from_another_thread_is_carried_out_by_the_link_process(ctl):
     assert fired == "release" and epoch >= 1
     assert _still(m.bus, 1)
     # the station saw the stop: the guard holds nothing, the next move starts
-    ctl.move_to(None, [40.0, 0.0, 300.0]).wait(60)
+    ctl.move(None, [40.0, 0.0, 300.0], frame="machine").wait(60)
     assert np.allclose(ctl.state.machine.position, [40.0, 0.0, 300.0], atol=0.01)
 
 
@@ -212,7 +212,7 @@ def test_a_dead_link_process_puts_the_station_in_fault_and_the_axis_stops(ctl, s
     # the way back: Reconnect starts a new link process (the modules are restarted)
     ctl.reconnect(None)
     assert ctl.state.mode != Mode.FAULT and ctl.machine.bus.alive, ctl.state
-    ctl.move_to(None, [40.0, 0.0, 300.0]).wait(60)
+    ctl.move(None, [40.0, 0.0, 300.0], frame="machine").wait(60)
 
 
 def test_an_unreachable_port_is_a_clear_error_and_leaves_no_process(served):

@@ -164,7 +164,7 @@ def test_hello_reports_speeds_and_state(server, station, client):
     hello = c.wait_for("hello")
     s = station.config.speeds
     assert hello["speeds"] == {"jog_fast": s.jog_fast, "jog_slow": s.jog_slow, "jog_fine": s.jog_fine}
-    assert hello["local"] is True and hello["deadman_ms"] == 200
+    assert hello["local"] is True and hello["deadman_ms"] == round(station.config.deadman_timeout * 1000)
     state = c.wait_for("state")
     assert state["control"] is False and state["holder"] is None
     assert state["pos"] == pytest.approx(list(station.machine.state.position), abs=1e-3)
@@ -282,6 +282,8 @@ def test_jog_is_validated_and_clamped(server, station, client):
     assert speed(station) <= station.config.speeds.jog_fast + one_count_per_tick + 1e-6
     assert speed(station) > station.config.speeds.jog_fast * 0.9
     assert not [e for e in c.errors() if "jog" in e and "finite" not in e]
+    notices = [m["message"] for m in c.messages if m.get("type") == "notice"]
+    assert len(notices) == 1 and "1000 mm/s limited" in notices[0]  # clamped, said once, not 20 times a second
     c.send(type="release")
     time_to_stop(station, now(station))
     c.ws.send("not json")

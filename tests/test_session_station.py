@@ -109,7 +109,7 @@ def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):
     assert station.qualified_probing_speed == 1.5
     pose = station.measurement.part.pose
     above = (pose @ np.array([20.0, 15.0, 41.5, 1.0]))[:3]
-    station.controller.move_to(None, above).wait(30)
+    station.controller.move(None, above, frame="machine").wait(30)
     end = time.monotonic() + 30
     while station.controller.state.mode.value != "idle" and time.monotonic() < end:  # the core has seen the end
         time.sleep(0.01)
@@ -117,7 +117,7 @@ def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):
     end = time.monotonic() + 20
     while len(station.measurement.hits) == before and time.monotonic() < end:
         try:
-            station.jog_probe([0.0, 0.0, -10.0])
+            station.controller.jogs.hold(None, [0.0, 0.0, -10.0], probe=True)
         except Refused:  # the contact ended the jog and the station backs off: busy until it is recorded
             pass
         time.sleep(0.05)

@@ -266,6 +266,8 @@
       showMessage(msg.control ? "you have control" : "control given back", false);
     } else if (msg.type === "error") {
       showMessage(msg.message, true);
+    } else if (msg.type === "notice") {
+      showMessage(msg.message, false);
     }
   }
 

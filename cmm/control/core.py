@@ -23,7 +23,10 @@ from ..machine.status import MotionError, MoveStatus
 from ..nmc.bus import NmcError
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
+from . import rails
 from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
+from .jog import JogHolds
+from .rails import Workspace
 from .priority import raise_priority_on
 
 log = logging.getLogger(__name__)
@@ -80,8 +83,13 @@ class Controller:
         self.loop_errors = 0
         self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
+        self._queued_jogs: dict[Any, _Command] = {}  # per client: the jog queued and not run yet (see jog)
         self._release_epoch = 0  # all clients' releases: the link process refuses a jog sent before the last one
         self._in_poll = False
+        self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
+        self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
+        self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
+        self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
         machine.driver = self
         machine.subscribe(self._on_sample)
         machine.on_event(self._on_machine_event)
@@ -176,8 +184,14 @@ class Controller:
         it saw when a message arrived (``jog(..., after=)``), so a release is never undone by an older jog."""
         return self._releases.get(getattr(client, "id", client), 0)
 
-    def jog(self, client: str | None, velocity: Any, *, probe: bool = False, after: int | None = None) -> None:
-        """Jog (mm/s per axis); repeat within ``[jog] deadman_timeout`` or it stops. ``probe``: a touch is a hit."""
+    def jog(self, client: str | None, velocity: Any, *, probe: bool = False, after: int | None = None,
+            wait: bool = True, on_error: Callable[[str], None] | None = None) -> None:
+        """Jog (mm/s per axis); repeat within ``[jog] deadman_timeout`` or it stops. ``probe``: a touch is a hit.
+
+        Front ends jog through :class:`~cmm.control.jog.JogHolds` (clamp, release sequence, grace). With
+        ``wait=False`` (threaded loop) the access and mode checks run here and now (Refused), the jog is queued
+        without waiting for the loop (a newer jog of the same client replaces one still queued), and an error
+        the loop finds goes to ``on_error``."""
         v = np.asarray(velocity, dtype=np.float64)
         key = getattr(client, "id", client)
         seq = self._releases.get(key, 0) if after is None else after
@@ -192,7 +206,23 @@ class Controller:
                 self.prober.jog_probe(v, release_epoch=epoch)
             else:
                 self.machine.jog(v, release_epoch=epoch)
-        return self._submit(client, "jog", start)
+        if wait or self._thread is None or threading.current_thread() is self._thread:
+            return self._submit(client, "jog", start)
+        self._check(client, "jog")
+        cmd = _Command(client, "jog", start)
+        older = self._queued_jogs.get(key)
+        self._queued_jogs[key] = cmd
+        if older is not None:
+            older.future.cancel()  # not run yet: this newer one replaces it
+
+        def done(f: Future) -> None:
+            if self._queued_jogs.get(key) is cmd:
+                self._queued_jogs.pop(key, None)
+            if on_error is not None and not f.cancelled() and f.exception() is not None:
+                self.dispatcher.post(on_error, str(f.exception()))  # never a front end's call in the loop
+        cmd.future.add_done_callback(done)
+        self._queue.append(cmd)
+        return None
 
     def jog_release(self, client: str | None, *, wait: bool = False) -> None:
         """End the jog now. Does not wait for the loop unless ``wait``: a release must never queue behind
@@ -210,35 +240,133 @@ class Controller:
         """Cancel one move or probe cycle (decelerates); STOP stops whatever moves."""
         self._submit(client, "cancel", status.cancel, urgent=True)
 
-    def move_to(self, client: str | None, target: Any, speed: float | None = None) -> MoveStatus:
-        return self._submit(client, "move", lambda: self.machine.move_to(target, speed))
+    def set_workspace(self, workspace: Workspace | None) -> None:
+        """The part as the motion rails see it (:mod:`cmm.control.rails`); the station wires its model's."""
+        self.workspace = workspace
 
-    def move_path(self, client: str | None, points: list[Any], speed: float | None = None) -> MoveStatus:
-        return self._submit(client, "move", lambda: self.machine.move_path(points, speed))
+    def move(self, client: str | None, target: Any, *, frame: str, path: str = "clearance",
+             speed: float | None = None, accel: float | None = None) -> MoveStatus:
+        """Move the tip centre to ``target`` in ``frame`` ('machine' or 'part'). ``path`` 'clearance' retracts to
+        the clearance height, travels and descends; 'straight' only when the line is proven free of the part.
+        After a fault or a contact the move backs off and takes the clearance route first (:mod:`.rails`)."""
+        goal = self._to_machine(target, frame)
+        rails.check_path(path)
+
+        def start() -> MoveStatus:
+            legs = self._legs(goal, path)
+            if len(legs) == 1 and self._restart is None:
+                status = self.machine.move_to(legs[0], speed, accel)
+            else:
+                status = self.machine.move_path(legs, speed)
+            status.add_callback(self._moved)
+            return status
+        return self._submit(client, "move", start)
+
+    def _to_machine(self, point: Any, frame: str, *, direction: bool = False) -> np.ndarray:
+        try:
+            return rails.to_machine(point, frame, self.workspace, direction=direction)
+        except rails.RailError as exc:
+            raise Refused(str(exc)) from None
+
+    def _legs(self, goal: np.ndarray, path: str) -> list[np.ndarray]:
+        """Loop side: the legs of a move from where the tip is now (raises Refused for an unproven straight)."""
+        here = self.machine.position
+        backoff = self._backoff if self._restart is not None else None
+        try:
+            return rails.route(here, goal, path=path, workspace=self.workspace,
+                               radius=float(self.prober.settings.tip_radius), z_max=self.config.axis("z").max,
+                               backoff=backoff, restart=self._restart is not None)
+        except rails.RailError as exc:
+            raise Refused(str(exc)) from None
+
+    def _moved(self, status: MoveStatus) -> None:
+        if status.error is None:
+            with self._lock:
+                self._restart, self._backoff = None, None
+
+    def check_target(self, target: Any) -> np.ndarray:
+        """``target`` (machine mm) inside the travel, or a MotionError saying which axis it leaves."""
+        return self.machine.check_target(target)
+
+    @property
+    def tip_radius(self) -> float:
+        return float(self.prober.settings.tip_radius)
+
+    def frame_position(self, frame: str) -> np.ndarray | None:
+        """Where the tip centre is in ``frame`` (None: part coordinates without a part, or no sample yet)."""
+        pos = self._state.position
+        return None if pos is None else rails.to_frame(pos, frame, self.workspace)
 
     def step(self, client: str | None, axis: str, step_mm: float) -> MoveStatus:
+        """One step along a machine axis (1 count .. 10 mm): a jog in small, along the machine axes."""
         return self._submit(client, "step", lambda: self.machine.step(axis, step_mm))
 
-    def probe(self, client: str | None, nominal: Any, approach: Any, *, clearance_z: float | None = None,
-              normal: Any = None, speed: float | None = None) -> MoveStatus:
-        """A programmed hit. The rapid to the pre-hit point climbs to ``clearance_z`` (default: the present
-        height or the pre-hit point's, whichever is higher), crosses, and descends: never through the part.
-        The status completes with the :class:`Hit` once the hit recorders have stored it."""
+    def probe(self, client: str | None, nominal: Any, approach: Any, *, frame: str, path: str = "clearance",
+              clearance_z: float | None = None, normal: Any = None, speed: float | None = None,
+              accel: float | None = None, approach_distance: float | None = None,
+              search_distance: float | None = None, retract_distance: float | None = None,
+              rapid_speed: float | None = None) -> MoveStatus:
+        """A programmed hit at ``nominal`` (a surface point in ``frame``), coming along ``approach`` (into the
+        surface, same frame). The rapid to the pre-hit point goes over the clearance plane (``clearance_z``,
+        default: the part's, else the higher of here and the pre-hit point) unless ``path`` is 'straight' and
+        the line is proven free of the part. Distances (mm), speeds (mm/s) and the probing acceleration default
+        to the configuration's. The status completes with the :class:`Hit` once the hit recorders stored it."""
+        p = self._to_machine(nominal, frame)
+        u = self._to_machine(approach, frame, direction=True)
+        if not np.linalg.norm(u):
+            raise Refused("a probe needs an approach direction that is not zero")
+        n = None if normal is None else self._to_machine(normal, frame, direction=True)
+        rails.check_path(path)
+        radius = float(self.prober.settings.tip_radius)
+
         def start() -> MoveStatus:
+            here = self.machine.position
+            restart = self._restart is not None
+            pre = p - radius * u / np.linalg.norm(u) - (self.config.probe.approach_distance if approach_distance
+                                                       is None else approach_distance) * u / np.linalg.norm(u)
             cz = clearance_z
-            if cz is None:  # straight down only from above: climb to the higher of here and the pre-hit point
-                cz = float(self.machine.position[2])
-            inner = self.prober.probe(nominal, approach, clearance_z=cz, normal=normal, speed=speed)
-            outer = MoveStatus(inner.description, self)
-            outer.on_cancel(inner.cancel)
+            if path == "straight" and not restart:
+                why = rails.straight_blocked(self.workspace, here, pre, radius)
+                if why is not None:
+                    raise Refused(why)
+            elif cz is None:  # over the part's clearance plane, else never lower than here
+                plane = None if self.workspace is None else self.workspace.clearance_z()
+                cz = max(float(here[2]), float(pre[2])) if plane is None else float(plane)
+            backoff = self._backoff if restart else None
+            if backoff is not None:  # a contact stopped the last motion: back off the way it came first
+                first = self.machine.move_to(here + backoff)
+            else:
+                first = None
+            outer = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), self)
             with self._lock:
                 self._probing += 1
 
-            def done(s: MoveStatus) -> None:  # loop thread: the hit was posted before this
+            def cycle(s: MoveStatus | None = None) -> None:
+                if s is not None and s.error is not None:
+                    return finish_inner(s)
+                try:
+                    inner = self.prober.probe(p, u, clearance_z=None if path == "straight" and not restart else cz,
+                                              normal=n, speed=speed, accel=accel, approach_distance=approach_distance,
+                                              search_distance=search_distance, retract_distance=retract_distance,
+                                              rapid_speed=rapid_speed)
+                except BaseException as exc:  # noqa: BLE001 - reported through the status
+                    err = MoveStatus("probe", self)
+                    err.finish(error=exc)
+                    return finish_inner(err)
+                outer.on_cancel(inner.cancel)
+                inner.add_callback(finish_inner)
+
+            def finish_inner(s: MoveStatus) -> None:  # loop thread: the hit was posted before this
                 with self._lock:
                     self._probing -= 1
+                    if s.error is None:
+                        self._restart, self._backoff = None, None
                 self.dispatcher.post(self._finish_probe, outer, s)
-            inner.add_callback(done)
+            if first is None:
+                cycle()
+            else:
+                outer.on_cancel(first.cancel)
+                first.add_callback(cycle)
             return outer
         return self._submit(client, "probe", start)
 
@@ -436,6 +564,7 @@ class Controller:
         first = self._fault is None
         self.machine.inhibit = f"fault: {reason}"
         with self._lock:
+            self._restart = self._restart or "fault"
             if first:
                 self._fault = reason
             if link:
@@ -682,6 +811,11 @@ class Controller:
 
     def _on_machine_event(self, kind: str, info: dict) -> None:
         if kind == "contact":
+            way = info.get("direction")
+            with self._lock:
+                self._restart = "contact"
+                self._backoff = None if way is None else \
+                    -np.asarray(way, float) * float(self.config.probe.retract_distance)
             info = {**info, "message": "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f}: the machine stopped"
                     .format(*info.get("position", (float("nan"),) * 3))}
         self._event(kind, **info)

@@ -42,12 +42,14 @@ class Backend(Protocol):
 class StationBackend:
     """The I++ DME backend on a started :class:`~cmm.station.Station`, through its control core.
 
-    Every command carries this connection's client id, so the core's access
-    policy applies: the I++ client takes the station's control (browsers then
-    observe and can still stop the machine). GoTo and PtMeas run as control
-    core jobs because they use the client's GoToPar/PtMeasPar (acceleration,
-    approach, search and retract distances), which the core's plain move and
-    probe commands do not take. The station records every probed point
+    An adapter that only translates: every command goes to the command API
+    (:class:`~cmm.control.Controller`) with this connection's client id, so the
+    core's access policy and motion rails apply: the I++ client takes the
+    station's one control holder (browsers then observe and can still stop the
+    machine). GoTo is a straight ``move`` and PtMeas a ``probe`` with the
+    client's GoToPar/PtMeasPar (speeds, acceleration, approach, search and
+    retract distances) and a straight rapid, both refused when the line is not
+    proven free of the part. The station records every probed point
     (journal, browser), so an I++ session is recorded like a browser one.
     """
 
@@ -96,14 +98,13 @@ class StationBackend:
         return bool(self.controller.state.homed)
 
     def position(self) -> np.ndarray:
-        state = self.station.machine.state
-        return np.asarray(state.position if state is not None else self.controller.state.position, dtype=float)
+        return np.asarray(self.controller.frame_position("machine"), dtype=float)
 
     def check_target(self, target: np.ndarray) -> np.ndarray:
-        return self.station.machine.check_target(target)
+        return self.controller.check_target(target)
 
     def probes(self) -> list[tuple[str, float]]:
-        return [(self.probe_name, float(self.station.prober.settings.tip_radius))]
+        return [(self.probe_name, float(self.controller.tip_radius))]
 
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
         """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""
@@ -125,13 +126,10 @@ class StationBackend:
 
         return self.controller.state.mode is Mode.ESTOPPED
 
-    # --- motion ---------------------------------------------------------------------
-    def _job(self, description: str, fn: Callable[[], Any]) -> Any:
-        return self.controller.run_job(self.client, description, fn)
-
+    # --- motion: the command API's move and probe, straight lines as I++ DME means them ---------
     def move_to(self, target: np.ndarray, speed: float, accel: float) -> np.ndarray:
-        m = self.station.machine
-        return self._job("I++ DME GoTo", lambda: m.move_to(target, speed, accel).wait())
+        return self.controller.move(self.client, target, frame="machine", path="straight", speed=speed,
+                                    accel=accel).wait()
 
     def probe(self, nominal: np.ndarray, direction: np.ndarray, *, speed: float, accel: float, approach: float,
               search: float, retract: float, rapid_speed: float) -> np.ndarray:
@@ -139,17 +137,17 @@ class StationBackend:
 
         Returns the latched tip centre (what I++ DME reports); the station records the hit.
         """
-        prober = self.station.prober
-        hit = self._job("I++ DME PtMeas", lambda: prober.probe(
-            nominal, -np.asarray(direction, float), speed=speed, accel=accel, approach_distance=approach,
-            search_distance=search, retract_distance=retract, rapid_speed=rapid_speed).wait())
+        hit = self.controller.probe(
+            self.client, nominal, -np.asarray(direction, float), frame="machine", path="straight", speed=speed,
+            accel=accel, approach_distance=approach, search_distance=search, retract_distance=retract,
+            rapid_speed=rapid_speed).wait()
         return np.asarray(hit.machine, dtype=float)
 
     def home(self) -> None:
-        """The homing cycle; on a machine without home switches, a move to the home coordinates."""
+        """The homing cycle; on a machine without home switches, a move to the home coordinates (Z up first)."""
         if self.config.homing.method == "none":
-            m = self.station.machine
-            self._job("I++ DME Home", lambda: m.home().wait())
+            home = [a.home for a in self.config.axes]
+            self.controller.move(self.client, home, frame="machine").wait()
         else:
             self.controller.home(self.client)
 

@@ -313,7 +313,10 @@ class Machine:
             else:
                 self.halt("abrupt")
                 pos = self.counts_to_mm(latched).tolist()
-                self.emit("contact", position=pos)
+                goal = motion.extra.get("to")  # the line it was on: a restart backs off the way it came
+                way = None if goal is None else np.asarray(goal, float) - np.asarray(pos)
+                self.emit("contact", position=pos, direction=None if way is None or not np.linalg.norm(way) else
+                          (way / np.linalg.norm(way)).tolist())
                 self._finish(motion, error=ContactError(
                     "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped and no hit was "
                     "recorded".format(*pos)))
@@ -508,6 +511,7 @@ class Machine:
     def _start_line(self, motion: _Motion, target: np.ndarray, speed: float, accel: float) -> MoveStatus:
         """Make ``motion`` the current one and send its straight line (lock held); a failed send finishes it."""
         self._motion = motion
+        motion.extra["to"] = target
         motion.status.on_cancel(lambda: self._cancel(motion))
         try:
             self._load_line(target, speed, accel)
@@ -837,7 +841,7 @@ class Machine:
             return
         pos = self.counts_to_mm(latched).tolist()
         self._contact_dir = v / max(float(np.linalg.norm(v)), 1e-12)
-        self.emit("contact", position=pos)
+        self.emit("contact", position=pos, direction=self._contact_dir.tolist())
         self._finish(motion, error=ContactError(
             "probe contact while jogging at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped; "
             "jog away from the part".format(*pos)))

@@ -2,10 +2,8 @@
 
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
-tab, and runs three light threads: the probe updater (50 Hz, also samples the
-following-error plot), the hold keeper (25 Hz: keeps a held jog button's jog
-alive between late hold events, :meth:`~cmm.ui.panels.ClientApp.keep_hold`) and
-the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
+tab, and runs two light threads: the probe updater (50 Hz, also samples the
+following-error plot) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
 :class:`~cmm.control.access.Control`, shared with the pendant page.
 """
 
@@ -25,7 +23,6 @@ from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
 
 REFRESH_HZ = 20.0
-HOLD_KEEP_HZ = 25.0  # well inside the machine's 0.15 s dead-man, on its own thread (a slow refresh cannot delay it)
 READOUT_EVERY = 4  # refresher ticks between read-out refreshes (5 Hz)
 PLOT_SECONDS = 10.0
 
@@ -71,8 +68,6 @@ class StationApp:
         self._stop = threading.Event()
         self._refresher = threading.Thread(target=self._refresh_loop, name="ui-refresh", daemon=True)
         self._refresher.start()
-        self._keeper = threading.Thread(target=self._keep_loop, name="ui-hold", daemon=True)
-        self._keeper.start()
 
     # --- life cycle ------------------------------------------------------------
 
@@ -97,7 +92,7 @@ class StationApp:
     def close(self) -> None:
         self._stop.set()
         self.updater.close()
-        for thread in (self._refresher, self._keeper):
+        for thread in (self._refresher,):
             if thread.is_alive():
                 thread.join(timeout=2)
         if self.pendant is not None:
@@ -241,21 +236,6 @@ class StationApp:
         if self._dirty["features"]:
             self._dirty["features"] = False
             self.view.draw_features()
-
-    def _keep_loop(self) -> None:
-        # paced from the start of each round, not the end: a refresh waits for the machine loop (a busy loop
-        # step would otherwise add to the period and let the 0.15 s dead-man expire)
-        period = 1.0 / HOLD_KEEP_HZ
-        due = time.monotonic()
-        while True:
-            due = max(due + period, time.monotonic())
-            if self._stop.wait(max(0.0, due - time.monotonic())):
-                return
-            for capp in list(self.clients.values()):
-                try:
-                    capp.keep_hold()
-                except Exception:  # noqa: BLE001 - a closing tab; the machine's dead-man still applies
-                    pass
 
     def _refresh_loop(self) -> None:
         tick = 0

@@ -55,6 +55,7 @@ class PanelContext:
         self.emergency_stop: Callable[[], Any] = _none
         self.select_feature: Callable[[int], None] = _none
         self.show_frame: Callable[[str], None] = _none
+        self.frame_shown: Callable[[str], None] = _none  # the DRO's frame changed (the Go to fields follow it)
 
     # --- telling the operator ---------------------------------------------------------
 

@@ -189,6 +189,7 @@ class StatusPanel:
     def set_frame(self, frame: str) -> None:
         if frame in FRAMES:
             self.frame = frame
+            self.ctx.frame_shown(frame)  # the DRO's frame is the Go to fields' default
             self.refresh()
 
     def html(self) -> str:

@@ -13,12 +13,9 @@ the access policy (the shared :class:`~cmm.control.access.Control`, STOP and E-s
 by its one :meth:`~cmm.control.access.Control.may_stop` policy) and the machine
 state once, and refuses with a sentence that is shown here. Measurement
 changes (hits, features, sessions) ask :meth:`ClientApp.allowed` first (a
-server-side check: hiding buttons is not security). The jog dead-man is the
-machine loop's: held buttons re-send the jog. A busy browser sends viser's hold
-events late (a WebGL frame on a slow PC blocks the page for up to ~1 s), which stopped the jog on the dead-man again
-and again; so the app's hold keeper (:meth:`ClientApp.keep_hold`, 25 Hz)
-re-sends a held button's jog between its hold events, for at most
-``HOLD_GRACE_S`` of machine time after the newest one, then releases it.
+server-side check: hiding buttons is not security). Jog buttons feed the core's
+jog-hold pipeline (:mod:`cmm.control.jog`): each hold event refreshes the jog,
+the release ends it, and the machine's dead-man stops it when the events stop.
 """
 
 from __future__ import annotations
@@ -49,10 +46,10 @@ JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, Pa
                  "The pendant below acts for this page: it shares this page's control. A tablet opens the "
                  "pendant page alone (its own client: Take control there).")
 LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser may run callbacks out of order)
-HOLD_HZ = 20.0  # jog refresh rate while a button is held (the dead-man timeout is 0.15 s)
-# machine seconds a held button's jog is kept alive after its newest hold event (a busy browser sends them late);
-# a lost pointer-up or a frozen tab therefore stops within this plus the stop (a closed tab releases at once)
-HOLD_GRACE_S = 1.0
+# hold events a second while a button is held: 3-4 within the machine's 0.15 s dead-man, so a browser that is
+# late by up to ~0.1 s keeps the jog, and one that goes silent (a lost pointer-up, a frozen or closed tab)
+# stops 0.15 s after its last event plus the braking
+HOLD_HZ = 25.0
 
 
 def machine_markdown(station: Any) -> str:
@@ -99,15 +96,13 @@ class ClientApp:
         self.messages = self.ctx.messages  # (level, title, body): what the operator was told
         self.gui = self.ctx.gui
         self.speed_mode = "probing"
+        self.goto_frame = "Machine"  # the Go to fields' frame: follows the DRO's unless chosen here
         self.step_size = "1"
         self.move_status: Any = None
         self.pendant_token: str | None = None  # the embedded pendant's grant (acts as this client)
         self._jogging = False
-        self._last_hold = 0.0
-        self._hold: tuple[np.ndarray, bool, int, float] | None = None  # (v, probe, release seq, machine time)
         self._last_error = ("", 0.0)
         self._zero_armed = 0.0
-        self._released_at = 0.0
         self.live_trace = False
         self._had_control = False
         self._plot_key: bytes | None = None
@@ -119,6 +114,7 @@ class ClientApp:
         self.measure = MeasurePanel(self.ctx)
         self.colour_map = ColourMapPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
+        self.ctx.frame_shown = self.set_goto_frame
 
     @property
     def api(self) -> Any:
@@ -136,7 +132,6 @@ class ClientApp:
     # --- machine ------------------------------------------------------------------
 
     def stop(self) -> Any:
-        self._hold = None
         self._jogging = False
         report = self._cmd("Stop", self.api.stop)
         if report is not None and not report.ok:
@@ -144,7 +139,6 @@ class ClientApp:
         return report
 
     def emergency_stop(self) -> Any:
-        self._hold = None
         self._jogging = False
         report = self._cmd("E-stop", self.api.emergency_stop)
         if report is not None:
@@ -180,12 +174,41 @@ class ClientApp:
 
     # --- go to -------------------------------------------------------------------
 
-    def go_to(self, x: float, y: float, z: float) -> Any:
-        status = self._cmd("Go to", self.api.move_to, [float(x), float(y), float(z)])
+    def go_to(self, *target: Any, frame: str | None = None) -> Any:
+        """Go to a point in ``frame`` ('machine' or 'part'; default: the Go to tab's frame, which follows the
+        DRO's), over the clearance plane. ``target`` is X, Y, Z or one sequence of them."""
+        if len(target) == 1 and isinstance(target[0], (list, tuple, np.ndarray)):
+            target = tuple(target[0])
+        try:
+            xyz = [float(v) for v in target]
+        except (TypeError, ValueError):
+            xyz = []
+        if len(xyz) != 3:
+            self.ctx.error(f"the target needs three numbers X, Y, Z in mm (got {len(target)})", "Go to refused")
+            return None
+        status = self._cmd("Go to", self.api.move, xyz, frame=(frame or self.goto_frame).lower())
         if status is not None:
             self.move_status = status
             status.add_callback(self._move_done)
         return status
+
+    def set_goto_frame(self, frame: str) -> None:
+        """The frame of the Go to fields; the fields show the present position in it."""
+        if frame not in ("Machine", "Part"):
+            return
+        self.goto_frame = frame
+        if "goto_frame" in self.gui and self.gui["goto_frame"].value != frame:
+            self.gui["goto_frame"].value = frame
+        here = self.api.frame_position(frame.lower())
+        if "target" in self.gui and here is not None:
+            self.gui["target"].value = tuple(round(float(v), 4) for v in here)
+        self.ctx.set("goto_frame_text", "content", self.goto_frame_text())
+
+    def goto_frame_text(self) -> str:
+        if self.goto_frame == "Part":
+            note = "" if self.station.measurement.aligned else " (nominal set-up: no alignment made)"
+            return f"Target in **part** coordinates{note}; the move goes over the clearance plane."
+        return "Target in **machine** coordinates; the move goes over the clearance plane."
 
     def _move_done(self, status: Any) -> None:
         err = getattr(status, "error", None)
@@ -207,52 +230,23 @@ class ClientApp:
         return v
 
     def jog_hold(self, axis: int, sign: int) -> None:
-        """Called repeatedly while a jog button is held: refreshes the machine loop's dead-man jog."""
-        if time.monotonic() - self._released_at < LATE_HOLD_S:
-            return  # a hold event that arrived after the button's release must not start the jog again
-        v = self.jog_velocity(axis, sign)
-        v = self.station.manual_probe_velocity(v) if self.ctx.manual_probe else v
-        who = self.ctx.who()
-        seq = self.api.release_seq(who)  # a release after this point drops this jog and the keeper's re-sends
+        """A hold event of a jog button (viser sends them at ``HOLD_HZ`` while it is held): fed to the core's
+        jog-hold pipeline, which clamps (an armed jog to the qualified probing speed), drops events that ran
+        after the release, and stops the jog when they stop coming (the machine's dead-man)."""
         try:
-            self.api.jog(who, v, probe=self.ctx.manual_probe, after=seq)
+            self.api.jogs.hold(self.ctx.who(), self.jog_velocity(axis, sign), probe=self.ctx.manual_probe,
+                               settle=LATE_HOLD_S, on_error=lambda text: self._throttled_error("Jog", text))
         except OPERATOR_ERRORS as exc:
-            self._hold = None
             self._throttled_error("Jog", str(exc))
             return
         self._jogging = True
-        self._last_hold = time.monotonic()
-        self._hold = (v, self.ctx.manual_probe, seq, self._machine_time())
-
-    def keep_hold(self) -> None:
-        """The hold keeper (app thread, 25 Hz): re-send a held button's jog between its (late) hold events; release
-        it once none came for ``HOLD_GRACE_S`` of machine time (lost pointer-up, frozen tab)."""
-        hold = self._hold
-        if hold is None:
-            return
-        v, probe, seq, since = hold
-        if self._machine_time() - since > HOLD_GRACE_S:
-            if self._hold is hold:
-                self._hold = None
-                self.jog_release()
-            return
-        try:
-            self.api.jog(self.ctx.who(), v, probe=probe, after=seq)
-        except OPERATOR_ERRORS:
-            pass  # refused (control taken, fault, contact back-off): the next hold event tells the operator
-
-    def _machine_time(self) -> float:
-        st = self.station.machine.state
-        return float(st.time) if st is not None and getattr(st, "time", None) is not None else time.monotonic()
 
     def jog_release(self) -> None:
-        """The button was released (viser's click event fires on release) or the holds stopped coming."""
-        self._hold = None
-        self._released_at = time.monotonic()
-        if self._jogging:
+        """The button was released (viser's click event fires on release)."""
+        if self._jogging or self.ctx.control.can_move(self.client_id):  # also marks the release for late holds
             self._jogging = False
             try:
-                self.api.jog_release(self.ctx.who())
+                self.api.jogs.release(self.ctx.who())
             except OPERATOR_ERRORS as exc:
                 self.ctx.error(exc, "Jog release")
 
@@ -423,8 +417,11 @@ class ClientApp:
                                             'title="pendant" allow="gamepad"></iframe>')
         with tabs.add_tab("Go to"):
             pos = self.station.machine.state.position if self.station.machine.state is not None else np.zeros(3)
+            g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
+            g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
+            g["goto_frame_text"] = gui.add_markdown(self.goto_frame_text())
             g["target"] = gui.add_vector3("Target (mm)", tuple(float(v) for v in pos), step=0.001)
-            gui.add_button("Go").on_click(lambda _: self.go_to(*g["target"].value))
+            gui.add_button("Go").on_click(lambda _: self.go_to(g["target"].value))
             gui.add_button("Cancel").on_click(lambda _: self.cancel())
             g["pick"] = gui.add_markdown("Click the part to pick a point.")
             gui.add_button("Move above").on_click(lambda _: self.move_above())

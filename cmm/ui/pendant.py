@@ -12,7 +12,7 @@ client -> server
 
 - ``{"type": "hello"}``: the server answers ``{"type": "hello", "client": id,
   "local": bool, "code_required": bool, "speeds": {"jog_fast", "jog_slow",
-  "jog_fine"}, "deadman_ms": 200, "state_hz": 20}``. The connection stays an
+  "jog_fine"}, "deadman_ms": 150, "state_hz": 20}``. The connection stays an
   observer. ``hello`` with a ``"code"`` member (``null`` from a local
   pendant) also asks for control, exactly like ``take``. ``hello`` with an
   ``"as"`` member (the station page's grant token, :mod:`cmm.ui.pendant_grants`)
@@ -22,9 +22,10 @@ client -> server
   rules: local clients need no code, remote clients need the LAN access code).
   Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
 - ``{"type": "observe"}``: give control back (any jog of this pendant is ended).
-- ``{"type": "jog", "v": [vx, vy, vz]}``: velocity jog in mm/s, each component
-  clamped to ``speeds.jog_fast``; all zeros is a release. Only the control
-  holder may jog; it must repeat the message (every 50 ms) while the jog lasts.
+- ``{"type": "jog", "v": [vx, vy, vz]}``: velocity jog in mm/s, fed to the core's jog-hold pipeline
+  (:mod:`cmm.control.jog`): each component limited to ``speeds.jog_fast`` (a ``notice`` says so); all
+  zeros is a release. Only the control holder may jog; it must repeat the message (every 50 ms) while
+  the jog lasts.
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
   10 mm; only the control holder.
@@ -39,15 +40,14 @@ server -> client
 - ``{"type": "state", "pos": [x, y, z], "vel": [...], "moving": bool,
   "jogging": bool, "probe": bool, "control": bool, "holder": "you" | "other" | null}``
   at ``state_hz`` (20 Hz).
-- ``{"type": "error", "message": "..."}`` in an operator's words.
+- ``{"type": "error", "message": "..."}`` in an operator's words; ``{"type": "notice", "message": "..."}``
+  for what the operator should know but is not refused (a jog speed limited).
 
 Dead-man
 --------
-While a pendant jogs, a message must arrive at least every ``deadman`` s
-(0.2 s) or the server releases the jog; a closed connection releases it at
-once. The machine's own dead-man (``config.deadman_timeout``, 0.15 s without
-a jog refresh) applies underneath, so a pendant that goes quiet stops within
-0.1 s plus the deceleration whatever happens to the network.
+The jog-hold pipeline's grace is the machine's dead-man (``[jog] deadman_timeout``, 0.15 s without a jog
+refresh, timed next to the bus): a pendant that goes quiet stops 0.15 s after its last message plus the
+braking, whatever happens to the network or this process; a closed connection releases at once.
 
 Security
 --------
@@ -86,7 +86,6 @@ from ..control.priority import raise_priority_on
 from ..control.access import Control, OriginPolicy, is_local_connection
 from .pendant_grants import Grant, Grants
 
-DEADMAN = 0.2  # s without any message from a jogging pendant before the server releases its jog
 STATE_HZ = 20.0
 ERROR_INTERVAL = 0.5  # s between repeated errors for refused jogs
 
@@ -134,9 +133,7 @@ class _Session:
     local: bool
     authenticated: bool = False  # local, or gave the right code on this connection
     jogging: bool = False
-    epoch: int = 0  # bumped by every release: jogs queued before it are dropped
-    pending: Any = None  # the newest jog not yet sent to the machine: (v, epoch, release count)
-    jog_task: Any = None
+    last_note: str | None = None  # the last speed-limit notice sent (said once per jog)
     last_message: float = 0.0
     last_error: float = 0.0
     grant: Grant | None = None  # the embedded pendant of a station page acts as that page's client
@@ -151,13 +148,12 @@ class PendantServer:
     """Handle returned by :func:`start_pendant_server`: ``url``, ``ws_url``, ``port``, ``close()``."""
 
     def __init__(self, station: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
-                 deadman: float = DEADMAN, state_hz: float = STATE_HZ, static_dir: Path | None = None,
+                 state_hz: float = STATE_HZ, static_dir: Path | None = None,
                  origins: OriginPolicy | None = None) -> None:
         self.station = station
         self.control = control
         self.origins = origins or OriginPolicy(lan=host not in ("127.0.0.1", "localhost", "::1"))
         self.host = host
-        self.deadman = deadman
         self.state_hz = state_hz
         root = static_dir or web_dir()
         self._files = {path: ((root / name).read_bytes(), ctype) for path, (name, ctype) in STATIC.items()}
@@ -364,7 +360,7 @@ class PendantServer:
                 "shared": session.grant is not None,
                 "type": "hello", "client": session.client_id, "local": session.local,
                 "code_required": not session.local, "lan": self.control.access_code is not None,
-                "speeds": self._speeds(), "deadman_ms": round(self.deadman * 1000), "state_hz": self.state_hz})
+                "speeds": self._speeds(), "deadman_ms": round(self.api.jogs.grace * 1000), "state_hz": self.state_hz})
             if "code" in msg:
                 await self._take(session, msg.get("code"))
         elif kind == "take":
@@ -384,7 +380,6 @@ class PendantServer:
         elif kind == "step":
             await self._step(session, msg.get("axis"), msg.get("mm"))
         elif kind == "stop":
-            session.epoch += 1  # queued jogs of this pendant are dropped; the stop does not wait behind them
             report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
             if report.ok:
                 session.jogging = False
@@ -402,6 +397,8 @@ class PendantServer:
         await self._error_msg(session, reason)
 
     async def _jog(self, session: _Session, v: Any) -> None:
+        """A jog refresh: fed to the core's jog-hold pipeline (clamp, release sequence, grace), which never waits
+        for the machine loop, so this connection keeps reading (and answering its keepalive pings)."""
         if not self.control.can_move(session.client_id):
             if session.jogging:
                 session.jogging = False
@@ -409,27 +406,24 @@ class PendantServer:
             return await self._error_msg(session, "this pendant is not in control: take control to jog",
                                          throttle=True)
         if not (isinstance(v, list) and len(v) == 3
-                and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
-        limit = float(self.station.config.speeds.jog_fast)
-        v = [max(-limit, min(limit, float(x))) for x in v]
-        if not any(v):
-            if session.jogging:
-                session.jogging = False
-                self._release(session)
-            return
-        # the newest jog replaces one still waiting; the message loop never waits for the machine (a slow
-        # loop must not stop this connection from reading, or its keepalive pongs would go unanswered)
-        session.pending = (v, session.epoch, self.api.release_seq(self._who(session)))
-        if session.jog_task is None or session.jog_task.done():
-            session.jog_task = asyncio.create_task(self._run_jogs(session))
+        try:
+            note = self.api.jogs.hold(self._who(session), v, on_error=lambda text: self._later_error(session, text))
+        except Exception as exc:  # noqa: BLE001 - every refusal is the operator's sentence, never raised into the loop
+            session.jogging = False
+            return await self._error_msg(session, str(exc) or type(exc).__name__, throttle=True)
+        session.jogging = any(v)
+        if note is not None and note != session.last_note:
+            session.last_note = note  # once per limit, not 20 times a second
+            await self._send(session, {"type": "notice", "message": note})
 
-    async def _run_jogs(self, session: _Session) -> None:
-        while session.pending is not None:
-            (v, epoch, seq), session.pending = session.pending, None
-            error = await self._call(self._jog_if_holder, session, v, epoch, seq)
-            if error:
-                await self._error_msg(session, error, throttle=True)
+    def _later_error(self, session: _Session, text: str) -> None:
+        """An error the machine loop found in a queued jog (dispatcher thread): to this pendant, throttled."""
+        session.jogging = False
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(
+                lambda: asyncio.ensure_future(self._error_msg(session, text, throttle=True)))
 
     async def _step(self, session: _Session, axis: Any, mm: Any) -> None:
         """One step jog (keyboard step mode): holder only, 1 count .. 10 mm along X, Y or Z."""
@@ -443,18 +437,9 @@ class PendantServer:
             await self._error_msg(session, error, throttle=True)
 
     def _release(self, session: _Session) -> None:
-        """End this pendant's jog at once: straight to the machine loop, not behind queued jog messages."""
-        session.epoch += 1
-        self._station_call(self.api.jog_release, self._who(session))
-
-    def _jog_if_holder(self, session: _Session, v: list[float], epoch: int, seq: int) -> str | None:
-        if epoch != session.epoch:
-            return None  # released while this jog waited in the queue
-        # the control core checks who holds control when the jog reaches the machine loop, and drops it
-        # if this pendant released after the message arrived
-        error = self._station_call(lambda: self.api.jog(self._who(session), v, after=seq))
-        session.jogging = error is None
-        return error
+        """End this pendant's jog at once (the pipeline's release goes ahead of anything queued)."""
+        session.last_note = None
+        self._station_call(self.api.jogs.release, self._who(session))
 
     @staticmethod
     def _who(session: _Session) -> Any:

@@ -1,0 +1,97 @@
+"""The one jog-hold pipeline: front ends feed it hold and release events; it clamps, sequences and times out.
+
+Every front end that jogs (the viser page's hold buttons, the pendant page, a gamepad or keyboard through
+the pendant) does only this: while the operator holds a jog, call :meth:`JogHolds.hold` with the velocity
+each time the front end hears it is still held; when it is let go, :meth:`JogHolds.release`. The pipeline
+does the rest, the same for everyone:
+
+- **Speed clamp.** Each axis to ``speeds.jog_fast``; an armed jog (manual probing) to the speed the probe was
+  qualified at (``probe_speed``). A clamped jog runs, and ``hold`` says so in a sentence (shown once).
+  Non-finite or malformed velocities are refused with a sentence.
+- **Release sequence.** A release ends the jog at once, ahead of anything queued (the control core's
+  ``jog_release``: the link process hears it first). Each hold carries the count of releases its client had
+  seen when the event arrived; a hold queued before a later release is dropped, so a late refresh never
+  restarts a released jog. ``settle`` drops holds that arrive that soon after the client's release (a front
+  end whose events can run out of order, like viser's thread pool).
+- **Grace.** A held jog must be refreshed within the machine's dead-man, ``[jog] deadman_timeout``
+  (0.15 s): front ends refresh at 20-25 Hz. The timer runs next to the bus (the link process on a real port,
+  the machine loop on the in-process simulator), so a silent front end stops whatever this process is doing;
+  there is no second timer here to drift from it.
+- **Never waits.** ``hold`` checks access and the machine's mode at once (a refusal comes back as a
+  sentence), tells the link process the operator is still there, and queues the jog for the machine loop
+  without waiting for it: a front end's event loop never blocks on the machine. A newer hold of the same
+  client replaces one still queued. Errors the machine loop finds later (a deflected probe, a fault) go to
+  the hold's ``on_error``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from .modes import Refused
+
+ErrorFn = Callable[[str], None]
+
+
+class JogHolds:
+    def __init__(self, controller: Any, *, probe_speed: Callable[[], float] | None = None) -> None:
+        self.controller = controller
+        self.config = controller.config
+        self.probe_speed = probe_speed or (lambda: float(self.config.speeds.probing))
+        self._released_at: dict[Any, float] = {}
+
+    @property
+    def grace(self) -> float:
+        """Seconds a held jog lasts after its newest hold: the machine's dead-man."""
+        return float(self.config.deadman_timeout)
+
+    def clamp(self, velocity: Any, *, probe: bool = False) -> tuple[np.ndarray, str | None]:
+        """The velocity the machine may run (mm/s per axis) and, when it had to be limited, why."""
+        try:
+            v = np.asarray(velocity, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise Refused("a jog needs three velocities in mm/s (X, Y, Z)") from None
+        if v.shape != (3,) or not np.all(np.isfinite(v)):
+            raise Refused("a jog needs three finite velocities in mm/s (X, Y, Z)")
+        fast = float(self.config.speeds.jog_fast)
+        note = None
+        if np.any(np.abs(v) > fast):
+            note = (f"jog speed {float(np.max(np.abs(v))):.4g} mm/s limited to the fastest jog speed, "
+                    f"{fast:g} mm/s")
+            v = np.clip(v, -fast, fast)
+        if probe:
+            limit = float(self.probe_speed())
+            speed = float(np.linalg.norm(v))
+            if speed > limit > 0:
+                v = v * (limit / speed)
+                note = note or (f"armed jog limited to the speed the probe was qualified at, {limit:g} mm/s")
+        return v, note
+
+    def ticket(self, client: Any) -> int:
+        """The release count of ``client`` now: a front end that queues events takes it when one arrives."""
+        return self.controller.release_seq(client)
+
+    def hold(self, client: Any, velocity: Any, *, probe: bool = False, after: int | None = None,
+             settle: float = 0.0, on_error: ErrorFn | None = None) -> str | None:
+        """The operator still holds this jog (refresh it within :attr:`grace`). Returns a sentence when the
+        velocity was limited; raises Refused (with the operator's sentence) when the jog is not allowed now.
+        All zeros is a release."""
+        key = getattr(client, "id", client)
+        if settle > 0 and time.monotonic() - self._released_at.get(key, -math.inf) < settle:
+            return None  # an event from before the release, run late
+        v, note = self.clamp(velocity, probe=probe)
+        if not np.any(v):
+            self.release(client)
+            return note
+        self.controller.jog(client, v, probe=probe, after=self.ticket(client) if after is None else after,
+                            wait=False, on_error=on_error)
+        return note
+
+    def release(self, client: Any) -> None:
+        """The operator let go (or went away): the jog ends now, whatever is queued."""
+        self._released_at[getattr(client, "id", client)] = time.monotonic()
+        self.controller.jog_release(client)

@@ -1,0 +1,156 @@
+"""The safety rails every motion command passes, whichever front end sent it: frames and the clearance plane.
+
+- **Frames.** Every move and programmed hit names the frame of its coordinates: ``"machine"`` (the axes'
+  own) or ``"part"`` (the part's CAD coordinates, through the part's pose: the alignment once one is made,
+  the nominal set-up before). Jogs and steps move along the machine axes by definition.
+- **The clearance plane** (as PC-DMIS moves): a move that is not probing retracts to the clearance height
+  (the part's top plus a margin), travels there and descends onto its target. A caller may ask for a
+  ``"straight"`` line instead; it is accepted only when the straight line is proven free of the part:
+  the tip's centre stays at least its radius plus ``STRAIGHT_MARGIN`` from the part's surface all along it
+  (sphere tracing on the part mesh).
+- **Restart after a fault or a contact retracts first**: the next move backs off along the way the stopped
+  motion came (by the retract distance) when that is known, then takes the clearance route, whatever path
+  the caller asked for.
+
+Without a part (no mesh known) the route travels at the higher of the start and the target, and a straight
+line needs no proof.
+
+The station supplies the part through a :class:`Workspace` (the control core does not know the
+measurement model); ``None`` means no part.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+
+FRAMES = ("machine", "part")
+PATHS = ("clearance", "straight")
+STRAIGHT_MARGIN = 0.5  # mm between the tip and the part that a straight move must keep, beyond the tip radius
+MAX_STEPS = 2000  # sphere-tracing steps before a line counts as not proven free (grazing the surface)
+
+
+class Workspace(Protocol):
+    """The part as the motion rails see it, in machine coordinates."""
+
+    def part_pose(self) -> np.ndarray | None:
+        """Part -> machine (4x4); None without a part."""
+
+    def clearance_z(self) -> float | None:
+        """The clearance plane (machine Z of the tip centre); None without a part."""
+
+    def surface_distance(self, points: np.ndarray) -> np.ndarray:
+        """Signed distances (mm) of machine points to the part's surface: + outside the material."""
+
+
+class RailError(ValueError):
+    """A motion request the rails refuse, in an operator's words (nothing moved)."""
+
+
+def point3(value: Any, what: str = "a target") -> np.ndarray:
+    p = np.asarray(value, dtype=np.float64).reshape(-1) if value is not None else np.zeros(0)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise RailError(f"{what} needs three coordinates X, Y, Z in mm, each a finite number (a value that is "
+                        f"not a number or infinite was given: {value!r})")
+    return p
+
+
+def check_frame(frame: Any) -> str:
+    if frame not in FRAMES:
+        raise RailError(f"say which frame the coordinates are in: 'machine' or 'part' (got {frame!r})")
+    return frame
+
+
+def check_path(path: Any) -> str:
+    if path not in PATHS:
+        raise RailError(f"a move's path is 'clearance' (over the clearance plane) or 'straight' (got {path!r})")
+    return path
+
+
+def to_machine(point: Any, frame: str, workspace: Workspace | None, *, direction: bool = False) -> np.ndarray:
+    """A point (or, with ``direction``, a direction) in ``frame`` as machine coordinates."""
+    p = point3(point, "a direction" if direction else "a target")
+    if check_frame(frame) == "machine":
+        return p
+    pose = None if workspace is None else workspace.part_pose()
+    if pose is None:
+        raise RailError("part coordinates need a part: load one (or give machine coordinates)")
+    pose = np.asarray(pose, float)
+    return pose[:3, :3] @ p if direction else pose[:3, :3] @ p + pose[:3, 3]
+
+
+def to_frame(point: Any, frame: str, workspace: Workspace | None) -> np.ndarray | None:
+    """A machine point in ``frame`` (None when that frame is not known: part coordinates without a part)."""
+    p = np.asarray(point, float)
+    if frame == "machine":
+        return p
+    pose = None if workspace is None else workspace.part_pose()
+    if pose is None:
+        return None
+    pose = np.asarray(pose, float)
+    return pose[:3, :3].T @ (p - pose[:3, 3])
+
+
+def straight_blocked(workspace: Workspace | None, a: Any, b: Any, radius: float,
+                     margin: float = STRAIGHT_MARGIN) -> str | None:
+    """Why the straight line a -> b of a tip of ``radius`` is not proven free of the part (None: it is free).
+
+    Sphere tracing: where the tip's centre is ``d`` from the surface, the next ``d - radius - margin`` of the
+    line cannot reach the part, so the line is walked in steps of that length; a step that would be empty
+    means the line comes too close."""
+    if workspace is None or workspace.part_pose() is None:
+        return None
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    length = float(np.linalg.norm(b - a))
+    u = (b - a) / length if length > 0 else np.zeros(3)
+    need = radius + margin
+    t = 0.0
+    for _ in range(MAX_STEPS):
+        p = a + u * min(t, length)
+        d = float(workspace.surface_distance(p[None, :])[0])
+        if d < need:
+            return ("the straight line passes {:.2f} mm from the part at X={:.3f} Y={:.3f} Z={:.3f} (the tip needs "
+                    "{:.2f} mm): use the clearance path").format(max(d - radius, -99.0), *p, need - radius)
+        if t >= length:
+            return None
+        t += d - need + 1e-6
+    return "the straight line grazes the part too long to be proven free: use the clearance path"
+
+
+def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: float) -> list[np.ndarray]:
+    """Retract to the clearance plane, travel in it, descend: the legs from ``here`` to ``target`` (machine).
+
+    The travel height is the highest of the plane, here and the target (never down to the plane from above),
+    at most ``z_max``; without a part (no plane) the higher of here and the target. Legs that would not move
+    are left out."""
+    here, target = np.asarray(here, float), np.asarray(target, float)
+    z = max(float(here[2]), float(target[2]))
+    z = min(z if clearance_z is None else max(float(clearance_z), z), z_max)
+    legs = [np.array([here[0], here[1], z]), np.array([target[0], target[1], z]), target]
+    out: list[np.ndarray] = []
+    last = here
+    for leg in legs:
+        if np.linalg.norm(leg - last) > 1e-9:
+            out.append(leg)
+            last = leg
+    return out or [target]
+
+
+def route(here: Any, target: Any, *, path: str, workspace: Workspace | None, radius: float, z_max: float,
+          backoff: Sequence[float] | None = None, restart: bool = False) -> list[np.ndarray]:
+    """The legs of a move: ``backoff`` first (after a contact), the clearance route unless a straight line was
+    asked for, proven free and no restart is pending. Raises :class:`RailError` for a straight line that is not
+    proven free."""
+    start = np.asarray(here, float)
+    legs: list[np.ndarray] = []
+    if backoff is not None:
+        start = start + np.asarray(backoff, float)
+        legs.append(start)
+    if path == "straight" and not restart:
+        why = straight_blocked(workspace, start, target, radius)
+        if why is not None:
+            raise RailError(why)
+        return legs + [np.asarray(target, float)]
+    cz = None if workspace is None else workspace.clearance_z()
+    return legs + clearance_route(start, target, cz, z_max)
