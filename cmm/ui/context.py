@@ -36,7 +36,7 @@ class PanelContext:
                  is_local: bool = False, deviations: Callable[[], dict[int, float]] = dict,
                  shared: Any = None) -> None:
         self.station = station
-        self.control = control  # the access holder shared with the pendant (cmm.ui.access.Control)
+        self.control = control  # the access holder shared with the pendant (cmm.control.access.Control)
         self.view = view  # the shared 3-D scene (cmm.ui.scene.SceneView)
         self.client = client  # the tab's viser client; None in tests standing in for a tab
         self.client_id = client_id
