@@ -32,6 +32,40 @@ StationError = MeasurementError  # the station's refusals and the model's are on
 __all__ = ["ConfigError", "Station", "StationError", "load_config"]
 
 
+def register_measurement_verbs(controller: Controller, measurement: MeasurementModel) -> None:
+    """The measurement verbs of the command API: only the control holder changes the measurement."""
+    from .control.api import REQUIRED
+    from .measurement import alignment
+    from .measurement.program import run_on
+
+    def fit(client: Any, kind: str, hits: list[int], method: str = "ls", name: str | None = None) -> Any:
+        controller.check_access(client, "measure")
+        return measurement.fit_feature(kind, [int(h) for h in hits], method, name)
+
+    def align(client: Any, primary: int | None = None, secondary: int | None = None, tertiary: int | None = None,
+              hits: list[int] | None = None) -> Any:
+        controller.check_access(client, "measure")
+        if hits is not None:
+            result = alignment.best_fit_hits(measurement, [int(h) for h in hits])
+        elif None not in (primary, secondary, tertiary):
+            result = alignment.align_features(measurement, int(primary), int(secondary), int(tertiary))
+        else:
+            raise StationError("align needs three features (primary, secondary, tertiary) or hits for a best fit")
+        alignment.apply(measurement, result)
+        return result.pose
+
+    def program(client: Any, path: str) -> Any:
+        return run_on(controller, measurement, path, client=client)
+
+    cmds = controller.commands
+    cmds.register("measure_feature", fit, {"kind": REQUIRED, "hits": REQUIRED, "method": "ls", "name": None},
+                  "fit a feature (plane, circle, sphere, cylinder, cone, line...) to hits by id")
+    cmds.register("align", align, {"primary": None, "secondary": None, "tertiary": None, "hits": None},
+                  "align the part: 3-2-1 from three features, or a best fit of hits to the CAD")
+    cmds.register("run_program", program, {"path": REQUIRED},
+                  "run a measurement program file (the machine is the program's until it ends)")
+
+
 class PartWorkspace:
     """The measurement model's part as the control core's motion rails see it (:class:`cmm.control.rails.Workspace`)."""
 
@@ -88,6 +122,7 @@ class Station:
         self.controller.on_hit(self.measurement.add_hit)
         self.controller.set_workspace(PartWorkspace(self.measurement))
         self.controller.jogs.probe_speed = lambda: self.qualified_probing_speed  # armed jogs: the qualified speed
+        register_measurement_verbs(self.controller, self.measurement)
         self.controller.subscribe(self.measurement.machine_event)
         self.calibration_log: list[str] = []
         self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}

@@ -24,14 +24,13 @@ pytest.importorskip("viser")
 
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
-from cmm.ui.panels import HOLD_GRACE_S  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 
 VIEWPORT = (1400, 900)
 # s of machine time from the button's release to zero velocity. The release is an event of a WebGL page rendered in
-# software here, paced in wall time: on a busy 2-core test machine it comes late. The bound tells a stop by the
-# release from one by the hold keeper's 1 s grace (HOLD_GRACE_S); the station's release-to-stop latency itself
-# is measured by benchmarks/bench_jog_release.py, not asserted here.
+# software here, paced in wall time: on a busy 2-core test machine it comes late. The bound is generous (the
+# page's hold events stop with the release too, so the dead-man would stop it 0.15 s later anyway); the station's
+# release-to-stop latency itself is measured by benchmarks/bench_jog_release.py, not asserted here.
 STOP_WITHIN = 0.6
 TOP_Z = 40.0  # machine Z of the sample part's top face (the part sits on the table at Z=0)
 # candidate points on the top face, part coordinates (mm): clear of the bore, boss, dome and cone
@@ -241,8 +240,8 @@ def test_observer_cannot_jog(open_page, app, station):
 
 def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app, station):
     """Holding "X +" for 2.5 s of machine time moves smoothly: no dead-man stop while held, and the speed (position
-    over the machine's own clock) stays at the jog speed through every gap between viser's hold events that the
-    hold keeper bridges (a busy browser renders WebGL frames of a few hundred ms and sends its 20 Hz holds late).
+    over the machine's own clock) stays at the jog speed wherever viser's 25 Hz hold events came within the
+    dead-man (a busy browser renders WebGL frames of a few hundred ms and sends its holds late: then it stops).
     Releasing the button stops the machine at once, and nothing creeps afterwards. Then the Speed selector: a
     held jog at "fine" and at "positioning" moves at that speed."""
     page = open_page()
@@ -256,9 +255,6 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     holds = []  # machine time of each hold event from the browser
     capp_hold = page.capp.jog_hold
     page.capp.jog_hold = lambda *a: (holds.append(station.machine.state.time), capp_hold(*a))
-    kept = []  # machine time of each round of the station's hold keeper (25 Hz)
-    capp_keep = page.capp.keep_hold
-    page.capp.keep_hold = lambda: (kept.append(station.machine.state.time), capp_keep())
     page.mouse.move(*button_centre(page, "hold X +"))
     page.mouse.down()
     samples = []  # (machine time, X)
@@ -272,13 +268,12 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     finally:
         page.mouse.up()
     held = list(events)
-    page.capp.keep_hold = capp_keep
     t_release = station.machine.state.time
     assert bs.stop_time(station, t_release, "the stop on release") < STOP_WITHIN
     # A dead-man stop while held is a failure unless this test process was starved of CPU (other tests or jobs on
-    # a 2-core machine): then neither the browser's holds nor the keeper's refreshes came for half the dead-man
-    # time before the stop, and stopping is what the machine must do.
-    refreshes = np.sort(np.array(holds + kept))
+    # a 2-core machine): then the browser's holds did not come for half the dead-man time before the stop, and
+    # stopping is what the machine must do.
+    refreshes = np.sort(np.array(holds))
     timeout = station.config.deadman_timeout
     starved = []
     for td in held:
@@ -295,18 +290,18 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     # nothing keeps creeping after the release: the reported velocity is whole counts per tick, so the
     # last few micrometres of the stop (servo settling) may still come in after it reads 0
     assert np.abs(station.machine.state.position - stopped).max() <= 0.0041
-    assert not page.capp._jogging and page.capp._hold is None
+    assert not page.capp._jogging
     t, x = np.array(samples).T
     holds = np.array(holds)
     print(f"{len(holds)} hold events in {t[-1] - t[0]:.2f} s; largest gap {np.diff(holds).max():.2f} s (machine time)")
 
     def bridged(a: float, b: float) -> bool:
-        """The keeper kept the jog alive from 0.3 s before ``a`` (acceleration) to ``b``."""
+        """The hold events kept the jog alive (within the dead-man) from 0.3 s before ``a`` (acceleration) to ``b``."""
         before = holds[holds <= a - 0.3]
         if not len(before):
             return False
         chain = np.concatenate([[before[-1]], holds[(holds > a - 0.3) & (holds < b)], [b]])
-        return np.diff(chain).max() < HOLD_GRACE_S - 0.05
+        return np.diff(chain).max() < station.config.deadman_timeout - 0.02
 
     # every 0.2 s window of machine time moves at the jog speed: a stop and re-start would show as a dip
     windows = [(a, a + 0.2) for a in np.arange(t[0] + 0.3, t[-1] - 0.2, 0.2)

@@ -25,6 +25,7 @@ from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
 from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
+from .api import CommandAPI
 from .jog import JogHolds
 from .rails import Workspace
 from .priority import raise_priority_on
@@ -88,6 +89,7 @@ class Controller:
         self._in_poll = False
         self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
         self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
+        self.commands = CommandAPI(self)  # the same verbs as requests and responses, for the adapters
         self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
         self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
         machine.driver = self
@@ -176,6 +178,13 @@ class Controller:
 
     def allowed(self, command: str) -> bool:
         return command in self._state.allowed
+
+    def check_access(self, client: Any, command: str) -> None:
+        """Refused (the operator's sentence) unless the access policy lets ``client`` send ``command``; for verbs
+        registered beside the machine's (measurement: only the control holder changes it)."""
+        why = self.policy.refusal(client, command)
+        if why is not None:
+            raise Refused(why)
 
     # --- commands (any thread) ------------------------------------------------------------
 

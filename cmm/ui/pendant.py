@@ -29,6 +29,10 @@ client -> server
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
   10 mm; only the control holder.
+- ``{"type": "call", "id": n, "method": "...", "params": {...}, "wait": bool}``: any verb of the command
+  API (:mod:`cmm.control.api`: move, probe, home, ...), as this pendant's client; answered with
+  ``{"type": "result", "id": n, "result": ...}`` or ``{"type": "result", "id": n, "error": {"code",
+  "message"}}``; ``wait`` answers when a motion has ended (with the tip position or the hit).
 - ``{"type": "stop"}``: controlled stop of whatever the machine is doing, under
   the station's one STOP policy (:meth:`~cmm.control.access.Control.may_stop`, the
   same as the viser page's): the holder, a local pendant, or one that gave
@@ -379,6 +383,8 @@ class PendantServer:
                 self._release(session)
         elif kind == "step":
             await self._step(session, msg.get("axis"), msg.get("mm"))
+        elif kind == "call":
+            await self._command(session, msg)
         elif kind == "stop":
             report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
             if report.ok:
@@ -387,6 +393,14 @@ class PendantServer:
                 await self._error_msg(session, report.message)
         else:
             await self._error_msg(session, f"unknown pendant message type {kind!r}")
+
+    async def _command(self, session: _Session, msg: dict) -> None:
+        """Any verb of the command API: ``{"type": "call", "id", "method", "params", "wait"}`` ->
+        ``{"type": "result", "id", "result" | "error": {"code", "message"}}`` (``wait``: a motion's end)."""
+        request = {"id": msg.get("id"), "method": msg.get("method"), "params": msg.get("params")}
+        answer = await asyncio.to_thread(self.api.commands.request, self._who(session), request,
+                                         wait=bool(msg.get("wait")), timeout=120.0)
+        await self._send(session, {"type": "result", **answer})
 
     async def _take(self, session: _Session, code: Any) -> None:
         code = code if isinstance(code, str) else None

@@ -1,0 +1,199 @@
+"""The command API as requests and responses: a method name and named parameters in, a result or an error out.
+
+Shaped like Klipper's webhooks: every front end's adapter turns what it receives (a pendant message, an I++
+DME command, a button on the page, a CLI option) into ``call(client, method, params)`` and turns the
+:class:`Response` back into its own words. The adapters translate only: access, the machine's state, the
+frames, the clearance plane and the jog pipeline are decided here, once, for all of them.
+
+A response is ``{"id": ..., "result": ...}`` or ``{"id": ..., "error": {"code": ..., "message": ...}}``;
+``message`` is a sentence for the operator, ``code`` one of :data:`ERROR_CODES` for programs. Motion verbs
+return their status (``wait=True`` waits for it and returns its result: the tip position, or the Hit).
+
+The machine verbs are registered by the control core; the station registers the measurement verbs
+(``measure_feature``, ``align``, ``run_program``) with :meth:`CommandAPI.register`, since the measurement
+model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
+parameters (the README's table).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from ..machine.motion import ContactError, LimitError
+from ..machine.probing import SurfaceNotFound
+from ..machine.status import Cancelled, MotionError, MoveStatus
+from .modes import ControlError, Refused
+from .rails import RailError
+
+# error code -> what it means (the operator's sentence is in the message)
+ERROR_CODES = {
+    "unknown_method": "no such verb",
+    "bad_params": "a parameter is missing, unknown or of the wrong kind",
+    "refused": "not allowed now: access (take control first) or the machine's state; nothing moved",
+    "contact": "the probe touched something it was not probing; the machine stopped",
+    "limit": "a target or a jog would leave the travel",
+    "not_found": "a probe found no surface within its search distance",
+    "cancelled": "cancelled or stopped by the operator",
+    "fault": "the machine is in fault (link or module failure); Reset or Reconnect",
+    "motion": "the motion failed (see the message)",
+    "failed": "the command failed (see the message)",
+}
+REQUIRED = object()
+
+
+@dataclass(frozen=True)
+class Verb:
+    name: str
+    fn: Callable[..., Any]  # fn(client, **params)
+    params: dict[str, Any]  # name -> default (REQUIRED when it must be given)
+    doc: str
+    motion: bool = False  # returns a MoveStatus
+
+
+@dataclass(frozen=True)
+class Response:
+    id: Any = None
+    result: Any = None
+    error: dict[str, str] | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+    def to_dict(self) -> dict[str, Any]:
+        if self.error is not None:
+            return {"id": self.id, "error": dict(self.error)}
+        return {"id": self.id, "result": jsonable(self.result)}
+
+
+@dataclass
+class CommandAPI:
+    controller: Any
+    _verbs: dict[str, Verb] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        c = self.controller
+        self.register("move", c.move, {"target": REQUIRED, "frame": REQUIRED, "path": "clearance", "speed": None,
+                                        "accel": None},
+                      "move the tip centre to target (X, Y, Z mm) in frame 'machine' or 'part'; path 'clearance' "
+                      "(retract, travel, descend) or 'straight' (only when proven free of the part)", motion=True)
+        self.register("probe", c.probe, {"target": REQUIRED, "approach": REQUIRED, "frame": REQUIRED,
+                                         "path": "clearance", "clearance_z": None, "normal": None, "speed": None,
+                                         "accel": None, "approach_distance": None, "search_distance": None,
+                                         "retract_distance": None, "rapid_speed": None},
+                      "a programmed hit at a surface point, coming along approach (into the surface); the rapid "
+                      "goes over the clearance plane unless path 'straight' is proven free", motion=True)
+        self.register("jog_hold", lambda client, velocity, probe=False: c.jogs.hold(client, velocity, probe=probe),
+                      {"velocity": REQUIRED, "probe": False},
+                      "the operator holds a jog (mm/s per machine axis); repeat within the dead-man (0.15 s); "
+                      "returns a sentence when the speed was limited")
+        self.register("jog_release", lambda client: c.jogs.release(client), {}, "end the jog now")
+        self.register("step", c.step, {"axis": REQUIRED, "mm": REQUIRED},
+                      "one step along a machine axis x, y or z (1 count .. 10 mm)", motion=True)
+        self.register("stop", lambda client: _report(c.stop(client)), {}, "controlled stop of whatever moves")
+        self.register("estop", lambda client: _report(c.emergency_stop(client)), {},
+                      "emergency stop: abrupt, amplifiers off, latched until reset")
+        self.register("reset", c.reset, {}, "clear an E-stop latch, a stop or a fault (link answering)")
+        self.register("reconnect", c.reconnect, {}, "after a link fault: reopen the link, restart the modules")
+        self.register("home", c.home, {}, "the homing cycle (blocks until it ends)")
+        self.register("zero", c.zero, {"confirm": False}, "here becomes the home coordinates (confirm=true)")
+        self.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
+                      "where the tip centre is, in frame 'machine' or 'part'")
+
+    # --- registry ---------------------------------------------------------------------
+
+    def register(self, name: str, fn: Callable[..., Any], params: dict[str, Any], doc: str, *,
+                 motion: bool = False) -> None:
+        """Add a verb: ``fn(client, **params)``; ``params`` maps each name to its default (``REQUIRED``)."""
+        self._verbs[name] = Verb(name, fn, dict(params), doc, motion)
+
+    def verbs(self) -> list[Verb]:
+        return list(self._verbs.values())
+
+    # --- calls ------------------------------------------------------------------------
+
+    def call(self, client: Any, method: str, params: dict[str, Any] | None = None, *, id: Any = None,
+             wait: bool = False, timeout: float | None = None) -> Response:
+        """Run one verb for ``client``; never raises for the operator's mistakes or the machine's refusals."""
+        verb = self._verbs.get(method)
+        if verb is None:
+            return _error(id, "unknown_method", f"unknown command {method!r}; the commands are "
+                          + ", ".join(sorted(self._verbs)))
+        params = {} if params is None else params
+        if not isinstance(params, dict):
+            return _error(id, "bad_params", f"{method}: the parameters must be named (a JSON object)")
+        unknown = sorted(set(params) - set(verb.params))
+        if unknown:
+            return _error(id, "bad_params", f"{method} does not take {', '.join(unknown)}; it takes "
+                          + (", ".join(verb.params) or "nothing"))
+        missing = [k for k, v in verb.params.items() if v is REQUIRED and k not in params]
+        if missing:
+            return _error(id, "bad_params", f"{method} needs {', '.join(missing)}")
+        try:
+            result = verb.fn(client, **params)
+            if wait and isinstance(result, MoveStatus):
+                result = result.wait(timeout)
+        except BaseException as exc:  # noqa: BLE001 - every failure becomes the caller's error response
+            if not isinstance(exc, Exception):
+                raise
+            return _error(id, error_code(exc), str(exc) or type(exc).__name__)
+        return Response(id, result)
+
+    def request(self, client: Any, message: Any, *, wait: bool = False, timeout: float | None = None) -> dict:
+        """A request as a JSON object ``{"id", "method", "params"}`` -> the response as a JSON object."""
+        if not isinstance(message, dict) or not isinstance(message.get("method"), str):
+            return _error(None if not isinstance(message, dict) else message.get("id"), "bad_params",
+                          "a request is a JSON object with a method name and its params").to_dict()
+        return self.call(client, message["method"], message.get("params"), id=message.get("id"), wait=wait,
+                         timeout=timeout).to_dict()
+
+
+def error_code(exc: BaseException) -> str:
+    if isinstance(exc, (Refused, RailError)):
+        return "refused"
+    if isinstance(exc, ContactError):
+        return "contact"
+    if isinstance(exc, LimitError):
+        return "limit"
+    if isinstance(exc, SurfaceNotFound):
+        return "not_found"
+    if isinstance(exc, Cancelled):
+        return "cancelled"
+    if isinstance(exc, ControlError):
+        return "fault"
+    if isinstance(exc, MotionError):
+        return "refused" if "outside the travel" in str(exc) else "motion"
+    if isinstance(exc, (TypeError, ValueError)):
+        return "bad_params"
+    return "failed"
+
+
+def _error(id: Any, code: str, message: str) -> Response:
+    return Response(id, None, {"code": code, "message": message})
+
+
+def _report(report: Any) -> dict[str, Any]:
+    return {"ok": bool(report.ok), "message": report.message, "failed_axes": list(report.failed_axes)}
+
+
+def jsonable(value: Any) -> Any:
+    """Results as JSON: arrays as lists, a Hit as its fields, a status as its description and state."""
+    import numpy as np
+
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    if isinstance(value, MoveStatus):
+        return {"status": value.description, "done": value.done}
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    fields = getattr(value, "__dataclass_fields__", None)
+    if fields is not None:
+        return {k: jsonable(getattr(value, k)) for k in fields}
+    return str(value)
