@@ -20,6 +20,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("cmm.cli.calibrate", "calibrate the probe, test it (ISO 10360-5), machine geometry, servo tuning"),
     "sessions": ("cmm.session.cli", "list, show, rename, delete, export and re-evaluate recorded sessions"),
     "report": ("cmm.session.cli_report", "HTML inspection report of a recorded session"),
+    "trends": ("cmm.session.cli_trends", "a series of parts across stations: control charts, Cp/Cpk, CSV, upload"),
     "ippdme-client": ("cmm.ippdme.client", "send I++ DME commands (or a NIST .prg file) to an I++ DME server"),
 }
 

@@ -140,6 +140,7 @@ class MeasurementModel:
         self.journal: Any = None
         self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
         self.aligned = False  # an alignment was made since the part was loaded
+        self.trends: Any = None  # cmm.session.trends.Trends: each program run is recorded there as a part
         self._on_close: list[Callable[[], None]] = []
 
     # --- events -------------------------------------------------------------------

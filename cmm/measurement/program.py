@@ -3,7 +3,9 @@
 :func:`run_program` checks the program against the loaded part and the machine's travel BEFORE anything moves
 (:func:`cmm.session.program.check`), then probes every hit through the model (over its clearance height) and
 fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
-as a job of the control core (:func:`run_on`), so it holds the machine like any other command.
+as a job of the control core (:func:`run_on`), so it holds the machine like any other command. When the model
+records trends (``model.trends``, :class:`cmm.session.trends.Trends`), the run is a part of the program's
+series: every characteristic of its features, with the part's ``serial``.
 """
 
 from __future__ import annotations
@@ -24,10 +26,12 @@ class ProgramRun:
     program: Program
     hit_ids: dict[int, int]  # program hit id -> session hit id
     features: dict[str, Feature]  # name -> the fitted feature
+    part: Any = None  # the trends record (cmm.session.trends.PartResult) when the model records trends
 
 
 def run_program(program: Program, model: MeasurementModel, part_pose: Any = None, *,
-                progress: Callable[[int, int], None] | None = None, timeout: float = 120.0) -> ProgramRun:
+                progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
+                serial: str = "") -> ProgramRun:
     """Run ``program`` on ``model`` with the part at ``part_pose`` (part -> machine; default: the model's
     current part pose, i.e. its last alignment)."""
     if not isinstance(model, MeasurementModel):
@@ -51,12 +55,30 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
         feats[f.name] = model.fit_feature(f.kind, [ids[i] for i in f.hits], f.method, f.name, nominal,
                                           tolerance=f.tolerance)
     model.note(f"program {program.name!r} finished")
-    return ProgramRun(program, ids, feats)
+    return ProgramRun(program, ids, feats, record_trend(model, program.name, feats.values(), serial=serial))
+
+
+def record_trend(model: MeasurementModel, series: str, features: Any, *, serial: str = "",
+                 run_id: str | None = None) -> Any:
+    """Record a finished run's features as a part of ``series`` in ``model.trends`` (None when the model records
+    no trends). A trend that cannot be written is noted in the session and the operator's log; the
+    measurement stands."""
+    from ..session.trends import TrendError, feature_values
+
+    if model.trends is None:
+        return None
+    try:
+        return model.trends.record_part(series, feature_values(features), serial=serial, run_id=run_id)
+    except (TrendError, OSError) as exc:
+        text = f"the run was not added to the trends of {series!r}: {exc}"
+        model.log("error", text)
+        model.note(text)
+        return None
 
 
 def run_on(controller: Any, model: MeasurementModel, program: Program | str | Path, part_pose: Any = None,
-           client: Any = None) -> ProgramRun:
+           client: Any = None, serial: str = "") -> ProgramRun:
     """Run a program (or the program file at that path) as a job of the control core: it holds the machine
     for the whole run, as ``client``."""
     prog = load(program) if isinstance(program, (str, Path)) else program
-    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(prog, model, part_pose))
+    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(prog, model, part_pose, serial=serial))

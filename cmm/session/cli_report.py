@@ -3,7 +3,8 @@
 SESSION is a name in the store (``--store DIR|URL``, default ./sessions) or
 the path of a ``.jsonl`` journal. The part mesh is found from the recorded
 path, ``--part`` or the simulator's sample part, and used only if its sha256
-matches the recorded one. ``--program`` takes tolerances from a program.
+matches the recorded one. ``--program`` takes tolerances from a program. ``--trend SERIES`` adds the
+control charts of the series' characteristics (:mod:`cmm.session.cli_trends`).
 """
 
 from __future__ import annotations
@@ -29,12 +30,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reach", type=float, default=15.0, metavar="MM",
                         help="colour map: surface farther than MM from every hit stays grey (default 15)")
     parser.add_argument("--csv", metavar="FILE", help="also write the feature table (one row per characteristic) as CSV")
+    parser.add_argument("--trend", metavar="SERIES",
+                        help="include the control charts of every characteristic of this series (cmm trends)")
+    parser.add_argument("--trends", metavar="DIR", default="trends", help="with --trend: the local trends journal")
+    parser.add_argument("--trends-db", metavar="URL", default=None,
+                        help="with --trend: the shared trends database (default: CMM_TRENDS_DB)")
 
 
 def run(args: argparse.Namespace) -> int:
     from .journal import JournalError
     from .program import ProgramError
     from .store import StoreError
+    from .trends import TrendError
 
     from ..metrology.colour_scale import ColourScale
     from .model import DEFAULT_TOLERANCE
@@ -54,11 +61,20 @@ def run(args: argparse.Namespace) -> int:
         session = open_session(args.session, args.store)
         mesh = resolve_part_mesh(session, args.part)
         program = load_program(args.program) if args.program else None
+        charts = None
+        if getattr(args, "trend", None):
+            from .cli_trends import charts_for, open_trends
+
+            trends = open_trends(args.trends, args.trends_db)
+            try:
+                charts = charts_for(trends, args.trend)
+            finally:
+                trends.close()
         write_report(session, args.output, mesh=mesh, program=program, title=args.title,
-                     default_tolerance=args.tolerance, colour_scale=scale)
+                     default_tolerance=args.tolerance, colour_scale=scale, trends=charts)
         if getattr(args, "csv", None):
             write_features_csv(session, args.csv, program=program, default_tolerance=args.tolerance)
-    except (StoreError, JournalError, ProgramError, OSError) as exc:
+    except (StoreError, JournalError, ProgramError, TrendError, OSError) as exc:
         print(f"cmm report: {exc}", file=sys.stderr)
         return 1
     if session.part is not None and mesh is None:

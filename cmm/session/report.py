@@ -391,14 +391,16 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
 
 
 def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
-           default_tolerance: float | None = None, colour_scale: ColourScale | None = None) -> str:
+           default_tolerance: float | None = None, colour_scale: ColourScale | None = None,
+           trends: list[Any] | None = None) -> str:
     """The report as an HTML string. ``colour_scale`` (e.g. the 3D scene's) sets the colour map's bands, cut-off
-    and reach; by default the form tolerance's bands."""
+    and reach; by default the form tolerance's bands. ``trends``: charts
+    (:func:`cmm.session.trends_chart.trend`) shown in a section "Trends across parts"."""
     from .bulk import gc_paused
 
     with gc_paused():  # see cmm.session.bulk: no collector passes over a big session while it is drawn
         return _render(session, mesh=mesh, program=program, title=title, default_tolerance=default_tolerance,
-                       colour_scale=colour_scale)
+                       colour_scale=colour_scale, trends=trends)
 
 
 def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int, float]) -> tuple[
@@ -426,7 +428,8 @@ def colour_map_of(session: Session, mesh: Any, scale: ColourScale, dev: dict[int
 
 
 def _render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
-            default_tolerance: float | None = None, colour_scale: ColourScale | None = None) -> str:
+            default_tolerance: float | None = None, colour_scale: ColourScale | None = None,
+            trends: list[Any] | None = None) -> str:
     st = session.state
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
@@ -569,6 +572,10 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     if forms:
         out.append("<h2>Form plots</h2><p class='muted'>Residual of each hit to its fitted feature, magnified; "
                    "dashed: the form tolerance band.</p><div class='forms'>" + "".join(forms) + "</div>")
+    if trends:
+        from .trends_chart import trends_section
+
+        out.append(trends_section(trends))
     texts = [error_text(str(ev.get("source", "")), str(ev.get("message", "")))
              for ev in session.events if ev.get("kind") == "error"]
     if st.notes or texts:

@@ -158,6 +158,9 @@ def default_station() -> str:
 
 # --------------------------------------------------------------------------- local index
 
+# the index is a cache of the fsync'ed journal: write-ahead log without a sync per commit (a crash may lose its
+# newest commits, never its consistency; the next catch-up reads those parts from the journal again)
+INDEX_PRAGMAS = "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL;"
 INDEX_SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS parts (
@@ -185,12 +188,12 @@ class LocalIndex:
         # autocommit; catch_up and the upload mark take their own transactions
         try:
             db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
-            db.executescript(INDEX_SCHEMA)
+            db.executescript(INDEX_PRAGMAS + INDEX_SCHEMA)
             return db
         except sqlite3.DatabaseError:  # a damaged index: it is only a cache of the journal, so rebuild it
             self.path.unlink(missing_ok=True)
             db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
-            db.executescript(INDEX_SCHEMA)
+            db.executescript(INDEX_PRAGMAS + INDEX_SCHEMA)
             return db
 
     def meta(self, key: str) -> int:
@@ -337,6 +340,7 @@ class Trends:
         self.database_url = database
         self.connect_timeout = connect_timeout
         self.state = SyncState()
+        self.version = 0  # counts the parts recorded by this object (a page redraws when it changes)
         self._journal: Journal | None = None
         self._db: Any = None
         self._lock = threading.RLock()
@@ -368,6 +372,7 @@ class Trends:
                                      "station: give each station its own trends folder") from None
             self._journal.append("part", series=part.series, station=part.station, run_id=part.run_id,
                                  serial=part.serial, part_time=part.time, values=[v.row() for v in part.values])
+            self.version += 1
         self.index.catch_up()
         if sync and self.database_url:
             self.sync()

@@ -243,3 +243,18 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
     out.append("</svg>")
     return "".join(out)
 
+
+
+def trends_section(charts: list[TrendChart], title: str = "Trends across parts") -> str:
+    """The report's section: per characteristic its chart and statistics (plain HTML and SVG)."""
+    if not charts:
+        return ""
+    h0 = charts[0].history
+    where = ("every station's parts (shared database)" if h0.source == "database"
+             else "this station's parts (local journal)")
+    out = [f"<h2>{html.escape(title)}</h2><p class='muted'>Series <b>{html.escape(h0.series)}</b>: {where}. "
+           "Run chart coloured by station (red: out of tolerance; ringed: beyond a control limit), tolerance "
+           "limits in red, control limits dashed blue; the range chart below.</p>"]
+    for tc in charts:
+        out.append(f"<div class='trend'>{trend_svg(tc)}{summary_html(tc)}</div>")
+    return "".join(out)

@@ -35,6 +35,7 @@ from .panel_features import FeaturesPanel
 from .panel_measure import MeasurePanel
 from .panel_sessions import SessionsPanel
 from .panel_status import StatusPanel
+from .panel_trends import TrendsPanel
 from .scene import SCALE, draw_pick
 
 AXES = ("x", "y", "z")
@@ -113,6 +114,7 @@ class ClientApp:
         self.align = AlignPanel(self.ctx)
         self.measure = MeasurePanel(self.ctx)
         self.colour_map = ColourMapPanel(self.ctx)
+        self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
         self.ctx.frame_shown = self.set_goto_frame
 
@@ -456,6 +458,8 @@ class ClientApp:
                 title="following error (counts)", aspect=1.6)
         with tabs.add_tab("Sessions"):
             self.sessions.build(gui)
+        with tabs.add_tab("Trends"):
+            self.trends.build(gui)
         with tabs.add_tab("Calibration"):
             self.calibration.build(gui)
 
@@ -501,6 +505,7 @@ class ClientApp:
             self._plot_key = key
             self.gui["plot"].data = (t, *fe)
         self.sessions.refresh()
+        self.trends.refresh()
         self.calibration.refresh()
 
     def _show_trace(self) -> None:

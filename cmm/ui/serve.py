@@ -11,6 +11,7 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +39,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ippdme", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:1294", default=None,
                         help="also serve I++ DME clients (PC-DMIS, CALYPSO, ...) on ADDR:PORT "
                              "(default 127.0.0.1:1294; 0.0.0.0:1294 to accept them from the LAN)")
+    parser.add_argument("--trends", metavar="DIR", default="trends",
+                        help="this station's trends journal (every program run is a part of its series; default "
+                             "./trends)")
+    parser.add_argument("--trends-db", metavar="URL", default=None,
+                        help="shared trends database, postgresql://user@host/db, that several stations point at "
+                             "(default: CMM_TRENDS_DB, else --sessions when it is a postgresql:// URL)")
+    parser.add_argument("--station", metavar="NAME", default=None,
+                        help="this station's name in the shared trends (default: CMM_STATION, else the host name)")
     parser.add_argument("--tolerance", type=float, default=0.02,
                         help="colour map tolerance, mm: red / blue beyond it, amber / cyan (warning) beyond half "
                              "of it (default 0.02)")
@@ -48,11 +57,26 @@ def _fail(message: str) -> int:
     return 2
 
 
+def open_trends(args: argparse.Namespace) -> Any:
+    """The station's trends (:class:`cmm.session.trends.Trends`) from --trends, --trends-db and --station;
+    uploading in the background when a database is given."""
+    import os
+
+    from ..session.store import is_url
+    from ..session.trends import Trends
+
+    db = args.trends_db or os.environ.get("CMM_TRENDS_DB") or (args.sessions if is_url(args.sessions) else None)
+    trends = Trends(args.trends, station=args.station, database=db)
+    trends.sync()  # connect now (and upload what waited since the last run), so the first status is true
+    return trends.start()
+
+
 def run(args: argparse.Namespace) -> int:
     from ..station import ConfigError
     from ..station import load_config as load
     from ..metrology.mesh import MeshError
     from ..station import Station
+    from ..session.trends import TrendError
 
     try:
         config = load(args.config) if args.config else None
@@ -81,6 +105,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         for line in station.calibration_log or ["no records: nominal probe and geometry"]:
             print(f"calibration ({calibration}): {line}")
+    try:
+        station.measurement.trends = open_trends(args)
+    except (TrendError, OSError) as exc:
+        station.close()
+        return _fail(f"cannot record trends in {args.trends}: {exc}")
+    print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
     try:
         station.start()
     except Exception as exc:  # noqa: BLE001
@@ -131,4 +161,5 @@ def run(args: argparse.Namespace) -> int:
             ippdme.close()
         app.close()
         station.close()
+        station.measurement.trends.close()
     return 0
