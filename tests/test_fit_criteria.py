@@ -312,3 +312,32 @@ def test_huge_coordinates_are_refused_as_too_large_not_as_coincident(kind, metho
     pts[7] = [0.0, -2e9, 0.0]
     with pytest.raises(FitError, match="coordinates too large"):
         fc.fit(kind, pts, method)
+
+
+@pytest.mark.parametrize("shape", ["bowed", "two-level"])
+def test_flatness_of_a_bowed_or_stepped_plate_by_constraint_generation(shape):
+    """A 100 mm plate bowed 5 um (every point on its hull: 5 um from its centre to its corners) or stepped
+    h = 5 um at u = 0 (points on both levels along the step and at the far edges: the zone tilts by h / 50 to
+    h / sqrt(1 + (h / 50)^2)), found by the constraint-generation LP and equal to one LP over every point."""
+    from cmm.metrology import fit_hull
+
+    rng = np.random.default_rng(5)
+    uv = np.vstack([rng.uniform(-50, 50, (20_000, 2)), [[0, 0], [50, 50], [-50, 50], [50, -50], [-50, -50]]])
+    u, v = uv.T
+    h = 0.005
+    if shape == "bowed":
+        w, answer = h * (1 - (u * u + v * v) / 5000.0), h
+    else:
+        w = np.where(u > 0, h, 0.0)
+        step_edge = np.array([[0.0, -50.0, h], [0.0, 0.0, h], [0.0, 50.0, h], [0.0, -50.0, 0.0], [0.0, 50.0, 0.0]])
+        uv, w = np.vstack([uv, step_edge[:, :2]]), np.concatenate([w, step_edge[:, 2]])
+        answer = h / np.sqrt(1.0 + (h / 50.0) ** 2)
+    q, _ = np.linalg.qr(np.random.default_rng(99).standard_normal((3, 3)))
+    pts = np.array([1000.0, -400.0, 300.0]) + np.column_stack([uv, w]) @ q.T
+    res = fc.fit("plane", pts, "minzone")
+    # within 0.1 nm: the step's zone is as wide for every tilt up to h / 50, and the LP may stop at any of them
+    assert res.form == pytest.approx(answer, abs=1e-10) and not res.warnings
+    local = np.column_stack([uv, w])
+    width, ab, active = fit_hull._vertical_width_lp(local)
+    every, ab_all, _ = fit_hull._vertical_width_lp_all(local)
+    assert width == pytest.approx(every, abs=1e-12) and len(active) < len(local) / 10  # a small active set
