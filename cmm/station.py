@@ -12,7 +12,6 @@ through the control core.
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +23,7 @@ from .machine.config import ConfigError, MachineConfig, load
 from .machine.config import load as load_config  # front ends read the machine configuration through the station
 from .machine.motion import Machine
 from .machine.probing import Prober
-from .machine.status import MotionError, MoveStatus
+from .machine.status import MoveStatus
 from .measurement.model import MeasurementError, MeasurementModel, Part
 from .nmc.trace import ByteTrace
 
@@ -219,23 +218,6 @@ class Station:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def link_modules(self) -> list[Any]:
-        """The modules found on the link at start-up (address, type, version), for front ends to show."""
-        return list(getattr(self.machine.bus, "modules", None) or [])
-
-    @property
-    def samples(self) -> int:
-        """Samples read from the modules so far (the status bar's link rate)."""
-        return int(getattr(self.machine, "samples", 0))
-
-    @property
-    def link_baud(self) -> int:
-        return int(getattr(self.machine.bus, "baud", self.config.link.baud))
-
-    def link_trace(self, last: int = 30) -> str:
-        """The last NMC bytes sent and received (read from the link process on a real port)."""
-        return self.machine.bus.trace.dump(last=last)
-
     def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
         """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
 
@@ -280,10 +262,3 @@ class Station:
         probe = self.calibration_status.get("probe") or {}
         speed = float(probe.get("probing_speed") or 0.0)
         return speed if speed > 0 else float(self.config.speeds.probing)
-
-    def wait_idle(self, timeout: float = 60.0) -> None:
-        end = time.monotonic() + timeout
-        while self.machine.busy or self.controller.state.mode.value in ("moving", "jogging", "probing", "homing"):
-            if time.monotonic() > end:
-                raise MotionError("the machine is still busy")
-            time.sleep(0.01)

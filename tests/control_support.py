@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import serial
 
 from cmm.control import Controller
@@ -51,3 +53,12 @@ def make_controller(config=None, *, start_at=None):
     ctl = Controller(Machine(config, port))
     ctl.connect()
     return sim, ctl, port
+
+
+def wait_idle(station, timeout: float = 60.0) -> None:
+    """Until the station's machine stands idle (no move, jog, probe or homing left, by the control core too)."""
+    end = time.monotonic() + timeout
+    while station.machine.busy or station.controller.state.mode.value in ("moving", "jogging", "probing", "homing"):
+        if time.monotonic() > end:
+            raise AssertionError("the machine is still busy")
+        time.sleep(0.01)

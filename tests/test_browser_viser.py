@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from control_support import wait_idle
 from netutil import SIM_PACED
 
 import browser_support as bs
@@ -84,7 +85,7 @@ def open_page(context, app, station):
     for page in pages:
         page.close()
     station.controller.stop(None)
-    station.wait_idle(20)
+    wait_idle(station, 20)
     bs.wait_until(lambda: app.control.holder is None, 5.0, "control released by the closed pages")
 
 
@@ -207,7 +208,7 @@ def test_observer_cannot_jog(open_page, app, station):
         assert holder.take_control()
         observer.get_by_text("Observing; control is held by").first.wait_for()
         open_tab(observer, "Jog")
-        station.wait_idle(20)
+        wait_idle(station, 20)
         start = station.machine.state.position.copy()
         for _ in range(2):  # while another client holds control, then with nobody in control
             observer.mouse.move(*button_centre(observer, "hold X +"))
@@ -355,7 +356,7 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
     bs.wait_until(lambda: control.inner_text() == "you have control (with the station page)", 10.0,
                   f"the embedded pendant sharing the page's control (shows {control.inner_text()!r})")
     # hold X + in the embedded pendant: the machine jogs for the page's client, and stops on release
-    station.wait_idle(20)
+    wait_idle(station, 20)
     start = station.machine.state.position.copy()
     # the pad is below the fold of the 300 px frame (scrolled by script: a cross-origin frame's animation frames,
     # which Playwright's own scrolling waits for, may be throttled while it is partly hidden)

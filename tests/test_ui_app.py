@@ -13,6 +13,7 @@ import urllib.request
 
 import numpy as np
 import pytest
+from control_support import wait_idle
 from netutil import free_port, SIM_PACED
 
 pytest.importorskip("viser")
@@ -41,7 +42,7 @@ def operator(app):
     yield capp
     capp.release_control()
     app.station.controller.stop(None)
-    app.station.wait_idle(10)
+    wait_idle(app.station, 10)
 
 
 def _wait_done(status, timeout=30.0, capp=None):

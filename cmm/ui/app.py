@@ -175,10 +175,11 @@ class StationApp:
             capp.select_feature(fid)
 
     def link_info(self) -> str:
-        st, cfg = self.station, self.station.config
-        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in st.link_modules()) or "-"
+        st, cfg, bus = self.station, self.station.config, self.station.machine.bus
+        modules = list(getattr(bus, "modules", None) or [])  # found at start-up (address, type, version)
+        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in modules) or "-"
         kind = "simulator over TCP" if st.sim is not None else "serial"
-        return (f"port `{st.port}` ({kind}) · {st.link_baud} baud · "
+        return (f"port `{st.port}` ({kind}) · {int(getattr(bus, 'baud', cfg.link.baud))} baud · "
                 f"firmware {cfg.link.firmware}\n\nmodules: {mods}")
 
     # --- station state -------------------------------------------------------------------

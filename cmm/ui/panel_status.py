@@ -194,7 +194,7 @@ class StatusPanel:
 
     def html(self) -> str:
         st = self.ctx.station
-        rate = self.link.update(int(getattr(st, "samples", 0)))
+        rate = self.link.update(int(st.machine.samples))
         return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
                            armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned)
 

@@ -509,7 +509,7 @@ class ClientApp:
         self.calibration.refresh()
 
     def _show_trace(self) -> None:
-        self.ctx.set("trace", "value", self.station.link_trace(30))
+        self.ctx.set("trace", "value", self.station.machine.bus.trace.dump(last=30))  # the link process's on a real port
 
     def fast_refresh(self) -> None:
         """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""
