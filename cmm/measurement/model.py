@@ -131,6 +131,9 @@ class MeasurementModel:
         self._undo: list[tuple[str, int]] = []
         self.features: dict[int, Feature] = {}
         self.constructed: dict[int, ConstructedFeature] = {}
+        self.datums: dict[str, dict[str, Any]] = {}  # datum definitions by label (cmm.metrology.gdt_eval)
+        self.gdt: dict[int, dict[str, Any]] = {}  # geometric tolerance definitions by id
+        self._next_gdt = 1
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Any = None
@@ -490,6 +493,97 @@ class MeasurementModel:
             self.record("constructed", **feature.to_event())
         self._notify("feature", feature)
         return feature
+
+    # --- datums and geometric tolerances (ISO 1101 / ASME Y14.5) ---------------------------
+
+    def measured_features(self) -> dict[int, Any]:
+        """The fitted features as :class:`cmm.metrology.gdt_eval.MeasuredFeature` (geometry, nominal, points)."""
+        from ..metrology.gdt_eval import MeasuredFeature
+        from ..session.model import DEFAULT_TOLERANCE
+
+        with self.lock:
+            hits = {**self.deleted, **self.hits}
+            out = {}
+            for fid, f in self.features.items():
+                pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
+                size = float({**DEFAULT_TOLERANCE, **(f.tolerance or {})}["size"])
+                out[fid] = MeasuredFeature(f.name, f.kind, f.result.summary(),
+                                           None if f.nominal is None else f.nominal.to_dict(), pts, size)
+        return out
+
+    def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
+        """(definition, Characteristic) of every geometric tolerance (or of ``definitions``), evaluated as the
+        report does (:func:`cmm.metrology.gdt_eval.evaluate`)."""
+        from ..metrology.gdt_eval import evaluate
+
+        with self.lock:
+            defs = list(self.gdt.values()) if definitions is None else definitions
+            datums = dict(self.datums)
+            part = self.part
+        return evaluate(defs, datums, self.measured_features(), None if part is None else part.mesh,
+                        None if part is None else np.asarray(part.pose, float))
+
+    def define_datum(self, label: str, feature_id: int, modifier: str = "") -> dict[str, Any]:
+        """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB; journalled."""
+        from ..metrology.datums import DatumError, datum_from_feature
+        from ..metrology.gdt_eval import check_datum
+
+        try:
+            d = check_datum({"label": label, "feature": feature_id, "modifier": modifier})
+            with self.lock:
+                f = self.features.get(d["feature"])
+                if f is None:
+                    raise MeasurementError(f"there is no fitted feature {feature_id} to be datum {d['label']}")
+                datum_from_feature(d["label"], f.kind, f.result.summary(), feature=f.name)
+                if d["modifier"]:
+                    from ..metrology.gdt_eval import datum_of
+
+                    datum_of(d["label"], {d["label"]: d}, self.measured_features(), False)
+                self.datums[d["label"]] = d
+                self.record("datum", **d)
+        except (DatumError, ValueError, TypeError) as exc:
+            raise MeasurementError(str(exc)) from None
+        self._notify("features", None)
+        return d
+
+    def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (), *,
+                   material: str = "", angle: float | None = None, direction: str = "radial",
+                   name: str | None = None, gdt_id: int | None = None) -> tuple[dict[str, Any], Any]:
+        """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
+        ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
+        refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
+        mesh for a profile). Journalled; returns (definition, Characteristic)."""
+        from ..metrology.datums import DatumError
+        from ..metrology.gdt_eval import check_definition, evaluate_one
+
+        if isinstance(datums, str):
+            datums = [x for x in datums.replace(",", "|").split("|") if x.strip()]
+        raw = {"characteristic": characteristic, "feature": int(feature_id), "tolerance": tolerance,
+               "datums": list(datums), "material": material, "angle": angle, "direction": direction}
+        try:
+            d = check_definition(raw)
+            with self.lock:
+                part, datum_defs = self.part, dict(self.datums)
+            evaluate_one(d, datum_defs, self.measured_features(), None if part is None else part.mesh,
+                         None if part is None else np.asarray(part.pose, float))
+        except (DatumError, ValueError) as exc:
+            raise MeasurementError(str(exc)) from None
+        with self.lock:
+            gid = gdt_id if gdt_id is not None else self._next_gdt
+            self._next_gdt = max(self._next_gdt, gid + 1)
+            f = self.features.get(int(feature_id))
+            d = {"id": gid, "name": name or f"{d['characteristic']} {f.name if f else feature_id}", **d}
+            self.gdt[gid] = d
+            self.record("gdt", **d)
+        self._notify("features", None)
+        return d, self.gdt_characteristics([d])[0][1]
+
+    def delete_gdt(self, gid: int) -> None:
+        with self.lock:
+            if self.gdt.pop(int(gid), None) is None:
+                raise MeasurementError(f"there is no geometric tolerance {gid}")
+            self.record("gdt_deleted", id=int(gid))
+        self._notify("features", None)
 
     def delete_feature(self, fid: int) -> None:
         with self.lock:

@@ -52,6 +52,7 @@ class Characteristic:
     unit: str = "mm"
     note: str = ""
     check: str = ""  # why the operator must check this value (another solution fits better), or ""
+    datums: str = ""  # a geometric tolerance's datum reference frame ("A|B|C", see cmm.metrology.gdt_eval)
 
     @property
     def deviation(self) -> float | None:
@@ -76,7 +77,9 @@ class Characteristic:
     def tolerance_text(self) -> str:
         u = "°" if self.unit == "deg" else ""
         if self.lower == 0.0:
-            return f"≤ {self.upper:.4f}{u}" if not self.name.startswith("position") else f"⌀ {self.upper:.4f}"
+            if self.name.startswith(("position", "⌖", "◎")):
+                return f"⌀ {self.upper:.4f}" + (f" | {self.datums}" if self.datums else "")
+            return f"≤ {self.upper:.4f}{u}" + (f" | {self.datums}" if self.datums else "")
         if self.upper == -self.lower:
             return f"± {self.upper:.4f}{u}"
         return f"+{self.upper:.4f}/{self.lower:.4f}{u}"

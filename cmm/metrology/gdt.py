@@ -411,7 +411,7 @@ def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: f
     from .mesh import closest_points, surface_index
     from .transform import as_pose, invert, rotation_from_rotvec
 
-    p = _points(points, characteristic, 3 if characteristic == "profile of a line" else 6)
+    p = _points(points, characteristic, 3)
     T = as_pose(pose)
     to_part = invert(T)
     # the points in a working frame W whose axes are the DRF's (or the measured ones), and W -> part

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         write_report(session, args.output, mesh=mesh, program=program, title=args.title,
                      default_tolerance=args.tolerance, colour_scale=scale, trends=charts)
         if getattr(args, "csv", None):
-            write_features_csv(session, args.csv, program=program, default_tolerance=args.tolerance)
+            write_features_csv(session, args.csv, program=program, default_tolerance=args.tolerance, mesh=mesh)
     except (StoreError, JournalError, ProgramError, TrendError, OSError) as exc:
         print(f"cmm report: {exc}", file=sys.stderr)
         return 1

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .gdt_session import session_gdt
 from .model import Session, mesh_sha256
 
 CSV_COLUMNS = ["id", "mode", "deleted", "counts_x", "counts_y", "counts_z", "machine_x", "machine_y", "machine_z",
@@ -121,6 +122,9 @@ def session_json(session: Session, mesh: Any = None) -> dict:
         "hits": [{**h.to_event(), "seq": h.seq, "deviation": dev.get(h.id)} for h in st.hits.values()],
         "deleted_hits": [h.id for h in st.deleted_hits.values()],
         "features": [{**f.to_event(), "seq": f.seq} for f in st.features.values()],
+        "datums": st.datums,
+        "gdt": [{**d, "feature_name": c.feature, "value": c.actual, "allowed": c.upper, "drf": c.datums,
+                 "result": c.verdict, "note": c.note} for d, c in session_gdt(session, mesh)],
         "notes": [{"seq": s, "text": t} for s, t in st.notes],
         "errors": [{"seq": s, "message": m} for s, m in st.errors],
         "events": session.events,

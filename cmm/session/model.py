@@ -24,6 +24,11 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
   angle, midpoint), ``operands`` (feature ids), ``result`` and ``nominal``
   ({"kind": point/line/distance/angle, geometry or ``value``}), ``tolerance``.
 - ``feature_deleted``: ``id`` (a fitted or constructed feature).
+- ``datum``: ``label`` (A, B ...), ``feature`` (its datum feature's id, None: the label is removed),
+  ``modifier`` ("", "MMB", "LMB").
+- ``gdt``: a geometric tolerance (feature control frame): ``id``, ``name``, ``characteristic``, ``feature``,
+  ``tolerance``, ``datums`` (labels in precedence order), ``material``, ``angle``, ``direction``
+  (see :mod:`cmm.metrology.gdt_eval`); ``gdt_deleted``: ``id``. Later events with the same id replace it.
 - ``info``: the report header an operator filled in: any of ``part_number``,
   ``drawing``, ``operator``, ``machine_name``, ``temperature`` (deg C), ``remarks``;
   later events update earlier ones.
@@ -157,6 +162,8 @@ class SessionState:
     aligned: bool = False  # an alignment was made since the part was (re)loaded
     info: dict[str, Any] = field(default_factory=dict)  # report header fields (``info`` events)
     constructed: dict[int, dict] = field(default_factory=dict)  # ``constructed`` events by id
+    datums: dict[str, dict] = field(default_factory=dict)  # ``datum`` definitions by label
+    gdt: dict[int, dict] = field(default_factory=dict)  # ``gdt`` definitions by id
     last_event: dict | None = None
 
     def copy(self) -> "SessionState":
@@ -164,7 +171,7 @@ class SessionState:
         return replace(self, hits=dict(self.hits), deleted_hits=dict(self.deleted_hits), features=dict(self.features),
                        alignments=list(self.alignments), notes=list(self.notes), errors=list(self.errors),
                        hit_pose=dict(self.hit_pose), unaligned=list(self.unaligned), info=dict(self.info),
-                       constructed=dict(self.constructed))
+                       constructed=dict(self.constructed), datums=dict(self.datums), gdt=dict(self.gdt))
 
     @property
     def pose_array(self) -> np.ndarray | None:
@@ -229,6 +236,16 @@ class SessionState:
         elif kind == "feature_deleted":
             self.features.pop(int(event["id"]), None)
             self.constructed.pop(int(event["id"]), None)
+        elif kind == "datum":
+            label = str(event.get("label", ""))
+            if event.get("feature") is None:
+                self.datums.pop(label, None)
+            else:
+                self.datums[label] = {k: v for k, v in event.items() if k not in ("seq", "time", "kind")}
+        elif kind == "gdt":
+            self.gdt[int(event["id"])] = {k: v for k, v in event.items() if k not in ("seq", "time", "kind")}
+        elif kind == "gdt_deleted":
+            self.gdt.pop(int(event["id"]), None)
         elif kind == "info":
             self.info.update({k: v for k, v in event.items() if k not in ("seq", "time", "kind")})
         elif kind == "note":

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..metrology.characteristics import Characteristic, characteristics, constructed_characteristics, verdict
+from .gdt_session import session_gdt
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from .export import hit_deviations
@@ -368,8 +369,42 @@ def _constructed_rows(session: Session, default_tolerance: float | None) -> list
 
 
 
-def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None) -> str:
-    """The feature table as CSV: one row per characteristic, mm (degrees for angles)."""
+def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
+    """The geometric tolerances: feature control frame, datums and their features, value, allowed, result."""
+    from ..metrology.gdt_eval import tolerance_text
+
+    e = html.escape
+    st = session.state
+    out = ["<h2>Geometric tolerances</h2><table><thead><tr><th class='l'>feature</th><th class='l'>tolerance</th>"
+           "<th class='l'>datums</th><th>tolerance</th><th>bonus</th><th>actual</th><th>out of tol</th><th>result</th>"
+           "</tr></thead><tbody>"]
+    for d, c in rows:
+        frame = []
+        for label in d.get("datums") or []:
+            df = st.datums.get(label)
+            f = None if df is None else st.features.get(int(df["feature"]))
+            mod = {"MMB": "Ⓜ", "LMB": "Ⓛ"}.get((df or {}).get("modifier") or "", "")
+            frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
+        bonus = c.upper - float(d.get("tolerance") or 0.0)
+        result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
+                  None: "<td class='l muted'>not evaluated</td>"}[c.ok]
+        cls = "fail" if c.ok is False else "none" if c.ok is None else ""
+        out.append(f"<tr class='{cls}'><td class='l'><b>{e(c.feature)}</b></td><td class='l'>{e(tolerance_text(d))}"
+                   f"<br><span class='muted'>{e(c.note)}</span></td><td class='l'>{e('; '.join(frame)) or '&mdash;'}</td>"
+                   f"<td>{float(d.get('tolerance') or 0):.4f}</td><td>{'' if bonus < 1e-12 else f'{bonus:.4f}'}</td>"
+                   f"<td>{_num(c.actual)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                   f"{result}</tr>")
+    out.append("</tbody></table><p class='muted'>ISO 1101 / ASME Y14.5: the actual is the width (diameter for "
+               "⌀ zones) of the smallest zone of the tolerance's shape containing the feature, in the datum "
+               "reference frame built from the datum features in precedence order; the tolerance allowed is the "
+               "stated one plus the bonus at MMC/LMC.</p>")
+    return "".join(out)
+
+
+def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None,
+                 mesh: Any = None) -> str:
+    """The feature table as CSV: one row per characteristic, mm (degrees for angles); geometric tolerances
+    as kind ``gdt`` with their datum frame in the method column (``mesh``: for profiles)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
@@ -387,6 +422,11 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+    # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
+    for d, c in session_gdt(session, mesh, tols):
+        w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
+                    f"{c.upper:.6f}", f"{c.lower:.6f}", "" if c.actual is None else f"{c.actual:.6f}",
+                    "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
     return buf.getvalue()
 
 
@@ -437,7 +477,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     per_feature: list[tuple[Any, list[Characteristic]]] = [(f, feature_characteristics(f, tols[fid]))
                                                           for fid, f in st.features.items()]
     per_feature += _constructed_rows(session, default_tolerance)
-    rows = [c for _, cs in per_feature for c in cs]
+    gdt_rows = session_gdt(session, mesh, tols)
+    rows = [c for _, cs in per_feature for c in cs] + [c for _, c in gdt_rows]
     word, n_fail, n_missing = verdict(rows)
     if word == "CHECK":
         n_check = sum(bool(c.check) for c in rows)
@@ -525,6 +566,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
                "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
                "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic.</p>")
+    if gdt_rows:
+        out.append(gdt_table(gdt_rows, session))
     out.append("<h2>Deviation of each hit from the part</h2>")
     out.append(legend_html(scale))
     out.append(deviation_plot(dev_ids, devs, scale))

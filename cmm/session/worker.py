@@ -183,7 +183,7 @@ def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, c
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     return [write_report(session, out / f"{name}-report.html", mesh=mesh, colour_scale=colour_scale),
-            write_features_csv(session, out / f"{name}-features.csv")]
+            write_features_csv(session, out / f"{name}-features.csv", mesh=mesh)]
 
 
 def export(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, csv: bool = True,

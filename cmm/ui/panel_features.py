@@ -8,7 +8,9 @@ the 3D view and lists its hits with their residuals; a hit can be removed
 (the feature refits) or re-taken (the next hit replaces it, then it refits).
 Nominals come from the CAD (where the hits lie, or the last pick) or are
 typed; tolerances are typed. Constructions: intersection, distance, angle,
-mid-point of two features. The report header (part number, drawing,
+mid-point of two features. Datums (A, B, C: a feature each, RFS or MMB/LMB) and geometric tolerances
+(:mod:`cmm.metrology.gdt_eval`: a characteristic on a feature against datums) are defined here too and
+listed under "Geometric tolerances" in the tree, evaluated as the report does. The report header (part number, drawing,
 operator, temperature) is set here too; the colour map has its own tab
 (:mod:`cmm.ui.panel_colour_map`).
 """
@@ -26,6 +28,7 @@ from ..metrology import fit_criteria
 from ..metrology.characteristics import characteristics, constructed_characteristics
 from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
+from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
 from ..measurement.model import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
@@ -56,6 +59,11 @@ def tree_html(station: Any, selected: int | None = None) -> str:
     items += [(fid, c.name, f"constructed {c.operation} of {c.operands[0]} and {c.operands[1]}",
                constructed_characteristics(c.name, c.result.summary(), None if c.nominal is None else c.nominal.summary(),
                                            c.tolerance)) for fid, c in built]
+    gdt_rows = station.measurement.gdt_characteristics()
+    if gdt_rows or station.measurement.datums:
+        datums = ", ".join(f"{k}{ {'MMB': 'Ⓜ', 'LMB': 'Ⓛ'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
+                           for k, d in sorted(station.measurement.datums.items()))
+        items.append((None, "Geometric tolerances", f"datums: {datums or 'none'}", [c for _, c in gdt_rows]))
     for fid, name, what, chars in items:
         oks = [c.ok for c in chars]
         worst = False if False in oks else (None if None in oks else True)
@@ -63,15 +71,17 @@ def tree_html(station: Any, selected: int | None = None) -> str:
         mark = "▶ " if fid == selected else ""
         bg = "background:#fff8c4;" if fid == selected else ""
         rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
-                    f"<b style='color:{head}'>{mark}{fid} {e(name)}</b> "
+                    f"<b style='color:{head}'>{mark}{'' if fid is None else fid} {e(name)}</b> "
                     f"<span style='color:#777'>{e(what)}</span></td></tr>")
         for c in chars:
             unit = "°" if c.unit == "deg" else ""
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
             actual = "—" if c.actual is None else f"{c.actual:.4f}{unit}"
             dev = "" if c.deviation is None else f"{c.deviation:+.4f}"
+            label = c.name.replace(' (along the normal)', '') if not c.datums and fid is not None else (
+                f"{c.feature}: {c.name}")
             rows.append(f"<tr style='{bg}'><td style='padding-left:10px' title='{e(c.note)}'>"
-                        f"{e(c.name.replace(' (along the normal)', ''))}"
+                        f"{e(label)}"
                         f"</td><td align=right>{nominal}</td>"
                         f"<td align=right>{actual}</td><td align=right>{dev}</td>"
                         f"<td align=right style='white-space:nowrap'>{e(c.tolerance_text)}</td>"
@@ -280,6 +290,20 @@ class FeaturesPanel:
             self.ctx.selected_feature = c.id
         return c
 
+    def define_datum(self, label: str, feature: int, modifier: str = "") -> Any:
+        return self.ctx.run("Datum", lambda: self.station.measurement.define_datum(label, feature, modifier))
+
+    def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
+                   material: str = "", angle: float | None = None, direction: str = "radial") -> Any:
+        """A geometric tolerance on a feature against datums "A|B|C" (refused in words when it cannot be
+        evaluated); the tree lists it under "Geometric tolerances"."""
+        def do() -> Any:
+            d, c = self.station.measurement.define_gdt(characteristic, feature, tolerance, datums, material=material,
+                                                       angle=angle, direction=direction)
+            self.ctx.notify("GD&T", f"{d['name']}: {c.actual:.4f} ({c.verdict})")
+            return d, c
+        return self.ctx.run("GD&T", do)
+
     def delete_feature(self) -> None:
         fid = self.ctx.selected_feature
         if fid is not None:
@@ -360,6 +384,21 @@ class FeaturesPanel:
             name = gui.add_text("Name", "", hint="optional")
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
                                                                           name.value))
+        with gui.add_folder("Datums and GD&T", expand_by_default=False):
+            label = gui.add_dropdown("Datum", ("A", "B", "C", "D", "E", "F"), initial_value="A")
+            g["datum_feature"] = gui.add_dropdown("Datum feature", ("-",), initial_value="-")
+            dmod = gui.add_dropdown("Datum modifier", ("RFS", "MMB", "LMB"), initial_value="RFS")
+            gui.add_button("Set datum").on_click(lambda _: self._datum(label.value, g["datum_feature"].value,
+                                                                       dmod.value))
+            ch = gui.add_dropdown("Tolerance", CHARACTERISTICS, initial_value="position")
+            g["gdt_feature"] = gui.add_dropdown("Toleranced feature", ("-",), initial_value="-")
+            tol = gui.add_number("Tolerance (mm)", 0.05, min=0.0001, step=0.001)
+            refs = gui.add_text("Datums", "A|B|C", hint="precedence order, e.g. A|B|C; empty for form")
+            mat = gui.add_dropdown("Material", ("RFS", "MMC", "LMC"), initial_value="RFS")
+            ang = gui.add_number("Basic angle (°)", 0.0, min=0.0, max=90.0, step=0.1)
+            rdir = gui.add_dropdown("Runout", ("radial", "axial"), initial_value="radial")
+            gui.add_button("Add tolerance").on_click(lambda _: self._gdt(
+                ch.value, g["gdt_feature"].value, tol.value, refs.value, mat.value, ang.value, rdir.value))
         with gui.add_folder("Report header"):
             info = self.station.measurement.info
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
@@ -373,6 +412,19 @@ class FeaturesPanel:
             return self.ctx.error("choose two features", "Construct")
         return self.construct(op, int(ma.group(1)), int(mb.group(1)), name)
 
+    def _datum(self, label: str, feature: str, modifier: str) -> Any:
+        m = re.match(r"(\d+)", feature)
+        if not m:
+            return self.ctx.error("choose the datum feature", "Datum")
+        return self.define_datum(label, int(m.group(1)), "" if modifier == "RFS" else modifier)
+
+    def _gdt(self, ch: str, feature: str, tol: float, refs: str, material: str, angle: float, direction: str) -> Any:
+        m = re.match(r"(\d+)", feature)
+        if not m:
+            return self.ctx.error("choose the toleranced feature", "GD&T")
+        return self.define_gdt(ch, int(m.group(1)), tol, "" if ch in FORM else refs,
+                               "" if material == "RFS" else material, angle if ch == "angularity" else None, direction)
+
     def _chosen(self, value: str) -> None:
         m = re.match(r"(\d+)", value)
         if m:
@@ -381,7 +433,7 @@ class FeaturesPanel:
     def refresh(self) -> None:
         self._check_retake()
         options = self.options()
-        for key in ("features", "a", "b"):
+        for key in ("features", "a", "b", "datum_feature", "gdt_feature"):
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
         self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature), self.gui.get("tree"))
         self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
