@@ -310,17 +310,17 @@ class Controller:
         """One step along a machine axis (1 count .. 10 mm): a jog in small, along the machine axes."""
         return self._submit(client, "step", lambda: self.machine.step(axis, step_mm))
 
-    def probe(self, client: str | None, nominal: Any, approach: Any, *, frame: str, path: str = "clearance",
+    def probe(self, client: str | None, target: Any, approach: Any, *, frame: str, path: str = "clearance",
               clearance_z: float | None = None, normal: Any = None, speed: float | None = None,
               accel: float | None = None, approach_distance: float | None = None,
               search_distance: float | None = None, retract_distance: float | None = None,
               rapid_speed: float | None = None) -> MoveStatus:
-        """A programmed hit at ``nominal`` (a surface point in ``frame``), coming along ``approach`` (into the
+        """A programmed hit at ``target`` (a nominal surface point in ``frame``), coming along ``approach`` (into the
         surface, same frame). The rapid to the pre-hit point goes over the clearance plane (``clearance_z``,
         default: the part's, else the higher of here and the pre-hit point) unless ``path`` is 'straight' and
         the line is proven free of the part. Distances (mm), speeds (mm/s) and the probing acceleration default
         to the configuration's. The status completes with the :class:`Hit` once the hit recorders stored it."""
-        p = self._to_machine(nominal, frame)
+        p = self._to_machine(target, frame)
         u = self._to_machine(approach, frame, direction=True)
         if not np.linalg.norm(u):
             raise Refused("a probe needs an approach direction that is not zero")

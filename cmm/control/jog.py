@@ -54,7 +54,7 @@ class JogHolds:
         try:
             v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
-            raise Refused("a jog needs three velocities in mm/s (X, Y, Z)") from None
+            raise Refused("a jog needs three finite velocities in mm/s (X, Y, Z)") from None
         if v.shape != (3,) or not np.all(np.isfinite(v)):
             raise Refused("a jog needs three finite velocities in mm/s (X, Y, Z)")
         fast = float(self.config.speeds.jog_fast)

@@ -1,0 +1,246 @@
+"""The command API every front end goes through: one access rule, the motion rails (frames, the clearance plane,
+straight lines only when proven free, a restart that backs off first), the jog-hold pipeline, and the same probe
+through the I++ server, the pendant and the viser page with the same hit."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from cmm.control import OpenPolicy, Refused
+from cmm.control.access import Client, Control, HolderPolicy, is_local_connection
+from cmm.control.rails import clearance_route, route, straight_blocked, to_frame, to_machine
+from cmm.ippdme.backend import StationBackend
+from cmm.station import Station
+
+SIM = "sim://?cmm=1&pace=25"  # the in-process simulated CMM on its virtual clock, paced for threaded waits
+
+
+# --- access: one rule for every front end ------------------------------------------------------------
+
+def test_one_local_rule_for_web_pages_and_the_ippdme_server():
+    assert is_local_connection(("127.0.0.1", 5000), "127.0.0.1:8080")
+    assert is_local_connection(("::ffff:127.0.0.1", 5, 0, 0), "localhost:8080")
+    assert not is_local_connection(("127.0.0.1", 5000), "station.example:8080")  # a page naming another host
+    assert not is_local_connection(("10.0.0.7", 5000), "127.0.0.1:8080")
+    assert is_local_connection("127.0.0.5") and is_local_connection("::1") and not is_local_connection("10.0.0.7")
+
+    class Host:  # what StationBackend needs of a station: its control core and configuration
+        def __init__(self, station):
+            self.controller, self.config = station.controller, station.config
+    station = Station(port="sim://?cmm=1")
+    try:
+        backend = StationBackend(Host(station))
+        assert backend.for_client("127.0.0.1:4000").client.local
+        assert backend.for_client("[::1]:4000").client.local
+        assert not backend.for_client("192.168.1.9:4000").client.local
+    finally:
+        station.close()
+
+
+def test_the_holder_policy_refuses_observers_and_lets_everyone_local_stop():
+    control = Control(lan=True, access_code="c0de")
+    policy = HolderPolicy(control)
+    assert control.take("tab", is_local=True)
+    assert policy.refusal(Client("tab", local=True), "move") is None
+    assert "observes" in policy.refusal(Client("pendant", local=True), "move")
+    assert policy.refusal(Client("pendant", local=True), "stop") is None  # at the station PC: may always stop
+    assert "access code" in policy.refusal(Client("lan-tab"), "stop")  # an anonymous LAN observer may not
+    assert policy.refusal(Client("lan-tab", authenticated=True), "estop") is None
+
+
+# --- the motion rails, on a box part ----------------------------------------------------------------------
+
+class Box:
+    """A 100 x 80 x 40 mm block whose part origin sits at machine (100, 50, 0)."""
+
+    mesh = trimesh.creation.box(extents=(100.0, 80.0, 40.0), transform=trimesh.transformations.translation_matrix(
+        (50.0, 40.0, 20.0)))
+    pose = trimesh.transformations.translation_matrix((100.0, 50.0, 0.0))
+
+    def part_pose(self):
+        return self.pose
+
+    def clearance_z(self):
+        return 51.0  # top 40 + 10 + tip radius 1
+
+    def surface_distance(self, points):
+        from cmm.metrology.mesh import signed_deviation
+
+        return signed_deviation(self.mesh, points, self.pose).deviations
+
+
+def test_part_coordinates_go_through_the_part_pose_and_back():
+    box = Box()
+    assert np.allclose(to_machine([10.0, 20.0, 45.0], "part", box), [110.0, 70.0, 45.0])
+    assert np.allclose(to_frame([110.0, 70.0, 45.0], "part", box), [10.0, 20.0, 45.0])
+    with pytest.raises(ValueError, match="'machine' or 'part'"):
+        to_machine([1, 2, 3], "Machine ", box)
+    with pytest.raises(ValueError, match="need a part"):
+        to_machine([1, 2, 3], "part", None)
+
+
+def test_a_move_climbs_to_the_clearance_plane_travels_and_descends():
+    here, target = np.array([120.0, 60.0, 20.0]), np.array([180.0, 110.0, 42.0])
+    legs = clearance_route(here, target, 51.0, 300.0)
+    assert [list(p) for p in legs] == [[120.0, 60.0, 51.0], [180.0, 110.0, 51.0], [180.0, 110.0, 42.0]]
+    assert len(clearance_route([0.0, 0.0, 80.0], [10.0, 0.0, 80.0], 51.0, 300.0)) == 1  # above it: one leg
+
+
+def test_a_straight_line_is_accepted_only_when_proven_free_of_the_part():
+    box = Box()
+    inside_to_across = ([110.0, 60.0, 20.0], [250.0, 60.0, 20.0])  # starts beside a wall... through the block
+    assert "passes" in straight_blocked(box, [90.0, 60.0, 20.0], [210.0, 60.0, 20.0], 1.0)
+    assert straight_blocked(box, [90.0, 60.0, 45.0], [210.0, 60.0, 45.0], 1.0) is None  # 5 mm above the top
+    assert "passes" in straight_blocked(box, [90.0, 60.0, 41.2], [210.0, 60.0, 41.2], 1.0)  # 0.2 mm: too close
+    with pytest.raises(ValueError, match="clearance path"):
+        route(inside_to_across[0], inside_to_across[1], path="straight", workspace=box, radius=1.0, z_max=300.0)
+    # after a contact the route backs off first, then goes over the plane even when a straight line was asked for
+    legs = route([90.0, 60.0, 45.0], [210.0, 60.0, 45.0], path="straight", workspace=box, radius=1.0, z_max=300.0,
+                 backoff=[-1.0, 0.0, 0.0], restart=True)
+    assert np.allclose(legs[0], [89.0, 60.0, 45.0]) and np.allclose(legs[1], [89.0, 60.0, 51.0])
+
+
+# --- the station: Go to after a bore cycle, a restart after a contact ----------------------------------
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
+    yield st
+    st.close()
+
+
+def _contacts(station):
+    seen = []
+    station.controller.subscribe(lambda kind, info: seen.append(info) if kind == "contact" else None)
+    return seen
+
+
+def test_go_to_in_part_coordinates_after_a_bore_cycle_retracts_and_arrives_without_contact(station):
+    """The walk through the UI: a bore cycle leaves the tip inside the bore; Go to a point over the far side of the
+    part, in part coordinates, used to cut straight through the block."""
+    api, m = station.controller.commands, station.measurement
+    contacts = _contacts(station)
+    pose = m.part.pose
+    for angle in (0.0, 90.0, 180.0, 270.0):  # four hits on the bore wall (part: axis (30, 40), radius 15) at z 20
+        u = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+        point = pose[:3, :3] @ (np.array([30.0, 40.0, 20.0]) + 15.0 * u) + pose[:3, 3]
+        m.probe(point, pose[:3, :3] @ u).wait(120)
+    here = station.controller.frame_position("part")
+    assert np.hypot(here[0] - 30.0, here[1] - 40.0) < 15.0 and here[2] < 25.0  # inside the bore
+    target = [110.0, 10.0, 45.0]  # 5 mm over the top face, across the block
+    refused = api.call("op", "move", {"target": target, "frame": "part", "path": "straight"})
+    assert refused.error["code"] == "refused" and "clearance path" in refused.error["message"]
+    done = api.call("op", "move", {"target": target, "frame": "part"}, wait=True, timeout=120)
+    assert done.ok, done.error
+    assert np.allclose(station.controller.frame_position("part"), target, atol=0.003)
+    station.controller.dispatcher.flush()
+    assert contacts == []
+
+
+def test_a_move_after_a_contact_backs_off_first(station):
+    api = station.controller.commands
+    contacts = _contacts(station)
+    pose = station.measurement.part.pose
+    above = (pose @ np.array([60.0, 40.0, 45.0, 1.0]))[:3]
+    assert api.call(None, "move", {"target": above, "frame": "machine"}, wait=True, timeout=120).ok
+    into = (pose @ np.array([60.0, 40.0, 30.0, 1.0]))[:3]  # straight down into the top face: a plain move
+    station.controller.workspace, workspace = None, station.controller.workspace  # a station that knows no part
+    try:
+        hit = api.call(None, "move", {"target": into, "frame": "machine", "path": "straight"}, wait=True, timeout=60)
+    finally:
+        station.controller.workspace = workspace
+    station.controller.dispatcher.flush()  # events reach listeners on the dispatcher thread
+    assert hit.error["code"] == "contact" and len(contacts) == 1
+    station.controller.reset(None)
+    back = api.call(None, "move", {"target": above, "frame": "machine", "path": "straight"}, wait=True, timeout=120)
+    assert back.ok, back.error  # the retract first (the probe was deflected), then up and over: no new contact
+    station.controller.dispatcher.flush()
+    assert len(contacts) == 1 and np.allclose(station.controller.frame_position("machine"), above, atol=0.003)
+
+
+# --- the jog-hold pipeline ------------------------------------------------------------------------------
+
+def test_the_jog_pipeline_clamps_and_says_so_and_refuses_what_is_not_a_velocity(station):
+    jogs = station.controller.jogs
+    fast = station.config.speeds.jog_fast
+    v, note = jogs.clamp([1e308, 0.0, -5.0])
+    assert list(v) == [fast, 0.0, -5.0] and "1e+308 mm/s limited" in note
+    v, note = jogs.clamp([0.0, 0.0, -30.0], probe=True)
+    assert np.linalg.norm(v) == pytest.approx(station.qualified_probing_speed) and "qualified" in note
+    for bad in ([float("nan"), 0, 0], [1, 2], "fast"):
+        with pytest.raises(Refused, match="three finite velocities"):
+            jogs.hold(None, bad)
+
+
+def test_a_hold_is_refused_for_an_observer_and_a_release_drops_older_holds(station):
+    control = Control()
+    station.controller.use_policy_of(control)
+    try:
+        with pytest.raises(Refused, match="observes"):
+            station.controller.jogs.hold(Client("watcher", local=True), [1.0, 0.0, 0.0])
+        assert control.take("op", is_local=True)
+        who = Client("op", local=True)
+        ticket = station.controller.jogs.ticket(who)  # a front end took it when a hold arrived...
+        station.controller.jogs.release(who)  # ... and the release came before that hold ran
+        station.controller.jogs.hold(who, [5.0, 0.0, 0.0], after=ticket)
+        station.wait_idle(5)
+        assert not station.machine.busy  # the late hold did not restart the released jog
+    finally:
+        station.controller.policy = OpenPolicy()
+
+
+# --- the same probe through the three front ends ----------------------------------------------------------
+
+def test_the_same_probe_through_the_ippdme_server_the_pendant_and_the_viser_page_gets_the_same_hit(station):
+    from websockets.sync.client import connect
+
+    from cmm.ippdme.client import IppClient
+    from cmm.ippdme.server import IppServer
+    from cmm.ui.app import StationApp
+    from netutil import free_port
+
+    pose = station.measurement.part.pose
+    top = (pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face, part (20, 15, 40)
+    speed = station.config.speeds.probing
+    app = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
+    ipp = IppServer(StationBackend(station), "127.0.0.1", 0).start()
+    hits = {}
+    try:
+        # the viser page: pick the point on the part, Probe here (along the picked normal)
+        page = app.add_client(client_id="page", is_local=True)
+        assert page.take_control()
+        assert page.pick(top + [0.0, 0.0, 30.0], [0.0, 0.0, -1.0]) is not None
+        status = page.probe_here()
+        assert status is not None, page.messages[-3:]
+        hits["viser page"] = np.asarray(status.wait(120).machine)
+        page.release_control()
+        # the pendant: the command API's probe verb, as a "call" message
+        with connect(app.pendant.ws_url) as ws:
+            ws.send(json.dumps({"type": "take"}))
+            ws.send(json.dumps({"type": "call", "id": 7, "method": "probe", "wait": True, "params": {
+                "target": top.tolist(), "approach": [0, 0, -1], "frame": "machine"}}))
+            while True:
+                msg = json.loads(ws.recv(timeout=120))
+                if msg["type"] == "result":
+                    break
+            assert msg["id"] == 7 and "result" in msg, msg
+            hits["pendant"] = np.asarray(msg["result"]["machine"])
+        # the I++ DME server: PtMeas with the same probing speed (its straight rapid is proven free of the part)
+        with IppClient("127.0.0.1", ipp.port, timeout=120) as c:
+            for cmd in ("StartSession()", 'ChangeTool("Probe1")', f"SetProp(Tool.PtMeasPar.Speed({speed}))"):
+                assert c.call(cmd).ok, cmd
+            t = c.call(f"PtMeas(X({top[0]}), Y({top[1]}), Z({top[2]}), IJK(0, 0, 1))")
+            assert t.ok, t.responses
+            v = t.values()
+            hits["I++ DME"] = np.array([v["X"][0], v["Y"][0], v["Z"][0]])
+            c.call("EndSession()")
+    finally:
+        ipp.close()
+        app.close()
+    for name, hit in hits.items():  # the tip centre where the probe triggered: 1 mm (the tip) above the face
+        assert hit == pytest.approx(hits["viser page"], abs=0.002), name
+    assert hits["pendant"][2] == pytest.approx(top[2] + station.prober.settings.tip_radius, abs=0.05)
