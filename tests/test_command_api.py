@@ -15,6 +15,7 @@ from cmm.control.access import Client, Control, HolderPolicy, is_local_connectio
 from cmm.control.rails import clearance_route, route, straight_blocked, to_frame, to_machine
 from cmm.ippdme.backend import StationBackend
 from cmm.station import Station
+from control_support import wait_idle
 
 SIM = "sim://?cmm=1&pace=25"  # the in-process simulated CMM on its virtual clock, paced for threaded waits
 
@@ -187,7 +188,7 @@ def test_a_hold_is_refused_for_an_observer_and_a_release_drops_older_holds(stati
         ticket = station.controller.jogs.ticket(who)  # a front end took it when a hold arrived...
         station.controller.jogs.release(who)  # ... and the release came before that hold ran
         station.controller.jogs.hold(who, [5.0, 0.0, 0.0], after=ticket)
-        station.wait_idle(5)
+        wait_idle(station, 5)
         assert not station.machine.busy  # the late hold did not restart the released jog
     finally:
         station.controller.policy = OpenPolicy()
