@@ -88,8 +88,9 @@ class PartWorkspace:
 class Station:
     """Build the machine, the control core, the measurement model and the calibration service; wire them.
 
-    ``port`` None or "sim" starts the simulated CMM served in real time over
-    TCP on loopback, and the driver talks to it through that byte stream.
+    ``port`` None or "sim" starts the simulated CMM in a process of its own
+    (cmm/sim/sim_process.py), served in real time over TCP on loopback, and the
+    driver talks to it through that byte stream (and its link process).
     A ``sim://?cmm=1`` URL opens it in-process instead, on the virtual clock
     by default (tests) or ``&clock=realtime``; ``self.sim`` is the simulated CMM.
     """
@@ -133,7 +134,7 @@ class Station:
             self.measurement.load_part(part_path)
 
     def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None) -> tuple[Part, str]:
-        """The simulated CMM ("sim": served over TCP on loopback in real time; "sim://...": in-process
+        """The simulated CMM ("sim": a child process serving it over TCP on loopback in real time; "sim://...": in-process
         on the world that URL names); a user's part is placed on its table. Returns (part, port URL).
 
         The part lies where the station believes it is (its lowest corner at the
@@ -142,8 +143,8 @@ class Station:
         from dataclasses import replace
 
         from .metrology.mesh import load_part
-        from .sim.cmm_sim import NOMINAL_PART_POSE, TRUE_PART_POSE, CmmSimSettings, SimulatedCMM
-        from .sim.serve import serve_tcp
+        from .sim.cmm_sim import NOMINAL_PART_POSE, TRUE_PART_POSE, CmmSimSettings
+        from .sim.sim_process import SimProcess
 
         settings = settings or CmmSimSettings()
         nominal_pose = NOMINAL_PART_POSE.copy()
@@ -155,10 +156,8 @@ class Station:
             nominal_pose = nominal_pose @ shift
             settings = replace(settings, part_mesh=mesh, part_pose=TRUE_PART_POSE @ shift)
             name = Path(part_path).name
-        if port == "sim":
-            self.sim = SimulatedCMM(self.config, settings, wire_time=True, realtime=True)
-            self._add_home_switches()
-            self._served = serve_tcp(self.sim.network, "127.0.0.1", 0)
+        if port == "sim":  # in a process of its own, never under this process's interpreter lock
+            self.sim = self._served = SimProcess(self.config, settings)
             port = self._served.url
         else:
             from .sim.url import open_world, parse
@@ -188,8 +187,7 @@ class Station:
         its servo ticks never see the world half changed."""
         if self.sim is None:
             raise StationError("there is no simulator: place the artifact by hand")
-        with self.sim.network.lock:
-            self.sim.place_artifacts(spheres)
+        self.sim.place_artifacts(spheres)  # under the simulator's lock, wherever it runs
 
     # --- life cycle -----------------------------------------------------------
 

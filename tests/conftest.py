@@ -21,7 +21,7 @@ def sim_machine():
     machine.close()
 
 
-REAL_TIME_FILES = {"test_link_process.py", "test_kill9.py", "test_calibrate_tcp.py"}
+REAL_TIME_FILES = {"test_link_process.py", "test_kill9.py", "test_calibrate_tcp.py", "test_sim_process.py"}
 
 
 def pytest_collection_modifyitems(config, items):
