@@ -37,6 +37,7 @@ FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
 STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
+WARNING_SHOWN = 10.0  # s a link warning stays in the state (the status bar) after the last one
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
 
 EventFn = Callable[[str, dict], None]
@@ -66,6 +67,7 @@ class Controller:
         self._running = False
         self._fault: str | None = None
         self._link_ok = True
+        self._warnings_seen = 0  # the bus's link warnings already told (see _link_warning)
         self._estop: str | None = None
         self._stopped: str | None = None
         self._homed = self.config.homing.method == "none"
@@ -769,6 +771,7 @@ class Controller:
         mode), else at most every STATE_INTERVAL of machine time. Nothing is posted for nobody."""
         mode, reason, activity = self._current_mode()
         machine = self.machine.state
+        warning = self._link_warning()
         with self._lock:
             self._seq += 1
             homed = self._homed
@@ -777,12 +780,13 @@ class Controller:
                 allowed = self._allowed[(mode, homed)] = frozenset(
                     c for c, modes in ALLOWED.items() if mode in modes and not (c in ("move", "probe", "job") and not homed))
             old = self._state
-            self._state = ControlState(mode, reason, activity, homed, self._link_ok, machine, self._seq, allowed)
+            self._state = ControlState(mode, reason, activity, homed, self._link_ok, machine, self._seq, allowed, warning)
             changed = old.mode != mode or old.reason != reason or old.link_ok != self._link_ok or old.homed != homed
             post = False
             if self._state_listeners and not self._state_posted:
-                key = (mode, reason, activity, homed, self._link_ok) if machine is None else \
-                    (mode, reason, activity, homed, self._link_ok, machine.moving, machine.jogging, machine.probe_triggered)
+                key = (mode, reason, activity, homed, self._link_ok, warning) if machine is None else \
+                    (mode, reason, activity, homed, self._link_ok, warning, machine.moving, machine.jogging,
+                     machine.probe_triggered)
                 t = -1e9 if machine is None else machine.time
                 post = key != self._posted_key or not 0 <= t - self._posted_time < STATE_INTERVAL
                 if post:
@@ -793,6 +797,17 @@ class Controller:
                         + (f": {reason}" if reason else ""))
         if post:
             self.dispatcher.post(self._deliver_state)
+
+    def _link_warning(self) -> str:
+        """The bus's last link warning while recent (a 'link_warning' event for each new one), else ''."""
+        count, text, at = getattr(self.machine.bus, "warning", None) or (0, "", 0.0)
+        if not count:
+            return ""
+        if count != self._warnings_seen:
+            self._warnings_seen = count
+            log.warning("link: %s", text)
+            self._event("link_warning", message=f"link warning: {text}", count=count)
+        return text if self.machine.bus.clock.now() - at < WARNING_SHOWN else ""
 
     def _deliver_state(self) -> None:
         with self._lock:

@@ -94,6 +94,7 @@ class ControlState:
     machine: Any = None  # cmm.machine.motion.MachineState of the last sample (None before the first)
     seq: int = 0
     allowed: frozenset[str] = field(default_factory=frozenset)
+    link_warning: str = ""  # a recent link warning (a reply late or missing, retried): nothing was stopped for it
 
     @property
     def position(self) -> Any:
@@ -102,6 +103,6 @@ class ControlState:
     def to_dict(self) -> dict[str, Any]:
         m = self.machine
         return {"mode": self.mode.value, "reason": self.reason, "activity": self.activity, "homed": self.homed,
-                "link_ok": self.link_ok, "allowed": sorted(self.allowed),
+                "link_ok": self.link_ok, "link_warning": self.link_warning, "allowed": sorted(self.allowed),
                 "position": None if m is None else [float(v) for v in m.position],
                 "probe": None if m is None else bool(m.probe_triggered)}

@@ -164,20 +164,7 @@ class Machine:
                     raise NmcError(f"axis {axis.name.upper()} expects a module at address {axis.address}, "
                                    f"found modules {sorted(found)}", axis.address)
             for axis, mod in zip(self.config.axes, self.modules):
-                try:
-                    mod.define_status(self.items)
-                except NmcError as exc:
-                    if not self.items & codec.SEND_PERROR:
-                        raise
-                    try:  # so the replies are understood again (the close that follows stops the motors)
-                        mod.define_status(self.items & ~codec.SEND_PERROR)
-                    except NmcError:
-                        pass
-                    raise NmcError(f"module {axis.address} ({axis.name.upper()}) does not answer with the status "
-                                   "items the configuration reads: reading the following error (status item 0x40) "
-                                   "needs SC firmware. For original PIC-SERVO modules set [link] firmware = "
-                                   f"\"pic-servo\" and read_following_error = false (the link said: {exc})",
-                                   axis.address) from exc
+                self._define_status(axis, mod)
                 mod.set_gains(axis.gains)
                 mod.plain_inputs()  # probe and home switches are captured, never acted on by the firmware
                 mod.clear_bits()
@@ -185,6 +172,39 @@ class Machine:
                 mod.set_group(GROUP, leader=axis.name == "x")
             self.sample()
             return infos
+
+    def _define_status(self, axis: Any, mod: Module) -> None:
+        """DEF_STAT with the configured items. If it fails: the firmware, or the link? The status without the
+        following error (item 0x40) tells: a module that answers that and refuses the longer one again lacks
+        the item; one that answers nothing has a link problem, said as it is (never "needs SC firmware" on SC
+        firmware)."""
+        try:
+            mod.define_status(self.items)
+            return
+        except NmcError as exc:
+            if not self.items & codec.SEND_PERROR:
+                raise
+            first = exc
+        name = f"module {axis.address} ({axis.name.upper()})"
+        try:
+            mod.define_status(self.items & ~codec.SEND_PERROR)
+        except NmcError as exc:
+            raise NmcError(f"{name} did not answer while its status items were set up: {first}",
+                           axis.address) from exc
+        try:
+            mod.define_status(self.items)
+            return  # it was the link after all, and it answers again
+        except NmcError as exc:
+            refused = exc
+        try:  # so the replies are understood again (the close that follows stops the motors)
+            mod.define_status(self.items & ~codec.SEND_PERROR)
+        except NmcError:
+            pass
+        raise NmcError(f"{name} does not answer with the status items the configuration reads (it answers without "
+                       "the following error): reading the following error "
+                       "(status item 0x40) needs SC firmware. For original PIC-SERVO modules set [link] firmware = "
+                       f"\"pic-servo\" and read_following_error = false (the link said: {refused})",
+                       axis.address) from refused
 
     def reconnect(self) -> list[ModuleInfo]:
         """Open the link again and restart the modules (after a link failure); positions are lost."""

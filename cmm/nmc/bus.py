@@ -21,6 +21,7 @@ harmless; a motion start is checked on the module instead (see
 from __future__ import annotations
 
 import threading
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -100,6 +101,14 @@ SHORT_MARKER_WAIT = 0.25  # a marker on a line known to be clean (a busy host ca
 QUIET_CONFIRM = 0.02  # no byte may follow the marker's reply for this long
 RESYNC_ATTEMPTS = 3
 DISCOVERY_ATTEMPTS = 3
+# While every axis stands still a missed reply costs nothing but time: it is retried, each time waiting twice as
+# long (up to MAX_REPLY_WAIT), and reported as a link warning; only after IDLE_PATIENCE s without an answer is
+# the link declared failed. A host descheduled for seconds under load (seen: 0.5 s and more at load 6 to 22) is
+# not a failed link. During motion the limits below stay as they are.
+IDLE_PATIENCE = 6.0
+MAX_REPLY_WAIT = 1.0
+DISCOVERY_WAITS = (DISCOVERY_WAIT, 0.6, 1.2)  # the marker's waits for a module the chain is known to have
+HEARD_KEEP = 64  # received chunks kept for the error messages ("what was seen")
 STORM_LIMIT = 6  # transactions in a row that needed a resynchronisation: the link is down
 GOAL_TOLERANCE = 3  # counts: a started move that already arrived
 REST_TOLERANCE = 3  # counts: a move that did not start has not moved
@@ -168,6 +177,11 @@ class Bus:
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
         self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
+        # address -> replies in a row that showed the module at rest (move done, same position as the one before);
+        # 0 after a motion command. A module not in it stands as it powered up. See :meth:`still`.
+        self._calm: dict[int, int] = {}
+        self.warning: tuple[int, str, float] = (0, "", 0.0)  # link warnings so far, the last one, its clock time
+        self._heard: deque[tuple[float, bytes]] = deque(maxlen=HEARD_KEEP)  # (time, bytes) as they came in
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -206,15 +220,51 @@ class Bus:
         except (serial.SerialException, OSError, ValueError) as exc:
             raise self._link_error("setting the read time-out", exc, address) from exc
 
-    def _read(self, n: int, address: int | None = None, timeout: float | None = None) -> bytes:
-        self._set_timeout(reply_timeout(n) if timeout is None else timeout, address)
+    def _read(self, n: int, address: int | None = None, timeout: float | None = None,
+              since: float | None = None) -> bytes:
+        """Up to ``n`` bytes of a reply, waiting ``timeout`` (default Kerr's) from ``since`` (the moment the
+        request left; default now). A reply torn across the deadline (the host was descheduled between two
+        chunks: pyserial then returns what it had) is completed from the bytes already in the port's buffer:
+        a reply that has arrived is never declared timed out."""
+        wait = reply_timeout(n) if timeout is None else timeout
+        start = self.clock.now() if since is None else since
+        self._set_timeout(wait, address)  # (the same value every time: a real port is not reconfigured)
         try:
             data = self.port.read(n)
+            while len(data) < n:
+                left = start + wait - self.clock.now()
+                if left > 1e-4:  # pyserial gave up early (a chunk came just before its own deadline)
+                    self._set_timeout(left, address)
+                    more = self.port.read(n - len(data))
+                    if more:
+                        data += more
+                        continue
+                waiting = self.port.in_waiting
+                more = self.port.read(min(waiting, n - len(data))) if waiting else b""  # already here: no wait
+                if not more:
+                    break
+                data += more
         except (serial.SerialException, OSError) as exc:
             raise self._link_error("waiting for a reply", exc, address) from exc
         if data:
+            self._heard.append((self.clock.now(), bytes(data)))
             self.trace.rx(self.clock.now(), data, "" if len(data) == n else f"short reply: {len(data)} of {n} bytes")
         return data
+
+    def heard(self, since: float | None = None) -> str:
+        """What came in since ``since`` (bus clock), in words for an error message."""
+        chunks = [d for t, d in self._heard if since is None or t >= since]
+        data = b"".join(chunks)
+        if not data:
+            return "nothing was received"
+        shown = data[-24:].hex(" ")
+        return (f"received {len(data)} byte{'s' if len(data) != 1 else ''} in {len(chunks)} "
+                f"piece{'s' if len(chunks) != 1 else ''} ({'... ' if len(data) > 24 else ''}{shown})")
+
+    def _warn(self, text: str) -> None:
+        """A link warning: shown to the operator (the control state), nothing is stopped for it."""
+        self.warning = (self.warning[0] + 1, text, self.clock.now())
+        self.trace.record(self.clock.now(), "rx", b"", f"warning: {text}")
 
     def _waiting(self, address: int | None = None) -> int:
         try:
@@ -233,6 +283,8 @@ class Bus:
                     data += self.port.read(n)
         except (serial.SerialException, OSError) as exc:
             raise self._link_error("waiting for a reply", exc, address) from exc
+        if data:
+            self._heard.append((self.clock.now(), bytes(data)))
         return data
 
     def _set_host_baud(self, baud: int) -> None:
@@ -257,18 +309,20 @@ class Bus:
             except (serial.SerialException, OSError) as exc:
                 raise self._link_error("reading the port", exc, address) from exc
             self.stats["discarded"] += len(data)
+            self._heard.append((self.clock.now(), bytes(data)))
             self.trace.rx(self.clock.now(), data, "stale bytes discarded")
 
     # --- one transaction ----------------------------------------------------------
 
-    def _attempt(self, packet: bytes, items: int) -> codec.Status | None:
-        """Send once; the parsed reply, or None on time-out, garbage or surplus bytes."""
+    def _attempt(self, packet: bytes, items: int, wait: float | None = None) -> codec.Status | None:
+        """Send once; the parsed reply, or None on time-out, garbage or surplus bytes. ``wait``: how long the
+        reply may take (default Kerr's 50 ms + 2 ms per byte), counted from the moment the request left."""
         address = packet[1]
         self._discard_stale(address)
         self._sent_at = self.clock.now()
         self._write(packet, address)
         n = codec.status_length(items)
-        data = self._read(n, address)
+        data = self._read(n, address, wait, since=self.clock.now())
         if len(data) != n:
             return None
         try:
@@ -319,6 +373,10 @@ class Bus:
         address, code, data = packet[1], packet[2] & 0x0F, packet[3:-1]
         self._command_at = self.clock.now()
         members = self._members(address)
+        if code in (codec.START_MOVE, codec.STOP_MOTOR) or (
+                code == codec.LOAD_TRAJ and data and data[0] & codec.START_NOW):
+            for a in members:
+                self._calm[a] = 0  # it may move from now on, until its replies show it at rest
         if code == codec.LOAD_TRAJ:
             try:
                 lt = codec.parse_load_traj(data)
@@ -378,6 +436,13 @@ class Bus:
     def _observe(self, address: int, status: codec.Status) -> None:
         """Keep what a trusted reply of one module tells: its position, and its home register."""
         if status.position is not None:
+            prev = self._last.get(address)
+            if prev is None:  # a first reading tells no motion: as the commands sent left it
+                pass
+            elif abs(status.position - prev.position) <= REST_TOLERANCE and status.move_done:
+                self._calm[address] = self._calm.get(address, 0) + 1
+            else:
+                self._calm[address] = 0
             self._last[address] = Reading(status.position, self._sent_at, status.velocity, status.status)
         if address in self._capturing and not status.home_in_progress:
             self._capturing.discard(address)  # its capture fired (or was disarmed): the home value may be new
@@ -388,6 +453,11 @@ class Bus:
     def last_reading(self, address: int) -> Reading | None:
         """The last trusted reply that carried a position (None after a reset, until one comes)."""
         return self._last.get(address)
+
+    def still(self) -> bool:
+        """Does every axis stand still, as far as the commands sent and the replies read tell? (No motion
+        command since its last two replies, which showed it at rest.) Then a missed reply is retried patiently."""
+        return all(self._calm.get(m.address, 1) > 0 for m in self.modules)
 
     def capture_armed(self, address: int) -> bool:
         """Was a home capture armed on ``address`` (SET_HOMING with a capture condition) and not disarmed?"""
@@ -424,8 +494,10 @@ class Bus:
             responder = self._responder(address)
             checksum_rejects = 0
             lost = 0
+            first_sent = self._command_at
+            wait = None  # Kerr's reply time-out; longer for each retry while the machine stands still
             while True:
-                status = self._attempt(packet, expected)
+                status = self._attempt(packet, expected, wait)
                 if status is not None and responder is not None and not self._plausible(responder, status, code):
                     status = self._confirm_jump(responder, status)
                 if status is not None and status.cksum_error:  # not carried out: sending again is safe
@@ -440,6 +512,16 @@ class Bus:
                 # no trustworthy reply: the command may or may not have been carried out
                 self.stats["retries"] += 1
                 lost += 1
+                if self.still() and self.clock.now() - first_sent < IDLE_PATIENCE:
+                    # nothing moves: a slow answer costs only time. Retry, waiting longer each time, and say so
+                    self._warn(f"{self._who(address)} did not answer {self._name(packet)} in time ({lost}x, "
+                               f"{self.heard(self._sent_at)}); retrying")
+                    self._resync_patiently(address, first_sent)
+                    wait = min(reply_timeout(codec.status_length(expected)) * 2 ** lost, MAX_REPLY_WAIT)
+                    done = self._after_lost_reply(packet, expected)
+                    if done is not None:
+                        return self._accept(address, done)
+                    continue
                 self._storm += 1
                 if self._storm > STORM_LIMIT:
                     raise LinkError(f"{STORM_LIMIT} commands in a row got no clean reply (last: {self._name(packet)} "
@@ -447,7 +529,8 @@ class Bus:
                 self.resync(address)
                 if lost >= 3:
                     raise LinkError(f"{self._who(address)} did not answer {self._name(packet)} at {self.baud} baud "
-                                    f"{lost} times although the link resynchronised: check its power, cabling and "
+                                    f"{lost} times in {self.clock.now() - first_sent:.1f} s although the link "
+                                    f"resynchronised ({self.heard(first_sent)}): check its power, cabling and "
                                     "address", address, self.port_name)
                 done = self._after_lost_reply(packet, expected)
                 if done is not None:
@@ -677,6 +760,18 @@ class Bus:
 
     # --- resynchronisation ------------------------------------------------------------
 
+    def _resync_patiently(self, address: int | None, since: float) -> None:
+        """:meth:`resync`, retried (each a warning) while the machine stands still, until IDLE_PATIENCE s after
+        ``since``; a port failure is never retried."""
+        while True:
+            try:
+                self.resync(address)
+                return
+            except LinkError as exc:
+                if not self.link_up or not self.still() or self.clock.now() - since >= IDLE_PATIENCE:
+                    raise
+                self._warn(f"the link did not answer for {self.clock.now() - since:.1f} s ({exc}); retrying")
+
     def resync(self, address: int | None = None) -> None:
         """Regain the link so that no late reply can be taken for the next one.
 
@@ -694,6 +789,7 @@ class Bus:
                 self.flush_input()
                 return
             first = targets[0]
+            began = self.clock.now()
             self._write(bytes(NULLS_RESYNC), first)
             if self._marker(first, MARKER_WAIT):
                 return
@@ -709,8 +805,9 @@ class Bus:
             if self._marker(first, MARKER_WAIT):
                 return
             raise LinkError(f"no module answers on {self.port_name} any more (no reply for "
-                            f"{2 * MARKER_WAIT + (MARKER_WAIT if len(targets) > 1 else 0):.1f} s): the link is down; "
-                            "check the cable, the adapter and the module power", first, self.port_name)
+                            f"{2 * MARKER_WAIT + (MARKER_WAIT if len(targets) > 1 else 0):.1f} s; "
+                            f"{self.heard(began)}): the link is down; check the cable, the adapter and the module "
+                            "power", first, self.port_name)
 
     def _marker_targets(self, address: int | None) -> list[int]:
         known = [m.address for m in self.modules]
@@ -827,19 +924,22 @@ class Bus:
         self._set_host_baud(codec.POWER_UP_BAUD)
         self.flush_input()
 
-    def _discover(self) -> list[int]:
-        """Address the chain one module at a time; each step checked, not assumed."""
+    def _discover(self, expected: int | None = None) -> list[int]:
+        """Address the chain one module at a time; each step checked, not assumed. Up to ``expected`` modules
+        a missing answer is waited for longer (the chain is known to go on: a slow answer is not its end)."""
         found: list[int] = []
         for addr in range(1, MAX_MODULES + 1):
-            if not self._address_next(addr, found):
+            waits = DISCOVERY_WAITS if expected is not None and addr <= expected else (DISCOVERY_WAIT, DISCOVERY_WAIT)
+            if not self._address_next(addr, found, waits):
                 break
             found.append(addr)
             self.items[addr] = 0
         return found
 
-    def _address_next(self, addr: int, found: list[int]) -> bool:
-        """SET_ADDR to the module at 0; a lost reply is told apart from the end of the chain."""
-        for _ in range(2):
+    def _address_next(self, addr: int, found: list[int], waits: tuple[float, ...] = (DISCOVERY_WAIT,) * 2) -> bool:
+        """SET_ADDR to the module at 0; a lost reply is told apart from the end of the chain. One try per
+        entry of ``waits``: how long the marker waits for a late reply."""
+        for wait in waits:
             reply = self._attempt(codec.set_addr(0x00, addr, codec.GROUP_ALL), 0)
             if reply is not None and not reply.cksum_error:
                 return True
@@ -848,7 +948,7 @@ class Bus:
             # no reply: the end of the chain, or a late reply. A marker to the new address tells:
             # a module there took it (and the line is clean once its reply is in).
             self._write(bytes(NULLS_RESYNC))
-            if self._marker(addr, DISCOVERY_WAIT):
+            if self._marker(addr, wait):
                 return True
             self.flush_input()
         return False
@@ -872,6 +972,8 @@ class Bus:
         with self.lock:
             self.link_up = True
             found: list[int] = []
+            began = self.clock.now()
+            seen: list[int] = []  # modules found by each discovery
             for attempt in range(DISCOVERY_ATTEMPTS):
                 self.items.clear()
                 self.leaders.clear()
@@ -882,22 +984,27 @@ class Bus:
                 self._home.clear()
                 self._capturing.clear()
                 self._before.clear()
+                self._calm.clear()
                 self.modules = []
                 bauds = [codec.POWER_UP_BAUD] if attempt == 0 else [
                     *(b for b in codec.BAUD_DIVISORS[self.firmware] if b != codec.POWER_UP_BAUD), codec.POWER_UP_BAUD]
                 for b in bauds:
                     self._reset_at(b)
                 self.groups.clear()
-                found = self._discover()
+                found = self._discover(expected)
+                seen.append(len(found))
                 self._free.update(found)  # power-up state: PWM mode until a servo command
                 if found and (expected is None or len(found) == expected):
                     break
             if not found:
-                raise LinkError("no PIC-SERVO module answered at address 0 at any baud rate: check power, cabling "
-                                f"and the port ({self.port_name})", 0, self.port_name)
+                raise LinkError(f"no PIC-SERVO module answered at address 0 at any baud rate in {len(seen)} "
+                                f"attempts over {self.clock.now() - began:.1f} s ({self.heard(began)}): check power, "
+                                f"cabling and the port ({self.port_name})", 0, self.port_name)
             if expected is not None and len(found) != expected:
-                raise NmcError(f"expected {expected} modules on the network, found {len(found)} "
-                               f"in {DISCOVERY_ATTEMPTS} attempts: check the address chain (ADDR_IN/ADDR_OUT) wiring")
+                counts = str(seen[0]) if len(set(seen)) == 1 else f"{', '.join(map(str, seen[:-1]))} and {seen[-1]}"
+                raise NmcError(f"expected {expected} modules on the network, found {counts} in {len(seen)} attempts "
+                               f"over {self.clock.now() - began:.1f} s: check the address chain (ADDR_IN/ADDR_OUT) "
+                               "wiring")
             modules = []
             for addr in found:  # type and version; the home register too (see _check_homing)
                 st = self.transact(codec.read_stat(addr, codec.SEND_ID | codec.SEND_HOME),
@@ -923,11 +1030,17 @@ class Bus:
             self.flush_input()
             for info in self.modules:
                 items = self.items.get(info.address, 0)
-                if self._attempt(codec.nop(info.address), items) is None:
-                    self.resync(info.address)
-                    if self._attempt(codec.nop(info.address), items) is None:
-                        raise LinkError(f"module {info.address} does not answer at {baud} baud after SET_BAUD",
-                                        info.address, self.port_name)
+                since = self.clock.now()
+                wait = None
+                for tries in range(1, 100):
+                    if self._attempt(codec.nop(info.address), items, wait) is not None:
+                        break
+                    if tries >= 2 and (not self.still() or self.clock.now() - since >= IDLE_PATIENCE):
+                        raise LinkError(f"module {info.address} does not answer at {baud} baud after SET_BAUD "
+                                        f"({tries} tries in {self.clock.now() - since:.1f} s; "
+                                        f"{self.heard(since)})", info.address, self.port_name)
+                    self._resync_patiently(info.address, since)
+                    wait = min(reply_timeout(codec.status_length(items)) * 2 ** tries, MAX_REPLY_WAIT)
 
     def release(self) -> None:
         """Leave every module in its power-up state (motor off, address 0, group 0xFF, 19200 baud).

@@ -22,6 +22,11 @@ commands, "both"):
   OSError) until :meth:`FaultyTransport.restore` (a write time-out leaves
   reads working but silent).
 
+:class:`FaultyTransport` can also play a *descheduled host* (``deschedule`` s): after each piece of a reply
+its read has taken, the host is off the CPU that long before it looks again; once its time-out has passed
+meanwhile the read returns what it had (as pyserial's reads do), though the rest of the reply has arrived.
+No byte is lost: the rest waits in the port's buffer.
+
 Run ``python -m cmm.nmc.faults --target 127.0.0.1:7777`` to put a proxy in
 front of a served simulator and inject faults by hand.
 """
@@ -198,6 +203,7 @@ class FaultyTransport:
         self.is_open = True
         inner.timeout = 0
         self._virtual = hasattr(inner, "now") and hasattr(inner, "sleep")
+        self.deschedule = 0.0  # s the host is off the CPU after each piece a read takes (see the module doc)
 
     # --- faults ---------------------------------------------------------------------
     def inject(self, fault: Fault) -> None:
@@ -289,6 +295,13 @@ class FaultyTransport:
             left = end - self.now()
             if len(self._ready) >= size or left <= 1e-7:
                 break
+            if self.deschedule and self._ready:  # a piece came; the host is descheduled before it looks again
+                got = len(self._ready)
+                self.sleep(self.deschedule)
+                if end - self.now() <= 1e-7:  # its time-out passed meanwhile: it returns what it had
+                    size = got
+                    break
+                continue
             self._advance(self._until_due(left))
         out = bytes(self._ready[:size])
         del self._ready[:size]

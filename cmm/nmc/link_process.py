@@ -48,7 +48,7 @@ CALL_TIMEOUT = 10.0  # s for one call (a transaction takes ms; a resync with ret
 LONG_CALLS = {"initialize": 120.0, "reopen": 60.0, "release": 30.0, "change_baud": 30.0}  # discovery retries
 FORWARDED = {"transact", "define_status", "set_group", "initialize", "release", "start_move",
              "reopen", "change_baud", "flush_input", "resync"}
-MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups")
+MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups", "warning")
 STILL = 0.5  # counts per servo tick: below this an axis is taken as standing
 RUN_PERIOD = 0.01  # s between the link process's looks at a jog it drives (re-target, dead-man)
 FRESH = 0.015  # s: a reading older than this is taken again by the link process itself (the station is slow)
@@ -354,7 +354,7 @@ class _Mirror:
 
     def __call__(self) -> dict:
         b = self.bus
-        now = (dict(b.items), b.link_up, b.baud, list(b.modules), dict(b.leaders), dict(b.groups))
+        now = (dict(b.items), b.link_up, b.baud, list(b.modules), dict(b.leaders), dict(b.groups), b.warning)
         m = {} if now == self.sent else dict(zip(MIRRORED, now))
         self.sent = now
         m["guard"] = (self.guard.state.epoch, self.guard.state.fired)
@@ -448,6 +448,7 @@ class RemoteBus:
         self.modules: list = []
         self.leaders: dict[int, int] = {}
         self.groups: dict[int, int] = {}
+        self.warning: tuple[int, str, float] = (0, "", 0.0)  # the bus's link warnings (its clock: monotonic, as ours)
         self.guard: tuple[int, str | None] = (0, None)
         self._dead: str | None = None
         self._clear_due = False  # a guard_clear that could not be sent at once: sent before the next call

@@ -128,6 +128,9 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     if reason:
         out.append(f" <span class='warn'>{e(reason)}</span>")
     out.append(f" &middot; {e(control_text)}")
+    warning = getattr(getattr(station.controller, "state", None), "link_warning", "")
+    if warning:
+        out.append(f" &middot; <span class='warn'>link warning: {e(warning)}</span>")
     if link_rate is not None:
         ok = link_ok and link_rate > 5.0
         # no figure: a rate that changes every refresh would re-send the bar from an idle page

@@ -1,0 +1,173 @@
+"""No false faults: a slow host or a slow simulator is not a failed link (issue 21).
+
+All on the simulator's virtual clock, through real NMC bytes: a descheduled host (FaultyTransport.deschedule),
+replies held up for seconds (the "stall" fault: delayed, never lost), a slow simulator at start-up.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from cmm.machine.config import load
+from cmm.machine.motion import Machine
+from cmm.nmc import codec
+IDLE_PATIENCE = 6.0
+from cmm.nmc.bus import Bus, LinkError, NmcError
+from cmm.nmc.faults import Fault, FaultyTransport
+from cmm.sim.cmm_sim import SimulatedCMM
+from cmm.sim.network import SimNetwork
+from test_bus import ready
+
+VEL = codec.velocity_to_fixed(50, 500)
+ACC = codec.acceleration_to_fixed(500, 500)
+
+
+def still_bus(seed: int = 1) -> tuple[FaultyTransport, Bus, list]:
+    net = SimNetwork(3, wire_time=True)
+    port = FaultyTransport(net.transport(), seed=seed)
+    bus = Bus(port)
+    bus.initialize(115200, expected_modules=3)
+    mods = ready(bus)
+    for m in mods:
+        m.nop()
+        m.nop()
+    return port, bus, mods
+
+
+def test_a_reply_torn_by_a_descheduled_host_is_taken_from_the_buffer():
+    """The host reads the first bytes of a reply, is descheduled past its time-out, and its read returns short
+    while the rest of the reply waits in the buffer: taken, not a lost reply (no retry, no warning)."""
+    port, bus, mods = still_bus()
+    before = dict(bus.stats)
+    port.deschedule = 0.2  # far beyond the 50 ms + 2 ms/byte reply time-out
+    for _ in range(20):
+        for m in mods:
+            assert m.nop().position is not None
+    assert bus.stats["retries"] == before["retries"] and bus.stats["resyncs"] == before["resyncs"]
+    assert bus.warning[0] == 0
+
+
+def test_an_idle_reply_held_up_for_seconds_is_retried_with_a_warning_not_a_fault():
+    port, bus, mods = still_bus()
+    assert bus.still()
+    port.inject(Fault("stall", "rx", duration=3.0))  # every reply held 3 s, then delivered in order
+    st = mods[1].nop()
+    assert st.position is not None
+    count, text, _ = bus.warning
+    assert count >= 1 and "retrying" in text
+    for m in mods:  # the line is clean again: the late replies were not taken for these
+        assert m.nop().position == m.nop().position
+
+
+def test_an_idle_link_that_stays_silent_is_declared_failed_after_the_patience():
+    port, bus, mods = still_bus()
+    t0 = bus.clock.now()
+    port.inject(Fault("blackout", "both", duration=60.0))
+    with pytest.raises(LinkError) as err:
+        mods[0].nop()
+    waited = bus.clock.now() - t0
+    assert IDLE_PATIENCE <= waited < IDLE_PATIENCE + 5.0, waited
+    assert bus.warning[0] >= 1
+
+
+def test_during_motion_a_held_up_reply_stops_as_strictly_as_before():
+    port, bus, mods = still_bus()
+    m = mods[0]
+    bus.transact(codec.load_traj(m.address, position=400_000, velocity=VEL, acceleration=ACC))
+    assert not bus.still()
+    port.inject(Fault("stall", "rx", duration=3.0))
+    with pytest.raises(LinkError):
+        m.nop()
+    assert bus.warning[0] == 0  # no patience while an axis moves
+
+
+class SlowSimulator(FaultyTransport):
+    """A simulator that is itself descheduled now and then: every ``every``-th command's reply comes
+    ``delay`` s late (held, never lost)."""
+
+    def __init__(self, inner, delay: float, every: int) -> None:
+        super().__init__(inner, seed=3)
+        self.delay, self.every, self.writes = delay, every, 0
+
+    def write(self, data):
+        self.writes += 1
+        if self.writes % self.every == 0:
+            self.inject(Fault("stall", "rx", duration=self.delay))
+        return super().write(data)
+
+
+@pytest.mark.parametrize("delay", [0.4, 0.9])
+def test_start_up_against_a_slow_answering_simulator_succeeds(delay):
+    config = load()
+    sim = SimulatedCMM(config)
+    port = SlowSimulator(sim.transport(), delay, every=4)
+    machine = Machine(config, port)
+    try:
+        infos = machine.connect()
+        assert [i.address for i in infos] == [1, 2, 3]
+        assert machine.bus.baud == config.link.baud
+    finally:
+        port.every = 10**9
+        machine.close()
+
+
+def test_a_silent_chain_says_what_was_received():
+    net = SimNetwork(3, wire_time=True)
+    port = FaultyTransport(net.transport())
+    port.inject(Fault("blackout", "tx", duration=600.0))
+    with pytest.raises(LinkError, match=r"no PIC-SERVO module answered .* \(nothing was received\)"):
+        Bus(port).initialize(expected_modules=3)
+
+
+def test_a_link_failure_at_start_up_on_sc_firmware_is_not_called_a_firmware_problem():
+    """DEF_STAT with the following-error item on SC firmware fails only because the link does: the message
+    says so, and what was received, never "needs SC firmware"."""
+    config = load()
+    config = config.with_link(firmware="pic-servo-sc")
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport())
+    machine = Machine(config, port)
+    initialize = machine.bus.initialize
+
+    def then_silence(*args, **kwargs):
+        infos = initialize(*args, **kwargs)
+        port.inject(Fault("blackout", "rx", duration=600.0))
+        return infos
+
+    machine.bus.initialize = then_silence
+    try:
+        with pytest.raises(NmcError) as err:
+            machine.connect()
+        text = str(err.value)
+        assert "SC firmware" not in text and "module 1" in text and "nothing was received" in text, text
+    finally:
+        machine.bus.initialize = initialize
+        port.lines.rx.clear()
+        machine.close()
+
+
+def test_the_control_state_shows_an_idle_link_warning_and_stays_out_of_fault():
+    from cmm.control import Controller
+    from cmm.control.modes import Mode
+
+    config = load()
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport())
+    ctl = Controller(Machine(config, port))
+    events = []
+    ctl.subscribe(lambda kind, info: events.append((kind, info)))
+    ctl.connect()
+    try:
+        for _ in range(5):
+            ctl.poll()
+        assert ctl.state.link_warning == ""
+        port.inject(Fault("stall", "rx", duration=2.5))
+        for _ in range(5):
+            ctl.poll()
+        ctl.dispatcher.flush()
+        assert any(kind == "link_warning" for kind, _ in events)
+        assert ctl.state.mode is not Mode.FAULT and ctl.state.link_ok, ctl.state
+        assert "retrying" in ctl.state.link_warning
+        assert ctl.state.to_dict()["link_warning"] == ctl.state.link_warning
+    finally:
+        ctl.close()
