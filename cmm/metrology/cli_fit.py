@@ -5,9 +5,11 @@ whitespace; one header line is allowed before the first point, or a first
 line with the number of points (NIST data set format); blank lines and ``#``
 comments are skipped; ``-`` reads standard input.  The output (table or
 ``--json``) carries the standard uncertainties (``uncertainty``, mm / rad)
-and ``warnings`` (poorly determined fits, ambiguous or unproven optima).  Exit status: 0
-success, 1 the fit was refused (too few / degenerate points, method not
-available for the kind), 2 the file is missing or malformed.
+and ``warnings`` (poorly determined fits, ambiguous or unproven optima); ``--gdt`` adds geometric
+tolerances against ``--datum`` features (see :mod:`cmm.metrology.cli_gdt`) as ``gdt``.  Exit status: 0
+success, 1 the fit or a tolerance was refused (too few / degenerate points, method not
+available for the kind, a datum that constrains nothing, a profile without a mesh), 2 a file is missing
+or malformed.
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ls: least squares (default); minzone: minimum zone; "
                              "mic: maximum inscribed; mcc: minimum circumscribed")
     parser.add_argument("--json", action="store_true", help="print the result as JSON (full float precision)")
+    from .cli_gdt import add_arguments as add_gdt
+
+    add_gdt(parser)
 
 
 def _format(value: Any) -> str:
@@ -45,6 +50,12 @@ def format_table(summary: dict[str, Any]) -> str:
     width = max(len(k) for k in summary)
     rows = []
     for k, v in summary.items():
+        if k == "gdt":  # one line per geometric tolerance: value, allowed, verdict, datums
+            rows.extend(f"{(k if i == 0 else '').ljust(width)}  {t['characteristic']}: {t['value']:.6f} "
+                        f"(allowed {t['allowed']:.6f}{', ' + t['material'] if t['material'] else ''}"
+                        f"{' | ' + t['drf'] if t['drf'] else ''}) {'pass' if t['ok'] else 'FAIL'}"
+                        for i, t in enumerate(v))
+            continue
         if isinstance(v, list) and v and isinstance(v[0], str):  # warnings: one per line
             rows.extend(f"{(k if i == 0 else '').ljust(width)}  ! {w}" for i, w in enumerate(v))
         else:
@@ -57,19 +68,25 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from cmm.metrology.cli_gdt import evaluate as evaluate_gdt
+    from cmm.metrology.datums import DatumError
     from cmm.metrology.features import FitError
     from cmm.metrology.fit_criteria import fit
+    from cmm.metrology.mesh import MeshError
 
     try:
         points = read_points_array(args.file)
         result = fit(args.kind, points, args.method)
+        summary = result.summary()
+        tolerances = evaluate_gdt(args, args.kind, summary, np.asarray(points, float))
     except PointFileError as exc:
         print(f"cmm fit: {exc}", file=sys.stderr)
         return 2
-    except FitError as exc:
+    except (FitError, DatumError, MeshError) as exc:
         print(f"cmm fit: {exc}", file=sys.stderr)
         return 1
-    summary = result.summary()
+    if tolerances:
+        summary["gdt"] = tolerances
     if args.json:
         print(json.dumps(summary))  # json writes floats with repr: full precision
     else:
