@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from cmm.cli import main
 from cmm.ippdme.client import IppClient
+from cmm.ippdme.executor import Dme
 from cmm.ippdme.protocol import parse_response
 from cmm.ippdme.server import parse_address
 from cmm.session.store import DirectoryStore, load_session
@@ -115,6 +117,50 @@ def test_an_error_aborts_the_pending_commands(served):
                   for tag in (first, second, third)}
         assert errors == {first: [], second: [(3, 1008)], third: [(2, 6)]}
         assert c.call("ClearAllErrors()").ok and c.call("Get(X())").ok
+
+
+def test_a_command_sent_as_soon_as_the_error_arrives_meets_the_error_state_not_the_abort(served):
+    """Only the commands waiting when the error happened get 0006; the client's answer to the error is its own.
+
+    The executor is driven directly so the "client" answers the error from inside ``send``, before
+    the server has done anything else: the quickest client there can be, every time.
+    """
+    server, station = served
+    backend = server.backend.for_client("127.0.0.1:9")
+    assert backend.acquire() is None
+    lines: list[str] = []
+    done = threading.Event()
+
+    def send(line: str) -> None:
+        lines.append(line)
+        if line.startswith("00012 ! "):  # the client has read the error: it answers at once
+            dme.receive("00013 Get(X())")
+            dme.receive("00014 ClearAllErrors()")
+            dme.receive("00015 Get(X())")
+        if line == "00015 %":
+            done.set()
+
+    def complete(tag: str) -> None:
+        wait_until(lambda: f"{tag} %" in lines)
+
+    dme = Dme(backend, send, client="quick")
+    try:
+        for tag, cmd in (("00001", "StartSession()"), ("00002", "Home()"), ("00003", 'ChangeTool("Probe1")'),
+                         ("00004", "SetProp(Tool.GoToPar.Speed(50))")):
+            dme.receive(f"{tag} {cmd}")
+            complete(tag)
+        dme.receive(f"00011 {FAR}")  # runs a while: the next two wait behind it
+        dme.receive("00012 GoTo(X(1e6))")  # out of the volume: error 1008, severity 3
+        dme.receive("00016 Get(Y())")  # waiting when the error happens: aborted
+        assert done.wait(60), lines
+        errors = {tag: [ln.split("Error(")[1][:7] for ln in lines if ln.startswith(f"{tag} ! ")]
+                  for tag in ("00011", "00012", "00013", "00014", "00015", "00016")}
+        assert errors == {"00011": [], "00012": ["3, 1008"], "00013": ["2, 0514"], "00014": [], "00015": [],
+                          "00016": ["2, 0006"]}
+        assert not dme.error_state
+    finally:
+        dme.close()
+        backend.release()
 
 
 def test_a_client_that_disconnects_during_a_move_leaves_the_machine_stopped(served):

@@ -99,8 +99,10 @@ class Dme:
         with self._idle:  # delay the acknowledgement while the queue is full
             while self._queue.qsize() >= MAX_PENDING and not self._closed:
                 self._idle.wait(0.2)
-        self.send(P.ack(cmd.tag))
-        self._queue.put(cmd)
+            # acknowledged and queued in one step under the lock: an error takes the queue under the
+            # same lock, so a command is either pending when the error happens or comes after it
+            self.send(P.ack(cmd.tag))
+            self._queue.put(cmd)
 
     def _reject(self, tag: str, err: IppError, line: str) -> None:
         """A malformed line: answered on its tag if it has a usable one, else as an unsolicited error."""
@@ -117,6 +119,13 @@ class Dme:
         self.send(P.complete(tag))
 
     def _report(self, tag: str, err: IppError) -> None:
+        # the error state is set before the error goes out: whatever the client sends once it has
+        # read the error (ClearAllErrors, GetErrStatusE) already meets that state
+        if err.severity >= 2 and err.sticky:
+            with self._lock:
+                self.error_state = True
+                self.last_errors.append(err)
+                del self.last_errors[:-10]
         self.send(P.error(tag, err))
         self.status.failed(str(err))
         if self.in_session and err.severity >= 2 and err.number not in (6, 514):  # the cause, not its echoes
@@ -124,11 +133,6 @@ class Dme:
                 self.backend.note(f"I++ DME error on {tag} {err.method}: {err}")
             except Exception:  # noqa: BLE001 - the journal may be closing; the client has its answer
                 pass
-        if err.severity >= 2 and err.sticky:
-            with self._lock:
-                self.error_state = True
-                self.last_errors.append(err)
-                del self.last_errors[:-10]
 
     # --- the worker side ---------------------------------------------------------------
 
@@ -170,9 +174,15 @@ class Dme:
         except IppError as err:
             if not err.method:
                 err.method = cmd.name
+            # spec 6.2.5: severity >= 2 aborts the pending transactions. They are taken from the queue
+            # before the error goes out, so a command the client sends after reading the error (most
+            # of all ClearAllErrors) is not among them: it meets the error state (0514) or clears it.
+            # A 0514 refusal is the error state's echo, not a new error: the commands behind it meet
+            # the state each on its own, and a ClearAllErrors among them clears it.
+            new_error = err.severity >= 2 and err.number not in (6, 514)
+            pending = self._take_pending() if new_error and not cmd.fast else []
             self._report(cmd.tag, err)
-            if err.severity >= 2 and not cmd.fast:
-                self._flush_pending()
+            self._abort_commands(pending, "aborted after an earlier error")
         except _Aborted:
             self._report(cmd.tag, IppError(6, cmd.name, "stopped by AbortE"))
         except Exception as exc:  # noqa: BLE001 - a server bug must still close the transaction
@@ -186,17 +196,26 @@ class Dme:
             if daemon is not None and daemon.tag == cmd.tag:
                 daemon.start()  # its reports follow the transaction complete
 
-    def _flush_pending(self) -> None:
-        """Abort every queued command (spec 6.2.5 and AbortE (c))."""
-        while True:
-            try:
-                cmd = self._queue.get_nowait()
-            except queue.Empty:
-                return
-            if cmd is None:
-                self._queue.put(None)
-                return
-            self._report(cmd.tag, IppError(6, cmd.name, "aborted after an earlier error"))
+    def _take_pending(self) -> list[P.Command]:
+        """The queued commands, taken in one step (the close marker stays in the queue)."""
+        taken: list[P.Command] = []
+        with self._lock:
+            while True:
+                try:
+                    cmd = self._queue.get_nowait()
+                except queue.Empty:
+                    break
+                if cmd is None:
+                    self._queue.put(None)
+                    break
+                taken.append(cmd)
+            self._idle.notify_all()  # acknowledgements delayed by a full queue may go on
+        return taken
+
+    def _abort_commands(self, commands: list[P.Command], why: str) -> None:
+        """Answer taken commands with 0006 "Transaction aborted" (spec 6.2.5 and AbortE (c))."""
+        for cmd in commands:
+            self._report(cmd.tag, IppError(6, cmd.name, why))
             self.send(P.complete(cmd.tag))
             with self._lock:
                 self._active.discard(cmd.tag)
@@ -356,7 +375,7 @@ class Dme:
                 self._idle.wait(0.2)
                 if self._running is not None:
                     self.backend.stop()
-            self._flush_pending()
+            self._abort_commands(self._take_pending(), "aborted by AbortE")
             self._aborting = False
             self.error_state = True  # the next command must be ClearAllErrors (0514 otherwise)
             self.last_errors.append(IppError(6, cmd.name, "AbortE"))
