@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from cmm.session.journal import Journal, JournalBusy, read_events
+from cmm.session.journal import Journal, JournalBusy, JournalError, read_events
 from cmm.session.replay import Replay
 from cmm.session.store import DirectoryStore, load_session
 
@@ -108,3 +109,31 @@ def test_one_writer_per_journal_and_nan_is_refused(tmp_path):
         event = j.append("note", text="after")
         assert event["seq"] == 1  # the refused event took no number
     assert [json.loads(line)["text"] for line in (tmp_path / "a.jsonl").read_text().splitlines()] == ["after"]
+
+
+def test_a_hit_that_could_not_be_written_on_a_full_disk_is_not_in_the_journal(tmp_path):
+    """A write the operating system refuses part-way (here: the file size limit, as a full disk does).
+
+    The hit the operator is told was not recorded must not turn up later, under the seq of the
+    fault event that follows it; the journal stays readable and numbered 1, 2, 3 ...
+    """
+    path = tmp_path / "full.jsonl"
+    j = Journal(path)
+    j.append("start", port="sim://")
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (path.stat().st_size + 20, hard))  # room for 20 bytes more
+    try:
+        with pytest.raises(OSError) as refused:
+            j.append("hit", id="h7", point=[250.0, 190.0, 40.0], probe="Probe1")
+        assert path.read_bytes().endswith(b"\n")  # the partly written line is cut off again
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))  # space again: the fault event goes in
+    assert isinstance(refused.value, JournalError)
+    assert "hit event could not be written" in str(refused.value) and "not recorded" in str(refused.value)
+    fault = j.append("error", source="machine:fault", message="the hit could not be recorded")
+    j.append("note", text="after")
+    j.close()
+    events = read_events(path)
+    assert events.damage is None
+    assert [(e["seq"], e["kind"]) for e in events.events] == [(1, "start"), (2, "error"), (3, "note")]
+    assert fault["seq"] == 2

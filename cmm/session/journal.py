@@ -95,7 +95,10 @@ class Journal:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
-        self._file = open(self.path, "ab")
+        # unbuffered: a write that fails (disk full) leaves no bytes behind in a buffer to be written
+        # later under another event's seq; append() cuts a partly written line off the file instead
+        self._file = open(self.path, "ab", buffering=0)
+        self._broken: str | None = None  # why appending is refused (a failed write that could not be undone)
         if lock and not try_lock(self._file):
             self._file.close()
             raise JournalBusy(f"session journal {self.path} is already open for writing by another station")
@@ -112,7 +115,6 @@ class Journal:
         aside = self.path.with_name(f"{self.path.name}.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
         aside.write_bytes(tail)
         os.truncate(self.path, intact_bytes)
-        self._file.flush()
         os.fsync(self._file.fileno())
 
     def append(self, kind: str, **data: Any) -> dict:
@@ -120,13 +122,36 @@ class Journal:
         with self._lock:
             if self._file.closed:
                 raise JournalError(f"session journal {self.path} is closed")
+            if self._broken is not None:
+                raise JournalError(self._broken)
             event = {"seq": self.seq + 1, "time": time.time(), "kind": kind, **data}
             line = encode_event(event)  # refuses NaN / unknown types before anything is written
-            self._file.write(line.encode("utf-8") + b"\n")
-            self._file.flush()
-            os.fsync(self._file.fileno())
+            self._write(line.encode("utf-8") + b"\n", kind)
             self.seq += 1
             return event
+
+    def _write(self, data: bytes, kind: str) -> None:
+        """The whole line on disk, or nothing of it: a failed write is cut off so the event is not there.
+
+        The event the caller is told failed must not turn up later (with the seq the next event gets).
+        """
+        fd = self._file.fileno()
+        start = os.lseek(fd, 0, os.SEEK_END)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        except OSError as exc:
+            why = exc.strerror or str(exc)
+            try:
+                os.ftruncate(fd, start)
+                os.fsync(fd)
+            except OSError as undo:
+                self._broken = (f"session journal {self.path} is damaged at its end ({undo.strerror or undo}) "
+                                f"after a failed write; no more events are recorded: open the session again")
+            raise JournalError(exc.errno, f"the {kind} event could not be written to the session journal "
+                                          f"{self.path} ({why}); it is not recorded") from exc
 
     @property
     def closed(self) -> bool:
