@@ -133,6 +133,19 @@ def test_nan_target_is_an_error_notification_and_no_motion(app, operator):
     assert "outside the travel" in operator.messages[-1][2]
 
 
+def test_a_target_field_without_three_finite_numbers_is_refused_with_a_sentence(app, operator):
+    before = app.station.machine.state.position
+    for value in ((5.0,), (1.0, 2.0), "123", None, (1.0, float("inf"), 3.0)):
+        assert operator.go_to(value) is None  # the Go button passes the "Target (mm)" field's value
+        level, title, body = operator.messages[-1]
+        assert level == "error" and "refused" in title, value
+        assert ("three numbers X, Y, Z" in body) if value != (1.0, float("inf"), 3.0) else ("each a finite number" in body), body
+    assert not app.station.machine.busy
+    assert np.allclose(app.station.machine.state.position, before, atol=0.0021)
+    _wait_done(operator.go_to(list(before + [1.0, 0.0, 0.0])))  # three numbers go
+    assert np.allclose(app.station.machine.state.position, before + [1.0, 0.0, 0.0], atol=0.0021)
+
+
 def test_observer_cannot_move(app, operator):
     observer = app.add_client(client_id="observer", is_local=False)
     before = app.station.machine.state.position
