@@ -10,6 +10,7 @@ from control_support import make_controller
 
 from cmm.control import ControlError, Mode, Refused
 from cmm.machine.status import MotionError
+from cmm.nmc.bus import NmcError
 
 
 @pytest.fixture
@@ -182,6 +183,63 @@ def test_full_disk_while_recording_a_hit_faults_and_stops(homed):
     assert ctl.state.mode is Mode.FAULT
     assert "could not be recorded" in ctl.state.reason and "No space" in ctl.state.reason
     assert all(abs(a.velocity) < 1e-9 for a in ctl.machine.sample().axes)
+
+
+def _faulty_homed_controller():
+    """(sim, controller, fault-injecting port): homed, on the virtual clock, statuses drive the loop."""
+    from cmm.control import Controller
+    from cmm.machine.config import load
+    from cmm.machine.motion import Machine
+    from cmm.nmc.faults import FaultyTransport
+    from cmm.sim.cmm_sim import SimulatedCMM
+    from cmm.sim.home_switches import HomeSwitches
+
+    config = load()
+    sim = SimulatedCMM(config)
+    HomeSwitches(sim)
+    port = FaultyTransport(sim.transport(), seed=5)
+    ctl = Controller(Machine(config, port))
+    ctl.connect()
+    ctl.home(None)
+    return sim, ctl, port
+
+
+@pytest.mark.parametrize("when", ["next leg of the rapid", "touch"])
+def test_a_probe_cycle_ends_with_the_link_error_when_the_link_drops_between_its_moves(when):
+    """The cable goes as the cycle sends its next move (a leg of the rapid, the retract after the touch).
+
+    The cycle must end at once with the link failure and the machine in fault, not wait for a move
+    that was never sent while the axes stand.
+    """
+    from cmm.nmc.faults import Fault
+
+    sim, ctl, port = _faulty_homed_controller()
+    try:
+        machine = ctl.machine
+        if when == "touch":
+            ctl.prober.listeners.append(lambda hit: port.inject(Fault("disconnect", error="oserror")))
+        else:
+            sends, plain_move_to = [], machine.move_to
+
+            def move_to(*args, **kwargs):
+                sends.append(args[0])
+                if len(sends) == 2:  # the first leg has ended; the second leg goes out on a dead link
+                    port.inject(Fault("disconnect", error="serial"))
+                return plain_move_to(*args, **kwargs)
+
+            machine.move_to = move_to
+        status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], clearance_z=290.0)
+        try:
+            result = status.wait(30)  # machine seconds: the whole cycle takes about 20
+        except (MotionError, NmcError) as exc:  # the link failure itself, or the fault it caused
+            assert when != "touch" and ("link" in str(exc) or "fault" in str(exc)), exc
+        else:
+            assert when == "touch" and result.point[2] == pytest.approx(40.0, abs=0.01)  # the latched hit stands
+        ctl.run_for(0.1)
+        assert status.done and ctl.state.mode is Mode.FAULT and "link failure" in ctl.state.reason
+    finally:
+        port.restore()
+        ctl.close()
 
 
 def test_unexpected_contact_while_jogging_stops_on_that_tick(homed):

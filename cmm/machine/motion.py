@@ -550,7 +550,7 @@ class Machine:
                 return status.finish(self.position)
             try:
                 leg = self.move_to(targets[i], speed)
-            except MotionError as exc:
+            except Exception as exc:  # noqa: BLE001 - a link that fails as the next leg is sent ends the path
                 return status.finish(error=exc)
             status.on_cancel(leg.cancel)
             leg.add_callback(lambda s: status.finish(error=s.error) if s.error else next_leg(i + 1))

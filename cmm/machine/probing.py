@@ -111,6 +111,17 @@ class Prober:
         def fail(error: BaseException) -> None:
             status.finish(error=error)
 
+        def step(fn: Callable[[MoveStatus], None]) -> Callable[[MoveStatus], None]:
+            """A stage of the cycle, run when the previous move ends: whatever it raises (the link
+            failing as the next move is sent) ends the cycle with that error, never leaves it hanging."""
+            def run(s: MoveStatus) -> None:
+                try:
+                    fn(s)
+                except Exception as exc:  # noqa: BLE001 - reported through the status
+                    fail(exc)
+            return run
+
+        @step
         def after_rapid(s: MoveStatus) -> None:
             if isinstance(s.error, Cancelled):
                 return status.cancel()  # cancelled as a whole, in the cycle's own words
@@ -125,6 +136,7 @@ class Prober:
             status.on_cancel(guarded.cancel)
             guarded.add_callback(after_guarded)
 
+        @step
         def after_guarded(s: MoveStatus) -> None:
             if isinstance(s.error, Cancelled):
                 return status.cancel()  # cancelled as a whole, in the cycle's own words
@@ -140,7 +152,7 @@ class Prober:
                 self._retract(u, hit_status=status, result=hit, distance=retract_distance)
 
         def not_found() -> None:
-            back = m.move_to(pre, protect=False)
+            back = m.move_to(pre, protect=False)  # a failure to send it fails the cycle (after_guarded's step)
             back.add_callback(lambda s: fail(SurfaceNotFound(
                 "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
                 .format(approach_distance + search_distance, *p))))
@@ -157,19 +169,21 @@ class Prober:
     def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit, distance: float | None = None,
                  target: np.ndarray | None = None) -> None:
         m = self.machine
-        if target is None:
-            target = m.position - (m.config.probe.retract_distance if distance is None else distance) * u
         try:
+            if target is None:
+                target = m.position - (m.config.probe.retract_distance if distance is None else distance) * u
             back = m.move_to(target, m.config.speeds.probing * 5, protect=False)
-        except MotionError as exc:
+        except Exception as exc:  # noqa: BLE001 - the hit is latched and recorded: the cycle ends with it
             hit_status.finish(result, None)
             m.emit("error", message=f"retract after the hit failed: {exc}")
             return
 
         def done(s: MoveStatus) -> None:
-            if s.error is None and m.sample().probe_triggered:
-                m.emit("error", message="the probe is still deflected after the retract")
-            hit_status.finish(result, None)
+            try:
+                if s.error is None and m.sample().probe_triggered:
+                    m.emit("error", message="the probe is still deflected after the retract")
+            finally:
+                hit_status.finish(result, None)
 
         back.add_callback(done)
 
