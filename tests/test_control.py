@@ -228,7 +228,7 @@ def test_a_probe_cycle_ends_with_the_link_error_when_the_link_drops_between_its_
                 return plain_move_to(*args, **kwargs)
 
             machine.move_to = move_to
-        status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], clearance_z=290.0)
+        status = ctl.probe(None, [250.0, 190.0, 40.0], [0, 0, -1], frame="machine", clearance_z=290.0)
         try:
             result = status.wait(30)  # machine seconds: the whole cycle takes about 20
         except (MotionError, NmcError) as exc:  # the link failure itself, or the fault it caused
