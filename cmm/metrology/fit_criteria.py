@@ -38,7 +38,7 @@ from cmm.metrology import fit_ls
 from cmm.metrology import fit_models as fm
 from cmm.metrology.features import Circle, Circle2D, Cylinder, FitError, FitResult, Line, Line2D, Plane, Sphere
 from cmm.metrology.fit_chebyshev import chebyshev_fit
-from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball
+from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball, min_enclosing_ball_from
 from cmm.metrology.fit_hull import min_width_3d, min_width_direction
 from cmm.metrology.fit_solver import levenberg_marquardt
 from cmm.metrology.geom_basics import (
@@ -259,41 +259,130 @@ def circle(points: Any, method: str) -> Circle:
                   plane_residuals=plane.residuals, warnings=c2.warnings, **_stats(c2.residuals, 6, method))
 
 
-# axis directions tried around the least-squares axis (degrees off it, azimuths per ring)
-CYLINDER_RINGS_DEG = (1.0, 3.0, 8.0, 15.0)
-CYLINDER_AZIMUTHS = 6
+# Cylinder criteria search the axis directions within CONE_DEG of the least-squares axis (the probed
+# feature: a short cylinder has smaller circumscribed cylinders tilted far from it, which are not it).
+CONE_DEG = 10.0
+CYLINDER_RINGS_DEG = (1.0, 3.0, 6.0, 9.5)  # minimum zone: start directions (degrees off the LS axis) ...
+CYLINDER_AZIMUTHS = 6  # ... and azimuths per ring
 CYLINDER_REFINE = 3
+PROOF_GAP = 1e-4  # mm (0.1 um): an MCC / MIC cylinder is proven optimal in the cone when its gap to the lower bound is below
+PROOF_CELLS = 600  # direction cells the branch and bound may evaluate
+LOCAL_DEG = 0.05  # the neighbourhood of the refined optimum that its SLP convergence covers
+CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
 
 
 def _cylinder_screen(xs: np.ndarray, u: np.ndarray, method: str) -> tuple[float, np.ndarray, float]:
-    """The 2D criterion of the points projected along u: (value to minimise, axis point, radius)."""
+    """The 2D criterion of the points projected along u: (value to minimise, axis point, radius).
+    MCC and MIC exact (Welzl, Voronoi), minimum zone from the 2D least-squares circle."""
     frame = frame_with_axis(u)
     flat = xs @ frame[:, :2]
     if method == "mcc":
         c, r = min_enclosing_ball(flat)
         value = r
+    elif method == "mic":
+        c, r = max_inscribed_ball(flat)
+        value = -r
     else:
         model = fm.BallModel(flat)
         c, r = levenberg_marquardt(model, algebraic_ball(flat), max_iter=30).state
         d = model.residuals_jacobian((c, r))[0]
-        if method == "mic":
-            r = r + float(d.min())
-            value = -r
-        else:
-            value = float(np.ptp(d))
+        value = float(np.ptp(d))
     return value, frame[:, :2] @ c, r
 
 
-def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
-    """Cylinder by criterion: global search over axis directions, then SLP.
+def _critical_subset(xs: np.ndarray, residuals: np.ndarray, method: str) -> np.ndarray:
+    """The points that decide the criterion (largest LS residuals for MCC, smallest for MIC) and a spread
+    sample: a subset's MCC (MIC) is never larger (smaller) than all points', so bounds on it hold for all."""
+    order = np.argsort(residuals)
+    k = min(CRITICAL_POINTS, len(xs))
+    pick = [order[-k:]] if method == "mcc" else [order[:k]]
+    pick.append(np.arange(0, len(xs), max(1, len(xs) // CRITICAL_POINTS)))
+    return xs[np.unique(np.concatenate(pick))]
 
-    Directions: the least-squares axis and rings of CYLINDER_AZIMUTHS directions
-    1 to 15 degrees around it; each is screened by the exact 2D criterion of the
-    projected points (MCC) or the 2D least-squares circle (MIC, minimum zone); the
-    least-squares start and the best CYLINDER_REFINE screened directions are refined
-    by SLP on the full 5-parameter problem and the best optimum is kept.  A warning
-    says when the global optimum is not proven: partial or short cylinders, or
-    searches that ended in different optima.
+
+def cone_deg(length: float, diameter: float) -> float:
+    """The cone of axis directions a cylinder criterion searches around the least-squares axis: CONE_DEG, and
+    atan(length / diameter) for a cylinder shorter than its diameter (tilted further, a smaller cylinder
+    passes through the same short band of points: another feature, not the probed one)."""
+    return float(min(CONE_DEG, np.degrees(np.arctan2(length, diameter))))
+
+
+def _direction_bound(xs: np.ndarray, u0: np.ndarray, method: str, best: float, u_best: np.ndarray,
+                     cone: float) -> tuple[float, int]:
+    """Branch and bound over the axis directions within ``cone`` degrees of u0: the lowest bound on the criterion
+    value (mcc: radius; mic: -radius; scaled units) of any direction there, outside LOCAL_DEG of u_best.
+
+    Directions u = unit(u0 + p e1 + q e2) on square cells in (p, q); every direction of a cell lies within
+    delta = sqrt(2) h of its centre's (h: half the cell side). A point at height z along the centre
+    direction and distance rho from an axis moves to a distance within [rho cos(delta) - |z| sin(delta),
+    rho + |z| sin(delta)] from the axis through the same point along any direction of the cell, so
+    mcc(u) >= mcc(centre) cos(delta) - Z sin(delta) and mic(u) <= mic(centre) + Z sin(delta),
+    Z = max |z|. Cells whose bound cannot beat ``best`` are dropped, the others split in four.
+    Returns (lowest bound left, cells evaluated)."""
+    import heapq
+
+    frame = frame_with_axis(u0)
+    e1, e2 = frame[:, 0], frame[:, 1]
+    t_max = np.tan(np.radians(cone))
+    local = np.radians(LOCAL_DEG)
+
+    support = np.arange(min(3, len(xs)))  # MCC: the enclosing circle's points, carried from cell to cell
+
+    def bound(p: float, q: float, h: float) -> tuple[float, float]:
+        nonlocal support
+        u = unit(u0 + p * e1 + q * e2)
+        if method == "mcc":
+            f = frame_with_axis(u)
+            _, value, support = min_enclosing_ball_from(xs @ f[:, :2], support)
+        else:
+            value = _cylinder_screen(xs, u, method)[0]
+        z = float(np.abs(xs @ u).max())
+        d = min(np.sqrt(2.0) * h, np.pi / 2)
+        lower = value * np.cos(d) - z * np.sin(d) if method == "mcc" else value - z * np.sin(d)
+        return lower, value
+
+    n0 = 4
+    h0 = t_max / n0
+    heap: list[tuple[float, float, float, float]] = []
+    cells = 0
+    for i in range(n0):
+        for j in range(n0):
+            p, q = -t_max + (2 * i + 1) * h0, -t_max + (2 * j + 1) * h0
+            lower, _ = bound(p, q, h0)
+            cells += 1
+            heapq.heappush(heap, (lower, p, q, h0))
+    while heap:
+        lower, p, q, h = heap[0]
+        if lower >= best:
+            return lower, cells
+        if cells >= PROOF_CELLS:
+            return lower, cells
+        heapq.heappop(heap)
+        for dp, dq in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+            cp, cq, ch = p + dp * h / 2, q + dq * h / 2, h / 2
+            if np.hypot(cp, cq) - np.sqrt(2.0) * ch > t_max:
+                continue  # outside the cone
+            u = unit(u0 + cp * e1 + cq * e2)
+            if np.arccos(min(1.0, abs(float(u @ u_best)))) + np.sqrt(2.0) * ch <= local:
+                continue  # inside the refined optimum's own neighbourhood
+            child, _ = bound(cp, cq, ch)
+            cells += 1
+            if child < best:
+                heapq.heappush(heap, (child, cp, cq, ch))
+    return best, cells
+
+
+def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
+    """Cylinder by criterion, the axis within ``cone_deg`` of the least-squares axis (the probed feature).
+
+    MIC is refused when the points do not surround the axis (an arc: it could grow without bound), as
+    for circles. MCC and MIC: the best of the exact 2D criterion of the projected points over a ring of
+    directions, refined by SLP on the full 5-parameter problem, then proven: a branch and bound over the
+    directions in the cone (``_direction_bound``) gives a lower bound on every other direction's value;
+    when the refined value is within PROOF_GAP of it, no warning, else a warning with the gap.
+    Minimum zone: the least-squares start and the best of rings of directions (screened by the 2D
+    least-squares circle) refined by SLP; a warning when the points cover only an arc or the searches
+    ended in different optima.
     """
     ls = fit_ls.fit_cylinder(points, nominal=nominal)
     data = _prepare(points, "cylinder", 3)
@@ -301,9 +390,15 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     p = p - (p @ ls.direction) * ls.direction
     model = fm.CylinderModel(data.x)
     u0 = ls.direction
+    coverage = angular_coverage_deg(data.x, p, u0)
     frame = frame_with_axis(u0)
+    cone = cone_deg(float(np.ptp(data.x @ u0)), 2.0 * ls.radius / data.scale)
+    if method == "mic" and not _surrounds((data.x - p) @ frame[:, :2], np.zeros(2)):
+        raise FitError(f"the points cover only {coverage:.0f} degrees around the axis: a maximum inscribed cylinder "
+                       "is not defined (it could grow without bound); probe all round or use least squares / "
+                       "minimum zone")
     dirs = [frame @ unit(np.array([np.tan(np.radians(a)) * np.cos(b), np.tan(np.radians(a)) * np.sin(b), 1.0]))
-            for a in CYLINDER_RINGS_DEG
+            for a in CYLINDER_RINGS_DEG if a <= cone
             for b in np.linspace(0, 2 * np.pi, CYLINDER_AZIMUTHS, endpoint=False) + np.radians(a)]
     sub = subsample(data.x, SEARCH_POINTS)
     screened = []
@@ -326,17 +421,27 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     if len(sub) < len(data.x):
         state = chebyshev_fit(model, state, method)  # the best search result, on all points
     pu, uu, ru = state
-    coverage = angular_coverage_deg(data.x, pu, uu)
-    length = float(np.ptp(data.x @ uu))
-    partial = None
-    if coverage < 300.0:
-        partial = f"the points cover only {coverage:.0f} degrees around the axis"
-    elif length < 2.0 * ru:
-        partial = "the cylinder is short (probed length below its diameter)"
     d = model.residuals_jacobian(state)[0] * data.scale
     u = canonical_direction(uu)
+    if method == "minzone":
+        partial = f"the points cover only {coverage:.0f} degrees around the axis" if coverage < 300.0 else None
+        warnings = _unproven("cylinder", method, runs, differ, partial)
+    elif coverage < 300.0:  # an arc: the bound would not close (the search is not worth its time)
+        warnings = (f"the points cover only {coverage:.0f} degrees around the axis: the minimum circumscribed "
+                    "cylinder is the smallest holding them, which for an arc is smaller than the probed feature; "
+                    "its global optimum is not proven",)
+    else:
+        value = float(ru + d.max() / data.scale) if method == "mcc" else float(-(ru + d.min() / data.scale))
+        crit = _critical_subset(data.x, model.residuals_jacobian((p, u0, ls.radius / data.scale))[0], method)
+        lower, cells = _direction_bound(crit, u0, method, value - 0.5 * PROOF_GAP / data.scale, unit(uu), cone)
+        gap = max(value - lower, 0.0) * data.scale
+        name = "minimum circumscribed" if method == "mcc" else "maximum inscribed"
+        warnings = () if gap <= PROOF_GAP else (
+            f"the {name} cylinder is proven optimal among axes within {cone:.3g} degrees of the least-squares "
+            f"axis only to within {gap:.2g} mm ({cells} direction cells searched); its global optimum is not "
+            "proven",)
     return Cylinder(point=axis_foot(data.to_mm(pu), u, data.c), direction=u, radius=ru * data.scale,
-                    warnings=_unproven("cylinder", method, runs, differ, partial), **_stats(d, 5, method))
+                    warnings=warnings, **_stats(d, 5, method))
 
 
 # ---------------------------------------------------------------- dispatcher

@@ -71,6 +71,27 @@ def min_enclosing_ball(points: np.ndarray) -> tuple[np.ndarray, float]:
     return _welzl(pts, len(pts), [], 1e-13)
 
 
+def min_enclosing_ball_from(points: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The same exact ball, started from ``support`` (indices, e.g. the support of a nearby problem): the ball
+    of a subset that holds every point is the ball of all of them (it can only be smaller for a subset).
+    Elzinga-Hearn: the ball of the current support and the farthest point outside it, whose radius grows
+    every step, until no point is outside. Returns (centre, radius, the support's indices)."""
+    active = np.unique(np.asarray(support, dtype=np.int64))
+    if len(active) == 0:
+        active = np.array([0])
+    for _ in range(4 * len(points) + 8):
+        sub = points[active]
+        c, r = _welzl(sub, len(sub), [], 1e-13)
+        dist = np.sqrt(((points - c) ** 2).sum(axis=1))
+        far = int(np.argmax(dist))
+        if dist[far] <= r * (1.0 + 1e-12) + 1e-13:
+            return c, r, active
+        on = active[dist[active] >= r * (1.0 - 1e-9) - 1e-12]  # the support: the subset's points on its ball
+        active = np.append(on, far)
+    c, r = min_enclosing_ball(points)  # not converged (rounding): Welzl on every point
+    return c, r, np.arange(len(points))
+
+
 def max_inscribed_ball(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Exact maximum inscribed circle (2D) or sphere (3D), centre inside the hull."""
     try:
