@@ -134,6 +134,7 @@ class MeasurementModel:
         self.datums: dict[str, dict[str, Any]] = {}  # datum definitions by label (cmm.metrology.gdt_eval)
         self.gdt: dict[int, dict[str, Any]] = {}  # geometric tolerance definitions by id
         self._next_gdt = 1
+        self._gdt_cache: tuple[Any, list, list] | None = None
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Any = None
@@ -520,8 +521,18 @@ class MeasurementModel:
             defs = list(self.gdt.values()) if definitions is None else definitions
             datums = dict(self.datums)
             part = self.part
-        return evaluate(defs, datums, self.measured_features(), None if part is None else part.mesh,
+            # the tree asks at every refresh (5 Hz per client): evaluate again only when an input changed
+            key = (repr(defs), repr(datums), id(part), None if part is None else np.asarray(part.pose).tobytes(),
+                   tuple((fid, id(f.result), id(f.nominal), tuple(f.hit_ids), repr(f.tolerance))
+                         for fid, f in self.features.items()))
+            if definitions is None and self._gdt_cache is not None and self._gdt_cache[0] == key:
+                return list(self._gdt_cache[1])
+        rows = evaluate(defs, datums, self.measured_features(), None if part is None else part.mesh,
                         None if part is None else np.asarray(part.pose, float))
+        if definitions is None:
+            with self.lock:  # the results and nominals stay referenced, so their ids in the key stay theirs
+                self._gdt_cache = (key, rows, [(f.result, f.nominal) for f in self.features.values()])
+        return rows
 
     def define_datum(self, label: str, feature_id: int, modifier: str = "") -> dict[str, Any]:
         """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB; journalled."""

@@ -169,7 +169,8 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
     if ch in gdt.FORM:
         return gdt.form(ch, f.points, tol)
     if ch in gdt.ORIENTATION:
-        return gdt.orientation(ch, f.kind, f.geometry, f.points, drf, tol, angle_deg=d["angle"])  # type: ignore[arg-type]
+        return gdt.orientation(ch, f.kind, f.geometry, f.points, drf, tol, angle_deg=d["angle"],  # type: ignore[arg-type]
+                               nominal_direction=_nominal_direction(f, d["datums"], datums, feats))
     if ch == "position":
         if not f.nominal or f.nominal.get("kind") == "surface":
             raise gdt.GdtError(f"position of {f.name} needs its nominal location (CAD pick or typed)")
@@ -183,6 +184,21 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
     if pose is None and mesh is not None:
         raise gdt.GdtError("profile tolerance needs the part's pose (an alignment or the nominal set-up)")
     return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf)
+
+
+def _nominal_direction(f: MeasuredFeature, labels: list[str], datums: dict[str, dict],
+                       feats: dict[int, MeasuredFeature]) -> np.ndarray | None:
+    """With a secondary datum: the feature's nominal normal / axis in the nominal DRF, which orients the
+    zone about the primary; None (rotation free) without one, or when a nominal is missing."""
+    n = f.nominal or {}
+    v = n.get("normal", n.get("direction"))
+    if len(labels) < 2 or v is None:
+        return None
+    try:
+        _, ndrf = build_frames(labels, datums, feats, True)
+    except DatumError:
+        return None
+    return None if ndrf is None else ndrf.vector_to_local(np.asarray(v, dtype=np.float64))
 
 
 def tolerance_text(d: dict[str, Any]) -> str:
