@@ -29,6 +29,7 @@ ALLOWED = {
     "measurement": {"metrology", "session"},  # the measurement model: records into sessions, fits with metrology
     "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
     "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
+    "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
     "ui": {"control", "station", "measurement", "metrology", "session", "ippdme"},
     "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc"},
 }

@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sessions": ("cmm.session.cli", "list, show, rename, delete, export and re-evaluate recorded sessions"),
     "report": ("cmm.session.cli_report", "HTML inspection report of a recorded session"),
     "trends": ("cmm.session.cli_trends", "a series of parts across stations: control charts, Cp/Cpk, CSV, upload"),
+    "run": ("cmm.dmis.cli", "run a DMIS part program (.dmi, .dms) on the station; --check only checks it"),
     "ippdme-client": ("cmm.ippdme.client", "send I++ DME commands (or a NIST .prg file) to an I++ DME server"),
 }
 

@@ -1,0 +1,107 @@
+"""`cmm run PROGRAM.dmi`: run a DMIS part program on the station; `--check` only checks it.
+
+The whole program is checked first (syntax, supported statements, blocks): any problem stops it before the machine
+moves, with the line it is on. Then the station (by default the simulated CMM in-process, on the virtual clock) is
+connected and homed, the calibration records in force are applied, a session is opened, and the program runs as
+one job of the control core. It writes the DMIS output (``FA(..)`` actuals, ``TA(..)`` tolerances with
+INTOL / OUTOL) to the program's output devices or ``--output``, and the station's own HTML report of the session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+SIM_URL = "sim://?cmm=1"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("program", help="DMIS program (.dmi or .dms)")
+    p.add_argument("--check", action="store_true", help="only check the whole program (syntax, supported statements)")
+    p.add_argument("-o", "--output", metavar="FILE",
+                   help="DMIS output file when the program opens no output device (default: PROGRAM_out.dms here)")
+    p.add_argument("--report", metavar="FILE", help="the station's HTML report (default: PROGRAM_report.html here)")
+    p.add_argument("--serial", metavar="URL", help="pyserial URL of the NMC network (default: in-process simulator)")
+    p.add_argument("--config", metavar="FILE", help="machine configuration TOML (default: the shipped one)")
+    p.add_argument("--records", metavar="DIR", default="calibration", help="calibration records (default: calibration)")
+    p.add_argument("--sessions", metavar="DIR|URL", default="sessions", help="session store (default: ./sessions)")
+    p.add_argument("--no-home", dest="home", action="store_false",
+                   help="do not run the homing cycle (a machine configured with [homing] method = \"none\")")
+    p.add_argument("--qif", action="store_true", help="QIF 3 Results output (not available: see the README)")
+
+
+def run(args: Any) -> int:
+    from .check import check
+    from .executor import DmisError
+    from .runner import load_text
+
+    path = Path(args.program)
+    if path.suffix.lower() not in (".dmi", ".dms"):
+        print(f"cmm run: {path} is not a DMIS program (.dmi or .dms)", file=sys.stderr)
+        return 2
+    if args.qif:
+        print("cmm run: QIF 3 Results output is not available: no QIF schema to validate it against is installed",
+              file=sys.stderr)
+        return 2
+    try:
+        text = load_text(path)
+    except DmisError as exc:
+        print(f"cmm run: {exc}", file=sys.stderr)
+        return 1
+    stmts, problems = check(text)
+    for problem in problems:
+        print(f"{path}: {problem}", file=sys.stderr)
+    if problems:
+        return 1
+    if args.check:
+        print(f"{path}: {len(stmts)} statements, all supported")
+        return 0
+    return _run(args, path, text)
+
+
+def _run(args: Any, path: Path, text: str) -> int:
+    from ..session.export import resolve_part_mesh
+    from ..session.report import write_report
+    from ..session.store import open_session
+    from ..station import Station, load_config
+    from .executor import DmisError
+    from .runner import run_text
+
+    station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions)
+    try:
+        station.controller.connect()
+        if not station.controller.state.homed:
+            if not args.home:
+                print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
+                return 1
+            station.controller.home(None)
+        if Path(args.records).is_dir():
+            station.load_calibration(args.records)
+        session = str(station.measurement.new_session())
+        try:
+            result = run_text(text, station, name=path.name)
+        except DmisError as exc:
+            print(f"{path}: {exc}", file=sys.stderr)
+            print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)
+            return 1
+    finally:
+        station.close()
+    out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
+    base = out_default.parent
+    for device, content in result.outputs.items():
+        target = out_default if device is None else base / device
+        target.write_text(content, encoding="utf-8")
+        print(f"wrote {target}")
+    for line in result.log:
+        print(line)
+    failed = [e for e in result.evaluations if not e.intol]
+    print(f"{len(result.actuals)} features, {result.hits} hits, {len(result.evaluations)} tolerances, "
+          f"{len(failed)} out of tolerance" + (": " + ", ".join(f"T({e.tolerance.label})" for e in failed) if failed else ""))
+    name = Path(session).stem
+    s = open_session(name, args.sessions)
+    report = Path(args.report) if args.report else Path(f"{path.stem}_report.html")
+    write_report(s, report, mesh=resolve_part_mesh(s))
+    print(f"wrote {report} (session {name})")
+    return 0

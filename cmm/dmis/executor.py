@@ -1,0 +1,605 @@
+"""Run checked DMIS statements on a measuring target: motion, probing, fits, alignments, tolerances, output.
+
+The target (:class:`cmm.dmis.runner.StationTarget` on the station) moves in straight lines (``GOTO``), takes
+programmed hits with the program's approach, search and retract distances and speeds (``PTMEAS`` inside
+``MEAS .. ENDMES``, with ``SNSET`` and ``FEDRAT``), and its measurement model fits the features, so every hit
+and feature is journalled like any other session's. Coordinates are read in the units and the coordinate system
+in force (``UNITS``, ``DATSET``, ``TRANS``, ``ROTAT``, ``RECALL``) and output the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal_from, nominal_line
+from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
+from .lexer import DmisSyntaxError
+from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
+from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
+
+LENGTH_UNITS = {"MM": 1.0, "CM": 10.0, "METER": 1000.0, "INCH": 25.4, "FEET": 304.8}
+SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+class DmisError(RuntimeError):
+    """A DMIS program stopped: "line N: what happened"."""
+
+
+class Target(Protocol):
+    model: Any  # the measurement model: hits, fits, journal
+
+    def position(self) -> np.ndarray: ...
+    def move(self, target: np.ndarray, speed: float | None) -> None: ...
+    def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
+              search_distance: float, retract_distance: float, rapid_speed: float | None) -> int: ...
+    @property
+    def tip_radius(self) -> float: ...
+    @property
+    def probing_speed(self) -> float: ...
+    @property
+    def positioning_speed(self) -> float: ...
+    @property
+    def probe_distances(self) -> tuple[float, float, float]: ...
+
+
+@dataclass
+class RunResult:
+    actuals: dict[str, Actual] = field(default_factory=dict)
+    evaluations: list[Evaluation] = field(default_factory=list)
+    outputs: dict[str | None, str] = field(default_factory=dict)  # device file (None: the default output) -> text
+    log: list[str] = field(default_factory=list)
+    hits: int = 0
+
+
+def _text(p: Param) -> str:
+    if isinstance(p, Word):
+        return p.text
+    if isinstance(p, Text):
+        return f"'{p.text}'"
+    if isinstance(p, Label):
+        return str(p)
+    toks = p.tokens
+    return "".join(t.text if t.kind != "str" else f"'{t.value}'" for t in toks)
+
+
+def statement_text(s: Statement) -> str:
+    head = f"{s.label} = " if s.label else (f"{s.variable} = " if s.variable else "")
+    return head + s.major + ("/" + ", ".join(_text(p) for p in s.params) if s.params else "")
+
+
+def blocks(stmts: list[Statement]) -> dict[int, int]:
+    """Statement index -> where its block goes on: MEAS <-> ENDMES, DO <-> ENDDO, MACRO -> ENDMAC, IF -> ELSE (or
+    ENDIF), ELSE -> ENDIF. The check has matched them already."""
+    pairs: dict[int, int] = {}
+    stack: list[int] = []
+    for k, s in enumerate(stmts):
+        if s.major in ("MEAS", "IF", "DO", "MACRO"):
+            stack.append(k)
+        elif s.major == "ELSE":
+            pairs[stack[-1]] = k
+            stack[-1] = k
+        elif s.major in ("ENDMES", "ENDIF", "ENDDO", "ENDMAC"):
+            start = stack.pop()
+            pairs[start] = k
+            pairs[k] = start
+    return pairs
+
+
+class Executor:
+    """One run of a program on a target."""
+
+    def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program") -> None:
+        self.stmts = stmts
+        self.target = target
+        self.model = target.model
+        self.name = name
+        self.frame = np.eye(4)
+        self.scale = 1.0
+        self.angle_scale = math.pi / 180.0
+        self.frames: dict[str, np.ndarray] = {}
+        self.nominals: dict[str, Nominal] = {}
+        self.tolerances: dict[str, Tolerance] = {}
+        self.datums: dict[str, Actual] = {}
+        self.sensors: dict[str, dict[str, Any]] = {}
+        self.sensor: str | None = None
+        approach, search, retract = target.probe_distances
+        self.snset = {"APPRCH": approach, "SEARCH": search, "RETRCT": retract, "DEPTH": 0.0}
+        self.posvel: float | None = None
+        self.mesvel: float | None = None
+        self.variables: dict[str, Any] = {}
+        self.macros: dict[str, int] = {}
+        self.devices: dict[str, str | None] = {}
+        self.open_devices: list[str] = []
+        self.output: list[str] = []
+        self.result = RunResult()
+        self._meas: tuple[Statement, list[int]] | None = None
+
+    # --- helpers ---------------------------------------------------------------------------
+
+    def fail(self, s: Statement, message: str) -> DmisError:
+        return DmisError(f"line {s.line}: {message}")
+
+    def num(self, s: Statement, p: Param) -> float:
+        if isinstance(p, Expr):
+            try:
+                v = evaluate(p, self.variables, s.line)
+            except DmisSyntaxError as exc:
+                raise DmisError(str(exc)) from None
+        elif isinstance(p, Word) and p.text in self.variables:
+            v = self.variables[p.text]
+        else:
+            raise self.fail(s, f"{_text(p)} is not a number")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.fail(s, f"{_text(p)} is not a finite number")
+        return float(v)
+
+    def numbers(self, s: Statement, params: list[Param] | None = None) -> list[float]:
+        return [self.num(s, p) for p in (s.params if params is None else params)
+                if isinstance(p, Expr) or (isinstance(p, Word) and p.text in self.variables)]
+
+    def words(self, s: Statement) -> list[str]:
+        return [p.text for p in s.params if isinstance(p, Word) and p.text not in self.variables]
+
+    def labels(self, s: Statement) -> list[Label]:
+        return [p for p in s.params if isinstance(p, Label)]
+
+    def actual(self, s: Statement, label: Label) -> Actual:
+        if label.type not in ("FA", "F"):
+            raise self.fail(s, f"{label} is not a feature")
+        a = self.result.actuals.get(label.name)
+        if a is None:
+            raise self.fail(s, f"FA({label.name}) has not been measured or constructed yet")
+        return a
+
+    def emit(self, line: str) -> None:
+        self.output.append(line)
+
+    def log(self, text: str) -> None:
+        self.result.log.append(text)
+
+    # --- run -----------------------------------------------------------------------------
+
+    def run(self) -> RunResult:
+        self.model.note(f"DMIS program {self.name!r} started")
+        pairs = blocks(self.stmts)
+        calls: list[int] = []
+        pc = 0
+        while pc < len(self.stmts):
+            s = self.stmts[pc]
+            nxt = pc + 1
+            m = s.major
+            try:
+                if m == "IF":
+                    cond = evaluate(s.params[0], self.variables, s.line)  # type: ignore[arg-type]
+                    if not cond:
+                        nxt = pairs[pc] + 1
+                elif m == "ELSE":
+                    nxt = pairs[pc] + 1
+                elif m == "DO":
+                    var = s.params[0].text  # type: ignore[union-attr]
+                    start, end, *step = [self.num(s, p) for p in s.params[1:]]
+                    self.variables[var] = start
+                    inc = step[0] if step else 1.0
+                    if inc == 0:
+                        raise self.fail(s, "a DO loop's increment cannot be 0")
+                    if (inc > 0 and start > end) or (inc < 0 and start < end):
+                        nxt = pairs[pc] + 1
+                elif m == "ENDDO":
+                    do = self.stmts[pairs[pc]]
+                    var = do.params[0].text  # type: ignore[union-attr]
+                    _, end, *step = [self.num(do, p) for p in do.params[1:]]
+                    inc = step[0] if step else 1.0
+                    self.variables[var] += inc
+                    if (inc > 0 and self.variables[var] <= end + 1e-9) or (inc < 0 and self.variables[var] >= end - 1e-9):
+                        nxt = pairs[pc] + 1
+                elif m == "MACRO":
+                    self.macros[s.label.name] = pc  # type: ignore[union-attr]
+                    nxt = pairs[pc] + 1
+                elif m == "ENDMAC":
+                    if not calls:
+                        raise self.fail(s, "ENDMAC reached without a CALL")
+                    nxt = calls.pop()
+                elif m == "CALL":
+                    name = self.labels(s)[0].name
+                    if name not in self.macros:
+                        raise self.fail(s, f"M({name}) is not defined before this CALL")
+                    macro = self.stmts[self.macros[name]]
+                    formals = [p.text for p in macro.params if isinstance(p, (Text, Word))]
+                    actuals = [p for p in s.params[1:]]
+                    if len(formals) != len(actuals):
+                        raise self.fail(s, f"M({name}) takes {len(formals)} arguments, the CALL gives {len(actuals)}")
+                    for f, a in zip(formals, actuals):
+                        self.variables[f.upper()] = a.text if isinstance(a, Text) else self.num(s, a)
+                    calls.append(pc + 1)
+                    nxt = self.macros[name] + 1
+                else:
+                    self.execute(s)
+            except DmisError:
+                raise
+            except DmisSyntaxError as exc:
+                raise DmisError(str(exc)) from None
+            except (ToleranceError, FrameError) as exc:
+                raise self.fail(s, str(exc)) from None
+            except Exception as exc:  # noqa: BLE001 - motion, probing and fit errors are operator sentences
+                raise self.fail(s, f"{s.name}: {exc}") from None
+            pc = nxt
+        self.emit("ENDFIL")
+        text = "\n".join(self.output) + "\n"
+        targets = [self.devices[d] for d in self.devices if self.devices[d]] or [None]
+        for path in targets:
+            self.result.outputs[path] = text
+        self.model.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
+                        f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
+        return self.result
+
+    def execute(self, s: Statement) -> None:
+        handler = getattr(self, "do_" + s.major.lower(), None)
+        if handler is None:  # the check lets through only what has a handler or is a no-op
+            if s.major in ("DMISMN", "DMISMD", "DISPLY", "PRCOMP", "MODE", "ENDFIL"):
+                self.log(statement_text(s))
+                return
+            raise self.fail(s, f"{s.major} is not supported")
+        handler(s)
+
+    # --- program and output ------------------------------------------------------------------
+
+    def do_filnam(self, s: Statement) -> None:
+        self.emit(statement_text(s))
+
+    def do_text(self, s: Statement) -> None:
+        self.log(" ".join(p.text for p in s.params if isinstance(p, Text)))
+
+    def do_units(self, s: Statement) -> None:
+        w = self.words(s)
+        self.scale = LENGTH_UNITS[w[0]]
+        if "ANGRAD" in w:
+            self.angle_scale = 1.0
+        elif "ANGDEC" in w:
+            self.angle_scale = math.pi / 180.0
+        self.emit(statement_text(s))
+
+    def do_decl(self, s: Statement) -> None:
+        w = [p.text for p in s.params if isinstance(p, Word)]
+        kinds = {"COMMON", "GLOBAL", "LOCAL", "BOOL", "CHAR", "INTGR", "LONG", "REAL", "DOUBLE", "VECTOR"}
+        text = "CHAR" in w
+        for name in w:
+            if name not in kinds:
+                self.variables.setdefault(name, "" if text else 0.0)
+
+    def do_assign(self, s: Statement) -> None:
+        if len(s.params) != 1:
+            raise self.fail(s, "ASSIGN takes one expression")
+        p = s.params[0]
+        self.variables[s.variable] = p.text if isinstance(p, Text) else (
+            self.variables.get(p.text, p.text) if isinstance(p, Word) else evaluate(p, self.variables, s.line))  # type: ignore[arg-type]
+
+    def do_device(self, s: Statement) -> None:
+        texts = [p.text for p in s.params if isinstance(p, Text)]
+        self.devices[s.label.name] = texts[0] if s.minor == "STOR" else None  # type: ignore[union-attr]
+
+    def do_open(self, s: Statement) -> None:
+        name = self.labels(s)[0].name
+        if name not in self.devices:
+            raise self.fail(s, f"DID({name}) is not defined (DID({name}) = DEVICE/STOR, 'file')")
+        if "INPUT" in self.words(s):
+            raise self.fail(s, "OPEN for INPUT is not supported: the station reads no data files in a program")
+        self.open_devices.append(name)
+
+    def do_close(self, s: Statement) -> None:
+        name = self.labels(s)[0].name
+        if name in self.open_devices:
+            self.open_devices.remove(name)
+
+    def do_output(self, s: Statement) -> None:
+        self.emit(statement_text(s))
+        pending: list[Actual] = []
+        for lab in self.labels(s):
+            if lab.type == "FA":
+                a = self.actual(s, lab)
+                pending.append(a)
+                self.emit(actual_line(a, self.frame, self.scale, self.angle_scale))
+            elif lab.type == "F":
+                nom = self.nominals.get(lab.name)
+                if nom is None:
+                    raise self.fail(s, f"F({lab.name}) is not defined")
+                pending.append(self.result.actuals.get(lab.name) or Actual(lab.name, nom.kind, {}, nom))
+                self.emit(nominal_line(lab.name, nom, self.frame, self.scale, self.angle_scale))
+            elif lab.type in ("TA", "T"):
+                tol = self.tolerances.get(lab.name)
+                if tol is None:
+                    raise self.fail(s, f"T({lab.name}) is not defined (T({lab.name}) = TOL/...)")
+                if not pending:
+                    raise self.fail(s, f"TA({lab.name}) needs the feature it applies to before it: "
+                                       f"OUTPUT/FA(name), TA({lab.name})")
+                ev = evaluate_tolerance(tol, pending, self.datums, self.frame)
+                self.result.evaluations.append(ev)
+                self.emit(output_line(ev))
+                self._to_model(ev, pending)
+                pending = []
+            else:
+                raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
+
+    def _to_model(self, ev: Evaluation, features: list[Actual]) -> None:
+        """The station's report carries the DMIS tolerance too (where the model has the same characteristic)."""
+        keys = model_tolerance(ev.tolerance)
+        fid = features[0].feature_id
+        if keys and fid is not None and fid in self.model.features:
+            self.model.set_feature_nominal(fid, tolerance=keys)
+        self.model.note(f"{output_line(ev)} ({', '.join('FA(' + f + ')' for f in ev.features)})")
+
+    # --- coordinate systems -----------------------------------------------------------------------
+
+    def _set_frame(self, s: Statement, frame: np.ndarray) -> None:
+        self.frame = frame
+        if s.label is not None:
+            self.frames[s.label.name] = frame.copy()
+        self.emit(statement_text(s))
+
+    def do_datset(self, s: Statement) -> None:
+        if self.words(s) == ["MCS"]:
+            return self._set_frame(s, np.eye(4))
+        entries = []
+        current: Actual | None = None
+        name = ""
+        for p in s.params:
+            if isinstance(p, Label):
+                if p.type == "DAT":
+                    if p.name not in self.datums:
+                        raise self.fail(s, f"DAT({p.name}) is not defined (DATDEF/FA(name), DAT({p.name}))")
+                    current, name = self.datums[p.name], str(p)
+                else:
+                    current, name = self.actual(s, p), str(p)
+            elif isinstance(p, Word):
+                if current is None:
+                    raise self.fail(s, f"{p.text} must follow a datum: DATSET/DAT(A), ZDIR, ZORIG, ...")
+                if p.text not in DIRS and p.text not in ORIGINS:
+                    raise self.fail(s, f"DATSET/.., {p.text} is not supported: use XDIR, YDIR, ZDIR (XMINUS ...), "
+                                       "XORIG, YORIG, ZORIG")
+                entries.append((name, p.text, current.axis_point(), current.direction()))
+            else:
+                raise self.fail(s, f"DATSET takes datums and words, not {_text(p)}")
+        self._set_frame(s, datum_frame(entries, self.frame))
+
+    def do_trans(self, s: Statement) -> None:
+        origin = np.zeros(3)
+        params = list(s.params)
+        k = 0
+        inv = inverse(self.frame)
+        while k < len(params):
+            w = params[k]
+            if not isinstance(w, Word) or w.text not in ORIGINS or k + 1 >= len(params):
+                raise self.fail(s, "TRANS takes XORIG, YORIG, ZORIG each followed by a value or a feature FA(..)")
+            v = params[k + 1]
+            axis = ORIGINS[w.text]
+            if isinstance(v, Label):
+                origin[axis] = apply(inv, self.actual(s, v).axis_point())[axis]
+            else:
+                origin[axis] = self.num(s, v) * self.scale
+            k += 2
+        self._set_frame(s, self.frame @ translation(origin))
+
+    def do_rotat(self, s: Statement) -> None:
+        if len(s.params) != 2 or not isinstance(s.params[0], Word) or s.params[0].text not in AXES:
+            raise self.fail(s, "ROTAT takes an axis and an angle: ROTAT/ZAXIS, 30 (rotation about a feature is "
+                               "not supported)")
+        angle = self.num(s, s.params[1]) * self.angle_scale
+        self._set_frame(s, self.frame @ rotation(AXES[s.params[0].text], angle))
+
+    def do_recall(self, s: Statement) -> None:
+        name = self.labels(s)[0].name
+        if name not in self.frames:
+            raise self.fail(s, f"D({name}) has not been defined")
+        self.frame = self.frames[name].copy()
+        self.emit(statement_text(s))
+
+    # --- sensors and motion ---------------------------------------------------------------------
+
+    def do_snsdef(self, s: Statement) -> None:
+        w = self.words(s)
+        v = self.numbers(s)
+        if "CART" in w:
+            if len(v) < 7:
+                raise self.fail(s, "SNSDEF/PROBE, .., CART takes the tip offset X, Y, Z, the direction I, J, K and "
+                                   "the tip diameter")
+            direction = np.array(v[3:6], float)
+        elif "POL" in w:
+            if len(v) < 3:
+                raise self.fail(s, "SNSDEF/PROBE, .., POL takes the angles A, B .. and the tip diameter")
+            a, b = v[0] * self.angle_scale, v[1] * self.angle_scale
+            direction = np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), -math.cos(a)])
+        else:
+            raise self.fail(s, "SNSDEF/PROBE needs CART or POL")
+        n = float(np.linalg.norm(direction))
+        if n < 1e-9 or float(direction @ DOWN) / n < 0.9999:
+            raise self.fail(s, f"{s.label} points along ({', '.join(f'{x:g}' for x in direction)}): the station "
+                               "has one fixed probe pointing down (0, 0, -1)")
+        self.sensors[s.label.name] = {"diameter": v[-1] * self.scale}  # type: ignore[union-attr]
+
+    def do_snslct(self, s: Statement) -> None:
+        name = self.labels(s)[0].name
+        if name not in self.sensors:
+            raise self.fail(s, f"S({name}) is not defined (S({name}) = SNSDEF/PROBE, ...)")
+        self.sensor = name
+        want = self.sensors[name]["diameter"]
+        have = 2.0 * float(self.target.tip_radius)
+        if abs(want - have) > 0.005:
+            self.log(f"line {s.line}: S({name}) is a {want:.3f} mm tip; the station measures with its qualified "
+                     f"{have:.3f} mm tip (PTMEAS points are surface points: the tip is compensated)")
+
+    def do_snset(self, s: Statement) -> None:
+        v = self.numbers(s)
+        if len(v) != 1:
+            raise self.fail(s, f"SNSET/{s.minor} takes one value")
+        if v[0] < 0:
+            raise self.fail(s, f"SNSET/{s.minor} must not be negative")
+        self.snset[s.minor] = v[0] * self.scale  # type: ignore[index]
+
+    def do_fedrat(self, s: Statement) -> None:
+        w = self.words(s)
+        v = self.numbers(s)
+        if len(v) != 1 or v[0] <= 0:
+            raise self.fail(s, f"FEDRAT/{s.minor} takes a unit and a positive speed")
+        if "PCENT" in w:
+            base = self.target.positioning_speed if s.minor == "POSVEL" else self.target.probing_speed
+            speed = base * v[0] / 100.0
+        else:
+            unit = next((u for u in w if u in SPEED_UNITS), None)
+            if unit is None:
+                raise self.fail(s, f"FEDRAT/{s.minor} needs a unit: MPM, MMPS, IPM, IPS or PCENT")
+            speed = v[0] * SPEED_UNITS[unit]
+        if s.minor == "POSVEL":
+            self.posvel = min(speed, self.target.positioning_speed)
+        else:
+            limit = self.target.probing_speed
+            if speed > limit:
+                self.log(f"line {s.line}: MESVEL {speed:.2f} mm/s is above the probe's qualified {limit:.2f} mm/s; "
+                         f"hits are taken at {limit:.2f} mm/s")
+            self.mesvel = min(speed, limit)
+
+    def do_goto(self, s: Statement) -> None:
+        w = self.words(s)
+        v = self.numbers(s)
+        if "INCR" in w:
+            d = np.array(v[1:4], float)
+            if np.linalg.norm(d) < 1e-12:
+                raise self.fail(s, "GOTO/INCR needs a direction that is not zero")
+            move = apply_vector(self.frame, d / np.linalg.norm(d)) * v[0] * self.scale
+            target = self.target.position() + move
+        else:
+            target = apply(self.frame, np.array(v, float) * self.scale)
+        self.target.move(target, self.posvel)
+
+    # --- features -------------------------------------------------------------------------------
+
+    def do_feat(self, s: Statement) -> None:
+        w = self.words(s)
+        v = self.numbers(s)
+        word = s.minor
+        inner = None if word not in ("CIRCLE", "CYLNDR", "CONE", "SPHERE") else "INNER" in w
+        try:
+            if word == "LINE" and "BND" in w:
+                nom = bounded_line(v, self.frame, self.scale)
+            else:
+                nom = nominal_from(word, inner, v, self.frame, self.scale, self.angle_scale)  # type: ignore[arg-type]
+        except ValueError as exc:
+            raise self.fail(s, f"FEAT/{word}: {exc}") from None
+        self.nominals[s.label.name] = nom  # type: ignore[union-attr]
+
+    def do_meas(self, s: Statement) -> None:
+        label = self.labels(s)[0]
+        nom = self.nominals.get(label.name)
+        if nom is None:
+            raise self.fail(s, f"F({label.name}) is not defined")
+        if KINDS[s.minor] != nom.kind:  # type: ignore[index]
+            raise self.fail(s, f"MEAS/{s.minor} measures F({label.name}), which is a {nom.word}")
+        self._meas = (s, [])
+
+    def do_ptmeas(self, s: Statement) -> None:
+        meas, ids = self._meas  # type: ignore[misc]
+        nom = self.nominals[self.labels(meas)[0].name]
+        v = self.numbers(s)
+        if s.minor == "POL":  # radius, angle, height in the current system's XY plane
+            r, a, h = v[0], v[1] * self.angle_scale, v[2]
+            local = np.array([r * math.cos(a), r * math.sin(a), h])
+        else:
+            local = np.array(v[:3], float)
+        p = apply(self.frame, local * self.scale)
+        if len(v) == 6:
+            n = np.array(v[3:6], float)
+            if np.linalg.norm(n) < 1e-12:
+                raise self.fail(s, "the PTMEAS vector is zero")
+            normal = apply_vector(self.frame, n / np.linalg.norm(n))
+        else:
+            normal = nom.surface_normal(p)
+            if normal is None:
+                raise self.fail(s, f"PTMEAS without a vector: give I, J, K for a point on a {nom.word}")
+        hid = self.target.probe(p, -normal, speed=self.mesvel, approach_distance=self.snset["APPRCH"],
+                                search_distance=self.snset["SEARCH"], retract_distance=self.snset["RETRCT"],
+                                rapid_speed=self.posvel)
+        ids.append(hid)
+        self.result.hits += 1
+
+    def do_endmes(self, s: Statement) -> None:
+        meas, ids = self._meas  # type: ignore[misc]
+        self._meas = None
+        label = self.labels(meas)[0].name
+        nom = self.nominals[label]
+        expected = self.numbers(meas)
+        if expected and int(expected[0]) != len(ids):
+            self.log(f"line {meas.line}: MEAS/{meas.minor}, F({label}) announced {int(expected[0])} points, "
+                     f"{len(ids)} were measured")
+        try:
+            feature = self.model.fit_feature(nom.kind, ids, "ls", label, nom.to_model())
+        except Exception as exc:  # noqa: BLE001 - a fit refused in words
+            raise DmisError(f"line {meas.line}: F({label}) could not be fitted: {exc}") from None
+        g = feature.result.geometry()
+        if feature.result.alternative is not None:
+            self.log(f"line {meas.line}: FA({label}): another {nom.kind} fits the hits better; check it")
+        self.result.actuals[label] = Actual(label, nom.kind, g, nom, feature.id,
+                                            np.array([self.model.hits[h].point for h in ids], float))
+
+    def do_const(self, s: Statement) -> None:
+        from .construct import construct_actual
+
+        labels = self.labels(s)
+        if not labels or labels[0].type != "F":
+            raise self.fail(s, f"CONST/{s.minor} names the feature it constructs: CONST/{s.minor}, F(name), ...")
+        target = labels[0].name
+        method = next(w for w in self.words(s) if w in ("INTOF", "MIDPT", "MIDLI", "MIDPL", "PROJCT", "BF"))
+        operands = [self.actual(s, lab) for lab in labels[1:]]
+        kind, geometry = construct_actual(s.minor.lower(), method, operands)  # type: ignore[union-attr]
+        self.result.actuals[target] = Actual(target, kind, geometry, self.nominals.get(target))
+        self.model.note(f"DMIS CONST/{s.minor}, F({target}), {method} of "
+                        + ", ".join(f"FA({a.label})" for a in operands))
+
+    def do_datdef(self, s: Statement) -> None:
+        feat, dat = self.labels(s)
+        self.datums[dat.name] = self.actual(s, feat)
+        self.model.note(f"DMIS datum {dat.name}: FA({feat.name})")
+
+    def do_tol(self, s: Statement) -> None:
+        word = s.minor
+        w = [p for p in s.params[1:]]
+        v = self.numbers(s, w)
+        options = [p.text for p in w if isinstance(p, Word) and p.text not in self.variables]
+        datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
+        tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
+        if word in ("DIAM", "RAD"):
+            if len(v) != 2:
+                raise self.fail(s, f"TOL/{word} takes the lower and the upper tolerance")
+            tol.lower, tol.upper = v
+        elif word in ("DISTB", "ANGLB"):
+            if len(v) != 3:
+                raise self.fail(s, f"TOL/{word} takes NOMINL, the nominal, the lower and the upper tolerance")
+            tol.nominal, tol.lower, tol.upper = v[0] * (self.scale if word == "DISTB" else 1.0), v[1], v[2]
+        elif word == "ANGLR":
+            if len(v) != 2:
+                raise self.fail(s, "TOL/ANGLR takes the angle and the zone")
+            tol.nominal, tol.upper = v[0], v[1]
+        elif word in ("PROFS", "PROFL"):
+            if len(v) == 1:
+                tol.lower, tol.upper = -v[0] / 2.0, v[0] / 2.0
+            elif len(v) == 2:
+                tol.lower, tol.upper = v
+            else:
+                raise self.fail(s, f"TOL/{word} takes the zone, or the lower and the upper tolerance")
+        else:
+            if len(v) != 1:
+                raise self.fail(s, f"TOL/{word} takes one zone value, it has {len(v)} numbers")
+            tol.upper = v[0]
+        degrees = self.angle_scale * 180.0 / math.pi  # program angle units -> degrees
+        if word == "ANGLB":
+            tol.nominal, tol.lower, tol.upper = v[0] * degrees, v[1] * degrees, v[2] * degrees
+        elif word == "ANGLR":
+            tol.nominal, tol.upper = v[0] * degrees, v[1] * self.scale
+        else:
+            tol.lower, tol.upper = tol.lower * self.scale, tol.upper * self.scale
+        if tol.lower > tol.upper:
+            raise self.fail(s, f"TOL/{word}: the lower tolerance {tol.lower:g} is above the upper {tol.upper:g}")
+        self.tolerances[tol.label] = tol

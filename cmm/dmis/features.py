@@ -1,0 +1,220 @@
+"""DMIS features: ``FEAT/`` nominals, their machine-coordinate nominals for fitting, and ``FA(..)`` actual lines.
+
+Nominals are kept in machine millimetres (the coordinate system in force when the FEAT statement ran moves them
+there), actuals are the measurement model's fitted features; both are written back in the coordinate system
+and units in force when they are output, in the DMIS output format (``FA(X) = FEAT/CIRCLE, INNER, CART, ...``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..metrology.pick import NominalFeature
+from .frames import apply, apply_vector, inverse
+
+# DMIS feature word -> the measurement model's kind
+KINDS = {"POINT": "point", "PLANE": "plane", "LINE": "line", "CIRCLE": "circle", "CYLNDR": "cylinder",
+         "CONE": "cone", "SPHERE": "sphere"}
+WORDS = {v: k for k, v in KINDS.items()}
+SIZED = ("CIRCLE", "CYLNDR", "CONE", "SPHERE")  # these take INNER / OUTER
+# numbers after CART (without the optional ones at the end): POINT, PLANE x y z i j k; LINE ...
+NUMBERS = {"POINT": (6, 6), "PLANE": (6, 6), "LINE": (6, 9), "CIRCLE": (7, 7), "CYLNDR": (7, 8), "CONE": (7, 7),
+           "SPHERE": (4, 4)}
+
+
+@dataclass
+class Nominal:
+    """A FEAT/ nominal in machine coordinates (mm, radians)."""
+
+    word: str  # CIRCLE, CYLNDR ...
+    inner: bool | None  # INNER (hole) / OUTER (boss); None for POINT, PLANE, LINE
+    point: np.ndarray  # location: point, plane point, circle/sphere centre, axis point, cone apex
+    vector: np.ndarray | None  # plane normal, axis, circle normal; None for a sphere
+    diameter: float | None = None
+    angle: float | None = None  # cone: the included angle, radians
+    length: float | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return KINDS[self.word]
+
+    def to_model(self) -> NominalFeature | None:
+        """The nominal the measurement model compares the fit with (None: a point or a line)."""
+        bore = bool(self.inner)
+        if self.word == "PLANE":
+            return NominalFeature("plane", {"point": self.point, "normal": self.vector})
+        if self.word in ("CIRCLE", "CYLNDR"):
+            params = {"point": self.point, "direction": self.vector, "radius": self.diameter / 2.0, "bore": bore}
+            if self.length:
+                params["length"] = self.length
+            return NominalFeature("cylinder", params)
+        if self.word == "SPHERE":
+            return NominalFeature("sphere", {"center": self.point, "radius": self.diameter / 2.0, "bore": bore})
+        if self.word == "CONE":
+            return NominalFeature("cone", {"apex": self.point, "direction": self.vector, "half_angle": self.angle / 2.0,
+                                           "bore": bore})
+        return None
+
+    def surface_normal(self, p: np.ndarray) -> np.ndarray | None:
+        """The outward surface normal at a point near the nominal surface (for a PTMEAS without a vector)."""
+        if self.word in ("PLANE", "POINT") and self.vector is not None:
+            return self.vector / np.linalg.norm(self.vector)
+        if self.word in ("CIRCLE", "CYLNDR", "SPHERE"):
+            r = p - self.point
+            if self.word != "SPHERE":
+                a = self.vector / np.linalg.norm(self.vector)
+                r = r - (r @ a) * a
+            n = float(np.linalg.norm(r))
+            if n < 1e-9:
+                return None
+            return -r / n if self.inner else r / n
+        return None
+
+
+def nominal_from(word: str, inner: bool | None, numbers: list[float], frame: np.ndarray, scale: float,
+                 angle_scale: float) -> Nominal:
+    """A Nominal from the FEAT numbers (program units, the current coordinate system ``frame``)."""
+    v = list(numbers)
+
+    def pt(k: int) -> np.ndarray:
+        return apply(frame, np.array(v[k:k + 3]) * scale)
+
+    def vec(k: int) -> np.ndarray:
+        d = np.array(v[k:k + 3], float)
+        n = float(np.linalg.norm(d))
+        if n < 1e-12:
+            raise ValueError("a direction vector is zero")
+        return apply_vector(frame, d / n)
+
+    if word == "SPHERE":
+        return Nominal(word, inner, pt(0), None, diameter=v[3] * scale)
+    if word == "LINE":
+        return Nominal(word, None, pt(0), vec(3))
+    nom = Nominal(word, inner, pt(0), vec(3))
+    if word in ("CIRCLE", "CYLNDR"):
+        nom.diameter = v[6] * scale
+        if word == "CYLNDR" and len(v) > 7:
+            nom.length = v[7] * scale
+    elif word == "CONE":
+        nom.angle = v[6] * angle_scale
+    return nom
+
+
+def bounded_line(numbers: list[float], frame: np.ndarray, scale: float) -> Nominal:
+    """FEAT/LINE,BND,CART,x1,y1,z1,x2,y2,z2[,i,j,k]: the line through two points."""
+    a = apply(frame, np.array(numbers[0:3]) * scale)
+    b = apply(frame, np.array(numbers[3:6]) * scale)
+    d = b - a
+    if np.linalg.norm(d) < 1e-9:
+        raise ValueError("the two end points of a bounded line are the same")
+    return Nominal("LINE", None, a, d / np.linalg.norm(d), length=float(np.linalg.norm(d)))
+
+
+@dataclass
+class Actual:
+    """A measured (or constructed) feature: its kind and fitted geometry in machine coordinates."""
+
+    label: str
+    kind: str  # point line plane circle cylinder cone sphere
+    geometry: dict[str, Any]
+    nominal: Nominal | None = None
+    feature_id: int | None = None  # the measurement model's feature, if it is one
+    hit_points: np.ndarray | None = None  # compensated surface points (machine), for form and profile tolerances
+
+    def location(self) -> np.ndarray:
+        g = self.geometry
+        for key in ("center", "apex", "point"):
+            if key in g:
+                return np.asarray(g[key], float)
+        raise KeyError(self.kind)
+
+    def direction(self) -> np.ndarray | None:
+        g = self.geometry
+        for key in ("normal", "direction"):
+            if key in g:
+                d = np.asarray(g[key], float)
+                d = d / np.linalg.norm(d)
+                if self.nominal is not None and self.nominal.vector is not None and d @ self.nominal.vector < 0:
+                    d = -d  # fits carry a canonical sign; the program's vector decides
+                return d
+        return None
+
+    def axis_point(self) -> np.ndarray:
+        """A cylinder's axis point nearest the nominal location (comparable with it); else the location."""
+        p = self.location()
+        d = self.direction()
+        if self.kind in ("cylinder", "line") and d is not None and self.nominal is not None:
+            return p + ((self.nominal.point - p) @ d) * d
+        return p
+
+
+def _f(x: float) -> str:
+    return f"{x + 0.0:.5f}"
+
+
+def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: float) -> str:
+    """``FA(label) = FEAT/...`` in the coordinate system ``frame`` and the program's units."""
+    inv = inverse(frame)
+    word = WORDS[actual.kind]
+    nom = actual.nominal
+    head = [word]
+    if word in SIZED:
+        inner = nom.inner if nom is not None and nom.inner is not None else bool(actual.geometry.get("bore", False))
+        head.append("INNER" if inner else "OUTER")
+    head.append("CART")
+    p = apply(inv, actual.axis_point()) / scale
+    nums = [*p]
+    d = actual.direction()
+    if word != "SPHERE" and d is not None:
+        nums += list(apply_vector(inv, d))
+    g = actual.geometry
+    if word in ("CIRCLE", "CYLNDR", "SPHERE"):
+        nums.append(2.0 * float(g["radius"]) / scale)
+    if word == "CYLNDR" and nom is not None and nom.length:
+        nums.append(nom.length / scale)
+    if word == "CONE":
+        nums.append(2.0 * float(g["half_angle"]) / angle_scale)
+    return f"FA({actual.label}) = FEAT/{', '.join(head)},  $\n  " + ", ".join(_f(x) for x in nums)
+
+
+def nominal_line(label: str, nom: Nominal, frame: np.ndarray, scale: float, angle_scale: float) -> str:
+    """``F(label) = FEAT/...`` of a nominal (for exported programs)."""
+    inv = inverse(frame)
+    head = [nom.word] + (["INNER" if nom.inner else "OUTER"] if nom.word in SIZED else []) + ["CART"]
+    nums = list(apply(inv, nom.point) / scale)
+    if nom.vector is not None and nom.word != "SPHERE":
+        nums += list(apply_vector(inv, nom.vector))
+    if nom.word in ("CIRCLE", "CYLNDR", "SPHERE"):
+        nums.append(nom.diameter / scale)
+    if nom.word == "CYLNDR" and nom.length:
+        nums.append(nom.length / scale)
+    if nom.word == "CONE":
+        nums.append(nom.angle / angle_scale)
+    return f"F({label}) = FEAT/{', '.join(head)}, " + ", ".join(_f(x) for x in nums)
+
+
+def from_model_nominal(word: str, nf: NominalFeature) -> Nominal:
+    """A Nominal from a measurement-model nominal (machine or part coordinates, as given)."""
+    p = nf.params
+    bore = bool(p.get("bore", False))
+    if nf.kind in ("plane", "surface"):
+        return Nominal("PLANE", None, np.asarray(p["point"], float), np.asarray(p["normal"], float))
+    if nf.kind == "cylinder":
+        return Nominal(word if word in ("CIRCLE", "CYLNDR") else "CYLNDR", bore, np.asarray(p["point"], float),
+                       np.asarray(p["direction"], float), diameter=2.0 * float(p["radius"]),
+                       length=float(p["length"]) if "length" in p and word == "CYLNDR" else None)
+    if nf.kind == "sphere":
+        return Nominal("SPHERE", bore, np.asarray(p["center"], float), None, diameter=2.0 * float(p["radius"]))
+    if nf.kind == "cone":
+        return Nominal("CONE", bore, np.asarray(p["apex"], float), np.asarray(p["direction"], float),
+                       angle=2.0 * float(p["half_angle"]))
+    raise ValueError(f"no DMIS feature for a {nf.kind} nominal")
+
+
+def deg(x: float) -> float:
+    return math.degrees(x)
