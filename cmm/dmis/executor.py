@@ -55,6 +55,7 @@ class RunResult:
     outputs: dict[str | None, str] = field(default_factory=dict)  # device file (None: the default output) -> text
     log: list[str] = field(default_factory=list)
     hits: int = 0
+    frames: dict[str, np.ndarray] = field(default_factory=dict)  # D(label) -> program -> machine, as defined
 
 
 def _text(p: Param) -> str:
@@ -242,8 +243,7 @@ class Executor:
         handler = getattr(self, "do_" + s.major.lower(), None)
         if handler is None:  # the check lets through only what has a handler or is a no-op
             if s.major in ("DMISMN", "DMISMD", "DISPLY", "PRCOMP", "MODE", "ENDFIL"):
-                self.log(statement_text(s))
-                return
+                return  # the program's name, display and mode settings: the station has one way of each
             raise self.fail(s, f"{s.major} is not supported")
         handler(s)
 
@@ -299,7 +299,10 @@ class Executor:
     def do_output(self, s: Statement) -> None:
         self.emit(statement_text(s))
         pending: list[Actual] = []
+        after_tolerance = False  # FA(a), TA(x), TA(y), FA(b), TA(z): x and y apply to a, z to b
         for lab in self.labels(s):
+            if lab.type in ("FA", "F") and after_tolerance:
+                pending, after_tolerance = [], False
             if lab.type == "FA":
                 a = self.actual(s, lab)
                 pending.append(a)
@@ -321,7 +324,7 @@ class Executor:
                 self.result.evaluations.append(ev)
                 self.emit(output_line(ev))
                 self._to_model(ev, pending)
-                pending = []
+                after_tolerance = True
             else:
                 raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
 
@@ -339,6 +342,7 @@ class Executor:
         self.frame = frame
         if s.label is not None:
             self.frames[s.label.name] = frame.copy()
+            self.result.frames[s.label.name] = frame.copy()
         self.emit(statement_text(s))
 
     def do_datset(self, s: Statement) -> None:
@@ -538,7 +542,7 @@ class Executor:
             feature = self.model.fit_feature(nom.kind, ids, "ls", label, nom.to_model())
         except Exception as exc:  # noqa: BLE001 - a fit refused in words
             raise DmisError(f"line {meas.line}: F({label}) could not be fitted: {exc}") from None
-        g = feature.result.geometry()
+        g = {**feature.result.geometry(), "form": float(feature.result.form)}
         if feature.result.alternative is not None:
             self.log(f"line {meas.line}: FA({label}): another {nom.kind} fits the hits better; check it")
         self.result.actuals[label] = Actual(label, nom.kind, g, nom, feature.id,

@@ -72,7 +72,8 @@ def statements(text: str) -> list[RawStatement]:
 _TOKEN = re.compile(r"""
     (?P<ws>\s+)
   | (?P<str>'[^']*')
-  | (?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)
+  | (?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?(?![A-Za-z_]))
+  | (?P<dword>\d+[A-Za-z_]\w*)
   | (?P<dotop>\.(?:EQ|NE|LT|LE|GT|GE|AND|OR|NOT)\.)
   | (?P<word>[A-Za-z_][A-Za-z0-9_]*)
   | (?P<op>[/,=()+\-*^:])
@@ -98,7 +99,7 @@ def tokens(stmt: RawStatement) -> list[Token]:
             out.append(Token("num", s, float(s)))
         elif kind == "dotop":
             out.append(Token("op", s.upper()))
-        elif kind == "word":
+        elif kind in ("word", "dword"):  # 2D, 3D are words
             out.append(Token("word", s.upper(), s.upper()))
         else:
             out.append(Token("op", s))

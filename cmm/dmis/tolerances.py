@@ -132,6 +132,23 @@ def _nominal_surface_deviation(a: Actual) -> np.ndarray:
     return -d if nom.inner else d
 
 
+def _nearly_parallel(a: Actual, b: Actual, degrees: float = 1.0) -> bool:
+    da, db = a.direction(), b.direction()
+    return da is not None and db is not None and abs(float(da @ db)) >= math.cos(math.radians(degrees))
+
+
+def _axis_distance(a: Actual, b: Actual) -> float:
+    """The distance between two nominally parallel axes where they were measured: the mean of each one's
+    location from the other axis (measured axes are never exactly parallel, and the shortest distance of two
+    skew lines lies far away from both features)."""
+    def off(p: np.ndarray, q: np.ndarray, d: np.ndarray) -> float:
+        r = p - q
+        return float(np.linalg.norm(r - (r @ d) * d))
+
+    da, db = a.direction(), b.direction()
+    return 0.5 * (off(a.axis_point(), b.axis_point(), db) + off(b.axis_point(), a.axis_point(), da))  # type: ignore[arg-type]
+
+
 def _datum_axis(d: Actual) -> tuple[np.ndarray, np.ndarray]:
     if d.kind not in AXIAL:
         raise ToleranceError(f"the datum FA({d.label}) must be an axis (cylinder, circle, cone, line), not a {d.kind}")
@@ -169,6 +186,8 @@ def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], 
             elif any(o in ("XAXIS", "YAXIS", "ZAXIS") for o in tol.options):
                 axis = frame[:3, {"XAXIS": 0, "YAXIS": 1, "ZAXIS": 2}[next(o for o in tol.options if o.endswith("AXIS"))]]
                 value = abs(float((b.location() - a.location()) @ axis))
+            elif a.kind in AXIAL and b.kind in AXIAL and _nearly_parallel(a, b):
+                value = _axis_distance(a, b)
             else:
                 value = construct("distance", (a.kind, a.geometry), (b.kind, b.geometry)).value
         except (FitError, ValueError, KeyError) as exc:
