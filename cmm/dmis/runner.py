@@ -30,13 +30,17 @@ class StationTarget:
         return np.asarray(self.station.machine.position, float)
 
     def move(self, target: np.ndarray, speed: float | None) -> None:
-        self.controller.move_to(self.client, target, speed).wait(self.timeout)
+        """A DMIS GOTO: a straight line, which the control core's rails take only when it is proven free of the
+        part (else they refuse it in words, and the program stops on that line)."""
+        self.controller.move(self.client, target, frame="machine", path="straight", speed=speed).wait(self.timeout)
 
     def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
               search_distance: float, retract_distance: float, rapid_speed: float | None) -> int:
-        hit = self.controller.probe(self.client, point, approach, speed=speed or self.probing_speed,
-                                    approach_distance=approach_distance, search_distance=search_distance,
-                                    retract_distance=retract_distance, rapid_speed=rapid_speed).wait(self.timeout)
+        """A PTMEAS: straight to the pre-hit point (proven free of the part), then the probing move."""
+        hit = self.controller.probe(self.client, point, approach, frame="machine", path="straight",
+                                    speed=speed or self.probing_speed, approach_distance=approach_distance,
+                                    search_distance=search_distance, retract_distance=retract_distance,
+                                    rapid_speed=rapid_speed).wait(self.timeout)
         return int(self.model.hit_id(hit))
 
     @property
