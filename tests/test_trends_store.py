@@ -93,7 +93,7 @@ def _db_values(url: str) -> int:
     import psycopg
 
     with psycopg.connect(url) as c:
-        return c.execute("SELECT count(*) FROM cmm_trend_values").fetchone()[0]
+        return c.execute("SELECT count(*) FROM cmm_trend_vals").fetchone()[0]
 
 
 def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_path):

@@ -161,17 +161,22 @@ def default_station() -> str:
 # the index is a cache of the fsync'ed journal: write-ahead log without a sync per commit (a crash may lose its
 # newest commits, never its consistency; the next catch-up reads those parts from the journal again)
 INDEX_PRAGMAS = "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL;"
+INDEX_VERSION = 2  # PRAGMA user_version of the layout below; an index of another layout is rebuilt
 INDEX_SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS parts (
     seq INTEGER PRIMARY KEY, station TEXT NOT NULL, run_id TEXT NOT NULL, series TEXT NOT NULL,
     serial TEXT NOT NULL, time REAL NOT NULL, UNIQUE (station, run_id));
+CREATE INDEX IF NOT EXISTS parts_series ON parts (series, station);
+CREATE TABLE IF NOT EXISTS chars (
+    id INTEGER PRIMARY KEY, series TEXT NOT NULL, characteristic TEXT NOT NULL, unit TEXT NOT NULL,
+    UNIQUE (series, characteristic));
+-- clustered by characteristic and time: one chart is one contiguous range of this table
 CREATE TABLE IF NOT EXISTS vals (
-    seq INTEGER NOT NULL, series TEXT NOT NULL, characteristic TEXT NOT NULL, time REAL NOT NULL,
-    value REAL NOT NULL, nominal REAL, lower REAL, upper REAL, unit TEXT NOT NULL);
-CREATE INDEX IF NOT EXISTS vals_chart ON vals (series, characteristic, time, seq, value, nominal, lower, upper);
-CREATE TABLE IF NOT EXISTS chars (series TEXT NOT NULL, characteristic TEXT NOT NULL, unit TEXT NOT NULL,
-    PRIMARY KEY (series, characteristic));
+    char_id INTEGER NOT NULL, time REAL NOT NULL, seq INTEGER NOT NULL, pos INTEGER NOT NULL,
+    value REAL NOT NULL, nominal REAL, lower REAL, upper REAL,
+    PRIMARY KEY (char_id, time, seq)) WITHOUT ROWID;
+CREATE INDEX IF NOT EXISTS vals_seq ON vals (seq);
 """
 
 
@@ -186,15 +191,23 @@ class LocalIndex:
 
     def _open(self) -> sqlite3.Connection:
         # autocommit; catch_up and the upload mark take their own transactions
-        try:
-            db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
-            db.executescript(INDEX_PRAGMAS + INDEX_SCHEMA)
-            return db
-        except sqlite3.DatabaseError:  # a damaged index: it is only a cache of the journal, so rebuild it
-            self.path.unlink(missing_ok=True)
-            db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
-            db.executescript(INDEX_PRAGMAS + INDEX_SCHEMA)
-            return db
+        for _attempt in range(2):
+            try:
+                db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
+                db.executescript(INDEX_PRAGMAS)
+                version = db.execute("PRAGMA user_version").fetchone()[0]
+                if version != INDEX_VERSION and db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                    raise sqlite3.DatabaseError(f"index layout {version}")
+                db.executescript(INDEX_SCHEMA + f"PRAGMA user_version = {INDEX_VERSION};")
+                return db
+            except sqlite3.DatabaseError:  # damaged or of another layout: it only caches the journal, rebuild it
+                try:
+                    db.close()
+                except Exception:  # noqa: BLE001
+                    pass
+                for suffix in ("", "-wal", "-shm"):
+                    Path(f"{self.path}{suffix}").unlink(missing_ok=True)
+        raise TrendError(f"cannot open the trends index {self.path}")
 
     def meta(self, key: str) -> int:
         row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
@@ -241,38 +254,50 @@ class LocalIndex:
                 raise
             return len(events)
 
+    def _char_ids(self, keys: list[tuple[str, str, str]]) -> dict[tuple[str, str], int]:
+        """Ids of (series, characteristic, unit), new ones numbered in the order first seen."""
+        self.db.executemany("INSERT OR IGNORE INTO chars (series, characteristic, unit) VALUES (?, ?, ?)", keys)
+        return {(a, b): i for i, a, b in self.db.execute("SELECT id, series, characteristic FROM chars")}
+
     def add(self, events: list[dict]) -> None:
-        parts, vals, chars = [], [], {}
+        parts, keys = [], {}
         for e in events:
             parts.append((e["seq"], e["station"], e["run_id"], e["series"], e.get("serial", ""), e["part_time"]))
-            for name, value, nominal, lower, upper, unit in e["values"]:
-                vals.append((e["seq"], e["series"], name, e["part_time"], value, nominal, lower, upper, unit))
-                chars[(e["series"], name)] = unit
+            for name, _v, _n, _lo, _up, unit in e["values"]:
+                keys.setdefault((e["series"], name, unit), None)
+        ids = self._char_ids(list(keys)) if keys else {}
+        vals = [(ids[(e["series"], row[0])], e["part_time"], e["seq"], k, *row[1:5])
+                for e in events for k, row in enumerate(e["values"])]
         self.db.executemany("INSERT OR IGNORE INTO parts VALUES (?, ?, ?, ?, ?, ?)", parts)
-        self.db.executemany("INSERT INTO vals VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", vals)
-        self.db.executemany("INSERT OR IGNORE INTO chars VALUES (?, ?, ?)", [(s, c, u) for (s, c), u in chars.items()])
+        self.db.executemany("INSERT OR IGNORE INTO vals VALUES (?, ?, ?, ?, ?, ?, ?, ?)", vals)
 
     def series(self) -> list[str]:
         return [r[0] for r in self.db.execute("SELECT DISTINCT series FROM chars ORDER BY series")]
 
     def characteristics(self, series: str) -> list[tuple[str, str]]:
         return [(r[0], r[1]) for r in self.db.execute(
-            "SELECT characteristic, unit FROM chars WHERE series = ? ORDER BY rowid", (series,))]
+            "SELECT characteristic, unit FROM chars WHERE series = ? ORDER BY id", (series,))]
+
+    def unit(self, series: str, characteristic: str) -> str:
+        row = self.db.execute("SELECT unit FROM chars WHERE series = ? AND characteristic = ?",
+                              (series, characteristic)).fetchone()
+        return "mm" if row is None else str(row[0])
 
     def stations(self, series: str) -> list[str]:
         return [r[0] for r in self.db.execute("SELECT DISTINCT station FROM parts WHERE series = ? ORDER BY station",
                                               (series,))]
 
     def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
-        sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial, v.unit "
-               "FROM vals v JOIN parts p ON p.seq = v.seq WHERE v.series = ? AND v.characteristic = ?")
+        sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial "
+               "FROM chars c JOIN vals v ON v.char_id = c.id JOIN parts p ON p.seq = v.seq "
+               "WHERE c.series = ? AND c.characteristic = ?")
         args: list[Any] = [series, characteristic]
         if station:
             sql += " AND p.station = ?"
             args.append(station)
         return self.db.execute(sql + " ORDER BY v.time, v.seq", args).fetchall()
 
-    def pending(self, after_seq: int, limit: int) -> list[PartResult]:
+    def pending(self, after_seq: int, limit: int) -> list[PartSeq]:
         """Parts journalled after ``after_seq`` (in order), with their values, for the upload."""
         parts = self.db.execute("SELECT seq, station, run_id, series, serial, time FROM parts WHERE seq > ? "
                                 "ORDER BY seq LIMIT ?", (after_seq, limit)).fetchall()
@@ -280,8 +305,9 @@ class LocalIndex:
             return []
         by_seq: dict[int, list[Measured]] = {p[0]: [] for p in parts}
         for seq, name, value, nominal, lower, upper, unit in self.db.execute(
-                "SELECT seq, characteristic, value, nominal, lower, upper, unit FROM vals WHERE seq BETWEEN ? AND ? "
-                "ORDER BY rowid", (parts[0][0], parts[-1][0])):
+                "SELECT v.seq, c.characteristic, v.value, v.nominal, v.lower, v.upper, c.unit FROM vals v "
+                "JOIN chars c ON c.id = v.char_id WHERE v.seq BETWEEN ? AND ? ORDER BY v.seq, v.pos",
+                (parts[0][0], parts[-1][0])):
             if seq in by_seq:
                 by_seq[seq].append(Measured(name, value, nominal, lower, upper, unit))
         return [PartSeq(seq, PartResult(series, station, run_id, t, serial, tuple(by_seq[seq])))
@@ -297,14 +323,13 @@ class PartSeq:
     part: PartResult
 
 
-def history_from_rows(series: str, characteristic: str, rows: list[tuple], source: str) -> History:
-    """A :class:`History` from (time, value, nominal, lower, upper, station, run_id, serial, unit) rows."""
+def history_from_rows(series: str, characteristic: str, rows: list[tuple], source: str, unit: str = "mm") -> History:
+    """A :class:`History` from (time, value, nominal, lower, upper, station, run_id, serial) rows."""
     if not rows:
-        return History(series, characteristic, "mm", *(np.zeros(0) for _ in range(5)), [], [], [], source)
+        return History(series, characteristic, unit, *(np.zeros(0) for _ in range(5)), [], [], [], source)
     cols = list(zip(*rows))
-    num = [np.array([np.nan if v is None else v for v in c], dtype=np.float64) for c in cols[:5]]
-    return History(series, characteristic, str(cols[8][-1]), *num, list(cols[5]), list(cols[6]), list(cols[7]),
-                   source)
+    num = [np.array(c, dtype=np.float64) for c in cols[:5]]  # None -> nan
+    return History(series, characteristic, unit, *num, list(cols[5]), list(cols[6]), list(cols[7]), source)
 
 
 # --------------------------------------------------------------------------- the station's trends
@@ -327,6 +352,7 @@ class Trends:
 
     RETRY_S = 5.0  # after a failed connection, queries use the local index for this long before trying again
     BATCH = 500  # parts per upload transaction
+    VACUUM_AFTER = 1000  # parts uploaded in one catch-up after which the database's statistics are refreshed
 
     def __init__(self, directory: str | Path = "trends", *, station: str | None = None,
                  database: str | None = None, connect_timeout: float = 3.0) -> None:
@@ -431,6 +457,11 @@ class Trends:
             while True:
                 batch = self.index.pending(self.index.meta("uploaded_seq"), self.BATCH)
                 if not batch:
+                    if sent >= self.VACUUM_AFTER and self._db is not None:  # a big catch-up: see vacuum()
+                        try:
+                            self._db.vacuum()
+                        except TrendDatabaseError as exc:
+                            self._lost(exc)
                     return sent
                 for _attempt in range(2):  # as in _ask: a stale connection is replaced once
                     fresh = self._db is None
@@ -448,6 +479,7 @@ class Trends:
                 self.index.set_meta("uploaded_seq", batch[-1].seq)
                 sent += len(batch)
                 self.state.uploaded += len(batch)
+
 
     def start(self, every: float = 10.0) -> "Trends":
         """Catch up in the background: upload what waits every ``every`` seconds while a database is configured."""
@@ -498,9 +530,10 @@ class Trends:
         return self._ask(lambda d: d.stations(series), lambda i: i.stations(series))[0]
 
     def history(self, series: str, characteristic: str, station: str | None = None) -> History:
-        rows, source = self._ask(lambda d: d.rows(series, characteristic, station),
-                                 lambda i: i.rows(series, characteristic, station))
-        return history_from_rows(series, characteristic, rows, source)
+        (rows, unit), source = self._ask(
+            lambda d: (d.rows(series, characteristic, station), d.unit(series, characteristic)),
+            lambda i: (i.rows(series, characteristic, station), i.unit(series, characteristic)))
+        return history_from_rows(series, characteristic, rows, source, unit)
 
     def status_text(self) -> str:
         """One line for the page and the CLI: where the charts come from and what waits."""

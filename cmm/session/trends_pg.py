@@ -4,10 +4,10 @@ Tables (created when missing, under an advisory lock so stations starting togeth
 
 - ``cmm_trend_parts`` (id, station, run_id, series, serial, time), UNIQUE (station, run_id): the upload is
   idempotent, a part sent twice is stored once;
-- ``cmm_trend_values`` (part_id, series, characteristic, time, value, nominal, lower, upper, unit), indexed
-  by (series, characteristic, time) with the charted columns included, so a chart is an index-only range scan;
-- ``cmm_trend_characteristics`` (series, characteristic, unit): the list the page offers, kept on upload
-  (a DISTINCT over every value would read them all).
+- ``cmm_trend_chars`` (id, series, characteristic, unit): the characteristics, numbered in the order first
+  uploaded (the list the page offers: a DISTINCT over every value would read them all);
+- ``cmm_trend_vals`` (char_id, part_id, time, value, nominal, lower, upper), keyed by (characteristic, time,
+  part) with the charted columns included, so a chart is one range of that index.
 
 Every failure (server down, connection lost) is a :class:`TrendDatabaseError` with the reason; the caller
 keeps the parts in its local journal and tries again.
@@ -28,27 +28,25 @@ CREATE TABLE IF NOT EXISTS cmm_trend_parts (
     UNIQUE (station, run_id)
 );
 CREATE INDEX IF NOT EXISTS cmm_trend_parts_series ON cmm_trend_parts (series, station);
-CREATE TABLE IF NOT EXISTS cmm_trend_values (
-    part_id        bigint NOT NULL REFERENCES cmm_trend_parts(id) ON DELETE CASCADE,
-    series         text NOT NULL,
-    characteristic text NOT NULL,
-    time           double precision NOT NULL,
-    value          double precision NOT NULL,
-    nominal        double precision,
-    lower          double precision,
-    upper          double precision,
-    unit           text NOT NULL,
-    PRIMARY KEY (part_id, characteristic)
-);
-CREATE INDEX IF NOT EXISTS cmm_trend_values_chart ON cmm_trend_values (series, characteristic, time, part_id)
-    INCLUDE (value, nominal, lower, upper);
-CREATE TABLE IF NOT EXISTS cmm_trend_characteristics (
+CREATE TABLE IF NOT EXISTS cmm_trend_chars (
+    id             bigserial PRIMARY KEY,
     series         text NOT NULL,
     characteristic text NOT NULL,
     unit           text NOT NULL,
-    first          double precision NOT NULL,
-    PRIMARY KEY (series, characteristic)
+    UNIQUE (series, characteristic)
 );
+CREATE TABLE IF NOT EXISTS cmm_trend_vals (
+    char_id bigint NOT NULL REFERENCES cmm_trend_chars(id) ON DELETE CASCADE,
+    part_id bigint NOT NULL REFERENCES cmm_trend_parts(id) ON DELETE CASCADE,
+    time    double precision NOT NULL,
+    pos     integer NOT NULL,
+    value   double precision NOT NULL,
+    nominal double precision,
+    lower   double precision,
+    upper   double precision,
+    PRIMARY KEY (char_id, time, part_id) INCLUDE (value, nominal, lower, upper)
+);
+CREATE INDEX IF NOT EXISTS cmm_trend_vals_part ON cmm_trend_vals (part_id);
 """
 SCHEMA_LOCK = (0x434D4D, 0x54524E44)  # "CMM", "TRND"
 
@@ -71,6 +69,8 @@ class TrendDatabase:
     def __init__(self, url: str, connect_timeout: float = 3.0) -> None:
         psycopg = _psycopg()
         self._error = psycopg.Error
+        self._ids: dict[tuple[str, str], int] = {}  # (series, characteristic) -> id, as uploaded
+        self._parts: dict[int, tuple[str, str, str]] = {}  # part id -> (station, run id, serial), as read
         try:
             self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, round(connect_timeout)))
             with self.conn.transaction():
@@ -113,7 +113,6 @@ class TrendDatabase:
         def go(conn: Any) -> int:
             new = 0
             with conn.transaction():
-                chars: dict[tuple[str, str], tuple[str, float]] = {}
                 with conn.cursor() as cur:
                     rows = []
                     for p in parts:
@@ -124,46 +123,78 @@ class TrendDatabase:
                         if got is None:
                             continue  # uploaded before
                         new += 1
-                        for v in p.values:
-                            rows.append((got[0], p.series, v.name, p.time, v.value, v.nominal, v.lower, v.upper, v.unit))
-                            chars.setdefault((p.series, v.name), (v.unit, p.time))
+                        for k, v in enumerate(p.values):
+                            rows.append(((p.series, v.name, v.unit), got[0], p.time, k, v.value, v.nominal, v.lower,
+                                         v.upper))
+                    ids = self._char_ids(cur, list(dict.fromkeys(r[0] for r in rows)))
                     if rows:
-                        with cur.copy("COPY cmm_trend_values (part_id, series, characteristic, time, value, nominal, "
-                                      "lower, upper, unit) FROM STDIN") as copy:
+                        with cur.copy("COPY cmm_trend_vals (char_id, part_id, time, pos, value, nominal, lower, upper) "
+                                      "FROM STDIN") as copy:
                             for r in rows:
-                                copy.write_row(r)
-                    if chars:
-                        cur.executemany("INSERT INTO cmm_trend_characteristics (series, characteristic, unit, first) "
-                                        "VALUES (%s, %s, %s, %s) ON CONFLICT DO NOTHING",
-                                        [(s, c, u, t) for (s, c), (u, t) in chars.items()])
+                                copy.write_row((ids[r[0][:2]], *r[1:]))
             return new
 
         return self._run(go)
+
+    def _char_ids(self, cur: Any, keys: list[tuple[str, str, str]]) -> dict[tuple[str, str], int]:
+        """Ids of (series, characteristic, unit), new ones numbered in the order given."""
+        missing = [k for k in keys if k[:2] not in self._ids]
+        if missing:
+            cur.executemany("INSERT INTO cmm_trend_chars (series, characteristic, unit) VALUES (%s, %s, %s) "
+                            "ON CONFLICT DO NOTHING", missing)
+            cur.execute("SELECT id, series, characteristic FROM cmm_trend_chars")
+            self._ids = {(a, b): i for i, a, b in cur.fetchall()}
+        return self._ids
 
     # --- queries -------------------------------------------------------------------------------
 
     def series(self) -> list[str]:
         return self._run(lambda c: [r[0] for r in c.execute(
-            "SELECT DISTINCT series FROM cmm_trend_characteristics ORDER BY series")])
+            "SELECT DISTINCT series FROM cmm_trend_chars ORDER BY series")])
 
     def characteristics(self, series: str) -> list[tuple[str, str]]:
         return self._run(lambda c: [(r[0], r[1]) for r in c.execute(
-            "SELECT characteristic, unit FROM cmm_trend_characteristics WHERE series = %s ORDER BY first, "
-            "characteristic", (series,))])
+            "SELECT characteristic, unit FROM cmm_trend_chars WHERE series = %s ORDER BY id", (series,))])
+
+    def unit(self, series: str, characteristic: str) -> str:
+        row = self._run(lambda c: c.execute("SELECT unit FROM cmm_trend_chars WHERE series = %s AND "
+                                            "characteristic = %s", (series, characteristic)).fetchone())
+        return "mm" if row is None else str(row[0])
 
     def stations(self, series: str) -> list[str]:
         return self._run(lambda c: [r[0] for r in c.execute(
             "SELECT DISTINCT station FROM cmm_trend_parts WHERE series = %s ORDER BY station", (series,))])
 
     def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
-        sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial, v.unit "
-               "FROM cmm_trend_values v JOIN cmm_trend_parts p ON p.id = v.part_id "
-               "WHERE v.series = %s AND v.characteristic = %s")
+        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order.
+
+        The values come as binary numbers in the order of the (characteristic, time, part) key (one index range,
+        no sort); who measured each part comes from a cache of the parts table, filled for the parts not yet
+        in it (a part's station, run id and serial never change)."""
+        sql = ("SELECT v.time, v.part_id, v.value, v.nominal, v.lower, v.upper FROM cmm_trend_vals v "
+               "WHERE v.char_id = (SELECT id FROM cmm_trend_chars WHERE series = %s AND characteristic = %s)")
         args: list[Any] = [series, characteristic]
         if station:
-            sql += " AND p.station = %s"
-            args.append(station)
-        return self._run(lambda c: c.execute(sql + " ORDER BY v.time, v.part_id", args).fetchall())
+            sql += " AND v.part_id IN (SELECT id FROM cmm_trend_parts WHERE series = %s AND station = %s)"
+            args += [series, station]
+        sql += " ORDER BY v.char_id, v.time, v.part_id"
+
+        def go(conn: Any) -> list[tuple]:
+            with conn.cursor(binary=True) as cur:
+                rows = cur.execute(sql, args).fetchall()
+                missing = list({r[1] for r in rows} - self._parts.keys())
+                if missing:
+                    for pid, st, run, serial in cur.execute("SELECT id, station, run_id, serial FROM cmm_trend_parts "
+                                                            "WHERE id = ANY(%s)", (missing,)):
+                        self._parts[pid] = (st, run, serial)
+            parts = self._parts
+            return [(t, v, n, lo, up, *parts[pid]) for t, pid, v, n, lo, up in rows]
+
+        return self._run(go)
+
+    def vacuum(self) -> None:
+        """Refresh the visibility map and statistics after a big upload: chart queries are index-only again."""
+        self._run(lambda c: c.execute("VACUUM ANALYZE cmm_trend_vals"))
 
     def count_parts(self, series: str | None = None) -> int:
         if series is None:
