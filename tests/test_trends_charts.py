@@ -100,3 +100,19 @@ def test_the_report_includes_the_series_charts_and_the_cli_prints_and_exports(ri
     assert main(["report", "empty", "--store", str(tmp_path / "sessions"), "-o", str(tmp_path / "r.html"),
                  "--trend", "rings", "--trends", trends_dir]) == 0
     assert "this station's parts (local journal)" in (tmp_path / "r.html").read_text()
+
+
+def test_cmm_serve_opens_the_stations_trends_from_its_options(tmp_path, monkeypatch):
+    from cmm.cli import build_parser
+    from cmm.ui.serve import open_trends
+
+    monkeypatch.delenv("CMM_TRENDS_DB", raising=False)
+    args = build_parser().parse_args(["serve", "--trends", str(tmp_path / "t"), "--station", "cmm-7"])
+    with open_trends(args) as t:
+        assert t.station == "cmm-7" and t.database_url is None and t.directory == tmp_path / "t"
+        assert "local trends only" in t.status_text()
+    args = build_parser().parse_args(["serve", "--trends", str(tmp_path / "t"), "--sessions",
+                                      "postgresql://nobody@127.0.0.1:1/x?connect_timeout=1"])
+    with open_trends(args) as t:  # the session store's database is the trends database too; down: local
+        assert t.database_url.startswith("postgresql://") and t.source == "local"
+        assert "unreachable" in t.status_text()
