@@ -12,27 +12,32 @@ The API (:class:`Controller`)
 ------------------------------
 Commands in, state and errors out. Every command takes the front end's
 ``client`` first: a :class:`Client` (id, local?, authenticated?) or an id
-string; ``None`` is the station itself (scripts, CLI, homing):
+string; ``None`` is the station itself (scripts, CLI, homing). The same verbs
+as requests and responses (a method name and named parameters in, a result or
+an error with a code and the operator's sentence out): ``controller.commands``
+(:mod:`cmm.control.api`), which the pendant and the I++ server map to.
 
-=========================  ===================================================================
-``jog(client, v, probe=)``  mm/s per axis; repeat at least every ``[jog] deadman_timeout`` (0.15 s)
-``jog_release(client)``    end the jog now (does not wait: goes first in the loop's next step, and
-                           drops this client's jogs still queued; ``release_seq``/``jog(after=)`` for
-                           front ends that queue jog messages themselves)
-``cancel(client, status)`` cancel one move or probe cycle
-``move_to(client, xyz)``   coordinated move -> :class:`~cmm.machine.status.MoveStatus`
-``move_path / step``       path of moves; one-axis step (1 count .. 10 mm)
-``probe(client, p, u)``    programmed hit; the rapid goes over ``clearance_z`` (default: the higher of
-                           here and the pre-hit point); the status's result is the recorded Hit
-``home(client)``           the homing cycle of ``[homing]`` (blocks; STOP aborts it)
-``zero(client, confirm=)`` here becomes the home coordinates: only with ``confirm=True``, probe free
-``stop(client)``           controlled stop -> :class:`StopReport` (``ok`` only if every module acknowledged)
-``emergency_stop(client)`` abrupt stop, amplifiers off, latched -> :class:`StopReport`
-``reset(client)``          clear the E-stop latch / a stop / a fault (when the link answers)
-``reconnect(client)``      after a link fault: reopen the link, restart the modules (home again)
-``run_job(client, name, fn)``  a routine (calibration, program) run in the loop with the machine to itself
-``configure(client, fn)``  change the set-up (correction, probe settings, gains) while the machine is still
-=========================  ===================================================================
+===================================  =========================================================================
+``move(client, xyz, frame=, path=)``  to a point in 'machine' or 'part' coordinates, over the clearance plane
+                                      (``path='straight'`` only when proven free of the part) -> MoveStatus
+``probe(client, p, u, frame=, ...)``  programmed hit, approach/search/retract distances, speeds; the rapid goes
+                                      over the clearance plane (or straight when proven free); result: the Hit
+``jogs.hold(client, v) / release``    the jog-hold pipeline (:mod:`.jog`): clamp, release sequence, dead-man
+``jog / jog_release``                 the pipeline's primitives (a jog repeats within ``deadman_timeout``)
+``cancel(client, status)``            cancel one move or probe cycle
+``step(client, axis, mm)``            one-axis step (1 count .. 10 mm)
+``home(client)``                      the homing cycle of ``[homing]`` (blocks; STOP aborts it)
+``zero(client, confirm=)``            here becomes the home coordinates: only with ``confirm=True``, probe free
+``stop(client)``                      controlled stop -> :class:`StopReport` (``ok`` only if every module acknowledged)
+``emergency_stop(client)``            abrupt stop, amplifiers off, latched -> :class:`StopReport`
+``reset(client)``                     clear the E-stop latch / a stop / a fault (when the link answers)
+``reconnect(client)``                 after a link fault: reopen the link, restart the modules (home again)
+``run_job(client, name, fn)``         a routine (calibration, program) run in the loop with the machine to itself
+``configure(client, fn)``             change the set-up (correction, probe settings, gains) while the machine is still
+===================================  =========================================================================
+
+Motion rails (:mod:`.rails`): every move and probe names its frame; moves go
+over the clearance plane; a restart after a fault or a contact backs off first.
 
 Refusals raise :class:`Refused` (a ``MotionError``) with a sentence for the
 operator, before anything is sent. Link failures raise :class:`ControlError`
@@ -50,10 +55,10 @@ status completes. All of these run on the dispatcher thread, never in the
 machine loop: a listener that fails is logged and skipped; a hit recorder that
 fails (disk full) puts the machine in fault.
 
-Access: one policy object (``refusal(client, command) -> str | None``),
-checked once per command here. :class:`HolderPolicy` adapts the UI's control
-holder (:class:`cmm.control.access.Control`); STOP / E-STOP / jog release follow its
-``may_stop`` when it has one, else they are open to every client.
+Access (:mod:`.access`): one policy object (``refusal(client, command) -> str | None``),
+checked once per command here. :class:`HolderPolicy` adapts the station's one
+control holder (:class:`cmm.control.access.Control`); STOP / E-STOP / jog release
+follow its ``may_stop``.
 
 Threads: ``start()`` runs the machine loop (the only thread that talks to the
 bus) and the dispatcher. Without ``start()`` commands run in the caller's
