@@ -203,24 +203,17 @@ class CalibrationService:
         try:
             certs = self.certificates(routine)
             self._cancel = False
-            api = self.host.controller
-
-            def posted(fraction: float, message: str) -> None:  # to the front end from the dispatcher thread
-                if progress is not None:
-                    api.dispatcher.post(progress, fraction, message)
-            try:
-                return api.run_job(client, LABELS[routine], lambda: self._work(routine, certs, options, posted))
-            finally:
-                if progress is not None:
-                    api.dispatcher.flush()  # the last progress report reaches the front end before the result
+            return self.host.controller.run_routine(client, LABELS[routine],
+                                                    lambda job: self._work(job, routine, certs, options),
+                                                    progress=progress)
         finally:
             self.instruction = ""
             self._bar_event = None
             self._running.release()
 
-    def _work(self, routine: str, certs: Any, options: dict[str, Any], progress: Progress) -> Any:
-        """In the machine loop (run_job): the routine has the machine to itself."""
-        machine, settings = self.host.machine, self.host.prober.settings
+    def _work(self, job: Any, routine: str, certs: Any, options: dict[str, Any]) -> Any:
+        """In the machine loop (the core's run_routine): the routine has the job's machine to itself."""
+        machine, settings, progress = job.machine, job.prober.settings, job.progress
         if routine == "probe":
             from .probe import qualify_probe
 

@@ -51,6 +51,18 @@ class _Command:
         self.future: Future = Future()
 
 
+class Job:
+    """What a routine run by :meth:`Controller.run_routine` works with, inside the machine loop."""
+
+    def __init__(self, machine: Machine, prober: Prober, progress: Callable[[float, str], None] | None) -> None:
+        self.machine, self.prober = machine, prober
+        self._progress = progress
+
+    def progress(self, fraction: float, message: str) -> None:
+        if self._progress is not None:
+            self._progress(fraction, message)
+
+
 class Controller:
     """Owns one :class:`Machine` (and its :class:`Prober`); see :mod:`cmm.control`."""
 
@@ -434,6 +446,19 @@ class Controller:
                     self._job = None
                 self._publish()
         return self._submit(client, "job", run, timeout=timeout)
+
+    def run_routine(self, client: str | None, description: str, routine: Callable[["Job"], Any], *,
+                    progress: Callable[[float, str], None] | None = None, timeout: float | None = None) -> Any:
+        """A routine that needs the machine itself (calibration): ``routine(job)`` runs as a :meth:`run_job`
+        and gets the machine, the prober and ``job.progress(fraction, message)``, which reaches ``progress`` on
+        the dispatcher thread (never in the loop); the last report is delivered before this returns."""
+        job = Job(self.machine, self.prober, None if progress is None else
+                  (lambda fraction, message: self.dispatcher.post(progress, fraction, message)))
+        try:
+            return self.run_job(client, description, lambda: routine(job), timeout=timeout)
+        finally:
+            if progress is not None:
+                self.dispatcher.flush()
 
     def wait_event(self, event: threading.Event, timeout: float) -> bool:
         """Wait for ``event``; from inside the machine loop (a routine waiting for the operator) keep the loop
