@@ -98,7 +98,7 @@ def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path):
     exported = session_json(session, mesh=model.part.mesh)
     for _, ch in rows:
         assert f"{ch.actual:.4f}" in html and f"{ch.actual:.6f}" in csv
-    assert "Geometric tolerances" in html and "⌖ ⌀0.0500Ⓜ | A|B|C" in html
+    assert "Geometric tolerances" in html and "⊕ ⌀0.0500(M) | A|B|C" in html
     pos = next(x for x in exported["gdt"] if x["id"] == d["id"])
     assert pos["value"] == pytest.approx(c.actual, abs=1e-12) and pos["drf"] == "A|B|C" and pos["result"] == "pass"
     json.dumps(exported, allow_nan=False)

@@ -77,7 +77,7 @@ class Characteristic:
     def tolerance_text(self) -> str:
         u = "°" if self.unit == "deg" else ""
         if self.lower == 0.0:
-            if self.name.startswith(("position", "⌖", "◎")):
+            if self.name.startswith(("position", "⊕", "◎")):
                 return f"⌀ {self.upper:.4f}" + (f" | {self.datums}" if self.datums else "")
             return f"≤ {self.upper:.4f}{u}" + (f" | {self.datums}" if self.datums else "")
         if self.upper == -self.lower:

@@ -96,7 +96,7 @@ class Datum:
 
     @property
     def text(self) -> str:
-        mod = {"MMB": "Ⓜ", "LMB": "Ⓛ"}.get(self.modifier, "")
+        mod = {"MMB": "(M)", "LMB": "(L)"}.get(self.modifier, "")
         return f"{self.label}{mod}"
 
 
@@ -156,7 +156,7 @@ class DRF:
 
     @property
     def labels(self) -> str:
-        """"A|B|C" with modifiers (Ⓜ, Ⓛ), as in a feature control frame."""
+        """"A|B|C" with modifiers ((M), (L)), as in a feature control frame."""
         return "|".join(d.text for d in self.datums)
 
     @property

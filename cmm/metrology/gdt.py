@@ -50,7 +50,7 @@ ORIENTATION = ("parallelism", "perpendicularity", "angularity")
 CHARACTERISTICS = FORM + ORIENTATION + ("position", "concentricity", "coaxiality", "circular runout",
                                         "total runout", "profile of a surface", "profile of a line")
 SYMBOLS = {"flatness": "⏥", "straightness": "⏤", "circularity": "○", "cylindricity": "⌭", "parallelism": "∥",
-           "perpendicularity": "⟂", "angularity": "∠", "position": "⌖", "concentricity": "◎", "coaxiality": "◎",
+           "perpendicularity": "⟂", "angularity": "∠", "position": "⊕", "concentricity": "◎", "coaxiality": "◎",
            "circular runout": "↗", "total runout": "⌰", "profile of a surface": "⌓", "profile of a line": "⌒"}
 NEEDS_DATUMS = ORIENTATION + ("concentricity", "coaxiality", "circular runout", "total runout")
 AXIS_KINDS = ("cylinder", "cone", "line")

@@ -32,7 +32,7 @@ from . import gdt
 from .characteristics import DEFAULT_TOLERANCE, Characteristic
 from .datums import DRF, DatumError, build_drf, datum_from_feature
 
-MATERIAL_SYMBOL = {"MMC": "Ⓜ", "LMC": "Ⓛ"}
+MATERIAL_SYMBOL = {"MMC": "(M)", "LMC": "(L)"}
 
 
 @dataclass(frozen=True)
@@ -202,7 +202,7 @@ def _nominal_direction(f: MeasuredFeature, labels: list[str], datums: dict[str, 
 
 
 def tolerance_text(d: dict[str, Any]) -> str:
-    """The feature control frame in one line: "⌖ ⌀0.0500Ⓜ | A|B|C"."""
+    """The feature control frame in one line: "⊕ ⌀0.0500(M) | A|B|C"."""
     ch = d.get("characteristic", "")
     dia = "⌀" if ch in ("position", "coaxiality", "concentricity") else ""
     head = f"{gdt.SYMBOLS.get(ch, '')} {dia}{float(d.get('tolerance', 0)):.4f}{MATERIAL_SYMBOL.get(d.get('material') or '', '')}"
@@ -226,7 +226,7 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
                                           note=f"{name}: not evaluated: {msg}",
                                           datums="|".join(d.get("datums") or []))))
             continue
-        note = f"{name}: {tolerance_text(d)}; {r.note}" + (f"; bonus {r.bonus:.4f}" if r.bonus else "")
+        note = f"{name}: {r.note}"
         out.append((d, Characteristic(fname, r.label, 0.0, r.value, r.allowed, 0.0, note=note,
                                       datums=r.drf)))
     return out

@@ -383,7 +383,7 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
         for label in d.get("datums") or []:
             df = st.datums.get(label)
             f = None if df is None else st.features.get(int(df["feature"]))
-            mod = {"MMB": "Ⓜ", "LMB": "Ⓛ"}.get((df or {}).get("modifier") or "", "")
+            mod = {"MMB": "(M)", "LMB": "(L)"}.get((df or {}).get("modifier") or "", "")
             frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
         bonus = c.upper - float(d.get("tolerance") or 0.0)
         result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",

@@ -61,15 +61,16 @@ def tree_html(station: Any, selected: int | None = None) -> str:
                                            c.tolerance)) for fid, c in built]
     gdt_rows = station.measurement.gdt_characteristics()
     if gdt_rows or station.measurement.datums:
-        datums = ", ".join(f"{k}{ {'MMB': 'Ⓜ', 'LMB': 'Ⓛ'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
+        datums = ", ".join(f"{k}{ {'MMB': '(M)', 'LMB': '(L)'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
                            for k, d in sorted(station.measurement.datums.items()))
         items.append((None, "Geometric tolerances", f"datums: {datums or 'none'}", [c for _, c in gdt_rows]))
     for fid, name, what, chars in items:
         oks = [c.ok for c in chars]
         worst = False if False in oks else (None if None in oks else True)
         head = CHECK_COLOUR if any(c.check for c in chars) else RESULT_COLOURS[worst]
-        mark = "▶ " if fid == selected else ""
-        bg = "background:#fff8c4;" if fid == selected else ""
+        chosen = fid is not None and fid == selected
+        mark = "▶ " if chosen else ""
+        bg = "background:#fff8c4;" if chosen else ""
         rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
                     f"<b style='color:{head}'>{mark}{'' if fid is None else fid} {e(name)}</b> "
                     f"<span style='color:#777'>{e(what)}</span></td></tr>")
