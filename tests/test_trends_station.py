@@ -86,5 +86,39 @@ def test_program_runs_are_parts_of_a_series_and_the_trends_tab_charts_them(stati
         t.record_part("dome check", [("dome / diameter", 20.05, 20.0, 19.97, 20.03)], serial="P3")
         panel.refresh()
         assert panel.chart.history.serial[-1] == "P3" and panel.chart.out_of_tolerance == [2]
+        _browser_tab_shows_the_chart(app)
     finally:
         app.close()
+
+
+def _browser_tab_shows_the_chart(app):
+    """A real viser connection builds the Trends tab with the series and its chart."""
+    import time
+
+    import msgspec
+    import viser
+    from viser import _messages
+    from websockets.sync.client import connect
+
+    before = set(app.clients)
+    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
+                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        end = time.monotonic() + 10
+        tab = None
+        while tab is None and time.monotonic() < end:
+            try:
+                ws.recv(timeout=0.1)
+            except TimeoutError:
+                pass
+            new = [c for k, c in app.clients.items() if k not in before and c.client is not None]
+            tab = new[0] if new and "records" in new[0].calibration.gui else None  # the last tab built
+        assert tab is not None, "the page was not built"
+        g = tab.trends.gui
+        assert g["series"].options == ("dome check",) and g["series"].value == "dome check"
+        assert "dome / diameter" in g["characteristic"].options and g["station"].options == ("all stations", "cmm-test")
+        assert g["chart"].content.startswith('<svg class="trend"') and "Cp" in g["summary"].content
+        tab.trends.choose_characteristic("dome / diameter")
+        assert g["characteristic"].value == "dome / diameter"
+        assert "dome check: dome / diameter" in g["chart"].content
