@@ -96,9 +96,20 @@ def _db_values(url: str) -> int:
         return c.execute("SELECT count(*) FROM cmm_trend_vals").fetchone()[0]
 
 
+def _eventually(check, timeout=20.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < end, "the station did not catch up"
+        time.sleep(0.1)
+
+
 def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_path):
     a = Trends(tmp_path / "a", station="cmm-a", database=pg.url, connect_timeout=2)
     b = Trends(tmp_path / "b", station="cmm-b", database=pg.url, connect_timeout=2)
+    b.RETRY_S = 0.2
+    b.start(every=0.2)  # B catches up by itself, as `cmm serve` runs it; A when told (or with its next part)
     try:
         runs = {"cmm-a": [], "cmm-b": []}
         for i in range(6):  # the stations take turns
@@ -111,10 +122,11 @@ def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_pat
             assert t.stations("bracket") == ["cmm-a", "cmm-b"]
         assert a.history("bracket", BORE, station="cmm-b").run_id == runs["cmm-b"]
 
-        pg.stop()  # the database goes away mid-series: station A keeps measuring
-        for i in range(6, 10):
-            runs["cmm-a"].append(a.record_part("bracket", part_values(i), when=2000.0 + i).run_id)
-        assert a.pending() == 4
+        pg.stop()  # the database goes away mid-series: both stations keep measuring
+        for i in range(6, 12):
+            t = a if i < 10 else b
+            runs[t.station].append(t.record_part("bracket", part_values(i), when=2000.0 + i).run_id)
+        assert a.pending() == 4 and b.pending() == 2
         h = a.history("bracket", BORE)
         assert h.source == "local" and h.station == ["cmm-a"] * 7  # its own parts, from the journal
         assert "unreachable" in a.status_text() and "4 parts journalled here" in a.status_text()
@@ -123,16 +135,18 @@ def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_pat
         assert pg.start() == ""
         assert a.sync(force=True) == 4 and a.pending() == 0
         assert "connected" in a.status_text()
+        _eventually(lambda: b.pending() == 0)
         # a crash between the database's commit and the local mark sends everything again: stored once
         a.index.set_meta("uploaded_seq", 0)
         assert a.sync() == 7
         expected = sorted((s, r) for s, rs in runs.items() for r in rs)
-        assert _db_runs(pg.url) == expected and _db_values(pg.url) == 2 * 10
-        b.state.last_try = 0.0
-        h = b.history("bracket", BORE)
-        assert h.source == "database" and len(h) == 10
-        assert h.station == ["cmm-a", "cmm-b"] * 3 + ["cmm-a"] * 4
-        assert np.allclose(h.value, 30.0 + 0.001 * np.arange(10))
+        assert _db_runs(pg.url) == expected and _db_values(pg.url) == 2 * 12
+        _eventually(lambda: b.source == "database")
+        for t in (a, b):
+            h = t.history("bracket", BORE)
+            assert h.source == "database" and len(h) == 12
+            assert h.station == ["cmm-a", "cmm-b"] * 3 + ["cmm-a"] * 4 + ["cmm-b"] * 2
+            assert np.allclose(h.value, 30.0 + 0.001 * np.arange(12))
     finally:
         a.close()
         b.close()

@@ -186,7 +186,7 @@ class LocalIndex:
     def __init__(self, journal_path: Path, path: Path) -> None:
         self.journal_path = journal_path
         self.path = path
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # one connection for the station's threads: one statement at a time
         self.db = self._open()
 
     def _open(self) -> sqlite3.Connection:
@@ -209,13 +209,17 @@ class LocalIndex:
                     Path(f"{self.path}{suffix}").unlink(missing_ok=True)
         raise TrendError(f"cannot open the trends index {self.path}")
 
+    def _q(self, sql: str, args: Any = ()) -> list[tuple]:
+        with self._lock:
+            return self.db.execute(sql, args).fetchall()
+
     def meta(self, key: str) -> int:
-        row = self.db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
-        return 0 if row is None else int(row[0])
+        rows = self._q("SELECT value FROM meta WHERE key = ?", (key,))
+        return 0 if not rows else int(rows[0][0])
 
     def set_meta(self, key: str, value: int) -> None:
-        self.db.execute("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET value = "
-                        "excluded.value", (key, int(value)))
+        self._q("INSERT INTO meta (key, value) VALUES (?, ?) ON CONFLICT (key) DO UPDATE SET value = excluded.value",
+                (key, int(value)))
 
     def catch_up(self) -> int:
         """Index the journal's complete lines past the last offset read; returns how many parts were added."""
@@ -272,20 +276,19 @@ class LocalIndex:
         self.db.executemany("INSERT OR IGNORE INTO vals VALUES (?, ?, ?, ?, ?, ?, ?, ?)", vals)
 
     def series(self) -> list[str]:
-        return [r[0] for r in self.db.execute("SELECT DISTINCT series FROM chars ORDER BY series")]
+        return [r[0] for r in self._q("SELECT DISTINCT series FROM chars ORDER BY series")]
 
     def characteristics(self, series: str) -> list[tuple[str, str]]:
-        return [(r[0], r[1]) for r in self.db.execute(
+        return [(r[0], r[1]) for r in self._q(
             "SELECT characteristic, unit FROM chars WHERE series = ? ORDER BY id", (series,))]
 
     def unit(self, series: str, characteristic: str) -> str:
-        row = self.db.execute("SELECT unit FROM chars WHERE series = ? AND characteristic = ?",
-                              (series, characteristic)).fetchone()
-        return "mm" if row is None else str(row[0])
+        rows = self._q("SELECT unit FROM chars WHERE series = ? AND characteristic = ?", (series, characteristic))
+        return "mm" if not rows else str(rows[0][0])
 
     def stations(self, series: str) -> list[str]:
-        return [r[0] for r in self.db.execute("SELECT DISTINCT station FROM parts WHERE series = ? ORDER BY station",
-                                              (series,))]
+        return [r[0] for r in self._q("SELECT DISTINCT station FROM parts WHERE series = ? ORDER BY station",
+                                      (series,))]
 
     def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
         sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial "
@@ -295,16 +298,16 @@ class LocalIndex:
         if station:
             sql += " AND p.station = ?"
             args.append(station)
-        return self.db.execute(sql + " ORDER BY v.time, v.seq", args).fetchall()
+        return self._q(sql + " ORDER BY v.time, v.seq", args)
 
     def pending(self, after_seq: int, limit: int) -> list[PartSeq]:
         """Parts journalled after ``after_seq`` (in order), with their values, for the upload."""
-        parts = self.db.execute("SELECT seq, station, run_id, series, serial, time FROM parts WHERE seq > ? "
-                                "ORDER BY seq LIMIT ?", (after_seq, limit)).fetchall()
+        parts = self._q("SELECT seq, station, run_id, series, serial, time FROM parts WHERE seq > ? "
+                        "ORDER BY seq LIMIT ?", (after_seq, limit))
         if not parts:
             return []
         by_seq: dict[int, list[Measured]] = {p[0]: [] for p in parts}
-        for seq, name, value, nominal, lower, upper, unit in self.db.execute(
+        for seq, name, value, nominal, lower, upper, unit in self._q(
                 "SELECT v.seq, c.characteristic, v.value, v.nominal, v.lower, v.upper, c.unit FROM vals v "
                 "JOIN chars c ON c.id = v.char_id WHERE v.seq BETWEEN ? AND ? ORDER BY v.seq, v.pos",
                 (parts[0][0], parts[-1][0])):
@@ -369,7 +372,8 @@ class Trends:
         self.version = 0  # counts the parts recorded by this object (a page redraws when it changes)
         self._journal: Journal | None = None
         self._db: Any = None
-        self._lock = threading.RLock()
+        self._lock = threading.RLock()  # the journal
+        self._db_lock = threading.RLock()  # the database connection and its state
         self._sync_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -386,8 +390,7 @@ class Trends:
         part = PartResult(series.strip(), self.station, run_id or uuid.uuid4().hex, time.time() if when is None else
                           float(when), str(serial or ""), check_values(values))
         self.index.catch_up()
-        if self.index.db.execute("SELECT 1 FROM parts WHERE station = ? AND run_id = ?",
-                                 (part.station, part.run_id)).fetchone():
+        if self.index._q("SELECT 1 FROM parts WHERE station = ? AND run_id = ?", (part.station, part.run_id)):
             raise TrendError(f"run {part.run_id!r} of station {part.station!r} is already recorded")
         with self._lock:
             if self._journal is None:
@@ -406,17 +409,19 @@ class Trends:
 
     # --- the shared database ---------------------------------------------------------------------
 
-    def _database(self) -> Any:
-        """The open database connection, or None while it is unreachable (tried again after RETRY_S)."""
+    def _database(self, connect: bool = True) -> Any:
+        """The open database connection, or None while it is unreachable (a new connection is tried at most
+        every RETRY_S, and only when ``connect``)."""
         from .trends_pg import TrendDatabase, TrendDatabaseError
 
         if not self.database_url:
             return None
-        with self._lock:
+        with self._db_lock:
             if self._db is not None and not self._db.closed:
                 return self._db
             now = time.monotonic()
-            if not self.state.connected and self.state.last_try and now - self.state.last_try < self.RETRY_S:
+            if not connect or (not self.state.connected and self.state.last_try
+                               and now - self.state.last_try < self.RETRY_S):
                 return None
             self.state.last_try = now
             try:
@@ -428,7 +433,7 @@ class Trends:
             return self._db
 
     def _lost(self, exc: BaseException) -> None:
-        with self._lock:
+        with self._db_lock:
             if self.state.connected or not self.state.since:
                 self.state.since = time.time()
             self.state.connected, self.state.error = False, str(exc)
@@ -441,7 +446,7 @@ class Trends:
         """Parts journalled here and not yet uploaded."""
         self.index.catch_up()
         up = self.index.meta("uploaded_seq")
-        return int(self.index.db.execute("SELECT count(*) FROM parts WHERE seq > ?", (up,)).fetchone()[0])
+        return int(self.index._q("SELECT count(*) FROM parts WHERE seq > ?", (up,))[0][0])
 
     def sync(self, *, force: bool = False) -> int:
         """Upload every part not yet in the database; returns how many were sent (0 when it is down)."""
@@ -454,6 +459,8 @@ class Trends:
         with self._sync_lock:
             self.index.catch_up()
             sent = 0
+            if self._database() is None:  # (re)connect even with nothing to send: the charts come from it again
+                return 0
             while True:
                 batch = self.index.pending(self.index.meta("uploaded_seq"), self.BATCH)
                 if not batch:
@@ -482,13 +489,14 @@ class Trends:
 
 
     def start(self, every: float = 10.0) -> "Trends":
-        """Catch up in the background: upload what waits every ``every`` seconds while a database is configured."""
+        """Catch up in the background while a database is configured: every ``every`` seconds reconnect when it
+        was lost and upload what waits. With this thread running, chart queries never wait for a connection
+        attempt (they use the local index until the thread has the database back)."""
         if self.database_url and self._thread is None:
             def loop() -> None:
                 while not self._stop.wait(every):
                     try:
-                        if self.pending():
-                            self.sync()
+                        self.sync()
                     except Exception:  # noqa: BLE001 - the next round tries again; the journal holds the parts
                         pass
 
@@ -501,9 +509,12 @@ class Trends:
     def _ask(self, fn_db: Any, fn_local: Any) -> tuple[Any, str]:
         from .trends_pg import TrendDatabaseError
 
+        # a station's page never waits for a connection attempt once the database was lost: the sync thread
+        # reconnects (without the thread, e.g. the CLI, the query tries, at most every RETRY_S)
+        connect = not self.state.since or self._thread is None
         for _attempt in range(2):  # a connection that died since its last use is replaced once at once
             fresh = self._db is None
-            db = self._database()
+            db = self._database(connect)
             if db is None:
                 break
             try:
@@ -555,6 +566,7 @@ class Trends:
         with self._lock:
             if self._journal is not None:
                 self._journal.close()
+        with self._db_lock:
             if self._db is not None:
                 self._db.close()
         self.index.close()

@@ -72,7 +72,10 @@ class TrendDatabase:
         self._ids: dict[tuple[str, str], int] = {}  # (series, characteristic) -> id, as uploaded
         self._parts: dict[int, tuple[str, str, str]] = {}  # part id -> (station, run id, serial), as read
         try:
-            self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, round(connect_timeout)))
+            # TCP keepalives and a user timeout: a server that vanished without closing is noticed in seconds
+            self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, round(connect_timeout)),
+                                        keepalives=1, keepalives_idle=5, keepalives_interval=2, keepalives_count=2,
+                                        tcp_user_timeout=int(connect_timeout * 2000))
             with self.conn.transaction():
                 self.conn.execute("SELECT pg_advisory_xact_lock(%s, %s)", SCHEMA_LOCK)
                 self.conn.execute(SCHEMA)
