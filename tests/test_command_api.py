@@ -163,6 +163,30 @@ def test_a_move_after_a_contact_backs_off_first(station):
     assert len(contacts) == 1 and np.allclose(station.controller.frame_position("machine"), above, atol=0.003)
 
 
+def test_a_restart_after_a_fault_goes_over_the_clearance_plane_even_when_a_straight_line_was_asked_for(station):
+    """A straight line 5 mm over the top face, clear of the boss, dome and cone: proven free, so it runs straight;
+    after a fault (reset) the next move retracts to the clearance plane first, whatever was asked."""
+    api, ctl = station.controller.commands, station.controller
+    a, b = [10.0, 5.0, 45.0], [110.0, 5.0, 45.0]  # part coordinates
+    assert api.call(None, "move", {"target": a, "frame": "part"}, wait=True, timeout=120).ok
+    heights: list[float] = []
+    station.sim.network.add_tick_hook(lambda net, tick: heights.append(station.sim.axis_readings()[2]))
+    try:
+        straight = api.call(None, "move", {"target": b, "frame": "part", "path": "straight"}, wait=True, timeout=120)
+        assert straight.ok, straight.error
+        top = station.measurement.part.pose[2, 3] + 45.0
+        assert max(heights) < top + 0.01  # straight across, no climb
+        ctl.fault("a test fault")
+        ctl.reset(None)
+        heights.clear()
+        back = api.call(None, "move", {"target": a, "frame": "part", "path": "straight"}, wait=True, timeout=120)
+        assert back.ok, back.error
+        assert max(heights) > station.measurement.clearance_z() - 0.01  # retracted to the plane first
+        assert np.allclose(ctl.frame_position("part"), a, atol=0.003)
+    finally:
+        station.sim.network.tick_hooks.pop()
+
+
 # --- the jog-hold pipeline ------------------------------------------------------------------------------
 
 def test_the_jog_pipeline_clamps_and_says_so_and_refuses_what_is_not_a_velocity(station):
