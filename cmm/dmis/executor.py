@@ -101,6 +101,10 @@ class Executor:
         self.model = target.model
         self.name = name
         self.frame = np.eye(4)
+        # the same coordinate systems built from the datums' nominals instead of their actuals: nominals defined
+        # in any of them land in one design frame, where position tolerances compare them with their datums
+        self.design_frame = np.eye(4)
+        self.design_frames: dict[str, np.ndarray] = {}
         self.scale = 1.0
         self.angle_scale = math.pi / 180.0
         self.frames: dict[str, np.ndarray] = {}
@@ -338,17 +342,18 @@ class Executor:
 
     # --- coordinate systems -----------------------------------------------------------------------
 
-    def _set_frame(self, s: Statement, frame: np.ndarray) -> None:
-        self.frame = frame
+    def _set_frame(self, s: Statement, frame: np.ndarray, design: np.ndarray) -> None:
+        self.frame, self.design_frame = frame, design
         if s.label is not None:
             self.frames[s.label.name] = frame.copy()
+            self.design_frames[s.label.name] = design.copy()
             self.result.frames[s.label.name] = frame.copy()
         self.emit(statement_text(s))
 
     def do_datset(self, s: Statement) -> None:
         if self.words(s) == ["MCS"]:
-            return self._set_frame(s, np.eye(4))
-        entries = []
+            return self._set_frame(s, np.eye(4), np.eye(4))
+        entries, design = [], []
         current: Actual | None = None
         name = ""
         for p in s.params:
@@ -366,9 +371,16 @@ class Executor:
                     raise self.fail(s, f"DATSET/.., {p.text} is not supported: use XDIR, YDIR, ZDIR (XMINUS ...), "
                                        "XORIG, YORIG, ZORIG")
                 entries.append((name, p.text, current.axis_point(), current.direction()))
+                nom = None if current.nominal is None else (current.nominal.design or current.nominal)
+                design.append(None if nom is None else (name, p.text, nom.point, nom.vector))
             else:
                 raise self.fail(s, f"DATSET takes datums and words, not {_text(p)}")
-        self._set_frame(s, datum_frame(entries, self.frame))
+        frame = datum_frame(entries, self.frame)
+        if all(d is not None for d in design):
+            design_frame = datum_frame(design, self.design_frame)  # type: ignore[arg-type]
+        else:  # a datum without a nominal: the design frame follows the measured one
+            design_frame = frame.copy()
+        self._set_frame(s, frame, design_frame)
 
     def do_trans(self, s: Statement) -> None:
         origin = np.zeros(3)
@@ -386,20 +398,22 @@ class Executor:
             else:
                 origin[axis] = self.num(s, v) * self.scale
             k += 2
-        self._set_frame(s, self.frame @ translation(origin))
+        self._set_frame(s, self.frame @ translation(origin), self.design_frame @ translation(origin))
 
     def do_rotat(self, s: Statement) -> None:
         if len(s.params) != 2 or not isinstance(s.params[0], Word) or s.params[0].text not in AXES:
             raise self.fail(s, "ROTAT takes an axis and an angle: ROTAT/ZAXIS, 30 (rotation about a feature is "
                                "not supported)")
         angle = self.num(s, s.params[1]) * self.angle_scale
-        self._set_frame(s, self.frame @ rotation(AXES[s.params[0].text], angle))
+        turn = rotation(AXES[s.params[0].text], angle)
+        self._set_frame(s, self.frame @ turn, self.design_frame @ turn)
 
     def do_recall(self, s: Statement) -> None:
         name = self.labels(s)[0].name
         if name not in self.frames:
             raise self.fail(s, f"D({name}) has not been defined")
         self.frame = self.frames[name].copy()
+        self.design_frame = self.design_frames[name].copy()
         self.emit(statement_text(s))
 
     # --- sensors and motion ---------------------------------------------------------------------
@@ -489,8 +503,11 @@ class Executor:
         try:
             if word == "LINE" and "BND" in w:
                 nom = bounded_line(v, self.frame, self.scale)
+                nom.design = bounded_line(v, self.design_frame, self.scale)
             else:
                 nom = nominal_from(word, inner, v, self.frame, self.scale, self.angle_scale)  # type: ignore[arg-type]
+                nom.design = nominal_from(word, inner, v, self.design_frame, self.scale,  # type: ignore[arg-type]
+                                          self.angle_scale)
         except ValueError as exc:
             raise self.fail(s, f"FEAT/{word}: {exc}") from None
         self.nominals[s.label.name] = nom  # type: ignore[union-attr]

@@ -8,7 +8,7 @@ and units in force when they are output, in the DMIS output format (``FA(X) = FE
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,7 +37,7 @@ class Nominal:
     diameter: float | None = None
     angle: float | None = None  # cone: the included angle, radians
     length: float | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
+    design: "Nominal | None" = None  # the same nominal in the design frame (see Executor.design_frame)
 
     @property
     def kind(self) -> str:

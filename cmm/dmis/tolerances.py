@@ -1,13 +1,15 @@
 """DMIS tolerances (``T(..) = TOL/..``) evaluated on actual features: the value and INTOL / OUTOL.
 
 Size (DIAM, RAD), distance and angle between two features (DISTB, ANGLB) report the deviation from the nominal;
-form (FLAT, STRGHT, CIRLTY, CYLCTY) the fit's form error; orientation (PARLEL, PERPEND, ANGLR) the width of the
-zone, oriented to the datum, that holds the feature's surface points (a plane) or its axis over the length of
-its hits (an axis); POS twice the distance of the actual location from the nominal (2D: across the nominal axis,
-3D: in space) in the coordinate system in force, which the program builds from its datums with DATSET;
-PROFS / PROFL the deviations of the hits from the nominal surface; RUNOUT the spread of the hits' radial
-(axial, for a face) distances from a datum axis; CONCEN twice the largest distance of the feature's centre or
-axis from a datum axis.
+the geometric tolerances are the GD&T functions' (:mod:`cmm.metrology.gdt`, ISO 1101) with the datum reference
+frame of the tolerance's ``DAT(..)`` (:func:`cmm.metrology.datums.build_drf` of the DATDEF features): form
+(FLAT, STRGHT, CIRLTY, CYLCTY) the minimum zone of the hits (the fit's form for other kinds); orientation
+(PARLEL, PERPEND, ANGLR) the zone at the basic angle to the datum holding a plane's hits or an axis over its
+length; POS the position zone's diameter, the actual in the actual datum frame against the nominal in the frame
+of the datum features' nominals (the design frame: every nominal moved by the coordinate systems the program built
+from the datums' nominals; without datums: in machine coordinates); RUNOUT circular (per section) or
+TOTAL, radial or axial for a face; CONCEN concentricity (a centre) or coaxiality (an axis). PROFS / PROFL: the
+deviations of the hits from the FEAT nominal surface (twice the largest, equally disposed).
 """
 
 from __future__ import annotations
@@ -18,13 +20,19 @@ from typing import Any
 
 import numpy as np
 
+from ..metrology import gdt
 from ..metrology.construct import construct
+from ..metrology.datums import DRF, DatumError, build_drf, datum_from_feature
 from ..metrology.features import FitError
-from .features import Actual
+from .features import Actual, Nominal
 
 SIZE = ("DIAM", "RAD")
 FORM = {"FLAT": ("plane",), "STRGHT": ("line", "cylinder", "cone"), "CIRLTY": ("circle", "sphere", "cylinder", "cone"),
         "CYLCTY": ("cylinder",)}
+# DMIS word -> the GD&T characteristic (cmm.metrology.gdt); form of these kinds is the minimum zone of the hits
+GDT_FORM = {("FLAT", "plane"): "flatness", ("STRGHT", "line"): "straightness", ("CIRLTY", "circle"): "circularity",
+            ("CYLCTY", "cylinder"): "cylindricity"}
+GDT_ORIENT = {"PARLEL": "parallelism", "PERPEND": "perpendicularity", "ANGLR": "angularity"}
 ORIENT = ("PARLEL", "PERPEND", "ANGLR")
 ALL = ("DIAM", "RAD", "DISTB", "ANGLB", "FLAT", "STRGHT", "CIRLTY", "CYLCTY", "PARLEL", "PERPEND", "ANGLR", "POS",
        "PROFS", "PROFL", "RUNOUT", "CONCEN")
@@ -67,43 +75,6 @@ def _points(a: Actual) -> np.ndarray:
     if a.hit_points is None or len(a.hit_points) == 0:
         raise ToleranceError(f"FA({a.label}) has no measured points (it was constructed)")
     return np.asarray(a.hit_points, float)
-
-
-def _datum_direction(d: Actual) -> tuple[np.ndarray, bool]:
-    """(direction, is an axis) of a datum feature."""
-    v = d.direction()
-    if v is None:
-        raise ToleranceError(f"the datum FA({d.label}) ({d.kind}) has no direction: use a plane or an axis")
-    return v, d.kind in AXIAL
-
-
-def _axis_length(a: Actual, f: np.ndarray) -> float:
-    if a.hit_points is not None and len(a.hit_points) > 1:
-        s = np.asarray(a.hit_points, float) @ f
-        return float(s.max() - s.min())
-    if a.nominal is not None and a.nominal.length:
-        return float(a.nominal.length)
-    raise ToleranceError(f"FA({a.label}) has no length to evaluate its axis over")
-
-
-def orientation(a: Actual, datum: Actual, angle_deg: float) -> float:
-    """The orientation zone of ``a`` at ``angle_deg`` to ``datum`` (0 parallel, 90 perpendicular)."""
-    f = a.direction()
-    if f is None:
-        raise ToleranceError(f"FA({a.label}) ({a.kind}) has no direction to orient")
-    g, datum_axis = _datum_direction(datum)
-    feature_axis = a.kind in AXIAL
-    beta = math.radians(angle_deg if feature_axis == datum_axis else 90.0 - angle_deg)
-    if a.kind == "plane":
-        perp = f - (f @ g) * g
-        u = perp / np.linalg.norm(perp) if np.linalg.norm(perp) > 1e-12 else np.cross(g, [1.0, 0.0, 0.0])
-        m = math.cos(beta) * g + math.sin(beta) * _unit(u)
-        s = _points(a) @ m
-        return float(s.max() - s.min())
-    if feature_axis:
-        theta = math.acos(min(1.0, abs(float(f @ g))))
-        return _axis_length(a, f) * abs(math.sin(theta - beta))
-    raise ToleranceError(f"an orientation tolerance needs a plane or an axis, FA({a.label}) is a {a.kind}")
 
 
 def _nominal_surface_deviation(a: Actual) -> np.ndarray:
@@ -149,13 +120,57 @@ def _axis_distance(a: Actual, b: Actual) -> float:
     return 0.5 * (off(a.axis_point(), b.axis_point(), db) + off(b.axis_point(), a.axis_point(), da))  # type: ignore[arg-type]
 
 
-def _datum_axis(d: Actual) -> tuple[np.ndarray, np.ndarray]:
-    if d.kind not in AXIAL:
-        raise ToleranceError(f"the datum FA({d.label}) must be an axis (cylinder, circle, cone, line), not a {d.kind}")
-    return d.location(), d.direction()  # type: ignore[return-value]
+def _signed(a: Actual) -> dict[str, Any]:
+    """The actual's geometry with its direction signed like its nominal (datum frames depend on the sign)."""
+    g = dict(a.geometry)
+    d = a.direction()
+    if d is not None:
+        g["normal" if "normal" in g else "direction"] = d.tolist()
+    return g
+
+
+def _nominal_geometry(nom: Nominal) -> tuple[str, dict[str, Any]]:
+    """(kind, geometry) of a FEAT nominal as a fit would give it."""
+    p, v = nom.point.tolist(), None if nom.vector is None else nom.vector.tolist()
+    r = None if nom.diameter is None else nom.diameter / 2.0
+    kind = nom.kind
+    if kind == "circle":
+        return kind, {"center": p, "normal": v, "radius": r}
+    if kind == "sphere":
+        return kind, {"center": p, "radius": r}
+    if kind == "cone":
+        return kind, {"apex": p, "direction": v, "half_angle": (nom.angle or 0.0) / 2.0}
+    if kind == "plane":
+        return kind, {"point": p, "normal": v}
+    out = {"point": p, "direction": v}
+    if r is not None:
+        out["radius"] = r
+    return kind, out
+
+
+def _drf(names: list[str], datums: dict[str, Actual], nominal: bool = False) -> DRF:
+    """The datum reference frame of DAT(..) names: from the actual datum features, or their nominals."""
+    out = []
+    for name in names[:3]:
+        d = datums[name]
+        if nominal:
+            if d.nominal is None:
+                raise ToleranceError(f"DAT({name}) (FA({d.label})) has no nominal to build the nominal frame from")
+            kind, g = _nominal_geometry(d.nominal.design or d.nominal)
+        else:
+            kind, g = d.kind, _signed(d)
+        out.append(datum_from_feature(name, kind, g, feature=d.label))
+    return build_drf(out)
 
 
 def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray) -> Evaluation:
+    try:
+        return _evaluate(tol, features, datums, frame)
+    except (gdt.GdtError, DatumError) as exc:
+        raise ToleranceError(f"T({tol.label}) (TOL/{tol.word}): {exc}") from None
+
+
+def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray) -> Evaluation:
     """Evaluate ``tol`` on the features an OUTPUT statement names with it."""
     w = tol.word
     need = 2 if w in ("DISTB", "ANGLB") else 1
@@ -197,22 +212,25 @@ def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], 
     if w in FORM:
         if a.kind not in FORM[w]:
             raise ToleranceError(f"TOL/{w} applies to a {' or '.join(FORM[w])}, FA({a.label}) is a {a.kind}")
-        value = float(a.geometry["form"])
+        characteristic = GDT_FORM.get((w, a.kind))
+        if characteristic is not None and a.hit_points is not None and up > 0:
+            value = gdt.form(characteristic, a.hit_points, up).value
+        else:
+            value = float(a.geometry["form"])
     elif w in ORIENT:
         if not dat:
             raise ToleranceError(f"TOL/{w} needs a datum: TOL/{w}, zone, DAT(A)")
-        angle = {"PARLEL": 0.0, "PERPEND": 90.0}.get(w, tol.nominal or 0.0)
-        value = orientation(a, dat[0], angle)
+        value = gdt.orientation(GDT_ORIENT[w], a.kind, _signed(a), _points(a), _drf(tol.datums, datums), up,
+                                angle_deg=tol.nominal if w == "ANGLR" else None).value
     elif w == "POS":
         nom = a.nominal
         if nom is None or a.kind not in ("point", "circle", "cylinder", "sphere", "cone"):
             raise ToleranceError(f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
                                  f"FA({a.label}) is a {a.kind}")
-        rel = a.axis_point() - nom.point
-        if "3D" not in tol.options and nom.vector is not None and a.kind != "sphere":
-            ax = _unit(nom.vector)
-            rel = rel - (rel @ ax) * ax
-        value = 2.0 * float(np.linalg.norm(rel))
+        drf = _drf(tol.datums, datums) if dat else None
+        ndrf = _drf(tol.datums, datums, nominal=True) if dat else None
+        _, nominal = _nominal_geometry((nom.design or nom) if dat else nom)
+        value = gdt.position(a.kind, _signed(a), nominal, up, drf=drf, nominal_drf=ndrf, points=a.hit_points).value
     elif w in ("PROFS", "PROFL"):
         d = _nominal_surface_deviation(a)
         intol = bool(np.all(d >= lo - 1e-12) and np.all(d <= up + 1e-12))
@@ -220,30 +238,13 @@ def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], 
     elif w == "RUNOUT":
         if not dat:
             raise ToleranceError("TOL/RUNOUT needs a datum axis: TOL/RUNOUT, CIRCLR, zone, DAT(A)")
-        q, ax = _datum_axis(dat[0])
-        p = _points(a) - q
-        h = p @ ax
-        if a.kind == "plane":
-            value = float(h.max() - h.min())
-        else:
-            r = np.linalg.norm(p - np.outer(h, ax), axis=1)
-            if "TOTAL" in tol.options:
-                value = float(r.max() - r.min())
-            else:  # circular: each section on its own (hits within 0.5 mm of height)
-                sections: dict[int, list[float]] = {}
-                for hk, rk in zip(np.round(h / 0.5), r):
-                    sections.setdefault(int(hk), []).append(float(rk))
-                value = max(max(v) - min(v) for v in sections.values())
+        value = gdt.runout("total runout" if "TOTAL" in tol.options else "circular runout", _points(a),
+                           _drf(tol.datums, datums), up, "axial" if a.kind == "plane" else "radial").value
     elif w == "CONCEN":
         if not dat:
             raise ToleranceError("TOL/CONCEN needs a datum axis: TOL/CONCEN, zone, DAT(A)")
-        q, ax = _datum_axis(dat[0])
-        centres = [a.location()]
-        f = a.direction()
-        if a.kind == "cylinder" and f is not None and a.hit_points is not None:
-            s = (np.asarray(a.hit_points) - a.location()) @ f
-            centres = [a.location() + s.min() * f, a.location() + s.max() * f]
-        value = 2.0 * max(float(np.linalg.norm((c - q) - ((c - q) @ ax) * ax)) for c in centres)
+        value = gdt.coaxiality("concentricity" if a.kind in ("circle", "sphere", "point") else "coaxiality", a.kind,
+                               _signed(a), _drf(tol.datums, datums), up, points=a.hit_points).value
     else:
         raise ToleranceError(f"TOL/{w} is not supported")
     return Evaluation(tol, value, value <= up + 1e-12, [a.label])
