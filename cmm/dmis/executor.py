@@ -16,6 +16,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..measurement.program import record_trend
+from ..session.trends import tolerance_values
 from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal_from, nominal_line
 from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
 from .lexer import DmisSyntaxError
@@ -241,6 +243,8 @@ class Executor:
             self.result.outputs[path] = text
         self.model.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
+        if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
+            record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
         return self.result
 
     def execute(self, s: Statement) -> None:

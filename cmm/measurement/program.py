@@ -58,17 +58,20 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
     return ProgramRun(program, ids, feats, record_trend(model, program.name, feats.values(), serial=serial))
 
 
-def record_trend(model: MeasurementModel, series: str, features: Any, *, serial: str = "",
+def record_trend(model: MeasurementModel, series: str, features: Any = (), *, values: Any = (), serial: str = "",
                  run_id: str | None = None) -> Any:
-    """Record a finished run's features as a part of ``series`` in ``model.trends`` (None when the model records
-    no trends). A trend that cannot be written is noted in the session and the operator's log; the
-    measurement stands."""
+    """Record a finished run as a part of ``series`` in ``model.trends`` (None when the model records no trends):
+    the characteristics of its fitted ``features`` and any other ``values``
+    (:class:`cmm.session.trends.Measured`, e.g. :func:`cmm.session.trends.tolerance_values` of a DMIS run). A
+    trend that cannot be written is noted in the session and the operator's log; the measurement stands."""
     from ..session.trends import TrendError, feature_values
 
-    if model.trends is None:
+    trends = getattr(model, "trends", None)
+    if trends is None:
         return None
     try:
-        return model.trends.record_part(series, feature_values(features), serial=serial, run_id=run_id)
+        return trends.record_part(series, feature_values(features) + list(values), serial=serial,
+                                        run_id=run_id)
     except (TrendError, OSError) as exc:
         text = f"the run was not added to the trends of {series!r}: {exc}"
         model.log("error", text)

@@ -125,6 +125,27 @@ def feature_values(features: Iterable[Any], default_tolerance: dict[str, float] 
     return out
 
 
+DEVIATION_WORDS = ("DIAM", "RAD", "DISTB", "ANGLB")  # DMIS tolerances whose value is a deviation from a nominal
+
+
+def tolerance_values(evaluations: Iterable[Any]) -> list[Measured]:
+    """DMIS tolerance results (:class:`cmm.dmis.tolerances.Evaluation`: ``tolerance`` with ``label``, ``word``,
+    ``lower``, ``upper``; ``value``; ``features``) as trend values named ``<features> / <word> T(<label>)``:
+    sizes, distances and angles as the deviation from their nominal between the tolerance's limits, form,
+    orientation, position, profile and runout as the zone with an upper limit only. A tolerance output twice
+    counts once (the last)."""
+    out: dict[str, Measured] = {}
+    for ev in evaluations:
+        t = ev.tolerance
+        name = f"{'-'.join(ev.features)}{SEP}{t.word} T({t.label})"
+        unit = "deg" if t.word == "ANGLB" else "mm"
+        if t.word in DEVIATION_WORDS:
+            out[name] = Measured(name, float(ev.value), 0.0, float(t.lower), float(t.upper), unit)
+        else:
+            out[name] = Measured(name, float(ev.value), 0.0, None, float(t.upper), unit)
+    return list(out.values())
+
+
 def check_values(values: Iterable[Measured | dict | list | tuple]) -> tuple[Measured, ...]:
     out: list[Measured] = []
     seen: set[str] = set()
