@@ -90,3 +90,24 @@ def test_straightness_and_axis_angularity_known_answers():
     r = gdt.orientation("angularity", "cylinder", {"point": [0, 0, 0], "direction": u.tolist(), "radius": 3},
                         axis_pts, drf, 0.05, angle_deg=45.0)
     assert r.value == pytest.approx(20 * math.sin(math.radians(0.05)), rel=1e-9)
+
+
+def test_datum_bore_at_mmb_shifts_the_frame():
+    bottom = MeasuredFeature("bottom", "plane", {"point": [0, 0, 0], "normal": [0, 0, 1]},
+                             {"kind": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]},
+                             grid(lambda a, b: (80 * a - 40, 80 * b - 40, 0.0)))
+    # B: a bore of 20.04 (nominal 20 +- 0.02: MMB 19.98), so the frame may shift by up to 0.03 across it
+    bore = MeasuredFeature("bore", "cylinder", {"point": [0, 0, 0], "direction": [0, 0, 1], "radius": 10.02},
+                           {"kind": "cylinder", "point": [0, 0, 0], "direction": [0, 0, 1], "radius": 10.0,
+                            "bore": True}, np.zeros((0, 3)), 0.02)
+    hole = MeasuredFeature("hole", "circle", {"center": [30.05, 0, 5], "normal": [0, 0, 1], "radius": 3.0},
+                           {"kind": "cylinder", "point": [30, 0, 0], "direction": [0, 0, 1], "radius": 3.0,
+                            "bore": True})
+    feats = {1: bottom, 2: bore, 3: hole}
+    datums = {"A": {"label": "A", "feature": 1}, "B": {"label": "B", "feature": 2, "modifier": "MMB"}}
+    ((_, mmb),) = evaluate([{"characteristic": "position", "feature": 3, "tolerance": 0.05, "datums": ["A", "B"]}],
+                           datums, feats)
+    assert mmb.actual == pytest.approx(2 * (0.05 - 0.03), abs=1e-9) and mmb.datums == "A|B(M)" and mmb.ok
+    rfs = evaluate_one({"characteristic": "position", "feature": 3, "tolerance": 0.05, "datums": ["A", "B"]},
+                       {**datums, "B": {"label": "B", "feature": 2}}, feats)
+    assert rfs.value == pytest.approx(0.1, abs=1e-9) and not rfs.ok

@@ -68,6 +68,8 @@ def check_definition(d: dict[str, Any]) -> dict[str, Any]:
         except (TypeError, ValueError):
             raise gdt.GdtError("angularity needs the basic angle in degrees") from None
     direction = str(d.get("direction") or "radial")
+    if direction not in ("radial", "axial"):
+        raise gdt.GdtError(f"a runout is radial or axial, got {direction!r}")
     out = {**d, "characteristic": ch, "tolerance": tol, "datums": datums, "material": material,
            "angle": None if angle is None else float(angle), "direction": direction}
     return out

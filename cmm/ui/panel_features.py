@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import html
 import math
+from dataclasses import replace
 import re
 from typing import Any
 
@@ -63,7 +64,8 @@ def tree_html(station: Any, selected: int | None = None) -> str:
     if gdt_rows or station.measurement.datums:
         datums = ", ".join(f"{k}{ {'MMB': '(M)', 'LMB': '(L)'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
                            for k, d in sorted(station.measurement.datums.items()))
-        items.append((None, "Geometric tolerances", f"datums: {datums or 'none'}", [c for _, c in gdt_rows]))
+        items.append((None, "Geometric tolerances", f"datums: {datums or 'none'}",
+                      [replace(c, feature=f"{d.get('id')} {c.feature}") for d, c in gdt_rows]))
     for fid, name, what, chars in items:
         oks = [c.ok for c in chars]
         worst = False if False in oks else (None if None in oks else True)
@@ -79,8 +81,7 @@ def tree_html(station: Any, selected: int | None = None) -> str:
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
             actual = "—" if c.actual is None else f"{c.actual:.4f}{unit}"
             dev = "" if c.deviation is None else f"{c.deviation:+.4f}"
-            label = c.name.replace(' (along the normal)', '') if not c.datums and fid is not None else (
-                f"{c.feature}: {c.name}")
+            label = c.name.replace(' (along the normal)', '') if fid is not None else f"{c.feature}: {c.name}"
             rows.append(f"<tr style='{bg}'><td style='padding-left:10px' title='{e(c.note)}'>"
                         f"{e(label)}"
                         f"</td><td align=right>{nominal}</td>"
@@ -305,6 +306,9 @@ class FeaturesPanel:
             return d, c
         return self.ctx.run("GD&T", do)
 
+    def delete_gdt(self, gid: int) -> Any:
+        return self.ctx.run("GD&T", lambda: self.station.measurement.delete_gdt(gid))
+
     def delete_feature(self) -> None:
         fid = self.ctx.selected_feature
         if fid is not None:
@@ -400,6 +404,8 @@ class FeaturesPanel:
             rdir = gui.add_dropdown("Runout", ("radial", "axial"), initial_value="radial")
             gui.add_button("Add tolerance").on_click(lambda _: self._gdt(
                 ch.value, g["gdt_feature"].value, tol.value, refs.value, mat.value, ang.value, rdir.value))
+            gid = gui.add_number("Tolerance id", 1, min=1, step=1)
+            gui.add_button("Delete tolerance").on_click(lambda _: self.delete_gdt(int(gid.value)))
         with gui.add_folder("Report header"):
             info = self.station.measurement.info
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
