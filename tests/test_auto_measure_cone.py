@@ -98,3 +98,23 @@ def test_a_better_cone_far_from_the_nominal_is_shown_as_check_not_reported():
     assert {c.verdict for c in chars} == {"check"}
     angle = next(c for c in chars if c.name == "half angle")
     assert angle.actual == pytest.approx(HALF_ANGLE, abs=0.02) and "half angle 1.9" in angle.check
+
+
+def test_bore_to_boss_distance_is_axis_to_axis_in_the_alignment_plane(station):
+    """The sample part's bore (30, 40) and boss (70, 22): nominal distance hypot(40, 18) = 43.8634, measured by
+    auto-measure on the simulator and constructed in the alignment's XY plane (and in 3-D on request)."""
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    pose = model.part.pose
+    ids = []
+    for start, direction in (((30.0, 40.0, 20.0), (-1.0, 0.0, 0.0)), ((90.0, 22.0, 47.0), (-1.0, 0.0, 0.0))):
+        hit, _ = model.pick((pose @ np.array([*start, 1.0]))[:3], pose[:3, :3] @ np.array(direction))
+        feature = run_plan(model, plan_at_pick(model, hit.face_id), name="bore" if not ids else "boss")
+        assert feature.kind == "cylinder" and not feature.result.check
+        ids.append(feature.id)
+    planar = model.construct_feature("distance", ids[0], ids[1], "bore-boss")
+    assert planar.nominal.value == pytest.approx(math.hypot(40.0, 18.0), abs=1e-9)
+    assert planar.result.value == pytest.approx(planar.nominal.value, abs=0.01)
+    assert "XY plane" in planar.result.projection
+    spatial = model.construct_feature("distance", ids[0], ids[1], "bore-boss 3-D", three_d=True)
+    assert "3-D" in spatial.result.projection and spatial.result.value == pytest.approx(planar.result.value, abs=0.01)

@@ -286,8 +286,9 @@ class FeaturesPanel:
             return self.ctx.error("select a feature first", "Tolerance")
         return self.ctx.run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
 
-    def construct(self, operation: str, a: int, b: int, name: str = "") -> Any:
-        c = self.ctx.run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None))
+    def construct(self, operation: str, a: int, b: int, name: str = "", three_d: bool = False) -> Any:
+        c = self.ctx.run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None,
+                                                                                         three_d=three_d))
         if c is not None:
             self.ctx.selected_feature = c.id
         return c
@@ -387,8 +388,10 @@ class FeaturesPanel:
             g["a"] = gui.add_dropdown("Feature A", ("-",), initial_value="-")
             g["b"] = gui.add_dropdown("Feature B", ("-",), initial_value="-")
             name = gui.add_text("Name", "", hint="optional")
+            three_d = gui.add_checkbox("3-D distance", False,
+                                       hint="parallel axes: perpendicular to the axes, not in the alignment's XY plane")
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
-                                                                          name.value))
+                                                                          name.value, three_d.value))
         with gui.add_folder("Datums and GD&T", expand_by_default=False):
             label = gui.add_dropdown("Datum", ("A", "B", "C", "D", "E", "F"), initial_value="A")
             g["datum_feature"] = gui.add_dropdown("Datum feature", ("-",), initial_value="-")
@@ -413,11 +416,11 @@ class FeaturesPanel:
                                        ("temperature", "Temperature (°C)"))}
             gui.add_button("Save header").on_click(lambda _: self.save_info(**{k: w.value for k, w in fields.items()}))
 
-    def _construct(self, op: str, a: str, b: str, name: str) -> Any:
+    def _construct(self, op: str, a: str, b: str, name: str, three_d: bool = False) -> Any:
         ma, mb = re.match(r"(\d+)", a), re.match(r"(\d+)", b)
         if not (ma and mb):
             return self.ctx.error("choose two features", "Construct")
-        return self.construct(op, int(ma.group(1)), int(mb.group(1)), name)
+        return self.construct(op, int(ma.group(1)), int(mb.group(1)), name, three_d)
 
     def _datum(self, label: str, feature: str, modifier: str) -> Any:
         m = re.match(r"(\d+)", feature)
