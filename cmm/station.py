@@ -118,18 +118,15 @@ class Station:
             self.machine, self.prober, lambda point, approach, clearance_z, client: self.controller.probe(
                 client, point, approach, frame="machine", clearance_z=clearance_z),
             part=part, session_dir=session_dir, lock=self.lock,
-            start_fields=lambda: {"port": str(self.port), "calibration": self.calibration_status})
+            start_fields=lambda: {"port": str(self.port), "calibration": self.calibration.status})
         self.controller.on_hit(self.measurement.add_hit)
         self.controller.set_workspace(PartWorkspace(self.measurement))
-        self.controller.jogs.probe_speed = lambda: self.qualified_probing_speed  # armed jogs: the qualified speed
+        self.calibration = CalibrationService(self, calibration_dir)  # routines, records and results, for every front end
+        self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement)
         self.controller.subscribe(self.measurement.machine_event)
-        self.calibration_log: list[str] = []
-        self.calibration_status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}
-        self.calibration_dir = None if calibration_dir is None else Path(calibration_dir)  # records are read and written here
-        self.calibration = CalibrationService(self)  # the routines, records and results, for every front end
         if calibration_dir is not None:
-            self.load_calibration(calibration_dir)
+            self.calibration.load(calibration_dir)
         if part_path is not None and self.sim is None:
             self.measurement.load_part(part_path)
 
@@ -216,47 +213,9 @@ class Station:
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
-    def load_calibration(self, directory: str | Path = "calibration") -> list[str]:
-        """Apply calibration/probe.toml (ProbeSettings) and calibration/machine.toml (machine.correction).
-
-        A missing record leaves the nominal settings; a malformed one is reported and not applied.
-        """
-        from .calibration.records import apply_calibration, load_station_calibration
-
-        self.calibration_dir = Path(directory)
-        loaded = load_station_calibration(directory)
-        with self.lock:
-            applied = self.controller.configure(None, lambda: apply_calibration(loaded, self.machine, self.prober))
-        for problem in loaded.problems:
-            self.measurement.log("error", f"calibration record refused: {problem}")
-        self.calibration_log = applied + [f"refused: {p}" for p in loaded.problems]
-        self.calibration_status = {
-            "probe": None if loaded.probe is None else {"date": loaded.probe.date, "tip_radius": loaded.probe.tip_radius,
-                                                        "artifact": loaded.probe.artifact,
-                                                        "probing_speed": loaded.probe.probing_speed},
-            "machine": None if loaded.machine is None else {"date": loaded.machine.date,
-                                                            "scale_ppm": list(loaded.machine.scale_ppm),
-                                                            "squareness_urad": list(loaded.machine.squareness_urad)},
-            "problems": list(loaded.problems)}
-        return self.calibration_log
-
-    def apply_calibration(self, loaded: Any, client: str | None = None) -> list[str]:
-        """Apply loaded calibration records to the live machine and probe (in the machine loop, while still)."""
-        from .calibration.records import apply_calibration
-
-        with self.lock:
-            return self.controller.configure(client, lambda: apply_calibration(loaded, self.machine, self.prober))
-
     def move_above(self, point: Any, normal: Any, clearance: float | None = None,
                    client: str | None = None) -> MoveStatus:
         """Move the tip to ``clearance`` mm above a picked surface point along its normal (machine coordinates),
         over the clearance plane."""
         target = self.measurement.above_point(point, normal, clearance)
         return self.controller.move(client, target, frame="machine")
-
-    @property
-    def qualified_probing_speed(self) -> float:
-        """The speed the probe was qualified at (its record), else the configured probing speed (mm/s)."""
-        probe = self.calibration_status.get("probe") or {}
-        speed = float(probe.get("probing_speed") or 0.0)
-        return speed if speed > 0 else float(self.config.speeds.probing)

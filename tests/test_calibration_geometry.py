@@ -85,7 +85,7 @@ def test_the_station_saves_a_geometry_result_and_applies_it(tmp_path):
     station = Station(port="sim://?cmm=1")
     try:
         station.controller.connect()
-        station.load_calibration(tmp_path)
+        station.calibration.load(tmp_path)
         path, applied = station.calibration.save(None, "geometry", result)
         assert applied and path == tmp_path / "machine.toml"
         rec = load_machine_record(path)
@@ -93,6 +93,6 @@ def test_the_station_saves_a_geometry_result_and_applies_it(tmp_path):
                                                     tuple(round(x, 3) for x in corr.squareness_urad))
         assert set(rec.length_errors_before_um) == {s.name for s in default_setups()} and "XY+" in rec.length_errors_after_um
         assert station.machine.correction == rec.correction
-        assert any(line.startswith("machine") for line in station.calibration_log), station.calibration_log
+        assert any(line.startswith("machine") for line in station.calibration.log), station.calibration.log
     finally:
         station.close()

@@ -104,9 +104,9 @@ def paced_station(tmp_path):
 def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):
     """An armed jog at the 10 mm/s jog speed probes at the probing speed the probe was qualified at."""
     station = paced_station
-    assert station.qualified_probing_speed == station.config.speeds.probing
-    station.calibration_status = {**station.calibration_status, "probe": {"date": "x", "probing_speed": 1.5}}
-    assert station.qualified_probing_speed == 1.5
+    assert station.calibration.qualified_probing_speed == station.config.speeds.probing
+    station.calibration.status = {**station.calibration.status, "probe": {"date": "x", "probing_speed": 1.5}}
+    assert station.calibration.qualified_probing_speed == 1.5
     pose = station.measurement.part.pose
     above = (pose @ np.array([20.0, 15.0, 41.5, 1.0]))[:3]
     station.controller.move(None, above, frame="machine").wait(30)

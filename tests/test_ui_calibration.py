@@ -41,7 +41,7 @@ def records(tmp_path_factory):
 @pytest.fixture(scope="module")
 def app(tmp_path_factory, records):
     station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start(home=True)
-    assert station.calibration_dir == records
+    assert station.calibration.directory == records
     ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
     yield ui
     ui.close()
@@ -90,14 +90,14 @@ def test_run_refused_for_observer_busy_machine_and_missing_certificate(app, oper
     # a missing certificate: refused before anything moves; the records and the settings stay
     before_text = (records / "probe.toml").read_text()
     before_settings = st.prober.settings
-    st.calibration_dir = tmp_path  # no artifacts/ here
+    st.calibration.directory = tmp_path  # no artifacts/ here
     try:
         assert "certificate problem" in operator.calibration.certificate_markdown("probe")
         assert operator.calibration.run("probe") is None
         level, title, body = _errors(operator)[0]
         assert "missing" in body and "previous calibration stays in force" in body
     finally:
-        st.calibration_dir = records
+        st.calibration.directory = records
     assert (records / "probe.toml").read_text() == before_text
     assert st.prober.settings is before_settings
     assert not operator.calibration.running and not st.machine.busy
@@ -161,7 +161,7 @@ def test_probe_results_view_and_save_applies(app, operator, records):
     assert saved.tip_radius == pytest.approx(q.record.tip_radius)
     assert st.prober.settings.tip_radius == pytest.approx(q.record.tip_radius)  # applied to the live station
     assert st.prober.settings.pretravel.coefficients == pytest.approx(q.settings.pretravel.coefficients)
-    assert any("probe" in line for line in st.calibration_log)
+    assert any("probe" in line for line in st.calibration.log)
     observer = app.add_client(client_id="observer-save", is_local=False)
     observer.calibration.result = ("probe", q)
     assert observer.calibration.save_record() is None

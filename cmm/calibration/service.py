@@ -58,15 +58,12 @@ class CalibrationHost(Protocol):
     machine: Any
     prober: Any
     config: Any
-    calibration_dir: Path | None
-    calibration_log: list[str]
+    lock: Any  # held while records are applied (the measurement reads the probe settings under it)
 
     @property
     def simulated(self) -> bool: ...
 
     def place_sim_artifacts(self, spheres: list) -> None: ...
-
-    def apply_calibration(self, loaded: Any, client: str | None = None) -> list[str]: ...
 
 
 def records_summary(directory: Path) -> list[dict[str, str]]:
@@ -108,8 +105,11 @@ def records_summary(directory: Path) -> list[dict[str, str]]:
 
 
 class CalibrationService:
-    def __init__(self, host: CalibrationHost) -> None:
+    def __init__(self, host: CalibrationHost, directory: str | Path | None = None) -> None:
         self.host = host
+        self.directory = None if directory is None else Path(directory)  # records are read and written here
+        self.log: list[str] = []  # what was applied from the records, and the records refused
+        self.status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}  # for the session journal
         self.errors = calibration_errors()
         self.instruction = ""  # the ball-bar set-up the operator is asked to place ("" when none waits)
         self._bar_event: threading.Event | None = None
@@ -117,12 +117,52 @@ class CalibrationService:
         self._running = threading.Lock()  # one routine at a time, whichever front end started it
         self._artifacts: Path | None = None
 
+    # --- the records in force -----------------------------------------------------
+
+    def load(self, directory: str | Path = "calibration") -> list[str]:
+        """Apply <directory>/probe.toml (ProbeSettings) and machine.toml (machine.correction) to the live machine.
+
+        A missing record leaves the nominal settings; a malformed one is reported and not applied.
+        """
+        from .records import load_station_calibration
+
+        self.directory = Path(directory)
+        loaded = load_station_calibration(directory)
+        applied = self.apply(loaded)
+        for problem in loaded.problems:
+            self.host.measurement.log("error", f"calibration record refused: {problem}")
+        self.log = applied + [f"refused: {p}" for p in loaded.problems]
+        self.status = {
+            "probe": None if loaded.probe is None else {"date": loaded.probe.date, "tip_radius": loaded.probe.tip_radius,
+                                                        "artifact": loaded.probe.artifact,
+                                                        "probing_speed": loaded.probe.probing_speed},
+            "machine": None if loaded.machine is None else {"date": loaded.machine.date,
+                                                            "scale_ppm": list(loaded.machine.scale_ppm),
+                                                            "squareness_urad": list(loaded.machine.squareness_urad)},
+            "problems": list(loaded.problems)}
+        return self.log
+
+    def apply(self, loaded: Any, client: str | None = None) -> list[str]:
+        """Apply loaded calibration records to the live machine and probe (in the machine loop, while still)."""
+        from .records import apply_calibration
+
+        host = self.host
+        with host.lock:
+            return host.controller.configure(client, lambda: apply_calibration(loaded, host.machine, host.prober))
+
+    @property
+    def qualified_probing_speed(self) -> float:
+        """The speed the probe was qualified at (its record), else the configured probing speed (mm/s): manual
+        hits are taken at no more than this (the pre-travel calibration holds only at that speed)."""
+        probe = self.status.get("probe") or {}
+        speed = float(probe.get("probing_speed") or 0.0)
+        return speed if speed > 0 else float(self.host.config.speeds.probing)
+
     # --- where things are ---------------------------------------------------------
 
     @property
     def records_dir(self) -> Path:
-        d = self.host.calibration_dir
-        return Path(d) if d is not None else Path("calibration")
+        return self.directory if self.directory is not None else Path("calibration")
 
     @property
     def artifacts_dir(self) -> Path:
@@ -184,7 +224,7 @@ class CalibrationService:
 
     def in_force(self) -> list[str]:
         """What the station applied from the records (and the records it refused)."""
-        return list(self.host.calibration_log or [])
+        return list(self.log or [])
 
     # --- run --------------------------------------------------------------------------
 
@@ -299,14 +339,14 @@ class CalibrationService:
         host = self.host
         if routine == "probe":
             path = save_record(result.record, self.records_dir / PROBE_RECORD)
-            self._log(host.apply_calibration(LoadedCalibration(probe=result.record), client=client))
+            self._log(self.apply(LoadedCalibration(probe=result.record), client=client))
             host.measurement.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
                       f"{result.settings.pretravel.describe()}")
             return path, True
         if routine == "geometry":
             rec = result.record(self._geometry_artifact(), host.config.source)
             path = save_record(rec, self.records_dir / MACHINE_RECORD)
-            self._log(host.apply_calibration(LoadedCalibration(machine=rec), client=client))
+            self._log(self.apply(LoadedCalibration(machine=rec), client=client))
             host.measurement.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
             return path, True
         if routine == "servo":
@@ -341,7 +381,7 @@ class CalibrationService:
 
     def _log(self, applied: list[str]) -> None:
         kinds = {a.split(" ", 1)[0] for a in applied}
-        self.host.calibration_log = [line for line in self.in_force() if line.split(" ", 1)[0] not in kinds] + applied
+        self.log = [line for line in self.in_force() if line.split(" ", 1)[0] not in kinds] + applied
 
 
 __all__ = ["BAR_CERTIFICATES", "CalibrationHost", "CalibrationService", "LABELS", "ROUTINES", "calibration_errors",

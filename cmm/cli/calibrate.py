@@ -65,17 +65,17 @@ class _Rig:
             self.api.connect()
             if not self.api.state.homed:
                 self._home(args)
-            self.station.load_calibration(args.records)
+            self.station.calibration.load(args.records)
         except BaseException:
             self.station.close()
             raise
         self.service = self.station.calibration
         if args.artifacts:
             self.service.artifacts_dir = Path(args.artifacts)
-        status = self.station.calibration_status
+        status = self.station.calibration.status
         for problem in status["problems"]:
             print(f"warning: {problem} (not applied)", file=sys.stderr)
-        for line in self.station.calibration_log:
+        for line in self.station.calibration.log:
             if not line.startswith("refused: "):
                 print(f"in force: {line}")
 
@@ -99,7 +99,7 @@ class _Rig:
 
     @property
     def probe_in_force(self) -> bool:
-        return self.station.calibration_status["probe"] is not None
+        return self.station.calibration.status["probe"] is not None
 
     def close(self) -> None:
         self.station.close()

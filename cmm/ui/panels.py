@@ -517,4 +517,4 @@ class ClientApp:
             self.status.refresh()
 
     def station_probing_speed(self) -> float:
-        return float(getattr(self.station, "qualified_probing_speed", self.station.config.speeds.probing))
+        return float(self.station.calibration.qualified_probing_speed)

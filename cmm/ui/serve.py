@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     if calibration is None:
         print("calibration: no records folder (nominal probe and geometry)")
     else:
-        for line in station.calibration_log or ["no records: nominal probe and geometry"]:
+        for line in station.calibration.log or ["no records: nominal probe and geometry"]:
             print(f"calibration ({calibration}): {line}")
     try:
         station.measurement.trends = open_trends(args)
