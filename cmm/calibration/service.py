@@ -4,6 +4,9 @@ The station (the composition root) builds one ``CalibrationService`` over
 itself (``station.calibration``); the Calibration tab only calls it and shows
 what it returns, so the UI imports neither the routines nor the records.
 
+- ``load(directory)`` applies the records in force (probe settings, geometry correction) and keeps what it
+  applied (``log``), their dates (``status``, written into each session's start) and the qualified probing
+  speed manual hits are limited to; ``apply(loaded, client)`` applies records while the machine is still;
 - ``run(client, routine, ...)`` runs one routine through the command API
   (``controller.run_job``: in the machine loop, with the machine to itself, the
   client's access checked there); its result is returned, nothing is applied.
