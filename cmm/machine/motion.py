@@ -550,8 +550,12 @@ class Machine:
                 return status.finish(self.position)
             try:
                 leg = self.move_to(targets[i], speed)
-            except Exception as exc:  # noqa: BLE001 - a link that fails as the next leg is sent ends the path
+            except MotionError as exc:
                 return status.finish(error=exc)
+            except Exception as exc:  # noqa: BLE001 - the link failing as a leg is sent
+                if i == 0:
+                    raise  # sent from the caller's thread: the caller hears it
+                return status.finish(error=exc)  # at the end of the previous leg: the path ends with it
             status.on_cancel(leg.cancel)
             leg.add_callback(lambda s: status.finish(error=s.error) if s.error else next_leg(i + 1))
 
