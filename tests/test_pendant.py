@@ -295,6 +295,45 @@ def test_jog_is_validated_and_clamped(server, station, client):
 ERROR_GAP = pendant_mod.ERROR_INTERVAL + 0.05
 
 
+def _notices(c) -> list[str]:
+    return [m["message"] for m in c.messages if m.get("type") == "notice"]
+
+
+def test_a_jog_at_the_end_of_the_travel_says_why_it_does_not_start_or_stops(server, station, client):
+    """Homed, X and Y stand at their minimum (0 mm) and Z at its maximum: a jog there says so, never nothing."""
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    start = station.machine.state.position.copy()
+    c.send(type="jog", v=[-20, 0, 0])
+    assert c.wait_for("error")["message"] == "X is at the end of its travel (0 mm): it can only jog +X"
+    c.drain(0.2)
+    assert speed(station) == 0
+    time.sleep(ERROR_GAP)
+    c.messages.clear()
+    c.jog_for([20, -10, 0], 0.3)  # +X runs; -Y would leave the travel: left out, and said once
+    notices = _notices(c)
+    assert notices == ["Y is at the end of its travel (0 mm): it can only jog +Y. The jog runs on the other axes."]
+    moved = station.machine.state.position - start
+    assert moved[0] > 0.5 and moved[1] == pytest.approx(0.0, abs=0.002), moved
+    c.send(type="release")
+    time_to_stop(station, now(station))
+    c.messages.clear()
+    c.jog_for([1e308, 0, 0], 0.2)  # an absurd speed runs at the fastest jog speed, and says so
+    assert [n for n in _notices(c) if "1e+308 mm/s limited to the fastest jog speed" in n]
+    c.send(type="release")
+    time_to_stop(station, now(station))
+    time.sleep(ERROR_GAP)
+    c.messages.clear()
+    end = time.monotonic() + 10  # back to X = 0: the travel clips the jog, and then refuses it
+    while not c.errors() and time.monotonic() < end:
+        c.jog_for([-40, 0, 0], 0.1)
+    assert "X reached the end of its travel: the jog stops there" in _notices(c)
+    assert c.errors() and c.errors()[0] == "X is at the end of its travel (0 mm): it can only jog +X"
+    assert station.machine.state.position[0] == pytest.approx(0.0, abs=0.006)
+
+
+
 def test_takeover_stops_the_previous_holders_jog(server, station, control, client):
     a, b = client(), client()
     a.send(type="take")

@@ -7,7 +7,8 @@ does the rest, the same for everyone:
 
 - **Speed clamp.** Each axis to ``speeds.jog_fast``; an armed jog (manual probing) to the speed the probe was
   qualified at (``probe_speed``). A clamped jog runs, and ``hold`` says so in a sentence (shown once).
-  Non-finite or malformed velocities are refused with a sentence.
+  Non-finite or malformed velocities are refused with a sentence. An axis at the end of its travel it would
+  jog towards is left out and the operator told so; a jog of only such axes is refused with that sentence.
 - **Release sequence.** A release ends the jog at once, ahead of anything queued (the control core's
   ``jog_release``: the link process hears it first). Each hold carries the count of releases its client had
   seen when the event arrived; a hold queued before a later release is dropped, so a late refresh never
@@ -35,6 +36,7 @@ import numpy as np
 from .modes import Refused
 
 ErrorFn = Callable[[str], None]
+AT_END = 0.005  # mm: an axis this close to the end of its travel counts as at it (a jog there would not start)
 
 
 class JogHolds:
@@ -71,6 +73,32 @@ class JogHolds:
                 note = note or (f"armed jog limited to the speed the probe was qualified at, {limit:g} mm/s")
         return v, note
 
+    def travel(self, v: np.ndarray) -> tuple[np.ndarray, str | None]:
+        """``v`` without the axes that stand at the end of their travel they would jog towards, and why.
+
+        The machine would not move them (it never jogs further out of the travel): the operator is told
+        which axis is at which end instead of a jog that silently does not start.
+        """
+        state = getattr(self.controller.state, "machine", None)
+        if state is None:
+            return v, None
+        pos = state.position
+        v = np.array(v, dtype=np.float64)
+        blocked = []
+        for i, axis in enumerate(self.config.axes):
+            name = axis.name.upper()
+            if v[i] > 0 and pos[i] >= axis.max - AT_END:
+                blocked.append(f"{name} is at the end of its travel ({axis.max:g} mm): it can only jog -{name}")
+            elif v[i] < 0 and pos[i] <= axis.min + AT_END:
+                blocked.append(f"{name} is at the end of its travel ({axis.min:g} mm): it can only jog +{name}")
+            else:
+                continue
+            v[i] = 0.0
+        if not blocked:
+            return v, None
+        why = "; ".join(blocked)
+        return v, (why if not np.any(v) else f"{why}. The jog runs on the other axes.")
+
     def ticket(self, client: Any) -> int:
         """The release count of ``client`` now: a front end that queues events takes it when one arrives."""
         return self.controller.release_seq(client)
@@ -87,6 +115,10 @@ class JogHolds:
         if not np.any(v):
             self.release(client)
             return note
+        v, at_end = self.travel(v)
+        if not np.any(v):  # every axis asked for stands at the end it would jog to
+            raise Refused(at_end)
+        note = note or at_end
         self.controller.jog(client, v, probe=probe, after=self.ticket(client) if after is None else after,
                             wait=False, on_error=on_error)
         return note

@@ -23,8 +23,9 @@ client -> server
   Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
 - ``{"type": "observe"}``: give control back (any jog of this pendant is ended).
 - ``{"type": "jog", "v": [vx, vy, vz]}``: velocity jog in mm/s, fed to the core's jog-hold pipeline
-  (:mod:`cmm.control.jog`): each component limited to ``speeds.jog_fast`` (a ``notice`` says so); all
-  zeros is a release. Only the control holder may jog; it must repeat the message (every 50 ms) while
+  (:mod:`cmm.control.jog`): each component limited to ``speeds.jog_fast`` (a ``notice`` says so); an axis
+  at the end of its travel it would jog towards is left out (a ``notice``), a jog of only such axes is
+  refused (an ``error``), and a jog the travel clips as it runs gets a ``notice``; all zeros is a release. Only the control holder may jog; it must repeat the message (every 50 ms) while
   the jog lasts.
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
@@ -173,6 +174,7 @@ class PendantServer:
         self.api = station.controller  # every machine command goes through the control core with our client id
         self.grants = Grants()  # station pages' embedded pendants (see revoke)
         self.api.use_policy_of(control)
+        self._unsubscribe = self.api.subscribe(self._on_machine_event)
         self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
         self._thread.start()
         if not self._ready.wait(10):
@@ -219,6 +221,7 @@ class PendantServer:
             # the connections' finally blocks release their jogs while the server closes them
 
     def close(self) -> None:
+        self._unsubscribe()
         if self._loop is not None and self._stop is not None and self._thread.is_alive():
             self._loop.call_soon_threadsafe(self._stop.set)
         self._thread.join(5)
@@ -431,6 +434,18 @@ class PendantServer:
         if note is not None and note != session.last_note:
             session.last_note = note  # once per limit, not 20 times a second
             await self._send(session, {"type": "notice", "message": note})
+
+    def _on_machine_event(self, kind: str, info: dict) -> None:
+        """The control core's events (its dispatcher thread): a jog the travel limit clipped is told to the
+        pendants that were jogging, so a jog that stops short of where the operator meant says why."""
+        if kind != "limit" or self._loop is None:
+            return
+        axis = str((info or {}).get("axis", "?")).upper()
+        text = f"{axis} reached the end of its travel: the jog stops there"
+        for session in list(self._sessions):
+            if session.jogging:
+                self._loop.call_soon_threadsafe(
+                    lambda s=session: asyncio.ensure_future(self._send(s, {"type": "notice", "message": text})))
 
     def _later_error(self, session: _Session, text: str) -> None:
         """An error the machine loop found in a queued jog (dispatcher thread): to this pendant, throttled."""
