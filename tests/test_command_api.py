@@ -195,7 +195,7 @@ def test_the_jog_pipeline_clamps_and_says_so_and_refuses_what_is_not_a_velocity(
     v, note = jogs.clamp([1e308, 0.0, -5.0])
     assert list(v) == [fast, 0.0, -5.0] and "1e+308 mm/s limited" in note
     v, note = jogs.clamp([0.0, 0.0, -30.0], probe=True)
-    assert np.linalg.norm(v) == pytest.approx(station.qualified_probing_speed) and "qualified" in note
+    assert np.linalg.norm(v) == pytest.approx(station.calibration.qualified_probing_speed) and "qualified" in note
     for bad in ([float("nan"), 0, 0], [1, 2], "fast"):
         with pytest.raises(Refused, match="three finite velocities"):
             jogs.hold(None, bad)

@@ -78,7 +78,7 @@ def _run(args: Any, path: Path, text: str) -> int:
                 return 1
             station.controller.home(None)
         if Path(args.records).is_dir():
-            station.load_calibration(args.records)
+            station.calibration.load(args.records)
         session = str(station.measurement.new_session())
         try:
             result = run_text(text, station, name=path.name)

@@ -49,7 +49,7 @@ class StationTarget:
 
     @property
     def probing_speed(self) -> float:
-        return float(self.station.qualified_probing_speed)
+        return float(self.station.calibration.qualified_probing_speed)
 
     @property
     def positioning_speed(self) -> float:
