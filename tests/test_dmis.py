@@ -213,3 +213,53 @@ def test_a_taught_program_exported_to_dmis_runs_again_with_the_same_features(sta
     assert all(verdicts[k].intol for k in ("BOSS_D", "BOSS_F", "DOME_D"))
     offset = 2 * np.linalg.norm(_machine([70.0, 22.0, 40.0])[:2] - (model.part.pose @ [70.0, 22.0, 40.0, 1.0])[:2])
     assert verdicts["BOSS_P"].value == pytest.approx(offset, abs=2 * NOISE) and not verdicts["BOSS_P"].intol
+
+
+FLOW = """UNITS/MM, ANGDEC
+DECL/LOCAL, INTGR, I
+DECL/LOCAL, REAL, X, TOPZ
+TOPZ = ASSIGN/40
+M(CLEAR) = MACRO/'H'
+  GOTO/10, 10, H
+ENDMAC
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+CALL/M(CLEAR), TOPZ + 30
+F(TOP) = FEAT/PLANE, CART, 60, 40, TOPZ, 0, 0, 1
+MEAS/PLANE, F(TOP), 3
+  DO/I, 1, 3
+    X = ASSIGN/10 + (I - 1) * 50
+    IF/(I .EQ. 2)
+      PTMEAS/CART, X, 5, TOPZ, 0, 0, 1
+    ELSE
+      PTMEAS/CART, X, $
+        10, TOPZ, 0, 0, 1
+    ENDIF
+  ENDDO
+ENDMES
+D(TOP) = TRANS/ZORIG, FA(TOP)
+OUTPUT/FA(TOP)
+RECALL/D(SETUP)
+OUTPUT/FA(TOP)
+UNITS/INCH, ANGDEC
+OUTPUT/FA(TOP)
+ENDFIL
+"""
+
+
+def test_variables_loops_conditions_macros_and_coordinate_systems(station):
+    result = run_text(FLOW, station, name="flow")
+    hits = [station.measurement.hits[h].point for h in sorted(station.measurement.hits)]
+    # the loop's three points, the IF taking the second: where the part really is (its top at Z 40)
+    want = [[10, 10], [60, 5], [110, 10]]
+    assert len(hits) == 3
+    for p, (x, y) in zip(hits, want):
+        assert np.linalg.norm(np.array(p[:2]) - (np.array([190.0 + x, 150.0 + y]))) < 0.01
+        assert p[2] == pytest.approx(40.0, abs=NOISE)
+    assert len(out_lines := result.outputs[None].splitlines()) > 0 and out_lines[-1] == "ENDFIL"
+    out = result.outputs[None]
+    lines = [ln for ln in out.splitlines() if ln.startswith("  ")]
+    zs = [float(ln.split(",")[2]) for ln in lines]
+    assert zs[0] == pytest.approx(0.0, abs=1e-5)  # in D(TOP): the origin on the measured plane
+    assert zs[1] == pytest.approx(hits[0][2] - 0.0, abs=NOISE)  # D(SETUP): the table is Z 0
+    assert zs[2] == pytest.approx(zs[1] / 25.4, abs=1e-5)  # in inches
+    assert "D(TOP) = TRANS/ZORIG, FA(TOP)" in out and "RECALL/D(SETUP)" in out and "UNITS/INCH, ANGDEC" in out

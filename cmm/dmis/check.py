@@ -32,8 +32,14 @@ OPEN_BLOCKS = {"MEAS": "ENDMES", "IF": "ENDIF", "DO": "ENDDO", "MACRO": "ENDMAC"
 CLOSE_BLOCKS = {v: k for k, v in OPEN_BLOCKS.items()}
 
 
+# words that are not values (anything else may be a variable holding one)
+NOT_VALUES = {"CART", "POL", "INCR", "INNER", "OUTER", "BND", "UNBND", *KINDS}
+IN_MEAS = {"PTMEAS", "GOTO", "DO", "ENDDO", "IF", "ELSE", "ENDIF", "ASSIGN", "CALL", "TEXT"}
+
+
 def numbers(params: list) -> int:
-    return sum(isinstance(p, Expr) for p in params)
+    """How many parameters are values: numbers, expressions, variables."""
+    return sum(isinstance(p, Expr) or (isinstance(p, Word) and p.text not in NOT_VALUES) for p in params)
 
 
 def _feat_problem(s: Statement) -> str | None:
@@ -136,8 +142,9 @@ def check_statements(stmts: list[Statement]) -> list[str]:
                 in_meas = False
         elif s.major == "ELSE" and (not stack or stack[-1].major != "IF"):
             problems.append(f"line {s.line}: ELSE without IF")
-        elif in_meas and s.major not in ("PTMEAS", "GOTO"):
-            problems.append(f"line {s.line}: {s.major} inside MEAS: only PTMEAS and GOTO until ENDMES")
+        if in_meas and s.major not in IN_MEAS | {"MEAS", "ENDMES"}:
+            problems.append(f"line {s.line}: {s.major} inside MEAS: only PTMEAS, GOTO, loops, conditions, "
+                            "assignments and macro calls until ENDMES")
         elif s.major == "PTMEAS" and not in_meas:
             problems.append(f"line {s.line}: PTMEAS outside MEAS ... ENDMES")
     for s in stack:

@@ -250,6 +250,8 @@ class Executor:
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
         if handler is None:  # the check lets through only what has a handler or is a no-op
+            if s.major == "ENDIF":
+                return  # the end of the branch taken
             if s.major in ("DMISMN", "DMISMD", "DISPLY", "PRCOMP", "MODE", "ENDFIL"):
                 return  # the program's name, display and mode settings: the station has one way of each
             raise self.fail(s, f"{s.major} is not supported")
@@ -526,7 +528,9 @@ class Executor:
         self._meas = (s, [])
 
     def do_ptmeas(self, s: Statement) -> None:
-        meas, ids = self._meas  # type: ignore[misc]
+        if self._meas is None:
+            raise self.fail(s, "PTMEAS outside MEAS ... ENDMES")
+        meas, ids = self._meas
         nom = self.nominals[self.labels(meas)[0].name]
         v = self.numbers(s)
         if s.minor == "POL":  # radius, angle, height in the current system's XY plane

@@ -154,7 +154,7 @@ class Actual:
 
 
 def _f(x: float) -> str:
-    return f"{x + 0.0:.5f}"
+    return f"{round(float(x), 5) + 0.0:.5f}"  # no "-0.00000"
 
 
 def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: float) -> str:

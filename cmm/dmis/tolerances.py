@@ -268,4 +268,4 @@ def model_tolerance(tol: Tolerance) -> dict[str, float]:
 def output_line(ev: Evaluation) -> str:
     t = ev.tolerance
     head = [t.word] + [o for o in t.options if o in ("2D", "3D", "CIRCLR", "TOTAL")]
-    return f"TA({t.label}) = TOL/{', '.join(head)}, {ev.value + 0.0:.5f}, {ev.verdict}"
+    return f"TA({t.label}) = TOL/{', '.join(head)}, {round(ev.value, 5) + 0.0:.5f}, {ev.verdict}"
