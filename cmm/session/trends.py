@@ -208,6 +208,8 @@ class LocalIndex:
         self.journal_path = journal_path
         self.path = path
         self._lock = threading.RLock()  # one connection for the station's threads: one statement at a time
+        self._parts: dict[int, tuple[str, str, str]] = {}  # seq -> (station, run id, serial), as read
+        self._parts_seq = 0
         self.db = self._open()
 
     def _open(self) -> sqlite3.Connection:
@@ -259,6 +261,7 @@ class LocalIndex:
                     for table in ("parts", "vals", "chars", "meta"):
                         self.db.execute(f"DELETE FROM {table}")
                     offset = 0
+                    self._parts, self._parts_seq = {}, 0
                 with open(self.journal_path, "rb") as fh:
                     fh.seek(offset)
                     data = fh.read(max(size - offset, 0))
@@ -312,14 +315,24 @@ class LocalIndex:
                                       (series,))]
 
     def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
-        sql = ("SELECT v.time, v.value, v.nominal, v.lower, v.upper, p.station, p.run_id, p.serial "
-               "FROM chars c JOIN vals v ON v.char_id = c.id JOIN parts p ON p.seq = v.seq "
-               "WHERE c.series = ? AND c.characteristic = ?")
+        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order: the numbers
+        are one range of the clustered values table; who measured each part comes from a cache of the parts
+        table (lines are only ever added to the journal, so the cache grows with its sequence numbers)."""
+        sql = ("SELECT v.time, v.seq, v.value, v.nominal, v.lower, v.upper FROM vals v "
+               "WHERE v.char_id = (SELECT id FROM chars WHERE series = ? AND characteristic = ?)")
         args: list[Any] = [series, characteristic]
         if station:
-            sql += " AND p.station = ?"
-            args.append(station)
-        return self._q(sql + " ORDER BY v.time, v.seq", args)
+            sql += " AND v.seq IN (SELECT seq FROM parts WHERE series = ? AND station = ?)"
+            args += [series, station]
+        with self._lock:
+            rows = self._q(sql + " ORDER BY v.char_id, v.time, v.seq", args)
+            if rows and max(r[1] for r in rows) > self._parts_seq:
+                for seq, st, run, serial in self._q("SELECT seq, station, run_id, serial FROM parts WHERE seq > ?",
+                                                    (self._parts_seq,)):
+                    self._parts[seq] = (st, run, serial)
+                    self._parts_seq = max(self._parts_seq, seq)
+            parts = self._parts
+        return [(t, v, n, lo, up, *parts[seq]) for t, seq, v, n, lo, up in rows]
 
     def pending(self, after_seq: int, limit: int) -> list[PartSeq]:
         """Parts journalled after ``after_seq`` (in order), with their values, for the upload."""
