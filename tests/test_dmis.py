@@ -263,3 +263,60 @@ def test_variables_loops_conditions_macros_and_coordinate_systems(station):
     assert zs[1] == pytest.approx(hits[0][2] - 0.0, abs=NOISE)  # D(SETUP): the table is Z 0
     assert zs[2] == pytest.approx(zs[1] / 25.4, abs=1e-5)  # in inches
     assert "D(TOP) = TRANS/ZORIG, FA(TOP)" in out and "RECALL/D(SETUP)" in out and "UNITS/INCH, ANGDEC" in out
+
+
+def _ring(centre, radius, zs, n=12):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.array([[centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a), z] for z in zs for a in t])
+
+
+def test_tolerances_on_known_geometry():
+    """Runout, concentricity, orientation, angles, distances and constructions on exact geometry (no probing)."""
+    from cmm.dmis.construct import construct_actual
+    from cmm.dmis.features import Actual, Nominal
+    from cmm.dmis.tolerances import Tolerance, ToleranceError, evaluate
+
+    z = np.array([0.0, 0.0, 1.0])
+    datum = Actual("D", "cylinder", {"point": [0, 0, 0], "direction": [0, 0, 1], "radius": 10.0},
+                   Nominal("CYLNDR", False, np.zeros(3), z, diameter=20.0), hit_points=_ring((0, 0), 10, [0, 10]))
+    e = 0.01  # a second cylinder 0.01 mm off the datum axis
+    other = Actual("O", "cylinder", {"point": [e, 0, 20], "direction": [0, 0, 1], "radius": 5.0},
+                   Nominal("CYLNDR", False, np.array([0, 0, 20.0]), z, diameter=10.0),
+                   hit_points=_ring((e, 0), 5, [20, 30]))
+    datums = {"A": datum}
+    frame = np.eye(4)
+    run = evaluate(Tolerance("R", "RUNOUT", upper=0.05, datums=["A"], options=["CIRCLR"]), [other], datums, frame)
+    assert run.value == pytest.approx(2 * e, abs=1e-6) and run.intol
+    con = evaluate(Tolerance("C", "CONCEN", upper=0.015, datums=["A"]), [other], datums, frame)
+    assert con.value == pytest.approx(2 * e, abs=1e-6) and not con.intol  # 0.02 > 0.015: OUTOL
+    # a face tilted by 0.01 mm over 20 mm: parallel to the datum plane within 0.01, at 90 deg to the axis
+    face_pts = np.array([[x, y, 50 + 0.0005 * x] for x in (-10, 10) for y in (-10, 10)])
+    n = np.array([-0.0005, 0.0, 1.0]) / np.linalg.norm([-0.0005, 0.0, 1.0])
+    face = Actual("F", "plane", {"point": [0, 0, 50], "normal": n.tolist(), "form": 0.0},
+                  Nominal("PLANE", None, np.array([0, 0, 50.0]), z), hit_points=face_pts)
+    base = Actual("B", "plane", {"point": [0, 0, 0], "normal": [0, 0, 1], "form": 0.0},
+                  Nominal("PLANE", None, np.zeros(3), z), hit_points=np.array([[x, y, 0.0] for x in (-9, 9)
+                                                                                for y in (-9, 9)]))
+    datums["P"] = base
+    par = evaluate(Tolerance("P1", "PARLEL", upper=0.02, datums=["P"]), [face], datums, frame)
+    assert par.value == pytest.approx(0.01, abs=1e-6) and par.intol
+    perp = evaluate(Tolerance("P2", "PERPEND", upper=0.02, datums=["A"]), [face], datums, frame)
+    assert perp.value == pytest.approx(0.01, abs=1e-6)
+    ang = evaluate(Tolerance("P3", "ANGLR", upper=0.02, nominal=0.0, datums=["P"]), [face], datums, frame)
+    assert ang.value == pytest.approx(par.value, abs=1e-9)
+    anglb = evaluate(Tolerance("AB", "ANGLB", lower=-0.01, upper=0.01, nominal=0.0), [face, base], datums, frame)
+    assert anglb.value == pytest.approx(np.degrees(np.arctan(0.0005)), abs=1e-6) and not anglb.intol
+    dist = evaluate(Tolerance("DZ", "DISTB", lower=-0.1, upper=0.1, nominal=50.0, options=["ZAXIS"]),
+                    [base, face], datums, frame)
+    assert dist.value == pytest.approx(0.0, abs=1e-9) and dist.intol
+    # constructions: the axis through the plane is the point on it; the mid-plane of the two faces
+    kind, g = construct_actual("point", "INTOF", [other, face])
+    assert kind == "point" and g["point"] == pytest.approx([e, 0, 50 + 0.0005 * e], abs=1e-9)
+    kind, g = construct_actual("plane", "MIDPL", [base, face])
+    assert kind == "plane" and g["point"][2] == pytest.approx(25.0)
+    kind, g = construct_actual("point", "PROJCT", [other, base])
+    assert g["point"] == pytest.approx([e, 0, 0], abs=1e-12)
+    with pytest.raises(ToleranceError, match=r"T\(X\) \(TOL/POS\) applies to 1 feature"):
+        evaluate(Tolerance("X", "POS", upper=0.1), [other, face], datums, frame)
+    with pytest.raises(ToleranceError, match="no DATDEF"):
+        evaluate(Tolerance("Y", "PERPEND", upper=0.1, datums=["Q"]), [face], datums, frame)
