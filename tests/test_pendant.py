@@ -181,6 +181,17 @@ def test_observer_cannot_jog(server, station, control, client):
     assert control.holder is None
 
 
+def test_button_holds_come_only_from_a_station_pages_hold_refresher(server, station, control, client):
+    """A plain pendant (no page grant with a hold refresher) cannot send a page's button holds, even in control."""
+    c = client()
+    c.send(type="take")
+    c.wait_for("control")
+    c.send(type="hold", button="hold X +")
+    assert "hold refresher" in c.wait_for("error")["message"]
+    time.sleep(0.2)
+    assert speed(station) == 0
+
+
 def test_remote_pendant_needs_the_code(server, station, control, client, monkeypatch):
     monkeypatch.setattr(pendant_mod, "is_local_connection", lambda _addr, _host=None: False)  # pretend it is on the LAN
     c = client()

@@ -346,6 +346,7 @@ class OriginPolicy:
         if lan:
             self.names |= own_names()
         self.refused: list[str] = []  # reasons, newest last (shown in logs and tests)
+        self.ports: set[int] = set()  # the station's own web ports: its pages on one may connect to another
 
     def host_allowed(self, host_header: str) -> bool:
         host = split_host(host_header)
@@ -364,7 +365,10 @@ class OriginPolicy:
             return (f"refused a connection for unknown host {host!r}: open the station by its address "
                     "(or start it with --allow-host NAME)")
         origin = headers.get("Origin")
-        if origin is not None and origin.rstrip("/").lower() not in (f"http://{host}".lower(), f"https://{host}".lower()):
+        name = host.rsplit(":", 1)[0] if not host.endswith("]") else host
+        own = {f"{scheme}://{h}".lower() for scheme in ("http", "https")
+               for h in [host] + [f"{name}:{p}" for p in self.ports]}  # the same host, a port of the station
+        if origin is not None and origin.rstrip("/").lower() not in own:
             return f"refused a connection from another web page ({origin}): only the station's own pages may control it"
         return None
 

@@ -44,6 +44,7 @@ class StationApp:
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)
         self.port = self.server.get_port()
+        self.origins.ports.add(self.port)  # the viser page's hold refresher talks to the pendant port
         self.clients: dict[int, ClientApp] = {}
         self._clients_lock = threading.Lock()
         self._fe: deque[tuple[float, float, float, float]] = deque(maxlen=int(PLOT_SECONDS * 50))
@@ -133,10 +134,11 @@ class StationApp:
         except Exception:  # noqa: BLE001 - fall back to the address the pendant reports
             return self.pendant_url
 
-    def pendant_grant(self, capp: ClientApp) -> str | None:
-        """A grant for ``capp``'s embedded pendant: it then acts as that client (see cmm.ui.pendant_grants)."""
+    def pendant_grant(self, capp: ClientApp, hold: Any = None) -> str | None:
+        """A grant for ``capp``'s embedded pendant (or, with ``hold``, its jog buttons' hold refresher): it then
+        acts as that client (see cmm.ui.pendant_grants)."""
         grants = getattr(self.pendant, "grants", None)
-        return None if grants is None else grants.issue(capp.ctx.who, capp.peer())
+        return None if grants is None else grants.issue(capp.ctx.who, capp.peer(), hold=hold)
 
     def add_client(self, client: Any = None, *, client_id: str | None = None, is_local: bool | None = None) -> ClientApp:
         """A ClientApp for a connected viser client (builds its GUI), or a headless one for scripts/tests."""
@@ -159,8 +161,9 @@ class StationApp:
         with self._clients_lock:
             capp = self.clients.pop(client.client_id, None)
         if capp is not None:
-            if capp.pendant_token and self.pendant is not None:
-                self.pendant.revoke(capp.pendant_token)
+            for token in (capp.pendant_token, capp.hold_token):
+                if token and self.pendant is not None:
+                    self.pendant.revoke(token)
             capp.jog_release()
             self.control.disconnected(capp.client_id)
 

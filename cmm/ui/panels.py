@@ -34,9 +34,17 @@ from .panel_colour_map import ColourMapPanel
 from .panel_features import FeaturesPanel
 from .panel_measure import MeasurePanel
 from .panel_sessions import SessionsPanel
-from .panel_status import StatusPanel
+from .panel_status import StatusPanel, run_script
 from .panel_trends import TrendsPanel
 from .scene import SCALE, draw_pick
+
+
+def hold_worker_script(pendant_src: str, token: str) -> str:
+    """web/hold_worker.js for this page: its pendant WebSocket and its refresher's grant."""
+    from .pendant import web_dir
+
+    ws = pendant_src.split("#", 1)[0].replace("http://", "ws://", 1).replace("https://", "wss://", 1).rstrip("/") + "/ws"
+    return (web_dir() / "hold_worker.js").read_text().replace("__WS_URL__", ws).replace("__TOKEN__", token)
 
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
@@ -101,6 +109,7 @@ class ClientApp:
         self.step_size = "1"
         self.move_status: Any = None
         self.pendant_token: str | None = None  # the embedded pendant's grant (acts as this client)
+        self.hold_token: str | None = None  # the jog buttons' hold refresher's grant (web/hold_worker.js)
         self._jogging = False
         self._last_error = ("", 0.0)
         self._zero_armed = 0.0
@@ -242,6 +251,15 @@ class ClientApp:
             self._throttled_error("Jog", str(exc))
             return
         self._jogging = True
+
+    def hold_velocity(self, label: Any) -> tuple[np.ndarray, bool]:
+        """What a held jog button means now ("hold X +" ...): its velocity at this tab's speed, and whether the
+        jog is armed (the page's hold refresher sends the label, see web/hold_worker.js)."""
+        for i, name in enumerate(AXES):
+            for sign, text in ((-1, f"hold {name.upper()} −"), (1, f"hold {name.upper()} +")):
+                if label == text:
+                    return self.jog_velocity(i, sign), bool(self.ctx.manual_probe)
+        raise ValueError(f"no jog button is called {label!r}")
 
     def jog_release(self) -> None:
         """The button was released (viser's click event fires on release)."""
@@ -411,6 +429,9 @@ class ClientApp:
                     lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
             src = self.app.pendant_src(self.client.client_id)
             self.pendant_token = self.app.pendant_grant(self) if src else None
+            self.hold_token = self.app.pendant_grant(self, hold=self.hold_velocity) if src else None
+            if src and self.hold_token:
+                run_script(gui, hold_worker_script(src, self.hold_token))
             if src:
                 if self.pendant_token:
                     src += f"#as={self.pendant_token}"

@@ -28,6 +28,9 @@ client -> server
   refused (an ``error``), and a jog the travel clips as it runs gets a ``notice``; all zeros is a release. Only the control holder may jog; it must repeat the message (every 50 ms) while
   the jog lasts.
 - ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
+- ``{"type": "hold", "button": "hold X +"}``: a station page's jog button is held; only from the page's
+  hold refresher (``web/hold_worker.js``, a Web Worker with the page's refresher grant), repeated every
+  40 ms; the page says what the button means (its speed, armed or not).
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
   10 mm; only the control holder.
 - ``{"type": "call", "id": n, "method": "...", "params": {...}, "wait": bool}``: any verb of the command
@@ -380,6 +383,8 @@ class PendantServer:
             await self._send(session, {"type": "control", "control": False})
         elif kind == "jog":
             await self._jog(session, msg.get("v"))
+        elif kind == "hold":
+            await self._hold_button(session, msg.get("button"))
         elif kind == "release":
             if session.jogging or self.control.can_move(session.client_id):
                 session.jogging = False
@@ -413,7 +418,20 @@ class PendantServer:
             return await self._send(session, {"type": "control", "control": True})
         await self._error_msg(session, reason)
 
-    async def _jog(self, session: _Session, v: Any) -> None:
+    async def _hold_button(self, session: _Session, label: Any) -> None:
+        """A station page's jog button is held (its hold refresher, web/hold_worker.js, acting as the page):
+        the page says what the button means now (speed, armed)."""
+        hold = None if session.grant is None else session.grant.hold
+        if hold is None:
+            return await self._error_msg(session, "only a station page's hold refresher sends button holds",
+                                         throttle=True)
+        try:
+            v, probe = hold(label)
+        except ValueError as exc:
+            return await self._error_msg(session, str(exc), throttle=True)
+        await self._jog(session, [float(x) for x in v], probe=probe)
+
+    async def _jog(self, session: _Session, v: Any, *, probe: bool = False) -> None:
         """A jog refresh: fed to the core's jog-hold pipeline (clamp, release sequence, grace), which never waits
         for the machine loop, so this connection keeps reading (and answering its keepalive pings)."""
         if not self.control.can_move(session.client_id):
@@ -426,7 +444,8 @@ class PendantServer:
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
         try:
-            note = self.api.jogs.hold(self._who(session), v, on_error=lambda text: self._later_error(session, text))
+            note = self.api.jogs.hold(self._who(session), v, probe=probe,
+                                      on_error=lambda text: self._later_error(session, text))
         except Exception as exc:  # noqa: BLE001 - every refusal is the operator's sentence, never raised into the loop
             session.jogging = False
             return await self._error_msg(session, str(exc) or type(exc).__name__, throttle=True)

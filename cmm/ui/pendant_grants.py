@@ -37,6 +37,7 @@ class Grant:
     owner: Callable[[], Any]  # the page's client now (cmm.control.Client: id, local, authenticated)
     peer: str | None  # the page's network address; the pendant must come from the same one
     claimed: bool = False
+    hold: Callable[[str], Any] | None = None  # a held page button's label -> (velocity, armed): its hold refresher
 
 
 class Grants:
@@ -46,10 +47,10 @@ class Grants:
         self._lock = threading.Lock()
         self._grants: dict[str, Grant] = {}
 
-    def issue(self, owner: Callable[[], Any], peer: str | None) -> str:
+    def issue(self, owner: Callable[[], Any], peer: str | None, hold: Callable[[str], Any] | None = None) -> str:
         token = secrets.token_urlsafe(18)
         with self._lock:
-            self._grants[token] = Grant(owner, peer)
+            self._grants[token] = Grant(owner, peer, hold=hold)
         return token
 
     def revoke(self, token: str | None) -> Grant | None:

@@ -1,0 +1,57 @@
+// The viser page's jog buttons, refreshed off the page's main thread.
+//
+// While a "hold X +" ... button of the station page is pressed, viser sends hold events from the page's main
+// thread, which a busy page (a WebGL frame of a few hundred ms on a slow PC) delays past the machine's
+// 0.15 s dead-man. This script runs in the page (injected by the station) and hands the press to a Web
+// Worker, whose timers a busy main thread does not hold up: the worker sends {"type": "hold", "button": label}
+// every 40 ms over its own WebSocket to the pendant port, acting as this page (its grant token), until the
+// button is let go ({"type": "release"}). The main thread beats every 100 ms while the button is held; a
+// worker that hears no beat for MAIN_SILENT_MS (a frozen tab) stops on its own, and a closed tab or a lost
+// network stops the machine by its dead-man 0.15 s after the worker's last message.
+(function () {
+  var WS_URL = "__WS_URL__", TOKEN = "__TOKEN__";
+  if (window.__cmmHoldWorker) return;
+  var src = [
+    "var ws = null, timer = null, button = null, beat = 0, MAIN_SILENT_MS = 1000;",
+    "function open() {",
+    "  ws = new WebSocket(" + JSON.stringify(WS_URL) + ");",
+    "  ws.onopen = function () { ws.send(JSON.stringify({type: 'hello', as: " + JSON.stringify(TOKEN) + "})); };",
+    "  ws.onclose = function () { ws = null; setTimeout(open, 500); };",
+    "}",
+    "function send(m) { if (ws && ws.readyState === 1) ws.send(JSON.stringify(m)); }",
+    "function tick() {",
+    "  if (button === null) return;",
+    "  if (Date.now() - beat > MAIN_SILENT_MS) { stop(); return; }",
+    "  send({type: 'hold', button: button});",
+    "}",
+    "function stop() {",
+    "  if (timer !== null) { clearInterval(timer); timer = null; }",
+    "  if (button !== null) send({type: 'release'});",
+    "  button = null;",
+    "}",
+    "onmessage = function (e) {",
+    "  var m = e.data;",
+    "  if (m.type === 'hold') { button = m.button; beat = Date.now(); if (timer === null) timer = setInterval(tick, 40); tick(); }",
+    "  else if (m.type === 'beat') { beat = Date.now(); }",
+    "  else if (m.type === 'release') { stop(); }",
+    "};",
+    "open();"
+  ].join("\n");
+  var worker = new Worker(URL.createObjectURL(new Blob([src], {type: "text/javascript"})));
+  window.__cmmHoldWorker = worker;
+  document.addEventListener("pointerdown", function (e) {
+    var b = e.target && e.target.closest ? e.target.closest("button") : null;
+    var label = b ? b.textContent.trim() : "";
+    if (label.indexOf("hold ") !== 0) return;
+    worker.postMessage({type: "hold", button: label});
+    var beat = setInterval(function () { worker.postMessage({type: "beat"}); }, 100);
+    var up = function () {
+      clearInterval(beat);
+      worker.postMessage({type: "release"});
+      document.removeEventListener("pointerup", up, true);
+      document.removeEventListener("pointercancel", up, true);
+    };
+    document.addEventListener("pointerup", up, true);
+    document.addEventListener("pointercancel", up, true);
+  }, true);
+})();
