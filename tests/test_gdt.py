@@ -189,6 +189,12 @@ def test_profile_of_a_surface_with_and_without_datums():
     only_a = build_drf([datum_from_feature("A", "plane", {"point": (5, 5, 0), "normal": (0, 0, -1)})])
     assert gdt.profile("profile of a surface", pts + (0.3, -0.2, 0), mesh, np.eye(4), 0.05, drf=only_a,
                        nominal_drf=only_a).value == pytest.approx(0.04, abs=1e-6)
+    # the actual datum A is its hits' centroid, the nominal's point elsewhere on the face: the frames agree
+    # along what A leaves free, so the free fit starts where the part is
+    a_nominal = build_drf([datum_from_feature("A", "plane", {"point": (35, 25, 0), "normal": (0, 0, -1)})])
+    assert np.allclose(a_nominal.origin, only_a.origin)
+    assert gdt.profile("profile of a surface", pts, mesh, np.eye(4), 0.05, drf=only_a,
+                       nominal_drf=a_nominal).value == pytest.approx(0.04, abs=1e-6)
     with pytest.raises(gdt.GdtError, match="profile tolerance needs the part mesh"):
         gdt.profile("profile of a surface", pts, None, np.eye(4), 0.05)
 

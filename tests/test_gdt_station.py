@@ -43,9 +43,9 @@ def _measure(model, origin, direction, name, n=None):
 def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path):
     model = station.measurement
     model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    top = _measure(model, (10, 70, 100), (0, 0, -1), "top", n=4)
-    front = _measure(model, (60, -50, 20), (0, 1, 0), "front", n=4)
-    left = _measure(model, (-50, 60, 20), (1, 0, 0), "left", n=4)
+    top = _measure(model, (10, 70, 100), (0, 0, -1), "top", n=3)
+    front = _measure(model, (60, -50, 20), (0, 1, 0), "front", n=3)
+    left = _measure(model, (-50, 60, 20), (1, 0, 0), "left", n=3)
     bore = _measure(model, (30, 40, 60), (0.5, 0, -0.866), "bore")
     assert bore.kind == "cylinder" and bore.nominal.params.get("bore")
     for label, f in (("A", top), ("B", front), ("C", left)):

@@ -15,7 +15,8 @@ perpendicular to A that fits B's feature: B's small squareness error to A never 
    that is not parallel to Z sets X, projected perpendicular to Z (Rz);
 2. location: each datum's location directions (plane: its normal; axis: the two directions across it;
    point: all three) are projected onto the translations still free; what is left is constrained at the
-   datum feature's location (origin = the intersection of the simulated datums);
+   datum feature's location (origin = the intersection of the simulated datums; along what stays free,
+   the point nearest the coordinate origin);
 3. clocking: when Z is set but X is not and the translations across Z are already constrained, a later axis
    or point off the origin sets X towards it (A plane, B bore, C hole); with no Z yet and the origin
    fixed (three sphere centres) such a datum sets Z towards it.
@@ -260,7 +261,7 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
         trans = np.vstack([trans, new]) if len(new) else trans
         # 3. clocking by a location off the origin
         if not len(new) and d.kind in ("axis", "point") and (z is None or x is None) and len(trans):
-            origin = _solve_origin(rows, datums[0].origin)
+            origin = _solve_origin(rows, np.zeros(3))
             r = d.origin - origin
             if z is not None:
                 r = r - (r @ z) * z
@@ -272,7 +273,7 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
                 rot_names += ["Rx", "Ry"]
         if not added:
             raise DatumError(_why_nothing(d, datums[:i]))
-    origin = _solve_origin(rows, datums[0].origin)
+    origin = _solve_origin(rows, np.zeros(3))
     if z is None:
         rotation = np.eye(3)
     else:
@@ -289,7 +290,10 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
 
 
 def _solve_origin(rows: list[tuple[np.ndarray, float]], start: np.ndarray) -> np.ndarray:
-    """The point satisfying every location constraint, nearest ``start`` along what is free."""
+    """The point satisfying every location constraint, nearest ``start`` along what is free. The start is the
+    coordinate origin, not a datum feature's point: an actual and a nominal frame of the same datums then have
+    the same origin along the translations they leave free (a fitted plane's point is its hits' centroid, the
+    nominal's anywhere on the face), so a profile's best fit in those DOF starts where the part is."""
     if not rows:
         return start.copy()
     A = np.array([r[0] for r in rows])
