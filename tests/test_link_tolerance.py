@@ -171,3 +171,23 @@ def test_the_control_state_shows_an_idle_link_warning_and_stays_out_of_fault():
         assert ctl.state.to_dict()["link_warning"] == ctl.state.link_warning
     finally:
         ctl.close()
+
+
+def test_the_status_bar_shows_the_link_warning(tmp_path):
+    from cmm.station import Station
+    from cmm.ui.panel_status import status_html
+
+    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start()
+    try:
+        bus = station.machine.bus
+        port = bus.port = FaultyTransport(bus.port)  # the same simulator, with a stall to inject
+        for _ in range(3):
+            station.controller.poll()
+        assert "link warning" not in status_html(station, "", link_rate=100.0)
+        port.inject(Fault("stall", "rx", duration=2.0))
+        for _ in range(3):
+            station.controller.poll()
+        text = status_html(station, "", link_rate=100.0)
+        assert "link warning: " in text and "retrying" in text and "FAULT" not in text, text
+    finally:
+        station.close()

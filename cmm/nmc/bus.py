@@ -108,6 +108,8 @@ DISCOVERY_ATTEMPTS = 3
 IDLE_PATIENCE = 6.0
 MAX_REPLY_WAIT = 1.0
 DISCOVERY_WAITS = (DISCOVERY_WAIT, 0.6, 1.2)  # the marker's waits for a module the chain is known to have
+OVERSLEPT = 0.02  # s a read may return past its deadline before the host counts as descheduled meanwhile
+OVERSLEPT_EXTENSIONS = 3  # a reply's wait is renewed at most this often for a descheduled host
 HEARD_KEEP = 64  # received chunks kept for the error messages ("what was seen")
 STORM_LIMIT = 6  # transactions in a row that needed a resynchronisation: the link is down
 GOAL_TOLERANCE = 3  # counts: a started move that already arrived
@@ -229,6 +231,7 @@ class Bus:
         wait = reply_timeout(n) if timeout is None else timeout
         start = self.clock.now() if since is None else since
         self._set_timeout(wait, address)  # (the same value every time: a real port is not reconfigured)
+        renewed = 0
         try:
             data = self.port.read(n)
             while len(data) < n:
@@ -241,9 +244,16 @@ class Bus:
                         continue
                 waiting = self.port.in_waiting
                 more = self.port.read(min(waiting, n - len(data))) if waiting else b""  # already here: no wait
-                if not more:
-                    break
-                data += more
+                if more:
+                    data += more
+                    continue
+                if self.clock.now() - (start + wait) > OVERSLEPT and renewed < OVERSLEPT_EXTENSIONS:
+                    # this process was off the CPU well past the deadline (the read came back late): the time it
+                    # was away is not the module's; it gets its reply time again, counted from now
+                    renewed += 1
+                    start = self.clock.now()
+                    continue
+                break
         except (serial.SerialException, OSError) as exc:
             raise self._link_error("waiting for a reply", exc, address) from exc
         if data:
@@ -835,7 +845,11 @@ class Bus:
                 if buf:
                     self.stats["discarded"] += len(buf)
                 return False
+            asked = self.clock.now()
             chunk = self._read_some(left, address)
+            late = self.clock.now() - asked - left
+            if late > OVERSLEPT:  # this process was off the CPU meanwhile: that time is not the module's
+                deadline += late
             if not chunk:
                 continue
             buf += chunk
