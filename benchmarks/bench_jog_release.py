@@ -20,7 +20,9 @@ no axis moves more than 2 counts (4 um) in 10 ms.
 Two front ends play the operator in turn, both through the core's jog-hold pipeline: the pendant page
 (its JSON WebSocket: a jog message every 50 ms) and the viser page (viser's own WebSocket: "Take control",
 then the "hold X +" / "hold X −" button's hold events at 25 Hz, as the browser sends them while the button
-is pressed, and the button's click event, which viser sends on release). A silent trial sends neither a
+is pressed, and the button's click event, which viser sends on release; beside them the page's hold
+refresher, web/hold_worker.js, which the page runs in a Web Worker: "hold" messages every 40 ms on the
+pendant port with the page's refresher grant, read from the script the station sends the page). A silent trial sends neither a
 release nor any more refreshes: the stop is timed from the last refresh sent.
 
 Load phase: ``--hogs`` CPU hogs (busy loops at normal priority; default 2 per core, as a shop-floor PC
@@ -46,6 +48,7 @@ import argparse
 import collections
 import json
 import random
+import re
 import statistics
 import subprocess
 import sys
@@ -416,11 +419,13 @@ class ViserPage:
 
         self.hz = float(HOLD_HZ)
         self.uuids: dict[str, str] = {}
+        self.refresher = None  # the hold refresher's socket to the pendant port (what the page's Web Worker opens)
         self.ws = connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
         threading.Thread(target=self._read, daemon=True).start()
         self._send(viser_camera())
         end = time.monotonic() + 60
-        while not {"Take control", "hold X +", "hold X −", "Speed"} <= set(self.uuids) and time.monotonic() < end:
+        while not ({"Take control", "hold X +", "hold X −", "Speed"} <= set(self.uuids) and self.refresher) \
+                and time.monotonic() < end:
             time.sleep(0.05)
         from viser import _messages
 
@@ -436,6 +441,10 @@ class ViserPage:
             for raw in self.ws:
                 if isinstance(raw, bytes):
                     for d in walk(decode_frame(raw)):
+                        found = re.search(r'var WS_URL = "([^"]+)", TOKEN = "([^"]+)"', str(d.get("source") or ""))
+                        if found and self.refresher is None:  # the page's hold refresher (web/hold_worker.js)
+                            self.refresher = open_ws(found.group(1))
+                            self.refresher.send(json.dumps({"type": "hello", "as": found.group(2)}))
                         props = d.get("props")
                         if isinstance(props, dict) and isinstance(props.get("label"), str) and "uuid" in d:
                             self.uuids.setdefault(props["label"], d["uuid"])
@@ -455,14 +464,18 @@ class ViserPage:
     def hold(self, sign: int, seconds: float = 0.3) -> None:
         from viser import _messages
 
-        button = self.uuids["hold X +" if sign > 0 else "hold X −"]
+        label = "hold X +" if sign > 0 else "hold X −"
+        button = self.uuids[label]
         end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        while time.monotonic() < end:  # viser's hold events (25 Hz) and the refresher's holds (every 40 ms)
             self._send(_messages.GuiButtonHoldMessage(button, self.hz))
+            self.refresher.send(json.dumps({"type": "hold", "button": label}))
             time.sleep(1.0 / self.hz)
         self._send(_messages.GuiButtonHoldMessage(button, self.hz))  # the last refresh
+        self.refresher.send(json.dumps({"type": "hold", "button": label}))
 
     def release(self, sign: int) -> None:
+        self.refresher.send(json.dumps({"type": "release"}))  # the worker's, on pointer-up
         self.click("hold X +" if sign > 0 else "hold X −")
 
     def close(self) -> None:
