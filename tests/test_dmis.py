@@ -224,6 +224,7 @@ M(CLEAR) = MACRO/'H'
 ENDMAC
 D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
 CALL/M(CLEAR), TOPZ + 30
+GOTO/INCR, 5, 0, 0, 1
 F(TOP) = FEAT/PLANE, CART, 60, 40, TOPZ, 0, 0, 1
 MEAS/PLANE, F(TOP), 3
   DO/I, 1, 3
@@ -231,8 +232,12 @@ MEAS/PLANE, F(TOP), 3
     IF/(I .EQ. 2)
       PTMEAS/CART, X, 5, TOPZ, 0, 0, 1
     ELSE
-      PTMEAS/CART, X, $
-        10, TOPZ, 0, 0, 1
+      IF/(I .EQ. 1)
+        PTMEAS/POL, 14.1421356, 45, TOPZ, 0, 0, 1
+      ELSE
+        PTMEAS/CART, X, $
+          10, TOPZ, 0, 0, 1
+      ENDIF
     ENDIF
   ENDDO
 ENDMES
@@ -249,7 +254,7 @@ ENDFIL
 def test_variables_loops_conditions_macros_and_coordinate_systems(station):
     result = run_text(FLOW, station, name="flow")
     hits = [station.measurement.hits[h].point for h in sorted(station.measurement.hits)]
-    # the loop's three points, the IF taking the second: where the part really is (its top at Z 40)
+    # the loop's three points (the first in polar coordinates, the second the IF's): where the part really is
     want = [[10, 10], [60, 5], [110, 10]]
     assert len(hits) == 3
     for p, (x, y) in zip(hits, want):
