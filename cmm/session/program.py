@@ -51,6 +51,7 @@ from .toml_text import toml_value
 from .model import DEFAULT_TOLERANCE, Session, mesh_sha256
 
 FORMAT = "cmm-program/1"
+FORMAT_ROUTINE = "cmm-program/2"  # the same file with an ordered [[steps]] list (cmm.measurement.routine)
 KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 
 
@@ -86,6 +87,7 @@ class Program:
     hits: list[ProgramHit]
     clearance: float = 10.0
     taught_from: str | None = None
+    steps: list[dict[str, Any]] = field(default_factory=list)  # the routine's ordered steps (format 2)
 
     def feature(self, name: str) -> ProgramFeature:
         for f in self.features:
@@ -161,7 +163,7 @@ def to_toml(program: Program) -> str:
         "# CMM measurement program (teach & repeat). Edit freely.",
         "# Coordinates are PART coordinates in mm; approach directions are unit vectors into the surface.",
         "# Run it after aligning the next part: the program is refused if the part's sha256 differs.",
-        f"format = {_val(FORMAT)}",
+        f"format = {_val(FORMAT_ROUTINE if program.steps else FORMAT)}",
         f"name = {_val(program.name)}",
     ]
     if program.taught_from:
@@ -178,6 +180,8 @@ def to_toml(program: Program) -> str:
     for h in program.hits:
         lines += ["", "[[hits]]", f"id = {h.id}", f"point = {_val([float(x) for x in h.point])}",
                   f"approach = {_val([float(x) for x in h.approach])}", f"clearance_z = {_val(float(h.clearance_z))}"]
+    for step in program.steps:
+        lines += ["", "[[steps]]"] + [f"{k} = {_val(v)}" for k, v in step.items() if v is not None]
     return "\n".join(lines) + "\n"
 
 
@@ -193,8 +197,8 @@ def from_toml(text: str, source: str = "<program>") -> Program:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ProgramError(f"{source} is not valid TOML: {exc}") from None
-    if data.get("format") != FORMAT:
-        raise ProgramError(f"{source}: format must be {FORMAT!r}, got {data.get('format')!r}")
+    if data.get("format") not in (FORMAT, FORMAT_ROUTINE):
+        raise ProgramError(f"{source}: format must be {FORMAT!r} or {FORMAT_ROUTINE!r}, got {data.get('format')!r}")
     part = data.get("part") or {}
     if not part.get("sha256"):
         raise ProgramError(f"{source}: [part] needs the sha256 of the part the program was taught on")
@@ -225,8 +229,12 @@ def from_toml(text: str, source: str = "<program>") -> Program:
         tol = {**DEFAULT_TOLERANCE, **{k2: float(v) for k2, v in (f.get("tolerance") or {}).items()}}
         features.append(ProgramFeature(f["name"], f["kind"], str(f.get("method", "ls")), list(ids), tol,
                                        f.get("nominal"), f.get("nominal_ref")))
+    steps = data.get("steps") or []
+    if not isinstance(steps, list) or not all(isinstance(st, dict) and isinstance(st.get("kind"), str)
+                                              for st in steps):
+        raise ProgramError(f"{source}: every [[steps]] entry needs a kind")
     return Program(str(data.get("name", "program")), str(part.get("name", "")), str(part["sha256"]), features, hits,
-                   float(data.get("clearance", 10.0)), data.get("taught_from"))
+                   float(data.get("clearance", 10.0)), data.get("taught_from"), [dict(st) for st in steps])
 
 
 def save(program: Program, path: str | Path) -> Path:

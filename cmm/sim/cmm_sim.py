@@ -69,9 +69,10 @@ class SimulatedCMM:
         else:
             self.nominal_features = {}
         self.part_mesh = mesh
+        self._part = MeshObstacle(mesh, self.settings.part_pose)
         obstacles = [
             PlaneObstacle(0.0),
-            MeshObstacle(mesh, self.settings.part_pose),
+            self._part,
             SphereObstacle(np.array(self.settings.sphere_centre), self.settings.sphere_diameter / 2),
         ]
         self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in self.settings.artifacts]
@@ -123,6 +124,15 @@ class SimulatedCMM:
             self._artifacts = [SphereObstacle(np.array(c, dtype=np.float64), d / 2) for c, d in spheres]
             self.world.obstacles.extend(self._artifacts)
             self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
+
+    def place_part(self, pose: np.ndarray) -> None:
+        """The operator puts the next part on the table at ``pose`` (part -> machine)."""
+        part = MeshObstacle(self.part_mesh, pose)
+        with self.network.lock:
+            self.world.obstacles[self.world.obstacles.index(self._part)] = part
+            self._part = part
+            self.settings.part_pose = np.asarray(pose, dtype=np.float64).copy()
+            self.world._safe_from = None
 
     def transport(self):
         """An in-process byte transport to this machine's NMC network (virtual clock)."""

@@ -1,0 +1,490 @@
+"""Routines: a taught measurement program as an ordered list of steps, edited and run on every part.
+
+A routine is a program file (:mod:`cmm.session.program`, format ``cmm-program/2``) whose ``[[steps]]`` list
+the order of work, like PC-DMIS's edit window or CALYPSO's characteristic list::
+
+    [[steps]]
+    kind = "align"              # 3-2-1 from three feature steps (planes) of the routine
+    name = "alignment"
+    datums = ["TOP", "FRONT", "LEFT"]
+    manual = true               # the operator takes 3-2-1 hits by hand first (prompted), then automatic
+
+    [[steps]]
+    kind = "feature"            # a [[features]] entry, by name: its hits, nominal, tolerance, method
+    name = "bore"
+
+    [[steps]]
+    kind = "construct"
+    name = "bore-boss"
+    operation = "distance"      # intersection, distance, angle, midpoint
+    of = ["bore", "boss"]
+
+    [[steps]]
+    kind = "report"
+    name = "report"
+
+:func:`teach_routine` makes one from a session (its features, its last 3-2-1 alignment, its constructions);
+:class:`Routine` edits it (rename, reorder, insert, delete, nominal, tolerance, clearance);
+:class:`RoutineRun` runs it on the next part: the alignment first (manual hits prompted on screen, then the
+datum features measured automatically), every step with a progress count, pause / resume / skip / cancel,
+and the part's results in a session of their own.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..metrology.align import AlignmentError
+from ..metrology.fit_ls import fit_plane
+from ..metrology.pick import NominalFeature
+from ..metrology.transform import invert
+from ..session.program import Program, ProgramError, check, machine_targets, teach, to_toml
+from .alignment import AlignmentResult, _datums, align_321, align_features, apply
+
+STEP_KINDS = ("align", "feature", "construct", "report")
+MANUAL_HITS = (3, 2, 1)  # 3-2-1: hits on the primary, secondary and tertiary datum
+CONSTRUCTIONS = ("intersection", "distance", "angle", "midpoint")
+
+
+class RoutineError(ProgramError):
+    """A routine that cannot be edited or run as asked, in an operator's words."""
+
+
+def _feature_step(name: str) -> dict[str, Any]:
+    return {"kind": "feature", "name": name}
+
+
+class Routine:
+    """The ordered steps of a program, with the edits the Routine view offers."""
+
+    def __init__(self, program: Program) -> None:
+        self.program = program
+        if not program.steps:
+            program.steps = [_feature_step(f.name) for f in program.features]
+        self.validate()
+
+    @property
+    def name(self) -> str:
+        return self.program.name
+
+    @property
+    def steps(self) -> list[dict[str, Any]]:
+        return self.program.steps
+
+    def text(self) -> str:
+        return to_toml(self.program)
+
+    def save(self, path: str | Path) -> Path:
+        p = Path(path)
+        p.write_text(self.text(), encoding="utf-8")
+        return p
+
+    # --- what a step is ------------------------------------------------------------------
+
+    def feature(self, name: str) -> Any:
+        try:
+            return self.program.feature(name)
+        except KeyError:
+            raise RoutineError(f"the routine has no feature {name!r}") from None
+
+    def describe(self, index: int) -> str:
+        s = self.steps[index]
+        skip = " (skipped)" if s.get("skip") else ""
+        if s["kind"] == "align":
+            how = "manual hits, then automatic" if s.get("manual") else "automatic"
+            return f"{index + 1}. align 3-2-1: {' | '.join(s['datums'])} ({how}){skip}"
+        if s["kind"] == "feature":
+            f = self.feature(s["name"])
+            return f"{index + 1}. {f.name}: {f.kind}, {len(f.hits)} hits, {f.method}{skip}"
+        if s["kind"] == "construct":
+            return f"{index + 1}. {s['name']}: {s['operation']} of {' and '.join(s['of'])}{skip}"
+        return f"{index + 1}. {s['name']}: report{skip}"
+
+    def lines(self) -> list[str]:
+        return [self.describe(i) for i in range(len(self.steps))]
+
+    def validate(self) -> None:
+        """Refuse steps that name what the routine does not have, before anything moves."""
+        names = [s.get("name") for s in self.steps]
+        if len(set(names)) != len(names):
+            raise RoutineError("two steps have the same name: rename one")
+        features = {f.name for f in self.program.features}
+        earlier: set[str] = set()
+        for k, s in enumerate(self.steps, 1):
+            kind = s.get("kind")
+            if kind not in STEP_KINDS:
+                raise RoutineError(f"step {k}: unknown kind {kind!r}; choose one of {', '.join(STEP_KINDS)}")
+            if not isinstance(s.get("name"), str) or not s["name"].strip():
+                raise RoutineError(f"step {k} needs a name")
+            if kind == "feature" and s["name"] not in features:
+                raise RoutineError(f"step {k} measures {s['name']!r}, which is not a feature of the routine")
+            if kind == "align":
+                datums = s.get("datums")
+                if not isinstance(datums, list) or len(datums) != 3 or len(set(datums)) != 3:
+                    raise RoutineError(f"step {k}: a 3-2-1 alignment needs three different datum features")
+                for d in datums:
+                    if d not in features:
+                        raise RoutineError(f"step {k}: the datum {d!r} is not a feature of the routine")
+                    if self.feature(d).kind != "plane":
+                        raise RoutineError(f"step {k}: the datum {d!r} must be a plane for a 3-2-1 alignment")
+                earlier.update(datums)
+            if kind == "construct":
+                if s.get("operation") not in CONSTRUCTIONS:
+                    raise RoutineError(f"step {k}: construction must be one of {', '.join(CONSTRUCTIONS)}")
+                of = s.get("of")
+                if not isinstance(of, list) or len(of) != 2:
+                    raise RoutineError(f"step {k}: a construction needs two features")
+                missing = [n for n in of if n not in earlier]
+                if missing:
+                    raise RoutineError(f"step {k} ({s['name']}) uses {', '.join(missing)} before it is measured: "
+                                       "move the step after them")
+            earlier.add(s["name"])
+
+    # --- edits ----------------------------------------------------------------------------
+
+    def _edit(self, change: Callable[[], None]) -> None:
+        before = [dict(s) for s in self.steps], [(f.name, f.tolerance, f.nominal) for f in self.program.features]
+        change()
+        try:
+            self.validate()
+        except RoutineError:
+            self.program.steps[:] = before[0]
+            for f, (name, tol, nom) in zip(self.program.features, before[1]):
+                f.name, f.tolerance, f.nominal = name, tol, nom
+            raise
+
+    def rename(self, index: int, name: str) -> None:
+        name = name.strip()
+        if not name:
+            raise RoutineError("a step needs a name")
+        step = self.steps[index]
+        old = step["name"]
+
+        def change() -> None:
+            if step["kind"] == "feature":
+                self.feature(old).name = name
+                for s in self.steps:
+                    for key in ("datums", "of"):
+                        if key in s:
+                            s[key] = [name if n == old else n for n in s[key]]
+            step["name"] = name
+
+        self._edit(change)
+
+    def move(self, index: int, delta: int) -> int:
+        """Move a step up (-1) or down (+1); returns its new index."""
+        new = min(max(index + delta, 0), len(self.steps) - 1)
+
+        def change() -> None:
+            self.steps.insert(new, self.steps.pop(index))
+
+        self._edit(change)
+        return new
+
+    def delete(self, index: int) -> None:
+        self._edit(lambda: self.steps.pop(index))
+
+    def insert(self, index: int, step: dict[str, Any]) -> None:
+        self._edit(lambda: self.steps.insert(index, dict(step)))
+
+    def set_skip(self, index: int, skip: bool) -> None:
+        self._edit(lambda: self.steps[index].update(skip=bool(skip) or None))
+
+    def set_tolerance(self, name: str, **tolerance: float) -> None:
+        f = self.feature(name)
+        for k, v in tolerance.items():
+            if not np.isfinite(v) or v < 0:
+                raise RoutineError(f"{name}: the {k} tolerance must be a positive number of mm, not {v}")
+            f.tolerance[k] = float(v)
+
+    def set_nominal(self, name: str, **params: Any) -> None:
+        """Change nominal parameters (part coordinates), e.g. ``radius=15.0`` or ``point=[30, 40, 0]``."""
+        f = self.feature(name)
+        if not f.nominal:
+            raise RoutineError(f"{name} has no nominal to edit")
+        for k, v in params.items():
+            if k not in f.nominal or k == "kind":
+                raise RoutineError(f"{name}: its nominal has no {k!r} (it has {', '.join(f.nominal)})")
+            arr = np.asarray(v, float)
+            if not np.all(np.isfinite(arr)) or arr.shape != np.asarray(f.nominal[k], float).shape:
+                raise RoutineError(f"{name}: {k} must be like {f.nominal[k]!r}, not {v!r}")
+            f.nominal[k] = arr.tolist() if arr.ndim else float(arr)
+
+    def set_clearance(self, name: str, clearance_z: float) -> None:
+        """The part Z every hit of the feature climbs to before moving to the next."""
+        f = self.feature(name)
+        if not np.isfinite(clearance_z):
+            raise RoutineError(f"{name}: the clearance height must be a number of mm")
+        ids = set(f.hits)
+        for h in self.program.hits:
+            if h.id in ids:
+                if clearance_z < h.point[2]:
+                    raise RoutineError(f"{name}: the clearance Z {clearance_z:g} mm is below hit {h.id} "
+                                       f"(Z {h.point[2]:.3f} in the part)")
+                h.clearance_z = float(clearance_z)
+
+
+def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = None,
+                  part_nominals: dict[str, Any] | None = None, manual_alignment: bool = True) -> Routine:
+    """A routine from what the operator did in ``session``: its last 3-2-1 alignment first (with its datum
+    features), then every feature and construction in the order they were made, then a report."""
+    program = teach(session, name=name, part_mesh=part_mesh, part_nominals=part_nominals)
+    st = session.state
+    steps: list[dict[str, Any]] = []
+    alignment = next((a for a in reversed(st.alignments) if a.method == "3-2-1" and a.info.get("names")), None)
+    taught = {f.name for f in program.features}
+    if alignment is not None and all(n in taught for n in alignment.info["names"]):
+        steps.append({"kind": "align", "name": "alignment", "datums": list(alignment.info["names"]),
+                      "manual": bool(manual_alignment)})
+    names = {f.id: f.name for f in st.features.values()}
+    # fitted and constructed features share one id counter: their ids are the order they were made in
+    made: list[tuple[int, dict[str, Any]]] = [(f.id, _feature_step(f.name)) for f in st.features.values()
+                                              if f.name in taught]
+    for cid, c in st.constructed.items():
+        ops = [names.get(i) for i in c.get("operands", ())]
+        if c.get("operation") in CONSTRUCTIONS and len(ops) == 2 and all(ops):
+            names[cid] = c.get("name")
+            made.append((cid, {"kind": "construct", "name": c.get("name") or f"construct {cid}",
+                                                "operation": c["operation"], "of": ops}))
+    steps += [s for _seq, s in sorted(made, key=lambda t: t[0])]
+    steps.append({"kind": "report", "name": "report"})
+    program.steps = steps
+    return Routine(program)
+
+
+# ------------------------------------------------------------------------------------- run
+
+
+@dataclass
+class RunProgress:
+    step: int = 0  # index of the step running
+    steps: int = 0
+    hits: int = 0  # hits taken so far
+    total_hits: int = 0
+    state: str = "ready"  # ready, waiting (for the operator), running, paused, done, failed, cancelled
+    message: str = ""
+    prompt: str = ""  # what the operator must do now (manual alignment hits)
+    results: dict[str, Any] = field(default_factory=dict)  # step name -> feature / constructed feature
+    session: Any = None  # the part's session (path or name)
+
+
+class RoutineCancelled(RoutineError):
+    pass
+
+
+class RoutineRun:
+    """One run of a routine on the next part. ``run()`` blocks (call it from a job thread); ``pause``,
+    ``resume``, ``skip`` and ``cancel`` act between hits from any thread."""
+
+    def __init__(self, routine: Routine, model: Any, controller: Any = None, *, client: Any = None,
+                 part_name: str | None = None, on_progress: Callable[[RunProgress], None] | None = None,
+                 timeout: float = 120.0) -> None:
+        self.routine = routine
+        self.model = model
+        self.controller = controller
+        self.client = client
+        self.part_name = part_name
+        self.on_progress = on_progress
+        self.timeout = timeout
+        measured = {n for s in routine.steps if not s.get("skip")
+                    for n in (s["datums"] if s["kind"] == "align" else [s["name"]] if s["kind"] == "feature" else [])}
+        self.progress = RunProgress(steps=len(routine.steps),
+                                    total_hits=sum(len(routine.feature(n).hits) for n in measured))
+        self._go = threading.Event()
+        self._go.set()
+        self._skip = False
+        self._cancel = False
+        self._fids: dict[str, int] = {}  # feature name -> the model's feature id for this part
+
+    # --- operator's controls -------------------------------------------------------------
+
+    def pause(self) -> None:
+        self._go.clear()
+        self._tell(state="paused", message="paused after the hit in progress: Resume to go on")
+
+    def resume(self) -> None:
+        self._go.set()
+        if self.progress.state == "paused":
+            self._tell(state="running", message="resumed")
+
+    def skip(self) -> None:
+        """Leave the step in progress after its current hit (its feature is not fitted)."""
+        self._skip = True
+        self._go.set()
+
+    def cancel(self) -> None:
+        self._cancel = True
+        self._go.set()
+
+    def _tell(self, **changes: Any) -> None:
+        for k, v in changes.items():
+            setattr(self.progress, k, v)
+        if self.on_progress is not None:
+            try:
+                self.on_progress(self.progress)
+            except Exception:  # noqa: BLE001 - a closed page must not stop the run
+                pass
+
+    def _between_hits(self) -> None:
+        while not self._go.wait(0.05):
+            if self._cancel:
+                break
+        if self._cancel:
+            raise RoutineCancelled("the routine was cancelled by the operator; the hits taken stay recorded")
+
+    # --- the run --------------------------------------------------------------------------
+
+    def run(self, manual_hits: Callable[[str, int], list[int]] | None = None) -> RunProgress:
+        """Run every step. ``manual_hits(prompt, n)`` returns the ids of n hits the operator took by hand when
+        the alignment asks for them (default: wait for n new hits in the model, the prompt shown meanwhile)."""
+        model, routine = self.model, self.routine
+        routine.validate()
+        check(routine.program, model.part, None, None)
+        name = f"{routine.name} {self.part_name}" if self.part_name else routine.name
+        self.progress.session = model.new_session(name)
+        model.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
+        self._tell(state="running", message=f"routine {routine.name!r} started")
+        try:
+            for i, step in enumerate(routine.steps):
+                self.progress.step = i
+                if step.get("skip"):
+                    continue
+                self._skip = False
+                self._tell(message=routine.describe(i))
+                if step["kind"] == "align":
+                    self._align(step, manual_hits or self._wait_for_hits)
+                elif step["kind"] == "feature":
+                    if step["name"] not in self._fids:
+                        self._in_job(f"measure {step['name']}", lambda s=step: self._measure(s["name"]))
+                elif step["kind"] == "construct":
+                    self._construct(step)
+                else:
+                    self.progress.results[step["name"]] = self._report()
+        except RoutineCancelled as exc:
+            self._tell(state="cancelled", message=str(exc), prompt="")
+            model.note(f"routine {routine.name!r} cancelled")
+            raise
+        except Exception as exc:
+            self._tell(state="failed", message=f"step {self.progress.step + 1}: {exc}", prompt="")
+            model.note(f"routine {routine.name!r} failed at step {self.progress.step + 1}: {exc}")
+            raise
+        model.note(f"routine {routine.name!r} finished")
+        self._tell(state="done", step=len(routine.steps), message=f"routine {routine.name!r} done", prompt="")
+        return self.progress
+
+    def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
+        if self.controller is None:
+            return fn()
+        return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn)
+
+    def _measure(self, name: str) -> Any:
+        """Probe a feature's hits (part coordinates through the current alignment) and fit it."""
+        model, program = self.model, self.routine.program
+        f = self.routine.feature(name)
+        pose = np.asarray(model.part.pose, float)
+        by_id = {h.id: t for h, *t in machine_targets(program, pose)}
+        ids = []
+        for hid in f.hits:
+            self._between_hits()
+            if self._skip:
+                self.model.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
+                return None
+            p, u, cz = by_id[hid]
+            hit = model.probe(p, u, clearance_z=cz, client=self.client).wait(self.timeout)
+            ids.append(model.hit_id(hit))
+            self._tell(hits=self.progress.hits + 1)
+        nominal = None
+        if f.nominal:
+            nominal = NominalFeature(f.nominal["kind"],
+                                     {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
+        feature = model.fit_feature(f.kind, ids, f.method, f.name, nominal, tolerance=f.tolerance)
+        self._fids[name] = feature.id
+        self.progress.results[name] = feature
+        return feature
+
+    def _construct(self, step: dict[str, Any]) -> None:
+        a, b = (self._fids.get(n) for n in step["of"])
+        if a is None or b is None:
+            self.model.note(f"{step['name']} not constructed: {' or '.join(step['of'])} was not measured")
+            return
+        c = self.model.construct_feature(step["operation"], a, b, step["name"])
+        self._fids[step["name"]] = c.id
+        self.progress.results[step["name"]] = c
+
+    def _report(self) -> Any:
+        path = self.progress.session
+        return None if path is None else str(path)
+
+    # --- alignment --------------------------------------------------------------------------
+
+    def _wait_for_hits(self, prompt: str, n: int) -> list[int]:
+        """The default for manual hits: show ``prompt`` and wait until the operator has taken ``n`` hits."""
+        start = set(self.model.hits)
+        self._tell(state="waiting", prompt=prompt)
+        while True:
+            new = [h for h in self.model.hits if h not in start]
+            if len(new) >= n:
+                self._tell(state="running", prompt="")
+                return new[:n]
+            if self._cancel:
+                raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
+            self._tell(prompt=f"{prompt}: {len(new)} of {n} taken")
+            self._go.wait(0.1)
+
+    def _align(self, step: dict[str, Any], manual_hits: Callable[[str, int], list[int]]) -> None:
+        model = self.model
+        datums = step["datums"]
+        if step.get("manual"):
+            ids = []
+            for what, datum, n in zip(("primary", "secondary", "tertiary"), datums, MANUAL_HITS):
+                self._between_hits()
+                got = manual_hits(f"Take {n} hit{'s' if n > 1 else ''} by hand on {datum} ({what} datum)", n)
+                if len(got) != n:
+                    raise RoutineError(f"the manual alignment needs {n} hits on {datum}, got {len(got)}")
+                ids.append(got)
+            apply(model, self._manual_321(datums, ids))
+            model.note("manual 3-2-1 alignment from 6 hits taken by hand")
+        fids = []
+        for d in datums:
+            self._in_job(f"measure {d}", lambda d=d: self._measure(d))
+            if d not in self._fids:
+                raise RoutineError(f"the alignment needs {d}, which was skipped")
+            fids.append(self._fids[d])
+        apply(model, align_features(model, *fids))
+
+    def _manual_321(self, datums: list[str], ids: list[list[int]]) -> AlignmentResult:
+        """The pose from 3 hits on the primary plane, 2 on the secondary and 1 on the tertiary, against the
+        three planes' nominals (part coordinates)."""
+        model = self.model
+        pose = np.asarray(model.part.pose, float)
+        nominal = []
+        for d in datums:
+            nom = self.routine.feature(d).nominal
+            if not nom or nom.get("kind") != "plane":
+                raise RoutineError(f"the manual alignment needs the nominal plane of {d}")
+            nominal.append(("plane", {"point": nom["point"], "normal": nom["normal"]}))
+        pts = [np.array([model.hits[h].point for h in group], float) for group in ids]
+        R = pose[:3, :3]
+        n0 = np.asarray(fit_plane(pts[0]).normal, float)
+        n0 = n0 if n0 @ (R @ np.asarray(nominal[0][1]["normal"], float)) >= 0 else -n0
+        line_dir = pts[1][1] - pts[1][0]
+        if np.linalg.norm(line_dir) < 1.0:
+            raise RoutineError(f"the two hits on {datums[1]} are less than 1 mm apart: take them further apart")
+        n_ter = R @ np.asarray(nominal[2][1]["normal"], float)
+        measured = (("plane", {"point": pts[0].mean(axis=0), "normal": n0}),
+                    ("line", {"point": pts[1][0], "direction": line_dir}),
+                    ("plane", {"point": pts[2][0], "normal": n_ter}))
+        try:
+            p0, nz, lp, ld, q = _datums(*measured)
+            nom = _datums(*nominal)
+            ld = ld if ld @ (R @ nom[3]) >= 0 else -ld
+            new = align_321(p0, nz, lp, ld, q) @ invert(align_321(*nom))
+        except AlignmentError as exc:
+            raise RoutineError(f"the manual alignment failed: {exc}") from None
+        return AlignmentResult("3-2-1 manual", new, {}, {"hit_ids": [h for g in ids for h in g],
+                                                          "names": list(datums)})

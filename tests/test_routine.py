@@ -1,0 +1,177 @@
+"""Routines on the simulator (virtual clock): a 6-feature routine taught on one part, edited, saved, and run on
+a second part placed differently (moved and turned on the table): manual 3-2-1 hits prompted first, then the
+datums measured automatically, then every feature, the construction and the report; pause / skip / cancel,
+and a fault in the middle of a routine."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from netutil import SIM
+
+from cmm.measurement.plan import plan_at_pick, run_plan
+from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
+from cmm.metrology.transform import invert
+from cmm.session.program import from_toml, load
+from cmm.session.journal import read_events
+from cmm.session.store import open_session
+from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
+from cmm.station import Station
+
+# (name, ray origin in part coordinates, ray direction): what the operator clicks to auto-measure
+FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0, 20.0), (0, 1, 0)),
+         ("LEFT", (-50.0, 10.0, 20.0), (1, 0, 0)), ("bore", (30.0, 40.0, 20.0), (1, 0, 0)),
+         ("boss", (70.0, -20.0, 47.0), (0, 1, 0)), ("dome", (73.0, 58.0, 100.0), (0, 0, -1))]
+# where the second part stands: 6 mm and 4 mm off, turned 3 degrees
+SECOND_POSE = pose_matrix((196.0, 146.0, 0.0), rz_deg=3.5)
+# the operator's 3-2-1 hits by hand (part coordinates): point on the face, approach into it
+MANUAL = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), ((50.0, 70.0, 40.0), (0, 0, -1)),
+          ((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((0.0, 20.0, 15.0), (1, 0, 0))]
+
+
+@pytest.fixture(scope="module")
+def taught(tmp_path_factory):
+    """A station that measured the six features on the first part, aligned 3-2-1 and constructed a distance;
+    the routine taught from that session."""
+    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("routine")).start("teach", home=True)
+    model = st.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    ids = {}
+    for name, origin, direction in FACES:
+        pose = model.part.pose
+        picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
+        ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
+    from cmm.measurement.alignment import align_features, apply
+
+    apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
+    model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
+    session = open_session(model.journal.path)
+    routine = teach_routine(session, name="block", part_mesh=model.part.mesh,
+                            part_nominals=model.part.nominal_features)
+    yield st, routine
+    st.close()
+
+
+def test_teaching_gives_the_steps_in_order_and_the_file_round_trips(taught, tmp_path):
+    _st, routine = taught
+    kinds = [s["kind"] for s in routine.steps]
+    assert kinds == ["align", "feature", "feature", "feature", "feature", "feature", "feature", "construct",
+                     "report"]
+    assert routine.steps[0]["datums"] == ["TOP", "FRONT", "LEFT"] and routine.steps[0]["manual"]
+    assert [s["name"] for s in routine.steps[1:7]] == [n for n, *_ in FACES]
+    assert routine.steps[7] == {"kind": "construct", "name": "bore-boss", "operation": "distance",
+                                "of": ["bore", "boss"]}
+    path = routine.save(tmp_path / "block.toml")
+    again = Routine(load(path))
+    assert again.steps == routine.steps and again.lines() == routine.lines()
+    assert "align 3-2-1: TOP | FRONT | LEFT" in again.lines()[0]
+
+
+def test_edits_rename_reorder_refuse_what_would_break_the_routine(taught):
+    _st, routine = taught
+    r = Routine(from_toml(routine.text()))
+    r.rename(4, "BORE")  # a feature step: its feature and the construction's reference follow
+    assert r.program.feature("BORE") and r.steps[7]["of"] == ["BORE", "boss"]
+    with pytest.raises(RoutineError, match="before it is measured"):
+        r.move(7, -4)  # the construction cannot come before the bore
+    assert r.steps[7]["kind"] == "construct"  # the refused edit changed nothing
+    assert r.move(6, -1) == 5 and r.steps[5]["name"] == "dome"
+    with pytest.raises(RoutineError, match="same name"):
+        r.rename(5, "boss")
+    r.set_tolerance("BORE", size=0.005)
+    assert r.program.feature("BORE").tolerance["size"] == 0.005
+    r.set_nominal("BORE", radius=15.01)
+    assert r.program.feature("BORE").nominal["radius"] == 15.01
+    with pytest.raises(RoutineError, match="no 'diameter'"):
+        r.set_nominal("BORE", diameter=30)
+    with pytest.raises(RoutineError, match="below hit"):
+        r.set_clearance("TOP", 10.0)
+    r.set_clearance("TOP", 80.0)
+    assert all(h.clearance_z == 80.0 for h in r.program.hits if h.id in r.program.feature("TOP").hits)
+    r.delete(8)
+    r.insert(8, {"kind": "report", "name": "final report"})
+    with pytest.raises(RoutineError, match="not a feature"):
+        r.insert(1, {"kind": "feature", "name": "nothing"})
+
+
+def _manual_hits_on(st, pose):
+    """The operator's hands: the 6 hits of a manual 3-2-1, taken where the part really is."""
+    model = st.measurement
+    queue = [((pose @ np.array([*p, 1.0]))[:3], pose[:3, :3] @ np.array(u, float)) for p, u in MANUAL]
+    prompts = []
+
+    def take(prompt: str, n: int) -> list[int]:
+        prompts.append(prompt)
+        ids = []
+        for _ in range(n):
+            p, u = queue.pop(0)
+            hit = model.probe(p, u, clearance_z=90.0).wait(120)
+            ids.append(model.hit_id(hit))
+        return ids
+
+    return take, prompts
+
+
+def test_the_routine_runs_on_a_second_part_placed_differently(taught):
+    st, routine = taught
+    st.sim.place_part(SECOND_POSE)
+    take, prompts = _manual_hits_on(st, SECOND_POSE)
+    seen = []
+    run = RoutineRun(routine, st.measurement, st.controller, part_name="part 2",
+                     on_progress=lambda p: seen.append((p.state, p.hits)))
+    progress = run.run(manual_hits=take)
+    assert prompts == ["Take 3 hits by hand on TOP (primary datum)", "Take 2 hits by hand on FRONT (secondary datum)",
+                       "Take 1 hit by hand on LEFT (tertiary datum)"]
+    assert progress.state == "done" and progress.hits == progress.total_hits == sum(
+        len(routine.program.feature(n).hits) for n, *_ in FACES)
+    # the alignment found the second part: the model's pose is the simulator's within microns
+    pose = st.measurement.part.pose
+    delta = pose @ invert(SECOND_POSE)
+    assert np.linalg.norm(delta[:3, 3]) < 0.01 and np.degrees(np.arccos(min(1.0, (np.trace(delta[:3, :3]) - 1) / 2))) < 0.01
+    bore, boss, dome = (progress.results[n] for n in ("bore", "boss", "dome"))
+    assert bore.result.geometry()["radius"] == pytest.approx(15.0, abs=0.005)
+    assert boss.result.geometry()["radius"] == pytest.approx(10.0, abs=0.005)
+    # five hits on a 45 deg cap: its radius is several times less certain than one hit
+    assert dome.result.geometry()["radius"] == pytest.approx(10.0, abs=0.02)
+    centre = invert(pose) @ np.array([*bore.result.geometry()["point"], 1.0])
+    assert np.hypot(centre[0] - 30.0, centre[1] - 40.0) < 0.02  # in part coordinates, where the drawing has it
+    dist = progress.results["bore-boss"]
+    assert dist.result.value == pytest.approx(np.hypot(70 - 30, 22 - 40), abs=0.01)
+    assert seen[-1][0] == "done" and [h for _s, h in seen] == sorted(h for _s, h in seen)
+    assert str(progress.session).find("part 2") >= 0  # the part's results are a session of their own
+
+
+def test_pause_skip_and_cancel_between_hits(taught):
+    st, routine = taught
+    st.sim.place_part(TRUE_PART_POSE)
+    st.measurement.set_alignment(TRUE_PART_POSE, "manual", note="back on the first part")
+    r = Routine(from_toml(routine.text()))
+    r.steps[0]["manual"] = None  # this part is aligned: the datums are measured automatically
+    run = RoutineRun(r, st.measurement, st.controller, part_name="part 3")
+    events = []
+    done = set()
+
+    def on_progress(p):
+        events.append((p.state, p.step, p.hits))
+        if p.hits == 2 and "pause" not in done:  # the operator pauses after the second hit ...
+            done.add("pause")
+            run.pause()
+        elif p.state == "paused" and "resume" not in done:  # ... and resumes
+            done.add("resume")
+            run.resume()
+        elif p.step == 4 and p.hits == 13 and "skip" not in done:  # the first bore hit taken: skip the bore
+            done.add("skip")
+            run.skip()
+        elif p.step == 6 and "cancel" not in done:
+            done.add("cancel")
+            run.cancel()
+
+    run.on_progress = on_progress
+    with pytest.raises(RoutineCancelled):
+        run.run()
+    assert ("paused", 0, 2) in events
+    assert "bore" not in run.progress.results and "FRONT" in run.progress.results
+    assert run.progress.state == "cancelled"
+    notes = [e.get("text", "") for e in read_events(st.measurement.journal.path).events if e["kind"] == "note"]
+    assert any("bore skipped by the operator after 1 of" in n for n in notes)
+    assert any(n.startswith("routine 'block' cancelled") for n in notes)
