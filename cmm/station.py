@@ -23,7 +23,6 @@ from .machine.config import ConfigError, MachineConfig, load
 from .machine.config import load as load_config  # front ends read the machine configuration through the station
 from .machine.motion import Machine
 from .machine.probing import Prober
-from .machine.status import MoveStatus
 from .measurement.model import MeasurementError, MeasurementModel, Part
 from .nmc.trace import ByteTrace
 
@@ -212,10 +211,3 @@ class Station:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
-
-    def move_above(self, point: Any, normal: Any, clearance: float | None = None,
-                   client: str | None = None) -> MoveStatus:
-        """Move the tip to ``clearance`` mm above a picked surface point along its normal (machine coordinates),
-        over the clearance plane."""
-        target = self.measurement.above_point(point, normal, clearance)
-        return self.controller.move(client, target, frame="machine")

@@ -243,6 +243,20 @@ def test_pick_probe_here_and_fit(app, operator):
     assert operator.messages[-1][0] == "error"
 
 
+def test_move_above_a_picked_point_arrives_above_it_without_contact(app, operator):
+    """Move above: the tip ends the approach distance plus the tip radius out along the picked surface's normal,
+    over the clearance plane, and no probe contact is recorded on the way."""
+    st = app.station
+    above = _above_part(st)
+    hit, _ = operator.on_scene_click(above * SCALE, (0.0, 0.0, -1.0))
+    n_hits, n_errors = len(st.measurement.hits), len([e for e in st.measurement.events if e[1] == "contact"])
+    _wait_done(operator.move_above(), 40, operator)
+    expected = hit.point + (st.config.probe.approach_distance + st.prober.settings.tip_radius) * np.asarray(hit.normal)
+    assert np.allclose(st.machine.state.position, expected, atol=0.0021)
+    assert len(st.measurement.hits) == n_hits
+    assert len([e for e in st.measurement.events if e[1] == "contact"]) == n_errors
+
+
 def test_pick_miss_and_move_above_without_pick(app):
     capp = app.add_client(client_id="viewer")
     assert capp.pick([0, 0, 200], [0, 0, 1]) is None  # pointing away from everything

@@ -313,7 +313,8 @@ class ClientApp:
             self.ctx.error("click a point on the part first", "Move above")
             return None
         hit = self.ctx.picked[0]
-        status = self._cmd("Move above", lambda cid: self.station.move_above(hit.point, hit.normal, client=cid))
+        above = self.station.measurement.above_point(hit.point, hit.normal)  # approach distance + tip radius out
+        status = self._cmd("Move above", lambda cid: self.api.move(cid, above, frame="machine"))  # over the clearance plane
         return None if status is None else self._track(status)
 
     def probe_here(self) -> Any:
