@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from netutil import SIM
 
+from cmm.cli import main
 from cmm.measurement.model import MeasurementError
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.metrology.relations import distance_point_plane
@@ -40,7 +41,7 @@ def _measure(model, origin, direction, name, n=None):
     return run_plan(model, plan_at_pick(model, hit.face_id, n=n), name=name)
 
 
-def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path):
+def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path, capsys):
     model = station.measurement
     model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
     top = _measure(model, (10, 70, 100), (0, 0, -1), "top", n=3)
@@ -111,3 +112,7 @@ def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path):
     redo = {dd["id"]: cc for dd, cc in session_gdt(again, model.part.mesh)}
     for dd, cc in rows:
         assert redo[dd["id"]].actual == pytest.approx(cc.actual, abs=1e-6)
+    # and from the command line, each tolerance recorded -> re-evaluated
+    assert main(["sessions", "--store", str(tmp_path), "reevaluate", "gdt", "gdt-again"]) == 0
+    out = capsys.readouterr().out
+    assert f"bore: ⊕ position | A|B|C: {c.actual:.4f} -> {redo[d['id']].actual:.4f} (allowed 0.0500) pass" in out

@@ -146,6 +146,18 @@ def _run(args: argparse.Namespace) -> int:
         new = reevaluate(s, settings, method=args.method, name=args.new)
         write_session(store, args.new, new.events)
         print(f"wrote {args.new!r}: {len(new.hits)} hits, {len(new.features)} features re-evaluated from raw counts")
+        if new.state.gdt:  # the geometric tolerances, recorded and re-evaluated, one line each
+            from .export import resolve_part_mesh
+            from .gdt_session import session_gdt
+
+            mesh = resolve_part_mesh(s)
+            before = {d.get("id"): c for d, c in session_gdt(s, mesh)}
+            for d, c in session_gdt(new, mesh):
+                b = before.get(d.get("id"))
+                was = "—" if b is None or b.actual is None else f"{b.actual:.4f}"
+                now = "not evaluated" if c.actual is None else f"{c.actual:.4f}"
+                print(f"{c.feature}: {c.name}{' | ' + c.datums if c.datums else ''}: {was} -> {now} "
+                      f"(allowed {c.upper:.4f}) {c.verdict}")
         for _, m in new.state.errors[len(s.state.errors):]:
             print(f"warning: {m}", file=sys.stderr)
         return 0
