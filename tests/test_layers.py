@@ -139,3 +139,14 @@ def test_the_control_core_uses_only_the_machines_public_surface():
                   and not (isinstance(node.args[0], ast.Name) and node.args[0].id in ("self", "cls"))):
                 bad.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
     assert not bad, "private attributes of other objects used in cmm/control:\n" + "\n".join(bad)
+
+
+def test_comments_say_what_the_code_does_not_its_history():
+    """No "issue 12 item 5" references and no citations of design notes outside the repository (``shared/docs/...``)."""
+    import re
+
+    tree = ROOT.parent
+    bad = [f"{p.relative_to(tree)}:{i}" for d in ("cmm", "tests", "benchmarks") for p in sorted((tree / d).rglob("*.py"))
+           for i, line in enumerate(p.read_text().splitlines(), 1)
+           if re.search(r"\bissue \d+\b|\bshared/docs/", line) and p.name != "test_layers.py"]
+    assert not bad, "history or outside references in comments:\n" + "\n".join(bad)

@@ -1,4 +1,4 @@
-"""No false faults: a slow host or a slow simulator is not a failed link (issue 21).
+"""No false faults: a slow host or a slow simulator is not a failed link.
 
 All on the simulator's virtual clock, through real NMC bytes: a descheduled host (FaultyTransport.deschedule),
 replies held up for seconds (the "stall" fault: delayed, never lost), a slow simulator at start-up.

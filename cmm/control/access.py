@@ -46,7 +46,7 @@ Rules (the station's safety contract, kept in this one place):
   ``--lan-stop`` option or the operator's switch on a local page).
 - Whenever a holder stops being the holder (it releases, disconnects, or
   another client takes over) the ``on_holder_lost(client_id)`` hook is called,
-  so the station can end any jog that client started (``station.jog_release``).
+  so the station can end any jog that client started (``controller.jog_release``).
 - ``on_change(fn)`` callbacks get ``(holder, previous)`` after every change.
 
 Hooks and callbacks run outside the lock, in the caller's thread; an exception
