@@ -185,6 +185,10 @@ def test_profile_of_a_surface_with_and_without_datums():
     assert with_datums.value == pytest.approx(0.04, abs=1e-9) and with_datums.drf == "A|B|C"
     form_only = gdt.profile("profile of a surface", pts, mesh, np.eye(4), 0.05)
     assert form_only.value == pytest.approx(0.03, abs=1e-6)
+    # one point 0.03 high among many on the mesh: the minimum zone is 0.03 (least squares would leave more)
+    bump = np.c_[xy, np.full(len(xy), 20.0)]
+    bump[7, 2] += 0.03
+    assert gdt.profile("profile of a surface", bump, mesh, np.eye(4), 0.05).value == pytest.approx(0.03, abs=1e-7)
     # a datum A alone: the top's height above A is fixed, its in-plane position free
     only_a = build_drf([datum_from_feature("A", "plane", {"point": (5, 5, 0), "normal": (0, 0, -1)})])
     assert gdt.profile("profile of a surface", pts + (0.3, -0.2, 0), mesh, np.eye(4), 0.05, drf=only_a,

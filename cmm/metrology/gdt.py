@@ -25,9 +25,9 @@ the feature), the stated ``tolerance``, a material-condition ``bonus``, the datu
   feature's centre / axis; runout: circular (per section, radial: the range of the radius about the
   datum axis; axial: of the axial position) and total (all points);
 - profile of a surface / a line: twice the largest distance of the points from the CAD mesh (zone equally
-  disposed); without datums the points are first best-fitted to the mesh (the profile is then form only),
-  with datums only in the DOF the frame leaves free. A line profile's points lie in one section; their
-  best fit without datums stays in that section's plane.
+  disposed); without datums the points are first fitted to the mesh (least squares, then minimum zone: the
+  profile is then form only), with datums only in the DOF the frame leaves free. A line profile's points
+  lie in one section; their fit without datums stays in that section's plane.
 
 Refusals are :class:`GdtError` in words ("profile tolerance needs the part mesh").
 """
@@ -432,28 +432,53 @@ def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: f
             free = [0, 1, 5]  # in the section plane: two translations and the rotation about its normal
     M = to_part @ w_to_meas
     index = surface_index(mesh)
-    q = local.copy()
-    for _ in range(iterations if free else 0):
+    def linearised(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Signed distances of the points (working frame), d(distance)/d(free DOF), and the turning centre."""
         qp = q @ M[:3, :3].T + M[:3, 3]
         cp = closest_points(mesh, qp, index)
         nrm = cp.normals @ M[:3, :3]  # part -> working frame
         c = q.mean(axis=0) if drf is None else np.zeros(3)  # a DRF's free rotations turn about its origin
-        A = np.c_[nrm, np.cross(q - c, nrm)][:, free]
-        b = -np.einsum("ij,ij->i", qp - cp.points, cp.normals)
-        step, *_ = np.linalg.lstsq(A, b, rcond=1e-12)
+        signed = np.einsum("ij,ij->i", qp - cp.points, cp.normals)
+        return np.sign(signed) * cp.distances, np.c_[nrm, np.cross(q - c, nrm)][:, free], c
+
+    def moved(q: np.ndarray, step: np.ndarray, c: np.ndarray) -> np.ndarray:
         full = np.zeros(6)
         full[free] = step
-        R = rotation_from_rotvec(full[3:])
-        q = (q - c) @ R.T + c + full[:3]
+        return (q - c) @ rotation_from_rotvec(full[3:]).T + c + full[:3]
+
+    q = local.copy()
+    for _ in range(iterations if free else 0):  # least squares (point to plane ICP) in the free DOF
+        d, A, c = linearised(q)
+        step, *_ = np.linalg.lstsq(A, -d, rcond=1e-12)
+        q = moved(q, step, c)
         if np.abs(step).max() < 1e-10:
             break
-    qp = q @ M[:3, :3].T + M[:3, 3]
-    cp = closest_points(mesh, qp, index)
-    signed = np.einsum("ij,ij->i", qp - cp.points, cp.normals)
-    d = np.sign(signed) * cp.distances
+    d, A, c = linearised(q)
+    for _ in range(iterations if free else 0):  # then minimum zone: the largest |distance| as small as it goes
+        step = _minimax_step(d, A)
+        if step is None:
+            break
+        q2 = moved(q, step, c)
+        d2, A2, c2 = linearised(q2)
+        if np.abs(d2).max() >= np.abs(d).max() - 1e-12:
+            break
+        q, d, A, c = q2, d2, A2, c2
     value = 2.0 * float(np.abs(d).max())
-    how = ("best fit to the CAD (form only)" if drf is None else
+    how = ("best fit to the CAD, minimum zone (form only)" if drf is None else
            "located by the datums" + (f"; {', '.join(n for n in ('Tx', 'Ty', 'Tz', 'Rx', 'Ry', 'Rz') if n not in drf.constrained)} free"
                                       if len(free) else ""))
     how += f"; deviations {d.min():+.4f} .. {d.max():+.4f} mm"
     return GdtResult(characteristic, value, tol, drf=_drf_text(drf), note=how)
+
+
+def _minimax_step(d: np.ndarray, A: np.ndarray, reach: float = 1.0) -> np.ndarray | None:
+    """The step x (free DOF, within +-reach mm / rad) minimising max |d + A x| (a linear program), or None."""
+    from scipy.optimize import linprog
+
+    n, k = A.shape
+    cost = np.r_[np.zeros(k), 1.0]
+    a_ub = np.block([[A, -np.ones((n, 1))], [-A, -np.ones((n, 1))]])
+    scale = np.abs(A).max(axis=0) + 1e-300  # columns in mm per unit: a turn is scaled to the part's size
+    res = linprog(cost, A_ub=a_ub, b_ub=np.r_[-d, d],
+                  bounds=[(-reach / s, reach / s) for s in scale] + [(0, None)], method="highs")
+    return res.x[:k] if res.status == 0 else None
