@@ -325,3 +325,24 @@ def test_tolerances_on_known_geometry():
         evaluate(Tolerance("X", "POS", upper=0.1), [other, face], datums, frame)
     with pytest.raises(ToleranceError, match="no DATDEF"):
         evaluate(Tolerance("Y", "PERPEND", upper=0.1, datums=["Q"]), [face], datums, frame)
+
+
+def test_cmm_run_writes_the_dmis_output_and_the_station_report(tmp_path, monkeypatch, capsys):
+    """The command line: the simulated station, a session, the DMIS output and the HTML report beside it."""
+    monkeypatch.chdir(tmp_path)
+    program = tmp_path / "top.dmi"
+    program.write_text("FILNAM/'top face'\nUNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\n"
+                       "GOTO/10, 10, 50\nF(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\n"
+                       "PTMEAS/CART, 10, 10, 40, 0, 0, 1\nPTMEAS/CART, 60, 5, 40, 0, 0, 1\n"
+                       "PTMEAS/CART, 110, 10, 40, 0, 0, 1\nENDMES\nT(F) = TOL/FLAT, 0.01\nOUTPUT/FA(TOP), TA(F)\n"
+                       "ENDFIL\n")
+    assert main(["run", str(program), "--sessions", str(tmp_path / "sessions"), "-o", "top_out.dms"]) == 0
+    printed = capsys.readouterr().out
+    assert "1 features, 3 hits, 1 tolerances, 0 out of tolerance" in printed
+    out = (tmp_path / "top_out.dms").read_text()
+    assert out.startswith("FILNAM/'top face'\n") and out.endswith("ENDFIL\n")
+    assert _actuals(out)["TOP"][1][2] == pytest.approx(40.0, abs=0.01)
+    assert _tolerances(out)["F"][1] == "INTOL"
+    report = (tmp_path / "top_report.html").read_text()
+    assert "TOP" in report and "flatness" in report
+    assert len(list((tmp_path / "sessions").glob("*.jsonl"))) == 1
