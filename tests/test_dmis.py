@@ -159,6 +159,9 @@ def test_unsupported_statements_and_syntax_errors_are_refused_with_their_lines_b
     assert check("GOTO/1, 2\nPTMEAS/CART, 1, 2, 3\nMEAS/PLANE, F(P), 3\n")[1] == [
         "line 1: GOTO takes X, Y, Z, it has 2 numbers", "line 2: PTMEAS outside MEAS ... ENDMES",
         "line 3: F(P) is measured before it is defined (F(P) = FEAT/...)", "line 3: MEAS is not closed with ENDMES"]
+    probe = "GOTO/100, 100, 250\nS(SIDE) = SNSDEF/PROBE, INDEX, CART, 0, 0, 0, 1, 0, 0, 2\n"
+    with pytest.raises(DmisError, match=r"^line 2: S\(SIDE\) points along \(1, 0, 0\): the station has one fixed probe"):
+        run_text(probe, station)
     assert np.allclose(station.machine.position, start)  # nothing moved
     assert station.measurement.hits == {}
     # `cmm run --check` lists every problem and runs nothing

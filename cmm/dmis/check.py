@@ -89,6 +89,15 @@ def statement_problem(s: Statement) -> str | None:
             return f"GOTO/INCR takes a distance and a direction (4 numbers), it has {n}"
         if "INCR" not in words and n != 3:
             return f"GOTO takes X, Y, Z, it has {n} numbers"
+    if m == "SNSDEF":
+        values = [p.constant() for p in s.params if isinstance(p, Expr)]
+        words = {p.text for p in s.params if isinstance(p, Word)}
+        if "CART" in words and len(values) >= 7 and all(v is not None for v in values[3:6]):
+            i, j, k = values[3:6]
+            norm = (i * i + j * j + k * k) ** 0.5  # type: ignore[operator]
+            if norm < 1e-9 or -k / norm < 0.9999:  # type: ignore[operator]
+                return (f"{s.label} points along ({i:g}, {j:g}, {k:g}): the station has one fixed probe pointing "
+                        "down (0, 0, -1)")
     if m == "SNSLCT" and (not labels or labels[0].type != "S"):
         return "SNSLCT needs the sensor: SNSLCT/S(name)"
     if m == "RECALL" and (not labels or labels[0].type not in ("D", "DA")):
