@@ -95,6 +95,14 @@ def test_secondary_parallel_to_primary_is_refused():
         build_drf([plane("A", (0, 0, 0), (0, 0, 1)), plane("B", (0, 0, -10), (0, 0, -1))])
 
 
+def test_a_secondary_nearly_parallel_to_the_primary_is_refused():
+    # 0.3 deg: it would orient and locate the frame through a lever of 1/sin(0.3 deg) = 190
+    with pytest.raises(DatumError, match="datum B \\(plane\\) is parallel to datum A"):
+        build_drf([plane("A", (0, 0, 0), (0, 0, 1)), plane("B", (0, 0, 5), tilted((0, 0, 1), 0.3, (1, 0, 0)))])
+    assert "Rz" in build_drf([plane("A", (0, 0, 0), (0, 0, 1)),
+                              plane("B", (0, 0, 5), tilted((0, 0, 1), 5.0, (1, 0, 0)))]).constrained
+
+
 def test_tertiary_that_adds_nothing_is_refused():
     a, b = plane("A", (0, 0, 0), (0, 0, 1)), plane("B", (0, 0, 0), (1, 0, 0))
     with pytest.raises(DatumError, match="datum C \\(plane\\) is parallel to datum B"):

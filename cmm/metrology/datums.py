@@ -254,7 +254,9 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
                     x, added = w / np.linalg.norm(w), True
                     rot_names.append("Rz")
         # 2. location: what the datum locates, within the translations still free
-        new = _extend_basis(trans, _project_out(_location_directions(d, z), trans))
+        # (a direction less than PARALLEL_DEG from those already constrained locates nothing reliably)
+        new = _extend_basis(trans, _project_out(_location_directions(d, z), trans),
+                            math.sin(math.radians(PARALLEL_DEG)))
         for n in new:
             rows.append((n, float(n @ d.origin)))
             added = True
