@@ -93,7 +93,7 @@ def summary(tc: TrendChart) -> list[tuple[str, str]]:
                                       + (f", LCL {_f(c.spread.lower, 5)}" if c.spread.lower else "")))
         rows.append(("sigma (within)", _f(c.sigma, 5)))
         ooc = c.out_of_control
-        what = "parts" if c.subgroup == 1 else "subgroups"
+        what = ("part" if c.subgroup == 1 else "subgroup") + ("" if len(ooc) == 1 else "s")
         rows.append(("out of control", f"{len(ooc)} {what}" + (f" (first: {ooc[0] + 1})" if ooc else "")))
     if cap is not None:
         def idx(v: float | None) -> str:
@@ -132,14 +132,18 @@ def history_csv(h: History) -> str:
     return buf.getvalue()
 
 
-def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: int = MAX_POINTS) -> str:
-    """The run chart (values, tolerance and control limits) over the range chart, as one inline SVG."""
+def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: int = MAX_POINTS,
+              fluid: bool = False) -> str:
+    """The run chart (values, tolerance and control limits) over the range chart, as one inline SVG;
+    ``fluid``: as wide as its container (the page's side panel), ``width`` x ``height`` only setting its shape."""
     h, c = tc.history, tc.chart
     e = html.escape
     label = f"{h.series}: {h.characteristic}"
+    size = ('width="100%" style="height:auto;display:block"' if fluid else f'width="{width}" height="{height}"')
     if len(h) == 0:
-        return (f'<svg class="trend" viewBox="0 0 {width} 40" width="{width}" height="40" '
-                f'xmlns="http://www.w3.org/2000/svg" role="img" aria-label="{e(label)}"><text x="8" y="24" '
+        return (f'<svg class="trend" viewBox="0 0 {width} 40" '
+                + ('width="100%" style="height:auto;display:block"' if fluid else f'width="{width}" height="40"')
+                + f' xmlns="http://www.w3.org/2000/svg" role="img" aria-label="{e(label)}"><text x="8" y="24" '
                 f'font-size="11">{e(label)}: no parts yet</text></svg>')
     start = max(0, len(h) - max_points)
     idx = np.arange(start, len(h))
@@ -165,16 +169,22 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
     def y(v: float) -> float:
         return top + h_run - (v - lo) / (hi - lo) * h_run
 
-    out = [f'<svg class="trend" viewBox="0 0 {width} {height}" width="{width}" height="{height}" '
+    out = [f'<svg class="trend" viewBox="0 0 {width} {height}" {size} '
            f'xmlns="http://www.w3.org/2000/svg" role="img" aria-label="{e(label)}">',
            f'<text x="{left}" y="12" font-size="11" font-weight="600">{e(label)}</text>',
            f'<rect x="{left}" y="{top}" width="{w}" height="{h_run}" fill="none" stroke="#bbb" stroke-width="0.6"/>']
 
-    def hline(v: float, stroke: str, dash: str, name: str, yf: Callable[[float], float] | None = None) -> None:
+    def hline(v: float, stroke: str, dash: str, name: str, yf: Callable[[float], float] | None = None,
+              inside: bool = False) -> None:
+        """A limit line labelled left of the plot (tolerances) or ``inside`` at its right end (control limits,
+        so a control limit next to a tolerance limit does not print over it)."""
         yy = (yf or y)(v)
         out.append(f'<line x1="{left}" x2="{left + w}" y1="{yy:.1f}" y2="{yy:.1f}" stroke="{stroke}" '
                    f'stroke-width="0.9"{dash}/>')
-        if name:
+        if name and inside:
+            out.append(f'<text x="{left + w - 3}" y="{yy - 2:.1f}" font-size="8.5" text-anchor="end" fill="{stroke}">'
+                       f'{e(name)} {v:.4f}</text>')
+        elif name:
             out.append(f'<text x="{left - 3}" y="{yy + 3:.1f}" font-size="8.5" text-anchor="end" fill="{stroke}">'
                        f'{e(name)} {v:.4f}</text>')
 
@@ -185,7 +195,8 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
         hline(tc.nominal, "#888", ' stroke-dasharray="2 3"', "")
     if c is not None:
         for v, name in ((c.location.upper, "UCL"), (c.location.centre, "CL"), (c.location.lower, "LCL")):
-            hline(v, "#1565c0", ' stroke-dasharray="6 3"' if name != "CL" else "", name if c.subgroup == 1 else f"X̄ {name}")
+            hline(v, "#1565c0", ' stroke-dasharray="6 3"' if name != "CL" else "",
+                  name if c.subgroup == 1 else f"X̄ {name}", inside=True)
         if c.subgroup > 1:  # the subgroup means over the individuals
             n = c.subgroup
             pts = [(x(k * n + (n - 1) / 2), y(m)) for k, m in enumerate(c.points) if (k + 1) * n > start]

@@ -105,7 +105,7 @@ class TrendsPanel:
         self.chart = trend(h, self.subgroup)
         self._version = self._parts_version()
         where = "" if h.source == "database" or not t.database_url else " (from this station's journal)"
-        self._show(t.status_text(), trend_svg(self.chart, width=430, height=300),
+        self._show(t.status_text(), trend_svg(self.chart, width=400, height=320, fluid=True),
                    summary_markdown(self.chart) + where)
         return self.chart
 
