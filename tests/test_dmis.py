@@ -164,6 +164,14 @@ def test_unsupported_statements_and_syntax_errors_are_refused_with_their_lines_b
         run_text(probe, station)
     assert np.allclose(station.machine.position, start)  # nothing moved
     assert station.measurement.hits == {}
+    # a statement that fails while running stops the program there; its output so far is kept, saying why
+    into = ("FILNAM/'into the part'\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nGOTO/60, 40, 70\n"
+            "GOTO/60, 40, 20\nENDFIL\n")
+    with pytest.raises(DmisError, match=r"^line 4: GOTO: the straight line") as stopped:
+        run_text(into, station)
+    out = stopped.value.result.outputs[None]
+    assert out.startswith("FILNAM/'into the part'") and "$$ the program stopped: line 4: GOTO:" in out
+    assert out.endswith("ENDFIL\n") and station.machine.position[2] > 60.0  # it stopped above the part
     # `cmm run --check` lists every problem and runs nothing
     path = tmp_path / "bad.dmi"
     path.write_text(BAD)

@@ -85,15 +85,12 @@ def _run(args: Any, path: Path, text: str) -> int:
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
             print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)
+            if exc.result is not None:
+                _write_outputs(args, path, exc.result, "the output up to that line")
             return 1
     finally:
         station.close()
-    out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
-    base = out_default.parent
-    for device, content in result.outputs.items():
-        target = out_default if device is None else base / device
-        target.write_text(content, encoding="utf-8")
-        print(f"wrote {target}")
+    _write_outputs(args, path, result)
     for line in result.log:
         print(line)
     failed = [e for e in result.evaluations if not e.intol]
@@ -105,3 +102,12 @@ def _run(args: Any, path: Path, text: str) -> int:
     write_report(s, report, mesh=resolve_part_mesh(s))
     print(f"wrote {report} (session {name})")
     return 0
+
+
+def _write_outputs(args: Any, path: Path, result: Any, what: str = "") -> None:
+    """The DMIS output files: the program's STOR devices (beside ``-o``), else ``-o``."""
+    out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
+    for device, content in result.outputs.items():
+        target = out_default if device is None else out_default.parent / device
+        target.write_text(content, encoding="utf-8")
+        print(f"wrote {target}" + (f" ({what})" if what else ""))

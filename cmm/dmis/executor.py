@@ -29,7 +29,10 @@ DOWN = np.array([0.0, 0.0, -1.0])
 
 
 class DmisError(RuntimeError):
-    """A DMIS program stopped: "line N: what happened"."""
+    """A DMIS program stopped: "line N: what happened". ``result``: what the run had done by then (its actuals
+    and the output up to that line, ending in a ``$$`` comment that says why), or None when nothing ran."""
+
+    result: "RunResult | None" = None
 
 
 class Target(Protocol):
@@ -173,6 +176,29 @@ class Executor:
 
     def run(self) -> RunResult:
         self.model.note(f"DMIS program {self.name!r} started")
+        try:
+            self._run()
+        except DmisError as exc:  # the output so far is kept, saying where and why it stopped
+            self.emit(f"$$ the program stopped: {exc}")
+            self._finish()
+            self.model.note(f"DMIS program {self.name!r} stopped: {exc}")
+            exc.result = self.result
+            raise
+        self._finish()
+        self.model.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
+                        f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
+        if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
+            record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
+        return self.result
+
+    def _finish(self) -> None:
+        self.emit("ENDFIL")
+        text = "\n".join(self.output) + "\n"
+        targets = [self.devices[d] for d in self.devices if self.devices[d]] or [None]
+        for path in targets:
+            self.result.outputs[path] = text
+
+    def _run(self) -> None:
         pairs = blocks(self.stmts)
         calls: list[int] = []
         pc = 0
@@ -235,16 +261,6 @@ class Executor:
             except Exception as exc:  # noqa: BLE001 - motion, probing and fit errors are operator sentences
                 raise self.fail(s, f"{s.name}: {exc}") from None
             pc = nxt
-        self.emit("ENDFIL")
-        text = "\n".join(self.output) + "\n"
-        targets = [self.devices[d] for d in self.devices if self.devices[d]] or [None]
-        for path in targets:
-            self.result.outputs[path] = text
-        self.model.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
-                        f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
-        if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
-            record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
-        return self.result
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
