@@ -493,7 +493,11 @@ class Trends:
         with self._sync_lock:
             self.index.catch_up()
             sent = 0
-            if self._database() is None:  # (re)connect even with nothing to send: the charts come from it again
+            # (re)connect even with nothing to send: the charts come from the database again. Once it was lost,
+            # only the sync thread (or a forced sync) waits for a connection attempt, never a run recording a part
+            thread = self._thread
+            connect = force or not self.state.since or thread is None or threading.current_thread() is thread
+            if self._database(connect) is None:
                 return 0
             while True:
                 batch = self.index.pending(self.index.meta("uploaded_seq"), self.BATCH)
@@ -506,7 +510,7 @@ class Trends:
                     return sent
                 for _attempt in range(2):  # as in _ask: a stale connection is replaced once
                     fresh = self._db is None
-                    db = self._database()
+                    db = self._database(connect)
                     if db is None:
                         return sent
                     try:
