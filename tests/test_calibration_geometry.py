@@ -40,6 +40,7 @@ def test_fit_needs_enough_setups():
         fit_geometry(synthetic((0, 0, 0), (0, 0, 0))[:4])
 
 
+@pytest.mark.timeout(900)  # about 40 s of CPU on the virtual clock: beside CPU hogs it takes several times that
 def test_ball_bar_routine_recovers_injected_scale_and_squareness():
     config = load()
     sim = SimulatedCMM(config, CmmSimSettings(errors=GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))))

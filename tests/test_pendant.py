@@ -83,10 +83,12 @@ class Client:
         return [m["message"] for m in self.messages if m.get("type") == "error"]
 
     def jog_for(self, v, seconds: float, period: float = 0.05) -> float:
-        """Send a jog every ``period`` for ``seconds``; returns the (simulated) time of the last one."""
-        end = time.monotonic() + seconds
-        last = self.clock()
-        while time.monotonic() < end:
+        """Send a jog every ``period`` until ``seconds`` of the station's (simulated) time have passed; returns
+        the simulated time of the last one. Machine time, not wall time: on a loaded computer the paced
+        simulator runs slower, and a jog held for wall seconds would cover less distance."""
+        first = last = self.clock()
+        give_up = time.monotonic() + 30 * seconds + 5  # a station that stopped publishing fails the test, not hangs
+        while last - first < seconds and time.monotonic() < give_up:
             self.send(type="jog", v=v)
             last = self.clock()
             self.drain(period)
@@ -124,7 +126,7 @@ def time_to_stop(station, since: float) -> float:
     return stop_time(station, since, "the stop after the last message")
 
 
-def wait_moving(station, timeout: float = 1.0) -> None:
+def wait_moving(station, timeout: float = 5.0) -> None:
     end = time.monotonic() + timeout
     while speed(station) < 1.0:
         assert time.monotonic() < end, "the machine did not start moving"
