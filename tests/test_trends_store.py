@@ -105,7 +105,7 @@ def _eventually(check, timeout=20.0):
         time.sleep(0.1)
 
 
-def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_path):
+def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_path, capsys):
     a = Trends(tmp_path / "a", station="cmm-a", database=pg.url, connect_timeout=2)
     b = Trends(tmp_path / "b", station="cmm-b", database=pg.url, connect_timeout=2)
     b.RETRY_S = 0.2
@@ -147,6 +147,11 @@ def test_two_stations_share_one_database_and_an_outage_loses_nothing(pg, tmp_pat
             assert h.source == "database" and len(h) == 12
             assert h.station == ["cmm-a", "cmm-b"] * 3 + ["cmm-a"] * 4 + ["cmm-b"] * 2
             assert np.allclose(h.value, 30.0 + 0.001 * np.arange(12))
+        # the CLI over the shared database: every station's parts
+        from cmm.cli import main
+
+        assert main(["trends", "--trends", str(tmp_path / "reader"), "--db", pg.url, "show", "bracket", BORE]) == 0
+        assert "parts: 12 from 2 stations (cmm-a, cmm-b)" in capsys.readouterr().out
     finally:
         a.close()
         b.close()
