@@ -138,6 +138,28 @@ class SphereProber:
         z = max(self.safe_z, here[2])
         m.move_path([[here[0], here[1], z], [side[0], side[1], z], side]).wait()
 
+    def lift_clear(self, centre: Any, radius: float, margin: float = 5.0) -> bool:
+        """From wherever a stopped run left the probe (beside or below the sphere): out sideways until the line up
+        is clear of the sphere (its approximate centre known to ``margin`` mm), then up to the safe height.
+        True when it moved."""
+        m = self.machine
+        c = np.asarray(centre, float)
+        here = np.asarray(m.position, float)
+        if here[2] >= self.safe_z - 0.01:
+            return False
+        keep = self.safe_radius(radius) + margin
+        flat = here[:2] - c[:2]
+        d = float(np.linalg.norm(flat))
+        path = []
+        if d < keep and here[2] < c[2] + keep:  # straight up would pass through the sphere: step out first
+            out = flat / d if d > 1e-6 else np.array([1.0, 0.0])
+            side = c[:2] + keep * out
+            path.append([side[0], side[1], here[2]])
+            here = np.array([side[0], side[1], here[2]])
+        path.append([here[0], here[1], self.safe_z])
+        m.move_path(path).wait()
+        return True
+
     def leave(self, centre: np.ndarray, radius: float, lane: np.ndarray) -> None:
         """Around the sphere back to the lane side, then up to the safe height."""
         c = np.asarray(centre, float)
@@ -234,6 +256,7 @@ class ProbeQualification:
     residuals_before: np.ndarray  # mm, against the LS sphere, constant pre-travel
     residuals_after: np.ndarray  # mm, after the directional model
     skipped: list[str]
+    probe: str = ""  # the probe (stylus) of the probe list it qualified
 
     def by_ring(self) -> list[dict[str, float]]:
         """Residual figures per polar angle of the pattern (um): for the benchmark and the wizard."""
@@ -318,16 +341,21 @@ def analyse_qualification(centres: np.ndarray, approach: np.ndarray, certificate
 
 def qualify_probe(machine: Machine, certificate: SphereCertificate, *, approx_centre: Any = None,
                   polar_deg: tuple[float, ...] = (35.0, 80.0, 120.0), per_ring: int = 24, repeats: int = 2,
-                  master_centre: Any = None, progress: Progress = None, seed: int = 0) -> ProbeQualification:
-    """Automatic qualification: locate the sphere, measure the pattern, analyse. Nothing is saved or applied."""
+                  master_centre: Any = None, progress: Progress = None, seed: int = 0,
+                  tip_radius: float | None = None) -> ProbeQualification:
+    """Automatic qualification: lift clear of the sphere to the safe height (a stopped run may have left the probe
+    beside or under it), locate the sphere, measure the pattern, analyse. ``tip_radius``: the stylus's nominal
+    radius (default: the configured one). Nothing is saved or applied."""
     centre = approx_centre if approx_centre is not None else certificate.approx_centre
     if centre is None:
         raise CalibrationError("the approximate centre of the reference sphere is unknown: give [setup] centre in its "
                                "certificate or --centre X,Y,Z")
     say = report(progress, 0.0, 1.0)
-    sp = SphereProber(machine, seed=seed)
+    sp = SphereProber(machine, seed=seed, tip_radius=tip_radius)
     radius = certificate.diameter / 2
-    say(0.0, "locating the reference sphere (one hit near its top, four at the equator)")
+    say(0.0, "lifting to the clearance height")
+    sp.lift_clear(centre, radius)
+    say(0.01, "locating the reference sphere (one hit near its top, four at the equator)")
     located = sp.locate(centre, radius)
     normals = qualification_pattern(polar_deg, per_ring)
     t, u, skipped = sp.measure(located, radius, normals, repeats=repeats,

@@ -396,3 +396,122 @@ def apply_calibration(loaded: LoadedCalibration, machine: Any, prober: Any) -> l
         done.append(f"probe from {loaded.probe.date}: r_eff {loaded.probe.tip_radius:.4f} mm, "
                     f"{loaded.probe.model.describe()}")
     return done
+
+
+# ----------------------------------------------------------------- the probe list and the sphere certificate
+
+PROBE_LIST = "probes.toml"
+PROBE_QUALIFICATIONS = "probes"  # <records>/probes/<name>.toml: each probe's last qualification (a probe record)
+PROBE_VALIDITY_DAYS = 30  # a qualification older than this is shown as expired
+_PROBE_NAME = __import__("re").compile(r"^[A-Za-z0-9_-]{1,32}$")
+
+
+@dataclass(frozen=True)
+class ProbeDefinition:
+    """A stylus on the probe head: what the operator declares before qualifying it."""
+
+    name: str
+    tip_diameter: float  # mm, nominal
+    stylus: tuple[float, float, float] = (0.0, 0.0, -1.0)  # stylus vector, head to tip (machine axes)
+
+
+def check_probe_name(name: str) -> str:
+    name = str(name).strip()
+    if not _PROBE_NAME.match(name):
+        raise CalibrationError(f"the probe name {name!r} must be 1 to 32 letters, digits, '-' or '_' (e.g. T1, "
+                               "D2-down)")
+    return name
+
+
+def check_probe_definition(name: str, tip_diameter: Any, stylus: Any = (0.0, 0.0, -1.0)) -> ProbeDefinition:
+    """A probe definition from the operator's fields; CalibrationError says what is wrong."""
+    name = check_probe_name(name)
+    try:
+        d = float(tip_diameter)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"the tip diameter of {name} must be a number in mm, got {tip_diameter!r}") from None
+    if not math.isfinite(d) or not 0.1 <= d <= 30.0:
+        raise CalibrationError(f"the tip diameter of {name} must be between 0.1 and 30 mm, got {tip_diameter!r}")
+    try:
+        v = tuple(float(x) for x in stylus)
+    except (TypeError, ValueError):
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(x) for x in v) or not any(v):
+        raise CalibrationError(f"the stylus vector of {name} must be three numbers, not all 0, got {stylus!r}")
+    return ProbeDefinition(name, d, v)  # type: ignore[arg-type]
+
+
+def load_probe_list(directory: str | Path) -> tuple[list[ProbeDefinition], str | None]:
+    """(probes, selected name) from <directory>/probes.toml; ([], None) when there is no list yet."""
+    path = Path(directory) / PROBE_LIST
+    if not path.is_file():
+        return [], None
+    src = str(path)
+    data = _read(path, "probe list")
+    table = data.get("probes", {})
+    if not isinstance(table, dict):
+        raise CalibrationError(f"{src}: [probes] must hold one table per probe")
+    out = []
+    for name, t in table.items():
+        if not isinstance(t, dict):
+            raise CalibrationError(f"{src}: [probes.{name}] must be a table")
+        try:
+            out.append(check_probe_definition(name, t.get("tip_diameter"), t.get("stylus", (0.0, 0.0, -1.0))))
+        except CalibrationError as exc:
+            raise CalibrationError(f"{src}: {exc}") from None
+    selected = data.get("selected")
+    if selected is not None and selected not in {p.name for p in out}:
+        raise CalibrationError(f"{src}: the selected probe {selected!r} is not in the list")
+    return out, selected
+
+
+def save_probe_list(directory: str | Path, probes: list[ProbeDefinition], selected: str | None) -> Path:
+    data: dict[str, Any] = {"selected": selected,
+                            "probes": {p.name: {"tip_diameter": p.tip_diameter, "stylus": list(p.stylus)}
+                                       for p in probes}}
+    return write_atomic(Path(directory) / PROBE_LIST, dumps(
+        data, "The probe list of the station (styli on the head; mm). Written by the Calibration tab;\n"
+              "each probe's qualification is in probes/<name>.toml, the selected one's also in probe.toml."))
+
+
+def probe_expiry(date: str, days: int = PROBE_VALIDITY_DAYS) -> str:
+    """The date a qualification done on ``date`` (ISO) expires ("" when the date is unreadable)."""
+    try:
+        return (_dt.datetime.fromisoformat(date) + _dt.timedelta(days=days)).date().isoformat()
+    except (TypeError, ValueError):
+        return ""
+
+
+def write_sphere_certificate(path: str | Path, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
+                             centre: Any = None, name: str = "reference sphere") -> SphereCertificate:
+    """Write the reference sphere's certificate as the operator entered it (uncertainty and form in mm); checked
+    before it replaces the old one, so a bad entry leaves the previous certificate."""
+    def number(v: Any, what: str) -> float:
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            raise CalibrationError(f"the sphere's {what} must be a number in mm, got {v!r}") from None
+        if not math.isfinite(x):
+            raise CalibrationError(f"the sphere's {what} must be a number in mm, got {v!r}")
+        return x
+
+    d = number(diameter, "diameter")
+    if not 1.0 <= d <= 200.0:
+        raise CalibrationError(f"the sphere's diameter must be between 1 and 200 mm, got {diameter!r}")
+    u = number(uncertainty, "uncertainty")
+    if not 0.0 <= u <= 0.01:
+        raise CalibrationError(f"the sphere's uncertainty must be between 0 and 0.01 mm (10 um), got {uncertainty!r} "
+                               "(enter it in mm: 0.0001 for 0.1 um)")
+    f = number(form, "form deviation")
+    if not 0.0 <= f <= 0.01 * d:
+        raise CalibrationError(f"the sphere's form deviation {form!r} mm is not plausible for a D {d} mm sphere")
+    serial = str(serial or "").strip()
+    if not serial:
+        raise CalibrationError("enter the sphere's serial number as on its certificate")
+    data: dict[str, Any] = {"artifact": {"kind": "sphere", "name": name, "serial": serial, "diameter": d, "form": f,
+                                         "uncertainty": u, "certified": _dt.date.today().isoformat()}}
+    if centre is not None:
+        data["setup"] = {"centre": [number(c, "set-up centre") for c in centre]}
+    p = write_atomic(path, dumps(data, "Certificate of the reference sphere, entered in the Calibration tab.\n"
+                                       "Units: mm. uncertainty: expanded (k = 2) uncertainty of the diameter."))
+    return load_sphere_certificate(p)

@@ -35,9 +35,11 @@ import numpy as np
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import MotionError
 from ..metrology.features import FitError
-from .records import (MACHINE_RECORD, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE, BallBarCertificate,
-                      CalibrationError, LoadedCalibration, dumps, load_certificate, load_machine_record,
-                      load_probe_record, load_servo_record, load_sphere_certificate, now, save_record, write_atomic)
+from .records import (MACHINE_RECORD, PROBE_QUALIFICATIONS, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
+                      BallBarCertificate, CalibrationError, LoadedCalibration, ProbeDefinition, check_probe_definition,
+                      dumps, load_certificate, load_machine_record, load_probe_list, load_probe_record,
+                      load_servo_record, load_sphere_certificate, now, probe_expiry, save_probe_list, save_record,
+                      write_atomic, write_sphere_certificate)
 
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
             "Servo tuning": "servo"}
@@ -45,6 +47,7 @@ LABELS = {v: k for k, v in ROUTINES.items()}
 ISO_RECORD = "iso10360-5.toml"
 SERVO_PROPOSAL = "servo-proposal.toml"
 BAR_CERTIFICATES = ("ball_bar_300", "ball_bar_200")
+DEFAULT_PROBE = "Probe1"  # the one probe of a folder without a probe list (also the I++ tool name clients know)
 Progress = Callable[[float, str], None]
 
 
@@ -131,6 +134,10 @@ class CalibrationService:
 
         self.directory = Path(directory)
         loaded = load_station_calibration(directory)
+        try:
+            self.probe_list()  # the selected probe: its name goes with every hit
+        except CalibrationError as exc:
+            loaded.problems.append(str(exc))
         applied = self.apply(loaded)
         for problem in loaded.problems:
             self.host.measurement.log("error", f"calibration record refused: {problem}")
@@ -160,6 +167,129 @@ class CalibrationService:
         probe = self.status.get("probe") or {}
         speed = float(probe.get("probing_speed") or 0.0)
         return speed if speed > 0 else float(self.host.config.speeds.probing)
+
+    # --- the probe list ------------------------------------------------------------
+
+    def probe_list(self) -> tuple[list[ProbeDefinition], str]:
+        """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
+        (its qualification is probe.toml). The selected name is also the measurement model's ``probe_name``."""
+        probes, selected = load_probe_list(self.records_dir)
+        if not probes:
+            probes = [ProbeDefinition(DEFAULT_PROBE, round(2 * float(self.host.config.probe.tip_radius), 6))]
+        selected = selected or probes[0].name
+        self.host.measurement.probe_name = selected
+        return probes, selected
+
+    def probe_record(self, name: str) -> Any:
+        """The last qualification of probe ``name`` (a ProbeRecord), None when it was never qualified."""
+        path = self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml"
+        if not path.is_file():
+            probes, _ = self.probe_list()
+            if name != probes[0].name or not (self.records_dir / PROBE_RECORD).is_file() or \
+                    (self.records_dir / PROBE_QUALIFICATIONS).is_dir():
+                return None
+            path = self.records_dir / PROBE_RECORD  # a folder from before the probe list: probe.toml is the first probe's
+        return load_probe_record(path)
+
+    def probes(self) -> list[dict[str, Any]]:
+        """The probe list for a front end: name, tip diameter, stylus, selected, and when qualified the
+        qualified radius, pre-travel, date, sphere and expiry (or the problem that makes the record unusable)."""
+        probes, selected = self.probe_list()
+        today = now()[:10]
+        rows = []
+        for p in probes:
+            row: dict[str, Any] = {"name": p.name, "tip_diameter": p.tip_diameter, "stylus": p.stylus,
+                                   "selected": p.name == selected, "tip_radius": None, "pretravel": "",
+                                   "qualified_on": "", "sphere": "", "expires": "", "expired": False, "problem": ""}
+            try:
+                rec = self.probe_record(p.name)
+            except CalibrationError as exc:
+                rec, row["problem"] = None, str(exc)
+            if rec is not None:
+                expires = probe_expiry(rec.date)
+                row.update(tip_radius=rec.tip_radius, pretravel=rec.model.describe(), qualified_on=rec.date[:10],
+                           sphere=rec.artifact, expires=expires, expired=bool(expires) and expires < today)
+            rows.append(row)
+        return rows
+
+    def add_probe(self, name: str, tip_diameter: Any, stylus: Any = (0.0, 0.0, -1.0)) -> ProbeDefinition:
+        """Add a stylus to the list (not selected, not qualified); CalibrationError when the entry is wrong."""
+        probe = check_probe_definition(name, tip_diameter, stylus)
+        probes, selected = self.probe_list()
+        if any(p.name == probe.name for p in probes):
+            raise CalibrationError(f"there is already a probe named {probe.name}: choose another name")
+        self._keep_legacy_record(probes)
+        save_probe_list(self.records_dir, probes + [probe], selected)
+        return probe
+
+    def select_probe(self, client: Any, name: str) -> str:
+        """Make ``name`` the probe in use: its qualified radius and pre-travel go to the live station (through
+        ``controller.configure``) and into probe.toml; an unqualified probe gets its nominal radius and no
+        pre-travel model. Returns what was applied."""
+        from ..machine.probing import ProbeSettings
+        from ..metrology.compensation import PretravelModel
+
+        probes, _ = self.probe_list()
+        probe = next((p for p in probes if p.name == name), None)
+        if probe is None:
+            raise CalibrationError(f"there is no probe named {name!r}; the list has {', '.join(p.name for p in probes)}")
+        rec = self.probe_record(name)
+        self._keep_legacy_record(probes)
+        host = self.host
+        if rec is not None:
+            self._log(self.apply(LoadedCalibration(probe=rec), client=client))
+            save_record(rec, self.records_dir / PROBE_RECORD)
+            text = f"probe {name} selected: r_eff {rec.tip_radius:.5f} mm, {rec.model.describe()}"
+        else:
+            settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
+            with host.lock:
+                host.controller.configure(client, lambda: setattr(host.prober, "settings", settings))
+            (self.records_dir / PROBE_RECORD).unlink(missing_ok=True)  # its own record is in probes/<name>.toml
+            text = f"probe {name} selected, NOT qualified: nominal radius {probe.tip_diameter / 2:.4f} mm"
+            self._log([f"probe {name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"])
+        save_probe_list(self.records_dir, probes, name)
+        host.measurement.probe_name = name
+        self.status["probe"] = None if rec is None else {"date": rec.date, "tip_radius": rec.tip_radius,
+                                                         "artifact": rec.artifact, "probing_speed": rec.probing_speed}
+        if self.status.get("probe") is not None:
+            self.status["probe"]["name"] = name
+        host.measurement.note(text)
+        return text
+
+    def _keep_legacy_record(self, probes: list[ProbeDefinition]) -> None:
+        """Before the probe list is first written: the existing probe.toml becomes the first probe's record."""
+        qdir = self.records_dir / PROBE_QUALIFICATIONS
+        if qdir.is_dir():
+            return
+        rec = None
+        if (self.records_dir / PROBE_RECORD).is_file():
+            try:
+                rec = load_probe_record(self.records_dir / PROBE_RECORD)
+            except CalibrationError:
+                rec = None
+        qdir.mkdir(parents=True, exist_ok=True)
+        if rec is not None:
+            save_record(rec, qdir / f"{probes[0].name}.toml")
+
+    def set_sphere_certificate(self, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
+                               centre: Any = None) -> Any:
+        """Write the reference sphere's certificate where qualification and the ISO test read it. ``centre``
+        None keeps the set-up centre of the previous certificate (on the simulator: where its sphere stands)."""
+        path = self.artifacts_dir / SPHERE_CERTIFICATE
+        if centre is None:
+            try:
+                centre = load_sphere_certificate(path).approx_centre
+            except CalibrationError:
+                centre = None
+            if centre is None and self.host.simulated:
+                sim_settings = getattr(self.host.sim, "settings", None)
+                if sim_settings is not None:
+                    centre = tuple(float(c) for c in sim_settings.sphere_centre)
+        cert = write_sphere_certificate(path, diameter=diameter, serial=serial, uncertainty=uncertainty, form=form,
+                                        centre=centre)
+        self.host.measurement.note(f"reference sphere certificate entered: {cert.describe()}, "
+                                   f"U {cert.uncertainty * 1000:.2f} um")
+        return cert
 
     # --- where things are ---------------------------------------------------------
 
@@ -268,9 +398,20 @@ class CalibrationService:
                 master = None
             kw = {k: options[k] for k in ("per_ring", "polar_deg", "repeats", "approx_centre") if k in options}
             kw.setdefault("repeats", 2)
-            return qualify_probe(machine, certs, master_centre=master, progress=progress, **kw)
+            probes, selected = self.probe_list()
+            tip = next(p.tip_diameter / 2 for p in probes if p.name == selected)
+            result = qualify_probe(machine, certs, master_centre=master, progress=progress, tip_radius=tip, **kw)
+            result.record.note = f"probe {selected}: {result.record.note}"
+            result.probe = selected  # the probe it qualified: save() files the record under its name
+            return result
         if routine == "iso":
             from .iso10360 import run_iso10360_5
+            from .probe import SphereProber
+
+            if progress is not None:
+                progress(0.0, "lifting to the clearance height")
+            SphereProber(machine).lift_clear(options.get("approx_centre") or certs.approx_centre or machine.position,
+                                             certs.diameter / 2)
 
             return run_iso10360_5(machine, certs, settings, repeats=int(options.get("repeats", 1)),
                                   approx_centre=options.get("approx_centre"), progress=progress)
@@ -341,6 +482,12 @@ class CalibrationService:
         ``controller.configure``). Returns (path, applied)."""
         host = self.host
         if routine == "probe":
+            probes, selected = self.probe_list()
+            name = getattr(result, "probe", None) or selected
+            self._keep_legacy_record(probes)
+            save_record(result.record, self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml")
+            if name != selected:  # qualified while another probe was selected: filed, not applied
+                return self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml", False
             path = save_record(result.record, self.records_dir / PROBE_RECORD)
             self._log(self.apply(LoadedCalibration(probe=result.record), client=client))
             host.measurement.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "

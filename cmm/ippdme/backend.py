@@ -104,7 +104,17 @@ class StationBackend:
         return self.controller.check_target(target)
 
     def probes(self) -> list[tuple[str, float]]:
-        return [(self.probe_name, float(self.controller.tip_radius))]
+        """The station's probe list (the Calibration tab's): each probe's qualified radius (the one in use: the live
+        radius; one never qualified: its nominal radius). Without a calibration service: one probe."""
+        service = getattr(self.station, "calibration", None)
+        try:
+            rows = service.probes() if service is not None else []
+        except Exception:  # noqa: BLE001 - an unreadable probe list: the probe in use is still measurable
+            rows = []
+        if not rows:
+            return [(self.probe_name, float(self.controller.tip_radius))]
+        return [(r["name"], float(self.controller.tip_radius) if r["selected"] else
+                 float(r["tip_radius"] if r["tip_radius"] is not None else r["tip_diameter"] / 2)) for r in rows]
 
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
         """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""

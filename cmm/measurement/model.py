@@ -138,6 +138,8 @@ class MeasurementModel:
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Any = None
+        self.probe_name = ""  # the probe (stylus) in use: journalled with every hit and feature
+        self.hit_probes: dict[int, str] = {}  # hit id -> the probe that took it
         self.events: list[tuple[float, str, str]] = []  # (time, kind, message) for the UI
         self._listeners: list[Callable[[str, Any], None]] = []
         self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
@@ -334,7 +336,9 @@ class MeasurementModel:
             hid = self._next_hit
             self._next_hit += 1
             self.record("hit", id=hid, counts=hit.counts, machine=hit.machine, approach=hit.approach,
-                        speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal)
+                        speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal,
+                        probe=self.probe_name)
+            self.hit_probes[hid] = self.probe_name
             self.hits[hid] = hit  # on disk before anyone is shown it
             self.last_hit = hit
             self._undo.append(("add", hid))
@@ -427,8 +431,14 @@ class MeasurementModel:
         self._notify("feature", feature)
         return feature
 
+    def feature_probe(self, feature: Any) -> str:
+        """The probe(s) whose hits a feature was fitted to ("T1", or "T1+T2" for hits of several tips)."""
+        names = sorted({self.hit_probes.get(h, "") for h in getattr(feature, "hit_ids", ())} - {""})
+        return "+".join(names)
+
     def _record_feature(self, feature: Feature) -> None:
         extra = {} if feature.tolerance is None else {"tolerance": feature.tolerance}
+        extra["probe"] = self.feature_probe(feature)
         self.record("feature", id=feature.id, name=feature.name, hit_ids=list(feature.hit_ids),
                     **feature_fields(feature.result),
                     nominal=None if feature.nominal is None else feature.nominal.to_dict(), **extra)

@@ -47,6 +47,7 @@ class SimProcess:
                                       pass_fds=(fd,), stdin=subprocess.DEVNULL)
         theirs.close()
         self._closed = False
+        self.settings = settings  # what the child's simulated CMM was built with (where its sphere stands)
         try:
             self._conn.send((config, settings, home_switches))
             self.url, self.part_mesh, self.nominal_features = self._reply(START_TIMEOUT, "starting")

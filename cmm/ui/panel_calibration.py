@@ -189,6 +189,91 @@ class CalibrationPanel:
             lines += ["", "in force: " + "; ".join(log)]
         return "\n".join(lines)
 
+    # --- probes and the reference sphere --------------------------------------------
+
+    def probes(self) -> list[dict[str, Any]]:
+        try:
+            return self.service.probes()
+        except self.service.errors as exc:
+            self.ctx.error(exc, "Probe list")
+            return []
+
+    def probes_markdown(self) -> str:
+        rows = self.probes()
+        lines = ["| | probe | tip D | stylus | qualified radius | pre-travel | qualified on / with | expires |",
+                 "|---|---|---:|---|---:|---|---|---|"]
+        for r in rows:
+            mark = "**in use**" if r["selected"] else ""
+            stylus = ", ".join(f"{x:g}" for x in r["stylus"])
+            if r["tip_radius"] is None:
+                radius, pre, on, exp = "*not qualified*", "", r["problem"], ""
+            else:
+                radius = f"{r['tip_radius']:.5f} mm"
+                pre, on = r["pretravel"], f"{r['qualified_on']} · {r['sphere']}"
+                exp = r["expires"] + (" **expired**" if r["expired"] else "")
+            lines.append(f"| {mark} | {html.escape(r['name'])} | {r['tip_diameter']:g} mm | {stylus} | {radius} | "
+                         f"{html.escape(pre)} | {html.escape(on)} | {exp} |")
+        return "\n".join(lines)
+
+    def add_probe(self, name: str, tip_diameter: Any, stylus: Any = (0.0, 0.0, -1.0)) -> bool:
+        """Add a stylus to the probe list (then select it and qualify it)."""
+        if not self.ctx.allowed("Add probe"):
+            return False
+        if isinstance(stylus, str):
+            stylus = [x for x in stylus.replace(";", ",").split(",") if x.strip()]
+        try:
+            probe = self.service.add_probe(name, tip_diameter, stylus)
+        except self.service.errors as exc:
+            self.ctx.error(exc, "Add probe")
+            return False
+        self.ctx.notify("Probe added", f"{probe.name}: tip D {probe.tip_diameter:g} mm; select it and qualify it")
+        self._refresh_probes()
+        return True
+
+    def select_probe(self, name: str) -> bool:
+        """Use probe ``name``: its qualified radius and pre-travel are what compensation uses from now on."""
+        if not self.ctx.allowed("Use probe"):
+            return False
+        if self.running or not self.station.controller.allowed("configure"):
+            self.ctx.error("change the probe when the machine is idle (not during a routine or a move)", "Use probe")
+            return False
+        try:
+            text = self.service.select_probe(self.ctx.client_id, name)
+        except self.service.errors as exc:
+            self.ctx.error(exc, "Use probe")
+            return False
+        self.ctx.notify("Probe in use", text)
+        self._refresh_probes()
+        self._refresh_records()
+        return True
+
+    def enter_certificate(self, diameter: Any, serial: str, uncertainty_um: Any, form_um: Any = 0.0) -> bool:
+        """The reference sphere's certificate as printed (diameter mm, serial, U k=2 and form in um)."""
+        if not self.ctx.allowed("Save certificate"):
+            return False
+        try:
+            cert = self.service.set_sphere_certificate(diameter=diameter, serial=serial,
+                                                       uncertainty=float(uncertainty_um) / 1000.0,
+                                                       form=float(form_um or 0.0) / 1000.0)
+        except self.service.errors + (TypeError,) as exc:
+            self.ctx.error(f"{exc}. The previous certificate stays.", "Save certificate")
+            return False
+        self.ctx.notify("Certificate saved", cert.describe())
+        self._set("certificate", "content", self.certificate_markdown())
+        return True
+
+    def _refresh_probes(self) -> None:
+        self._set("probes", "content", self.probes_markdown())
+        h = self.gui.get("probe_choice")
+        if h is not None:
+            rows = self.probes()
+            names = tuple(r["name"] for r in rows) or ("Probe1",)
+            if tuple(h.options) != names:
+                h.options = names
+            selected = next((r["name"] for r in rows if r["selected"]), names[0])
+            if h.value != selected:
+                h.value = selected
+
     # --- run -----------------------------------------------------------------------
 
     def _app_job(self) -> Job | None:
@@ -224,6 +309,7 @@ class CalibrationPanel:
             self.ctx.error(f"{problem}. The previous calibration stays in force.", f"{label} refused")
             return None
         self.routine = routine
+        self._set("certificate", "content", self.certificate_markdown())  # the certificate the run uses
         self.result = None
         self.accepted = False
         self.saved = None
@@ -331,6 +417,7 @@ class CalibrationPanel:
         self.saved = path
         self.ctx.notify("Record saved", str(path) + (" and applied to the station" if applied else ""))
         self._refresh_records()
+        self._refresh_probes()
         return path
 
     # --- GUI -----------------------------------------------------------------------------------
@@ -362,6 +449,24 @@ class CalibrationPanel:
         label = gui.add_dropdown("Routine", tuple(ROUTINES), initial_value=LABELS[self.routine])
         label.on_update(lambda e: self.choose(e.target.value))
         g["certificate"] = gui.add_markdown(self.certificate_markdown())
+        with gui.add_folder("Reference sphere certificate", expand_by_default=False):
+            g["cert_diameter"] = gui.add_number("Diameter (mm)", 25.0, min=1.0, max=200.0, step=0.0001)
+            g["cert_serial"] = gui.add_text("Serial", "")
+            g["cert_uncertainty"] = gui.add_number("U k=2 (um)", 0.1, min=0.0, max=10.0, step=0.01)
+            gui.add_button("Save certificate").on_click(lambda _: self.enter_certificate(
+                g["cert_diameter"].value, g["cert_serial"].value, g["cert_uncertainty"].value))
+        with gui.add_folder("Probes", expand_by_default=True):
+            g["probes"] = gui.add_markdown(self.probes_markdown())
+            rows = self.probes()
+            names = tuple(r["name"] for r in rows) or ("Probe1",)
+            g["probe_choice"] = gui.add_dropdown("Probe", names, initial_value=next(
+                (r["name"] for r in rows if r["selected"]), names[0]))
+            gui.add_button("Use this probe").on_click(lambda _: self.select_probe(g["probe_choice"].value))
+            g["new_name"] = gui.add_text("New probe name", "")
+            g["new_tip"] = gui.add_number("Tip diameter (mm)", 2.0, min=0.1, max=30.0, step=0.01)
+            g["new_stylus"] = gui.add_text("Stylus vector", "0, 0, -1")
+            gui.add_button("Add probe").on_click(lambda _: self.add_probe(
+                g["new_name"].value, g["new_tip"].value, g["new_stylus"].value))
         g["probe_opts"] = gui.add_folder("Probe options", expand_by_default=False)
         with g["probe_opts"]:
             g["per_ring"] = gui.add_number("Points per ring", 24, min=3, max=72, step=1)

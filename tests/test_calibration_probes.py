@@ -1,0 +1,122 @@
+"""Probes and styli from the Calibration tab, on the simulator's virtual clock: a fresh calibration folder (no
+certificate, no records), the reference sphere's certificate entered in the page, a second stylus added and
+qualified after a fault left the probe under the sphere, the probe list with the qualified radius, the probe
+name with each hit, and the I++ server's tool list."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from netutil import SIM, free_port
+
+pytest.importorskip("viser")
+
+from cmm.calibration.records import load_probe_record, load_sphere_certificate  # noqa: E402
+from cmm.ippdme.backend import StationBackend  # noqa: E402
+from cmm.ippdme.tools import Limits, ToolChanger  # noqa: E402
+from cmm.session.journal import read_events  # noqa: E402
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("fresh-calibration")
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"),
+                      calibration_dir=folder).start(home=True)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
+    operator = ui.add_client(client_id="operator", is_local=True)
+    assert operator.take_control()
+    yield ui, operator, folder
+    ui.close()
+    station.close()
+
+
+def _errors(capp):
+    return [m for m in capp.messages if m[0] == "error"]
+
+
+def test_certificate_entered_in_the_page_lets_qualification_run(fresh):
+    ui, operator, folder = fresh
+    panel = operator.calibration
+    assert "certificate problem" in panel.certificate_markdown("probe")
+    assert panel.run("probe") is None and "missing" in _errors(operator)[-1][2]
+    # a wrong entry is refused with a sentence and writes nothing
+    assert not panel.enter_certificate(25.0, "", 0.1)
+    assert "serial" in _errors(operator)[-1][2]
+    assert not panel.enter_certificate(25.0, "RS-7", 50.0)  # 50 um: not a sphere certificate's uncertainty
+    assert "uncertainty" in _errors(operator)[-1][2]
+    assert not (folder / "artifacts" / "reference-sphere.toml").exists()
+    assert panel.enter_certificate(25.0, "RS-7", 0.1)
+    cert = load_sphere_certificate(folder / "artifacts" / "reference-sphere.toml")
+    assert (cert.diameter, cert.serial, cert.uncertainty) == (25.0, "RS-7", pytest.approx(0.0001))
+    # on the simulator the set-up centre is where its sphere stands
+    assert np.allclose(cert.approx_centre, ui.station.sim.settings.sphere_centre)
+    text = panel.certificate_markdown("probe")
+    assert "certificate problem" not in text and "RS-7" in text
+
+
+def test_probe_list_add_select_and_qualify_after_a_fault(fresh):
+    ui, operator, folder = fresh
+    st = ui.station
+    panel = operator.calibration
+    rows = panel.probes()
+    assert [r["name"] for r in rows] == ["Probe1"] and rows[0]["selected"] and rows[0]["tip_radius"] is None
+    assert "not qualified" in panel.probes_markdown()
+    assert not panel.add_probe("T 2", 2.0, "0, 0, -1")  # a space: refused with a sentence
+    assert "letters, digits" in _errors(operator)[-1][2]
+    assert not panel.add_probe("T2", 2.0, "0, 0, 0")
+    assert "stylus vector" in _errors(operator)[-1][2]
+    tip_d = 2 * st.config.probe.tip_radius
+    assert panel.add_probe("T2", tip_d, "0, 0, -1")
+    assert not panel.add_probe("T2", tip_d)  # the name is taken
+    assert panel.select_probe("T2"), _errors(operator)[-1:]
+    assert st.measurement.probe_name == "T2"
+    assert st.prober.settings.tip_radius == pytest.approx(tip_d / 2)  # not qualified: nominal radius
+    # a stopped run left the probe under the sphere's equator, closer to its axis than the sphere's radius:
+    # straight up from there runs into the sphere
+    c = np.asarray(st.sim.settings.sphere_centre, float)
+    under = c + np.array([9.0, 0.0, -16.0])
+    st.controller.run_job("operator", "set-up", lambda: st.machine.move_path(
+        [[c[0] + 40.0, c[1], st.machine.position[2]], [c[0] + 40.0, c[1], under[2]], under]).wait())
+    assert np.allclose(st.machine.position, under, atol=0.05)
+    st.controller.fault("test: the link dropped mid-routine")
+    st.controller.reset("operator")
+    job = panel.run("probe", per_ring=4, repeats=1)
+    assert job is not None, _errors(operator)[-1:]
+    assert job.wait(600) and job.error is None, job.error
+    assert panel.result[1].probe == "T2" and panel.result[1].skipped == []
+    path = panel.save_record()
+    assert path == folder / "probe.toml"
+    rec = load_probe_record(folder / "probes" / "T2.toml")
+    assert rec.tip_radius == pytest.approx(st.prober.settings.tip_radius)  # in use for compensation
+    assert abs(rec.tip_radius - tip_d / 2) < 0.01
+    rows = {r["name"]: r for r in panel.probes()}
+    assert rows["T2"]["tip_radius"] == pytest.approx(rec.tip_radius) and rows["T2"]["selected"]
+    assert "RS-7" in rows["T2"]["sphere"] and rows["T2"]["expires"] > rows["T2"]["qualified_on"]
+    assert rows["Probe1"]["tip_radius"] is None
+    assert f"{rec.tip_radius:.5f} mm" in panel.probes_markdown()
+    # back to Probe1 (nominal) and T2 again (its qualification, from its own record)
+    assert panel.select_probe("Probe1")
+    assert st.prober.settings.tip_radius == pytest.approx(tip_d / 2) and not (folder / "probe.toml").exists()
+    assert panel.select_probe("T2")
+    assert st.prober.settings.tip_radius == pytest.approx(rec.tip_radius)
+
+
+def test_hits_remember_their_probe_and_ippdme_lists_the_probes(fresh):
+    ui, operator, folder = fresh
+    st = ui.station
+    c = np.asarray(st.sim.settings.sphere_centre, float)
+    status = st.controller.probe("operator", c + [0, 0, 12.5], [0, 0, -1], frame="machine")
+    hit = status.wait(60)
+    assert hit is not None
+    events = read_events(st.measurement.journal.path).events
+    hits = [e for e in events if e.get("kind") == "hit"]
+    assert hits and hits[-1]["probe"] == st.measurement.probe_name == "T2"
+    backend = StationBackend(st)
+    probes = dict(backend.probes())
+    assert set(probes) == {"Probe1", "T2"}
+    assert probes["T2"] == pytest.approx(st.prober.settings.tip_radius)
+    tools = ToolChanger.build(Limits.from_config(st.config), backend.probes())
+    assert {"Probe1", "T2"} <= set(tools.names())
+    assert tools.select("T2", "ChangeTool").radius == pytest.approx(st.prober.settings.tip_radius)
