@@ -191,3 +191,17 @@ def test_the_status_bar_shows_the_link_warning(tmp_path):
         assert "link warning: " in text and "retrying" in text and "FAULT" not in text, text
     finally:
         station.close()
+
+
+def test_a_reply_later_than_its_time_out_while_the_host_was_away_is_still_waited_for():
+    """The host is off the CPU at its read's deadline and comes back 0.2 s late; the reply was held up as long
+    (the simulator was descheduled too) and has not arrived yet: the time away is not the module's, the read
+    waits its time again and takes the reply (no lost reply, no retry)."""
+    port, bus, mods = still_bus()
+    before = dict(bus.stats)
+    port.oversleep = 0.2
+    for m in mods:
+        port.inject(Fault("stall", "rx", duration=0.3))
+        assert m.nop().position is not None
+        port.lines.rx.clear()
+    assert bus.stats["retries"] == before["retries"] and bus.warning[0] == 0

@@ -25,7 +25,9 @@ commands, "both"):
 :class:`FaultyTransport` can also play a *descheduled host* (``deschedule`` s): after each piece of a reply
 its read has taken, the host is off the CPU that long before it looks again; once its time-out has passed
 meanwhile the read returns what it had (as pyserial's reads do), though the rest of the reply has arrived.
-No byte is lost: the rest waits in the port's buffer.
+No byte is lost: the rest waits in the port's buffer. With ``oversleep`` s, a read whose time-out passes
+without its bytes comes back that much late (the host was off the CPU at its deadline) with what arrived
+meanwhile.
 
 Run ``python -m cmm.nmc.faults --target 127.0.0.1:7777`` to put a proxy in
 front of a served simulator and inject faults by hand.
@@ -204,6 +206,7 @@ class FaultyTransport:
         inner.timeout = 0
         self._virtual = hasattr(inner, "now") and hasattr(inner, "sleep")
         self.deschedule = 0.0  # s the host is off the CPU after each piece a read takes (see the module doc)
+        self.oversleep = 0.0  # s a read that times out comes back late
 
     # --- faults ---------------------------------------------------------------------
     def inject(self, fault: Fault) -> None:
@@ -293,6 +296,10 @@ class FaultyTransport:
             self._pump()
             self._check()
             left = end - self.now()
+            if left <= 1e-7 and len(self._ready) < size and self.oversleep and end > 0:
+                self.sleep(self.oversleep)  # off the CPU at the deadline: back late, with what came meanwhile
+                end = 0.0
+                continue
             if len(self._ready) >= size or left <= 1e-7:
                 break
             if self.deschedule and self._ready:  # a piece came; the host is descheduled before it looks again
