@@ -1,12 +1,15 @@
 """False faults under CPU load: the station on its default simulator beside CPU hogs.
 
-    python benchmarks/bench_under_load.py [--minutes 10] [--hogs N] [--seed 1] [--no-raise]
+    python benchmarks/bench_under_load.py [--minutes 10] [--hogs N] [--startups 0] [--seed 1] [--no-raise]
 
 The station is built as ``cmm serve`` builds it: the whole station at raised priority (when allowed), the
 built-in simulator in its own process, served over TCP on loopback, reached through the link process. Beside
 it run N CPU hogs (default 2x the cores: busy loops at normal priority). For ``--minutes`` it runs a mixed
 operator's day in random order: idle spells, jogs (refreshed every 50 ms, then released), single probe hits
 on the sample part and I++ DME sessions (GoTo + PtMeas) through the I++ server.
+
+``--startups K`` first starts the machine K times (start-up, then close) against a separate
+``cmm sim --cmm --tcp`` beside the same hogs, as the issue's 183 start-ups did, and counts the failures.
 
 The link is healthy (nothing is injected), so every fault is a false fault. A fault is counted, cleared
 (Reset, or Reconnect and home again) and the run goes on. Printed: false faults per hour, link warnings
@@ -144,10 +147,50 @@ def ippdme(station, rng: random.Random, port: int) -> None:  # noqa: ANN001
         c.call("EndSession()")
 
 
+def startups(k: int) -> None:
+    """K start-ups of the machine against a separate `cmm sim --cmm --tcp`, each through its link process."""
+    import re
+
+    from cmm.machine.config import load
+    from cmm.machine.motion import Machine
+
+    sim = subprocess.Popen([sys.executable, "-m", "cmm.cli", "sim", "--cmm", "--tcp", "127.0.0.1:0"],
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        url = None
+        while url is None:
+            line = sim.stdout.readline()
+            if not line:
+                raise SystemExit("cmm sim did not start")
+            m = re.search(r"(socket://127\.0\.0\.1:\d+)", line)
+            url = m.group(1) if m else None
+        failures: list[str] = []
+        times = []
+        config = load()
+        for _ in range(k):
+            t = time.monotonic()
+            machine = Machine(config, url)
+            try:
+                machine.connect()
+                times.append(time.monotonic() - t)
+            except Exception as exc:  # noqa: BLE001 - every failure is counted and shown
+                failures.append(f"{type(exc).__name__}: {exc}")
+                print(f"  start-up failed: {failures[-1]}", flush=True)
+            finally:
+                machine.close()
+        print(f"start-ups against `cmm sim --cmm --tcp`: {k - len(failures)} of {k} succeeded; start-up "
+              f"{np.median(times) if times else float('nan'):.1f} s median, {max(times, default=float('nan')):.1f} s "
+              f"max; load average {os.getloadavg()[0]:.1f}", flush=True)
+    finally:
+        sim.kill()
+        sim.wait()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=10.0, help="how long the mixed traffic runs (default 10)")
     ap.add_argument("--hogs", type=int, default=2 * (os.cpu_count() or 1), help="CPU hogs (default 2x the cores)")
+    ap.add_argument("--startups", type=int, default=0, help="start-ups against `cmm sim --cmm --tcp` first")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--no-raise", action="store_true",
                     help="leave the station at normal priority (cmm serve raises it when allowed)")
@@ -163,6 +206,10 @@ def main() -> None:
     counts = {"idle": 0, "jog": 0, "probe": 0, "I++": 0}
     errors: list[str] = []
     try:
+        if args.startups:
+            startups(args.startups)
+        if args.minutes <= 0:
+            return
         with tempfile.TemporaryDirectory() as tmp:
             station = Station(session_dir=tmp).start(home=True)
             server = start_ippdme(station, "127.0.0.1:0")

@@ -16,6 +16,13 @@ the line, so once the marker's reply is in, nothing older can follow. A
 command whose reply was lost is sent again only if doing it twice is
 harmless; a motion start is checked on the module instead (see
 ``_after_lost_reply``). Every port failure surfaces as :class:`LinkError`.
+
+A slow host is not a failed link: a reply's time-out counts from the moment the request left and never
+passes over bytes already in the port's buffer; a read that came back well past its deadline (the process
+was off the CPU) gives the reply its time again. While every axis stands still (:meth:`Bus.still`) a
+missed reply is retried with doubling waits, each retry a link warning (``Bus.warning``), for up to
+IDLE_PATIENCE s; during motion the limits stay strict (three lost replies to one command, STORM_LIMIT
+commands in a row, a marker that does not come back).
 """
 
 from __future__ import annotations
@@ -466,7 +473,8 @@ class Bus:
 
     def still(self) -> bool:
         """Does every axis stand still, as far as the commands sent and the replies read tell? (No motion
-        command since its last two replies, which showed it at rest.) Then a missed reply is retried patiently."""
+        command since, and its last reply showed it done and where the one before saw it.) Then a missed reply
+        is retried patiently."""
         return all(self._calm.get(m.address, 1) > 0 for m in self.modules)
 
     def capture_armed(self, address: int) -> bool:
