@@ -106,6 +106,7 @@ class Controller:
         self.commands = CommandAPI(self)  # the same verbs as requests and responses, for the adapters
         self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
         self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
+        self._contact_at: np.ndarray | None = None  # where that contact was (machine mm)
         machine.driver = self
         machine.subscribe(self._on_sample)
         machine.on_event(self._on_machine_event)
@@ -294,13 +295,21 @@ class Controller:
     def _legs(self, goal: np.ndarray, path: str) -> list[np.ndarray]:
         """Loop side: the legs of a move from where the tip is now (raises Refused for an unproven straight)."""
         here = self.machine.position
-        backoff = self._backoff if self._restart is not None else None
+        backoff = self._backoff_here(here) if self._restart is not None else None
         try:
             return rails.route(here, goal, path=path, workspace=self.workspace,
                                radius=float(self.prober.settings.tip_radius), z_max=self.config.axis("z").max,
                                backoff=backoff, restart=self._restart is not None)
         except rails.RailError as exc:
             raise Refused(str(exc)) from None
+
+    def _backoff_here(self, here: np.ndarray) -> np.ndarray | None:
+        """The back-off after a contact, while the tip is still where it touched (an operator who jogged away
+        since has backed off already: backing off again from elsewhere could move towards something)."""
+        if self._backoff is None or self._contact_at is None:
+            return None
+        near = float(np.linalg.norm(np.asarray(here, float) - self._contact_at)) <= 2 * float(np.linalg.norm(self._backoff))
+        return self._backoff if near or self.machine.state is not None and self.machine.state.probe_triggered else None
 
     def _moved(self, status: MoveStatus) -> None:
         if status.error is None:
@@ -355,7 +364,7 @@ class Controller:
             elif cz is None:  # over the part's clearance plane, else never lower than here
                 plane = None if self.workspace is None else self.workspace.clearance_z()
                 cz = max(float(here[2]), float(pre[2])) if plane is None else float(plane)
-            backoff = self._backoff if restart else None
+            backoff = self._backoff_here(here) if restart else None
             if backoff is not None:  # a contact stopped the last motion: back off the way it came first
                 first = self.machine.move_to(here + backoff)
             else:
@@ -863,6 +872,7 @@ class Controller:
             way = info.get("direction")
             with self._lock:
                 self._restart = "contact"
+                self._contact_at = np.asarray(info.get("position", (np.nan,) * 3), float)
                 self._backoff = None if way is None else \
                     -np.asarray(way, float) * float(self.config.probe.retract_distance)
             info = {**info, "message": "unexpected probe contact at X={:.3f} Y={:.3f} Z={:.3f}: the machine stopped"
