@@ -106,6 +106,7 @@ def station_app(station: Any, **options: Any) -> Iterator[Any]:
     a module fixture's body: ``yield from bs.station_app(station, ...)`` (closed after the module)."""
     from cmm.ui.app import StationApp
 
+    options.setdefault("ask_name", False)  # no start dialog over the page unless the test is about it
     ui = StationApp(station, host="127.0.0.1", port=free_port(), **options)
     yield ui
     ui.close()

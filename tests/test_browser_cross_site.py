@@ -54,7 +54,7 @@ open("pendant", "ws://127.0.0.1:%(pendant)d/ws", null, (ws) => {
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False)
     yield ui
     ui.close()
     station.close()

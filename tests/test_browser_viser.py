@@ -49,7 +49,7 @@ def station(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def app(station):
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0)
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False)
     yield ui
     ui.close()
 

@@ -132,6 +132,9 @@ class HolderPolicy:
             return self.control.stop_refusal()
         if self.control.can_move(client.id):
             return None
+        holder = self.control.holder
+        if holder is not None:
+            return f"this client only observes: control is held by {self.control.name(holder)}"
         return "this client only observes: take control first"
 
 
@@ -172,8 +175,33 @@ class Control:
         self.lan_stop = lan_stop  # anonymous LAN observers may press STOP / E-STOP
         self._clock = clock
         self._attempts: dict[str, _Attempts] = {}
+        self._names: dict[str, str] = {}  # client id -> the person's name, for every message that names a client
 
     # --- queries ------------------------------------------------------------
+
+    def set_name(self, client_id: str, name: str) -> str:
+        """The person behind ``client_id`` ("Maria"); ValueError says what is wrong with the name. Returns it."""
+        name = " ".join(str(name or "").split())
+        if not name:
+            raise ValueError("enter your name (the control messages and the report show it)")
+        if len(name) > 40 or any(not c.isprintable() for c in name):
+            raise ValueError(f"a name is at most 40 printable characters, got {len(name)}")
+        with self._lock:
+            self._names[client_id] = name
+        return name
+
+    def name(self, client_id: str | None) -> str:
+        """How messages name a client: the person's name, else its client id ("nobody" for None)."""
+        if client_id is None:
+            return "nobody"
+        with self._lock:
+            return self._names.get(client_id, client_id)
+
+    @property
+    def holder_name(self) -> str | None:
+        """The holder as messages name it (None: nobody holds control)."""
+        holder = self.holder
+        return None if holder is None else self.name(holder)
 
     @property
     def holder(self) -> str | None:

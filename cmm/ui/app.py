@@ -31,10 +31,11 @@ class StationApp:
     def __init__(self, station: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
                  tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False,
-                 allow_hosts: tuple[str, ...] = ()) -> None:
+                 allow_hosts: tuple[str, ...] = (), ask_name: bool = True) -> None:
         import viser
 
         self.station = station
+        self.ask_name = ask_name  # each new tab opens with the "Who is operating?" dialog
         self.host = host
         self.control = control or Control(lan=lan)
         if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running

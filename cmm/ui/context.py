@@ -98,10 +98,11 @@ class PanelContext:
     def control_text(self) -> str:
         holder = self.control.holder
         if holder == self.client_id:
-            return "**You control the machine.**"
+            name = self.control.name(holder)
+            return "**You control the machine.**" if name == holder else f"**{name} (you) controls the machine.**"
         if holder is None:
             return "Nobody controls the machine. You observe."
-        return f"Observing; control is held by `{holder}`."
+        return f"Observing; control is held by **{self.control.name(holder)}**."
 
     # --- widgets ------------------------------------------------------------------------
 

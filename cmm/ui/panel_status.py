@@ -152,7 +152,8 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
         probe_state = "TRIGGERED" if st.probe_triggered else ("armed (manual hits)" if armed else "free")
         cls = "warn" if st.probe_triggered else ""
-        out.append(f"probe <span class='{cls}'>{probe_state}</span> &middot; {tip}, {qual}")
+        name = getattr(station.measurement, "probe_name", "") or ""
+        out.append(f"probe {e(name)} <span class='{cls}'>{probe_state}</span> &middot; {tip}, {qual}")
     out.append("</div>")
     return "".join(out)
 

@@ -20,6 +20,7 @@ the release ends it, and the machine's dead-man stops it when the events stop.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import time
@@ -59,6 +60,33 @@ LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser 
 # late by up to ~0.1 s keeps the jog, and one that goes silent (a lost pointer-up, a frozen or closed tab)
 # stops 0.15 s after its last event plus the braking
 HOLD_HZ = 25.0
+OPERATOR_KEY = "cmm-operator"  # where the browser keeps the operator's name (localStorage)
+# The start dialog's name field filled from the browser's saved name, then its Start pressed, as the operator
+# would: the value goes through the field's own input event (React's onChange), so the station hears it.
+OPERATOR_JS = """
+(() => {
+  const name = localStorage.getItem("cmm-operator");
+  if (!name) return;
+  let tries = 0;
+  const fill = () => {
+    const modal = document.querySelector(".mantine-Modal-content") || document;
+    const label = [...modal.querySelectorAll("*")].find(e => e.childElementCount === 0
+                                                        && e.textContent.trim() === "Your name");
+    if (!label) return false;
+    let box = label.parentElement;
+    while (box && !box.querySelector("input")) box = box.parentElement;
+    const input = box && box.querySelector("input");
+    const start = [...modal.querySelectorAll("button")].find(b => b.textContent.trim() === "Start");
+    if (!input || !start) return false;
+    Object.getOwnPropertyDescriptor(HTMLInputElement.prototype, "value").set.call(input, name);
+    input.dispatchEvent(new Event("input", { bubbles: true }));
+    setTimeout(() => start.click(), 150);
+    return true;
+  };
+  const again = () => { if (!fill() && ++tries < 50) setTimeout(again, 200); };
+  again();
+})();
+"""
 
 
 def machine_markdown(station: Any) -> str:
@@ -362,9 +390,60 @@ class ClientApp:
         if refusal is None:
             self.ctx.authenticated = True
             self.ctx.notify("Control", "you control the machine")
+            self._operator_to_report()
         else:
             self.ctx.error(refusal, "Take control")
         return refusal is None
+
+    @property
+    def operator(self) -> str | None:
+        """This tab's operator as they gave their name (None: not given)."""
+        name = self.control.name(self.client_id)
+        return None if name == self.client_id else name
+
+    def set_operator(self, name: str) -> bool:
+        """The operator of this tab (the start dialog, or the name the browser saved): the status bar and the control
+        messages name them, the browser keeps it (localStorage) and, while they control the machine, the report
+        header shows them as the operator."""
+        try:
+            name = self.control.set_name(self.client_id, name)
+        except ValueError as exc:
+            self.ctx.error(exc, "Your name")
+            return False
+        if self.client is not None:
+            run_script(self.client.gui, f"localStorage.setItem({OPERATOR_KEY!r}, {json.dumps(name)});")
+        self._operator_to_report()
+        self.ctx.set("control", "content", self.ctx.control_text())
+        self.ctx.set("operator", "value", name)
+        return True
+
+    def _start_dialog(self, gui: Any) -> None:
+        """Ask who operates (the browser's saved name fills it in by itself); Skip leaves the tab unnamed."""
+        if self.operator is not None:
+            return
+        modal = gui.add_modal("Who is operating?")
+        with modal:
+            gui.add_markdown("Your name goes in the status bar, the control messages and the report header.")
+            name = gui.add_text("Your name", "")
+
+            def start(_: Any) -> None:
+                if self.set_operator(name.value):
+                    modal.close()
+            gui.add_button("Start", color="green").on_click(start)
+            gui.add_button("Skip").on_click(lambda _: modal.close())
+        run_script(gui, OPERATOR_JS)
+
+    def _operator_to_report(self) -> None:
+        """The named holder is the session's operator (journalled, so the report header shows them)."""
+        name = self.operator
+        if name is None or not self.control.can_move(self.client_id):
+            return
+        measurement = self.station.measurement
+        if measurement.info.get("operator") != name:
+            try:
+                measurement.set_info(operator=name)
+            except Exception as exc:  # noqa: BLE001 - a closed session or a full disk: said, nothing else changes
+                self.ctx.error(f"the operator could not be recorded: {exc}", "Your name")
 
     def set_lan_stop(self, allowed: bool) -> None:
         try:
@@ -381,7 +460,7 @@ class ClientApp:
         """Tell this tab when another client took control from it (it may have been about to jog)."""
         holder = self.control.holder
         if self._had_control and holder != self.client_id:
-            self.ctx.notify("Control taken", f"{holder or 'nobody'} now controls the machine; this tab observes.",
+            self.ctx.notify("Control taken", f"{self.control.name(holder)} now controls the machine; this tab observes.",
                         "error")
         self._had_control = holder == self.client_id
 
@@ -392,8 +471,12 @@ class ClientApp:
         gui = self.client.gui
         g = self.gui
         self.status.build(gui)  # first, and sticky: state, DRO, probe, STOP / E-STOP always on screen
+        if getattr(self.app, "ask_name", False):
+            self._start_dialog(gui)
         with gui.add_folder("Control"):
             g["control"] = gui.add_markdown(self.ctx.control_text())
+            g["operator"] = gui.add_text("Operator", self.operator or "", hint="your name, for the messages and the report")
+            gui.add_button("Set name").on_click(lambda _: self.set_operator(g["operator"].value))
             g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
             take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
