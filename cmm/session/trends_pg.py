@@ -177,10 +177,8 @@ class TrendDatabase:
         sql = ("SELECT v.time, v.part_id, v.value, v.nominal, v.lower, v.upper FROM cmm_trend_vals v "
                "WHERE v.char_id = (SELECT id FROM cmm_trend_chars WHERE series = %s AND characteristic = %s)")
         args: list[Any] = [series, characteristic]
-        if station:
-            sql += " AND v.part_id IN (SELECT id FROM cmm_trend_parts WHERE series = %s AND station = %s)"
-            args += [series, station]
-        sql += " ORDER BY v.char_id, v.time, v.part_id"
+        sql += " ORDER BY v.char_id, v.time, v.part_id"  # one station's parts are picked here from the cache:
+        # a semi-join with the parts table made that query slower than the whole characteristic
 
         def go(conn: Any) -> list[tuple]:
             with conn.cursor(binary=True) as cur:
@@ -191,7 +189,8 @@ class TrendDatabase:
                                                             "WHERE id = ANY(%s)", (missing,)):
                         self._parts[pid] = (st, run, serial)
             parts = self._parts
-            return [(t, v, n, lo, up, *parts[pid]) for t, pid, v, n, lo, up in rows]
+            out = [(t, v, n, lo, up, *parts[pid]) for t, pid, v, n, lo, up in rows]
+            return out if not station else [r for r in out if r[5] == station]
 
         return self._run(go)
 
