@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from cmm.control import OpenPolicy, Refused
-from cmm.control.access import Client, Control, HolderPolicy, is_local_connection
+from cmm.control.access import Client, Control, HolderPolicy, OriginPolicy, is_local_connection
 from cmm.control.rails import clearance_route, route, straight_blocked, to_frame, to_machine
 from cmm.ippdme.backend import StationBackend
 from cmm.station import Station
@@ -40,6 +40,15 @@ def test_one_local_rule_for_web_pages_and_the_ippdme_server():
         assert not backend.for_client("192.168.1.9:4000").client.local
     finally:
         station.close()
+
+
+def test_the_stations_own_pages_may_connect_across_its_ports_and_no_other_page():
+    origins = OriginPolicy()
+    origins.ports.add(8080)  # the viser page's port: its hold refresher talks to the pendant port
+    assert origins.check({"Host": "127.0.0.1:8081", "Origin": "http://127.0.0.1:8080"}) is None
+    assert origins.check({"Host": "127.0.0.1:8081", "Origin": "http://127.0.0.1:8081"}) is None
+    assert "another web page" in origins.check({"Host": "127.0.0.1:8081", "Origin": "http://127.0.0.1:9999"})
+    assert "another web page" in origins.check({"Host": "127.0.0.1:8081", "Origin": "http://evil.example:8080"})
 
 
 def test_the_holder_policy_refuses_observers_and_lets_everyone_local_stop():
