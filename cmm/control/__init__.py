@@ -78,9 +78,11 @@ from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
 from .access import AccessPolicy, Client, HolderPolicy, OpenPolicy
+from .api import CommandAPI, Response
 from .core import Controller
+from .jog import JogHolds
 from .modes import ALLOWED, COMMANDS, ControlError, ControlState, Mode, Refused, StopReport
 
-__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "ContactError", "ControlError", "ControlState",
-           "Controller", "HolderPolicy", "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused",
+__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "CommandAPI", "ContactError", "ControlError",
+           "ControlState", "Controller", "JogHolds", "Response", "HolderPolicy", "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused",
            "StopReport", "SurfaceNotFound"]
