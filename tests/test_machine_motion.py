@@ -280,3 +280,15 @@ def test_an_sc_configuration_on_original_modules_says_which_setting_to_change():
         m.connect()
     m.close()  # the replies are understood again: the modules are stopped and released
     assert all(mod.address == 0 and not mod.servo_on for mod in sim.network.modules)
+
+
+def test_a_jog_for_the_link_process_carries_plain_numbers_only(sim_machine):
+    """The link process (cmm/nmc/link_process.py) runs without numpy: a numpy scalar in a jog's GuardSpec made
+    it import numpy to unpickle the first jog of a session, 0.4-0.9 s on a busy computer, and a short press
+    was released before its jog ever started (a jog that "never starts", with nothing to say why)."""
+    import pickle
+
+    _, machine, _ = sim_machine
+    spec = machine._guard_spec(np.array([10.0, -7.5, 0.0]))  # numpy in, as the control core passes it
+    assert b"numpy" not in pickle.dumps(spec)
+    assert spec.axes[0].velocity == 10.0 * machine.config.axes[0].counts_per_mm

@@ -722,9 +722,11 @@ class Machine:
         for axis, vi in zip(self.config.axes, v):
             share = abs(vi) / speed if horizon and speed > 0 else 1.0  # a line runs and stops as a line
             lo, hi = sorted((axis.to_counts(axis.min), axis.to_counts(axis.max)))
+            # plain floats: a numpy scalar in the spec would make the link process import numpy to unpickle
+            # the first jog (0.4-0.9 s on a busy computer: a short press was released before its jog started)
             axes.append(GuardAxis(axis.address, float(vi * axis.counts_per_mm * axis.direction),
-                                  max(acc.stop * share * axis.counts_per_mm, 1.0), lo, hi, axis.gains.sr,
-                                  max(acc.jog * share * axis.counts_per_mm, 1.0)))
+                                  float(max(acc.stop * share * axis.counts_per_mm, 1.0)), lo, hi, axis.gains.sr,
+                                  float(max(acc.jog * share * axis.counts_per_mm, 1.0))))
         return GuardSpec(tuple(axes), self.config.deadman_timeout, self.config.jog.mode,
                          STOP_MARGIN_S, self.config.jog.horizon)
 
