@@ -141,7 +141,11 @@ def test_gamepad_moves_and_stops(page, server, station):
     page.evaluate("window.__pad.buttons[0] = 0; window.__pad.axes[1] = -0.5")
     page.wait_for_timeout(200)
     half = ((0.5 - 0.15) / 0.85) ** 3 * fast
-    assert rate(station)[1] == pytest.approx(half, rel=0.05)
+    # a browser starved of CPU refreshes the jog late and the dead-man pauses it: a window runs slower, never
+    # faster, so the best of three machine-time windows is the speed the page asked for
+    rates = [rate(station)[1] for _ in range(3)]
+    assert min(rates, key=lambda r: abs(r - half)) == pytest.approx(half, rel=0.05), rates
+    assert max(rates) < half * 1.05, rates
     t0 = station.machine.state.time
     page.evaluate("window.__pad.buttons[1] = 1")  # B: stop
     assert bs.stop_time(station, t0, "the stop on B") < STOP_WITHIN + 0.1
@@ -238,6 +242,23 @@ def test_observer_cannot_move(page, server, station, control, monkeypatch):
     bs.wait_until(lambda: velocity(station)[0] > 1.0, 2.0, "the jog after the right code")
     page.keyboard.up("ArrowRight")
     bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
+
+
+def test_the_page_says_why_a_jog_does_not_start(page, server, station):
+    """Without control a held gamepad says so; homed at X = 0, -X says which way X can go (it moved nothing)."""
+    open_pendant(page, server, take=False)
+    page.evaluate("window.__pad.axes[0] = 1.0")
+    page.wait_for_function("document.getElementById('message').textContent === 'take control to jog'")
+    page.evaluate("window.__pad.axes[0] = 0")
+    page.click("#take")
+    page.wait_for_function("document.getElementById('control').textContent === 'you have control'")
+    start = station.machine.state.position.copy()
+    page.keyboard.down("ArrowLeft")  # -X from X = 0
+    page.wait_for_function("document.getElementById('message').textContent"
+                           " === 'X is at the end of its travel (0 mm): it can only jog +X'")
+    page.keyboard.up("ArrowLeft")
+    assert speed(station) == 0 and station.machine.state.position[0] == pytest.approx(start[0], abs=0.002)
+    assert page.log.problems == []
 
 
 def test_another_holder_makes_the_page_an_observer(page, server, station, control):

@@ -16,6 +16,7 @@
   var TRIGGER_DEAD = 0.05;
 
   var speeds = { jog_fast: 40, jog_slow: 10, jog_fine: 1 };
+  var toldNoControl = false;
   var ws = null, connected = false, hasControl = false, isLocal = false, lanEnabled = false;
   var keyboard = {};           // held key -> true
   var held = [0, 0, 0];        // on-screen buttons: direction per axis
@@ -112,6 +113,9 @@
     } else if (jogging) {
       release();
     }
+    // a jog held without control (the gamepad; keys and buttons say so when pressed) is told once per hold
+    if (moving && !hasControl && !toldNoControl) showMessage("take control to jog", true);
+    toldNoControl = moving && !hasControl;
   }
 
   function release() {
