@@ -34,3 +34,19 @@ def test_a_dmis_run_on_the_station_records_a_part(station, tmp_path):  # noqa: F
         # the program's nominal is its D50 hole, our bore is D30: 20 mm under size, out of tolerance
         assert h.value[0] == pytest.approx(ev.value) and h.value[0] == pytest.approx(-20.0, abs=0.01)
         assert (h.lower[0], h.upper[0]) == (-0.05, 0.05) and not ev.intol
+
+
+def test_cmm_run_records_the_run_in_a_trends_folder(tmp_path, monkeypatch, capsys):
+    from cmm.cli import main
+
+    monkeypatch.chdir(tmp_path)  # the DMIS output and report are written here
+    monkeypatch.delenv("CMM_TRENDS_DB", raising=False)
+    program = tmp_path / "bore.dmi"
+    program.write_text(placed_simple_program().replace(
+        "OUTPUT/FA(A_CIRCLE)", "T(DIA) = TOL/DIAM, -0.05, 0.05\nOUTPUT/FA(A_CIRCLE), TA(DIA)"))
+    assert main(["run", str(program), "--sessions", str(tmp_path / "sessions"), "--trends", str(tmp_path / "trends"),
+                 "--station", "cmm-cli"]) == 0
+    assert "trends: station cmm-cli, local trends only" in capsys.readouterr().out
+    with Trends(tmp_path / "trends") as t:
+        h = t.history("bore.dmi", "A_CIRCLE / DIAM T(DIA)")
+    assert h.station == ["cmm-cli"] and h.value[0] == pytest.approx(-20.0, abs=0.05)

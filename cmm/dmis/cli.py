@@ -30,6 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-home", dest="home", action="store_false",
                    help="do not run the homing cycle (a machine configured with [homing] method = \"none\")")
     p.add_argument("--qif", action="store_true", help="QIF 3 Results output (not available: see the README)")
+    p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
+                   "trends folder (its tolerance results; see cmm trends)")
+    p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
+    p.add_argument("--station", metavar="NAME", help="with --trends: this station's name (default: the host name)")
 
 
 def run(args: Any) -> int:
@@ -80,6 +84,11 @@ def _run(args: Any, path: Path, text: str) -> int:
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
         session = str(station.measurement.new_session())
+        if getattr(args, "trends", None):
+            from ..session.trends import open_trends
+
+            station.measurement.trends = open_trends(args.trends, station=args.station, database=args.trends_db,
+                                                     sessions=args.sessions, background=False)
         try:
             result = run_text(text, station, name=path.name)
         except DmisError as exc:
@@ -90,6 +99,9 @@ def _run(args: Any, path: Path, text: str) -> int:
             return 1
     finally:
         station.close()
+        if station.measurement.trends is not None:
+            print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
+            station.measurement.trends.close()
     _write_outputs(args, path, result)
     for line in result.log:
         print(line)

@@ -177,6 +177,19 @@ def default_station() -> str:
     return os.environ.get("CMM_STATION") or socket.gethostname() or "station"
 
 
+def open_trends(directory: str | Path, *, station: str | None = None, database: str | None = None,
+                sessions: str | Path | None = None, background: bool = True) -> "Trends":
+    """A station's trends as its front ends open them (``cmm serve``, ``cmm run``): the database is ``database``,
+    else CMM_TRENDS_DB, else the session store when that is a ``postgresql://`` URL; connected (and what waited
+    uploaded) at once, then kept up to date in the background."""
+    from .store import is_url
+
+    db = database or os.environ.get("CMM_TRENDS_DB") or (str(sessions) if is_url(sessions) else None)
+    trends = Trends(directory, station=station, database=db)
+    trends.sync()  # connect now (and upload what waited since the last run), so the first status is true
+    return trends.start() if background else trends
+
+
 # --------------------------------------------------------------------------- local index
 
 # the index is a cache of the fsync'ed journal: write-ahead log without a sync per commit (a crash may lose its

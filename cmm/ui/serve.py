@@ -58,17 +58,10 @@ def _fail(message: str) -> int:
 
 
 def open_trends(args: argparse.Namespace) -> Any:
-    """The station's trends (:class:`cmm.session.trends.Trends`) from --trends, --trends-db and --station;
-    uploading in the background when a database is given."""
-    import os
+    """The station's trends (:func:`cmm.session.trends.open_trends`) from --trends, --trends-db and --station."""
+    from ..session.trends import open_trends as open_station_trends
 
-    from ..session.store import is_url
-    from ..session.trends import Trends
-
-    db = args.trends_db or os.environ.get("CMM_TRENDS_DB") or (args.sessions if is_url(args.sessions) else None)
-    trends = Trends(args.trends, station=args.station, database=db)
-    trends.sync()  # connect now (and upload what waited since the last run), so the first status is true
-    return trends.start()
+    return open_station_trends(args.trends, station=args.station, database=args.trends_db, sessions=args.sessions)
 
 
 def run(args: argparse.Namespace) -> int:
