@@ -199,21 +199,23 @@ class CalibrationPanel:
             return []
 
     def probes_markdown(self) -> str:
+        """A narrow table (the side panel): probe, tip, qualified radius, expiry; a detail line per probe."""
         rows = self.probes()
-        lines = ["| | probe | tip D | stylus | qualified radius | pre-travel | qualified on / with | expires |",
-                 "|---|---|---:|---|---:|---|---|---|"]
+        lines = ["| probe | tip D | qualified r | expires |", "|---|---:|---:|---|"]
+        details = []
         for r in rows:
-            mark = "**in use**" if r["selected"] else ""
+            name = html.escape(r["name"]) + (" **(in use)**" if r["selected"] else "")
             stylus = ", ".join(f"{x:g}" for x in r["stylus"])
             if r["tip_radius"] is None:
-                radius, pre, on, exp = "*not qualified*", "", r["problem"], ""
-            else:
-                radius = f"{r['tip_radius']:.5f} mm"
-                pre, on = r["pretravel"], f"{r['qualified_on']} · {r['sphere']}"
-                exp = r["expires"] + (" **expired**" if r["expired"] else "")
-            lines.append(f"| {mark} | {html.escape(r['name'])} | {r['tip_diameter']:g} mm | {stylus} | {radius} | "
-                         f"{html.escape(pre)} | {html.escape(on)} | {exp} |")
-        return "\n".join(lines)
+                lines.append(f"| {name} | {r['tip_diameter']:g} | *not qualified* | |")
+                details.append(f"- {html.escape(r['name'])}: stylus {stylus}"
+                               + (f" · {html.escape(r['problem'])}" if r["problem"] else ""))
+                continue
+            exp = r["expires"] + (" **expired**" if r["expired"] else "")
+            lines.append(f"| {name} | {r['tip_diameter']:g} | {r['tip_radius']:.5f} mm | {exp} |")
+            details.append(f"- {html.escape(r['name'])}: stylus {stylus} · pre-travel {html.escape(r['pretravel'])} "
+                           f"· qualified {r['qualified_on']} with {html.escape(r['sphere'])}")
+        return "\n".join(lines + [""] + details)
 
     def add_probe(self, name: str, tip_diameter: Any, stylus: Any = (0.0, 0.0, -1.0)) -> bool:
         """Add a stylus to the probe list (then select it and qualify it)."""
