@@ -120,3 +120,33 @@ def test_hits_remember_their_probe_and_ippdme_lists_the_probes(fresh):
     tools = ToolChanger.build(Limits.from_config(st.config), backend.probes())
     assert {"Probe1", "T2"} <= set(tools.names())
     assert tools.select("T2", "ChangeTool").radius == pytest.approx(st.prober.settings.tip_radius)
+
+
+def test_ippdme_enumtools_and_changetool_use_the_station_probes(fresh):
+    """Over the I++ protocol: EnumTools lists the station's probes, one added after the server started is listed
+    from the next session on, and ChangeTool makes a station probe the one in use."""
+    from cmm.ippdme.client import IppClient
+    from cmm.ippdme.server import IppServer
+
+    ui, operator, folder = fresh
+    st = ui.station
+    operator.release_control()  # the I++ client takes the station's control
+    server = IppServer(StationBackend(st), "127.0.0.1", 0).start()
+    client = IppClient("127.0.0.1", server.port, timeout=60)
+    try:
+        assert client.call("StartSession()").ok
+        assert {'"Probe1"', '"T2"'} <= set(client.call("EnumTools()").data)
+        assert client.call('ChangeTool("Probe1")').ok
+        assert st.measurement.probe_name == "Probe1"
+        assert st.prober.settings.tip_radius == pytest.approx(st.config.probe.tip_radius)  # Probe1: nominal
+        assert client.call('ChangeTool("T2")').ok
+        assert st.measurement.probe_name == "T2"
+        assert st.prober.settings.tip_radius == pytest.approx(load_probe_record(folder / "probes" / "T2.toml").tip_radius)
+        assert client.call("EndSession()").ok
+        st.calibration.add_probe("T3", 3.0, (1.0, 0.0, 0.0))
+        assert client.call("StartSession()").ok
+        assert '"T3"' in client.call("EnumTools()").data
+        assert client.call("EndSession()").ok
+    finally:
+        client.close()
+        server.close()

@@ -116,6 +116,17 @@ class StationBackend:
         return [(r["name"], float(self.controller.tip_radius) if r["selected"] else
                  float(r["tip_radius"] if r["tip_radius"] is not None else r["tip_diameter"] / 2)) for r in rows]
 
+    def change_tool(self, name: str) -> None:
+        """ChangeTool to one of the station's probes: it becomes the probe in use (as *Use this probe* in the
+        Calibration tab). Tools that are not station probes (RefTool, NoTool ...) and a station without a
+        calibration folder change nothing here."""
+        service = getattr(self.station, "calibration", None)
+        if service is None or getattr(service, "directory", None) is None:
+            return
+        probes, selected = service.probe_list()
+        if name != selected and name in {p.name for p in probes}:
+            service.select_probe(self.client, name)
+
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
         """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""
         def forward(state: Any) -> None:

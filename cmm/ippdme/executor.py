@@ -330,6 +330,8 @@ class Dme:
         for name, radius in self.backend.probes():  # a re-qualification since the last session changes the radius
             if name in self.tools.tools:
                 self.tools.tools[name].radius = radius
+            else:  # a probe added to the station's list since: listed from this session on
+                self.tools.add(Limits.from_config(self.backend.config), name, radius)
         self.in_session = True
         self.status.in_session = True
         self.backend.begin_session(self.client)
@@ -598,6 +600,13 @@ class Dme:
     def _do_ChangeTool(self, cmd: P.Command):
         name = self._one(cmd, P.Text).value
         self.user_enabled = False
+        tool = self.tools.lookup(name, cmd.name)
+        change = getattr(self.backend, "change_tool", None)
+        if change is not None:  # the station's probe in use follows (its radius and pre-travel compensate)
+            try:
+                change(tool.name)
+            except Exception as exc:  # noqa: BLE001 - refused (no control, busy) or a bad record: said, not changed
+                raise IppError(511, cmd.name, f"the station could not use probe {tool.name}: {exc}") from None
         self.tools.select(name, cmd.name)  # one stylus on the machine: a switch, nothing moves
         self._refresh_daemon()
 

@@ -106,18 +106,19 @@ class ToolChanger:
     @classmethod
     def build(cls, limits: Limits, probes: list[tuple[str, float]]) -> "ToolChanger":
         tc = cls()
-
-        def add(name: str, radius: float, measuring: bool, **kw) -> None:
-            goto, ptmeas = _params(limits, measuring)
-            tc.tools[name] = Tool(name, radius, goto, ptmeas, id=str(len(tc.tools) + 1), **kw)
-
-        add("BaseTool", 0.0, True, visible=False)
-        add("RefTool", 0.0, True)
-        add("NoTool", 0.0, False)
+        tc.add(limits, "BaseTool", 0.0, True, visible=False)
+        tc.add(limits, "RefTool", 0.0, True)
+        tc.add(limits, "NoTool", 0.0, False)
         for name, radius in probes:
-            add(name, radius, True)
+            tc.add(limits, name, radius, True)
         tc.active = "NoTool"  # until the client says which tool it uses: moves allowed, no measuring
         return tc
+
+    def add(self, limits: Limits, name: str, radius: float, measuring: bool = True, **kw) -> Tool:
+        """A tool with the machine's parameter limits (a stylus added to the station's probe list, too)."""
+        goto, ptmeas = _params(limits, measuring)
+        self.tools[name] = Tool(name, radius, goto, ptmeas, id=str(len(self.tools) + 1), **kw)
+        return self.tools[name]
 
     def names(self) -> list[str]:
         return [t.name for t in self.tools.values() if t.visible]
