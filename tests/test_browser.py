@@ -314,6 +314,10 @@ def test_viser_app_loads(context, tmp_path):
         page.goto(url)
         page.wait_for_selector("canvas", timeout=30_000)
         page.get_by_text("Take control").first.wait_for(timeout=30_000)  # the panels arrived over viser's socket
+        page.get_by_text("Who is operating?").wait_for(timeout=30_000)  # the start dialog; Skip leaves it unnamed
+        page.wait_for_timeout(500)
+        page.get_by_role("dialog").get_by_role("button", name="Skip", exact=True).click()
+        page.get_by_text("Who is operating?").wait_for(state="hidden")
         page.wait_for_timeout(2000)
         bs.screenshot(page, "viser-main")
         shot = 0
