@@ -150,3 +150,16 @@ def test_ippdme_enumtools_and_changetool_use_the_station_probes(fresh):
     finally:
         client.close()
         server.close()
+
+
+def test_a_restarted_station_uses_the_selected_probe(fresh, tmp_path):
+    ui, operator, folder = fresh
+    t2 = load_probe_record(folder / "probes" / "T2.toml")
+    for name, radius in (("T2", t2.tip_radius), ("T3", 1.5)):  # qualified; never qualified: nominal D 3 mm
+        assert ui.station.calibration.select_probe(None, name)
+        again = Station(port=SIM, session_dir=tmp_path / name, calibration_dir=folder)
+        try:
+            assert again.measurement.probe_name == name
+            assert again.prober.settings.tip_radius == pytest.approx(radius)
+        finally:
+            again.close()

@@ -35,7 +35,7 @@ import numpy as np
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import MotionError
 from ..metrology.features import FitError
-from .records import (MACHINE_RECORD, PROBE_QUALIFICATIONS, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
+from .records import (MACHINE_RECORD, PROBE_LIST, PROBE_QUALIFICATIONS, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
                       BallBarCertificate, CalibrationError, LoadedCalibration, ProbeDefinition, check_probe_definition,
                       dumps, load_certificate, load_machine_record, load_probe_list, load_probe_record,
                       load_servo_record, load_sphere_certificate, now, probe_expiry, save_probe_list, save_record,
@@ -134,11 +134,16 @@ class CalibrationService:
 
         self.directory = Path(directory)
         loaded = load_station_calibration(directory)
+        nominal = None
         try:
-            self.probe_list()  # the selected probe: its name goes with every hit
+            probes, selected = self.probe_list()  # the selected probe: its name goes with every hit
+            if loaded.probe is None and (self.records_dir / PROBE_LIST).is_file():
+                nominal = next(p for p in probes if p.name == selected)  # selected, never qualified
         except CalibrationError as exc:
             loaded.problems.append(str(exc))
         applied = self.apply(loaded)
+        if nominal is not None:
+            applied.append(self._apply_nominal(None, nominal))
         for problem in loaded.problems:
             self.host.measurement.log("error", f"calibration record refused: {problem}")
         self.log = applied + [f"refused: {p}" for p in loaded.problems]
@@ -226,9 +231,6 @@ class CalibrationService:
         """Make ``name`` the probe in use: its qualified radius and pre-travel go to the live station (through
         ``controller.configure``) and into probe.toml; an unqualified probe gets its nominal radius and no
         pre-travel model. Returns what was applied."""
-        from ..machine.probing import ProbeSettings
-        from ..metrology.compensation import PretravelModel
-
         probes, _ = self.probe_list()
         probe = next((p for p in probes if p.name == name), None)
         if probe is None:
@@ -241,12 +243,9 @@ class CalibrationService:
             save_record(rec, self.records_dir / PROBE_RECORD)
             text = f"probe {name} selected: r_eff {rec.tip_radius:.5f} mm, {rec.model.describe()}"
         else:
-            settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
-            with host.lock:
-                host.controller.configure(client, lambda: setattr(host.prober, "settings", settings))
+            self._log([self._apply_nominal(client, probe)])
             (self.records_dir / PROBE_RECORD).unlink(missing_ok=True)  # its own record is in probes/<name>.toml
             text = f"probe {name} selected, NOT qualified: nominal radius {probe.tip_diameter / 2:.4f} mm"
-            self._log([f"probe {name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"])
         save_probe_list(self.records_dir, probes, name)
         host.measurement.probe_name = name
         self.status["probe"] = None if rec is None else {"date": rec.date, "tip_radius": rec.tip_radius,
@@ -255,6 +254,17 @@ class CalibrationService:
             self.status["probe"]["name"] = name
         host.measurement.note(text)
         return text
+
+    def _apply_nominal(self, client: Any, probe: ProbeDefinition) -> str:
+        """A probe never qualified: its nominal radius and no pre-travel model, applied while the machine is still."""
+        from ..machine.probing import ProbeSettings
+        from ..metrology.compensation import PretravelModel
+
+        host = self.host
+        settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
+        with host.lock:
+            host.controller.configure(client, lambda: setattr(host.prober, "settings", settings))
+        return f"probe {probe.name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"
 
     def _keep_legacy_record(self, probes: list[ProbeDefinition]) -> None:
         """Before the probe list is first written: the existing probe.toml becomes the first probe's record."""
