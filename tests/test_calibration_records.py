@@ -104,3 +104,25 @@ def test_cli_probe_then_iso_on_the_simulator(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "in force: probe" in out and "P_Form.Sph.1x25" in out
     assert np.isfinite(r.form_after_um)
+
+
+def test_probe_list_round_trip_and_bad_entries_are_named(tmp_path):
+    from cmm.calibration.records import (ProbeDefinition, load_probe_list, probe_expiry, save_probe_list,
+                                         write_sphere_certificate)
+
+    probes = [ProbeDefinition("T1", 2.0), ProbeDefinition("D3-x", 3.0, (1.0, 0.0, 0.0))]
+    save_probe_list(tmp_path, probes, "D3-x")
+    assert load_probe_list(tmp_path) == (probes, "D3-x")
+    (tmp_path / "probes.toml").write_text('selected = "T9"\n[probes.T1]\ntip_diameter = 2.0\n')
+    with pytest.raises(CalibrationError, match="selected probe 'T9' is not in the list"):
+        load_probe_list(tmp_path)
+    (tmp_path / "probes.toml").write_text('[probes.T1]\ntip_diameter = -2.0\n')
+    with pytest.raises(CalibrationError, match="tip diameter of T1 must be between"):
+        load_probe_list(tmp_path)
+    assert probe_expiry("2026-01-10T08:00:00+00:00") == "2026-02-09" and probe_expiry("soon") == ""
+    cert_path = tmp_path / "artifacts" / "reference-sphere.toml"
+    with pytest.raises(CalibrationError, match="diameter must be a number"):
+        write_sphere_certificate(cert_path, diameter="twenty-five", serial="S1", uncertainty=0.0001)
+    assert not cert_path.exists()
+    cert = write_sphere_certificate(cert_path, diameter=25.001, serial="S1", uncertainty=0.0001, centre=(1, 2, 3))
+    assert (cert.diameter, cert.serial, cert.approx_centre) == (25.001, "S1", (1.0, 2.0, 3.0))
