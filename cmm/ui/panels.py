@@ -34,6 +34,7 @@ from .panel_calibration import CalibrationPanel
 from .panel_colour_map import ColourMapPanel
 from .panel_features import FeaturesPanel
 from .panel_measure import MeasurePanel
+from .panel_routine import RoutinePanel
 from .panel_sessions import SessionsPanel
 from .panel_status import StatusPanel, run_script
 from .panel_trends import TrendsPanel
@@ -150,6 +151,7 @@ class ClientApp:
         self.features = FeaturesPanel(self.ctx)
         self.align = AlignPanel(self.ctx)
         self.measure = MeasurePanel(self.ctx)
+        self.routine = RoutinePanel(self.ctx)
         self.colour_map = ColourMapPanel(self.ctx)
         self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
@@ -550,6 +552,8 @@ class ClientApp:
             self.colour_map.build(gui)
         with tabs.add_tab("Auto-measure"):
             self.measure.build(gui)
+        with tabs.add_tab("Routine"):
+            self.routine.build(gui)
         with tabs.add_tab("Diagnostics"):
             # the trace changes with every poll: sent only while asked for (an idle page stays quiet)
             live = gui.add_checkbox("Live byte trace", False)
@@ -595,6 +599,7 @@ class ClientApp:
         self.align.refresh()
         self.colour_map.refresh()
         self.measure.refresh()
+        self.routine.refresh()
         if self.ctx.picked is not None:
             p, nominal = self.ctx.picked
             self.ctx.set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(

@@ -1,0 +1,254 @@
+"""The "Routine" tab: the taught measurement routine as an ordered list, edited and run on the next part.
+
+*Teach from this session* turns what the operator did (the 3-2-1 alignment, every measured feature, the
+constructions) into a routine (:mod:`cmm.measurement.routine`); each step is a line the operator can select,
+rename, move up or down, skip, delete, and for feature steps give a tolerance or a clearance height; a
+construction or report step can be inserted. *Save* / *Open* use the program file format. *Run on next part*
+runs it as a job: a manual 3-2-1 first when the routine says so (the prompt tells which face and how many
+hits; the operator takes them with the jog and the armed probe), then everything automatically, with a
+progress bar, Pause / Resume / Skip step / Cancel, and the part's results in a session of their own.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any
+
+from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, RoutineRun, teach_routine
+from ..session.program import ProgramError, load
+from ..session.store import open_session
+from .context import PanelContext
+
+
+class RoutinePanel:
+    def __init__(self, ctx: PanelContext) -> None:
+        self.ctx = ctx
+        self.station = ctx.station
+        self.gui: dict[str, Any] = {}
+        self.routine: Routine | None = None
+        self.run_: RoutineRun | None = None
+        self.thread: threading.Thread | None = None
+        self.parts = 0  # parts run from this tab (names their sessions)
+
+    # --- actions (also what the tests call) ------------------------------------------------
+
+    def teach(self, name: str = "") -> Routine | None:
+        model = self.station.measurement
+        if model.journal is None or not hasattr(model.journal, "path"):
+            self.ctx.error("this session has no journal file to teach from", "Routine")
+            return None
+        try:
+            session = open_session(model.journal.path)
+            part = model.part
+            self.routine = teach_routine(session, name=name.strip() or None,
+                                         part_mesh=None if part is None else part.mesh,
+                                         part_nominals=None if part is None else part.nominal_features)
+        except (ProgramError, ValueError, OSError) as exc:
+            self.ctx.error(exc, "Teach")
+            return None
+        self.ctx.notify("Routine taught", f"{len(self.routine.steps)} steps from this session")
+        self._show()
+        return self.routine
+
+    def open(self, path: str) -> Routine | None:
+        try:
+            self.routine = Routine(load(self._path(path)))
+        except (ProgramError, OSError) as exc:
+            self.ctx.error(exc, "Open routine")
+            return None
+        self._show()
+        return self.routine
+
+    def save(self, path: str) -> Path | None:
+        if self.routine is None:
+            self.ctx.error("teach or open a routine first", "Save routine")
+            return None
+        try:
+            saved = self.routine.save(self._path(path))
+        except OSError as exc:
+            self.ctx.error(f"cannot write {path}: {exc.strerror or exc}", "Save routine")
+            return None
+        self.station.measurement.record("routine_saved", name=self.routine.name, path=str(saved),
+                                        text=self.routine.text())
+        self.ctx.notify("Routine saved", str(saved))
+        return saved
+
+    def _path(self, text: str) -> Path:
+        p = Path(text.strip() or f"{self.routine.name if self.routine else 'routine'}.toml").expanduser()
+        base = self.station.measurement.session_dir
+        return p if p.is_absolute() or not isinstance(base, Path) else base / p
+
+    def edit(self, action: str, *args: Any) -> bool:
+        """An edit of the selected step: rename, up, down, delete, skip, tolerance, clearance, insert."""
+        r = self.routine
+        if r is None:
+            self.ctx.error("teach or open a routine first", "Routine")
+            return False
+        if self.running:
+            self.ctx.error("the routine is running: edit it when it has finished", "Routine")
+            return False
+        i = self.selected()
+        try:
+            if action == "rename":
+                r.rename(i, args[0])
+            elif action in ("up", "down"):
+                i = r.move(i, -1 if action == "up" else 1)
+            elif action == "delete":
+                r.delete(i)
+                i = min(i, len(r.steps) - 1)
+            elif action == "skip":
+                r.set_skip(i, not r.steps[i].get("skip"))
+            elif action in ("tolerance", "clearance"):
+                step = r.steps[i]
+                if step["kind"] != "feature":
+                    raise RoutineError(f"{step['name']} is not a feature: choose a feature step")
+                if action == "tolerance":
+                    size, form, location = (float(x) for x in str(args[0]).replace(",", " ").split())
+                    r.set_tolerance(step["name"], size=size, form=form, location=location)
+                else:
+                    r.set_clearance(step["name"], float(args[0]))
+            elif action == "insert":
+                r.insert(i + 1, args[0])
+                i += 1
+        except (RoutineError, ValueError, IndexError) as exc:
+            self.ctx.error(exc, "Routine")
+            return False
+        self._show(select=i)
+        return True
+
+    def insert_text(self, text: str) -> bool:
+        """'report NAME' or 'OPERATION A B [NAME]' (distance, angle, intersection, midpoint)."""
+        words = text.split()
+        if len(words) >= 1 and words[0] == "report":
+            return self.edit("insert", {"kind": "report", "name": " ".join(words[1:]) or "report"})
+        if len(words) in (3, 4) and words[0] in CONSTRUCTIONS:
+            name = words[3] if len(words) == 4 else f"{words[1]}-{words[2]}"
+            return self.edit("insert", {"kind": "construct", "name": name, "operation": words[0],
+                                        "of": [words[1], words[2]]})
+        self.ctx.error("write 'report NAME' or 'distance A B [NAME]' (distance, angle, intersection, midpoint)",
+                       "Insert step")
+        return False
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def start(self, part_name: str = "") -> bool:
+        r = self.routine
+        if r is None:
+            self.ctx.error("teach or open a routine first", "Run routine")
+            return False
+        if self.running:
+            self.ctx.error("the routine is already running", "Run routine")
+            return False
+        if not self.ctx.allowed("Run routine"):
+            return False
+        self.parts += 1
+        name = part_name.strip() or f"part {self.parts}"
+        self.run_ = RoutineRun(r, self.station.measurement, self.station.controller, client=self.ctx.who(),
+                               part_name=name, on_progress=lambda _p: self._show_progress())
+
+        def work() -> None:
+            run = self.run_
+            try:
+                run.run()
+            except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
+                self.ctx.error(exc, "Routine stopped")
+            else:
+                self.ctx.notify("Routine done", f"{r.name} on {name}: results in session {Path(str(run.progress.session)).stem}")
+            self._show_progress()
+
+        self.thread = threading.Thread(target=work, name="routine", daemon=True)
+        self.thread.start()
+        self._show_progress()
+        return True
+
+    def control(self, action: str) -> None:
+        run = self.run_
+        if run is None or not self.running:
+            self.ctx.error("no routine is running", "Routine")
+            return
+        getattr(run, action)()
+        self._show_progress()
+
+    # --- what the tab shows --------------------------------------------------------------
+
+    def selected(self) -> int:
+        value = self.gui["step"].value if "step" in self.gui else ""
+        try:
+            return max(0, int(str(value).split(".")[0]) - 1)
+        except ValueError:
+            return 0
+
+    def text(self) -> str:
+        r = self.routine
+        if r is None:
+            return "*No routine yet.* Measure the part (alignment, features, constructions), then **Teach from this session**, or open a routine file."
+        return f"**{r.name}** · {len(r.steps)} steps\n\n" + "\n".join(f"- {line}" for line in r.lines())
+
+    def progress_text(self) -> str:
+        run = self.run_
+        if run is None:
+            return ""
+        p = run.progress
+        head = {"running": "RUNNING", "waiting": "WAITING FOR THE OPERATOR", "paused": "PAUSED", "done": "DONE",
+                "failed": "STOPPED", "cancelled": "CANCELLED", "ready": "READY"}.get(p.state, p.state.upper())
+        lines = [f"**{head}** · step {min(p.step + 1, p.steps)} of {p.steps} · {p.hits} of {p.total_hits} hits"]
+        if p.prompt:
+            lines.append(f"**{p.prompt}** (Jog tab, probe armed)")
+        if p.message:
+            lines.append(p.message)
+        return "\n\n".join(lines)
+
+    def _show(self, select: int | None = None) -> None:
+        self.ctx.set("routine:list", "content", self.text(), self.gui.get("list"))
+        r = self.routine
+        opts = tuple(r.lines()) if r is not None and r.steps else ("-",)
+        step = self.gui.get("step")
+        if step is not None:
+            self.ctx.set("routine:step", "options", opts, step)
+            if select is not None and r is not None and r.steps:
+                step.value = opts[min(select, len(opts) - 1)]
+
+    def _show_progress(self) -> None:
+        run = self.run_
+        self.ctx.set("routine:progress", "content", self.progress_text(), self.gui.get("progress"))
+        bar = self.gui.get("bar")
+        if bar is not None and run is not None:
+            p = run.progress
+            self.ctx.set("routine:bar", "visible", p.state in ("running", "waiting", "paused"), bar)
+            self.ctx.set("routine:bar:value", "value",
+                         round(100.0 * p.hits / p.total_hits, 1) if p.total_hits else 0.0, bar)
+
+    def build(self, gui: Any) -> None:
+        g = self.gui
+        g["list"] = gui.add_markdown(self.text())
+        name = gui.add_text("Routine name", "", hint="default: the session's name")
+        gui.add_button("Teach from this session").on_click(lambda _: self.teach(name.value))
+        g["step"] = gui.add_dropdown("Step", ("-",), initial_value="-")
+        with gui.add_folder("Edit step", expand_by_default=False):
+            new_name = gui.add_text("New name", "")
+            gui.add_button("Rename").on_click(lambda _: self.edit("rename", new_name.value))
+            gui.add_button_group("Move / skip / delete", ("Up", "Down", "Skip", "Delete")).on_click(
+                lambda e: self.edit(e.target.value.lower()))
+            tol = gui.add_text("Tolerance ± mm (size form location)", "0.02 0.02 0.02")
+            gui.add_button("Set tolerance").on_click(lambda _: self.edit("tolerance", tol.value))
+            clear = gui.add_number("Clearance Z (part mm)", 60.0, step=1.0)
+            gui.add_button("Set clearance").on_click(lambda _: self.edit("clearance", clear.value))
+            new = gui.add_text("Insert after", "", hint="report NAME, or distance A B [NAME]")
+            gui.add_button("Insert step").on_click(lambda _: self.insert_text(new.value))
+        with gui.add_folder("File", expand_by_default=False):
+            path = gui.add_text("Routine file", "", hint="name.toml (in the sessions folder) or a full path")
+            gui.add_button_group("Routine file actions", ("Save", "Open")).on_click(
+                lambda e: self.save(path.value) if e.target.value == "Save" else self.open(path.value))
+        part = gui.add_text("Part name", "", hint="e.g. the serial number; default: part 1, part 2, ...")
+        gui.add_button("Run on next part", color="green").on_click(lambda _: self.start(part.value))
+        g["bar"] = gui.add_progress_bar(0.0, visible=False, animated=True)
+        g["progress"] = gui.add_markdown("")
+        gui.add_button_group("Routine run", ("Pause", "Resume", "Skip step", "Cancel")).on_click(
+            lambda e: self.control({"Skip step": "skip"}.get(e.target.value, e.target.value.lower())))
+
+    def refresh(self) -> None:
+        if self.run_ is not None:
+            self._show_progress()
