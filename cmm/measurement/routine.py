@@ -299,6 +299,7 @@ class RoutineRun:
         self._go.set()
         self._skip = False
         self._cancel = False
+        self._stopped = threading.Event()  # set by cancel: ends the waits for the operator at once
         self._fids: dict[str, int] = {}  # feature name -> the model's feature id for this part
 
     # --- operator's controls -------------------------------------------------------------
@@ -319,6 +320,7 @@ class RoutineRun:
 
     def cancel(self) -> None:
         self._cancel = True
+        self._stopped.set()
         self._go.set()
 
     def _tell(self, **changes: Any) -> None:
@@ -380,6 +382,11 @@ class RoutineRun:
     def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
         if self.controller is None:
             return fn()
+        # the operator's last manual hit may still be retracting: the machine is the routine's once it stands
+        for _ in range(300):
+            if str(getattr(self.controller.state.mode, "value", "")) not in ("moving", "probing", "jogging"):
+                break
+            self._stopped.wait(0.1)
         return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn)
 
     def _measure(self, name: str) -> Any:
@@ -433,8 +440,9 @@ class RoutineRun:
                 return new[:n]
             if self._cancel:
                 raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
-            self._tell(prompt=f"{prompt}: {len(new)} of {n} taken")
-            self._go.wait(0.1)
+            if self.progress.prompt != f"{prompt}: {len(new)} of {n} taken":
+                self._tell(prompt=f"{prompt}: {len(new)} of {n} taken")
+            self._stopped.wait(0.1)  # a person's pace: look again in a tenth of a second
 
     def _align(self, step: dict[str, Any], manual_hits: Callable[[str, int], list[int]]) -> None:
         model = self.model

@@ -227,7 +227,7 @@ class RoutinePanel:
         name = gui.add_text("Routine name", "", hint="default: the session's name")
         gui.add_button("Teach from this session").on_click(lambda _: self.teach(name.value))
         g["step"] = gui.add_dropdown("Step", ("-",), initial_value="-")
-        with gui.add_folder("Edit step", expand_by_default=False):
+        with gui.add_folder("Edit step"):
             new_name = gui.add_text("New name", "")
             gui.add_button("Rename").on_click(lambda _: self.edit("rename", new_name.value))
             gui.add_button_group("Move / skip / delete", ("Up", "Down", "Skip", "Delete")).on_click(
