@@ -357,3 +357,27 @@ def test_cmm_run_writes_the_dmis_output_and_the_station_report(tmp_path, monkeyp
     report = (tmp_path / "top_report.html").read_text()
     assert "TOP" in report and "flatness" in report
     assert len(list((tmp_path / "sessions").glob("*.jsonl"))) == 1
+
+
+def test_the_routine_tab_opens_checks_and_runs_a_dmis_program(station):
+    """The page's Routine tab: a DMIS file is checked and listed, a refused one names its line, Run writes the
+    output beside the sessions."""
+    from cmm.control.access import Control
+    from cmm.ui.context import PanelContext
+    from cmm.ui.panel_routine import RoutinePanel
+
+    control = Control()
+    assert control.take("operator", is_local=True)
+    panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+    folder = station.measurement.session_dir
+    (folder / "bad.dmi").write_text(BAD)
+    assert panel.open_dmis("bad.dmi") is None and panel.dmis is None
+    assert "line 5: SCNMOD is not supported" in panel.dmis_text
+    assert panel.ctx.messages[-1][:2] == ("error", "DMIS program refused")
+    (folder / "simple.dms").write_text(placed_simple_program())
+    lines = panel.open_dmis("simple.dms")
+    assert lines and lines[0].startswith("line 1: DMISMN") and any("MEAS/CIRCLE" in x for x in lines)
+    assert panel.run_dmis(wait=True), panel.ctx.messages[-2:]
+    assert panel.dmis_status.startswith("**DONE**: 1 features, 4 hits"), panel.dmis_status
+    outputs = list(folder.glob("*_out.dms")) + [p for p in folder.iterdir() if p.suffix == ".dms" and "out" in p.name]
+    assert any("A_CIRCLE" in p.read_text() for p in outputs), [p.name for p in folder.iterdir()]

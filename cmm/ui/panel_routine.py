@@ -7,6 +7,11 @@ construction or report step can be inserted. *Save* / *Open* use the program fil
 runs it as a job: a manual 3-2-1 first when the routine says so (the prompt tells which face and how many
 hits; the operator takes them with the jog and the armed probe), then everything automatically, with a
 progress bar, Pause / Resume / Skip step / Cancel, and the part's results in a session of their own.
+
+*DMIS program*: open a ``.dmi`` / ``.dms`` file (:mod:`cmm.dmis`): the whole program is checked first (a
+statement the station does not support stops it with its line number, before anything moves), its
+statements are listed as steps, and *Run DMIS* runs it as one job in a session of its own; the DMIS output
+(``FA`` actuals, ``TA`` tolerances with INTOL / OUTOL) is written beside the sessions.
 """
 
 from __future__ import annotations
@@ -30,6 +35,10 @@ class RoutinePanel:
         self.run_: RoutineRun | None = None
         self.thread: threading.Thread | None = None
         self.parts = 0  # parts run from this tab (names their sessions)
+        self.dmis: tuple[Path, str] | None = None  # the DMIS program opened and checked: (path, text)
+        self.dmis_text = ""
+        self.dmis_status = ""
+        self.dmis_results: list[Any] = []
 
     # --- actions (also what the tests call) ------------------------------------------------
 
@@ -129,6 +138,77 @@ class RoutinePanel:
         self.ctx.error("write 'report NAME' or 'distance A B [NAME]' (distance, angle, intersection, midpoint)",
                        "Insert step")
         return False
+
+    # --- DMIS programs ----------------------------------------------------------------------
+
+    def open_dmis(self, path: str) -> list[str] | None:
+        """Check a DMIS program and list its statements (None and the problems told when it cannot run)."""
+        from ..dmis.check import check
+        from ..dmis.executor import DmisError
+        from ..dmis.runner import load_text
+
+        p = self._path(path)
+        try:
+            text = load_text(p)
+        except DmisError as exc:
+            self.ctx.error(exc, "Open DMIS")
+            return None
+        stmts, problems = check(text)
+        self.dmis = (p, text)
+        if problems:
+            self.dmis = None
+            self.dmis_text = f"**{p.name}** cannot run:\n\n" + "\n".join(f"- {x}" for x in problems[:20])
+            self.ctx.error(problems[0], "DMIS program refused")
+        else:
+            lines = [f"line {st.line}: {(st.text or st.major).strip()[:70]}" for st in stmts]
+            self.dmis_text = f"**{p.name}** · {len(stmts)} statements, all supported\n\n" + "\n".join(
+                f"- {x}" for x in lines[:60]) + ("\n- ..." if len(lines) > 60 else "")
+        self.ctx.set("routine:dmis", "content", self.dmis_text, self.gui.get("dmis"))
+        return None if self.dmis is None else lines
+
+    def run_dmis(self, wait: bool = False) -> bool:
+        if self.dmis is None:
+            self.ctx.error("open a DMIS program that passes the check first", "Run DMIS")
+            return False
+        if self.running:
+            self.ctx.error("a routine or program is already running", "Run DMIS")
+            return False
+        if not self.ctx.allowed("Run DMIS"):
+            return False
+        path, text = self.dmis
+
+        def work() -> None:
+            from ..dmis.runner import run_text
+
+            model = self.station.measurement
+            session = model.new_session(f"{path.stem} {len(self.dmis_results) + 1}")
+            try:
+                result = run_text(text, self.station, name=path.name, client=self.ctx.who())
+            except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
+                self.dmis_status = f"**STOPPED**: {exc}"
+                self.ctx.error(exc, "DMIS program stopped")
+            else:
+                out_dir = model.session_dir if isinstance(model.session_dir, Path) else Path(".")
+                written = []
+                for device, content in result.outputs.items():
+                    target = out_dir / (device or f"{Path(str(session)).stem}_out.dms")
+                    target.write_text(content, encoding="utf-8")
+                    written.append(target.name)
+                bad = [e for e in result.evaluations if not e.intol]
+                self.dmis_status = (f"**DONE**: {len(result.actuals)} features, {result.hits} hits, "
+                                    f"{len(result.evaluations)} tolerances, {len(bad)} out of tolerance; "
+                                    f"output {', '.join(written) or '-'}")
+                self.dmis_results.append(result)
+                self.ctx.notify("DMIS program done", self.dmis_status.replace("**", ""))
+            self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
+
+        self.dmis_status = f"**RUNNING** {path.name}"
+        self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
+        self.thread = threading.Thread(target=work, name="dmis", daemon=True)
+        self.thread.start()
+        if wait:
+            self.thread.join()
+        return True
 
     @property
     def running(self) -> bool:
@@ -248,6 +328,12 @@ class RoutinePanel:
         g["progress"] = gui.add_markdown("")
         gui.add_button_group("Routine run", ("Pause", "Resume", "Skip step", "Cancel")).on_click(
             lambda e: self.control({"Skip step": "skip"}.get(e.target.value, e.target.value.lower())))
+        with gui.add_folder("DMIS program", expand_by_default=False):
+            dmis = gui.add_text("DMIS file", "", hint="PROGRAM.dmi (in the sessions folder) or a full path")
+            gui.add_button("Open DMIS").on_click(lambda _: self.open_dmis(dmis.value))
+            g["dmis"] = gui.add_markdown("")
+            gui.add_button("Run DMIS", color="green").on_click(lambda _: self.run_dmis())
+            g["dmis_status"] = gui.add_markdown("")
 
     def refresh(self) -> None:
         if self.run_ is not None:
