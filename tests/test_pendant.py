@@ -410,3 +410,20 @@ def test_a_grant_makes_the_pendant_act_as_the_page_and_only_from_its_computer(se
     late = client()
     late.send(type="hello", **{"as": token})
     assert "not valid" in late.wait_for("error")["message"]
+
+
+def test_observer_is_told_the_holders_name(server, station, control, client):
+    """A holder who gave their name (the browser's start dialog) is named in the pendant's state."""
+    assert control.take("viser-named", is_local=True)
+    try:
+        c = client()
+        c.send(type="hello")
+        state = c.wait_for("state")
+        assert state["holder"] == "other" and state["holder_name"] is None  # no name given: the pendant says "another client"
+        control.set_name("viser-named", "Maria")
+        end = time.monotonic() + 10
+        while state.get("holder_name") != "Maria" and time.monotonic() < end:
+            state = c.wait_for("state")
+        assert state["holder_name"] == "Maria"
+    finally:
+        control.release("viser-named")

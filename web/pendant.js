@@ -237,7 +237,7 @@
   $("code").addEventListener("keydown", function (e) { if (e.key === "Enter") { e.preventDefault(); take(); } });
   $("observe").addEventListener("click", function () { releaseAll(false); send({ type: "observe" }); });
 
-  function setControl(control, holder) {
+  function setControl(control, holder, holderName) {
     if (control !== hasControl) {
       hasControl = control;
       if (!control) releaseAll(false);
@@ -245,7 +245,7 @@
     var el = $("control");
     el.className = control ? "you" : holder ? "other" : "";
     el.textContent = control ? (shared ? "you have control (with the station page)" : "you have control")
-      : holder ? "observer: another client has control" : "observer";
+      : holder ? "observer: " + (holderName ? holderName + " has control" : "another client has control") : "observer";
     $("observe").disabled = !control;
     $("take").disabled = !connected || control;
     $("pad").classList.toggle("enabled", control);
@@ -259,7 +259,7 @@
     if (msg.type === "state") {
       if (msg.pos) { $("px").textContent = fmt(msg.pos[0]); $("py").textContent = fmt(msg.pos[1]); $("pz").textContent = fmt(msg.pos[2]); }
       $("motion").textContent = msg.jogging ? "jogging" : msg.moving ? "moving" : "idle";
-      setControl(!!msg.control, msg.holder);
+      setControl(!!msg.control, msg.holder, msg.holder_name);
     } else if (msg.type === "hello") {
       if (msg.speeds) speeds = msg.speeds;
       isLocal = !!msg.local; lanEnabled = !!msg.lan; shared = !!msg.shared;

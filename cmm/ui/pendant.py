@@ -46,7 +46,7 @@ client -> server
 server -> client
 
 - ``{"type": "state", "pos": [x, y, z], "vel": [...], "moving": bool,
-  "jogging": bool, "probe": bool, "control": bool, "holder": "you" | "other" | null}``
+  "jogging": bool, "probe": bool, "control": bool, "holder": "you" | "other" | null, "holder_name": str | null}``
   at ``state_hz`` (20 Hz).
 - ``{"type": "error", "message": "..."}`` in an operator's words; ``{"type": "notice", "message": "..."}``
   for what the operator should know but is not refused (a jog speed limited).
@@ -341,6 +341,9 @@ class PendantServer:
                 "type": "state",
                 "control": holder == session.client_id,
                 "holder": None if holder is None else ("you" if holder == session.client_id else "other"),
+                # the holder's name when they gave one (the start dialog): "observer: Maria has control"
+                "holder_name": None if holder is None or self.control.name(holder) == holder
+                else self.control.name(holder),
             }
             msg.update(mode=cs.mode.value, reason=cs.reason, homed=cs.homed)
             if st is not None:
