@@ -30,7 +30,7 @@ ALLOWED = {
     "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
     "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
     "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
-    "ui": {"control", "station", "measurement", "metrology", "session", "ippdme"},
+    "ui": {"control", "station", "measurement", "metrology", "session", "ippdme", "dmis"},  # hosts I++ and DMIS runs
     "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc"},
 }
 # known exceptions (module, package) -> the reason it is still there; none left
