@@ -52,10 +52,11 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
     with bs.browser_context(LAPTOP) as context:
         page = open_page(context, app)
         page.get_by_text("Who is operating?").wait_for()
-        dialog = page.get_by_role("dialog")
+        field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
+        field.wait_for(state="visible", timeout=60_000)
         page.wait_for_timeout(1000)  # the dialog's opening transition
-        dialog.locator("input").first.fill("Maria")  # the one field of the dialog, "Your name"
-        dialog.get_by_role("button", name="Start", exact=True).click()
+        field.fill("Maria")
+        page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).click()
         bs.wait_until(lambda: page.capp.operator == "Maria", 10.0, "the operator's name")
         page.get_by_text("Who is operating?").wait_for(state="hidden")
         assert page.evaluate("() => localStorage.getItem('cmm-operator')") == "Maria"
