@@ -62,7 +62,18 @@ def open_station(context, app):
 
 
 def tab(page, name):
-    page.get_by_role("tab", name=name, exact=True).click(force=True)
+    """Click a tab as the operator does: a panel scrolled down (a long plan) has the first rows of tabs under the
+    sticky status bar, so scroll the panel back to the top first; the click must reach the tab, not the bar."""
+    page.evaluate("""() => { let e = document.getElementById("cmm-status");
+        while (e && !/(auto|scroll)/.test(getComputedStyle(e).overflowY)) e = e.parentElement;
+        if (e) e.scrollTop = 0; }""")
+    button = page.get_by_role("tab", name=name, exact=True)
+    box = button.bounding_box()
+    on_top = page.evaluate("""([x, y]) => { const e = document.elementFromPoint(x, y);
+        const t = e && e.closest("[role=tab]"); return t ? t.textContent.trim() : null; }""",
+                           [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2])
+    assert on_top == name, f"the {name} tab is covered ({on_top!r} is on top)"
+    button.click(force=True)
     page.wait_for_timeout(300)
 
 
@@ -201,7 +212,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert "position ⌀" in tree.inner_text() and "flatness" in tree.inner_text()
         # select the top plane (it and its hits highlighted); remove a hit and it refits
         page.capp.features._chosen(f"{top.id} {top.name}")  # what choosing it in the Feature dropdown calls
-        assert page.capp.selected_feature == top.id and app.view.selected == top.id
+        assert page.capp.ctx.selected_feature == top.id and app.view.selected == top.id
         page.get_by_text(f"{top.name} hits (residual)").wait_for()
         page.get_by_text("Hits of the feature", exact=True).click(force=True)
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
@@ -351,6 +362,12 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             status.get_by_text("FAULT", exact=True).wait_for()
             bs.wait_until(lambda: "link failure" in status.inner_text() and "SILENT" in status.inner_text(), 20.0,
                           f"the fault's reason and the silent link in the status bar ({status.inner_text()!r})")
+            # the pendant says FAULT and why, never "idle"
+            pendant = context.new_page()
+            pendant.goto(app.pendant.url)
+            bs.wait_until(lambda: pendant.locator("#motion").inner_text().startswith("FAULT: link failure"), 30.0,
+                          "the pendant's FAULT and its reason")
+            pendant.close()
             # a motion button (Probe here, at the point picked for the re-take) is refused with the reason, on the page
             page.get_by_role("button", name="Probe here", exact=True).click(force=True)
             page.get_by_text("cannot probe: the machine is in fault (link failure").first.wait_for()

@@ -251,6 +251,15 @@
     $("pad").classList.toggle("enabled", control);
   }
 
+  // the machine's mode from the control core: a fault, E-stop or stop says so (and why), never "idle"
+  var ALARM_MODES = ["fault", "e-stopped", "stopped", "not homed"];
+  function motionText(msg) {
+    if (msg.mode && msg.mode !== "idle" && msg.mode !== "moving" && msg.mode !== "jogging") {
+      return msg.mode.toUpperCase() + (msg.reason ? ": " + msg.reason : "");
+    }
+    return msg.jogging ? "jogging" : msg.moving ? "moving" : "idle";
+  }
+
   function fmt(x) { return (typeof x === "number" && isFinite(x)) ? x.toFixed(3) : "–"; }
 
   function onMessage(ev) {
@@ -258,7 +267,8 @@
     try { msg = JSON.parse(ev.data); } catch (e) { return; }
     if (msg.type === "state") {
       if (msg.pos) { $("px").textContent = fmt(msg.pos[0]); $("py").textContent = fmt(msg.pos[1]); $("pz").textContent = fmt(msg.pos[2]); }
-      $("motion").textContent = msg.jogging ? "jogging" : msg.moving ? "moving" : "idle";
+      $("motion").textContent = motionText(msg);
+      $("motion").className = ALARM_MODES.indexOf(msg.mode) >= 0 ? "alarm" : "";
       setControl(!!msg.control, msg.holder, msg.holder_name);
     } else if (msg.type === "hello") {
       if (msg.speeds) speeds = msg.speeds;

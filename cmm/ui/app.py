@@ -53,7 +53,8 @@ class StationApp:
         self._dirty = {"hits": True, "features": True, "part": False}
         self._deviations: dict[int, float] = {}
         self._redraw_lock = threading.Lock()
-        self.shared = SimpleNamespace(calibration_job=None)  # state every tab's panels share (a running calibration)
+        self.shared = SimpleNamespace(calibration_job=None, cycle=None)  # state every tab's panels share
+        # (a running calibration; the cycle running, e.g. an auto-measure, that the status bars show as RUNNING)
         self.view = SceneView(self.server.scene, station, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)
         self.view.build()
@@ -203,8 +204,11 @@ class StationApp:
             # toasts in words: "Unexpected probe contact at X ... Y ... Z ...", not "contact {'position': [...]}"
             text = event_text(kind, info)
             level = "error" if kind in ("contact", "error", "estop", "fault", "stop") else "info"
+            title = event_title(kind)
+            if kind == "estop" and isinstance(info, dict) and info.get("ok") is False:
+                title = "E-STOP NOT CONFIRMED"  # a module did not acknowledge: said in the title too
             for capp in list(self.clients.values()):
-                capp.ctx.notify(event_title(kind), text, level)
+                capp.ctx.notify(title, text, level)
 
     def deviations(self) -> dict[int, float]:
         return self._deviations

@@ -125,6 +125,20 @@ def typed_nominal(feature: Any, centre: Any = None, diameter: float | None = Non
     return NominalFeature(base.kind, p)
 
 
+def nominal_fields(feature: Any) -> tuple[tuple[float, float, float], float] | None:
+    """What the typed-nominal fields show for a feature: its nominal's centre (axis point, sphere centre) and
+    diameter, or None when it has no nominal with a centre (the fields are left as the operator typed them)."""
+    if feature is None or feature.nominal is None:
+        return None
+    p = feature.nominal.params
+    centre = p.get("center", p.get("point"))
+    if centre is None:
+        return None
+    radius = p.get("radius")
+    return (tuple(round(float(v), 4) for v in np.asarray(centre, float).reshape(3)),
+            0.0 if radius is None else round(2.0 * float(radius), 4))
+
+
 def _unit(v: Any) -> np.ndarray:
     v = np.asarray(v, float)
     return v / np.linalg.norm(v)
@@ -184,6 +198,7 @@ class FeaturesPanel:
         self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
+        self._nominal_shown: Any = None  # the feature (and its nominal) the nominal fields were filled from
 
     # --- actions (each checks control through ctx.run) -------------------------------------
 
@@ -291,6 +306,8 @@ class FeaturesPanel:
                                                                                          three_d=three_d))
         if c is not None:
             self.ctx.selected_feature = c.id
+            if "construct_name" in self.gui:
+                self.gui["construct_name"].value = ""  # a name is one construction's: the next gets its own
         return c
 
     def define_datum(self, label: str, feature: int, modifier: str = "") -> Any:
@@ -374,8 +391,8 @@ class FeaturesPanel:
             gui.add_button("Delete feature").on_click(lambda _: self.delete_feature())
         with gui.add_folder("Nominal and tolerance", expand_by_default=False):
             gui.add_button("Nominal from the last CAD pick").on_click(lambda _: self.nominal_from_pick())
-            centre = gui.add_vector3("Nominal centre (mm)", (0.0, 0.0, 0.0), step=0.001)
-            diameter = gui.add_number("Nominal diameter", 0.0, min=0.0, step=0.001)
+            centre = g["nominal_centre"] = gui.add_vector3("Nominal centre (mm)", (0.0, 0.0, 0.0), step=0.001)
+            diameter = g["nominal_diameter"] = gui.add_number("Nominal diameter", 0.0, min=0.0, step=0.001)
             gui.add_button("Apply typed nominal").on_click(lambda _: self.type_nominal(
                 centre.value if any(centre.value) else None, diameter.value or None))
             size = gui.add_number("Size ± (mm)", 0.02, min=0.0001, step=0.001)
@@ -387,7 +404,7 @@ class FeaturesPanel:
             op = gui.add_dropdown("Operation", OPERATIONS, initial_value="distance")
             g["a"] = gui.add_dropdown("Feature A", ("-",), initial_value="-")
             g["b"] = gui.add_dropdown("Feature B", ("-",), initial_value="-")
-            name = gui.add_text("Name", "", hint="optional")
+            name = g["construct_name"] = gui.add_text("Name", "", hint="optional")
             three_d = gui.add_checkbox("3-D distance", False,
                                        hint="parallel axes: perpendicular to the axes, not in the alignment's XY plane")
             gui.add_button("Construct").on_click(lambda _: self._construct(op.value, g["a"].value, g["b"].value,
@@ -440,8 +457,21 @@ class FeaturesPanel:
         if m:
             self.ctx.select_feature(int(m.group(1)))
 
+    def _fill_nominal_fields(self) -> None:
+        """The nominal fields show the selected feature's nominal (a D30 bore reads 30, not 0) when it changes."""
+        fid = self.ctx.selected_feature
+        f = self.station.measurement.features.get(fid) if fid is not None else None
+        key = (fid, None if f is None or f.nominal is None else repr(f.nominal.to_dict()))
+        if key == self._nominal_shown:
+            return
+        self._nominal_shown = key
+        shown = nominal_fields(f)
+        if shown is not None and "nominal_centre" in self.gui:
+            self.gui["nominal_centre"].value, self.gui["nominal_diameter"].value = shown
+
     def refresh(self) -> None:
         self._check_retake()
+        self._fill_nominal_fields()
         options = self.options()
         for key in ("features", "a", "b", "datum_feature", "gdt_feature"):
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))

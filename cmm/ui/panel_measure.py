@@ -22,6 +22,33 @@ from .context import PanelContext
 from .scene import SCALE
 
 
+FACE_NAMES = {(2, 1): "top", (2, -1): "bottom", (1, -1): "front", (1, 1): "back", (0, -1): "left", (0, 1): "right"}
+
+
+def face_name(normal_part: Any) -> str:
+    """The part face a normal (part coordinates) belongs to, as an operator names it ("top", "front" ...): the
+    axis it points along within 30 degrees, or "slanted" for any other face."""
+    n = np.asarray(normal_part, float)
+    axis = int(np.argmax(np.abs(n)))
+    if abs(n[axis]) < np.cos(np.radians(30.0)):
+        return "slanted"
+    return FACE_NAMES[(axis, 1 if n[axis] > 0 else -1)]
+
+
+def picked_text(station: Any, picked: Any) -> str:
+    """What the last click on the part picked, in the operator's words: the feature kind and the face."""
+    if picked is None:
+        return "*Click a face of the part, then Plan.*"
+    hit, nominal = picked
+    pose = getattr(station.measurement.part, "pose", None)
+    normal = np.asarray(hit.normal, float) if pose is None else np.asarray(pose, float)[:3, :3].T @ hit.normal
+    kind = nominal.kind if nominal is not None else "face"
+    where = f"{face_name(normal)} face" if kind in ("plane", "face") else f"{kind} face"
+    size = f" ⌀ {2 * nominal.params['radius']:.3f}" if nominal is not None and "radius" in nominal.params else ""
+    return (f"Picked: **{kind}{size}**, the {where} at X {hit.point[0]:.3f} Y {hit.point[1]:.3f} "
+            f"Z {hit.point[2]:.3f}")
+
+
 class MeasurePanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
@@ -33,6 +60,7 @@ class MeasurePanel:
         self.feature: Any = None
         self._cancel = threading.Event()
         self._nodes: list[Any] = []
+        self.hits_per_ring = 0  # what the operator typed for the plan (0: the feature's default)
 
     def make_plan(self, hits_per_ring: int | None = None) -> Any:
         if self.ctx.picked is None:
@@ -43,14 +71,27 @@ class MeasurePanel:
             self.plan = None
             return self.ctx.error(exc, "Auto-measure")
         self.progress = ""
+        self.hits_per_ring = hits_per_ring or 0
+        if "hits" in self.gui:  # the field shows the hits per ring the plan uses (not 0 for "the default")
+            self.gui["hits"].value = self.plan_hits_per_ring()
         self.draw()
         return self.plan
 
-    def text(self) -> str:
+    def plan_hits_per_ring(self) -> int:
+        """Hits per ring of the plan (two rings on a cylinder or cone; all hits on a plane, circle, sphere)."""
         p = self.plan
         if p is None:
-            return "*Click a face of the part, then Plan.*"
-        lines = [f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",
+            return 0
+        if self.hits_per_ring:
+            return int(self.hits_per_ring)
+        return len(p) // 2 if p.kind in ("cylinder", "cone") else len(p)
+
+    def text(self) -> str:
+        p = self.plan
+        picked = picked_text(self.station, self.ctx.picked)
+        if p is None:
+            return picked + ("" if self.ctx.picked is None else "; then Plan.")
+        lines = [picked, "", f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",
                  f"{len(p)} hits · clearance plane Z {p.clearance_z:.1f} mm · nominal {p.nominal.kind}"
                  + (f" ⌀ {2 * p.nominal.params['radius']:.3f}" if "radius" in p.nominal.params else "")]
         for k, (q, u) in enumerate(zip(p.points, p.approaches), 1):
@@ -97,6 +138,9 @@ class MeasurePanel:
         if not self.ctx.allowed("Auto-measure"):
             return False
         self._cancel.clear()
+        name = (name or "").strip()
+        cycle = f"auto-measure of {name or 'the ' + plan.kind}"
+        self.ctx.shared.cycle = cycle  # every tab's status bar says RUNNING until the whole cycle ends
 
         def work() -> None:
             try:
@@ -107,7 +151,12 @@ class MeasurePanel:
                 self.progress = f"stopped: {exc}"
                 self.ctx.error(exc, "Auto-measure")
                 return
+            finally:
+                if getattr(self.ctx.shared, "cycle", None) == cycle:
+                    self.ctx.shared.cycle = None
             self.progress = f"done: {self.feature.name}"
+            if "name" in self.gui and self.gui["name"].value == name and name:
+                self.gui["name"].value = ""  # a name is one feature's: the next gets its own
             self.ctx.selected_feature = self.feature.id
             self.ctx.notify("Auto-measure", f"{self.feature.name} measured ({len(plan)} hits)")
 
@@ -122,10 +171,11 @@ class MeasurePanel:
 
     def build(self, gui: Any) -> None:
         g = self.gui
-        n = gui.add_number("Hits (per ring)", 0, min=0, max=24, step=1, hint="0 = the default for the feature")
+        n = g["hits"] = gui.add_number("Hits (per ring)", 0, min=0, max=24, step=1,
+                                       hint="0 = the default for the feature; after Plan: the plan's")
         gui.add_button("Plan").on_click(lambda _: self.make_plan(int(n.value)))
         g["plan"] = gui.add_markdown(self.text())
-        name = gui.add_text("Feature name", "", hint="optional")
+        name = g["name"] = gui.add_text("Feature name", "", hint="optional, e.g. TOP")
         gui.add_button("Run", color="green").on_click(lambda _: self.run(name.value))
         gui.add_button("Cancel after this hit").on_click(lambda _: self.cancel())
 

@@ -73,7 +73,10 @@ if (!window.__cmmSticky) {
 """
 MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "probing": "#6a1b9a",
                 "homing": "#1565c0", "not homed": "#8d6e00", "stopped": "#8d6e00", "e-stopped": "#b71c1c",
-                "fault": "#b71c1c", "no link": "#b71c1c"}
+                "fault": "#b71c1c", "no link": "#b71c1c", "running": "#1565c0"}
+# the machine states a cycle (auto-measure of several hits) passes through between and during its moves:
+# the bar says RUNNING for the whole cycle, so a pause between two hits does not look like the end
+CYCLE_MODES = ("idle", "moving", "probing")
 
 
 def machine_mode(station: Any) -> tuple[str, str, bool]:
@@ -118,10 +121,13 @@ def part_position(station: Any, position: np.ndarray) -> np.ndarray | None:
 
 
 def status_html(station: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
-                armed: bool = False, aligned: bool = False) -> str:
-    """The status block's HTML (pure: every input is passed in, so it is tested without a browser)."""
+                armed: bool = False, aligned: bool = False, cycle: str | None = None) -> str:
+    """The status block's HTML (pure: every input is passed in, so it is tested without a browser).
+    ``cycle``: the cycle running (e.g. an auto-measure), shown as RUNNING while the machine is in it."""
     e = html.escape
     mode, reason, link_ok = machine_mode(station)
+    if cycle and mode in CYCLE_MODES:
+        mode, reason = "running", cycle
     st = station.machine.state
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
@@ -200,7 +206,8 @@ class StatusPanel:
         st = self.ctx.station
         rate = self.link.update(int(st.machine.samples))
         return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
-                           armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned)
+                           armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned,
+                           cycle=getattr(self.ctx.shared, "cycle", None))
 
     def refresh(self) -> None:
         text = self.html()

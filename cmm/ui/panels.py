@@ -174,17 +174,13 @@ class ClientApp:
 
     def stop(self) -> Any:
         self._jogging = False
-        report = self._cmd("Stop", self.api.stop)
-        if report is not None and not report.ok:
-            self.ctx.notify("STOP not confirmed", report.message, "error")
-        return report
+        # a STOP not confirmed by every module is told by the station's "stop" event (one toast per event)
+        return self._cmd("Stop", self.api.stop)
 
     def emergency_stop(self) -> Any:
         self._jogging = False
-        report = self._cmd("E-stop", self.api.emergency_stop)
-        if report is not None:
-            self.ctx.notify("Emergency stop" if report.ok else "E-STOP NOT CONFIRMED", report.message, "error")
-        return report
+        # the station's "estop" event tells every tab (confirmed or not): one toast per event
+        return self._cmd("E-stop", self.api.emergency_stop)
 
     def reset(self) -> None:
         self._cmd("Reset", self.api.reset)
@@ -197,8 +193,7 @@ class ClientApp:
         import threading
 
         def run() -> None:
-            if self._cmd("Home", self.api.home) is None and self.api.state.homed:
-                self.ctx.notify("Homed", "the machine is homed")
+            self._cmd("Home", self.api.home)  # done: the station's "homed" event toasts in every tab
         threading.Thread(target=run, name="ui-home", daemon=True).start()
 
     def zero(self, confirm: bool = False) -> None:

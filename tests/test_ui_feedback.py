@@ -1,0 +1,150 @@
+"""The operator's feedback in the station page (issue 24): names kept, fields that show what they mean, one toast
+per event, RUNNING for a whole auto-measure cycle, what was picked said in the Auto-measure tab.
+
+A raw WebSocket client stands in for the browser tab so the tab's widgets really exist; the panels are driven
+through what their buttons call, on the simulator.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+from control_support import wait_idle
+from netutil import free_port, SIM_PACED
+
+pytest.importorskip("viser")
+
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.panel_features import nominal_fields  # noqa: E402
+from cmm.ui.panel_measure import face_name  # noqa: E402
+from cmm.ui.panel_status import status_html  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
+    yield ui
+    ui.close()
+    station.close()
+
+
+def _until(predicate, timeout, what):
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+@contextmanager
+def browser_tab(app):
+    """A tab with its widgets built (the page's WebSocket), in control of the machine."""
+    import msgspec
+    import viser
+    from viser import _messages
+    from websockets.sync.client import connect
+
+    before = set(app.clients)
+    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
+                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
+        end = time.monotonic() + 20
+        while not set(app.clients) - before:
+            assert time.monotonic() < end, "the tab's app was not built"
+            try:
+                ws.recv(timeout=0.2)
+            except TimeoutError:
+                pass
+        (cid,) = set(app.clients) - before
+        capp = app.clients[cid]
+        _until(lambda: "plot" in capp.gui and "hits" in capp.measure.gui, 20.0, "the tab's widgets")
+        assert capp.take_control()
+        try:
+            yield capp
+        finally:
+            capp.release_control()
+            app.station.controller.stop(None)
+            wait_idle(app.station, 10)
+
+
+def _pick(capp, station, local, outward):
+    pose = station.measurement.part.pose
+    target = pose[:3, :3] @ np.asarray(local, float) + pose[:3, 3]
+    n = pose[:3, :3] @ np.asarray(outward, float)
+    assert capp.pick(target + 40 * n, -n) is not None
+
+
+def test_face_names_and_running_status_between_moves(app):
+    assert face_name([0, 0, 1]) == "top" and face_name([0, -1, 0]) == "front" and face_name([-1, 0, 0]) == "left"
+    assert face_name([0.7, 0, 0.7]) == "slanted"
+    st = app.station
+    wait_idle(st, 10)
+    assert st.controller.state.mode.value == "idle"
+    # between two hits of a cycle the machine is idle: the bar still says the cycle runs
+    running = status_html(st, "", cycle="auto-measure of TOP")
+    assert ">RUNNING</span>" in running and "auto-measure of TOP" in running
+    assert ">IDLE</span>" in status_html(st, "")
+
+
+def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(app):
+    st = app.station
+    with browser_tab(app) as capp:
+        m = capp.measure
+        assert "Click a face of the part" in m.text()
+        _pick(capp, st, (20.0, 60.0, 40.0), (0, 0, 1))
+        assert "Picked: **plane**, the top face" in m.text()
+        plan = m.make_plan(0)
+        assert plan is not None and plan.kind == "plane"
+        assert m.gui["hits"].value == len(plan) > 0  # the field shows the plan's hits, not 0
+        assert "Picked: **plane**, the top face" in m.text() and f"{len(plan)} hits · clearance plane" in m.text()
+        m.gui["name"].value = "TOP"
+        assert m.run(m.gui["name"].value)
+        # the whole cycle is RUNNING in every tab's status bar, also between its moves (set before the first hit)
+        assert app.shared.cycle == "auto-measure of TOP" and ">RUNNING</span>" in capp.status.html()
+        m.running.join(120)
+        assert m.feature.name == "TOP", capp.messages[-3:]
+        assert app.shared.cycle is None and ">RUNNING</span>" not in capp.status.html()
+        assert m.gui["name"].value == ""  # the next feature gets its own name
+        # a boss: its nominal diameter (20) and centre fill the typed-nominal fields when it is selected
+        _pick(capp, st, (80.0, 22.0, 47.0), (1, 0, 0))
+        assert "Picked: **cylinder ⌀ 20.000**" in m.text()
+        assert m.make_plan(3) is not None and m.gui["hits"].value == 3
+        assert m.run("", wait=True), capp.messages[-3:]
+        boss = m.feature
+        assert boss.name != "TOP" and boss.kind == "cylinder"
+        capp.select_feature(boss.id)
+        capp.features.refresh()
+        centre, diameter = nominal_fields(boss)
+        assert diameter == pytest.approx(20.0)
+        assert capp.features.gui["nominal_diameter"].value == pytest.approx(20.0)
+        assert np.allclose(capp.features.gui["nominal_centre"].value, centre)
+        assert np.allclose(centre, boss.nominal.params["point"], atol=1e-4)
+        # a construction's name is cleared once used: the next one is not named the same
+        top = next(f for f in st.measurement.features.values() if f.name == "TOP")
+        capp.features.gui["construct_name"].value = "top-boss"
+        c = capp.features.construct("angle", top.id, boss.id, capp.features.gui["construct_name"].value)
+        assert c is not None and c.name == "top-boss", capp.messages[-3:]
+        assert capp.features.gui["construct_name"].value == ""
+
+
+def test_one_toast_per_event(app):
+    st = app.station
+    with browser_tab(app) as capp:
+        other = app.add_client(client_id="observer-toasts")
+        n0 = len(capp.messages)
+        capp.emergency_stop()
+        _until(lambda: any(t == "Emergency stop" for _l, t, _b in capp.messages[n0:]), 20.0, "the E-STOP toast")
+        _until(lambda: any(t == "Emergency stop" for _l, t, _b in other.messages), 20.0, "the other tab's toast")
+        capp.reset()
+        _until(lambda: st.controller.state.mode.value != "e-stopped", 20.0, "the reset")
+        n1 = len(capp.messages)
+        capp.home()
+        _until(lambda: any(t == "Homed" for _l, t, _b in capp.messages[n1:]), 120.0, "the Homed toast")
+        wait_idle(st, 10)
+        titles = [t for _l, t, _b in capp.messages[n0:]]
+        assert titles.count("Emergency stop") == 1 and titles.count("Homed") == 1, titles
