@@ -1,4 +1,4 @@
-"""The operator's feedback in the station page (issue 24): names kept, fields that show what they mean, one toast
+"""The operator's feedback in the station page: names kept, fields that show what they mean, one toast
 per event, RUNNING for a whole auto-measure cycle, what was picked said in the Auto-measure tab.
 
 A raw WebSocket client stands in for the browser tab so the tab's widgets really exist; the panels are driven
