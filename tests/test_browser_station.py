@@ -174,14 +174,20 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         tab(page, "Auto-measure")
         page.get_by_role("button", name="Plan", exact=True).click(force=True)
         page.get_by_text("4 hits · clearance plane").wait_for()
+        page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
+        assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
         assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
         bs.screenshot(page, "station-automeasure-plan", timeout=60_000)
+        page.get_by_label("Feature name", exact=True).fill("TOP")  # the operator's name for it is kept
+        bs.wait_until(lambda: page.capp.measure.gui["name"].value == "TOP", 20.0, "the typed name at the server")
         page.get_by_role("button", name="Run", exact=True).click(force=True)
         bs.wait_until(lambda: station.measurement.features, 90.0, "the auto-measured top face")
         (top,) = station.measurement.features.values()
         assert top.kind == "plane" and len(top.hit_ids) == 4
-        assert top.nominal is not None and top.nominal.kind == "plane"
-        page.get_by_text("done: plane").wait_for()
+        assert top.nominal is not None and top.nominal.kind == "plane" and top.name == "TOP"
+        page.get_by_text("done: TOP").wait_for()
+        bs.wait_until(lambda: page.get_by_label("Feature name", exact=True).input_value() == "", 20.0,
+                      "the name field cleared for the next feature")
         # the front and left faces (3 hits each)
         _, front = measure_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0), 3)
         _, left = measure_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0), 3)
@@ -281,8 +287,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
 
         # --- the status bar stays on screen while the panel scrolls to the end of a long tab
 
-        def text_input(label):  # viser's text fields: the input after their label text
-            return page.get_by_text(label, exact=True).locator("xpath=following::input[1]")
+        def text_input(label):  # viser's text fields: the input after their label text; the Report header folder
+            # comes after the Control folder's own "Operator" (the tab's name): the last field of that label
+            return page.get_by_text(label, exact=True).last.locator("xpath=following::input[1]")
 
         text_input("Operator").fill("A. Operator")
         text_input("Temperature (°C)").fill("20.3")
