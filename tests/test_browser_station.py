@@ -174,11 +174,12 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         tab(page, "Auto-measure")
         page.get_by_role("button", name="Plan", exact=True).click(force=True)
         page.get_by_text("4 hits · clearance plane").wait_for()
+        name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
         page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
         assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
         assert page.capp.measure._nodes  # the planned path is drawn in this tab's scene
         bs.screenshot(page, "station-automeasure-plan", timeout=60_000)
-        page.get_by_label("Feature name", exact=True).fill("TOP")  # the operator's name for it is kept
+        name_field.fill("TOP")  # the operator's name for it is kept
         bs.wait_until(lambda: page.capp.measure.gui["name"].value == "TOP", 20.0, "the typed name at the server")
         page.get_by_role("button", name="Run", exact=True).click(force=True)
         bs.wait_until(lambda: station.measurement.features, 90.0, "the auto-measured top face")
@@ -186,7 +187,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert top.kind == "plane" and len(top.hit_ids) == 4
         assert top.nominal is not None and top.nominal.kind == "plane" and top.name == "TOP"
         page.get_by_text("done: TOP").wait_for()
-        bs.wait_until(lambda: page.get_by_label("Feature name", exact=True).input_value() == "", 20.0,
+        bs.wait_until(lambda: name_field.input_value() == "", 20.0,
                       "the name field cleared for the next feature")
         # the front and left faces (3 hits each)
         _, front = measure_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0), 3)
