@@ -139,6 +139,8 @@ def test_the_routine_runs_on_a_second_part_placed_differently(taught):
     assert dist.result.value == pytest.approx(np.hypot(70 - 30, 22 - 40), abs=0.01)
     assert seen[-1][0] == "done" and [h for _s, h in seen] == sorted(h for _s, h in seen)
     assert str(progress.session).find("part 2") >= 0  # the part's results are a session of their own
+    report = progress.results["report"].read_text()  # the report step wrote the part's report beside it
+    assert progress.results["report"].suffix == ".html" and "bore" in report and "dome" in report
 
 
 def test_pause_skip_and_cancel_between_hits(taught):

@@ -424,8 +424,17 @@ class RoutineRun:
         self.progress.results[step["name"]] = c
 
     def _report(self) -> Any:
+        """The part's report (HTML beside its session journal); the journal holds everything up to here."""
+        from ..session.report import write_report
+        from ..session.store import open_session
+
         path = self.progress.session
-        return None if path is None else str(path)
+        if not isinstance(path, Path):
+            self.model.note("report step: the session is in a database; make its report with cmm report")
+            return None
+        part = self.model.part
+        return write_report(open_session(path), path.with_suffix(".html"),
+                            mesh=None if part is None else part.mesh, title=f"{self.routine.name} {self.part_name or ''}".strip())
 
     # --- alignment --------------------------------------------------------------------------
 
