@@ -126,6 +126,28 @@ FAKE_GAMEPAD = """
 """
 
 
+def open_page(context: Any, app: Any) -> Any:
+    """A new page on the station app with its viser client: ``page.capp`` is the tab's ClientApp, ``page.log``
+    the console errors and failed requests it saw."""
+    before = set(app.clients)
+    page = context.new_page()
+    page.log = PageLog()
+    page.log.attach(page)
+    page.goto(app.url)
+    page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
+    wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
+    (cid,) = set(app.clients) - before
+    page.capp = app.clients[cid]
+    return page
+
+
+def text_field(page: Any, label: str) -> Any:
+    """A viser text field by its label (viser's text inputs are not linked to their labels, so get_by_label
+    cannot find them)."""
+    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::div[contains(@class, "
+                        "'mantine-Flex-root')][1]//input").first
+
+
 def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
     """Simulated seconds from ``since`` (the station's clock, ``station.machine.state.time``) until every axis stands still.
 

@@ -31,26 +31,9 @@ def app(tmp_path_factory):
         st.close()
 
 
-def open_page(context, app):
-    before = set(app.clients)
-    page = context.new_page()
-    page.goto(app.url)
-    page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
-    bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
-    (cid,) = set(app.clients) - before
-    page.capp = app.clients[cid]
-    return page
-
-
-def text_field(page, label):
-    """A viser text field by its label (viser's text inputs are not linked to their labels)."""
-    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::div[contains(@class, "
-                        "'mantine-Flex-root')][1]//input").first
-
-
 def test_name_dialog_saved_name_and_certificate_entry(app):
     with bs.browser_context(LAPTOP) as context:
-        page = open_page(context, app)
+        page = bs.open_page(context, app)
         page.get_by_text("Who is operating?").wait_for()
         field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
         field.wait_for(state="visible", timeout=60_000)
@@ -61,7 +44,7 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         page.get_by_text("Who is operating?").wait_for(state="hidden")
         assert page.evaluate("() => localStorage.getItem('cmm-operator')") == "Maria"
         # a second tab of the same browser names itself from the saved name
-        second = open_page(context, app)
+        second = bs.open_page(context, app)
         bs.wait_until(lambda: second.capp.operator == "Maria", 15.0, "the saved name in the second tab")
         second.close()
         page.get_by_role("button", name="Take control").click()
@@ -72,7 +55,7 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         page.get_by_text("Reference sphere certificate").click()
         page.get_by_label("Diameter (mm)", exact=True).fill("25.0002")
         page.get_by_label("Diameter (mm)", exact=True).press("Enter")
-        text_field(page, "Serial").fill("RS-77")
+        bs.text_field(page, "Serial").fill("RS-77")
         page.get_by_label("U k=2 (um)", exact=True).fill("0.12")
         page.get_by_label("U k=2 (um)", exact=True).press("Enter")
         page.wait_for_timeout(300)

@@ -62,11 +62,6 @@ def open_tab(page, name, shows):
     raise AssertionError(f"the {name} tab did not open")
 
 
-def text_field(page, label):
-    """The input of a viser text field (its label names no input id, so get_by_label cannot find it)."""
-    return page.locator(f"xpath=//label[normalize-space(.)='{label}']/ancestor::div[.//input][1]//input").first
-
-
 def _measured_first_part(station):
     """What the operator did on the first part: three planes and the bore auto-measured, a 3-2-1."""
     model = station.measurement
@@ -82,15 +77,8 @@ def _measured_first_part(station):
 def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, station):
     _measured_first_part(station)
     with bs.browser_context(LAPTOP) as context:
-        before = set(app.clients)
-        page = context.new_page()
-        log = bs.PageLog()
-        log.attach(page)
-        page.goto(app.url)
-        page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
-        bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
-        (cid,) = set(app.clients) - before
-        capp = app.clients[cid]
+        page = bs.open_page(context, app)
+        capp = page.capp
         press(page, "Take control")
         page.get_by_text("You control the machine.").first.wait_for()
         open_tab(page, "Routine", "No routine yet")
@@ -101,8 +89,8 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         # rename the bore in the page
         page.get_by_label("Step", exact=True).click(force=True)
         page.get_by_role("option", name="5. bore: cylinder, 8 hits, ls", exact=True).click(force=True)
-        text_field(page, "New name").fill("BORE")
-        text_field(page, "New name").press("Enter")
+        bs.text_field(page, "New name").fill("BORE")
+        bs.text_field(page, "New name").press("Enter")
         page.wait_for_timeout(300)
         press(page, "Rename")
         page.get_by_text("BORE: cylinder, 8 hits, ls").first.wait_for()
@@ -111,8 +99,8 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
 
         # the next part stands elsewhere; Run on next part
         station.sim.place_part(SECOND_POSE)
-        text_field(page, "Part name").fill("SN-0002")
-        text_field(page, "Part name").press("Enter")
+        bs.text_field(page, "Part name").fill("SN-0002")
+        bs.text_field(page, "Part name").press("Enter")
         page.wait_for_timeout(300)
         press(page, "Run on next part")
         page.get_by_text("WAITING FOR THE OPERATOR").first.wait_for()
@@ -144,4 +132,4 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         box = page.get_by_role("button", name="Run on next part").bounding_box()
         assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= TABLET[0]
         bs.screenshot(page, "routine-tablet")
-        assert not log.page_errors, log.page_errors
+        assert not page.log.page_errors, page.log.page_errors

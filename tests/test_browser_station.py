@@ -48,19 +48,6 @@ def app(station):
     yield from bs.station_app(station, pendant_port=0)
 
 
-def open_station(context, app):
-    before = set(app.clients)
-    page = context.new_page()
-    page.log = bs.PageLog()
-    page.log.attach(page)
-    page.goto(app.url)
-    page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
-    bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
-    (cid,) = set(app.clients) - before
-    page.capp = app.clients[cid]
-    return page
-
-
 def tab(page, name):
     """Click a tab as the operator does: a panel scrolled down (a long plan) has the first rows of tabs under the
     sticky status bar, so scroll the panel back to the top first; the click must reach the tab, not the bar."""
@@ -158,7 +145,7 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
 def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
     with bs.browser_context(viewport=LAPTOP) as context:
         context.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine: seconds per frame
-        page = open_station(context, app)
+        page = bs.open_page(context, app)
         # --- status bar: state, who has control, DRO, probe; STOP / E-STOP
         status = page.locator("#cmm-status")
         status.get_by_text("IDLE").wait_for()
