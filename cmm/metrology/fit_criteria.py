@@ -14,9 +14,10 @@ Flatness: linear programs on the hull vertices with a certificate of global
 optimality (fit_hull.min_width_3d), the exact hull enumeration as fallback.
 SLP: sequential linear programming (fit_chebyshev); minimum-zone circles and
 spheres start from the least-squares, MCC and MIC solutions; cylinders search
-axis directions around the least-squares axis (see ``cylinder``).  Where the
-global optimum is not proven (partial or short features, searches ending in
-different optima) the result carries a warning.
+axis directions around the least-squares axis and prove the result by a branch
+and bound over the cone of directions (see ``cylinder``).  Where the global
+optimum is not proven (arcs, bounds that do not close, searches ending in
+different optima) the result carries a warning saying so, with the gap.
 
 3D circles are evaluated in the least-squares plane of their points
 (points projected into it).  Results use the feature classes of
@@ -32,6 +33,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import numpy as np
+from scipy.optimize import linprog
 from scipy.spatial import QhullError
 
 from cmm.metrology import fit_ls
@@ -265,7 +267,13 @@ CONE_DEG = 10.0
 CYLINDER_RINGS_DEG = (1.0, 3.0, 6.0, 9.5)  # minimum zone: start directions (degrees off the LS axis) ...
 CYLINDER_AZIMUTHS = 6  # ... and azimuths per ring
 CYLINDER_REFINE = 3
-PROOF_GAP = 1e-4  # mm (0.1 um): an MCC / MIC cylinder is proven optimal in the cone when its gap to the lower bound is below
+PROOF_GAP = 1e-4  # mm (0.1 um): a cylinder criterion is proven optimal in the cone when its gap to the lower bound is below
+PROOF_FULL_POINTS = 20000  # the bound runs on every point (when the subset's leaves a gap) up to this many
+# minimum zone: the axes searched pass within CENTRE_FORMS x the LS form (at most CENTRE_FRACTION x the LS radius,
+# at least 1e-3 x it) of the LS axis at the data centre: zones of about the LS form lie there
+CENTRE_FRACTION = 0.1
+CENTRE_FORMS = 5.0
+ZONE_LP_POINTS = 40  # minimum zone bound: points nearest and farthest from the axis in each cell's linear program
 PROOF_CELLS = 600  # direction cells the branch and bound may evaluate
 LOCAL_DEG = 0.05  # the neighbourhood of the refined optimum that its SLP convergence covers
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
@@ -291,11 +299,12 @@ def _cylinder_screen(xs: np.ndarray, u: np.ndarray, method: str) -> tuple[float,
 
 
 def _critical_subset(xs: np.ndarray, residuals: np.ndarray, method: str) -> np.ndarray:
-    """The points that decide the criterion (largest LS residuals for MCC, smallest for MIC) and a spread
-    sample: a subset's MCC (MIC) is never larger (smaller) than all points', so bounds on it hold for all."""
+    """The points that decide the criterion (largest LS residuals for MCC, smallest for MIC, both for the
+    minimum zone) and a spread sample. A bound computed on a subset holds for every point: a subset's MCC and
+    minimum zone are never larger, its MIC never smaller, than all points'."""
     order = np.argsort(residuals)
     k = min(CRITICAL_POINTS, len(xs))
-    pick = [order[-k:]] if method == "mcc" else [order[:k]]
+    pick = {"mcc": [order[-k:]], "mic": [order[:k]]}.get(method, [order[-k:], order[:k]])
     pick.append(np.arange(0, len(xs), max(1, len(xs) // CRITICAL_POINTS)))
     return xs[np.unique(np.concatenate(pick))]
 
@@ -307,17 +316,137 @@ def cone_deg(length: float, diameter: float) -> float:
     return float(min(CONE_DEG, np.degrees(np.arctan2(length, diameter))))
 
 
-def _direction_bound(xs: np.ndarray, u0: np.ndarray, method: str, best: float, u_best: np.ndarray,
+def _annulus_dual(rel: np.ndarray, outer: np.ndarray, inner: np.ndarray, reach: float) -> float:
+    """A lower bound on min over centres d (|d| <= reach) of [max_i |rel_i - d|^2 - min_i |rel_i - d|^2] from
+    weights lam >= 0 on the ``outer`` points and mu >= 0 on the ``inner`` ones, each summing to 1, with
+    sum lam rel = sum mu rel (LP duality: for every d the difference is at least sum lam |rel|^2 - sum mu |rel|^2,
+    less 2 reach |imbalance|). The weights solve the balance equations; -inf when they are not all >= 0."""
+    m = np.zeros((4, len(outer) + len(inner)))
+    m[0, :len(outer)] = 1.0
+    m[1, len(outer):] = 1.0
+    m[2:, :len(outer)] = rel[outer].T
+    m[2:, len(outer):] = -rel[inner].T
+    w = np.linalg.lstsq(m, np.array([1.0, 1.0, 0.0, 0.0]), rcond=None)[0]
+    if np.any(w < -1e-12):
+        return -np.inf
+    w = np.maximum(w, 0.0)
+    lam, mu = w[:len(outer)], w[len(outer):]
+    if abs(lam.sum() - 1.0) > 1e-9 or abs(mu.sum() - 1.0) > 1e-9:
+        return -np.inf
+    lam, mu = lam / lam.sum(), mu / mu.sum()
+    imbalance = float(np.linalg.norm(lam @ rel[outer] - mu @ rel[inner]))
+    a = np.einsum("ij,ij->i", rel, rel)
+    return float(lam @ a[outer] - mu @ a[inner]) - 2.0 * reach * imbalance - 1e-12 * max(1.0, float(a.max()))
+
+
+def _annulus_basis_optimal(rel: np.ndarray, outer: np.ndarray, inner: np.ndarray) -> bool:
+    """Whether the annulus through the ``outer`` and ``inner`` points (four in all) holds every point: then their
+    dual weights' bound (_annulus_dual) is the optimum itself and no linear program can raise it."""
+    if len(outer) + len(inner) != 4:
+        return False
+    a = np.einsum("ij,ij->i", rel, rel)
+    m = np.zeros((4, 4))  # unknowns d (2), A, B: |rel|^2 - 2 rel.d = B on the outer points, = A on the inner
+    m[:, :2] = -2.0 * np.vstack([rel[outer], rel[inner]])
+    m[:len(outer), 3] = -1.0
+    m[len(outer):, 2] = -1.0
+    try:
+        sol = np.linalg.solve(m, -np.concatenate([a[outer], a[inner]]))
+    except np.linalg.LinAlgError:
+        return False
+    g = a - 2.0 * rel @ sol[:2]
+    tol = 1e-12 * max(1.0, float(a.max()))
+    return bool(g.max() <= sol[3] + tol and g.min() >= sol[2] - tol)
+
+
+def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """min over centres d of [max_i |rel_i - d|^2 - min_i |rel_i - d|^2] over the points ``keep`` (= r_out^2 -
+    r_in^2 of the thinnest annulus by area: a subset's is never larger), a linear program in (d, A, B):
+    |rel_i|^2 - 2 rel_i.d lies in [A, B]. Returns a lower bound on it (the value less a margin for the solver's
+    tolerance) and the points active on the outer and inner circles (indices into rel)."""
+    x = rel[keep]
+    a = np.einsum("ij,ij->i", x, x)
+    n = len(x)
+    zeros, ones = np.zeros((n, 1)), np.ones((n, 1))
+    a_ub = np.vstack([np.hstack([-2.0 * x, zeros, -ones]), np.hstack([2.0 * x, ones, zeros])])
+    res = linprog([0.0, 0.0, -1.0, 1.0], A_ub=a_ub, b_ub=np.concatenate([-a, a]), bounds=[(None, None)] * 4,
+                  method="highs")
+    if res.status != 0:
+        return 0.0, keep[:0], keep[:0]
+    dual = np.abs(res.ineqlin.marginals)
+    outer, inner = keep[dual[:n] > 1e-12], keep[dual[n:] > 1e-12]
+    return max(float(res.fun) - 1e-9 * max(1.0, float(a.max())), 0.0), outer, inner
+
+
+def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best: float) -> Callable[..., float]:
+    """Lower bound on the minimum-zone width of every cylinder whose direction lies in a direction cell and whose
+    axis passes within ``centre_range`` of ``foot`` (scaled units), valid for the widths below ``best``.
+
+    For the cell's centre direction u (cell half-angle delta) and an axis through c along u' in the cell
+    (c where it crosses the plane x.u = 0), each point's distance rho' to it and rho to the axis (c, u) satisfy
+    rho cos(delta) - Z sin(delta) <= rho' <= rho + Z sin(delta) (Z = max |x.u|), so the width
+    w' >= w_u(c) - (1 - cos delta) M - 2 Z sin delta (M >= every rho). In the plane across u, with the points
+    rel_i seen from the projected foot: w_u(c) (r_out + r_in) = r_out^2 - r_in^2 >= F (the annulus area bound:
+    the dual weights of the last cell's active points when they are still feasible and prune the cell, else
+    the linear program), r_in <= min |rel_i| + q (q: how far c's projection can be from the foot's), so a
+    cylinder with w' < best has w_u < W = best + slack and w_u >= F / (2 r_in_max + W): the returned bound is
+    F / (2 r_in_max + W) - slack."""
+    norm_foot = float(np.sqrt(foot @ foot))
+    basis = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+
+    def bound(u: np.ndarray, delta: float) -> float:
+        nonlocal basis
+        f = frame_with_axis(u)[:, :2]
+        q = centre_range + (centre_range + norm_foot) * np.tan(min(delta, 1.0))
+        rel = xs @ f - foot @ f
+        dist = np.sqrt(np.einsum("ij,ij->i", rel, rel))
+        z = float(np.abs(xs @ u).max())
+        slack = (1.0 - np.cos(delta)) * (float(dist.max()) + q) + 2.0 * z * np.sin(delta)
+        scale = 2.0 * (float(dist.min()) + q) + best + slack
+        if len(basis[0]) and len(basis[1]):
+            area = _annulus_dual(rel, basis[0], basis[1], q)
+            if area / scale - slack >= best or _annulus_basis_optimal(rel, basis[0], basis[1]):
+                return area / scale - slack
+        order = np.argsort(dist)
+        k = min(ZONE_LP_POINTS, len(xs))
+        keep = np.unique(np.concatenate([order[:k], order[-k:]]))  # a subset: its bound holds for all points
+        area, outer, inner = _annulus_area_lower(rel, keep)
+        if len(outer) and len(inner):
+            basis = (outer, inner)
+        return area / scale - slack
+
+    return bound
+
+
+def _ball_cell_bound(xs: np.ndarray, method: str) -> Callable[..., float]:
+    """Lower bound on the MCC radius (mcc) or on minus the MIC radius (mic) of every cylinder whose direction
+    lies in a cell (centre u, half-angle delta). A point at height z along u and distance rho from an axis moves
+    to a distance within [rho cos(delta) - |z| sin(delta), rho + |z| sin(delta)] from the axis through the same
+    point along any direction of the cell, so mcc(u') >= mcc(u) cos(delta) - Z sin(delta) and
+    mic(u') <= mic(u) + Z sin(delta), Z = max |z| (the axis point taken where it crosses x.u = 0)."""
+    support = np.arange(min(3, len(xs)))  # MCC: the enclosing circle's points, carried from cell to cell
+
+    def bound(u: np.ndarray, delta: float) -> float:
+        nonlocal support
+        if method == "mcc":
+            f = frame_with_axis(u)
+            _, value, support = min_enclosing_ball_from(xs @ f[:, :2], support)
+        else:
+            value = _cylinder_screen(xs, u, method)[0]
+        z = float(np.abs(xs @ u).max())
+        return value * np.cos(delta) - z * np.sin(delta) if method == "mcc" else value - z * np.sin(delta)
+
+    return bound
+
+
+def _direction_bound(cell_bound: Callable[..., float], u0: np.ndarray, best: float, u_best: np.ndarray,
                      cone: float) -> tuple[float, int]:
     """Branch and bound over the axis directions within ``cone`` degrees of u0: the lowest bound on the criterion
-    value (mcc: radius; mic: -radius; scaled units) of any direction there, outside LOCAL_DEG of u_best.
+    value (mcc: radius; mic: -radius; minzone: width; scaled units) of any direction there, outside LOCAL_DEG
+    of u_best (the refined optimum's own neighbourhood, which its SLP convergence covers).
 
     Directions u = unit(u0 + p e1 + q e2) on square cells in (p, q); every direction of a cell lies within
-    delta = sqrt(2) h of its centre's (h: half the cell side). A point at height z along the centre
-    direction and distance rho from an axis moves to a distance within [rho cos(delta) - |z| sin(delta),
-    rho + |z| sin(delta)] from the axis through the same point along any direction of the cell, so
-    mcc(u) >= mcc(centre) cos(delta) - Z sin(delta) and mic(u) <= mic(centre) + Z sin(delta),
-    Z = max |z|. Cells whose bound cannot beat ``best`` are dropped, the others split in four.
+    delta = sqrt(2) h of its centre's (h: half the cell side); ``cell_bound(u, delta)`` bounds the criterion
+    over the cell. Cells whose bound cannot beat ``best`` are dropped, the others split in four.
     Returns (lowest bound left, cells evaluated)."""
     import heapq
 
@@ -326,20 +455,8 @@ def _direction_bound(xs: np.ndarray, u0: np.ndarray, method: str, best: float, u
     t_max = np.tan(np.radians(cone))
     local = np.radians(LOCAL_DEG)
 
-    support = np.arange(min(3, len(xs)))  # MCC: the enclosing circle's points, carried from cell to cell
-
-    def bound(p: float, q: float, h: float) -> tuple[float, float]:
-        nonlocal support
-        u = unit(u0 + p * e1 + q * e2)
-        if method == "mcc":
-            f = frame_with_axis(u)
-            _, value, support = min_enclosing_ball_from(xs @ f[:, :2], support)
-        else:
-            value = _cylinder_screen(xs, u, method)[0]
-        z = float(np.abs(xs @ u).max())
-        d = min(np.sqrt(2.0) * h, np.pi / 2)
-        lower = value * np.cos(d) - z * np.sin(d) if method == "mcc" else value - z * np.sin(d)
-        return lower, value
+    def bound(p: float, q: float, h: float) -> float:
+        return cell_bound(unit(u0 + p * e1 + q * e2), min(np.sqrt(2.0) * h, np.pi / 2))
 
     n0 = 4
     h0 = t_max / n0
@@ -348,14 +465,11 @@ def _direction_bound(xs: np.ndarray, u0: np.ndarray, method: str, best: float, u
     for i in range(n0):
         for j in range(n0):
             p, q = -t_max + (2 * i + 1) * h0, -t_max + (2 * j + 1) * h0
-            lower, _ = bound(p, q, h0)
             cells += 1
-            heapq.heappush(heap, (lower, p, q, h0))
+            heapq.heappush(heap, (bound(p, q, h0), p, q, h0))
     while heap:
         lower, p, q, h = heap[0]
-        if lower >= best:
-            return lower, cells
-        if cells >= PROOF_CELLS:
+        if lower >= best or cells >= PROOF_CELLS:
             return lower, cells
         heapq.heappop(heap)
         for dp, dq in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
@@ -365,24 +479,44 @@ def _direction_bound(xs: np.ndarray, u0: np.ndarray, method: str, best: float, u
             u = unit(u0 + cp * e1 + cq * e2)
             if np.arccos(min(1.0, abs(float(u @ u_best)))) + np.sqrt(2.0) * ch <= local:
                 continue  # inside the refined optimum's own neighbourhood
-            child, _ = bound(cp, cq, ch)
+            child = bound(cp, cq, ch)
             cells += 1
             if child < best:
                 heapq.heappush(heap, (child, cp, cq, ch))
     return best, cells
 
 
+def _prove_cylinder(xs: np.ndarray, crit: np.ndarray, method: str, u0: np.ndarray, value: float,
+                    u_best: np.ndarray, cone: float, foot: np.ndarray, centre_range: float,
+                    tol: float) -> tuple[float, int]:
+    """The gap (scaled units) between ``value`` (the criterion of the reported cylinder, all points) and the
+    lowest bound over the cone, and the cells searched. The bound runs on ``crit`` (a subset: valid for all
+    points, and fast) and, when that leaves a gap above ``tol``, on every point (when the subset is less than
+    half of them, up to PROOF_FULL_POINTS)."""
+    target = value - 0.5 * tol
+    gap, cells = np.inf, 0
+    for pts in (crit, xs) if 2 * len(crit) < len(xs) <= PROOF_FULL_POINTS else (crit,):
+        cb = (_zone_cell_bound(pts, foot, centre_range, target) if method == "minzone"
+              else _ball_cell_bound(pts, method))
+        lower, n = _direction_bound(cb, u0, target, u_best, cone)
+        cells += n
+        gap = min(gap, max(value - lower, 0.0))
+        if gap <= tol:
+            break
+    return gap, cells
+
+
 def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     """Cylinder by criterion, the axis within ``cone_deg`` of the least-squares axis (the probed feature).
 
     MIC is refused when the points do not surround the axis (an arc: it could grow without bound), as
-    for circles. MCC and MIC: the best of the exact 2D criterion of the projected points over a ring of
-    directions, refined by SLP on the full 5-parameter problem, then proven: a branch and bound over the
-    directions in the cone (``_direction_bound``) gives a lower bound on every other direction's value;
-    when the refined value is within PROOF_GAP of it, no warning, else a warning with the gap.
-    Minimum zone: the least-squares start and the best of rings of directions (screened by the 2D
-    least-squares circle) refined by SLP; a warning when the points cover only an arc or the searches
-    ended in different optima.
+    for circles. Search: the least-squares start and the best of rings of directions (screened by the exact 2D
+    MCC / MIC of the projected points, or their 2D least-squares circle for the minimum zone) refined by SLP on
+    the full 5-parameter problem. Proof: a branch and bound over the directions in the cone
+    (``_direction_bound``; for the minimum zone over the axes passing near the LS axis at the data centre, see
+    CENTRE_FORMS) gives a lower bound on every other cylinder's value there; when the
+    reported value is within PROOF_GAP of it, no warning, else a warning with the gap. An arc (< 300 degrees
+    covered) is not searched for a proof and always carries the warning.
     """
     ls = fit_ls.fit_cylinder(points, nominal=nominal)
     data = _prepare(points, "cylinder", 3)
@@ -417,29 +551,32 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
         d = sub_model.residuals_jacobian(st)[0]
         return {"minzone": float(np.ptp(d)), "mcc": float(st[2] + d.max()), "mic": float(-(st[2] + d.min()))}[method]
 
-    state, runs, differ = _multi_start(sub_model, starts, method, merit)
+    state, runs, _ = _multi_start(sub_model, starts, method, merit)
     if len(sub) < len(data.x):
         state = chebyshev_fit(model, state, method)  # the best search result, on all points
     pu, uu, ru = state
     d = model.residuals_jacobian(state)[0] * data.scale
     u = canonical_direction(uu)
-    if method == "minzone":
-        partial = f"the points cover only {coverage:.0f} degrees around the axis" if coverage < 300.0 else None
-        warnings = _unproven("cylinder", method, runs, differ, partial)
-    elif coverage < 300.0:  # an arc: the bound would not close (the search is not worth its time)
-        warnings = (f"the points cover only {coverage:.0f} degrees around the axis: the minimum circumscribed "
-                    "cylinder is the smallest holding them, which for an arc is smaller than the probed feature; "
-                    "its global optimum is not proven",)
+    name = {"minzone": "minimum zone", "mcc": "minimum circumscribed", "mic": "maximum inscribed"}[method]
+    if coverage < 300.0:  # an arc: the bound would not close (the search is not worth its time)
+        smaller = ("" if method == "minzone" else ": the smallest cylinder holding them, which for an arc is smaller "
+                   "than the probed feature")
+        warnings = (f"the points cover only {coverage:.0f} degrees around the axis{smaller}; the {name} cylinder is "
+                    f"the best of {runs} local searches and its global optimum is not proven",)
     else:
-        value = float(ru + d.max() / data.scale) if method == "mcc" else float(-(ru + d.min() / data.scale))
+        value = {"minzone": float(np.ptp(d)), "mcc": float(ru * data.scale + d.max()),
+                 "mic": float(-(ru * data.scale + d.min()))}[method] / data.scale
         crit = _critical_subset(data.x, model.residuals_jacobian((p, u0, ls.radius / data.scale))[0], method)
-        lower, cells = _direction_bound(crit, u0, method, value - 0.5 * PROOF_GAP / data.scale, unit(uu), cone)
-        gap = max(value - lower, 0.0) * data.scale
-        name = "minimum circumscribed" if method == "mcc" else "maximum inscribed"
+        centre_range = min(CENTRE_FRACTION * ls.radius, max(CENTRE_FORMS * ls.form, 1e-3 * ls.radius)) / data.scale
+        gap, cells = _prove_cylinder(data.x, crit, method, u0, value, unit(uu), cone, p, centre_range,
+                                     PROOF_GAP / data.scale)
+        gap *= data.scale
+        where = (f"among axes within {cone:.3g} degrees of the least-squares axis" if method != "minzone" else
+                 f"among axes within {cone:.3g} degrees of the least-squares axis and "
+                 f"{centre_range * data.scale:.3g} mm of it at the data centre")
         warnings = () if gap <= PROOF_GAP else (
-            f"the {name} cylinder is proven optimal among axes within {cone:.3g} degrees of the least-squares "
-            f"axis only to within {gap:.2g} mm ({cells} direction cells searched); its global optimum is not "
-            "proven",)
+            f"the {name} cylinder is proven optimal {where} only to within {gap:.2g} mm ({cells} direction cells "
+            "searched); its global optimum is not proven",)
     return Cylinder(point=axis_foot(data.to_mm(pu), u, data.c), direction=u, radius=ru * data.scale,
                     warnings=warnings, **_stats(d, 5, method))
 
