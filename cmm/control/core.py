@@ -18,7 +18,7 @@ import numpy as np
 
 from ..machine.homing import home_axes
 from ..machine.motion import Machine, MachineState
-from ..machine.probing import Hit, Prober
+from ..machine.probing import CyclePath, Hit, Prober
 from ..machine.status import MotionError, MoveStatus
 from ..nmc.bus import NmcError
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
@@ -349,21 +349,13 @@ class Controller:
             raise Refused("a probe needs an approach direction that is not zero")
         n = None if normal is None else self._to_machine(normal, frame, direction=True)
         rails.check_path(path)
-        radius = float(self.prober.settings.tip_radius)
+        distances = {"approach_distance": approach_distance, "search_distance": search_distance,
+                     "retract_distance": retract_distance}
 
         def start() -> MoveStatus:
             here = self.machine.position
             restart = self._restart is not None
-            pre = p - radius * u / np.linalg.norm(u) - (self.config.probe.approach_distance if approach_distance
-                                                       is None else approach_distance) * u / np.linalg.norm(u)
-            cz = clearance_z
-            if path == "straight" and not restart:
-                why = rails.straight_blocked(self.workspace, here, pre, radius)
-                if why is not None:
-                    raise Refused(why)
-            elif cz is None:  # over the part's clearance plane, else never lower than here
-                plane = None if self.workspace is None else self.workspace.clearance_z()
-                cz = max(float(here[2]), float(pre[2])) if plane is None else float(plane)
+            cz = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, **distances)[0]
             backoff = self._backoff_here(here) if restart else None
             if backoff is not None:  # a contact stopped the last motion: back off the way it came first
                 first = self.machine.move_to(here + backoff)
@@ -377,9 +369,8 @@ class Controller:
                 if s is not None and s.error is not None:
                     return finish_inner(s)
                 try:
-                    inner = self.prober.probe(p, u, clearance_z=None if path == "straight" and not restart else cz,
-                                              normal=n, speed=speed, accel=accel, approach_distance=approach_distance,
-                                              search_distance=search_distance, retract_distance=retract_distance,
+                    inner = self.prober.probe(p, u, clearance_z=cz, normal=n, speed=speed, accel=accel,
+                                              approach_distance=approach_distance, search_distance=search_distance, retract_distance=retract_distance,
                                               rapid_speed=rapid_speed)
                 except BaseException as exc:  # noqa: BLE001 - reported through the status
                     err = MoveStatus("probe", self)
@@ -401,6 +392,44 @@ class Controller:
                 first.add_callback(cycle)
             return outer
         return self._submit(client, "probe", start)
+
+    def _cycle(self, here: np.ndarray, p: np.ndarray, u: np.ndarray, *, path: str, clearance_z: float | None,
+               restart: bool = False, **distances: float | None) -> tuple[float | None, CyclePath]:
+        """The clearance height (None: straight) and the path of one programmed hit from ``here`` (machine mm):
+        the rails decide the height, the prober's cycle the points; :meth:`probe` and :meth:`probe_paths` both
+        ask here."""
+        pre = self.prober.cycle_path(here, p, u, **distances).pre
+        try:
+            cz = rails.probe_clearance(here, pre, path=path, workspace=self.workspace, radius=self.tip_radius,
+                                       clearance_z=clearance_z, restart=restart)
+        except rails.RailError as exc:
+            raise Refused(str(exc)) from None
+        return cz, self.prober.cycle_path(here, p, u, clearance_z=cz, **distances)
+
+    def probe_paths(self, targets: Any, *, frame: str = "machine", path: str = "clearance",
+                    start: Any = None) -> list[CyclePath]:
+        """The paths a sequence of programmed hits will take, for a preview before they run: ``targets`` are
+        (nominal point, approach, clearance Z or None) in ``frame`` (the clearance Z is machine Z) as
+        :meth:`probe` gets them; each cycle starts where the previous one retracted to (the surface taken where
+        its nominal says), the first from ``start`` (default: where the tip is now). Moves nothing; raises
+        Refused for a target it would refuse (outside the travel, an unproven straight line)."""
+        rails.check_path(path)
+        if start is None and self._state.position is None:
+            raise Refused("the machine has not reported its position yet: wait a moment")
+        here = np.asarray(self._state.position if start is None else start, dtype=np.float64)
+        out: list[CyclePath] = []
+        for target, approach, clearance_z in targets:
+            p = self._to_machine(target, frame)
+            u = self._to_machine(approach, frame, direction=True)
+            try:
+                cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z)[1]
+                for point in (*cycle.rapid, cycle.end, cycle.retract):
+                    self.machine.check_target(point)
+            except MotionError as exc:
+                raise Refused(f"hit {len(out) + 1}: {exc}") from None
+            out.append(cycle)
+            here = cycle.retract
+        return out
 
     def home(self, client: str | None) -> None:
         """Run the homing cycle (blocks until it ends; STOP aborts it). Raises MotionError when it fails."""

@@ -137,6 +137,23 @@ def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: fl
     return out or [target]
 
 
+def probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | None, radius: float,
+                    clearance_z: float | None = None, restart: bool = False) -> float | None:
+    """The height a programmed hit's rapid crosses at on its way to the pre-hit point ``pre`` (machine Z of the tip
+    centre), or None for a straight rapid: ``clearance_z`` when the caller gave one, else the part's clearance
+    plane, else the higher of here and the pre-hit point. A straight rapid only when asked for, proven free of
+    the part and no restart is pending (:class:`RailError` when it is not proven free)."""
+    if path == "straight" and not restart:
+        why = straight_blocked(workspace, here, pre, radius)
+        if why is not None:
+            raise RailError(why)
+        return None
+    if clearance_z is not None:
+        return float(clearance_z)
+    plane = None if workspace is None else workspace.clearance_z()
+    return max(float(np.asarray(here, float)[2]), float(np.asarray(pre, float)[2])) if plane is None else float(plane)
+
+
 def route(here: Any, target: Any, *, path: str, workspace: Workspace | None, radius: float, z_max: float,
           backoff: Sequence[float] | None = None, restart: bool = False) -> list[np.ndarray]:
     """The legs of a move: ``backoff`` first (after a contact), the clearance route unless a straight line was

@@ -47,6 +47,50 @@ class ProbeSettings:
         return compensate(centre, approach, self.tip_radius, self.pretravel, normal)
 
 
+@dataclass(frozen=True)
+class CyclePath:
+    """The tip-centre path of one programmed hit, known before it runs (machine mm).
+
+    :meth:`Prober.probe` moves along exactly these points: ``rapid`` (over the clearance height when one is
+    given) to ``pre``, then the guarded move towards ``end`` that stops where the probe triggers (``contact``
+    when the surface is where its nominal says), then back to ``retract``. A path preview draws the same."""
+
+    start: np.ndarray  # where the cycle starts
+    rapid: tuple[np.ndarray, ...]  # the rapid's corners, ending at the pre-hit point
+    pre: np.ndarray  # the pre-hit point: the approach distance out from the contact
+    contact: np.ndarray  # the tip centre touching the nominal surface point
+    end: np.ndarray  # the end of the search: no trigger up to here is "surface not found"
+    retract: np.ndarray  # where the tip goes back to after a trigger at ``contact``
+
+    def polyline(self) -> np.ndarray:
+        """Start, rapid corners, the contact and the retract point, in the order the tip passes them."""
+        return np.array([self.start, *self.rapid, self.contact, self.retract], dtype=np.float64)
+
+
+def cycle_path(here: np.ndarray, nominal: np.ndarray, approach: np.ndarray, *, tip_radius: float,
+               approach_distance: float, search_distance: float, retract_distance: float,
+               clearance_z: float | None) -> CyclePath:
+    """The path of a programmed hit at ``nominal`` along ``approach`` (into the surface) from ``here``.
+
+    A negative ``retract_distance`` goes back to the pre-hit point. With ``clearance_z`` the rapid climbs to that
+    height (never down from higher), crosses and descends to the pre-hit point; without it, straight there."""
+    u = _unit(approach)
+    p = np.asarray(nominal, dtype=np.float64).reshape(-1)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise MotionError(f"a nominal point needs three finite coordinates, got {nominal!r}")
+    here = np.asarray(here, dtype=np.float64)
+    contact = p - tip_radius * u
+    pre = contact - approach_distance * u
+    end = contact + search_distance * u
+    if clearance_z is None:
+        rapid: tuple[np.ndarray, ...] = (pre,)
+    else:
+        rapid = (np.array([here[0], here[1], max(clearance_z, here[2])]),
+                 np.array([pre[0], pre[1], max(clearance_z, pre[2])]), pre)
+    retract = pre if retract_distance < 0 else contact - retract_distance * u
+    return CyclePath(here, rapid, pre, contact, end, retract)
+
+
 def _floats(v: np.ndarray) -> tuple[float, ...]:
     return tuple(float(x) for x in np.asarray(v).reshape(-1))
 
@@ -94,18 +138,14 @@ class Prober:
         the configuration's (an I++ DME client sets its own per tool).
         """
         m = self.machine
-        cfg = m.config.probe
-        u = _unit(approach)
-        p = np.asarray(nominal, dtype=np.float64).reshape(-1)
-        if p.shape != (3,) or not np.all(np.isfinite(p)):
-            raise MotionError(f"a nominal point needs three finite coordinates, got {nominal!r}")
         speed = m.config.speeds.probing if speed is None else speed
-        contact = p - self.settings.tip_radius * u
-        approach_distance = cfg.approach_distance if approach_distance is None else approach_distance
-        search_distance = cfg.search_distance if search_distance is None else search_distance
         accel = m.config.accelerations.probing if accel is None else accel
-        pre = m.check_target(contact - approach_distance * u)
-        end = m.check_target(contact + search_distance * u)
+        plan = self.cycle_path(m.position, nominal, approach, clearance_z=clearance_z,
+                               approach_distance=approach_distance, search_distance=search_distance,
+                               retract_distance=retract_distance)
+        u, p = _unit(approach), np.asarray(nominal, dtype=np.float64).reshape(-1)
+        pre = m.check_target(plan.pre)
+        end = m.check_target(plan.end)
         status = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), m.driver)
 
         def fail(error: BaseException) -> None:
@@ -155,16 +195,24 @@ class Prober:
             back = m.move_to(pre, protect=False)  # a failure to send it fails the cycle (after_guarded's step)
             back.add_callback(lambda s: fail(SurfaceNotFound(
                 "surface not found: no trigger within {:.1f} mm of the nominal point X={:.3f} Y={:.3f} Z={:.3f}"
-                .format(approach_distance + search_distance, *p))))
+                .format(float(np.linalg.norm(plan.end - plan.pre)), *p))))
 
-        path = [pre]
-        if clearance_z is not None:
-            here = m.position
-            path = [[here[0], here[1], max(clearance_z, here[2])], [pre[0], pre[1], max(clearance_z, pre[2])], pre]
-        rapid = m.move_path(path, rapid_speed)
+        rapid = m.move_path(list(plan.rapid), rapid_speed)
         status.on_cancel(rapid.cancel)
         rapid.add_callback(after_rapid)
         return status
+
+    def cycle_path(self, here: np.ndarray, nominal: np.ndarray, approach: np.ndarray, *,
+                   clearance_z: float | None = None, approach_distance: float | None = None,
+                   search_distance: float | None = None, retract_distance: float | None = None) -> CyclePath:
+        """The path :meth:`probe` takes from ``here`` with these options (the configuration's distances and the
+        present tip radius by default): what a path preview draws."""
+        cfg = self.machine.config.probe
+        return cycle_path(here, nominal, approach, tip_radius=float(self.settings.tip_radius),
+                          approach_distance=cfg.approach_distance if approach_distance is None else approach_distance,
+                          search_distance=cfg.search_distance if search_distance is None else search_distance,
+                          retract_distance=cfg.retract_distance if retract_distance is None else retract_distance,
+                          clearance_z=clearance_z)
 
     def _retract(self, u: np.ndarray, *, hit_status: MoveStatus, result: Hit, distance: float | None = None,
                  target: np.ndarray | None = None) -> None:

@@ -28,16 +28,23 @@ def plan_at_pick(model: Any, face_id: int, *, n: int | None = None) -> HitPlan:
                         approach_distance=probe.approach_distance, tip_radius=model.prober.settings.tip_radius)
 
 
+def plan_targets(plan: HitPlan) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """(nominal point, approach, clearance Z) of every planned hit, machine coordinates, in the order
+    :func:`run_plan` probes them: what the control core's ``probe_paths`` previews."""
+    return [(np.asarray(p, float), np.asarray(u, float), float(plan.clearance_z))
+            for p, u in zip(plan.points, plan.approaches)]
+
+
 def run_plan(model: Any, plan: HitPlan, *, name: str | None = None, method: str = "ls",
              progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
              cancelled: Callable[[], bool] = lambda: False, client: Any = None) -> Any:
     """Probe every planned hit (as ``client``, through the control core), then fit the feature with the
     plan's nominal. Returns the Feature."""
     ids: list[int] = []
-    for k, (p, u) in enumerate(zip(plan.points, plan.approaches)):
+    for k, (p, u, cz) in enumerate(plan_targets(plan)):
         if cancelled():
             raise PlanError(f"cancelled after {k} of {len(plan)} hits")
-        hit = model.probe(np.asarray(p), np.asarray(u), clearance_z=plan.clearance_z, client=client).wait(timeout)
+        hit = model.probe(p, u, clearance_z=cz, client=client).wait(timeout)
         ids.append(model.hit_id(hit))
         if progress is not None:
             progress(k + 1, len(plan))

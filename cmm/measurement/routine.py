@@ -108,6 +108,25 @@ class Routine:
     def lines(self) -> list[str]:
         return [self.describe(i) for i in range(len(self.steps))]
 
+    def measured_features(self) -> list[str]:
+        """The features a run probes, in its order: an alignment's datums where it stands (always), a feature
+        step unless it was measured already; skipped steps left out."""
+        order: list[str] = []
+        for s in self.steps:
+            if s.get("skip"):
+                continue
+            if s["kind"] == "align":
+                order += list(s["datums"])
+            elif s["kind"] == "feature" and s["name"] not in order:
+                order.append(s["name"])
+        return order
+
+    def targets(self, pose: Any) -> list[tuple[str, np.ndarray, np.ndarray, float]]:
+        """(feature, machine point, machine approach, clearance Z) of every hit a run probes, in its order, for the
+        part at ``pose``: what a path preview draws (the run's alignment may move the later ones)."""
+        by_id = {h.id: t for h, *t in machine_targets(self.program, np.asarray(pose, float))}
+        return [(name, *by_id[hid]) for name in self.measured_features() for hid in self.feature(name).hits]
+
     def validate(self) -> None:
         """Refuse steps that name what the routine does not have, before anything moves."""
         names = [s.get("name") for s in self.steps]
