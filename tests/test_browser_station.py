@@ -192,8 +192,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert abs(dome.result.geometry()["radius"] - 10.0) < 0.010
         z = 46.0  # the cone's flank: radius 12.5 at z 39 to 6 at z 52
         r = 12.5 - 6.5 * (z - 39.0) / 13.0
+        # 3 hits per ring typed: a cone needs 4 (6 parameters and one to check), the plan takes 4 and says so
         _, cone = automeasure_in_page(page, station, (100.0 + r, 40.0, z), (2 / 5 ** 0.5, 0, 1 / 5 ** 0.5), 3,
-                                      "cone (boss): two rings of 3 hits", shot="station-automeasure-cone-plan")
+                                      "cone (boss): two rings of 4 hits", shot="station-automeasure-cone-plan")
         assert cone.kind == "cone" and cone.nominal.kind == "cone"
         assert abs(np.degrees(cone.result.geometry()["half_angle"]) - np.degrees(np.arctan(6.5 / 13.0))) < 0.2
 

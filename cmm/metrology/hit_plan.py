@@ -14,12 +14,18 @@ and pattern of hits, and the approach of each hit (into the surface):
 - cone: two rings of ``n`` hits at a fifth and four fifths of its length.
 
 The hits determine the feature: the two rings of a cylinder or cone are far
-apart in height and the second ring is turned by half the angle between hits
-(two rings of four hits at the same angles lie exactly on a cylinder across
-the axis as well, so the fit could not tell the probed feature from it), and
-every ring has at least ``MIN_PER_RING`` hits. When the operator asks for
-fewer, the plan is made as asked and ``HitPlan.notes`` says what the fit
-then cannot determine.
+apart in height (``RING_LEVELS``; at least ``MIN_RING_GAP`` apart, else the
+plan says the cone's angle is poorly determined) and the second ring is turned
+by half the angle between hits (two rings of four hits at the same angles lie
+exactly on a cylinder across the axis as well, so the fit could not tell the
+probed feature from it), and there are at least as many hits as the feature
+has parameters plus one to check them (``MIN_PER_RING``: cone 2 rings of 4 for
+6 parameters, cylinder 2 of 3 for 5, circle 4 for 3, sphere the pole and 4 for
+4). When the operator asks for fewer, the plan takes the minimum and
+``HitPlan.notes`` says so (a cone of 2 rings of 3 hits has no hit to spare: its
+fit can pass exactly through all six hits on a cone far from the probed one).
+Planes keep the hits asked for (3 is the usual alignment plane), with a note
+that 3 leave none to check the form.
 
 Every planned hit must lie on the picked region of the mesh (a hit that would
 land on another face is dropped) and face upward enough to be reached from
@@ -42,8 +48,12 @@ from .transform import apply_points, apply_vectors, as_pose, invert
 
 MIN_NORMAL_Z = -0.2  # faces that look further down than this cannot be reached by a vertical stylus
 ON_SURFACE = 0.05  # mm: a planned point must be this close to the picked region
-MIN_PER_RING = 4  # hits per ring of a cylinder or cone: a circle (3 parameters) with one hit to check it
+# hits per ring (sphere: besides the pole) so that the hits outnumber the feature's parameters by at least one
+MIN_PER_RING = {"cone": 4, "cylinder": 3, "circle": 4, "sphere": 4}
+PARAMETERS = {"plane": 3, "circle": 3, "cylinder": 5, "sphere": 4, "cone": 6}
 RING_LEVELS = (0.2, 0.8)  # fractions of a cylinder's or cone's length where its two rings go
+SHORT_RING_LEVELS = (0.1, 0.9)  # ... of a cone so short that RING_LEVELS would put them under MIN_RING_GAP apart
+MIN_RING_GAP = 2.0  # mm between the two rings of a cone: closer, its angle is poorly determined
 
 
 class PlanError(ValueError):
@@ -59,7 +69,8 @@ class HitPlan:
     clearance_z: float  # machine Z of the clearance plane
     description: str = ""
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # polyline the probe centre follows
-    notes: tuple[str, ...] = ()  # what the hits do not determine (fewer hits than the feature needs)
+    notes: tuple[str, ...] = ()  # what the plan changed from the request, or what the hits do not determine
+    per_ring: int = 0  # hits per ring (cylinder, cone: two rings; sphere: besides the pole; others: all hits)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -131,6 +142,8 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
         for q in inner[_spread(inner, count)]:
             pts.append(q)
             app.append(-normal)
+        if count <= PARAMETERS["plane"]:
+            notes.append(f"{count} hits determine a plane exactly: none is left to check its form (flatness 0)")
         fit_kind, what = "plane", f"plane: {count} hits spread over the face"
     elif kind in ("cylinder", "cone"):
         axis = np.asarray(p["direction"], float)
@@ -141,16 +154,20 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
         h = (verts - origin) @ axis
         lo, hi = float(h.min()), float(h.max())
         length = hi - lo
-        count = n or 4
         bore = bool(p.get("bore", False))
         if kind == "cylinder" and length < 3.0:
             levels, fit_kind = [lo + length / 2], "circle"
         else:
-            levels, fit_kind = [lo + f * length for f in RING_LEVELS], kind
-        if count < MIN_PER_RING:
-            notes.append(f"{count} hits per ring do not determine a {fit_kind}: each ring needs {MIN_PER_RING} "
-                         "(a circle and one hit to check it); the fit may find another "
-                         f"{fit_kind} through the hits, or none")
+            fractions = RING_LEVELS
+            if kind == "cone" and (RING_LEVELS[1] - RING_LEVELS[0]) * length < MIN_RING_GAP:
+                fractions = SHORT_RING_LEVELS
+            levels, fit_kind = [lo + f * length for f in fractions], kind
+            gap = levels[1] - levels[0]
+            if kind == "cone" and gap < MIN_RING_GAP:
+                notes.append(f"the cone is {length:.1f} mm long: its rings are only {gap:.1f} mm apart "
+                             f"(at least {MIN_RING_GAP:g} mm determine its angle well); its half angle and apex "
+                             "are poorly determined")
+        count = _enough(fit_kind, n, 4, len(levels), notes)
         for ring, level in enumerate(levels):
             # the second ring turned by half a step: rings at the same angles fit a cylinder across the axis too
             for a in np.linspace(0, 2 * math.pi, count, endpoint=False) + math.pi / count * (1 + ring):
@@ -174,7 +191,7 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
         bore = bool(p.get("bore", False))
         up = apply_vectors(invert(T), np.array([0.0, 0.0, 1.0]))
         e1, e2 = _frame(up)
-        count = n or 4
+        count = _enough("sphere", n, 4, 1, notes, extra=1)
         dirs = [up] + [math.sin(math.radians(45)) * (math.cos(a) * e1 + math.sin(a) * e2) + math.cos(math.radians(45)) * up
                        for a in np.linspace(0, 2 * math.pi, count, endpoint=False)]
         for d in dirs:
@@ -201,9 +218,23 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
                      f"determine the {fit_kind}")
     plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
                    what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""),
-                   notes=tuple(notes))
+                   notes=tuple(notes), per_ring=count)
     plan.path = plan_path(plan, approach_distance, tip_radius)
     return plan
+
+
+def _enough(kind: str, asked: int | None, default: int, rings: int, notes: list[str], extra: int = 0) -> int:
+    """Hits per ring: as asked (or ``default``), raised to MIN_PER_RING[kind] so the ``rings`` rings (and
+    ``extra`` hits off them) outnumber the feature's parameters; a note says when the request was raised."""
+    need = MIN_PER_RING[kind]
+    if asked is None or asked >= need:
+        return asked or max(default, need)
+    total = need * rings + extra
+    where = "per ring" if kind != "sphere" else "around the pole"
+    notes.append(f"{asked} hits {where} were asked for; a {kind} has {PARAMETERS[kind]} parameters and needs "
+                 f"{need} {where} ({total} hits: one at least to check the fit; with fewer the fit can pass "
+                 f"exactly through the hits on another {kind}): planned {need} {where}")
+    return need
 
 
 def plan_path(plan: HitPlan, approach_distance: float, tip_radius: float) -> np.ndarray:

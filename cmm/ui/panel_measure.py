@@ -82,8 +82,8 @@ class MeasurePanel:
         p = self.plan
         if p is None:
             return 0
-        if self.hits_per_ring:
-            return int(self.hits_per_ring)
+        if p.per_ring:  # what the plan uses (raised above the request when the feature needs more)
+            return int(p.per_ring)
         return len(p) // 2 if p.kind in ("cylinder", "cone") else len(p)
 
     def text(self) -> str:
