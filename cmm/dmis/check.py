@@ -16,12 +16,12 @@ from .tolerances import ALL as TOLERANCES
 # major word -> the minor words supported (None: any parameters)
 SUPPORTED: dict[str, set[str] | None] = {
     "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None, "TEXT": None,
-    "MODE": {"PROG", "AUTO"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
+    "MODE": {"PROG", "AUTO", "MAN"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
     "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None,
     "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
     "FEDRAT": {"POSVEL", "MESVEL"}, "GOTO": None,
     "FEAT": set(KINDS), "MEAS": set(KINDS), "PTMEAS": {"CART", "POL"}, "ENDMES": None,
-    "CONST": {"POINT", "LINE", "PLANE"}, "DATDEF": None, "TOL": set(TOLERANCES),
+    "CONST": {"POINT", "LINE", "PLANE", "CIRCLE"}, "DATDEF": None, "TOL": set(TOLERANCES),
     "DEVICE": {"STOR", "TERM", "PRINT"}, "OPEN": None, "CLOSE": None, "OUTPUT": None,
     "DECL": None, "ASSIGN": None, "IF": None, "ELSE": None, "ENDIF": None, "DO": None, "ENDDO": None,
     "MACRO": None, "ENDMAC": None, "CALL": None,
@@ -47,17 +47,15 @@ def _feat_problem(s: Statement) -> str | None:
     kind = s.minor
     if kind in SIZED and not ({"INNER", "OUTER"} & set(words)):
         return f"FEAT/{kind} needs INNER or OUTER"
-    if "POL" in words:
-        return f"FEAT/{kind} in POL coordinates is not supported: give it in CART"
-    if "CART" not in words:
-        return f"FEAT/{kind} needs CART and its coordinates"
+    if "CART" not in words and "POL" not in words:
+        return f"FEAT/{kind} needs CART or POL and its coordinates"
     n = numbers(s.params)
     lo, hi = NUMBERS[kind]  # type: ignore[index]
     if kind == "LINE" and "BND" in words:
         lo, hi = 6, 9
     if not lo <= n <= hi:
         want = str(lo) if lo == hi else f"{lo} to {hi}"
-        return f"FEAT/{kind} takes {want} numbers after CART, it has {n}"
+        return f"FEAT/{kind} takes {want} numbers after {'POL' if 'POL' in words else 'CART'}, it has {n}"
     return None
 
 

@@ -42,6 +42,7 @@ class Target(Protocol):
     def move(self, target: np.ndarray, speed: float | None) -> None: ...
     def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
               search_distance: float, retract_distance: float, rapid_speed: float | None) -> int: ...
+    def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]: ...
     @property
     def tip_radius(self) -> float: ...
     @property
@@ -115,6 +116,7 @@ class Executor:
         self.nominals: dict[str, Nominal] = {}
         self.tolerances: dict[str, Tolerance] = {}
         self.datums: dict[str, Actual] = {}
+        self.sizes: dict[str, tuple[float, float]] = {}  # FA label -> (low, high) diameters from its TOL/DIAM
         self.sensors: dict[str, dict[str, Any]] = {}
         self.sensor: str | None = None
         approach, search, retract = target.probe_distances
@@ -128,6 +130,10 @@ class Executor:
         self.output: list[str] = []
         self.result = RunResult()
         self._meas: tuple[Statement, list[int]] | None = None
+        # MODE/MAN and MODE/PROG, MAN: the operator takes the hits by hand (PTMEAS points guide them, GOTO is
+        # theirs to make); MODE/AUTO: the machine does
+        self.manual = False
+        self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -267,12 +273,18 @@ class Executor:
         if handler is None:  # the check lets through only what has a handler or is a no-op
             if s.major == "ENDIF":
                 return  # the end of the branch taken
-            if s.major in ("DMISMN", "DMISMD", "DISPLY", "PRCOMP", "MODE", "ENDFIL"):
+            if s.major in ("DMISMN", "DMISMD", "DISPLY", "PRCOMP", "ENDFIL"):
                 return  # the program's name, display and mode settings: the station has one way of each
             raise self.fail(s, f"{s.major} is not supported")
         handler(s)
 
     # --- program and output ------------------------------------------------------------------
+
+    def do_mode(self, s: Statement) -> None:
+        manual = "AUTO" not in self.words(s)
+        if manual != self.manual:
+            self.log(f"line {s.line}: {'manual mode: the operator takes the hits' if manual else 'automatic mode'}")
+        self.manual = manual
 
     def do_filnam(self, s: Statement) -> None:
         self.emit(statement_text(s))
@@ -345,9 +357,15 @@ class Executor:
                 if not pending:
                     raise self.fail(s, f"TA({lab.name}) needs the feature it applies to before it: "
                                        f"OUTPUT/FA(name), TA({lab.name})")
-                ev = evaluate_tolerance(tol, pending, self.datums, self.frame)
+                ev = evaluate_tolerance(tol, pending, self.datums, self.frame, self.sizes)
                 self.result.evaluations.append(ev)
                 self.emit(output_line(ev))
+                if ev.note:
+                    self.emit(f"$$ T({tol.label}): {ev.note}; allowed {tol.upper + ev.bonus:.5f}")
+                nom = pending[0].nominal
+                if tol.word in ("DIAM", "RAD") and nom is not None and nom.diameter is not None:
+                    k = 2.0 if tol.word == "RAD" else 1.0  # the size limits as diameters, for MMC / LMC
+                    self.sizes[pending[0].label] = (nom.diameter + k * tol.lower, nom.diameter + k * tol.upper)
                 self._to_model(ev, pending)
                 after_tolerance = True
             else:
@@ -422,12 +440,54 @@ class Executor:
         self._set_frame(s, self.frame @ translation(origin), self.design_frame @ translation(origin))
 
     def do_rotat(self, s: Statement) -> None:
-        if len(s.params) != 2 or not isinstance(s.params[0], Word) or s.params[0].text not in AXES:
-            raise self.fail(s, "ROTAT takes an axis and an angle: ROTAT/ZAXIS, 30 (rotation about a feature is "
-                               "not supported)")
-        angle = self.num(s, s.params[1]) * self.angle_scale
-        turn = rotation(AXES[s.params[0].text], angle)
+        """ROTAT/ZAXIS, angle: turn about an axis of the current system. ROTAT/ZAXIS, FA(x), XDIR: turn about
+        the axis until XDIR (YDIR, XMINUS ...) points along the feature: its direction (a line, a plane's normal)
+        or, for a feature whose direction is the rotation axis (a bore, a point), towards its location."""
+        p = s.params
+        bad = ("ROTAT takes an axis and an angle (ROTAT/ZAXIS, 30) or an axis, a feature and the direction that "
+               "turns onto it (ROTAT/ZAXIS, FA(HOLE2), XDIR)")
+        if len(p) < 2 or not isinstance(p[0], Word) or p[0].text not in AXES:
+            raise self.fail(s, bad)
+        axis = AXES[p[0].text]
+        if isinstance(p[1], Label):
+            if len(p) != 3 or not isinstance(p[2], Word) or p[2].text not in DIRS:
+                raise self.fail(s, bad)
+            d_axis, sign = DIRS[p[2].text]
+            if d_axis == axis:
+                raise self.fail(s, f"ROTAT/{p[0].text} cannot turn {p[2].text} onto a feature: it is the rotation axis")
+            a = self.actual(s, p[1])
+            angle = self._turn_onto(s, self.frame, axis, d_axis, sign, a.direction(), a.location(), p[1].name)
+            nom = None if a.nominal is None else (a.nominal.design or a.nominal)
+            design_angle = angle if nom is None else self._turn_onto(
+                s, self.design_frame, axis, d_axis, sign, nom.vector, nom.point, p[1].name)
+            self._set_frame(s, self.frame @ rotation(axis, angle), self.design_frame @ rotation(axis, design_angle))
+            return
+        elif len(p) == 2:
+            angle = self.num(s, p[1]) * self.angle_scale
+        else:
+            raise self.fail(s, bad)
+        turn = rotation(axis, angle)
         self._set_frame(s, self.frame @ turn, self.design_frame @ turn)
+
+    def _turn_onto(self, s: Statement, frame: np.ndarray, axis: int, d_axis: int, sign: float,
+                   direction: np.ndarray | None, location: np.ndarray, name: str) -> float:
+        """The angle about ``axis`` of ``frame`` that turns its ``d_axis`` (times ``sign``) onto a feature."""
+        inv = inverse(frame)
+        e = np.zeros(3)
+        e[axis] = 1.0
+        v = None
+        if direction is not None:
+            v = apply_vector(inv, direction)
+            v = v - (v @ e) * e
+        if v is None or np.linalg.norm(v) < 0.05:  # within 3 degrees of the axis: towards the feature's location
+            v = apply(inv, location)
+            v = v - (v @ e) * e
+            if np.linalg.norm(v) < 1e-6:
+                raise self.fail(s, f"FA({name}) lies on the rotation axis: it cannot set the direction")
+        target = sign * v / np.linalg.norm(v)
+        current = np.zeros(3)
+        current[d_axis] = 1.0
+        return math.atan2(float(np.cross(current, target) @ e), float(current @ target))
 
     def do_recall(self, s: Statement) -> None:
         name = self.labels(s)[0].name
@@ -502,6 +562,8 @@ class Executor:
             self.mesvel = min(speed, limit)
 
     def do_goto(self, s: Statement) -> None:
+        if self.manual:  # the operator moves the probe in manual mode
+            return
         w = self.words(s)
         v = self.numbers(s)
         if "INCR" in w:
@@ -521,6 +583,12 @@ class Executor:
         v = self.numbers(s)
         word = s.minor
         inner = None if word not in ("CIRCLE", "CYLNDR", "CONE", "SPHERE") else "INNER" in w
+        polar = "POL" in w
+        if polar:  # POL: the location as radius, angle, height in the current system (the vector stays I, J, K)
+            if len(v) < 3:
+                raise self.fail(s, f"FEAT/{word}, POL takes the radius, angle and height of its location")
+            r, a = v[0], v[1] * self.angle_scale
+            v = [r * math.cos(a), r * math.sin(a), *v[2:]]
         try:
             if word == "LINE" and "BND" in w:
                 nom = bounded_line(v, self.frame, self.scale)
@@ -531,6 +599,7 @@ class Executor:
                                           self.angle_scale)
         except ValueError as exc:
             raise self.fail(s, f"FEAT/{word}: {exc}") from None
+        nom.polar = polar
         self.nominals[s.label.name] = nom  # type: ignore[union-attr]
 
     def do_meas(self, s: Statement) -> None:
@@ -541,6 +610,7 @@ class Executor:
         if KINDS[s.minor] != nom.kind:  # type: ignore[index]
             raise self.fail(s, f"MEAS/{s.minor} measures F({label.name}), which is a {nom.word}")
         self._meas = (s, [])
+        self._guides = []
 
     def do_ptmeas(self, s: Statement) -> None:
         if self._meas is None:
@@ -563,6 +633,10 @@ class Executor:
             normal = nom.surface_normal(p)
             if normal is None:
                 raise self.fail(s, f"PTMEAS without a vector: give I, J, K for a point on a {nom.word}")
+        if self.manual:  # a guide for the operator's hand: where to take the hit and from which side
+            near = ", ".join(f"{x:.3f}" for x in local)  # as the program gives it
+            self._guides.append((p, -normal, f"near {near}"))
+            return
         hid = self.target.probe(p, -normal, speed=self.mesvel, approach_distance=self.snset["APPRCH"],
                                 search_distance=self.snset["SEARCH"], retract_distance=self.snset["RETRCT"],
                                 rapid_speed=self.posvel)
@@ -575,6 +649,19 @@ class Executor:
         label = self.labels(meas)[0].name
         nom = self.nominals[label]
         expected = self.numbers(meas)
+        if self.manual:
+            guides, self._guides = self._guides, []
+            n = int(expected[0]) if expected else len(guides)
+            if n < 1:
+                raise DmisError(f"line {meas.line}: MEAS/{meas.minor}, F({label}) in manual mode needs the number of "
+                                "hits the operator takes")
+            prompt = (f"line {meas.line}: take {n} hit{'s' if n > 1 else ''} by hand on F({label}) ({nom.word})"
+                      + (": " + "; ".join(g[2] for g in guides) if guides else ""))
+            ids.extend(self.target.manual_hits(prompt, n, [(g[0], g[1]) for g in guides]))
+            if len(ids) < n:
+                raise DmisError(f"line {meas.line}: F({label}) needs {n} hits by hand, {len(ids)} were taken")
+            self.result.hits += len(ids)
+            self.model.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
         if expected and int(expected[0]) != len(ids):
             self.log(f"line {meas.line}: MEAS/{meas.minor}, F({label}) announced {int(expected[0])} points, "
                      f"{len(ids)} were measured")
@@ -614,6 +701,18 @@ class Executor:
         options = [p.text for p in w if isinstance(p, Word) and p.text not in self.variables]
         datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
         tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
+        # material conditions: MMC / LMC / RFS after the zone is the feature's, after a DAT(..) that datum's
+        last: Param | None = None
+        for p in w:
+            if isinstance(p, Word) and p.text in ("MMC", "LMC", "RFS"):
+                if word != "POS" and p.text != "RFS":
+                    raise self.fail(s, f"TOL/{word}, {p.text}: a material condition applies to TOL/POS only")
+                if isinstance(last, Label) and last.type == "DAT":
+                    if p.text != "RFS":
+                        tol.datum_material[last.name] = p.text
+                elif p.text != "RFS":
+                    tol.material = p.text
+            last = p
         if word in ("DIAM", "RAD"):
             if len(v) != 2:
                 raise self.fail(s, f"TOL/{word} takes the lower and the upper tolerance")

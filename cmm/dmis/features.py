@@ -38,6 +38,7 @@ class Nominal:
     angle: float | None = None  # cone: the included angle, radians
     length: float | None = None
     design: "Nominal | None" = None  # the same nominal in the design frame (see Executor.design_frame)
+    polar: bool = False  # given in POL (radius, angle, height): its actual is output the same way
 
     @property
     def kind(self) -> str:
@@ -157,6 +158,11 @@ def _f(x: float) -> str:
     return f"{round(float(x), 5) + 0.0:.5f}"  # no "-0.00000"
 
 
+def _polar(p: np.ndarray, angle_scale: float) -> list[float]:
+    """(radius, angle in the program's units, height) of a point in the current system."""
+    return [math.hypot(p[0], p[1]), math.atan2(p[1], p[0]) / angle_scale, float(p[2])]
+
+
 def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: float) -> str:
     """``FA(label) = FEAT/...`` in the coordinate system ``frame`` and the program's units."""
     inv = inverse(frame)
@@ -166,9 +172,9 @@ def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: fl
     if word in SIZED:
         inner = nom.inner if nom is not None and nom.inner is not None else bool(actual.geometry.get("bore", False))
         head.append("INNER" if inner else "OUTER")
-    head.append("CART")
+    head.append("POL" if nom is not None and nom.polar else "CART")
     p = apply(inv, actual.axis_point()) / scale
-    nums = [*p]
+    nums = _polar(p, angle_scale) if nom is not None and nom.polar else [*p]
     d = actual.direction()
     if word != "SPHERE" and d is not None:
         nums += list(apply_vector(inv, d))
@@ -185,8 +191,10 @@ def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: fl
 def nominal_line(label: str, nom: Nominal, frame: np.ndarray, scale: float, angle_scale: float) -> str:
     """``F(label) = FEAT/...`` of a nominal (for exported programs)."""
     inv = inverse(frame)
-    head = [nom.word] + (["INNER" if nom.inner else "OUTER"] if nom.word in SIZED else []) + ["CART"]
-    nums = list(apply(inv, nom.point) / scale)
+    head = [nom.word] + (["INNER" if nom.inner else "OUTER"] if nom.word in SIZED else []) + \
+        ["POL" if nom.polar else "CART"]
+    p = apply(inv, nom.point) / scale
+    nums = _polar(p, angle_scale) if nom.polar else list(p)
     if nom.vector is not None and nom.word != "SPHERE":
         nums += list(apply_vector(inv, nom.vector))
     if nom.word in ("CIRCLE", "CYLNDR", "SPHERE"):

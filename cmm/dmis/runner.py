@@ -3,28 +3,78 @@
 :func:`run_text` refuses a program with any problem (syntax, an unsupported statement, an unclosed block) before
 anything moves, then holds the machine for the whole run (``controller.run_job``) and moves and probes through
 the control core, so the access policy, STOP and the journal work as for every other front end.
+
+A program that measures in manual mode (``MODE/MAN`` or ``MODE/PROG, MAN``) cannot hold the machine: the
+operator jogs and probes between its statements. It runs outside a job, each move and hit its own command of
+the client that runs it (the access policy keeps others out), and waits at each manual ``MEAS`` for the
+operator's hits: ``manual_hits(prompt, n, guides)`` when given (the command line asks at the terminal, tests
+probe where the part really is), else the next n hits the operator takes, the prompt shown through ``on_prompt``.
 """
 
 from __future__ import annotations
 
+import threading
+import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from .check import check
 from .executor import DmisError, Executor, RunResult
+from .parser import Statement, Word
+
+ManualHits = Callable[[str, int, list[tuple[np.ndarray, np.ndarray]]], list[int]]
 
 
 class StationTarget:
     """The station as a DMIS target: straight moves, programmed hits with the program's cycle, its model."""
 
-    def __init__(self, station: Any, client: Any = None, timeout: float = 120.0) -> None:
+    def __init__(self, station: Any, client: Any = None, timeout: float = 120.0, *,
+                 manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
+                 manual_timeout: float = 1800.0, cancel: threading.Event | None = None) -> None:
         self.station = station
         self.controller = station.controller
         self.model = station.measurement
         self.client = client
         self.timeout = timeout
+        self._manual_hits = manual_hits
+        self.on_prompt = on_prompt
+        self.manual_timeout = manual_timeout
+        self.cancel = cancel or threading.Event()
+
+    def _tell(self, text: str) -> None:
+        if self.on_prompt is not None:
+            self.on_prompt(text)
+
+    def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]:
+        """The ids of n hits the operator takes by hand (MODE/MAN): the given way, else the next n hits that
+        reach the measurement model (taken with the pendant or the page's armed jog), the prompt told meanwhile."""
+        if self._manual_hits is not None:
+            self._tell(prompt)
+            try:
+                return list(self._manual_hits(prompt, n, guides))
+            finally:
+                self._tell("")
+        start = set(list(self.model.hits))
+        end = time.monotonic() + self.manual_timeout
+        told = ""
+        try:
+            while True:
+                new = [h for h in list(self.model.hits) if h not in start]
+                if len(new) >= n:
+                    return new[:n]
+                if self.cancel.is_set():
+                    raise DmisError(f"{prompt.split(':')[0]}: the program was cancelled while waiting for hits by hand")
+                if time.monotonic() > end:
+                    raise DmisError(f"{prompt.split(':')[0]}: no {n} hits by hand within {self.manual_timeout:g} s")
+                text = f"{prompt} ({len(new)} of {n} taken)"
+                if text != told:
+                    self._tell(text)
+                    told = text
+                time.sleep(0.1)  # a person's pace
+        finally:
+            self._tell("")
 
     def position(self) -> np.ndarray:
         return np.asarray(self.station.machine.position, float)
@@ -69,10 +119,27 @@ def load_text(path: str | Path) -> str:
         raise DmisError(f"cannot read the DMIS program {p}: {exc.strerror or exc}") from None
 
 
-def run_text(text: str, station: Any, *, name: str = "program", client: Any = None) -> RunResult:
-    """Check ``text`` and run it on ``station`` (connected, homed): the run's actuals, tolerances and output."""
+def needs_operator(stmts: list[Statement]) -> bool:
+    """Whether the program measures or moves in manual mode (read in order: a MODE holds until the next)."""
+    manual = False
+    for s in stmts:
+        if s.major == "MODE":
+            manual = not any(isinstance(p, Word) and p.text == "AUTO" for p in s.params)
+        elif manual and s.major in ("MEAS", "GOTO"):
+            return True
+    return False
+
+
+def run_text(text: str, station: Any, *, name: str = "program", client: Any = None,
+             manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
+             cancel: threading.Event | None = None) -> RunResult:
+    """Check ``text`` and run it on ``station`` (connected, homed): the run's actuals, tolerances and output.
+    ``manual_hits``, ``on_prompt``, ``cancel``: how the operator's hits are taken in manual mode (see above)."""
     stmts, problems = check(text)
     if problems:
         raise DmisError(problems[0])
-    executor = Executor(stmts, StationTarget(station, client), name=name)
+    target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
+    executor = Executor(stmts, target, name=name)
+    if needs_operator(stmts):
+        return executor.run()
     return station.controller.run_job(client, f"DMIS program {name!r}", executor.run, timeout=None)

@@ -52,6 +52,8 @@ class Tolerance:
     nominal: float | None = None  # DISTB / ANGLB nominal; ANGLR angle
     datums: list[str] = field(default_factory=list)
     options: list[str] = field(default_factory=list)  # 2D / 3D, CIRCLR / TOTAL, XAXIS ...
+    material: str = ""  # POS: the feature's material condition, MMC / LMC ("": RFS)
+    datum_material: dict[str, str] = field(default_factory=dict)  # DAT name -> MMC / LMC (its boundary)
 
 
 @dataclass
@@ -60,6 +62,8 @@ class Evaluation:
     value: float  # the deviation (sizes, distances, angles) or the zone (form, orientation, position ...)
     intol: bool
     features: list[str]
+    bonus: float = 0.0  # POS at MMC / LMC: the bonus tolerance the feature's actual size gives
+    note: str = ""  # how the value was taken (material condition, datum shift), for the output's comment
 
     @property
     def verdict(self) -> str:
@@ -148,8 +152,11 @@ def _nominal_geometry(nom: Nominal) -> tuple[str, dict[str, Any]]:
     return kind, out
 
 
-def _drf(names: list[str], datums: dict[str, Actual], nominal: bool = False) -> DRF:
-    """The datum reference frame of DAT(..) names: from the actual datum features, or their nominals."""
+def _drf(names: list[str], datums: dict[str, Actual], nominal: bool = False, *,
+         material: dict[str, str] | None = None, sizes: dict[str, tuple[float, float]] | None = None) -> DRF:
+    """The datum reference frame of DAT(..) names: from the actual datum features, or their nominals. A datum
+    at MMC / LMC (``material``) is referenced at its boundary: the MMC (LMC) size of its size limits
+    (``sizes``, from the TOL/DIAM output with it), so the frame may shift by its departure from it."""
     out = []
     for name in names[:3]:
         d = datums[name]
@@ -157,21 +164,37 @@ def _drf(names: list[str], datums: dict[str, Actual], nominal: bool = False) -> 
             if d.nominal is None:
                 raise ToleranceError(f"DAT({name}) (FA({d.label})) has no nominal to build the nominal frame from")
             kind, g = _nominal_geometry(d.nominal.design or d.nominal)
+            out.append(datum_from_feature(name, kind, g, feature=d.label))
+            continue
+        kind, g = d.kind, _signed(d)
+        mod = (material or {}).get(name, "")
+        if mod:
+            limits = (sizes or {}).get(d.label)
+            if limits is None or d.nominal is None or d.nominal.inner is None:
+                raise ToleranceError(f"DAT({name}) at {mod} needs FA({d.label})'s size limits: output its TOL/DIAM "
+                                     f"first (OUTPUT/FA({d.label}), TA(..))")
+            internal = bool(d.nominal.inner)
+            low, high = limits
+            boundary = (low if internal else high) if mod == "MMC" else (high if internal else low)
+            out.append(datum_from_feature(name, kind, g, modifier="MMB" if mod == "MMC" else "LMB",
+                                          boundary=boundary, internal=internal, feature=d.label))
         else:
-            kind, g = d.kind, _signed(d)
-        out.append(datum_from_feature(name, kind, g, feature=d.label))
+            out.append(datum_from_feature(name, kind, g, feature=d.label))
     return build_drf(out)
 
 
-def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray) -> Evaluation:
+def evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray,
+             sizes: dict[str, tuple[float, float]] | None = None) -> Evaluation:
+    """Evaluate ``tol`` on the features an OUTPUT statement names with it. ``sizes``: feature label -> its
+    (low, high) diameter limits, from the TOL/DIAM (RAD) evaluated on it (for POS at MMC / LMC)."""
     try:
-        return _evaluate(tol, features, datums, frame)
+        return _evaluate(tol, features, datums, frame, sizes or {})
     except (gdt.GdtError, DatumError) as exc:
         raise ToleranceError(f"T({tol.label}) (TOL/{tol.word}): {exc}") from None
 
 
-def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray) -> Evaluation:
-    """Evaluate ``tol`` on the features an OUTPUT statement names with it."""
+def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual], frame: np.ndarray,
+              sizes: dict[str, tuple[float, float]]) -> Evaluation:
     w = tol.word
     need = 2 if w in ("DISTB", "ANGLB") else 1
     if len(features) != need:
@@ -227,10 +250,18 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         if nom is None or a.kind not in ("point", "circle", "cylinder", "sphere", "cone"):
             raise ToleranceError(f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
                                  f"FA({a.label}) is a {a.kind}")
-        drf = _drf(tol.datums, datums) if dat else None
+        drf = _drf(tol.datums, datums, material=tol.datum_material, sizes=sizes) if dat else None
         ndrf = _drf(tol.datums, datums, nominal=True) if dat else None
         _, nominal = _nominal_geometry((nom.design or nom) if dat else nom)
-        value = gdt.position(a.kind, _signed(a), nominal, up, drf=drf, nominal_drf=ndrf, points=a.hit_points).value
+        limits = sizes.get(a.label)
+        if tol.material and (limits is None or nom.inner is None):
+            raise ToleranceError(f"T({tol.label}) at {tol.material} needs FA({a.label})'s size limits: output its "
+                                 f"TOL/DIAM first (OUTPUT/FA({a.label}), TA(..))")
+        res = gdt.position(a.kind, _signed(a), nominal, up, drf=drf, nominal_drf=ndrf, points=a.hit_points,
+                           material=tol.material, size_limits=limits if tol.material else None,
+                           internal=None if nom.inner is None else bool(nom.inner))
+        return Evaluation(tol, res.value, res.value <= res.allowed + 1e-12, [a.label], bonus=res.bonus,
+                          note=res.note if (tol.material or tol.datum_material) else "")
     elif w in ("PROFS", "PROFL"):
         d = _nominal_surface_deviation(a)
         intol = bool(np.all(d >= lo - 1e-12) and np.all(d <= up + 1e-12))

@@ -1,0 +1,285 @@
+"""DMIS statements beyond the first set, on the simulated station against its true part: manual mode (the
+operator's hits, here taken where the part really is), FEAT and PTMEAS in polar coordinates, ROTAT onto a
+feature, CONST/CIRCLE (section, projection, bolt circle), distances and angles between constructed features, and
+TOL/POS at MMC with a datum at MMC (bonus and datum shift)."""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import session_support as sup
+from cmm.dmis.check import check
+from cmm.dmis.executor import DmisError
+from cmm.dmis.runner import needs_operator, run_text
+from cmm.sim.cmm_sim import pose_matrix
+from cmm.station import Station
+
+NOISE = 0.004  # mm: two encoder counts and the probe's repeatability
+# the part as the operator put it down: 1 mm and 0.8 mm off the nominal set-up (190, 150), turned 0.8 degrees
+PLACED = pose_matrix((191.0, 150.8, 0.0), rz_deg=0.8)
+SETUP = np.array([190.0, 150.0, 0.0])  # where the program's D(SETUP) expects the part's corner
+
+# the boss (part X70 Y22) and the sphere cap's top (X70 Y58 Z49) seen from the bore axis (X30 Y40) at the top
+BOSS_R, BOSS_A = math.hypot(40.0, -18.0), math.degrees(math.atan2(-18.0, 40.0))
+SPH_A = math.degrees(math.atan2(18.0, 40.0)) - BOSS_A  # in the frame turned onto the boss
+SPH_XY = (BOSS_R * math.cos(math.radians(SPH_A)), BOSS_R * math.sin(math.radians(SPH_A)))
+
+
+def _program() -> str:
+    sx, sy = SPH_XY
+    return f"""DMISMN/'manual 3-2-1, then automatic', 05.0
+FILNAM/'manual 3-2-1, then automatic'
+UNITS/MM, ANGDEC
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+$$ the operator takes the 3-2-1 hits by hand where the part lies
+MODE/MAN
+F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1
+MEAS/PLANE, F(TOP), 3
+  PTMEAS/CART, 15, 10, 40, 0, 0, 1
+  PTMEAS/CART, 105, 12, 40, 0, 0, 1
+  PTMEAS/CART, 50, 70, 40, 0, 0, 1
+ENDMES
+F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
+MEAS/PLANE, F(FRONT), 3
+  GOTO/60, -20, 60
+  PTMEAS/CART, 15, 0, 25, 0, -1, 0
+  PTMEAS/CART, 105, 0, 25, 0, -1, 0
+  PTMEAS/CART, 60, 0, 10, 0, -1, 0
+ENDMES
+F(LEFT) = FEAT/POINT, CART, 0, 20, 15, -1, 0, 0
+MEAS/POINT, F(LEFT), 1
+  PTMEAS/CART, 0, 20, 15, -1, 0, 0
+ENDMES
+D(PART) = DATSET/FA(TOP), ZDIR, ZORIG, FA(FRONT), YMINUS, YORIG, FA(LEFT), XORIG
+MODE/AUTO, PROG, MAN
+SNSET/APPRCH, 4
+SNSET/RETRCT, 3
+GOTO/INCR, 10, 0, 0, 1
+GOTO/30, 40, 30
+F(BORE) = FEAT/CYLNDR, INNER, CART, 30, 40, -20, 0, 0, 1, 30, 40
+MEAS/CYLNDR, F(BORE), 6
+  GOTO/30, 40, -10
+  PTMEAS/CART, 45, 40, -10, -1, 0, 0
+  PTMEAS/CART, 22.5, 52.990381, -10, 0.5, -0.866025, 0
+  PTMEAS/CART, 22.5, 27.009619, -10, 0.5, 0.866025, 0
+  PTMEAS/CART, 45, 40, -30, -1, 0, 0
+  PTMEAS/CART, 22.5, 52.990381, -30, 0.5, -0.866025, 0
+  PTMEAS/CART, 22.5, 27.009619, -30, 0.5, 0.866025, 0
+  GOTO/30, 40, -10
+  GOTO/30, 40, 30
+ENDMES
+$$ the bore's axis is the origin; the boss is given in polar coordinates about it
+D(BOREC) = TRANS/XORIG, FA(BORE), YORIG, FA(BORE)
+F(BOSS) = FEAT/CIRCLE, OUTER, POL, {BOSS_R:.6f}, {BOSS_A:.6f}, 7, 0, 0, 1, 20
+MEAS/CIRCLE, F(BOSS), 4
+  GOTO/56, -18, 20
+  PTMEAS/CART, 50, -18, 7, 1, 0, 0
+  GOTO/56, -18, 20
+  GOTO/40, -2, 20
+  PTMEAS/CART, 40, -8, 7, 0, 1, 0
+  GOTO/40, -2, 20
+  GOTO/24, -18, 20
+  PTMEAS/CART, 30, -18, 7, -1, 0, 0
+  GOTO/24, -18, 20
+  GOTO/40, -34, 20
+  PTMEAS/CART, 40, -28, 7, 0, -1, 0
+  GOTO/40, -34, 20
+ENDMES
+$$ X turned from the bore onto the boss; the sphere cap's top in polar coordinates in that frame
+D(TOBOSS) = ROTAT/ZAXIS, FA(BOSS), XDIR
+GOTO/{sx:.4f}, {sy:.4f}, 20
+F(SPHTOP) = FEAT/POINT, POL, {BOSS_R:.6f}, {SPH_A:.6f}, 9, 0, 0, 1
+MEAS/POINT, F(SPHTOP), 1
+  PTMEAS/POL, {BOSS_R:.6f}, {SPH_A:.6f}, 9, 0, 0, 1
+ENDMES
+GOTO/{sx:.4f}, {sy:.4f}, 30
+$$ constructions: the bore's section at the top face, the boss projected onto it, the bolt circle
+CONST/CIRCLE, F(BT), INTOF, FA(BORE), FA(TOP)
+CONST/CIRCLE, F(BP), PROJCT, FA(BOSS), FA(TOP)
+CONST/CIRCLE, F(BC), BF, FA(BT), FA(BP), FA(SPHTOP)
+DATDEF/FA(TOP), DAT(A)
+DATDEF/FA(BORE), DAT(B)
+DATDEF/FA(FRONT), DAT(C)
+T(DB) = TOL/DIAM, -0.01, 0.05
+T(DBOSS) = TOL/DIAM, -0.05, 0.01
+T(PMMC) = TOL/POS, 2D, 0.001, MMC, DAT(A), DAT(B), MMC, DAT(C)
+T(PLMC) = TOL/POS, 2D, 0.001, LMC, DAT(A), DAT(B), DAT(C)
+T(DIST) = TOL/DISTB, NOMINL, {BOSS_R:.6f}, -0.01, 0.01
+T(ANG) = TOL/ANGLB, NOMINL, 90, -0.05, 0.05
+RECALL/D(PART)
+OUTPUT/FA(TOP), FA(FRONT), TA(ANG)
+OUTPUT/FA(BORE), TA(DB)
+OUTPUT/FA(BT), FA(BP), TA(DIST)
+OUTPUT/FA(BC)
+RECALL/D(TOBOSS)
+OUTPUT/FA(BOSS), TA(DBOSS), TA(PMMC), TA(PLMC)
+OUTPUT/FA(SPHTOP)
+ENDFIL
+"""
+
+
+@pytest.fixture
+def station(tmp_path):
+    """The station on the in-process simulator (virtual clock), homed, the part placed off the set-up."""
+    st = Station(port="sim://?cmm=1", session_dir=tmp_path)
+    try:
+        st.controller.connect()
+        st.controller.home(None)
+        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
+        st.sim.place_part(PLACED)
+        st.measurement.new_session("dmis")
+        yield st
+    finally:
+        st.close()
+
+
+def _true(machine_point_at_setup):
+    """Where a point the program names at the nominal set-up really is on the placed part."""
+    return (PLACED @ np.append(np.asarray(machine_point_at_setup, float) - SETUP, 1.0))[:3]
+
+
+def _operator(st, prompts):
+    """The operator's hands: each guided hit taken where the part really is (the guide mapped onto the placed
+    part), over the clearance height as a person jogging round the part would."""
+    model = st.measurement
+
+    def take(prompt, n, guides):
+        prompts.append(prompt)
+        ids = []
+        for point, approach in guides[:n]:
+            hit = model.probe(_true(point), PLACED[:3, :3] @ approach, clearance_z=90.0).wait(120)
+            ids.append(model.hit_id(hit))
+        here = np.asarray(st.machine.position, float)  # and jogs clear of the part, up to Z 70
+        st.controller.move(None, [here[0], here[1], 70.0], frame="machine").wait(120)
+        return ids
+
+    return take
+
+
+def _lines(out: str) -> dict[str, list[float]]:
+    joined = re.sub(r"\$\s*\n", " ", out)
+    return {m.group(1): [float(x) for x in m.group(3).split(",")]
+            for m in re.finditer(r"^FA\((\w+)\) = FEAT/([A-Z, ]+?),\s+([-\d., ]+)$", joined, re.M)}
+
+
+def _tas(out: str) -> dict[str, tuple[float, str]]:
+    return {m.group(1): (float(m.group(2)), m.group(3))
+            for m in re.finditer(r"^TA\((\w+)\) = TOL/[A-Z0-9, ]+?, (-?[\d.]+), (INTOL|OUTOL)$", out, re.M)}
+
+
+def test_manual_alignment_polar_rotation_constructions_and_mmc_on_the_true_part(station):
+    text = _program()
+    stmts, problems = check(text)
+    assert problems == [] and needs_operator(stmts)
+    prompts: list[str] = []
+    result = run_text(text, station, name="manual.dmi", manual_hits=_operator(station, prompts))
+    out = result.outputs[None]
+    # the operator was asked for each datum's hits, with where to take them
+    assert prompts[0] == ("line 8: take 3 hits by hand on F(TOP) (PLANE): near 15.000, 10.000, 40.000; "
+                          "near 105.000, 12.000, 40.000; near 50.000, 70.000, 40.000")
+    assert [p.split(":")[1] for p in prompts] == [" take 3 hits by hand on F(TOP) (PLANE)",
+                                                   " take 3 hits by hand on F(FRONT) (PLANE)",
+                                                   " take 1 hit by hand on F(LEFT) (POINT)"]
+    assert result.hits == 7 + 6 + 4 + 1
+    # the datum frame from the hand-taken hits is where the part really lies: corner at the top, turned 0.8 deg
+    frame = result.frames["PART"]
+    assert np.allclose(frame[:3, 3], PLACED[:3, 3] + PLACED[:3, :3] @ [0, 0, 40.0], atol=0.01)
+    assert np.allclose(frame[:3, :3], PLACED[:3, :3], atol=2e-4)
+    fa = _lines(out)
+    # the bore, measured automatically in that frame, is the part's bore
+    assert fa["BORE"][:2] == pytest.approx([30.0, 40.0], abs=0.01) and fa["BORE"][6] == pytest.approx(30.0, abs=NOISE)
+    # its section at the top face: D30 on the axis at Z0; the boss projected there: D20 at the boss
+    assert fa["BT"][:3] == pytest.approx([30.0, 40.0, 0.0], abs=0.01) and fa["BT"][6] == pytest.approx(30.0, abs=NOISE)
+    assert fa["BP"][:3] == pytest.approx([70.0, 22.0, 0.0], abs=0.01) and fa["BP"][6] == pytest.approx(20.0, abs=NOISE)
+    # the bolt circle through the bore, the boss and the sphere's top: the circumcircle of the true locations
+    a, b, c = (np.array(p) for p in ([30.0, 40.0, 0.0], [70.0, 22.0, 0.0], [70.0, 58.0, 9.0]))
+    ab, ac = b - a, c - a
+    n = np.cross(ab, ac)
+    centre = a + (np.cross(n, ab) * (ac @ ac) + np.cross(ac, n) * (ab @ ab)) / (2.0 * (n @ n))
+    assert fa["BC"][:3] == pytest.approx(list(centre), abs=0.02)
+    assert fa["BC"][6] == pytest.approx(2.0 * np.linalg.norm(a - centre), abs=0.02)
+    # in the frame turned onto the boss, the boss lies on X at its polar distance; the sphere's top at its angle
+    assert "FA(BOSS) = FEAT/CIRCLE, OUTER, POL," in out
+    r, ang, h = fa["BOSS"][:3]
+    assert r == pytest.approx(BOSS_R, abs=0.01) and ang == pytest.approx(0.0, abs=0.02) and h == pytest.approx(7.0, abs=0.01)
+    r, ang, h = fa["SPHTOP"][:3]
+    assert r == pytest.approx(BOSS_R, abs=0.02) and ang == pytest.approx(SPH_A, abs=0.03)
+    assert h == pytest.approx(9.0, abs=0.01)
+    turned = result.frames["TOBOSS"]
+    want = PLACED[:3, :3] @ [math.cos(math.radians(BOSS_A)), math.sin(math.radians(BOSS_A)), 0.0]
+    assert turned[:3, 0] == pytest.approx(list(want), abs=3e-4)
+    # distance and angle between constructed and measured features, against the drawing
+    ta = _tas(out)
+    assert abs(ta["DIST"][0]) < 0.01 and ta["DIST"][1] == "INTOL"
+    assert abs(ta["ANG"][0]) < 0.02 and ta["ANG"][1] == "INTOL"
+    # POS at MMC: the bonus is the boss's departure from its MMC size (20.01), with datum B's shift beside;
+    # at LMC the bonus is its departure from 19.95
+    boss = fa["BOSS"][6]
+    notes = dict(re.findall(r"^\$\$ T\((\w+)\): (.*)$", out, re.M))
+    bonus = float(re.search(r"bonus ([\d.]+)", notes["PMMC"]).group(1))
+    assert bonus == pytest.approx(20.01 - boss, abs=2e-4)
+    assert "datum shift" in notes["PMMC"] or ta["PMMC"][0] <= 0.001 + bonus
+    allowed = float(re.search(r"allowed ([\d.]+)", notes["PMMC"]).group(1))
+    assert allowed == pytest.approx(0.001 + bonus, abs=2e-5)
+    assert ta["PMMC"][1] == ("INTOL" if ta["PMMC"][0] <= allowed + 1e-5 else "OUTOL")
+    assert ta["PMMC"][1] == "INTOL"  # the true part is perfect: its position error is the probing noise
+    lbonus = float(re.search(r"bonus ([\d.]+)", notes["PLMC"]).group(1))
+    assert lbonus == pytest.approx(boss - 19.95, abs=2e-4)
+
+
+def test_manual_hits_are_waited_for_with_the_prompt_shown(station):
+    """Without a way given, a manual MEAS waits for the operator's next hits (the pendant, the page's armed jog),
+    telling the prompt meanwhile."""
+    text = ("UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
+            "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\nENDMES\n"
+            "OUTPUT/FA(TOP)\nENDFIL\n")
+    told: list[str] = []
+    done: dict = {}
+
+    def run():
+        try:
+            done["result"] = run_text(text, station, on_prompt=told.append)
+        except Exception as exc:  # noqa: BLE001 - reported by the assertion below
+            done["error"] = exc
+
+    worker = threading.Thread(target=run)
+    worker.start()
+    for _ in range(300):
+        if told:
+            break
+        time.sleep(0.02)
+    assert told and told[0] == "line 5: take 3 hits by hand on F(TOP) (PLANE) (0 of 3 taken)"
+    model = station.measurement
+    for x, y in ((15.0, 10.0), (105.0, 12.0), (50.0, 70.0)):  # the operator probes the top face
+        model.probe(_true([190.0 + x, 150.0 + y, 40.0]), PLACED[:3, :3] @ [0, 0, -1.0], clearance_z=90.0).wait(120)
+    worker.join(60)
+    assert "error" not in done, done.get("error")
+    top = _lines(done["result"].outputs[None])["TOP"]
+    want = _true([190.0 + 60.0, 150.0 + 40.0, 40.0])
+    assert top[2] == pytest.approx(want[2], abs=NOISE)
+    assert told[-1] == "" and any("(2 of 3 taken)" in t for t in told)
+
+
+def test_statement_refusals_name_their_line():
+    assert check("MODE/MAN\nF(X) = FEAT/POINT, POL, 10, 30, 0, 0, 0, 1\n")[1] == []
+    _, problems = check("CONST/CIRCLE, F(C), TTP, FA(A), FA(B)\nF(Y) = FEAT/CIRCLE, INNER, POL, 1, 2\n")
+    assert problems == ["line 1: CONST/CIRCLE needs one of BF, INTOF, MIDLI, MIDPL, MIDPT, PROJCT (other "
+                        "constructions are not supported)", "line 2: FEAT/CIRCLE takes 7 numbers after POL, it has 2"]
+
+
+def test_material_condition_outside_position_and_mmc_without_size_are_refused(station):
+    base = ("UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nSNSET/APPRCH, 4\n"
+            "SNSET/RETRCT, 3\nGOTO/30, 40, 60\n"
+            "F(B) = FEAT/CIRCLE, INNER, CART, 30, 40, 30, 0, 0, 1, 30\nMEAS/CIRCLE, F(B), 3\nGOTO/30, 40, 30\n"
+            "PTMEAS/CART, 45, 40, 30, -1, 0, 0\nPTMEAS/CART, 22.5, 52.990381, 30, 0.5, -0.866025, 0\n"
+            "PTMEAS/CART, 22.5, 27.009619, 30, 0.5, 0.866025, 0\nGOTO/30, 40, 60\nENDMES\n")
+    with pytest.raises(DmisError, match=r"^line 14: TOL/FLAT, MMC: a material condition applies to TOL/POS only$"):
+        run_text(base + "T(F) = TOL/FLAT, 0.01, MMC\n", station)
+    with pytest.raises(DmisError, match=r"^line 15: T\(P\) at MMC needs FA\(B\)'s size limits: output its TOL/DIAM"):
+        run_text(base + "T(P) = TOL/POS, 2D, 0.05, MMC\nOUTPUT/FA(B), TA(P)\n", station)
