@@ -70,13 +70,16 @@ def record_trend(model: MeasurementModel, series: str, features: Any = (), *, va
     if trends is None:
         return None
     try:
-        return trends.record_part(series, feature_values(features) + list(values), serial=serial,
-                                        run_id=run_id)
+        part = trends.record_part(series, feature_values(features) + list(values), serial=serial,
+                                  run_id=run_id)
     except (TrendError, OSError) as exc:
         text = f"the run was not added to the trends of {series!r}: {exc}"
         model.log("error", text)
         model.note(text)
         return None
+    # the session says which series it is a part of (its report can then include that series' charts)
+    model.record("trend", series=part.series, run_id=part.run_id, station=part.station)
+    return part
 
 
 def run_on(controller: Any, model: MeasurementModel, program: Program | str | Path, part_pose: Any = None,

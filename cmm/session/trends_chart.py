@@ -204,17 +204,24 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
                        + " ".join(f"{a:.1f},{b:.1f}" for a, b in pts) + '"/>')
     bad = set(tc.out_of_tolerance)
     ooc = set(c.out_of_control) if c is not None and c.subgroup == 1 else set()
+    # every point's position at once (a chart holds up to max_points of them)
+    xs = (left + (idx - start + 0.5) * w / max(len(idx), 1)).tolist()
+    ys = (top + h_run - (vals - lo) / (hi - lo) * h_run).tolist()
     if len(idx) > 1:
         out.append('<polyline fill="none" stroke="#9e9e9e" stroke-width="0.6" points="'
-                   + " ".join(f"{x(i):.1f},{y(float(h.value[i])):.1f}" for i in idx) + '"/>')
+                   + " ".join([f"{a:.1f},{b:.1f}" for a, b in zip(xs, ys)]) + '"/>')
     r = 2.6 if len(idx) <= 100 else 1.8
-    for i in idx:
-        v = float(h.value[i])
+    minutes: dict[int, str] = {}  # parts measured in the same minute share their time stamp
+    for k, i in enumerate(idx.tolist()):
+        v = float(vals[k])
         fill = OUT_COLOUR if i in bad else colour[h.station[i]]
         ring = ' stroke="#000" stroke-width="1"' if i in ooc or i in bad else ""
-        out.append(f'<circle cx="{x(i):.1f}" cy="{y(v):.1f}" r="{r}" fill="{fill}"{ring}><title>'
-                   f'{e(h.serial[i] or h.run_id[i][:8])} ({e(h.station[i])}, '
-                   f'{time.strftime("%Y-%m-%d %H:%M", time.localtime(float(h.time[i])))}): {v:.5f}'
+        m = int(float(h.time[i]) // 60)
+        stamp = minutes.get(m)
+        if stamp is None:
+            stamp = minutes[m] = time.strftime("%Y-%m-%d %H:%M", time.localtime(m * 60))
+        out.append(f'<circle cx="{xs[k]:.1f}" cy="{ys[k]:.1f}" r="{r}" fill="{fill}"{ring}><title>'
+                   f'{e(h.serial[i] or h.run_id[i][:8])} ({e(h.station[i])}, {stamp}): {v:.5f}'
                    f'{" OUT OF TOLERANCE" if i in bad else ""}</title></circle>')
     # the range chart (moving ranges or subgroup ranges)
     y0 = top + h_run + gap
@@ -234,7 +241,9 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
         if c.spread.lower > 0:
             hline(c.spread.lower, "#1565c0", ' stroke-dasharray="6 3"', f"{name} LCL", yf=yr)
         if c.subgroup == 1:
-            pts = [(x(i), yr(float(sp[i - 1]))) for i in idx if i >= first]
+            keep = idx >= first
+            pts = list(zip(np.asarray(xs)[keep].tolist(),
+                           (y0 + h_rng - np.asarray(sp, float)[idx[keep] - 1] / s_hi * h_rng).tolist()))
         else:
             n = c.subgroup
             pts = [(x(k * n + (n - 1) / 2), yr(float(v))) for k, v in enumerate(sp) if (k + 1) * n > start]

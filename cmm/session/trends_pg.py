@@ -168,8 +168,8 @@ class TrendDatabase:
         return self._run(lambda c: [r[0] for r in c.execute(
             "SELECT DISTINCT station FROM cmm_trend_parts WHERE series = %s ORDER BY station", (series,))])
 
-    def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
-        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order.
+    def columns(self, series: str, characteristic: str, station: str | None) -> tuple:
+        """Every part's time, value, nominal, lower, upper, station, run_id, serial, in time order, as 8 columns.
 
         The values come as binary numbers in the order of the (characteristic, time, part) key (one index range,
         no sort); who measured each part comes from a cache of the parts table, filled for the parts not yet
@@ -180,19 +180,29 @@ class TrendDatabase:
         sql += " ORDER BY v.char_id, v.time, v.part_id"  # one station's parts are picked here from the cache:
         # a semi-join with the parts table made that query slower than the whole characteristic
 
-        def go(conn: Any) -> list[tuple]:
+        def go(conn: Any) -> tuple:
             with conn.cursor(binary=True) as cur:
                 rows = cur.execute(sql, args).fetchall()
-                missing = list({r[1] for r in rows} - self._parts.keys())
+                if not rows:
+                    return ((),) * 8
+                t, pids, v, n, lo, up = zip(*rows)
+                missing = list(set(pids) - self._parts.keys())
                 if missing:
                     for pid, st, run, serial in cur.execute("SELECT id, station, run_id, serial FROM cmm_trend_parts "
                                                             "WHERE id = ANY(%s)", (missing,)):
                         self._parts[pid] = (st, run, serial)
-            parts = self._parts
-            out = [(t, v, n, lo, up, *parts[pid]) for t, pid, v, n, lo, up in rows]
-            return out if not station else [r for r in out if r[5] == station]
+            who = list(zip(*map(self._parts.__getitem__, pids)))
+            cols = (t, v, n, lo, up, *who)
+            if not station:
+                return cols
+            keep = [k for k, s in enumerate(who[0]) if s == station]
+            return tuple([c[k] for k in keep] for c in cols)
 
         return self._run(go)
+
+    def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
+        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order."""
+        return list(zip(*self.columns(series, characteristic, station)))
 
     def vacuum(self) -> None:
         """Refresh the visibility map and statistics after a big upload: chart queries are index-only again."""

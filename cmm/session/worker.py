@@ -173,16 +173,27 @@ def summary(store: StoreSpec, name: str) -> dict[str, Any]:
     return _load(store, name).summary()
 
 
-def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, colour_scale: Any = None) -> list[Path]:
+def trend_series(store: StoreSpec, name: str) -> list[str]:
+    """The series a recorded session's runs were added to as parts (its ``trend`` events), in order."""
+    out: list[str] = []
+    for e in _load(store, name).events:
+        if e.get("kind") == "trend" and e.get("series") and e["series"] not in out:
+            out.append(str(e["series"]))
+    return out
+
+
+def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, colour_scale: Any = None,
+           trends: Any = None) -> list[Path]:
     """Write ``<name>-report.html`` and ``<name>-features.csv`` into ``out_dir``; their paths. ``colour_scale``:
-    the colour map's bands (the 3D view's :class:`~cmm.metrology.colour_scale.ColourScale`)."""
+    the colour map's bands (the 3D view's :class:`~cmm.metrology.colour_scale.ColourScale`); ``trends``: the
+    control charts to include (:class:`~cmm.session.trends_chart.TrendChart` list, as ``cmm report --trend``)."""
     from .report import write_features_csv, write_report
 
     session = _load(store, name)
     mesh = _mesh(session, part)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    return [write_report(session, out / f"{name}-report.html", mesh=mesh, colour_scale=colour_scale),
+    return [write_report(session, out / f"{name}-report.html", mesh=mesh, colour_scale=colour_scale, trends=trends),
             write_features_csv(session, out / f"{name}-features.csv", mesh=mesh)]
 
 

@@ -389,15 +389,32 @@ class SessionsPanel:
         self._set("files", "content", text)
         return text
 
-    def report(self, name: str) -> Job | None:
+    def report(self, name: str, trends: bool = False) -> Job | None:
         """Write the inspection report ``<name>-report.html`` and its feature table ``<name>-features.csv``
-        into the sessions folder (and offer them); rendered in the session worker process."""
+        into the sessions folder (and offer them); rendered in the session worker process. ``trends``: with the
+        control charts of the series the session's part belongs to (as ``cmm report --trend``)."""
         from ..session import worker
 
+        store = self.station.measurement.session_dir
+        if trends and getattr(self.station.measurement, "trends", None) is None:
+            self.ctx.error("this station records no trends: start it with cmm serve --trends DIR", "Report")
+            return None
+
         def work(progress: Callable[[float, str], None]) -> list[Path]:
+            charts = None
+            if trends:
+                from ..session.cli_trends import charts_for
+                from ..session.trends import TrendError
+
+                series = shared_worker().call(worker.trend_series, store, name)
+                if not series:
+                    raise TrendError(f"{name} was not recorded as a part of a series: run a routine or a DMIS "
+                                     "program with trends on to make one")
+                progress(0.05, f"the control charts of {series[-1]!r}")
+                charts = charts_for(self.station.measurement.trends, series[-1])
             progress(0.1, f"rendering the report of {name} (session worker)")
-            return shared_worker().call(worker.report, self.station.measurement.session_dir, name, self.export_dir(),
-                                        self._live_mesh(), self.ctx.view.scale)  # the colour map's bands
+            return shared_worker().call(worker.report, store, name, self.export_dir(),
+                                        self._live_mesh(), self.ctx.view.scale, charts)  # the colour map's bands
 
         return self._start("Report", work, self._files_done)
 
@@ -460,7 +477,10 @@ class SessionsPanel:
             gui.add_button("Back to live", color="green").on_click(lambda _: self.back_to_live())
         with gui.add_folder("Export", expand_by_default=False):
             gui.add_button("Export CSV + JSON").on_click(lambda _: (n := self._need()) and self.export(n))
-            gui.add_button("Report (HTML + CSV)").on_click(lambda _: (n := self._need()) and self.report(n))
+            g["with_trends"] = gui.add_checkbox("Report with trends", False,
+                                                hint="the control charts of the series the session's part belongs to")
+            gui.add_button("Report (HTML + CSV)").on_click(
+                lambda _: (n := self._need()) and self.report(n, bool(g["with_trends"].value)))
             g["files"] = gui.add_markdown("")
         with gui.add_folder("Re-evaluate", expand_by_default=False):
             g["re_name"] = gui.add_text("New session", "", hint="empty: <name>-reevaluated")
