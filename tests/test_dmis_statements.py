@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import re
-import threading
 import time
 
 import numpy as np
@@ -233,37 +232,34 @@ def test_manual_alignment_polar_rotation_constructions_and_mmc_on_the_true_part(
     assert lbonus == pytest.approx(boss - 19.95, abs=2e-4)
 
 
-def test_manual_hits_are_waited_for_with_the_prompt_shown(station):
-    """Without a way given, a manual MEAS waits for the operator's next hits (the pendant, the page's armed jog),
-    telling the prompt meanwhile."""
-    text = ("UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
-            "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\nENDMES\n"
-            "OUTPUT/FA(TOP)\nENDFIL\n")
-    told: list[str] = []
-    done: dict = {}
+def test_manual_hits_are_waited_for_with_the_prompt_on_the_routine_tab(station):
+    """From the page's Routine tab, a manual MEAS shows its prompt and waits for the operator's next hits (taken
+    with the pendant or the armed jog; here probed where the part really is), then the program goes on."""
+    from cmm.control.access import Control
+    from cmm.ui.context import PanelContext
+    from cmm.ui.panel_routine import RoutinePanel
 
-    def run():
-        try:
-            done["result"] = run_text(text, station, on_prompt=told.append)
-        except Exception as exc:  # noqa: BLE001 - reported by the assertion below
-            done["error"] = exc
-
-    worker = threading.Thread(target=run)
-    worker.start()
-    for _ in range(300):
-        if told:
+    control = Control()
+    assert control.take("operator", is_local=True)
+    panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+    (station.measurement.session_dir / "top.dmi").write_text(
+        "UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
+        "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\nENDMES\nOUTPUT/FA(TOP)\nENDFIL\n")
+    assert panel.open_dmis("top.dmi")
+    assert panel.run_dmis()
+    for _ in range(500):
+        if panel.dmis_status.startswith("**WAITING**"):
             break
         time.sleep(0.02)
-    assert told and told[0] == "line 5: take 3 hits by hand on F(TOP) (PLANE) (0 of 3 taken)"
+    assert panel.dmis_status == "**WAITING**: line 5: take 3 hits by hand on F(TOP) (PLANE) (0 of 3 taken)"
     model = station.measurement
     for x, y in ((15.0, 10.0), (105.0, 12.0), (50.0, 70.0)):  # the operator probes the top face
-        model.probe(_true([190.0 + x, 150.0 + y, 40.0]), PLACED[:3, :3] @ [0, 0, -1.0], clearance_z=90.0).wait(120)
-    worker.join(60)
-    assert "error" not in done, done.get("error")
-    top = _lines(done["result"].outputs[None])["TOP"]
-    want = _true([190.0 + 60.0, 150.0 + 40.0, 40.0])
-    assert top[2] == pytest.approx(want[2], abs=NOISE)
-    assert told[-1] == "" and any("(2 of 3 taken)" in t for t in told)
+        model.probe(_true([190.0 + x, 150.0 + y, 40.0]), PLACED[:3, :3] @ [0, 0, -1.0], clearance_z=90.0,
+                    client="operator").wait(120)
+    panel.thread.join(60)
+    assert panel.dmis_status.startswith("**DONE**: 1 features, 3 hits"), panel.dmis_status
+    top = _lines(panel.dmis_results[-1].outputs[None])["TOP"]
+    assert top[2] == pytest.approx(_true([250.0, 190.0, 40.0])[2], abs=NOISE)
 
 
 def test_statement_refusals_name_their_line():
@@ -283,3 +279,40 @@ def test_material_condition_outside_position_and_mmc_without_size_are_refused(st
         run_text(base + "T(F) = TOL/FLAT, 0.01, MMC\n", station)
     with pytest.raises(DmisError, match=r"^line 15: T\(P\) at MMC needs FA\(B\)'s size limits: output its TOL/DIAM"):
         run_text(base + "T(P) = TOL/POS, 2D, 0.05, MMC\nOUTPUT/FA(B), TA(P)\n", station)
+
+
+MANUAL_TOP = ("FILNAM/'top by hand'\nUNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
+              "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\n"
+              "PTMEAS/CART, 15, 10, 40, 0, 0, 1\nPTMEAS/CART, 105, 12, 40, 0, 0, 1\nPTMEAS/CART, 50, 70, 40, 0, 0, 1\n"
+              "ENDMES\nOUTPUT/FA(TOP)\nENDFIL\n")
+
+
+def test_cmm_run_asks_for_manual_hits_at_the_terminal(tmp_path, monkeypatch, capsys):
+    """`cmm run` in manual mode: each hit confirmed at a terminal (a pseudo-terminal here), where a typed point
+    replaces the program's; without a terminal it refuses in words."""
+    import os
+    import sys
+
+    from cmm.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    program = tmp_path / "manual.dmi"
+    program.write_text(MANUAL_TOP)
+    args = ["run", str(program), "--sessions", str(tmp_path / "sessions"), "-o", "out.dms"]
+    assert main(args) == 1  # pytest's input is no terminal
+    assert "line 6: manual mode needs an operator at the terminal" in capsys.readouterr().err
+    master, slave = os.openpty()
+    try:
+        # Enter, a typed point (the second hit 20 mm further in X on the same face), a mistyped one, Enter
+        os.write(master, b"\n230.0, 162.0, 40\nabc\n\n")
+        with os.fdopen(os.dup(slave), "r") as tty:
+            monkeypatch.setattr(sys, "stdin", tty)
+            assert main(args) == 0
+    finally:
+        os.close(master)
+        os.close(slave)
+    printed = capsys.readouterr().out
+    assert "line 6: take 3 hits by hand on F(TOP) (PLANE): near 15.000, 10.000, 40.000" in printed
+    assert "three numbers please" in printed and "1 features, 3 hits" in printed
+    top = _lines((tmp_path / "out.dms").read_text())["TOP"]
+    assert top[2] == pytest.approx(40.0, abs=0.01) and top[5] == pytest.approx(1.0, abs=1e-4)

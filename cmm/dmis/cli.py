@@ -90,7 +90,7 @@ def _run(args: Any, path: Path, text: str) -> int:
             station.measurement.trends = open_trends(args.trends, station=args.station, database=args.trends_db,
                                                      sessions=args.sessions, background=False)
         try:
-            result = run_text(text, station, name=path.name)
+            result = run_text(text, station, name=path.name, manual_hits=terminal_hits(station))
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
             print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)
@@ -114,6 +114,43 @@ def _run(args: Any, path: Path, text: str) -> int:
     write_report(s, report, mesh=resolve_part_mesh(s))
     print(f"wrote {report} (session {name})")
     return 0
+
+
+def terminal_hits(station: Any) -> Any:
+    """Manual mode (MODE/MAN) on the command line, which has no jog: each hit is asked for at the terminal and,
+    once the operator confirms it, taken by the machine at the program's point (Enter) or where the operator
+    types it (X, Y, Z machine coordinates, e.g. read off the part's real place), approaching as the program says."""
+    from .executor import DmisError
+
+    def take(prompt: str, n: int, guides: list) -> list[int]:
+        line = prompt.split(":")[0]
+        if not sys.stdin or not sys.stdin.isatty():
+            raise DmisError(f"{line}: manual mode needs an operator at the terminal (the input is not one); or run "
+                            "the program from the page's Routine tab and take the hits with the pendant")
+        if len(guides) < n:
+            raise DmisError(f"{line}: on the command line every manual hit needs its PTMEAS point to guide it")
+        print(prompt, flush=True)
+        model = station.measurement
+        ids = []
+        for k, (point, approach) in enumerate(guides[:n], 1):
+            where = ", ".join(f"{x:.3f}" for x in point)
+            while True:
+                answer = input(f"  hit {k} of {n} at machine {where}: Enter takes it there, or type X, Y, Z "
+                               "(q stops): ").strip()
+                if answer.lower() in ("q", "quit", "stop"):
+                    raise DmisError(f"{line}: stopped by the operator")
+                try:
+                    target = point if not answer else [float(x) for x in answer.replace(",", " ").split()]
+                    if len(target) != 3:
+                        raise ValueError
+                    break
+                except ValueError:
+                    print("  three numbers please: X, Y, Z (or Enter, or q)", flush=True)
+            hit = model.probe(target, approach).wait(120)
+            ids.append(model.hit_id(hit))
+        return ids
+
+    return take
 
 
 def _write_outputs(args: Any, path: Path, result: Any, what: str = "") -> None:

@@ -183,7 +183,8 @@ class RoutinePanel:
             model = self.station.measurement
             session = model.new_session(f"{path.stem} {len(self.dmis_results) + 1}")
             try:
-                result = run_text(text, self.station, name=path.name, client=self.ctx.who())
+                result = run_text(text, self.station, name=path.name, client=self.ctx.who(),
+                                  on_prompt=self._dmis_prompt)  # manual mode: the hits asked for, taken by jog
             except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
                 self.dmis_status = f"**STOPPED**: {exc}"
                 self.ctx.error(exc, "DMIS program stopped")
@@ -209,6 +210,11 @@ class RoutinePanel:
         if wait:
             self.thread.join()
         return True
+
+    def _dmis_prompt(self, text: str) -> None:
+        """A DMIS program in manual mode asks the operator for hits (text) or has them (empty)."""
+        self.dmis_status = f"**WAITING**: {text}" if text else f"**RUNNING** {self.dmis[0].name if self.dmis else ''}"
+        self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
     @property
     def running(self) -> bool:
