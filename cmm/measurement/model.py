@@ -569,11 +569,14 @@ class MeasurementModel:
 
     def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (), *,
                    material: str = "", angle: float | None = None, direction: str = "radial",
-                   name: str | None = None, gdt_id: int | None = None) -> tuple[dict[str, Any], Any]:
+                   name: str | None = None, gdt_id: int | None = None, pattern: Any = None,
+                   composite: dict[str, Any] | None = None) -> tuple[dict[str, Any], Any]:
         """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
         ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
         refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
-        mesh for a profile). Journalled; returns (definition, Characteristic)."""
+        mesh for a profile). A composite position frame: ``pattern`` (the ids of the pattern's features) and
+        ``composite`` ({"tolerance", "datums"}: the feature-relating tier). Journalled; returns (definition,
+        its first Characteristic)."""
         from ..metrology.datums import DatumError
         from ..metrology.gdt_eval import check_definition, evaluate_one
 
@@ -581,6 +584,11 @@ class MeasurementModel:
             datums = [x for x in datums.replace(",", "|").split("|") if x.strip()]
         raw = {"characteristic": characteristic, "feature": int(feature_id), "tolerance": tolerance,
                "datums": list(datums), "material": material, "angle": angle, "direction": direction}
+        if composite is not None:
+            low = dict(composite)
+            if isinstance(low.get("datums"), str):
+                low["datums"] = [x for x in low["datums"].replace(",", "|").split("|") if x.strip()]
+            raw.update(pattern=list(pattern or []), composite=low)
         try:
             d = check_definition(raw)
             with self.lock:

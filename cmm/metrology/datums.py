@@ -26,6 +26,14 @@ reason in words: "datum B (plane) is parallel to datum A ...". The frame reports
 (``constrained``, in DRF axes: Tx Ty Tz Rx Ry Rz) and which are free: a characteristic against a partial
 frame lets the free ones float (see :mod:`cmm.metrology.gdt`).
 
+A common datum (ISO 5459 "A-B", ASME "A-B") is one datum from two datum features: two coaxial features (e.g. two
+bores on one shaft) give the common axis through their centres (the location points of their axes: the
+projection of each feature's points' centroid onto its axis, a circle's centre), directed as the first's axis;
+two parallel faces give the common plane through their midpoint with their mean normal
+(:func:`common_datum`). Features that are not both axes or both planes, axes that are not coaxial (either
+axis more than COMMON_DEG from the line through the centres), centres that coincide, or planes that are not
+parallel are refused in words.
+
 Datum features of size (axis or point of a cylinder, circle or sphere) may be referenced at maximum or least
 material boundary (``modifier`` "MMB" / "LMB"); the characteristic then gets a datum shift (``Datum.size``,
 ``Datum.boundary``, ``Datum.internal`` carry what it needs). Pure numpy; no machine, no UI.
@@ -46,6 +54,8 @@ COINCIDENT_MM = 1e-6  # a clocking feature this close to the origin (across Z) c
 DATUM_KINDS = {"plane": "plane", "cylinder": "axis", "circle": "axis", "cone": "axis", "line": "axis",
                "sphere": "point", "point": "point"}
 MODIFIERS = ("", "MMB", "LMB")
+COMMON_DEG = 2.0  # a common datum's features: axes within this angle of the line through their centres, planes parallel
+COMMON_MIN_MM = 1.0  # ... and axis centres at least this far apart (closer, the common axis is not defined)
 DOF_NAMES = ("Tx", "Ty", "Tz", "Rx", "Ry", "Rz")
 
 
@@ -138,6 +148,43 @@ def datum_from_feature(label: str, kind: str, geometry: dict[str, Any], *, modif
     origin = g.get("center", g.get("point"))
     return Datum(label, "point", _vec(origin, f"datum {label} point"), None, modifier, size,
                  None if boundary is None else float(boundary), internal, feature)
+
+
+def common_datum(a: Datum, b: Datum) -> Datum:
+    """The common datum "A-B" of two datums from two features (see the module docstring); referenced RFS."""
+    label = f"{a.label}-{b.label}"
+    if a.modifier or b.modifier:
+        raise DatumError(f"common datum {label} is referenced regardless of size here: define {a.label} and "
+                         f"{b.label} without MMB / LMB")
+    if a.kind != b.kind or a.kind == "point" or a.direction is None or b.direction is None:
+        raise DatumError(f"common datum {label}: {a.label} is {'an' if a.kind == 'axis' else 'a'} {a.kind} and "
+                         f"{b.label} {'an' if b.kind == 'axis' else 'a'} {b.kind}; a common datum is two axes "
+                         "(coaxial features such as two bores) or two planes (parallel faces)")
+    feature = f"{a.feature or a.label} and {b.feature or b.label}"
+    if a.kind == "axis":
+        d = b.origin - a.origin
+        length = float(np.linalg.norm(d))
+        if length < COMMON_MIN_MM:
+            raise DatumError(f"common datum {label}: the centres of {a.label} and {b.label} are {length:.3g} mm "
+                             "apart; the common axis runs through them, so they must be apart along it (two "
+                             "features at the two ends of the axis)")
+        u = d / length
+        if float(u @ a.direction) < 0:
+            u = -u
+        for x in (a, b):
+            ang = _angle_deg(x.direction, u)
+            if ang > COMMON_DEG:
+                raise DatumError(f"common datum {label}: {x.label} and the line through the centres of "
+                                 f"{a.label} and {b.label} are {ang:.1f} degrees apart (at most {COMMON_DEG:g}): "
+                                 "the features are not coaxial")
+        return Datum(label, "axis", a.origin.copy(), u, feature=feature)
+    ang = _angle_deg(a.direction, b.direction)
+    if ang > COMMON_DEG:
+        raise DatumError(f"common datum {label}: planes {a.label} and {b.label} are {ang:.1f} degrees apart (at "
+                         f"most {COMMON_DEG:g}): they do not form one plane")
+    nb = b.direction if float(a.direction @ b.direction) >= 0 else -b.direction
+    n = a.direction + nb
+    return Datum(label, "plane", 0.5 * (a.origin + b.origin), n / np.linalg.norm(n), feature=feature)
 
 
 @dataclass(frozen=True)

@@ -42,6 +42,7 @@ import numpy as np
 
 from . import relations
 from .datums import DRF, DatumError
+from .fit_enclosing import min_enclosing_ball
 from .fit_hull import min_width_direction
 from .geom_basics import frame_with_axis
 
@@ -341,6 +342,89 @@ def _datum_shift(drf: DRF, dev: np.ndarray) -> tuple[np.ndarray, float]:
             move = move * (s / 2 / norm)
         dev = dev - move
     return dev, total
+
+
+def _pattern_points(items: list[tuple[str, dict[str, Any], dict[str, Any], Any]], drf: DRF, ndrf: DRF | None,
+                    what: str) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+    """Per feature of a pattern: its actual axis ends (or centre) in ``drf`` coordinates and its nominal location
+    in ``ndrf`` coordinates (``drf``'s when None), and the pattern's common nominal axis direction (DRF)."""
+    acts, noms, dirs = [], [], []
+    for kind, g, nominal, pts in items:
+        o, u = _location(kind, g)
+        ends = np.array([o])
+        if u is not None and kind != "circle" and pts is not None and len(pts):
+            ends = np.array(axis_ends(g, _points(pts, what, 2)))
+        n_o = np.asarray(nominal.get("point", nominal.get("center", nominal.get("apex"))), dtype=np.float64)
+        n_u = nominal.get("direction", nominal.get("normal"))
+        if n_u is None:
+            raise GdtError(f"{what}: every feature of the pattern needs its nominal axis direction")
+        frame = ndrf or drf
+        acts.append(drf.to_local(ends))
+        noms.append(frame.to_local(n_o))
+        v = frame.vector_to_local(np.asarray(n_u, dtype=np.float64))
+        dirs.append(v / np.linalg.norm(v))
+    axis = dirs[0]
+    for v in dirs[1:]:
+        if math.degrees(math.acos(min(1.0, abs(float(v @ axis))))) > 0.5:
+            raise GdtError(f"{what}: the features of the pattern are not parallel (their nominal axes differ by "
+                           "more than 0.5 degrees); a composite position frame here needs a pattern of parallel "
+                           "holes or pins")
+    return acts, noms, axis
+
+
+def composite_position(items: list[tuple[str, dict[str, Any], dict[str, Any], Any]], upper: float, lower: float,
+                       drf: DRF, ndrf: DRF | None, lower_drf: DRF, lower_ndrf: DRF | None,
+                       names: list[str]) -> tuple[list[GdtResult], GdtResult]:
+    """A composite position frame (ASME Y14.5) on a pattern of parallel features ``items`` (kind, geometry,
+    nominal, points): the upper tier (pattern-locating zone, PLTZF) is each feature's position against ``drf``
+    (``upper``, as :func:`position`); the lower tier (feature-relating zone, FRTZF) lets the pattern's zones
+    move together: every translation is free and the rotation about the pattern's axis too unless the lower
+    tier's datums (``lower_drf``, orientation only) fix it. Its value is the smallest diameter such that one
+    pattern of zones, so moved, holds every feature's axis ends: the minimum enclosing circle (exact) of the
+    ends' deviations across the axis, minimised over the free rotation. Returns (upper per feature, lower)."""
+    what = "composite position"
+    if len(items) < 2:
+        raise GdtError(f"{what} is a tolerance on a pattern: give two or more features")
+    if not lower < upper:
+        raise GdtError(f"{what}: the feature-relating (lower) tolerance {lower:g} must be smaller than the "
+                       f"pattern-locating (upper) one {upper:g}")
+    upper_rows = [position(kind, g, nominal, upper, drf=drf, nominal_drf=ndrf, points=pts)
+                  for kind, g, nominal, pts in items]
+    upper_rows = [GdtResult(r.characteristic, r.value, r.tolerance, r.bonus, r.drf, r.material,
+                            f"pattern-locating tier (PLTZF); {r.note}") for r in upper_rows]
+    acts, noms, axis = _pattern_points(items, lower_drf, lower_ndrf, what)
+    f = frame_with_axis(axis)
+    e = f[:, :2]
+    a2 = [x @ e for x in acts]  # across the pattern's axis
+    n2 = [x @ e for x in noms]
+    centre = np.mean(n2, axis=0)
+    rz_free = "Rz" not in lower_drf.constrained
+
+    def spread(phi: float) -> float:
+        c, s = math.cos(phi), math.sin(phi)
+        rot = np.array([[c, -s], [s, c]])
+        dev = np.vstack([(a - centre) @ rot.T + centre - n for a, n in zip(a2, n2)])
+        return float(min_enclosing_ball(dev)[1])
+
+    if rz_free:
+        from scipy.optimize import minimize_scalar
+
+        reach = max(float(np.linalg.norm(np.vstack(a2) - np.vstack([np.repeat(n[None], len(a), 0)
+                                                                    for a, n in zip(a2, n2)]), axis=1).max()), 1e-9)
+        size = max(float(np.linalg.norm(np.vstack(n2) - centre, axis=1).max()), 1e-9)
+        bound = min(0.5, 4.0 * reach / size)  # rotations beyond this move some feature more than it deviates
+        grid = np.linspace(-bound, bound, 41)
+        k = int(np.argmin([spread(float(p)) for p in grid]))
+        lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)])
+        res = minimize_scalar(spread, bounds=(lo, hi), method="bounded", options={"xatol": 1e-12})
+        radius = min(float(res.fun), spread(float(grid[k])))
+        how = "translations and the rotation about the pattern axis free"
+    else:
+        radius = spread(0.0)
+        how = "translations free, orientation by the datums"
+    lower_row = GdtResult("position", 2.0 * radius, lower, drf=lower_drf.labels,
+                          note=f"feature-relating tier (FRTZF) of {', '.join(names)}: {how}")
+    return upper_rows, lower_row
 
 
 def coaxiality(characteristic: str, kind: str, geometry: dict[str, Any], drf: DRF, tolerance: float,

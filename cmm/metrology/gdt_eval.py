@@ -8,8 +8,12 @@ events, see :mod:`cmm.session.model`):
   MMB/LMB is its MMC / LMC size from the feature's nominal diameter and size tolerance; a datum's direction
   takes the sense of its feature's nominal, e.g. a plane's outward normal);
 - tolerance: ``{"id", "name", "characteristic" (see :data:`cmm.metrology.gdt.CHARACTERISTICS`), "feature"
-  (id), "tolerance" (mm), "datums" (["A", "B", "C"], precedence order), "material" ("" | "MMC" | "LMC"),
-  "angle" (degrees, angularity), "direction" ("radial" | "axial", runout)}``.
+  (id), "tolerance" (mm), "datums" (["A", "B", "C"], precedence order; "A-B" is the common datum of datums A
+  and B, see :func:`cmm.metrology.datums.common_datum`), "material" ("" | "MMC" | "LMC"), "angle" (degrees,
+  angularity), "direction" ("radial" | "axial", runout)}``; a composite position frame adds ``"pattern"``
+  (the ids of the pattern's features, "feature" among them) and ``"composite": {"tolerance", "datums"}`` (the
+  feature-relating tier; its datums repeat the first of the upper tier's, orientation only): it gives one row
+  per feature for the upper tier and one for the pattern's lower tier (:func:`cmm.metrology.gdt.composite_position`).
 
 A feature is a :class:`MeasuredFeature`: its name, kind, fit summary (geometry), nominal (a
 ``NominalFeature.to_dict()`` in the same coordinates), measured points, and its size tolerance. The CAD
@@ -30,7 +34,7 @@ import numpy as np
 
 from . import gdt
 from .characteristics import DEFAULT_TOLERANCE, Characteristic
-from .datums import DRF, DatumError, build_drf, datum_from_feature
+from .datums import DRF, DatumError, build_drf, common_datum, datum_from_feature
 
 MATERIAL_SYMBOL = {"MMC": "(M)", "LMC": "(L)"}
 
@@ -70,9 +74,48 @@ def check_definition(d: dict[str, Any]) -> dict[str, Any]:
     direction = str(d.get("direction") or "radial")
     if direction not in ("radial", "axial"):
         raise gdt.GdtError(f"a runout is radial or axial, got {direction!r}")
+    for label in datums:
+        parts = label.split("-")
+        if not all(p.isalpha() for p in parts) or len(parts) > 2:
+            raise gdt.GdtError(f"{label!r} is not a datum reference: use a letter (A) or a common datum of two (A-B)")
     out = {**d, "characteristic": ch, "tolerance": tol, "datums": datums, "material": material,
            "angle": None if angle is None else float(angle), "direction": direction}
+    if d.get("composite") is not None or d.get("pattern") is not None:
+        out.update(_check_composite(out))
     return out
+
+
+def _check_composite(d: dict[str, Any]) -> dict[str, Any]:
+    """The pattern and lower tier of a composite position frame, checked (raises GdtError in words)."""
+    if d["characteristic"] != "position":
+        raise gdt.GdtError("a composite frame (pattern-locating and feature-relating tiers) is a position tolerance")
+    low = d.get("composite")
+    if not isinstance(low, dict):
+        raise gdt.GdtError("a composite position needs its feature-relating (lower) tier: its tolerance and datums")
+    try:
+        pattern = [int(x) for x in d.get("pattern") or []]
+    except (TypeError, ValueError):
+        raise gdt.GdtError("the pattern of a composite position is a list of feature ids") from None
+    if int(d["feature"]) not in pattern:
+        pattern = [int(d["feature"])] + pattern
+    if len(set(pattern)) < 2:
+        raise gdt.GdtError("a composite position applies to a pattern: give two or more features")
+    if d["material"]:
+        raise gdt.GdtError("a composite position is evaluated regardless of feature size here: no MMC / LMC")
+    lower_tol = gdt._check_tol(low.get("tolerance", 0), "feature-relating position")  # noqa: SLF001
+    if not lower_tol < d["tolerance"]:
+        raise gdt.GdtError(f"the feature-relating (lower) tolerance {lower_tol:g} must be smaller than the "
+                           f"pattern-locating (upper) one {d['tolerance']:g}")
+    lower = [str(x).strip().upper() for x in low.get("datums") or [] if str(x).strip()]
+    if not lower:
+        raise gdt.GdtError("the feature-relating (lower) tier needs the datum that orients the pattern (e.g. A); "
+                           "a lower tier without datums is not evaluated here")
+    if lower != d["datums"][:len(lower)] or len(lower) > 2:
+        raise gdt.GdtError(f"the lower tier's datums {'|'.join(lower)} must repeat the upper tier's "
+                           f"{'|'.join(d['datums']) or '(none)'} from the primary on (e.g. A, or A|B), at most two: "
+                           "they orient the pattern, they do not locate it")
+    return {"pattern": sorted(set(pattern), key=pattern.index),
+            "composite": {"tolerance": lower_tol, "datums": lower}}
 
 
 def check_datum(d: dict[str, Any]) -> dict[str, Any]:
@@ -99,6 +142,9 @@ def _size_limits(f: MeasuredFeature) -> tuple[float, float] | None:
 
 
 def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature], nominal: bool) -> Any:
+    if "-" in label:  # a common datum: two datums from two features, one axis or plane
+        first, _, second = label.partition("-")
+        return common_datum(datum_of(first, defs, feats, nominal), datum_of(second, defs, feats, nominal))
     d = defs.get(label)
     if d is None:
         raise DatumError(f"datum {label} is not defined: choose its datum feature first")
@@ -162,9 +208,11 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
     if f is None:
         raise gdt.GdtError(f"feature {d['feature']} is not measured (deleted?)")
     for label in d["datums"]:
-        dd = datums.get(label)
-        if dd is not None and int(dd["feature"]) == int(d["feature"]):
-            raise gdt.GdtError(f"{f.name} is datum {label}: a feature is not toleranced against itself")
+        for part in label.split("-"):
+            dd = datums.get(part)
+            if dd is not None and int(dd["feature"]) in (int(d["feature"]), *d.get("pattern", ())):
+                raise gdt.GdtError(f"{f.name if int(dd['feature']) == int(d['feature']) else 'a feature of the pattern'}"
+                                   f" is datum {part}: a feature is not toleranced against itself")
     tol = d["tolerance"]
     needs_nominal = ch in ("position", "profile of a surface", "profile of a line")
     drf, ndrf = build_frames(d["datums"], datums, feats, needs_nominal)
@@ -173,6 +221,8 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
     if ch in gdt.ORIENTATION:
         return gdt.orientation(ch, f.kind, f.geometry, f.points, drf, tol, angle_deg=d["angle"],  # type: ignore[arg-type]
                                nominal_direction=_nominal_direction(f, d["datums"], datums, feats))
+    if ch == "position" and "composite" in d:
+        return evaluate_rows(d, datums, feats, mesh, pose)[0][1]
     if ch == "position":
         if not f.nominal or f.nominal.get("kind") == "surface":
             raise gdt.GdtError(f"position of {f.name} needs its nominal location (CAD pick or typed)")
@@ -186,6 +236,38 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
     if pose is None and mesh is not None:
         raise gdt.GdtError("profile tolerance needs the part's pose (an alignment or the nominal set-up)")
     return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf)
+
+
+def evaluate_rows(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature], mesh: Any = None,
+                  pose: Any = None) -> list[tuple[str, gdt.GdtResult]]:
+    """(feature name, result) rows of one definition: one row, or for a composite position one per feature of
+    the pattern (upper tier) and one for the pattern (lower tier). Raises GdtError / DatumError in words."""
+    d = check_definition(d)
+    if "composite" not in d:
+        f = feats.get(int(d["feature"]))
+        return [(f.name if f is not None else f"feature {d['feature']}", evaluate_one(d, datums, feats, mesh, pose))]
+    items, names = [], []
+    for fid in d["pattern"]:
+        f = feats.get(int(fid))
+        if f is None:
+            raise gdt.GdtError(f"feature {fid} of the pattern is not measured (deleted?)")
+        if not f.nominal or f.nominal.get("kind") == "surface":
+            raise gdt.GdtError(f"position of {f.name} needs its nominal location (CAD pick or typed)")
+        items.append((f.kind, f.geometry, f.nominal, f.points if len(f.points) else None))
+        names.append(f.name)
+    for label in d["datums"]:
+        for part in label.split("-"):
+            dd = datums.get(part)
+            if dd is not None and int(dd["feature"]) in d["pattern"]:
+                raise gdt.GdtError(f"{feats[int(dd['feature'])].name} is datum {part}: a feature of the pattern is "
+                                   "not toleranced against itself")
+    drf, ndrf = build_frames(d["datums"], datums, feats, True)
+    low = d["composite"]
+    ldrf, lndrf = build_frames(low["datums"], datums, feats, True)
+    if drf is None or ldrf is None:
+        raise gdt.GdtError("a composite position needs datums in both tiers (e.g. A|B|C above, A below)")
+    upper, lower = gdt.composite_position(items, d["tolerance"], low["tolerance"], drf, ndrf, ldrf, lndrf, names)
+    return [*zip(names, upper), (f"pattern of {len(names)}", lower)]
 
 
 def _nominal_direction(f: MeasuredFeature, labels: list[str], datums: dict[str, dict],
@@ -208,7 +290,12 @@ def tolerance_text(d: dict[str, Any]) -> str:
     ch = d.get("characteristic", "")
     dia = "⌀" if ch in ("position", "coaxiality", "concentricity") else ""
     head = f"{gdt.SYMBOLS.get(ch, '')} {dia}{float(d.get('tolerance', 0)):.4f}{MATERIAL_SYMBOL.get(d.get('material') or '', '')}"
-    return head + (f" | {'|'.join(d.get('datums') or [])}" if d.get("datums") else "")
+    text = head + (f" | {'|'.join(d.get('datums') or [])}" if d.get("datums") else "")
+    low = d.get("composite")
+    if isinstance(low, dict):  # the lower tier on a second line of the frame: "/ ⌀0.0200 | A"
+        text += f" / ⌀{float(low.get('tolerance', 0)):.4f}" + (f" | {'|'.join(low.get('datums') or [])}"
+                                                              if low.get("datums") else "")
+    return text
 
 
 def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: dict[int, MeasuredFeature],
@@ -221,14 +308,14 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
         name = str(d.get("name") or d.get("characteristic"))
         label = f"{gdt.SYMBOLS.get(str(d.get('characteristic')), '')} {d.get('characteristic')}".strip()
         try:
-            r = evaluate_one(d, datums, feats, mesh, pose)
+            rows = evaluate_rows(d, datums, feats, mesh, pose)
         except (DatumError, ValueError, KeyError) as exc:
             msg = str(exc) if not isinstance(exc, KeyError) else f"missing {exc}"
             out.append((d, Characteristic(fname, label, None, None, float(d.get("tolerance") or 0.0), 0.0,
                                           note=f"{name}: not evaluated: {msg}",
                                           datums="|".join(d.get("datums") or []))))
             continue
-        note = f"{name}: {r.note}"
-        out.append((d, Characteristic(fname, r.label, 0.0, r.value, r.allowed, 0.0, note=note,
-                                      datums=r.drf)))
+        for feature_name, r in rows:
+            out.append((d, Characteristic(feature_name, r.label, 0.0, r.value, r.allowed, 0.0,
+                                          note=f"{name}: {r.note}", datums=r.drf)))
     return out

@@ -380,11 +380,12 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
            "</tr></thead><tbody>"]
     for d, c in rows:
         frame = []
-        for label in d.get("datums") or []:
-            df = st.datums.get(label)
-            f = None if df is None else st.features.get(int(df["feature"]))
-            mod = {"MMB": "(M)", "LMB": "(L)"}.get((df or {}).get("modifier") or "", "")
-            frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
+        for ref in d.get("datums") or []:
+            for label in ref.split("-"):  # a common datum A-B: both of its features
+                df = st.datums.get(label)
+                f = None if df is None else st.features.get(int(df["feature"]))
+                mod = {"MMB": "(M)", "LMB": "(L)"}.get((df or {}).get("modifier") or "", "")
+                frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
         bonus = c.upper - float(d.get("tolerance") or 0.0)
         result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
                   None: "<td class='l muted'>not evaluated</td>"}[c.ok]
