@@ -209,27 +209,29 @@ class Controller:
         return self._releases.get(getattr(client, "id", client), 0)
 
     def jog(self, client: str | None, velocity: Any, *, probe: bool = False, after: int | None = None,
-            wait: bool = True, on_error: Callable[[str], None] | None = None) -> None:
+            wait: bool = True, on_error: Callable[[str], None] | None = None, heard: float | None = None) -> None:
         """Jog (mm/s per axis); repeat within ``[jog] deadman_timeout`` or it stops. ``probe``: a touch is a hit.
 
         Front ends jog through :class:`~cmm.control.jog.JogHolds` (clamp, release sequence, grace). With
         ``wait=False`` (threaded loop) the access and mode checks run here and now (Refused), the jog is queued
         without waiting for the loop (a newer jog of the same client replaces one still queued), and an error
-        the loop finds goes to ``on_error``."""
+        the loop finds goes to ``on_error``. ``heard``: when the front end received it (machine clock; default
+        now): the dead-man counts from then, however long the jog waits here."""
         v = np.asarray(velocity, dtype=np.float64)
         key = getattr(client, "id", client)
         seq = self._releases.get(key, 0) if after is None else after
         epoch = self._release_epoch
+        heard = self.clock.now() if heard is None else heard
         if np.any(v) and self.policy.refusal(client, "jog") is None:
-            self.machine.jog_alive(epoch)  # with a link process: its dead-man hears the operator at once
+            self.machine.jog_alive(epoch, heard)  # with a link process: its dead-man hears the operator at once
 
         def start() -> None:
             if self._releases.get(key, 0) != seq:
                 return  # released while this jog waited: a release is never undone by an older jog
             if probe:
-                self.prober.jog_probe(v, release_epoch=epoch)
+                self.prober.jog_probe(v, release_epoch=epoch, heard=heard)
             else:
-                self.machine.jog(v, release_epoch=epoch)
+                self.machine.jog(v, release_epoch=epoch, heard=heard)
         if wait or self._thread is None or threading.current_thread() is self._thread:
             return self._submit(client, "jog", start)
         self._check(client, "jog")

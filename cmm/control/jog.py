@@ -17,7 +17,11 @@ does the rest, the same for everyone:
 - **Grace.** A held jog must be refreshed within the machine's dead-man, ``[jog] deadman_timeout``
   (0.15 s): front ends refresh at 20-25 Hz. The timer runs next to the bus (the link process on a real port,
   the machine loop on the in-process simulator), so a silent front end stops whatever this process is doing;
-  there is no second timer here to drift from it.
+  there is no second timer here to drift from it. Each hold carries the moment its front end *heard* it
+  (``heard``, the machine clock; the front end stamps it as its message arrives): the dead-man runs from
+  that moment, wherever the hold is taken later. A hold that waited in this process (a busy station, a
+  thread pool, the machine loop's queue) can never extend a jog past ``heard + grace``, and one heard longer
+  ago than the grace neither starts nor refreshes a jog.
 - **Never waits.** ``hold`` checks access and the machine's mode at once (a refusal comes back as a
   sentence), tells the link process the operator is still there, and queues the jog for the machine loop
   without waiting for it: a front end's event loop never blocks on the machine. A newer hold of the same
@@ -104,10 +108,10 @@ class JogHolds:
         return self.controller.release_seq(client)
 
     def hold(self, client: Any, velocity: Any, *, probe: bool = False, after: int | None = None,
-             settle: float = 0.0, on_error: ErrorFn | None = None) -> str | None:
+             settle: float = 0.0, on_error: ErrorFn | None = None, heard: float | None = None) -> str | None:
         """The operator still holds this jog (refresh it within :attr:`grace`). Returns a sentence when the
         velocity was limited; raises Refused (with the operator's sentence) when the jog is not allowed now.
-        All zeros is a release."""
+        All zeros is a release. ``heard``: when the front end received this hold (machine clock; default now)."""
         key = getattr(client, "id", client)
         if settle > 0 and time.monotonic() - self._released_at.get(key, -math.inf) < settle:
             return None  # an event from before the release, run late
@@ -120,7 +124,7 @@ class JogHolds:
             raise Refused(at_end)
         note = note or at_end
         self.controller.jog(client, v, probe=probe, after=self.ticket(client) if after is None else after,
-                            wait=False, on_error=on_error)
+                            wait=False, on_error=on_error, heard=heard)
         return note
 
     def release(self, client: Any) -> None:

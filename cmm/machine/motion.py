@@ -634,7 +634,7 @@ class Machine:
     # --- jogging ------------------------------------------------------------
 
     def jog(self, velocity: Any, *, manual_probe: Callable[[tuple[int, int, int], np.ndarray], None] | None = None,
-            release_epoch: int | None = None) -> None:
+            release_epoch: int | None = None, heard: float | None = None) -> None:
         """Jog, mm/s per axis. Must be refreshed (called again) within the dead-man timeout.
 
         The probe input is armed on every axis (stop abruptly on contact); a
@@ -642,7 +642,10 @@ class Machine:
         motion direction as approach direction (thesis experiment 2). In horizon
         mode the modules never hold a goal more than ``jog.horizon`` s of travel
         ahead, nor outside the travel. ``release_epoch``: the releases the sender had seen (the control core's
-        count); the link process refuses a jog sent before a later release.
+        count); the link process refuses a jog sent before a later release. ``heard``: when the operator's
+        front end received this refresh (this clock; default now): the dead-man runs from then, so a refresh
+        that waited (a busy station) never extends the jog past ``heard + deadman_timeout``, and one heard longer
+        ago than that is dropped (it neither starts nor refreshes a jog).
         """
         v = np.asarray(velocity, dtype=np.float64).reshape(-1)
         if v.shape != (3,) or not np.all(np.isfinite(v)):
@@ -652,6 +655,10 @@ class Machine:
         limit = self.config.speeds.jog_fast
         if np.any(np.abs(v) > limit + 1e-9):
             raise MotionError(f"jog speed {np.max(np.abs(v)):.1f} mm/s is above jog_fast ({limit:g} mm/s)")
+        now = self.clock.now()
+        heard = now if heard is None else min(float(heard), now)
+        if np.any(v) and now - heard >= self.config.deadman_timeout:
+            return  # the operator may have let go since: a refresh this old is not an operator holding the jog
         with self._lock:
             motion = self._motion
             if motion is not None and motion.kind != "jog":
@@ -660,7 +667,7 @@ class Machine:
             for i, axis in enumerate(self.config.axes):  # never jog further out of the travel
                 if (v[i] > 0 and pos[i] >= axis.max) or (v[i] < 0 and pos[i] <= axis.min):
                     v[i] = 0.0
-            self._jog_refreshed = self.clock.now()
+            self._jog_refreshed = heard if motion is None else max(self._jog_refreshed, heard)
             if motion is None:
                 if not np.any(v):
                     return
@@ -682,7 +689,7 @@ class Machine:
                 if self.guarded:
                     spec = self._guard_spec(v)
                     motion.extra["v"] = v.copy()
-                    motion.extra["epoch"] = self.bus.guard_jog(spec, release_epoch)
+                    motion.extra["epoch"] = self.bus.guard_jog(spec, release_epoch, heard)
                     if spec.drive:
                         return  # the link process runs the horizon (and its dead-man) from here
                 self._command_jog(motion, v)
@@ -735,11 +742,11 @@ class Machine:
         self.bus.guard_release()
         _jog_stopped(motion)
 
-    def jog_alive(self, release_epoch: int | None = None) -> None:
-        """Any thread, no wait: the operator still holds the jog; the link process's dead-man restarts (the
-        loop's own refresh follows). Does nothing without a link process."""
+    def jog_alive(self, release_epoch: int | None = None, heard: float | None = None) -> None:
+        """Any thread, no wait: the operator still holds the jog (heard then); the link process's dead-man
+        restarts from ``heard`` (the loop's own refresh follows). Does nothing without a link process."""
         if self.guarded:
-            self.bus.alive_now(release_epoch)
+            self.bus.alive_now(release_epoch, heard)
 
     def release_now(self, release_epoch: int | None = None) -> None:
         """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows)

@@ -235,7 +235,8 @@ class Prober:
 
         back.add_callback(done)
 
-    def jog_probe(self, velocity: np.ndarray, *, release_epoch: int | None = None) -> None:
+    def jog_probe(self, velocity: np.ndarray, *, release_epoch: int | None = None,
+                  heard: float | None = None) -> None:
         """Jog in velocity mode with the probe armed (thesis experiment 2): a trigger records a manual hit."""
 
         def record(latched: tuple[int, int, int], v: np.ndarray) -> None:
@@ -244,4 +245,4 @@ class Prober:
             hit = self._make_hit(latched, direction, speed, "manual")
             self._retract(direction, hit_status=MoveStatus("manual hit retract"), result=hit)
 
-        self.machine.jog(velocity, manual_probe=record, release_epoch=release_epoch)
+        self.machine.jog(velocity, manual_probe=record, release_epoch=release_epoch, heard=heard)

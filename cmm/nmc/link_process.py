@@ -10,7 +10,9 @@ The child also holds the *jog guard*, which acts between two of the station's tr
 - the jog: a horizon jog (``guard_jog``; ``GuardSpec.drive``) is re-targeted here, from the replies the child sees
   (it reads the axes itself when the station's samples are late); a probe contact ends it;
 - the jog dead-man: no refresh for ``deadman`` s (``guard_jog`` from the loop, ``alive_now`` straight from a
-  front end's thread) and it stops the axes;
+  front end's thread) and it stops the axes; each refresh carries when its front end heard it (the station and
+  this process share the monotonic clock), and the dead-man runs from then: a refresh the station passed on
+  late never keeps a jog going longer;
 - the release: ``release_now`` (any station thread, its own pipe, no reply awaited) stops them at once, and
   jogs sent before it are refused; STOP's stop-all takes that pipe too;
 - a dead station: when the station's pipe closes (crash, ``kill -9``) it stops every axis and exits.
@@ -111,33 +113,43 @@ class JogGuard:
         self.goals: dict[int, int] = {}  # address -> goal of a driven jog last sent
 
     # station calls (through the pipe, in order with its transactions)
-    def arm(self, spec: GuardSpec, release_epoch: int | None = None) -> int:
+    def _heard(self, heard: float | None) -> float:
+        now = self.bus.clock.now()
+        return now if heard is None else min(float(heard), now)
+
+    def arm(self, spec: GuardSpec, release_epoch: int | None = None, heard: float | None = None) -> int:
+        """A jog (re)started by the station; ``heard``: when the operator's front end received the hold it
+        carries out (the machine clock, shared with the station): the dead-man runs from then."""
         with self.cond:
             if release_epoch is not None and release_epoch < self.released:
                 raise GuardHeld("this jog was sent before the operator's last release: it is not carried out")
-            if self.spec is None or self.state.fired is not None:
+            heard = self._heard(heard)
+            new = self.spec is None or self.state.fired is not None
+            if new and heard + spec.deadman <= self.bus.clock.now():
+                raise GuardHeld("this jog was heard longer ago than the dead-man: it is not carried out")
+            if new:
                 self.state.epoch += 1
                 self.state.fired = None
             if spec != self.spec:
                 self.goals.clear()  # a new direction or speed: re-target at once
             self.spec = spec
             self.held = False
-            self.deadline = self.bus.clock.now() + spec.deadman
+            self.deadline = heard + spec.deadman if new else max(self.deadline, heard + spec.deadman)
             self.cond.notify_all()
             epoch = self.state.epoch
         if spec.drive:
             self.drive(spec)  # the first goal now, not one period later
         return epoch
 
-    def refresh(self, release_epoch: int | None) -> None:
-        """The operator still holds the jog (a front end's message, straight from its thread): the dead-man
-        restarts, unless the jog was stopped or the message is older than the last release."""
+    def refresh(self, release_epoch: int | None, heard: float | None = None) -> None:
+        """The operator still holds the jog (a front end's message, straight from its thread, heard then): the
+        dead-man runs from ``heard``, unless the jog was stopped or the message is older than the last release."""
         with self.cond:
             if self.spec is None or self.state.fired is not None:
                 return
             if release_epoch is not None and release_epoch < self.released:
                 return
-            self.deadline = self.bus.clock.now() + self.spec.deadman
+            self.deadline = max(self.deadline, self._heard(heard) + self.spec.deadman)
 
     def drive(self, spec: GuardSpec) -> None:
         """One step of a driven horizon jog: goals ``horizon`` s of travel ahead of fresh readings, the line
@@ -334,7 +346,7 @@ class JogGuard:
             if isinstance(msg, tuple) and msg[0] == "release":
                 self.stop("release", msg[1])
             elif isinstance(msg, tuple) and msg[0] == "alive":
-                self.refresh(msg[1])
+                self.refresh(*msg[1:])
             elif isinstance(msg, tuple) and msg[0] == "stop_all":
                 self.halted("stop")
                 report = self.bus.stop_all(msg[1])  # never raises
@@ -525,10 +537,11 @@ class RemoteBus:
 
     # --- the jog guard ----------------------------------------------------------------
 
-    def guard_jog(self, spec: GuardSpec, release_epoch: int | None = None) -> int:
-        """A jog started or was refreshed: (re)arm the dead-man; returns the jog's epoch. Raises
-        :class:`GuardHeld` if it was sent before a later release (``release_epoch`` older than the last)."""
-        return self._request("guard_jog", "", spec, release_epoch)
+    def guard_jog(self, spec: GuardSpec, release_epoch: int | None = None, heard: float | None = None) -> int:
+        """A jog started or was refreshed (its hold heard at ``heard``): (re)arm the dead-man; returns the jog's
+        epoch. Raises :class:`GuardHeld` if it was sent before a later release (``release_epoch`` older than the
+        last) or heard longer ago than the dead-man."""
+        return self._request("guard_jog", "", spec, release_epoch, heard)
 
     def guard_clear(self) -> None:
         """The jog ended (the station saw it): disarm, and let motion starts through again. Never waits for
@@ -560,9 +573,10 @@ class RemoteBus:
         """Stop the jog now and wait until the stop was sent (machine loop)."""
         self._request("guard_release")
 
-    def alive_now(self, release_epoch: int | None = None) -> None:
-        """The operator still holds the jog: restart the dead-man now, from any thread, without waiting."""
-        self._urgent_send(("alive", release_epoch))
+    def alive_now(self, release_epoch: int | None = None, heard: float | None = None) -> None:
+        """The operator still holds the jog (heard at ``heard``, this clock: monotonic, as the link process's):
+        the dead-man runs from then; from any thread, without waiting."""
+        self._urgent_send(("alive", release_epoch, heard))
 
     def release_now(self, release_epoch: int | None = None) -> None:
         """Stop the jog now, from any thread, without waiting for anything (not even for the pipe's lock);

@@ -20,6 +20,7 @@ the release ends it, and the machine's dead-man stops it when the events stop.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import re
@@ -265,13 +266,24 @@ class ClientApp:
         v[axis] = math.copysign(getattr(self.station.config.speeds, SPEEDS[self.speed_mode]), sign)
         return v
 
-    def jog_hold(self, axis: int, sign: int) -> None:
-        """A hold event of a jog button (viser sends them at ``HOLD_HZ`` while it is held): fed to the core's
-        jog-hold pipeline, which clamps (an armed jog to the qualified probing speed), drops events that ran
-        after the release, and stops the jog when they stop coming (the machine's dead-man)."""
+    def _hold_handler(self, axis: int, sign: int) -> Callable[[Any], Any]:
+        """The jog button's hold callback: a coroutine, so viser runs it in its event loop as the event arrives;
+        it notes that moment (the dead-man runs from it) and hands the hold to a thread (a late thread pool
+        then cannot keep the jog going)."""
+        async def held(_event: Any) -> None:
+            heard = self.api.clock.now()
+            asyncio.get_running_loop().run_in_executor(None, self.jog_hold, axis, sign, heard)
+        return held
+
+    def jog_hold(self, axis: int, sign: int, heard: float | None = None) -> None:
+        """A hold event of a jog button (viser sends them at ``HOLD_HZ`` while it is held; received at
+        ``heard``, default now): fed to the core's jog-hold pipeline, which clamps (an armed jog to the qualified
+        probing speed), drops events that ran after the release, and stops the jog when they stop coming (the
+        machine's dead-man, counted from when each was heard)."""
         try:
             self.api.jogs.hold(self.ctx.who(), self.jog_velocity(axis, sign), probe=self.ctx.manual_probe,
-                               settle=LATE_HOLD_S, on_error=lambda text: self._throttled_error("Jog", text))
+                               settle=LATE_HOLD_S, heard=heard,
+                               on_error=lambda text: self._throttled_error("Jog", text))
         except OPERATOR_ERRORS as exc:
             self._throttled_error("Jog", str(exc))
             return
@@ -501,7 +513,7 @@ class ClientApp:
             for i, name in enumerate(AXES):
                 for sign, label in ((-1, f"{name.upper()} −"), (1, f"{name.upper()} +")):
                     b = gui.add_button(f"hold {label}")
-                    b.on_hold(lambda _e, i=i, s=sign: self.jog_hold(i, s), callback_hz=HOLD_HZ)
+                    b.on_hold(self._hold_handler(i, sign), callback_hz=HOLD_HZ)
                     b.on_click(lambda _e: self.jog_release())
             size = gui.add_dropdown("Step (mm)", STEP_SIZES, initial_value=self.step_size)
             size.on_update(lambda e: setattr(self, "step_size", e.target.value))

@@ -284,7 +284,8 @@ class PendantServer:
         try:
             async for raw in ws:
                 session.last_message = time.monotonic()
-                await self._on_message(session, raw)
+                # the machine's clock as the message arrives: a jog's dead-man runs from here (cmm.control.jog)
+                await self._on_message(session, raw, self.api.clock.now())
         except ConnectionClosed:
             pass
         finally:
@@ -358,7 +359,7 @@ class PendantServer:
         s = self.station.config.speeds
         return {"jog_fast": s.jog_fast, "jog_slow": s.jog_slow, "jog_fine": s.jog_fine}
 
-    async def _on_message(self, session: _Session, raw: Any) -> None:
+    async def _on_message(self, session: _Session, raw: Any, heard: float | None = None) -> None:
         try:
             msg = json.loads(raw)
         except (TypeError, ValueError):
@@ -385,9 +386,9 @@ class PendantServer:
             await self._call(self.control.release, session.client_id)
             await self._send(session, {"type": "control", "control": False})
         elif kind == "jog":
-            await self._jog(session, msg.get("v"))
+            await self._jog(session, msg.get("v"), heard=heard)
         elif kind == "hold":
-            await self._hold_button(session, msg.get("button"))
+            await self._hold_button(session, msg.get("button"), heard)
         elif kind == "release":
             if session.jogging or self.control.can_move(session.client_id):
                 session.jogging = False
@@ -421,7 +422,7 @@ class PendantServer:
             return await self._send(session, {"type": "control", "control": True})
         await self._error_msg(session, reason)
 
-    async def _hold_button(self, session: _Session, label: Any) -> None:
+    async def _hold_button(self, session: _Session, label: Any, heard: float | None = None) -> None:
         """A station page's jog button is held (its hold refresher, web/hold_worker.js, acting as the page):
         the page says what the button means now (speed, armed)."""
         hold = None if session.grant is None else session.grant.hold
@@ -432,11 +433,12 @@ class PendantServer:
             v, probe = hold(label)
         except ValueError as exc:
             return await self._error_msg(session, str(exc), throttle=True)
-        await self._jog(session, [float(x) for x in v], probe=probe)
+        await self._jog(session, [float(x) for x in v], probe=probe, heard=heard)
 
-    async def _jog(self, session: _Session, v: Any, *, probe: bool = False) -> None:
-        """A jog refresh: fed to the core's jog-hold pipeline (clamp, release sequence, grace), which never waits
-        for the machine loop, so this connection keeps reading (and answering its keepalive pings)."""
+    async def _jog(self, session: _Session, v: Any, *, probe: bool = False, heard: float | None = None) -> None:
+        """A jog refresh (received at ``heard``): fed to the core's jog-hold pipeline (clamp, release sequence,
+        grace), which never waits for the machine loop, so this connection keeps reading (and answering its
+        keepalive pings)."""
         if not self.control.can_move(session.client_id):
             if session.jogging:
                 session.jogging = False
@@ -447,7 +449,7 @@ class PendantServer:
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
         try:
-            note = self.api.jogs.hold(self._who(session), v, probe=probe,
+            note = self.api.jogs.hold(self._who(session), v, probe=probe, heard=heard,
                                       on_error=lambda text: self._later_error(session, text))
         except Exception as exc:  # noqa: BLE001 - every refusal is the operator's sentence, never raised into the loop
             session.jogging = False
