@@ -20,7 +20,7 @@ from ..machine.homing import home_axes
 from ..machine.motion import Machine, MachineState
 from ..machine.probing import CyclePath, Hit, Prober
 from ..machine.status import MotionError, MoveStatus
-from ..nmc.bus import NmcError
+from ..nmc.bus import IDLE_PATIENCE, NmcError, Preempted
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
@@ -36,6 +36,7 @@ SWITCH_INTERVAL = 0.001  # s: how long another Python thread may hold the interp
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
+STOP_PATIENCE = IDLE_PATIENCE + 2.0  # s a STOP the loop is carrying out may take (its own patient retries)
 STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
 WARNING_SHOWN = 10.0  # s a link warning stays in the state (the status bar) after the last one
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
@@ -562,6 +563,8 @@ class Controller:
                 with self._lock:
                     self._stopped = None
             return cmd.fn()
+        except Preempted as exc:  # a STOP took the link first: nothing failed, this command was not done
+            raise ControlError(f"{cmd.name} was cut short by a STOP ({exc})") from exc
         except LINK_ERRORS as exc:
             self._enter_fault(f"link failure during {cmd.name}: {exc}", link=True)
             raise ControlError(f"{cmd.name} failed: the link to the modules failed ({exc}); "
@@ -580,8 +583,18 @@ class Controller:
             report = fn()
         else:
             self._urgent.appendleft(cmd)
+            preempt = getattr(self.machine.bus, "preempt", None)
+            if preempt is not None:  # a loop patiently retrying a missed reply (all standing) comes back at once
+                preempt()
             try:
-                report = cmd.future.result(STOP_TIMEOUT)
+                try:
+                    report = cmd.future.result(STOP_TIMEOUT)
+                except FutureTimeout:
+                    if not cmd.future.running():
+                        raise
+                    # the loop is carrying the stop out (a module slow to confirm it while all stands still is
+                    # retried patiently): wait for its answer, never a second stop beside it
+                    report = cmd.future.result(STOP_PATIENCE)
             except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
                 report = fn()
                 report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
@@ -754,6 +767,8 @@ class Controller:
                 self._in_poll = False
             self._publish()  # after the watchers: a finished move is idle in the same sample
             return state
+        except Preempted:  # a STOP is waiting for the link (urgent): it goes first in the next step
+            return self.machine.state
         except LINK_ERRORS as exc:
             self._enter_fault(f"link failure: {exc}", link=True)
         except Exception as exc:  # noqa: BLE001 - a bug must stop the machine, not the loop

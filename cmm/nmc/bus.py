@@ -47,6 +47,11 @@ class NmcError(Exception):
         self.address = address
 
 
+class Preempted(NmcError):
+    """A stop cut short the patient retry of a command while every axis stood still (see :meth:`Bus.preempt`):
+    the command was not confirmed, nothing failed; the caller lets the stop go first and may try again."""
+
+
 class LinkError(NmcError):
     """The link failed (port error, disconnect, modules silent, time-out storm).
 
@@ -113,6 +118,7 @@ DISCOVERY_ATTEMPTS = 3
 # the link declared failed. A host descheduled for seconds under load (seen: 0.5 s and more at load 6 to 22) is
 # not a failed link. During motion the limits below stay as they are.
 IDLE_PATIENCE = 6.0
+PREEMPT_SLICE = 0.05  # s: a resynchronisation's wait looks this often whether a stop wants the link
 MAX_REPLY_WAIT = 1.0
 DISCOVERY_WAITS = (DISCOVERY_WAIT, 0.6, 1.2)  # the marker's waits for a module the chain is known to have
 OVERSLEPT = 0.02  # s a read may return past its deadline before the host counts as descheduled meanwhile
@@ -190,6 +196,9 @@ class Bus:
         # 0 after a motion command. A module not in it stands as it powered up. See :meth:`still`.
         self._calm: dict[int, int] = {}
         self.warning: tuple[int, str, float] = (0, "", 0.0)  # link warnings so far, the last one, its clock time
+        self._preempts = 0  # stops that asked to cut short a patient retry (see preempt)
+        self._busy: int | None = None  # that count when the outermost transaction in progress began
+        self._busy_since = 0.0  # and the time it began
         self._heard: deque[tuple[float, bytes]] = deque(maxlen=HEARD_KEEP)  # (time, bytes) as they came in
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
@@ -390,10 +399,11 @@ class Bus:
         address, code, data = packet[1], packet[2] & 0x0F, packet[3:-1]
         self._command_at = self.clock.now()
         members = self._members(address)
-        if code in (codec.START_MOVE, codec.STOP_MOTOR) or (
-                code == codec.LOAD_TRAJ and data and data[0] & codec.START_NOW):
+        if code == codec.START_MOVE or (code == codec.LOAD_TRAJ and data and data[0] & codec.START_NOW):
             for a in members:
                 self._calm[a] = 0  # it may move from now on, until its replies show it at rest
+        # (a STOP_MOTOR starts no motion: an axis standing still stays so, and a stop's missed reply is retried
+        # as patiently as any other while all stands)
         if code == codec.LOAD_TRAJ:
             try:
                 lt = codec.parse_load_traj(data)
@@ -485,74 +495,104 @@ class Bus:
         """Is ``address`` under position servo as far as the commands sent tell (not motor off, not PWM)?"""
         return address not in self._free
 
+    def preempt(self) -> None:
+        """A stop is waiting (any thread, no lock): a transaction that is patiently retrying a missed reply
+        while every axis stands still gives up at its next wait (:class:`Preempted`, within ``PREEMPT_SLICE``),
+        so the stop gets the link at once instead of after seconds of retries. Transactions sent after this
+        call (the stop's own) are not affected; motion's strict retries are never cut short."""
+        self._preempts += 1
+
+    def _preempted(self) -> bool:
+        """Has a stop asked for the link since the transaction in progress began, while all stands still?"""
+        return self._busy is not None and self._preempts != self._busy and self.still()
+
+    def _check_preempt(self, packet: bytes) -> None:
+        if self._preempted():
+            raise Preempted(f"the retry of {self._name(packet)} to {self._who(packet[1])} was cut short by a stop "
+                            f"({self.heard(self._busy_since)})", packet[1])
+
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.
 
         ``items`` overrides the expected status items (READ_STAT). Group
         commands to a group without a leader return None after a short wait.
-        Raises :class:`LinkError` if no trustworthy reply can be had.
+        Raises :class:`LinkError` if no trustworthy reply can be had, :class:`Preempted` when a stop cut
+        short its patient retries (every axis standing still).
         """
+        with self.lock:
+            outer = self._busy is None
+            if outer:
+                self._busy, self._busy_since = self._preempts, self.clock.now()
+            try:
+                return self._transact(packet, items)
+            finally:
+                if outer:
+                    self._busy = None
+
+    def _transact(self, packet: bytes, items: int | None) -> codec.Status | None:
         address = packet[1]
         code = packet[2] & 0x0F
-        with self.lock:
-            expected = self._reply_items(address) if items is None else items
-            self._read_home_before(packet)
-            self.stats["transactions"] += 1
-            self._before_send(packet)
-            if code == codec.HARD_RESET:  # never answered: the module is back at its power-up state
-                expected = None
-                for a in self._members(address):
-                    self.items.pop(a, None)
-                    self._capturing.discard(a)
-            if expected is None:  # leaderless group or HARD_RESET: nobody answers
-                self._discard_stale(address)
-                self._write(packet, address)
-                self.clock.sleep(LEADERLESS_WAIT)
-                return None
-            responder = self._responder(address)
-            checksum_rejects = 0
-            lost = 0
-            first_sent = self._command_at
-            wait = None  # Kerr's reply time-out; longer for each retry while the machine stands still
-            while True:
-                status = self._attempt(packet, expected, wait)
-                if status is not None and responder is not None and not self._plausible(responder, status, code):
-                    status = self._confirm_jump(responder, status)
-                if status is not None and status.cksum_error:  # not carried out: sending again is safe
-                    self.stats["retries"] += 1
-                    checksum_rejects += 1
-                    if checksum_rejects >= 2:
-                        raise LinkError(f"{self._who(address)} rejected {self._name(packet)} twice with a checksum "
-                                        "error: check the wiring and the baud rate", address, self.port_name)
-                    continue
-                if status is not None:
-                    return self._accept(address, status)
-                # no trustworthy reply: the command may or may not have been carried out
+        expected = self._reply_items(address) if items is None else items
+        self._read_home_before(packet)
+        self.stats["transactions"] += 1
+        self._before_send(packet)
+        if code == codec.HARD_RESET:  # never answered: the module is back at its power-up state
+            expected = None
+            for a in self._members(address):
+                self.items.pop(a, None)
+                self._capturing.discard(a)
+        if expected is None:  # leaderless group or HARD_RESET: nobody answers
+            self._discard_stale(address)
+            self._write(packet, address)
+            self.clock.sleep(LEADERLESS_WAIT)
+            return None
+        responder = self._responder(address)
+        checksum_rejects = 0
+        lost = 0
+        first_sent = self._command_at
+        wait = None  # Kerr's reply time-out; longer for each retry while the machine stands still
+        while True:
+            status = self._attempt(packet, expected, wait)
+            if status is not None and responder is not None and not self._plausible(responder, status, code):
+                status = self._confirm_jump(responder, status)
+            if status is not None and status.cksum_error:  # not carried out: sending again is safe
                 self.stats["retries"] += 1
-                lost += 1
-                if self.still() and self.clock.now() - first_sent < IDLE_PATIENCE:
-                    # nothing moves: a slow answer costs only time. Retry, waiting longer each time, and say so
-                    self._warn(f"{self._who(address)} did not answer {self._name(packet)} in time ({lost}x, "
-                               f"{self.heard(self._sent_at)}); retrying")
-                    self._resync_patiently(address, first_sent)
-                    wait = min(reply_timeout(codec.status_length(expected)) * 2 ** lost, MAX_REPLY_WAIT)
-                    done = self._after_lost_reply(packet, expected)
-                    if done is not None:
-                        return self._accept(address, done)
-                    continue
-                self._storm += 1
-                if self._storm > STORM_LIMIT:
-                    raise LinkError(f"{STORM_LIMIT} commands in a row got no clean reply (last: {self._name(packet)} "
-                                    f"to {self._who(address)}): the link is failing", address, self.port_name)
-                self.resync(address)
-                if lost >= 3:
-                    raise LinkError(f"{self._who(address)} did not answer {self._name(packet)} at {self.baud} baud "
-                                    f"{lost} times in {self.clock.now() - first_sent:.1f} s although the link "
-                                    f"resynchronised ({self.heard(first_sent)}): check its power, cabling and "
-                                    "address", address, self.port_name)
+                checksum_rejects += 1
+                if checksum_rejects >= 2:
+                    raise LinkError(f"{self._who(address)} rejected {self._name(packet)} twice with a checksum "
+                                    "error: check the wiring and the baud rate", address, self.port_name)
+                continue
+            if status is not None:
+                return self._accept(address, status)
+            # no trustworthy reply: the command may or may not have been carried out
+            self.stats["retries"] += 1
+            lost += 1
+            if self.still() and self.clock.now() - first_sent < IDLE_PATIENCE:
+                # nothing moves: a slow answer costs only time. Retry, waiting longer each time, and say so;
+                # a stop waiting for the link cuts this short
+                self._check_preempt(packet)
+                self._warn(f"{self._who(address)} did not answer {self._name(packet)} in time ({lost}x, "
+                           f"{self.heard(self._sent_at)}); retrying")
+                self._resync_patiently(address, first_sent)
+                self._check_preempt(packet)
+                wait = min(reply_timeout(codec.status_length(expected)) * 2 ** lost, MAX_REPLY_WAIT)
                 done = self._after_lost_reply(packet, expected)
                 if done is not None:
                     return self._accept(address, done)
+                continue
+            self._storm += 1
+            if self._storm > STORM_LIMIT:
+                raise LinkError(f"{STORM_LIMIT} commands in a row got no clean reply (last: {self._name(packet)} "
+                                f"to {self._who(address)}): the link is failing", address, self.port_name)
+            self.resync(address)
+            if lost >= 3:
+                raise LinkError(f"{self._who(address)} did not answer {self._name(packet)} at {self.baud} baud "
+                                f"{lost} times in {self.clock.now() - first_sent:.1f} s although the link "
+                                f"resynchronised ({self.heard(first_sent)}): check its power, cabling and "
+                                "address", address, self.port_name)
+            done = self._after_lost_reply(packet, expected)
+            if done is not None:
+                return self._accept(address, done)
 
     def _confirm_jump(self, address: int, suspect: codec.Status) -> codec.Status | None:
         """A reply that jumped: resynchronise and read the position again; keep the reply only if it agrees."""
@@ -786,6 +826,8 @@ class Bus:
                 self.resync(address)
                 return
             except LinkError as exc:
+                if self._preempted():
+                    raise Preempted(f"a resynchronisation was cut short by a stop ({exc})", address) from exc
                 if not self.link_up or not self.still() or self.clock.now() - since >= IDLE_PATIENCE:
                     raise
                 self._warn(f"the link did not answer for {self.clock.now() - since:.1f} s ({exc}); retrying")
@@ -853,9 +895,12 @@ class Bus:
                 if buf:
                     self.stats["discarded"] += len(buf)
                 return False
+            if self._preempted():  # a stop waits for the link: its own stops resynchronise as they go
+                return False
             asked = self.clock.now()
-            chunk = self._read_some(left, address)
-            late = self.clock.now() - asked - left
+            step = min(left, PREEMPT_SLICE)
+            chunk = self._read_some(step, address)
+            late = self.clock.now() - asked - step
             if late > OVERSLEPT:  # this process was off the CPU meanwhile: that time is not the module's
                 deadline += late
             if not chunk:

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from . import codec
-from .bus import Bus, LinkError, NmcError, StopReport
+from .bus import Bus, LinkError, NmcError, Preempted, StopReport
 from .trace import ByteTrace
 from .transport import TransportError, WallClock
 
@@ -347,6 +347,8 @@ class JogGuard:
                 self.stop("release", msg[1])
             elif isinstance(msg, tuple) and msg[0] == "alive":
                 self.refresh(*msg[1:])
+            elif isinstance(msg, tuple) and msg[0] == "preempt":
+                self.bus.preempt()
             elif isinstance(msg, tuple) and msg[0] == "stop_all":
                 self.halted("stop")
                 report = self.bus.stop_all(msg[1])  # never raises
@@ -569,6 +571,10 @@ class RemoteBus:
         addresses = tuple(m.address for m in self.modules)
         return StopReport((), addresses, why)
 
+    def preempt(self) -> None:
+        """A stop is coming: the link process cuts short a patient retry in progress (:meth:`Bus.preempt`)."""
+        self._urgent_send(("preempt",), wait=0.05)
+
     def guard_release(self) -> None:
         """Stop the jog now and wait until the stop was sent (machine loop)."""
         self._request("guard_release")
@@ -653,6 +659,8 @@ class _RemoteTrace(ByteTrace):
 def _rebuild(cls: str, message: str, address: int | None, port: str) -> Exception:
     if cls == "GuardHeld":
         return GuardHeld(message)
+    if cls == "Preempted":
+        return Preempted(message, address)
     if cls == "LinkError":
         return LinkError(message, address, port)
     if cls == "TransportError":
