@@ -356,3 +356,30 @@ def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, o
     operator.refresh()
     assert operator.messages[-1][:2] == ("error", "Control taken"), operator.messages[-2:]
     other.release_control()
+
+
+def test_a_failing_tab_refresh_is_logged_and_the_refresher_keeps_the_other_tabs_alive(app, caplog):
+    """One tab whose refresh raises: the failure is logged once (not swallowed, not a log line 20 times a second)
+    and the refresher goes on refreshing the other tabs."""
+    broken = app.add_client(client_id="broken")
+    fine = app.add_client(client_id="fine")
+    calls = []
+
+    def fail():
+        raise RuntimeError("a widget went away")
+    broken.fast_refresh = fail
+    fine.fast_refresh = lambda: calls.append(1)
+    before = app.refresh_errors
+    try:
+        with caplog.at_level("ERROR", logger="cmm.ui.app"):
+            end = time.monotonic() + 10
+            while (app.refresh_errors < before + 5 or len(calls) < 5) and time.monotonic() < end:
+                time.sleep(0.05)
+        assert app.refresh_errors >= before + 5 and len(calls) >= 5 and app._refresher.is_alive()
+        logged = [r for r in caplog.records if "a widget went away" in (r.exc_text or "")
+                  or (r.exc_info and "a widget went away" in str(r.exc_info[1]))]
+        assert len(logged) == 1 and "status bar" in logged[0].getMessage()
+    finally:
+        with app._clients_lock:
+            for key in [k for k, c in app.clients.items() if c in (broken, fine)]:
+                del app.clients[key]

@@ -136,7 +136,8 @@ class CalibrationService:
         loaded = load_station_calibration(directory)
         nominal = None
         try:
-            probes, selected = self.probe_list()  # the selected probe: its name goes with every hit
+            probes, selected = self.probe_list()
+            self.host.measurement.probe_name = selected  # the selected probe: its name goes with every hit
             if loaded.probe is None and (self.records_dir / PROBE_LIST).is_file():
                 nominal = next(p for p in probes if p.name == selected)  # selected, never qualified
         except CalibrationError as exc:
@@ -177,13 +178,12 @@ class CalibrationService:
 
     def probe_list(self) -> tuple[list[ProbeDefinition], str]:
         """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
-        (its qualification is probe.toml). The selected name is also the measurement model's ``probe_name``."""
+        (its qualification is probe.toml). Reading it changes nothing: :meth:`load` and :meth:`select_probe` make the
+        selected name the measurement model's ``probe_name``."""
         probes, selected = load_probe_list(self.records_dir)
         if not probes:
             probes = [ProbeDefinition(DEFAULT_PROBE, round(2 * float(self.host.config.probe.tip_radius), 6))]
-        selected = selected or probes[0].name
-        self.host.measurement.probe_name = selected
-        return probes, selected
+        return probes, selected or probes[0].name
 
     def probe_record(self, name: str) -> Any:
         """The last qualification of probe ``name`` (a ProbeRecord), None when it was never qualified."""

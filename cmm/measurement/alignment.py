@@ -59,7 +59,7 @@ def _plane(kind: str, g: dict[str, Any], what: str) -> tuple[np.ndarray, np.ndar
     return np.asarray(g["point"], float), np.asarray(g["normal"], float)
 
 
-def _datums(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary: tuple[str, dict]
+def datum_frame(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary: tuple[str, dict]
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(plane point, normal, line point, line direction, origin point) of a 3-2-1 datum system."""
     p0, n0 = _plane(*primary, "primary datum")
@@ -118,8 +118,8 @@ def align_features(model: Any, primary: int, secondary: int, tertiary: int) -> A
     if len({primary, secondary, tertiary}) < 3:
         raise AlignmentError("3-2-1 needs three different features")
     pose = np.asarray(part.pose, float)
-    p0, n0, lp, ld, q = _datums(*[(f.kind, f.result.geometry()) for f in feats])
-    nominal = _datums(*[_nominal_part(f, pose) for f in feats])
+    p0, n0, lp, ld, q = datum_frame(*[(f.kind, f.result.geometry()) for f in feats])
+    nominal = datum_frame(*[_nominal_part(f, pose) for f in feats])
     # fitted normals and axes carry a canonical sign, not the CAD's: sign them like the nominal seen through
     # the current pose (the part is within a few degrees of it)
     R = pose[:3, :3]

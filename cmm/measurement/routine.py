@@ -44,7 +44,7 @@ from ..metrology.fit_ls import fit_plane
 from ..metrology.pick import NominalFeature
 from ..metrology.transform import invert
 from ..session.program import Program, ProgramError, check, machine_targets, teach, to_toml
-from .alignment import AlignmentResult, _datums, align_321, align_features, apply
+from .alignment import AlignmentResult, align_321, align_features, apply, datum_frame
 
 STEP_KINDS = ("align", "feature", "construct", "report")
 MANUAL_HITS = (3, 2, 1)  # 3-2-1: hits on the primary, secondary and tertiary datum
@@ -516,8 +516,8 @@ class RoutineRun:
                     ("line", {"point": pts[1][0], "direction": line_dir}),
                     ("plane", {"point": pts[2][0], "normal": n_ter}))
         try:
-            p0, nz, lp, ld, q = _datums(*measured)
-            nom = _datums(*nominal)
+            p0, nz, lp, ld, q = datum_frame(*measured)
+            nom = datum_frame(*nominal)
             ld = ld if ld @ (R @ nom[3]) >= 0 else -ld
             new = align_321(p0, nz, lp, ld, q) @ invert(align_321(*nom))
         except AlignmentError as exc:

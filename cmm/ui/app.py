@@ -9,6 +9,7 @@ following-error plot) and the panel refresher (20 Hz status bar, 5 Hz read-outs)
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
@@ -25,6 +26,7 @@ from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
 REFRESH_HZ = 20.0
 READOUT_EVERY = 4  # refresher ticks between read-out refreshes (5 Hz)
 PLOT_SECONDS = 10.0
+log = logging.getLogger(__name__)
 
 
 class StationApp:
@@ -69,6 +71,8 @@ class StationApp:
         self.server.on_client_disconnect(self._disconnect)
         self.updater = ProbeUpdater(station, self.view, extra=self._sample_plot).start()
         self._stop = threading.Event()
+        self.refresh_errors = 0  # refreshes that failed (each distinct failure is logged once)
+        self._refresh_failures: set[tuple[str, str, str]] = set()
         self._refresher = threading.Thread(target=self._refresh_loop, name="ui-refresh", daemon=True)
         self._refresher.start()
 
@@ -247,22 +251,26 @@ class StationApp:
             self.view.draw_features()
 
     def _refresh_loop(self) -> None:
+        """Refresh every tab and the scene; a refresh that fails is logged (each distinct failure once, with its
+        traceback; ``refresh_errors`` counts them all) and the loop goes on: one broken tab never freezes the
+        others' DRO."""
         tick = 0
         while not self._stop.wait(1.0 / REFRESH_HZ):
             tick += 1
-            clients = list(self.clients.values())
-            for capp in clients:
-                try:
-                    capp.fast_refresh()  # the status bar's DRO at 20 Hz (sent only when it changed)
-                except Exception:  # noqa: BLE001 - a closing tab
-                    pass
-            try:
-                self.redraw()
-            except Exception:  # noqa: BLE001 - keep the UI alive
-                pass
+            clients = list(self.clients.items())
+            for cid, capp in clients:
+                self._guarded(f"tab {cid} status bar", capp.fast_refresh)  # the DRO at 20 Hz (sent when changed)
+            self._guarded("scene", self.redraw)
             if tick % READOUT_EVERY == 0:
-                for capp in clients:
-                    try:
-                        capp.refresh()
-                    except Exception:  # noqa: BLE001 - a closing tab
-                        pass
+                for cid, capp in clients:
+                    self._guarded(f"tab {cid} read-outs", capp.refresh)
+
+    def _guarded(self, what: str, fn: Any) -> None:
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 - logged; the refresher keeps every other tab alive
+            self.refresh_errors += 1
+            key = (what, type(exc).__name__, str(exc))
+            if key not in self._refresh_failures:
+                self._refresh_failures.add(key)
+                log.exception("refreshing the %s failed (logged once; the refresher goes on)", what)
