@@ -30,19 +30,28 @@ StationError = MeasurementError  # the station's refusals and the model's are on
 __all__ = ["ConfigError", "Station", "StationError", "load_config"]
 
 
-def register_measurement_verbs(controller: Controller, measurement: MeasurementModel) -> None:
-    """The measurement verbs of the command API: only the control holder changes the measurement."""
+def register_measurement_verbs(controller: Controller, measurement: MeasurementModel, calibration: Any = None) -> None:
+    """The measurement verbs of the command API: only the control holder changes the measurement. The long ones
+    (auto-measure, programs, calibration routines) register with the control core's running jobs while they run,
+    so the ``cancel`` verb ends them between hits from any front end."""
     from .control.api import REQUIRED
+    from .control.running import cancel_flag
     from .measurement import alignment
+    from .measurement.plan import plan_at_pick, run_plan
     from .measurement.program import run_on
 
-    def fit(client: Any, kind: str, hits: list[int], method: str = "ls", name: str | None = None) -> Any:
-        controller.check_access(client, "measure")
-        return measurement.fit_feature(kind, [int(h) for h in hits], method, name)
+    def holder(fn: Any) -> Any:
+        def verb(client: Any, **params: Any) -> Any:
+            controller.check_access(client, "measure")
+            return fn(**params)
+        return verb
 
-    def align(client: Any, primary: int | None = None, secondary: int | None = None, tertiary: int | None = None,
+    def fit(kind: str, hits: list[int], method: str = "ls", name: str | None = None, nominal: Any = None,
+            tolerance: Any = None) -> Any:
+        return measurement.fit_feature(kind, [int(h) for h in hits], method, name, nominal, tolerance)
+
+    def align(primary: int | None = None, secondary: int | None = None, tertiary: int | None = None,
               hits: list[int] | None = None) -> Any:
-        controller.check_access(client, "measure")
         if hits is not None:
             result = alignment.best_fit_hits(measurement, [int(h) for h in hits])
         elif None not in (primary, secondary, tertiary):
@@ -50,18 +59,54 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         else:
             raise StationError("align needs three features (primary, secondary, tertiary) or hits for a best fit")
         alignment.apply(measurement, result)
-        return result.pose
+        return result
 
-    def program(client: Any, path: str) -> Any:
-        return run_on(controller, measurement, path, client=client)
+    def construct(operation: str, a: int, b: int, name: str | None = None, tolerance: Any = None,
+                  three_d: bool = False) -> Any:
+        return measurement.construct_feature(operation, int(a), int(b), name, tolerance, three_d)
+
+    def auto_measure(client: Any, plan: Any = None, face: int | None = None, n: int | None = None,
+                     name: str | None = None, method: str = "ls", progress: Any = None) -> Any:
+        controller.check_access(client, "measure")
+        if plan is None:
+            if face is None:
+                raise StationError("auto-measure needs a plan or the part face to plan on")
+            plan = plan_at_pick(measurement, int(face), n=n)
+        cancel, cancelled = cancel_flag()
+        with controller.jobs.running(f"auto-measure of {name or 'the ' + plan.kind}", cancel):
+            return run_plan(measurement, plan, name=name, method=method, progress=progress, cancelled=cancelled,
+                            client=client)
+
+    def program(client: Any, path: Any, serial: str = "") -> Any:
+        return run_on(controller, measurement, path, client=client, serial=serial)
 
     cmds = controller.commands
-    cmds.register("measure_feature", fit, {"kind": REQUIRED, "hits": REQUIRED, "method": "ls", "name": None},
+    cmds.register("measure_feature", holder(fit), {"kind": REQUIRED, "hits": REQUIRED, "method": "ls", "name": None,
+                                                   "nominal": None, "tolerance": None},
                   "fit a feature (plane, circle, sphere, cylinder, cone, line...) to hits by id")
-    cmds.register("align", align, {"primary": None, "secondary": None, "tertiary": None, "hits": None},
+    cmds.register("construct", holder(construct), {"operation": REQUIRED, "a": REQUIRED, "b": REQUIRED, "name": None,
+                                                   "tolerance": None, "three_d": False},
+                  "construct a feature from features a and b (distance, angle, intersection, midpoint ...)")
+    cmds.register("undo", holder(measurement.undo), {}, "undo the last hit added or deleted")
+    cmds.register("delete_hit", holder(lambda hit: measurement.delete_hit(int(hit))), {"hit": REQUIRED},
+                  "delete a hit by id (undo brings it back)")
+    cmds.register("delete_feature", holder(lambda feature: measurement.delete_feature(int(feature))),
+                  {"feature": REQUIRED}, "delete a feature (or a construction) by id")
+    cmds.register("align", holder(align), {"primary": None, "secondary": None, "tertiary": None, "hits": None},
                   "align the part: 3-2-1 from three features, or a best fit of hits to the CAD")
-    cmds.register("run_program", program, {"path": REQUIRED},
-                  "run a measurement program file (the machine is the program's until it ends)")
+    cmds.register("auto_measure", auto_measure, {"plan": None, "face": None, "n": None, "name": None, "method": "ls",
+                                                 "progress": None},
+                  "probe a planned feature hit by hit over the clearance plane and fit it (plan: in process; "
+                  "else face: the part face id to plan on, n hits per ring); cancel ends it after the hit in progress")
+    cmds.register("run_program", program, {"path": REQUIRED, "serial": ""},
+                  "run a measurement program file (the machine is the program's until it ends; cancel ends it "
+                  "after the hit in progress)")
+    if calibration is not None:
+        def qualify(client: Any, routine: str = "probe", progress: Any = None, options: dict | None = None) -> Any:
+            return calibration.run(client, routine, progress, **(options or {}))
+        cmds.register("qualify", qualify, {"routine": "probe", "progress": None, "options": None},
+                      "run a calibration routine: probe (qualification), iso (ISO 10360-5), geometry, servo; "
+                      "returns its result, nothing applied; cancel ends it")
 
 
 class PartWorkspace:
@@ -122,7 +167,7 @@ class Station:
         self.controller.set_workspace(PartWorkspace(self.measurement))
         self.calibration = CalibrationService(self, calibration_dir)  # routines, records and results, for every front end
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
-        register_measurement_verbs(self.controller, self.measurement)
+        register_measurement_verbs(self.controller, self.measurement, self.calibration)
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)

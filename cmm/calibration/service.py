@@ -7,11 +7,12 @@ what it returns, so the UI imports neither the routines nor the records.
 - ``load(directory)`` applies the records in force (probe settings, geometry correction) and keeps what it
   applied (``log``), their dates (``status``, written into each session's start) and the qualified probing
   speed manual hits are limited to; ``apply(loaded, client)`` applies records while the machine is still;
-- ``run(client, routine, ...)`` runs one routine through the command API
-  (``controller.run_job``: in the machine loop, with the machine to itself, the
-  client's access checked there); its result is returned, nothing is applied.
+- ``run(client, routine, ...)`` runs one routine through the command API's
+  ``run_job`` verb (in the machine loop, with the machine the control core hands
+  it, the client's access checked there; the ``cancel`` verb ends it); its result
+  is returned, nothing is applied.
 - ``save(client, routine, result)`` writes the record atomically and, for the
-  probe and the geometry, applies it through ``controller.configure`` (while the
+  probe and the geometry, applies it through the ``configure`` verb (while the
   machine is still); ``accept_gains`` sends proposed servo gains the same way.
 - ``records()``, ``certificate_text()``, ``certificate_problem()``,
   ``in_force()``, ``instruction`` (a ball-bar set-up the operator must place)
@@ -59,10 +60,8 @@ def calibration_errors() -> tuple[type[BaseException], ...]:
 class CalibrationHost(Protocol):
     """What the service needs from the station (the composition root that builds it)."""
 
-    controller: Any  # the control core (cmm.control.Controller): run_job, configure
+    controller: Any  # the control core (cmm.control.Controller): its command API's run_job, configure, stop
     measurement: Any  # the measurement model: notes go into the session journal
-    machine: Any
-    prober: Any
     config: Any
     lock: Any  # held while records are applied (the measurement reads the probe settings under it)
 
@@ -164,7 +163,8 @@ class CalibrationService:
 
         host = self.host
         with host.lock:
-            return host.controller.configure(client, lambda: apply_calibration(loaded, host.machine, host.prober))
+            return host.controller.commands.invoke(
+                client, "configure", change=lambda setup: apply_calibration(loaded, setup.machine, setup.prober))
 
     @property
     def qualified_probing_speed(self) -> float:
@@ -229,7 +229,7 @@ class CalibrationService:
 
     def select_probe(self, client: Any, name: str) -> str:
         """Make ``name`` the probe in use: its qualified radius and pre-travel go to the live station (through
-        ``controller.configure``) and into probe.toml; an unqualified probe gets its nominal radius and no
+        the ``configure`` verb) and into probe.toml; an unqualified probe gets its nominal radius and no
         pre-travel model. Returns what was applied."""
         probes, _ = self.probe_list()
         probe = next((p for p in probes if p.name == name), None)
@@ -263,7 +263,8 @@ class CalibrationService:
         host = self.host
         settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
         with host.lock:
-            host.controller.configure(client, lambda: setattr(host.prober, "settings", settings))
+            host.controller.commands.invoke(client, "configure",
+                                            change=lambda setup: setattr(setup.prober, "settings", settings))
         return f"probe {probe.name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"
 
     def _keep_legacy_record(self, probes: list[ProbeDefinition]) -> None:
@@ -386,9 +387,9 @@ class CalibrationService:
         try:
             certs = self.certificates(routine)
             self._cancel = False
-            return self.host.controller.run_routine(client, LABELS[routine],
-                                                    lambda job: self._work(job, routine, certs, options),
-                                                    progress=progress)
+            return self.host.controller.commands.invoke(
+                client, "run_job", description=LABELS[routine], work=lambda job: self._work(job, routine, certs, options),
+                progress=progress, cancel=self._cancel_run)
         finally:
             self.instruction = ""
             self._bar_event = None
@@ -476,6 +477,14 @@ class CalibrationService:
         event.set()
         return True
 
+    def _cancel_run(self) -> None:
+        """The ``cancel`` verb: a routine waiting for the operator ends there; one that moves is stopped (its
+        routines do not look for a cancel between their hits)."""
+        waiting = self._bar_event is not None
+        self.cancel()
+        if not waiting:
+            self.host.controller.commands.invoke(None, "stop")
+
     def cancel(self) -> None:
         """End a routine that waits for the operator (the front end also sends STOP for one that moves)."""
         if not self.running:
@@ -489,7 +498,7 @@ class CalibrationService:
 
     def save(self, client: Any, routine: str, result: Any, *, accepted: bool = False) -> tuple[Path, bool]:
         """Write ``result``'s record; the probe and the geometry are also applied to the live machine (through
-        ``controller.configure``). Returns (path, applied)."""
+        the ``configure`` verb). Returns (path, applied)."""
         host = self.host
         if routine == "probe":
             probes, selected = self.probe_list()
@@ -522,11 +531,11 @@ class CalibrationService:
         raise CalibrationError(f"unknown routine {routine!r}")
 
     def accept_gains(self, client: Any, result: Any) -> Path:
-        """Send a servo tuning's proposed gains to the modules (``controller.configure``) and record them."""
+        """Send a servo tuning's proposed gains to the modules (the ``configure`` verb) and record them."""
         from .servo import apply_gains
 
         host = self.host
-        host.controller.configure(client, lambda: apply_gains(host.machine, result.proposed))
+        host.controller.commands.invoke(client, "configure", change=lambda setup: apply_gains(setup.machine, result.proposed))
         path = save_record(result.record(True, host.config.source), self.records_dir / SERVO_RECORD)
         host.measurement.note("servo gains accepted: " + "; ".join(
             f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in result.proposed.items()))

@@ -61,9 +61,9 @@ class _Rig:
                 settings.errors = GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))
         self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings)
         try:
-            self.api = self.station.controller
-            self.api.connect()
-            if not self.api.state.homed:
+            self.station.controller.connect()  # the modules started in this thread (no machine loop: a script)
+            self.commands = self.station.controller.commands  # every command below goes through the command API
+            if not self.commands.invoke(None, "state").homed:
                 self._home(args)
             self.station.calibration.load(args.records)
         except BaseException:
@@ -87,7 +87,7 @@ class _Rig:
         if not self.station.simulated:  # the operator is told before the machine moves to its switches
             print("homing cycle: the machine moves to its home switches", flush=True)
         try:
-            self.station.controller.home(None)
+            self.commands.invoke(None, "home")
         except Exception as exc:  # noqa: BLE001 - said to the operator with what to check
             hint = ("the routines measure only on a homed machine; on a machine without home switches set "
                     "[homing] method = \"none\" in the configuration given with --config")
@@ -96,6 +96,10 @@ class _Rig:
             raise RigError(f"homing failed: {exc} ({hint})") from exc
         if not self.station.simulated:
             print("homed", flush=True)
+
+    def qualify(self, routine: str, progress: Any, **options: Any) -> Any:
+        """Run a calibration routine through the command API's ``qualify`` verb (its result; nothing applied)."""
+        return self.commands.invoke(None, "qualify", routine=routine, progress=progress, options=options)
 
     @property
     def probe_in_force(self) -> bool:
@@ -158,7 +162,7 @@ def run(args: Any) -> int:
 def _run_probe(args: Any, rig: _Rig) -> int:
     svc = rig.service
     cert = svc.certificates("probe")
-    q = svc.run(None, "probe", _progress(args), repeats=args.repeats or 2, approx_centre=_centre(args))
+    q = rig.qualify("probe", _progress(args), repeats=args.repeats or 2, approx_centre=_centre(args))
     r = q.record
     print(f"reference sphere {cert.describe()}: centre X={q.centre[0]:.4f} Y={q.centre[1]:.4f} Z={q.centre[2]:.4f}")
     print(f"effective tip radius r_eff = {r.tip_radius:.5f} mm (nominal {r.nominal_tip_radius}), U(k=2) {r.uncertainty_um:.2f} um")
@@ -175,7 +179,7 @@ def _run_probe(args: Any, rig: _Rig) -> int:
 def _run_iso(args: Any, rig: _Rig) -> int:
     if not rig.probe_in_force:
         print("note: no probe record in force: run `cmm calibrate probe` first; testing the nominal settings")
-    result = rig.service.run(None, "iso", _progress(args), repeats=args.repeats or 1, approx_centre=_centre(args))
+    result = rig.qualify("iso", _progress(args), repeats=args.repeats or 1, approx_centre=_centre(args))
     print(result.table())
     return 0
 
@@ -195,8 +199,7 @@ def _run_geometry(args: Any, rig: _Rig) -> int:
                   "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}; ".format(*s.ball1, *s.ball2) +
                   "press Enter when it is clamped ")
         options["place"] = place
-    result = svc.run(None, "geometry", _progress(args), repeats=args.repeats or 2, verify=not args.no_verify,
-                     **options)
+    result = rig.qualify("geometry", _progress(args), repeats=args.repeats or 2, verify=not args.no_verify, **options)
     c = result.correction
     print("scale (ppm): X {:+.2f} Y {:+.2f} Z {:+.2f}   U(k=2) {:.2f}".format(*c.scale_ppm, result.uncertainty_scale_ppm))
     print("squareness (urad): XY {:+.2f} XZ {:+.2f} YZ {:+.2f}   U(k=2) {:.2f}".format(
@@ -216,7 +219,7 @@ def _run_servo(args: Any, rig: _Rig) -> int:
     from ..calibration.servo import svg_plot
 
     svc = rig.service
-    result = svc.run(None, "servo", _progress(args))
+    result = rig.qualify("servo", _progress(args))
     print(result.table())
     out = svc.records_dir
     for a in result.proposed:

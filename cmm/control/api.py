@@ -8,10 +8,13 @@ frames, the clearance plane and the jog pipeline are decided here, once, for all
 A response is ``{"id": ..., "result": ...}`` or ``{"id": ..., "error": {"code": ..., "message": ...}}``;
 ``message`` is a sentence for the operator, ``code`` one of :data:`ERROR_CODES` for programs. Motion verbs
 return their status (``wait=True`` waits for it and returns its result: the tip position, or the Hit).
+Front ends in this process may use :meth:`CommandAPI.invoke` instead: the same verbs and checks, the result
+returned and the verb's own error raised (the UI and the CLI tell it in their words). A few verbs take Python
+callables and so exist in process only (``configure``, ``run_job``, the progress callbacks).
 
 The machine verbs are registered by the control core; the station registers the measurement verbs
-(``measure_feature``, ``align``, ``run_program``) with :meth:`CommandAPI.register`, since the measurement
-model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
+(``measure_feature``, ``construct``, ``undo``, ``align``, ``auto_measure``, ``run_program``, ``qualify`` ...)
+with :meth:`CommandAPI.register`, since the measurement model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
 parameters (the README's table).
 """
 
@@ -40,6 +43,14 @@ ERROR_CODES = {
     "failed": "the command failed (see the message)",
 }
 REQUIRED = object()
+
+
+class CommandError(ValueError):
+    """A call the API cannot make: an unknown verb, a parameter missing or unknown (``code`` says which)."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass(frozen=True)
@@ -100,6 +111,19 @@ class CommandAPI:
         self.register("zero", c.zero, {"confirm": False}, "here becomes the home coordinates (confirm=true)")
         self.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
                       "where the tip centre is, in frame 'machine' or 'part'")
+        self.register("state", lambda client: c.state, {},
+                      "the machine's state: mode and why, homed, link, the commands allowed now, the last sample")
+        self.register("cancel", c.cancel_jobs, {},
+                      "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
+                      "progress; its hits stay recorded; allowed to everyone who may STOP")
+        self.register("configure", c.configure, {"change": REQUIRED},
+                      "in process: change the set-up while the machine is still; change(setup) gets "
+                      "setup.machine and setup.prober (probe settings, geometry correction, servo gains)")
+        self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None:
+                      c.run_routine(client, description, work, progress=progress, cancel=cancel, timeout=timeout),
+                      {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None},
+                      "in process: work(job) runs in the machine loop with the machine to itself (job.machine, "
+                      "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent")
 
     # --- registry ---------------------------------------------------------------------
 
@@ -113,27 +137,35 @@ class CommandAPI:
 
     # --- calls ------------------------------------------------------------------------
 
+    def invoke(self, client: Any, method: str, **params: Any) -> Any:
+        """Run one verb for ``client`` in this process and return its result; the verb's own error (Refused,
+        ContactError, MeasurementError ...) is raised as it is, for front ends that tell their operator in their
+        own words. A wrong call (unknown verb, parameters missing or unknown) raises :class:`CommandError`."""
+        verb = self._verbs.get(method)
+        if verb is None:
+            raise CommandError("unknown_method", f"unknown command {method!r}; the commands are "
+                               + ", ".join(sorted(self._verbs)))
+        unknown = sorted(set(params) - set(verb.params))
+        if unknown:
+            raise CommandError("bad_params", f"{method} does not take {', '.join(unknown)}; it takes "
+                               + (", ".join(verb.params) or "nothing"))
+        missing = [k for k, v in verb.params.items() if v is REQUIRED and k not in params]
+        if missing:
+            raise CommandError("bad_params", f"{method} needs {', '.join(missing)}")
+        return verb.fn(client, **params)
+
     def call(self, client: Any, method: str, params: dict[str, Any] | None = None, *, id: Any = None,
              wait: bool = False, timeout: float | None = None) -> Response:
         """Run one verb for ``client``; never raises for the operator's mistakes or the machine's refusals."""
-        verb = self._verbs.get(method)
-        if verb is None:
-            return _error(id, "unknown_method", f"unknown command {method!r}; the commands are "
-                          + ", ".join(sorted(self._verbs)))
         params = {} if params is None else params
         if not isinstance(params, dict):
             return _error(id, "bad_params", f"{method}: the parameters must be named (a JSON object)")
-        unknown = sorted(set(params) - set(verb.params))
-        if unknown:
-            return _error(id, "bad_params", f"{method} does not take {', '.join(unknown)}; it takes "
-                          + (", ".join(verb.params) or "nothing"))
-        missing = [k for k, v in verb.params.items() if v is REQUIRED and k not in params]
-        if missing:
-            return _error(id, "bad_params", f"{method} needs {', '.join(missing)}")
         try:
-            result = verb.fn(client, **params)
+            result = self.invoke(client, method, **params)
             if wait and isinstance(result, MoveStatus):
                 result = result.wait(timeout)
+        except CommandError as exc:
+            return _error(id, exc.code, str(exc))
         except BaseException as exc:  # noqa: BLE001 - every failure becomes the caller's error response
             if not isinstance(exc, Exception):
                 raise

@@ -28,6 +28,7 @@ from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopRepor
 from .api import CommandAPI
 from .jog import JogHolds
 from .rails import Workspace
+from .running import RunningJobs
 from .priority import raise_priority_on
 
 log = logging.getLogger(__name__)
@@ -53,7 +54,8 @@ class _Command:
 
 
 class Job:
-    """What a routine run by :meth:`Controller.run_routine` works with, inside the machine loop."""
+    """What a routine run by :meth:`Controller.run_routine` (or a set-up change by :meth:`Controller.configure`)
+    works with, inside the machine loop: the machine and its prober, handed over by the control core."""
 
     def __init__(self, machine: Machine, prober: Prober, progress: Callable[[float, str], None] | None) -> None:
         self.machine, self.prober = machine, prober
@@ -104,6 +106,7 @@ class Controller:
         self._in_poll = False
         self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
         self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
+        self.jobs = RunningJobs()  # what runs now (auto-measure, routine, program, calibration): the cancel verb
         self.commands = CommandAPI(self)  # the same verbs as requests and responses, for the adapters
         self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
         self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
@@ -327,6 +330,27 @@ class Controller:
     def tip_radius(self) -> float:
         return float(self.prober.settings.tip_radius)
 
+    @property
+    def probe_settings(self) -> Any:
+        """The probe settings in force (tip radius, pre-travel model): read them, change them with ``configure``."""
+        return self.prober.settings
+
+    def link_info(self) -> dict[str, Any]:
+        """The link as the front ends show it: port, baud, the modules found at start-up (address, type, version)."""
+        bus = self.machine.bus
+        return {"port": str(getattr(bus, "port_name", "")), "baud": int(getattr(bus, "baud", self.config.link.baud)),
+                "firmware": self.config.link.firmware,
+                "modules": [(m.address, m.module_type, m.version) for m in (getattr(bus, "modules", None) or [])]}
+
+    def trace_text(self, last: int = 30) -> str:
+        """The last packets on the link (the byte trace), for the diagnostics view."""
+        return self.machine.bus.trace.dump(last=last)
+
+    @property
+    def samples(self) -> int:
+        """Samples taken so far (every axis read once each): the link's sample rate for the status bar."""
+        return int(self.machine.samples)
+
     def frame_position(self, frame: str) -> np.ndarray | None:
         """Where the tip centre is in ``frame`` (None: part coordinates without a part, or no sample yet)."""
         pos = self._state.position
@@ -470,11 +494,13 @@ class Controller:
         self._submit(client, "reconnect", self._reconnect, timeout=30.0)
 
     def run_job(self, client: str | None, description: str, fn: Callable[[], Any], *,
-                timeout: float | None = None) -> Any:
+                timeout: float | None = None, cancel: Callable[[], None] | None = None) -> Any:
         """Run a routine (calibration, a measurement program) in the machine loop with the machine to itself.
 
         ``fn`` may use the machine and prober directly and wait on statuses (they drive the loop); other
-        commands are refused while it runs, except STOP / E-STOP, which end its current move.
+        commands are refused while it runs, except STOP / E-STOP, which end its current move. While it runs,
+        the ``cancel`` verb calls ``cancel`` (the job ends itself cleanly between hits); a job without one is
+        ended by a controlled stop of its current move.
         """
         def run() -> Any:
             with self._lock:
@@ -486,20 +512,32 @@ class Controller:
                 with self._lock:
                     self._job = None
                 self._publish()
-        return self._submit(client, "job", run, timeout=timeout)
+        with self.jobs.running(description, cancel or (lambda: self.stop(None))):
+            return self._submit(client, "job", run, timeout=timeout)
 
     def run_routine(self, client: str | None, description: str, routine: Callable[["Job"], Any], *,
-                    progress: Callable[[float, str], None] | None = None, timeout: float | None = None) -> Any:
+                    progress: Callable[[float, str], None] | None = None, timeout: float | None = None,
+                    cancel: Callable[[], None] | None = None) -> Any:
         """A routine that needs the machine itself (calibration): ``routine(job)`` runs as a :meth:`run_job`
         and gets the machine, the prober and ``job.progress(fraction, message)``, which reaches ``progress`` on
         the dispatcher thread (never in the loop); the last report is delivered before this returns."""
         job = Job(self.machine, self.prober, None if progress is None else
                   (lambda fraction, message: self.dispatcher.post(progress, fraction, message)))
         try:
-            return self.run_job(client, description, lambda: routine(job), timeout=timeout)
+            return self.run_job(client, description, lambda: routine(job), timeout=timeout, cancel=cancel)
         finally:
             if progress is not None:
                 self.dispatcher.flush()
+
+    def cancel_jobs(self, client: str | None) -> dict[str, Any]:
+        """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
+        to every client the access policy lets stop; a job that was not running is no error."""
+        why = self.policy.refusal(client, "cancel")
+        if why is not None:
+            raise Refused(why)
+        asked = self.jobs.cancel_all()
+        return {"cancelled": asked,
+                "message": ("cancelled: " + "; ".join(asked)) if asked else "nothing was running to cancel"}
 
     def wait_event(self, event: threading.Event, timeout: float) -> bool:
         """Wait for ``event``; from inside the machine loop (a routine waiting for the operator) keep the loop
@@ -512,9 +550,10 @@ class Controller:
             time.sleep(0.005)
         return event.is_set()
 
-    def configure(self, client: str | None, fn: Callable[[], Any]) -> Any:
-        """Change the machine set-up (geometry correction, probe settings, gains) in the loop, while still."""
-        return self._submit(client, "configure", fn)
+    def configure(self, client: str | None, change: Callable[["Job"], Any]) -> Any:
+        """Change the machine set-up (geometry correction, probe settings, gains) in the loop, while still:
+        ``change(setup)`` gets the machine and its prober (``setup.machine``, ``setup.prober``)."""
+        return self._submit(client, "configure", lambda: change(Job(self.machine, self.prober, None)))
 
     def fault(self, reason: str) -> None:
         """Put the machine in the safe state (any thread): all axes stopped abruptly, mode fault."""

@@ -75,12 +75,13 @@ def _run(args: Any, path: Path, text: str) -> int:
 
     station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions)
     try:
-        station.controller.connect()
-        if not station.controller.state.homed:
+        station.controller.connect()  # the modules started in this thread (no machine loop: a script)
+        commands = station.controller.commands  # every command below goes through the command API
+        if not commands.invoke(None, "state").homed:
             if not args.home:
                 print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
                 return 1
-            station.controller.home(None)
+            commands.invoke(None, "home")
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
         session = str(station.measurement.new_session())

@@ -1,8 +1,8 @@
 """Run a DMIS program on the station: check it all, then run it as one job of the control core.
 
 :func:`run_text` refuses a program with any problem (syntax, an unsupported statement, an unclosed block) before
-anything moves, then holds the machine for the whole run (``controller.run_job``) and moves and probes through
-the control core, so the access policy, STOP and the journal work as for every other front end.
+anything moves, then holds the machine for the whole run (the command API's ``run_job`` verb) and moves and probes
+through the same API, so the access policy, STOP, ``cancel`` and the journal work as for every other front end.
 
 A program that measures in manual mode (``MODE/MAN`` or ``MODE/PROG, MAN``) cannot hold the machine: the
 operator jogs and probes between its statements. It runs outside a job, each move and hit its own command of
@@ -34,7 +34,7 @@ class StationTarget:
                  manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
                  manual_timeout: float = 1800.0, cancel: threading.Event | None = None) -> None:
         self.station = station
-        self.controller = station.controller
+        self.commands = station.controller.commands  # moves and hits go through the command API as ``client``
         self.model = station.measurement
         self.client = client
         self.timeout = timeout
@@ -77,25 +77,26 @@ class StationTarget:
             self._tell("")
 
     def position(self) -> np.ndarray:
-        return np.asarray(self.station.machine.position, float)
+        return np.asarray(self.commands.invoke(self.client, "position", frame="machine"), float)
 
     def move(self, target: np.ndarray, speed: float | None) -> None:
         """A DMIS GOTO: a straight line, which the control core's rails take only when it is proven free of the
         part (else they refuse it in words, and the program stops on that line)."""
-        self.controller.move(self.client, target, frame="machine", path="straight", speed=speed).wait(self.timeout)
+        self.commands.invoke(self.client, "move", target=target, frame="machine", path="straight",
+                             speed=speed).wait(self.timeout)
 
     def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
               search_distance: float, retract_distance: float, rapid_speed: float | None) -> int:
         """A PTMEAS: straight to the pre-hit point (proven free of the part), then the probing move."""
-        hit = self.controller.probe(self.client, point, approach, frame="machine", path="straight",
-                                    speed=speed or self.probing_speed, approach_distance=approach_distance,
-                                    search_distance=search_distance, retract_distance=retract_distance,
-                                    rapid_speed=rapid_speed).wait(self.timeout)
+        hit = self.commands.invoke(self.client, "probe", target=point, approach=approach, frame="machine",
+                                   path="straight", speed=speed or self.probing_speed,
+                                   approach_distance=approach_distance, search_distance=search_distance,
+                                   retract_distance=retract_distance, rapid_speed=rapid_speed).wait(self.timeout)
         return int(self.model.hit_id(hit))
 
     @property
     def tip_radius(self) -> float:
-        return float(self.station.prober.settings.tip_radius)
+        return float(self.station.controller.tip_radius)
 
     @property
     def probing_speed(self) -> float:
@@ -140,6 +141,9 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
         raise DmisError(problems[0])
     target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
     executor = Executor(stmts, target, name=name)
-    if needs_operator(stmts):
-        return executor.run()
-    return station.controller.run_job(client, f"DMIS program {name!r}", executor.run, timeout=None)
+    description = f"DMIS program {name!r}"
+    if needs_operator(stmts):  # the cancel verb ends its waits for the operator's hits
+        with station.controller.jobs.running(description, target.cancel.set):
+            return executor.run()
+    return station.controller.commands.invoke(client, "run_job", description=description,
+                                              work=lambda job: executor.run())

@@ -43,7 +43,7 @@ class StationBackend:
     """The I++ DME backend on a started :class:`~cmm.station.Station`, through its control core.
 
     An adapter that only translates: every command goes to the command API
-    (:class:`~cmm.control.Controller`) with this connection's client id, so the
+    (:mod:`cmm.control.api`, its verbs) with this connection's client id, so the
     core's access policy and motion rails apply: the I++ client takes the
     station's one control holder (browsers then observe and can still stop the
     machine). GoTo is a straight ``move`` and PtMeas a ``probe`` with the
@@ -59,6 +59,7 @@ class StationBackend:
 
         self.station = station
         self.controller = station.controller
+        self.commands = station.controller.commands  # the verbs every front end sends
         self.config = station.config
         self.client = Client(client, local=local, authenticated=local)
         self.peer = peer
@@ -149,7 +150,7 @@ class StationBackend:
 
     # --- motion: the command API's move and probe, straight lines as I++ DME means them ---------
     def move_to(self, target: np.ndarray, speed: float, accel: float) -> np.ndarray:
-        return self.controller.move(self.client, target, frame="machine", path="straight", speed=speed,
+        return self.commands.invoke(self.client, "move", target=target, frame="machine", path="straight", speed=speed,
                                     accel=accel).wait()
 
     def probe(self, nominal: np.ndarray, direction: np.ndarray, *, speed: float, accel: float, approach: float,
@@ -158,23 +159,23 @@ class StationBackend:
 
         Returns the latched tip centre (what I++ DME reports); the station records the hit.
         """
-        hit = self.controller.probe(
-            self.client, nominal, -np.asarray(direction, float), frame="machine", path="straight", speed=speed,
-            accel=accel, approach_distance=approach, search_distance=search, retract_distance=retract,
-            rapid_speed=rapid_speed).wait()
+        hit = self.commands.invoke(
+            self.client, "probe", target=nominal, approach=-np.asarray(direction, float), frame="machine",
+            path="straight", speed=speed, accel=accel, approach_distance=approach, search_distance=search,
+            retract_distance=retract, rapid_speed=rapid_speed).wait()
         return np.asarray(hit.machine, dtype=float)
 
     def home(self) -> None:
         """The homing cycle; on a machine without home switches, a move to the home coordinates (Z up first)."""
         if self.config.homing.method == "none":
             home = [a.home for a in self.config.axes]
-            self.controller.move(self.client, home, frame="machine").wait()
+            self.commands.invoke(self.client, "move", target=home, frame="machine").wait()
         else:
-            self.controller.home(self.client)
+            self.commands.invoke(self.client, "home")
 
     def stop(self) -> None:
         """Stop any motion now (AbortE, client gone); a blocked call returns with an error."""
-        self.controller.stop(None)  # the station's own stop: never refused
+        self.commands.invoke(None, "stop")  # the station's own stop: never refused
 
     # --- journal ----------------------------------------------------------------------
     def begin_session(self, client: str) -> str:

@@ -17,7 +17,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..metrology.pick import NominalFeature
-from ..session.program import Program, check, load, machine_targets
+from ..session.program import Program, ProgramError, check, load, machine_targets
 from .model import Feature, MeasurementModel
 
 
@@ -31,9 +31,10 @@ class ProgramRun:
 
 def run_program(program: Program, model: MeasurementModel, part_pose: Any = None, *,
                 progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
-                serial: str = "") -> ProgramRun:
+                serial: str = "", cancelled: Callable[[], bool] = lambda: False) -> ProgramRun:
     """Run ``program`` on ``model`` with the part at ``part_pose`` (part -> machine; default: the model's
-    current part pose, i.e. its last alignment)."""
+    current part pose, i.e. its last alignment). ``cancelled()`` is asked before every hit: when it says so the
+    run ends there (ProgramError), the hits taken stay recorded."""
     if not isinstance(model, MeasurementModel):
         raise TypeError(f"a program runs on a measurement model, not on {type(model).__name__}")
     part = model.part
@@ -43,6 +44,10 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
     ids: dict[int, int] = {}
     targets = machine_targets(program, pose)
     for k, (h, p, u, cz) in enumerate(targets):
+        if cancelled():
+            model.note(f"program {program.name!r} cancelled after {k} of {len(targets)} hits")
+            raise ProgramError(f"program {program.name!r} cancelled after {k} of {len(targets)} hits; "
+                               "the hits taken stay recorded")
         hit = model.probe(p, u, clearance_z=cz).wait(timeout)
         ids[h.id] = model.hit_id(hit)
         if progress is not None:
@@ -85,6 +90,10 @@ def record_trend(model: MeasurementModel, series: str, features: Any = (), *, va
 def run_on(controller: Any, model: MeasurementModel, program: Program | str | Path, part_pose: Any = None,
            client: Any = None, serial: str = "") -> ProgramRun:
     """Run a program (or the program file at that path) as a job of the control core: it holds the machine
-    for the whole run, as ``client``."""
+    for the whole run, as ``client``; the ``cancel`` verb ends it before its next hit."""
+    import threading
+
     prog = load(program) if isinstance(program, (str, Path)) else program
-    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(prog, model, part_pose, serial=serial))
+    stop = threading.Event()
+    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(
+        prog, model, part_pose, serial=serial, cancelled=stop.is_set), cancel=stop.set)

@@ -33,6 +33,7 @@ and the part's results in a session of their own.
 from __future__ import annotations
 
 import threading
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -370,22 +371,24 @@ class RoutineRun:
         self.progress.session = model.new_session(name)
         model.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
         self._tell(state="running", message=f"routine {routine.name!r} started")
+        jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel verb ends this
         try:
-            for i, step in enumerate(routine.steps):
-                self.progress.step = i
-                if step.get("skip"):
-                    continue
-                self._skip = False
-                self._tell(message=routine.describe(i))
-                if step["kind"] == "align":
-                    self._align(step, manual_hits or self._wait_for_hits)
-                elif step["kind"] == "feature":
-                    if step["name"] not in self._fids:
-                        self._in_job(f"measure {step['name']}", lambda s=step: self._measure(s["name"]))
-                elif step["kind"] == "construct":
-                    self._construct(step)
-                else:
-                    self.progress.results[step["name"]] = self._report()
+            with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", self.cancel):
+                for i, step in enumerate(routine.steps):
+                    self.progress.step = i
+                    if step.get("skip"):
+                        continue
+                    self._skip = False
+                    self._tell(message=routine.describe(i))
+                    if step["kind"] == "align":
+                        self._align(step, manual_hits or self._wait_for_hits)
+                    elif step["kind"] == "feature":
+                        if step["name"] not in self._fids:
+                            self._in_job(f"measure {step['name']}", lambda s=step: self._measure(s["name"]))
+                    elif step["kind"] == "construct":
+                        self._construct(step)
+                    else:
+                        self.progress.results[step["name"]] = self._report()
         except RoutineCancelled as exc:
             self._tell(state="cancelled", message=str(exc), prompt="")
             model.note(f"routine {routine.name!r} cancelled")
@@ -406,7 +409,7 @@ class RoutineRun:
             if str(getattr(self.controller.state.mode, "value", "")) not in ("moving", "probing", "jogging"):
                 break
             self._stopped.wait(0.1)
-        return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn)
+        return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn, cancel=self.cancel)
 
     def _measure(self, name: str) -> Any:
         """Probe a feature's hits (part coordinates through the current alignment) and fit it."""
