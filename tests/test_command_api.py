@@ -278,3 +278,97 @@ def test_the_same_probe_through_the_ippdme_server_the_pendant_and_the_viser_page
     for name, hit in hits.items():  # the tip centre where the probe triggered: 1 mm (the tip) above the face
         assert hit == pytest.approx(hits["viser page"], abs=0.002), name
     assert hits["pendant"][2] == pytest.approx(top[2] + station.prober.settings.tip_radius, abs=0.05)
+
+
+# --- cancel: whatever job runs ends cleanly, from any front end ------------------------------------------
+
+def test_cancel_ends_a_running_auto_measure_after_the_hit_in_progress_from_another_front_end(station):
+    """The page runs an auto-measure; the pendant at the station PC (an observer) sends ``cancel``: the run ends
+    before its next hit with its hits recorded and the machine standing idle; an anonymous LAN observer may not
+    cancel, and a cancel with nothing running says so."""
+    import threading
+
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api, m = station.controller.commands, station.measurement
+    try:
+        assert control.take("page", is_local=True)
+        page = Client("page", local=True)
+        pose = m.part.pose
+        top = (pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]
+        picked, _ = m.pick(top + [0.0, 0.0, 30.0], [0.0, 0.0, -1.0])
+        first_hit, cancel_sent, result = threading.Event(), threading.Event(), {}
+
+        def progress(k, n):
+            if k == 1:
+                first_hit.set()
+                cancel_sent.wait(60)  # the cancel arrives while the first hit is the one in progress
+
+        before = len(m.hits)
+        run = threading.Thread(target=lambda: result.update(r=api.call(page, "auto_measure", {
+            "face": int(picked.face_id), "n": 5, "name": "TOP", "progress": progress})))
+        run.start()
+        assert first_hit.wait(120)
+        refused = api.call(Client("lan-tab"), "cancel")
+        assert refused.error["code"] == "refused" and "access code" in refused.error["message"]
+        done = api.call(Client("pendant", local=True), "cancel")
+        cancel_sent.set()
+        assert done.ok and done.result["cancelled"] == ["auto-measure of TOP"], done
+        run.join(120)
+        r = result["r"]
+        assert r.error["code"] == "cancelled" and "after 1 of 5 hits" in r.error["message"], r
+        assert len(m.hits) - before == 1 and "TOP" not in [f.name for f in m.features.values()]
+        assert station.controller.jobs.descriptions() == []
+        wait_idle(station, 30)
+        assert station.controller.state.mode.value == "idle"  # ended between hits: nothing stopped, no fault
+        again = api.call(None, "cancel")
+        assert again.ok and again.result["cancelled"] == [] and "nothing was running" in again.result["message"]
+    finally:
+        station.controller.policy = OpenPolicy()
+
+
+def test_cancel_ends_a_program_and_a_job_without_a_cancel_of_its_own(station, tmp_path):
+    """A measurement program ends before its next hit; a job that has no cancel of its own (a DMIS run) is
+    ended by a controlled stop of its move: either way the machine is left standing, nothing in fault."""
+    import threading
+
+    from cmm.session.program import teach, to_toml
+    from cmm.session.store import open_session
+
+    api, m = station.controller.commands, station.measurement
+    pose = m.part.pose
+    ids = []
+    for x, y in ((20.0, 5.0), (100.0, 5.0), (20.0, 15.0)):  # three hits on the top face, a plane: the program
+        p = (pose @ np.array([x, y, 40.0, 1.0]))[:3]
+        ids.append(m.hit_id(m.probe(p, pose[:3, :3] @ np.array([0.0, 0.0, -1.0])).wait(120)))
+    m.fit_feature("plane", ids, name="TOPPLANE")
+    program = teach(open_session(m.journal.path), name="top")
+    path = tmp_path / "top.toml"
+    path.write_text(to_toml(program))
+    started, result = threading.Event(), {}
+    station.controller.subscribe(lambda kind, info: started.set() if kind == "hit" else None)
+    run = threading.Thread(target=lambda: result.update(r=api.call(None, "run_program", {"path": str(path)})))
+    run.start()
+    assert started.wait(120)
+    assert api.call(None, "cancel").result["cancelled"] == ["program 'top'"]
+    run.join(120)
+    assert result["r"].error["code"] == "cancelled" and "stay recorded" in result["r"].error["message"]
+
+    far = np.array([station.config.axis(a).max - 5.0 for a in "xyz"])
+    moving = threading.Event()
+
+    def work(job):
+        status = job.machine.move_to(far)
+        moving.set()
+        status.wait(120)
+    run = threading.Thread(target=lambda: result.update(j=api.call(None, "run_job", {"description": "a long move",
+                                                                                      "work": work})))
+    run.start()
+    assert moving.wait(60)
+    assert api.call(None, "cancel").result["cancelled"] == ["a long move"]
+    run.join(120)
+    assert not result["j"].ok and result["j"].error["code"] in ("cancelled", "motion"), result["j"]
+    wait_idle(station, 30)
+    assert station.controller.state.mode.value in ("idle", "stopped")
+    assert not np.allclose(station.controller.frame_position("machine"), far, atol=1.0)
+    station.controller.reset(None)

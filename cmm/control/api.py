@@ -182,6 +182,8 @@ class CommandAPI:
 
 
 def error_code(exc: BaseException) -> str:
+    if getattr(exc, "cancelled", False) is True:  # a job that ended itself for the cancel verb (between hits)
+        return "cancelled"
     if isinstance(exc, (Refused, RailError)):
         return "refused"
     if isinstance(exc, ContactError):

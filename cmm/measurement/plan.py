@@ -17,6 +17,12 @@ from ..metrology.hit_plan import HitPlan, PlanError, plan_feature
 from ..metrology.pick import suggest_feature
 
 
+class PlanCancelled(PlanError):
+    """The operator cancelled the run (the ``cancel`` verb): it ended between hits; the hits taken stay recorded."""
+
+    cancelled = True
+
+
 def plan_at_pick(model: Any, face_id: int, *, n: int | None = None) -> HitPlan:
     """The measurement proposed for the part face ``face_id``."""
     part = model.part
@@ -43,7 +49,7 @@ def run_plan(model: Any, plan: HitPlan, *, name: str | None = None, method: str 
     ids: list[int] = []
     for k, (p, u, cz) in enumerate(plan_targets(plan)):
         if cancelled():
-            raise PlanError(f"cancelled after {k} of {len(plan)} hits")
+            raise PlanCancelled(f"cancelled after {k} of {len(plan)} hits; the hits taken stay recorded")
         hit = model.probe(p, u, clearance_z=cz, client=client).wait(timeout)
         ids.append(model.hit_id(hit))
         if progress is not None:

@@ -21,6 +21,12 @@ from ..session.program import Program, ProgramError, check, load, machine_target
 from .model import Feature, MeasurementModel
 
 
+class ProgramCancelled(ProgramError):
+    """The operator cancelled the run (the ``cancel`` verb) before its next hit; the hits taken stay recorded."""
+
+    cancelled = True
+
+
 @dataclass
 class ProgramRun:
     program: Program
@@ -46,7 +52,7 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
     for k, (h, p, u, cz) in enumerate(targets):
         if cancelled():
             model.note(f"program {program.name!r} cancelled after {k} of {len(targets)} hits")
-            raise ProgramError(f"program {program.name!r} cancelled after {k} of {len(targets)} hits; "
+            raise ProgramCancelled(f"program {program.name!r} cancelled after {k} of {len(targets)} hits; "
                                "the hits taken stay recorded")
         hit = model.probe(p, u, clearance_z=cz).wait(timeout)
         ids[h.id] = model.hit_id(hit)

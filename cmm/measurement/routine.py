@@ -294,7 +294,9 @@ class RunProgress:
 
 
 class RoutineCancelled(RoutineError):
-    pass
+    """The operator cancelled the run (the ``cancel`` verb or the tab's Cancel); the hits taken stay recorded."""
+
+    cancelled = True
 
 
 class RoutineRun:
