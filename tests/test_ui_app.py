@@ -22,7 +22,8 @@ from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.ids import parse_ids  # noqa: E402
 from cmm.ui.panel_features import nominal_deviation  # noqa: E402
-from cmm.ui.scene import SCALE, deviation_colour, feature_mesh  # noqa: E402
+from cmm.ui.feature_drawing import feature_drawing  # noqa: E402
+from cmm.ui.scene import SCALE, deviation_colour  # noqa: E402
 
 
 
@@ -279,10 +280,10 @@ def test_colour_map_and_helpers():
                        ("sphere", {"center": [1, 2, 3], "radius": 4.0}),
                        ("cylinder", {"point": [0, 0, 0], "direction": [0, 1, 0], "radius": 3.0}),
                        ("cone", {"apex": [0, 0, 0], "direction": [0, 0, 1], "half_angle": 0.3})):
-        mesh = feature_mesh(kind, geom, pts)
-        assert mesh is not None and len(mesh.faces) > 0, kind
-    cone = feature_mesh("cone", {"apex": [0, 0, 0], "direction": [0, 0, 1], "half_angle": 0.3}, pts)
-    assert np.allclose(cone.vertices.min(axis=0)[2], 0.0, atol=1e-9)  # apex at the origin, opening along +z
+        drawing = feature_drawing(kind, geom, pts)
+        assert drawing is not None and len(drawing.lines) > 0 and len(drawing.patch.faces) > 0, kind
+    cone = feature_drawing("cone", {"apex": [0, 0, 0], "direction": [0, 0, 1], "half_angle": 0.3}, pts)
+    assert np.allclose(cone.lines.reshape(-1, 3).min(axis=0)[2], 0.0, atol=1e-9)  # from the apex, opening along +z
 
     from cmm.metrology.pick import NominalFeature
     dev = nominal_deviation("sphere", {"center": [0, 0, 1.0], "radius": 5.002},

@@ -45,8 +45,8 @@ def feature_chars(f: Any) -> list[Any]:
                            f.tolerance)
 
 
-def tree_html(station: Any, selected: int | None = None) -> str:
-    """The feature tree (pure: tested without a browser)."""
+def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> str:
+    """The feature tree (pure: tested without a browser); features in ``hidden`` are marked so."""
     e = html.escape
     with station.measurement.lock:
         feats = sorted(station.measurement.features.items())
@@ -73,9 +73,10 @@ def tree_html(station: Any, selected: int | None = None) -> str:
         chosen = fid is not None and fid == selected
         mark = "▶ " if chosen else ""
         bg = "background:#fff8c4;" if chosen else ""
+        off = " <i style='color:#999'>(hidden)</i>" if fid is not None and fid in hidden else ""
         rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
                     f"<b style='color:{head}'>{mark}{'' if fid is None else fid} {e(name)}</b> "
-                    f"<span style='color:#777'>{e(what)}</span></td></tr>")
+                    f"<span style='color:#777'>{e(what)}</span>{off}</td></tr>")
         for c in chars:
             unit = "°" if c.unit == "deg" else ""
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
@@ -336,6 +337,39 @@ class FeaturesPanel:
     def save_info(self, **fields: Any) -> Any:
         return self.ctx.run("Report header", lambda: self.station.measurement.set_info(**fields))
 
+    # --- what the 3-D view shows ----------------------------------------------------------------
+
+    def show_selected(self, shown: bool) -> None:
+        """Show or hide the selected feature in the 3-D view (anyone may: it changes no record)."""
+        fid = self.ctx.selected_feature
+        if fid is None:
+            if not shown:
+                self.ctx.error("select a feature first", "Show")
+            return
+        self.ctx.view.show_feature(fid, bool(shown))
+
+    def show_kind(self, kind: str, shown: bool) -> None:
+        self.ctx.view.show_kind(kind, bool(shown))
+
+    def show_all(self) -> None:
+        self.ctx.view.show_all()
+        self._sync_show()
+
+    def hidden(self) -> set[int]:
+        """The features the 3-D view does not draw now (hidden themselves or by their kind)."""
+        with self.station.measurement.lock:
+            kinds = {fid: f.kind for fid, f in self.station.measurement.features.items()}
+        return {fid for fid, kind in kinds.items() if not self.ctx.view.feature_shown(fid, kind)}
+
+    def _sync_show(self) -> None:
+        """The Show checkboxes say what the view does (another tab may have changed it)."""
+        view = self.ctx.view
+        fid = self.ctx.selected_feature
+        for kind in FEATURE_KINDS:
+            self.ctx.set(f"features:show_{kind}", "value", kind not in view.hidden_kinds, self.gui.get(f"show_{kind}"))
+        self.ctx.set("features:show_feature", "value", fid is None or fid not in view.hidden_features,
+                     self.gui.get("show_feature"))
+
     # --- read-outs -------------------------------------------------------------------------
 
     def hits_html(self) -> str:
@@ -377,6 +411,15 @@ class FeaturesPanel:
         g["features"].on_update(lambda e: self._chosen(e.target.value))
         g["hits"] = gui.add_html("")
         g["detail"] = gui.add_markdown(self.feature_markdown())  # fit details: geometry, uncertainties, warnings
+        with gui.add_folder("Show", expand_by_default=False):
+            g["show_feature"] = gui.add_checkbox("Selected feature", True,
+                                                 hint="draw the selected feature in the 3-D view")
+            g["show_feature"].on_update(lambda e: self.show_selected(e.target.value))
+            for kind in FEATURE_KINDS:
+                g[f"show_{kind}"] = box = gui.add_checkbox(f"{kind.capitalize()}s", True,
+                                                           hint=f"draw every {kind} in the 3-D view")
+                box.on_update(lambda e, kind=kind: self.show_kind(kind, e.target.value))
+            gui.add_button("Show all").on_click(lambda _: self.show_all())
         with gui.add_folder("Fit hits"):
             kind = gui.add_dropdown("Kind", FEATURE_KINDS, initial_value="plane")
             method = gui.add_dropdown("Method", fit_criteria.methods_for("plane"), initial_value="ls")
@@ -475,6 +518,8 @@ class FeaturesPanel:
         options = self.options()
         for key in ("features", "a", "b", "datum_feature", "gdt_feature"):
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
-        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature), self.gui.get("tree"))
+        self._sync_show()
+        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature, self.hidden()),
+                     self.gui.get("tree"))
         self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
         self.ctx.set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))

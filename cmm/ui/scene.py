@@ -26,6 +26,7 @@ import trimesh
 from ..metrology.colour_map import DeviationMap, deviation_map
 from ..metrology.colour_scale import DEFAULT_TOLERANCE, ColourScale
 from ..metrology.transform import apply_points, invert
+from .feature_drawing import Drawing, feature_drawing, ghost_drawing
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0
@@ -52,71 +53,6 @@ def _frame_for_axis(direction: np.ndarray) -> np.ndarray:
     return trimesh.geometry.align_vectors([0.0, 0.0, 1.0], d)
 
 
-def _extent_along(points: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> tuple[float, float]:
-    if len(points) == 0:
-        return -5.0, 5.0
-    t = (np.asarray(points) - origin) @ direction
-    lo, hi = float(t.min()), float(t.max())
-    if hi - lo < 2.0:
-        mid = (lo + hi) / 2
-        lo, hi = mid - 1.0, mid + 1.0
-    return lo, hi
-
-
-def feature_mesh(kind: str, geometry: dict[str, Any], points: np.ndarray) -> trimesh.Trimesh | None:
-    """A display mesh (machine mm) for a fitted feature; ``points`` are its hits, to size it."""
-    g = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in geometry.items()}
-    pts = np.asarray(points, float).reshape(-1, 3)
-    if kind == "plane":
-        n = g["normal"] / np.linalg.norm(g["normal"])
-        T = _frame_for_axis(n)
-        u, v = T[:3, 0], T[:3, 1]
-        c = g["point"]
-        rel = pts - c if len(pts) else np.zeros((1, 3))
-        half = max(float(np.max(np.abs(np.c_[rel @ u, rel @ v]))) + 3.0, 5.0)
-        corners = np.array([c + half * (su * u + sv * v) for su, sv in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
-        return trimesh.Trimesh(corners, [[0, 1, 2], [0, 2, 3]], process=False)
-    if kind == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=3, radius=float(g["radius"]))
-        m.apply_translation(g["center"])
-        return m
-    if kind == "circle":
-        n = g["normal"] / np.linalg.norm(g["normal"])
-        r = float(g["radius"])
-        m = trimesh.creation.annulus(r_min=max(r - 0.15, 0.0), r_max=r + 0.15, height=0.3, sections=96)
-        T = _frame_for_axis(n)
-        T[:3, 3] = g["center"]
-        m.apply_transform(T)
-        return m
-    if kind == "cylinder":
-        d = g["direction"] / np.linalg.norm(g["direction"])
-        lo, hi = _extent_along(pts, g["point"], d)
-        return trimesh.creation.cylinder(radius=float(g["radius"]), segment=[g["point"] + lo * d, g["point"] + hi * d],
-                                         sections=64)
-    if kind == "cone":
-        d = g["direction"] / np.linalg.norm(g["direction"])
-        _, hi = _extent_along(pts, g["apex"], d)
-        height = max(hi, 2.0)
-        radius = height * math.tan(float(g["half_angle"]))
-        m = trimesh.creation.cone(radius=radius, height=height, sections=64)
-        # trimesh's cone has its base at z=0 and apex at +z: flip so the apex sits at the origin
-        m.apply_transform(trimesh.transformations.translation_matrix([0, 0, -height]))
-        m.apply_transform(trimesh.transformations.rotation_matrix(math.pi, [1, 0, 0]))
-        T = _frame_for_axis(d)
-        T[:3, 3] = g["apex"]
-        m.apply_transform(T)
-        return m
-    if kind in ("point", "line"):
-        if kind == "point":
-            m = trimesh.creation.icosphere(subdivisions=2, radius=0.5)
-            m.apply_translation(g["point"])
-            return m
-        d = g["direction"] / np.linalg.norm(g["direction"])
-        lo, hi = _extent_along(pts, g["point"], d)
-        return trimesh.creation.cylinder(radius=0.2, segment=[g["point"] + lo * d, g["point"] + hi * d], sections=12)
-    return None
-
-
 FEATURE_COLOURS = {"plane": (240, 180, 40), "circle": (250, 120, 20), "sphere": (170, 90, 230),
                    "cylinder": (40, 180, 200), "cone": (230, 90, 160), "point": (250, 250, 250),
                    "line": (250, 250, 250)}
@@ -133,7 +69,9 @@ class SceneView:
         self.on_feature_click = on_feature_click
         self.origin_mm = np.zeros(3)  # the local frame's origin (near the part), machine mm
         self.probe = None
-        self._feature_nodes: dict[int, Any] = {}
+        self._feature_nodes: dict[int, FeatureNode] = {}
+        self.hidden_features: set[int] = set()  # features the operator hid (Features tab, Show)
+        self.hidden_kinds: set[str] = set()  # feature kinds the operator hid
         self.selected: int | None = None
         self._lock = threading.Lock()
         self._part_node: Any = None
@@ -334,6 +272,8 @@ class SceneView:
     # --- features -----------------------------------------------------------------
 
     def draw_features(self) -> None:
+        """Draw each feature as it was measured (:mod:`cmm.ui.feature_drawing`): a translucent patch or a faint
+        surface with thin outlines, its check alternative as a dashed ghost; a feature redraws when it is refit."""
         st = self.station
         with st.measurement.lock:
             features = dict(st.measurement.features)
@@ -343,19 +283,21 @@ class SceneView:
                 if fid not in features:
                     self._feature_nodes.pop(fid).remove()
             for fid, feature in features.items():
-                if fid in self._feature_nodes:
+                key = (feature.kind, id(feature.result), tuple(feature.hit_ids))
+                node = self._feature_nodes.get(fid)
+                if node is not None and node.key == key:
                     continue
+                if node is not None:
+                    node.remove()
+                    self._feature_nodes.pop(fid)
                 pts = np.array([hits[h].point for h in feature.hit_ids if h in hits]).reshape(-1, 3)
-                mesh = feature_mesh(feature.kind, feature.result.geometry(), pts)
-                if mesh is None:
+                drawing = feature_drawing(feature.kind, feature.result.geometry(), pts)
+                if drawing is None:
                     continue
-                node = self.scene.add_mesh_simple(
-                    f"/local/features/f{fid}", self.local(mesh.vertices), np.asarray(mesh.faces, np.uint32),
-                    color=FEATURE_COLOURS.get(feature.kind, (200, 200, 200)), opacity=0.55, side="double",
-                    cast_shadow=False)
-                if self.on_feature_click is not None:
-                    node.on_click(lambda event, fid=fid: self.on_feature_click(fid, event.client))  # type: ignore[misc]
-                self._feature_nodes[fid] = node
+                alternative = getattr(feature.result, "alternative", None)
+                ghost = None if alternative is None else ghost_drawing(feature.kind, alternative.geometry(), pts)
+                self._feature_nodes[fid] = FeatureNode(self, fid, feature.kind, key, drawing, ghost)
+            self._apply_visibility()
             self._highlight()
 
     def select_feature(self, fid: int | None) -> None:
@@ -363,9 +305,35 @@ class SceneView:
             self.selected = fid
             self._highlight()
 
+    # --- what is shown: per feature and per kind (shared by every tab, kept while the station serves) --------
+
+    def feature_shown(self, fid: int, kind: str | None = None) -> bool:
+        """Whether the feature ``fid`` (of ``kind``) is drawn: neither it nor its kind is hidden."""
+        return fid not in self.hidden_features and (kind is None or kind not in self.hidden_kinds)
+
+    def show_feature(self, fid: int, shown: bool) -> None:
+        (self.hidden_features.discard if shown else self.hidden_features.add)(int(fid))
+        with self._lock:
+            self._apply_visibility()
+
+    def show_kind(self, kind: str, shown: bool) -> None:
+        (self.hidden_kinds.discard if shown else self.hidden_kinds.add)(kind)
+        with self._lock:
+            self._apply_visibility()
+
+    def show_all(self) -> None:
+        self.hidden_features.clear()
+        self.hidden_kinds.clear()
+        with self._lock:
+            self._apply_visibility()
+
+    def _apply_visibility(self) -> None:
+        for fid, node in self._feature_nodes.items():
+            node.set_visible(self.feature_shown(fid, node.kind))
+
     def _highlight(self) -> None:
         for fid, node in self._feature_nodes.items():
-            node.opacity = 0.9 if fid == self.selected else 0.55
+            node.set_selected(fid == self.selected)
         # the selected feature's hits: larger yellow spheres around them
         with self.station.measurement.lock:
             feature = self.station.measurement.features.get(self.selected) if self.selected is not None else None
@@ -379,6 +347,63 @@ class SceneView:
             "/local/selection", sphere.vertices.astype(np.float32), sphere.faces,
             batched_wxyzs=np.tile([1.0, 0.0, 0.0, 0.0], (len(pts), 1)), batched_positions=self.local(np.array(pts)),
             batched_colors=np.tile(np.array([[255, 230, 0]], np.uint8), (len(pts), 1)), lod="off", opacity=0.6)
+
+
+class FeatureNode:
+    """One feature's nodes under ``/local/features/f<id>``: its ``patch`` (translucent, takes the clicks),
+    its ``outline`` (thin lines, thicker when selected) and its ``ghost`` (the dashed check alternative)."""
+
+    THIN, THICK = 1.5, 3.5  # px: outline widths, selected thicker
+    GHOST_COLOUR = (150, 150, 160)
+
+    def __init__(self, view: SceneView, fid: int, kind: str, key: Any, drawing: Drawing,
+                 ghost: np.ndarray | None) -> None:
+        self.view, self.fid, self.kind, self.key = view, fid, kind, key
+        self.name = f"/local/features/f{fid}"
+        self.colour = FEATURE_COLOURS.get(kind, (200, 200, 200))
+        self.opacity = drawing.opacity
+        self.lines = drawing.lines
+        self.selected = False
+        scene = view.scene
+        self.frame = scene.add_frame(self.name, show_axes=False)
+        self.patch = None
+        if drawing.patch is not None:
+            self.patch = scene.add_mesh_simple(
+                f"{self.name}/patch", view.local(drawing.patch.vertices), np.asarray(drawing.patch.faces, np.uint32),
+                color=self.colour, opacity=self.opacity, side="double", cast_shadow=False, receive_shadow=False)
+            if view.on_feature_click is not None:
+                self.patch.on_click(lambda event: view.on_feature_click(fid, event.client))  # type: ignore[misc]
+        self.outline = self._outline(self.THIN)
+        self.ghost = None
+        if ghost is not None and len(ghost):
+            self.ghost = scene.add_line_segments(f"{self.name}/ghost", view.local(ghost), self.GHOST_COLOUR,
+                                                 thickness=1.5, thickness_units="screen")
+
+    def _outline(self, thickness: float) -> Any:
+        if not len(self.lines):
+            return None
+        return self.view.scene.add_line_segments(f"{self.name}/outline", self.view.local(self.lines), self.colour,
+                                                 thickness=thickness, thickness_units="screen")
+
+    @property
+    def visible(self) -> bool:
+        return bool(self.frame.visible)
+
+    def set_visible(self, shown: bool) -> None:
+        if bool(self.frame.visible) != shown:
+            self.frame.visible = shown
+
+    def set_selected(self, selected: bool) -> None:
+        if selected == self.selected:
+            return
+        self.selected = selected
+        if self.patch is not None:
+            self.patch.opacity = min(self.opacity * 2.2, 0.6) if selected else self.opacity
+        if self.outline is not None:
+            self.outline = self._outline(self.THICK if selected else self.THIN)  # replaces the node of that name
+
+    def remove(self) -> None:
+        self.frame.remove()  # and everything under it
 
 
 class ReplayView:
@@ -459,15 +484,21 @@ class ReplayView:
             for fid, f in state.features.items():
                 pts = np.array([all_hits[h].point for h in f.hit_ids if h in all_hits]).reshape(-1, 3)
                 try:
-                    mesh_f = feature_mesh(f.kind, f.fit, pts)
+                    drawing = feature_drawing(f.kind, f.fit, pts)
                 except (KeyError, ValueError, TypeError):  # an incomplete record: skip its drawing
-                    mesh_f = None
-                if mesh_f is None:
+                    drawing = None
+                if drawing is None:
                     continue
-                self._nodes.append(self.scene.add_mesh_simple(
-                    f"{self.root}/f{fid}", self.local(mesh_f.vertices), np.asarray(mesh_f.faces, np.uint32),
-                    color=FEATURE_COLOURS.get(f.kind, (200, 200, 200)), opacity=0.55, side="double",
-                    cast_shadow=False))
+                colour = FEATURE_COLOURS.get(f.kind, (200, 200, 200))
+                if drawing.patch is not None:
+                    self._nodes.append(self.scene.add_mesh_simple(
+                        f"{self.root}/f{fid}", self.local(drawing.patch.vertices),
+                        np.asarray(drawing.patch.faces, np.uint32), color=colour, opacity=drawing.opacity,
+                        side="double", cast_shadow=False))
+                if len(drawing.lines):
+                    self._nodes.append(self.scene.add_line_segments(
+                        f"{self.root}/f{fid}_outline", self.local(drawing.lines), colour, thickness=1.5,
+                        thickness_units="screen"))
 
     def clear(self) -> None:
         with self._lock:

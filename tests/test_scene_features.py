@@ -1,0 +1,130 @@
+"""Fitted features in the 3-D view: thin outlines and translucent patches at the measured extent, hidden and shown
+per feature and per kind from the Features tab, the selected one stronger, and a fit's check alternative drawn
+as a dashed ghost beside it. Checked on viser's server-side scene handles of a station on the simulator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from netutil import SIM, free_port
+
+pytest.importorskip("viser")
+
+from cmm.machine.probing import Hit  # noqa: E402
+from cmm.metrology.pick import NominalFeature  # noqa: E402
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.feature_drawing import PATCH_OPACITY, feature_drawing  # noqa: E402
+from cmm.ui.panel_features import tree_html  # noqa: E402
+from cmm.ui.scene import SCALE  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("scene")).start("scene")
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    yield ui
+    ui.close()
+    station.close()
+
+
+def _hits(model, surface_points, approaches):
+    """Hits whose tip touched ``surface_points`` coming along ``approaches`` (what the prober records)."""
+    r = model.prober.settings.tip_radius
+    ids = []
+    for p, u in zip(np.asarray(surface_points, float), np.asarray(approaches, float)):
+        u = u / np.linalg.norm(u)
+        centre = p - r * u
+        ids.append(model.add_hit(Hit((0, 0, 0), tuple(centre), tuple(u), 5.0, 0.0, tuple(p))))
+    return ids
+
+
+def _mm(view, node_points):
+    return np.asarray(node_points, float).reshape(-1, 3) / SCALE + view.origin_mm
+
+
+def test_a_plane_is_a_translucent_patch_over_its_hits_not_a_plate():
+    hits = np.array([[0, 0, 40.0], [30, 0, 40.0], [30, 20, 40.0], [0, 20, 40.0], [15, 10, 40.0]])
+    d = feature_drawing("plane", {"point": [15, 10, 40.0], "normal": [0, 0, 1.0]}, hits)
+    lo, hi = d.patch.vertices.min(axis=0), d.patch.vertices.max(axis=0)
+    assert np.all(lo[:2] >= [-1.5, -1.5]) and np.all(hi[:2] <= [31.5, 21.5])  # the hits' hull and 1 mm
+    assert d.patch.area == pytest.approx(30 * 20, rel=0.25) and d.opacity <= PATCH_OPACITY
+    ends = d.lines.reshape(-1, 3)
+    assert np.allclose(ends[:, 2], 40.0) and len(d.lines) == 4  # the outline: the hull's four sides
+
+
+def test_cylinders_and_circles_are_outlines_at_the_measured_radius_and_extent():
+    hits = np.array([[10, 0, 5.0], [0, 10, 5.0], [-10, 0, 25.0], [0, -10, 25.0]])
+    d = feature_drawing("cylinder", {"point": [0, 0, 0.0], "direction": [0, 0, 1.0], "radius": 10.0}, hits)
+    ends = d.lines.reshape(-1, 3)
+    r = np.hypot(ends[:, 0], ends[:, 1])
+    on_axis = r < 1e-9  # the dashed axis line
+    assert np.allclose(r[~on_axis], 10.0) and ends[:, 2].min() == pytest.approx(5.0) \
+        and ends[:, 2].max() == pytest.approx(25.0)
+    c = feature_drawing("circle", {"center": [1, 2, 3.0], "normal": [0, 0, 1.0], "radius": 15.0}, hits)
+    assert np.allclose(np.linalg.norm(c.lines.reshape(-1, 3) - [1, 2, 3.0], axis=1), 15.0)
+    s = feature_drawing("sphere", {"center": [0, 0, 0.0], "radius": 5.0}, hits)
+    assert s.opacity <= PATCH_OPACITY and np.allclose(np.linalg.norm(s.lines.reshape(-1, 3), axis=1), 5.0)
+
+
+def test_features_hide_and_show_per_feature_and_kind_and_the_selection_stands_out(app):
+    model, view = app.station.measurement, app.view
+    capp = app.add_client(client_id="show", is_local=True)
+    assert capp.take_control()
+    top = [[100, 100, 40.0], [160, 100, 40.0], [160, 150, 40.0], [100, 150, 40.0]]
+    plane = model.fit_feature("plane", _hits(model, top, [[0, 0, -1]] * 4), name="TOP")
+    ring = [[130 + 15 * np.cos(a), 125 + 15 * np.sin(a), 30.0] for a in np.radians([0, 90, 180, 270])]
+    circle = model.fit_feature("circle", _hits(model, ring, [[np.cos(a), np.sin(a), 0] for a in
+                                                              np.radians([0, 90, 180, 270])]), name="bore")
+    app.redraw()
+    pn, cn = view._feature_nodes[plane.id], view._feature_nodes[circle.id]
+    assert pn.patch.opacity <= PATCH_OPACITY and cn.patch.opacity <= 0.15  # nothing opaque over the part
+    patch = _mm(view, pn.patch.vertices)
+    assert patch[:, 0].min() > 98 and patch[:, 0].max() < 162  # the measured extent, not a plate
+    assert np.allclose(np.linalg.norm(_mm(view, cn.outline.points)[:, :2] - [130, 125], axis=1), 15.0, atol=0.01)
+    assert pn.visible and cn.visible
+    # per feature: the Features tab's Show checkbox for the selected feature
+    capp.select_feature(circle.id)
+    assert cn.outline.thickness > pn.outline.thickness and cn.patch.opacity > 0.12  # selected: stronger
+    capp.features.show_selected(False)
+    assert not cn.visible and pn.visible
+    assert "(hidden)" in tree_html(app.station, circle.id, capp.features.hidden())
+    # per kind: planes off, then Show all
+    capp.features.show_kind("plane", False)
+    assert not pn.visible and not cn.visible
+    capp.features.show_all()
+    assert pn.visible and cn.visible
+    # the choice is kept when the feature is refit (a redraw)
+    view.show_feature(plane.id, False)
+    model.refit_feature(plane.id, plane.hit_ids[:3])
+    app.redraw()
+    assert view._feature_nodes[plane.id] is not pn and not view._feature_nodes[plane.id].visible
+    view.show_all()
+
+
+def test_a_check_alternative_is_drawn_as_a_dashed_ghost(app):
+    """Two rings of four hits at the same angles: the nominal's upright cylinder is reported, the cylinder lying
+    across the axis fits better and is the alternative to check (see test_fit_ls)."""
+    model, view = app.station.measurement, app.view
+    far = np.array([200.0, 150.0, 30.0])
+    pts, app_dirs = [], []
+    for z, r in ((3.0, 10.01), (-3.0, 9.99)):
+        for a in np.radians([45, 135, 225, 315]):
+            u = np.array([np.cos(a), np.sin(a), 0.0])
+            pts.append(far + [r * u[0], r * u[1], z])
+            app_dirs.append(-u)  # a boss: the probe comes in towards the axis
+    nominal = NominalFeature("cylinder", {"point": far, "direction": [0, 0, 1.0], "radius": 10.0})
+    f = model.fit_feature("cylinder", _hits(model, pts, app_dirs), name="boss", nominal=nominal)
+    assert f.result.alternative is not None
+    app.redraw()
+    node = view._feature_nodes[f.id]
+    assert node.ghost is not None
+    ghost = _mm(view, node.ghost.points).reshape(-1, 2, 3)
+    alt = f.result.alternative.geometry()
+    axis = np.asarray(alt["direction"], float)
+    rel = ghost.reshape(-1, 3) - np.asarray(alt["point"], float)
+    radial = np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)
+    assert np.mean(np.isclose(radial, alt["radius"], atol=0.01)) > 0.5  # the ghost's rings lie on the alternative
+    lengths = np.linalg.norm(ghost[:, 1] - ghost[:, 0], axis=1)
+    assert lengths.max() < 1.0  # dashed: short dashes, no long lines
+    assert tuple(node.ghost.colors.reshape(-1, 3)[0]) == node.GHOST_COLOUR
