@@ -37,6 +37,7 @@ import numpy as np
 
 from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics
 from .journal import Journal, JournalBusy, _decode
+from .trends_parts import PartsCache
 
 SEP = " / "  # feature / characteristic
 
@@ -195,7 +196,7 @@ def open_trends(directory: str | Path, *, station: str | None = None, database: 
 # the index is a cache of the fsync'ed journal: write-ahead log without a sync per commit (a crash may lose its
 # newest commits, never its consistency; the next catch-up reads those parts from the journal again)
 INDEX_PRAGMAS = "PRAGMA journal_mode = WAL; PRAGMA synchronous = NORMAL;"
-INDEX_VERSION = 2  # PRAGMA user_version of the layout below; an index of another layout is rebuilt
+INDEX_VERSION = 3  # PRAGMA user_version of the layout below; an index of another layout is rebuilt
 INDEX_SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value INTEGER NOT NULL);
 CREATE TABLE IF NOT EXISTS parts (
@@ -211,7 +212,13 @@ CREATE TABLE IF NOT EXISTS vals (
     value REAL NOT NULL, nominal REAL, lower REAL, upper REAL,
     PRIMARY KEY (char_id, time, seq)) WITHOUT ROWID;
 CREATE INDEX IF NOT EXISTS vals_seq ON vals (seq);
+-- each characteristic's values up to a part, in chart order, as packed float64 / int64 columns: a chart reads one
+-- row and the few values journalled since (the values table stays the record; this is rebuilt from it)
+CREATE TABLE IF NOT EXISTS packed (
+    char_id INTEGER PRIMARY KEY, upto_seq INTEGER NOT NULL, time BLOB NOT NULL, seq BLOB NOT NULL,
+    value BLOB NOT NULL, nominal BLOB NOT NULL, lower BLOB NOT NULL, upper BLOB NOT NULL);
 """
+PACK_AFTER = 200  # values journalled since a characteristic was packed before a chart query packs it again
 
 
 class LocalIndex:
@@ -221,7 +228,7 @@ class LocalIndex:
         self.journal_path = journal_path
         self.path = path
         self._lock = threading.RLock()  # one connection for the station's threads: one statement at a time
-        self._parts: dict[int, tuple[str, str, str]] = {}  # seq -> (station, run id, serial), as read
+        self.who = PartsCache()  # seq -> station, run id, serial, as read
         self._parts_seq = 0
         self.db = self._open()
 
@@ -271,10 +278,10 @@ class LocalIndex:
             try:
                 offset = self.meta("journal_bytes")
                 if size < offset:  # the journal was replaced: index it afresh
-                    for table in ("parts", "vals", "chars", "meta"):
+                    for table in ("parts", "vals", "chars", "meta", "packed"):
                         self.db.execute(f"DELETE FROM {table}")
                     offset = 0
-                    self._parts, self._parts_seq = {}, 0
+                    self.who, self._parts_seq = PartsCache(), 0
                 with open(self.journal_path, "rb") as fh:
                     fh.seek(offset)
                     data = fh.read(max(size - offset, 0))
@@ -293,7 +300,30 @@ class LocalIndex:
             except BaseException:
                 self.db.execute("ROLLBACK")
                 raise
+            if len(events) >= PACK_AFTER:  # many parts at once (a new index, a long way behind): pack them now
+                self.pack()
             return len(events)
+
+    def pack(self, char_id: int | None = None) -> None:
+        """Write the packed columns of one characteristic (None: every one) from the values table."""
+        with self._lock:
+            ids = [char_id] if char_id is not None else [r[0] for r in self.db.execute("SELECT id FROM chars")]
+            upto = self.db.execute("SELECT coalesce(max(seq), 0) FROM parts").fetchone()[0]
+            out = []
+            for cid in ids:
+                rows = self.db.execute("SELECT time, seq, value, ifnull(nominal, 'NaN'), ifnull(lower, 'NaN'), "
+                                       "ifnull(upper, 'NaN') FROM vals WHERE char_id = ? AND seq <= ? "
+                                       "ORDER BY char_id, time, seq", (cid, upto)).fetchall()
+                cols = list(zip(*rows)) if rows else [()] * 6
+                out.append((cid, upto, *(np.asarray(c, dtype=np.int64 if k == 1 else np.float64).tobytes()
+                                          for k, c in enumerate(cols))))
+            try:
+                self.db.execute("BEGIN IMMEDIATE")
+                self.db.executemany("INSERT OR REPLACE INTO packed VALUES (?, ?, ?, ?, ?, ?, ?, ?)", out)
+                self.db.execute("COMMIT")
+            except sqlite3.OperationalError:  # another process holds the index: the next query packs it
+                if self.db.in_transaction:
+                    self.db.execute("ROLLBACK")
 
     def _char_ids(self, keys: list[tuple[str, str, str]]) -> dict[tuple[str, str], int]:
         """Ids of (series, characteristic, unit), new ones numbered in the order first seen."""
@@ -327,46 +357,55 @@ class LocalIndex:
         return [r[0] for r in self._q("SELECT DISTINCT station FROM parts WHERE series = ? ORDER BY station",
                                       (series,))]
 
-    def columns(self, series: str, characteristic: str, station: str | None) -> "Columns":
-        """Every part's time, value, nominal, lower, upper (numbers) and station, run id, serial, in time order, as
-        columns: the numbers are one range of the clustered values table, split into columns without building a
-        Python row per part; who measured each part comes from a cache of the parts table (lines are only ever
-        added to the journal, so the cache grows with its sequence numbers)."""
-        char = "(SELECT id FROM chars WHERE series = ? AND characteristic = ?)"
-        args: list[Any] = [series, characteristic]
-        # the nominal and limits are the same for every part of most characteristics: then they are read once
-        # (a count in SQLite) instead of once per part, which halves the numbers Python receives
-        spec = self._q("SELECT count(*), count(DISTINCT nominal), count(DISTINCT lower), count(DISTINCT upper), "
-                       "count(nominal), count(lower), count(upper), min(nominal), min(lower), min(upper) FROM vals "
-                       f"WHERE char_id = {char}", args)[0]
-        total = spec[0]
-        constant = all(spec[4 + k] in (0, total) and spec[1 + k] <= 1 for k in range(3))
-        cols = "v.time, v.seq, v.value" + ("" if constant else ", v.nominal, v.lower, v.upper")
-        sql = f"SELECT {cols} FROM vals v WHERE v.char_id = {char}"
-        if station:
-            sql += " AND v.seq IN (SELECT seq FROM parts WHERE series = ? AND station = ?)"
-            args += [series, station]
+    def columns(self, series: str, characteristic: str, station: str | None, *, pack: bool = True) -> "Columns":
+        """Every part's time, value, nominal, lower, upper (numbers, NaN: none) and station, run id, serial, in
+        time order, as columns: the characteristic's packed columns (one row) and the values journalled since
+        they were packed, merged in time order; one station's parts picked by a code per part. Who measured each
+        part comes from a cache of the parts table (lines are only ever added to the journal)."""
         with self._lock:
-            rows = self._q(sql + " ORDER BY v.char_id, v.time, v.seq", args)
-            if not rows:
+            ids = self._q("SELECT id FROM chars WHERE series = ? AND characteristic = ?", (series, characteristic))
+            if not ids:
                 return EMPTY_COLUMNS
-            if constant:
-                t, seqs, v = zip(*rows)
-                n, lo, up = ((spec[7 + k],) * len(rows) for k in range(3))
-            else:
-                t, seqs, v, n, lo, up = zip(*rows)
-            if max(seqs) > self._parts_seq:
-                for seq, st, run, serial in self._q("SELECT seq, station, run_id, serial FROM parts WHERE seq > ?",
-                                                    (self._parts_seq,)):
-                    self._parts[seq] = (st, run, serial)
-                    self._parts_seq = max(self._parts_seq, seq)
-            parts = self._parts
-            who = list(zip(*map(parts.__getitem__, seqs)))
-        return Columns(t, v, n, lo, up, who[0], who[1], who[2])
+            cid = ids[0][0]
+            packed = self._q("SELECT upto_seq, time, seq, value, nominal, lower, upper FROM packed WHERE char_id = ?",
+                             (cid,))
+            upto = packed[0][0] if packed else 0
+            tail = self._q("SELECT time, seq, value, ifnull(nominal, 'NaN'), ifnull(lower, 'NaN'), "
+                           "ifnull(upper, 'NaN') FROM vals INDEXED BY vals_seq WHERE seq > ? AND char_id = ?",
+                           (upto, cid))
+            if pack and (len(tail) >= PACK_AFTER or (tail and not packed)):
+                self.pack(cid)
+                return self.columns(series, characteristic, station, pack=False)
+            cols = [np.frombuffer(b, dtype=np.int64 if k == 1 else np.float64) for k, b in enumerate(packed[0][1:])] \
+                if packed else [np.zeros(0, np.int64 if k == 1 else np.float64) for k in range(6)]
+            if tail:
+                more = list(zip(*tail))
+                cols = [np.concatenate([c, np.asarray(m, dtype=c.dtype)]) for c, m in zip(cols, more)]
+                order = np.lexsort((cols[1], cols[0]))  # by time, then part
+                cols = [c[order] for c in cols]
+            t, seqs, v, n, lo, up = cols
+            if not len(seqs):
+                return EMPTY_COLUMNS
+            self._read_parts(int(seqs.max()))
+            if station:
+                keep = self.who.station_mask(seqs, station)
+                t, seqs, v, n, lo, up = (c[keep] for c in (t, seqs, v, n, lo, up))
+            stations, runs, serials = self.who.who(seqs)
+        return Columns(t, v, n, lo, up, stations, runs, serials)
+
+    def _read_parts(self, seq: int) -> None:
+        """The parts cache up to ``seq`` (the parts journalled since it was last read)."""
+        if seq > self._parts_seq:
+            rows = self._q("SELECT seq, station, run_id, serial FROM parts WHERE seq > ?", (self._parts_seq,))
+            self.who.add(rows)
+            self._parts_seq = max([self._parts_seq] + [r[0] for r in rows])
 
     def rows(self, series: str, characteristic: str, station: str | None) -> list[tuple]:
-        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order."""
-        return self.columns(series, characteristic, station).rows()
+        """(time, value, nominal, lower, upper, station, run_id, serial) of every part, in time order (None: no
+        nominal or limit)."""
+        c = self.columns(series, characteristic, station)
+        num = [[None if math.isnan(x) else x for x in np.asarray(col, float).tolist()] for col in c[:5]]
+        return list(zip(*num, c.station, c.run_id, c.serial))
 
     def pending(self, after_seq: int, limit: int) -> list[PartSeq]:
         """Parts journalled after ``after_seq`` (in order), with their values, for the upload."""

@@ -16,6 +16,7 @@ import io
 import math
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Callable
 
 import numpy as np
@@ -41,7 +42,7 @@ class TrendChart:
     out_of_tolerance: list[int] = field(default_factory=list)  # indices into the history
     note: str = ""
 
-    @property
+    @cached_property
     def stations(self) -> list[str]:
         return sorted(set(self.history.station))
 
@@ -132,6 +133,19 @@ def history_csv(h: History) -> str:
     return buf.getvalue()
 
 
+def local_minutes(times: np.ndarray) -> list[str]:
+    """"YYYY-MM-DD HH:MM" local time of each epoch second, formatted at once: the local offset is looked up
+    once per hour of the series (summer time changes on the hour)."""
+    t = np.asarray(times, dtype=np.float64)
+    if not len(t):
+        return []
+    hours = np.floor(t / 3600.0).astype(np.int64)
+    uniq, inverse = np.unique(hours, return_inverse=True)
+    offsets = np.array([time.localtime(int(u) * 3600).tm_gmtoff or 0 for u in uniq], dtype=np.int64)
+    local = (np.floor(t).astype(np.int64) + offsets[inverse]).astype("datetime64[s]").astype("datetime64[m]")
+    return [x.replace("T", " ") for x in np.datetime_as_string(local, unit="m").tolist()]
+
+
 def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: int = MAX_POINTS,
               fluid: bool = False) -> str:
     """The run chart (values, tolerance and control limits) over the range chart, as one inline SVG;
@@ -211,15 +225,12 @@ def trend_svg(tc: TrendChart, width: int = 680, height: int = 340, max_points: i
         out.append('<polyline fill="none" stroke="#9e9e9e" stroke-width="0.6" points="'
                    + " ".join([f"{a:.1f},{b:.1f}" for a, b in zip(xs, ys)]) + '"/>')
     r = 2.6 if len(idx) <= 100 else 1.8
-    minutes: dict[int, str] = {}  # parts measured in the same minute share their time stamp
+    stamps = local_minutes(h.time[idx])
     for k, i in enumerate(idx.tolist()):
         v = float(vals[k])
         fill = OUT_COLOUR if i in bad else colour[h.station[i]]
         ring = ' stroke="#000" stroke-width="1"' if i in ooc or i in bad else ""
-        m = int(float(h.time[i]) // 60)
-        stamp = minutes.get(m)
-        if stamp is None:
-            stamp = minutes[m] = time.strftime("%Y-%m-%d %H:%M", time.localtime(m * 60))
+        stamp = stamps[k]
         out.append(f'<circle cx="{xs[k]:.1f}" cy="{ys[k]:.1f}" r="{r}" fill="{fill}"{ring}><title>'
                    f'{e(h.serial[i] or h.run_id[i][:8])} ({e(h.station[i])}, {stamp}): {v:.5f}'
                    f'{" OUT OF TOLERANCE" if i in bad else ""}</title></circle>')

@@ -17,6 +17,10 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
+from .trends_parts import PartsCache
+
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS cmm_trend_parts (
     id      bigserial PRIMARY KEY,
@@ -51,6 +55,18 @@ CREATE INDEX IF NOT EXISTS cmm_trend_vals_part ON cmm_trend_vals (part_id);
 SCHEMA_LOCK = (0x434D4D, 0x54524E44)  # "CMM", "TRND"
 
 
+def _array(blob: Any, dtype: str) -> np.ndarray:
+    """A one-dimensional PostgreSQL array without NULLs from its binary form (``array_send``): a header of
+    5 int32 (dimensions, NULL flag, element type, length, lower bound), then per element its int32 byte count
+    and the big-endian value."""
+    b = bytes(blob)
+    if int.from_bytes(b[0:4], "big") == 0:  # no dimensions: empty
+        return np.zeros(0, dtype=dtype).astype(dtype[1:])
+    count = int.from_bytes(b[12:16], "big")
+    body = np.frombuffer(b, dtype=[("size", ">i4"), ("value", dtype)], count=count, offset=20)
+    return body["value"].astype(dtype[1:])
+
+
 class TrendDatabaseError(RuntimeError):
     """The shared trends database cannot be reached or refused a statement, in words."""
 
@@ -70,7 +86,7 @@ class TrendDatabase:
         psycopg = _psycopg()
         self._error = psycopg.Error
         self._ids: dict[tuple[str, str], int] = {}  # (series, characteristic) -> id, as uploaded
-        self._parts: dict[int, tuple[str, str, str]] = {}  # part id -> (station, run id, serial), as read
+        self.who = PartsCache()  # part id -> station, run id, serial, as read
         try:
             # TCP keepalives and a user timeout: a server that vanished without closing is noticed in seconds
             self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, round(connect_timeout)),
@@ -169,34 +185,32 @@ class TrendDatabase:
             "SELECT DISTINCT station FROM cmm_trend_parts WHERE series = %s ORDER BY station", (series,))])
 
     def columns(self, series: str, characteristic: str, station: str | None) -> tuple:
-        """Every part's time, value, nominal, lower, upper, station, run_id, serial, in time order, as 8 columns.
+        """Every part's time, value, nominal, lower, upper (NaN: none), station, run_id, serial, in time order, as
+        8 columns.
 
-        The values come as binary numbers in the order of the (characteristic, time, part) key (one index range,
-        no sort); who measured each part comes from a cache of the parts table, filled for the parts not yet
-        in it (a part's station, run id and serial never change)."""
-        sql = ("SELECT v.time, v.part_id, v.value, v.nominal, v.lower, v.upper FROM cmm_trend_vals v "
-               "WHERE v.char_id = (SELECT id FROM cmm_trend_chars WHERE series = %s AND characteristic = %s)")
-        args: list[Any] = [series, characteristic]
-        sql += " ORDER BY v.char_id, v.time, v.part_id"  # one station's parts are picked here from the cache:
-        # a semi-join with the parts table made that query slower than the whole characteristic
+        The database sends each column as one array in its binary form (read into numpy without a Python object
+        per number), in the order of the (characteristic, time, part) key; who measured each part comes from a
+        cache of the parts table, filled for the parts not yet in it, and picks one station's parts."""
+        def agg(col: str) -> str:
+            return f"array_send(coalesce(array_agg({col} ORDER BY v.time, v.part_id), '{{}}'))"
+
+        sql = ("SELECT " + ", ".join(agg(c) for c in ("v.time", "v.part_id", "v.value", "coalesce(v.nominal, 'NaN')",
+                                                     "coalesce(v.lower, 'NaN')", "coalesce(v.upper, 'NaN')"))
+               + " FROM cmm_trend_vals v WHERE v.char_id = (SELECT id FROM cmm_trend_chars WHERE series = %s AND "
+               "characteristic = %s)")
 
         def go(conn: Any) -> tuple:
             with conn.cursor(binary=True) as cur:
-                rows = cur.execute(sql, args).fetchall()
-                if not rows:
-                    return ((),) * 8
-                t, pids, v, n, lo, up = zip(*rows)
-                missing = list(set(pids) - self._parts.keys())
+                blobs = cur.execute(sql, (series, characteristic)).fetchone()
+                t, pids, v, n, lo, up = (_array(b, ">i8" if k == 1 else ">f8") for k, b in enumerate(blobs))
+                missing = self.who.missing(pids)
                 if missing:
-                    for pid, st, run, serial in cur.execute("SELECT id, station, run_id, serial FROM cmm_trend_parts "
-                                                            "WHERE id = ANY(%s)", (missing,)):
-                        self._parts[pid] = (st, run, serial)
-            who = list(zip(*map(self._parts.__getitem__, pids)))
-            cols = (t, v, n, lo, up, *who)
-            if not station:
-                return cols
-            keep = [k for k, s in enumerate(who[0]) if s == station]
-            return tuple([c[k] for k in keep] for c in cols)
+                    self.who.add(cur.execute("SELECT id, station, run_id, serial FROM cmm_trend_parts "
+                                             "WHERE id = ANY(%s)", (missing,)).fetchall())
+            if station:
+                keep = self.who.station_mask(pids, station)
+                t, pids, v, n, lo, up = (c[keep] for c in (t, pids, v, n, lo, up))
+            return (t, v, n, lo, up, *self.who.who(pids))
 
         return self._run(go)
 
