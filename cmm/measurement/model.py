@@ -146,6 +146,7 @@ class MeasurementModel:
         self.journal: Any = None
         self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
         self.aligned = False  # an alignment was made since the part was loaded
+        self.alignment_name = ""  # the alignment in force, as the operator knows it ("3-2-1 TOP/FRONT/LEFT")
         self.trends: Any = None  # cmm.session.trends.Trends: each program run is recorded there as a part
         self._on_close: list[Callable[[], None]] = []
 
@@ -299,6 +300,8 @@ class MeasurementModel:
         with self.lock:
             self.part.pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
             self.aligned = True
+            names = info.get("names") or ()
+            self.alignment_name = f"{method} {'/'.join(str(n) for n in names)}".strip()
             self.record("alignment", pose=self.part.pose, method=method, **info)
         self._notify("part", self.part)
 

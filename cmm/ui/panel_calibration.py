@@ -55,7 +55,7 @@ def probe_markdown(q: Any) -> str:
     lines = ["| result | value |", "|---|---|",
              f"| effective tip radius r_eff | **{r.tip_radius:.5f} mm** (nominal {r.nominal_tip_radius}) |",
              f"| U (k=2) of r_eff | {r.uncertainty_um:.2f} um |",
-             "| sphere centre | X={:.4f} Y={:.4f} Z={:.4f} |".format(*r.sphere_centre),
+             "| sphere centre (machine) | X={:.4f} Y={:.4f} Z={:.4f} |".format(*r.sphere_centre),
              f"| tip offset to master | {', '.join(f'{x * 1000:+.2f}' for x in r.tip_offset)} um |",
              f"| tip-centre sphere form | {r.form_before_um:.2f} → {r.form_after_um:.2f} um ({r.n_points} points) |",
              f"| directional pre-travel | {q.settings.pretravel.describe()} |"]

@@ -237,6 +237,7 @@ class FeaturesPanel:
                 f"{k} {v * 1e6:.1f} urad" if k in ("normal", "direction", "half_angle") else f"{k} {v * 1000:.2f} um"
                 for k, v in s["uncertainty"].items()))
         lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
+        lines.append("\ngeometry (machine coordinates, mm):")
         for k, v in feature.result.geometry().items():
             lines.append(f"- {k}: {_fmt(v)}")
         dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
@@ -434,7 +435,7 @@ class FeaturesPanel:
             gui.add_button("Delete feature").on_click(lambda _: self.delete_feature())
         with gui.add_folder("Nominal and tolerance", expand_by_default=False):
             gui.add_button("Nominal from the last CAD pick").on_click(lambda _: self.nominal_from_pick())
-            centre = g["nominal_centre"] = gui.add_vector3("Nominal centre (mm)", (0.0, 0.0, 0.0), step=0.001)
+            centre = g["nominal_centre"] = gui.add_vector3("Nominal centre, machine (mm)", (0.0, 0.0, 0.0), step=0.001)
             diameter = g["nominal_diameter"] = gui.add_number("Nominal diameter", 0.0, min=0.0, step=0.001)
             gui.add_button("Apply typed nominal").on_click(lambda _: self.type_nominal(
                 centre.value if any(centre.value) else None, diameter.value or None))

@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from ..measurement.plan import plan_at_pick, run_plan
+from ..measurement.plan import plan_at_pick, plan_targets, run_plan
 from ..metrology.hit_plan import PlanError
 from .context import PanelContext
-from .scene import SCALE
+from .path_preview import PathPreview
 
 
 FACE_NAMES = {(2, 1): "top", (2, -1): "bottom", (1, -1): "front", (1, 1): "back", (0, -1): "left", (0, 1): "right"}
@@ -46,7 +46,7 @@ def picked_text(station: Any, picked: Any) -> str:
     where = f"{face_name(normal)} face" if kind in ("plane", "face") else f"{kind} face"
     size = f" ⌀ {2 * nominal.params['radius']:.3f}" if nominal is not None and "radius" in nominal.params else ""
     return (f"Picked: **{kind}{size}**, the {where} at X {hit.point[0]:.3f} Y {hit.point[1]:.3f} "
-            f"Z {hit.point[2]:.3f}")
+            f"Z {hit.point[2]:.3f} (machine)")
 
 
 class MeasurePanel:
@@ -59,7 +59,7 @@ class MeasurePanel:
         self.progress = ""
         self.feature: Any = None
         self._cancel = threading.Event()
-        self._nodes: list[Any] = []
+        self.preview = PathPreview(ctx, "/plan")  # the path Run will take, drawn until Run or Clear
         self.hits_per_ring = 0  # what the operator typed for the plan (0: the feature's default)
 
     def make_plan(self, hits_per_ring: int | None = None) -> Any:
@@ -93,39 +93,25 @@ class MeasurePanel:
             return picked + ("" if self.ctx.picked is None else "; then Plan.")
         lines = [picked, "", f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",
                  f"{len(p)} hits · clearance plane Z {p.clearance_z:.1f} mm · nominal {p.nominal.kind}"
-                 + (f" ⌀ {2 * p.nominal.params['radius']:.3f}" if "radius" in p.nominal.params else "")]
+                 + (f" ⌀ {2 * p.nominal.params['radius']:.3f}" if "radius" in p.nominal.params else ""),
+                 "", "Hits (machine coordinates, mm):"]
         for k, (q, u) in enumerate(zip(p.points, p.approaches), 1):
             lines.append(f"- hit {k}: X {q[0]:.3f} Y {q[1]:.3f} Z {q[2]:.3f}, approach ({u[0]:+.2f}, {u[1]:+.2f}, {u[2]:+.2f})")
+        if self.preview.cycles:
+            lines += ["", self.preview.text()]
         if self.progress:
             lines += ["", self.progress]
         return "\n".join(lines)
 
     def draw(self) -> None:
-        client = self.ctx.client
-        if client is None:
+        """The plan's path preview in this tab's 3-D view, from where the tip is now (Plan and Preview path)."""
+        if self.plan is None:
+            self.preview.clear()
             return
-        self.clear_drawing()
-        p = self.plan
-        if p is None:
-            return
-        scene = client.scene
-        path = (p.path * SCALE).astype(np.float32)
-        segs = np.stack([path[:-1], path[1:]], axis=1)
-        self._nodes.append(scene.add_line_segments("/plan/path", segs, (255, 140, 0), thickness=2.0,
-                                                   thickness_units="screen"))
-        arrows = np.stack([(p.points - 6.0 * p.approaches) * SCALE, p.points * SCALE], axis=1).astype(np.float32)
-        self._nodes.append(scene.add_line_segments("/plan/approach", arrows, (255, 60, 200), thickness=4.0,
-                                                   thickness_units="screen"))
-        self._nodes.append(scene.add_point_cloud("/plan/points", (p.points * SCALE).astype(np.float32),
-                                                 colors=(255, 60, 200), point_size=0.0025))
+        self.preview.show(plan_targets(self.plan), "Auto-measure preview")
 
     def clear_drawing(self) -> None:
-        for node in self._nodes:
-            try:
-                node.remove()
-            except Exception:  # noqa: BLE001 - the tab may have closed
-                pass
-        self._nodes = []
+        self.preview.clear()
 
     def run(self, name: str = "", wait: bool = False) -> bool:
         plan = self.plan
@@ -138,6 +124,7 @@ class MeasurePanel:
         if not self.ctx.allowed("Auto-measure"):
             return False
         self._cancel.clear()
+        self.preview.clear()  # the machine draws the path now
         name = (name or "").strip()
         cycle = f"auto-measure of {name or 'the ' + plan.kind}"
         self.ctx.shared.cycle = cycle  # every tab's status bar says RUNNING until the whole cycle ends
@@ -174,6 +161,8 @@ class MeasurePanel:
         n = g["hits"] = gui.add_number("Hits (per ring)", 0, min=0, max=24, step=1,
                                        hint="0 = the default for the feature; after Plan: the plan's")
         gui.add_button("Plan").on_click(lambda _: self.make_plan(int(n.value)))
+        gui.add_button_group("Path", ("Preview path", "Clear path")).on_click(
+            lambda e: self.draw() if e.target.value == "Preview path" else self.clear_drawing())
         g["plan"] = gui.add_markdown(self.text())
         name = g["name"] = gui.add_text("Feature name", "", hint="optional, e.g. TOP")
         gui.add_button("Run", color="green").on_click(lambda _: self.run(name.value))

@@ -24,6 +24,7 @@ from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, RoutineR
 from ..session.program import ProgramError, load
 from ..session.store import open_session
 from .context import PanelContext
+from .path_preview import PathPreview
 
 
 class RoutinePanel:
@@ -39,6 +40,7 @@ class RoutinePanel:
         self.dmis_text = ""
         self.dmis_status = ""
         self.dmis_results: list[Any] = []
+        self.preview = PathPreview(ctx, "/routine_preview")  # the path Run will take, drawn until Run or Clear
 
     # --- actions (also what the tests call) ------------------------------------------------
 
@@ -217,6 +219,21 @@ class RoutinePanel:
         self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
     @property
+    def preview_path(self) -> list[Any] | None:
+        """Draw the path the routine's hits will take on this part, as it stands now (the run's alignment moves
+        the hits after it by what it finds)."""
+        r, part = self.routine, self.station.measurement.part
+        if r is None or part is None:
+            self.ctx.error("teach or open a routine (and load its part) first", "Routine preview")
+            return None
+        cycles = self.preview.show([t[1:] for t in r.targets(part.pose)], "Routine preview")
+        self.ctx.set("routine:preview", "content", self.preview.text(), self.gui.get("preview"))
+        return cycles
+
+    def clear_preview(self) -> None:
+        self.preview.clear()
+        self.ctx.set("routine:preview", "content", "", self.gui.get("preview"))
+
     def running(self) -> bool:
         return self.thread is not None and self.thread.is_alive()
 
@@ -230,6 +247,7 @@ class RoutinePanel:
             return False
         if not self.ctx.allowed("Run routine"):
             return False
+        self.clear_preview()  # the machine draws the path now
         self.parts += 1
         name = part_name.strip() or f"part {self.parts}"
         self.run_ = RoutineRun(r, self.station.measurement, self.station.controller, client=self.ctx.who(),
@@ -329,6 +347,9 @@ class RoutinePanel:
             gui.add_button_group("Routine file actions", ("Save", "Open")).on_click(
                 lambda e: self.save(path.value) if e.target.value == "Save" else self.open(path.value))
         part = gui.add_text("Part name", "", hint="e.g. the serial number; default: part 1, part 2, ...")
+        gui.add_button_group("Routine path", ("Preview path", "Clear path")).on_click(
+            lambda e: self.preview_path() if e.target.value == "Preview path" else self.clear_preview())
+        g["preview"] = gui.add_markdown("")
         gui.add_button("Run on next part", color="green").on_click(lambda _: self.start(part.value))
         g["bar"] = gui.add_progress_bar(0.0, visible=False, animated=True)
         g["progress"] = gui.add_markdown("")

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .frames import alignment_text
 from .context import PanelContext
 
 FRAMES = ("Machine", "Part")
@@ -148,8 +149,9 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
             pp = part_position(station, pos)
             if pp is not None:
                 pos, label = pp, "part"
+        frame_name = f"<span class='muted'>{e(alignment_text(station))}</span>" if label == "part" else ""
         out.append(f"<div class='dro' aria-label='DRO {label}'><span class='muted'>{e(label)}</span>"
-                   + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + "</div>")
+                   + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + frame_name + "</div>")
         if label == "part" and not aligned:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
         settings = station.prober.settings

@@ -39,6 +39,7 @@ from .panel_routine import RoutinePanel
 from .panel_sessions import SessionsPanel
 from .panel_status import StatusPanel, run_script
 from .panel_trends import TrendsPanel
+from .frames import alignment_text, frame_label
 from .scene import SCALE, draw_pick
 
 
@@ -240,11 +241,16 @@ class ClientApp:
         if "target" in self.gui and here is not None:
             self.gui["target"].value = tuple(round(float(v), 4) for v in here)
         self.ctx.set("goto_frame_text", "content", self.goto_frame_text())
+        self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))
+
+    def target_label(self) -> str:
+        """The Go to field's label names its frame (and the alignment part coordinates go through)."""
+        return f"Target, {frame_label(self.station, self.goto_frame)} (mm)"
 
     def goto_frame_text(self) -> str:
         if self.goto_frame == "Part":
-            note = "" if self.station.measurement.aligned else " (nominal set-up: no alignment made)"
-            return f"Target in **part** coordinates{note}; the move goes over the clearance plane."
+            return (f"Target in **part** coordinates ({alignment_text(self.station)}); the move goes over the "
+                    "clearance plane.")
         return "Target in **machine** coordinates; the move goes over the clearance plane."
 
     def _move_done(self, status: Any) -> None:
@@ -338,7 +344,7 @@ class ClientApp:
         hit, nominal = result
         if self.client is not None:
             draw_pick(self.client.scene, hit.point, hit.normal)
-        self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f}".format(*hit.point)
+        self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f} (machine)".format(*hit.point)
                     + (f" · {nominal.kind}" if nominal is not None else ""))
         return result
 
@@ -536,7 +542,7 @@ class ClientApp:
             g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
             g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
             g["goto_frame_text"] = gui.add_markdown(self.goto_frame_text())
-            g["target"] = gui.add_vector3("Target (mm)", tuple(float(v) for v in pos), step=0.001)
+            g["target"] = gui.add_vector3(self.target_label(), tuple(float(v) for v in pos), step=0.001)
             gui.add_button("Go").on_click(lambda _: self.go_to(g["target"].value))
             gui.add_button("Cancel").on_click(lambda _: self.cancel())
             g["pick"] = gui.add_markdown("Click the part to pick a point.")
@@ -591,17 +597,18 @@ class ClientApp:
         self.ctx.set("control", "content", self.ctx.control_text())
         self.status.refresh()
         self.ctx.set("machine", "content", machine_markdown(st))
+        self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
         hit = st.measurement.last_hit
         if hit is not None:
             self.ctx.set("contact", "content",
-                      "last trigger (tip centre): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
-                      + "contact point: X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
+                      "last trigger (tip centre, machine): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
+                      + "contact point (machine): X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
         with st.measurement.lock:
             hits = sorted(st.measurement.hits.items())
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]
-        self.ctx.set("hits", "content", "hits (last 12):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
+        self.ctx.set("hits", "content", "hits (last 12, machine coordinates):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
         self.features.refresh()
         self.align.refresh()
         self.colour_map.refresh()
@@ -610,7 +617,7 @@ class ClientApp:
         if self.ctx.picked is not None:
             p, nominal = self.ctx.picked
             self.ctx.set("pick", "content", "picked X={:.3f} Y={:.3f} Z={:.3f}, normal ({:.3f}, {:.3f}, {:.3f})".format(
-                *p.point, *p.normal) + (f"; nominal {nominal.kind}" if nominal is not None else ""))
+                *p.point, *p.normal) + (f"; nominal {nominal.kind}" if nominal is not None else "") + " (machine coordinates)")
         if self.live_trace:
             self._show_trace()
         t, fe = self.app.following_error_series()

@@ -531,6 +531,30 @@ def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") ->
                           color=(255, 230, 0), position=tuple(p * SCALE))
 
 
+PREVIEW_COLOURS = {"rapid": (255, 140, 0), "approach": (255, 60, 200), "retract": (0, 200, 230)}
+
+
+def draw_cycles(scene: Any, cycles: list[Any], root: str = "/preview") -> dict[str, Any]:
+    """Draw probing cycles (:class:`cmm.machine.probing.CyclePath`, machine mm) under ``root``: the rapid legs over
+    the clearance height, each approach and search to its contact, each retract, and the contacts. Returns the
+    nodes by part (``rapid``, ``approach``, ``retract``, ``hits``)."""
+    rapid, approach, retract = [], [], []
+    for c in cycles:
+        line = np.array([c.start, *c.rapid], float)
+        rapid += list(np.stack([line[:-1], line[1:]], axis=1))
+        approach.append([c.pre, c.contact])
+        retract.append([c.contact, c.retract])
+    nodes = {}
+    for key, segs, width in (("rapid", rapid, 2.0), ("approach", approach, 3.5), ("retract", retract, 2.0)):
+        if segs:
+            nodes[key] = scene.add_line_segments(f"{root}/{key}", (np.array(segs, float) * SCALE).astype(np.float32),
+                                                 PREVIEW_COLOURS[key], thickness=width, thickness_units="screen")
+    contacts = np.array([c.contact for c in cycles], float) * SCALE
+    nodes["hits"] = scene.add_point_cloud(f"{root}/hits", contacts.astype(np.float32),
+                                          colors=PREVIEW_COLOURS["approach"], point_size=0.003)
+    return nodes
+
+
 class ProbeUpdater:
     """Push the probe position to the scene at a fixed rate (default 50 Hz) from the latest state.
 

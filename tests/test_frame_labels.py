@@ -1,0 +1,66 @@
+"""Every coordinate field says its frame: the Go to target, the DRO, the pick, the probe's last trigger, the
+auto-measure hits and the feature detail name machine or part coordinates (and the alignment part coordinates
+go through). And the Plan button's path preview, which Run clears."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from netutil import SIM, free_port
+
+pytest.importorskip("viser")
+
+from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
+from cmm.station import Station  # noqa: E402
+from cmm.ui.app import StationApp  # noqa: E402
+from cmm.ui.panel_status import status_html  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def app(tmp_path_factory):
+    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("frames")).start("frames", home=True)
+    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    yield ui
+    ui.close()
+    station.close()
+
+
+def test_coordinate_fields_name_their_frame_and_the_alignment(app):
+    st = app.station
+    capp = app.add_client(client_id="frames", is_local=True)
+    assert capp.take_control()
+    assert capp.target_label() == "Target, machine (mm)"
+    capp.set_goto_frame("Part")
+    assert capp.target_label() == "Target, part (nominal set-up, no alignment made) (mm)"
+    assert "nominal set-up, no alignment made" in status_html(st, "", frame="Part")
+    assert "nominal set-up" not in status_html(st, "", frame="Machine")
+    st.measurement.set_alignment(TRUE_PART_POSE, "3-2-1", names=["TOP", "FRONT", "LEFT"])
+    assert capp.target_label() == "Target, part (alignment 3-2-1 TOP/FRONT/LEFT) (mm)"
+    assert "alignment 3-2-1 TOP/FRONT/LEFT" in status_html(st, "", frame="Part")
+    assert "alignment 3-2-1 TOP/FRONT/LEFT" in capp.goto_frame_text()
+    capp.set_goto_frame("Machine")
+    # a pick and the auto-measure plan: machine coordinates, said so
+    pose = st.measurement.part.pose
+    top = (pose @ np.array([20.0, 10.0, 100.0, 1.0]))[:3]
+    assert capp.pick(top, pose[:3, :3] @ np.array([0.0, 0.0, -1.0])) is not None
+    assert "Z={:.3f} (machine)".format(capp.ctx.picked[0].point[2]) in capp.messages[-1][2]
+    plan = capp.measure.make_plan(3)
+    assert plan is not None, capp.messages[-2:]
+    text = capp.measure.text()
+    assert "(machine)" in text and "Hits (machine coordinates, mm):" in text
+    # Plan previews the path the control core will run, from where the tip is; Run clears it
+    cycles = capp.measure.preview.cycles
+    assert len(cycles) == len(plan) and np.allclose(cycles[0].start, st.machine.state.position)
+    assert "Path preview: 3 hits" in text
+    assert capp.measure.run("TOP", wait=True), capp.messages[-2:]
+    assert capp.measure.preview.cycles == [] and "Path preview" not in capp.measure.text()
+    capp.select_feature(capp.measure.feature.id)
+    assert "geometry (machine coordinates, mm):" in capp.features.feature_markdown()
+
+
+def test_a_preview_the_rails_refuse_says_why(app):
+    capp = app.add_client(client_id="frames-2", is_local=True)
+    z_max = app.station.config.axis("z").max
+    assert capp.measure.preview.show([((100.0, 100.0, z_max + 50.0), (0.0, 0.0, -1.0), None)]) is None
+    level, title, body = capp.messages[-1]
+    assert level == "error" and "outside the travel" in body and capp.measure.preview.cycles == []
