@@ -326,9 +326,11 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
     if z is None:
         rotation = np.eye(3)
     else:
-        if x is None:
-            f = frame_with_axis(z)
-            xx = f[:, 0]
+        if x is None:  # rotation about Z free: X from the measured X (Y when Z is near X), continuous in Z, so
+            # an actual frame and its nominal built from the same datums agree but for their tilt
+            ref = np.eye(3)[0] if abs(float(z[0])) < 0.9 else np.eye(3)[1]
+            w = ref - (ref @ z) * z
+            xx = w / np.linalg.norm(w)
         else:
             xx = x
         rotation = np.column_stack([xx, np.cross(z, xx), z])
