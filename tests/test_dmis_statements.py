@@ -102,6 +102,10 @@ $$ constructions: the bore's section at the top face, the boss projected onto it
 CONST/CIRCLE, F(BT), INTOF, FA(BORE), FA(TOP)
 CONST/CIRCLE, F(BP), PROJCT, FA(BOSS), FA(TOP)
 CONST/CIRCLE, F(BC), BF, FA(BT), FA(BP), FA(SPHTOP)
+$$ and the other constructions: the bore's axis through the top face, the top-front edge, their bisecting plane
+CONST/POINT, F(BI), INTOF, FA(BORE), FA(TOP)
+CONST/LINE, F(EDGE), INTOF, FA(TOP), FA(FRONT)
+CONST/PLANE, F(MIDP), MIDPL, FA(TOP), FA(FRONT)
 DATDEF/FA(TOP), DAT(A)
 DATDEF/FA(BORE), DAT(B)
 DATDEF/FA(FRONT), DAT(C)
@@ -115,7 +119,7 @@ RECALL/D(PART)
 OUTPUT/FA(TOP), FA(FRONT), TA(ANG)
 OUTPUT/FA(BORE), TA(DB)
 OUTPUT/FA(BT), FA(BP), TA(DIST)
-OUTPUT/FA(BC)
+OUTPUT/FA(BC), FA(BI), FA(EDGE), FA(MIDP)
 RECALL/D(TOBOSS)
 OUTPUT/FA(BOSS), TA(DBOSS), TA(PMMC), TA(PLMC)
 OUTPUT/FA(SPHTOP)
@@ -203,6 +207,10 @@ def test_manual_alignment_polar_rotation_constructions_and_mmc_on_the_true_part(
     centre = a + (np.cross(n, ab) * (ac @ ac) + np.cross(ac, n) * (ab @ ab)) / (2.0 * (n @ n))
     assert fa["BC"][:3] == pytest.approx(list(centre), abs=0.02)
     assert fa["BC"][6] == pytest.approx(2.0 * np.linalg.norm(a - centre), abs=0.02)
+    assert fa["BI"][:3] == pytest.approx([30.0, 40.0, 0.0], abs=0.01)
+    edge = fa["EDGE"]
+    assert edge[1:3] == pytest.approx([0.0, 0.0], abs=0.01) and abs(edge[3]) == pytest.approx(1.0, abs=1e-6)
+    assert fa["MIDP"][3:6] == pytest.approx([0.0, -math.sqrt(0.5), math.sqrt(0.5)], abs=2e-4)
     # in the frame turned onto the boss, the boss lies on X at its polar distance; the sphere's top at its angle
     assert "FA(BOSS) = FEAT/CIRCLE, OUTER, POL," in out
     r, ang, h = fa["BOSS"][:3]

@@ -75,6 +75,7 @@ class TrendDatabase:
         self._error = psycopg.Error
         self._ids: dict[tuple[str, str], int] = {}  # (series, characteristic) -> id, as uploaded
         self.who = PartsCache()  # part id -> station, run id, serial, as read
+        self._units: dict[tuple[str, str], str] = {}
         try:
             # TCP keepalives and a user timeout: a server that vanished without closing is noticed in seconds
             self.conn = psycopg.connect(url, autocommit=True, connect_timeout=max(1, round(connect_timeout)),
@@ -164,9 +165,16 @@ class TrendDatabase:
             "SELECT characteristic, unit FROM cmm_trend_chars WHERE series = %s ORDER BY id", (series,))])
 
     def unit(self, series: str, characteristic: str) -> str:
-        row = self._run(lambda c: c.execute("SELECT unit FROM cmm_trend_chars WHERE series = %s AND "
-                                            "characteristic = %s", (series, characteristic)).fetchone())
-        return "mm" if row is None else str(row[0])
+        """A characteristic's unit (kept once read: a characteristic is stored once, with its unit, and never
+        changed, so a chart costs one round trip to the database, not two)."""
+        key = (series, characteristic)
+        if key not in self._units:
+            row = self._run(lambda c: c.execute("SELECT unit FROM cmm_trend_chars WHERE series = %s AND "
+                                                "characteristic = %s", key).fetchone())
+            if row is None:
+                return "mm"
+            self._units[key] = str(row[0])
+        return self._units[key]
 
     def stations(self, series: str) -> list[str]:
         return self._run(lambda c: [r[0] for r in c.execute(
