@@ -522,7 +522,8 @@ class MeasurementModel:
                 pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
                 size = float({**DEFAULT_TOLERANCE, **(f.tolerance or {})}["size"])
                 out[fid] = MeasuredFeature(f.name, f.kind, f.result.summary(),
-                                           None if f.nominal is None else f.nominal.to_dict(), pts, size)
+                                           None if f.nominal is None else f.nominal.to_dict(), pts, size,
+                                           tuple(h for h in f.hit_ids if h in hits))
         return out
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
@@ -547,19 +548,22 @@ class MeasurementModel:
                 self._gdt_cache = (key, rows, [(f.result, f.nominal) for f in self.features.values()])
         return rows
 
-    def define_datum(self, label: str, feature_id: int, modifier: str = "") -> dict[str, Any]:
-        """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB; journalled."""
+    def define_datum(self, label: str, feature_id: int, modifier: str = "", targets: Any = None) -> dict[str, Any]:
+        """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB, or established by
+        ``targets`` (hit ids of the feature: 3 on a primary plane, 2 on a secondary, 1 on a tertiary);
+        journalled."""
         from ..metrology.datums import DatumError, datum_from_feature
         from ..metrology.gdt_eval import check_datum
 
         try:
-            d = check_datum({"label": label, "feature": feature_id, "modifier": modifier})
+            d = check_datum({"label": label, "feature": feature_id, "modifier": modifier,
+                             **({"targets": list(targets)} if targets else {})})
             with self.lock:
                 f = self.features.get(d["feature"])
                 if f is None:
                     raise MeasurementError(f"there is no fitted feature {feature_id} to be datum {d['label']}")
                 datum_from_feature(d["label"], f.kind, f.result.summary(), feature=f.name)
-                if d["modifier"]:
+                if d["modifier"] or d.get("targets"):
                     from ..metrology.gdt_eval import datum_of
 
                     datum_of(d["label"], {d["label"]: d}, self.measured_features(), False)

@@ -34,6 +34,10 @@ two parallel faces give the common plane through their midpoint with their mean 
 axis more than COMMON_DEG from the line through the centres), centres that coincide, or planes that are not
 parallel are refused in words.
 
+Datum targets (:func:`datum_from_targets`): a datum plane established by target points on its feature (three
+on the primary, two on the secondary, one on the tertiary) instead of the whole surface; other counts for the
+datum's place in the frame, targets in a line or coinciding are refused in words.
+
 Datum features of size (axis or point of a cylinder, circle or sphere) may be referenced at maximum or least
 material boundary (``modifier`` "MMB" / "LMB"); the characteristic then gets a datum shift (``Datum.size``,
 ``Datum.boundary``, ``Datum.internal`` carry what it needs). Pure numpy; no machine, no UI.
@@ -42,7 +46,7 @@ material boundary (``modifier`` "MMB" / "LMB"); the characteristic then gets a d
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -95,6 +99,7 @@ class Datum:
     boundary: float | None = None
     internal: bool | None = None
     feature: str = ""  # the datum feature's name, for messages
+    targets: np.ndarray | None = None  # datum target points (k x 3) that establish this plane, or None
 
     @property
     def shift(self) -> float:
@@ -148,6 +153,44 @@ def datum_from_feature(label: str, kind: str, geometry: dict[str, Any], *, modif
     origin = g.get("center", g.get("point"))
     return Datum(label, "point", _vec(origin, f"datum {label} point"), None, modifier, size,
                  None if boundary is None else float(boundary), internal, feature)
+
+
+TARGETS_NEEDED = (3, 2, 1)  # target points of a datum plane as primary, secondary, tertiary
+
+
+def datum_from_targets(label: str, points: Any, normal: Any, feature: str = "") -> Datum:
+    """A datum plane established by datum target points (ISO 5459 / ASME Y14.5: A1 A2 A3 on the primary, B1 B2 on
+    the secondary, C1 on the tertiary) rather than by the whole surface: three points give the plane through
+    them; two the plane through them square to the primary (made so in :func:`build_drf`); one the plane through
+    it square to both. ``normal``: the datum feature's (outward) normal, which gives the sense and, for one or
+    two points, the approximate orientation."""
+    label = str(label).strip().upper()
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not 1 <= len(pts) <= 3:
+        raise DatumError(f"datum {label}: datum targets are 1, 2 or 3 points ({label}1 {label}2 {label}3), got "
+                         f"{len(pts)}")
+    if not np.all(np.isfinite(pts)) or np.abs(pts).max() > 1e9:
+        raise DatumError(f"datum {label}: the target points must be finite coordinates, not too large")
+    hint = _unit(normal, f"datum {label} normal")
+    n = hint
+    if len(pts) == 3:
+        n = np.cross(pts[1] - pts[0], pts[2] - pts[0])
+        span = max(float(np.ptp(pts, axis=0).max()), 1e-300)
+        if float(np.linalg.norm(n)) < 1e-6 * span * span:
+            raise DatumError(f"datum {label}: target points {label}1, {label}2, {label}3 lie in a line: they do not "
+                             "define a plane; choose targets spread over the face")
+        n = n / np.linalg.norm(n)
+    elif len(pts) == 2:
+        s = pts[1] - pts[0]
+        if float(np.linalg.norm(s)) < COMMON_MIN_MM:
+            raise DatumError(f"datum {label}: target points {label}1 and {label}2 are {np.linalg.norm(s):.3g} mm "
+                             "apart: they must be apart along the face to orient the frame")
+        s = s / np.linalg.norm(s)
+        n = hint - (hint @ s) * s
+        n = n / np.linalg.norm(n)
+    if float(n @ hint) < 0:
+        n = -n
+    return Datum(label, "plane", pts.mean(axis=0), n, feature=feature, targets=pts)
 
 
 def common_datum(a: Datum, b: Datum) -> Datum:
@@ -290,6 +333,16 @@ def build_drf(datums: list[Datum] | tuple[Datum, ...]) -> DRF:
     rot_names: list[str] = []
     for i, d in enumerate(datums):
         added = False
+        if d.targets is not None and len(d.targets) != TARGETS_NEEDED[i]:
+            rank = ("primary", "secondary", "tertiary")[i]
+            raise DatumError(f"datum {d.label} has {len(d.targets)} target point(s): as the {rank} datum a plane "
+                             f"needs {TARGETS_NEEDED[i]} (primary 3, secondary 2, tertiary 1)")
+        if d.targets is not None and len(d.targets) == 2 and z is not None and x is None:
+            # the secondary plane through both targets, square to the primary
+            w = np.cross(d.targets[1] - d.targets[0], z)
+            if float(np.linalg.norm(w)) > 1e-9:
+                w = w / np.linalg.norm(w)
+                d = replace(d, direction=w if float(w @ d.direction) >= 0 else -w)  # type: ignore[operator]
         # 1. orientation
         if d.direction is not None:
             if z is None:

@@ -4,7 +4,8 @@ The one code path from definitions to the numbers the feature tree, the report, 
 re-evaluation show. Definitions are plain JSON-ready dicts (they are journalled as ``datum`` and ``gdt``
 events, see :mod:`cmm.session.model`):
 
-- datum: ``{"label": "A", "feature": 3, "modifier": "" | "MMB" | "LMB"}`` (the boundary of a datum at
+- datum: ``{"label": "A", "feature": 3, "modifier": "" | "MMB" | "LMB", "targets": [hit ids]}`` (targets: the
+  datum plane through those hits of its feature, see :func:`cmm.metrology.datums.datum_from_targets`; the boundary of a datum at
   MMB/LMB is its MMC / LMC size from the feature's nominal diameter and size tolerance; a datum's direction
   takes the sense of its feature's nominal, e.g. a plane's outward normal);
 - tolerance: ``{"id", "name", "characteristic" (see :data:`cmm.metrology.gdt.CHARACTERISTICS`), "feature"
@@ -34,7 +35,7 @@ import numpy as np
 
 from . import gdt
 from .characteristics import DEFAULT_TOLERANCE, Characteristic
-from .datums import DRF, DatumError, build_drf, common_datum, datum_from_feature
+from .datums import DRF, DatumError, build_drf, common_datum, datum_from_feature, datum_from_targets
 
 MATERIAL_SYMBOL = {"MMC": "(M)", "LMC": "(L)"}
 
@@ -47,6 +48,7 @@ class MeasuredFeature:
     nominal: dict[str, Any] | None = None
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     size_tolerance: float = DEFAULT_TOLERANCE["size"]  # +- on the diameter
+    hit_ids: tuple[int, ...] = ()  # the hit of each point (datum targets name hits)
 
 
 def check_definition(d: dict[str, Any]) -> dict[str, Any]:
@@ -125,7 +127,17 @@ def check_datum(d: dict[str, Any]) -> dict[str, Any]:
     modifier = str(d.get("modifier") or "").upper().replace("RFS", "").replace("RMB", "")
     if modifier not in ("", "MMB", "LMB"):
         raise DatumError(f"datum {label}: unknown modifier {modifier!r}; use MMB, LMB or none (RFS)")
-    return {**d, "label": label, "modifier": modifier, "feature": int(d["feature"])}
+    out = {**d, "label": label, "modifier": modifier, "feature": int(d["feature"])}
+    if d.get("targets"):
+        try:
+            out["targets"] = [int(h) for h in d["targets"]]
+        except (TypeError, ValueError):
+            raise DatumError(f"datum {label}: the targets are hit numbers, got {d['targets']!r}") from None
+        if modifier:
+            raise DatumError(f"datum {label} from target points is a plane: it cannot be referenced at {modifier}")
+    else:
+        out.pop("targets", None)
+    return out
 
 
 def _internal(f: MeasuredFeature) -> bool | None:
@@ -160,6 +172,17 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
         mmc = limits[0] if internal else limits[1]
         lmc = limits[1] if internal else limits[0]
         boundary = mmc if modifier == "MMB" else lmc
+    targets = d.get("targets")
+    if targets and not nominal:  # the actual datum from the target hits; the nominal one is the CAD plane
+        if f.kind != "plane":
+            raise DatumError(f"datum {label}: datum targets here are points on a plane feature; {f.name} is a {f.kind}")
+        where = {h: k for k, h in enumerate(f.hit_ids)}
+        missing = [h for h in targets if h not in where]
+        if missing:
+            raise DatumError(f"datum {label}: hit {missing[0]} is not a hit of {f.name}; its targets are hits of the "
+                             "datum feature")
+        g = _signed_like_nominal(f)
+        return datum_from_targets(label, f.points[[where[h] for h in targets]], g["normal"], feature=f.name)
     if nominal:
         n = f.nominal
         if not n or n.get("kind") in (None, "surface"):

@@ -23,7 +23,8 @@ def measured_features(session: Session, tolerances: dict[int, dict[str, float]] 
     for fid, f in st.features.items():
         pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
         tol = {**DEFAULT_TOLERANCE, **(f.tolerance or {}), **((tolerances or {}).get(fid) or {})}
-        out[fid] = MeasuredFeature(f.name, f.kind, f.fit, f.nominal, pts, float(tol["size"]))
+        out[fid] = MeasuredFeature(f.name, f.kind, f.fit, f.nominal, pts, float(tol["size"]),
+                                   tuple(h for h in f.hit_ids if h in hits))
     return out
 
 
