@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
+
 import pytest
 
 from cmm.control import Controller, Mode
@@ -99,3 +101,46 @@ def test_a_stop_pre_empts_only_a_patient_retry_begun_before_it():
     bus._warn = warn
     st = mods[1].nop()  # the stop's own transaction: patient, answered once the module is back
     assert st.position is not None
+
+
+def test_a_jog_stop_in_the_link_process_cuts_short_a_retry_during_motion():
+    """The link process's jog stop (a release, the dead-man) asks for the link while a transaction of the
+    station's is retrying a lost reply during the jog: that transaction gives up (Preempted, not a link failure)
+    instead of resynchronising first, and the stop goes out next."""
+    from cmm.nmc.link_process import JogGuard
+
+    config = load()
+    sim = SimulatedCMM(config)
+    port = FaultyTransport(sim.transport())
+    m = Machine(config, port)
+    m.connect()
+    try:
+        m.move_to([100.0, 100.0, 200.0]).wait()
+        v = np.array([40.0, 0.0, 0.0])
+        for _ in range(8):  # at speed
+            m.jog(v)
+            m.run_for(0.05)
+        bus = m.bus
+        assert not bus.still()
+        guard = JogGuard(bus)
+        guard.arm(m._guard_spec(v))
+        attempt = bus._attempt
+
+        def lost_then_stop(*args, **kwargs):
+            st = attempt(*args, **kwargs)
+            if st is None:  # the reply was lost: the release arrives in the link process now
+                bus.preempt(urgent=True)
+            return st
+        bus._attempt = lost_then_stop
+        port.inject(Fault("drop", "rx", count=3))
+        resyncs = bus.stats["resyncs"]
+        with pytest.raises(Preempted):
+            m.modules[0].nop()
+        assert bus.stats["resyncs"] == resyncs  # it gave the link up before resynchronising
+        bus._attempt = attempt
+        guard.stop("release")
+        assert guard.state.fired == "release" and guard.state.stops == 1 and not guard.state.errors
+        bus.clock.sleep(0.3)
+        assert all(abs(a.velocity) < 1e-9 for a in m.sample().axes)
+    finally:
+        m.close()

@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..nmc import codec
-from ..nmc.bus import LinkError, ModuleInfo, NmcError
+from ..nmc.bus import LinkError, ModuleInfo, NmcError, Preempted
 from ..nmc.link_process import GuardAxis, GuardHeld, GuardSpec, open_bus
 from ..nmc.module import Module
 from ..nmc.trace import ByteTrace
@@ -319,6 +319,8 @@ class Machine:
                 return state
             try:
                 self._watch(motion, state)
+            except Preempted:
+                pass  # a stop took the link (the link process's jog stop): the next sample watches again
             except NmcError as exc:
                 self._finish(motion, error=exc)
             return state

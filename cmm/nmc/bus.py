@@ -197,7 +197,8 @@ class Bus:
         self._calm: dict[int, int] = {}
         self.warning: tuple[int, str, float] = (0, "", 0.0)  # link warnings so far, the last one, its clock time
         self._preempts = 0  # stops that asked to cut short a patient retry (see preempt)
-        self._busy: int | None = None  # that count when the outermost transaction in progress began
+        self._urgent = 0  # jog stops that asked to cut short any retry (see preempt)
+        self._busy: tuple[int, int] | None = None  # both counts when the outermost transaction in progress began
         self._busy_since = 0.0  # and the time it began
         self._heard: deque[tuple[float, bytes]] = deque(maxlen=HEARD_KEEP)  # (time, bytes) as they came in
 
@@ -495,16 +496,23 @@ class Bus:
         """Is ``address`` under position servo as far as the commands sent tell (not motor off, not PWM)?"""
         return address not in self._free
 
-    def preempt(self) -> None:
+    def preempt(self, *, urgent: bool = False) -> None:
         """A stop is waiting (any thread, no lock): a transaction that is patiently retrying a missed reply
         while every axis stands still gives up at its next wait (:class:`Preempted`, within ``PREEMPT_SLICE``),
         so the stop gets the link at once instead of after seconds of retries. Transactions sent after this
-        call (the stop's own) are not affected; motion's strict retries are never cut short."""
-        self._preempts += 1
+        call (the stop's own) are not affected. ``urgent`` (the link process's jog stop: a release or the
+        dead-man) also cuts short the retries and resynchronisations of a transaction during motion: the stop
+        goes out after the attempt in progress, and resynchronises the line itself if it has to."""
+        if urgent:
+            self._urgent += 1
+        else:
+            self._preempts += 1
 
     def _preempted(self) -> bool:
-        """Has a stop asked for the link since the transaction in progress began, while all stands still?"""
-        return self._busy is not None and self._preempts != self._busy and self.still()
+        """Has a stop asked for the link since the transaction in progress began (while all stands still,
+        unless it was urgent)?"""
+        busy = self._busy
+        return busy is not None and (self._urgent != busy[1] or self._preempts != busy[0] and self.still())
 
     def _check_preempt(self, packet: bytes) -> None:
         if self._preempted():
@@ -522,9 +530,14 @@ class Bus:
         with self.lock:
             outer = self._busy is None
             if outer:
-                self._busy, self._busy_since = self._preempts, self.clock.now()
+                self._busy, self._busy_since = (self._preempts, self._urgent), self.clock.now()
             try:
                 return self._transact(packet, items)
+            except LinkError as exc:
+                if outer and self.link_up and self._preempted():  # a resynchronisation a stop cut short
+                    raise Preempted(f"{self._name(packet)} to {self._who(packet[1])} was cut short by a stop "
+                                    f"({exc})", packet[1]) from exc
+                raise
             finally:
                 if outer:
                     self._busy = None
@@ -580,6 +593,7 @@ class Bus:
                 if done is not None:
                     return self._accept(address, done)
                 continue
+            self._check_preempt(packet)  # an urgent jog stop waits for the link: it goes first
             self._storm += 1
             if self._storm > STORM_LIMIT:
                 raise LinkError(f"{STORM_LIMIT} commands in a row got no clean reply (last: {self._name(packet)} "

@@ -267,6 +267,7 @@ class JogGuard:
             self.held = True
             self.deadline = math.inf
         try:
+            self.bus.preempt(urgent=True)  # a transaction retrying a lost reply gives up the link to this stop
             with self.bus.lock:  # between two of the station's transactions
                 self._send_stop(spec)
             self.state.stops += 1
@@ -332,6 +333,8 @@ class JogGuard:
             elif spec is not None and spec.drive:
                 try:
                     self.drive(spec)
+                except Preempted:
+                    pass  # a stop of this jog took the link
                 except Exception as exc:  # noqa: BLE001 - a jog that cannot be driven is stopped
                     log.error("link process: driving the jog failed (%s): stopping it", exc)
                     self.stop("link error")
