@@ -119,15 +119,18 @@ def measured(tmp_path_factory):
     tree = tree_html(SimpleNamespace(measurement=model))
     model.close()
     machine.close()
-    session = load_session(store, "numbers")
-    yield SimpleNamespace(features=live_features, gdt=live_gdt, tree=tree, session=session, mesh=sim.part_mesh)
+    s = load_session(store, "numbers")
+    mesh = sim.part_mesh
+    # each output once (each evaluates the tolerances again, from the journal)
+    yield SimpleNamespace(features=live_features, gdt=live_gdt, tree=tree, session=s, mesh=mesh,
+                          json=json.loads(json.dumps(session_json(s, mesh=mesh), allow_nan=False)),
+                          html=render(s, mesh=mesh),
+                          csv=[r.split(",") for r in features_csv(s, mesh=mesh).splitlines()[1:]])
 
 
 def test_every_feature_kind_reaches_the_report_unchanged(measured):
     s = measured.session
-    exported = json.loads(json.dumps(session_json(s, mesh=measured.mesh), allow_nan=False))
-    html = render(s, mesh=measured.mesh)
-    csv_rows = [r.split(",") for r in features_csv(s, mesh=measured.mesh).splitlines()[1:]]
+    exported, html, csv_rows = measured.json, measured.html, measured.csv
     kinds = set()
     for fid, live in measured.features.items():
         kinds.add(live.kind)
@@ -155,9 +158,8 @@ def test_every_gdt_characteristic_reaches_the_report_unchanged(measured):
     assert [c for _, c in rows] == [c for _, c in measured.gdt]  # the same Characteristic, field by field
     assert {d["characteristic"] for d, _ in rows} == set(CHARACTERISTICS) - {"coaxiality"} | {"coaxiality"}
     assert all(c.actual is not None for _, c in rows), [c.note for _, c in rows if c.actual is None]
-    exported = json.loads(json.dumps(session_json(s, mesh=measured.mesh), allow_nan=False))["gdt"]
-    html = render(s, mesh=measured.mesh)
-    csv_rows = [r.split(",") for r in features_csv(s, mesh=measured.mesh).splitlines()[1:] if ",gdt," in r]
+    exported, html = measured.json["gdt"], measured.html
+    csv_rows = [r for r in measured.csv if r[1] == "gdt"]
     assert len(exported) == len(rows) == len(csv_rows) == 18  # 16 tolerances, the composite has 3 rows
     for (d, c), e, r in zip(rows, exported, csv_rows):
         assert e["value"] == c.actual and e["allowed"] == c.upper and e["drf"] == c.datums, c.note
