@@ -218,7 +218,6 @@ class RoutinePanel:
         self.dmis_status = f"**WAITING**: {text}" if text else f"**RUNNING** {self.dmis[0].name if self.dmis else ''}"
         self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
-    @property
     def preview_path(self) -> list[Any] | None:
         """Draw the path the routine's hits will take on this part, as it stands now (the run's alignment moves
         the hits after it by what it finds)."""
@@ -234,6 +233,7 @@ class RoutinePanel:
         self.preview.clear()
         self.ctx.set("routine:preview", "content", "", self.gui.get("preview"))
 
+    @property
     def running(self) -> bool:
         return self.thread is not None and self.thread.is_alive()
 
