@@ -80,3 +80,19 @@ def test_profile_needs_a_mesh_and_datums_must_constrain(tmp_path, capsys, datums
     assert "datum D (plane) is parallel to datum A" in capsys.readouterr().err
     assert main(["fit", "plane", top, "--gdt", "parallelism=0.05@A"]) == 1
     assert "datum A is not given" in capsys.readouterr().err
+
+
+def test_coaxiality_to_a_common_datum_axis(tmp_path, capsys):
+    """Bores A (z 0..10) and B (z 50..60, 0.02 off in x) form the common axis A-B through their centres; a bore at
+    z 20..30 on that line but 0.03 off in y has coaxiality 0.06 to A-B (its axis parallel to A-B's)."""
+    a = write(tmp_path / "a.txt", bore((0, 0, 0), 5.0, [1.0, 9.0]))
+    b = write(tmp_path / "b.txt", bore((0.02, 0, 50), 5.0, [1.0, 9.0]))
+    tilt = 0.02 / 50
+    mid = write(tmp_path / "mid.txt", [p + (tilt * (p[2] - 25.0), 0, 0) for p in bore((0.008, 0.03, 20), 5.0, [1.0, 9.0])])
+    assert main(["fit", "cylinder", mid, "--datum", f"A=cylinder:{a}", "--datum", f"B=cylinder:{b}",
+                 "--gdt", "coaxiality=0.05@A-B", "--json"]) == 0
+    (r,) = json.loads(capsys.readouterr().out)["gdt"]
+    assert r["value"] == pytest.approx(0.06, abs=1e-6) and r["drf"] == "A-B" and not r["ok"]
+    assert main(["fit", "cylinder", mid, "--datum", f"A=cylinder:{a}", "--datum", f"B=plane:{a}",
+                 "--gdt", "coaxiality=0.05@A-B"]) != 0
+    assert "common datum A-B: A is an axis and B a plane" in capsys.readouterr().err

@@ -3,6 +3,7 @@
     cmm fit cylinder bore.txt --datum A=plane:top.txt --datum B=plane:front.txt --datum C=plane:left.txt \\
         --gdt "position=0.05@A|B|C" --nominal 30,40,0,0,0,1 --material MMC --size-limits 29.98,30.02 --internal
     cmm fit plane top.txt --gdt flatness=0.01 --gdt "profile of a surface=0.02" --mesh part.stl
+    cmm fit cylinder mid.txt --datum A=cylinder:front_bore.txt --datum B=cylinder:rear_bore.txt --gdt "coaxiality=0.02@A-B"
 
 ``--datum LABEL=KIND:FILE`` fits the datum feature (least squares) from its points; a datum plane's normal
 points towards the toleranced feature (into the material). The datums of a ``--gdt`` (after ``@``, in
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from . import gdt
-from .datums import DatumError, build_drf, datum_from_feature
+from .datums import DatumError, build_drf, common_datum, datum_from_feature
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -83,10 +84,14 @@ def evaluate(args: argparse.Namespace, kind: str, summary: dict[str, Any], point
         except ValueError:
             raise gdt.GdtError(f"--gdt takes CHARACTERISTIC=TOLERANCE[@A|B|C], got {spec!r}") from None
         labels = [x.strip().upper() for x in refs.replace(",", "|").split("|") if x.strip()]
-        missing = [x for x in labels if x not in datums]
+        missing = [p for x in labels for p in x.split("-") if p not in datums]
         if missing:
             raise DatumError(f"datum {missing[0]} is not given: add --datum {missing[0]}=KIND:FILE")
-        drf = build_drf([datums[x] for x in labels]) if labels else None
+        if any(len(x.split("-")) > 2 for x in labels):
+            raise DatumError("a common datum is two datums, e.g. A-B")
+        # "A-B": the common datum of A and B (two coaxial features, or two parallel faces)
+        refs_ = [common_datum(*(datums[p] for p in x.split("-"))) if "-" in x else datums[x] for x in labels]
+        drf = build_drf(refs_) if labels else None
         if ch in gdt.FORM:
             r = gdt.form(ch, points, tol)
         elif ch in gdt.ORIENTATION:
