@@ -312,16 +312,24 @@ class FeaturesPanel:
                 self.gui["construct_name"].value = ""  # a name is one construction's: the next gets its own
         return c
 
-    def define_datum(self, label: str, feature: int, modifier: str = "") -> Any:
-        return self.ctx.run("Datum", lambda: self.station.measurement.define_datum(label, feature, modifier))
+    def define_datum(self, label: str, feature: int, modifier: str = "", targets: str = "") -> Any:
+        """Datum ``label`` from a feature, or from its target hits (``targets``: hit ids as typed, "12 14 17")."""
+        return self.ctx.run("Datum", lambda: self.station.measurement.define_datum(
+            label, feature, modifier, parse_ids(targets) if targets.strip() else None))
 
     def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
-                   material: str = "", angle: float | None = None, direction: str = "radial") -> Any:
-        """A geometric tolerance on a feature against datums "A|B|C" (refused in words when it cannot be
-        evaluated); the tree lists it under "Geometric tolerances"."""
+                   material: str = "", angle: float | None = None, direction: str = "radial",
+                   pattern: str = "", lower: float = 0.0, lower_datums: str = "") -> Any:
+        """A geometric tolerance on a feature against datums "A|B|C" or a common datum "A-B" (refused in words
+        when it cannot be evaluated); the tree lists it under "Geometric tolerances". A composite position: the
+        ``pattern``'s feature ids as typed ("3 5 8") and the feature-relating tier's tolerance ``lower`` and
+        datums ``lower_datums`` ("A")."""
         def do() -> Any:
+            extra: dict[str, Any] = {}
+            if lower:
+                extra = {"pattern": parse_ids(pattern), "composite": {"tolerance": lower, "datums": lower_datums}}
             d, c = self.station.measurement.define_gdt(characteristic, feature, tolerance, datums, material=material,
-                                                       angle=angle, direction=direction)
+                                                       angle=angle, direction=direction, **extra)
             self.ctx.notify("GD&T", f"{d['name']}: {c.actual:.4f} ({c.verdict})")
             return d, c
         return self.ctx.run("GD&T", do)
@@ -457,8 +465,10 @@ class FeaturesPanel:
             label = gui.add_dropdown("Datum", ("A", "B", "C", "D", "E", "F"), initial_value="A")
             g["datum_feature"] = gui.add_dropdown("Datum feature", ("-",), initial_value="-")
             dmod = gui.add_dropdown("Datum modifier", ("RFS", "MMB", "LMB"), initial_value="RFS")
+            targets = gui.add_text("Datum targets", "", hint="hit ids on a datum plane: 3 for A, 2 for B, 1 for C; "
+                                                             "empty: the whole feature")
             gui.add_button("Set datum").on_click(lambda _: self._datum(label.value, g["datum_feature"].value,
-                                                                       dmod.value))
+                                                                       dmod.value, targets.value))
             ch = gui.add_dropdown("Tolerance", CHARACTERISTICS, initial_value="position")
             g["gdt_feature"] = gui.add_dropdown("Toleranced feature", ("-",), initial_value="-")
             tol = gui.add_number("Tolerance (mm)", 0.05, min=0.0001, step=0.001)
@@ -466,8 +476,13 @@ class FeaturesPanel:
             mat = gui.add_dropdown("Material", ("RFS", "MMC", "LMC"), initial_value="RFS")
             ang = gui.add_number("Basic angle (°)", 0.0, min=0.0, max=90.0, step=0.1)
             rdir = gui.add_dropdown("Runout", ("radial", "axial"), initial_value="radial")
+            pattern = gui.add_text("Pattern", "", hint="composite position: the pattern's feature ids, e.g. 5 6 7 8")
+            lower = gui.add_number("Lower tier ⌀ (mm)", 0.0, min=0.0, step=0.001,
+                                   hint="composite position: the feature-relating tolerance; 0: not composite")
+            lower_refs = gui.add_text("Lower tier datums", "A", hint="composite: orientation datums, e.g. A")
             gui.add_button("Add tolerance").on_click(lambda _: self._gdt(
-                ch.value, g["gdt_feature"].value, tol.value, refs.value, mat.value, ang.value, rdir.value))
+                ch.value, g["gdt_feature"].value, tol.value, refs.value, mat.value, ang.value, rdir.value,
+                pattern.value, lower.value, lower_refs.value))
             gid = gui.add_number("Tolerance id", 1, min=1, step=1)
             gui.add_button("Delete tolerance").on_click(lambda _: self.delete_gdt(int(gid.value)))
         with gui.add_folder("Report header"):
@@ -483,18 +498,20 @@ class FeaturesPanel:
             return self.ctx.error("choose two features", "Construct")
         return self.construct(op, int(ma.group(1)), int(mb.group(1)), name, three_d)
 
-    def _datum(self, label: str, feature: str, modifier: str) -> Any:
+    def _datum(self, label: str, feature: str, modifier: str, targets: str = "") -> Any:
         m = re.match(r"(\d+)", feature)
         if not m:
             return self.ctx.error("choose the datum feature", "Datum")
-        return self.define_datum(label, int(m.group(1)), "" if modifier == "RFS" else modifier)
+        return self.define_datum(label, int(m.group(1)), "" if modifier == "RFS" else modifier, targets)
 
-    def _gdt(self, ch: str, feature: str, tol: float, refs: str, material: str, angle: float, direction: str) -> Any:
+    def _gdt(self, ch: str, feature: str, tol: float, refs: str, material: str, angle: float, direction: str,
+             pattern: str = "", lower: float = 0.0, lower_refs: str = "") -> Any:
         m = re.match(r"(\d+)", feature)
         if not m:
             return self.ctx.error("choose the toleranced feature", "GD&T")
         return self.define_gdt(ch, int(m.group(1)), tol, "" if ch in FORM else refs,
-                               "" if material == "RFS" else material, angle if ch == "angularity" else None, direction)
+                               "" if material == "RFS" else material, angle if ch == "angularity" else None, direction,
+                               pattern, lower if ch == "position" else 0.0, lower_refs)
 
     def _chosen(self, value: str) -> None:
         m = re.match(r"(\d+)", value)
