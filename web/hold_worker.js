@@ -7,7 +7,9 @@
 // every 40 ms over its own WebSocket to the pendant port, acting as this page (its grant token), until the
 // button is let go ({"type": "release"}). The main thread beats every 100 ms while the button is held; a
 // worker that hears no beat for MAIN_SILENT_MS (a frozen tab) stops on its own, and a closed tab or a lost
-// network stops the machine by its dead-man 0.15 s after the worker's last message.
+// network stops the machine by its dead-man 0.15 s after the worker's last message. The keyboard jog of the
+// 3-D view (web/view_keys.js) holds through the same worker with a "keys +x -y [fast]" label and may send a
+// STOP; what the station answers (a refusal and why) comes back as a "cmm-pendant-message" window event.
 (function () {
   var WS_URL = "__WS_URL__", TOKEN = "__TOKEN__";
   if (window.__cmmHoldWorker) return;
@@ -17,6 +19,8 @@
     "  ws = new WebSocket(" + JSON.stringify(WS_URL) + ");",
     "  ws.onopen = function () { ws.send(JSON.stringify({type: 'hello', as: " + JSON.stringify(TOKEN) + "})); };",
     "  ws.onclose = function () { ws = null; setTimeout(open, 500); };",
+    "  ws.onmessage = function (e) { var m; try { m = JSON.parse(e.data); } catch (x) { return; }",
+    "    if (m.type === 'error' || m.type === 'notice') postMessage(m); };",
     "}",
     "function send(m) { if (ws && ws.readyState === 1) ws.send(JSON.stringify(m)); }",
     "function tick() {",
@@ -34,11 +38,15 @@
     "  if (m.type === 'hold') { button = m.button; beat = Date.now(); if (timer === null) timer = setInterval(tick, 40); tick(); }",
     "  else if (m.type === 'beat') { beat = Date.now(); }",
     "  else if (m.type === 'release') { stop(); }",
+    "  else if (m.type === 'stop') { stop(); send({type: 'stop'}); }",
     "};",
     "open();"
   ].join("\n");
   var worker = new Worker(URL.createObjectURL(new Blob([src], {type: "text/javascript"})));
   window.__cmmHoldWorker = worker;
+  worker.onmessage = function (e) {
+    window.dispatchEvent(new CustomEvent("cmm-pendant-message", { detail: e.data }));
+  };
   document.addEventListener("pointerdown", function (e) {
     var b = e.target && e.target.closest ? e.target.closest("button") : null;
     var label = b ? b.textContent.trim() : "";

@@ -44,18 +44,21 @@ from .scene import SCALE, draw_pick
 
 
 def hold_worker_script(pendant_src: str, token: str) -> str:
-    """web/hold_worker.js for this page: its pendant WebSocket and its refresher's grant."""
+    """web/hold_worker.js for this page (its pendant WebSocket and its refresher's grant), then web/view_keys.js
+    (the keyboard jog of the 3-D view, through the same worker)."""
     from .pendant import web_dir
 
     ws = pendant_src.split("#", 1)[0].replace("http://", "ws://", 1).replace("https://", "wss://", 1).rstrip("/") + "/ws"
-    return (web_dir() / "hold_worker.js").read_text().replace("__WS_URL__", ws).replace("__TOKEN__", token)
+    worker = (web_dir() / "hold_worker.js").read_text().replace("__WS_URL__", ws).replace("__TOKEN__", token)
+    return worker + "\n" + (web_dir() / "view_keys.js").read_text()
 
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
-JOG_KEYS_HELP = ("**Keyboard** (click the pendant below first): arrows = X/Y, PageUp/PageDown = Z at the "
-                 "pendant's selected speed (Fine / Slow / Fast), hold **Shift** = fast; releasing the key stops; "
-                 "**Esc** or **Space** = stop. Step jogs: the Step size above and the Step X/Y/Z buttons. "
+JOG_KEYS_HELP = ("**Keyboard**: click the 3-D view (a blue frame shows it has the keys): arrows = X/Y, "
+                 "PageUp/PageDown = Z at the Speed above, hold **Shift** = fast; releasing the key stops; **Esc** or "
+                 "**Space** = stop; why a key does nothing is shown on the view. In the pendant below (click it "
+                 "first) the keys jog at the pendant's speed. Step jogs: the Step size above and the Step X/Y/Z buttons. "
                  "The pendant below acts for this page: it shares this page's control. A tablet opens the "
                  "pendant page alone (its own client: Take control there).")
 LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser may run callbacks out of order)
@@ -296,13 +299,32 @@ class ClientApp:
         self._jogging = True
 
     def hold_velocity(self, label: Any) -> tuple[np.ndarray, bool]:
-        """What a held jog button means now ("hold X +" ...): its velocity at this tab's speed, and whether the
-        jog is armed (the page's hold refresher sends the label, see web/hold_worker.js)."""
+        """What a held jog button means now ("hold X +" ...) or held keys of the 3-D view ("keys +x -y", "fast"
+        with Shift): the velocity at this tab's speed, and whether the jog is armed (the page's hold refresher
+        sends the label, see web/hold_worker.js and web/view_keys.js)."""
+        if isinstance(label, str) and label.startswith("keys "):
+            return self.keys_velocity(label), bool(self.ctx.manual_probe)
         for i, name in enumerate(AXES):
             for sign, text in ((-1, f"hold {name.upper()} −"), (1, f"hold {name.upper()} +")):
                 if label == text:
                     return self.jog_velocity(i, sign), bool(self.ctx.manual_probe)
         raise ValueError(f"no jog button is called {label!r}")
+
+    def keys_velocity(self, label: str) -> np.ndarray:
+        """The jog of held keys: "keys +x -y" at this tab's speed, "... fast" at the fast jog speed."""
+        words = label.split()[1:]
+        fast = "fast" in words
+        speed = getattr(self.station.config.speeds, "jog_fast" if fast else SPEEDS[self.speed_mode])
+        v = np.zeros(3)
+        for w in words:
+            if w == "fast":
+                continue
+            if len(w) != 2 or w[0] not in "+-" or w[1] not in AXES:
+                raise ValueError(f"no key jog is called {label!r}")
+            v[AXES.index(w[1])] = math.copysign(speed, 1 if w[0] == "+" else -1)
+        if not np.any(v):
+            raise ValueError(f"no key jog is called {label!r}")
+        return v
 
     def jog_release(self) -> None:
         """The button was released (viser's click event fires on release)."""

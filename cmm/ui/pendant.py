@@ -443,8 +443,9 @@ class PendantServer:
             if session.jogging:
                 session.jogging = False
                 self._release(session)
-            return await self._error_msg(session, "this pendant is not in control: take control to jog",
-                                         throttle=True)
+            who = ("this page observes: press Take control (Control panel) to jog" if session.grant is not None
+                   else "this pendant is not in control: take control to jog")
+            return await self._error_msg(session, who, throttle=True)
         if not (isinstance(v, list) and len(v) == 3
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)

@@ -1,0 +1,138 @@
+"""Keyboard jog in the 3-D view, in headless chromium at 1280 x 800 on the simulator (paced virtual clock: the
+keys' refreshes are wall-time and meet the machine's dead-man).
+
+A click in the view gives it the keyboard focus, and the page shows it (a blue frame, the "Keyboard jog" badge);
+a held arrow jogs the machine through the one jog pipeline and letting go stops it; when a key can do nothing the
+view says why: in FAULT, with the E-STOP latched, when the page only observes, at the end of the travel. The
+pendant page says why too (FAULT). Plus the path preview drawn by Plan in the tab's scene and cleared by Clear."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import browser_support as bs
+from netutil import SIM_PACED
+
+_reason = bs.unavailable_reason()
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
+              pytest.mark.skipif(_reason is not None, reason=_reason or "")]
+
+pytest.importorskip("viser")
+
+LAPTOP = (1280, 800)
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    from cmm.station import Station
+
+    st = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("keys")).start("keys", home=True)
+    yield st
+    st.close()
+
+
+@pytest.fixture(scope="module")
+def app(station):
+    yield from bs.station_app(station, pendant_port=0)
+
+
+def _velocity(station):
+    return np.array([a.velocity for a in station.machine.state.axes])
+
+
+def _focus_view(page):
+    """Click the 3-D view left of the middle (clear of the notifications in its corners and of the panel)."""
+    bs.wait_until(lambda: page.evaluate("() => !!document.querySelector('canvas.cmm-keys')"), 30.0, "the 3-D view")
+    left, top, width, height = page.evaluate("() => { const r = document.querySelector('canvas.cmm-keys')"
+                                             ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; }")
+    page.mouse.click(left + 0.25 * width, top + 0.5 * height)
+    bs.wait_until(lambda: page.evaluate("() => document.activeElement && document.activeElement.matches("
+                                        "'canvas[data-engine]')"), 10.0, "the 3-D view taking the focus")
+
+
+def _badge(page):
+    return page.locator("#cmm-view-keys")
+
+
+def _press_until_told(page, key, words, what):
+    """Hold ``key`` until the view's message has ``words`` (the refusal comes back from the station), let go."""
+    page.keyboard.down(key)
+    try:
+        bs.wait_until(lambda: words in _badge(page).inner_text(), 20.0, what)
+    finally:
+        page.keyboard.up(key)
+
+
+def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(app, station):
+    with bs.browser_context(LAPTOP) as context:
+        page = bs.open_page(context, app)
+        capp = page.capp
+        assert capp.take_control()
+        _badge(page).wait_for()
+        assert "Click the 3-D view" in _badge(page).inner_text()
+        _focus_view(page)
+        badge = _badge(page)
+        bs.wait_until(lambda: "Keyboard jog" in badge.inner_text(), 10.0, "the badge saying the view has the keys")
+        outline = page.evaluate("() => getComputedStyle(document.activeElement).outlineStyle")
+        assert outline == "solid"  # the focus is visible on the view itself
+        bs.screenshot(page, "view-keys-focused")
+        # a held arrow jogs +X at the page's speed; letting go stops it
+        x0 = station.machine.state.position[0]
+        page.keyboard.down("ArrowRight")
+        try:
+            bs.wait_until(lambda: _velocity(station)[0] > 0, 20.0, "the +X jog")
+            assert abs(_velocity(station)[1]) < 1e-9 and abs(_velocity(station)[2]) < 1e-9
+        finally:
+            page.keyboard.up("ArrowRight")
+        bs.wait_until(lambda: np.all(np.abs(_velocity(station)) < 1e-9), 20.0, "the jog stopping on key up")
+        assert station.machine.state.position[0] > x0
+        # in FAULT a key says why it does nothing, and nothing moves
+        station.controller.fault("a test fault")
+        bs.wait_until(lambda: station.controller.state.mode.value == "fault", 10.0, "the fault")
+        here = station.machine.state.position.copy()
+        _press_until_told(page, "ArrowUp", "fault", "the view saying the machine is in fault")
+        assert "Reset" in badge.inner_text()
+        bs.screenshot(page, "view-keys-fault")
+        assert np.allclose(station.machine.state.position, here, atol=0.002)
+        capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value != "fault", 20.0, "the reset")
+        # with the E-STOP latched
+        capp.emergency_stop()
+        bs.wait_until(lambda: station.controller.state.mode.value == "e-stopped", 10.0, "the E-STOP")
+        _focus_view(page)
+        _press_until_told(page, "ArrowLeft", "emergency stop", "the view saying the E-STOP is latched")
+        capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value not in ("e-stopped", "fault"), 20.0, "the reset")
+        # an observing page is told to take control
+        capp.release_control()
+        _focus_view(page)
+        _press_until_told(page, "PageUp", "Take control", "the view saying this page observes")
+        # Esc stops from the view
+        assert capp.take_control()
+        _focus_view(page)
+        page.keyboard.press("Escape")
+        bs.wait_until(lambda: "STOP sent" in badge.inner_text(), 10.0, "the view saying STOP was sent")
+        assert page.log.page_errors == []
+
+
+def test_the_pendant_page_says_why_a_key_does_nothing(app, station):
+    with bs.browser_context(LAPTOP) as context:
+        pendant = context.new_page()
+        pendant.goto(app.pendant.url)
+        pendant.get_by_role("button", name="Take control").click()
+        pendant.get_by_text("you have control").first.wait_for()
+        station.controller.fault("a test fault")
+        try:
+            bs.wait_until(lambda: "FAULT" in pendant.locator("#motion").inner_text(), 10.0, "the pendant's FAULT")
+            pendant.locator("body").click(position={"x": 5, "y": 5})
+            pendant.keyboard.down("ArrowRight")
+            try:
+                bs.wait_until(lambda: "fault" in pendant.locator("#message").inner_text(), 20.0,
+                              "the pendant saying the machine is in fault")
+            finally:
+                pendant.keyboard.up("ArrowRight")
+            assert pendant.locator("#message").is_visible()
+        finally:
+            station.controller.reset(None)
+            app.control.release(app.control.holder)
