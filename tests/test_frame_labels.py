@@ -64,3 +64,23 @@ def test_a_preview_the_rails_refuse_says_why(app):
     assert capp.measure.preview.show([((100.0, 100.0, z_max + 50.0), (0.0, 0.0, -1.0), None)]) is None
     level, title, body = capp.messages[-1]
     assert level == "error" and "outside the travel" in body and capp.measure.preview.cycles == []
+
+
+def test_the_routine_tabs_preview_is_the_routines_hits_and_run_clears_it(app):
+    capp = app.add_client(client_id="frames-3", is_local=True)
+    assert capp.take_control()
+    if not app.station.measurement.features:  # the first test measured the top face; alone, measure it here
+        pose = app.station.measurement.part.pose
+        capp.pick((pose @ np.array([20.0, 10.0, 100.0, 1.0]))[:3], pose[:3, :3] @ np.array([0.0, 0.0, -1.0]))
+        assert capp.measure.make_plan(3) is not None and capp.measure.run("TOP", wait=True)
+    routine = capp.routine.teach("preview")
+    assert routine is not None, capp.messages[-2:]
+    cycles = capp.routine.preview_path()
+    targets = routine.targets(app.station.measurement.part.pose)
+    assert cycles is not None and len(cycles) == len(targets) > 0
+    assert all(np.allclose(c.contact, p - app.station.prober.settings.tip_radius * u / np.linalg.norm(u))
+               for c, (_n, p, u, _cz) in zip(cycles, targets))
+    assert capp.routine.start("p2")
+    assert capp.routine.preview.cycles == []  # Run clears the preview
+    capp.routine.thread.join(300)
+    assert capp.routine.run_.progress.state == "done", capp.routine.progress_text()
