@@ -268,7 +268,8 @@ CYLINDER_RINGS_DEG = (1.0, 3.0, 6.0, 9.5)  # minimum zone: start directions (deg
 CYLINDER_AZIMUTHS = 6  # ... and azimuths per ring
 CYLINDER_REFINE = 3
 PROOF_GAP = 1e-4  # mm (0.1 um): a cylinder criterion is proven optimal in the cone when its gap to the lower bound is below
-PROOF_FULL_POINTS = 20000  # the bound runs on every point (when the subset's leaves a gap) up to this many
+# the bound runs on every point (when the subset's leaves a gap) up to this many (MIC: a Voronoi diagram per cell)
+PROOF_FULL_POINTS = {"mcc": 20000, "minzone": 20000, "mic": 2000}
 # minimum zone: the axes searched pass within CENTRE_FORMS x the LS form (at most CENTRE_FRACTION x the LS radius,
 # at least 1e-3 x it) of the LS axis at the data centre: zones of about the LS form lie there
 CENTRE_FRACTION = 0.1
@@ -358,11 +359,12 @@ def _annulus_basis_optimal(rel: np.ndarray, outer: np.ndarray, inner: np.ndarray
     return bool(g.max() <= sol[3] + tol and g.min() >= sol[2] - tol)
 
 
-def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """min over centres d of [max_i |rel_i - d|^2 - min_i |rel_i - d|^2] over the points ``keep`` (= r_out^2 -
-    r_in^2 of the thinnest annulus by area: a subset's is never larger), a linear program in (d, A, B):
-    |rel_i|^2 - 2 rel_i.d lies in [A, B]. Returns a lower bound on it (the value less a margin for the solver's
-    tolerance) and the points active on the outer and inner circles (indices into rel)."""
+def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """A lower bound on min over centres d (|d| <= reach) of [max_i |rel_i - d|^2 - min_i |rel_i - d|^2] over the
+    points ``keep`` (= r_out^2 - r_in^2 of the thinnest annulus by area: a subset's is never larger), from the
+    linear program in (d, A, B): |rel_i|^2 - 2 rel_i.d lies in [A, B]. The bound is its dual weights' value
+    (sum lam |rel|^2 - sum mu |rel|^2 less 2 reach |sum lam rel - sum mu rel|, see _annulus_dual): it holds
+    whatever the solver's tolerances. Also returns the points active on the outer and inner circles."""
     x = rel[keep]
     a = np.einsum("ij,ij->i", x, x)
     n = len(x)
@@ -373,8 +375,13 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray) -> tuple[float, np.nd
     if res.status != 0:
         return 0.0, keep[:0], keep[:0]
     dual = np.abs(res.ineqlin.marginals)
-    outer, inner = keep[dual[:n] > 1e-12], keep[dual[n:] > 1e-12]
-    return max(float(res.fun) - 1e-9 * max(1.0, float(a.max())), 0.0), outer, inner
+    lam, mu = dual[:n], dual[n:]
+    if lam.sum() <= 0 or mu.sum() <= 0:
+        return 0.0, keep[:0], keep[:0]
+    lam, mu = lam / lam.sum(), mu / mu.sum()
+    imbalance = float(np.linalg.norm(lam @ x - mu @ x))
+    bound = float(lam @ a - mu @ a) - 2.0 * reach * imbalance - 1e-12 * max(1.0, float(a.max()))
+    return max(bound, 0.0), keep[lam > 1e-12], keep[mu > 1e-12]
 
 
 def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best: float) -> Callable[..., float]:
@@ -404,12 +411,12 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
         scale = 2.0 * (float(dist.min()) + q) + best + slack
         if len(basis[0]) and len(basis[1]):
             area = _annulus_dual(rel, basis[0], basis[1], q)
-            if area / scale - slack >= best or _annulus_basis_optimal(rel, basis[0], basis[1]):
+            if np.isfinite(area) and (area / scale - slack >= best or _annulus_basis_optimal(rel, basis[0], basis[1])):
                 return area / scale - slack
         order = np.argsort(dist)
         k = min(ZONE_LP_POINTS, len(xs))
         keep = np.unique(np.concatenate([order[:k], order[-k:]]))  # a subset: its bound holds for all points
-        area, outer, inner = _annulus_area_lower(rel, keep)
+        area, outer, inner = _annulus_area_lower(rel, keep, q)
         if len(outer) and len(inner):
             basis = (outer, inner)
         return area / scale - slack
@@ -495,7 +502,7 @@ def _prove_cylinder(xs: np.ndarray, crit: np.ndarray, method: str, u0: np.ndarra
     half of them, up to PROOF_FULL_POINTS)."""
     target = value - 0.5 * tol
     gap, cells = np.inf, 0
-    for pts in (crit, xs) if 2 * len(crit) < len(xs) <= PROOF_FULL_POINTS else (crit,):
+    for pts in (crit, xs) if 2 * len(crit) < len(xs) <= PROOF_FULL_POINTS[method] else (crit,):
         cb = (_zone_cell_bound(pts, foot, centre_range, target) if method == "minzone"
               else _ball_cell_bound(pts, method))
         lower, n = _direction_bound(cb, u0, target, u_best, cone)
