@@ -4,7 +4,7 @@ keys' refreshes are wall-time and meet the machine's dead-man).
 A click in the view gives it the keyboard focus, and the page shows it (a blue frame, the "Keyboard jog" badge);
 a held arrow jogs the machine through the one jog pipeline and letting go stops it; when a key can do nothing the
 view says why: in FAULT, with the E-STOP latched, when the page only observes, at the end of the travel. The
-pendant page says why too (FAULT). Plus the path preview drawn by Plan in the tab's scene and cleared by Clear."""
+pendant page says why too (FAULT)."""
 
 from __future__ import annotations
 
@@ -108,9 +108,14 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
         capp.release_control()
         _focus_view(page)
         _press_until_told(page, "PageUp", "Take control", "the view saying this page observes")
-        # Esc stops from the view
+        # at the end of the travel (homed, Z stands at its top): +Z says which axis and the way it can go
         assert capp.take_control()
         _focus_view(page)
+        z_top = station.config.axis("z").max
+        assert station.machine.state.position[2] > z_top - 0.005
+        _press_until_told(page, "PageUp", "end of its travel", "the view saying Z is at the end of its travel")
+        assert "-Z" in badge.inner_text()
+        # Esc stops from the view
         page.keyboard.press("Escape")
         bs.wait_until(lambda: "STOP sent" in badge.inner_text(), 10.0, "the view saying STOP was sent")
         assert page.log.page_errors == []
