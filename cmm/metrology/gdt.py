@@ -21,6 +21,9 @@ the feature), the stated ``tolerance``, a material-condition ``bonus``, the datu
   (their deviation is not counted). Material condition (MMC/LMC): bonus = the departure of the actual size
   from the MMC (LMC) size. Datum shift: a datum feature of size at MMB/LMB lets the frame move by up to
   half its shift across its axis (or around its centre);
+- composite position (ASME Y14.5, :func:`composite_position`): a pattern of parallel features; the upper tier
+  is each feature's position to its datums, the lower tier the smallest zone diameter when the pattern's zones
+  move together (translations, and the rotation about the pattern axis unless the lower datums fix it);
 - concentricity / coaxiality: the diameter of the cylinder coaxial with the datum axis containing the
   feature's centre / axis; runout: circular (per section, radial: the range of the radius about the
   datum axis; axial: of the axial position) and total (all points);
