@@ -148,6 +148,66 @@ def text_field(page: Any, label: str) -> Any:
                         "'mantine-Flex-root')][1]//input").first
 
 
+# The side panel's tabs, grouped for the operator's day (cmm/ui/panels.py, ClientApp.build): each top tab and the
+# sub-tabs it holds (none: the tab holds its panel itself).
+TABS = {
+    "Machine": ("Home", "Jog", "Go to", "Probe"),
+    "Align": (),
+    "Measure": ("Auto-measure", "Features", "Colour map"),
+    "Routine": (),
+    "Report": ("Sessions", "Trends"),
+    "Setup": ("Calibration", "Diagnostics"),
+}
+
+
+# A tab activated in the page itself, without Playwright's actionability waits (they wait for animation frames, which
+# a software-rendered WebGL page on a loaded machine gives few): scrolled into view, focused, then Enter (viser's
+# dock tabs activate on it) and a click (the Mantine tabs of viser's narrow layout activate on that).
+ACTIVATE_TAB_JS = """t => {
+  t.scrollIntoView({ block: "nearest" });
+  t.focus();
+  t.dispatchEvent(new KeyboardEvent("keydown", { key: "Enter", code: "Enter", bubbles: true, cancelable: true }));
+  if (t.tagName === "BUTTON") t.click();
+}"""
+
+
+def open_tab(page: Any, top: str, sub: str | None = None, timeout: float = 60.0) -> None:
+    """Open the side panel's tab ``top`` and, in it, the sub-tab ``sub``: ``open_tab(page, "Measure", "Auto-measure")``.
+
+    Each tab is activated with the keyboard (focus, Enter) as an operator may: unlike a mouse click this cannot
+    land on the sticky status bar over a scrolled panel; it is repeated until the tab reports itself selected
+    (aria-selected), so a tab still being laid out on a busy machine is pressed again."""
+    if top not in TABS:
+        raise ValueError(f"no top tab {top!r}; the tabs are {', '.join(TABS)}")
+    if sub is not None and sub not in TABS[top]:
+        raise ValueError(f"the {top} tab has no sub-tab {sub!r}; it has {', '.join(TABS[top]) or 'none'}")
+    end = time.monotonic() + timeout
+    for name in (top, sub) if sub is not None else (top,):
+        tab = page.get_by_role("tab", name=name, exact=True).first
+        while True:
+            try:
+                if tab.get_attribute("aria-selected", timeout=5_000) == "true":
+                    break
+                tab.evaluate(ACTIVATE_TAB_JS, timeout=5_000)
+                selected = time.monotonic() + 5.0
+                while tab.get_attribute("aria-selected") != "true" and time.monotonic() < selected:
+                    time.sleep(0.05)
+            except Exception:  # noqa: BLE001 - playwright's TimeoutError on a busy page: try again until the deadline
+                pass
+            if time.monotonic() > end:
+                raise AssertionError(f"the {name} tab did not open within {timeout:g} s")
+
+
+def top_tab_rows(page: Any) -> list[list[str]]:
+    """The side panel's top tabs as laid out, one list of names per row of the tab bar."""
+    rows: dict[int, list[str]] = {}
+    for name in TABS:
+        box = page.get_by_role("tab", name=name, exact=True).first.bounding_box()
+        assert box is not None, f"the {name} tab is not on the page"
+        rows.setdefault(round(box["y"] / 8), []).append(name)
+    return [rows[k] for k in sorted(rows)]
+
+
 def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
     """Simulated seconds from ``since`` (the station's clock, ``station.machine.state.time``) until every axis stands still.
 

@@ -73,7 +73,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
         (cid,) = set(app.clients) - before
         capp = app.clients[cid]
-        page.get_by_role("tab", name="Colour map", exact=True).click(force=True)
+        bs.open_tab(page, "Measure", "Colour map")
         legend = page.locator(".cmm-legend")
         # the legend lists the band limits of the shared scale (default: +-20 um, warning from +-10 um)
         legend.get_by_text("within ±10 µm").wait_for()

@@ -45,12 +45,12 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         assert page.evaluate("() => localStorage.getItem('cmm-operator')") == "Maria"
         # a second tab of the same browser names itself from the saved name
         second = bs.open_page(context, app)
-        bs.wait_until(lambda: second.capp.operator == "Maria", 15.0, "the saved name in the second tab")
+        bs.wait_until(lambda: second.capp.operator == "Maria", 60.0, "the saved name in the second tab")
         second.close()
         page.get_by_role("button", name="Take control").click()
         bs.wait_until(lambda: app.control.holder == page.capp.client_id, 10.0, "control")
         page.get_by_text("Maria (you) controls the machine").first.wait_for()
-        page.get_by_role("tab", name="Calibration", exact=True).click(force=True)
+        bs.open_tab(page, "Setup", "Calibration")
         page.get_by_text("certificate problem").first.wait_for()
         page.get_by_text("Reference sphere certificate").click()
         page.get_by_label("Diameter (mm)", exact=True).fill("25.0002")

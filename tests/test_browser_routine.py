@@ -49,19 +49,6 @@ def press(page, name):
     button.evaluate("b => b.click()")
 
 
-def open_tab(page, name, shows):
-    """Click a tab until its content (the text ``shows``) is on screen: on a loaded machine the panel may still be
-    laying out under the first click."""
-    for _ in range(10):
-        page.get_by_role("tab", name=name, exact=True).click(force=True)
-        try:
-            page.get_by_text(shows).first.wait_for(timeout=5_000)
-            return
-        except Exception:  # noqa: BLE001 - playwright's TimeoutError: click again
-            continue
-    raise AssertionError(f"the {name} tab did not open")
-
-
 def _measured_first_part(station):
     """What the operator did on the first part: three planes and the bore auto-measured, a 3-2-1."""
     model = station.measurement
@@ -81,7 +68,8 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         capp = page.capp
         press(page, "Take control")
         page.get_by_text("You control the machine.").first.wait_for()
-        open_tab(page, "Routine", "No routine yet")
+        bs.open_tab(page, "Routine")
+        page.get_by_text("No routine yet").first.wait_for()
         press(page, "Teach from this session")
         page.get_by_text("align 3-2-1: TOP | FRONT | LEFT (manual hits, then automatic)").first.wait_for()
         page.get_by_text("bore: cylinder, 8 hits, ls").first.wait_for()

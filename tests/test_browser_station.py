@@ -48,22 +48,6 @@ def app(station):
     yield from bs.station_app(station, pendant_port=0)
 
 
-def tab(page, name):
-    """Click a tab as the operator does: a panel scrolled down (a long plan) has the first rows of tabs under the
-    sticky status bar, so scroll the panel back to the top first; the click must reach the tab, not the bar."""
-    page.evaluate("""() => { let e = document.getElementById("cmm-status");
-        while (e && !/(auto|scroll)/.test(getComputedStyle(e).overflowY)) e = e.parentElement;
-        if (e) e.scrollTop = 0; }""")
-    button = page.get_by_role("tab", name=name, exact=True)
-    box = button.bounding_box()
-    on_top = page.evaluate("""([x, y]) => { const e = document.elementFromPoint(x, y);
-        const t = e && e.closest("[role=tab]"); return t ? t.textContent.trim() : null; }""",
-                           [box["x"] + box["width"] / 2, box["y"] + box["height"] / 2])
-    assert on_top == name, f"the {name} tab is covered ({on_top!r} is on top)"
-    button.click(force=True)
-    page.wait_for_timeout(300)
-
-
 def choose(page, label, option):
     """Pick ``option`` in the viser dropdown labelled ``label``."""
     page.get_by_label(label, exact=True).click(force=True)
@@ -158,7 +142,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
 
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
         pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
-        tab(page, "Auto-measure")
+        bs.open_tab(page, "Measure", "Auto-measure")
         page.get_by_role("button", name="Plan", exact=True).click(force=True)
         page.get_by_text("4 hits · clearance plane").wait_for()
         name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
@@ -199,7 +183,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert abs(np.degrees(cone.result.geometry()["half_angle"]) - np.degrees(np.arctan(6.5 / 13.0))) < 0.2
 
         # --- feature tree: every feature with its characteristics and pass / fail colours
-        tab(page, "Features")
+        bs.open_tab(page, "Measure", "Features")
         tree = page.locator(".cmm-tree")
         tree.get_by_text("cylindricity").wait_for()
         for f in (top, front, left, boss):
@@ -227,7 +211,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert page.capp.features.retake[:2] == (top.id, old)
         pose = station.measurement.part.pose
         pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
-        tab(page, "Go to")
+        bs.open_tab(page, "Machine", "Go to")
         page.get_by_role("button", name="Probe here", exact=True).click(force=True)
         bs.wait_until(lambda: old not in station.measurement.hits, 90.0,
                       f"hit {old} replaced by the re-taken one (told {page.capp.messages[-3:]})")
@@ -237,7 +221,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert np.linalg.norm(np.asarray(station.measurement.hits[new].point) - old_point) < 0.01  # the same point, probed again
         bs.wait_until(lambda: any(t == "Re-take" and f"hit {old} replaced by hit {new}" in b
                                   for _l, t, b in page.capp.messages), 20.0, "the page told of the re-take")
-        tab(page, "Features")
+        bs.open_tab(page, "Measure", "Features")
         residuals = page.get_by_text(f"{top.name} hits (residual)")
         bs.wait_until(lambda: re.search(rf"\b{new}: ", residuals.inner_text())
                       and not re.search(rf"\b{old}: ", residuals.inner_text()), 20.0,
@@ -290,7 +274,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.screenshot(page, "station-scrolled-status-bar", timeout=60_000)
 
         # --- 3-2-1 alignment from the top, front and left planes; the DRO switches to part coordinates
-        tab(page, "Align")
+        bs.open_tab(page, "Align")
         page.capp.align.refresh()
         for key, f in (("p", top), ("s", front), ("t", left)):
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
@@ -352,7 +336,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.mouse.move(1100, 600)
             page.mouse.wheel(0, -5000)  # the panel back to the top: the tab bar out from under the status bar
             page.wait_for_timeout(500)
-            tab(page, "Go to")
+            bs.open_tab(page, "Machine", "Go to")
             plug.broken = True
             bs.wait_until(lambda: station.controller.state.mode.value == "fault", 20.0, "the fault on the dropped link")
             status.get_by_text("FAULT", exact=True).wait_for()
@@ -374,7 +358,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             # Reset while the link is down: refused (Reconnect first); the Machine tab says the way back
             page.mouse.wheel(0, -5000)
             page.wait_for_timeout(500)
-            tab(page, "Machine")
+            bs.open_tab(page, "Machine", "Home")
             page.get_by_text("then Home (positions are lost)").wait_for()
             page.get_by_role("button", name="Reset", exact=True).click(force=True)
             bs.wait_until(lambda: any(t == "Reset refused" and "Reconnect first" in b
@@ -398,8 +382,8 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
 
 
 def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
-    """An idle station page receives (almost) nothing; the Jog tab documents the keyboard at 1280 x 800; the
-    pendant page alone fits a tablet with the position, STOP and the jog pad on screen."""
+    """An idle station page receives (almost) nothing; the six top tabs are one row at 1280 x 800 and on a
+    tablet; the Jog tab documents the keyboard at 1280 x 800; the pendant page alone fits a tablet with the position, STOP and the jog pad on screen."""
     with bs.browser_context(viewport=LAPTOP) as context:
         context.set_default_timeout(60_000)
         received = []
@@ -413,7 +397,8 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         page.wait_for_timeout(4000)
         rate = sum(n for _, n in received) / 4.0
         assert rate < 2000, f"an idle page received {rate:.0f} B/s"  # was ~80 kB/s (the plot re-sent 5x/s)
-        tab(page, "Jog")
+        assert bs.top_tab_rows(page) == [list(bs.TABS)], bs.top_tab_rows(page)  # the six tabs in one row
+        bs.open_tab(page, "Machine", "Jog")
         page.get_by_text("Keyboard").first.wait_for()
         page.get_by_text("PageUp/PageDown").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
@@ -425,7 +410,8 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         page = context.new_page()
         page.goto(app.url)
         page.locator("#cmm-status").wait_for()
-        tab(page, "Features")
+        assert bs.top_tab_rows(page) == [list(bs.TABS)], bs.top_tab_rows(page)
+        bs.open_tab(page, "Measure", "Features")
         page.get_by_role("button", name="Save header").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
         assert scrolled_by(page) > 80, scrolled_by(page)  # more than the bar's top margin: unpinned, it would leave

@@ -46,7 +46,7 @@ def test_the_trends_tab_shows_the_chart_inside_the_panel(app, station):
         log.attach(page)
         page.goto(app.url)
         page.get_by_role("button", name="E-STOP").wait_for(timeout=60_000)
-        page.get_by_role("tab", name="Trends", exact=True).click(force=True, timeout=120_000)
+        bs.open_tab(page, "Report", "Trends")
         chart = page.locator("svg.trend")
         chart.wait_for(timeout=60_000)
         chart.scroll_into_view_if_needed()

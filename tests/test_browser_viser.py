@@ -101,11 +101,6 @@ def take_control(page, app) -> None:
     assert app.control.holder == page.capp.client_id
 
 
-def open_tab(page, name: str) -> None:
-    page.get_by_role("tab", name=name).click()
-    page.wait_for_timeout(300)
-
-
 def button_centre(page, name: str) -> tuple[float, float]:
     button = page.get_by_role("button", name=name, exact=True)
     button.scroll_into_view_if_needed()
@@ -168,7 +163,7 @@ def test_page_loads_and_shows_the_position(open_page, station):
 def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, station):
     page = open_page()
     take_control(page, app)
-    open_tab(page, "Go to")
+    bs.open_tab(page, "Machine", "Go to")
     camera = camera_of(app, page.cid)
     target = visible_top_point(station, camera)
     u, v = project(camera, target * SCALE)
@@ -194,7 +189,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     bs.wait_until(lambda: len(station.measurement.hits) == before + 1, 40.0, "the hit from Probe here")
     newest = station.measurement.hits[max(station.measurement.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
-    open_tab(page, "Probe")
+    bs.open_tab(page, "Machine", "Probe")
     page.get_by_text("contact point:").wait_for(timeout=5_000)
     page.wait_for_timeout(500)
     bs.screenshot(page, "viser-browser-probe-tab")
@@ -207,7 +202,7 @@ def test_observer_cannot_jog(open_page, app, station):
     try:
         assert holder.take_control()
         observer.get_by_text("Observing; control is held by").first.wait_for()
-        open_tab(observer, "Jog")
+        bs.open_tab(observer, "Machine", "Jog")
         wait_idle(station, 20)
         start = station.machine.state.position.copy()
         for _ in range(2):  # while another client holds control, then with nobody in control
@@ -248,7 +243,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     held jog at "fine" and at "positioning" moves at that speed."""
     page = open_page()
     take_control(page, app)
-    open_tab(page, "Jog")
+    bs.open_tab(page, "Machine", "Jog")
     bs.screenshot(page, "viser-browser-jog-tab")
     start = station.machine.state.position.copy()
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
@@ -351,7 +346,7 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
     as the page, and follows the page's release. Its grant cannot be used by another tab (nor a forged one, nor
     after the page closed), and a page from another origin is refused at the handshake as before."""
     page = open_page()
-    open_tab(page, "Jog")
+    bs.open_tab(page, "Machine", "Jog")
     frame_el = page.locator('iframe[title="pendant"]')
     frame_el.scroll_into_view_if_needed()
     frame = page.frame_locator('iframe[title="pendant"]')
@@ -407,7 +402,7 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     above the part descends at the probe's qualified speed (position over machine time) and the touch is a hit."""
     page = open_page()
     take_control(page, app)
-    open_tab(page, "Jog")
+    bs.open_tab(page, "Machine", "Jog")
     target = station.measurement.part.pose[:3, :3] @ np.array([15.0, 68.0, TOP_Z + 4.0]) + station.measurement.part.pose[:3, 3]
     page.capp.go_to(*target).wait(60)
     page.get_by_role("button", name="positioning", exact=True).click()

@@ -46,6 +46,8 @@ class StationApp:
         self.origins = OriginPolicy(lan=lan or host not in ("127.0.0.1", "localhost", "::1"), allow_hosts=allow_hosts)
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)
+        # the wide side panel: the six top tabs (Machine ... Setup) in one row, the DRO's three columns unwrapped
+        self.server.gui.configure_theme(control_width="large")
         self.port = self.server.get_port()
         self.origins.ports.add(self.port)  # the viser page's hold refresher talks to the pendant port
         self.clients: dict[int, ClientApp] = {}

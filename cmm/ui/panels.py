@@ -66,6 +66,12 @@ LATE_HOLD_S = 0.2  # hold events this soon after a release are late ones (viser 
 # late by up to ~0.1 s keeps the jog, and one that goes silent (a lost pointer-up, a frozen or closed tab)
 # stops 0.15 s after its last event plus the braking
 HOLD_HZ = 25.0
+# The tab strips a little tighter than viser's (0.9em a side) so the six top tabs fit one row of the wide panel;
+# dock tabs (laptop) and Mantine tabs (viser's narrow-screen layout) alike.
+TABS_CSS = """<style>
+[role=tablist] > [data-dock-tab] { padding: 0 0.6em !important; }
+.mantine-Tabs-tab { padding-left: 0.6em !important; padding-right: 0.6em !important; }
+</style>"""
 OPERATOR_KEY = "cmm-operator"  # where the browser keeps the operator's name (localStorage)
 # The start dialog's name field filled from the browser's saved name, then its Start pressed, as the operator
 # would: the value goes through the field's own input event (React's onChange), so the station hears it.
@@ -89,7 +95,8 @@ OPERATOR_JS = """
     setTimeout(() => start.click(), 150);
     return true;
   };
-  const again = () => { if (!fill() && ++tries < 50) setTimeout(again, 200); };
+  // tried for up to a minute: on a loaded machine the dialog may take that long to appear
+  const again = () => { if (!fill() && ++tries < 300) setTimeout(again, 200); };
   again();
 })();
 """
@@ -521,91 +528,103 @@ class ClientApp:
             if self.is_local and self.control.access_code is not None:  # only the person at the station decides
                 lan_stop = gui.add_checkbox("LAN observers may stop", self.control.lan_stop)
                 lan_stop.on_update(lambda e: self.set_lan_stop(e.target.value))
+        # Tabs named for the operator's day, in its order: the machine (home, jog, go to, probe), the part alignment,
+        # measuring, the routine, the report, and the set-up done once in a while (probes, diagnostics). Each group's
+        # sub-tabs hold what the flat list of 13 tabs held; tests reach them with browser_support.open_tab.
+        gui.add_html(TABS_CSS)
         tabs = gui.add_tab_group()
         with tabs.add_tab("Machine"):
-            info = self.app.link_info()
-            gui.add_markdown(info)
-            g["machine"] = gui.add_markdown(machine_markdown(self.station))
-            gui.add_button("Home").on_click(lambda _: self.home())
-            gui.add_button("Zero (press twice)").on_click(lambda _: self.zero())
-            gui.add_button("Reset").on_click(lambda _: self.reset())
-            gui.add_button("Reconnect").on_click(lambda _: self.reconnect())
-        with tabs.add_tab("Jog"):
-            speed = gui.add_button_group("Speed", tuple(SPEEDS))
-            speed.value = self.speed_mode
-            speed.on_click(lambda e: setattr(self, "speed_mode", e.target.value))
-            manual = gui.add_checkbox("Manual probing (armed jog)", False)
-            manual.on_update(lambda e: self.set_manual_probe(e.target.value))
-            gui.add_markdown(f"Manual hits are taken at the qualified probing speed "
-                             f"({self.station_probing_speed():g} mm/s), whatever the speed selected.")
-            for i, name in enumerate(AXES):
-                for sign, label in ((-1, f"{name.upper()} −"), (1, f"{name.upper()} +")):
-                    b = gui.add_button(f"hold {label}")
-                    b.on_hold(self._hold_handler(i, sign), callback_hz=HOLD_HZ)
-                    b.on_click(lambda _e: self.jog_release())
-            size = gui.add_dropdown("Step (mm)", STEP_SIZES, initial_value=self.step_size)
-            size.on_update(lambda e: setattr(self, "step_size", e.target.value))
-            for i, name in enumerate(AXES):
-                gui.add_button_group(f"Step {name.upper()}", ("−", "+")).on_click(
-                    lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
-            src = self.app.pendant_src(self.client.client_id)
-            self.pendant_token = self.app.pendant_grant(self) if src else None
-            self.hold_token = self.app.pendant_grant(self, hold=self.hold_velocity) if src else None
-            if src and self.hold_token:
-                run_script(gui, hold_worker_script(src, self.hold_token))
-            if src:
-                if self.pendant_token:
-                    src += f"#as={self.pendant_token}"
-                gui.add_markdown(JOG_KEYS_HELP)
-                g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
-                                            'title="pendant" allow="gamepad"></iframe>')
-        with tabs.add_tab("Go to"):
-            pos = self.station.machine.state.position if self.station.machine.state is not None else np.zeros(3)
-            g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
-            g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
-            g["goto_frame_text"] = gui.add_markdown(self.goto_frame_text())
-            g["target"] = gui.add_vector3(self.target_label(), tuple(float(v) for v in pos), step=0.001)
-            gui.add_button("Go").on_click(lambda _: self.go_to(g["target"].value))
-            gui.add_button("Cancel").on_click(lambda _: self.cancel())
-            g["pick"] = gui.add_markdown("Click the part to pick a point.")
-            gui.add_button("Move above").on_click(lambda _: self.move_above())
-            gui.add_button("Probe here").on_click(lambda _: self.probe_here())
-        with tabs.add_tab("Probe"):
-            settings = self.station.prober.settings
-            gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
-                             f"{settings.pretravel.describe()}")
-            g["contact"] = gui.add_markdown("*no hit yet*")
-            g["hits"] = gui.add_markdown("")
-            g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
-            gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
-            gui.add_button("Undo").on_click(lambda _: self.undo())
-        with tabs.add_tab("Features"):
-            self.features.build(gui)
+            machine = gui.add_tab_group()
+            with machine.add_tab("Home"):
+                info = self.app.link_info()
+                gui.add_markdown(info)
+                g["machine"] = gui.add_markdown(machine_markdown(self.station))
+                gui.add_button("Home").on_click(lambda _: self.home())
+                gui.add_button("Zero (press twice)").on_click(lambda _: self.zero())
+                gui.add_button("Reset").on_click(lambda _: self.reset())
+                gui.add_button("Reconnect").on_click(lambda _: self.reconnect())
+            with machine.add_tab("Jog"):
+                speed = gui.add_button_group("Speed", tuple(SPEEDS))
+                speed.value = self.speed_mode
+                speed.on_click(lambda e: setattr(self, "speed_mode", e.target.value))
+                manual = gui.add_checkbox("Manual probing (armed jog)", False)
+                manual.on_update(lambda e: self.set_manual_probe(e.target.value))
+                gui.add_markdown(f"Manual hits are taken at the qualified probing speed "
+                                 f"({self.station_probing_speed():g} mm/s), whatever the speed selected.")
+                for i, name in enumerate(AXES):
+                    for sign, label in ((-1, f"{name.upper()} −"), (1, f"{name.upper()} +")):
+                        b = gui.add_button(f"hold {label}")
+                        b.on_hold(self._hold_handler(i, sign), callback_hz=HOLD_HZ)
+                        b.on_click(lambda _e: self.jog_release())
+                size = gui.add_dropdown("Step (mm)", STEP_SIZES, initial_value=self.step_size)
+                size.on_update(lambda e: setattr(self, "step_size", e.target.value))
+                for i, name in enumerate(AXES):
+                    gui.add_button_group(f"Step {name.upper()}", ("−", "+")).on_click(
+                        lambda e, i=i: self.step(i, -1 if e.target.value == "−" else 1))
+                src = self.app.pendant_src(self.client.client_id)
+                self.pendant_token = self.app.pendant_grant(self) if src else None
+                self.hold_token = self.app.pendant_grant(self, hold=self.hold_velocity) if src else None
+                if src and self.hold_token:
+                    run_script(gui, hold_worker_script(src, self.hold_token))
+                if src:
+                    if self.pendant_token:
+                        src += f"#as={self.pendant_token}"
+                    gui.add_markdown(JOG_KEYS_HELP)
+                    g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
+                                                'title="pendant" allow="gamepad"></iframe>')
+            with machine.add_tab("Go to"):
+                pos = self.station.machine.state.position if self.station.machine.state is not None else np.zeros(3)
+                g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
+                g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
+                g["goto_frame_text"] = gui.add_markdown(self.goto_frame_text())
+                g["target"] = gui.add_vector3(self.target_label(), tuple(float(v) for v in pos), step=0.001)
+                gui.add_button("Go").on_click(lambda _: self.go_to(g["target"].value))
+                gui.add_button("Cancel").on_click(lambda _: self.cancel())
+                g["pick"] = gui.add_markdown("Click the part to pick a point.")
+                gui.add_button("Move above").on_click(lambda _: self.move_above())
+                gui.add_button("Probe here").on_click(lambda _: self.probe_here())
+            with machine.add_tab("Probe"):
+                settings = self.station.prober.settings
+                gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
+                                 f"{settings.pretravel.describe()}")
+                g["contact"] = gui.add_markdown("*no hit yet*")
+                g["hits"] = gui.add_markdown("")
+                g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
+                gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
+                gui.add_button("Undo").on_click(lambda _: self.undo())
         with tabs.add_tab("Align"):
             self.align.build(gui)
-        with tabs.add_tab("Colour map"):
-            self.colour_map.build(gui)
-        with tabs.add_tab("Auto-measure"):
-            self.measure.build(gui)
+        with tabs.add_tab("Measure"):
+            measure = gui.add_tab_group()
+            with measure.add_tab("Auto-measure"):
+                self.measure.build(gui)
+            with measure.add_tab("Features"):
+                self.features.build(gui)
+            with measure.add_tab("Colour map"):
+                self.colour_map.build(gui)
         with tabs.add_tab("Routine"):
             self.routine.build(gui)
-        with tabs.add_tab("Diagnostics"):
-            # the trace changes with every poll: sent only while asked for (an idle page stays quiet)
-            live = gui.add_checkbox("Live byte trace", False)
-            live.on_update(lambda e: setattr(self, "live_trace", bool(e.target.value)))
-            g["trace"] = gui.add_text("NMC bytes (Tx/Rx)", "", multiline=True, disabled=True)
-            gui.add_button("Snapshot of the bytes").on_click(lambda _: self._show_trace())
-            t, fe = self.app.following_error_series()
-            g["plot"] = gui.add_uplot(
-                (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
-                           {"label": "Z", "stroke": "blue"}),
-                title="following error (counts)", aspect=1.6)
-        with tabs.add_tab("Sessions"):
-            self.sessions.build(gui)
-        with tabs.add_tab("Trends"):
-            self.trends.build(gui)
-        with tabs.add_tab("Calibration"):
-            self.calibration.build(gui)
+        with tabs.add_tab("Report"):
+            report = gui.add_tab_group()
+            with report.add_tab("Sessions"):
+                self.sessions.build(gui)
+            with report.add_tab("Trends"):
+                self.trends.build(gui)
+        with tabs.add_tab("Setup"):
+            setup = gui.add_tab_group()
+            with setup.add_tab("Calibration"):
+                self.calibration.build(gui)
+            with setup.add_tab("Diagnostics"):
+                # the trace changes with every poll: sent only while asked for (an idle page stays quiet)
+                live = gui.add_checkbox("Live byte trace", False)
+                live.on_update(lambda e: setattr(self, "live_trace", bool(e.target.value)))
+                g["trace"] = gui.add_text("NMC bytes (Tx/Rx)", "", multiline=True, disabled=True)
+                gui.add_button("Snapshot of the bytes").on_click(lambda _: self._show_trace())
+                t, fe = self.app.following_error_series()
+                g["plot"] = gui.add_uplot(
+                    (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
+                               {"label": "Z", "stroke": "blue"}),
+                    title="following error (counts)", aspect=1.6)
 
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
