@@ -134,8 +134,8 @@ def open_page(context: Any, app: Any) -> Any:
     page.log = PageLog()
     page.log.attach(page)
     page.goto(app.url)
-    page.get_by_role("button", name="E-STOP").wait_for(timeout=30_000)
-    wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
+    page.get_by_role("button", name="E-STOP").wait_for(timeout=90_000)  # a loaded 2-core machine: many seconds
+    wait_until(lambda: set(app.clients) - before, 30.0, "the page's viser client")
     (cid,) = set(app.clients) - before
     page.capp = app.clients[cid]
     return page
