@@ -164,7 +164,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         _, front = measure_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0), 3)
         _, left = measure_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0), 3)
         # the boss (two rings of 3: a cylinder), the dome (pole + 4 at 45 deg: a sphere), the conical boss (two
-        # rings of 3), each through the page: Plan, the proposal shown, Run
+        # rings of 4: 3 typed, a cone needs 4), each through the page: Plan, the proposal shown, Run
         _, boss = automeasure_in_page(page, station, (80.0, 22.0, 47.0), (1, 0, 0), 3, "cylinder (boss): two rings of 3 hits")
         assert boss.kind == "cylinder" and boss.nominal.params["radius"] == pytest.approx(10.0)
         assert abs(boss.result.geometry()["radius"] - 10.0) < 0.005
