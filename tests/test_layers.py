@@ -150,3 +150,55 @@ def test_comments_say_what_the_code_does_not_its_history():
            for i, line in enumerate(p.read_text().splitlines(), 1)
            if re.search(r"\bissue \d+\b|\bshared/docs/", line) and p.name != "test_layers.py"]
     assert not bad, "history or outside references in comments:\n" + "\n".join(bad)
+
+
+FRONT_ENDS = ("ui", "cli", "ippdme", "dmis", "calibration")
+# what holds the machine in the composition root and the control core: a front end names these only to reach the
+# command API (``station.controller.commands``) or the control core's read-only views, never their machine
+OWNERS = {"station", "host", "st", "controller", "api", "core", "ctl", "self.station", "self.host", "self.controller",
+          "self.api", "app.station", "self.app.station", "ctx.station", "self.ctx.station"}
+MACHINE_PARTS = {"machine", "prober", "bus", "dispatcher"}
+# the control core's commands: front ends send them as verbs (``commands.invoke`` / ``commands.call``)
+COMMANDS = {"move", "probe", "step", "home", "zero", "reset", "reconnect", "run_job", "run_routine", "configure",
+            "jog", "cancel", "cancel_jobs"}
+
+
+def _front_end_uses() -> list[tuple[str, int, str, str]]:
+    """(file, line, owner, attribute) of every ``owner.attribute`` in the front ends."""
+    out = []
+    for pkg in FRONT_ENDS:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Attribute):
+                    out.append((f"{pkg}/{path.relative_to(ROOT / pkg)}", node.lineno, ast.unparse(node.value),
+                                node.attr))
+    return out
+
+
+def test_front_ends_never_touch_the_machine_the_prober_or_the_bus():
+    """The UI, the CLI, the I++ server, DMIS and calibration reach the machine only through cmm.control: no
+    ``station.machine``, ``host.prober``, ``controller.machine.bus`` ... A calibration routine works on the machine
+    the control core hands its job (``job.machine``, ``setup.prober``), inside the ``run_job`` / ``configure`` verbs."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in MACHINE_PARTS and (owner in OWNERS or owner.split(".")[-1] in OWNERS - {"api"})]
+    assert not bad, "front ends reaching around the command API:\n" + "\n".join(bad)
+
+
+def test_the_cli_dmis_ippdme_and_calibration_send_commands_as_verbs():
+    """Their machine commands go through the command API's verbs, so every front end gets the same checks and
+    answers: no ``controller.move(...)`` / ``controller.configure(...)`` beside ``commands.invoke("move", ...)``."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if not f.startswith("ui/") and attr in COMMANDS and owner.split(".")[-1] in ("controller", "api", "core")]
+    assert not bad, "commands sent around the verbs:\n" + "\n".join(bad)
+
+
+def test_the_pages_measurement_buttons_send_verbs():
+    """Fit, construct, delete, undo, probe here, auto-measure, align and calibrate on the page go through the command
+    API's verbs (``ctx.do`` / ``commands.invoke``), not the measurement model's or the calibration's methods."""
+    verbs = {"fit_feature", "construct_feature", "delete_feature", "delete_hit", "undo", "probe", "probe_here",
+             "run_plan", "run_on", "run_program", "apply"}
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if f.startswith("ui/") and attr in verbs and owner.split(".")[-1] in ("measurement", "alignment", "model")]
+    bad += [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+            if f.startswith("ui/") and attr == "run" and owner.split(".")[-1] in ("service", "calibration")]
+    assert not bad, "measurement changed around the verbs:\n" + "\n".join(bad)

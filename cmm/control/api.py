@@ -137,7 +137,7 @@ class CommandAPI:
 
     # --- calls ------------------------------------------------------------------------
 
-    def invoke(self, client: Any, method: str, **params: Any) -> Any:
+    def invoke(self, client: Any, method: str, /, **params: Any) -> Any:
         """Run one verb for ``client`` in this process and return its result; the verb's own error (Refused,
         ContactError, MeasurementError ...) is raised as it is, for front ends that tell their operator in their
         own words. A wrong call (unknown verb, parameters missing or unknown) raises :class:`CommandError`."""

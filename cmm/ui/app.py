@@ -186,12 +186,10 @@ class StationApp:
             capp.select_feature(fid)
 
     def link_info(self) -> str:
-        st, cfg, bus = self.station, self.station.config, self.station.machine.bus
-        modules = list(getattr(bus, "modules", None) or [])  # found at start-up (address, type, version)
-        mods = ", ".join(f"{m.address} (type {m.module_type}, v{m.version})" for m in modules) or "-"
+        st, link = self.station, self.station.controller.link_info()
+        mods = ", ".join(f"{a} (type {t}, v{v})" for a, t, v in link["modules"]) or "-"  # found at start-up
         kind = "simulator over TCP" if st.sim is not None else "serial"
-        return (f"port `{st.port}` ({kind}) · {int(getattr(bus, 'baud', cfg.link.baud))} baud · "
-                f"firmware {cfg.link.firmware}\n\nmodules: {mods}")
+        return (f"port `{st.port}` ({kind}) · {link['baud']} baud · firmware {link['firmware']}\n\nmodules: {mods}")
 
     # --- station state -------------------------------------------------------------------
 

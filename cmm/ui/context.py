@@ -7,6 +7,8 @@ manual probing armed), what the operator was told, and the two ways a panel acts
 
 - :meth:`PanelContext.run`: a measurement- or record-changing action: the control check first (a server-side
   check: hiding buttons is not security), an operator error shown as a notification;
+- :meth:`PanelContext.do`: the same for a verb of the command API (measure, construct, align, auto-measure,
+  cancel ...), sent as this tab's client, so the page gets the checks and answers every front end gets;
 - :meth:`PanelContext.set`: set a widget attribute only when the value changed (idle pages send nothing).
 
 The few things only the tab can do (STOP and E-STOP with its held jog, selecting a feature across the
@@ -94,6 +96,15 @@ class PanelContext:
         except OPERATOR_ERRORS as exc:
             self.error(exc, f"{action} refused")
             return None
+
+    @property
+    def commands(self) -> Any:
+        """The command API (:mod:`cmm.control.api`): the verbs every front end sends."""
+        return self.station.controller.commands
+
+    def do(self, action: str, method: str, /, *, guarded: bool = True, **params: Any) -> Any:
+        """Send the verb ``method`` as this tab (``run`` around it: the control check, an operator error shown)."""
+        return self.run(action, lambda: self.commands.invoke(self.who(), method, **params), guarded=guarded)
 
     def control_text(self) -> str:
         holder = self.control.holder

@@ -28,10 +28,12 @@ class AlignPanel:
         self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.result: alignment.AlignmentResult | None = None
+        self.datums: dict[str, Any] = {}  # what the result was computed from: Apply sends it as the align verb
 
     def compute_321(self, primary: int, secondary: int, tertiary: int) -> Any:
         try:
             self.result = alignment.align_features(self.station.measurement, primary, secondary, tertiary)
+            self.datums = {"primary": primary, "secondary": secondary, "tertiary": tertiary}
         except (AlignmentError, ValueError, KeyError) as exc:
             self.result = None
             return self.ctx.error(exc, "3-2-1")
@@ -44,6 +46,7 @@ class AlignPanel:
         try:
             ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.measurement.hits)
             self.result = alignment.best_fit_hits(self.station.measurement, ids)
+            self.datums = {"hits": ids}
         except (AlignmentError, ValueError) as exc:
             self.result = None
             return self.ctx.error(exc, "Best fit")
@@ -55,12 +58,13 @@ class AlignPanel:
         if result is None:
             self.ctx.error("compute an alignment first", "Align")
             return False
-        done = self.ctx.run("Align", lambda: alignment.apply(self.station.measurement, result) or True)
-        if done:
+        done = self.ctx.do("Align", "align", **self.datums)  # computed again from the same datums, then applied
+        if done is not None:
+            result = done
             self.ctx.show_frame("Part")
             self.ctx.notify("Aligned", f"{result.method}: the DRO shows part coordinates")
             self.result = None
-        return bool(done)
+        return done is not None
 
     def text(self) -> str:
         if self.result is None:

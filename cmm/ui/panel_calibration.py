@@ -318,7 +318,8 @@ class CalibrationPanel:
         self._set("results", "content", f"*{label} running...*")
         self._set("plot", "content", "")
         self._show_accept(False)
-        job = Job(label, lambda progress: self.service.run(self.ctx.client_id, routine, progress, **options),
+        job = Job(label, lambda progress: self.ctx.commands.invoke(self.ctx.who(), "qualify", routine=routine,
+                                                                   progress=progress, options=options),
                   on_progress=self.progress_view.update, on_done=self._done)
         self.job = job
         self.ctx.shared.calibration_job = job
@@ -339,8 +340,7 @@ class CalibrationPanel:
         """Stop the running routine (it ends with an error; the previous calibration stays in force)."""
         if not self.running:
             return
-        self.service.cancel()
-        self.ctx.stop()
+        self.ctx.do("Cancel", "cancel", guarded=False)  # the routine's own cancel: ends a wait, stops a move
 
     def _done(self, job: Job) -> None:
         if job.error is not None:

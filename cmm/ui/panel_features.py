@@ -215,7 +215,7 @@ class FeaturesPanel:
             ids = self.hit_ids_for(ids_text, last_n)
             # the nominal is the CAD surface the hits lie on (the station finds it), not the last click:
             # "Nominal from the last CAD pick" in the Features tab applies a pick on purpose
-            feature = self.station.measurement.fit_feature(kind, ids, method)
+            feature = self.ctx.commands.invoke(self.ctx.who(), "measure_feature", kind=kind, hits=ids, method=method)
             self.ctx.selected_feature = feature.id
             self.ctx.view.select_feature(feature.id)
             self.ctx.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
@@ -281,7 +281,7 @@ class FeaturesPanel:
         ids = [fresh[0] if h == old else h for h in f.hit_ids]
         feature = self.ctx.run("Re-take", lambda: self.station.measurement.refit_feature(fid, ids), guarded=False)
         if feature is not None:
-            self.ctx.run("Re-take", lambda: self.station.measurement.delete_hit(old), guarded=False)
+            self.ctx.do("Re-take", "delete_hit", guarded=False, hit=old)
             self.ctx.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
 
     def nominal_from_pick(self) -> Any:
@@ -304,8 +304,7 @@ class FeaturesPanel:
         return self.ctx.run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
 
     def construct(self, operation: str, a: int, b: int, name: str = "", three_d: bool = False) -> Any:
-        c = self.ctx.run("Construct", lambda: self.station.measurement.construct_feature(operation, a, b, name or None,
-                                                                                         three_d=three_d))
+        c = self.ctx.do("Construct", "construct", operation=operation, a=a, b=b, name=name or None, three_d=three_d)
         if c is not None:
             self.ctx.selected_feature = c.id
             if "construct_name" in self.gui:
@@ -340,7 +339,7 @@ class FeaturesPanel:
     def delete_feature(self) -> None:
         fid = self.ctx.selected_feature
         if fid is not None:
-            self.ctx.run("Delete feature", lambda: self.station.measurement.delete_feature(fid))
+            self.ctx.do("Delete feature", "delete_feature", feature=fid)
             self.ctx.selected_feature = None
 
     def save_info(self, **fields: Any) -> Any:

@@ -4,9 +4,10 @@ After a pick (click on the part), *Plan* shows the proposed feature (plane,
 circle / bore / boss, cylinder, sphere, cone), the number and pattern of hits,
 their approach directions and the clearance plane, and draws the planned path
 in this tab's 3D view (up over the clearance plane, across, down, in).
-*Run* measures it (needs control): every hit goes over the clearance plane,
-then the feature is fitted against the CAD nominal. *Cancel* stops after the
-current hit; STOP stops at once.
+*Run* measures it (needs control) through the command API's ``auto_measure``:
+every hit goes over the clearance plane, then the feature is fitted against the
+CAD nominal. *Cancel* (the ``cancel`` verb) stops after the current hit; STOP
+stops at once.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..measurement.plan import plan_at_pick, plan_targets, run_plan
+from ..measurement.plan import plan_at_pick, plan_targets
 from ..metrology.hit_plan import PlanError
 from .context import PanelContext
 from .path_preview import PathPreview
@@ -58,7 +59,6 @@ class MeasurePanel:
         self.running: threading.Thread | None = None
         self.progress = ""
         self.feature: Any = None
-        self._cancel = threading.Event()
         self.preview = PathPreview(ctx, "/plan")  # the path Run will take, drawn until Run or Clear
         self.hits_per_ring = 0  # what the operator typed for the plan (0: the feature's default)
 
@@ -123,7 +123,6 @@ class MeasurePanel:
             return False
         if not self.ctx.allowed("Auto-measure"):
             return False
-        self._cancel.clear()
         self.preview.clear()  # the machine draws the path now
         name = (name or "").strip()
         cycle = f"auto-measure of {name or 'the ' + plan.kind}"
@@ -131,9 +130,9 @@ class MeasurePanel:
 
         def work() -> None:
             try:
-                self.feature = run_plan(self.station.measurement, plan, name=name or None, cancelled=self._cancel.is_set,
-                                        client=self.ctx.who(),
-                                        progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
+                self.feature = self.ctx.commands.invoke(
+                    self.ctx.who(), "auto_measure", plan=plan, name=name or None,
+                    progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
             except Exception as exc:  # noqa: BLE001 - every failure is told; the machine layer stopped itself
                 self.progress = f"stopped: {exc}"
                 self.ctx.error(exc, "Auto-measure")
@@ -154,7 +153,8 @@ class MeasurePanel:
         return True
 
     def cancel(self) -> None:
-        self._cancel.set()
+        """The command API's ``cancel``: the run ends after the hit in progress (whoever started it)."""
+        self.ctx.do("Cancel", "cancel", guarded=False)
 
     def build(self, gui: Any) -> None:
         g = self.gui

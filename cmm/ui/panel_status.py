@@ -82,18 +82,10 @@ CYCLE_MODES = ("idle", "moving", "probing")
 
 def machine_mode(station: Any) -> tuple[str, str, bool]:
     """(mode, reason, link ok) from the control core's state (not homed / idle / moving / probing / fault ...)."""
-    try:
-        cs = station.controller.state
-    except Exception:  # noqa: BLE001 - no control core (an older station object): read the machine state
-        cs = None
-    if cs is not None:
-        mode = getattr(cs.mode, "value", cs.mode)
-        reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
-        return str(mode), str(reason or ""), bool(cs.link_ok)
-    st = station.machine.state
-    if st is None:
-        return "no link", "no state from the machine yet", False
-    return ("jogging" if st.jogging else "moving" if st.moving else "idle"), "", True
+    cs = station.controller.state
+    mode = getattr(cs.mode, "value", cs.mode)
+    reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
+    return str(mode), str(reason or ""), bool(cs.link_ok)
 
 
 class LinkMeter:
@@ -129,7 +121,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     mode, reason, link_ok = machine_mode(station)
     if cycle and mode in CYCLE_MODES:
         mode, reason = "running", cycle
-    st = station.machine.state
+    st = station.controller.state.machine  # the control core's last sample (the observer's snapshot)
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
     if reason:
@@ -154,7 +146,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + frame_name + "</div>")
         if label == "part" and not aligned:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
-        settings = station.prober.settings
+        settings = station.controller.probe_settings
         tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
         probe_cal = station.calibration.status.get("probe")
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
@@ -206,7 +198,7 @@ class StatusPanel:
 
     def html(self) -> str:
         st = self.ctx.station
-        rate = self.link.update(int(st.machine.samples))
+        rate = self.link.update(st.controller.samples)
         return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
                            armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned,
                            cycle=getattr(self.ctx.shared, "cycle", None))

@@ -394,7 +394,10 @@ class ClientApp:
             self.ctx.error("click a point on the part first", "Probe here")
             return None
         hit = self.ctx.picked[0]
-        status = self._cmd("Probe here", lambda cid: self.station.measurement.probe_here(hit.point, hit.normal, client=cid))
+        m = self.station.measurement  # along the picked (outward) normal, the rapid over the part's clearance plane
+        status = self._cmd("Probe here", lambda cid: self.ctx.commands.invoke(
+            cid, "probe", target=hit.point, approach=-np.asarray(hit.normal, float), frame="machine",
+            clearance_z=None if m.part is None else m.clearance_z()))
         return None if status is None else self._track(status)
 
     def _track(self, status: Any) -> Any:
@@ -405,10 +408,10 @@ class ClientApp:
     # --- hits ---------------------------------------------------------------------------
 
     def delete_hit(self, hid: int) -> None:
-        self.ctx.run("Delete hit", lambda: self.station.measurement.delete_hit(int(hid)))
+        self.ctx.do("Delete hit", "delete_hit", hit=int(hid))
 
     def undo(self) -> None:
-        message = self.ctx.run("Undo", self.station.measurement.undo)
+        message = self.ctx.do("Undo", "undo")
         if message:
             self.ctx.notify("Undo", message)
 
@@ -573,7 +576,8 @@ class ClientApp:
                     g["pendant"] = gui.add_html(f'<iframe src="{src}" style="width:100%;height:300px;border:0" '
                                                 'title="pendant" allow="gamepad"></iframe>')
             with machine.add_tab("Go to"):
-                pos = self.station.machine.state.position if self.station.machine.state is not None else np.zeros(3)
+                here = self.station.controller.state.position  # the control core's last sample
+                pos = here if here is not None else np.zeros(3)
                 g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
                 g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
                 g["goto_frame_text"] = gui.add_markdown(self.goto_frame_text())
@@ -584,7 +588,7 @@ class ClientApp:
                 gui.add_button("Move above").on_click(lambda _: self.move_above())
                 gui.add_button("Probe here").on_click(lambda _: self.probe_here())
             with machine.add_tab("Probe"):
-                settings = self.station.prober.settings
+                settings = self.station.controller.probe_settings
                 gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
                                  f"{settings.pretravel.describe()}")
                 g["contact"] = gui.add_markdown("*no hit yet*")
@@ -629,7 +633,7 @@ class ClientApp:
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
         self.watch_control()
-        st_now = self.station.machine.state
+        st_now = self.station.controller.state.machine
         if self._jogging and st_now is not None and not st_now.jogging:
             self._jogging = False  # the machine loop ended the jog (dead-man, limit, contact, stop)
         if not self.gui:
@@ -674,7 +678,7 @@ class ClientApp:
         self.calibration.refresh()
 
     def _show_trace(self) -> None:
-        self.ctx.set("trace", "value", self.station.machine.bus.trace.dump(last=30))  # the link process's on a real port
+        self.ctx.set("trace", "value", self.station.controller.trace_text(last=30))  # the link process's on a real port
 
     def fast_refresh(self) -> None:
         """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""

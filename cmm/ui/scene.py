@@ -121,9 +121,10 @@ class SceneView:
             position=(float((lo[0] + hi[0]) / 2 * SCALE), float((lo[1] + hi[1]) / 2 * SCALE), table_z * SCALE),
             receive_shadow=True, cast_shadow=False)
         self.draw_part()
-        start = st.machine.state.position if st.machine.state is not None else (lo + hi) / 2
+        here = st.controller.state.position  # the control core's last sample
+        start = here if here is not None else (lo + hi) / 2
         self.probe = self.scene.add_frame("/probe", show_axes=False, position=tuple(np.asarray(start) * SCALE))
-        r = float(st.prober.settings.tip_radius)
+        r = float(st.controller.tip_radius)
         self.scene.add_icosphere("/probe/tip", radius=r * SCALE, color=(230, 30, 30), subdivisions=3)
         stylus = trimesh.creation.cylinder(radius=max(r * 0.4, 0.2), segment=[[0, 0, r * 0.8], [0, 0, STYLUS_LENGTH]],
                                            sections=24)
@@ -585,7 +586,7 @@ class ProbeUpdater:
 
     def step(self) -> bool:
         """One tick: push the probe if it moved. Returns True when it pushed."""
-        state = self.station.machine.state
+        state = self.station.controller.state.machine  # the control core's last sample
         self.ticks += 1
         if state is None:
             return False
