@@ -76,7 +76,7 @@ def test_report_fields_cad_nominals_tolerances_and_refit(station, tmp_path):
         n = np.array([np.cos(a), np.sin(a), 0.0])
         p = (pose @ np.append(np.array([70.0, 22.0, 47.0]) + 10.0 * n, 1.0))[:3]
         hit = station.measurement.probe(p, -(pose[:3, :3] @ n), clearance_z=70.0).wait(30)
-        ids.append(next(i for i, h in station.measurement.hits.items() if h is hit))
+        ids.append(station.measurement.hit_id(hit))
     with pytest.raises(MeasurementError, match="positive"):
         station.measurement.fit_feature("circle", ids, tolerance={"size": -1})
     f = station.measurement.fit_feature("circle", ids, name="boss ring", tolerance={"size": 0.01, "position": 0.05})

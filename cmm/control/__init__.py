@@ -32,8 +32,9 @@ an error with a code and the operator's sentence out): ``controller.commands``
 ``emergency_stop(client)``            abrupt stop, amplifiers off, latched -> :class:`StopReport`
 ``reset(client)``                     clear the E-stop latch / a stop / a fault (when the link answers)
 ``reconnect(client)``                 after a link fault: reopen the link, restart the modules (home again)
-``run_job(client, name, fn)``         a routine (calibration, program) run in the loop with the machine to itself
-``configure(client, fn)``             change the set-up (correction, probe settings, gains) while the machine is still
+``run_job(client, name, fn, cancel=)`` a routine (calibration, program) run in the loop with the machine to itself
+``configure(client, change)``         change the set-up while still: ``change(setup)`` gets setup.machine / .prober
+``cancel_jobs(client)``               the ``cancel`` verb: end whatever job runs (``jobs``: what runs, with its cancel)
 ===================================  =========================================================================
 
 Motion rails (:mod:`.rails`): every move and probe names its frame; moves go

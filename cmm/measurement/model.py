@@ -26,7 +26,7 @@ from ..metrology.features import FitError, FitResult
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
 from ..session.journal import Journal
-from ..session.model import file_sha256, machine_snapshot, mesh_sha256
+from ..session.model import HitRecord, file_sha256, machine_snapshot, mesh_sha256
 from ..session.reevaluate import feature_fields, fit_hit_records
 from ..session.store import check_name, is_url, open_store
 
@@ -334,7 +334,8 @@ class MeasurementModel:
         return self.probe(point, -np.asarray(normal, float), client=client)
 
     def add_hit(self, hit: Any) -> int:
-        """Record a hit: journalled before anyone is shown it; returns its session id."""
+        """Record a hit: journalled before anyone is shown it; returns its session id. The model keeps it as a
+        :class:`~cmm.session.model.HitRecord` (the probe's hit with its id), the type replay rebuilds."""
         with self.lock:
             hid = self._next_hit
             self._next_hit += 1
@@ -342,17 +343,22 @@ class MeasurementModel:
                         speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal,
                         probe=self.probe_name)
             self.hit_probes[hid] = self.probe_name
-            self.hits[hid] = hit  # on disk before anyone is shown it
-            self.last_hit = hit
+            record = HitRecord.of(hit, hid)
+            self.hits[hid] = record  # on disk before anyone is shown it
+            self.last_hit = record
             self._undo.append(("add", hid))
-        self._notify("hit", (hid, hit))
+        self._notify("hit", (hid, record))
         return hid
 
     def hit_id(self, hit: Any) -> int:
-        """The session id of a recorded hit."""
+        """The session id of a recorded hit (the record, or the probe's hit it was recorded from)."""
+        if isinstance(hit, HitRecord):
+            return hit.id
+        key = (hit.time, tuple(hit.counts), tuple(hit.machine))
         with self.lock:
             for hid in reversed(list(self.hits)):
-                if self.hits[hid] is hit:
+                h = self.hits[hid]
+                if (h.time, tuple(h.counts), tuple(h.machine)) == key:
                     return hid
         raise MeasurementError("the hit was not recorded")
 

@@ -47,30 +47,33 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from ..machine.probing import Hit
 from ..metrology.characteristics import DEFAULT_TOLERANCE  # noqa: F401 - one definition (mm, +- for size/location)
 
 FORMAT = 2
 
 
 @dataclass(frozen=True)
-class HitRecord:
-    id: int
-    seq: int
-    counts: tuple[int, int, int]
-    machine: tuple[float, float, float]
-    approach: tuple[float, float, float]
-    speed: float
-    time: float
-    point: tuple[float, float, float]
-    mode: str = "programmed"
-    normal: tuple[float, float, float] | None = None
+class HitRecord(Hit):
+    """A recorded hit: the probe's :class:`~cmm.machine.probing.Hit` with its session id and journal position.
+    The one hit type: the measurement model keeps these, replay and re-evaluation rebuild them from the journal."""
+
+    id: int = 0
+    seq: int = 0
 
     @classmethod
     def from_event(cls, e: dict) -> "HitRecord":
-        return cls(int(e["id"]), int(e.get("seq", 0)), tuple(int(c) for c in e["counts"]),  # type: ignore[arg-type]
-                   tuple(e["machine"]), tuple(e["approach"]), float(e.get("speed", 0.0)),  # type: ignore[arg-type]
-                   float(e.get("hit_time", e.get("time", 0.0))), tuple(e["point"]), e.get("mode", "programmed"),  # type: ignore[arg-type]
-                   None if e.get("normal") is None else tuple(e["normal"]))  # type: ignore[arg-type]
+        return cls(counts=tuple(int(c) for c in e["counts"]), machine=tuple(e["machine"]),  # type: ignore[arg-type]
+                   approach=tuple(e["approach"]), speed=float(e.get("speed", 0.0)),  # type: ignore[arg-type]
+                   time=float(e.get("hit_time", e.get("time", 0.0))), point=tuple(e["point"]),  # type: ignore[arg-type]
+                   mode=e.get("mode", "programmed"), normal=None if e.get("normal") is None else tuple(e["normal"]),  # type: ignore[arg-type]
+                   id=int(e["id"]), seq=int(e.get("seq", 0)))
+
+    @classmethod
+    def of(cls, hit: Hit, id: int, seq: int = 0) -> "HitRecord":
+        """The probe's hit as recorded under session id ``id``."""
+        return cls(counts=hit.counts, machine=hit.machine, approach=hit.approach, speed=hit.speed, time=hit.time,
+                   point=hit.point, mode=hit.mode, normal=hit.normal, id=int(id), seq=int(seq))
 
     def to_event(self) -> dict:
         return {"id": self.id, "counts": list(self.counts), "machine": list(self.machine),

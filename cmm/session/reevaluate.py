@@ -16,6 +16,8 @@ session.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from typing import Any, Callable
 
 import numpy as np
@@ -93,8 +95,7 @@ def recompute_hits(session: Session, settings: Any) -> dict[int, HitRecord]:
             points[k] = settings.compensate(machine[k], approach[k], np.asarray(n))
     out = {}
     for k, i in enumerate(ids):
-        out[i] = HitRecord(i, recs[i].seq, recs[i].counts, tuple(float(x) for x in machine[k]), recs[i].approach,  # type: ignore[arg-type]
-                           recs[i].speed, recs[i].time, tuple(float(x) for x in points[k]), recs[i].mode, recs[i].normal)  # type: ignore[arg-type]
+        out[i] = replace(recs[i], machine=tuple(float(x) for x in machine[k]), point=tuple(float(x) for x in points[k]))
     return out
 
 
