@@ -150,7 +150,7 @@ def test_pause_skip_and_cancel_between_hits(taught):
     r = Routine(from_toml(routine.text()))
     r.steps[0]["manual"] = None  # this part is aligned: the datums are measured automatically
     run = RoutineRun(r, st.measurement, st.controller, part_name="part 3")
-    events = []
+    events, cancelled = [], []
     done = set()
 
     def on_progress(p):
@@ -164,9 +164,9 @@ def test_pause_skip_and_cancel_between_hits(taught):
         elif p.step == 4 and p.hits == 13 and "skip" not in done:  # the first bore hit taken: skip the bore
             done.add("skip")
             run.skip()
-        elif p.step == 6 and "cancel" not in done:
+        elif p.step == 6 and "cancel" not in done:  # any front end's cancel verb ends the routine between hits
             done.add("cancel")
-            run.cancel()
+            cancelled.append(st.controller.commands.call(None, "cancel"))
 
     run.on_progress = on_progress
     with pytest.raises(RoutineCancelled):
@@ -174,6 +174,8 @@ def test_pause_skip_and_cancel_between_hits(taught):
     assert ("paused", 0, 2) in events
     assert "bore" not in run.progress.results and "FRONT" in run.progress.results
     assert run.progress.state == "cancelled"
+    assert cancelled[0].ok and "routine 'block'" in cancelled[0].result["cancelled"]
+    assert st.controller.jobs.descriptions() == []
     notes = [e.get("text", "") for e in read_events(st.measurement.journal.path).events if e["kind"] == "note"]
     assert any("bore skipped by the operator after 1 of" in n for n in notes)
     assert any(n.startswith("routine 'block' cancelled") for n in notes)
