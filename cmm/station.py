@@ -101,6 +101,14 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
     cmds.register("run_program", program, {"path": REQUIRED, "serial": ""},
                   "run a measurement program file (the machine is the program's until it ends; cancel ends it "
                   "after the hit in progress)")
+    def routine(client: Any, run: Any, manual_hits: Any = None) -> Any:
+        controller.check_access(client, "measure")
+        run.controller, run.client = controller, client  # its jobs are this client's; the cancel verb ends it
+        return run.run(manual_hits)
+
+    cmds.register("run_routine", routine, {"run": REQUIRED, "manual_hits": None},
+                  "in process: run a routine on the next part (a RoutineRun: pause / resume / skip on it); cancel "
+                  "ends it between hits")
     if calibration is not None:
         def qualify(client: Any, routine: str = "probe", progress: Any = None, options: dict | None = None) -> Any:
             return calibration.run(client, routine, progress, **(options or {}))

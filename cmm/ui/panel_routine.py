@@ -250,13 +250,12 @@ class RoutinePanel:
         self.clear_preview()  # the machine draws the path now
         self.parts += 1
         name = part_name.strip() or f"part {self.parts}"
-        self.run_ = RoutineRun(r, self.station.measurement, self.station.controller, client=self.ctx.who(),
-                               part_name=name, on_progress=lambda _p: self._show_progress())
+        self.run_ = RoutineRun(r, self.station.measurement, part_name=name, on_progress=lambda _p: self._show_progress())
 
         def work() -> None:
             run = self.run_
             try:
-                run.run()
+                self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run)  # the command API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
                 self.ctx.error(exc, "Routine stopped")
             else:
