@@ -141,3 +141,57 @@ def test_the_pendant_page_says_why_a_key_does_nothing(app, station):
         finally:
             station.controller.reset(None)
             app.control.release(app.control.holder)
+
+
+def _click_button(page, name):
+    page.get_by_role("button", name=name, exact=True).first.evaluate("b => { b.scrollIntoView({block: 'nearest'}); "
+                                                                     "b.click(); }")
+
+
+def _checkbox(page, label):
+    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::div[contains(@class, "
+                        "'mantine-Flex-root')][1]//input[@type='checkbox']").first
+
+
+def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
+    """Plan draws the path the run will take in this tab's 3-D view, Clear path removes it, Run clears it; the
+    Features tab's Show checkboxes hide and show the measured feature and its kind in the 3-D view."""
+    with bs.browser_context(LAPTOP) as context:
+        page = bs.open_page(context, app)
+        capp = page.capp
+        assert capp.take_control()
+        pose = station.measurement.part.pose
+        top = (pose @ np.array([20.0, 10.0, 100.0, 1.0]))[:3]
+        assert capp.pick(top, pose[:3, :3] @ np.array([0.0, 0.0, -1.0])) is not None  # what a click on the top sends
+        bs.open_tab(page, "Measure", "Auto-measure")
+        _click_button(page, "Plan")
+        bs.wait_until(lambda: capp.measure.preview.nodes, 30.0, "the path preview drawn")
+        nodes = capp.measure.preview.nodes
+        assert set(nodes) == {"rapid", "approach", "retract", "hits"}
+        assert len(nodes["hits"].points) == len(capp.measure.plan)
+        page.get_by_text("Path preview:").first.wait_for()
+        bs.screenshot(page, "path-preview")
+        _click_button(page, "Clear path")
+        bs.wait_until(lambda: not capp.measure.preview.nodes, 30.0, "the path preview cleared")
+        _click_button(page, "Preview path")
+        bs.wait_until(lambda: capp.measure.preview.nodes, 30.0, "the path preview drawn again")
+        before = set(station.measurement.features)
+        _click_button(page, "Run")
+        bs.wait_until(lambda: not capp.measure.preview.nodes, 30.0, "Run clearing the preview")
+        bs.wait_until(lambda: set(station.measurement.features) - before, 300.0, "the top face measured")
+        (fid,) = set(station.measurement.features) - before
+        bs.wait_until(lambda: fid in app.view._feature_nodes, 30.0, "the plane drawn")
+        node = app.view._feature_nodes[fid]
+        assert node.visible and node.patch.opacity <= 0.6
+        capp.select_feature(fid)
+        bs.open_tab(page, "Measure", "Features")
+        page.get_by_text("Show", exact=True).first.evaluate("e => e.click()")  # the Show folder opens
+        _checkbox(page, "Planes").wait_for(state="attached")
+        _checkbox(page, "Planes").evaluate("e => e.click()")
+        bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the planes hidden")
+        page.get_by_text("(hidden)").first.wait_for()  # the tree says so
+        _click_button(page, "Show all")
+        bs.wait_until(lambda: app.view._feature_nodes[fid].visible, 30.0, "the planes shown again")
+        _checkbox(page, "Selected feature").evaluate("e => e.click()")
+        bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the selected feature hidden")
+        app.view.show_all()
