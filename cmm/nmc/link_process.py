@@ -316,28 +316,36 @@ class JogGuard:
                     log.error("link process: module %d did not confirm the stop: %s", a, exc)
 
     # threads
-    def run(self) -> None:
-        """The dead-man, and the re-targets of a jog this process drives (every RUN_PERIOD)."""
+    def run_deadman(self) -> None:
+        """The dead-man on a thread of its own: it wakes at the deadline whatever the driver is doing (a
+        re-target waiting for the link, a slow reply), and its stop pre-empts a retry in progress."""
         while self.running:
             with self.cond:
                 spec = self.spec if self.state.fired is None else None
                 wait = 1.0 if spec is None else self.deadline - self.bus.clock.now()
-                if spec is not None and spec.drive:
-                    wait = min(wait, RUN_PERIOD)
                 if wait > 0:
-                    self.cond.wait(wait)
+                    self.cond.wait(min(wait, 1.0))
+                    continue
+            self.stop("deadman")
+
+    def run(self) -> None:
+        """The re-targets of a jog this process drives (every RUN_PERIOD)."""
+        while self.running:
+            with self.cond:
                 spec = self.spec if self.state.fired is None else None
-                expired = spec is not None and self.bus.clock.now() >= self.deadline
-            if expired:
-                self.stop("deadman")
-            elif spec is not None and spec.drive:
-                try:
-                    self.drive(spec)
-                except Preempted:
-                    pass  # a stop of this jog took the link
-                except Exception as exc:  # noqa: BLE001 - a jog that cannot be driven is stopped
-                    log.error("link process: driving the jog failed (%s): stopping it", exc)
-                    self.stop("link error")
+                if spec is None or not spec.drive:
+                    self.cond.wait(1.0)
+                    continue
+            try:
+                self.drive(spec)
+            except Preempted:
+                pass  # a stop of this jog took the link
+            except Exception as exc:  # noqa: BLE001 - a jog that cannot be driven is stopped
+                log.error("link process: driving the jog failed (%s): stopping it", exc)
+                self.stop("link error")
+            with self.cond:
+                if self.running and self.spec is spec and self.state.fired is None:
+                    self.cond.wait(RUN_PERIOD)
 
     def run_urgent(self, urgent: Any) -> None:
         """The station's second pipe: releases (no reply) and stop-all (replied), never behind its loop's calls."""
@@ -397,7 +405,8 @@ def serve(port: str, firmware: str, conn: Any, urgent: Any) -> None:
     guard = JogGuard(bus)
     mirror = _Mirror(bus, guard)
     conn.send(("ok", None, mirror()))
-    threading.Thread(target=guard.run, name="jog-guard", daemon=True).start()
+    threading.Thread(target=guard.run, name="jog-driver", daemon=True).start()
+    threading.Thread(target=guard.run_deadman, name="jog-deadman", daemon=True).start()
     threading.Thread(target=guard.run_urgent, args=(urgent,), name="jog-release", daemon=True).start()
     try:
         while True:
