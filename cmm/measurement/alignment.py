@@ -39,8 +39,8 @@ class AlignmentResult:
 
     def text(self, previous: np.ndarray | None = None) -> str:
         R, t = self.pose[:3, :3], self.pose[:3, 3]
-        lines = [f"**{self.method}**: part origin at X {t[0]:.4f} Y {t[1]:.4f} Z {t[2]:.4f} mm, "
-                 f"part X axis ({R[0, 0]:.6f}, {R[1, 0]:.6f}, {R[2, 0]:.6f})"]
+        lines = [f"**{self.method}**: part origin at X {t[0]:.4f} Y {t[1]:.4f} Z {t[2]:.4f} mm (machine), "
+                 f"part X axis ({R[0, 0]:.6f}, {R[1, 0]:.6f}, {R[2, 0]:.6f}) (machine)"]
         if previous is not None:
             dt, da = self.shift(previous)
             lines.append(f"moved {dt:.4f} mm and {da:.4f}° from the previous set-up")

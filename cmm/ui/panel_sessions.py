@@ -58,7 +58,7 @@ def describe_event(e: dict) -> str:
                 + (f", tip radius {e['tip_radius']:.4f} mm" if isinstance(e.get("tip_radius"), (int, float)) else "")
                 + (f" (re-evaluated from {e['derived_from'].get('session')})" if e.get("derived_from") else ""))
     if kind == "hit":
-        return f"hit {e.get('id')} ({e.get('mode', 'programmed')}) at {_xyz(e.get('point'))}"
+        return f"hit {e.get('id')} ({e.get('mode', 'programmed')}) at {_xyz(e.get('point'))} (machine)"
     if kind == "hit_deleted":
         return f"hit {e.get('id')} deleted" + (" (undo)" if e.get("undo") else "")
     if kind == "hit_restored":
