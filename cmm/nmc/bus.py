@@ -400,11 +400,12 @@ class Bus:
         address, code, data = packet[1], packet[2] & 0x0F, packet[3:-1]
         self._command_at = self.clock.now()
         members = self._members(address)
-        if code == codec.START_MOVE or (code == codec.LOAD_TRAJ and data and data[0] & codec.START_NOW):
+        if code == codec.START_MOVE or (code == codec.LOAD_TRAJ and data and data[0] & codec.START_NOW) or (
+                code == codec.STOP_MOTOR and data and data[0] & codec.STOP_HERE):
             for a in members:
                 self._calm[a] = 0  # it may move from now on, until its replies show it at rest
-        # (a STOP_MOTOR starts no motion: an axis standing still stays so, and a stop's missed reply is retried
-        # as patiently as any other while all stands)
+        # (any other STOP_MOTOR starts no motion: an axis standing still stays so, and a stop's missed reply is
+        # retried as patiently as any other while all stands; STOP_HERE servos to a position: it may move)
         if code == codec.LOAD_TRAJ:
             try:
                 lt = codec.parse_load_traj(data)
