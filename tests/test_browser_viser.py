@@ -190,7 +190,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     newest = station.measurement.hits[max(station.measurement.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
     bs.open_tab(page, "Machine", "Probe")
-    page.get_by_text("contact point:").wait_for(timeout=5_000)
+    page.get_by_text("contact point (machine):").wait_for(timeout=5_000)
     page.wait_for_timeout(500)
     bs.screenshot(page, "viser-browser-probe-tab")
     assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
