@@ -192,7 +192,5 @@ def test_auto_measure_plans_hits_on_the_picked_surface():
     assert bore.nominal.params["bore"] and np.allclose(np.einsum("ij,ij->i", bore.approaches[:, :2], radial / 15.0), 1.0)
     dome = plan_at((70, 58, 49), (0, 0, -1))
     assert dome.kind == "sphere" and len(dome) == 5
-    # the path climbs to the clearance plane before every hit and comes back up after it
-    assert np.allclose(top.path[0::5, 2], top.clearance_z) and np.allclose(top.path[4::5, 2], top.clearance_z)
     with pytest.raises(PlanError, match="too small"):
         plan_at((10, 70, 40), (0, 0, -1), n=4, margin=60.0)

@@ -1,7 +1,7 @@
 """Auto-measure on a measurement model: a planned feature probed hit by hit and fitted.
 
 :func:`plan_at_pick` turns a click on the part into a :class:`~cmm.metrology.hit_plan.HitPlan`
-(feature kind, hits, approaches, clearance plane, the path to draw);
+(feature kind, hits, approaches, clearance plane; :func:`plan_targets` gives what the control core previews);
 :func:`run_plan` probes the hits one after the other (each rapid goes over the
 clearance plane) and fits the feature against the CAD nominal. A failed hit
 stops the run and says which one; the hits already taken stay recorded.
@@ -29,9 +29,7 @@ def plan_at_pick(model: Any, face_id: int, *, n: int | None = None) -> HitPlan:
     if part is None:
         raise PlanError("load a part before planning a measurement")
     suggestion = suggest_feature(part.mesh, int(face_id))  # part coordinates
-    probe = model.config.probe
-    return plan_feature(part.mesh, part.pose, suggestion.feature, suggestion.face_ids, n=n,
-                        approach_distance=probe.approach_distance, tip_radius=model.prober.settings.tip_radius)
+    return plan_feature(part.mesh, part.pose, suggestion.feature, suggestion.face_ids, n=n)
 
 
 def plan_targets(plan: HitPlan) -> list[tuple[np.ndarray, np.ndarray, float]]:

@@ -1,4 +1,4 @@
-"""Auto-measure from the CAD: the hits that measure a picked surface, and a collision-safe path to them.
+"""Auto-measure from the CAD: the hits that measure a picked surface, reachable over a clearance plane.
 
 :func:`plan_feature` takes the nominal feature suggested for a picked face
 (:func:`cmm.metrology.pick.suggest_feature`, with its face region) and
@@ -29,15 +29,14 @@ that 3 leave none to check the form.
 
 Every planned hit must lie on the picked region of the mesh (a hit that would
 land on another face is dropped) and face upward enough to be reached from
-above (the probe comes down over a clearance plane). The path for the scene
-is, per hit: up to the clearance height, across, down to the pre-hit point,
-in to the contact point.
+above (the probe comes down over a clearance plane). The path the probe takes to
+them is the control core's (``Controller.probe_paths`` previews it, from the same code the run executes).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -68,7 +67,6 @@ class HitPlan:
     approaches: np.ndarray  # n x 3 unit directions into the surface
     clearance_z: float  # machine Z of the clearance plane
     description: str = ""
-    path: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # polyline the probe centre follows
     notes: tuple[str, ...] = ()  # what the plan changed from the request, or what the hits do not determine
     per_ring: int = 0  # hits per ring (cylinder, cone: two rings; sphere: besides the pole; others: all hits)
 
@@ -121,7 +119,7 @@ def _on_region(mesh: trimesh.Trimesh, region: np.ndarray, local: np.ndarray) -> 
 
 def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature, region: Any, *,
                  n: int | None = None, margin: float = 3.0, clearance: float = 15.0,
-                 approach_distance: float = 2.0, tip_radius: float = 1.0, seed: int = 0) -> HitPlan:
+                 seed: int = 0) -> HitPlan:
     """The hits that measure ``nominal_local`` (part coordinates, on face ``region`` of ``mesh``)."""
     T = as_pose(pose)
     region = np.asarray(region, dtype=np.int64)
@@ -219,7 +217,6 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
     plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
                    what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""),
                    notes=tuple(notes), per_ring=count)
-    plan.path = plan_path(plan, approach_distance, tip_radius)
     return plan
 
 
@@ -235,14 +232,3 @@ def _enough(kind: str, asked: int | None, default: int, rings: int, notes: list[
                  f"{need} {where} ({total} hits: one at least to check the fit; with fewer the fit can pass "
                  f"exactly through the hits on another {kind}): planned {need} {where}")
     return need
-
-
-def plan_path(plan: HitPlan, approach_distance: float, tip_radius: float) -> np.ndarray:
-    """The probe-centre polyline: per hit up to the clearance plane, across, down to the pre-hit point, in."""
-    path: list[np.ndarray] = []
-    for q, u in zip(plan.points, plan.approaches):
-        contact = q - tip_radius * u
-        pre = contact - approach_distance * u
-        above = np.array([pre[0], pre[1], plan.clearance_z])
-        path += [above, pre, contact, pre, above]
-    return np.array(path, float).reshape(-1, 3)
