@@ -21,6 +21,11 @@ CHROMIUM_ARGS = [
     "--disable-component-update", "--disable-sync",
 ]
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+# The one wait (ms) for anything a page is to show: its first paint, a panel, a toast, a screenshot's frame. It is
+# a bound, not a pause (every wait ends as soon as its condition holds), and generous: chromium renders WebGL in
+# software here, and on a loaded 2-core machine (CPU hogs, the other test worker) its first paint of the viser
+# page alone has taken over 30 s.
+PAGE_WAIT_MS = 120_000
 
 
 def chromium_path() -> str | None:
@@ -70,8 +75,9 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
         with sync_playwright() as p:
             context = p.chromium.launch_persistent_context(
                 profile, executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS,
-                viewport={"width": viewport[0], "height": viewport[1]}, timeout=30_000, **options)
-            context.set_default_timeout(30_000)  # software WebGL on a loaded 2-core machine is slow
+                viewport={"width": viewport[0], "height": viewport[1]}, timeout=PAGE_WAIT_MS, **options)
+            context.set_default_timeout(PAGE_WAIT_MS)
+            context.set_default_navigation_timeout(PAGE_WAIT_MS)
             try:
                 yield context
             finally:
@@ -83,7 +89,7 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
 def screenshot(page: Any, name: str, **options: Any) -> Path:
     ARTIFACTS.mkdir(exist_ok=True)
     path = ARTIFACTS / f"{name}.png"
-    options.setdefault("timeout", 60_000)  # waits for fonts and a WebGL frame: slow when the machine is busy
+    options.setdefault("timeout", PAGE_WAIT_MS)  # waits for fonts and a WebGL frame
     page.screenshot(path=str(path), **options)
     return path
 
@@ -126,17 +132,25 @@ FAKE_GAMEPAD = """
 """
 
 
+def viser_ready(page: Any) -> None:
+    """Wait (up to PAGE_WAIT_MS) until the station's viser page has painted its scene canvas and the GUI its
+    viser client sent over the socket (the status bar's E-STOP button)."""
+    page.wait_for_selector("canvas", timeout=PAGE_WAIT_MS)
+    page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
+
+
 def open_page(context: Any, app: Any) -> Any:
-    """A new page on the station app with its viser client: ``page.capp`` is the tab's ClientApp, ``page.log``
-    the console errors and failed requests it saw."""
+    """A new page on the station app with its viser client: ``page.capp`` is the tab's ClientApp, ``page.cid`` its
+    client id, ``page.log`` the console errors and failed requests it saw."""
     before = set(app.clients)
     page = context.new_page()
     page.log = PageLog()
     page.log.attach(page)
     page.goto(app.url)
-    page.get_by_role("button", name="E-STOP").wait_for(timeout=90_000)  # a loaded 2-core machine: many seconds
+    viser_ready(page)
     wait_until(lambda: set(app.clients) - before, 30.0, "the page's viser client")
     (cid,) = set(app.clients) - before
+    page.cid = cid
     page.capp = app.clients[cid]
     return page
 
@@ -171,7 +185,7 @@ ACTIVATE_TAB_JS = """t => {
 }"""
 
 
-def open_tab(page: Any, top: str, sub: str | None = None, timeout: float = 60.0) -> None:
+def open_tab(page: Any, top: str, sub: str | None = None, timeout: float = PAGE_WAIT_MS / 1000) -> None:
     """Open the side panel's tab ``top`` and, in it, the sub-tab ``sub``: ``open_tab(page, "Measure", "Auto-measure")``.
 
     Each tab is activated with the keyboard (focus, Enter) as an operator may: unlike a mouse click this cannot
@@ -225,11 +239,12 @@ def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
     raise AssertionError(f"{what} did not happen within {limit} s of machine time")
 
 
-def wait_until(predicate, timeout: float, what: str) -> float:
-    """Seconds until ``predicate()`` holds; AssertionError naming ``what`` after ``timeout`` s."""
+def wait_until(predicate, timeout: float, what: str, poll: float = 0.005, why=None) -> float:
+    """Seconds until ``predicate()`` holds (asked every ``poll`` s); AssertionError naming ``what`` (and what
+    ``why()`` says then) after ``timeout`` s."""
     start = time.monotonic()
     while not predicate():
         if time.monotonic() - start > timeout:
-            raise AssertionError(f"{what} did not happen within {timeout} s")
-        time.sleep(0.005)
+            raise AssertionError(f"{what} did not happen within {timeout} s" + (f": {why()}" if why else ""))
+        time.sleep(poll)
     return time.monotonic() - start

@@ -282,6 +282,7 @@ def _viser_app_available() -> bool:
 
 
 @pytest.mark.skipif(not _viser_app_available(), reason="viser app not available")
+@pytest.mark.timeout(400)  # `cmm serve` starting, then up to 2 min for the page's first paint on a loaded machine
 def test_viser_app_loads(context, tmp_path):
     """`cmm serve` as an operator starts it: the page loads without console errors; one screenshot per tab."""
     port, pendant_port = bs.free_port(), bs.free_port()
@@ -309,9 +310,8 @@ def test_viser_app_loads(context, tmp_path):
         log = bs.PageLog()
         log.attach(page)
         page.goto(url)
-        page.wait_for_selector("canvas", timeout=30_000)
-        page.get_by_text("Take control").first.wait_for(timeout=30_000)  # the panels arrived over viser's socket
-        page.get_by_text("Who is operating?").wait_for(timeout=90_000)  # the start dialog; Skip leaves it unnamed
+        bs.viser_ready(page)  # the scene and the panels that arrived over viser's socket
+        page.get_by_text("Who is operating?").wait_for()  # the start dialog; Skip leaves it unnamed
         page.wait_for_timeout(500)
         page.get_by_role("dialog").get_by_role("button", name="Skip", exact=True).click()
         page.get_by_text("Who is operating?").wait_for(state="hidden")

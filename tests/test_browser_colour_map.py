@@ -63,7 +63,6 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
     assert max(abs(d) for d in devs.values()) < 0.01  # aligned: a few um
 
     with bs.browser_context(viewport=LAPTOP) as context:
-        context.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine
         page = context.new_page()
         log = bs.PageLog()
         log.attach(page)
@@ -105,7 +104,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         capp.client.camera.look_at = tuple(centre)
         capp.client.camera.position = tuple(centre + np.array([0.09, -0.16, 0.14]))
         page.wait_for_timeout(1000)
-        bs.screenshot(page, "colour-map-on", timeout=60_000)
+        bs.screenshot(page, "colour-map-on")
 
         # --- a new hit while the map is on: the map follows (drawn in the background, the DRO keeps its rate)
         target = station.measurement.part.pose[:3, :3] @ np.array([95.0, 70.0, 40.0]) + station.measurement.part.pose[:3, 3]

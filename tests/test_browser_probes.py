@@ -36,7 +36,7 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         page = bs.open_page(context, app)
         page.get_by_text("Who is operating?").wait_for()
         field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
-        field.wait_for(state="visible", timeout=60_000)
+        field.wait_for(state="visible")
         page.wait_for_timeout(1000)  # the dialog's opening transition
         field.fill("Maria")
         page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).click()

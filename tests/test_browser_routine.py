@@ -103,7 +103,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
             target = (SECOND_POSE @ np.array([*p, 1.0]))[:3]
             bs.wait_until(lambda: not station.controller.state.mode.value.startswith("prob"), 30.0, "idle")
             model.probe(target, SECOND_POSE[:3, :3] @ np.array(u, float), clearance_z=90.0).wait(120)
-        page.get_by_text("RUNNING").first.wait_for(timeout=60_000)
+        page.get_by_text("RUNNING").first.wait_for()
         bs.wait_until(lambda: capp.routine.run_.progress.state in ("done", "failed"), 400.0, "the routine's end")
         assert capp.routine.run_.progress.state == "done", capp.routine.run_.progress.message
         page.get_by_text("DONE").first.wait_for()

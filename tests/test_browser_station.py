@@ -115,7 +115,7 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
     assert page.capp.measure.preview.nodes  # the planned path is drawn in this tab's scene
     if shot:
-        bs.screenshot(page, shot, timeout=60_000)
+        bs.screenshot(page, shot)
     before = set(station.measurement.features)
     page.get_by_role("button", name="Run", exact=True).click(force=True)
     bs.wait_until(lambda: set(station.measurement.features) - before, 90.0, f"the auto-measured {proposal}")
@@ -128,7 +128,6 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
 
 def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
     with bs.browser_context(viewport=LAPTOP) as context:
-        context.set_default_timeout(60_000)  # software WebGL on a loaded 2-core machine: seconds per frame
         page = bs.open_page(context, app)
         # --- status bar: state, who has control, DRO, probe; STOP / E-STOP
         status = page.locator("#cmm-status")
@@ -149,7 +148,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
         assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
         assert page.capp.measure.preview.nodes  # the planned path is drawn in this tab's scene
-        bs.screenshot(page, "station-automeasure-plan", timeout=60_000)
+        bs.screenshot(page, "station-automeasure-plan")
         name_field.fill("TOP")  # the operator's name for it is kept
         bs.wait_until(lambda: page.capp.measure.gui["name"].value == "TOP", 20.0, "the typed name at the server")
         page.get_by_role("button", name="Run", exact=True).click(force=True)
@@ -226,7 +225,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: re.search(rf"\b{new}: ", residuals.inner_text())
                       and not re.search(rf"\b{old}: ", residuals.inner_text()), 20.0,
                       "the re-taken hit listed with its residual")
-        bs.screenshot(page, "station-retaken-hit", timeout=60_000)
+        bs.screenshot(page, "station-retaken-hit")
         # a nominal and a tolerance typed for the boss: a 20.1 mm nominal fails it, a +-0.15 mm size tolerance passes it
         def fails():
             return tree.inner_text().count("FAIL")
@@ -248,7 +247,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: (station.measurement.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
                       "the typed size tolerance")
         bs.wait_until(lambda: fails() == clean, 20.0, "the boss passing with its typed tolerance")
-        bs.screenshot(page, "station-typed-nominal-tolerance", timeout=60_000)
+        bs.screenshot(page, "station-typed-nominal-tolerance")
         # a constructed angle between the front and left faces: 90 degrees, its nominal from the CAD
         angle = page.capp.features.construct("angle", front.id, left.id)
         assert angle.result.value == pytest.approx(90.0, abs=0.05) and angle.nominal.value == pytest.approx(90.0)
@@ -256,7 +255,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.mouse.move(1100, 600)
         page.mouse.wheel(0, -5000)  # back to the top of the tab: the tree under the tab bar
         page.wait_for_timeout(500)
-        bs.screenshot(page, "station-feature-tree", timeout=60_000)
+        bs.screenshot(page, "station-feature-tree")
 
         # --- the status bar stays on screen while the panel scrolls to the end of a long tab
 
@@ -271,7 +270,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         save_box = page.get_by_role("button", name="Save header").bounding_box()
         assert save_box["y"] > LAPTOP[1] / 2 and scrolled_by(page) > 200  # scrolled down to the end of the tab ...
         assert_status_bar_on_screen(page, LAPTOP, "laptop, Features tab scrolled")  # ... the bar on screen
-        bs.screenshot(page, "station-scrolled-status-bar", timeout=60_000)
+        bs.screenshot(page, "station-scrolled-status-bar")
 
         # --- 3-2-1 alignment from the top, front and left planes; the DRO switches to part coordinates
         bs.open_tab(page, "Align")
@@ -289,7 +288,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         status.get_by_text("part", exact=True).wait_for()
         pos = station.measurement.part.pose[:3, :3].T @ (station.machine.state.position - station.measurement.part.pose[:3, 3])
         assert f"X {pos[0]:.4f}" in status.inner_text()
-        bs.screenshot(page, "station-aligned", timeout=60_000)
+        bs.screenshot(page, "station-aligned")
 
         # --- best fit of all hits to the mesh from the Align tab: transform and residuals shown, then applied
         page.get_by_role("button", name="Machine", exact=True).click(force=True)  # the DRO back in machine axes
@@ -301,7 +300,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert fit.method == "best_fit" and fit.residuals["RMS"] < 0.005, fit.residuals  # um-level on a true part
         assert np.abs(fit.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
         page.get_by_text("moved ").wait_for()  # the shift from the 3-2-1 set-up it replaces
-        bs.screenshot(page, "station-best-fit", timeout=60_000)
+        bs.screenshot(page, "station-best-fit")
         page.get_by_role("button", name="Apply alignment").click(force=True)
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
         status.get_by_text("part", exact=True).wait_for()
@@ -354,7 +353,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             assert any(t == "Probe here refused" and "Reset (or reconnect) first" in b
                        for _l, t, b in page.capp.messages), page.capp.messages[-3:]
             assert not station.machine.state.moving
-            bs.screenshot(page, "station-fault", timeout=60_000)
+            bs.screenshot(page, "station-fault")
             # Reset while the link is down: refused (Reconnect first); the Machine tab says the way back
             page.mouse.wheel(0, -5000)
             page.wait_for_timeout(500)
@@ -374,7 +373,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
                           20.0, f"the status bar clear of the fault ({status.inner_text()!r})")
             cs = station.controller.state
             assert cs.mode.value == "idle" and cs.homed and cs.link_ok  # the modules kept power: still homed
-            bs.screenshot(page, "station-fault-reset", timeout=60_000)
+            bs.screenshot(page, "station-fault-reset")
         finally:
             plug.broken = False
             bus.port = plug.inner
@@ -385,7 +384,6 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
     """An idle station page receives (almost) nothing; the six top tabs are one row at 1280 x 800 and on a
     tablet; the Jog tab documents the keyboard at 1280 x 800; the pendant page alone fits a tablet with the position, STOP and the jog pad on screen."""
     with bs.browser_context(viewport=LAPTOP) as context:
-        context.set_default_timeout(60_000)
         received = []
         page = context.new_page()
         page.on("websocket", lambda ws: ws.on("framereceived", lambda payload: received.append(
@@ -402,10 +400,9 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         page.get_by_text("Keyboard").first.wait_for()
         page.get_by_text("PageUp/PageDown").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
-        bs.screenshot(page, "station-jog-laptop", timeout=60_000)
+        bs.screenshot(page, "station-jog-laptop")
 
     with bs.browser_context(viewport=TABLET, has_touch=True, is_mobile=True) as context:
-        context.set_default_timeout(60_000)
         # the station page on a tablet: the status bar stays on screen at the end of a long tab
         page = context.new_page()
         page.goto(app.url)

@@ -45,10 +45,10 @@ def test_the_trends_tab_shows_the_chart_inside_the_panel(app, station):
         log = bs.PageLog()
         log.attach(page)
         page.goto(app.url)
-        page.get_by_role("button", name="E-STOP").wait_for(timeout=60_000)
+        page.get_by_role("button", name="E-STOP").wait_for()
         bs.open_tab(page, "Report", "Trends")
         chart = page.locator("svg.trend")
-        chart.wait_for(timeout=60_000)
+        chart.wait_for()
         chart.scroll_into_view_if_needed()
         panel = page.get_by_role("button", name="E-STOP").bounding_box()  # as wide as the panel's content
         svg = chart.bounding_box()

@@ -218,6 +218,14 @@ class SimNetwork:
         self.realtime = True
         self._t0 = time.perf_counter_ns() - self.now_ns
 
+    def set_pace(self, pace: float | None) -> None:
+        """Cap the virtual clock at ``pace`` simulated s per wall s from now on (None: uncapped). The pace counts
+        from this moment: a reference point kept from the old pace would make the clock wait (or race) to make
+        up the difference."""
+        self._pace_ref = None  # whatever hold_pace reads next is a fresh reference point
+        self.pace = pace
+        self._pace_ref = None
+
     def hold_pace(self) -> None:
         """On a paced virtual clock, wait (wall time, without the lock) until the wall clock
         catches up with simulated time / pace. Lag beyond 50 ms is forgiven, not caught up."""
