@@ -222,6 +222,137 @@ def top_tab_rows(page: Any) -> list[list[str]]:
     return [rows[k] for k in sorted(rows)]
 
 
+def press(page: Any, name: str) -> None:
+    """Press the visible button ``name`` as a person would, without Playwright's wait for animation frames (a
+    software-rendered WebGL page on a loaded machine gives few)."""
+    button = page.get_by_role("button", name=name, exact=True)
+    button.wait_for()
+    button.evaluate("b => b.click()")
+
+
+def press_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.0, every: float = 10.0) -> None:
+    """Press the button ``name`` until ``done()`` holds (for idempotent actions): a press on a panel that is being
+    re-drawn (a result arriving) can reach a button that is replaced a moment later and be lost."""
+    end = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what} did not happen within {timeout:g} s of pressing {name}")
+        press(page, name)
+        again = time.monotonic() + every
+        while not done() and time.monotonic() < again:
+            time.sleep(0.05)
+
+
+def start_as(page: Any, name: str) -> None:
+    """Answer the start dialog ("Who is operating?") with ``name`` and Start; the station hears the name."""
+    page.get_by_text("Who is operating?").wait_for(timeout=90_000)
+    field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
+    field.wait_for(state="visible", timeout=90_000)
+    wait_until(lambda: _typed(field, name), 60.0, "the name typed into the start dialog")
+    page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).evaluate("b => b.click()")
+    wait_until(lambda: page.capp.operator == name, 30.0, f"the operator's name {name!r} at the station")
+    page.get_by_text("Who is operating?").wait_for(state="hidden")
+
+
+def _typed(field: Any, text: str) -> bool:
+    try:
+        field.fill(text, timeout=5_000)
+        return field.input_value(timeout=5_000) == text
+    except Exception:  # noqa: BLE001 - the dialog's opening transition on a busy page: type again
+        return False
+
+
+def enter_sphere_certificate(page: Any, diameter: float, serial: str, uncertainty_um: float) -> None:
+    """Setup > Calibration: the reference sphere's certificate typed in its folder and saved."""
+    open_tab(page, "Setup", "Calibration")
+    page.get_by_text("Reference sphere certificate").click()
+    page.get_by_label("Diameter (mm)", exact=True).fill(f"{diameter}")
+    page.get_by_label("Diameter (mm)", exact=True).press("Enter")
+    text_field(page, "Serial").fill(serial)
+    page.get_by_label("U k=2 (um)", exact=True).fill(f"{uncertainty_um}")
+    page.get_by_label("U k=2 (um)", exact=True).press("Enter")
+    panel = page.capp.calibration.gui
+    wait_until(lambda: (panel["cert_serial"].value, round(panel["cert_uncertainty"].value, 6))
+               == (serial, uncertainty_um), 30.0, "the typed certificate at the station")
+    press(page, "Save certificate")
+    page.get_by_text(serial).first.wait_for()
+
+
+def part_point(station: Any, local: Any) -> Any:
+    """A point of the part (part coordinates) in machine coordinates, where the station believes the part is."""
+    import numpy as np
+
+    pose = station.measurement.part.pose
+    return pose[:3, :3] @ np.asarray(local, float) + pose[:3, 3]
+
+
+def pick_ray(page: Any, station: Any, origin: Any, direction: Any) -> None:
+    """The pick a click on the part sends: a ray (part coordinates) from ``origin`` along ``direction``."""
+    import numpy as np
+
+    pose = station.measurement.part.pose
+    assert page.capp.pick(part_point(station, origin), pose[:3, :3] @ np.asarray(direction, float)) is not None
+
+
+def pick_face(page: Any, station: Any, local_point: Any, outward: Any) -> None:
+    """The pick a click on the face at ``local_point`` sends (a ray from outside along the face normal)."""
+    import numpy as np
+
+    n = np.asarray(outward, float)
+    pick_ray(page, station, np.asarray(local_point, float) + 40 * n, -n)
+
+
+def automeasure_in_page(page: Any, station: Any, hits_per_ring: int, proposal: str | None = None,
+                        name: str | None = None, shot: str | None = None) -> tuple[Any, Any]:
+    """Auto-measure what was picked, through Measure > Auto-measure: the hits per ring typed, Plan (the proposal
+    and its path shown), the feature's name typed, Run (measured and fitted against its CAD nominal)."""
+    open_tab(page, "Measure", "Auto-measure")
+    page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
+    page.get_by_label("Hits (per ring)", exact=True).press("Enter")
+    wait_until(lambda: page.capp.measure.gui["hits"].value == hits_per_ring, 30.0, "the typed hits per ring")
+    before_plan = page.capp.measure.plan
+    press(page, "Plan")
+    wait_until(lambda: page.capp.measure.plan is not None and page.capp.measure.plan is not before_plan, 60.0,
+               f"the plan ({page.capp.messages[-1:]})")
+    if proposal:
+        page.get_by_text(proposal).first.wait_for()  # the proposed feature and its pattern of hits
+    plan = page.capp.measure.plan
+    page.get_by_text(f"{len(plan)} hits · clearance plane").first.wait_for()
+    if name:
+        text_field(page, "Feature name").fill(name)
+        wait_until(lambda: page.capp.measure.gui["name"].value == name, 30.0, "the typed name at the station")
+    if shot:
+        screenshot(page, shot)
+    before = set(station.measurement.features)
+    press(page, "Run")
+    wait_until(lambda: set(station.measurement.features) - before, 180.0, f"the auto-measured {name or proposal}")
+    (fid,) = set(station.measurement.features) - before
+    feature = station.measurement.features[fid]
+    assert len(feature.hit_ids) == len(plan)
+    if name:
+        assert feature.name == name
+    return plan, feature
+
+
+# The sample part's manual 3-2-1 hits (part coordinates: point, approach direction): 3 on the top face (TOP),
+# 2 on the front face (FRONT), 1 on the left face (LEFT), as a routine taught on those planes prompts for them.
+SAMPLE_321_HITS = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), ((50.0, 70.0, 40.0), (0, 0, -1)),
+                   ((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((0.0, 20.0, 15.0), (1, 0, 0))]
+
+
+def manual_321(page: Any, station: Any, pose: Any, hits: list[tuple[Any, Any]], prompts: dict[int, str]) -> None:
+    """The operator's hands at a routine's manual 3-2-1: each prompted hit (part coordinates ``hits``: point,
+    approach direction) taken where the part really stands (``pose``), after the prompt ``prompts[k]`` shows."""
+    import numpy as np
+
+    for k, (p, u) in enumerate(hits):
+        if k in prompts:
+            page.get_by_text(prompts[k]).first.wait_for(timeout=120_000)
+        target = (pose @ np.array([*p, 1.0]))[:3]
+        wait_until(lambda: not station.controller.state.mode.value.startswith("prob"), 60.0, "idle")
+        station.measurement.probe(target, pose[:3, :3] @ np.array(u, float), clearance_z=90.0).wait(120)
+
+
 def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
     """Simulated seconds from ``since`` (the station's clock, ``station.machine.state.time``) until every axis stands still.
 

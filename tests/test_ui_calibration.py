@@ -160,6 +160,7 @@ def test_probe_results_view_and_save_applies(app, operator, records):
     saved = load_probe_record(path)
     assert saved.tip_radius == pytest.approx(q.record.tip_radius)
     assert st.prober.settings.tip_radius == pytest.approx(q.record.tip_radius)  # applied to the live station
+    assert st.calibration.status["probe"]["tip_radius"] == pytest.approx(q.record.tip_radius)  # the status bar's
     assert st.prober.settings.pretravel.coefficients == pytest.approx(q.settings.pretravel.coefficients)
     assert any("probe" in line for line in st.calibration.log)
     observer = app.add_client(client_id="observer-save", is_local=False)

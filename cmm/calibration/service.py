@@ -57,6 +57,16 @@ def calibration_errors() -> tuple[type[BaseException], ...]:
     return (CalibrationError, SurfaceNotFound, MotionError, FitError, ValueError, OSError)
 
 
+def probe_status(record: Any) -> dict[str, Any]:
+    """What the station shows and journals of the probe qualification in force."""
+    return {"date": record.date, "tip_radius": record.tip_radius, "artifact": record.artifact,
+            "probing_speed": record.probing_speed}
+
+
+def machine_status(record: Any) -> dict[str, Any]:
+    """What the station shows and journals of the machine geometry calibration in force."""
+    return {"date": record.date, "scale_ppm": list(record.scale_ppm), "squareness_urad": list(record.squareness_urad)}
+
 class CalibrationHost(Protocol):
     """What the service needs from the station (the composition root that builds it)."""
 
@@ -147,14 +157,9 @@ class CalibrationService:
         for problem in loaded.problems:
             self.host.measurement.log("error", f"calibration record refused: {problem}")
         self.log = applied + [f"refused: {p}" for p in loaded.problems]
-        self.status = {
-            "probe": None if loaded.probe is None else {"date": loaded.probe.date, "tip_radius": loaded.probe.tip_radius,
-                                                        "artifact": loaded.probe.artifact,
-                                                        "probing_speed": loaded.probe.probing_speed},
-            "machine": None if loaded.machine is None else {"date": loaded.machine.date,
-                                                            "scale_ppm": list(loaded.machine.scale_ppm),
-                                                            "squareness_urad": list(loaded.machine.squareness_urad)},
-            "problems": list(loaded.problems)}
+        self.status = {"probe": None if loaded.probe is None else probe_status(loaded.probe),
+                       "machine": None if loaded.machine is None else machine_status(loaded.machine),
+                       "problems": list(loaded.problems)}
         return self.log
 
     def apply(self, loaded: Any, client: str | None = None) -> list[str]:
@@ -509,6 +514,7 @@ class CalibrationService:
                 return self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml", False
             path = save_record(result.record, self.records_dir / PROBE_RECORD)
             self._log(self.apply(LoadedCalibration(probe=result.record), client=client))
+            self.status["probe"] = probe_status(result.record)  # the status bar and manual hits' speed follow it
             host.measurement.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
                       f"{result.settings.pretravel.describe()}")
             return path, True
@@ -516,6 +522,7 @@ class CalibrationService:
             rec = result.record(self._geometry_artifact(), host.config.source)
             path = save_record(rec, self.records_dir / MACHINE_RECORD)
             self._log(self.apply(LoadedCalibration(machine=rec), client=client))
+            self.status["machine"] = machine_status(rec)
             host.measurement.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
             return path, True
         if routine == "servo":

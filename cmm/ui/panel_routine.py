@@ -342,10 +342,10 @@ class RoutinePanel:
             new = gui.add_text("Insert after", "", hint="report NAME, or distance A B [NAME]")
             gui.add_button("Insert step").on_click(lambda _: self.insert_text(new.value))
         with gui.add_folder("File", expand_by_default=False):
-            path = gui.add_text("Routine file", "", hint="name.toml (in the sessions folder) or a full path")
+            path = g["file"] = gui.add_text("Routine file", "", hint="name.toml (in the sessions folder) or a full path")
             gui.add_button_group("Routine file actions", ("Save", "Open")).on_click(
                 lambda e: self.save(path.value) if e.target.value == "Save" else self.open(path.value))
-        part = gui.add_text("Part name", "", hint="e.g. the serial number; default: part 1, part 2, ...")
+        part = g["part"] = gui.add_text("Part name", "", hint="e.g. the serial number; default: part 1, part 2, ...")
         gui.add_button_group("Routine path", ("Preview path", "Clear path")).on_click(
             lambda e: self.preview_path() if e.target.value == "Preview path" else self.clear_preview())
         g["preview"] = gui.add_markdown("")
