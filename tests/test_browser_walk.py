@@ -1,4 +1,4 @@
-"""An operator's whole day in headless chromium, on the simulator: the walk of issue 24 through the grouped tabs.
+"""An operator's whole day in headless chromium, on the simulator: every step through the grouped tabs.
 
 At 1280 x 800, Ada names herself in the start dialog, takes control, homes the machine, qualifies the probe
 from a fresh calibration folder (the reference sphere's certificate typed in the page), auto-measures three
