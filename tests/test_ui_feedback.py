@@ -116,7 +116,7 @@ def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(
         assert m.make_plan(3) is not None and m.gui["hits"].value == 3
         assert m.run("", wait=True), capp.messages[-3:]
         boss = m.feature
-        assert boss.name != "TOP" and boss.kind == "cylinder"
+        assert boss.name != "TOP" and boss.kind == "cylinder", capp.messages[-3:]
         capp.select_feature(boss.id)
         capp.features.refresh()
         centre, diameter = nominal_fields(boss)

@@ -174,6 +174,11 @@ class ClientApp:
         """The control core: every machine command goes there with this client's id."""
         return self.station.controller
 
+    def _verb(self, action: str, method: str, /, **params: Any) -> Any:
+        """A verb of the command API sent as this tab (the same checks and answers as every front end); a refusal
+        is shown to the operator."""
+        return self._cmd(action, lambda who: self.ctx.commands.invoke(who, method, **params))
+
     def _cmd(self, action: str, fn: Callable[..., Any], *args: Any, **kw: Any) -> Any:
         """A machine command; the control core checks access and state, a refusal is shown to the operator."""
         try:
@@ -187,25 +192,25 @@ class ClientApp:
     def stop(self) -> Any:
         self._jogging = False
         # a STOP not confirmed by every module is told by the station's "stop" event (one toast per event)
-        return self._cmd("Stop", self.api.stop)
+        return self._verb("Stop", "stop")
 
     def emergency_stop(self) -> Any:
         self._jogging = False
         # the station's "estop" event tells every tab (confirmed or not): one toast per event
-        return self._cmd("E-stop", self.api.emergency_stop)
+        return self._verb("E-stop", "estop")
 
     def reset(self) -> None:
-        self._cmd("Reset", self.api.reset)
+        self._verb("Reset", "reset")
 
     def reconnect(self) -> None:
-        self._cmd("Reconnect", self.api.reconnect)
+        self._verb("Reconnect", "reconnect")
 
     def home(self) -> None:
         """The homing cycle, in a worker thread (it takes seconds); STOP aborts it."""
         import threading
 
         def run() -> None:
-            self._cmd("Home", self.api.home)  # done: the station's "homed" event toasts in every tab
+            self._verb("Home", "home")  # done: the station's "homed" event toasts in every tab
         threading.Thread(target=run, name="ui-home", daemon=True).start()
 
     def zero(self, confirm: bool = False) -> None:
@@ -218,7 +223,7 @@ class ClientApp:
                         "Press Zero again within 5 s to confirm.", "error")
             return
         self._zero_armed = 0.0
-        self._cmd("Zero", self.api.zero, confirm=True)
+        self._verb("Zero", "zero", confirm=True)
 
     # --- go to -------------------------------------------------------------------
 
@@ -234,7 +239,7 @@ class ClientApp:
         if len(xyz) != 3:
             self.ctx.error(f"the target needs three numbers X, Y, Z in mm (got {len(target)})", "Go to refused")
             return None
-        status = self._cmd("Go to", self.api.move, xyz, frame=(frame or self.goto_frame).lower())
+        status = self._verb("Go to", "move", target=xyz, frame=(frame or self.goto_frame).lower())
         if status is not None:
             self.move_status = status
             status.add_callback(self._move_done)
@@ -351,7 +356,7 @@ class ClientApp:
     def step(self, axis: int, sign: int) -> Any:
         size = self.step_size
         mm = 1.0 / self.station.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
-        return self._cmd("Step", lambda cid: self.station.controller.step(cid, AXES[axis], math.copysign(mm, sign)))
+        return self._verb("Step", "step", axis=AXES[axis], mm=math.copysign(mm, sign))
 
     def set_manual_probe(self, on: bool) -> None:
         self.jog_release()
@@ -386,7 +391,7 @@ class ClientApp:
             return None
         hit = self.ctx.picked[0]
         above = self.station.measurement.above_point(hit.point, hit.normal)  # approach distance + tip radius out
-        status = self._cmd("Move above", lambda cid: self.api.move(cid, above, frame="machine"))  # over the clearance plane
+        status = self._verb("Move above", "move", target=above, frame="machine")  # over the clearance plane
         return None if status is None else self._track(status)
 
     def probe_here(self) -> Any:
