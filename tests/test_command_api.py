@@ -372,3 +372,17 @@ def test_cancel_ends_a_program_and_a_job_without_a_cancel_of_its_own(station, tm
     assert station.controller.state.mode.value in ("idle", "stopped")
     assert not np.allclose(station.controller.frame_position("machine"), far, atol=1.0)
     station.controller.reset(None)
+
+
+def test_every_verb_the_control_core_registers_takes_the_parameters_it_lists(station):
+    """A verb's listed parameters are what its function takes: a step sent as a request moves one step."""
+    import inspect
+
+    for verb in station.controller.commands.verbs():
+        sig = inspect.signature(verb.fn)
+        takes_any = any(p.kind is p.VAR_KEYWORD for p in sig.parameters.values())
+        assert takes_any or set(verb.params) <= set(list(sig.parameters)[1:]), verb.name
+    here = np.array(station.controller.frame_position("machine"))
+    done = station.controller.commands.call(None, "step", {"axis": "x", "mm": 0.5}, wait=True, timeout=60)
+    assert done.ok, done.error
+    assert np.allclose(station.controller.frame_position("machine"), here + [0.5, 0.0, 0.0], atol=0.003)

@@ -100,7 +100,7 @@ class CommandAPI:
                       "the operator holds a jog (mm/s per machine axis); repeat within the dead-man (0.15 s); "
                       "returns a sentence when the speed was limited")
         self.register("jog_release", lambda client: c.jogs.release(client), {}, "end the jog now")
-        self.register("step", c.step, {"axis": REQUIRED, "mm": REQUIRED},
+        self.register("step", lambda client, axis, mm: c.step(client, axis, mm), {"axis": REQUIRED, "mm": REQUIRED},
                       "one step along a machine axis x, y or z (1 count .. 10 mm)", motion=True)
         self.register("stop", lambda client: _report(c.stop(client)), {}, "controlled stop of whatever moves")
         self.register("estop", lambda client: _report(c.emergency_stop(client)), {},
