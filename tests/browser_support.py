@@ -7,6 +7,7 @@ Set CMM_CHROMIUM to use another binary.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import os
 import shutil
@@ -15,6 +16,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator
+
+import numpy as np
 
 CHROMIUM_ARGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
@@ -379,3 +382,99 @@ def wait_until(predicate, timeout: float, what: str, poll: float = 0.005, why=No
             raise AssertionError(f"{what} did not happen within {timeout} s" + (f": {why()}" if why else ""))
         time.sleep(poll)
     return time.monotonic() - start
+
+
+WINDOW = 0.2  # s of machine time over which a held jog's speed is judged (position over the machine's clock)
+
+
+class JogRecord:
+    """What the machine did while the page held a jog, on the machine's own clock: every state its loop polled
+    (time, X, Y, Z, largest axis speed), the machine time of each jog refresh the machine took (``Machine.jog``,
+    what restarts its dead-man: a hold the pipeline passed on), of each release that reached the station's jog
+    pipeline, and of each dead-man stop. Nothing here depends on when this test's thread runs: the events are
+    stamped as they arrive, the states as the machine loop reads them."""
+
+    def __init__(self, station, capp=None):
+        self.station = station
+        self.trace: list[tuple[float, float, float, float, float]] = []
+        self.holds: list[float] = []
+        self.releases: list[float] = []
+        self.deadman: list[float] = []
+        self.clicks: list[float] = []  # the page's own release (viser's click event on the button)
+        self.live = True
+        jogs = station.controller.jogs
+        machine = station.machine
+        self._jogs, self._machine, self._jog, self._release = jogs, machine, machine.jog, jogs.release
+        now = lambda: machine.state.time  # noqa: E731
+        machine.jog = lambda *a, **kw: (self.holds.append(now()), self._jog(*a, **kw))[1]
+        jogs.release = lambda *a, **kw: (self.releases.append(now()), self._release(*a, **kw))[1]
+        self._capp = capp
+        if capp is not None:
+            click = capp.jog_release
+            capp.jog_release = lambda: (self.clicks.append(now()), click())[1]
+        station.measurement.subscribe(
+            lambda kind, info: self.deadman.append(now()) if kind == "deadman" and self.live else None)
+        self._unsubscribe = station.machine.subscribe(
+            lambda s: self.trace.append((s.time, *s.position, max(abs(a.velocity) for a in s.axes))))
+
+    def close(self) -> None:
+        self.live = False
+        del self._machine.jog  # the class's method again
+        self._jogs.release = self._release
+        if self._capp is not None:
+            del self._capp.jog_release  # the class's method again
+        self._unsubscribe()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(machine times, positions (n x 3), largest axis speed) of the polled states so far."""
+        a = np.array(self.trace)
+        return a[:, 0], a[:, 1:4], a[:, 4]
+
+    def bridged(self, a: float, b: float) -> bool:
+        """The page's holds kept the jog live from 0.3 s before ``a`` (its acceleration) to ``b``: every gap between
+        hold arrivals (and to ``b``) shorter than the dead-man, and no dead-man stop or release since (the page's
+        hold refresher lets go by itself when the page's main thread is frozen for a second)."""
+        holds = np.sort(np.array(self.holds))
+        before = holds[holds <= a - 0.3]
+        if not len(before) or any(before[-1] <= e <= b for e in self.deadman + self.releases):
+            return False
+        chain = np.concatenate([[before[-1]], holds[(holds > a - 0.3) & (holds < b)], [b]])
+        return bool(np.diff(chain).max() < self.station.config.deadman_timeout - 0.02)
+
+    def live_speeds(self, axis: int, since: float, until: float | None = None) -> list[float]:
+        """Speeds (mm/s, position over machine time) of ``axis`` in the WINDOW-long windows from ``since`` to
+        ``until`` (the last polled state) in which the page's holds kept the jog live."""
+        t, pos, _v = self.arrays()
+        end = t[-1] if until is None else until
+        return [abs(np.interp(w + WINDOW, t, pos[:, axis]) - np.interp(w, t, pos[:, axis])) / WINDOW
+                for w in np.arange(since, end - WINDOW, WINDOW / 2) if self.bridged(w, w + WINDOW)]
+
+    def summary(self) -> str:
+        """What the page sent and the machine did, for a failure's message."""
+        holds = np.diff(np.sort(np.array(self.holds))) if len(self.holds) > 1 else np.array([0.0])
+        span = (self.trace[-1][0] - self.trace[0][0]) if self.trace else 0.0
+        return (f"{len(self.holds)} holds in {span:.2f} s of machine time (gaps: median {np.median(holds):.3f} s, "
+                f"largest {holds.max():.3f} s), dead-man stops at {np.round(self.deadman, 2).tolist()}, releases at "
+                f"{np.round(self.releases, 2).tolist()}")
+
+    def _standstill(self, since: float) -> float | None:
+        """Machine time of the first polled state at or after ``since`` with every axis at rest, if any yet."""
+        first = bisect.bisect_left(self.trace, since, key=lambda row: row[0])
+        return next((row[0] for row in self.trace[first:] if row[4] < 1e-9), None)
+
+    def stop_after_release(self, since: float, what: str) -> tuple[float, float, float]:
+        """After the button was let go at machine time ``since``: (machine time the first release reached the
+        pipeline, machine seconds from it to zero velocity, machine time of the standstill after the last release).
+        With ``capp`` (a viser page's ClientApp) waits for the page's own release (viser's click event): the hold
+        refresher's release may come first."""
+        wait_until(lambda: (self.clicks or self._capp is None) and any(r >= since for r in self.releases), 60.0,
+                      f"the page's release ({what}) reaching the station")
+        released = min(r for r in self.releases if r >= since)
+        wait_until(lambda: self._standstill(max(self.releases)) is not None, 60.0, f"the stop after {what}")
+        return released, self._standstill(released) - released, self._standstill(max(self.releases))

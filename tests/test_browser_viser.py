@@ -10,7 +10,6 @@ test-artifacts/ (git-ignored).
 
 from __future__ import annotations
 
-import bisect
 import contextlib
 
 import numpy as np
@@ -40,7 +39,6 @@ STOP_WITHIN = 0.6
 # s of machine time from the release's arrival at the station's jog pipeline to zero velocity: the config promises a
 # released jog stops within 0.2 s (config.py); a few polls of slack for the machine loop of this busy test process.
 RELEASE_STOP = 0.3
-WINDOW = 0.2  # s of machine time over which a held jog's speed is judged (position over the machine's clock)
 HELD_PACE = 0.1  # simulated s per wall s while a test holds a jog button (held_on_a_slow_clock)
 HOLD_WALL_LIMIT = 90.0  # s of wall time a test holds a jog button at most, waiting for the page's holds to keep it live
 TOP_Z = 40.0  # machine Z of the sample part's top face (the part sits on the table at Z=0)
@@ -165,98 +163,6 @@ def visible_top_point(station, camera) -> np.ndarray:
     raise AssertionError("no candidate point of the top face is visible from the initial camera")
 
 
-class JogRecord:
-    """What the machine did while the page held a jog, on the machine's own clock: every state its loop polled
-    (time, X, Y, Z, largest axis speed), the machine time of each jog refresh the machine took (``Machine.jog``,
-    what restarts its dead-man: a hold the pipeline passed on), of each release that reached the station's jog
-    pipeline, and of each dead-man stop. Nothing here depends on when this test's thread runs: the events are
-    stamped as they arrive, the states as the machine loop reads them."""
-
-    def __init__(self, station, capp=None):
-        self.station = station
-        self.trace: list[tuple[float, float, float, float, float]] = []
-        self.holds: list[float] = []
-        self.releases: list[float] = []
-        self.deadman: list[float] = []
-        self.clicks: list[float] = []  # the page's own release (viser's click event on the button)
-        self.live = True
-        jogs = station.controller.jogs
-        machine = station.machine
-        self._jogs, self._machine, self._jog, self._release = jogs, machine, machine.jog, jogs.release
-        now = lambda: machine.state.time  # noqa: E731
-        machine.jog = lambda *a, **kw: (self.holds.append(now()), self._jog(*a, **kw))[1]
-        jogs.release = lambda *a, **kw: (self.releases.append(now()), self._release(*a, **kw))[1]
-        self._capp = capp
-        if capp is not None:
-            click = capp.jog_release
-            capp.jog_release = lambda: (self.clicks.append(now()), click())[1]
-        station.measurement.subscribe(
-            lambda kind, info: self.deadman.append(now()) if kind == "deadman" and self.live else None)
-        self._unsubscribe = station.machine.subscribe(
-            lambda s: self.trace.append((s.time, *s.position, max(abs(a.velocity) for a in s.axes))))
-
-    def close(self) -> None:
-        self.live = False
-        del self._machine.jog  # the class's method again
-        self._jogs.release = self._release
-        if self._capp is not None:
-            del self._capp.jog_release  # the class's method again
-        self._unsubscribe()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(machine times, positions (n x 3), largest axis speed) of the polled states so far."""
-        a = np.array(self.trace)
-        return a[:, 0], a[:, 1:4], a[:, 4]
-
-    def bridged(self, a: float, b: float) -> bool:
-        """The page's holds kept the jog live from 0.3 s before ``a`` (its acceleration) to ``b``: every gap between
-        hold arrivals (and to ``b``) shorter than the dead-man, and no dead-man stop or release since (the page's
-        hold refresher lets go by itself when the page's main thread is frozen for a second)."""
-        holds = np.sort(np.array(self.holds))
-        before = holds[holds <= a - 0.3]
-        if not len(before) or any(before[-1] <= e <= b for e in self.deadman + self.releases):
-            return False
-        chain = np.concatenate([[before[-1]], holds[(holds > a - 0.3) & (holds < b)], [b]])
-        return bool(np.diff(chain).max() < self.station.config.deadman_timeout - 0.02)
-
-    def live_speeds(self, axis: int, since: float, until: float | None = None) -> list[float]:
-        """Speeds (mm/s, position over machine time) of ``axis`` in the WINDOW-long windows from ``since`` to
-        ``until`` (the last polled state) in which the page's holds kept the jog live."""
-        t, pos, _v = self.arrays()
-        end = t[-1] if until is None else until
-        return [abs(np.interp(w + WINDOW, t, pos[:, axis]) - np.interp(w, t, pos[:, axis])) / WINDOW
-                for w in np.arange(since, end - WINDOW, WINDOW / 2) if self.bridged(w, w + WINDOW)]
-
-    def summary(self) -> str:
-        """What the page sent and the machine did, for a failure's message."""
-        holds = np.diff(np.sort(np.array(self.holds))) if len(self.holds) > 1 else np.array([0.0])
-        span = (self.trace[-1][0] - self.trace[0][0]) if self.trace else 0.0
-        return (f"{len(self.holds)} holds in {span:.2f} s of machine time (gaps: median {np.median(holds):.3f} s, "
-                f"largest {holds.max():.3f} s), dead-man stops at {np.round(self.deadman, 2).tolist()}, releases at "
-                f"{np.round(self.releases, 2).tolist()}")
-
-    def _standstill(self, since: float) -> float | None:
-        """Machine time of the first polled state at or after ``since`` with every axis at rest, if any yet."""
-        first = bisect.bisect_left(self.trace, since, key=lambda row: row[0])
-        return next((row[0] for row in self.trace[first:] if row[4] < 1e-9), None)
-
-    def stop_after_release(self, since: float, what: str) -> tuple[float, float, float]:
-        """After the button was let go at machine time ``since``: (machine time the first release reached the
-        pipeline, machine seconds from it to zero velocity, machine time of the standstill after the last release).
-        Waits for the page's own release (viser's click event): the hold refresher's release may come first."""
-        bs.wait_until(lambda: self.clicks and any(r >= since for r in self.releases), 60.0,
-                      f"the page's release ({what}) reaching the station")
-        released = min(r for r in self.releases if r >= since)
-        bs.wait_until(lambda: self._standstill(max(self.releases)) is not None, 60.0, f"the stop after {what}")
-        return released, self._standstill(released) - released, self._standstill(max(self.releases))
-
-
 # --- tests ------------------------------------------------------------------------------------------
 
 def test_page_loads_and_shows_the_position(open_page, station):
@@ -366,7 +272,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     start = station.machine.state.position.copy()
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
     timeout = station.config.deadman_timeout
-    with JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+    with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
         page.mouse.move(*button_centre(page, "hold X +"))
         page.mouse.down()
         try:
@@ -414,7 +320,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
         page.get_by_role("button", name=mode, exact=True).click()
         bs.wait_until(lambda: page.capp.speed_mode == mode, 10.0, f"the {mode} speed chosen")
         x0 = station.machine.state.position[0]
-        with JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+        with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
             page.mouse.move(*button_centre(page, button))
             page.mouse.down()
             try:
@@ -509,7 +415,7 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     assert qualified < station.config.speeds.jog_fast / 4
     hits = len(station.measurement.hits)
     page.mouse.move(*button_centre(page, "hold Z −"))
-    with JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+    with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
         page.mouse.down()
         try:
             bs.wait_until(lambda: station.machine.state.position[2] < target[2] - 0.05, 60.0, "the armed jog down")
@@ -529,8 +435,8 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     near = np.flatnonzero((t >= t0) & (pos[:, 2] <= hit.machine[2] + 0.5))[0]  # 0.5 mm above the touch
     descent = (t >= t0) & (np.arange(len(t)) < near)
     td, zd = t[descent], pos[descent, 2]
-    fastest = max(abs(np.interp(w + WINDOW, td, zd) - np.interp(w, td, zd)) / WINDOW
-                  for w in np.arange(td[0], td[-1] - WINDOW, WINDOW / 2))
+    fastest = max(abs(np.interp(w + bs.WINDOW, td, zd) - np.interp(w, td, zd)) / bs.WINDOW
+                  for w in np.arange(td[0], td[-1] - bs.WINDOW, bs.WINDOW / 2))
     assert fastest < 1.1 * qualified, (fastest, qualified)
     live = rec.live_speeds(2, t0 + 0.3, td[-1])  # none when the page's holds never kept it live for a window
     assert not live or max(abs(np.array(live) / qualified - 1)) < 0.1, (np.round(live, 3), qualified, rec.summary())
