@@ -1,7 +1,8 @@
 """Routines on the simulator (virtual clock): a 6-feature routine taught on one part, edited, saved, and run on
 a second part placed differently (moved and turned on the table): manual 3-2-1 hits prompted first, then the
-datums measured automatically, then every feature, the construction and the report; pause / skip / cancel,
-and a fault in the middle of a routine."""
+datums measured automatically, then every feature, the construction and the report; pause / skip / cancel;
+a fault in the middle of a routine (an obstacle the probe runs into) resumed after Reset from the stopped step;
+a probe change between steps and the probe of each feature in the report."""
 
 from __future__ import annotations
 
@@ -12,8 +13,9 @@ from netutil import SIM
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
 from cmm.metrology.transform import invert
-from cmm.session.program import from_toml, load
+from cmm.session.program import from_toml, load, machine_targets
 from cmm.session.journal import read_events
+from cmm.session.report import features_csv, render
 from cmm.session.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
 from cmm.station import Station
@@ -33,7 +35,8 @@ MANUAL = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), (
 def taught(tmp_path_factory):
     """A station that measured the six features on the first part, aligned 3-2-1 and constructed a distance;
     the routine taught from that session."""
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("routine")).start("teach", home=True)
+    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("routine"),
+                 calibration_dir=tmp_path_factory.mktemp("routine-calibration")).start("teach", home=True)
     model = st.measurement
     model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
     ids = {}
@@ -179,3 +182,112 @@ def test_pause_skip_and_cancel_between_hits(taught):
     notes = [e.get("text", "") for e in read_events(st.measurement.journal.path).events if e["kind"] == "note"]
     assert any("bore skipped by the operator after 1 of" in n for n in notes)
     assert any(n.startswith("routine 'block' cancelled") for n in notes)
+
+
+def test_a_fault_mid_routine_is_resumed_from_the_stopped_step_with_another_probe_per_step(taught):
+    """Bore (Probe1) and boss (T2, a second stylus of the same ball) on the aligned first part; an obstacle on the
+    way down to the bore's second hit stops the run there with an unexpected contact; the operator clears it,
+    resets and resumes: the machine retracts, the bore's first hit is discarded (still in the journal), the bore is
+    measured again from its first hit, the probe changes to T2 for the boss, and the part's session is complete."""
+    st, routine = taught
+    model = st.measurement
+    st.sim.place_part(TRUE_PART_POSE)
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the first part again")
+    r = Routine(from_toml(routine.text()))
+    for name in ("alignment", "TOP", "FRONT", "LEFT", "dome"):
+        r.delete(next(i for i, s in enumerate(r.steps) if s["name"] == name))
+    assert [s["name"] for s in r.steps] == ["bore", "boss", "bore-boss", "report"]
+    assert r.steps[0]["probe"] == "Probe1"  # taught: the probe that took the bore
+    tip_d = 2 * st.config.probe.tip_radius
+    st.calibration.add_probe("T2", tip_d)
+    r.set_probe(1, "T2")
+    assert "[T2]" in r.lines()[1] and 'probe = "T2"' in r.text()
+    # the obstacle: a 3 mm ball over the pre-hit point of the bore's second hit
+    cfg = st.config.probe
+    bore = r.program.feature("bore")
+    targets = {h.id: (p, u) for h, p, u, _cz in machine_targets(r.program, TRUE_PART_POSE)}
+    p, u = targets[bore.hits[1]]
+    pre = p - cfg.tip_radius * u - cfg.approach_distance * u
+    st.sim.place_artifacts([(pre + [0.0, 0.0, 6.0], 3.0)])
+    run = RoutineRun(r, model, st.controller, part_name="part 4",
+                     change_probe=lambda name: st.calibration.select_probe(None, name))
+    with pytest.raises(Exception, match="unexpected probe contact"):
+        run.run()
+    assert run.progress.state == "failed" and run.faulted == 0 and run.can_resume
+    assert run.progress.message.startswith("step 1 (bore) stopped: unexpected probe contact")
+    assert run.progress.hits == 1
+    session = run.progress.session
+    first_hit = max(model.hits)
+    st.sim.place_artifacts([])  # the operator takes the obstacle away
+    st.controller.reset(None)
+    progress = run.resume_after_fault()
+    assert progress.state == "done" and progress.session == session
+    assert run.discarded == [first_hit] and first_hit not in model.hits
+    assert progress.hits == progress.total_hits == len(bore.hits) + len(r.program.feature("boss").hits)
+    b, k = progress.results["bore"], progress.results["boss"]
+    assert first_hit not in b.hit_ids and len(b.hit_ids) == len(bore.hits)
+    assert b.result.geometry()["radius"] == pytest.approx(15.0, abs=0.005)
+    assert k.result.geometry()["radius"] == pytest.approx(10.0, abs=0.005)
+    assert progress.results["bore-boss"].result.value == pytest.approx(np.hypot(70 - 30, 22 - 40), abs=0.01)
+    assert model.feature_probe(b) == "Probe1" and model.feature_probe(k) == "T2" and model.probe_name == "T2"
+    events = read_events(session).events
+    assert sum(e["kind"] == "routine" for e in events) == 1  # one part, one session
+    assert any(e["kind"] == "hit" and e["id"] == first_hit for e in events)  # the discarded hit is kept ...
+    assert any(e["kind"] == "hit_deleted" and e["id"] == first_hit for e in events)  # ... as deleted
+    assert any(e["kind"] == "routine_discarded" and e["hit_ids"] == [first_hit] for e in events)
+    notes = [e.get("text", "") for e in events if e["kind"] == "note"]
+    retract = [n for n in notes if "retracted to the clearance height" in n]
+    assert retract and float(retract[0].rsplit("Z", 1)[1]) >= model.clearance_z() - 1e-6
+    assert notes.index(retract[0]) < notes.index("routine 'block' resumed from step 1")
+    # the report names the probe of every feature
+    saved = open_session(session)
+    rows = [line.split(",") for line in features_csv(saved).splitlines()]
+    col = rows[0].index("probe")
+    assert {row[0]: row[col] for row in rows[1:] if row[1] in ("cylinder",)} == {"bore": "Probe1", "boss": "T2"}
+    html = render(saved)
+    assert "<th class='l'>probe</th>" in html and ">T2<" in html and ">Probe1<" in html
+    st.calibration.select_probe(None, "Probe1")
+
+
+def test_restart_and_cancel_after_a_fault(taught):
+    """A run stopped by E-STOP: Resume is refused until Reset; Restart discards what the run measured and runs
+    again from the first step; a second stop, then Cancel ends it."""
+    st, routine = taught
+    model = st.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the first part again")
+    r = Routine(from_toml(routine.text()))
+    for name in ("alignment", "TOP", "FRONT", "LEFT", "dome", "bore-boss", "boss"):
+        r.delete(next(i for i, s in enumerate(r.steps) if s["name"] == name))
+    assert [s["name"] for s in r.steps] == ["bore", "report"]
+    run = RoutineRun(r, model, st.controller, part_name="part 5")
+    stopped = []
+
+    def on_progress(p):
+        if p.hits == 3 and not stopped:
+            stopped.append(st.controller.emergency_stop(None))
+
+    run.on_progress = on_progress
+    with pytest.raises(Exception):
+        run.run()
+    assert stopped and run.progress.state == "failed" and run.faulted == 0
+    with pytest.raises(RoutineError, match="Reset"):
+        run.resume_after_fault()  # still latched: nothing moved, nothing discarded
+    assert run.discarded == [] and run.can_resume
+    st.controller.reset(None)
+    taken = sorted(model.hits)[-3:]
+    run.on_progress = None
+    progress = run.restart()
+    assert progress.state == "done" and progress.hits == len(r.program.feature("bore").hits)
+    assert set(taken) <= set(run.discarded) and not set(taken) & set(progress.results["bore"].hit_ids)
+    assert progress.results["bore"].result.geometry()["radius"] == pytest.approx(15.0, abs=0.005)
+    with pytest.raises(RoutineError, match="no stopped"):
+        run.resume_after_fault()
+    run2 = RoutineRun(r, model, st.controller, part_name="part 6")
+    run2.on_progress = lambda p: p.hits == 1 and st.controller.emergency_stop(None)
+    with pytest.raises(Exception):
+        run2.run()
+    run2.cancel()
+    assert run2.progress.state == "cancelled" and not run2.can_resume
+    st.controller.reset(None)
+    notes = [e.get("text", "") for e in read_events(run2.progress.session).events if e["kind"] == "note"]
+    assert any("cancelled after the fault at step 1" in n for n in notes)

@@ -12,6 +12,7 @@ the order of work, like PC-DMIS's edit window or CALYPSO's characteristic list::
     [[steps]]
     kind = "feature"            # a [[features]] entry, by name: its hits, nominal, tolerance, method
     name = "bore"
+    probe = "T1"                # optional: the probe (stylus) the step measures with; changed to before it
 
     [[steps]]
     kind = "construct"
@@ -27,7 +28,11 @@ the order of work, like PC-DMIS's edit window or CALYPSO's characteristic list::
 :class:`Routine` edits it (rename, reorder, insert, delete, nominal, tolerance, clearance);
 :class:`RoutineRun` runs it on the next part: the alignment first (manual hits prompted on screen, then the
 datum features measured automatically), every step with a progress count, pause / resume / skip / cancel,
-and the part's results in a session of their own.
+and the part's results in a session of their own. A step that stops on a fault (unexpected contact, link fault,
+E-STOP) stops the run there; after Reset, :meth:`RoutineRun.resume_after_fault` retracts to the clearance height
+through the command API's rails, discards the hits the stopped step had taken (deleted: they stay in the
+journal) and runs that step again and the rest, in the same part session; :meth:`RoutineRun.restart` discards
+everything the run measured and starts again from the first step.
 """
 
 from __future__ import annotations
@@ -56,8 +61,12 @@ class RoutineError(ProgramError):
     """A routine that cannot be edited or run as asked, in an operator's words."""
 
 
-def _feature_step(name: str) -> dict[str, Any]:
-    return {"kind": "feature", "name": name}
+def _feature_step(name: str, probe: str = "") -> dict[str, Any]:
+    """A feature step; ``probe`` names the probe it measures with when one probe took all its hits."""
+    step: dict[str, Any] = {"kind": "feature", "name": name}
+    if probe and "+" not in probe:
+        step["probe"] = probe
+    return step
 
 
 class Routine:
@@ -95,7 +104,7 @@ class Routine:
 
     def describe(self, index: int) -> str:
         s = self.steps[index]
-        skip = " (skipped)" if s.get("skip") else ""
+        skip = (f" [{s['probe']}]" if s.get("probe") else "") + (" (skipped)" if s.get("skip") else "")
         if s["kind"] == "align":
             how = "manual hits, then automatic" if s.get("manual") else "automatic"
             return f"{index + 1}. align 3-2-1: {' | '.join(s['datums'])} ({how}){skip}"
@@ -141,6 +150,8 @@ class Routine:
                 raise RoutineError(f"step {k}: unknown kind {kind!r}; choose one of {', '.join(STEP_KINDS)}")
             if not isinstance(s.get("name"), str) or not s["name"].strip():
                 raise RoutineError(f"step {k} needs a name")
+            if "probe" in s and s["probe"] is not None and (not isinstance(s["probe"], str) or not s["probe"].strip()):
+                raise RoutineError(f"step {k} ({s['name']}): the probe must be a probe's name")
             if kind == "feature" and s["name"] not in features:
                 raise RoutineError(f"step {k} measures {s['name']!r}, which is not a feature of the routine")
             if kind == "align":
@@ -220,20 +231,69 @@ class Routine:
         for k, v in tolerance.items():
             if not np.isfinite(v) or v < 0:
                 raise RoutineError(f"{name}: the {k} tolerance must be a positive number of mm, not {v}")
-            f.tolerance[k] = float(v)
+        f.tolerance.update({k: float(v) for k, v in tolerance.items()})
 
     def set_nominal(self, name: str, **params: Any) -> None:
-        """Change nominal parameters (part coordinates), e.g. ``radius=15.0`` or ``point=[30, 40, 0]``."""
+        """Change nominal parameters (part coordinates), e.g. ``radius=15.0`` or ``point=[30, 40, 0]``; all are
+        checked before any is changed."""
         f = self.feature(name)
         if not f.nominal:
             raise RoutineError(f"{name} has no nominal to edit")
+        new = {}
         for k, v in params.items():
             if k not in f.nominal or k == "kind":
-                raise RoutineError(f"{name}: its nominal has no {k!r} (it has {', '.join(f.nominal)})")
-            arr = np.asarray(v, float)
+                raise RoutineError(f"{name}: its nominal has no {k!r} (it has "
+                                   f"{', '.join(n for n in f.nominal if n != 'kind')})")
+            try:
+                arr = np.asarray(v, float)
+            except (TypeError, ValueError):
+                arr = np.array(np.nan)
             if not np.all(np.isfinite(arr)) or arr.shape != np.asarray(f.nominal[k], float).shape:
                 raise RoutineError(f"{name}: {k} must be like {f.nominal[k]!r}, not {v!r}")
-            f.nominal[k] = arr.tolist() if arr.ndim else float(arr)
+            if k == "radius" and float(arr) <= 0:
+                raise RoutineError(f"{name}: the radius must be more than 0 mm, not {float(arr):g}")
+            new[k] = arr.tolist() if arr.ndim else float(arr)
+        f.nominal.update(new)
+
+    def set_hits(self, name: str, ids: list[int]) -> None:
+        """The feature's hit plan: which of the routine's hits it takes, in that order (drop or reorder hits)."""
+        f = self.feature(name)
+        known = {h.id for h in self.program.hits}
+        ids = [int(i) for i in ids]
+        missing = [i for i in ids if i not in known]
+        if missing:
+            raise RoutineError(f"{name}: the routine has no hit {', '.join(map(str, missing))}")
+        if len(set(ids)) != len(ids):
+            raise RoutineError(f"{name}: a hit is listed twice")
+        from ..metrology.fit_ls import MIN_POINTS
+
+        need = MIN_POINTS.get(f.kind, 1)
+        if len(ids) < need:
+            raise RoutineError(f"{name}: a {f.kind} needs at least {need} hits, not {len(ids)}")
+        f.hits = ids
+
+    def set_hit(self, hid: int, point: Any = None, approach: Any = None) -> None:
+        """Move one planned hit: its nominal surface point and/or approach direction (part coordinates)."""
+        hit = next((h for h in self.program.hits if h.id == int(hid)), None)
+        if hit is None:
+            raise RoutineError(f"the routine has no hit {hid}")
+        p = hit.point if point is None else np.asarray(point, float)
+        u = hit.approach if approach is None else np.asarray(approach, float)
+        p, u = np.asarray(p, float), np.asarray(u, float)
+        if p.shape != (3,) or u.shape != (3,) or not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
+            raise RoutineError(f"hit {hid}: a point and a direction are three numbers each (X Y Z)")
+        if np.linalg.norm(u) < 1e-9:
+            raise RoutineError(f"hit {hid}: the approach direction is zero")
+        if p[2] > hit.clearance_z:
+            raise RoutineError(f"hit {hid}: Z {p[2]:g} is above its clearance height {hit.clearance_z:g}: "
+                               "raise the clearance first")
+        hit.point = tuple(float(x) for x in p)  # type: ignore[assignment]
+        hit.approach = tuple(float(x) for x in u / np.linalg.norm(u))  # type: ignore[assignment]
+
+    def set_probe(self, index: int, probe: str | None) -> None:
+        """The probe a step measures with (None or '': whatever probe is in use)."""
+        probe = (probe or "").strip() or None
+        self._edit(lambda: self.steps[index].update(probe=probe))
 
     def set_clearance(self, name: str, clearance_z: float) -> None:
         """The part Z every hit of the feature climbs to before moving to the next."""
@@ -262,9 +322,14 @@ def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = Non
         steps.append({"kind": "align", "name": "alignment", "datums": list(alignment.info["names"]),
                       "manual": bool(manual_alignment)})
     names = {f.id: f.name for f in st.features.values()}
+    probes = {f.name: str(f.fit.get("probe") or "") for f in st.features.values()}
+    if alignment is not None and steps:  # the datums' probe, when one probe took them all
+        used = {probes.get(n, "") for n in steps[0]["datums"]}
+        if len(used) == 1 and "" not in used and "+" not in next(iter(used)):
+            steps[0]["probe"] = next(iter(used))
     # fitted and constructed features share one id counter: their ids are the order they were made in
-    made: list[tuple[int, dict[str, Any]]] = [(f.id, _feature_step(f.name)) for f in st.features.values()
-                                              if f.name in taught]
+    made: list[tuple[int, dict[str, Any]]] = [(f.id, _feature_step(f.name, probes.get(f.name, "")))
+                                              for f in st.features.values() if f.name in taught]
     for cid, c in st.constructed.items():
         ops = [names.get(i) for i in c.get("operands", ())]
         if c.get("operation") in CONSTRUCTIONS and len(ops) == 2 and all(ops):
@@ -301,11 +366,13 @@ class RoutineCancelled(RoutineError):
 
 class RoutineRun:
     """One run of a routine on the next part. ``run()`` blocks (call it from a job thread); ``pause``,
-    ``resume``, ``skip`` and ``cancel`` act between hits from any thread."""
+    ``resume``, ``skip`` and ``cancel`` act between hits from any thread. After a step stopped on a fault
+    (state ``failed``, ``faulted`` its index), ``resume_after_fault()`` or ``restart()`` (blocking, from a job
+    thread) carry on in the same part session; ``cancel()`` ends it."""
 
     def __init__(self, routine: Routine, model: Any, controller: Any = None, *, client: Any = None,
                  part_name: str | None = None, on_progress: Callable[[RunProgress], None] | None = None,
-                 timeout: float = 120.0) -> None:
+                 timeout: float = 120.0, change_probe: Callable[[str], Any] | None = None) -> None:
         self.routine = routine
         self.model = model
         self.controller = controller
@@ -313,16 +380,25 @@ class RoutineRun:
         self.part_name = part_name
         self.on_progress = on_progress
         self.timeout = timeout
-        measured = {n for s in routine.steps if not s.get("skip")
-                    for n in (s["datums"] if s["kind"] == "align" else [s["name"]] if s["kind"] == "feature" else [])}
-        self.progress = RunProgress(steps=len(routine.steps),
-                                    total_hits=sum(len(routine.feature(n).hits) for n in measured))
+        self.change_probe = change_probe  # makes a named probe the one in use (the calibration service's)
+        self.progress = RunProgress(steps=len(routine.steps), total_hits=self._total_hits())
         self._go = threading.Event()
         self._go.set()
         self._skip = False
         self._cancel = False
         self._stopped = threading.Event()  # set by cancel: ends the waits for the operator at once
         self._fids: dict[str, int] = {}  # feature name -> the model's feature id for this part
+        self._partial: list[int] = []  # hits of the feature being measured, not fitted yet
+        self._taken: list[int] = []  # every hit this run kept (fitted into a feature)
+        self._manual: list[list[int]] | None = None  # the manual 3-2-1 hits, once all were taken
+        self.faulted: int | None = None  # index of the step a fault stopped
+        self.discarded: list[int] = []  # hits of stopped steps, deleted (they stay in the journal)
+
+    def _total_hits(self) -> int:
+        r = self.routine
+        measured = {n for s in r.steps if not s.get("skip")
+                    for n in (s["datums"] if s["kind"] == "align" else [s["name"]] if s["kind"] == "feature" else [])}
+        return sum(len(r.feature(n).hits) for n in measured)
 
     # --- operator's controls -------------------------------------------------------------
 
@@ -344,6 +420,11 @@ class RoutineRun:
         self._cancel = True
         self._stopped.set()
         self._go.set()
+        if self.progress.state == "failed":  # stopped on a fault: nothing runs to see the flag
+            self.model.note(f"routine {self.routine.name!r} cancelled after the fault at step {self.faulted + 1}"
+                            if self.faulted is not None else f"routine {self.routine.name!r} cancelled")
+            self._tell(state="cancelled", message="cancelled after the fault; the hits taken stay recorded",
+                       prompt="")
 
     def _tell(self, **changes: Any) -> None:
         for k, v in changes.items():
@@ -373,15 +454,92 @@ class RoutineRun:
         self.progress.session = model.new_session(name)
         model.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
         self._tell(state="running", message=f"routine {routine.name!r} started")
+        return self._steps_from(0, manual_hits)
+
+    @property
+    def can_resume(self) -> bool:
+        return self.progress.state == "failed" and self.faulted is not None and not self._cancel
+
+    def resume_after_fault(self, manual_hits: Callable[[str, int], list[int]] | None = None) -> RunProgress:
+        """After a fault (and Reset): retract to the clearance height, discard the stopped step's hits, run that
+        step again and the rest, in the same part session."""
+        if not self.can_resume:
+            raise RoutineError("there is no stopped step to resume: the routine did not stop on a fault")
+        step = self.faulted
+        assert step is not None
+        self._retract()
+        self._discard(self._partial, f"step {step + 1} stopped by the fault")
+        self._partial = []
+        self.model.note(f"routine {self.routine.name!r} resumed from step {step + 1}")
+        self._tell(state="running", message=f"resumed from step {step + 1}", prompt="")
+        return self._steps_from(step, manual_hits)
+
+    def restart(self, manual_hits: Callable[[str, int], list[int]] | None = None) -> RunProgress:
+        """After a fault (and Reset): retract, discard everything this run measured (hits and features deleted,
+        still in the journal) and run the routine again from its first step, in the same part session."""
+        if not self.can_resume:
+            raise RoutineError("there is no stopped run to restart: the routine did not stop on a fault")
+        self._retract()
+        for fid in self._fids.values():
+            try:
+                self.model.delete_feature(fid)
+            except Exception:  # noqa: BLE001 - a feature the operator deleted meanwhile
+                pass
+        self._discard(self._taken + self._partial, "the routine restarted")
+        self._fids.clear()
+        self._taken, self._partial, self._manual = [], [], None
+        self.progress.results.clear()
+        self.model.note(f"routine {self.routine.name!r} restarted from step 1")
+        self._tell(state="running", message="restarted from step 1", hits=0, prompt="")
+        return self._steps_from(0, manual_hits)
+
+    def _discard(self, ids: list[int], why: str) -> None:
+        """Delete hits (a 'hit_deleted' event each: the journal keeps them) and say why."""
+        gone = [h for h in ids if h in self.model.hits]
+        for h in gone:
+            self.model.delete_hit(h)
+        if gone:
+            self.discarded += gone
+            self.model.record("routine_discarded", hit_ids=gone, reason=why)
+            self.model.note(f"routine {self.routine.name!r}: hits {', '.join(map(str, gone))} discarded ({why})")
+            self._tell(hits=max(0, self.progress.hits - len(gone)))
+
+    def _retract(self) -> None:
+        """Straight up to the clearance height through the command API (its rails back off a contact first)."""
+        c = self.controller
+        if c is None:
+            return
+        mode = str(getattr(c.state.mode, "value", ""))
+        if mode in ("fault", "estopped"):
+            raise RoutineError(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: "
+                               "press Reset, then resume")
+        here = c.frame_position("machine")
+        if here is None:
+            return
+        z = max(float(here[2]), float(self.model.clearance_z()) if self.model.part is not None else float(here[2]))
+        self._wait_standing()
+        answer = c.commands.call(self.client, "move", {"target": [float(here[0]), float(here[1]), z],
+                                                        "frame": "machine", "path": "clearance"},
+                                 wait=True, timeout=self.timeout)
+        if not answer.ok:
+            raise RoutineError(f"the retract to the clearance height failed: {answer.error['message']}")
+        self.model.note(f"routine {self.routine.name!r}: retracted to the clearance height Z {z:.3f}")
+
+    def _steps_from(self, start: int, manual_hits: Callable[[str, int], list[int]] | None) -> RunProgress:
+        model, routine = self.model, self.routine
+        self.faulted = None
         jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel verb ends this
         try:
             with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", self.cancel):
-                for i, step in enumerate(routine.steps):
+                for i in range(start, len(routine.steps)):
+                    step = routine.steps[i]
                     self.progress.step = i
                     if step.get("skip"):
                         continue
                     self._skip = False
                     self._tell(message=routine.describe(i))
+                    if step["kind"] in ("align", "feature"):
+                        self._use_probe(step)
                     if step["kind"] == "align":
                         self._align(step, manual_hits or self._wait_for_hits)
                     elif step["kind"] == "feature":
@@ -396,21 +554,40 @@ class RoutineRun:
             model.note(f"routine {routine.name!r} cancelled")
             raise
         except Exception as exc:
-            self._tell(state="failed", message=f"step {self.progress.step + 1}: {exc}", prompt="")
-            model.note(f"routine {routine.name!r} failed at step {self.progress.step + 1}: {exc}")
+            self.faulted = self.progress.step
+            name = routine.steps[self.faulted]["name"]
+            self._tell(state="failed", message=f"step {self.faulted + 1} ({name}) stopped: {exc}", prompt="")
+            model.note(f"routine {routine.name!r} stopped at step {self.faulted + 1} ({name}): {exc}")
             raise
         model.note(f"routine {routine.name!r} finished")
         self._tell(state="done", step=len(routine.steps), message=f"routine {routine.name!r} done", prompt="")
         return self.progress
 
-    def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
+    def _use_probe(self, step: dict[str, Any]) -> None:
+        """Change to the probe the step names, before it moves."""
+        want = step.get("probe")
+        if not want or want == getattr(self.model, "probe_name", ""):
+            return
+        if self.change_probe is None:
+            raise RoutineError(f"{step['name']} measures with probe {want} but {self.model.probe_name or 'another'} "
+                               "is in use: change the probe, or clear the step's probe")
+        self._wait_standing()
+        self.change_probe(want)
+        self.model.note(f"routine {self.routine.name!r}: probe {want} for {step['name']}")
+
+    def _wait_standing(self) -> None:
+        """The operator's last manual hit may still be retracting: wait until the machine stands (30 s at most)."""
         if self.controller is None:
-            return fn()
-        # the operator's last manual hit may still be retracting: the machine is the routine's once it stands
+            return
         for _ in range(300):
             if str(getattr(self.controller.state.mode, "value", "")) not in ("moving", "probing", "jogging"):
                 break
             self._stopped.wait(0.1)
+
+    def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
+        if self.controller is None:
+            return fn()
+        self._wait_standing()
         return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn, cancel=self.cancel)
 
     def _measure(self, name: str) -> Any:
@@ -419,11 +596,12 @@ class RoutineRun:
         f = self.routine.feature(name)
         pose = np.asarray(model.part.pose, float)
         by_id = {h.id: t for h, *t in machine_targets(program, pose)}
-        ids = []
+        self._partial = ids = []
         for hid in f.hits:
             self._between_hits()
             if self._skip:
                 self.model.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
+                self._partial = []
                 return None
             p, u, cz = by_id[hid]
             hit = model.probe(p, u, clearance_z=cz, client=self.client).wait(self.timeout)
@@ -434,6 +612,8 @@ class RoutineRun:
             nominal = NominalFeature(f.nominal["kind"],
                                      {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
         feature = model.fit_feature(f.kind, ids, f.method, f.name, nominal, tolerance=f.tolerance)
+        self._taken += ids
+        self._partial = []
         self._fids[name] = feature.id
         self.progress.results[name] = feature
         return feature
@@ -478,9 +658,11 @@ class RoutineRun:
             self._stopped.wait(0.1)  # a person's pace: look again in a tenth of a second
 
     def _align(self, step: dict[str, Any], manual_hits: Callable[[str, int], list[int]]) -> None:
+        """Manual 3-2-1 hits (when the step says so), then the three datums measured and the part aligned. Run
+        again after a fault, it keeps the manual hits and the datums measured before the fault."""
         model = self.model
         datums = step["datums"]
-        if step.get("manual"):
+        if step.get("manual") and self._manual is None:
             ids = []
             for what, datum, n in zip(("primary", "secondary", "tertiary"), datums, MANUAL_HITS):
                 self._between_hits()
@@ -489,10 +671,13 @@ class RoutineRun:
                     raise RoutineError(f"the manual alignment needs {n} hits on {datum}, got {len(got)}")
                 ids.append(got)
             apply(model, self._manual_321(datums, ids))
+            self._manual = ids
+            self._taken += [h for g in ids for h in g]
             model.note("manual 3-2-1 alignment from 6 hits taken by hand")
         fids = []
         for d in datums:
-            self._in_job(f"measure {d}", lambda d=d: self._measure(d))
+            if d not in self._fids:
+                self._in_job(f"measure {d}", lambda d=d: self._measure(d))
             if d not in self._fids:
                 raise RoutineError(f"the alignment needs {d}, which was skipped")
             fids.append(self._fids[d])

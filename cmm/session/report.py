@@ -402,6 +402,12 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
     return "".join(out)
 
 
+def feature_probe(feature: Any) -> str:
+    """The probe (stylus) that took a fitted feature's hits, as journalled with it ("T1", "T1+T2"; "" before
+    features recorded their probe)."""
+    return str(feature.fit.get("probe") or "")
+
+
 def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None,
                  mesh: Any = None) -> str:
     """The feature table as CSV: one row per characteristic, mm (degrees for angles); geometric tolerances
@@ -409,25 +415,26 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
-                "actual", "deviation", "out_of_tolerance", "result"])
+                "actual", "deviation", "out_of_tolerance", "result", "probe"])
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
         for c in feature_characteristics(f, tols[fid]):
             w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict,
+                        feature_probe(f)])
     for rec, cs in _constructed_rows(session, default_tolerance):
         for c in cs:
             w.writerow([c.feature, "constructed", rec.get("operation", ""), "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
     # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
     for d, c in session_gdt(session, mesh, tols):
         w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
                     f"{c.upper:.6f}", f"{c.lower:.6f}", "" if c.actual is None else f"{c.actual:.6f}",
-                    "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict])
+                    "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
     return buf.getvalue()
 
 
@@ -533,7 +540,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
         return "<dl>" + "".join(f"<dt>{e(k)}</dt><dd>{e(v)}</dd>" for k, v in items) + "</dl>"
 
     out.append(f"<div class='head'>{dl(left)}{dl(right)}</div>")
-    out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>characteristic</th>"
+    out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>probe</th>"
+               "<th class='l'>characteristic</th>"
                "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>deviation</th><th>out of tol</th>"
                "<th>result</th></tr></thead><tbody>")
     for f, cs in per_feature:
@@ -544,8 +552,9 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                 fname = str(f.get("name", ""))
             else:
                 what, fname = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits", f.name
+            probe = "" if isinstance(f, dict) else feature_probe(f)
             name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(fname)}</b><br><span class='muted'>{e(what)}"
-                         "</span></td>") if k == 0 else ""
+                         f"</span></td><td class='l' rowspan='{len(cs)}'>{e(probe) or '&mdash;'}</td>") if k == 0 else ""
             unit = "°" if c.unit == "deg" else ""
             lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
             # notes: why a value is missing; for a constructed value also how it was measured (its projection)
@@ -562,7 +571,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                        f"<td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                        f"{result}</tr>")
     if not per_feature:
-        out.append("<tr><td class='l' colspan='9'>no features were fitted in this session</td></tr>")
+        out.append("<tr><td class='l' colspan='10'>no features were fitted in this session</td></tr>")
     out.append("</tbody></table><p class='muted'>Lengths in mm, angles in degrees. Sizes and locations against the "
                "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
                "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
