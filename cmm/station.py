@@ -101,14 +101,20 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
     cmds.register("run_program", program, {"path": REQUIRED, "serial": ""},
                   "run a measurement program file (the machine is the program's until it ends; cancel ends it "
                   "after the hit in progress)")
-    def routine(client: Any, run: Any, manual_hits: Any = None) -> Any:
+    def routine(client: Any, run: Any, manual_hits: Any = None, action: str = "run") -> Any:
         controller.check_access(client, "measure")
         run.controller, run.client = controller, client  # its jobs are this client's; the cancel verb ends it
-        return run.run(manual_hits)
+        if calibration is not None and run.change_probe is None:  # a step's probe: selected as Use this probe does
+            run.change_probe = lambda name: calibration.select_probe(client, name)
+        go = {"run": run.run, "resume": run.resume_after_fault, "restart": run.restart}.get(action)
+        if go is None:
+            raise StationError(f"run_routine: action must be run, resume or restart, not {action!r}")
+        return go(manual_hits)
 
-    cmds.register("run_routine", routine, {"run": REQUIRED, "manual_hits": None},
-                  "in process: run a routine on the next part (a RoutineRun: pause / resume / skip on it); cancel "
-                  "ends it between hits")
+    cmds.register("run_routine", routine, {"run": REQUIRED, "manual_hits": None, "action": "run"},
+                  "in process: run a routine on the next part (a RoutineRun: pause / resume / skip on it), or after "
+                  "a fault resume it from the stopped step (retract, the step again) or restart it; cancel ends it "
+                  "between hits")
     if calibration is not None:
         def qualify(client: Any, routine: str = "probe", progress: Any = None, options: dict | None = None) -> Any:
             return calibration.run(client, routine, progress, **(options or {}))

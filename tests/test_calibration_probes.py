@@ -1,9 +1,12 @@
 """Probes and styli from the Calibration tab, on the simulator's virtual clock: a fresh calibration folder (no
 certificate, no records), the reference sphere's certificate entered in the page, a second stylus added and
-qualified after a fault left the probe under the sphere, the probe list with the qualified radius, the probe
-name with each hit, and the I++ server's tool list."""
+qualified after a fault left the probe under the sphere, the probe list with the qualified radius, a
+qualification paused and resumed and one resumed after an E-STOP, the probe name with each hit, and the I++
+server's tool list."""
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -101,6 +104,65 @@ def test_probe_list_add_select_and_qualify_after_a_fault(fresh):
     assert st.prober.settings.tip_radius == pytest.approx(tip_d / 2) and not (folder / "probe.toml").exists()
     assert panel.select_probe("T2")
     assert st.prober.settings.tip_radius == pytest.approx(rec.tip_radius)
+
+
+def _wait(predicate, timeout, what):
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, f"{what} did not happen within {timeout} s"
+        time.sleep(0.01)
+
+
+def test_qualification_pauses_lifts_before_going_on_and_resumes_after_a_fault(fresh):
+    """The qualification of T2 paused after a point holds the machine; Resume lifts to the safe height first. An
+    E-STOP mid-pattern stops it with the points kept; Resume is refused until Reset, then measures only the rest."""
+    ui, operator, folder = fresh
+    st = ui.station
+    panel = operator.calibration
+    assert panel.select_probe("T2")
+    safe_z = st.config.axis("z").max - 5.0
+    zs: list[tuple[float, str]] = []  # (tip Z, the run's progress message then): both on the dispatcher thread
+    unsubscribe = st.controller.subscribe_state(lambda s: s.machine is not None and zs.append(
+        (float(s.machine.position[2]), panel.job.message if panel.job is not None else "")))
+
+    def lifted(during: str) -> bool:
+        return any(z >= safe_z - 0.1 for z, m in zs if m.startswith(during))
+
+    try:
+        job = panel.run("probe", per_ring=4, repeats=1)
+        assert job is not None, _errors(operator)[-1:]
+        _wait(lambda: "point 3 of 13" in job.message, 300, "point 3")
+        assert panel.pause()
+        _wait(lambda: st.calibration.holding, 120, "the hold")
+        held = (job.message, st.machine.position.copy())
+        time.sleep(1.0)
+        assert not job.done and job.message == held[0] and np.allclose(st.machine.position, held[1])
+        assert held[1][2] < safe_z - 20  # it holds beside the sphere
+        zs.clear()
+        assert panel.resume()
+        _wait(lambda: "point 5 of 13" in job.message, 300, "point 5")
+        assert lifted("lifting to the clearance height after the pause")  # lifted clear before it went on
+        _wait(lambda: "point 7 of 13" in job.message, 300, "point 7")
+        st.controller.emergency_stop("operator")
+        assert job.wait(120) and job.error is not None
+        assert "press Reset, then Resume qualification" in str(job.error)
+        kept = len(st.calibration.checkpoint.points)
+        assert 6 <= kept < 13
+        assert not panel.resume()  # latched: refused with a sentence, nothing moves
+        assert "emergency" in _errors(operator)[-1][2].lower() or "estop" in _errors(operator)[-1][2].lower()
+        st.controller.reset("operator")
+        zs.clear()
+        assert panel.resume(), _errors(operator)[-1:]
+        job = panel.job
+        assert job.wait(600) and job.error is None, job.error
+        assert lifted("lifting to the clearance height")  # the resumed run lifted first
+        result = panel.result[1]
+        assert result.probe == "T2" and result.skipped == [] and result.record.n_points == 13
+        assert abs(result.record.tip_radius - st.config.probe.tip_radius) < 0.01
+        assert st.calibration.checkpoint is None
+        assert panel.save_record() is not None
+    finally:
+        unsubscribe()
 
 
 def test_hits_remember_their_probe_and_ippdme_lists_the_probes(fresh):

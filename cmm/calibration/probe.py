@@ -6,6 +6,12 @@ fit -> the real centre; then a denser pattern (default 3 latitudes x 24
 points + the pole) in position mode with safe moves around the sphere.
 Guided manual: :func:`qualify_from_hits` takes the operator's hits.
 
+Pause and faults: between points the run asks ``between()`` (the service's pause: it holds the machine there
+until the operator resumes); after a pause the probe lifts to the safe height before it goes on. A fault or
+E-STOP (the machine's motion inhibited) stops the run with :class:`QualificationInterrupted`, whose
+:class:`QualificationCheckpoint` keeps the located centre and the points measured; ``qualify_probe(...,
+resume=checkpoint)`` after Reset lifts clear and measures the remaining points only.
+
 Convention (pre-travel and radius are not separable on one sphere):
 a sphere fitted to the latched tip centres T_i has radius D/2 + r_eff.
 The residuals of T_i against that sphere, by approach direction, are the
@@ -25,7 +31,7 @@ from __future__ import annotations
 
 import math
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -214,14 +220,23 @@ class SphereProber:
         return np.asarray(fit.center, float)
 
     def measure(self, centre: np.ndarray, radius: float, normals: np.ndarray, *, repeats: int = 1,
-                dither: float = 0.004, progress: Progress = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                dither: float = 0.004, progress: Progress = None, checkpoint: "QualificationCheckpoint | None" = None,
+                between: Callable[[], bool] | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Latched tip centres (mean of ``repeats`` dithered hits) per normal; approach directions; skipped.
 
-        A point whose hits fail (surface not found, contact) is skipped and reported, not fatal.
+        A point whose hits fail (surface not found, contact) is skipped and reported, not fatal; a fault or E-STOP
+        (motion inhibited) raises :class:`QualificationInterrupted` with ``checkpoint`` (the points so far),
+        from which a later call goes on. ``between()`` is asked before each point; True: the run was paused, so
+        the probe lifts to the safe height and comes back.
         """
-        out, used, skipped = [], [], []
+        cp = checkpoint if checkpoint is not None else QualificationCheckpoint(np.asarray(centre, float))
         with short_approach(self.machine):
-            for i, n in enumerate(normals):
+            for i in range(cp.next, len(normals)):
+                n = normals[i]
+                if between is not None and between():
+                    if progress is not None:
+                        progress(i / len(normals), "lifting to the clearance height after the pause")
+                    self.lift_clear(centre, radius, margin=1.0)  # the centre is known: a small margin
                 if progress is not None:
                     progress(i / len(normals), f"point {i + 1} of {len(normals)}")
                 hits = []
@@ -229,15 +244,39 @@ class SphereProber:
                     try:
                         hits.append(self.hit(centre, radius, n, dither if (repeats > 1) else 0.0).machine)
                     except MotionError as exc:
-                        skipped.append(f"point {i + 1} ({exc})")
+                        if getattr(self.machine, "inhibit", None):  # fault or E-STOP: stop, resumable after Reset
+                            raise QualificationInterrupted(
+                                f"stopped at point {i + 1} of {len(normals)}: {exc}", cp) from exc
+                        cp.skipped.append(f"point {i + 1} ({exc})")
                         self.machine.reset()
                         break
                 if len(hits) == repeats:
-                    out.append(np.mean(hits, axis=0))
-                    used.append(-unit(n))
+                    cp.points.append(np.mean(hits, axis=0))
+                    cp.approaches.append(-unit(n))
+                cp.next = i + 1
         if progress is not None:
-            progress(1.0, f"{len(out)} points measured")
-        return np.array(out).reshape(-1, 3), np.array(used).reshape(-1, 3), skipped
+            progress(1.0, f"{len(cp.points)} points measured")
+        return (np.array(cp.points).reshape(-1, 3), np.array(cp.approaches).reshape(-1, 3), list(cp.skipped))
+
+
+@dataclass
+class QualificationCheckpoint:
+    """How far a qualification got: the located sphere centre and the points measured (kept across a fault)."""
+
+    centre: np.ndarray
+    points: list = field(default_factory=list)  # mean latched tip centres
+    approaches: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)
+    next: int = 0  # index of the next point of the pattern
+    key: tuple = ()  # (probe, sphere serial, diameter, pattern options): what a resume goes on with
+
+
+class QualificationInterrupted(CalibrationError):
+    """A fault or E-STOP stopped the qualification; ``checkpoint`` lets it go on after Reset."""
+
+    def __init__(self, message: str, checkpoint: QualificationCheckpoint) -> None:
+        super().__init__(message)
+        self.checkpoint = checkpoint
 
 
 # ----------------------------------------------------------------- analysis
@@ -342,24 +381,38 @@ def analyse_qualification(centres: np.ndarray, approach: np.ndarray, certificate
 def qualify_probe(machine: Machine, certificate: SphereCertificate, *, approx_centre: Any = None,
                   polar_deg: tuple[float, ...] = (35.0, 80.0, 120.0), per_ring: int = 24, repeats: int = 2,
                   master_centre: Any = None, progress: Progress = None, seed: int = 0,
-                  tip_radius: float | None = None) -> ProbeQualification:
+                  tip_radius: float | None = None, resume: QualificationCheckpoint | None = None,
+                  between: Callable[[], bool] | None = None, key: tuple = ()) -> ProbeQualification:
     """Automatic qualification: lift clear of the sphere to the safe height (a stopped run may have left the probe
     beside or under it), locate the sphere, measure the pattern, analyse. ``tip_radius``: the stylus's nominal
-    radius (default: the configured one). Nothing is saved or applied."""
+    radius (default: the configured one). ``resume``: the checkpoint of a run a fault stopped (located centre and
+    points kept; only the rest is measured). ``between()``: asked before each point (True: it was paused).
+    Nothing is saved or applied; a fault raises :class:`QualificationInterrupted`."""
     centre = approx_centre if approx_centre is not None else certificate.approx_centre
-    if centre is None:
+    if centre is None and resume is None:
         raise CalibrationError("the approximate centre of the reference sphere is unknown: give [setup] centre in its "
                                "certificate or --centre X,Y,Z")
     say = report(progress, 0.0, 1.0)
     sp = SphereProber(machine, seed=seed, tip_radius=tip_radius)
     radius = certificate.diameter / 2
     say(0.0, "lifting to the clearance height")
-    sp.lift_clear(centre, radius)
-    say(0.01, "locating the reference sphere (one hit near its top, four at the equator)")
-    located = sp.locate(centre, radius)
+    if resume is not None:
+        located = np.asarray(resume.centre, float)
+        sp.lift_clear(located, radius, margin=1.0)
+        say(0.01, f"resuming at point {resume.next + 1}: {len(resume.points)} points kept")
+    else:
+        sp.lift_clear(centre, radius)
+        say(0.01, "locating the reference sphere (one hit near its top, four at the equator)")
+        try:
+            located = sp.locate(centre, radius)
+        except MotionError as exc:
+            if getattr(machine, "inhibit", None):
+                raise CalibrationError(f"stopped while locating the sphere: {exc}") from exc
+            raise
+    cp = resume if resume is not None else QualificationCheckpoint(located, key=key)
     normals = qualification_pattern(polar_deg, per_ring)
     t, u, skipped = sp.measure(located, radius, normals, repeats=repeats,
-                               progress=report(say, 0.05, 0.95))
+                               progress=report(say, 0.05, 0.95), checkpoint=cp, between=between)
     sp.leave(located, radius, np.array([1.0, 0.0, 0.0]))
     say(0.97, "fitting the sphere and the directional pre-travel")
     result = analyse_qualification(t, u, certificate, nominal_tip_radius=sp.tip_radius,

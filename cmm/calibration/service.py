@@ -130,6 +130,11 @@ class CalibrationService:
         self._bar_event: threading.Event | None = None
         self._cancel = False
         self._running = threading.Lock()  # one routine at a time, whichever front end started it
+        self._go = threading.Event()  # cleared while the operator has paused the probe qualification
+        self._go.set()
+        self.paused = False
+        self.holding = False  # a paused qualification holds the machine between two points
+        self.checkpoint: Any = None  # a probe qualification a fault stopped (QualificationCheckpoint), to resume
         self._artifacts: Path | None = None
 
     # --- the records in force -----------------------------------------------------
@@ -383,6 +388,8 @@ class CalibrationService:
         iso ``repeats``, ``approx_centre``; geometry ``repeats``, ``verify``, ``place`` (how the operator is asked
         to place the bar, ``place(setup)`` in the machine loop: a terminal prompt; default :meth:`placer`);
         servo ``axes``.
+        Probe ``resume=True``: go on with the qualification a fault stopped (:attr:`checkpoint`) instead of
+        starting it again.
         Raises Refused (machine busy, no control), CalibrationError, or the routine's error."""
         routine = ROUTINES.get(routine, routine)
         if routine not in LABELS:
@@ -392,6 +399,8 @@ class CalibrationService:
         try:
             certs = self.certificates(routine)
             self._cancel = False
+            self.paused = False
+            self._go.set()
             return self.host.controller.commands.invoke(
                 client, "run_job", description=LABELS[routine], work=lambda job: self._work(job, routine, certs, options),
                 progress=progress, cancel=self._cancel_run)
@@ -412,11 +421,31 @@ class CalibrationService:
                     master = load_probe_record(self.records_dir / PROBE_RECORD).sphere_centre
             except CalibrationError:
                 master = None
+            from .probe import QualificationInterrupted
+
             kw = {k: options[k] for k in ("per_ring", "polar_deg", "repeats", "approx_centre") if k in options}
             kw.setdefault("repeats", 2)
             probes, selected = self.probe_list()
             tip = next(p.tip_diameter / 2 for p in probes if p.name == selected)
-            result = qualify_probe(machine, certs, master_centre=master, progress=progress, tip_radius=tip, **kw)
+            key = (selected, certs.serial, certs.diameter)
+            resume = None
+            if options.get("resume"):
+                resume = self.checkpoint
+                if resume is None:
+                    raise CalibrationError("there is no stopped probe qualification to resume: press Run")
+                if resume.key[:3] != key:
+                    raise CalibrationError(f"the stopped qualification was of probe {resume.key[0]} on sphere "
+                                           f"{resume.key[1]}: select that probe, or press Run to qualify again")
+                kw = dict(resume.key[3])  # the pattern it was measuring
+            key = (*key, tuple(sorted(kw.items())))
+            try:
+                result = qualify_probe(machine, certs, master_centre=master, progress=progress, tip_radius=tip,
+                                       resume=resume, between=self._between_points, key=key, **kw)
+            except QualificationInterrupted as exc:
+                self.checkpoint = exc.checkpoint  # Reset, then resume: the points measured are kept
+                raise CalibrationError(f"{exc}. {len(exc.checkpoint.points)} points are kept: press Reset, then "
+                                       "Resume qualification") from None
+            self.checkpoint = None
             result.record.note = f"probe {selected}: {result.record.note}"
             result.probe = selected  # the probe it qualified: save() files the record under its name
             return result
@@ -474,6 +503,37 @@ class CalibrationService:
                 self._bar_event = None
         return place_operator
 
+    def pause(self) -> bool:
+        """Hold the running probe qualification after the point in progress (False: none runs)."""
+        if not self.running:
+            return False
+        self.paused = True
+        self._go.clear()
+        return True
+
+    def resume(self) -> bool:
+        """Go on with a paused qualification: it lifts to the safe height, then measures the next point."""
+        was = self.paused
+        self.paused = False
+        self._go.set()
+        return was
+
+    def _between_points(self) -> bool:
+        """In the machine loop, before each qualification point: hold while paused (the loop keeps serving STOP
+        and E-STOP); True when it was paused."""
+        if self._go.is_set():
+            return False
+        self.holding = True
+        try:
+            while not self.host.controller.wait_event(self._go, 0.2):
+                if self._cancel:
+                    break
+        finally:
+            self.holding = False
+        if self._cancel:
+            raise CalibrationError("the operator cancelled the qualification while it was paused")
+        return True
+
     def bar_placed(self) -> bool:
         """The operator has clamped the bar for the set-up shown: the routine goes on. False: nothing waits."""
         event = self._bar_event
@@ -485,7 +545,7 @@ class CalibrationService:
     def _cancel_run(self) -> None:
         """The ``cancel`` verb: a routine waiting for the operator ends there; one that moves is stopped (its
         routines do not look for a cancel between their hits)."""
-        waiting = self._bar_event is not None
+        waiting = self._bar_event is not None or self.holding  # a paused qualification holds: nothing moves
         self.cancel()
         if not waiting:
             self.host.controller.commands.invoke(None, "stop")
@@ -495,6 +555,7 @@ class CalibrationService:
         if not self.running:
             return
         self._cancel = True
+        self._go.set()
         event = self._bar_event
         if event is not None:
             event.set()

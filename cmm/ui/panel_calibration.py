@@ -342,6 +342,35 @@ class CalibrationPanel:
             return
         self.ctx.do("Cancel", "cancel", guarded=False)  # the routine's own cancel: ends a wait, stops a move
 
+    def pause(self) -> bool:
+        """Hold the probe qualification after the point in progress."""
+        if not self.ctx.allowed("Pause"):
+            return False
+        if not self.running or self.routine != "probe" or not self.service.pause():
+            self.ctx.error("no probe qualification is running: only it can be paused", "Pause")
+            return False
+        self.ctx.notify("Qualification paused", "after the point in progress; Resume lifts to the clearance height "
+                        "and goes on")
+        return True
+
+    def resume(self) -> bool:
+        """A paused qualification goes on; one a fault stopped goes on after Reset with the points kept."""
+        if not self.ctx.allowed("Resume"):
+            return False
+        if self.running:
+            if not self.service.resume():
+                self.ctx.error("the qualification is not paused", "Resume")
+                return False
+            return True
+        if self.service.checkpoint is None:
+            self.ctx.error("no qualification was paused or stopped by a fault: press Run", "Resume")
+            return False
+        g = self.gui
+        opts: dict[str, Any] = {"resume": True}
+        if "per_ring" in g:
+            opts.update(per_ring=int(g["per_ring"].value), repeats=int(g["repeats"].value))
+        return self.run("probe", **opts) is not None
+
     def _done(self, job: Job) -> None:
         if job.error is not None:
             exc = job.error
@@ -484,7 +513,8 @@ class CalibrationPanel:
         with g["servo_opts"]:
             g["axes"] = gui.add_dropdown("Axes", ("X", "Y", "Z", "X, Y, Z"), initial_value="X, Y, Z")
         gui.add_button("Run", color="green").on_click(lambda _: self._run_from_gui())
-        gui.add_button("Cancel").on_click(lambda _: self.cancel())
+        gui.add_button_group("Calibration run", ("Pause", "Resume", "Cancel")).on_click(
+            lambda e: {"Pause": self.pause, "Resume": self.resume, "Cancel": self.cancel}[e.target.value]())
         self.progress_view.build(gui)
         g["instruction"] = gui.add_markdown("")
         g["bar"] = gui.add_button("Bar placed, continue", color="orange", visible=False)
@@ -524,6 +554,11 @@ class CalibrationPanel:
         """Called by ClientApp.refresh (5 Hz): the set-up to place, and a routine started in another tab."""
         self._show_instruction()
         job = self._app_job()
+        if job is not None and not job.done and self.progress_view.status is not None and self.service.paused:
+            text = (f"**PAUSED** {job.title}: {job.message}" + (" · holding; **Resume** lifts to the clearance "
+                    "height and goes on" if self.service.holding else " · stopping after the point in progress"))
+            if self.progress_view.status.content != text:
+                self.progress_view.status.content = text
         if job is not None and job is not self.job and not job.done:
             if self.progress_view.status is not None:
                 text = f"**{job.title}** (another tab): {job.fraction * 100:.0f} % · {job.message}"

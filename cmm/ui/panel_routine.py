@@ -6,7 +6,12 @@ rename, move up or down, skip, delete, and for feature steps give a tolerance or
 construction or report step can be inserted. *Save* / *Open* use the program file format. *Run on next part*
 runs it as a job: a manual 3-2-1 first when the routine says so (the prompt tells which face and how many
 hits; the operator takes them with the jog and the armed probe), then everything automatically, with a
-progress bar, Pause / Resume / Skip step / Cancel, and the part's results in a session of their own.
+progress bar, Pause / Resume / Skip step / Cancel, and the part's results in a session of their own. A step
+stopped by a fault (unexpected contact, link fault, E-STOP) stops the run with the reason shown; after Reset,
+*Resume from step N* retracts to the clearance height and measures that step again (its partial hits
+discarded, kept in the journal) and the rest, in the same part session; *Restart* runs it from step 1 again;
+*Cancel* ends it. Each step may name its probe (the stylus is changed to before the step); the nominal, the
+hit plan (which hits, in which order) and single hits can be edited too.
 
 *DMIS program*: open a ``.dmi`` / ``.dms`` file (:mod:`cmm.dmis`): the whole program is checked first (a
 statement the station does not support stops it with its line number, before anything moves), its
@@ -25,6 +30,28 @@ from ..session.program import ProgramError, load
 from ..session.store import open_session
 from .context import PanelContext
 from .path_preview import PathPreview
+
+
+def parse_nominal(text: str) -> dict[str, Any]:
+    """'radius=15.01 point=30 40 0' -> {'radius': 15.01, 'point': [30.0, 40.0, 0.0]}."""
+    out: dict[str, Any] = {}
+    key = None
+    for word in text.replace(",", " ").replace(";", " ").replace("=", "= ").split():
+        if word.endswith("="):
+            key = word[:-1].strip()
+            if not key:
+                raise RoutineError("write name=value, e.g. radius=15.01 or point=30 40 0")
+            out[key] = []
+            continue
+        if key is None:
+            raise RoutineError("write name=value, e.g. radius=15.01 or point=30 40 0")
+        try:
+            out[key].append(float(word))
+        except ValueError:
+            raise RoutineError(f"{key}: {word!r} is not a number") from None
+    if not out or any(not v for v in out.values()):
+        raise RoutineError("write name=value, e.g. radius=15.01 or point=30 40 0")
+    return {k: v[0] if len(v) == 1 else v for k, v in out.items()}
 
 
 class RoutinePanel:
@@ -91,13 +118,18 @@ class RoutinePanel:
         return p if p.is_absolute() or not isinstance(base, Path) else base / p
 
     def edit(self, action: str, *args: Any) -> bool:
-        """An edit of the selected step: rename, up, down, delete, skip, tolerance, clearance, insert."""
+        """An edit of the selected step: rename, up, down, delete, skip, tolerance, clearance, nominal, hits, hit,
+        probe, insert."""
         r = self.routine
         if r is None:
             self.ctx.error("teach or open a routine first", "Routine")
             return False
         if self.running:
             self.ctx.error("the routine is running: edit it when it has finished", "Routine")
+            return False
+        if self.run_ is not None and self.run_.can_resume:
+            self.ctx.error(f"the run stopped at step {(self.run_.faulted or 0) + 1} waits: resume, restart or cancel "
+                           "it before editing the routine", "Routine")
             return False
         i = self.selected()
         try:
@@ -110,15 +142,36 @@ class RoutinePanel:
                 i = min(i, len(r.steps) - 1)
             elif action == "skip":
                 r.set_skip(i, not r.steps[i].get("skip"))
-            elif action in ("tolerance", "clearance"):
+            elif action == "probe":
+                if r.steps[i]["kind"] not in ("feature", "align"):
+                    raise RoutineError(f"{r.steps[i]['name']} does not measure: choose a feature or alignment step")
+                r.set_probe(i, str(args[0]))
+            elif action in ("tolerance", "clearance", "nominal", "hits", "hit"):
                 step = r.steps[i]
                 if step["kind"] != "feature":
                     raise RoutineError(f"{step['name']} is not a feature: choose a feature step")
                 if action == "tolerance":
-                    size, form, location = (float(x) for x in str(args[0]).replace(",", " ").split())
+                    words = str(args[0]).replace(",", " ").split()
+                    if len(words) != 3:
+                        raise RoutineError("write three tolerances in mm: size form location (e.g. 0.02 0.01 0.05)")
+                    size, form, location = (float(x) for x in words)
                     r.set_tolerance(step["name"], size=size, form=form, location=location)
-                else:
+                elif action == "clearance":
                     r.set_clearance(step["name"], float(args[0]))
+                elif action == "nominal":
+                    r.set_nominal(step["name"], **parse_nominal(str(args[0])))
+                elif action == "hits":
+                    r.set_hits(step["name"], [int(x) for x in str(args[0]).replace(",", " ").split()])
+                else:
+                    words = str(args[0]).replace(",", " ").split()
+                    if len(words) not in (4, 7):
+                        raise RoutineError("write the hit's id and its point X Y Z, optionally its approach I J K")
+                    hid = int(words[0])
+                    if hid not in r.feature(step["name"]).hits:
+                        raise RoutineError(f"hit {hid} is not one of {step['name']}'s hits "
+                                           f"({', '.join(map(str, r.feature(step['name']).hits))})")
+                    nums = [float(x) for x in words[1:]]
+                    r.set_hit(hid, nums[:3], nums[3:] or None)
             elif action == "insert":
                 r.insert(i + 1, args[0])
                 i += 1
@@ -248,27 +301,61 @@ class RoutinePanel:
         if not self.ctx.allowed("Run routine"):
             return False
         self.clear_preview()  # the machine draws the path now
+        if self.run_ is not None and self.run_.can_resume:
+            self.run_.cancel()  # a new part: the run stopped on a fault is given up (its hits stay recorded)
         self.parts += 1
         name = part_name.strip() or f"part {self.parts}"
         self.run_ = RoutineRun(r, self.station.measurement, part_name=name, on_progress=lambda _p: self._show_progress())
+        self._go("run", name)
+        return True
+
+    def _go(self, action: str, name: str) -> None:
+        """Run the run (``action`` 'run'), its resume or its restart through the command API, in a thread; every
+        stop is told."""
 
         def work() -> None:
             run = self.run_
             try:
-                self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run)  # the command API runs it
+                self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action)  # the API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
-                self.ctx.error(exc, "Routine stopped")
+                if run.progress.state == "failed":
+                    self.ctx.error(f"{run.progress.message}. Reset the machine, then Resume from step "
+                                   f"{(run.faulted or 0) + 1}, Restart or Cancel.", "Routine stopped")
+                else:
+                    self.ctx.error(exc, "Routine stopped")
             else:
-                self.ctx.notify("Routine done", f"{r.name} on {name}: results in session {Path(str(run.progress.session)).stem}")
+                self.ctx.notify("Routine done", f"{run.routine.name} on {name}: results in session {Path(str(run.progress.session)).stem}")
             self._show_progress()
 
         self.thread = threading.Thread(target=work, name="routine", daemon=True)
         self.thread.start()
         self._show_progress()
+
+    def recover(self, action: str) -> bool:
+        """After a step stopped on a fault: 'resume' (from that step) or 'restart' (from step 1)."""
+        run = self.run_
+        if run is None or not run.can_resume:
+            self.ctx.error("no routine stopped on a fault: there is nothing to resume", "Routine")
+            return False
+        if self.running:
+            self.ctx.error("the routine is still stopping: wait a moment", "Routine")
+            return False
+        mode = str(getattr(self.station.controller.state.mode, "value", ""))
+        if mode in ("fault", "estopped"):
+            self.ctx.error(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: press Reset "
+                           "first, then resume", "Routine")
+            return False
+        if not self.ctx.allowed("Resume routine"):
+            return False
+        self._go(action, run.part_name or "")
         return True
 
     def control(self, action: str) -> None:
         run = self.run_
+        if action == "cancel" and run is not None and run.can_resume and not self.running:
+            run.cancel()  # stopped on a fault: cancel ends it
+            self._show_progress()
+            return
         if run is None or not self.running:
             self.ctx.error("no routine is running", "Routine")
             return
@@ -302,6 +389,11 @@ class RoutinePanel:
             lines.append(f"**{p.prompt}** (Jog tab, probe armed)")
         if p.message:
             lines.append(p.message)
+        if run.can_resume and not self.running:
+            n = (run.faulted or 0) + 1
+            lines.append(f"Clear the cause, press **Reset**, then **Resume from step {n}** (the machine retracts to the "
+                         f"clearance height and measures step {n} again; its partial hits are discarded), "
+                         "**Restart** from step 1, or **Cancel**.")
         return "\n\n".join(lines)
 
     def _show(self, select: int | None = None) -> None:
@@ -317,6 +409,13 @@ class RoutinePanel:
     def _show_progress(self) -> None:
         run = self.run_
         self.ctx.set("routine:progress", "content", self.progress_text(), self.gui.get("progress"))
+        stopped = run is not None and run.can_resume and not self.running
+        for key in ("resume", "restart"):
+            if self.gui.get(key) is not None:
+                self.ctx.set(f"routine:{key}", "visible", stopped, self.gui[key])
+        if stopped and self.gui.get("resume") is not None:
+            self.ctx.set("routine:resume:label", "label", f"Resume from step {(run.faulted or 0) + 1}",
+                         self.gui["resume"])
         bar = self.gui.get("bar")
         if bar is not None and run is not None:
             p = run.progress
@@ -339,6 +438,14 @@ class RoutinePanel:
             gui.add_button("Set tolerance").on_click(lambda _: self.edit("tolerance", tol.value))
             clear = gui.add_number("Clearance Z (part mm)", 60.0, step=1.0)
             gui.add_button("Set clearance").on_click(lambda _: self.edit("clearance", clear.value))
+            nominal = gui.add_text("Nominal (part mm)", "", hint="e.g. radius=15.01  or  point=30 40 0")
+            gui.add_button("Set nominal").on_click(lambda _: self.edit("nominal", nominal.value))
+            hits = gui.add_text("Hit plan (hit ids in order)", "", hint="e.g. 12 13 14 16: drop or reorder hits")
+            gui.add_button("Set hit plan").on_click(lambda _: self.edit("hits", hits.value))
+            hit = gui.add_text("Move hit (id X Y Z [I J K], part mm)", "", hint="e.g. 14 45 40 20")
+            gui.add_button("Move hit").on_click(lambda _: self.edit("hit", hit.value))
+            probe = gui.add_text("Probe of the step", "", hint="a probe's name (Calibration tab); empty: any")
+            gui.add_button("Set probe").on_click(lambda _: self.edit("probe", probe.value))
             new = gui.add_text("Insert after", "", hint="report NAME, or distance A B [NAME]")
             gui.add_button("Insert step").on_click(lambda _: self.insert_text(new.value))
         with gui.add_folder("File", expand_by_default=False):
@@ -354,6 +461,11 @@ class RoutinePanel:
         g["progress"] = gui.add_markdown("")
         gui.add_button_group("Routine run", ("Pause", "Resume", "Skip step", "Cancel")).on_click(
             lambda e: self.control({"Skip step": "skip"}.get(e.target.value, e.target.value.lower())))
+        g["resume"] = gui.add_button("Resume from step 1", color="orange", visible=False,
+                                     hint="after Reset: retract, measure the stopped step again, go on")
+        g["resume"].on_click(lambda _: self.recover("resume"))
+        g["restart"] = gui.add_button("Restart", visible=False, hint="after Reset: measure the part from step 1 again")
+        g["restart"].on_click(lambda _: self.recover("restart"))
         with gui.add_folder("DMIS program", expand_by_default=False):
             dmis = gui.add_text("DMIS file", "", hint="PROGRAM.dmi (in the sessions folder) or a full path")
             gui.add_button("Open DMIS").on_click(lambda _: self.open_dmis(dmis.value))
