@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from netutil import SIM
+from netutil import SIM, free_port
 
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
@@ -270,7 +270,7 @@ def test_restart_and_cancel_after_a_fault(taught):
     with pytest.raises(Exception):
         run.run()
     assert stopped and run.progress.state == "failed" and run.faulted == 0
-    with pytest.raises(RoutineError, match="Reset"):
+    with pytest.raises(RoutineError, match="emergency stopped: press Reset"):
         run.resume_after_fault()  # still latched: nothing moved, nothing discarded
     assert run.discarded == [] and run.can_resume
     st.controller.reset(None)
@@ -291,3 +291,74 @@ def test_restart_and_cancel_after_a_fault(taught):
     st.controller.reset(None)
     notes = [e.get("text", "") for e in read_events(run2.progress.session).events if e["kind"] == "note"]
     assert any("cancelled after the fault at step 1" in n for n in notes)
+
+
+def test_every_edit_of_the_routine_tab(taught):
+    """The Routine tab's edits on a taught routine (no page: the panel's actions): rename, reorder, skip, delete,
+    insert (feature, alignment, construction, report), tolerance, clearance, nominal, hit plan, one hit, probe,
+    manual alignment; a wrong entry is refused with a sentence and changes nothing."""
+    from cmm.ui.app import StationApp
+
+    st, routine = taught
+    ui = StationApp(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    try:
+        capp = ui.add_client(client_id="operator", is_local=True)
+        panel = capp.routine
+        panel.routine = r = Routine(from_toml(routine.text()))
+
+        def refused(*edit, says):
+            before = r.text()
+            assert not (panel.insert_text(edit[1]) if edit[0] == "insert" else panel.edit(*edit))
+            assert says in capp.messages[-1][2], capp.messages[-1]
+            assert r.text() == before  # nothing changed
+
+        panel.select(4)  # the bore
+        assert panel.edit("rename", "BORE") and r.steps[4]["name"] == "BORE" and r.steps[7]["of"][0] == "BORE"
+        assert panel.edit("nominal", "radius=15.01 point=30 40 0")
+        assert r.program.feature("BORE").nominal["radius"] == 15.01
+        assert r.program.feature("BORE").nominal["point"] == [30.0, 40.0, 0.0]
+        refused("nominal", "diameter=30", says="no 'diameter'")
+        refused("nominal", "radius=-1", says="more than 0")
+        refused("nominal", "radius", says="name=value")
+        hits = list(r.program.feature("BORE").hits)
+        assert panel.edit("hits", " ".join(map(str, hits[1:][::-1])))  # one hit dropped, the order reversed
+        assert r.program.feature("BORE").hits == hits[1:][::-1]
+        refused("hits", str(hits[1]), says="needs at least")
+        refused("hits", f"{hits[1]} {hits[2]} 9999 {hits[3]} {hits[4]} {hits[5]}", says="no hit 9999")
+        x, y, z = next(h for h in r.program.hits if h.id == hits[2]).point
+        assert panel.edit("hit", f"{hits[2]} {x} {y} {z - 1.0}")
+        assert next(h for h in r.program.hits if h.id == hits[2]).point == pytest.approx((x, y, z - 1.0))
+        refused("hit", f"{hits[0]} 1 2 3", says="not one of BORE's hits")  # dropped from the plan above
+        refused("hit", f"{hits[2]} 1 2 300", says="above its clearance")
+        assert panel.edit("tolerance", "0.01 0.005 0.02")
+        tol = r.program.feature("BORE").tolerance
+        assert (tol["size"], tol["form"], tol["location"]) == (0.01, 0.005, 0.02)
+        refused("tolerance", "0.01 0.01", says="three tolerances")
+        refused("tolerance", "0.01 -1 0.01", says="positive")
+        assert panel.edit("clearance", 75.0)
+        assert panel.edit("probe", "T2") and r.steps[4]["probe"] == "T2" and "[T2]" in r.lines()[4]
+        assert panel.edit("probe", "") and "probe" not in r.text().split("[[steps]]")[5]
+        assert panel.edit("up") and r.steps[3]["name"] == "BORE"
+        assert panel.edit("down") and r.steps[4]["name"] == "BORE"
+        assert panel.edit("skip") and r.steps[4]["skip"] and "(skipped)" in r.lines()[4]
+        assert panel.edit("skip") and not r.steps[4].get("skip")
+        panel.select(6)  # the dome
+        assert panel.edit("delete") and "dome" not in [s["name"] for s in r.steps]
+        panel.select(5)
+        assert panel.insert_text("feature dome") and r.steps[6]["name"] == "dome"
+        refused("insert", "feature dome", says="same name")
+        refused("insert", "feature nothing", says="not a feature")
+        assert panel.insert_text("angle TOP FRONT top-front") and r.steps[7]["operation"] == "angle"
+        assert panel.insert_text("report final") and r.steps[8] == {"kind": "report", "name": "final"}
+        refused("insert", "angle TOP nothing", says="before it is measured")
+        refused("insert", "sideways", says="write 'report NAME'")
+        panel.select(0)
+        assert panel.edit("manual") and not r.steps[0].get("manual") and "(automatic)" in r.lines()[0]
+        assert panel.edit("manual") and r.steps[0]["manual"]
+        panel.select(1)
+        refused("manual", says="not an alignment")
+        assert panel.edit("delete") and r.steps[0]["kind"] == "align"  # TOP deleted: the alignment's datum stays
+        again = Routine(from_toml(r.text()))  # every edit is in the file
+        assert again.lines() == r.lines() and again.program.feature("BORE").hits == hits[1:][::-1]
+    finally:
+        ui.close()

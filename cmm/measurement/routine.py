@@ -290,6 +290,12 @@ class Routine:
         hit.point = tuple(float(x) for x in p)  # type: ignore[assignment]
         hit.approach = tuple(float(x) for x in u / np.linalg.norm(u))  # type: ignore[assignment]
 
+    def set_manual(self, index: int, manual: bool) -> None:
+        """An alignment step with (True) or without the operator's manual 3-2-1 hits first."""
+        if self.steps[index]["kind"] != "align":
+            raise RoutineError(f"{self.steps[index]['name']} is not an alignment step")
+        self._edit(lambda: self.steps[index].update(manual=bool(manual) or None))
+
     def set_probe(self, index: int, probe: str | None) -> None:
         """The probe a step measures with (None or '': whatever probe is in use)."""
         probe = (probe or "").strip() or None
@@ -510,7 +516,7 @@ class RoutineRun:
         if c is None:
             return
         mode = str(getattr(c.state.mode, "value", ""))
-        if mode in ("fault", "estopped"):
+        if mode in ("fault", "e-stopped"):
             raise RoutineError(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: "
                                "press Reset, then resume")
         here = c.frame_position("machine")

@@ -142,6 +142,10 @@ class RoutinePanel:
                 i = min(i, len(r.steps) - 1)
             elif action == "skip":
                 r.set_skip(i, not r.steps[i].get("skip"))
+            elif action == "manual":
+                if r.steps[i]["kind"] != "align":
+                    raise RoutineError(f"{r.steps[i]['name']} is not an alignment: choose the align step")
+                r.set_manual(i, not r.steps[i].get("manual"))
             elif action == "probe":
                 if r.steps[i]["kind"] not in ("feature", "align"):
                     raise RoutineError(f"{r.steps[i]['name']} does not measure: choose a feature or alignment step")
@@ -178,20 +182,29 @@ class RoutinePanel:
         except (RoutineError, ValueError, IndexError) as exc:
             self.ctx.error(exc, "Routine")
             return False
+        self._selected = i
         self._show(select=i)
         return True
 
     def insert_text(self, text: str) -> bool:
-        """'report NAME' or 'OPERATION A B [NAME]' (distance, angle, intersection, midpoint)."""
+        """'report NAME', 'feature NAME' (a feature of the routine), 'align PRIMARY SECONDARY TERTIARY [manual]'
+        or 'OPERATION A B [NAME]' (distance, angle, intersection, midpoint)."""
         words = text.split()
         if len(words) >= 1 and words[0] == "report":
             return self.edit("insert", {"kind": "report", "name": " ".join(words[1:]) or "report"})
+        if len(words) == 2 and words[0] == "feature":
+            return self.edit("insert", {"kind": "feature", "name": words[1]})
+        if len(words) in (4, 5) and words[0] == "align" and (len(words) == 4 or words[4] == "manual"):
+            taken = {s["name"] for s in self.routine.steps} if self.routine is not None else set()
+            name = next(n for n in ("alignment", *(f"alignment {k}" for k in range(2, 99))) if n not in taken)
+            return self.edit("insert", {"kind": "align", "name": name, "datums": words[1:4],
+                                        "manual": len(words) == 5 or None})
         if len(words) in (3, 4) and words[0] in CONSTRUCTIONS:
             name = words[3] if len(words) == 4 else f"{words[1]}-{words[2]}"
             return self.edit("insert", {"kind": "construct", "name": name, "operation": words[0],
                                         "of": [words[1], words[2]]})
-        self.ctx.error("write 'report NAME' or 'distance A B [NAME]' (distance, angle, intersection, midpoint)",
-                       "Insert step")
+        self.ctx.error("write 'report NAME', 'feature NAME', 'align A B C [manual]' or 'distance A B [NAME]' "
+                       "(distance, angle, intersection, midpoint)", "Insert step")
         return False
 
     # --- DMIS programs ----------------------------------------------------------------------
@@ -341,7 +354,7 @@ class RoutinePanel:
             self.ctx.error("the routine is still stopping: wait a moment", "Routine")
             return False
         mode = str(getattr(self.station.controller.state.mode, "value", ""))
-        if mode in ("fault", "estopped"):
+        if mode in ("fault", "e-stopped"):
             self.ctx.error(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: press Reset "
                            "first, then resume", "Routine")
             return False
@@ -364,8 +377,17 @@ class RoutinePanel:
 
     # --- what the tab shows --------------------------------------------------------------
 
+    def select(self, index: int) -> None:
+        """Choose step ``index`` (0-based), as the Step dropdown does."""
+        self._selected = int(index)
+        r = self.routine
+        if "step" in self.gui and r is not None and r.steps:
+            self.gui["step"].value = r.lines()[min(max(int(index), 0), len(r.steps) - 1)]
+
     def selected(self) -> int:
-        value = self.gui["step"].value if "step" in self.gui else ""
+        if "step" not in self.gui:  # no page (scripts, tests): the last select()
+            return max(0, getattr(self, "_selected", 0))
+        value = self.gui["step"].value
         try:
             return max(0, int(str(value).split(".")[0]) - 1)
         except ValueError:
@@ -434,6 +456,8 @@ class RoutinePanel:
             gui.add_button("Rename").on_click(lambda _: self.edit("rename", new_name.value))
             gui.add_button_group("Move / skip / delete", ("Up", "Down", "Skip", "Delete")).on_click(
                 lambda e: self.edit(e.target.value.lower()))
+            gui.add_button("Manual 3-2-1 hits on/off", hint="an align step: the operator's 6 hits first, or not"
+                           ).on_click(lambda _: self.edit("manual"))
             tol = gui.add_text("Tolerance ± mm (size form location)", "0.02 0.02 0.02")
             gui.add_button("Set tolerance").on_click(lambda _: self.edit("tolerance", tol.value))
             clear = gui.add_number("Clearance Z (part mm)", 60.0, step=1.0)
@@ -446,7 +470,8 @@ class RoutinePanel:
             gui.add_button("Move hit").on_click(lambda _: self.edit("hit", hit.value))
             probe = gui.add_text("Probe of the step", "", hint="a probe's name (Calibration tab); empty: any")
             gui.add_button("Set probe").on_click(lambda _: self.edit("probe", probe.value))
-            new = gui.add_text("Insert after", "", hint="report NAME, or distance A B [NAME]")
+            new = gui.add_text("Insert after", "", hint="report NAME, feature NAME, align A B C [manual], "
+                               "distance A B [NAME]")
             gui.add_button("Insert step").on_click(lambda _: self.insert_text(new.value))
         with gui.add_folder("File", expand_by_default=False):
             path = g["file"] = gui.add_text("Routine file", "", hint="name.toml (in the sessions folder) or a full path")
