@@ -331,9 +331,10 @@ class RoutinePanel:
             try:
                 self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action)  # the API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
-                if run.progress.state == "failed":
-                    self.ctx.error(f"{run.progress.message}. Reset the machine, then Resume from step "
-                                   f"{(run.faulted or 0) + 1}, Restart or Cancel.", "Routine stopped")
+                if run.can_resume:  # the step's stop, or a resume that could not start (the retract refused)
+                    what = run.progress.message if str(exc) in run.progress.message else str(exc)
+                    self.ctx.error(f"{what}. Reset the machine, then Resume from step {(run.faulted or 0) + 1}, "
+                                   "Restart or Cancel.", "Routine stopped")
                 else:
                     self.ctx.error(exc, "Routine stopped")
             else:
