@@ -157,7 +157,8 @@ def _fault_and_resume(page, station):
     capp = page.capp
     press(page, "Take control")
     page.get_by_text("You control the machine.").first.wait_for()
-    open_tab(page, "Routine", "No routine yet")
+    bs.open_tab(page, "Routine")
+    page.get_by_text("No routine yet").first.wait_for()
     press(page, "Teach from this session")
     page.locator("li", has_text=re.compile(r"align 3-2-1: TOP \| FRONT \| LEFT")).first.wait_for()
     panel = capp.routine
@@ -197,10 +198,10 @@ def _fault_and_resume(page, station):
     bs.wait_until(lambda: any("press Reset first" in m[2] for m in capp.messages if m[0] == "error"), 30.0,
                   "the refusal before Reset")
     assert run.progress.state == "failed" and run.discarded == []
-    open_tab(page, "Machine", "Reconnect")
+    bs.open_tab(page, "Machine", "Home")
     press(page, "Reset")
     bs.wait_until(lambda: station.controller.state.mode.value == "idle", 30.0, "the reset")
-    open_tab(page, "Routine", "Run on next part")
+    bs.open_tab(page, "Routine")
     press(page, "Resume from step 5")
     bs.wait_until(lambda: run.progress.state in ("done", "failed") and not panel.running, 400.0,
                   "the resumed routine's end")
