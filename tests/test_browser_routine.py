@@ -23,6 +23,7 @@ pytest.importorskip("viser")
 
 from cmm.measurement.alignment import align_features, apply  # noqa: E402
 from cmm.measurement.plan import plan_at_pick, run_plan  # noqa: E402
+from cmm.measurement.routine import teach_routine  # noqa: E402
 from cmm.metrology.transform import invert  # noqa: E402
 from cmm.session.journal import read_events  # noqa: E402
 from cmm.session.program import machine_targets  # noqa: E402
@@ -88,7 +89,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bs.text_field(page, "New name").press("Enter")
         page.wait_for_timeout(300)
         press(page, "Rename")
-        page.get_by_text("BORE: cylinder, 8 hits, ls").first.wait_for()
+        page.get_by_text(re.compile(r"BORE: cylinder, 8 hits, ls")).first.wait_for()  # case-sensitive: renamed
         assert capp.routine.routine.program.feature("BORE")
         bs.screenshot(page, "routine-taught")
 
@@ -139,7 +140,7 @@ def choose_step(page, number):
 
 def test_a_fault_mid_routine_is_resumed_from_the_page(app, station):
     model = station.measurement
-    if not open_session(model.journal.path).state.features:  # run alone: measure the first part here
+    if not open_session(model.session_dir / "routine.jsonl").state.features:  # run alone: measure the first part
         _measured_first_part(station)
     with bs.browser_context(LAPTOP) as context:
         context.set_default_timeout(120_000)  # software WebGL on a loaded 2-core machine: the page answers late
@@ -152,16 +153,21 @@ def test_a_fault_mid_routine_is_resumed_from_the_page(app, station):
 
 
 def _fault_and_resume(page, station):
-    """The operator's part of the fault test: teach, skip to the bore, run into the chip, E-STOP, Reset, Resume."""
+    """The operator's part of the fault test: open the routine, skip to the bore, run into the chip, E-STOP, Reset,
+    Resume."""
     model = station.measurement
     capp = page.capp
     press(page, "Take control")
     page.get_by_text("You control the machine.").first.wait_for()
     bs.open_tab(page, "Routine")
     page.get_by_text("No routine yet").first.wait_for()
-    press(page, "Teach from this session")
-    page.locator("li", has_text=re.compile(r"align 3-2-1: TOP \| FRONT \| LEFT")).first.wait_for()
+    # the routine taught on the first part (its session is the station's first), saved as a file and opened
+    first = open_session(model.session_dir / "routine.jsonl")
+    saved = teach_routine(first, name="block", part_mesh=model.part.mesh,
+                          part_nominals=model.part.nominal_features).save(model.session_dir / "block.toml")
     panel = capp.routine
+    assert panel.open(saved.name) is not None, capp.messages[-1:]
+    page.locator("li", has_text=re.compile(r"align 3-2-1: TOP \| FRONT \| LEFT")).first.wait_for()
     bore = panel.routine.steps[4]["name"]
     assert panel.routine.steps[4]["kind"] == "feature" and bore.lower() == "bore"
     for number in (1, 2, 3, 4):  # this part is aligned: only the bore is measured
