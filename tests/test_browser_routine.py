@@ -1,7 +1,10 @@
 """The Routine tab in headless chromium (1280 x 800, then the tablet size): a routine taught from the session
 the operator measured, a step renamed in the page, and "Run on next part" on a part placed differently on the
 simulator: the page prompts for the manual 3-2-1 hits, the operator takes them, the rest runs by itself, and
-the page shows the progress and DONE. Screenshots go to test-artifacts/routine-*.png."""
+the page shows the progress and DONE. Then a fault mid-routine: an obstacle in the bore stops the run with an
+unexpected contact, the page names the stopped step and why; Resume is refused while the operator's E-STOP is
+latched; after Reset in the page, "Resume from step N" finishes the part in the same session with the stopped
+step measured again. Screenshots go to test-artifacts/routine-*.png."""
 
 from __future__ import annotations
 
@@ -20,7 +23,11 @@ pytest.importorskip("viser")
 
 from cmm.measurement.alignment import align_features, apply  # noqa: E402
 from cmm.measurement.plan import plan_at_pick, run_plan  # noqa: E402
+from cmm.measurement.routine import teach_routine  # noqa: E402
 from cmm.metrology.transform import invert  # noqa: E402
+from cmm.session.journal import read_events  # noqa: E402
+from cmm.session.program import machine_targets  # noqa: E402
+from cmm.session.store import open_session  # noqa: E402
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix  # noqa: E402
 
 LAPTOP = (1280, 800)
@@ -130,3 +137,93 @@ def choose_step(page, number):
     page.get_by_role("option", name=re.compile(rf"^{number}\. ")).first.click(force=True)
     page.wait_for_timeout(300)
 
+
+def test_a_fault_mid_routine_is_resumed_from_the_page(app, station):
+    model = station.measurement
+    if not open_session(model.session_dir / "routine.jsonl").state.features:  # run alone: measure the first part
+        _measured_first_part(station)
+    with bs.browser_context(LAPTOP) as context:
+        context.set_default_timeout(120_000)  # software WebGL on a loaded 2-core machine: the page answers late
+        page = bs.open_page(context, app)
+        try:
+            _fault_and_resume(page, station)
+        except BaseException:
+            bs.screenshot(page, "routine-fault-failed")
+            print("messages:", page.capp.messages[-8:])
+            print("notes:", [e.get("text") for e in read_events(model.journal.path).events if e["kind"] == "note"][-12:])
+            raise
+
+
+def _fault_and_resume(page, station):
+    """The operator's part of the fault test: open the routine, skip to the bore, run into the chip, E-STOP, Reset,
+    Resume."""
+    model = station.measurement
+    capp = page.capp
+    press(page, "Take control")
+    page.get_by_text("You control the machine.").first.wait_for()
+    bs.open_tab(page, "Routine")
+    page.get_by_text("No routine yet").first.wait_for()
+    # the routine taught on the first part (its session is the station's first), saved as a file and opened
+    first = open_session(model.session_dir / "routine.jsonl")
+    saved = teach_routine(first, name="block", part_mesh=model.part.mesh,
+                          part_nominals=model.part.nominal_features).save(model.session_dir / "block.toml")
+    panel = capp.routine
+    assert panel.open(saved.name) is not None, capp.messages[-1:]
+    page.locator("li", has_text=re.compile(r"align 3-2-1: TOP \| FRONT \| LEFT")).first.wait_for()
+    bore = panel.routine.steps[4]["name"]
+    assert panel.routine.steps[4]["kind"] == "feature" and bore.lower() == "bore"
+    for number in (1, 2, 3, 4):  # this part is aligned: only the bore is measured
+        choose_step(page, number)
+        press(page, "Skip")
+        bs.wait_until(lambda: panel.routine.steps[number - 1].get("skip"), 30.0, f"step {number} skipped")
+    page.locator("li", has_text=re.compile(r"^LEFT: plane.*\(skipped\)")).first.wait_for()  # the step list
+
+    # a chip in the bore over its third hit's way down
+    pose = np.asarray(station.sim.settings.part_pose, float)
+    cfg = station.config.probe
+    hits = panel.routine.program.feature(bore).hits
+    p, u = next((p, u) for h, p, u, _cz in machine_targets(panel.routine.program, pose) if h.id == hits[2])
+    station.sim.place_artifacts([(p - (cfg.tip_radius + cfg.approach_distance) * u + [0.0, 0.0, 6.0], 3.0)])
+    bs.text_field(page, "Part name").fill("SN-0003")
+    bs.text_field(page, "Part name").press("Enter")
+    page.wait_for_timeout(300)
+    press(page, "Run on next part")
+    bs.wait_until(lambda: panel.run_ is not None and panel.run_.progress.state == "failed" and not panel.running,
+                  400.0, "the stop on the obstacle")
+    run = panel.run_
+    session = run.progress.session
+    page.get_by_text("STOPPED").first.wait_for()
+    page.get_by_text(re.compile(rf"step 5 \({bore}\) stopped: unexpected probe contact")).first.wait_for()
+    page.get_by_role("button", name="Resume from step 5", exact=True).wait_for()
+    bs.screenshot(page, "routine-fault")
+    assert run.progress.hits == 2
+
+    # the operator hits E-STOP, takes the chip out; Resume waits for Reset
+    press(page, "E-STOP")
+    bs.wait_until(lambda: station.controller.state.mode.value == "e-stopped", 30.0, "the E-STOP")
+    station.sim.place_artifacts([])
+    press(page, "Resume from step 5")
+    bs.wait_until(lambda: any("press Reset first" in m[2] for m in capp.messages if m[0] == "error"), 30.0,
+                  "the refusal before Reset")
+    assert run.progress.state == "failed" and run.discarded == []
+    bs.open_tab(page, "Machine", "Home")
+    press(page, "Reset")
+    bs.wait_until(lambda: station.controller.state.mode.value == "idle", 30.0, "the reset")
+    bs.open_tab(page, "Routine")
+    press(page, "Resume from step 5")
+    bs.wait_until(lambda: run.progress.state in ("done", "failed") and not panel.running, 400.0,
+                  "the resumed routine's end")
+    assert run.progress.state == "done", run.progress.message
+    page.get_by_text("DONE").first.wait_for()
+    bs.screenshot(page, "routine-resumed")
+    result = run.progress.results[bore]
+    assert run.progress.session == session and len(result.hit_ids) == len(hits)
+    assert len(run.discarded) == 2 and not set(run.discarded) & set(result.hit_ids)
+    assert result.result.geometry()["radius"] == pytest.approx(15.0, abs=0.005)
+    events = read_events(session).events
+    assert sum(e["kind"] == "routine" for e in events) == 1
+    deleted = {e["id"] for e in events if e["kind"] == "hit_deleted"}
+    assert set(run.discarded) <= deleted and set(run.discarded) <= {e["id"] for e in events if e["kind"] == "hit"}
+    assert "report" in run.progress.results and run.progress.results["report"].is_file()
+    assert not page.get_by_role("button", name="Resume from step 5", exact=True).is_visible()
+    assert not page.log.page_errors, page.log.page_errors
