@@ -25,7 +25,9 @@ REAL_TIME_FILES = {"test_link_process.py", "test_kill9.py", "test_calibrate_tcp.
 
 
 def pytest_collection_modifyitems(config, items):
-    """Two xdist workers (``--dist loadgroup``): a test file stays in one worker (its module fixtures are built once),
+    """The groups for ``--dist loadgroup``, which does not group with pytest 9.2 and xdist 3.8 (pyproject.toml runs
+    ``--dist loadfile``: a test file stays in one worker, but browser files may run beside each other). The intent:
+    two xdist workers, a test file stays in one worker (its module fixtures are built once),
     and all browser tests share one worker, so two software-rendered WebGL browsers never compete for the two
     cores while their wall-time-paced jogs are timed. The real-time tests on a served simulator join that worker:
     their simulator and link processes run at raised priority and starved a browser beside them of CPU (its hold
