@@ -52,15 +52,7 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         page.get_by_text("Maria (you) controls the machine").first.wait_for()
         bs.open_tab(page, "Setup", "Calibration")
         page.get_by_text("certificate problem").first.wait_for()
-        page.get_by_text("Reference sphere certificate").click()
-        page.get_by_label("Diameter (mm)", exact=True).fill("25.0002")
-        page.get_by_label("Diameter (mm)", exact=True).press("Enter")
-        bs.text_field(page, "Serial").fill("RS-77")
-        page.get_by_label("U k=2 (um)", exact=True).fill("0.12")
-        page.get_by_label("U k=2 (um)", exact=True).press("Enter")
-        page.wait_for_timeout(300)
-        page.get_by_role("button", name="Save certificate").click()
-        page.get_by_text("RS-77").first.wait_for()
+        bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
         cert = app.station.calibration.certificates("probe")
         assert (cert.serial, cert.diameter, cert.uncertainty) == ("RS-77", pytest.approx(25.0002),

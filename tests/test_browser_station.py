@@ -79,22 +79,10 @@ def assert_status_bar_on_screen(page, viewport, where):
         assert top == (name if sel == "button" else "cmm-status"), f"{where}: {name} is covered ({top!r} is on top)"
 
 
-def part_point(station, local):
-    pose = station.measurement.part.pose
-    return pose[:3, :3] @ np.asarray(local, float) + pose[:3, 3]
-
-
-def pick_face(page, station, local_point, outward):
-    """The pick a click on the face sends (a ray from outside along the face normal)."""
-    target = part_point(station, local_point)
-    n = station.measurement.part.pose[:3, :3] @ np.asarray(outward, float)
-    assert page.capp.pick(target + 40 * n, -n) is not None
-
-
 def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.0):
     """Auto-measure a face with what the Plan and Run buttons call (the buttons themselves are pressed once,
     for the top face, in the walk below)."""
-    pick_face(page, station, local_point, outward)
+    bs.pick_face(page, station, local_point, outward)
     assert page.capp.measure.make_plan(hits_per_ring) is not None, page.capp.messages[-2:]
     before = set(station.measurement.features)
     assert page.capp.measure.run(wait=True), page.capp.messages[-2:]
@@ -105,7 +93,7 @@ def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.
 def automeasure_in_page(page, station, local_point, outward, hits_per_ring, proposal, shot=None):
     """Auto-measure a feature through the page: the pick a click on it sends, the hits per ring typed, Plan (the
     proposal and its path shown), Run (the feature measured and fitted against its CAD nominal)."""
-    pick_face(page, station, local_point, outward)
+    bs.pick_face(page, station, local_point, outward)
     page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
     page.get_by_label("Hits (per ring)", exact=True).press("Enter")
     page.wait_for_timeout(300)
@@ -140,7 +128,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         status.get_by_text("You control the machine.").wait_for()
 
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
-        pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
+        bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
         page.get_by_role("button", name="Plan", exact=True).click(force=True)
         page.get_by_text("4 hits · clearance plane").wait_for()
@@ -209,7 +197,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
         assert page.capp.features.retake[:2] == (top.id, old)
         pose = station.measurement.part.pose
-        pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
+        bs.pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
         bs.open_tab(page, "Machine", "Go to")
         page.get_by_role("button", name="Probe here", exact=True).click(force=True)
         bs.wait_until(lambda: old not in station.measurement.hits, 90.0,
