@@ -210,8 +210,13 @@ def _fault_and_resume(page, station):
     press(page, "Reset")
     bs.wait_until(lambda: station.controller.state.mode.value == "idle", 30.0, "the reset")
     bs.open_tab(page, "Routine")
+    stopped = run.progress.message
     press(page, "Resume from step 5")
-    bs.wait_until(lambda: run.progress.state in ("done", "failed") and not panel.running, 400.0,
+    # the press is handled later: until the resume has begun (it discards the stopped step's hits first), the
+    # run still shows the first stop
+    bs.wait_until(lambda: run.discarded, 60.0, "the resume's start")
+    bs.wait_until(lambda: run.progress.state == "done" or (run.progress.state == "failed" and not panel.running
+                                                           and run.progress.message != stopped), 400.0,
                   "the resumed routine's end")
     assert run.progress.state == "done", run.progress.message
     page.get_by_text("DONE").first.wait_for()

@@ -218,8 +218,9 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.press(tablet, "Take control")
         tablet.locator("#cmm-status").get_by_text("Ben (you) controls the machine").wait_for()
         status.get_by_text("control is held by Ben").wait_for()
-        assert any(title == "Control taken" and "Ben now controls the machine" in body
-                   for _level, title, body in page.capp.messages), page.capp.messages[-3:]
+        bs.wait_until(lambda: any(title == "Control taken" and "Ben now controls the machine" in body
+                                  for _level, title, body in page.capp.messages), 30.0,
+                      "Ada's 'Control taken' message", why=lambda: str(page.capp.messages[-3:]))
         assert model.info.get("operator") == "Ben"
         bs.open_tab(tablet, "Routine")
         tablet.get_by_text("File", exact=True).first.click()
