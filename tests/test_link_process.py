@@ -48,9 +48,9 @@ def served(tmp_path_factory):
 @pytest.fixture
 def ctl(served):
     config, url = served
-    # a dead-man of 0.4 s: the dead-man runs from each hold's moment, and a test thread holding the jog on a
+    # a dead-man of 1 s: the dead-man runs from each hold's moment, and a test thread holding the jog on a
     # loaded host can be off the CPU for more than 0.15 s; these tests check who stops the jog, not how soon
-    c = Controller(Machine(dataclasses.replace(load(config), deadman_timeout=0.4), url))
+    c = Controller(Machine(dataclasses.replace(load(config), deadman_timeout=1.0), url))
     c.connect()
     c.start()
     c.move(None, [40.0, 0.0, 300.0], frame="machine").wait(60)
