@@ -69,6 +69,20 @@ def surfaces():
             ("cone", "cone", cone), ("spot", "point", point)]
 
 
+def fit_surfaces(model, prober, wanted=None):
+    """Record every surface's hits in ``model`` and fit (least squares) those named in ``wanted`` (all if None)."""
+    feats = {}
+    k = 0
+    for name, kind, pts in surfaces():
+        ids = []
+        for p, n in pts:
+            ids.append(model.add_hit(hit_on(p, n, k, prober.settings.tip_radius)))
+            k += 1
+        if wanted is None or name in wanted:
+            feats[name] = model.fit_feature(kind, ids, "ls", name)
+    return feats
+
+
 def hit_on(p, n, k, tip):
     """The hit at part point p (outward normal n), off the surface by a small known form (k-th hit)."""
     form = 0.003 * math.sin(1.7 * k + 0.4)
@@ -85,14 +99,7 @@ def measured(tmp_path_factory):
     store = DirectoryStore(tmp_path_factory.mktemp("numbers"))
     part = Part("sample part", sim.part_mesh, T.copy(), dict(sim.nominal_features))
     model = record(store.create("numbers"), machine, prober, part, port="in-process")
-    feats = {}
-    k = 0
-    for name, kind, pts in surfaces():
-        ids = []
-        for p, n in pts:
-            ids.append(model.add_hit(hit_on(p, n, k, prober.settings.tip_radius)))
-            k += 1
-        feats[name] = model.fit_feature(kind, ids, "ls", name)
+    feats = fit_surfaces(model, prober)
     for label, name in (("A", "top"), ("B", "front"), ("C", "left"), ("D", "bore"), ("E", "bore low"),
                         ("F", "bore high"), ("G", "boss")):
         model.define_datum(label, feats[name].id)

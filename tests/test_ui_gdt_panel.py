@@ -7,7 +7,7 @@ from types import SimpleNamespace
 
 import pytest
 import session_support as ss
-from test_report_numbers import T, hit_on, surfaces
+from test_report_numbers import T, fit_surfaces
 
 from cmm.control.access import Control
 from cmm.measurement.model import Part
@@ -26,14 +26,7 @@ def panel(tmp_path):
     model = record(store.create("panel"), machine, prober,
                    Part("sample part", sim.part_mesh, T.copy(), dict(sim.nominal_features)), port="in-process")
     wanted = {"top", "front", "left", "bore", "bore low", "bore high", "boss"}
-    k = 0
-    for name, kind, pts in surfaces():
-        ids = []
-        for p, n in pts:
-            ids.append(model.add_hit(hit_on(p, n, k, prober.settings.tip_radius)))
-            k += 1
-        if name in wanted:
-            model.fit_feature(kind, ids, "ls", name)
+    fit_surfaces(model, prober, wanted)
     control = Control()
     control.take("operator", is_local=True)
     ctx = PanelContext(SimpleNamespace(measurement=model), control, None, client_id="operator", is_local=True)
