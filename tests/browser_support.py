@@ -215,6 +215,21 @@ def open_tab(page: Any, top: str, sub: str | None = None, timeout: float = PAGE_
                 raise AssertionError(f"the {name} tab did not open within {timeout:g} s")
 
 
+def open_folder(page: Any, folder: str, field: str, timeout: float = PAGE_WAIT_MS / 1000) -> None:
+    """Open the side panel's folder ``folder`` until its field labelled ``field`` is visible. A panel redrawn just
+    before (a feature chosen, a result arriving) replaces its folders, closed again; a click on the old one is lost,
+    so the title is clicked again while the field stays hidden (never twice in 3 s: a click toggles the folder)."""
+    target = page.get_by_label(field, exact=True)
+    end = time.monotonic() + timeout
+    while not target.is_visible():
+        if time.monotonic() > end:
+            raise AssertionError(f"the {folder!r} folder did not show {field!r} within {timeout:g} s")
+        page.get_by_text(folder, exact=True).first.click(force=True)
+        again = time.monotonic() + 3.0
+        while not target.is_visible() and time.monotonic() < again:
+            time.sleep(0.05)
+
+
 def top_tab_rows(page: Any) -> list[list[str]]:
     """The side panel's top tabs as laid out, one list of names per row of the tab bar."""
     rows: dict[int, list[str]] = {}

@@ -180,7 +180,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.capp.features._chosen(f"{top.id} {top.name}")  # what choosing it in the Feature dropdown calls
         assert page.capp.ctx.selected_feature == top.id and app.view.selected == top.id
         page.get_by_text(f"{top.name} hits (residual)").wait_for()
-        page.get_by_text("Hits of the feature", exact=True).click(force=True)
+        bs.open_folder(page, "Hits of the feature", "Hit")
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
         page.get_by_role("button", name="Remove hit and refit").click(force=True)
         bs.wait_until(lambda: len(station.measurement.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
@@ -220,7 +220,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
 
         clean = fails()
         page.capp.features._chosen(f"{boss.id} {boss.name}")  # what choosing it in the Feature dropdown calls
-        page.get_by_text("Nominal and tolerance", exact=True).click(force=True)
+        bs.open_folder(page, "Nominal and tolerance", "Nominal diameter")
         page.get_by_label("Nominal diameter", exact=True).fill("20.1")
         page.get_by_label("Nominal diameter", exact=True).press("Enter")
         page.wait_for_timeout(300)

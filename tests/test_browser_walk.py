@@ -168,7 +168,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         # --- Measure > Features: the bore's size tolerance
         bs.open_tab(page, "Measure", "Features")
         page.capp.features._chosen(f"{bore.id} {bore.name}")  # what choosing it in the Feature dropdown calls
-        page.get_by_text("Nominal and tolerance").click()
+        bs.open_folder(page, "Nominal and tolerance", "Size ± (mm)")
         page.get_by_label("Size ± (mm)", exact=True).fill("0.01")
         page.get_by_label("Size ± (mm)", exact=True).press("Enter")
         page.wait_for_timeout(300)
