@@ -7,6 +7,7 @@ import csv
 
 import numpy as np
 import pytest
+import ui_support
 from netutil import SIM, free_port
 
 from cmm.measurement.program import run_on
@@ -93,28 +94,7 @@ def test_program_runs_are_parts_of_a_series_and_the_trends_tab_charts_them(stati
 
 def _browser_tab_shows_the_chart(app):
     """A real viser connection builds the Trends tab with the series and its chart."""
-    import time
-
-    import msgspec
-    import viser
-    from viser import _messages
-    from websockets.sync.client import connect
-
-    before = set(app.clients)
-    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
-        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
-                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
-        end = time.monotonic() + 10
-        tab = None
-        while tab is None and time.monotonic() < end:
-            try:
-                ws.recv(timeout=0.1)
-            except TimeoutError:
-                pass
-            new = [c for k, c in app.clients.items() if k not in before and c.client is not None]
-            tab = new[0] if new and "records" in new[0].calibration.gui else None  # the last tab built
-        assert tab is not None, "the page was not built"
+    with ui_support.viser_tab(app) as (_ws, tab):
         g = tab.trends.gui
         assert g["series"].options == ("dome check",) and g["series"].value == "dome check"
         assert "dome / diameter" in g["characteristic"].options and g["station"].options == ("all stations", "cmm-test")

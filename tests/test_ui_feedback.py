@@ -13,12 +13,10 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 from control_support import wait_idle
-from netutil import free_port, SIM_PACED
+import ui_support
 
 pytest.importorskip("viser")
 
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_features import nominal_fields  # noqa: E402
 from cmm.ui.panel_measure import face_name  # noqa: E402
 from cmm.ui.panel_status import status_html  # noqa: E402
@@ -26,11 +24,7 @@ from cmm.ui.panel_status import status_html  # noqa: E402
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
-    yield ui
-    ui.close()
-    station.close()
+    yield from ui_support.station_app(tmp_path_factory, pendant_port=0)
 
 
 def _until(predicate, timeout, what):
@@ -43,26 +37,7 @@ def _until(predicate, timeout, what):
 @contextmanager
 def browser_tab(app):
     """A tab with its widgets built (the page's WebSocket), in control of the machine."""
-    import msgspec
-    import viser
-    from viser import _messages
-    from websockets.sync.client import connect
-
-    before = set(app.clients)
-    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
-        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
-                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
-        end = time.monotonic() + 20
-        while not set(app.clients) - before:
-            assert time.monotonic() < end, "the tab's app was not built"
-            try:
-                ws.recv(timeout=0.2)
-            except TimeoutError:
-                pass
-        (cid,) = set(app.clients) - before
-        capp = app.clients[cid]
-        _until(lambda: "plot" in capp.gui and "hits" in capp.measure.gui, 20.0, "the tab's widgets")
+    with ui_support.viser_tab(app, lambda c: "plot" in c.gui and "hits" in c.measure.gui) as (_ws, capp):
         assert capp.take_control()
         try:
             yield capp

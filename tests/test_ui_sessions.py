@@ -8,27 +8,21 @@ drawing (into that client's scene) really exist.
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pytest
-from netutil import free_port, SIM
+import ui_support
+from netutil import SIM
 
 pytest.importorskip("viser")
 
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_sessions import describe_event  # noqa: E402
 
 
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions")).start("first", home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
-    yield ui
-    ui.close()
-    station.close()
+    yield from ui_support.station_app(tmp_path_factory, port=SIM, session="first", pendant=False)
 
 
 @pytest.fixture(scope="module")
@@ -152,26 +146,7 @@ def test_describe_event_words():
 
 
 def test_browser_tab_builds_tabs_and_draws_replay(app, operator, recorded):
-    import msgspec
-    import viser
-    from viser import _messages
-    from websockets.sync.client import connect
-
-    before = set(app.clients)
-    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
-        camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
-                                               (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
-        ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
-        end = time.monotonic() + 10
-        capp = None
-        while capp is None and time.monotonic() < end:
-            try:
-                ws.recv(timeout=0.1)
-            except TimeoutError:
-                pass
-            new = [c for k, c in app.clients.items() if k not in before and c.client is not None]
-            capp = new[0] if new and "records" in new[0].calibration.gui else None
-        assert capp is not None, "the tab's GUI was not built"
+    with ui_support.viser_tab(app) as (ws, capp):
         assert {"list", "session", "scrub", "event"} <= set(capp.sessions.gui)
         assert "first" in capp.sessions.gui["session"].options
         _wait(capp.sessions.open("first"))
