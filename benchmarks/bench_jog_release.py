@@ -30,7 +30,11 @@ running a CAD viewer and a virus scan beside the station) and 20 observer browse
 are connected (each tab lists the sessions, with their hit counts), and one observer's Sessions tab
 keeps opening the 200,000-hit session for replay and writing its report, through the tab's own
 handlers (``SessionsPanel.open`` / ``.report``: the replay is built in the station process, the report
-is rendered by the session worker process), as an observer opening a large session does.
+is rendered by the session worker process), as an observer opening a large session does. The trials go on
+(up to 3 min) until a report is written; the load counts as applied when a report was written or one was being
+built when the trials ended (beside the hogs the worker, at nice 5, can take longer than that).
+Times are the simulator's: a tick's own time (index x 0.512 ms), not the served network's clock, which a batch
+of ticks run at once to catch up with the wall clock reads as the batch's start for every tick of it.
 The speed at the release is measured too (on the simulator's clock): a starved station that never gets
 the jog up to speed stops "fast" for the wrong reason, so the p99 is also given over the releases made
 at >= 90 % of jog_fast, and the target needs both (and at least half the jogs at full speed).
@@ -58,6 +62,8 @@ import time
 from pathlib import Path
 
 from websockets.sync.client import connect
+
+from cmm.sim.network import TICK_NS
 
 STILL_COUNTS = 2  # no axis moves more than this ...
 STILL_NS = 10_000_000  # ... in this long: standing still
@@ -97,7 +103,7 @@ class SimStopWatch:
         self.armed_ns = ns
 
     def __call__(self, net, tick) -> None:  # noqa: ANN001
-        now = net.now_ns
+        now = (tick + 1) * TICK_NS  # this tick's end (net.now_ns is where the batch of ticks started)
         self.last_tick_ns = now
         self.history.append((now, net.plants[0].count))
         if self.armed_ns is None or self.stop_ns is not None:
@@ -227,6 +233,7 @@ def run_station(url: str, sessions: str, big: str, loaders: int, link_process: s
           f"(horizon {cfg.jog.horizon * 1000:.0f} ms of travel), dead-man {cfg.deadman_timeout * 1000:.0f} ms, "
           f"accelerations jog {cfg.accelerations.jog:g} / stop {cfg.accelerations.stop:g} mm/s^2", flush=True)
     counts = {"opened": 0, "reported": 0}
+    reporting = [0.0]  # when the report being built now was started (perf_counter), 0: none
     errors: list[str] = []
     stop = threading.Event()
     stalls = watch_stalls(station.controller, stop) if DEBUG else None
@@ -237,7 +244,10 @@ def run_station(url: str, sessions: str, big: str, loaders: int, link_process: s
         while not stop.is_set():
             for what, start in (("opened", panel.open), ("reported", panel.report)):
                 job = start(big)
-                if job is None or not job.wait(600) or job.error is not None:
+                reporting[0] = time.perf_counter() if what == "reported" and job is not None else 0.0
+                ok = job is not None and job.wait(600) and job.error is None
+                reporting[0] = 0.0
+                if not ok:
                     errors.append(f"{what}:{getattr(job, 'error', None)!r}".replace(" ", "_"))
                     stop.wait(1.0)
                     continue
@@ -253,7 +263,9 @@ def run_station(url: str, sessions: str, big: str, loaders: int, link_process: s
             print("loading", flush=True)
         elif cmd and cmd[0] == "status":
             stats = getattr(station.machine.bus, "stats", {})
-            print("status", len(app.clients), counts["opened"], counts["reported"], station.controller.state.mode.value,
+            building = f"{time.perf_counter() - reporting[0]:.0f}" if reporting[0] else "-"
+            print("status", len(app.clients), counts["opened"], counts["reported"], building,
+                  station.controller.state.mode.value,
                   ",".join(f"{k}={v}" for k, v in stats.items() if k in ("transactions", "retries", "resyncs", "suspect")) or "-",
                   *errors[:3], flush=True)
         elif cmd and cmd[0] == "quit":
@@ -572,7 +584,7 @@ def main() -> None:
                 for k, v in idle.items():
                     print(f"  idle        {front.name:10s} " + line(k, v, idle_speeds[k], fast))
             station.send("status")
-            print(f"  idle link: {station.expect('status')[4]}")
+            print(f"  idle link: {station.expect('status')[5]}")
             observers = Proc("--role", "observers", "--url", viser_port, "--observers", str(args.observers))
             observers.expect("connected")
             station.send("load")
@@ -583,7 +595,7 @@ def main() -> None:
                 t_load = time.perf_counter()
                 loaded = {f.name: run_trials(f, sim, args.trials) for f in fronts}
                 station.send("status")
-                clients, opened, reported, mode, link, *errors = station.expect("status")
+                clients, opened, reported, building, mode, link, *errors = station.expect("status")
                 # the load is a session opened *and* reported: on a busy host the report (niced worker) can take
                 # longer than the trials, so trials go on (and count) until one report is written, for up to 3 min
                 while int(reported) == 0 and time.perf_counter() - t_load < 180:
@@ -593,7 +605,7 @@ def main() -> None:
                             loaded[f.name][0][k] += more[k]
                             loaded[f.name][1][k] += more_speeds[k]
                     station.send("status")
-                    clients, opened, reported, mode, link, *errors = station.expect("status")
+                    clients, opened, reported, building, mode, link, *errors = station.expect("status")
                 load_avg = __import__("os").getloadavg()[0]
             finally:
                 stop_hogs(hogs)
@@ -602,7 +614,9 @@ def main() -> None:
                     print(f"  under load  {name:10s} " + line(k, v, speeds[k], fast))
             print(f"  load: {args.hogs} CPU hogs, {clients} viser clients, {args.loaders} observer tab(s) opening "
                   f"(replay) + reporting the {args.hits:,}-hit session through the Sessions tab: {opened} opened, "
-                  f"{reported} reported in {time.perf_counter() - t_load + 3:.0f} s; host load average {load_avg:.1f} "
+                  f"{reported} reported in {time.perf_counter() - t_load + 3:.0f} s"
+                  + (f" (a report being built for {building} s when the trials ended)" if building != "-" else "")
+                  + f"; host load average {load_avg:.1f} "
                   f"on {__import__('os').cpu_count()} cores; machine {mode}; link since start: {link}"
                   + (f"; errors: {' '.join(errors)}" if errors else ""))
             for name, (times, speeds) in loaded.items():
@@ -611,7 +625,7 @@ def main() -> None:
                 p99_full = pct(full, 0.99) if full else float("inf")
                 silent = pct(times["silent (dead-man)"], 0.99)
                 met = max(p99, p99_full) <= 0.2 and silent <= 0.3 and len(full) >= len(times["release"]) // 2 \
-                    and int(opened) > 0 and int(reported) > 0
+                    and int(opened) > 0 and (int(reported) > 0 or building != "-")
                 print(f"target {name}: release p99 <= 200 ms and silent p99 <= 300 ms under load -> release "
                       f"{p99 * 1000:.1f} ms over all {len(times['release'])}, {p99_full * 1000:.1f} ms over the "
                       f"{len(full)} released at full speed; silent {silent * 1000:.1f} ms "

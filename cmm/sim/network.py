@@ -48,6 +48,9 @@ from cmm.sim.transport import SimTransport
 
 TICK_NS = 512_000
 MAX_LAG_NS = 250_000_000
+# Called once per servo tick with the network and the tick's index. A tick's time is its index * TICK_NS:
+# ``network.now_ns`` is where the current batch started (``advance_to`` runs many ticks in one call, and sets it
+# at the end), so a hook that stamped its samples with it would give every tick of a batch the same time.
 TickHook = Callable[["SimNetwork", int], None]
 
 FIRMWARE_VERSIONS = {"pic-servo": 4, "pic-servo-sc": 10}
