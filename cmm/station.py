@@ -51,8 +51,13 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         return measurement.fit_feature(kind, [int(h) for h in hits], method, name, nominal, tolerance)
 
     def align(primary: int | None = None, secondary: int | None = None, tertiary: int | None = None,
-              hits: list[int] | None = None) -> Any:
-        if hits is not None:
+              hits: list[int] | None = None, measured: Any = None, nominal: Any = None, points: Any = None,
+              name: str = "") -> Any:
+        if measured is not None or nominal is not None:  # a program's datum system (DMIS DATSET ...)
+            if measured is None or nominal is None or points is None:
+                raise StationError("align from a program's datum system needs measured, nominal and points")
+            result = alignment.align_program_frame(measurement, measured, nominal, points, name)
+        elif hits is not None:
             result = alignment.best_fit_hits(measurement, [int(h) for h in hits])
         elif None not in (primary, secondary, tertiary):
             result = alignment.align_features(measurement, int(primary), int(secondary), int(tertiary))
@@ -92,8 +97,10 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
                   "delete a hit by id (undo brings it back)")
     cmds.register("delete_feature", holder(lambda feature: measurement.delete_feature(int(feature))),
                   {"feature": REQUIRED}, "delete a feature (or a construction) by id")
-    cmds.register("align", holder(align), {"primary": None, "secondary": None, "tertiary": None, "hits": None},
-                  "align the part: 3-2-1 from three features, or a best fit of hits to the CAD")
+    cmds.register("align", holder(align), {"primary": None, "secondary": None, "tertiary": None, "hits": None,
+                                           "measured": None, "nominal": None, "points": None, "name": ""},
+                  "align the part: 3-2-1 from three features, a best fit of hits to the CAD, or a program's datum "
+                  "system (measured and nominal 4x4, program -> machine; points: its datums' hits, checked on the part)")
     cmds.register("auto_measure", auto_measure, {"plan": None, "face": None, "n": None, "name": None, "method": "ls",
                                                  "progress": None},
                   "probe a planned feature hit by hit over the clearance plane and fit it (plan: in process; "

@@ -130,7 +130,12 @@ def test_the_sample_part_program_measures_the_true_part(station):
     feats = {f.name: f for f in station.measurement.features.values()}
     assert set(feats) == set(want)
     assert feats["BORE"].tolerance["size"] == pytest.approx(0.02)
-    assert feats["BOSS"].tolerance["position"] == pytest.approx(0.04)
+    # a position to datums is the station's GD&T, on the same datums: the same value as the DMIS output
+    gdt = {d["name"]: c for d, c in station.measurement.gdt_characteristics()}
+    assert set(station.measurement.datums) == {"A", "B", "C"}
+    for label in ("POS_BOSS", "POS_SPH"):
+        c = gdt[f"T({label})"]
+        assert c.actual == pytest.approx(ta[label][0], abs=6e-6) and c.upper == 0.04 and c.datums == "A|B|C"
 
 
 BAD = """DMISMN/'bad'

@@ -16,6 +16,9 @@ import session_support as sup
 from cmm.dmis.check import check
 from cmm.dmis.executor import DmisError
 from cmm.dmis.runner import needs_operator, run_text
+from cmm.session.export import session_json
+from cmm.session.report import features_csv, render
+from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import pose_matrix
 from cmm.station import Station
 
@@ -238,6 +241,30 @@ def test_manual_alignment_polar_rotation_constructions_and_mmc_on_the_true_part(
     assert ta["PMMC"][1] == "INTOL"  # the true part is perfect: its position error is the probing noise
     lbonus = float(re.search(r"bonus ([\d.]+)", notes["PLMC"]).group(1))
     assert lbonus == pytest.approx(boss - 19.95, abs=2e-4)
+    # the station's own report (its GD&T: the same datums, B at MMB for PMMC only, the boss's size limits from
+    # T(DBOSS)) gives the same positions and bonuses, live and from the journal in the HTML, CSV and JSON
+    model = station.measurement
+    live = {d["name"]: c for d, c in model.gdt_characteristics()}
+    evs = {e.tolerance.label: e for e in result.evaluations}
+    for label in ("PMMC", "PLMC"):
+        c, ev = live[f"T({label})"], evs[label]
+        assert c.actual == pytest.approx(ev.value, abs=1e-9) and c.upper == pytest.approx(0.001 + ev.bonus, abs=1e-9)
+        assert c.verdict == ("pass" if ev.intol else "FAIL")
+    model.journal.close()
+    session = load_session(DirectoryStore(station.measurement.session_dir), "dmis")
+    mesh = model.part.mesh
+    html, csv_rows = render(session, mesh=mesh), features_csv(session, mesh=mesh).splitlines()
+    exported = {g["name"]: g for g in session_json(session, mesh=mesh)["gdt"]}
+    for label, frame, drf in (("PMMC", "⊕ ⌀0.0010(M) | A|B(M)|C", "A|B(M)|C"),
+                              ("PLMC", "⊕ ⌀0.0010(L) | A|B|C", "A|B|C")):
+        c, ev = live[f"T({label})"], evs[label]
+        e = exported[f"T({label})"]
+        assert e["value"] == c.actual and e["allowed"] == c.upper and e["drf"] == drf == c.datums, e
+        assert frame in html and f"<td>{ev.bonus:.4f}</td><td>{c.actual:.4f}</td>" in html
+        assert any(r.startswith(f"BOSS,gdt,{drf},") and f",{c.upper:.6f},0.000000,{c.actual:.6f}," in r
+                   for r in csv_rows), label
+    # the boss's diameter in the report has T(DBOSS)'s own limits, not a +- of the wider one
+    assert any(r.startswith("BOSS,circle,") and ",diameter,mm,20.000000,0.010000,-0.050000," in r for r in csv_rows)
 
 
 def test_manual_hits_are_waited_for_with_the_prompt_on_the_routine_tab(station):

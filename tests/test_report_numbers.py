@@ -113,6 +113,11 @@ def measured(tmp_path_factory):
     model.define_gdt("angularity", i("edge"), 0.02, "C", angle=90.0)
     model.define_gdt("position", i("bore"), 0.05, "A|B|C")
     model.define_gdt("position", i("boss"), 0.05, "A|B|C", material="MMC")
+    # a hole at MMC with its own size limits (-0.01 / +0.05 on D30), against the boss referenced at MMB by this
+    # frame (its datum G is RFS elsewhere)
+    model.set_feature_nominal(i("bore"), tolerance={"size_lower": -0.01, "size_upper": 0.05})
+    model.define_gdt("position", i("bore"), 0.05, "A|G", material="MMC", datum_modifiers={"G": "MMB"},
+                     name="bore at MMC to the boss")
     model.define_gdt("concentricity", i("boss ring"), 0.02, "G")
     model.define_gdt("coaxiality", i("bore"), 0.02, "E-F")
     model.define_gdt("circular runout", i("bore"), 0.02, "E-F")
@@ -167,12 +172,19 @@ def test_every_gdt_characteristic_reaches_the_report_unchanged(measured):
     assert all(c.actual is not None for _, c in rows), [c.note for _, c in rows if c.actual is None]
     exported, html = measured.json["gdt"], measured.html
     csv_rows = [r for r in measured.csv if r[1] == "gdt"]
-    assert len(exported) == len(rows) == len(csv_rows) == 18  # 16 tolerances, the composite has 3 rows
+    assert len(exported) == len(rows) == len(csv_rows) == 19  # 17 tolerances, the composite has 3 rows
     for (d, c), e, r in zip(rows, exported, csv_rows):
         assert e["value"] == c.actual and e["allowed"] == c.upper and e["drf"] == c.datums, c.note
         assert e["feature_name"] == c.feature and e["result"] == c.verdict
         assert f"{c.actual:.4f}" in html and f"{c.actual:.4f}" in measured.tree, c.note
         assert r[0] == c.feature and r[9] == f"{c.actual:.6f}" and r[12] == c.verdict
+    # position at MMC: the bonus is the bore's departure from its own MMC size (30 - 0.01), in every output
+    (d, c), e = next((x, e) for x, e in zip(rows, exported) if x[0]["name"] == "bore at MMC to the boss")
+    bore = measured.features[d["feature"]]
+    bonus = 2.0 * bore.result.geometry()["radius"] - 29.99
+    assert bonus > 0.005 and c.upper == pytest.approx(0.05 + bonus, abs=1e-12) and e["allowed"] == c.upper
+    assert "⊕ ⌀0.0500(M) | A|G(M)" in html and f"<td>0.0500</td><td>{bonus:.4f}</td><td>{c.actual:.4f}</td>" in html
+    assert "G(M) = boss" in html
     composite = [c for d, c in rows if "composite" in d]
     assert [c.feature for c in composite] == ["bore", "boss", "pattern of 2"]
     assert "⊕ ⌀0.5000 | A|B|C / ⌀0.0500 | A" in html and "E = bore low; F = bore high" in html

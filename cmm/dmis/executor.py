@@ -43,6 +43,7 @@ class Target(Protocol):
     def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
               search_distance: float, retract_distance: float, rapid_speed: float | None) -> int: ...
     def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]: ...
+    def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str: ...
     @property
     def tip_radius(self) -> float: ...
     @property
@@ -372,12 +373,43 @@ class Executor:
                 raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
 
     def _to_model(self, ev: Evaluation, features: list[Actual]) -> None:
-        """The station's report carries the DMIS tolerance too (where the model has the same characteristic)."""
+        """The station's report carries the DMIS tolerance too (where the model has the same characteristic):
+        sizes and form as the feature's tolerance, a position with datums or at MMC / LMC as the station's
+        GD&T (its datums defined on the same features), so the report gives the same value and bonus."""
         keys = model_tolerance(ev.tolerance)
         fid = features[0].feature_id
         if keys and fid is not None and fid in self.model.features:
             self.model.set_feature_nominal(fid, tolerance=keys)
+        tol = ev.tolerance
+        if tol.word == "POS" and (tol.datums or tol.material) and fid is not None and fid in self.model.features:
+            why = self._position_to_model(tol, fid)
+            if why:
+                self.log(f"T({tol.label}) is not in the station's GD&T: {why}")
+                self.model.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")
         self.model.note(f"{output_line(ev)} ({', '.join('FA(' + f + ')' for f in ev.features)})")
+
+    def _position_to_model(self, tol: Tolerance, fid: int) -> str:
+        """Define TOL/POS in the station's GD&T: its datums on the DATDEF features (at RFS; the frame says how
+        it references each: MMB / LMB for a DAT(..) at MMC / LMC), then the position. Why not, in words ("" when
+        it is)."""
+        names = list(tol.datums[:3])
+        for name in names:
+            d = self.datums.get(name)
+            if d is None or d.feature_id is None or d.feature_id not in self.model.features:
+                return f"DAT({name}) is not a measured feature of the station"
+            have = self.model.datums.get(name)
+            if have is None or int(have["feature"]) != d.feature_id or have.get("targets"):
+                try:
+                    self.model.define_datum(name, d.feature_id)
+                except Exception as exc:  # noqa: BLE001 - a datum the station's GD&T cannot take, in words
+                    return str(exc)
+        modifiers = {n: {"MMC": "MMB", "LMC": "LMB"}.get(tol.datum_material.get(n, ""), "") for n in names}
+        try:
+            self.model.define_gdt("position", fid, tol.upper, names, material=tol.material, name=f"T({tol.label})",
+                                  datum_modifiers=modifiers or None)
+        except Exception as exc:  # noqa: BLE001 - the station's GD&T refuses it, in words
+            return str(exc)
+        return ""
 
     # --- coordinate systems -----------------------------------------------------------------------
 
@@ -389,12 +421,36 @@ class Executor:
             self.result.frames[s.label.name] = frame.copy()
         self.emit(statement_text(s))
 
+    def _align_part(self, s: Statement, features: list[Actual]) -> None:
+        """The alignment the statement made moves the station's part (its pose: the rails, the 3-D view and the
+        report follow): the part lies ``frame @ inverse(design_frame)`` from where the program's nominals put it.
+        Checked on the part with the hits of the features it used; when that fails the part stays and the run's
+        log and the journal say why."""
+        hits = [a.hit_points for a in features if a.hit_points is not None and len(a.hit_points)]
+        if not hits:  # constructed features only: the hits of everything measured so far
+            hits = [a.hit_points for a in self.result.actuals.values()
+                    if a.hit_points is not None and len(a.hit_points)]
+        if not hits:
+            return self._not_aligned(s, "no measured hits to check it on the part")
+        name = f"D({s.label.name})" if s.label is not None else f"line {s.line}"
+        try:
+            said = self.target.align(self.frame, self.design_frame, np.vstack(hits), name)
+        except Exception as exc:  # noqa: BLE001 - not this part at its set-up: said, and the part stays
+            return self._not_aligned(s, str(exc), said=True)
+        self.log(f"line {s.line}: {said}")
+
+    def _not_aligned(self, s: Statement, why: str, *, said: bool = False) -> None:
+        text = why if said else f"{statement_text(s)} does not move the station's part: {why}"
+        self.log(f"line {s.line}: {text}")
+        self.model.note(f"DMIS line {s.line}: {text}")
+
     def do_datset(self, s: Statement) -> None:
         if self.words(s) == ["MCS"]:
             return self._set_frame(s, np.eye(4), np.eye(4))
         entries, design = [], []
         current: Actual | None = None
         name = ""
+        used: list[Actual] = []
         for p in s.params:
             if isinstance(p, Label):
                 if p.type == "DAT":
@@ -403,6 +459,7 @@ class Executor:
                     current, name = self.datums[p.name], str(p)
                 else:
                     current, name = self.actual(s, p), str(p)
+                used.append(current)
             elif isinstance(p, Word):
                 if current is None:
                     raise self.fail(s, f"{p.text} must follow a datum: DATSET/DAT(A), ZDIR, ZORIG, ...")
@@ -420,24 +477,42 @@ class Executor:
         else:  # a datum without a nominal: the design frame follows the measured one
             design_frame = frame.copy()
         self._set_frame(s, frame, design_frame)
+        if all(d is not None for d in design):
+            self._align_part(s, used)
+        else:
+            self._not_aligned(s, "a datum has no nominal (FEAT), so where the part lies cannot be told")
 
     def do_trans(self, s: Statement) -> None:
         origin = np.zeros(3)
+        design_origin = np.zeros(3)
         params = list(s.params)
         k = 0
         inv = inverse(self.frame)
+        design_inv = inverse(self.design_frame)
+        used: list[Actual] = []
+        nominal_less = False
         while k < len(params):
             w = params[k]
             if not isinstance(w, Word) or w.text not in ORIGINS or k + 1 >= len(params):
                 raise self.fail(s, "TRANS takes XORIG, YORIG, ZORIG each followed by a value or a feature FA(..)")
             v = params[k + 1]
             axis = ORIGINS[w.text]
-            if isinstance(v, Label):
-                origin[axis] = apply(inv, self.actual(s, v).axis_point())[axis]
+            if isinstance(v, Label):  # the origin on a measured feature; in the design frame on its nominal
+                a = self.actual(s, v)
+                origin[axis] = apply(inv, a.axis_point())[axis]
+                nom = None if a.nominal is None else (a.nominal.design or a.nominal)
+                design_origin[axis] = (origin[axis] if nom is None
+                                       else apply(design_inv, nom.point)[axis])
+                used.append(a)
+                nominal_less |= nom is None
             else:
-                origin[axis] = self.num(s, v) * self.scale
+                origin[axis] = design_origin[axis] = self.num(s, v) * self.scale
             k += 2
-        self._set_frame(s, self.frame @ translation(origin), self.design_frame @ translation(origin))
+        self._set_frame(s, self.frame @ translation(origin), self.design_frame @ translation(design_origin))
+        if used and not nominal_less:
+            self._align_part(s, used)
+        elif used:
+            self._not_aligned(s, "its feature has no nominal (FEAT), so where the part lies cannot be told")
 
     def do_rotat(self, s: Statement) -> None:
         """ROTAT/ZAXIS, angle: turn about an axis of the current system. ROTAT/ZAXIS, FA(x), XDIR: turn about
@@ -461,6 +536,10 @@ class Executor:
             design_angle = angle if nom is None else self._turn_onto(
                 s, self.design_frame, axis, d_axis, sign, nom.vector, nom.point, p[1].name)
             self._set_frame(s, self.frame @ rotation(axis, angle), self.design_frame @ rotation(axis, design_angle))
+            if nom is not None:
+                self._align_part(s, [a])
+            else:
+                self._not_aligned(s, f"FA({p[1].name}) has no nominal (FEAT), so where the part lies cannot be told")
             return
         elif len(p) == 2:
             angle = self.num(s, p[1]) * self.angle_scale

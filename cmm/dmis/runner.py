@@ -94,6 +94,15 @@ class StationTarget:
                                    retract_distance=retract_distance, rapid_speed=rapid_speed).wait(self.timeout)
         return int(self.model.hit_id(hit))
 
+    def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str:
+        """The program's alignment moves the station's part (the align verb, as the page's Align tab does): the
+        rails, the 3-D view and the report then see the part where the program found it. Returns what moved."""
+        result = self.commands.invoke(self.client, "align", measured=measured, nominal=nominal, points=points,
+                                      name=name)
+        t = np.asarray(result.pose, float)[:3, 3]
+        return (f"{name} moved the station's part: origin at X {t[0]:.4f} Y {t[1]:.4f} Z {t[2]:.4f} "
+                f"(the datums' hits within {result.residuals['datum hits off the part (max)']:.4f} mm of it)")
+
     @property
     def tip_radius(self) -> float:
         return float(self.station.controller.tip_radius)

@@ -285,14 +285,13 @@ def model_tolerance(tol: Tolerance) -> dict[str, float]:
     """The measurement model's tolerance keys this DMIS tolerance sets (for the station's own report)."""
     w = tol.word
     width = max(abs(tol.lower), abs(tol.upper))
-    if w == "DIAM" and width > 0:
-        return {"size": width}
-    if w == "RAD" and width > 0:
-        return {"size": 2.0 * width}
+    if w in SIZE and width > 0 and tol.lower < tol.upper:  # the diameter's own limits, as the DMIS gives them
+        k = 2.0 if w == "RAD" else 1.0
+        return {"size": k * width, "size_lower": k * tol.lower, "size_upper": k * tol.upper}
     if w in FORM and tol.upper > 0:
         return {"form": tol.upper}
-    if w == "POS" and tol.upper > 0:
-        return {"position": tol.upper}
+    if w == "POS" and tol.upper > 0 and not tol.datums and not tol.material:
+        return {"position": tol.upper}  # a datum frame or a bonus: the station's GD&T (see Executor._to_model)
     return {}
 
 

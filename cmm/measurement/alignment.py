@@ -149,6 +149,57 @@ def best_fit_hits(model: Any, hit_ids: list[int]) -> AlignmentResult:
                             "converged": fit.converged})
 
 
+ON_PART = 0.5  # mm: how far a program's datum hits may lie from the part's surface at the pose it aligns to
+
+
+def _rigid(frame: Any, what: str) -> np.ndarray:
+    T = np.asarray(frame, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise AlignmentError(f"the {what} datum system must be a 4x4 transform of finite numbers")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise AlignmentError(f"the {what} datum system is not a rigid (right-handed, unscaled) transform")
+    return T
+
+
+def align_program_frame(model: Any, measured: Any, nominal: Any, points: Any, name: str = "") -> AlignmentResult:
+    """A program's alignment (a DMIS DATSET, or TRANS / ROTAT onto a measured feature) as the part's pose.
+
+    ``measured``: the program's datum system as measured (program -> machine); ``nominal``: the same system built
+    from its datums' nominals, i.e. where the program expected it. The part lies ``measured @ inverse(nominal)``
+    away from where the program's nominals put it: the station's pose when it started, or the nominal set-up
+    (the program was written for the set-up and the station has been aligned since, e.g. on the previous part).
+    The candidate whose pose puts the datums' hits (``points``, machine) on the part's surface wins; when neither
+    does within :data:`ON_PART` mm, the program's nominals are not this part at either place and nothing moves
+    (AlignmentError, in words)."""
+    part = model.part
+    if part is None:
+        raise AlignmentError("load a part before aligning it")
+    move = _rigid(measured, "measured") @ invert(_rigid(nominal, "nominal"))
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0 or not np.all(np.isfinite(pts)):
+        raise AlignmentError("the alignment needs the datums' hits to check it against the part")
+    from ..metrology.mesh import signed_deviation
+
+    candidates = [np.asarray(part.pose, float)]
+    setup = getattr(part, "setup", None)
+    if setup is not None and not np.allclose(setup, candidates[0], atol=1e-9):
+        candidates.append(np.asarray(setup, float))
+    best: tuple[float, np.ndarray] | None = None
+    for start in candidates:
+        pose = move @ start
+        off = float(np.max(np.abs(signed_deviation(part.mesh, pts, pose).deviations)))
+        if best is None or off < best[0]:
+            best = (off, pose)
+    off, pose = best  # type: ignore[misc]
+    if off > ON_PART:
+        raise AlignmentError(f"{name or 'the alignment'}: its datums' hits lie up to {off:.3f} mm from the part "
+                             f"at the pose it gives (more than {ON_PART} mm): the program's nominals are not "
+                             "this part at its set-up, so the station's part pose was left where it was")
+    return AlignmentResult("DMIS", pose, {"datum hits off the part (max)": off},
+                           {"names": [name] if name else [], "points": len(pts)})
+
+
 def apply(model: Any, result: AlignmentResult) -> None:
     """Adopt the alignment (journaled); every feature's nominal moves with the part."""
     previous = np.asarray(model.part.pose, float)

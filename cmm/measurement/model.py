@@ -32,7 +32,9 @@ from ..session.store import check_name, is_url, open_store
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
-TOLERANCE_KEYS = ("size", "form", "location", "position", "angle")
+TOLERANCE_KEYS = ("size", "form", "location", "position", "angle", "size_lower", "size_upper")
+# the diameter's own limits (deviations from the nominal, mm; a DMIS TOL/DIAM, -0.01, 0.05): any sign
+SIZE_LIMITS = ("size_lower", "size_upper")
 # machine events the journal records, and which of them as errors
 MACHINE_EVENTS = ("contact", "deadman", "limit", "error", "estop", "fault", "stop", "reset", "reconnect")
 MACHINE_ERRORS = ("contact", "error", "fault", "estop")
@@ -49,8 +51,11 @@ class Part:
     pose: np.ndarray  # part -> machine (the station's belief; alignment refines it)
     nominal_features: dict[str, NominalFeature] = field(default_factory=dict)
     sha256: str | None = None  # content hash; the mesh's when not given
+    setup: np.ndarray | None = None  # part -> machine at the nominal set-up (the pose it was loaded with)
 
     def __post_init__(self) -> None:
+        if self.setup is None and self.pose is not None:
+            self.setup = np.array(self.pose, dtype=np.float64, copy=True)
         if self.sha256 is None and self.mesh is not None:
             self.sha256 = mesh_sha256(self.mesh)
 
@@ -101,9 +106,15 @@ def check_tolerance(tolerance: dict[str, float] | None) -> dict[str, float] | No
             x = float(v)
         except (TypeError, ValueError):
             raise MeasurementError(f"the {k} tolerance must be a number, got {v!r}") from None
-        if not (x > 0 and x < 1e3):
+        if k in SIZE_LIMITS:
+            if not abs(x) < 1e3:
+                raise MeasurementError(f"the {k} limit must be a number of mm, got {v!r}")
+        elif not (x > 0 and x < 1e3):
             raise MeasurementError(f"the {k} tolerance must be a positive number, got {v!r}")
         out[k] = x
+    if "size_lower" in out and "size_upper" in out and not out["size_lower"] < out["size_upper"]:
+        raise MeasurementError(f"the size's lower limit {out['size_lower']:g} must be below its upper limit "
+                               f"{out['size_upper']:g}")
     return out
 
 
@@ -526,10 +537,11 @@ class MeasurementModel:
             out = {}
             for fid, f in self.features.items():
                 pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
-                size = float({**DEFAULT_TOLERANCE, **(f.tolerance or {})}["size"])
+                tol = {**DEFAULT_TOLERANCE, **(f.tolerance or {})}
                 out[fid] = MeasuredFeature(f.name, f.kind, f.result.summary(),
-                                           None if f.nominal is None else f.nominal.to_dict(), pts, size,
-                                           tuple(h for h in f.hit_ids if h in hits))
+                                           None if f.nominal is None else f.nominal.to_dict(), pts, float(tol["size"]),
+                                           tuple(h for h in f.hit_ids if h in hits), tol.get("size_lower"),
+                                           tol.get("size_upper"))
         return out
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
@@ -583,12 +595,14 @@ class MeasurementModel:
     def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (), *,
                    material: str = "", angle: float | None = None, direction: str = "radial",
                    name: str | None = None, gdt_id: int | None = None, pattern: Any = None,
-                   composite: dict[str, Any] | None = None) -> tuple[dict[str, Any], Any]:
+                   composite: dict[str, Any] | None = None,
+                   datum_modifiers: dict[str, str] | None = None) -> tuple[dict[str, Any], Any]:
         """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
         ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
         refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
         mesh for a profile). A composite position frame: ``pattern`` (the ids of the pattern's features) and
-        ``composite`` ({"tolerance", "datums"}: the feature-relating tier). Journalled; returns (definition,
+        ``composite`` ({"tolerance", "datums"}: the feature-relating tier). ``datum_modifiers``: how this frame
+        references its datums ({"B": "MMB"}), over the datums' own modifiers. Journalled; returns (definition,
         its first Characteristic)."""
         from ..metrology.datums import DatumError
         from ..metrology.gdt_eval import check_definition, evaluate_one
@@ -602,6 +616,8 @@ class MeasurementModel:
             if isinstance(low.get("datums"), str):
                 low["datums"] = [x for x in low["datums"].replace(",", "|").split("|") if x.strip()]
             raw.update(pattern=list(pattern or []), composite=low)
+        if datum_modifiers:
+            raw["datum_modifiers"] = dict(datum_modifiers)
         try:
             d = check_definition(raw)
             with self.lock:

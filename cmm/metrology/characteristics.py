@@ -3,7 +3,8 @@
 Per feature kind:
 
 - size: diameter of circles, spheres and cylinders; the half angle of cones
-  (``size`` +- mm, ``angle`` +- degrees);
+  (``size`` +- mm, or the limits ``size_lower`` / ``size_upper`` as deviations from the nominal diameter;
+  ``angle`` +- degrees);
 - location: a plane's distance from its nominal plane along the nominal
   normal (``location`` +- mm); the true position of axes and centres as a
   diameter, per ISO 1101 / ASME Y14.5: twice the distance of the actual axis
@@ -132,7 +133,8 @@ def characteristics(name: str, kind: str, geometry: dict[str, Any], nominal: dic
     out: list[Characteristic] = []
     if kind in ("circle", "sphere", "cylinder") and "radius" in g:
         n = 2.0 * float(nom["radius"]) if comparable and "radius" in nom else None
-        out.append(Characteristic(name, "diameter", n, 2.0 * float(g["radius"]), tol["size"], -tol["size"],
+        upper, lower = float(tol.get("size_upper", tol["size"])), float(tol.get("size_lower", -tol["size"]))
+        out.append(Characteristic(name, "diameter", n, 2.0 * float(g["radius"]), upper, lower,
                                   note=note or ("" if n is not None else "no nominal diameter")))
     if kind == "cone" and "half_angle" in g:
         n = math.degrees(float(nom["half_angle"])) if comparable and "half_angle" in nom else None

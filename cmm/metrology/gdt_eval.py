@@ -11,10 +11,12 @@ events, see :mod:`cmm.session.model`):
 - tolerance: ``{"id", "name", "characteristic" (see :data:`cmm.metrology.gdt.CHARACTERISTICS`), "feature"
   (id), "tolerance" (mm), "datums" (["A", "B", "C"], precedence order; "A-B" is the common datum of datums A
   and B, see :func:`cmm.metrology.datums.common_datum`), "material" ("" | "MMC" | "LMC"), "angle" (degrees,
-  angularity), "direction" ("radial" | "axial", runout)}``; a composite position frame adds ``"pattern"``
-  (the ids of the pattern's features, "feature" among them) and ``"composite": {"tolerance", "datums"}`` (the
-  feature-relating tier; its datums repeat the first of the upper tier's, orientation only): it gives one row
-  per feature for the upper tier and one for the pattern's lower tier (:func:`cmm.metrology.gdt.composite_position`).
+  angularity), "direction" ("radial" | "axial", runout), optionally "datum_modifiers" ({"B": "MMB"}: how this
+  frame references a datum, as a feature control frame says, over the datum's own modifier)}``; a composite
+  position frame adds ``"pattern"`` (the ids of the pattern's features, "feature" among them) and
+  ``"composite": {"tolerance", "datums"}`` (the feature-relating tier; its datums repeat the first of the upper
+  tier's, orientation only): it gives one row per feature for the upper tier and one for the pattern's lower tier
+  (:func:`cmm.metrology.gdt.composite_position`).
 
 A feature is a :class:`MeasuredFeature`: its name, kind, fit summary (geometry), nominal (a
 ``NominalFeature.to_dict()`` in the same coordinates), measured points, and its size tolerance. The CAD
@@ -49,6 +51,8 @@ class MeasuredFeature:
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     size_tolerance: float = DEFAULT_TOLERANCE["size"]  # +- on the diameter
     hit_ids: tuple[int, ...] = ()  # the hit of each point (datum targets name hits)
+    size_lower: float | None = None  # the diameter's own limits (deviations from the nominal), when not +-
+    size_upper: float | None = None
 
 
 def check_definition(d: dict[str, Any]) -> dict[str, Any]:
@@ -82,8 +86,27 @@ def check_definition(d: dict[str, Any]) -> dict[str, Any]:
             raise gdt.GdtError(f"{label!r} is not a datum reference: use a letter (A) or a common datum of two (A-B)")
     out = {**d, "characteristic": ch, "tolerance": tol, "datums": datums, "material": material,
            "angle": None if angle is None else float(angle), "direction": direction}
+    out.pop("datum_modifiers", None)
+    if d.get("datum_modifiers"):
+        out["datum_modifiers"] = _check_modifiers(d["datum_modifiers"], datums)
     if d.get("composite") is not None or d.get("pattern") is not None:
         out.update(_check_composite(out))
+    return out
+
+
+def _check_modifiers(given: Any, datums: list[str]) -> dict[str, str]:
+    """A frame's own datum modifiers: label -> "MMB" | "LMB" | "" (RFS), each a datum of the frame."""
+    if not isinstance(given, dict):
+        raise gdt.GdtError("datum modifiers are a mapping of datum label to MMB, LMB or RFS")
+    out = {}
+    for label, mod in given.items():
+        label = str(label).strip().upper()
+        m = str(mod or "").upper().replace("RFS", "").replace("RMB", "")
+        if m not in ("", "MMB", "LMB"):
+            raise gdt.GdtError(f"datum {label}: unknown modifier {mod!r}; use MMB, LMB or none (RFS)")
+        if label not in datums:
+            raise gdt.GdtError(f"datum {label} has a modifier but is not in the frame {'|'.join(datums) or '(none)'}")
+        out[label] = m
     return out
 
 
@@ -150,10 +173,15 @@ def _size_limits(f: MeasuredFeature) -> tuple[float, float] | None:
     if "radius" not in n:
         return None
     d = 2.0 * float(n["radius"])
-    return d - f.size_tolerance, d + f.size_tolerance
+    low = -f.size_tolerance if f.size_lower is None else float(f.size_lower)
+    high = f.size_tolerance if f.size_upper is None else float(f.size_upper)
+    return d + low, d + high
 
 
-def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature], nominal: bool) -> Any:
+def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature], nominal: bool,
+             modifiers: dict[str, str] | None = None) -> Any:
+    """Datum ``label`` from its feature (actual, or with ``nominal`` its nominal); ``modifiers``: the frame's own
+    modifier for a label (MMB, LMB, "" for RFS) over the datum definition's."""
     if "-" in label:  # a common datum: two datums from two features, one axis or plane
         first, _, second = label.partition("-")
         return common_datum(datum_of(first, defs, feats, nominal), datum_of(second, defs, feats, nominal))
@@ -163,7 +191,7 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
     f = feats.get(int(d["feature"]))
     if f is None:
         raise DatumError(f"the datum feature of {label} (feature {d['feature']}) is not measured")
-    modifier = d.get("modifier") or ""
+    modifier = (modifiers or {}).get(label, d.get("modifier") or "")
     boundary = internal = None
     if modifier:
         limits, internal = _size_limits(f), _internal(f)
@@ -173,6 +201,8 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
         lmc = limits[1] if internal else limits[0]
         boundary = mmc if modifier == "MMB" else lmc
     targets = d.get("targets")
+    if targets and modifier:
+        raise DatumError(f"datum {label} from target points is a plane: it cannot be referenced at {modifier}")
     if targets and not nominal:  # the actual datum from the target hits; the nominal one is the CAD plane
         if f.kind != "plane":
             raise DatumError(f"datum {label}: datum targets here are points on a plane feature; {f.name} is a {f.kind}")
@@ -212,12 +242,12 @@ def _signed_like_nominal(f: MeasuredFeature) -> dict[str, Any]:
 
 
 def build_frames(labels: list[str], datums: dict[str, dict], feats: dict[int, MeasuredFeature],
-                 nominal: bool) -> tuple[DRF | None, DRF | None]:
+                 nominal: bool, modifiers: dict[str, str] | None = None) -> tuple[DRF | None, DRF | None]:
     """The actual DRF of ``labels`` and, with ``nominal``, the same frame built from the datum features'
-    nominals (None, None without labels)."""
+    nominals (None, None without labels); ``modifiers``: the frame's own datum modifiers."""
     if not labels:
         return None, None
-    actual = build_drf([datum_of(x, datums, feats, False) for x in labels])
+    actual = build_drf([datum_of(x, datums, feats, False, modifiers) for x in labels])
     nom = build_drf([datum_of(x, datums, feats, True) for x in labels]) if nominal else None
     return actual, nom
 
@@ -238,7 +268,7 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
                                    f" is datum {part}: a feature is not toleranced against itself")
     tol = d["tolerance"]
     needs_nominal = ch in ("position", "profile of a surface", "profile of a line")
-    drf, ndrf = build_frames(d["datums"], datums, feats, needs_nominal)
+    drf, ndrf = build_frames(d["datums"], datums, feats, needs_nominal, d.get("datum_modifiers"))
     if ch in gdt.FORM:
         return gdt.form(ch, f.points, tol)
     if ch in gdt.ORIENTATION:
@@ -313,7 +343,8 @@ def tolerance_text(d: dict[str, Any]) -> str:
     ch = d.get("characteristic", "")
     dia = "⌀" if ch in ("position", "coaxiality", "concentricity") else ""
     head = f"{gdt.SYMBOLS.get(ch, '')} {dia}{float(d.get('tolerance', 0)):.4f}{MATERIAL_SYMBOL.get(d.get('material') or '', '')}"
-    text = head + (f" | {'|'.join(d.get('datums') or [])}" if d.get("datums") else "")
+    mods = {k: {"MMB": "(M)", "LMB": "(L)"}.get(v, "") for k, v in (d.get("datum_modifiers") or {}).items()}
+    text = head + (f" | {'|'.join(x + mods.get(x, '') for x in d.get('datums') or [])}" if d.get("datums") else "")
     low = d.get("composite")
     if isinstance(low, dict):  # the lower tier on a second line of the frame: "/ ⌀0.0200 | A"
         text += f" / ⌀{float(low.get('tolerance', 0)):.4f}" + (f" | {'|'.join(low.get('datums') or [])}"

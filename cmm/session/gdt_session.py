@@ -24,7 +24,8 @@ def measured_features(session: Session, tolerances: dict[int, dict[str, float]] 
         pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
         tol = {**DEFAULT_TOLERANCE, **(f.tolerance or {}), **((tolerances or {}).get(fid) or {})}
         out[fid] = MeasuredFeature(f.name, f.kind, f.fit, f.nominal, pts, float(tol["size"]),
-                                   tuple(h for h in f.hit_ids if h in hits))
+                                   tuple(h for h in f.hit_ids if h in hits), tol.get("size_lower"),
+                                   tol.get("size_upper"))
     return out
 
 

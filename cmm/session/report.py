@@ -384,7 +384,8 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
             for label in ref.split("-"):  # a common datum A-B: both of its features
                 df = st.datums.get(label)
                 f = None if df is None else st.features.get(int(df["feature"]))
-                mod = {"MMB": "(M)", "LMB": "(L)"}.get((df or {}).get("modifier") or "", "")
+                own = (d.get("datum_modifiers") or {}).get(label)  # the frame's own modifier, else the datum's
+                mod = {"MMB": "(M)", "LMB": "(L)"}.get(((df or {}).get("modifier") or "") if own is None else own, "")
                 frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
         bonus = c.upper - float(d.get("tolerance") or 0.0)
         result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
