@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cmm.metrology.datums import DatumError, build_drf, datum_from_feature, datum_from_targets
-from cmm.metrology.gdt_eval import MeasuredFeature, check_datum, evaluate_one
+from cmm.metrology.gdt_eval import MeasuredFeature, check_datum, datum_of, evaluate_one, target_points
 
 A_TARGETS = np.array([[5.0, 5.0, 0.0], [95.0, 5.0, 0.0], [50.0, 75.0, 0.0]])
 B_TARGETS = np.array([[10.0, 0.0, -5.0], [90.0, 0.08, -5.0]])  # the front face turned by 1 mrad
@@ -117,3 +117,68 @@ def test_target_definitions_in_a_session_are_checked():
         check_datum({"label": "A", "feature": 1, "targets": [101, 102, 103], "modifier": "MMB"})
     with pytest.raises(DatumError, match="the targets are hit numbers"):
         check_datum({"label": "A", "feature": 1, "targets": ["one"]})
+
+
+# target areas and lines: the hits taken in each (hit ids 11.., 21.., 31..)
+AREA_1 = [(3.0, 5.0, 0.0), (5.0, 5.0, 0.02), (7.0, 5.0, 0.01)]  # the pad meets the 0.02 high spot
+AREA_2 = [(93.0, 5.0, 0.0), (95.0, 5.0, 0.005)]
+POINT_3 = (50.0, 75.0, 0.0)
+LINE_B = [(10.0, 0.0, -5.0), (50.0, -0.03, -5.0), (90.0, 0.0, -5.0)]  # runs along X; its middle stands out 0.03
+
+
+def test_target_areas_and_lines_touch_where_the_simulator_would():
+    """A from two target areas and a point, B from one target line, C from a point: each area contacts at its
+    hit furthest out of the material, the line along the direction its hits run through its furthest-out hit."""
+    top = np.array(AREA_1 + AREA_2 + [POINT_3])
+    front = np.array(LINE_B)
+    left = np.array([C_TARGET[0]])
+    feats = {1: MeasuredFeature("top", "plane", {"point": top.mean(axis=0).tolist(), "normal": [0, 0, 1]},
+                                {"kind": "plane", "point": [50, 40, 0], "normal": [0, 0, 1]}, top,
+                                hit_ids=(11, 12, 13, 14, 15, 16)),
+             2: MeasuredFeature("front", "plane", {"point": front.mean(axis=0).tolist(), "normal": [0, 1, 0]},
+                                {"kind": "plane", "point": [50, 0, -5], "normal": [0, -1, 0]}, front,
+                                hit_ids=(21, 22, 23)),
+             3: MeasuredFeature("left", "plane", {"point": left[0].tolist(), "normal": [-1, 0, 0]},
+                                {"kind": "plane", "point": [0, 40, -5], "normal": [-1, 0, 0]}, left, hit_ids=(31,))}
+    defs = {"A": check_datum({"label": "A", "feature": 1, "targets": [{"area": [11, 12, 13]}, {"area": [14, 15]}, 16]}),
+            "B": check_datum({"label": "B", "feature": 2, "targets": [{"line": [21, 22, 23]}]}),
+            "C": check_datum({"label": "C", "feature": 3, "targets": [31]})}
+    drf = build_drf([datum_of(x, defs, feats, False) for x in "ABC"])
+    # expected, from the contact points alone: A through (5, 5, 0.02), (95, 5, 0.005), (50, 75, 0); B through the
+    # line X at Y -0.03, Z -5, square to A; C through C's target square to both
+    a1, a2, a3 = np.array([5.0, 5.0, 0.02]), np.array([95.0, 5.0, 0.005]), np.array(POINT_3)
+    z = np.cross(a2 - a1, a3 - a1)
+    z /= np.linalg.norm(z)
+    x = np.cross([1.0, 0.0, 0.0], z)
+    x = -x / np.linalg.norm(x) if x[1] > 0 else x / np.linalg.norm(x)  # B's outward normal is -y
+    y = np.cross(z, x)
+    origin = np.linalg.solve(np.array([z, x, y]), [z @ a1, x @ np.array([50.0, -0.03, -5.0]), y @ C_TARGET[0]])
+    assert np.allclose(drf.rotation, np.column_stack([x, y, z]), atol=1e-12)
+    assert np.allclose(drf.origin, origin, atol=1e-9)
+    # the whole face instead of the areas: the plane lies lower by the pads' high spots
+    assert datum_from_feature("A", "plane", feats[1].geometry).origin[2] < origin[2]
+
+
+@pytest.mark.parametrize("target, message", [
+    ({"area": [11]}, "a target area needs 2 or more different hits taken in it, got 1"),
+    ({"line": [21, 21]}, "a target line needs 2 or more different hits taken in it, got 1"),
+    ({"circle": [11, 12]}, "a target is a hit number, {'area': \\[hits\\]} or {'line': \\[hits\\]}"),
+    ("one", "the targets are hit numbers \\(or target areas and lines of hits\\)"),
+])
+def test_bad_target_areas_and_lines_are_explained(target, message):
+    with pytest.raises(DatumError, match=f"datum A: {message}"):
+        check_datum({"label": "A", "feature": 1, "targets": [target]})
+
+
+def test_a_target_line_on_one_spot_is_refused():
+    with pytest.raises(DatumError, match="datum B: the hits of a target line lie on one spot"):
+        target_points("B", [{"line": [1, 2]}], {1: np.array([0.0, 0, 0]), 2: np.array([0.0, 0, 1e-9])}, [0, -1, 0])
+
+
+def test_targets_as_typed_in_the_features_tab():
+    from cmm.ui.ids import parse_targets
+
+    assert parse_targets("area(11-13) line(21 22, 23) 31") == [{"area": [11, 12, 13]}, {"line": [21, 22, 23]}, 31]
+    assert parse_targets("101, line(21-23) 102") == [101, {"line": [21, 22, 23]}, 102]
+    with pytest.raises(ValueError, match="'circle' is not a hit number, a range like 3-7, area\\(hits\\) or line"):
+        parse_targets("circle(1 2)")

@@ -568,7 +568,8 @@ class MeasurementModel:
 
     def define_datum(self, label: str, feature_id: int, modifier: str = "", targets: Any = None) -> dict[str, Any]:
         """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB, or established by
-        ``targets`` (hit ids of the feature: 3 on a primary plane, 2 on a secondary, 1 on a tertiary);
+        ``targets`` (hit ids of the feature: 3 on a primary plane, 2 on a secondary, 1 on a tertiary; a target
+        area or line as ``{"area": [hit ids]}`` / ``{"line": [hit ids]}``, a line counting as two);
         journalled."""
         from ..metrology.datums import DatumError, datum_from_feature
         from ..metrology.gdt_eval import check_datum

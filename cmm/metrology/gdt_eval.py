@@ -5,7 +5,9 @@ re-evaluation show. Definitions are plain JSON-ready dicts (they are journalled 
 events, see :mod:`cmm.session.model`):
 
 - datum: ``{"label": "A", "feature": 3, "modifier": "" | "MMB" | "LMB", "targets": [hit ids]}`` (targets: the
-  datum plane through those hits of its feature, see :func:`cmm.metrology.datums.datum_from_targets`; the boundary of a datum at
+  datum plane through those hits of its feature, see :func:`cmm.metrology.datums.datum_from_targets`; a target
+  may also be a target area or line, ``{"area": [hit ids]}`` / ``{"line": [hit ids]}``, see
+  :func:`target_points`; the boundary of a datum at
   MMB/LMB is its MMC / LMC size from the feature's nominal diameter and size tolerance; a datum's direction
   takes the sense of its feature's nominal, e.g. a plane's outward normal);
 - tolerance: ``{"id", "name", "characteristic" (see :data:`cmm.metrology.gdt.CHARACTERISTICS`), "feature"
@@ -152,15 +154,75 @@ def check_datum(d: dict[str, Any]) -> dict[str, Any]:
         raise DatumError(f"datum {label}: unknown modifier {modifier!r}; use MMB, LMB or none (RFS)")
     out = {**d, "label": label, "modifier": modifier, "feature": int(d["feature"])}
     if d.get("targets"):
-        try:
-            out["targets"] = [int(h) for h in d["targets"]]
-        except (TypeError, ValueError):
-            raise DatumError(f"datum {label}: the targets are hit numbers, got {d['targets']!r}") from None
+        out["targets"] = [_check_target(label, t) for t in d["targets"]]
         if modifier:
             raise DatumError(f"datum {label} from target points is a plane: it cannot be referenced at {modifier}")
     else:
         out.pop("targets", None)
     return out
+
+
+TARGET_SHAPES = {"area": 2, "line": 2}  # a target area or line: the hits taken in it, at least this many
+
+
+def _check_target(label: str, t: Any) -> int | dict[str, list[int]]:
+    """One datum target: a hit id (a target point), or {"area": [hit ids]} / {"line": [hit ids]}."""
+    if isinstance(t, dict):
+        shape = next((k for k in TARGET_SHAPES if k in t), None)
+        if shape is None or len(t) != 1:
+            raise DatumError(f"datum {label}: a target is a hit number, {{'area': [hits]}} or {{'line': [hits]}}, "
+                             f"got {t!r}")
+        try:
+            ids = [int(h) for h in t[shape]]
+        except (TypeError, ValueError):
+            raise DatumError(f"datum {label}: a target {shape} is the hit numbers taken in it, got {t[shape]!r}") from None
+        if len(ids) < TARGET_SHAPES[shape] or len(set(ids)) != len(ids):
+            raise DatumError(f"datum {label}: a target {shape} needs {TARGET_SHAPES[shape]} or more different hits "
+                             f"taken in it, got {len(set(ids))}")
+        return {shape: ids}
+    try:
+        if isinstance(t, bool):
+            raise TypeError
+        return int(t)
+    except (TypeError, ValueError):
+        raise DatumError(f"datum {label}: the targets are hit numbers (or target areas and lines of hits), "
+                         f"got {t!r}") from None
+
+
+def target_points(label: str, targets: list[Any], points: dict[int, np.ndarray], normal: Any) -> np.ndarray:
+    """The contact points of datum targets, as the datum simulator touches the surface (``normal``: the datum
+    feature's outward normal): a target point its hit; a target area the hit of the area furthest out of the
+    material (the pad meets the highest point under it); a target line two points, the line through its
+    furthest-out hit along the direction its hits run (in the surface), spanning them (a line counts as two
+    of the frame's targets: B1-B2 on a secondary as one line)."""
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    out: list[np.ndarray] = []
+    for t in targets:
+        if not isinstance(t, dict):
+            out.append(points[int(t)])
+            continue
+        shape, ids = next(iter(t.items()))
+        pts = np.array([points[int(h)] for h in ids], dtype=np.float64)
+        contact = pts[int(np.argmax(pts @ n))]
+        if shape == "area":
+            out.append(contact)
+            continue
+        centred = pts - pts.mean(axis=0)
+        u = np.linalg.svd(centred, full_matrices=False)[2][0]
+        u = u - (u @ n) * n  # the line lies in the surface
+        span = centred @ u if float(np.linalg.norm(u)) > 1e-12 else np.zeros(len(pts))
+        if float(np.linalg.norm(u)) < 1e-12 or float(np.ptp(span)) < 1e-6:
+            raise DatumError(f"datum {label}: the hits of a target line lie on one spot: a line needs hits apart "
+                             "along it")
+        u = u / np.linalg.norm(u)
+        s = pts @ u
+        out += [contact + (float(s.min()) - float(contact @ u)) * u, contact + (float(s.max()) - float(contact @ u)) * u]
+    return np.array(out, dtype=np.float64).reshape(-1, 3)
+
+
+def _target_ids(targets: list[Any]) -> list[int]:
+    return [h for t in targets for h in (next(iter(t.values())) if isinstance(t, dict) else [t])]
 
 
 def _internal(f: MeasuredFeature) -> bool | None:
@@ -207,12 +269,13 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
         if f.kind != "plane":
             raise DatumError(f"datum {label}: datum targets here are points on a plane feature; {f.name} is a {f.kind}")
         where = {h: k for k, h in enumerate(f.hit_ids)}
-        missing = [h for h in targets if h not in where]
+        missing = [h for h in _target_ids(targets) if h not in where]
         if missing:
             raise DatumError(f"datum {label}: hit {missing[0]} is not a hit of {f.name}; its targets are hits of the "
                              "datum feature")
         g = _signed_like_nominal(f)
-        return datum_from_targets(label, f.points[[where[h] for h in targets]], g["normal"], feature=f.name)
+        pts = target_points(label, targets, {h: f.points[k] for h, k in where.items()}, g["normal"])
+        return datum_from_targets(label, pts, g["normal"], feature=f.name)
     if nominal:
         n = f.nominal
         if not n or n.get("kind") in (None, "surface"):

@@ -33,7 +33,7 @@ from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
 from ..measurement.model import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
-from .ids import parse_ids
+from .ids import parse_ids, parse_targets
 
 RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
 RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
@@ -312,9 +312,10 @@ class FeaturesPanel:
         return c
 
     def define_datum(self, label: str, feature: int, modifier: str = "", targets: str = "") -> Any:
-        """Datum ``label`` from a feature, or from its target hits (``targets``: hit ids as typed, "12 14 17")."""
+        """Datum ``label`` from a feature, or from its targets (``targets`` as typed: hit ids "12 14 17", target
+        areas and lines of hits "area(12-14) line(15 16) 17")."""
         return self.ctx.run("Datum", lambda: self.station.measurement.define_datum(
-            label, feature, modifier, parse_ids(targets) if targets.strip() else None))
+            label, feature, modifier, parse_targets(targets) if targets.strip() else None))
 
     def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
                    material: str = "", angle: float | None = None, direction: str = "radial",
@@ -465,6 +466,7 @@ class FeaturesPanel:
             g["datum_feature"] = gui.add_dropdown("Datum feature", ("-",), initial_value="-")
             dmod = gui.add_dropdown("Datum modifier", ("RFS", "MMB", "LMB"), initial_value="RFS")
             targets = gui.add_text("Datum targets", "", hint="hit ids on a datum plane: 3 for A, 2 for B, 1 for C; "
+                                                             "area(12-14), line(15 16) for target areas and lines; "
                                                              "empty: the whole feature")
             gui.add_button("Set datum").on_click(lambda _: self._datum(label.value, g["datum_feature"].value,
                                                                        dmod.value, targets.value))
