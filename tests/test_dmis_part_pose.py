@@ -13,6 +13,8 @@ from cmm.dmis.runner import run_text
 from cmm.metrology.align import AlignmentError
 from cmm.metrology.mesh import signed_deviation
 from cmm.metrology.transform import invert
+from cmm.session.report import render
+from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE, pose_matrix
 from cmm.station import Station
 
@@ -65,7 +67,7 @@ def station(tmp_path):
         st.controller.home(None)
         st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
         st.sim.place_part(PLACED)
-        st.measurement.new_session("dmis pose")
+        st.measurement.new_session("pose")
         yield st
     finally:
         st.close()
@@ -127,6 +129,11 @@ def test_datset_moves_the_station_part_and_the_rails_follow_it(station):
     assert here == pytest.approx(list(INTO[0]), abs=0.01)
     # nothing restores the nominal set-up behind the operator's back: the part stays where the program found it
     assert np.array_equal(np.asarray(model.part.pose, float), pose)
+    # the journal has the alignment: the report's header names it, a replay ends at the aligned pose
+    model.journal.close()
+    session = load_session(DirectoryStore(model.session_dir), "pose")
+    assert np.allclose(np.array(session.state.part_pose, float), pose, atol=1e-12)
+    assert "DMIS D(PART)" in render(session, mesh=mesh)
 
 
 def test_a_program_alignment_that_does_not_fit_the_part_moves_nothing(station):

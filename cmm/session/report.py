@@ -529,6 +529,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
              ("tip radius", _tip_radius(s)), ("pre-travel", _pretravel(s)),
              ("alignment", "none" if st.alignment is None else
               st.alignment.method.replace("_", " ")
+              + "".join(f" {'/'.join(str(n) for n in names)}" for names in [st.alignment.info.get("names")] if names)
               + (f", RMS {st.alignment.info['rms'] * 1000:.2f} µm" if isinstance(st.alignment.info.get("rms"), (int, float)) else "")),
              ("hits", f"{len(st.hits)}" + (f" (+{len(st.deleted_hits)} deleted)" if st.deleted_hits else "")),
              ("part sha256", "" if st.part is None or not st.part.sha256 else st.part.sha256[:16] + "…")]
