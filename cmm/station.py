@@ -37,8 +37,10 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
     from .control.api import REQUIRED
     from .control.running import cancel_flag
     from .measurement import alignment
+    from .measurement.model import INFO_FIELDS
     from .measurement.plan import plan_at_pick, run_plan
     from .measurement.program import run_on
+    from .metrology.pick import NominalFeature
 
     def holder(fn: Any) -> Any:
         def verb(client: Any, **params: Any) -> Any:
@@ -70,6 +72,33 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
                   three_d: bool = False) -> Any:
         return measurement.construct_feature(operation, int(a), int(b), name, tolerance, three_d)
 
+    def nominal_from_dict(d: Any) -> NominalFeature:
+        """A nominal sent as JSON: {"kind": plane | sphere | cylinder | cone, "point" / "center", "normal" /
+        "direction", "radius" ...} (the form a feature's summary shows)."""
+        if not isinstance(d, dict) or "kind" not in d:
+            raise StationError("a nominal is given as its kind and parameters, e.g. "
+                               "{kind: cylinder, point: [x, y, z], direction: [0, 0, 1], radius: 5}")
+        try:
+            return NominalFeature(str(d["kind"]), {k: v for k, v in d.items() if k != "kind"})
+        except (TypeError, ValueError) as exc:
+            raise StationError(f"the nominal cannot be used: {exc}") from None
+
+    def set_nominal(feature: int, nominal: Any = None, tolerance: Any = None) -> Any:
+        if nominal is not None and not isinstance(nominal, NominalFeature):
+            nominal = nominal_from_dict(nominal)
+        return measurement.set_feature_nominal(int(feature), nominal, tolerance)
+
+    def define_gdt(characteristic: str, feature: int, tolerance: float, datums: Any = "", material: str = "",
+                   angle: float | None = None, direction: str = "radial", pattern: Any = None,
+                   composite: dict | None = None, name: str | None = None,
+                   datum_modifiers: dict[str, str] | None = None) -> Any:
+        extra: dict[str, Any] = {}
+        if composite is not None:
+            extra = {"pattern": [int(f) for f in pattern or []], "composite": composite}
+        return measurement.define_gdt(characteristic, int(feature), tolerance, datums, material=material,
+                                      angle=angle, direction=direction, name=name, datum_modifiers=datum_modifiers,
+                                      **extra)
+
     def auto_measure(client: Any, plan: Any = None, face: int | None = None, n: int | None = None,
                      name: str | None = None, method: str = "ls", progress: Any = None) -> Any:
         controller.check_access(client, "measure")
@@ -97,6 +126,31 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
                   "delete a hit by id (undo brings it back)")
     cmds.register("delete_feature", holder(lambda feature: measurement.delete_feature(int(feature))),
                   {"feature": REQUIRED}, "delete a feature (or a construction) by id")
+    cmds.register("refit_feature", holder(lambda feature, hits: measurement.refit_feature(int(feature),
+                                                                                        [int(h) for h in hits])),
+                  {"feature": REQUIRED, "hits": REQUIRED},
+                  "fit a feature again to other hits (one removed or re-taken); its name, nominal and tolerance stay")
+    cmds.register("set_nominal", holder(set_nominal), {"feature": REQUIRED, "nominal": None, "tolerance": None},
+                  "a feature's nominal ({kind, point / center, normal / direction, radius ...} or a CAD pick's) "
+                  "and/or its tolerances ({size, form, location, position, angle}); journalled as a new fit event")
+    cmds.register("define_datum", holder(lambda label, feature, modifier="", targets=None: measurement.define_datum(
+                      str(label), int(feature), modifier, None if targets is None else list(targets))),
+                  {"label": REQUIRED, "feature": REQUIRED, "modifier": "", "targets": None},
+                  "make a fitted feature datum label (A, B ...), RFS or MMB / LMB, or established by targets: hit "
+                  "ids, a target area {area: [hit ids]} or line {line: [hit ids]}")
+    cmds.register("define_gdt", holder(define_gdt),
+                  {"characteristic": REQUIRED, "feature": REQUIRED, "tolerance": REQUIRED, "datums": "",
+                   "material": "", "angle": None, "direction": "radial", "pattern": None, "composite": None,
+                   "name": None, "datum_modifiers": None},
+                  "a geometric tolerance on a feature against datums \"A|B|C\" (a composite position: pattern "
+                  "feature ids and composite {tolerance, datums}; datum_modifiers {label: MMB | LMB} as this frame "
+                  "references them); evaluated at once, refused in words when it cannot be; returns (definition, "
+                  "characteristic)")
+    cmds.register("delete_gdt", holder(lambda gdt: measurement.delete_gdt(int(gdt))), {"gdt": REQUIRED},
+                  "delete a geometric tolerance by id")
+    cmds.register("set_info", holder(lambda **fields: measurement.set_info(**fields)),
+                  {k: None for k in INFO_FIELDS},
+                  "the report header: " + ", ".join(INFO_FIELDS) + " (temperature in deg C); only the fields given change")
     cmds.register("align", holder(align), {"primary": None, "secondary": None, "tertiary": None, "hits": None,
                                            "measured": None, "nominal": None, "points": None, "name": ""},
                   "align the part: 3-2-1 from three features, a best fit of hits to the CAD, or a program's datum "
@@ -112,7 +166,7 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         controller.check_access(client, "measure")
         run.controller, run.client = controller, client  # its jobs are this client's; the cancel verb ends it
         if calibration is not None and run.change_probe is None:  # a step's probe: selected as Use this probe does
-            run.change_probe = lambda name: calibration.select_probe(client, name)
+            run.change_probe = lambda name: cmds.invoke(client, "select_probe", name=name)
         go = {"run": run.run, "resume": run.resume_after_fault, "restart": run.restart}.get(action)
         if go is None:
             raise StationError(f"run_routine: action must be run, resume or restart, not {action!r}")
@@ -128,6 +182,28 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         cmds.register("qualify", qualify, {"routine": "probe", "progress": None, "options": None},
                       "run a calibration routine: probe (qualification), iso (ISO 10360-5), geometry, servo; "
                       "returns its result, nothing applied; cancel ends it")
+
+        def calibrating(fn: Any) -> Any:  # the calibration service's changes: the holder's, sent as its client
+            def verb(client: Any, **params: Any) -> Any:
+                controller.check_access(client, "calibrate")
+                return fn(client, **params)
+            return verb
+
+        cmds.register("save_calibration", calibrating(
+                          lambda client, routine, result, accepted=False: calibration.save(client, routine, result,
+                                                                                           accepted=accepted)),
+                      {"routine": REQUIRED, "result": REQUIRED, "accepted": False},
+                      "in process: write a routine's result (qualify's) as its record; a probe qualification and a "
+                      "machine geometry are also applied to the live machine (through configure); returns "
+                      "(path, applied)")
+        cmds.register("accept_gains", calibrating(lambda client, result: calibration.accept_gains(client, result)),
+                      {"result": REQUIRED},
+                      "in process: send a servo tuning's proposed gains to the modules (through configure) and "
+                      "record them; returns the record's path")
+        cmds.register("select_probe", calibrating(lambda client, name: calibration.select_probe(client, str(name))),
+                      {"name": REQUIRED},
+                      "make a probe of the list the one in use: its qualified radius and pre-travel (or its nominal "
+                      "radius) go to the live machine; returns what was applied")
 
 
 class PartWorkspace:
@@ -253,9 +329,15 @@ class Station:
 
     # --- life cycle -----------------------------------------------------------
 
+    def connect(self) -> "Station":
+        """Start the modules in the caller's thread, without the machine loop (a script: commands then run in the
+        caller's thread); :meth:`start` does this first."""
+        self.controller.connect()
+        return self
+
     def start(self, session_name: str | None = None, *, home: bool = False) -> "Station":
         """Connect the modules, run the machine loop, open a session; ``home`` runs the homing cycle too."""
-        self.controller.connect()
+        self.connect()
         self.controller.start()
         self.measurement.new_session(session_name)
         if home:

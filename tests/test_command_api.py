@@ -386,3 +386,57 @@ def test_every_verb_the_control_core_registers_takes_the_parameters_it_lists(sta
     done = station.controller.commands.call(None, "step", {"axis": "x", "mm": 0.5}, wait=True, timeout=60)
     assert done.ok, done.error
     assert np.allclose(station.controller.frame_position("machine"), here + [0.5, 0.0, 0.0], atol=0.003)
+
+
+def test_nominal_tolerance_datum_gdt_refit_and_report_header_are_verbs_checked_and_journalled(station):
+    """The Features tab's edits as requests (the JSON shape an adapter sends): only the control holder may make
+    them, each is journalled (the session replays to the same nominal, tolerance, datum and header), and a
+    nominal the model cannot use is refused in a sentence with nothing changed."""
+    from cmm.session.store import open_session
+
+    control = Control()
+    station.controller.use_policy_of(control)
+    api, m = station.controller.commands, station.measurement
+    try:
+        assert control.take("page", is_local=True)
+        page, observer = Client("page", local=True), Client("other-tab", local=True)
+        pose = m.part.pose
+        ids = []
+        for x, y in ((15.0, 10.0), (110.0, 15.0), (110.0, 70.0), (15.0, 70.0)):  # the top face
+            hit = api.call(page, "probe", {"target": [x, y, 40.0], "approach": [0.0, 0.0, -1.0], "frame": "part"},
+                           wait=True, timeout=120)
+            assert hit.ok, hit.error
+            ids.append(m.hit_id(hit.result))
+        fitted = api.request(page, {"id": 1, "method": "measure_feature",
+                                    "params": {"kind": "plane", "hits": ids, "name": "TOP"}})
+        fid = fitted["result"]["id"]
+        top = (pose @ np.array([0.0, 0.0, 40.0, 1.0]))[:3]
+        normal = pose[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        nominal = {"kind": "plane", "point": top.tolist(), "normal": normal.tolist()}
+        refused = api.request(observer, {"id": 2, "method": "set_nominal", "params": {"feature": fid,
+                                                                                      "nominal": nominal}})
+        assert refused["error"]["code"] == "refused" and "observes" in refused["error"]["message"]
+        bad = api.call(page, "set_nominal", {"feature": fid, "nominal": {"kind": "blob"}})
+        assert not bad.ok and "the nominal cannot be used" in bad.error["message"], bad
+        assert api.call(page, "set_nominal", {"feature": fid, "nominal": nominal,
+                                              "tolerance": {"form": 0.02}}).ok
+        assert np.allclose(m.features[fid].nominal.params["point"], top)
+        assert m.features[fid].tolerance == {"form": 0.02}
+        refit = api.call(page, "refit_feature", {"feature": fid, "hits": ids[:3]})
+        assert refit.ok and m.features[fid].hit_ids == ids[:3] and m.features[fid].tolerance == {"form": 0.02}
+        assert api.call(page, "define_datum", {"label": "A", "feature": fid}).ok
+        gdt = api.call(page, "define_gdt", {"characteristic": "flatness", "feature": fid, "tolerance": 0.05})
+        assert gdt.ok, gdt.error
+        definition, flatness = gdt.result
+        assert flatness.actual < 0.05 and definition["id"] in m.gdt
+        assert api.call(observer, "delete_gdt", {"gdt": definition["id"]}).error["code"] == "refused"
+        assert api.call(page, "delete_gdt", {"gdt": definition["id"]}).ok and definition["id"] not in m.gdt
+        assert api.call(page, "set_info", {"operator": "Maria", "temperature": "20.5"}).ok
+        assert api.call(page, "set_info", {"colour": "red"}).error["code"] == "bad_params"
+        state = open_session(m.journal.path).state
+        assert state.features[fid].hit_ids == tuple(ids[:3]) and state.features[fid].tolerance == {"form": 0.02}
+        assert np.allclose(state.features[fid].nominal["point"], top)
+        assert state.datums["A"]["feature"] == fid and definition["id"] not in state.gdt
+        assert state.info["operator"] == "Maria" and state.info["temperature"] == 20.5
+    finally:
+        station.controller.policy = OpenPolicy()

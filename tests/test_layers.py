@@ -160,7 +160,7 @@ OWNERS = {"station", "host", "st", "controller", "api", "core", "ctl", "self.sta
 MACHINE_PARTS = {"machine", "prober", "bus", "dispatcher"}
 # the control core's commands: front ends send them as verbs (``commands.invoke`` / ``commands.call``)
 COMMANDS = {"move", "probe", "step", "home", "zero", "reset", "reconnect", "run_job", "run_routine", "configure",
-            "jog", "cancel", "cancel_jobs"}
+            "jog", "cancel", "cancel_jobs", "connect"}
 
 
 def _front_end_uses() -> list[tuple[str, int, str, str]]:
@@ -184,12 +184,39 @@ def test_front_ends_never_touch_the_machine_the_prober_or_the_bus():
     assert not bad, "front ends reaching around the command API:\n" + "\n".join(bad)
 
 
-def test_the_cli_dmis_ippdme_and_calibration_send_commands_as_verbs():
-    """Their machine commands go through the command API's verbs, so every front end gets the same checks and
-    answers: no ``controller.move(...)`` / ``controller.configure(...)`` beside ``commands.invoke("move", ...)``."""
+def test_front_ends_send_commands_as_verbs():
+    """The page, the pendant, the CLI, DMIS, the I++ server and calibration send their machine commands through
+    the command API's verbs, so every front end gets the same checks and answers: no ``controller.move(...)``,
+    ``controller.stop(...)`` or ``controller.jogs.hold(...)`` beside ``commands.invoke("move", ...)``; the
+    pendant only translates its messages into verbs."""
     bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
-           if not f.startswith("ui/") and attr in COMMANDS and owner.split(".")[-1] in ("controller", "api", "core")]
+           if (attr in COMMANDS | {"stop", "emergency_stop", "jog_release", "step"}
+               and owner.split(".")[-1] in ("controller", "api", "core"))
+           or (attr in ("hold", "release") and owner.split(".")[-1] == "jogs")]
     assert not bad, "commands sent around the verbs:\n" + "\n".join(bad)
+
+
+# the measurement model's methods that change the measurement: front ends send the verbs that call them
+MODEL_CHANGES = {"fit_feature", "refit_feature", "set_feature_nominal", "construct_feature", "define_datum",
+                 "define_gdt", "delete_gdt", "delete_feature", "delete_hit", "undo", "set_info", "set_alignment",
+                 "add_hit", "probe", "probe_here"}
+
+
+def test_front_ends_change_the_measurement_only_through_verbs():
+    """Nominal, tolerance, datum, GD&T, refit, report header (the page) and the fits of a DMIS program go through the
+    command API's verbs (``set_nominal``, ``define_gdt``, ``refit_feature``, ``measure_feature`` ...), with the
+    control check every verb makes: no ``station.measurement.define_gdt(...)`` or ``self.model.fit_feature(...)``."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in MODEL_CHANGES and owner.split(".")[-1] in ("measurement", "model")]
+    assert not bad, "the measurement changed around the verbs:\n" + "\n".join(bad)
+
+
+def test_front_ends_save_and_apply_calibrations_through_verbs():
+    """Save record, Accept gains and Use this probe (the page, `cmm calibrate`, an I++ ChangeTool) are the command
+    API's ``save_calibration`` / ``accept_gains`` / ``select_probe`` verbs, checked like every other change."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("save", "accept_gains", "select_probe") and owner.split(".")[-1] in ("service", "calibration", "svc")]
+    assert not bad, "calibrations saved or applied around the verbs:\n" + "\n".join(bad)
 
 
 def test_the_pages_measurement_buttons_send_verbs():

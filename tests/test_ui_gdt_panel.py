@@ -9,11 +9,13 @@ import pytest
 import session_support as ss
 from test_report_numbers import T, fit_surfaces
 
+from cmm.control import Controller
 from cmm.control.access import Control
 from cmm.measurement.model import Part
 from cmm.measurement.recording import record
 from cmm.metrology.compensation import PretravelModel
 from cmm.session.store import DirectoryStore, load_session
+from cmm.station import register_measurement_verbs
 from cmm.ui.context import PanelContext
 from cmm.ui.panel_features import FeaturesPanel, tree_html
 
@@ -29,7 +31,11 @@ def panel(tmp_path):
     fit_surfaces(model, prober, wanted)
     control = Control()
     control.take("operator", is_local=True)
-    ctx = PanelContext(SimpleNamespace(measurement=model), control, None, client_id="operator", is_local=True)
+    controller = Controller(machine, prober)  # the tab's actions are the command API's verbs, checked by the holder
+    controller.use_policy_of(control)
+    register_measurement_verbs(controller, model)
+    ctx = PanelContext(SimpleNamespace(measurement=model, controller=controller), control, None,
+                       client_id="operator", is_local=True)
     yield FeaturesPanel(ctx), model, store
     model.close()
     machine.close()

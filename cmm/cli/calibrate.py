@@ -61,7 +61,7 @@ class _Rig:
                 settings.errors = GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))
         self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings)
         try:
-            self.station.controller.connect()  # the modules started in this thread (no machine loop: a script)
+            self.station.connect()  # the modules started in this thread (no machine loop: a script)
             self.commands = self.station.controller.commands  # every command below goes through the command API
             if not self.commands.invoke(None, "state").homed:
                 self._home(args)
@@ -171,7 +171,7 @@ def _run_probe(args: Any, rig: _Rig) -> int:
     print(f"tip-centre sphere form: {r.form_before_um:.2f} um -> {r.form_after_um:.2f} um with the model ({r.n_points} points)")
     for row in q.by_ring():
         print("  polar {polar_deg:5.1f} deg: {n:2d} points, range {range_before_um:5.2f} -> {range_after_um:5.2f} um".format(**row))
-    path, _ = svc.save(None, "probe", q)
+    path, _ = rig.commands.invoke(None, "save_calibration", routine="probe", result=q)
     print(f"wrote {path}")
     return 0
 
@@ -209,7 +209,7 @@ def _run_geometry(args: Any, rig: _Rig) -> int:
     for m in result.measurements:
         a = after.get(m.setup)
         print(f"{m.setup:<6} {m.error_um:>+10.2f} {'' if a is None else f'{a:+10.2f}':>10}")
-    path, _ = svc.save(None, "geometry", result)
+    path, _ = rig.commands.invoke(None, "save_calibration", routine="geometry", result=result)
     print(f"wrote {path}")
     return 0
 
@@ -226,10 +226,10 @@ def _run_servo(args: Any, rig: _Rig) -> int:
         p = svg_plot([t for t in result.trials if t.axis == a], out / f"servo-{a}.svg", f"{a.upper()} step responses")
         print(f"plot: {p}")
     if args.accept or _ask("apply the proposed gains now?"):
-        svc.accept_gains(None, result)  # sent to the modules through the command API, then recorded
+        rig.commands.invoke(None, "accept_gains", result=result)  # sent to the modules, then recorded
         print(f"applied and recorded in {out / SERVO_RECORD}; copy them into the machine configuration [gains] to keep them")
     else:
-        svc.save(None, "servo", result, accepted=False)
+        rig.commands.invoke(None, "save_calibration", routine="servo", result=result, accepted=False)
         print("not applied (no --accept); proposal written to servo-proposal.toml")
     return 0
 

@@ -95,10 +95,14 @@ class CommandAPI:
                                          "retract_distance": None, "rapid_speed": None},
                       "a programmed hit at a surface point, coming along approach (into the surface); the rapid "
                       "goes over the clearance plane unless path 'straight' is proven free", motion=True)
-        self.register("jog_hold", lambda client, velocity, probe=False: c.jogs.hold(client, velocity, probe=probe),
-                      {"velocity": REQUIRED, "probe": False},
+        self.register("jog_hold", lambda client, velocity, probe=False, heard=None, settle=0.0, on_error=None:
+                      c.jogs.hold(client, velocity, probe=probe, heard=heard, settle=settle, on_error=on_error),
+                      {"velocity": REQUIRED, "probe": False, "heard": None, "settle": 0.0, "on_error": None},
                       "the operator holds a jog (mm/s per machine axis); repeat within the dead-man (0.15 s); "
-                      "returns a sentence when the speed was limited")
+                      "returns a sentence when the speed was limited. heard: when the front end received the "
+                      "hold (machine clock; the dead-man counts from then); settle: s after a release in which "
+                      "holds are late events and dropped; on_error(text), in process: an error the machine loop "
+                      "finds later")
         self.register("jog_release", lambda client: c.jogs.release(client), {}, "end the jog now")
         self.register("step", lambda client, axis, mm: c.step(client, axis, mm), {"axis": REQUIRED, "mm": REQUIRED},
                       "one step along a machine axis x, y or z (1 count .. 10 mm)", motion=True)
@@ -116,6 +120,9 @@ class CommandAPI:
         self.register("cancel", c.cancel_jobs, {},
                       "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
                       "progress; its hits stay recorded; allowed to everyone who may STOP")
+        self.register("cancel_move", lambda client, status: c.cancel(client, status), {"status": REQUIRED},
+                      "in process: cancel one move or probe cycle (its status, as move or probe returned it); it "
+                      "decelerates to a stop")
         self.register("configure", c.configure, {"change": REQUIRED},
                       "in process: change the set-up while the machine is still; change(setup) gets "
                       "setup.machine and setup.prober (probe settings, geometry correction, servo gains)")

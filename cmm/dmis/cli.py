@@ -75,7 +75,7 @@ def _run(args: Any, path: Path, text: str) -> int:
 
     station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions)
     try:
-        station.controller.connect()  # the modules started in this thread (no machine loop: a script)
+        station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
         if not commands.invoke(None, "state").homed:
             if not args.home:
@@ -147,7 +147,8 @@ def terminal_hits(station: Any) -> Any:
                     break
                 except ValueError:
                     print("  three numbers please: X, Y, Z (or Enter, or q)", flush=True)
-            hit = model.probe(target, approach).wait(120)
+            hit = station.controller.commands.invoke(None, "probe", target=target, approach=approach,
+                                                     frame="machine").wait(120)
             ids.append(model.hit_id(hit))
         return ids
 

@@ -36,7 +36,7 @@ class DmisError(RuntimeError):
 
 
 class Target(Protocol):
-    model: Any  # the measurement model: hits, fits, journal
+    model: Any  # the measurement model, read: hits, features, the journal's notes (fits go through ``fit``)
 
     def position(self) -> np.ndarray: ...
     def move(self, target: np.ndarray, speed: float | None) -> None: ...
@@ -44,6 +44,11 @@ class Target(Protocol):
               search_distance: float, retract_distance: float, rapid_speed: float | None) -> int: ...
     def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]: ...
     def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str: ...
+    def fit(self, kind: str, hit_ids: list[int], name: str, nominal: Any) -> Any: ...
+    def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None: ...
+    def define_datum(self, label: str, feature_id: int) -> None: ...
+    def define_position(self, feature_id: int, tolerance: float, datums: list[str], *, material: str, name: str,
+                        datum_modifiers: dict[str, str] | None) -> None: ...
     @property
     def tip_radius(self) -> float: ...
     @property
@@ -379,7 +384,7 @@ class Executor:
         keys = model_tolerance(ev.tolerance)
         fid = features[0].feature_id
         if keys and fid is not None and fid in self.model.features:
-            self.model.set_feature_nominal(fid, tolerance=keys)
+            self.target.set_tolerance(fid, keys)
         tol = ev.tolerance
         if tol.word == "POS" and (tol.datums or tol.material) and fid is not None and fid in self.model.features:
             why = self._position_to_model(tol, fid)
@@ -400,13 +405,13 @@ class Executor:
             have = self.model.datums.get(name)
             if have is None or int(have["feature"]) != d.feature_id or have.get("targets"):
                 try:
-                    self.model.define_datum(name, d.feature_id)
+                    self.target.define_datum(name, d.feature_id)
                 except Exception as exc:  # noqa: BLE001 - a datum the station's GD&T cannot take, in words
                     return str(exc)
         modifiers = {n: {"MMC": "MMB", "LMC": "LMB"}.get(tol.datum_material.get(n, ""), "") for n in names}
         try:
-            self.model.define_gdt("position", fid, tol.upper, names, material=tol.material, name=f"T({tol.label})",
-                                  datum_modifiers=modifiers or None)
+            self.target.define_position(fid, tol.upper, names, material=tol.material, name=f"T({tol.label})",
+                                        datum_modifiers=modifiers or None)
         except Exception as exc:  # noqa: BLE001 - the station's GD&T refuses it, in words
             return str(exc)
         return ""
@@ -745,7 +750,7 @@ class Executor:
             self.log(f"line {meas.line}: MEAS/{meas.minor}, F({label}) announced {int(expected[0])} points, "
                      f"{len(ids)} were measured")
         try:
-            feature = self.model.fit_feature(nom.kind, ids, "ls", label, nom.to_model())
+            feature = self.target.fit(nom.kind, ids, label, nom.to_model())
         except Exception as exc:  # noqa: BLE001 - a fit refused in words
             raise DmisError(f"line {meas.line}: F({label}) could not be fitted: {exc}") from None
         g = {**feature.result.geometry(), "form": float(feature.result.form)}

@@ -103,6 +103,26 @@ class StationTarget:
         return (f"{name} moved the station's part: origin at X {t[0]:.4f} Y {t[1]:.4f} Z {t[2]:.4f} "
                 f"(the datums' hits within {result.residuals['datum hits off the part (max)']:.4f} mm of it)")
 
+    def fit(self, kind: str, hit_ids: list[int], name: str, nominal: Any) -> Any:
+        """The feature a MEAS block ends with: the measurement model fits it (the command API's verb)."""
+        return self.commands.invoke(self.client, "measure_feature", kind=kind, hits=hit_ids, method="ls", name=name,
+                                    nominal=nominal)
+
+    def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None:
+        """A DMIS tolerance the station's report carries too (the feature's tolerance in the model)."""
+        self.commands.invoke(self.client, "set_nominal", feature=feature_id, tolerance=tolerance)
+
+    def define_datum(self, label: str, feature_id: int) -> None:
+        """A DATDEF the station's GD&T takes too: its datum on the same feature, at RFS (the define_datum verb)."""
+        self.commands.invoke(self.client, "define_datum", label=label, feature=feature_id)
+
+    def define_position(self, feature_id: int, tolerance: float, datums: list[str], *, material: str, name: str,
+                        datum_modifiers: dict[str, str] | None) -> None:
+        """A TOL/POS the station's GD&T takes too (the define_gdt verb): the same value and bonus in its report."""
+        self.commands.invoke(self.client, "define_gdt", characteristic="position", feature=feature_id,
+                             tolerance=tolerance, datums=datums, material=material, name=name,
+                             datum_modifiers=datum_modifiers)
+
     @property
     def tip_radius(self) -> float:
         return float(self.station.controller.tip_radius)

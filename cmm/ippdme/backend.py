@@ -126,7 +126,7 @@ class StationBackend:
             return
         probes, selected = service.probe_list()
         if name != selected and name in {p.name for p in probes}:
-            service.select_probe(self.client, name)
+            self.controller.commands.invoke(self.client, "select_probe", name=name)
 
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
         """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""

@@ -110,7 +110,7 @@ class StationApp:
 
     def _holder_lost(self) -> None:
         try:
-            self.station.controller.jog_release(None)
+            self.station.controller.commands.invoke(None, "jog_release")  # the station's own release
         except Exception:  # noqa: BLE001 - nothing was jogging
             pass
 

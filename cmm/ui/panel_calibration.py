@@ -240,7 +240,7 @@ class CalibrationPanel:
             self.ctx.error("change the probe when the machine is idle (not during a routine or a move)", "Use probe")
             return False
         try:
-            text = self.service.select_probe(self.ctx.client_id, name)
+            text = self.ctx.commands.invoke(self.ctx.who(), "select_probe", name=name)
         except self.service.errors as exc:
             self.ctx.error(exc, "Use probe")
             return False
@@ -418,7 +418,7 @@ class CalibrationPanel:
             self.ctx.error("wait until the machine is idle", "Accept gains")
             return False
         try:
-            self.saved = self.service.accept_gains(self.ctx.client_id, self.result[1])
+            self.saved = self.ctx.commands.invoke(self.ctx.who(), "accept_gains", result=self.result[1])
         except self.service.errors as exc:
             self.ctx.error(exc, "Accept gains")
             return False
@@ -441,7 +441,8 @@ class CalibrationPanel:
             return None
         routine, r = self.result
         try:
-            path, applied = self.service.save(self.ctx.client_id, routine, r, accepted=self.accepted)
+            path, applied = self.ctx.commands.invoke(self.ctx.who(), "save_calibration", routine=routine, result=r,
+                                                     accepted=self.accepted)
         except self.service.errors + (TypeError,) as exc:
             self.ctx.error(f"{exc}. The previous calibration stays in force.", "Save record failed")
             return None

@@ -257,7 +257,7 @@ class FeaturesPanel:
             return self.ctx.error("select a feature first", "Remove hit")
         if hid not in f.hit_ids:
             return self.ctx.error(f"hit {hid} is not in {f.name} (hits {f.hit_ids})", "Remove hit")
-        return self.ctx.run("Remove hit", lambda: self.station.measurement.refit_feature(f.id, [h for h in f.hit_ids if h != hid]))
+        return self.ctx.do("Remove hit", "refit_feature", feature=f.id, hits=[h for h in f.hit_ids if h != hid])
 
     def retake_hit(self, hid: int) -> None:
         f = self.selected()
@@ -279,7 +279,7 @@ class FeaturesPanel:
             return
         self.retake = None
         ids = [fresh[0] if h == old else h for h in f.hit_ids]
-        feature = self.ctx.run("Re-take", lambda: self.station.measurement.refit_feature(fid, ids), guarded=False)
+        feature = self.ctx.do("Re-take", "refit_feature", guarded=False, feature=fid, hits=ids)
         if feature is not None:
             self.ctx.do("Re-take", "delete_hit", guarded=False, hit=old)
             self.ctx.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
@@ -289,19 +289,20 @@ class FeaturesPanel:
         nominal = self.ctx.picked[1] if self.ctx.picked is not None else None
         if f is None or nominal is None:
             return self.ctx.error("select a feature and click its surface on the part first", "Nominal")
-        return self.ctx.run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, nominal))
+        return self.ctx.do("Nominal", "set_nominal", feature=f.id, nominal=nominal)
 
     def type_nominal(self, centre: Any = None, diameter: float | None = None) -> Any:
         f = self.selected()
         if f is None:
             return self.ctx.error("select a feature first", "Nominal")
-        return self.ctx.run("Nominal", lambda: self.station.measurement.set_feature_nominal(f.id, typed_nominal(f, centre, diameter)))
+        return self.ctx.run("Nominal", lambda: self.ctx.commands.invoke(
+            self.ctx.who(), "set_nominal", feature=f.id, nominal=typed_nominal(f, centre, diameter)))
 
     def set_tolerance(self, **tol: float) -> Any:
         fid = self.ctx.selected_feature
         if fid is None:
             return self.ctx.error("select a feature first", "Tolerance")
-        return self.ctx.run("Tolerance", lambda: self.station.measurement.set_feature_nominal(fid, tolerance=tol))
+        return self.ctx.do("Tolerance", "set_nominal", feature=fid, tolerance=tol)
 
     def construct(self, operation: str, a: int, b: int, name: str = "", three_d: bool = False) -> Any:
         c = self.ctx.do("Construct", "construct", operation=operation, a=a, b=b, name=name or None, three_d=three_d)
@@ -314,8 +315,9 @@ class FeaturesPanel:
     def define_datum(self, label: str, feature: int, modifier: str = "", targets: str = "") -> Any:
         """Datum ``label`` from a feature, or from its targets (``targets`` as typed: hit ids "12 14 17", target
         areas and lines of hits "area(12-14) line(15 16) 17")."""
-        return self.ctx.run("Datum", lambda: self.station.measurement.define_datum(
-            label, feature, modifier, parse_targets(targets) if targets.strip() else None))
+        return self.ctx.run("Datum", lambda: self.ctx.commands.invoke(
+            self.ctx.who(), "define_datum", label=label, feature=feature, modifier=modifier,
+            targets=parse_targets(targets) if targets.strip() else None))
 
     def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
                    material: str = "", angle: float | None = None, direction: str = "radial",
@@ -328,14 +330,15 @@ class FeaturesPanel:
             extra: dict[str, Any] = {}
             if lower:
                 extra = {"pattern": parse_ids(pattern), "composite": {"tolerance": lower, "datums": lower_datums}}
-            d, c = self.station.measurement.define_gdt(characteristic, feature, tolerance, datums, material=material,
-                                                       angle=angle, direction=direction, **extra)
+            d, c = self.ctx.commands.invoke(self.ctx.who(), "define_gdt", characteristic=characteristic,
+                                            feature=feature, tolerance=tolerance, datums=datums, material=material,
+                                            angle=angle, direction=direction, **extra)
             self.ctx.notify("GD&T", f"{d['name']}: {c.actual:.4f} ({c.verdict})")
             return d, c
         return self.ctx.run("GD&T", do)
 
     def delete_gdt(self, gid: int) -> Any:
-        return self.ctx.run("GD&T", lambda: self.station.measurement.delete_gdt(gid))
+        return self.ctx.do("GD&T", "delete_gdt", gdt=gid)
 
     def delete_feature(self) -> None:
         fid = self.ctx.selected_feature
@@ -344,7 +347,7 @@ class FeaturesPanel:
             self.ctx.selected_feature = None
 
     def save_info(self, **fields: Any) -> Any:
-        return self.ctx.run("Report header", lambda: self.station.measurement.set_info(**fields))
+        return self.ctx.do("Report header", "set_info", **fields)
 
     # --- what the 3-D view shows ----------------------------------------------------------------
 

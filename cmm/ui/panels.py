@@ -276,7 +276,7 @@ class ClientApp:
     def cancel(self) -> None:
         status = self.move_status
         if status is not None and not getattr(status, "done", True):
-            self._cmd("Cancel", self.api.cancel, status)
+            self._verb("Cancel", "cancel_move", status=status)
         else:
             self.stop()
 
@@ -302,9 +302,9 @@ class ClientApp:
         probing speed), drops events that ran after the release, and stops the jog when they stop coming (the
         machine's dead-man, counted from when each was heard)."""
         try:
-            self.api.jogs.hold(self.ctx.who(), self.jog_velocity(axis, sign), probe=self.ctx.manual_probe,
-                               settle=LATE_HOLD_S, heard=heard,
-                               on_error=lambda text: self._throttled_error("Jog", text))
+            self.ctx.commands.invoke(self.ctx.who(), "jog_hold", velocity=self.jog_velocity(axis, sign),
+                                     probe=self.ctx.manual_probe, settle=LATE_HOLD_S, heard=heard,
+                                     on_error=lambda text: self._throttled_error("Jog", text))
         except OPERATOR_ERRORS as exc:
             self._throttled_error("Jog", str(exc))
             return
@@ -343,7 +343,7 @@ class ClientApp:
         if self._jogging or self.ctx.control.can_move(self.client_id):  # also marks the release for late holds
             self._jogging = False
             try:
-                self.api.jogs.release(self.ctx.who())
+                self.ctx.commands.invoke(self.ctx.who(), "jog_release")
             except OPERATOR_ERRORS as exc:
                 self.ctx.error(exc, "Jog release")
 
@@ -490,10 +490,9 @@ class ClientApp:
         name = self.operator
         if name is None or not self.control.can_move(self.client_id):
             return
-        measurement = self.station.measurement
-        if measurement.info.get("operator") != name:
+        if self.station.measurement.info.get("operator") != name:
             try:
-                measurement.set_info(operator=name)
+                self.ctx.commands.invoke(self.ctx.who(), "set_info", operator=name)
             except Exception as exc:  # noqa: BLE001 - a closed session or a full disk: said, nothing else changes
                 self.ctx.error(f"the operator could not be recorded: {exc}", "Your name")
 

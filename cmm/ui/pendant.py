@@ -89,7 +89,7 @@ from websockets.datastructures import Headers
 from websockets.exceptions import ConnectionClosed, InvalidMessage
 from websockets.http11 import Request, Response
 
-from ..control import Client, Refused, StopReport
+from ..control import Client, Refused
 from ..control.priority import raise_priority_on
 from ..control.access import Control, OriginPolicy, is_local_connection
 from .pendant_grants import Grant, Grants
@@ -174,7 +174,8 @@ class PendantServer:
         self._error: BaseException | None = None
         self.port = 0
         self.errors: list[str] = []  # station calls that failed unexpectedly
-        self.api = station.controller  # every machine command goes through the control core with our client id
+        self.api = station.controller  # the control core: its state, clock and events (read only)
+        self.commands = station.controller.commands  # every command goes through the command API as our client
         self.grants = Grants()  # station pages' embedded pendants (see revoke)
         self.api.use_policy_of(control)
         self._unsubscribe = self.api.subscribe(self._on_machine_event)
@@ -399,10 +400,10 @@ class PendantServer:
             await self._command(session, msg)
         elif kind == "stop":
             report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
-            if report.ok:
+            if report["ok"]:
                 session.jogging = False
-            if not report.ok:
-                await self._error_msg(session, report.message)
+            else:
+                await self._error_msg(session, report["message"])
         else:
             await self._error_msg(session, f"unknown pendant message type {kind!r}")
 
@@ -410,7 +411,7 @@ class PendantServer:
         """Any verb of the command API: ``{"type": "call", "id", "method", "params", "wait"}`` ->
         ``{"type": "result", "id", "result" | "error": {"code", "message"}}`` (``wait``: a motion's end)."""
         request = {"id": msg.get("id"), "method": msg.get("method"), "params": msg.get("params")}
-        answer = await asyncio.to_thread(self.api.commands.request, self._who(session), request,
+        answer = await asyncio.to_thread(self.commands.request, self._who(session), request,
                                          wait=bool(msg.get("wait")), timeout=120.0)
         await self._send(session, {"type": "result", **answer})
 
@@ -450,8 +451,8 @@ class PendantServer:
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
         try:
-            note = self.api.jogs.hold(self._who(session), v, probe=probe, heard=heard,
-                                      on_error=lambda text: self._later_error(session, text))
+            note = self.commands.invoke(self._who(session), "jog_hold", velocity=v, probe=probe, heard=heard,
+                                        on_error=lambda text: self._later_error(session, text))
         except Exception as exc:  # noqa: BLE001 - every refusal is the operator's sentence, never raised into the loop
             session.jogging = False
             return await self._error_msg(session, str(exc) or type(exc).__name__, throttle=True)
@@ -486,14 +487,15 @@ class PendantServer:
         if not (axis in (0, 1, 2) and isinstance(mm, (int, float)) and not isinstance(mm, bool) and math.isfinite(mm)
                 and 0 < abs(mm) <= 10.0):
             return await self._error_msg(session, "a step needs an axis 0..2 and a size of up to 10 mm", throttle=True)
-        error = await self._call(self._station_call, lambda: self.api.step(self._who(session), "xyz"[axis], float(mm)))
+        error = await self._call(self._station_call, lambda: self.commands.invoke(
+            self._who(session), "step", axis="xyz"[axis], mm=float(mm)))
         if error:
             await self._error_msg(session, error, throttle=True)
 
     def _release(self, session: _Session) -> None:
         """End this pendant's jog at once (the pipeline's release goes ahead of anything queued)."""
         session.last_note = None
-        self._station_call(self.api.jogs.release, self._who(session))
+        self._station_call(lambda: self.commands.invoke(self._who(session), "jog_release"))
 
     @staticmethod
     def _who(session: _Session) -> Any:
@@ -503,13 +505,14 @@ class PendantServer:
                           authenticated=session.authenticated or page.authenticated)
         return Client(session.client_id, local=session.local, authenticated=session.authenticated)
 
-    def _stop_machine(self, who: Any) -> Any:
+    def _stop_machine(self, who: Any) -> dict[str, Any]:
+        """The stop verb's report ({ok, message, failed_axes}); a refusal or a failure as a report that is not ok."""
         try:
-            return self.api.stop(who)
+            return self.commands.invoke(who, "stop")
         except Refused as exc:
-            return StopReport(False, str(exc))
+            return {"ok": False, "message": str(exc)}
         except Exception as exc:  # noqa: BLE001 - a failed stop is reported, never hidden
-            return StopReport(False, f"STOP failed: {exc}")
+            return {"ok": False, "message": f"STOP failed: {exc}"}
 
 
 def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1", port: int = 0,
