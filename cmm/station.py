@@ -1,10 +1,12 @@
 """The station: the composition root. It builds the machine, the control core, the measurement model and the
 calibration service, and wires them together.
 
-Front ends command the machine through the control core (``station.controller.<command>(client_id, ...)``,
-:mod:`cmm.control`) so the access policy and the state model are checked in one place, and measure through the
-measurement model (``station.measurement``, :mod:`cmm.measurement`): hits, features, alignment, the session
-journal. The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
+Front ends command the machine and change the measurement with the command API's verbs
+(``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.control.api`), so the access policy and the
+state model are checked in one place; the station registers the measurement verbs here (fit, construct, nominal,
+datum, GD&T, align, auto-measure, programs, calibration save / accept / select probe) on the measurement model
+(``station.measurement``, :mod:`cmm.measurement`: hits, features, alignment, the session journal), which front
+ends read. The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
 thread before its probe completes), its events go to the model's journal and listeners, and the model probes
 through the control core.
 """

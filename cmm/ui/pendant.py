@@ -2,9 +2,13 @@
 
 One small asyncio loop in a background thread (the ``websockets`` library's
 ``process_request`` hook serves the two static files; ``/ws`` is the
-WebSocket). Every station call runs on one worker thread, in arrival order, so
-the event loop never waits on the serial bus and a release can never overtake
-the jog it ends.
+WebSocket). The server only translates: each message becomes a verb of the
+command API (``jog_hold``, ``jog_release``, ``step``, ``stop``, or any verb with
+``call``) sent as this pendant's client; the jog-hold pipeline, the access
+policy and the machine's state are the control core's. Every station call runs
+on one worker thread, in arrival order, so the event loop never waits on the
+serial bus and a release can never overtake the jog it ends; a STOP goes to
+the stop verb on a thread of its own, not through that worker's queue.
 
 Protocol (JSON text messages)
 -----------------------------
