@@ -10,6 +10,7 @@ import logging
 import sys
 import threading
 import time
+from dataclasses import replace
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any, Callable
@@ -438,25 +439,48 @@ class Controller:
         """The paths a sequence of programmed hits will take, for a preview before they run: ``targets`` are
         (nominal point, approach, clearance Z or None) in ``frame`` (the clearance Z is machine Z) as
         :meth:`probe` gets them; each cycle starts where the previous one retracted to (the surface taken where
-        its nominal says), the first from ``start`` (default: where the tip is now). Moves nothing; raises
-        Refused for a target it would refuse (outside the travel, an unproven straight line)."""
+        its nominal says), the first from ``start`` (default: where the tip is now). From where the tip is now
+        after an unexpected contact, the first cycle backs off the way it came first (its first rapid corner)
+        and never takes a straight rapid, as :meth:`probe` will. Moves nothing; raises Refused for a target it
+        would refuse (outside the travel, an unproven straight line)."""
         rails.check_path(path)
         if start is None and self._state.position is None:
             raise Refused("the machine has not reported its position yet: wait a moment")
         here = np.asarray(self._state.position if start is None else start, dtype=np.float64)
+        restart = start is None and self._restart is not None
+        backoff = self._backoff_here(here) if restart else None
         out: list[CyclePath] = []
         for target, approach, clearance_z in targets:
             p = self._to_machine(target, frame)
             u = self._to_machine(approach, frame, direction=True)
             try:
-                cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z)[1]
+                cz, cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart)
+                if backoff is not None:  # probe(): the back-off, then the cycle from there at the same height
+                    cycle = self.prober.cycle_path(here + backoff, p, u, clearance_z=cz)
+                    cycle = replace(cycle, start=here, rapid=(here + backoff, *cycle.rapid))
                 for point in (*cycle.rapid, cycle.end, cycle.retract):
                     self.machine.check_target(point)
             except MotionError as exc:
                 raise Refused(f"hit {len(out) + 1}: {exc}") from None
             out.append(cycle)
-            here = cycle.retract
+            here, restart, backoff = cycle.retract, False, None
         return out
+
+    def move_legs(self, target: Any, *, frame: str = "machine", path: str = "clearance") -> list[np.ndarray]:
+        """The corners a :meth:`move` to ``target`` would pass from where the tip is now, for a preview: after an
+        unexpected contact the back-off first, then the clearance route (machine mm). Moves nothing."""
+        goal = self._to_machine(target, frame)
+        rails.check_path(path)
+        if self._state.position is None:
+            raise Refused("the machine has not reported its position yet: wait a moment")
+        here = np.asarray(self._state.position, dtype=np.float64)
+        restart = self._restart is not None
+        try:
+            return rails.route(here, goal, path=path, workspace=self.workspace, radius=self.tip_radius,
+                               z_max=self.config.axis("z").max, backoff=self._backoff_here(here) if restart else None,
+                               restart=restart)
+        except rails.RailError as exc:
+            raise Refused(str(exc)) from None
 
     def home(self, client: str | None) -> None:
         """Run the homing cycle (blocks until it ends; STOP aborts it). Raises MotionError when it fails."""

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import threading
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -348,6 +348,102 @@ def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = Non
     return Routine(program)
 
 
+# ------------------------------------------------------------------------------------- preview
+
+
+def run_order(routine: Routine, *, start: int = 0, done: Any = (), manual_taken: bool = False) -> list[tuple[str, str]]:
+    """What a run does from step ``start`` on, in order: ('hand', prompt) for each group of hits the operator
+    takes by hand (a manual alignment's), ('feature', name) for each feature measured automatically (an
+    alignment's datums where it stands); skipped steps, features in ``done`` and features measured earlier in
+    the run left out."""
+    order: list[tuple[str, str]] = []
+    seen = set(done)
+    for s in routine.steps[start:]:
+        if s.get("skip"):
+            continue
+        names: list[str] = []
+        if s["kind"] == "align":
+            if s.get("manual") and not manual_taken:
+                order += [("hand", f"{n} hit{'s' if n > 1 else ''} by hand on {d}")
+                          for d, n in zip(s["datums"], MANUAL_HITS)]
+                manual_taken = True
+            names = list(s["datums"])
+        elif s["kind"] == "feature":
+            names = [s["name"]]
+        for n in names:
+            if n not in seen:
+                seen.add(n)
+                order.append(("feature", n))
+    return order
+
+
+@dataclass
+class RoutinePath:
+    """The path a run of a routine will take (machine mm), for a preview before it runs: ``cycles`` (the control
+    core's :class:`~cmm.machine.probing.CyclePath`) in run order, the feature each measures, the hits the
+    operator takes by hand before cycle ``k`` (``hand[k]``: the alignment's prompts; the path after them starts
+    over the next automatic hit, since the tip is where the hand left it), and ``lead``, the corners of a
+    resume's retract (the back-off after a contact, up to the clearance height) before the first cycle."""
+
+    cycles: list[Any]
+    features: list[str]
+    hand: dict[int, list[str]] = field(default_factory=dict)
+    lead: list[np.ndarray] = field(default_factory=list)
+
+    def text(self) -> str:
+        """The hand-taken hits and the resume's retract, in words (the path itself is drawn)."""
+        words = []
+        if self.lead:
+            words.append(f"first the retract: back off and up to Z {float(self.lead[-1][2]):.1f} mm (machine)")
+        for k, prompts in sorted(self.hand.items()):
+            where = f"before hit {k + 1}" if k else "first"
+            words.append(f"{where}: {', '.join(prompts)} (the path goes on over hit {k + 1} from where the hand "
+                         "leaves the tip)")
+        return "; ".join(words)
+
+
+def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun | None" = None) -> RoutinePath:
+    """The path a run of ``routine`` on the part at ``pose`` takes, from the control core (``probe_paths``,
+    ``move_legs``: the rails and probing cycle the run executes): from where the tip is now (after an unexpected
+    contact: backing off first), a manual alignment's hand hits named where they come, then the alignment's
+    datums and every feature. With ``run`` stopped on a fault: its resume (the retract, then the stopped step
+    again and the rest). The run's alignment moves the hits after it by what it finds; with the part where
+    ``pose`` says, the run passes every corner."""
+    resume = run is not None and run.can_resume
+    order = run.remaining() if resume else run_order(routine)
+    by_id = {h.id: t for h, *t in machine_targets(routine.program, np.asarray(pose, float))}
+    out = RoutinePath([], [])
+    start = here = None
+    if resume:
+        goal = run.retract_target()  # type: ignore[union-attr]
+        if goal is not None:
+            here = np.asarray(controller.frame_position("machine"), float)
+            out.lead = [np.asarray(q, float) for q in controller.move_legs(goal)]
+            start = out.lead[-1]
+    hand: list[str] = []
+    for kind, what in order:
+        if kind == "hand":
+            hand.append(what)
+            continue
+        targets = [by_id[hid] for hid in routine.feature(what).hits]
+        if hand:  # after the hand hits: from over the first automatic hit's pre-hit point
+            first = controller.probe_paths(targets[:1], start=out.cycles[-1].retract if out.cycles else start)[0]
+            start = first.rapid[-2] if len(first.rapid) > 1 else first.pre
+            out.hand[len(out.cycles)] = hand
+            hand = []
+        elif out.cycles:
+            start = out.cycles[-1].retract
+        cycles = controller.probe_paths(targets, start=start)
+        out.cycles += cycles
+        out.features += [what] * len(cycles)
+    if hand:
+        out.hand[len(out.cycles)] = hand
+    if out.lead and out.cycles and 0 not in out.hand:  # the retract's corners lead the first cycle's rapid
+        c0 = out.cycles[0]
+        out.cycles[0] = replace(c0, start=here, rapid=(*out.lead, *c0.rapid))
+    return out
+
+
 # ------------------------------------------------------------------------------------- run
 
 
@@ -519,17 +615,30 @@ class RoutineRun:
         if mode in ("fault", "e-stopped"):
             raise RoutineError(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: "
                                "press Reset, then resume")
-        here = c.frame_position("machine")
-        if here is None:
-            return
-        z = max(float(here[2]), float(self.model.clearance_z()) if self.model.part is not None else float(here[2]))
         self._wait_standing()
-        answer = c.commands.call(self.client, "move", {"target": [float(here[0]), float(here[1]), z],
+        target = self.retract_target()
+        if target is None:
+            return
+        answer = c.commands.call(self.client, "move", {"target": [float(x) for x in target],
                                                         "frame": "machine", "path": "clearance"},
                                  wait=True, timeout=self.timeout)
         if not answer.ok:
             raise RoutineError(f"the retract to the clearance height failed: {answer.error['message']}")
-        self.model.note(f"routine {self.routine.name!r}: retracted to the clearance height Z {z:.3f}")
+        self.model.note(f"routine {self.routine.name!r}: retracted to the clearance height Z {target[2]:.3f}")
+
+    def retract_target(self) -> np.ndarray | None:
+        """Where a resume's retract goes (machine mm): straight above the tip at the part's clearance height (or
+        where the tip is, when higher); None without a controller or a reported position."""
+        here = None if self.controller is None else self.controller.frame_position("machine")
+        if here is None:
+            return None
+        z = max(float(here[2]), float(self.model.clearance_z()) if self.model.part is not None else float(here[2]))
+        return np.array([float(here[0]), float(here[1]), z])
+
+    def remaining(self) -> list[tuple[str, str]]:
+        """What a resume after the fault does, in order (see :func:`run_order`)."""
+        start = self.faulted if self.faulted is not None else 0
+        return run_order(self.routine, start=start, done=set(self._fids), manual_taken=self._manual is not None)
 
     def _steps_from(self, start: int, manual_hits: Callable[[str, int], list[int]] | None) -> RunProgress:
         model, routine = self.model, self.routine

@@ -25,7 +25,8 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, RoutineRun, teach_routine
+from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, RoutinePath, RoutineRun, routine_path,
+                                   teach_routine)
 from ..session.program import ProgramError, load
 from ..session.store import open_session
 from .context import PanelContext
@@ -285,14 +286,25 @@ class RoutinePanel:
         self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
     def preview_path(self) -> list[Any] | None:
-        """Draw the path the routine's hits will take on this part, as it stands now (the run's alignment moves
-        the hits after it by what it finds)."""
+        """Draw the path the routine will take on this part, as it stands now: the alignment's datums and every
+        feature (the hand hits of a manual alignment named where they come), or, while a run stopped on a fault
+        waits, its resume (the back-off and the retract, then the stopped step again and the rest). The run's
+        alignment moves the hits after it by what it finds."""
         r, part = self.routine, self.station.measurement.part
         if r is None or part is None:
             self.ctx.error("teach or open a routine (and load its part) first", "Routine preview")
             return None
-        cycles = self.preview.show([t[1:] for t in r.targets(part.pose)], "Routine preview")
-        self.ctx.set("routine:preview", "content", self.preview.text(), self.gui.get("preview"))
+        run = self.run_ if self.run_ is not None and self.run_.can_resume and not self.running else None
+        found: list[RoutinePath] = []
+
+        def paths() -> list[Any]:
+            found.append(routine_path(r, self.station.controller, part.pose, run))
+            return found[0].cycles
+        cycles = self.preview.show_cycles(paths, "Routine preview")
+        words = found[0].text() if found and cycles is not None else ""
+        head = f" Resume from step {(run.faulted or 0) + 1}: " if run is not None else " "
+        text = (self.preview.text() + head + words).strip() if self.preview.cycles else ""
+        self.ctx.set("routine:preview", "content", text, self.gui.get("preview"))
         return cycles
 
     def clear_preview(self) -> None:

@@ -28,9 +28,13 @@ class PathPreview:
 
     def show(self, targets: Any, what: str = "Preview") -> list[Any] | None:
         """Draw the path of ``targets`` ((point, approach, clearance Z), machine mm) as the core will run it."""
+        return self.show_cycles(lambda: self.ctx.station.controller.probe_paths(list(targets)), what)
+
+    def show_cycles(self, paths: Any, what: str = "Preview") -> list[Any] | None:
+        """Draw the cycles ``paths()`` returns (the control core's, e.g. a routine's); its refusal is told."""
         self.clear()
         try:
-            cycles = self.ctx.station.controller.probe_paths(list(targets))
+            cycles = list(paths())
         except OPERATOR_ERRORS as exc:
             self.ctx.error(exc, what)
             return None
