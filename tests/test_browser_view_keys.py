@@ -155,7 +155,8 @@ def _checkbox(page, label):
 
 def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
     """Plan draws the path the run will take in this tab's 3-D view, Clear path removes it, Run clears it; the
-    Features tab's Show checkboxes hide and show the measured feature and its kind in the 3-D view."""
+    Features tab's Show checkboxes hide and show the measured feature (the selected one, and by its own row) and its
+    kind in the 3-D view."""
     with bs.browser_context(LAPTOP) as context:
         page = bs.open_page(context, app)
         capp = page.capp
@@ -194,4 +195,12 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
         bs.wait_until(lambda: app.view._feature_nodes[fid].visible, 30.0, "the planes shown again")
         _checkbox(page, "Selected feature").evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the selected feature hidden")
+        app.view.show_all()
+        # the feature's own row (Show > Each feature), whichever feature is selected
+        capp.select_feature(None)
+        row = _checkbox(page, f"{fid} {station.measurement.features[fid].name}")
+        bs.wait_until(lambda: row.count() and row.is_checked(), 30.0, "the feature's row ticked (shown)")
+        row.evaluate("e => e.click()")
+        bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the feature hidden by its row")
+        page.get_by_text("(hidden)").first.wait_for()  # the tree says so
         app.view.show_all()

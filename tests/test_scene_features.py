@@ -102,6 +102,50 @@ def test_features_hide_and_show_per_feature_and_kind_and_the_selection_stands_ou
     view.show_all()
 
 
+def test_each_feature_row_has_its_own_show_checkbox(app):
+    """Show > Each feature: a checkbox per fitted feature, labelled as its tree row, added and removed with the
+    features; unticking one hides that feature only (and the tree says so), whichever is selected; hiding a kind
+    leaves the rows' own choice as it was."""
+    model, view = app.station.measurement, app.view
+    capp = app.add_client(client_id="rows", is_local=True)
+    assert capp.take_control()
+    capp.features.build(app.server.gui)  # the tab's widgets (a headless client has none), on the server's GUI
+    top = [[300, 100, 40.0], [360, 100, 40.0], [360, 150, 40.0], [300, 150, 40.0]]
+    a = model.fit_feature("plane", _hits(model, top, [[0, 0, -1]] * 4), name="A")
+    b = model.fit_feature("plane", _hits(model, [[x, y, 30.0] for x, y, _ in top], [[0, 0, -1]] * 4), name="B")
+    app.redraw()
+    capp.features.refresh()
+    rows = capp.features.rows
+    assert {a.id, b.id} <= set(rows) and rows[a.id].label == f"{a.id} A" and rows[b.id].label == f"{b.id} B"
+    assert rows[a.id].value and rows[b.id].value
+    capp.select_feature(b.id)  # the selection plays no part: each row is its own feature
+    rows[a.id].value = False  # what unticking it in the page does (viser calls the row's update callback)
+    assert not view._feature_nodes[a.id].visible and view._feature_nodes[b.id].visible
+    capp.features.refresh()
+    tree = tree_html(app.station, b.id, capp.features.hidden())
+    row_a = next(r for r in tree.split("<tr") if f"data-feature='{a.id}'" in r)
+    assert "(hidden)" in row_a and "(hidden)" not in next(r for r in tree.split("<tr") if f"data-feature='{b.id}'" in r)
+    # planes hidden as a kind: both are hidden, the rows keep their own choice; planes shown: only A stays hidden
+    capp.features.show_kind("plane", False)
+    capp.features.refresh()
+    assert not view._feature_nodes[b.id].visible and rows[b.id].value and not rows[a.id].value
+    capp.features.show_kind("plane", True)
+    assert view._feature_nodes[b.id].visible and not view._feature_nodes[a.id].visible
+    # another tab's choice shows in this tab's rows; a deleted feature's row goes
+    other = app.add_client(client_id="rows-2", is_local=True)
+    other.features.build(app.server.gui)
+    other.features.refresh()
+    assert not other.features.rows[a.id].value and other.features.rows[b.id].value
+    rows[a.id].value = True
+    other.features.refresh()
+    assert other.features.rows[a.id].value and view._feature_nodes[a.id].visible
+    model.delete_feature(b.id)
+    capp.features.refresh()
+    assert b.id not in capp.features.rows and a.id in capp.features.rows
+    model.delete_feature(a.id)
+    view.show_all()
+
+
 def test_a_check_alternative_is_drawn_as_a_dashed_ghost(app):
     """Two rings of four hits at the same angles: the nominal's upright cylinder is reported, the cylinder lying
     across the axis fits better and is the alternative to check (see test_fit_ls)."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import html
 import math
+import threading
 from dataclasses import replace
 import re
 from typing import Any
@@ -200,6 +201,9 @@ class FeaturesPanel:
         self.gui: dict[str, Any] = {}
         self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
         self._nominal_shown: Any = None  # the feature (and its nominal) the nominal fields were filled from
+        self.rows: dict[int, Any] = {}  # feature id -> its Show checkbox (Show > Each feature), one per tree row
+        self._rows_lock = threading.Lock()  # refresh runs in the refresher and after a selection
+        self._gui_api: Any = None
 
     # --- actions (each checks control through ctx.run) -------------------------------------
 
@@ -360,12 +364,17 @@ class FeaturesPanel:
             return
         self.ctx.view.show_feature(fid, bool(shown))
 
+    def show_feature(self, fid: int, shown: bool) -> None:
+        """Show or hide one feature in the 3-D view (its row's checkbox)."""
+        self.ctx.view.show_feature(fid, bool(shown))
+
     def show_kind(self, kind: str, shown: bool) -> None:
         self.ctx.view.show_kind(kind, bool(shown))
 
     def show_all(self) -> None:
         self.ctx.view.show_all()
         self._sync_show()
+        self._sync_rows()
 
     def hidden(self) -> set[int]:
         """The features the 3-D view does not draw now (hidden themselves or by their kind)."""
@@ -381,6 +390,33 @@ class FeaturesPanel:
             self.ctx.set(f"features:show_{kind}", "value", kind not in view.hidden_kinds, self.gui.get(f"show_{kind}"))
         self.ctx.set("features:show_feature", "value", fid is None or fid not in view.hidden_features,
                      self.gui.get("show_feature"))
+
+    def _sync_rows(self) -> None:
+        """One Show checkbox per fitted feature, labelled as its tree row (id and name), added and removed with the
+        features and ticked as the view draws it (another tab may have changed that)."""
+        folder = self.gui.get("show_rows")
+        if folder is None or self._gui_api is None:
+            return
+        with self.station.measurement.lock:
+            feats = {fid: (f.name, f.kind) for fid, f in self.station.measurement.features.items()}
+        hidden = self.ctx.view.hidden_features
+        with self._rows_lock:
+            for fid in [f for f in self.rows if f not in feats]:
+                self.rows.pop(fid).remove()
+            for fid in sorted(feats):
+                name, kind = feats[fid]
+                label, shown = f"{fid} {name}", fid not in hidden
+                box = self.rows.get(fid)
+                if box is None:
+                    with folder:
+                        box = self._gui_api.add_checkbox(label, shown, hint=f"draw {name} ({kind}) in the 3-D view")
+                    box.on_update(lambda e, fid=fid: self.show_feature(fid, e.target.value))
+                    self.rows[fid] = box
+                    continue
+                if box.label != label:
+                    box.label = label  # renamed
+                if box.value != shown:
+                    box.value = shown
 
     # --- read-outs -------------------------------------------------------------------------
 
@@ -427,6 +463,8 @@ class FeaturesPanel:
             g["show_feature"] = gui.add_checkbox("Selected feature", True,
                                                  hint="draw the selected feature in the 3-D view")
             g["show_feature"].on_update(lambda e: self.show_selected(e.target.value))
+            self._gui_api = gui
+            g["show_rows"] = gui.add_folder("Each feature", expand_by_default=True)  # filled by _sync_rows
             for kind in FEATURE_KINDS:
                 g[f"show_{kind}"] = box = gui.add_checkbox(f"{kind.capitalize()}s", True,
                                                            hint=f"draw every {kind} in the 3-D view")
@@ -541,6 +579,7 @@ class FeaturesPanel:
         for key in ("features", "a", "b", "datum_feature", "gdt_feature"):
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
         self._sync_show()
+        self._sync_rows()
         self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature, self.hidden()),
                      self.gui.get("tree"))
         self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
