@@ -1,10 +1,15 @@
 """In headless chromium at 1280 x 800: the start dialog asks who operates and the browser keeps the name (a
 second tab is named by itself); the reference sphere's certificate entered in the Calibration tab of a fresh
-calibration folder clears the certificate problem; the probe list shows the probe in use.
-Screenshot: test-artifacts/probes-calibration.png."""
+calibration folder clears the certificate problem; the probe list shows the probe in use. A probe qualification
+paused from the page holds the machine (judged on the machine's clock) and says PAUSED; Resume lifts to the safe
+height before the next point, and the qualified radius is shown and saved to the probe list.
+Screenshots: test-artifacts/probes-calibration.png, probes-paused.png, probes-qualified.png."""
 
 from __future__ import annotations
 
+import re
+
+import numpy as np
 import pytest
 
 import browser_support as bs
@@ -60,3 +65,74 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         page.get_by_text("in use").first.wait_for()
         assert page.get_by_text("not qualified").count() >= 1
         bs.screenshot(page, "probes-calibration")
+
+
+def test_qualification_paused_and_resumed_from_the_page(app):
+    st = app.station
+    safe_z = st.config.axis("z").max - 5.0  # the qualification's safe height
+    with bs.browser_context(LAPTOP) as context:
+        page = bs.open_page(context, app)
+        bs.start_as(page, "Quinn")
+        bs.press(page, "Take control")
+        bs.wait_until(lambda: app.control.holder == page.capp.client_id, 30.0, "control")
+        bs.open_tab(page, "Setup", "Calibration")
+        if st.calibration.certificate_problem("probe") is not None:  # run alone: the fresh folder's certificate
+            bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
+        calib = page.capp.calibration
+        bs.open_folder(page, "Probe options", "Points per ring")
+        for label, value in (("Points per ring", 3), ("Hits per point", 1)):  # a short pattern: 3 per ring, 1 hit each
+            page.get_by_label(label, exact=True).fill(str(value))
+            page.get_by_label(label, exact=True).press("Enter")
+        bs.wait_until(lambda: (calib.gui["per_ring"].value, calib.gui["repeats"].value) == (3, 1), 30.0,
+                      "the qualification options at the station")
+
+        # every state the machine loop reads: machine time, X, Y, Z, largest axis speed, probe deflected
+        trace: list[tuple[float, float, float, float, float, bool]] = []
+        unsubscribe = st.machine.subscribe(lambda s: trace.append(
+            (s.time, *s.position, max(abs(a.velocity) for a in s.axes), bool(s.probe_triggered))))
+        try:
+            bs.press(page, "Run")
+            def pattern() -> int | None:
+                """The pattern's number of points while it runs (the progress says "point 2 of 10")."""
+                m = re.search(r"point \d+ of (\d+)", calib.job.message or "") if calib.job is not None else None
+                return int(m.group(1)) if m else None
+
+            bs.wait_until(lambda: pattern() is not None, 300.0, "the qualification's pattern",
+                          why=lambda: calib.job and calib.job.message)
+            points = pattern()
+            bs.press(page, "Pause")
+            bs.wait_until(lambda: st.calibration.holding, 300.0, "the hold between two points",
+                          why=lambda: f"{calib.job.message}; done: {calib.job.done}")
+            page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so
+            bs.screenshot(page, "probes-paused")
+            # the machine stands: one machine second (the simulator's clock) without a move
+            held = st.machine.state.time
+            bs.wait_until(lambda: st.machine.state.time > held + 1.0, 120.0, "a machine second of the hold")
+            during = [row for row in trace if row[0] >= held]
+            assert during and max(row[4] for row in during) < 1e-9, "the machine moved while paused"
+            assert np.ptp(np.array([row[1:4] for row in during]), axis=0).max() < 1e-6
+            assert st.calibration.holding and not calib.job.done
+            z_held = during[-1][3]
+            assert z_held < safe_z - 5.0  # paused beside the sphere, below the safe height
+            bs.press(page, "Resume")
+            bs.wait_until(lambda: not st.calibration.paused, 60.0, "the resume at the station")
+            resumed = st.machine.state.time
+            bs.wait_until(lambda: calib.job.done, 600.0, "the qualification's end",
+                          why=lambda: calib.job.message)
+        finally:
+            unsubscribe()
+        assert calib.job.error is None, calib.job.error
+        # Resume lifted to the safe height before the probe touched the sphere again
+        next_touch = next(row[0] for row in trace if row[0] > resumed and row[5])
+        assert max(row[3] for row in trace if resumed <= row[0] <= next_touch) >= safe_z - 0.01
+        result = calib.result[1]
+        assert result.record.n_points == points >= 7 and result.skipped == []
+        radius = f"{result.record.tip_radius:.5f} mm"
+        page.get_by_text(radius).first.wait_for()  # the results: the effective tip radius
+        bs.press_until(page, "Save record", lambda: st.calibration.status.get("probe"), "the qualification saved")
+        rows = {r["name"]: r for r in calib.probes()}
+        assert rows["Probe1"]["tip_radius"] == pytest.approx(result.record.tip_radius)
+        bs.wait_until(lambda: radius in calib.gui["probes"].content, 30.0, "the probe list's qualified radius")
+        page.get_by_text(re.compile(r"Probe1.*\(in use\)")).first.wait_for()
+        bs.screenshot(page, "probes-qualified")
+        assert not page.log.page_errors, page.log.page_errors

@@ -4,7 +4,8 @@ simulator: the page prompts for the manual 3-2-1 hits, the operator takes them, 
 the page shows the progress and DONE. Then a fault mid-routine: an obstacle in the bore stops the run with an
 unexpected contact, the page names the stopped step and why; Resume is refused while the operator's E-STOP is
 latched; after Reset in the page, "Resume from step N" finishes the part in the same session with the stopped
-step measured again. Screenshots go to test-artifacts/routine-*.png."""
+step measured again; the fault and its recovery at 1280 x 800 and on a tablet (820 x 1180). Screenshots go to
+test-artifacts/routine-*.png."""
 
 from __future__ import annotations
 
@@ -138,25 +139,26 @@ def choose_step(page, number):
     page.wait_for_timeout(300)
 
 
-def test_a_fault_mid_routine_is_resumed_from_the_page(app, station):
+@pytest.mark.parametrize("size", ["laptop", "tablet"])
+def test_a_fault_mid_routine_is_resumed_from_the_page(app, station, size):
     model = station.measurement
     if not open_session(model.session_dir / "routine.jsonl").state.features:  # run alone: measure the first part
         _measured_first_part(station)
-    with bs.browser_context(LAPTOP) as context:
+    with bs.browser_context(LAPTOP if size == "laptop" else TABLET) as context:
         context.set_default_timeout(120_000)  # software WebGL on a loaded 2-core machine: the page answers late
         page = bs.open_page(context, app)
         try:
-            _fault_and_resume(page, station)
+            _fault_and_resume(page, station, size)
         except BaseException:
-            bs.screenshot(page, "routine-fault-failed")
+            bs.screenshot(page, f"routine-fault-failed-{size}")
             print("messages:", page.capp.messages[-8:])
             print("notes:", [e.get("text") for e in read_events(model.journal.path).events if e["kind"] == "note"][-12:])
             raise
 
 
-def _fault_and_resume(page, station):
+def _fault_and_resume(page, station, size):
     """The operator's part of the fault test: open the routine, skip to the bore, run into the chip, E-STOP, Reset,
-    Resume."""
+    Resume (on each screen size a part of its own: SN-0003-laptop, SN-0003-tablet)."""
     model = station.measurement
     capp = page.capp
     press(page, "Take control")
@@ -184,9 +186,9 @@ def _fault_and_resume(page, station):
     hits = panel.routine.program.feature(bore).hits
     p, u = next((p, u) for h, p, u, _cz in machine_targets(panel.routine.program, pose) if h.id == hits[2])
     station.sim.place_artifacts([(p - (cfg.tip_radius + cfg.approach_distance) * u + [0.0, 0.0, 6.0], 3.0)])
-    bs.text_field(page, "Part name").fill("SN-0003")
-    bs.text_field(page, "Part name").press("Enter")
-    page.wait_for_timeout(300)
+    part = f"SN-0003-{size}"
+    bs.text_field(page, "Part name").fill(part)
+    bs.wait_until(lambda: panel.gui["part"].value == part, 30.0, "the part name at the station")
     press(page, "Run on next part")
     bs.wait_until(lambda: panel.run_ is not None and panel.run_.progress.state == "failed" and not panel.running,
                   400.0, "the stop on the obstacle")
@@ -195,7 +197,7 @@ def _fault_and_resume(page, station):
     page.get_by_text("STOPPED").first.wait_for()
     page.get_by_text(re.compile(rf"step 5 \({bore}\) stopped: unexpected probe contact")).first.wait_for()
     page.get_by_role("button", name="Resume from step 5", exact=True).wait_for()
-    bs.screenshot(page, "routine-fault")
+    bs.screenshot(page, f"routine-fault-{size}")
     assert run.progress.hits == 2
 
     # the operator hits E-STOP, takes the chip out; Resume waits for Reset
@@ -220,7 +222,7 @@ def _fault_and_resume(page, station):
                   "the resumed routine's end")
     assert run.progress.state == "done", run.progress.message
     page.get_by_text("DONE").first.wait_for()
-    bs.screenshot(page, "routine-resumed")
+    bs.screenshot(page, f"routine-resumed-{size}")
     result = run.progress.results[bore]
     assert run.progress.session == session and len(result.hit_ids) == len(hits)
     assert len(run.discarded) == 2 and not set(run.discarded) & set(result.hit_ids)
