@@ -130,8 +130,11 @@ class JogGuard:
             if new:
                 self.state.epoch += 1
                 self.state.fired = None
-            if spec != self.spec:
-                self.goals.clear()  # a new direction or speed: re-target at once
+            if new or spec != self.spec:
+                # a new direction or speed, or a restart after a stop: re-target at once. The goals kept from
+                # before a stop are not what the modules hold now (the stop loaded its own), and a restart
+                # whose first goal fell near the old one would not be sent: the jog would never start again
+                self.goals.clear()
             self.spec = spec
             self.held = False
             self.deadline = heard + spec.deadman if new else max(self.deadline, heard + spec.deadman)
