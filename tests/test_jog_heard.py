@@ -104,3 +104,43 @@ def test_the_link_process_guard_runs_its_dead_man_from_the_moment_heard(sim_mach
     guard.arm(spec)  # a hold heard now starts it again
     assert guard.state.fired is None
     guard.stop("release")
+
+
+def test_a_loop_slower_than_the_holds_still_samples_and_the_jog_runs():
+    """A slowly scheduled station: each hold takes the machine loop longer to carry out (here 60 ms of wall time)
+    than the front end takes to send the next (20 ms). The loop carries out the holds waiting when its step began
+    and then samples: the state follows the axes and the jog runs. (It used to serve holds for as long as new ones
+    kept coming: it never sampled again, the state froze at the start, and every hold re-targeted the jog from
+    that stale sample, so the axis never got past its first goal. The viser tests saw it on a machine clock
+    slowed to 0.1 of the wall clock.) Machine time is paced at the wall clock, so the holds stay fresh."""
+    import threading
+    import time
+
+    sim, c, _ = make_controller(start_at=[200.0, 200.0, 250.0])
+    sim.network.set_pace(1.0)
+    carry_out = c.machine.jog
+
+    def slow_jog(*args, **kwargs):
+        time.sleep(0.06)  # the loop descheduled while it carries out this hold
+        return carry_out(*args, **kwargs)
+    c.machine.jog = slow_jog
+    c.start()
+    done = threading.Event()
+
+    def front_end() -> None:
+        while not done.is_set():
+            c.jogs.hold(None, [10.0, 0.0, 0.0])
+            time.sleep(0.02)
+    holder = threading.Thread(target=front_end)
+    try:
+        t0, x0 = c.state.machine.time, c.state.machine.position[0]
+        holder.start()
+        end = time.monotonic() + 30
+        while c.state.machine.position[0] < x0 + 2.0:  # past the first goal (one horizon: 1.2 mm at 10 mm/s)
+            assert time.monotonic() < end, (c.state.machine.time - t0, c.state.machine.position[0] - x0)
+            time.sleep(0.01)
+        assert c.state.mode is Mode.JOGGING
+    finally:
+        done.set()
+        holder.join(5)
+        c.close()

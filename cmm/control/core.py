@@ -799,8 +799,14 @@ class Controller:
 
     # --- the loop -------------------------------------------------------------------------------
 
-    def _serve(self, q: collections.deque[_Command]) -> None:
-        while q:
+    def _serve(self, q: collections.deque[_Command], *, waiting_only: bool = False) -> None:
+        """Carry out the commands in ``q``; with ``waiting_only`` only those waiting when the step began: commands
+        that arrive meanwhile wait for the next step, after its sample. A front end that sends holds faster than a
+        slowly-scheduled loop carries them out would otherwise keep the loop from ever sampling again (the state
+        froze, the watchers stopped, and each hold re-targeted the jog from that stale sample: it never started)."""
+        left = len(q) if waiting_only else -1  # -1: until the queue is empty
+        while q and left != 0:
+            left -= 1
             try:
                 cmd = q.popleft()
             except IndexError:
@@ -819,8 +825,8 @@ class Controller:
         try:
             if self._urgent:
                 self._serve(self._urgent)
-            if self._queue:
-                self._serve(self._queue)  # while a routine runs they are refused by their checks (busy)
+            if self._queue:  # while a routine runs they are refused by their checks (busy)
+                self._serve(self._queue, waiting_only=True)
             if self._fault is not None:
                 return self._poll_in_fault()
             self._in_poll = True
