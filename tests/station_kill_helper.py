@@ -1,4 +1,9 @@
-"""A station process for tests/test_kill9.py: connect, move to a start, then jog one axis + forever, printing."""
+"""A station process for tests/test_kill9.py: connect, move to a start, then jog one axis + forever, printing.
+
+Prints ``ready <link process pid>`` once at the start, then after every refresh ``pos <sample time> <x> <y> <z>``:
+the position of the machine loop's latest sample and its time on the machine's clock (monotonic, shared with the
+link process and the test). Other lines (link warnings, a refused refresh) may come in between.
+"""
 
 from __future__ import annotations
 
@@ -21,9 +26,12 @@ def main() -> None:
     v = [0.0, 0.0, 0.0]
     v[axis] = 40.0
     while True:  # an operator holding the jog button: refreshed every 50 ms until the process dies
-        ctl.jog(None, v)
+        try:
+            ctl.jog(None, v)
+        except Exception as exc:  # noqa: BLE001 - a busy loop or a refused refresh: the operator keeps holding
+            print("refused", exc, flush=True)
         st = ctl.state.machine
-        print("pos {:.4f} {:.4f} {:.4f} {:.4f}".format(time.monotonic(), *st.position), flush=True)
+        print("pos {:.4f} {:.4f} {:.4f} {:.4f}".format(st.time, *st.position), flush=True)
         time.sleep(0.05)
 
 
