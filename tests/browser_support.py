@@ -413,16 +413,21 @@ class JogRecord:
         self.station = station
         self.trace: list[tuple[float, float, float, float, float]] = []
         self.holds: list[float] = []
+        self.heard: list[float] = []  # each of those holds' own stamp: when its front end heard it (the dead-man's start)
+        self.velocities: list[np.ndarray] = []  # and the velocity each asked for (mm/s)
         self.releases: list[float] = []
         self.deadman: list[float] = []
         self.clicks: list[float] = []  # the page's own release (viser's click event on the button)
+        self.stops: list[float] = []  # each STOP that reached the control core
         self.live = True
         jogs = station.controller.jogs
         machine = station.machine
         self._jogs, self._machine, self._jog, self._release = jogs, machine, machine.jog, jogs.release
         now = lambda: machine.state.time  # noqa: E731
-        machine.jog = lambda *a, **kw: (self.holds.append(now()), self._jog(*a, **kw))[1]
+        machine.jog = lambda v, **kw: (self._took(now(), v, kw.get("heard")), self._jog(v, **kw))[1]
         jogs.release = lambda *a, **kw: (self.releases.append(now()), self._release(*a, **kw))[1]
+        self._controller, self._stop = station.controller, station.controller.stop
+        station.controller.stop = lambda *a, **kw: (self.stops.append(now()), self._stop(*a, **kw))[1]
         self._capp = capp
         if capp is not None:
             click = capp.jog_release
@@ -432,10 +437,20 @@ class JogRecord:
         self._unsubscribe = station.machine.subscribe(
             lambda s: self.trace.append((s.time, *s.position, max(abs(a.velocity) for a in s.axes))))
 
+    def _took(self, t: float, v: Any, heard: float | None) -> None:
+        self.holds.append(t)
+        self.heard.append(t if heard is None else min(float(heard), t))
+        self.velocities.append(np.array(v, dtype=float))
+
+    def first_hold(self, asks: Any) -> float | None:
+        """Machine time the machine first took a hold whose velocity (mm/s) ``asks(v)`` is true of, if it has yet."""
+        return next((t for t, v in zip(self.holds, self.velocities) if asks(v)), None)
+
     def close(self) -> None:
         self.live = False
         del self._machine.jog  # the class's method again
         self._jogs.release = self._release
+        del self._controller.stop  # the class's method again
         if self._capp is not None:
             del self._capp.jog_release  # the class's method again
         self._unsubscribe()
@@ -482,6 +497,12 @@ class JogRecord:
         """Machine time of the first polled state at or after ``since`` with every axis at rest, if any yet."""
         first = bisect.bisect_left(self.trace, since, key=lambda row: row[0])
         return next((row[0] for row in self.trace[first:] if row[4] < 1e-9), None)
+
+    def standstill_after(self, since: float, what: str) -> float:
+        """Machine seconds from ``since`` (machine time) to the first polled state at or after it with every axis at
+        rest (waits for it)."""
+        wait_until(lambda: self._standstill(since) is not None, 60.0, f"the stop after {what}")
+        return self._standstill(since) - since
 
     def stop_after_release(self, since: float, what: str) -> tuple[float, float, float]:
         """After the button was let go at machine time ``since``: (machine time the first release reached the

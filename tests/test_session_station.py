@@ -114,7 +114,7 @@ def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):
     while station.controller.state.mode.value != "idle" and time.monotonic() < end:  # the core has seen the end
         time.sleep(0.01)
     before = len(station.measurement.hits)
-    end = time.monotonic() + 20
+    end = time.monotonic() + 60
     while len(station.measurement.hits) == before and time.monotonic() < end:
         try:
             station.controller.jogs.hold(None, [0.0, 0.0, -10.0], probe=True)

@@ -121,7 +121,7 @@ def test_rfc2217_server_enforces_the_announced_rate():
 
     with serve_tcp(SimNetwork(2, wire_time=True), rfc2217=True) as sim:
         assert sim.url.startswith("rfc2217://")
-        port = serial.serial_for_url(sim.url, baudrate=19200, timeout=0.5)
+        port = serial.serial_for_url(sim.url, baudrate=19200, timeout=2.0)  # a reply's wait on a loaded host
         address_chain(port, 2)
         port.write(packet(0xFF, SET_BAUD, bytes((21,))))
         port.baudrate = 57600  # announced in order after the command: no wait needed
@@ -134,7 +134,7 @@ def test_rfc2217_server_enforces_the_announced_rate():
         assert nop(careless, 1) == b""
         careless.close()
     with serve_tcp(SimNetwork(1, wire_time=True)) as plain:  # the same careless host passes plain TCP
-        port = serial.serial_for_url(plain.url, timeout=0.2)
+        port = serial.serial_for_url(plain.url, timeout=2.0)
         address_chain(port, 1)
         port.write(packet(0xFF, SET_BAUD, bytes((10,))))
         time.sleep(0.1)

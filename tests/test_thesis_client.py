@@ -90,9 +90,12 @@ def drive(link: Link) -> None:
             if reply[0] & 0x01:  # move_done
                 break
         assert reply[0] & 0x01
-        time.sleep(0.03)  # let the servo settle on the goal
-        reply = link.command(addr, 0xE, b"", 6)
-        position = struct.unpack("<i", reply[1:5])[0]
+        for _ in range(200):  # the servo settles on the goal (a few ms of the simulator's time)
+            reply = link.command(addr, 0xE, b"", 6)
+            position = struct.unpack("<i", reply[1:5])[0]
+            if abs(position - goal) <= 1:
+                break
+            time.sleep(0.01)
         assert reply[0] & 0x01 and abs(position - goal) <= 1, (addr, position, goal)
 
 
