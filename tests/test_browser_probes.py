@@ -104,7 +104,8 @@ def test_qualification_paused_and_resumed_from_the_page(app):
             bs.press(page, "Pause")
             bs.wait_until(lambda: st.calibration.holding, 300.0, "the hold between two points",
                           why=lambda: f"{calib.job.message}; done: {calib.job.done}")
-            page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so
+            page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so ...
+            page.locator("#cmm-status").get_by_text("PAUSED", exact=True).wait_for()  # ... and its status bar
             bs.screenshot(page, "probes-paused")
             # the machine stands: one machine second (the simulator's clock) without a move
             held = st.machine.state.time

@@ -74,7 +74,7 @@ if (!window.__cmmSticky) {
 """
 MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "probing": "#6a1b9a",
                 "homing": "#1565c0", "not homed": "#8d6e00", "stopped": "#8d6e00", "e-stopped": "#b71c1c",
-                "fault": "#b71c1c", "no link": "#b71c1c", "running": "#1565c0"}
+                "fault": "#b71c1c", "no link": "#b71c1c", "running": "#1565c0", "paused": "#8d6e00"}
 # the machine states a cycle (auto-measure of several hits) passes through between and during its moves:
 # the bar says RUNNING for the whole cycle, so a pause between two hits does not look like the end
 CYCLE_MODES = ("idle", "moving", "probing")
@@ -121,6 +121,8 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     mode, reason, link_ok = machine_mode(station)
     if cycle and mode in CYCLE_MODES:
         mode, reason = "running", cycle
+    if getattr(getattr(station, "calibration", None), "holding", False):  # the job stands in the machine loop
+        mode, reason = "paused", f"{reason or 'calibration'}: Resume goes on"
     st = station.controller.state.machine  # the control core's last sample (the observer's snapshot)
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
