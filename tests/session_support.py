@@ -25,6 +25,25 @@ def matched_pretravel(sim) -> PretravelModel:
     return PretravelModel({"const": p.pretravel_xy, "s_cos3": p.pretravel_lobe, "z2": p.pretravel_z - p.pretravel_xy})
 
 
+def sim_station(session_dir, session: str, placed=None):
+    """A fixture's body: ``yield from sup.sim_station(tmp_path, "dmis")``: the station on the in-process simulator
+    (virtual clock), homed, its pre-travel the simulator's, the part placed at ``placed`` (part -> machine) if
+    given, a session ``session`` open; closed after the test."""
+    from cmm.station import Station
+
+    st = Station(port="sim://?cmm=1", session_dir=session_dir)
+    try:
+        st.controller.connect()
+        st.controller.home(None)
+        st.prober.settings.pretravel = matched_pretravel(st.sim)
+        if placed is not None:
+            st.sim.place_part(placed)
+        st.measurement.new_session(session)
+        yield st
+    finally:
+        st.close()
+
+
 def setup(part_pose=None):
     config = load()
     sim = SimulatedCMM(config, CmmSimSettings() if part_pose is None else CmmSimSettings(part_pose=part_pose))

@@ -20,7 +20,6 @@ from cmm.dmis.runner import run_text
 from cmm.measurement.program import run_on
 from cmm.session import program as prog
 from cmm.sim.cmm_sim import TRUE_PART_POSE
-from cmm.station import Station
 
 DATA = Path(__file__).parent / "data" / "dmis"
 SAMPLE = Path(__file__).resolve().parents[1] / "cmm" / "data" / "sample_part.dmi"
@@ -31,15 +30,7 @@ FACETS = {"SPHERE": 0.006}  # mm: the simulated sphere is an icosphere, up to 2.
 @pytest.fixture
 def station(tmp_path):
     """The station on the in-process simulator (virtual clock), homed, its probe qualified, a session open."""
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path)
-    try:
-        st.controller.connect()
-        st.controller.home(None)
-        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
-        st.measurement.new_session("dmis")
-        yield st
-    finally:
-        st.close()
+    yield from sup.sim_station(tmp_path, "dmis")
 
 
 def _machine(part_point):

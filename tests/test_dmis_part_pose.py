@@ -16,7 +16,6 @@ from cmm.metrology.transform import invert
 from cmm.session.report import render
 from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE, pose_matrix
-from cmm.station import Station
 
 # the part put down 5 mm and 2 mm off the nominal set-up (190, 150) and turned 1 degree
 PLACED = pose_matrix((195.0, 152.0, 0.0), rz_deg=1.0)
@@ -61,16 +60,7 @@ INTO = (SETUP + [122.0, 40.0, 60.0], SETUP + [122.0, 40.0, 20.0])
 @pytest.fixture
 def station(tmp_path):
     """The station on the in-process simulator (virtual clock), homed, the part placed off the set-up."""
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path)
-    try:
-        st.controller.connect()
-        st.controller.home(None)
-        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
-        st.sim.place_part(PLACED)
-        st.measurement.new_session("pose")
-        yield st
-    finally:
-        st.close()
+    yield from sup.sim_station(tmp_path, "pose", PLACED)
 
 
 class _Posed:

@@ -20,7 +20,6 @@ from cmm.session.export import session_json
 from cmm.session.report import features_csv, render
 from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import pose_matrix
-from cmm.station import Station
 
 NOISE = 0.004  # mm: two encoder counts and the probe's repeatability
 # the part as the operator put it down: 1 mm and 0.8 mm off the nominal set-up (190, 150), turned 0.8 degrees
@@ -133,16 +132,7 @@ ENDFIL
 @pytest.fixture
 def station(tmp_path):
     """The station on the in-process simulator (virtual clock), homed, the part placed off the set-up."""
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path)
-    try:
-        st.controller.connect()
-        st.controller.home(None)
-        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
-        st.sim.place_part(PLACED)
-        st.measurement.new_session("dmis")
-        yield st
-    finally:
-        st.close()
+    yield from sup.sim_station(tmp_path, "dmis", PLACED)
 
 
 def _true(machine_point_at_setup):
