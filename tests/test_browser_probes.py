@@ -8,6 +8,8 @@ Screenshots: test-artifacts/probes-calibration.png, probes-paused.png, probes-qu
 from __future__ import annotations
 
 import re
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -87,18 +89,30 @@ def test_qualification_paused_and_resumed_from_the_page(app):
         bs.wait_until(lambda: (calib.gui["per_ring"].value, calib.gui["repeats"].value) == (3, 1), 30.0,
                       "the qualification options at the station")
 
+        def pattern() -> int | None:
+            """The pattern's number of points while it runs (the progress says "point 2 of 10")."""
+            m = re.search(r"point \d+ of (\d+)", calib.job.message or "") if calib.job is not None else None
+            return int(m.group(1)) if m else None
+
         # every state the machine loop reads: machine time, X, Y, Z, largest axis speed, probe deflected
         trace: list[tuple[float, float, float, float, float, bool]] = []
-        unsubscribe = st.machine.subscribe(lambda s: trace.append(
-            (s.time, *s.position, max(abs(a.velocity) for a in s.axes), bool(s.probe_triggered))))
+        touched = threading.Event()
+
+        def watch(s) -> None:
+            trace.append((s.time, *s.position, max(abs(a.velocity) for a in s.axes), bool(s.probe_triggered)))
+            if s.probe_triggered and pattern() is not None and not touched.is_set():
+                # The operator presses Pause while the probe touches the sphere. On the simulator's clock the
+                # whole pattern takes about a wall second, less than a press takes to reach the station, so the
+                # machine loop (and with it the machine's clock) waits here until the station has the Pause.
+                touched.set()
+                end = time.monotonic() + 120.0
+                while not st.calibration.paused and time.monotonic() < end:
+                    time.sleep(0.01)
+
+        unsubscribe = st.machine.subscribe(watch)
         try:
             bs.press(page, "Run")
-            def pattern() -> int | None:
-                """The pattern's number of points while it runs (the progress says "point 2 of 10")."""
-                m = re.search(r"point \d+ of (\d+)", calib.job.message or "") if calib.job is not None else None
-                return int(m.group(1)) if m else None
-
-            bs.wait_until(lambda: pattern() is not None, 300.0, "the qualification's pattern",
+            bs.wait_until(touched.is_set, 300.0, "a touch of the qualification's pattern",
                           why=lambda: calib.job and calib.job.message)
             points = pattern()
             bs.press(page, "Pause")
