@@ -46,6 +46,7 @@ class Target(Protocol):
     def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str: ...
     def fit(self, kind: str, hit_ids: list[int], name: str, nominal: Any) -> Any: ...
     def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None: ...
+    def set_nominal(self, feature_id: int, nominal: Any) -> None: ...
     def define_datum(self, label: str, feature_id: int) -> None: ...
     def define_position(self, feature_id: int, tolerance: float, datums: list[str], *, material: str, name: str,
                         datum_modifiers: dict[str, str] | None) -> None: ...
@@ -116,6 +117,8 @@ class Executor:
         # in any of them land in one design frame, where position tolerances compare them with their datums
         self.design_frame = np.eye(4)
         self.design_frames: dict[str, np.ndarray] = {}
+        # where the program's alignments found the part against where its nominals put it (see _move_nominals)
+        self.placement = np.eye(4)
         self.scale = 1.0
         self.angle_scale = math.pi / 180.0
         self.frames: dict[str, np.ndarray] = {}
@@ -443,6 +446,25 @@ class Executor:
         except Exception as exc:  # noqa: BLE001 - not this part at its set-up: said, and the part stays
             return self._not_aligned(s, str(exc), said=True)
         self.log(f"line {s.line}: {said}")
+        self._move_nominals(self.frame @ inverse(self.design_frame))
+
+    def _move_nominals(self, placement: np.ndarray) -> None:
+        """The part lies ``placement`` (machine, 4x4) away from where the program's nominals put it (the align
+        verb moved the station's part by as much): every FEAT nominal defined so far moves with it, from where
+        the previous alignment had put it, and the station's features measured so far take the same nominals.
+        So a position without datums judges a feature against one nominal in the DMIS output and in the
+        station's report, measured before the alignment or after it, on the first part or the tenth. The design
+        nominals (for positions with datums) stay where the program's nominals put the part."""
+        move = placement @ inverse(self.placement)
+        self.placement = placement
+        for nom in self.nominals.values():
+            nom.point = apply(move, nom.point)
+            if nom.vector is not None:
+                nom.vector = apply_vector(move, nom.vector)
+        for a in self.result.actuals.values():
+            nominal = None if a.nominal is None else a.nominal.to_model()
+            if nominal is not None and a.feature_id is not None and a.feature_id in self.model.features:
+                self.target.set_nominal(a.feature_id, nominal)
 
     def _not_aligned(self, s: Statement, why: str, *, said: bool = False) -> None:
         text = why if said else f"{statement_text(s)} does not move the station's part: {why}"

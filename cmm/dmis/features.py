@@ -1,7 +1,8 @@
 """DMIS features: ``FEAT/`` nominals, their machine-coordinate nominals for fitting, and ``FA(..)`` actual lines.
 
 Nominals are kept in machine millimetres (the coordinate system in force when the FEAT statement ran moves them
-there), actuals are the measurement model's fitted features; both are written back in the coordinate system
+there; an alignment of the program that finds the part elsewhere moves them with it, as the station moves its
+features' nominals), actuals are the measurement model's fitted features; both are written back in the coordinate system
 and units in force when they are output, in the DMIS output format (``FA(X) = FEAT/CIRCLE, INNER, CART, ...``).
 """
 

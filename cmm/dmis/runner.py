@@ -112,6 +112,11 @@ class StationTarget:
         """A DMIS tolerance the station's report carries too (the feature's tolerance in the model)."""
         self.commands.invoke(self.client, "set_nominal", feature=feature_id, tolerance=tolerance)
 
+    def set_nominal(self, feature_id: int, nominal: Any) -> None:
+        """The program's nominal of a feature it measured, moved with the part by its alignment (the station's
+        feature takes it, so its report compares with the same nominal)."""
+        self.commands.invoke(self.client, "set_nominal", feature=feature_id, nominal=nominal)
+
     def define_datum(self, label: str, feature_id: int) -> None:
         """A DATDEF the station's GD&T takes too: its datum on the same feature, at RFS (the define_datum verb)."""
         self.commands.invoke(self.client, "define_datum", label=label, feature=feature_id)

@@ -7,7 +7,8 @@ frame of the tolerance's ``DAT(..)`` (:func:`cmm.metrology.datums.build_drf` of 
 (PARLEL, PERPEND, ANGLR) the zone at the basic angle to the datum holding a plane's hits or an axis over its
 length; POS the position zone's diameter, the actual in the actual datum frame against the nominal in the frame
 of the datum features' nominals (the design frame: every nominal moved by the coordinate systems the program built
-from the datums' nominals; without datums: in machine coordinates); RUNOUT circular (per section) or
+from the datums' nominals; without datums: against the FEAT nominal, moved with the part by the program's alignments
+since, as the station's report has it); RUNOUT circular (per section) or
 TOTAL, radial or axial for a face; CONCEN concentricity (a centre) or coaxiality (an axis). PROFS / PROFL: the
 deviations of the hits from the FEAT nominal surface (twice the largest, equally disposed).
 """

@@ -218,6 +218,26 @@ class MeasurementModel:
                 self.journal.append("info", **self.info)
             return path
 
+    def new_part(self, name: str | None = None) -> Path | str:
+        """A new session for the next part of a series (a DMIS program run again): its own journal, and the
+        previous part's hits, features, datums and geometric tolerances put away (they stay in its journal), so
+        this part's tree, characteristics and report have its own rows only. Ids go on counting."""
+        with self.lock:
+            path = self.new_session(name)
+            self.hits.clear()
+            self.deleted.clear()
+            self._undo.clear()
+            self.features.clear()
+            self.constructed.clear()
+            self.datums.clear()
+            self.gdt.clear()
+            self._gdt_cache = None
+            self.hit_probes.clear()
+            self.last_hit = None
+        self._notify("hits", None)
+        self._notify("features", None)
+        return path
+
     def record_into(self, writer: Any, **start: Any) -> None:
         """Journal into ``writer`` (a store's session writer), beginning with its ``start`` event."""
         with self.lock:

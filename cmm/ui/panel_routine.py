@@ -15,7 +15,8 @@ hit plan (which hits, in which order) and single hits can be edited too.
 
 *DMIS program*: open a ``.dmi`` / ``.dms`` file (:mod:`cmm.dmis`): the whole program is checked first (a
 statement the station does not support stops it with its line number, before anything moves), its
-statements are listed as steps, and *Run DMIS* runs it as one job in a session of its own; the DMIS output
+statements are listed as steps, and *Run DMIS* runs it as one job in a session of its own (each run a part:
+``PROGRAM n``, n the first number no session has, the previous part's features put away); the DMIS output
 (``FA`` actuals, ``TA`` tolerances with INTOL / OUTOL) is written beside the sessions.
 """
 
@@ -250,7 +251,15 @@ class RoutinePanel:
             from ..dmis.runner import run_text
 
             model = self.station.measurement
-            session = model.new_session(f"{path.stem} {len(self.dmis_results) + 1}")
+            # each run is a part of the program's series: a session of its own (a name no earlier run took, also
+            # of another page or before a restart) with none of the previous part's features or tolerances
+            try:
+                session = model.new_part(self._part_session(path.stem))
+            except Exception as exc:  # noqa: BLE001 - a store that cannot take the session, in words
+                self.dmis_status = f"**NOT STARTED**: {exc}"
+                self.ctx.error(exc, "DMIS program not started")
+                self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
+                return
             try:
                 result = run_text(text, self.station, name=path.name, client=self.ctx.who(),
                                   on_prompt=self._dmis_prompt)  # manual mode: the hits asked for, taken by jog
@@ -279,6 +288,16 @@ class RoutinePanel:
         if wait:
             self.thread.join()
         return True
+
+    def _part_session(self, stem: str) -> str:
+        """``PROGRAM n``: the first n from this page's run count on that names no session in the store yet."""
+        from ..session.store import open_store
+
+        store = open_store(self.station.measurement.session_dir)
+        n = len(self.dmis_results) + 1
+        while store.exists(f"{stem} {n}"):
+            n += 1
+        return f"{stem} {n}"
 
     def _dmis_prompt(self, text: str) -> None:
         """A DMIS program in manual mode asks the operator for hits (text) or has them (empty)."""
