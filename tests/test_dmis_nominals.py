@@ -159,8 +159,8 @@ def test_each_run_is_a_part_and_judges_positions_after_a_re_alignment_as_the_rep
             # part's corner (43.9 mm from the bore: 0.383 mm off, a 0.766 mm zone); the bore deeper down on itself
             rel = np.array([40.0, -18.0])
             assert expected["BOSS"] == pytest.approx(2.0 * float(np.linalg.norm(TRUE_PART_POSE[:2, :2] @ rel - rel)),
-                                                     abs=0.01)
-            assert expected["BORE2"] < 0.01
+                                                     abs=0.02)
+            assert expected["BORE2"] < 0.02  # the same bore: the probing noise of two centres
             positions.append(report["BOSS"])
         assert not store.exists("realign 3")
         # the trends: the program's series has the two parts, each with its run's value
