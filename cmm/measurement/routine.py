@@ -553,7 +553,7 @@ class RoutineRun:
         routine.validate()
         check(routine.program, model.part, None, None)
         name = f"{routine.name} {self.part_name}" if self.part_name else routine.name
-        self.progress.session = model.new_session(name)
+        self.progress.session = model.new_part(name)  # this part's tree and report: its own rows only
         model.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
         self._tell(state="running", message=f"routine {routine.name!r} started")
         return self._steps_from(0, manual_hits)
