@@ -13,7 +13,7 @@ from netutil import SIM
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.metrology.characteristics import characteristics
 from cmm.metrology.fit_ls import fit_cone
-from cmm.session.report import feature_characteristics, features_csv, render
+from cmm.session.report import features_csv, render
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.session.store import DirectoryStore, load_session
 from cmm.station import Station
@@ -75,7 +75,7 @@ def test_the_conical_boss_is_measured_as_the_cone_near_its_nominal(station, tmp_
     model.journal.close()
     session = load_session(DirectoryStore(tmp_path), "cone")
     rec = next(f for f in session.state.features.values() if f.name == "cone")
-    from_report = feature_characteristics(rec, {**(rec.tolerance or {}), "size": 0.02, "form": 0.02,
+    from_report = rec.characteristics({**(rec.tolerance or {}), "size": 0.02, "form": 0.02,
                                                 "location": 0.02})
     assert from_report == feature_chars(feature)
     tree = tree_html(station)

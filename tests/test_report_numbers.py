@@ -24,7 +24,7 @@ from cmm.metrology.compensation import PretravelModel
 from cmm.metrology.gdt import CHARACTERISTICS
 from cmm.session.export import session_json
 from cmm.session.gdt_session import session_gdt
-from cmm.session.report import feature_characteristics, features_csv, render
+from cmm.session.report import features_csv, render
 from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE
 from cmm.ui.panel_features import feature_chars, tree_html
@@ -154,7 +154,7 @@ def test_every_feature_kind_reaches_the_report_unchanged(measured):
         assert numbers and all(rec.fit[k] == v and exp[k] == v for k, v in numbers.items()), live.name
         chars = feature_chars(live)
         assert chars or live.kind == "point", live.name  # a point has no form and no size: its XYZ only
-        assert feature_characteristics(rec, live.tolerance or {}) == chars, live.name
+        assert rec.characteristics(live.tolerance or {}) == chars, live.name
         for c in chars:
             if c.actual is None:
                 continue

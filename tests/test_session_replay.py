@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import session_support as sup
-from cmm.session.model import Session, SessionState
-from cmm.session.reevaluate import fit_hits, recorded_nominal, reevaluate
+from cmm.session.model import FeatureRecord, Session, SessionState
+from cmm.session.reevaluate import fit_hits, reevaluate
 from cmm.session.replay import Replay
 from cmm.session.store import DirectoryStore, load_session, write_session
 
@@ -48,7 +48,7 @@ def test_replayed_hits_refit_to_exactly_the_recorded_features(session):
         state = replay.at(i - 1)  # the hits as they were just before the fit
         hits = [state.hits[h] for h in e["hit_ids"]]
         result = fit_hits(e["feature_kind"], e["method"], [h.machine for h in hits], [h.approach for h in hits],
-                          [h.point for h in hits], settings, recorded_nominal(e))
+                          [h.point for h in hits], settings, FeatureRecord.from_event(e).nominal_feature())
         recorded = replay.at(i).features[e["id"]].fit
         for key, value in result.geometry().items():
             assert np.array_equal(np.asarray(value), np.asarray(recorded[key])), (e["name"], key)

@@ -26,8 +26,8 @@ from ..metrology.features import FitError, FitResult
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
 from ..session.journal import Journal
-from ..session.model import HitRecord, file_sha256, machine_snapshot, mesh_sha256
-from ..session.reevaluate import feature_fields, fit_hit_records
+from ..session.model import FeatureRecord, HitRecord, file_sha256, machine_snapshot, mesh_sha256
+from ..session.reevaluate import fit_hit_records
 from ..session.store import check_name, is_url, open_store
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
@@ -62,6 +62,11 @@ class Part:
 
 @dataclass
 class Feature:
+    """A fitted feature as the model holds it: the whole fit (``result``: residuals, covariance, the
+    better-fitting alternative) and its nominal as a :class:`NominalFeature`. What is recorded of it is its
+    :meth:`record`, the :class:`~cmm.session.model.FeatureRecord` the journal, the report, replay and
+    re-evaluation read."""
+
     id: int
     name: str
     kind: str
@@ -71,9 +76,11 @@ class Feature:
     nominal: NominalFeature | None = None
     tolerance: dict[str, float] | None = None  # {"size", "form", "location", "position"}: DEFAULT_TOLERANCE otherwise
 
-    def summary(self) -> dict[str, Any]:
-        return {"id": self.id, "name": self.name, "hit_ids": self.hit_ids, **self.result.summary(),
-                "nominal": None if self.nominal is None else self.nominal.to_dict(), "tolerance": self.tolerance}
+    def record(self, probe: str | None = None) -> FeatureRecord:
+        """The feature as journalled (``probe``: the probe(s) that took its hits)."""
+        return FeatureRecord.of(self.result, id=self.id, name=self.name, hit_ids=self.hit_ids,
+                                nominal=None if self.nominal is None else self.nominal.to_dict(),
+                                tolerance=self.tolerance, probe=probe)
 
 
 @dataclass
@@ -477,11 +484,7 @@ class MeasurementModel:
         return "+".join(names)
 
     def _record_feature(self, feature: Feature) -> None:
-        extra = {} if feature.tolerance is None else {"tolerance": feature.tolerance}
-        extra["probe"] = self.feature_probe(feature)
-        self.record("feature", id=feature.id, name=feature.name, hit_ids=list(feature.hit_ids),
-                    **feature_fields(feature.result),
-                    nominal=None if feature.nominal is None else feature.nominal.to_dict(), **extra)
+        self.record("feature", **feature.record(self.feature_probe(feature)).to_event())
 
     def refit_feature(self, fid: int, hit_ids: list[int]) -> Feature:
         """Fit feature ``fid`` again to other hits (one deleted or re-taken); keeps its name, nominal, tolerance."""
@@ -549,20 +552,9 @@ class MeasurementModel:
 
     def measured_features(self) -> dict[int, Any]:
         """The fitted features as :class:`cmm.metrology.gdt_eval.MeasuredFeature` (geometry, nominal, points)."""
-        from ..metrology.gdt_eval import MeasuredFeature
-        from ..session.model import DEFAULT_TOLERANCE
-
         with self.lock:
             hits = {**self.deleted, **self.hits}
-            out = {}
-            for fid, f in self.features.items():
-                pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
-                tol = {**DEFAULT_TOLERANCE, **(f.tolerance or {})}
-                out[fid] = MeasuredFeature(f.name, f.kind, f.result.summary(),
-                                           None if f.nominal is None else f.nominal.to_dict(), pts, float(tol["size"]),
-                                           tuple(h for h in f.hit_ids if h in hits), tol.get("size_lower"),
-                                           tol.get("size_upper"))
-        return out
+            return {fid: f.record().measured(hits, f.tolerance) for fid, f in self.features.items()}
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
         """(definition, Characteristic) of every geometric tolerance (or of ``definitions``), evaluated as the

@@ -81,7 +81,7 @@ def record_trend(model: MeasurementModel, series: str, features: Any = (), *, va
     if trends is None:
         return None
     try:
-        part = trends.record_part(series, feature_values(features) + list(values), serial=serial,
+        part = trends.record_part(series, feature_values(f.record() for f in features) + list(values), serial=serial,
                                   run_id=run_id)
     except (TrendError, OSError) as exc:
         text = f"the run was not added to the trends of {series!r}: {exc}"

@@ -328,7 +328,7 @@ def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = Non
         steps.append({"kind": "align", "name": "alignment", "datums": list(alignment.info["names"]),
                       "manual": bool(manual_alignment)})
     names = {f.id: f.name for f in st.features.values()}
-    probes = {f.name: str(f.fit.get("probe") or "") for f in st.features.values()}
+    probes = {f.name: f.probe or "" for f in st.features.values()}
     if alignment is not None and steps:  # the datums' probe, when one probe took them all
         used = {probes.get(n, "") for n in steps[0]["datums"]}
         if len(used) == 1 and "" not in used and "+" not in next(iter(used)):

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic
+from ..metrology.characteristics import Characteristic
 from ..metrology.gdt_eval import MeasuredFeature, evaluate
 from .model import Session
 
@@ -19,14 +19,8 @@ def measured_features(session: Session, tolerances: dict[int, dict[str, float]] 
     """The session's fitted features with their hits' points (deleted hits too: a feature keeps its hits)."""
     st = session.state
     hits = {**st.deleted_hits, **st.hits}
-    out = {}
-    for fid, f in st.features.items():
-        pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
-        tol = {**DEFAULT_TOLERANCE, **(f.tolerance or {}), **((tolerances or {}).get(fid) or {})}
-        out[fid] = MeasuredFeature(f.name, f.kind, f.fit, f.nominal, pts, float(tol["size"]),
-                                   tuple(h for h in f.hit_ids if h in hits), tol.get("size_lower"),
-                                   tol.get("size_upper"))
-    return out
+    return {fid: f.measured(hits, {**(f.tolerance or {}), **((tolerances or {}).get(fid) or {})})
+            for fid, f in st.features.items()}
 
 
 def session_gdt(session: Session, mesh: Any = None,

@@ -19,7 +19,8 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
 - ``feature``: ``id``, ``name``, ``feature_kind``, ``method``, ``hit_ids``,
   the fit summary (``n_points``, ``form``, ``sigma`` and geometry such as
   ``point``, ``normal``, ``center``, ``radius``, ``diameter``...), ``nominal``
-  (machine coordinates) and optional ``tolerance`` ({"size", "form", "location"}).
+  (machine coordinates), optional ``tolerance`` ({"size", "form", "location"}) and ``probe`` (the probe(s)
+  that took its hits). :class:`FeatureRecord` reads and writes it.
 - ``constructed``: ``id``, ``name``, ``operation`` (intersection, distance,
   angle, midpoint), ``operands`` (feature ids), ``result`` and ``nominal``
   ({"kind": point/line/distance/angle, geometry or ``value``}), ``tolerance``.
@@ -48,7 +49,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..machine.probing import Hit
-from ..metrology.characteristics import DEFAULT_TOLERANCE  # noqa: F401 - one definition (mm, +- for size/location)
+from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics
 
 FORMAT = 2
 
@@ -82,34 +83,82 @@ class HitRecord(Hit):
 
 
 _FEATURE_META = ("seq", "time", "recorded_time", "kind", "id", "name", "feature_kind", "method", "hit_ids", "nominal",
-                 "tolerance")
+                 "tolerance", "probe")
 
 
 @dataclass(frozen=True)
 class FeatureRecord:
+    """A fitted feature as the journal records it: the one feature type of the report, replay and re-evaluation.
+
+    The measurement model's live :class:`cmm.measurement.model.Feature` (which keeps the whole fit: residuals,
+    covariance, the better-fitting alternative) gives its record with ``Feature.record()``; the model journals
+    ``record.to_event()`` and replay rebuilds it with :meth:`from_event`, so both sides read the same fields.
+    """
+
     id: int
     seq: int
     name: str
     kind: str
     method: str
     hit_ids: tuple[int, ...]
-    fit: dict[str, Any]  # n_points, form, sigma and the geometry (diameter, center, ...)
+    fit: dict[str, Any]  # n_points, form, sigma and the geometry (diameter, center, ...): FitResult.summary()
     nominal: dict[str, Any] | None = None  # NominalFeature.to_dict() in machine coordinates
     tolerance: dict[str, float] | None = None
+    probe: str | None = None  # the probe(s) whose hits it was fitted to ("T1", "T1+T2"); None: not recorded
+
+    @classmethod
+    def of(cls, result: Any, *, id: int, name: str, hit_ids: Iterable[int], kind: str | None = None,
+           nominal: dict[str, Any] | None = None, tolerance: dict[str, float] | None = None,
+           probe: str | None = None, seq: int = 0) -> "FeatureRecord":
+        """The record of a fit (a :class:`cmm.metrology.features.FitResult`); ``kind``: the fit's own
+        unless given."""
+        fit = result.summary()
+        fit_kind, method = fit.pop("kind"), fit.pop("method")
+        return cls(int(id), int(seq), str(name), kind or fit_kind, method, tuple(int(h) for h in hit_ids), fit,
+                   nominal, tolerance, probe)
 
     @classmethod
     def from_event(cls, e: dict) -> "FeatureRecord":
         fit = {k: v for k, v in e.items() if k not in _FEATURE_META}
         return cls(int(e["id"]), int(e.get("seq", 0)), str(e.get("name", f"feature {e['id']}")),
                    str(e.get("feature_kind", "")), str(e.get("method", "ls")), tuple(int(h) for h in e.get("hit_ids", ())),
-                   fit, e.get("nominal"), e.get("tolerance"))
+                   fit, e.get("nominal"), e.get("tolerance"), e.get("probe"))
 
     def to_event(self) -> dict:
+        """The ``feature`` event's fields (without seq, time, kind)."""
         out = {"id": self.id, "name": self.name, "hit_ids": list(self.hit_ids), "feature_kind": self.kind,
                "method": self.method, **self.fit, "nominal": self.nominal}
         if self.tolerance is not None:
             out["tolerance"] = self.tolerance
+        if self.probe is not None:
+            out["probe"] = self.probe
         return out
+
+    def nominal_feature(self) -> Any:
+        """The nominal it was fitted with as a :class:`cmm.metrology.pick.NominalFeature` (its start values), or
+        None."""
+        if not self.nominal or "kind" not in self.nominal:
+            return None
+        from ..metrology.pick import NominalFeature
+
+        return NominalFeature(self.nominal["kind"], {k: v for k, v in self.nominal.items() if k != "kind"})
+
+    def characteristics(self, tolerance: dict[str, float] | None = None) -> list[Characteristic]:
+        """Its toleranced characteristics (:func:`cmm.metrology.characteristics.characteristics`), as the
+        report, the trends and the feature tree show them; ``tolerance``: over the defaults."""
+        return characteristics(self.name, self.kind, self.fit, self.nominal, tolerance)
+
+    def measured(self, hits: dict[int, Any], tolerance: dict[str, float] | None = None) -> Any:
+        """The feature as geometric tolerances evaluate it (:class:`cmm.metrology.gdt_eval.MeasuredFeature`),
+        with the points of its hits among ``hits`` (id -> hit, deleted ones too: a feature keeps its hits);
+        ``tolerance``: over the defaults (the size's limits)."""
+        from ..metrology.gdt_eval import MeasuredFeature
+
+        pts = np.array([hits[h].point for h in self.hit_ids if h in hits], float).reshape(-1, 3)
+        tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
+        return MeasuredFeature(self.name, self.kind, self.fit, self.nominal, pts, float(tol["size"]),
+                               tuple(h for h in self.hit_ids if h in hits), tol.get("size_lower"),
+                               tol.get("size_upper"))
 
 
 @dataclass(frozen=True)

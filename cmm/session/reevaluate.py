@@ -25,7 +25,7 @@ import numpy as np
 from ..metrology import fit_criteria
 from ..metrology.features import FitError, FitResult
 from ..metrology.probe_offset import offset_feature
-from .model import HitRecord, Session
+from .model import FeatureRecord, HitRecord, Session
 
 
 def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, settings: Any,
@@ -52,16 +52,6 @@ def fit_hit_records(kind: str, method: str, hits: Any, settings: Any, nominal: A
                     settings, nominal)
 
 
-def recorded_nominal(event: dict) -> Any:
-    """The nominal a feature event was fitted with (its start values), or None."""
-    nominal = event.get("nominal")
-    if not nominal or "kind" not in nominal:
-        return None
-    from ..metrology.pick import NominalFeature
-
-    return NominalFeature(nominal["kind"], {k: v for k, v in nominal.items() if k != "kind"})
-
-
 def _centre_start(nominal: Any, kind: str) -> dict | None:
     """Start values for a fit to tip centres from a nominal surface feature of the same kind.
 
@@ -72,11 +62,6 @@ def _centre_start(nominal: Any, kind: str) -> dict | None:
         return None
     params = getattr(nominal, "params", nominal)
     return {k: v for k, v in dict(params).items() if k not in ("radius", "minor_radius", "kind")}
-
-
-def feature_fields(result: FitResult) -> dict[str, Any]:
-    """A fit summary as recorded in ``feature`` events (``kind`` -> ``feature_kind``)."""
-    return {("feature_kind" if k == "kind" else k): v for k, v in result.summary().items()}
 
 
 def recompute_hits(session: Session, settings: Any) -> dict[int, HitRecord]:
@@ -127,22 +112,20 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
         elif kind == "hit":
             events.append({**head, **hits[int(e["id"])].to_event()})
         elif kind == "feature":
-            fmethod = methods.get(e.get("name", ""), method or e.get("method", "ls"))
-            ids = [int(h) for h in e.get("hit_ids", ())]
-            recs = [hits[h] for h in ids if h in hits]
+            rec = FeatureRecord.from_event(e)
+            fmethod = methods.get(e.get("name", ""), method or rec.method)
+            recs = [hits[h] for h in rec.hit_ids if h in hits]
             try:
-                if len(recs) != len(ids):
-                    raise FitError(f"hits {[h for h in ids if h not in hits]} are not in the journal")
-                result = fit_hit_records(e["feature_kind"], fmethod, recs, settings, recorded_nominal(e))
+                if len(recs) != len(rec.hit_ids):
+                    raise FitError(f"hits {[h for h in rec.hit_ids if h not in hits]} are not in the journal")
+                result = fit_hit_records(rec.kind, fmethod, recs, settings, rec.nominal_feature())
             except (FitError, ValueError) as exc:
                 events.append({**head, "kind": "error", "source": "reevaluate",
                                "message": f"feature {e.get('name')!r} could not be refitted: {exc}"})
                 continue
-            fields = feature_fields(result)
-            fields["feature_kind"] = e["feature_kind"]
-            extra = {k: e[k] for k in ("tolerance",) if k in e}
-            events.append({**head, "id": e["id"], "name": e.get("name"), "hit_ids": ids, **fields,
-                           "nominal": e.get("nominal"), **extra})
+            refit = FeatureRecord.of(result, id=rec.id, name=rec.name, hit_ids=rec.hit_ids, kind=rec.kind,
+                                     nominal=rec.nominal, tolerance=rec.tolerance, probe=rec.probe)
+            events.append({**head, **refit.to_event()})
         else:
             events.append(dict(e))
         if progress is not None and (i % 1000 == 0 or i == n - 1):

@@ -16,7 +16,7 @@ dragging a slider over a 10,000-hit session stays interactive. States are indepe
 copies: the UI may keep them. ``SessionState`` (see :mod:`cmm.session.model`)
 has ``hits`` / ``deleted_hits`` (HitRecord: id, counts, machine, approach,
 point, ...), ``features`` (FeatureRecord: name, kind, method, hit_ids, fit,
-nominal), ``part`` / ``part_pose`` / ``alignments``, ``notes``, ``errors``
+nominal, tolerance, probe: the record the live feature journalled), ``part`` / ``part_pose`` / ``alignments``, ``notes``, ``errors``
 and ``last_event``.
 """
 

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..metrology.characteristics import Characteristic, characteristics, constructed_characteristics, verdict
+from ..metrology.characteristics import Characteristic, constructed_characteristics, verdict
 from .gdt_session import session_gdt
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
@@ -43,10 +43,6 @@ NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it
                 "where it was measured to be. Deviations from the part and positions include the set-up error.")
 HEADER_FIELDS = (("part_number", "part number"), ("drawing", "drawing"), ("operator", "operator"),
                  ("machine_name", "machine"), ("temperature", "temperature"), ("remarks", "remarks"))
-
-
-def feature_characteristics(f: FeatureRecord, tolerance: dict[str, float]) -> list[Characteristic]:
-    return characteristics(f.name, f.kind, f.fit, f.nominal, tolerance)
 
 
 # ------------------------------------------------------------------------ SVG pieces
@@ -403,12 +399,6 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
     return "".join(out)
 
 
-def feature_probe(feature: Any) -> str:
-    """The probe (stylus) that took a fitted feature's hits, as journalled with it ("T1", "T1+T2"; "" before
-    features recorded their probe)."""
-    return str(feature.fit.get("probe") or "")
-
-
 def features_csv(session: Session, *, program: Any = None, default_tolerance: float | None = None,
                  mesh: Any = None) -> str:
     """The feature table as CSV: one row per characteristic, mm (degrees for angles); geometric tolerances
@@ -419,12 +409,12 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
                 "actual", "deviation", "out_of_tolerance", "result", "probe"])
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
-        for c in feature_characteristics(f, tols[fid]):
+        for c in f.characteristics(tols[fid]):
             w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict,
-                        feature_probe(f)])
+                        f.probe or ""])
     for rec, cs in _constructed_rows(session, default_tolerance):
         for c in cs:
             w.writerow([c.feature, "constructed", rec.get("operation", ""), "", c.name, c.unit,
@@ -483,7 +473,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     tols = _tolerances(session, program, default_tolerance)
     base_tol = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
     scale = colour_scale or ColourScale(base_tol["form"])
-    per_feature: list[tuple[Any, list[Characteristic]]] = [(f, feature_characteristics(f, tols[fid]))
+    per_feature: list[tuple[Any, list[Characteristic]]] = [(f, f.characteristics(tols[fid]))
                                                           for fid, f in st.features.items()]
     per_feature += _constructed_rows(session, default_tolerance)
     gdt_rows = session_gdt(session, mesh, tols)
@@ -554,7 +544,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                 fname = str(f.get("name", ""))
             else:
                 what, fname = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits", f.name
-            probe = "" if isinstance(f, dict) else feature_probe(f)
+            probe = "" if isinstance(f, dict) else f.probe or ""  # "": recorded before features named their probe
             name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(fname)}</b><br><span class='muted'>{e(what)}"
                          f"</span></td><td class='l' rowspan='{len(cs)}'>{e(probe) or '&mdash;'}</td>") if k == 0 else ""
             unit = "°" if c.unit == "deg" else ""

@@ -35,7 +35,7 @@ from typing import Any, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics
+from ..metrology.characteristics import Characteristic
 from .journal import Journal, JournalBusy, _decode
 from .trends_parts import PartsCache
 
@@ -113,13 +113,11 @@ def measured(c: Characteristic) -> Measured | None:
 
 
 def feature_values(features: Iterable[Any], default_tolerance: dict[str, float] | None = None) -> list[Measured]:
-    """The characteristics of fitted features (the measurement model's :class:`~cmm.measurement.model.Feature`:
-    ``name``, ``kind``, ``result.summary()``, ``nominal``, ``tolerance``) as trend values."""
+    """The characteristics of fitted features (:class:`~cmm.session.model.FeatureRecord`: a live feature's
+    ``record()``) as trend values."""
     out = []
     for f in features:
-        nominal = None if f.nominal is None else f.nominal.to_dict()
-        tol = {**DEFAULT_TOLERANCE, **(default_tolerance or {}), **(f.tolerance or {})}
-        for c in characteristics(f.name, f.kind, f.result.summary(), nominal, tol):
+        for c in f.characteristics({**(default_tolerance or {}), **(f.tolerance or {})}):
             m = measured(c)
             if m is not None:
                 out.append(m)

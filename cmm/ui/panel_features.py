@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..metrology import fit_criteria
-from ..metrology.characteristics import characteristics, constructed_characteristics
+from ..metrology.characteristics import constructed_characteristics
 from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
 from ..metrology.gdt import CHARACTERISTICS, FORM
@@ -42,8 +42,8 @@ CHECK_COLOUR = "#e65100"  # another solution fits the hits better: the operator 
 
 
 def feature_chars(f: Any) -> list[Any]:
-    return characteristics(f.name, f.kind, f.result.summary(), None if f.nominal is None else f.nominal.to_dict(),
-                           f.tolerance)
+    """A live feature's characteristics: those of its record, as the report shows them."""
+    return f.record().characteristics(f.tolerance)
 
 
 def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> str:
