@@ -26,7 +26,7 @@ from ..metrology.features import FitError, FitResult
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
 from ..session.journal import Journal
-from ..session.model import FeatureRecord, HitRecord, file_sha256, machine_snapshot, mesh_sha256
+from ..session.model import ConstructedRecord, FeatureRecord, HitRecord, file_sha256, machine_snapshot, mesh_sha256
 from ..session.reevaluate import fit_hit_records
 from ..session.store import check_name, is_url, open_store
 
@@ -85,7 +85,8 @@ class Feature:
 
 @dataclass
 class ConstructedFeature:
-    """A feature constructed from two others (intersection, distance, angle, mid-point)."""
+    """A feature constructed from two others (intersection, distance, angle, mid-point); what is recorded of it
+    is its :meth:`record` (:class:`~cmm.session.model.ConstructedRecord`)."""
 
     id: int
     name: str
@@ -95,10 +96,9 @@ class ConstructedFeature:
     nominal: Any = None  # the same construction on the operands' nominals (Constructed) or None
     tolerance: dict[str, float] | None = None
 
-    def to_event(self) -> dict[str, Any]:
-        return {"id": self.id, "name": self.name, "operation": self.operation, "operands": list(self.operands),
-                "result": self.result.summary(), "nominal": None if self.nominal is None else self.nominal.summary(),
-                "tolerance": self.tolerance}
+    def record(self) -> ConstructedRecord:
+        return ConstructedRecord(self.id, 0, self.name, self.operation, tuple(self.operands), self.result.summary(),
+                                 None if self.nominal is None else self.nominal.summary(), self.tolerance)
 
 
 def check_tolerance(tolerance: dict[str, float] | None) -> dict[str, float] | None:
@@ -544,7 +544,7 @@ class MeasurementModel:
             feature = ConstructedFeature(fid, name or f"{operation} {fa.name} / {fb.name}", operation, (a, b), result,
                                          nominal, tolerance)
             self.constructed[fid] = feature
-            self.record("constructed", **feature.to_event())
+            self.record("constructed", **feature.record().to_event())
         self._notify("feature", feature)
         return feature
 
@@ -554,7 +554,7 @@ class MeasurementModel:
         """The fitted features as :class:`cmm.metrology.gdt_eval.MeasuredFeature` (geometry, nominal, points)."""
         with self.lock:
             hits = {**self.deleted, **self.hits}
-            return {fid: f.record().measured(hits, f.tolerance) for fid, f in self.features.items()}
+            return {fid: f.record().measured(hits) for fid, f in self.features.items()}
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
         """(definition, Characteristic) of every geometric tolerance (or of ``definitions``), evaluated as the

@@ -337,11 +337,10 @@ def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = Non
     made: list[tuple[int, dict[str, Any]]] = [(f.id, _feature_step(f.name, probes.get(f.name, "")))
                                               for f in st.features.values() if f.name in taught]
     for cid, c in st.constructed.items():
-        ops = [names.get(i) for i in c.get("operands", ())]
-        if c.get("operation") in CONSTRUCTIONS and len(ops) == 2 and all(ops):
-            names[cid] = c.get("name")
-            made.append((cid, {"kind": "construct", "name": c.get("name") or f"construct {cid}",
-                                                "operation": c["operation"], "of": ops}))
+        ops = [names.get(i) for i in c.operands]
+        if c.operation in CONSTRUCTIONS and len(ops) == 2 and all(ops):
+            names[cid] = c.name
+            made.append((cid, {"kind": "construct", "name": c.name, "operation": c.operation, "of": ops}))
     steps += [s for _seq, s in sorted(made, key=lambda t: t[0])]
     steps.append({"kind": "report", "name": "report"})
     program.steps = steps

@@ -49,7 +49,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from ..machine.probing import Hit
-from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics
+from ..metrology.characteristics import DEFAULT_TOLERANCE, Characteristic, characteristics, constructed_characteristics
 
 FORMAT = 2
 
@@ -145,20 +145,54 @@ class FeatureRecord:
 
     def characteristics(self, tolerance: dict[str, float] | None = None) -> list[Characteristic]:
         """Its toleranced characteristics (:func:`cmm.metrology.characteristics.characteristics`), as the
-        report, the trends and the feature tree show them; ``tolerance``: over the defaults."""
-        return characteristics(self.name, self.kind, self.fit, self.nominal, tolerance)
+        report, the trends and the feature tree show them, at ``tolerance`` (its own when not given; over the
+        defaults)."""
+        return characteristics(self.name, self.kind, self.fit, self.nominal,
+                               self.tolerance if tolerance is None else tolerance)
 
     def measured(self, hits: dict[int, Any], tolerance: dict[str, float] | None = None) -> Any:
         """The feature as geometric tolerances evaluate it (:class:`cmm.metrology.gdt_eval.MeasuredFeature`),
         with the points of its hits among ``hits`` (id -> hit, deleted ones too: a feature keeps its hits);
-        ``tolerance``: over the defaults (the size's limits)."""
+        ``tolerance``: its own when not given, over the defaults (the size's limits)."""
         from ..metrology.gdt_eval import MeasuredFeature
 
         pts = np.array([hits[h].point for h in self.hit_ids if h in hits], float).reshape(-1, 3)
-        tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
+        tol = {**DEFAULT_TOLERANCE, **((self.tolerance if tolerance is None else tolerance) or {})}
         return MeasuredFeature(self.name, self.kind, self.fit, self.nominal, pts, float(tol["size"]),
                                tuple(h for h in self.hit_ids if h in hits), tol.get("size_lower"),
                                tol.get("size_upper"))
+
+
+@dataclass(frozen=True)
+class ConstructedRecord:
+    """A constructed feature as the journal records it (``constructed`` events): the live
+    :class:`cmm.measurement.model.ConstructedFeature` gives it with ``record()``, replay rebuilds it."""
+
+    id: int
+    seq: int
+    name: str
+    operation: str  # intersection, distance, angle, midpoint (cmm.metrology.construct)
+    operands: tuple[int, ...]  # the feature ids it was constructed from
+    result: dict[str, Any]  # Constructed.summary(): {"kind": point/line/distance/angle, geometry or "value"}
+    nominal: dict[str, Any] | None = None  # the same construction on the operands' nominals
+    tolerance: dict[str, float] | None = None
+
+    @classmethod
+    def from_event(cls, e: dict) -> "ConstructedRecord":
+        return cls(int(e["id"]), int(e.get("seq", 0)), str(e.get("name", f"construction {e['id']}")),
+                   str(e.get("operation", "")), tuple(int(i) for i in e.get("operands", ())), e.get("result") or {},
+                   e.get("nominal"), e.get("tolerance"))
+
+    def to_event(self) -> dict:
+        """The ``constructed`` event's fields (without seq, time, kind)."""
+        return {"id": self.id, "name": self.name, "operation": self.operation, "operands": list(self.operands),
+                "result": self.result, "nominal": self.nominal, "tolerance": self.tolerance}
+
+    def characteristics(self, tolerance: dict[str, float] | None = None) -> list[Characteristic]:
+        """Its toleranced characteristics (:func:`cmm.metrology.characteristics.constructed_characteristics`) at
+        ``tolerance`` (its own when not given; over the defaults)."""
+        return constructed_characteristics(self.name, self.result, self.nominal,
+                                           self.tolerance if tolerance is None else tolerance)
 
 
 @dataclass(frozen=True)
@@ -213,7 +247,7 @@ class SessionState:
     unaligned: list[int] = field(default_factory=list)
     aligned: bool = False  # an alignment was made since the part was (re)loaded
     info: dict[str, Any] = field(default_factory=dict)  # report header fields (``info`` events)
-    constructed: dict[int, dict] = field(default_factory=dict)  # ``constructed`` events by id
+    constructed: dict[int, ConstructedRecord] = field(default_factory=dict)  # constructed features by id
     datums: dict[str, dict] = field(default_factory=dict)  # ``datum`` definitions by label
     gdt: dict[int, dict] = field(default_factory=dict)  # ``gdt`` definitions by id
     last_event: dict | None = None
@@ -284,7 +318,8 @@ class SessionState:
             rec = FeatureRecord.from_event(event)
             self.features[rec.id] = rec
         elif kind == "constructed":
-            self.constructed[int(event["id"])] = {k: v for k, v in event.items() if k not in ("seq", "time", "kind")}
+            rec_c = ConstructedRecord.from_event(event)
+            self.constructed[rec_c.id] = rec_c
         elif kind == "feature_deleted":
             self.features.pop(int(event["id"]), None)
             self.constructed.pop(int(event["id"]), None)

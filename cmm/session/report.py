@@ -31,12 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from ..metrology.characteristics import Characteristic, constructed_characteristics, verdict
+from ..metrology.characteristics import Characteristic, verdict
 from .gdt_session import session_gdt
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from .export import hit_deviations
-from .model import DEFAULT_TOLERANCE, FeatureRecord, Session
+from .model import DEFAULT_TOLERANCE, ConstructedRecord, FeatureRecord, Session
 from .wording import error_text, grouped
 
 NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "
@@ -356,11 +356,10 @@ def _tolerances(session: Session, program: Any, default_tolerance: float | None)
     return {fid: {**base, **(f.tolerance or {}), **tol_of.get(f.name, {})} for fid, f in session.state.features.items()}
 
 
-def _constructed_rows(session: Session, default_tolerance: float | None) -> list[tuple[dict, list[Characteristic]]]:
+def _constructed_rows(session: Session, default_tolerance: float | None) -> list[tuple[ConstructedRecord,
+                                                                                      list[Characteristic]]]:
     base = dict(DEFAULT_TOLERANCE) if default_tolerance is None else {k: float(default_tolerance) for k in DEFAULT_TOLERANCE}
-    return [(c, constructed_characteristics(str(c.get("name")), c.get("result") or {}, c.get("nominal"),
-                                            {**base, **(c.get("tolerance") or {})}))
-            for c in session.state.constructed.values()]
+    return [(c, c.characteristics({**base, **(c.tolerance or {})})) for c in session.state.constructed.values()]
 
 
 
@@ -417,7 +416,7 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
                         f.probe or ""])
     for rec, cs in _constructed_rows(session, default_tolerance):
         for c in cs:
-            w.writerow([c.feature, "constructed", rec.get("operation", ""), "", c.name, c.unit,
+            w.writerow([c.feature, "constructed", rec.operation, "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
@@ -539,18 +538,20 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     for f, cs in per_feature:
         for k, c in enumerate(cs):
             cls = ("fail" if c.ok is False else "none" if c.ok is None else "") + (" feat" if k == 0 else "")
-            if isinstance(f, dict):  # a constructed feature
-                what = f"constructed: {f.get('operation', '')} of features {', '.join(str(i) for i in f.get('operands', ()))}"
-                fname = str(f.get("name", ""))
+            built = isinstance(f, ConstructedRecord)
+            if built:
+                what = f"constructed: {f.operation} of features {', '.join(str(i) for i in f.operands)}"
+                probe = ""
             else:
-                what, fname = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits", f.name
-            probe = "" if isinstance(f, dict) else f.probe or ""  # "": recorded before features named their probe
+                what = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits"
+                probe = f.probe or ""  # "": recorded before features named their probe
+            fname = f.name
             name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(fname)}</b><br><span class='muted'>{e(what)}"
                          f"</span></td><td class='l' rowspan='{len(cs)}'>{e(probe) or '&mdash;'}</td>") if k == 0 else ""
             unit = "°" if c.unit == "deg" else ""
             lower = "" if c.lower == 0.0 else f"{c.lower:.4f}"
             # notes: why a value is missing; for a constructed value also how it was measured (its projection)
-            note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and (c.ok is None or isinstance(f, dict)) \
+            note = f"<br><span class='muted'>{e(c.note)}</span>" if c.note and (c.ok is None or built) \
                 else ""
             if c.check:
                 note += f"<br><span class='checknote'>check: {e(c.check)}</span>"

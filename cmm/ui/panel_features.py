@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 
 from ..metrology import fit_criteria
-from ..metrology.characteristics import constructed_characteristics
 from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
 from ..metrology.gdt import CHARACTERISTICS, FORM
@@ -43,7 +42,7 @@ CHECK_COLOUR = "#e65100"  # another solution fits the hits better: the operator 
 
 def feature_chars(f: Any) -> list[Any]:
     """A live feature's characteristics: those of its record, as the report shows them."""
-    return f.record().characteristics(f.tolerance)
+    return f.record().characteristics()
 
 
 def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> str:
@@ -59,8 +58,7 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> st
             "<th align=right>dev</th><th align=right>tol</th><th></th></tr>"]
     items = [(fid, f.name, f"{f.kind} · {f.method} · {len(f.hit_ids)} hits", feature_chars(f)) for fid, f in feats]
     items += [(fid, c.name, f"constructed {c.operation} of {c.operands[0]} and {c.operands[1]}",
-               constructed_characteristics(c.name, c.result.summary(), None if c.nominal is None else c.nominal.summary(),
-                                           c.tolerance)) for fid, c in built]
+               c.record().characteristics()) for fid, c in built]
     gdt_rows = station.measurement.gdt_characteristics()
     if gdt_rows or station.measurement.datums:
         datums = ", ".join(f"{k}{ {'MMB': '(M)', 'LMB': '(L)'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
