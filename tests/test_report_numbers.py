@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -126,7 +127,10 @@ def measured(tmp_path_factory):
     model.define_gdt("profile of a line", i("edge"), 0.02)
     model.define_gdt("position", i("bore"), 0.5, "A|B|C", pattern=[i("bore"), i("boss")],
                      composite={"tolerance": 0.05, "datums": ["A"]})
+    model.construct_feature("distance", i("bore"), i("boss"), name="bore to boss")
     live_features = {f.id: f for f in model.features.values()}
+    live_constructed = {c.id: c for c in model.constructed.values()}
+    live_probes = {fid: model.feature_probe(f) for fid, f in live_features.items()}
     live_gdt = model.gdt_characteristics()
     tree = tree_html(SimpleNamespace(measurement=model))
     model.close()
@@ -134,7 +138,8 @@ def measured(tmp_path_factory):
     s = load_session(store, "numbers")
     mesh = sim.part_mesh
     # each output once (each evaluates the tolerances again, from the journal)
-    yield SimpleNamespace(features=live_features, gdt=live_gdt, tree=tree, session=s, mesh=mesh,
+    yield SimpleNamespace(features=live_features, constructed=live_constructed, probes=live_probes, gdt=live_gdt,
+                          tree=tree, session=s, mesh=mesh,
                           json=json.loads(json.dumps(session_json(s, mesh=mesh), allow_nan=False)),
                           html=render(s, mesh=mesh),
                           csv=[r.split(",") for r in features_csv(s, mesh=mesh).splitlines()[1:]])
@@ -162,6 +167,23 @@ def test_every_feature_kind_reaches_the_report_unchanged(measured):
             row = next(r for r in csv_rows if r[0] == live.name and r[4] == c.name)
             assert row[9] == f"{c.actual:.6f}" and row[12] == c.verdict, (live.name, c.name)
     assert kinds == {"plane", "line", "circle", "cylinder", "sphere", "cone", "point"}
+
+
+def test_the_journal_holds_the_live_features_records(measured):
+    """What replay and the report read of a feature or a construction is the record the live one gives, field by
+    field (its fit summary to the last bit); a construction's characteristics are the tree's, in the report."""
+    st = measured.session.state
+    assert st.features.keys() == measured.features.keys() and st.constructed.keys() == measured.constructed.keys()
+    for fid, live in measured.features.items():
+        assert replace(live.record(measured.probes[fid]), seq=st.features[fid].seq) == st.features[fid], live.name
+    for cid, live in measured.constructed.items():
+        rec = st.constructed[cid]
+        assert replace(live.record(), seq=rec.seq) == rec and rec.operands == tuple(live.operands)
+        (c,) = live.record().characteristics()
+        assert c == rec.characteristics()[0] and c.name == "distance" and c.actual is not None
+        assert f"{c.actual:.4f}" in measured.tree and f"{c.actual:.4f}" in measured.html
+        row = next(r for r in measured.csv if r[0] == "bore to boss")
+        assert row[1] == "constructed" and row[2] == "distance" and row[9] == f"{c.actual:.6f}"
 
 
 def test_every_gdt_characteristic_reaches_the_report_unchanged(measured):

@@ -117,3 +117,37 @@ def test_reevaluation_with_another_criterion(session):
     bad = reevaluate(session, methods={"top_plane": "mic"})
     assert "top_plane" not in {f.name for f in bad.features.values()}
     assert any("could not be refitted" in m for _, m in bad.state.errors)
+
+
+def test_feature_events_read_and_write_back_unchanged_old_and_new(session):
+    """The journal's feature and construction records are its events: read and written back, every recorded event
+    gives itself again, keys in order; a feature event from before features named their probe (and without a
+    tolerance) too, and re-evaluation keeps each feature's recorded probe and tolerance."""
+    from cmm.session.model import ConstructedRecord
+
+    meta = ("seq", "time", "kind")
+    recorded = [e for e in session.events if e["kind"] in ("feature", "constructed")]
+    assert recorded and all("probe" in e for e in recorded if e["kind"] == "feature")
+    for e in recorded:
+        rec = (FeatureRecord if e["kind"] == "feature" else ConstructedRecord).from_event(e)
+        assert list(rec.to_event().items()) == [(k, v) for k, v in e.items() if k not in meta]
+    old = {"seq": 9, "time": 1.0, "kind": "feature", "id": 3, "name": "bore", "hit_ids": [4, 5, 6],
+           "feature_kind": "circle", "method": "ls", "n_points": 3, "form": 0.0, "sigma": None,
+           "center": [1.0, 2.0, 3.0], "normal": [0.0, 0.0, 1.0], "radius": 5.0, "diameter": 10.0,
+           "nominal": None}
+    rec = FeatureRecord.from_event(old)
+    assert rec.probe is None and rec.tolerance is None and rec.seq == 9 and rec.kind == "circle"
+    assert rec.fit == {"n_points": 3, "form": 0.0, "sigma": None, "center": [1.0, 2.0, 3.0],
+                       "normal": [0.0, 0.0, 1.0], "radius": 5.0, "diameter": 10.0}
+    assert rec.to_event() == {k: v for k, v in old.items() if k not in meta}
+    built = {"seq": 10, "time": 2.0, "kind": "constructed", "id": 7, "name": "d", "operation": "distance",
+             "operands": [3, 4], "result": {"kind": "distance", "value": 43.87}, "nominal": None, "tolerance": None}
+    assert list(ConstructedRecord.from_event(built).to_event().items()) == [(k, v) for k, v in built.items()
+                                                                             if k not in meta]
+    again = reevaluate(session)
+    refitted = [e for e in again.events if e["kind"] == "feature"]
+    recorded = [e for e in recorded if e["kind"] == "feature"]
+    assert [e["id"] for e in refitted] == [e["id"] for e in recorded]
+    for e, r in zip(recorded, refitted):
+        assert r["probe"] == e["probe"] and r.get("tolerance") == e.get("tolerance") and r["seq"] == e["seq"]
+        assert list(r) == list(e)  # the same fields in the same order
