@@ -10,8 +10,6 @@ import pytest
 
 import session_support as sup
 from cmm.session.gdt_session import session_gdt
-from cmm.session.model import DEFAULT_TOLERANCE
-from cmm.session.report import feature_characteristics
 from cmm.session.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
@@ -96,7 +94,7 @@ def _report_positions(session) -> dict[str, float]:
     """Feature name -> its "position ⌀" as the station's report gives it (the journal, not the live model)."""
     out = {}
     for f in session.state.features.values():
-        for c in feature_characteristics(f, {**DEFAULT_TOLERANCE, **(f.tolerance or {})}):
+        for c in f.characteristics():  # at its own tolerance, over the defaults
             if c.name.startswith("position"):
                 out[f.name] = c.actual
     return out
