@@ -4,7 +4,8 @@ calibration service, and wires them together.
 Front ends command the machine and change the measurement with the command API's verbs
 (``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.control.api`), so the access policy and the
 state model are checked in one place; the station registers the measurement verbs here (fit, construct, nominal,
-datum, GD&T, align, auto-measure, programs, calibration save / accept / select probe) on the measurement model
+datum, GD&T, align, auto-measure, programs, calibration save / accept / select probe, the session journal: new
+session, new part, note, record_event) on the measurement model
 (``station.measurement``, :mod:`cmm.measurement`: hits, features, alignment, the session journal), which front
 ends read. The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
 thread before its probe completes), its events go to the model's journal and listeners, and the model probes
@@ -29,11 +30,14 @@ from .measurement.model import MeasurementError, MeasurementModel, Part
 from .nmc.trace import ByteTrace
 
 StationError = MeasurementError  # the station's refusals and the model's are one kind of operator sentence
+# the journal events a front end may write itself (record_event); everything else the model records as it changes
+JOURNAL_EVENTS = ("routine_saved",)
 __all__ = ["ConfigError", "Station", "StationError", "load_config"]
 
 
 def register_measurement_verbs(controller: Controller, measurement: MeasurementModel, calibration: Any = None) -> None:
-    """The measurement verbs of the command API: only the control holder changes the measurement. The long ones
+    """The measurement verbs of the command API: only the control holder changes the measurement (a note in the
+    journal: the holder or a local client). The long ones
     (auto-measure, programs, calibration routines) register with the control core's running jobs while they run,
     so the ``cancel`` verb ends them between hits from any front end."""
     from .control.api import REQUIRED
@@ -174,6 +178,42 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
             raise StationError(f"run_routine: action must be run, resume or restart, not {action!r}")
         return go(manual_hits)
 
+    def new_session(client: Any, name: str | None = None) -> Any:
+        controller.check_access(client, "measure")
+        return measurement.new_session(None if name in (None, "") else name)
+
+    def new_part(client: Any, name: str | None = None) -> Any:
+        controller.check_access(client, "measure")
+        return measurement.new_part(None if name in (None, "") else name)
+
+    def note(client: Any, text: Any) -> None:
+        controller.check_access(client, "record")
+        measurement.note(str(text))
+
+    def record_event(client: Any, kind: str, data: dict | None = None) -> None:
+        controller.check_access(client, "record")
+        if kind not in JOURNAL_EVENTS:
+            raise StationError(f"a front end records only {', '.join(JOURNAL_EVENTS)} events in the journal, not "
+                               f"{kind!r} (hits, features and alignments are the measurement verbs')")
+        if data is not None and not (isinstance(data, dict) and all(isinstance(k, str) for k in data)):
+            raise StationError(f"record_event: data must be named fields (a JSON object), got {type(data).__name__}")
+        measurement.record(kind, **(data or {}))
+
+    cmds.register("new_session", new_session, {"name": None},
+                  "close the live session journal and record a new one (name: letters, digits, '.', '_', '-' or "
+                  "spaces; none: a time stamp) with a start event (configuration, calibration); the control holder "
+                  "only; returns its path or store name")
+    cmds.register("new_part", new_part, {"name": None},
+                  "the next part of a series (a program run again): a new session as new_session, and the previous "
+                  "part's hits, features, datums and tolerances put away (they stay in its journal); the control "
+                  "holder only; returns its path or store name")
+    cmds.register("note", note, {"text": REQUIRED},
+                  "a note in the session journal (the report lists it): notes are part of the record, so only the "
+                  "control holder or a client at the station's own computer (or the station) writes them, never "
+                  "an anonymous observer")
+    cmds.register("record_event", record_event, {"kind": REQUIRED, "data": None},
+                  "an event of a front end in the session journal: kind " + ", ".join(JOURNAL_EVENTS) + " with its "
+                  "data {name: value}; hits, features and alignments only through their verbs; who may: as note")
     cmds.register("run_routine", routine, {"run": REQUIRED, "manual_hits": None, "action": "run"},
                   "in process: run a routine on the next part (a RoutineRun: pause / resume / skip on it), or after "
                   "a fault resume it from the stopped step (retract, the step again) or restart it; cancel ends it "

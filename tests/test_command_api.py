@@ -440,3 +440,62 @@ def test_nominal_tolerance_datum_gdt_refit_and_report_header_are_verbs_checked_a
         assert state.info["operator"] == "Maria" and state.info["temperature"] == 20.5
     finally:
         station.controller.policy = OpenPolicy()
+
+
+# --- the journal and the let-go: verbs with their access rules ---------------------------------------------
+
+def test_an_observers_let_go_is_ignored_and_never_ends_the_holders_jog(station):
+    """A key let go on a pendant that only observes (and was not jogging) is a let-go the core drops: no release
+    reaches the machine, so it cannot end the holder's jog; the holder's let-go and a plain release are sent."""
+    control = Control()
+    station.controller.use_policy_of(control)
+    api, ctl = station.controller.commands, station.controller
+    try:
+        assert control.take("op", is_local=True)
+        op, watcher = Client("op", local=True), Client("watcher", local=True)
+        before = ctl.release_seq(watcher), ctl.release_seq(op)
+        assert api.invoke(watcher, "jog_release", let_go=True) is False
+        assert api.invoke(watcher, "jog_hold", velocity=[0.0, 0.0, 0.0]) is None  # all zeros: a let-go too
+        assert (ctl.release_seq(watcher), ctl.release_seq(op)) == before
+        with pytest.raises(Refused, match=r"only observes \(not in control\).*press Take control to jog"):
+            api.invoke(watcher, "jog_hold", velocity=[1.0, 0.0, 0.0])
+        with pytest.raises(Refused, match="control is held by op; press Take control to jog"):
+            api.invoke(watcher, "step", axis="x", mm=0.5)
+        assert api.invoke(op, "jog_release", let_go=True) is True
+        assert api.invoke(watcher, "jog_release") is True  # a release by STOP's rule: a local client may
+        assert (ctl.release_seq(watcher), ctl.release_seq(op)) == (before[0] + 1, before[1] + 1)
+    finally:
+        station.controller.policy = OpenPolicy()
+
+
+def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(station):
+    """New session, note and a front end's own event are verbs: a note by the holder or a client at the station's
+    own computer (or the station itself), never by an anonymous LAN observer; a new session by the holder only;
+    a front end records only its own kinds of event (a routine saved), never a hit."""
+    from cmm.session.journal import read_events
+
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api = station.controller.commands
+    try:
+        assert control.take("op", "c0de", peer="10.0.0.5")  # a remote holder, with the access code
+        op, desk, lan = Client("op", authenticated=True), Client("desk", local=True), Client("lan")
+        path = api.invoke(op, "new_session", name="journal verbs")
+        with pytest.raises(Refused, match="observes"):
+            api.invoke(desk, "new_session", name="another")
+        api.invoke(op, "note", text="by the holder")
+        api.invoke(desk, "note", text="at the station")
+        refused = api.call(lan, "note", {"text": "from the LAN"})
+        assert refused.error["code"] == "refused" and "session journal" in refused.error["message"], refused
+        api.invoke(op, "record_event", kind="routine_saved", data={"name": "block", "path": "block.toml", "text": "x"})
+        bad = api.call(op, "record_event", {"kind": "hit", "data": {"id": 1}})
+        assert not bad.ok and "routine_saved" in bad.error["message"], bad
+        assert not api.call(desk, "record_event", {"kind": "routine_saved", "data": [1]}).ok
+        api.invoke(None, "note", text="the station's own")
+    finally:
+        station.controller.policy = OpenPolicy()
+    events = read_events(path).events
+    assert events[0]["kind"] == "start" and path.name == "journal verbs.jsonl"
+    assert [e["text"] for e in events if e["kind"] == "note"] == ["by the holder", "at the station", "the station's own"]
+    assert [(e["name"], e["path"]) for e in events if e["kind"] == "routine_saved"] == [("block", "block.toml")]
+    assert not any(e["kind"] == "hit" for e in events)

@@ -229,3 +229,26 @@ def test_the_pages_measurement_buttons_send_verbs():
     bad += [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
             if f.startswith("ui/") and attr == "run" and owner.split(".")[-1] in ("service", "calibration")]
     assert not bad, "measurement changed around the verbs:\n" + "\n".join(bad)
+
+
+# the measurement model's methods that write the session journal: front ends send new_session / note / record_event
+JOURNAL_WRITES = {"new_session", "new_part", "note", "record", "record_into"}
+
+
+def test_front_ends_write_the_journal_only_through_verbs():
+    """A new session (or part), a note and a front end's own event (a routine saved) are the command API's
+    ``new_session``, ``new_part``, ``note`` and ``record_event`` verbs, with their access rule (a note: the holder or a local client): no
+    ``station.measurement.note(...)``, ``model.new_session(...)`` or ``measurement.record(...)`` in the page, the
+    pendant, the I++ server, DMIS, the CLI or calibration."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in JOURNAL_WRITES and owner.split(".")[-1] in ("measurement", "model")]
+    assert not bad, "the journal written around the verbs:\n" + "\n".join(bad)
+
+
+def test_the_pendant_only_translates():
+    """The pendant neither installs the access policy (the composition root does) nor judges access itself:
+    the core's verbs refuse in the operator's words, the pendant passes them on."""
+    uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == "ui/pendant.py"]
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
+           if attr in ("use_policy_of", "can_move", "may_stop", "policy")]
+    assert uses and not bad, "the pendant deciding access itself:\n" + "\n".join(bad)

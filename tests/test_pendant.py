@@ -33,6 +33,7 @@ def station(tmp_path):
 
 
 def _serve(station, control):
+    station.controller.use_policy_of(control)  # as the composition root (StationApp) wires it
     return start_pendant_server(station, control, "127.0.0.1", 0)
 
 

@@ -70,8 +70,8 @@ def machine_status(record: Any) -> dict[str, Any]:
 class CalibrationHost(Protocol):
     """What the service needs from the station (the composition root that builds it)."""
 
-    controller: Any  # the control core (cmm.control.Controller): its command API's run_job, configure, stop
-    measurement: Any  # the measurement model: notes go into the session journal
+    controller: Any  # the control core (cmm.control.Controller): its command API's run_job, configure, stop, note
+    measurement: Any  # the measurement model: the probe in use, the operator's event log
     config: Any
     lock: Any  # held while records are applied (the measurement reads the probe settings under it)
 
@@ -262,7 +262,7 @@ class CalibrationService:
                                                          "artifact": rec.artifact, "probing_speed": rec.probing_speed}
         if self.status.get("probe") is not None:
             self.status["probe"]["name"] = name
-        host.measurement.note(text)
+        self._note(client, text)
         return text
 
     def _apply_nominal(self, client: Any, probe: ProbeDefinition) -> str:
@@ -293,9 +293,10 @@ class CalibrationService:
             save_record(rec, qdir / f"{probes[0].name}.toml")
 
     def set_sphere_certificate(self, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
-                               centre: Any = None) -> Any:
+                               centre: Any = None, client: Any = None) -> Any:
         """Write the reference sphere's certificate where qualification and the ISO test read it. ``centre``
-        None keeps the set-up centre of the previous certificate (on the simulator: where its sphere stands)."""
+        None keeps the set-up centre of the previous certificate (on the simulator: where its sphere stands);
+        the journal notes it as ``client`` (the operator who entered it)."""
         path = self.artifacts_dir / SPHERE_CERTIFICATE
         if centre is None:
             try:
@@ -308,8 +309,8 @@ class CalibrationService:
                     centre = tuple(float(c) for c in sim_settings.sphere_centre)
         cert = write_sphere_certificate(path, diameter=diameter, serial=serial, uncertainty=uncertainty, form=form,
                                         centre=centre)
-        self.host.measurement.note(f"reference sphere certificate entered: {cert.describe()}, "
-                                   f"U {cert.uncertainty * 1000:.2f} um")
+        self._note(client, f"reference sphere certificate entered: {cert.describe()}, "
+                           f"U {cert.uncertainty * 1000:.2f} um")
         return cert
 
     # --- where things are ---------------------------------------------------------
@@ -576,15 +577,15 @@ class CalibrationService:
             path = save_record(result.record, self.records_dir / PROBE_RECORD)
             self._log(self.apply(LoadedCalibration(probe=result.record), client=client))
             self.status["probe"] = probe_status(result.record)  # the status bar and manual hits' speed follow it
-            host.measurement.note(f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
-                      f"{result.settings.pretravel.describe()}")
+            self._note(client, f"probe calibration applied: r_eff {result.record.tip_radius:.5f} mm, "
+                               f"{result.settings.pretravel.describe()}")
             return path, True
         if routine == "geometry":
             rec = result.record(self._geometry_artifact(), host.config.source)
             path = save_record(rec, self.records_dir / MACHINE_RECORD)
             self._log(self.apply(LoadedCalibration(machine=rec), client=client))
             self.status["machine"] = machine_status(rec)
-            host.measurement.note(f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
+            self._note(client, f"machine geometry applied: scale {rec.scale_ppm} ppm, squareness {rec.squareness_urad} urad")
             return path, True
         if routine == "servo":
             return save_record(result.record(accepted, host.config.source),
@@ -605,9 +606,13 @@ class CalibrationService:
         host = self.host
         host.controller.commands.invoke(client, "configure", change=lambda setup: apply_gains(setup.machine, result.proposed))
         path = save_record(result.record(True, host.config.source), self.records_dir / SERVO_RECORD)
-        host.measurement.note("servo gains accepted: " + "; ".join(
+        self._note(client, "servo gains accepted: " + "; ".join(
             f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in result.proposed.items()))
         return path
+
+    def _note(self, client: Any, text: str) -> None:
+        """A line in the session journal, as ``client`` (the command API's ``note`` verb)."""
+        self.host.controller.commands.invoke(client, "note", text=text)
 
     def _geometry_artifact(self) -> str:
         try:

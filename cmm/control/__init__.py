@@ -59,7 +59,7 @@ fails (disk full) puts the machine in fault.
 Access (:mod:`.access`): one policy object (``refusal(client, command) -> str | None``),
 checked once per command here. :class:`HolderPolicy` adapts the station's one
 control holder (:class:`cmm.control.access.Control`); STOP / E-STOP / jog release
-follow its ``may_stop``.
+follow its ``may_stop``; the session journal (``record``: notes) the holder or a local client.
 
 Threads: ``start()`` runs the machine loop (the only thread that talks to the
 bus) and the dispatcher. Without ``start()`` commands run in the caller's

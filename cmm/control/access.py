@@ -85,7 +85,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping, Protocol
 
-from .modes import SAFETY_COMMANDS
+from .modes import RECORD_COMMANDS, SAFETY_COMMANDS
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,8 @@ class OpenPolicy:
 
 class HolderPolicy:
     """Only the holder of ``control`` (:class:`Control`) moves the machine; STOP, E-STOP, cancel and jog release
-    by :meth:`Control.may_stop` (a holder may always release its own jog)."""
+    by :meth:`Control.may_stop` (a holder may always release its own jog); the session journal (``record``: a
+    note, a routine saved) is written by the holder or a local client."""
 
     def __init__(self, control: "Control") -> None:
         self.control = control
@@ -132,10 +133,18 @@ class HolderPolicy:
             return self.control.stop_refusal()
         if self.control.can_move(client.id):
             return None
+        if command in RECORD_COMMANDS:
+            if client.local:
+                return None
+            return ("this client only observes: only the control holder or the station's own computer writes in "
+                    "the session journal")
+        # the operator's sentence for every front end (the pages' and the pendant's button is "Take control")
+        action = "to jog" if command in ("jog", "step") else "first"
         holder = self.control.holder
         if holder is not None:
-            return f"this client only observes: control is held by {self.control.name(holder)}"
-        return "this client only observes: take control first"
+            return (f"this client only observes (not in control): control is held by {self.control.name(holder)}; "
+                    f"press Take control {action}")
+        return f"this client only observes (not in control): press Take control {action}"
 
 
 ChangeCallback = Callable[[str | None, str | None], None]

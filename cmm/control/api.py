@@ -13,7 +13,8 @@ returned and the verb's own error raised (the UI and the CLI tell it in their wo
 callables and so exist in process only (``configure``, ``run_job``, the progress callbacks).
 
 The machine verbs are registered by the control core; the station registers the measurement verbs
-(``measure_feature``, ``construct``, ``undo``, ``align``, ``auto_measure``, ``run_program``, ``qualify`` ...)
+(``measure_feature``, ``construct``, ``undo``, ``align``, ``auto_measure``, ``run_program``, ``qualify``, the
+journal's ``new_session``, ``note`` and ``record_event`` ...)
 with :meth:`CommandAPI.register`, since the measurement model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
 parameters (the README's table).
 """
@@ -103,7 +104,11 @@ class CommandAPI:
                       "hold (machine clock; the dead-man counts from then); settle: s after a release in which "
                       "holds are late events and dropped; on_error(text), in process: an error the machine loop "
                       "finds later")
-        self.register("jog_release", lambda client: c.jogs.release(client), {}, "end the jog now")
+        self.register("jog_release", lambda client, let_go=False: c.jogs.release(client, let_go=let_go),
+                      {"let_go": False},
+                      "end the jog now (allowed to everyone who may STOP); let_go: the operator let go of a key or "
+                      "button with no jog of this front end known to run: ignored quietly (false) unless this client "
+                      "holds control, so an observer's let-go never ends the holder's jog; true when it was sent")
         self.register("step", lambda client, axis, mm: c.step(client, axis, mm), {"axis": REQUIRED, "mm": REQUIRED},
                       "one step along a machine axis x, y or z (1 count .. 10 mm)", motion=True)
         self.register("stop", lambda client: _report(c.stop(client)), {}, "controlled stop of whatever moves")

@@ -10,9 +10,10 @@ does the rest, the same for everyone:
   Non-finite or malformed velocities are refused with a sentence. An axis at the end of its travel it would
   jog towards is left out and the operator told so; a jog of only such axes is refused with that sentence.
 - **Release sequence.** A release ends the jog at once, ahead of anything queued (the control core's
-  ``jog_release``: the link process hears it first). Each hold carries the count of releases its client had
-  seen when the event arrived; a hold queued before a later release is dropped, so a late refresh never
-  restarts a released jog. ``settle`` drops holds that arrive that soon after the client's release (a front
+  ``jog_release``: the link process hears it first); a let-go from a client that may not jog (it has no jog
+  running) is ignored, so an observer's key-up never ends the holder's jog. Each hold carries the count of
+  releases its client had seen when the event arrived; a hold queued before a later release is dropped, so a
+  late refresh never restarts a released jog. ``settle`` drops holds that arrive that soon after the client's release (a front
   end whose events can run out of order, like viser's thread pool).
 - **Grace.** A held jog must be refreshed within the machine's dead-man, ``[jog] deadman_timeout``
   (0.15 s): front ends refresh at 20-25 Hz. The timer runs next to the bus (the link process on a real port,
@@ -117,7 +118,7 @@ class JogHolds:
             return None  # an event from before the release, run late
         v, note = self.clamp(velocity, probe=probe)
         if not np.any(v):
-            self.release(client)
+            self.release(client, let_go=True)
             return note
         v, at_end = self.travel(v)
         if not np.any(v):  # every axis asked for stands at the end it would jog to
@@ -127,7 +128,13 @@ class JogHolds:
                             wait=False, on_error=on_error, heard=heard)
         return note
 
-    def release(self, client: Any) -> None:
-        """The operator let go (or went away): the jog ends now, whatever is queued."""
+    def release(self, client: Any, *, let_go: bool = False) -> bool:
+        """The operator let go (or went away): the jog ends now, whatever is queued. ``let_go``: a key or button
+        let go with no jog of this client known to run; it ends the jog only when ``client`` may jog (holds
+        control): an observer's let-go is ignored quietly, so it never ends the holder's jog. True when the
+        release was sent."""
+        if let_go and self.controller.policy.refusal(client, "jog") is not None:
+            return False
         self._released_at[getattr(client, "id", client)] = time.monotonic()
         self.controller.jog_release(client)
+        return True

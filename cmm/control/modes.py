@@ -30,6 +30,9 @@ class ControlError(MotionError):
 
 
 SAFETY_COMMANDS = frozenset({"stop", "estop", "jog_release", "cancel"})  # open to every client the policy lets stop
+# writing in the session journal (a note, a routine saved): part of the record, so the control holder or a client
+# at the station's own computer, never an anonymous observer on the LAN
+RECORD_COMMANDS = frozenset({"record"})
 
 _STILL = {Mode.IDLE, Mode.STOPPED}
 ALLOWED: dict[str, frozenset[Mode]] = {

@@ -84,7 +84,7 @@ def _run(args: Any, path: Path, text: str) -> int:
             commands.invoke(None, "home")
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
-        session = str(station.measurement.new_part())  # this run is a part of its own
+        session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
         if getattr(args, "trends", None):
             from ..session.trends import open_trends
 

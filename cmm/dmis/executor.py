@@ -36,7 +36,7 @@ class DmisError(RuntimeError):
 
 
 class Target(Protocol):
-    model: Any  # the measurement model, read: hits, features, the journal's notes (fits go through ``fit``)
+    model: Any  # the measurement model, read: hits and features (fits go through ``fit``, notes through ``note``)
 
     def position(self) -> np.ndarray: ...
     def move(self, target: np.ndarray, speed: float | None) -> None: ...
@@ -45,6 +45,7 @@ class Target(Protocol):
     def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]: ...
     def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str: ...
     def fit(self, kind: str, hit_ids: list[int], name: str, nominal: Any) -> Any: ...
+    def note(self, text: str) -> None: ...
     def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None: ...
     def set_nominal(self, feature_id: int, nominal: Any) -> None: ...
     def define_datum(self, label: str, feature_id: int) -> None: ...
@@ -190,17 +191,20 @@ class Executor:
     # --- run -----------------------------------------------------------------------------
 
     def run(self) -> RunResult:
-        self.model.note(f"DMIS program {self.name!r} started")
+        self.target.note(f"DMIS program {self.name!r} started")
         try:
             self._run()
         except DmisError as exc:  # the output so far is kept, saying where and why it stopped
             self.emit(f"$$ the program stopped: {exc}")
             self._finish()
-            self.model.note(f"DMIS program {self.name!r} stopped: {exc}")
             exc.result = self.result
+            try:
+                self.target.note(f"DMIS program {self.name!r} stopped: {exc}")
+            except Exception:  # noqa: BLE001 - a journal refused (control taken over): the stop itself is told
+                pass
             raise
         self._finish()
-        self.model.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
+        self.target.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
@@ -393,8 +397,8 @@ class Executor:
             why = self._position_to_model(tol, fid)
             if why:
                 self.log(f"T({tol.label}) is not in the station's GD&T: {why}")
-                self.model.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")
-        self.model.note(f"{output_line(ev)} ({', '.join('FA(' + f + ')' for f in ev.features)})")
+                self.target.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")
+        self.target.note(f"{output_line(ev)} ({', '.join('FA(' + f + ')' for f in ev.features)})")
 
     def _position_to_model(self, tol: Tolerance, fid: int) -> str:
         """Define TOL/POS in the station's GD&T: its datums on the DATDEF features (at RFS; the frame says how
@@ -469,7 +473,7 @@ class Executor:
     def _not_aligned(self, s: Statement, why: str, *, said: bool = False) -> None:
         text = why if said else f"{statement_text(s)} does not move the station's part: {why}"
         self.log(f"line {s.line}: {text}")
-        self.model.note(f"DMIS line {s.line}: {text}")
+        self.target.note(f"DMIS line {s.line}: {text}")
 
     def do_datset(self, s: Statement) -> None:
         if self.words(s) == ["MCS"]:
@@ -767,7 +771,7 @@ class Executor:
             if len(ids) < n:
                 raise DmisError(f"line {meas.line}: F({label}) needs {n} hits by hand, {len(ids)} were taken")
             self.result.hits += len(ids)
-            self.model.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
+            self.target.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
         if expected and int(expected[0]) != len(ids):
             self.log(f"line {meas.line}: MEAS/{meas.minor}, F({label}) announced {int(expected[0])} points, "
                      f"{len(ids)} were measured")
@@ -792,13 +796,13 @@ class Executor:
         operands = [self.actual(s, lab) for lab in labels[1:]]
         kind, geometry = construct_actual(s.minor.lower(), method, operands)  # type: ignore[union-attr]
         self.result.actuals[target] = Actual(target, kind, geometry, self.nominals.get(target))
-        self.model.note(f"DMIS CONST/{s.minor}, F({target}), {method} of "
+        self.target.note(f"DMIS CONST/{s.minor}, F({target}), {method} of "
                         + ", ".join(f"FA({a.label})" for a in operands))
 
     def do_datdef(self, s: Statement) -> None:
         feat, dat = self.labels(s)
         self.datums[dat.name] = self.actual(s, feat)
-        self.model.note(f"DMIS datum {dat.name}: FA({feat.name})")
+        self.target.note(f"DMIS datum {dat.name}: FA({feat.name})")
 
     def do_tol(self, s: Statement) -> None:
         word = s.minor

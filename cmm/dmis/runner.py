@@ -108,6 +108,10 @@ class StationTarget:
         return self.commands.invoke(self.client, "measure_feature", kind=kind, hits=hit_ids, method="ls", name=name,
                                     nominal=nominal)
 
+    def note(self, text: str) -> None:
+        """A line in the session journal (the command API's ``note`` verb, as the program's client)."""
+        self.commands.invoke(self.client, "note", text=text)
+
     def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None:
         """A DMIS tolerance the station's report carries too (the feature's tolerance in the model)."""
         self.commands.invoke(self.client, "set_nominal", feature=feature_id, tolerance=tolerance)

@@ -179,12 +179,12 @@ class StationBackend:
 
     # --- journal ----------------------------------------------------------------------
     def begin_session(self, client: str) -> str:
-        path = self.station.measurement.new_session(time.strftime("ippdme-%Y%m%d-%H%M%S"))
-        self.station.measurement.note(f"I++ DME session started by {client}")
+        path = self.commands.invoke(self.client, "new_session", name=time.strftime("ippdme-%Y%m%d-%H%M%S"))
+        self.note(f"I++ DME session started by {client}")
         return str(path)
 
     def end_session(self) -> None:
-        self.station.measurement.note("I++ DME session ended")
+        self.note("I++ DME session ended")
 
     def note(self, text: str) -> None:
-        self.station.measurement.note(text)
+        self.commands.invoke(self.client, "note", text=text)

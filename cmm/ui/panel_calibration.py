@@ -256,7 +256,7 @@ class CalibrationPanel:
         try:
             cert = self.service.set_sphere_certificate(diameter=diameter, serial=serial,
                                                        uncertainty=float(uncertainty_um) / 1000.0,
-                                                       form=float(form_um or 0.0) / 1000.0)
+                                                       form=float(form_um or 0.0) / 1000.0, client=self.ctx.who())
         except self.service.errors + (TypeError,) as exc:
             self.ctx.error(f"{exc}. The previous certificate stays.", "Save certificate")
             return False

@@ -30,7 +30,7 @@ from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, Routine
                                    teach_routine)
 from ..session.program import ProgramError, load
 from ..session.store import open_session
-from .context import PanelContext
+from .context import OPERATOR_ERRORS, PanelContext
 from .path_preview import PathPreview
 
 
@@ -109,8 +109,12 @@ class RoutinePanel:
         except OSError as exc:
             self.ctx.error(f"cannot write {path}: {exc.strerror or exc}", "Save routine")
             return None
-        self.station.measurement.record("routine_saved", name=self.routine.name, path=str(saved),
-                                        text=self.routine.text())
+        try:
+            self.ctx.commands.invoke(self.ctx.who(), "record_event", kind="routine_saved",
+                                     data={"name": self.routine.name, "path": str(saved), "text": self.routine.text()})
+        except OPERATOR_ERRORS as exc:  # the file is written; the journal refused to say so (this tab observes)
+            self.ctx.notify("Routine saved", f"{saved} (not in the session journal: {exc})", "error")
+            return saved
         self.ctx.notify("Routine saved", str(saved))
         return saved
 
@@ -254,7 +258,7 @@ class RoutinePanel:
             # each run is a part of the program's series: a session of its own (a name no earlier run took, also
             # of another page or before a restart) with none of the previous part's features or tolerances
             try:
-                session = model.new_part(self._part_session(path.stem))
+                session = self.ctx.commands.invoke(self.ctx.who(), "new_part", name=self._part_session(path.stem))
             except Exception as exc:  # noqa: BLE001 - a store that cannot take the session, in words
                 self.dmis_status = f"**NOT STARTED**: {exc}"
                 self.ctx.error(exc, "DMIS program not started")

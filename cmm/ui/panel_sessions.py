@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from ..control import MotionError
 from ..session.bulk import dispose, gc_paused
 from ..session.journal import JournalError
 from ..session.store import StoreError, check_name, is_url, open_store
@@ -350,8 +351,8 @@ class SessionsPanel:
                 check_name(name)
                 if self.store().exists(name):
                     raise StoreError(f"a session named {name!r} already exists: choose another name")
-            path = self.station.measurement.new_session(name or None)
-        except (StoreError, OSError) as exc:
+            path = self.ctx.commands.invoke(self.ctx.who(), "new_session", name=name or None)
+        except (StoreError, OSError, MotionError) as exc:
             self.ctx.error(exc, "New session refused")
             return None
         self.ctx.notify("New session", f"recording {self.live_name()}")

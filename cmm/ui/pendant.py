@@ -31,7 +31,8 @@ client -> server
   at the end of its travel it would jog towards is left out (a ``notice``), a jog of only such axes is
   refused (an ``error``), and a jog the travel clips as it runs gets a ``notice``; all zeros is a release. Only the control holder may jog; it must repeat the message (every 50 ms) while
   the jog lasts.
-- ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop).
+- ``{"type": "release"}``: end this pendant's jog now (decelerate to a stop); from a pendant that does not
+  hold control and was not jogging it is ignored quietly.
 - ``{"type": "hold", "button": "hold X +"}``: a station page's jog button is held; only from the page's
   hold refresher (``web/hold_worker.js``, a Web Worker with the page's refresher grant), repeated every
   40 ms; the page says what the button means (its speed, armed or not).
@@ -181,7 +182,9 @@ class PendantServer:
         self.api = station.controller  # the control core: its state, clock and events (read only)
         self.commands = station.controller.commands  # every command goes through the command API as our client
         self.grants = Grants()  # station pages' embedded pendants (see revoke)
-        self.api.use_policy_of(control)
+        if self.api.holder is not control:  # the core refuses in its words: it must know who holds control
+            raise ValueError("the pendant's Control is not the station's access policy: wire it where both are "
+                             "built (station.controller.use_policy_of(control))")
         self._unsubscribe = self.api.subscribe(self._on_machine_event)
         self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
         self._thread.start()
@@ -395,9 +398,7 @@ class PendantServer:
         elif kind == "hold":
             await self._hold_button(session, msg.get("button"), heard)
         elif kind == "release":
-            if session.jogging or self.control.can_move(session.client_id):
-                session.jogging = False
-                self._release(session)
+            self._let_go(session)
         elif kind == "step":
             await self._step(session, msg.get("axis"), msg.get("mm"))
         elif kind == "call":
@@ -441,24 +442,21 @@ class PendantServer:
         await self._jog(session, [float(x) for x in v], probe=probe, heard=heard)
 
     async def _jog(self, session: _Session, v: Any, *, probe: bool = False, heard: float | None = None) -> None:
-        """A jog refresh (received at ``heard``): fed to the core's jog-hold pipeline (clamp, release sequence,
-        grace), which never waits for the machine loop, so this connection keeps reading (and answering its
-        keepalive pings)."""
-        if not self.control.can_move(session.client_id):
-            if session.jogging:
-                session.jogging = False
-                self._release(session)
-            who = ("this page observes: press Take control (Control panel) to jog" if session.grant is not None
-                   else "this pendant is not in control: take control to jog")
-            return await self._error_msg(session, who, throttle=True)
+        """A jog refresh (received at ``heard``): fed to the core's jog-hold pipeline (access, clamp, release
+        sequence, grace), which never waits for the machine loop, so this connection keeps reading (and answering
+        its keepalive pings). All zeros is a let-go; a refusal ends this pendant's jog and is told, throttled."""
         if not (isinstance(v, list) and len(v) == 3
                 and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
             return await self._error_msg(session, "a jog needs three finite velocities in mm/s", throttle=True)
+        if not any(v):
+            return self._let_go(session)
         try:
             note = self.commands.invoke(self._who(session), "jog_hold", velocity=v, probe=probe, heard=heard,
                                         on_error=lambda text: self._later_error(session, text))
         except Exception as exc:  # noqa: BLE001 - every refusal is the operator's sentence, never raised into the loop
-            session.jogging = False
+            if session.jogging:  # a jog of this pendant may still run (control taken over, the travel's end)
+                session.jogging = False
+                self._release(session)
             return await self._error_msg(session, str(exc) or type(exc).__name__, throttle=True)
         session.jogging = any(v)
         if note is not None and note != session.last_note:
@@ -485,9 +483,7 @@ class PendantServer:
                 lambda: asyncio.ensure_future(self._error_msg(session, text, throttle=True)))
 
     async def _step(self, session: _Session, axis: Any, mm: Any) -> None:
-        """One step jog (keyboard step mode): holder only, 1 count .. 10 mm along X, Y or Z."""
-        if not self.control.can_move(session.client_id):
-            return await self._error_msg(session, "this pendant is not in control: take control to jog", throttle=True)
+        """One step jog (keyboard step mode): 1 count .. 10 mm along X, Y or Z (the step verb: holder only)."""
         if not (axis in (0, 1, 2) and isinstance(mm, (int, float)) and not isinstance(mm, bool) and math.isfinite(mm)
                 and 0 < abs(mm) <= 10.0):
             return await self._error_msg(session, "a step needs an axis 0..2 and a size of up to 10 mm", throttle=True)
@@ -496,10 +492,19 @@ class PendantServer:
         if error:
             await self._error_msg(session, error, throttle=True)
 
-    def _release(self, session: _Session) -> None:
-        """End this pendant's jog at once (the pipeline's release goes ahead of anything queued)."""
+    def _release(self, session: _Session, *, let_go: bool = False) -> None:
+        """End this pendant's jog at once (the pipeline's release goes ahead of anything queued). ``let_go``: a
+        key let go with no jog of this pendant running: the core ignores it unless this client holds control.
+        A refused release has nothing to tell (the jog it would end is not this pendant's)."""
         session.last_note = None
-        self._station_call(lambda: self.commands.invoke(self._who(session), "jog_release"))
+        self._station_call(lambda: self.commands.invoke(self._who(session), "jog_release", let_go=let_go))
+
+    def _let_go(self, session: _Session) -> None:
+        """Every key, button and stick let go: this pendant's jog ends. With none of its jogs known to run, the
+        release is a let-go, which the core sends on only for the holder (an observer's key-up never ends the
+        holder's jog)."""
+        jogging, session.jogging = session.jogging, False
+        self._release(session, let_go=not jogging)
 
     @staticmethod
     def _who(session: _Session) -> Any:
@@ -523,6 +528,8 @@ def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1"
                          **options: Any) -> PendantServer:
     """Serve the pendant page and its WebSocket in a background thread; returns the running handle.
 
+    ``control`` is the station's access policy already (``station.controller.use_policy_of(control)``, wired
+    where both are built: :class:`~cmm.ui.app.StationApp`), so the core's verbs refuse in their own words;
     ``host`` "0.0.0.0" listens on the LAN (pair it with ``Control(lan=True)``);
     ``port`` 0 picks a free port (see ``handle.port``).
     """
