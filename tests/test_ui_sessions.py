@@ -45,6 +45,8 @@ def recorded(app, operator):
     assert operator.features.fit("plane", "ls", last_n=3) is not None, operator.messages[-2:]
     assert operator.sessions.new_session("second") is not None, operator.messages[-2:]
     assert operator.sessions.live_name() == "second"
+    # the next part starts with an empty tree: what the page shows is what 'second' records
+    assert not st.measurement.hits and not st.measurement.features
     return "first"
 
 

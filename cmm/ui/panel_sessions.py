@@ -342,7 +342,9 @@ class SessionsPanel:
         return True
 
     def new_session(self, name: str = "") -> Any:
-        """Close the live session and start recording a new one (empty name: a time stamp)."""
+        """Close the live session and start recording a new one (empty name: a time stamp) for the next part:
+        the tree empties (the hits and features taken so far stay in the closed session's journal), so what the
+        page shows is what the new session records."""
         if not self.ctx.allowed("New session"):
             return None
         try:
@@ -351,7 +353,7 @@ class SessionsPanel:
                 check_name(name)
                 if self.store().exists(name):
                     raise StoreError(f"a session named {name!r} already exists: choose another name")
-            path = self.ctx.commands.invoke(self.ctx.who(), "new_session", name=name or None)
+            path = self.ctx.commands.invoke(self.ctx.who(), "new_part", name=name or None)
         except (StoreError, OSError, MotionError) as exc:
             self.ctx.error(exc, "New session refused")
             return None
