@@ -6,6 +6,7 @@ server's tool list."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import numpy as np
@@ -128,21 +129,37 @@ def test_qualification_pauses_lifts_before_going_on_and_resumes_after_a_fault(fr
     def lifted(during: str) -> bool:
         return any(z >= safe_z - 0.1 for z, m in zs if m.startswith(during))
 
+    # On the simulator's clock the pattern runs faster than a test thread is sure to be scheduled on a busy
+    # computer, so the machine loop (and the machine's clock) waits at point 3 until the pause has reached the
+    # station, and at point 7 until the E-STOP has latched: the operator's presses land where the test says.
+    at3, at7 = threading.Event(), threading.Event()
+
+    def gate(_state) -> None:
+        message = panel.job.message if panel.job is not None else ""
+        for point, event, done in ((3, at3, lambda: st.calibration.paused),
+                                   (7, at7, lambda: st.machine.inhibit is not None)):
+            if f"point {point} of 13" in message and not event.is_set():
+                event.set()
+                end = time.monotonic() + 120.0
+                while not done() and time.monotonic() < end:
+                    time.sleep(0.005)
+
+    ungate = st.machine.subscribe(gate)
     try:
         job = panel.run("probe", per_ring=4, repeats=1)
         assert job is not None, _errors(operator)[-1:]
-        _wait(lambda: "point 3 of 13" in job.message, 300, "point 3")
+        _wait(at3.is_set, 300, "point 3")
         assert panel.pause()
         _wait(lambda: st.calibration.holding, 120, "the hold")
-        held = (job.message, st.machine.position.copy())
-        time.sleep(1.0)
+        held = (job.message, st.machine.position.copy(), st.machine.state.time)
+        _wait(lambda: st.machine.state.time > held[2] + 1.0, 120, "a machine second of the hold")
         assert not job.done and job.message == held[0] and np.allclose(st.machine.position, held[1])
         assert held[1][2] < safe_z - 20  # it holds beside the sphere
         zs.clear()
         assert panel.resume()
         _wait(lambda: "point 5 of 13" in job.message, 300, "point 5")
         assert lifted("lifting to the clearance height after the pause")  # lifted clear before it went on
-        _wait(lambda: "point 7 of 13" in job.message, 300, "point 7")
+        _wait(at7.is_set, 300, "point 7")
         st.controller.emergency_stop("operator")
         assert job.wait(120) and job.error is not None
         assert "press Reset, then Resume qualification" in str(job.error)
@@ -162,6 +179,7 @@ def test_qualification_pauses_lifts_before_going_on_and_resumes_after_a_fault(fr
         assert st.calibration.checkpoint is None
         assert panel.save_record() is not None
     finally:
+        ungate()
         unsubscribe()
 
 
