@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from cmm.control import OpenPolicy, Refused
-from cmm.control.access import Client, Control, HolderPolicy, OriginPolicy, is_local_connection
+from cmm.control.access import Client, Control, HolderPolicy, OriginPolicy, is_local_connection, is_loopback_host
 from cmm.control.rails import clearance_route, route, straight_blocked, to_frame, to_machine
 from cmm.ippdme.backend import StationBackend
 from cmm.station import Station
@@ -28,6 +28,9 @@ def test_one_local_rule_for_web_pages_and_the_ippdme_server():
     assert not is_local_connection(("127.0.0.1", 5000), "station.example:8080")  # a page naming another host
     assert not is_local_connection(("10.0.0.7", 5000), "127.0.0.1:8080")
     assert is_local_connection("127.0.0.5") and is_local_connection("::1") and not is_local_connection("10.0.0.7")
+    # a listening address: loopback-only (no access code, local pages only) or beyond this PC, by the same rule
+    assert all(is_loopback_host(h) for h in ("127.0.0.1", "localhost", "::1"))
+    assert not any(is_loopback_host(h) for h in ("0.0.0.0", "", "::", "192.168.1.9"))
 
     class Host:  # what StationBackend needs of a station: its control core and configuration
         def __init__(self, station):

@@ -271,7 +271,7 @@ def test_probe_rapids_over_the_clearance_height(homed):
 
 
 def test_a_jog_goal_is_never_beyond_the_travel_even_if_nobody_polls_again(homed):
-    """Item 6: the modules themselves hold the limit. One jog command near the end of X, then silence."""
+    """The modules themselves hold the limit. One jog command near the end of X, then silence."""
     sim, ctl, _ = homed
     ctl.move(None, [498.5, 100.0, 250.0], frame="machine").wait()
     ctl.jog(None, [40.0, 0.0, 0.0])  # the loaded goal: 0.12 s ahead would be 503.3; clamped to 500

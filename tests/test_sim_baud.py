@@ -1,4 +1,4 @@
-"""SET_BAUD as hosts written for real modules use it (facts: picservo-nmc.md, the thesis, Kerr's library).
+"""SET_BAUD as hosts written for real modules use it (facts: the PIC-SERVO data sheet, the thesis, Kerr's library).
 
 Facts used here: the module runs at 19200 8N1 after power-up; SET_BAUD takes a
 divisor BRD of the module's 20 MHz clock (thesis table 129/63/20/10 for

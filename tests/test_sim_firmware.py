@@ -1,4 +1,4 @@
-"""Firmware families as the protocol facts describe them (picservo-nmc.md; Kerr's NMC library header
+"""Firmware families as the protocol facts describe them (the PIC-SERVO data sheet; Kerr's NMC library header
 for the SC bits), checked through bytes only: packets built here by hand, not by the driver's codec.
 
 Facts: IO_CTRL on the original module: bit2/bit3 = 1 make LIMIT1/LIMIT2 inputs,

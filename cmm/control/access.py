@@ -338,6 +338,7 @@ def split_host(host_header: str) -> str:
 
 
 def is_loopback_host(host_header: str) -> bool:
+    """A ``Host`` header (or an address a server listens on) that names this PC only: ``localhost``, a loopback IP."""
     host = split_host(host_header)
     if host == "localhost" or host.endswith(".localhost"):
         return True

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..control.access import is_loopback_host
 from .backend import StationBackend
 from .server import IppServer, parse_address
 
@@ -21,6 +22,6 @@ def start(station: Any, address: str) -> IppServer:
         raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
     station.ippdme = server.status
     print(f"I++ DME server on {server.address}: point PC-DMIS, CALYPSO, ... at this address (one client at a time)")
-    if host not in ("127.0.0.1", "localhost", "::1"):
+    if not is_loopback_host(host):
         print("I++ DME: listening beyond this PC; anyone on the network can connect and move the machine")
     return server

@@ -119,7 +119,7 @@ class PicServo:
 
     # --- power-up / HARD_RESET ---------------------------------------------
     def power_up(self) -> None:
-        """Power-up state as listed in the data sheet (see picservo-nmc.md)."""
+        """Power-up state as the PIC-SERVO data sheet lists it."""
         # Communications (the network reads these).
         self.address = 0x00
         self.group = 0xFF

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..control.access import Control, OriginPolicy, is_local_connection
+from ..control.access import Control, OriginPolicy, is_local_connection, is_loopback_host
 from .origin import guard_viser
 from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
@@ -43,7 +43,7 @@ class StationApp:
         if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running
             self.control.on_holder_lost = lambda _cid: self._holder_lost()
         station.controller.use_policy_of(self.control)  # machine commands are checked there, once
-        self.origins = OriginPolicy(lan=lan or host not in ("127.0.0.1", "localhost", "::1"), allow_hosts=allow_hosts)
+        self.origins = OriginPolicy(lan=lan or not is_loopback_host(host), allow_hosts=allow_hosts)
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)
         # the wide side panel: the six top tabs (Machine ... Setup) in one row, the DRO's three columns unwrapped

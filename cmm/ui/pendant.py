@@ -96,7 +96,7 @@ from websockets.http11 import Request, Response
 
 from ..control import Client, Refused
 from ..control.priority import raise_priority_on
-from ..control.access import Control, OriginPolicy, is_local_connection
+from ..control.access import Control, OriginPolicy, is_local_connection, is_loopback_host
 from .pendant_grants import Grant, Grants
 
 STATE_HZ = 20.0
@@ -165,7 +165,7 @@ class PendantServer:
                  origins: OriginPolicy | None = None) -> None:
         self.station = station
         self.control = control
-        self.origins = origins or OriginPolicy(lan=host not in ("127.0.0.1", "localhost", "::1"))
+        self.origins = origins or OriginPolicy(lan=not is_loopback_host(host))
         self.host = host
         self.state_hz = state_hz
         root = static_dir or web_dir()
