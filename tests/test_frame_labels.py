@@ -30,6 +30,10 @@ def test_coordinate_fields_name_their_frame_and_the_alignment(app):
     capp = app.add_client(client_id="frames", is_local=True)
     assert capp.take_control()
     assert capp.target_label() == "Target, machine (mm)"
+    capp.status.set_frame("Part")  # the DRO's frame is the Go to fields' default
+    assert capp.goto_frame == "Part" and capp.target_label().startswith("Target, part")
+    capp.status.set_frame("Machine")
+    assert capp.goto_frame == "Machine" and capp.target_label() == "Target, machine (mm)"
     capp.set_goto_frame("Part")
     assert capp.target_label() == "Target, part (nominal set-up, no alignment made) (mm)"
     assert "nominal set-up, no alignment made" in status_html(st, "", frame="Part")
