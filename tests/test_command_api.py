@@ -495,10 +495,14 @@ def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(st
         assert not bad.ok and "routine_saved" in bad.error["message"], bad
         assert not api.call(desk, "record_event", {"kind": "routine_saved", "data": [1]}).ok
         api.invoke(None, "note", text="the station's own")
+        # a remote I++ client that lost control to a browser: what its server saw still reaches the journal
+        from cmm.ippdme.backend import StationBackend
+        StationBackend(station, "ippdme 10.0.0.9:5000", local=False).end_session()
     finally:
         station.controller.policy = OpenPolicy()
     events = read_events(path).events
     assert events[0]["kind"] == "start" and path.name == "journal verbs.jsonl"
-    assert [e["text"] for e in events if e["kind"] == "note"] == ["by the holder", "at the station", "the station's own"]
+    assert [e["text"] for e in events if e["kind"] == "note"] == ["by the holder", "at the station", "the station's own",
+                                                                   "I++ DME session ended"]
     assert [(e["name"], e["path"]) for e in events if e["kind"] == "routine_saved"] == [("block", "block.toml")]
     assert not any(e["kind"] == "hit" for e in events)

@@ -187,4 +187,6 @@ class StationBackend:
         self.note("I++ DME session ended")
 
     def note(self, text: str) -> None:
-        self.commands.invoke(self.client, "note", text=text)
+        """What the server saw (session start/end, an error, a disconnect), written as the station's own note:
+        a remote client that lost control to a browser still has its end in the journal."""
+        self.commands.invoke(None, "note", text=text)
