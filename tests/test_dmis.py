@@ -377,3 +377,93 @@ def test_the_routine_tab_opens_checks_and_runs_a_dmis_program(station):
     assert panel.dmis_status.startswith("**DONE**: 1 features, 4 hits"), panel.dmis_status
     outputs = list(folder.glob("*_out.dms")) + [p for p in folder.iterdir() if p.suffix == ".dms" and "out" in p.name]
     assert any("A_CIRCLE" in p.read_text() for p in outputs), [p.name for p in folder.iterdir()]
+
+
+EDGES = """FILNAM/'edges'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+S(P) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.0
+SNSLCT/S(P)
+SNSET/DEPTH, 3
+SNSET/APPRCH, 5
+SNSET/RETRCT, 5
+GOTO/60, -15, 60
+F(EDGE) = FEAT/LINE, UNBND, CART, 20, 0, 20, 1, 0, 0, 0, -1, 0
+MEAS/LINE, F(EDGE), 3
+  PTMEAS/CART, 20, 0, 20, 0, -1, 0
+  PTMEAS/CART, 60, 0, 20, 0, -1, 0
+  PTMEAS/CART, 100, 0, 20, 0, -1, 0
+ENDMES
+GOTO/100, -15, 20
+GOTO/100, -15, 70
+GOTO/90, 22, 70
+GOTO/90, 22, 50
+F(BOSSC) = FEAT/CIRCLE, OUTER, CART, 70, 22, 50, 0, 0, 1, 20
+MEAS/CIRCLE, F(BOSSC), 4
+  PTMEAS/CART, 80, 22, 50, 1, 0, 0
+  GOTO/86, 38, 50
+  PTMEAS/CART, 70, 32, 50, 0, 1, 0
+  GOTO/54, 38, 50
+  PTMEAS/CART, 60, 22, 50, -1, 0, 0
+  GOTO/54, 6, 50
+  PTMEAS/CART, 70, 12, 50, 0, -1, 0
+ENDMES
+GOTO/70, 5, 70
+GOTO/70, 22, 70
+F(PT) = FEAT/POINT, CART, 70, 22, 55, 0, 0, 1
+MEAS/POINT, F(PT), 1
+  PTMEAS/CART, 70, 22, 55, 0, 0, 1
+ENDMES
+T(STR) = TOL/STRGHT, 0.01
+T(RAD) = TOL/RAD, -0.01, 0.01
+T(CIR) = TOL/CIRLTY, 0.01
+T(PL) = TOL/PROFL, 0.02
+OUTPUT/FA(EDGE), TA(STR)
+OUTPUT/FA(BOSSC), TA(RAD), TA(CIR), TA(PL)
+OUTPUT/FA(PT)
+D(TURNED) = ROTAT/ZAXIS, 1.5707963
+OUTPUT/FA(EDGE)
+ENDFIL
+"""
+
+
+def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_and_radians(station):
+    """The statements the sample program does not use: a polar SNSDEF, SNSET/DEPTH, FEAT/LINE, FEAT/POINT, an
+    outer circle, TOL/RAD, STRGHT, CIRLTY, PROFL, and a ROTAT in radians (UNITS/.., ANGRAD)."""
+    result = run_text(EDGES, station, name="edges")
+    out = result.outputs[None]
+    first, turned = out.split("D(TURNED) = ROTAT/ZAXIS")
+    fa, ta = _actuals(first), _tolerances(first)
+    setup = np.array([190.0, 150.0, 0.0])
+    part_x = TRUE_PART_POSE[:3, 0]
+    # the front face's edge at Z 20: along the true part's X axis, through its true points
+    words, line = fa["EDGE"]
+    assert words == "LINE, CART"
+    d = np.array(line[3:6]) / np.linalg.norm(line[3:6])  # the output's 5 decimals
+    assert abs(d @ part_x) == pytest.approx(1.0, abs=1e-6)
+    r = _machine([60.0, 0.0, 20.0]) - setup - line[:3]
+    assert np.linalg.norm(r - (r @ d) * d) <= NOISE
+    assert 0.0 <= ta["STR"][0] <= NOISE and ta["STR"][1] == "INTOL"
+    # the boss's section at Z 50: where the part really is, D20
+    words, circle = fa["BOSSC"]
+    assert words == "CIRCLE, OUTER, CART"
+    assert circle[:2] == pytest.approx(list((_machine([70.0, 22.0, 50.0]) - setup)[:2]), abs=NOISE)
+    assert circle[6] == pytest.approx(20.0, abs=NOISE)
+    assert ta["RAD"] == (pytest.approx(circle[6] / 2 - 10.0, abs=1e-5), "INTOL")
+    assert 0.0 <= ta["CIR"][0] <= NOISE and ta["CIR"][1] == "INTOL"
+    # the line profile: twice the hits' largest distance from the nominal circle (the part sits off the set-up)
+    hits = np.array([station.measurement.hits[h].point for h in sorted(station.measurement.hits)])
+    assert len(hits) == 8
+    off = np.abs(np.linalg.norm(hits[3:7, :2] - setup[:2] - [70.0, 22.0], axis=1) - 10.0)
+    assert ta["PL"] == (pytest.approx(2 * off.max(), abs=1e-4), "OUTOL") and off.max() > 0.1
+    # the point on the boss's top, and every hit on the true part's surface where it was asked for
+    assert fa["PT"][1][2] == pytest.approx(55.0, abs=NOISE)
+    part = (np.linalg.inv(TRUE_PART_POSE) @ np.c_[hits, np.ones(len(hits))].T).T[:, :3]
+    assert part[:3, 1] == pytest.approx([0.0] * 3, abs=NOISE) and part[7, 2] == pytest.approx(55.0, abs=NOISE)
+    # ANGRAD: the system turned a quarter turn, not 1.57 degrees, turns the edge's direction with it
+    t = _actuals(turned)["EDGE"][1][3:6]
+    assert abs(t[0]) == pytest.approx(abs(d[1]), abs=2e-5) and abs(t[1]) == pytest.approx(abs(d[0]), abs=2e-5)
+    assert any("SNSET/DEPTH has no effect" in line for line in result.log)
+    # a polar SNSDEF in radians: A = a quarter turn points the probe sideways, which the station has not
+    with pytest.raises(DmisError, match=r"^line 2: S\(SIDE\) points along \(1, 0, "):
+        run_text("UNITS/MM, ANGRAD\nS(SIDE) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n", station)

@@ -648,6 +648,10 @@ class Executor:
         if v[0] < 0:
             raise self.fail(s, f"SNSET/{s.minor} must not be negative")
         self.snset[s.minor] = v[0] * self.scale  # type: ignore[index]
+        if s.minor == "DEPTH" and v[0] > 0:
+            # DEPTH places the points a machine chooses itself below a feature's edge; here every automatic hit
+            # is a PTMEAS with its own point, so the depth changes nothing: say so rather than ignore it silently
+            self.log(f"line {s.line}: SNSET/DEPTH has no effect here: every PTMEAS gives its own point")
 
     def do_fedrat(self, s: Statement) -> None:
         w = self.words(s)

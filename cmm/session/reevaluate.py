@@ -6,7 +6,7 @@ compensation with the given :class:`ProbeSettings` (tip radius + pre-travel
 model). Every feature is refitted with its recorded kind and hits and the
 chosen method (default: the recorded one), exactly as the station fits:
 fit the pre-travel-corrected tip centres, then offset by the tip radius
-(points: the compensated point; lines: the tip-centre line).
+(points: the compensated point; lines: the tip centres' line moved a radius across it towards the face).
 
 The result is a new in-memory :class:`Session` whose events are the
 original ones with hits and features replaced; its ``start`` event carries
@@ -42,8 +42,15 @@ def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, s
     centres = centres - settings.pretravel(approach)[:, None] * approach
     result = fit_criteria.fit(kind, centres, method, nominal=_centre_start(nominal, kind))
     if kind != "line":
-        result = offset_feature(result, centres, approach, settings.tip_radius)
-    return result
+        return offset_feature(result, centres, approach, settings.tip_radius)
+    # a line is probed on a face from one side: the tip centres' line moved onto the surface, by the tip radius
+    # along the probing direction across the line (the contact lies a radius along the approach from the centre)
+    u = np.asarray(result.direction, dtype=np.float64)
+    a = approach.mean(axis=0)
+    across = a - (a @ u) * u
+    if np.linalg.norm(across) < 0.5:  # probed from opposite sides: no one side to move it to; the centres' line
+        return result
+    return replace(result, point=result.point + settings.tip_radius * across / np.linalg.norm(across))
 
 
 def fit_hit_records(kind: str, method: str, hits: Any, settings: Any, nominal: Any = None) -> FitResult:
