@@ -4,7 +4,10 @@ and a taught program exported to DMIS and run again."""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -467,3 +470,19 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     # a polar SNSDEF in radians: A = a quarter turn points the probe sideways, which the station has not
     with pytest.raises(DmisError, match=r"^line 2: S\(SIDE\) points along \(1, 0, "):
         run_text("UNITS/MM, ANGRAD\nS(SIDE) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n", station)
+
+
+def test_cmm_run_ends_without_noise_on_stderr(tmp_path):
+    """A run from the shell prints its results and nothing else: libigl's bindings report every surface index
+    still alive when the interpreter ends as a leak (49 lines on stderr), so the cached indexes go at exit."""
+    program = tmp_path / "top.dmi"
+    program.write_text("UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nGOTO/10, 10, 50\n"
+                       "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\n"
+                       "PTMEAS/CART, 10, 10, 40, 0, 0, 1\nPTMEAS/CART, 60, 5, 40, 0, 0, 1\n"
+                       "PTMEAS/CART, 110, 10, 40, 0, 0, 1\nENDMES\nENDFIL\n")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "cmm.cli", "run", str(program)], cwd=tmp_path, capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(root)})
+    assert done.returncode == 0, done.stderr
+    assert "1 features, 3 hits" in done.stdout and (tmp_path / "top_out.dms").exists()
+    assert done.stderr == ""

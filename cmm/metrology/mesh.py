@@ -20,6 +20,7 @@ working memory, with an optional progress callback ``progress(done, total)``.
 
 from __future__ import annotations
 
+import atexit
 import warnings
 import weakref
 from dataclasses import dataclass, field
@@ -185,6 +186,9 @@ def _morton_order(points: NDArray[np.float64], bits: int = 10) -> NDArray[np.int
 
 
 _INDEX_CACHE: "weakref.WeakKeyDictionary[trimesh.Trimesh, tuple[int, SurfaceIndex]]" = weakref.WeakKeyDictionary()
+# the cached meshes (the sample part's) live until the interpreter ends, and libigl's bindings report every AABB
+# tree still alive then as a leak on stderr: drop the trees at exit
+atexit.register(_INDEX_CACHE.clear)
 
 
 def surface_index(mesh: trimesh.Trimesh) -> SurfaceIndex:
