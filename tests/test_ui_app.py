@@ -40,6 +40,13 @@ def operator(app):
     wait_idle(app.station, 10)
 
 
+@pytest.fixture()
+def unpaced(app):
+    """The simulator's clock uncapped for a test that holds no jog: its hits take machine seconds, not wall seconds."""
+    with ui_support.unpaced(app.station):
+        yield
+
+
 def _wait_done(status, timeout=30.0, capp=None):
     assert status is not None, capp.messages[-3:] if capp is not None else None
     status.wait(timeout)
@@ -186,7 +193,7 @@ def test_step_jog_one_count(app, operator):
     assert st.machine.state.counts[2] == before - 1
 
 
-def test_pick_probe_here_and_fit(app, operator):
+def test_pick_probe_here_and_fit(app, operator, unpaced):
     st = app.station
     above = _above_part(st)
     picked = operator.on_scene_click(above * SCALE, (0.0, 0.0, -1.0))
@@ -281,7 +288,7 @@ def test_probe_node_follows_micrometre_moves(app, operator):
     assert app.updater.pushes > 0
 
 
-def test_status_bar_auto_measure_and_feature_tree(app, operator):
+def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     """The status bar's read-out, a face measured from a pick (plan, run), and the tree's verdicts."""
     from cmm.ui.panel_features import tree_html, typed_nominal
     from cmm.ui.panel_status import status_html
@@ -313,7 +320,7 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator):
     assert viewer.measure.run() is False and viewer.messages[-1][1] == "Not in control"
 
 
-def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, operator):
+def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, operator, unpaced):
     """Another local client takes over: the previous holder gets an alert. Re-take: the next hit replaces
     the chosen one in the selected feature, which refits."""
     st = app.station

@@ -13,6 +13,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 from control_support import wait_idle
+from netutil import SIM
 import ui_support
 
 pytest.importorskip("viser")
@@ -24,7 +25,9 @@ from cmm.ui.panel_status import status_html  # noqa: E402
 
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
-    yield from ui_support.station_app(tmp_path_factory, pendant_port=0)
+    # the simulator's clock uncapped: no test here holds a jog, so no wall-time action meets the machine's clock
+    # and its auto-measure cycles and homing take machine seconds, not wall seconds
+    yield from ui_support.station_app(tmp_path_factory, port=SIM, pendant_port=0)
 
 
 def _until(predicate, timeout, what):

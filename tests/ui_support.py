@@ -33,6 +33,20 @@ def station_app(tmp_path_factory: Any, *, port: str = SIM_PACED, session: str | 
         st.close()
 
 
+@contextmanager
+def unpaced(station: Any) -> Iterator[None]:
+    """The simulator's clock uncapped (as fast as the CPU allows) inside the block, for a test whose moves and hits
+    no wall-time action meets (no jog held): they take machine seconds, not wall seconds. The module's pace again
+    after."""
+    network = station.sim.network
+    pace = network.pace
+    network.set_pace(None)
+    try:
+        yield
+    finally:
+        network.set_pace(pace)
+
+
 def _all_panels(capp: Any) -> bool:
     return "records" in capp.calibration.gui  # the calibration panel is the last one a tab builds
 
@@ -48,7 +62,10 @@ def viser_tab(app: Any, built: Callable[[Any], bool] = _all_panels, timeout: flo
     from websockets.sync.client import connect
 
     before = set(app.clients)
-    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+    # max_queue=None: the socket's reader keeps taking what the station sends (as a page does) however long the test
+    # leaves it unread; with a bounded queue it stops reading, never sees the station's close frame and the close
+    # waits out its 10 s time-out
+    with connect(f"ws://127.0.0.1:{app.port}", subprotocols=[f"viser-v{viser.__version__}"], max_queue=None) as ws:
         camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600, 800,
                                                (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
         ws.send(msgspec.msgpack.encode(camera.as_serializable_dict()))
