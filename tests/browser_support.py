@@ -142,11 +142,15 @@ def viser_ready(page: Any) -> None:
     page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
 
 
-def open_page(context: Any, app: Any) -> Any:
+def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -> Any:
     """A new page on the station app with its viser client: ``page.capp`` is the tab's ClientApp, ``page.cid`` its
-    client id, ``page.log`` the console errors and failed requests it saw."""
+    client id, ``page.log`` the console errors and failed requests it saw. ``viewport`` (width, height): the page's
+    size from the start, instead of the context's (a page resized once loaded lays out and re-renders its
+    software-rendered scene again: seconds on a loaded machine)."""
     before = set(app.clients)
     page = context.new_page()
+    if viewport is not None:
+        page.set_viewport_size({"width": viewport[0], "height": viewport[1]})
     page.log = PageLog()
     page.log.attach(page)
     page.goto(app.url)

@@ -211,8 +211,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
 
         # --- Ben, on a tablet, takes over: Ada's page names him; he runs the saved routine on the third part
         page.evaluate("() => localStorage.removeItem('cmm-operator')")  # Ben's page asks who operates
-        tablet = bs.open_page(context, app)
-        tablet.set_viewport_size({"width": TABLET[0], "height": TABLET[1]})
+        tablet = bs.open_page(context, app, viewport=TABLET)
         bs.start_as(tablet, "Ben")
         assert bs.top_tab_rows(tablet) == [list(bs.TABS)]
         bs.press(tablet, "Take control")
