@@ -5,7 +5,7 @@ connects one WebSocket client (so updates really go out), moves the machine
 for about five seconds, and prints:
   - machine state samples per second (the poll thread),
   - probe-node position updates per second pushed to the scene (the
-    throttled updater, target 50/s, only while the probe moves),
+    throttled updater, at most 25/s, only while the probe moves),
   - bytes per second the client received.
 
     python benchmarks/bench_ui.py [--seconds 5]

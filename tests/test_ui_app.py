@@ -283,8 +283,12 @@ def test_probe_node_follows_micrometre_moves(app, operator):
     st = app.station
     operator.step_size = "1 count"
     _wait_done(operator.step(0, 1), 10)
-    time.sleep(0.1)  # a few updater ticks
-    assert np.allclose(np.asarray(app.view.probe.position) / SCALE, st.machine.state.position, atol=1e-9)
+    at_machine = lambda: np.allclose(np.asarray(app.view.probe.position) / SCALE, st.machine.state.position,  # noqa: E731
+                                     atol=1e-9)
+    end = time.monotonic() + 10.0  # a few updater ticks (the scene's probe moves at most 25 times a second)
+    while not at_machine() and time.monotonic() < end:
+        time.sleep(0.01)
+    assert at_machine()
     assert app.updater.pushes > 0
 
 

@@ -2,8 +2,8 @@
 
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
-tab, and runs two light threads: the probe updater (50 Hz, also samples the
-following-error plot) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
+tab, and runs two light threads: the probe updater (the probe node at most 25 times a second, the
+following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
 :class:`~cmm.control.access.Control`, shared with the pendant page.
 """
 

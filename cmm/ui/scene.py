@@ -29,7 +29,11 @@ from ..metrology.transform import apply_points, invert
 from .feature_drawing import Drawing, feature_drawing, ghost_drawing
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
-PROBE_HZ = 50.0
+PROBE_HZ = 50.0  # the probe updater's rate (it also samples the following-error plot)
+# At most this many probe-node moves a second reach the scene: each one makes every open page draw its 3-D view
+# again, which a station PC without a GPU (WebGL in software) pays for with CPU the station needs; 25 a second
+# still moves smoothly beside the status bar's 20 Hz DRO.
+PROBE_SCENE_HZ = 25.0
 STYLUS_LENGTH = 40.0  # mm, drawn above the tip centre
 ARROW_LENGTH = 4.0  # mm, approach arrows drawn before each hit
 
@@ -557,21 +561,25 @@ def draw_cycles(scene: Any, cycles: list[Any], root: str = "/preview") -> dict[s
 
 
 class ProbeUpdater:
-    """Push the probe position to the scene at a fixed rate (default 50 Hz) from the latest state.
+    """Push the probe position to the scene from the latest state; ``extra(state)`` on every tick (``hz``).
 
     It is throttled: the machine samples ~100 times a second per axis set,
-    but the scene gets at most ``hz`` updates, and only when the probe moved.
+    but the scene gets at most ``scene_hz`` updates, and only when the probe
+    moved (a move held back by the throttle goes out on a later tick, so the
+    probe's last position always reaches the scene).
     """
 
     def __init__(self, station: Any, view: SceneView, hz: float = PROBE_HZ,
-                 extra: Callable[[Any], None] | None = None) -> None:
+                 extra: Callable[[Any], None] | None = None, scene_hz: float = PROBE_SCENE_HZ) -> None:
         self.station = station
         self.view = view
         self.period = 1.0 / hz
+        self.scene_period = 1.0 / scene_hz
         self.extra = extra
         self.pushes = 0
         self.ticks = 0
         self._last: np.ndarray | None = None
+        self._pushed_at = -math.inf  # time.monotonic() of the last push
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="scene-probe", daemon=True)
 
@@ -592,9 +600,12 @@ class ProbeUpdater:
             return False
         pos = state.position
         pushed = False
-        if self._last is None or np.any(pos != self._last):
+        now = time.monotonic()
+        # 1 ms of slack: a tick a hair early on the updater's clock does not wait a whole period more
+        if (self._last is None or np.any(pos != self._last)) and now - self._pushed_at >= self.scene_period - 0.001:
             self.view.set_probe(pos)
             self._last = pos
+            self._pushed_at = now
             self.pushes += 1
             pushed = True
         if self.extra is not None:
