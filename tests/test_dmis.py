@@ -485,4 +485,6 @@ def test_cmm_run_ends_without_noise_on_stderr(tmp_path):
                           text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(root)})
     assert done.returncode == 0, done.stderr
     assert "1 features, 3 hits" in done.stdout and (tmp_path / "top_out.dms").exists()
+    # run where no calibration records are: the results come with the reason they may read off
+    assert "no calibration records in calibration: the probe is not qualified" in done.stdout
     assert done.stderr == ""

@@ -84,6 +84,9 @@ def _run(args: Any, path: Path, text: str) -> int:
             commands.invoke(None, "home")
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
+        else:  # the run still measures, but its sizes carry the probe's pre-travel: say so before the results
+            print(f"no calibration records in {args.records}: the probe is not qualified (its nominal tip radius, "
+                  "no pre-travel model); name the records with --records DIR")
         session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
         if getattr(args, "trends", None):
             from ..session.trends import open_trends
