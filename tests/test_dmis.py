@@ -155,6 +155,10 @@ def test_unsupported_statements_and_syntax_errors_are_refused_with_their_lines_b
     with pytest.raises(DmisError, match=r"^line 4: a '\(' is not closed with '\)'$"):
         run_text(syntax, station)
     assert [s.line for s in statements(syntax)] == [1, 2, 4]
+    # the check reads on past a statement it cannot read: one pass lists every problem, in line order
+    assert check(BAD.replace("ENDMES\n", "ENDMES\nGOTO/1, $\n  2, (3\n"))[1] == [
+        "line 5: SCNMOD is not supported", "line 6: MEAS/TORUS is not supported",
+        "line 8: a '(' is not closed with ')'"]
     assert check("GOTO/1, 2\nPTMEAS/CART, 1, 2, 3\nMEAS/PLANE, F(P), 3\n")[1] == [
         "line 1: GOTO takes X, Y, Z, it has 2 numbers", "line 2: PTMEAS outside MEAS ... ENDMES",
         "line 3: F(P) is measured before it is defined (F(P) = FEAT/...)", "line 3: MEAS is not closed with ENDMES"]

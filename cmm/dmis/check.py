@@ -9,8 +9,8 @@ supported" (or "MEAS/TORUS", naming the minor word where only some are supported
 from __future__ import annotations
 
 from .features import KINDS, NUMBERS, SIZED
-from .lexer import DmisSyntaxError
-from .parser import Expr, Label, Statement, Text, Word, parse
+from .lexer import DmisSyntaxError, statements
+from .parser import Expr, Label, Statement, Text, Word, parse_statement
 from .tolerances import ALL as TOLERANCES
 
 # major word -> the minor words supported (None: any parameters)
@@ -160,9 +160,24 @@ def check_statements(stmts: list[Statement]) -> list[str]:
 
 
 def check(text: str) -> tuple[list[Statement], list[str]]:
-    """(statements, problems) of a program's text; a syntax error is the one problem when the text cannot be read."""
+    """(statements, problems) of a program's text. A statement that cannot be read is a syntax error; the others
+    are still checked one by one (supported, well formed), so one pass lists every such problem, in line order.
+    The blocks (MEAS, IF, DO) are checked only when every statement reads: a lost line would upset them."""
     try:
-        stmts = parse(text)
+        raws = statements(text)
     except DmisSyntaxError as exc:
         return [], [str(exc)]
-    return stmts, check_statements(stmts)
+    stmts: list[Statement] = []
+    found: list[tuple[int, str]] = []
+    for raw in raws:
+        try:
+            stmts.append(parse_statement(raw))
+        except DmisSyntaxError as exc:
+            found.append((exc.line, str(exc)))
+    if not found:
+        return stmts, check_statements(stmts)
+    for s in stmts:
+        p = statement_problem(s)
+        if p is not None:
+            found.append((s.line, f"line {s.line}: {p}"))
+    return [], [msg for _, msg in sorted(found, key=lambda f: f[0])]
