@@ -464,7 +464,7 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     off = np.abs(np.linalg.norm(hits[3:7, :2] - setup[:2] - [70.0, 22.0], axis=1) - 10.0)
     assert ta["PL"] == (pytest.approx(2 * off.max(), abs=1e-4), "OUTOL") and off.max() > 0.1
     # the point on the boss's top, and every hit on the true part's surface where it was asked for
-    assert fa["PT"][1][2] == pytest.approx(55.0, abs=NOISE)
+    assert fa["PT"][1][2] == pytest.approx(55.0, abs=NOISE) and fa["PT"][1][3:] == [0.0, 0.0, 1.0]
     part = (np.linalg.inv(TRUE_PART_POSE) @ np.c_[hits, np.ones(len(hits))].T).T[:, :3]
     assert part[:3, 1] == pytest.approx([0.0] * 3, abs=NOISE) and part[7, 2] == pytest.approx(55.0, abs=NOISE)
     # ANGRAD: the system turned a quarter turn, not 1.57 degrees, turns the edge's direction with it

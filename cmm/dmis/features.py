@@ -177,6 +177,8 @@ def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: fl
     p = apply(inv, actual.axis_point()) / scale
     nums = _polar(p, angle_scale) if nom is not None and nom.polar else [*p]
     d = actual.direction()
+    if d is None and word == "POINT" and nom is not None and nom.vector is not None:
+        d = nom.vector  # a measured point's vector is its FEAT's (DMIS writes a point as x, y, z, i, j, k)
     if word != "SPHERE" and d is not None:
         nums += list(apply_vector(inv, d))
     g = actual.geometry
