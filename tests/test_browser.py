@@ -15,7 +15,7 @@ import urllib.request
 
 import numpy as np
 import pytest
-from netutil import SIM_PACED
+from netutil import SIM
 
 import browser_support as bs
 from cmm.station import Station
@@ -32,7 +32,8 @@ STOP_WITHIN = 0.3  # s from the input's release to zero velocity
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(port=SIM_PACED, session_dir=tmp_path).start(home=True)
+    st = Station(port=SIM, session_dir=tmp_path).start(home=True)  # homed on the uncapped clock: 2 machine s
+    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED): the page's wall-time jog refreshes meet the dead-man
     yield st
     st.close()
 

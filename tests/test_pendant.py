@@ -9,7 +9,7 @@ import urllib.request
 
 import pytest
 from browser_support import JogRecord, stop_time, wait_until
-from netutil import SIM_PACED
+from netutil import SIM
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
@@ -27,7 +27,8 @@ STOP_WITHIN = 0.3  # s from the last message to zero velocity (0.2 s dead-man bu
 
 @pytest.fixture
 def station(tmp_path):
-    st = Station(port=SIM_PACED, session_dir=tmp_path).start(home=True)
+    st = Station(port=SIM, session_dir=tmp_path).start(home=True)  # homed on the uncapped clock: 2 machine s
+    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED): the tests' wall-time jog refreshes meet the dead-man
     yield st
     st.close()
 
