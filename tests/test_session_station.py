@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM, SIM_PACED
+from netutil import SIM
 
 from cmm.control.modes import Refused
 from cmm.session.model import mesh_sha256
@@ -96,7 +96,8 @@ def test_report_fields_cad_nominals_tolerances_and_refit(station, tmp_path):
 @pytest.fixture
 def paced_station(tmp_path):
     # a person's jog refreshes come in wall time: the simulated clock must not race past the dead-man
-    st = Station(port=SIM_PACED, session_dir=tmp_path).start("manual", home=True)
+    st = Station(port=SIM, session_dir=tmp_path).start("manual", home=True)  # homed on the uncapped clock
+    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED)
     yield st
     st.close()
 
