@@ -17,8 +17,10 @@ import session_support as sup
 from cmm.cli import main
 from cmm.dmis.check import check
 from cmm.dmis.executor import DmisError
+from cmm.dmis.features import bounded_line, nominal_from
 from cmm.dmis.export import to_dmis
 from cmm.dmis.lexer import statements
+from cmm.dmis.parser import Expr, Word, evaluate, parse
 from cmm.dmis.runner import run_text
 from cmm.measurement.program import run_on
 from cmm.session import program as prog
@@ -421,6 +423,15 @@ F(PT) = FEAT/POINT, CART, 70, 22, 55, 0, 0, 1
 MEAS/POINT, F(PT), 1
   PTMEAS/CART, 70, 22, 55, 0, 0, 1
 ENDMES
+GOTO/70, 22, 70
+GOTO/135, 70, 70
+GOTO/135, 70, 20
+F(SIDE) = FEAT/LINE, BND, CART, 120, 70, 20, 120, 10, 20, 1, 0, 0
+MEAS/LINE, F(SIDE), 3
+  PTMEAS/CART, 120, 70, 20
+  PTMEAS/CART, 120, 40, 20
+  PTMEAS/CART, 120, 10, 20
+ENDMES
 T(STR) = TOL/STRGHT, 0.01
 T(RAD) = TOL/RAD, -0.01, 0.01
 T(CIR) = TOL/CIRLTY, 0.01
@@ -428,6 +439,7 @@ T(PL) = TOL/PROFL, 0.02
 OUTPUT/FA(EDGE), TA(STR)
 OUTPUT/FA(BOSSC), TA(RAD), TA(CIR), TA(PL)
 OUTPUT/FA(PT)
+OUTPUT/FA(SIDE)
 D(TURNED) = ROTAT/ZAXIS, 1.5707963
 OUTPUT/FA(EDGE)
 ENDFIL
@@ -445,11 +457,42 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     part_x = TRUE_PART_POSE[:3, 0]
     # the front face's edge at Z 20: along the true part's X axis, through its true points
     words, line = fa["EDGE"]
-    assert words == "LINE, CART"
+    assert words == "LINE, UNBND, CART" and len(line) == 9
     d = np.array(line[3:6]) / np.linalg.norm(line[3:6])  # the output's 5 decimals
-    assert abs(d @ part_x) == pytest.approx(1.0, abs=1e-6)
+    assert d @ part_x == pytest.approx(1.0, abs=1e-6)  # the FEAT's direction (+X), not the fit's sign
     r = _machine([60.0, 0.0, 20.0]) - setup - line[:3]
     assert np.linalg.norm(r - (r @ d) * d) <= NOISE
+    # its plane normal: the front face's outward normal (the part's -Y), square to the line
+    assert np.array(line[6:9]) == pytest.approx(-TRUE_PART_POSE[:3, 1], abs=NOISE / 30)
+    # the bounded line on the right face, probed without vectors (along its plane normal): BND with the first and
+    # last hit projected onto the line as end points, in the order the FEAT gave them, and the face's normal
+    words, side = fa["SIDE"]
+    assert words == "LINE, BND, CART" and len(side) == 9
+    a, b = np.array(side[:3]), np.array(side[3:6])
+    assert a[1] == pytest.approx(70.0, abs=1.0) and b[1] == pytest.approx(10.0, abs=1.0)
+    hits = np.array([station.measurement.hits[h].point for h in sorted(station.measurement.hits)])
+    assert len(hits) == 11
+    u = (b - a) / np.linalg.norm(b - a)
+    assert u @ -TRUE_PART_POSE[:3, 1] == pytest.approx(1.0, abs=1e-6)  # from Y70 to Y10: along the part's -Y
+    for end, hit in ((a, hits[8]), (b, hits[10])):
+        r = hit - setup - end
+        assert np.linalg.norm(r - (r @ u) * u) <= NOISE and abs(r @ u) <= 1e-4  # the hit's foot on the line
+    assert np.array(side[6:9]) == pytest.approx(TRUE_PART_POSE[:3, 0], abs=NOISE / 30)
+    part = (np.linalg.inv(TRUE_PART_POSE) @ np.c_[hits[8:], np.ones(3)].T).T[:, :3]
+    assert part[:, 0] == pytest.approx([120.0] * 3, abs=NOISE)
+    # the output reads back with the station's own parser: the same statement, the same numbers
+    for label, (words, nums) in (("EDGE", fa["EDGE"]), ("SIDE", fa["SIDE"])):
+        text = re.search(rf"^FA\({label}\) = FEAT/LINE.*?\$\s*\n.*$", first, re.M).group(0)
+        (st,) = parse(text)
+        assert st.major == "FEAT" and st.label.name == label
+        assert [p.text for p in st.params if isinstance(p, Word)] == [w.strip() for w in words.split(",")]
+        assert [evaluate(p, {}, 1) for p in st.params if isinstance(p, Expr)] == nums
+        assert check(text.replace("FA(", "F("))[1] == []
+    # read back as nominals, both lines keep their plane normal and the bounded one its end points
+    assert nominal_from("LINE", None, fa["EDGE"][1], np.eye(4), 1.0, 1.0).plane == pytest.approx(line[6:9], abs=1e-5)
+    back = bounded_line(side, np.eye(4), 1.0)
+    assert back.bounded and back.plane == pytest.approx(side[6:9], abs=1e-5)
+    assert back.point + back.length * back.vector == pytest.approx(b, abs=1e-9)
     assert 0.0 <= ta["STR"][0] <= NOISE and ta["STR"][1] == "INTOL"
     # the boss's section at Z 50: where the part really is, D20
     words, circle = fa["BOSSC"]
@@ -459,8 +502,7 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     assert ta["RAD"] == (pytest.approx(circle[6] / 2 - 10.0, abs=1e-5), "INTOL")
     assert 0.0 <= ta["CIR"][0] <= NOISE and ta["CIR"][1] == "INTOL"
     # the line profile: twice the hits' largest distance from the nominal circle (the part sits off the set-up)
-    hits = np.array([station.measurement.hits[h].point for h in sorted(station.measurement.hits)])
-    assert len(hits) == 8
+    hits = hits[:8]
     off = np.abs(np.linalg.norm(hits[3:7, :2] - setup[:2] - [70.0, 22.0], axis=1) - 10.0)
     assert ta["PL"] == (pytest.approx(2 * off.max(), abs=1e-4), "OUTOL") and off.max() > 0.1
     # the point on the boss's top, and every hit on the true part's surface where it was asked for

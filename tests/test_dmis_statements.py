@@ -292,6 +292,12 @@ def test_statement_refusals_name_their_line():
     _, problems = check("CONST/CIRCLE, F(C), TTP, FA(A), FA(B)\nF(Y) = FEAT/CIRCLE, INNER, POL, 1, 2\n")
     assert problems == ["line 1: CONST/CIRCLE needs one of BF, INTOF, MIDLI, MIDPL, MIDPT, PROJCT (other "
                         "constructions are not supported)", "line 2: FEAT/CIRCLE takes 7 numbers after POL, it has 2"]
+    # a line: UNBND or BND, each with the normal of its plane (or, as before, without it)
+    assert check("F(L) = FEAT/LINE, UNBND, CART, 0, 0, 0, 1, 0, 0, 0, 0, 1\nF(M) = FEAT/LINE, BND, CART, 0, 0, 0, "
+                 "5, 0, 0, 0, -1, 0\nF(N) = FEAT/LINE, UNBND, CART, 0, 0, 0, 1, 0, 0\n")[1] == []
+    _, problems = check("F(L) = FEAT/LINE, BND, CART, 0, 0, 0, 5, 0, 0, 1\n")
+    assert problems == ["line 1: FEAT/LINE takes 9 numbers after CART (x1, y1, z1, x2, y2, z2, and pi, pj, pk: the "
+                        "normal of the plane the line lies in), it has 7"]
 
 
 def test_material_condition_outside_position_and_mmc_without_size_are_refused(station):

@@ -51,8 +51,10 @@ def _feat_problem(s: Statement) -> str | None:
         return f"FEAT/{kind} needs CART or POL and its coordinates"
     n = numbers(s.params)
     lo, hi = NUMBERS[kind]  # type: ignore[index]
-    if kind == "LINE" and "BND" in words:
-        lo, hi = 6, 9
+    if kind == "LINE" and n not in (6, 9):  # UNBND x, y, z, i, j, k / BND two end points; then pi, pj, pk
+        ends = "x1, y1, z1, x2, y2, z2" if "BND" in words else "x, y, z, i, j, k"
+        return (f"FEAT/LINE takes 9 numbers after {'POL' if 'POL' in words else 'CART'} ({ends}, and pi, pj, pk: "
+                f"the normal of the plane the line lies in), it has {n}")
     if not lo <= n <= hi:
         want = str(lo) if lo == hi else f"{lo} to {hi}"
         return f"FEAT/{kind} takes {want} numbers after {'POL' if 'POL' in words else 'CART'}, it has {n}"

@@ -703,6 +703,9 @@ class Executor:
                 raise self.fail(s, f"FEAT/{word}, POL takes the radius, angle and height of its location")
             r, a = v[0], v[1] * self.angle_scale
             v = [r * math.cos(a), r * math.sin(a), *v[2:]]
+            if word == "LINE" and "BND" in w and len(v) >= 6:  # the second end point is polar too
+                r, a = v[3], v[4] * self.angle_scale
+                v = [*v[:3], r * math.cos(a), r * math.sin(a), *v[5:]]
         try:
             if word == "LINE" and "BND" in w:
                 nom = bounded_line(v, self.frame, self.scale)

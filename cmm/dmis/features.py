@@ -40,6 +40,12 @@ class Nominal:
     length: float | None = None
     design: "Nominal | None" = None  # the same nominal in the design frame (see Executor.design_frame)
     polar: bool = False  # given in POL (radius, angle, height): its actual is output the same way
+    plane: np.ndarray | None = None  # LINE: the normal of the plane it lies in (its material side), if given
+
+    @property
+    def bounded(self) -> bool:
+        """A FEAT/LINE, BND (two end points; ``point`` the first, ``length`` to the second)."""
+        return self.word == "LINE" and self.length is not None
 
     @property
     def kind(self) -> str:
@@ -66,6 +72,8 @@ class Nominal:
         """The outward surface normal at a point near the nominal surface (for a PTMEAS without a vector)."""
         if self.word in ("PLANE", "POINT") and self.vector is not None:
             return self.vector / np.linalg.norm(self.vector)
+        if self.word == "LINE":  # a line is probed on the face it lies in, from its plane normal's side
+            return self.plane
         if self.word in ("CIRCLE", "CYLNDR", "SPHERE"):
             r = p - self.point
             if self.word != "SPHERE":
@@ -95,8 +103,9 @@ def nominal_from(word: str, inner: bool | None, numbers: list[float], frame: np.
 
     if word == "SPHERE":
         return Nominal(word, inner, pt(0), None, diameter=v[3] * scale)
-    if word == "LINE":
-        return Nominal(word, None, pt(0), vec(3))
+    if word == "LINE":  # UNBND: x, y, z, i, j, k[, pi, pj, pk]
+        d = vec(3)
+        return Nominal(word, None, pt(0), d, plane=_line_plane(v[6:9], d, frame))
     nom = Nominal(word, inner, pt(0), vec(3))
     if word in ("CIRCLE", "CYLNDR"):
         nom.diameter = v[6] * scale
@@ -107,14 +116,26 @@ def nominal_from(word: str, inner: bool | None, numbers: list[float], frame: np.
     return nom
 
 
+def _line_plane(numbers: list[float], direction: np.ndarray, frame: np.ndarray) -> np.ndarray | None:
+    """A line's plane normal (pi, pj, pk in ``frame``) made square to its direction; None when not given."""
+    if len(numbers) < 3:
+        return None
+    n = apply_vector(frame, np.array(numbers[:3], float))
+    n = n - (n @ direction) * direction
+    if np.linalg.norm(n) < 1e-6:
+        raise ValueError("the plane normal (pi, pj, pk) is zero or along the line")
+    return n / np.linalg.norm(n)
+
+
 def bounded_line(numbers: list[float], frame: np.ndarray, scale: float) -> Nominal:
-    """FEAT/LINE,BND,CART,x1,y1,z1,x2,y2,z2[,i,j,k]: the line through two points."""
+    """FEAT/LINE,BND,CART,x1,y1,z1,x2,y2,z2[,pi,pj,pk]: the line through two points, in the plane of that normal."""
     a = apply(frame, np.array(numbers[0:3]) * scale)
     b = apply(frame, np.array(numbers[3:6]) * scale)
     d = b - a
     if np.linalg.norm(d) < 1e-9:
         raise ValueError("the two end points of a bounded line are the same")
-    return Nominal("LINE", None, a, d / np.linalg.norm(d), length=float(np.linalg.norm(d)))
+    u = d / np.linalg.norm(d)
+    return Nominal("LINE", None, a, u, length=float(np.linalg.norm(d)), plane=_line_plane(numbers[6:9], u, frame))
 
 
 @dataclass
@@ -173,6 +194,8 @@ def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: fl
     if word in SIZED:
         inner = nom.inner if nom is not None and nom.inner is not None else bool(actual.geometry.get("bore", False))
         head.append("INNER" if inner else "OUTER")
+    if word == "LINE":
+        return _actual_line_feature(actual, inv, scale, angle_scale)
     head.append("POL" if nom is not None and nom.polar else "CART")
     p = apply(inv, actual.axis_point()) / scale
     nums = _polar(p, angle_scale) if nom is not None and nom.polar else [*p]
@@ -191,9 +214,53 @@ def actual_line(actual: Actual, frame: np.ndarray, scale: float, angle_scale: fl
     return f"FA({actual.label}) = FEAT/{', '.join(head)},  $\n  " + ", ".join(_f(x) for x in nums)
 
 
+def _side(d: np.ndarray, plane: np.ndarray | None) -> np.ndarray:
+    """The plane normal of a line with direction ``d``: the nominal's made square to ``d``; without one (a
+    constructed line), the normal square to ``d`` nearest machine Z (X for a vertical line)."""
+    for n in ([plane] if plane is not None else []) + [np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0])]:
+        n = np.asarray(n, float) - (np.asarray(n, float) @ d) * d
+        if np.linalg.norm(n) > 1e-6:
+            return n / np.linalg.norm(n)
+    raise ValueError("no plane normal")  # unreachable: Z and X cannot both lie along d
+
+
+def _line_numbers(ends: list[np.ndarray], d: np.ndarray, plane: np.ndarray, inv: np.ndarray, scale: float,
+                  angle_scale: float, polar: bool) -> tuple[list[str], list[float]]:
+    """The words and numbers of a FEAT/LINE: UNBND with one point and ``d``, BND with two end points; both end
+    with the plane normal. ``inv`` takes machine coordinates to the system in force."""
+    nums: list[float] = []
+    for e in ends:
+        p = apply(inv, e) / scale
+        nums += _polar(p, angle_scale) if polar else list(p)
+    if len(ends) == 1:
+        nums += list(apply_vector(inv, d))
+    nums += list(apply_vector(inv, plane))
+    return ["LINE", "BND" if len(ends) == 2 else "UNBND", "POL" if polar else "CART"], nums
+
+
+def _actual_line_feature(actual: Actual, inv: np.ndarray, scale: float, angle_scale: float) -> str:
+    """``FA(L) = FEAT/LINE, UNBND, CART, x, y, z, i, j, k, pi, pj, pk``; BND (when the FEAT was) with the first
+    and last hit projected onto the fitted line as its end points."""
+    nom = actual.nominal
+    d = actual.direction()
+    o = actual.axis_point()
+    ends = [o]
+    hits = actual.hit_points
+    if nom is not None and nom.bounded and hits is not None and len(hits) >= 2:
+        ends = [o + ((np.asarray(h, float) - o) @ d) * d for h in (hits[0], hits[-1])]
+    words, nums = _line_numbers(ends, d, _side(d, nom.plane if nom is not None else None), inv, scale,
+                                angle_scale, nom is not None and nom.polar)
+    return f"FA({actual.label}) = FEAT/{', '.join(words)},  $\n  " + ", ".join(_f(x) for x in nums)
+
+
 def nominal_line(label: str, nom: Nominal, frame: np.ndarray, scale: float, angle_scale: float) -> str:
     """``F(label) = FEAT/...`` of a nominal (for exported programs)."""
     inv = inverse(frame)
+    if nom.word == "LINE":
+        ends = [nom.point, nom.point + nom.length * nom.vector] if nom.bounded else [nom.point]
+        words, nums = _line_numbers(ends, nom.vector, _side(nom.vector, nom.plane), inv, scale, angle_scale,
+                                    nom.polar)
+        return f"F({label}) = FEAT/{', '.join(words)}, " + ", ".join(_f(x) for x in nums)
     head = [nom.word] + (["INNER" if nom.inner else "OUTER"] if nom.word in SIZED else []) + \
         ["POL" if nom.polar else "CART"]
     p = apply(inv, nom.point) / scale
