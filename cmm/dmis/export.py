@@ -1,4 +1,4 @@
-"""A taught program (:mod:`cmm.session.program`, ``cmm-program/1``) written as a DMIS program that runs here.
+"""A taught program or routine (:mod:`cmm.session.program`, ``cmm-program/1`` or ``/2``) written as a DMIS program.
 
 The program's hits are in part coordinates; the DMIS program places the part with ``D(PART) = TRANS/..`` and
 ``ROTAT`` statements from a part pose (part -> machine: the set-up the program will run on, by default the
@@ -6,6 +6,12 @@ station's nominal set-up), then measures each feature with ``MEAS .. PTMEAS .. E
 station's program runner does: up to the hit's clearance height, across, straight down to the pre-hit point, and
 back up. Each feature gets a ``FEAT`` nominal (the taught nominal, else the ideal geometry through its nominal
 hit points) and ``TOL`` statements from its tolerance (size, form, position), and is output with them.
+
+A routine's steps are followed in their order, skipped steps left out: a 3-2-1 alignment measures its three datum
+planes and sets ``D(ALIGN) = DATSET/..`` from them (then ``TRANS``/``ROTAT`` back to the part's own origin, so
+the hits that follow stay in part coordinates); a construction the interpreter has as ``CONST`` (an intersection,
+a mid-point) becomes one, a distance or an angle becomes a ``TOL/DISTB`` / ``TOL/ANGLB`` between its two
+features; a report step is a comment (the run's output is the report).
 """
 
 from __future__ import annotations
@@ -17,7 +23,9 @@ from typing import Any
 import numpy as np
 
 from ..metrology import fit_ls
+from ..metrology.construct import construct
 from ..metrology.pick import NominalFeature
+from .frames import datum_frame, inverse
 from .features import WORDS, from_model_nominal, nominal_line
 
 FORM_WORDS = {"plane": "FLAT", "line": "STRGHT", "circle": "CIRLTY", "cylinder": "CYLCTY"}
@@ -68,17 +76,72 @@ def _ideal(kind: str, points: np.ndarray) -> NominalFeature | None:
     return None
 
 
+def _nominal(f: Any, pts: np.ndarray) -> NominalFeature | None:
+    nf = None
+    if f.nominal:
+        nf = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"})
+    if nf is None or (f.kind == "cylinder" and nf.kind != "cylinder"):
+        nf = _ideal(f.kind, pts)
+    return nf
+
+
+def _model_geometry(f: Any, nf: NominalFeature | None) -> tuple[str, dict[str, Any]] | None:
+    """(kind, geometry) of a feature's nominal in part coordinates, as the constructions take them."""
+    if nf is None:
+        return None
+    g = {k: (np.asarray(v, float) if isinstance(v, (list, tuple, np.ndarray)) else v) for k, v in nf.params.items()}
+    if f.kind == "circle" and "direction" in g:
+        g["normal"] = g["direction"]
+    return f.kind, g
+
+
+def _dir_word(v: np.ndarray, taken: set[int]) -> tuple[int, str]:
+    """The part axis (not yet taken) a datum's normal lies along, and its DATSET word (ZDIR, YMINUS ...)."""
+    axis = max((k for k in range(3) if k not in taken), key=lambda k: abs(v[k]))
+    return axis, "XYZ"[axis] + ("DIR" if v[axis] >= 0 else "MINUS")
+
+
+def _align_lines(datums: list[str], labels: dict[str, str], planes: dict[str, NominalFeature | None]) -> list[str]:
+    """``DATSET`` from the three datum planes (primary direction and origin, secondary direction and origin,
+    tertiary origin), then ``TRANS`` and ``ROTAT`` to the part's own origin and axes (their nominal 3-2-1 frame
+    taken out), so the program's coordinates after it are part coordinates on the part where it lies."""
+    noms = [planes[d] for d in datums]
+    if any(n is None or n.kind != "plane" for n in noms):
+        return [f"$$ the alignment on {', '.join(datums)} is not exported: a datum has no nominal plane"]
+    pts = [np.asarray(n.params["point"], float) for n in noms]  # type: ignore[union-attr]
+    nrm = [np.asarray(n.params["normal"], float) for n in noms]  # type: ignore[union-attr]
+    a1, w1 = _dir_word(nrm[0], set())
+    a2, w2 = _dir_word(nrm[1], {a1})
+    a3 = 3 - a1 - a2
+    entries = [(datums[0], w1, pts[0], nrm[0]), (datums[0], "XYZ"[a1] + "ORIG", pts[0], nrm[0]),
+               (datums[1], w2, pts[1], nrm[1]), (datums[1], "XYZ"[a2] + "ORIG", pts[1], nrm[1]),
+               (datums[2], "XYZ"[a3] + "ORIG", pts[2], nrm[2])]
+    back = inverse(datum_frame(entries))  # the part's frame in the nominal datum frame
+    first, second, third = (f"FA({labels[d]})" for d in datums)
+    out = [f"$$ --- 3-2-1 alignment: {' | '.join(datums)}",
+           f"D(ALIGN) = DATSET/{first}, {w1}, {'XYZ'[a1]}ORIG, {second}, {w2}, {'XYZ'[a2]}ORIG, {third}, "
+           f"{'XYZ'[a3]}ORIG",
+           "D(ALIGN) = TRANS/XORIG, {}, YORIG, {}, ZORIG, {}".format(*(_f(x) for x in back[:3, 3]))]
+    rz, ry, rx = _euler_zyx(back[:3, :3])
+    for word, angle in (("ZAXIS", rz), ("YAXIS", ry), ("XAXIS", rx)):
+        if abs(angle) > 1e-9:
+            out.append(f"D(ALIGN) = ROTAT/{word}, {angle:.6f}")
+    return out
+
+
 def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach: float = 2.0, search: float = 3.0,
             retract: float = 1.0) -> str:
     """The DMIS text of a taught ``program`` for the part at ``pose`` (part -> machine; default: none, the part
-    coordinates are the machine's)."""
+    coordinates are the machine's), its routine steps in their order."""
     P = np.eye(4) if pose is None else np.asarray(pose, float)
     hits = {h.id: h for h in program.hits}
     used: set[str] = set()
     out = [f"DMISMN/'{program.name} (exported from the station)', 05.0",
            f"FILNAM/'{program.name} output'",
            f"$$ Taught on part '{program.part_name}' (sha256 {program.part_sha256[:16]}...).",
-           "$$ D(PART) places the part: edit it for another set-up.",
+           "$$ D(PART) places the part (within 0.5 mm: the moves before an alignment are checked against it): edit it",
+           "$$ for another set-up. Start with the probe above the part's clearance height: the first move goes",
+           "$$ straight across to the first hit.",
            "UNITS/MM, ANGDEC",
            "D(MCS) = DATSET/MCS",
            "D(PART) = TRANS/XORIG, {}, YORIG, {}, ZORIG, {}".format(*(_f(x) for x in P[:3, 3]))]
@@ -90,15 +153,19 @@ def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach
             f"SNSET/APPRCH, {approach:g}", f"SNSET/SEARCH, {search:g}", f"SNSET/RETRCT, {retract:g}"]
     outputs: list[str] = []
     tols: list[str] = []
-    for f in program.features:
-        label = _label(f.name, used)
+    labels: dict[str, str] = {}
+    nominals: dict[str, NominalFeature | None] = {}
+    geometry: dict[str, tuple[str, dict[str, Any]] | None] = {}
+
+    def measure(name: str) -> None:
+        if name in labels:
+            return
+        f = program.feature(name)
+        labels[name] = label = _label(f.name, used)
         word = WORDS[f.kind]
         pts = np.array([hits[i].point for i in f.hits], float)
-        nf = None
-        if f.nominal:
-            nf = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"})
-        if nf is None or (f.kind == "cylinder" and nf.kind != "cylinder"):
-            nf = _ideal(f.kind, pts)
+        nominals[name] = nf = _nominal(f, pts)
+        geometry[name] = _model_geometry(f, nf)
         out.append(f"$$ --- {f.name}: {f.kind}, {len(f.hits)} hits")
         if nf is not None and f.kind not in ("point", "line"):
             nom = from_model_nominal(word, nf)
@@ -118,9 +185,10 @@ def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach
             p, u = np.array(h.point, float), np.array(h.approach, float)
             pre = p - (tip_radius + approach) * u
             top = max(float(h.clearance_z), float(pre[2]))
-            out += [f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}",
-                    f"  PTMEAS/CART, {_f(p[0])}, {_f(p[1])}, {_f(p[2])}, " + ", ".join(f"{-x + 0.0:.6f}" for x in u),
-                    f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}"]
+            out.extend([f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}",
+                        f"  PTMEAS/CART, {_f(p[0])}, {_f(p[1])}, {_f(p[2])}, "
+                        + ", ".join(f"{-x + 0.0:.6f}" for x in u),
+                        f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}"])
         out.append("ENDMES")
         refs = [f"FA({label})"]
         tol = f.tolerance or {}
@@ -135,5 +203,56 @@ def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach
             tols.append(f"T({label}_P) = TOL/POS, {'3D' if f.kind in ('sphere', 'cone') else '2D'}, {zone:g}")
             refs.append(f"TA({label}_P)")
         outputs.append("OUTPUT/" + ", ".join(refs))
+
+    def construction(step: dict[str, Any]) -> None:
+        name, op, (a, b) = step["name"], step["operation"], step["of"]
+        if a not in labels or b not in labels:
+            out.append(f"$$ {name} ({op} of {a} and {b}) is not exported: {a if a not in labels else b} "
+                       "is not measured (its step is skipped)")
+            return
+        label = _label(name, used)
+        fa, fb = f"FA({labels[a]})", f"FA({labels[b]})"
+        ga, gb = geometry[a], geometry[b]
+        try:
+            nominal = None if ga is None or gb is None else construct(op, ga, gb, workplane=np.array([0, 0, 1.0]))
+        except Exception:  # noqa: BLE001 - operands whose nominals do not combine: said below
+            nominal = None
+        if op in ("distance", "angle"):
+            if nominal is None or nominal.value is None:
+                out.append(f"$$ {name} ({op} of {a} and {b}) is not exported: its features have no nominal")
+                return
+            word, unit = ("DISTB", "mm") if op == "distance" else ("ANGLB", "degrees")
+            zone = 0.1 if op == "distance" else 0.5
+            out.append(f"$$ --- {name}: the {op} of {a} and {b}, nominal {float(nominal.value):.4f} {unit}; the "
+                       f"routine gives it no tolerance: +/-{zone:g} {unit} here, edit it")
+            tols.append(f"T({label}) = TOL/{word}, NOMINL, {float(nominal.value):.4f}, {-zone:g}, {zone:g}")
+            outputs.append(f"OUTPUT/{fa}, {fb}, TA({label})")
+            return
+        kind = nominal.kind if nominal is not None else ("point" if op == "midpoint" else None)
+        if kind not in ("point", "line", "plane", "circle"):
+            out.append(f"$$ {name} ({op} of {a} and {b}) is not exported: DMIS CONST here has no such "
+                       "construction")
+            return
+        out.append(f"$$ --- {name}: the {op} of {a} and {b}")
+        out.append(f"CONST/{kind.upper()}, F({label}), {'INTOF' if op == 'intersection' else 'MIDPT'}, {fa}, {fb}")
+        outputs.append(f"OUTPUT/FA({label})")
+
+    for step in program.steps or [{"kind": "feature", "name": f.name} for f in program.features]:
+        if step.get("skip"):
+            out.append(f"$$ step {step['name']} is skipped in the routine")
+            continue
+        kind = step["kind"]
+        if kind == "align":
+            if step.get("manual"):
+                out.append("$$ the routine takes 3-2-1 hits by hand first: here the datums are measured at D(PART)")
+            for d in step["datums"]:
+                measure(d)
+            out.extend(_align_lines(list(step["datums"]), labels, nominals))
+        elif kind == "feature":
+            measure(step["name"])
+        elif kind == "construct":
+            construction(step)
+        else:
+            out.append(f"$$ {step['name']}: the station's report is written beside this program's output")
     out += tols + outputs + ["ENDFIL"]
     return "\n".join(out) + "\n"

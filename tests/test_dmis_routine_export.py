@@ -1,0 +1,88 @@
+"""A routine taught in the page (3-2-1 alignment, planes, bore, boss, a distance between them) exported to DMIS
+and run by the DMIS interpreter on the simulator with the part placed elsewhere on the table: the program aligns
+on the datums, measures the same features and gives the construction's value, all within the probing noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import session_support as sup
+from cmm.dmis.check import check
+from cmm.dmis.export import to_dmis
+from cmm.dmis.runner import run_text
+from cmm.measurement.alignment import align_features, apply
+from cmm.measurement.plan import plan_at_pick, run_plan
+from cmm.measurement.routine import teach_routine
+from cmm.metrology.transform import invert
+from cmm.session.store import open_session
+from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
+
+# (name, ray origin in part coordinates, ray direction): what the operator clicks to auto-measure
+FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0, 20.0), (0, 1, 0)),
+         ("LEFT", (-50.0, 10.0, 20.0), (1, 0, 0)), ("bore", (30.0, 40.0, 20.0), (1, 0, 0)),
+         ("boss", (70.0, -20.0, 47.0), (0, 1, 0))]
+TOL = 0.01  # mm: a feature measured twice with different hits' noise
+
+
+@pytest.fixture
+def station(tmp_path):
+    yield from sup.sim_station(tmp_path, "teach")
+
+
+def _part(pose, point):
+    return (invert(pose) @ np.append(np.asarray(point, float), 1.0))[:3]
+
+
+def test_a_taught_routine_exported_to_dmis_runs_again_on_a_part_placed_elsewhere(station):
+    st, model = station, station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    ids = {}
+    for name, origin, direction in FACES:
+        pose = model.part.pose
+        picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
+        ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
+    apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
+    taught_pose = np.asarray(model.part.pose, float)
+    dist = model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
+    routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
+                            part_nominals=model.part.nominal_features)
+    routine.steps.insert(len(routine.steps) - 1, {"kind": "construct", "name": "skipped", "operation": "midpoint",
+                                                  "of": ["bore", "boss"], "skip": True})
+    text = to_dmis(routine.program, taught_pose, tip_radius=st.prober.settings.tip_radius,
+                   approach=st.config.probe.approach_distance, search=st.config.probe.search_distance,
+                   retract=st.config.probe.retract_distance)
+    assert check(text)[1] == []
+    lines = text.splitlines()
+    # the steps in their order: the datums, the 3-2-1 alignment from them, the features, the construction
+    order = [next(i for i, ln in enumerate(lines) if ln.startswith(s)) for s in (
+        "MEAS/PLANE, F(TOP)", "MEAS/PLANE, F(FRONT)", "MEAS/PLANE, F(LEFT)",
+        "D(ALIGN) = DATSET/FA(TOP), ZDIR, ZORIG, FA(FRONT), YMINUS, YORIG, FA(LEFT), XORIG",
+        "MEAS/CYLNDR, F(BORE)", "MEAS/CYLNDR, F(BOSS)", "T(BORE_BOSS) = TOL/DISTB", "OUTPUT/FA(BORE), FA(BOSS)")]
+    assert order == sorted(order)
+    assert "$$ step skipped is skipped in the routine" in lines and "F(SKIPPED)" not in text
+
+    # the next part: 0.25 mm and 0.2 mm off the taught set-up and turned 0.1 degrees (the datums' hits are taken
+    # at D(PART), within the rails' 0.5 mm of where the program puts the part); the program's DATSET finds it
+    moved = pose_matrix((190.25, 150.2, 0.0), rz_deg=0.1) @ invert(pose_matrix((190.0, 150.0, 0.0))) @ TRUE_PART_POSE
+    st.sim.place_part(moved)
+    # the operator starts the program with the probe above the part (the program's first move is straight across)
+    above = taught_pose @ np.array([60.0, 40.0, routine.program.hits[0].clearance_z, 1.0])
+    answer = st.controller.commands.call(None, "move", {"target": above[:3].tolist(), "frame": "machine",
+                                                        "path": "clearance"}, wait=True, timeout=120)
+    assert answer.ok, answer.error
+    again = run_text(text, st, name="exported")
+    assert {"TOP", "FRONT", "LEFT", "BORE", "BOSS"} <= set(again.actuals)
+    pose = np.asarray(model.part.pose, float)  # where the DATSET moved the station's part
+    delta = pose @ invert(moved)
+    assert np.linalg.norm(delta[:3, 3]) < TOL
+    for name in ("bore", "boss"):
+        g1 = model.features[ids[name]].result.geometry()
+        g2 = again.actuals[name.upper()].geometry
+        assert g2["radius"] == pytest.approx(g1["radius"], abs=TOL)
+        # the axis where the part has it, on either part
+        c1, c2 = _part(taught_pose, g1["point"]), _part(moved, g2["point"])
+        assert np.hypot(*(c2 - c1)[:2]) < TOL
+    verdicts = {e.tolerance.label: e for e in again.evaluations}
+    d = verdicts["BORE_BOSS"]
+    assert d.tolerance.nominal + d.value == pytest.approx(dist.result.value, abs=TOL) and d.intol
