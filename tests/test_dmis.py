@@ -440,8 +440,11 @@ OUTPUT/FA(EDGE), TA(STR)
 OUTPUT/FA(BOSSC), TA(RAD), TA(CIR), TA(PL)
 OUTPUT/FA(PT)
 OUTPUT/FA(SIDE)
+F(PB) = FEAT/LINE, BND, POL, 10, 1.5707963, 5, 20, 0.5, 5, 0, 0, 1
+OUTPUT/F(PB)
 D(TURNED) = ROTAT/ZAXIS, 1.5707963
 OUTPUT/FA(EDGE)
+OUTPUT/F(PB)
 ENDFIL
 """
 
@@ -488,6 +491,13 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
         assert [p.text for p in st.params if isinstance(p, Word)] == [w.strip() for w in words.split(",")]
         assert [evaluate(p, {}, 1) for p in st.params if isinstance(p, Expr)] == nums
         assert check(text.replace("FA(", "F("))[1] == []
+    # a bounded line given in POL: both end points polar (radians here), written back as given
+    assert "F(PB) = FEAT/LINE, BND, POL, 10.00000, 1.57080, 5.00000, 20.00000, 0.50000, 5.00000, 0.00000, " \
+        "0.00000, 1.00000" in first.splitlines()
+    pb = [float(x) for x in turned.split("F(PB) = FEAT/LINE, BND, POL, ")[1].splitlines()[0].split(",")]
+    assert pb[0::3][:2] == [10.0, 20.0] and pb[2] == pb[5] == 5.0 and pb[6:] == [0.0, 0.0, 1.0]
+    assert abs(pb[1] - 1.5708) == pytest.approx(1.5708, abs=1e-4)  # a quarter turn, whichever way
+    assert pb[4] - pb[1] == pytest.approx(0.5 - 1.5708, abs=1e-4)
     # read back as nominals, both lines keep their plane normal and the bounded one its end points
     assert nominal_from("LINE", None, fa["EDGE"][1], np.eye(4), 1.0, 1.0).plane == pytest.approx(line[6:9], abs=1e-5)
     back = bounded_line(side, np.eye(4), 1.0)
