@@ -86,3 +86,48 @@ def test_a_taught_routine_exported_to_dmis_runs_again_on_a_part_placed_elsewhere
     verdicts = {e.tolerance.label: e for e in again.evaluations}
     d = verdicts["BORE_BOSS"]
     assert d.tolerance.nominal + d.value == pytest.approx(dist.result.value, abs=TOL) and d.intol
+
+
+class _Tab:
+    """What the Routine tab's viser client is asked for: a notification and a file download (recorded)."""
+
+    def __init__(self) -> None:
+        self.downloads: list[tuple[str, bytes]] = []
+
+    def send_file_download(self, name: str, content: bytes) -> None:
+        self.downloads.append((name, content))
+
+    def add_notification(self, *args, **kwargs) -> None:
+        pass
+
+
+def test_the_routine_tab_exports_dmis_beside_the_routine_file_and_offers_it(station, tmp_path):
+    from cmm.control.access import Control
+    from cmm.ui.context import PanelContext
+    from cmm.ui.panel_routine import RoutinePanel
+
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    for name, origin, direction in (FACES[0], FACES[3]):  # the top face and the bore: a cheap routine
+        picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
+        run_plan(model, plan_at_pick(model, picked[0].face_id), name=name)
+    control = Control()
+    assert control.take("operator", is_local=True)
+    tab = _Tab()
+    panel = RoutinePanel(PanelContext(station, control, None, tab, client_id="operator", is_local=True))
+    assert panel.export_dmis("") is None and panel.ctx.messages[-1][:2] == ("error", "Export DMIS")
+    assert panel.teach("block 7") is not None
+    folder = tmp_path / "routines"
+    folder.mkdir()
+    saved = panel.save(str(folder / "block.toml"))
+    out = panel.export_dmis(str(folder / "block.toml"))
+    assert out == saved.parent / "block_7.dmi" and out.is_file()
+    level, title, body = panel.ctx.messages[-1]
+    assert (level, title) == ("info", "DMIS program exported") and str(out) in body
+    assert tab.downloads == [("block_7.dmi", out.read_bytes())]
+    text = out.read_text()
+    assert check(text)[1] == [] and "MEAS/PLANE, F(TOP), " in text and "MEAS/CYLNDR, F(BORE), " in text
+    assert panel.open_dmis(str(out))  # the page opens and checks what it exported
+    # a folder that is not there: said, nothing written
+    assert panel.export_dmis(str(tmp_path / "nowhere" / "block.toml")) is None
+    assert panel.ctx.messages[-1][0] == "error" and "cannot write" in panel.ctx.messages[-1][2]

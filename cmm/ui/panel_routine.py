@@ -3,7 +3,8 @@
 *Teach from this session* turns what the operator did (the 3-2-1 alignment, every measured feature, the
 constructions) into a routine (:mod:`cmm.measurement.routine`); each step is a line the operator can select,
 rename, move up or down, skip, delete, and for feature steps give a tolerance or a clearance height; a
-construction or report step can be inserted. *Save* / *Open* use the program file format. *Run on next part*
+construction or report step can be inserted. *Save* / *Open* use the program file format; *Export DMIS* writes
+the routine as a DMIS program beside it (and offers it as a download). *Run on next part*
 runs it as a job: a manual 3-2-1 first when the routine says so (the prompt tells which face and how many
 hits; the operator takes them with the jog and the armed probe), then everything automatically, with a
 progress bar, Pause / Resume / Skip step / Cancel, and the part's results in a session of their own. A step
@@ -22,6 +23,7 @@ statements are listed as steps, and *Run DMIS* runs it as one job in a session o
 
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 from typing import Any
@@ -117,6 +119,40 @@ class RoutinePanel:
             return saved
         self.ctx.notify("Routine saved", str(saved))
         return saved
+
+    def export_dmis(self, path: str) -> Path | None:
+        """Write the routine as a DMIS program, ``<routine name>.dmi`` beside its routine file (``path``, as Save
+        takes it), for the part where the station has it now; offered to the browser as a download."""
+        from ..dmis.export import to_dmis
+
+        if self.routine is None:
+            self.ctx.error("teach or open a routine first", "Export DMIS")
+            return None
+        part = self.station.measurement.part
+        pose = part.pose if part is not None else [[1, 0, 0, 190.0], [0, 1, 0, 150.0], [0, 0, 1, 0], [0, 0, 0, 1]]
+        probe = self.station.config.probe
+        stem = re.sub(r"[^\w.-]+", "_", self.routine.name).strip("._") or "routine"
+        out = self._path(path).parent / f"{stem}.dmi"
+        try:
+            text = to_dmis(self.routine.program, pose, tip_radius=self.station.prober.settings.tip_radius,
+                           approach=probe.approach_distance, search=probe.search_distance,
+                           retract=probe.retract_distance)
+            out.write_text(text, encoding="utf-8")
+        except OSError as exc:
+            self.ctx.error(f"cannot write {out}: {exc.strerror or exc}", "Export DMIS")
+            return None
+        except (ProgramError, ValueError, KeyError) as exc:
+            self.ctx.error(f"the routine cannot be written as DMIS: {exc}", "Export DMIS")
+            return None
+        send = getattr(self.ctx.client, "send_file_download", None)
+        if send is not None:
+            try:
+                send(out.name, out.read_bytes())
+            except Exception:  # noqa: BLE001 - the tab may have closed; the file is on disk anyway
+                pass
+        self.ctx.notify("DMIS program exported", f"{out} ({len(self.routine.steps)} steps; run it with cmm run "
+                        "or Open DMIS here)")
+        return out
 
     def _path(self, text: str) -> Path:
         p = Path(text.strip() or f"{self.routine.name if self.routine else 'routine'}.toml").expanduser()
@@ -511,8 +547,9 @@ class RoutinePanel:
             gui.add_button("Insert step").on_click(lambda _: self.insert_text(new.value))
         with gui.add_folder("File", expand_by_default=False):
             path = g["file"] = gui.add_text("Routine file", "", hint="name.toml (in the sessions folder) or a full path")
-            gui.add_button_group("Routine file actions", ("Save", "Open")).on_click(
-                lambda e: self.save(path.value) if e.target.value == "Save" else self.open(path.value))
+            gui.add_button_group("Routine file actions", ("Save", "Export DMIS", "Open")).on_click(
+                lambda e: {"Save": self.save, "Export DMIS": self.export_dmis, "Open": self.open}[e.target.value](
+                    path.value))
         part = g["part"] = gui.add_text("Part name", "", hint="e.g. the serial number; default: part 1, part 2, ...")
         gui.add_button_group("Routine path", ("Preview path", "Clear path")).on_click(
             lambda e: self.preview_path() if e.target.value == "Preview path" else self.clear_preview())
