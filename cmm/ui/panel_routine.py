@@ -134,7 +134,7 @@ class RoutinePanel:
         stem = re.sub(r"[^\w.-]+", "_", self.routine.name).strip("._") or "routine"
         out = self._path(path).parent / f"{stem}.dmi"
         try:
-            text = to_dmis(self.routine.program, pose, tip_radius=self.station.prober.settings.tip_radius,
+            text = to_dmis(self.routine.program, pose, tip_radius=probe.tip_radius,
                            approach=probe.approach_distance, search=probe.search_distance,
                            retract=probe.retract_distance)
             out.write_text(text, encoding="utf-8")
