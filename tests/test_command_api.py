@@ -214,11 +214,16 @@ def test_the_jog_pipeline_clamps_and_says_so_and_refuses_what_is_not_a_velocity(
 
 
 def test_a_hold_is_refused_for_an_observer_and_a_release_drops_older_holds(station):
+    here = station.machine.position
+    station.controller.move(None, [here[0], here[1], station.config.axis("z").max], frame="machine").wait(120)
     control = Control()
     station.controller.use_policy_of(control)
     try:
         with pytest.raises(Refused, match="observes"):
             station.controller.jogs.hold(Client("watcher", local=True), [1.0, 0.0, 0.0])
+        # toward the end an axis stands at (Z at its top), an observer hears of control first
+        with pytest.raises(Refused, match="Take control"):
+            station.controller.jogs.hold(Client("watcher", local=True), [0.0, 0.0, 10.0])
         assert control.take("op", is_local=True)
         who = Client("op", local=True)
         ticket = station.controller.jogs.ticket(who)  # a front end took it when a hold arrived...

@@ -120,6 +120,7 @@ class JogHolds:
         if not np.any(v):
             self.release(client, let_go=True)
             return note
+        self.controller.check_access(client, "jog")  # an observer is told to take control, not where the axes stand
         v, at_end = self.travel(v)
         if not np.any(v):  # every axis asked for stands at the end it would jog to
             raise Refused(at_end)
