@@ -104,7 +104,7 @@ def test_switching_right_after_the_command_works_on_the_pty(after_ms):
     from cmm.sim.serve import serve_pty
 
     with serve_pty(SimNetwork(2, wire_time=True)) as sim:
-        port = serial.Serial(sim.url, 19200, timeout=0.5)
+        port = serial.Serial(sim.url, 19200, timeout=5.0)  # a reply's wait on a loaded host: a held-up sim thread
         address_chain(port, 2)
         group_set_baud_then_switch(port, 21, 57600, after_ms / 1000)
         assert [len(nop(port, a)) for a in (1, 2)] == [2, 2]

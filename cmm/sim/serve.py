@@ -107,16 +107,17 @@ def _pump(network: SimNetwork, data: bytes | None, sent_at: object = _SAME, rate
         return network.host_read()
 
 
-def _sent_rate(network: SimNetwork, before: int, after: int) -> int:
-    """Bytes that came with a rate change seen in the same look: the rate they were sent at.
+def _sent_rate(network: SimNetwork, *rates: int) -> int:
+    """Bytes that came with a rate change (``rates``: the host's rates seen, oldest first): the rate they were
+    sent at.
 
     A host switches either right after its SET_BAUD command (modules still at the
     old rate) or before talking to modules that have switched: take the rate
-    some module listens at, the new one first."""
-    for rate in (after, before):
+    some module listens at, the newest first."""
+    for rate in reversed(rates):
         if any(m.comms_enabled and rates_match(m.line_rate, rate) for m in network.modules):
             return rate
-    return after
+    return rates[-1]
 
 
 def _wait_s(network: SimNetwork) -> float:
@@ -279,13 +280,16 @@ def serve_pty(network: SimNetwork) -> ServedSim:
         while not handle._stop.is_set():
             data = None
             ready = sel.select(_wait_s(network))
-            now = speed(last)  # before the bytes: they were written before this look
+            before = speed(last)
             if ready:
                 try:
                     data = os.read(master, 4096)
                 except (BlockingIOError, OSError):
                     data = None
-            sent = _sent_rate(network, last, now) if data and now != last else now
+            # a second look after the bytes: a host that switched and wrote while this thread was held up
+            # between the first look and the read sent them at the rate seen after, not before
+            now = speed(before) if data else before
+            sent = _sent_rate(network, last, before, now) if data and now != last else now
             last = now
             out = _pump(network, data, sent, now)
             if out:
