@@ -144,3 +144,26 @@ def recorded_copy(directory: Path, name: str = "taught") -> Path:
 
 SECOND_POSE = pose_matrix((240.0, 190.0, 0.0), rz_deg=20.0)
 SECOND_GUESS = pose_matrix((240.5, 189.6, 0.0), rz_deg=19.6)
+
+
+# (name, ray origin in part coordinates, ray direction): what the operator clicks to auto-measure on the block
+BLOCK_FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0, 20.0), (0, 1, 0)),
+               ("LEFT", (-50.0, 10.0, 20.0), (1, 0, 0)), ("bore", (30.0, 40.0, 20.0), (1, 0, 0)),
+               ("boss", (70.0, -20.0, 47.0), (0, 1, 0)), ("dome", (73.0, 58.0, 100.0), (0, 0, -1))]
+
+
+def teach_block(model, faces=BLOCK_FACES):
+    """On the simulator's true set-up: auto-measure ``faces`` where the operator clicks, align 3-2-1 on
+    TOP/FRONT/LEFT, construct the bore-boss distance; returns (feature ids by name, the distance) as taught."""
+    from cmm.measurement.alignment import align_features, apply
+    from cmm.measurement.plan import plan_at_pick, run_plan
+    from cmm.sim.cmm_sim import TRUE_PART_POSE
+
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    ids = {}
+    for name, origin, direction in faces:
+        pose = model.part.pose
+        picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
+        ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
+    apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
+    return ids, model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")

@@ -21,6 +21,21 @@ def ready(bus: Bus) -> list[Module]:
     return mods
 
 
+def faulty_bus(transport, seed: int = 1):
+    """A 3-module bus behind a FaultyTransport (no faults yet), initialised at 115200, servos on, each module
+    asked twice: (port, bus, modules)."""
+    from cmm.nmc.faults import FaultyTransport
+
+    port = FaultyTransport(transport, seed=seed)
+    bus = Bus(port)
+    bus.initialize(115200, expected_modules=3)
+    mods = ready(bus)
+    for m in mods:
+        m.nop()
+        m.nop()
+    return port, bus, mods
+
+
 def test_init_discovers_modules_and_changes_baud_in_process():
     net = SimNetwork(3, wire_time=True)
     bus = Bus(net.transport())

@@ -11,17 +11,13 @@ import session_support as sup
 from cmm.dmis.check import check
 from cmm.dmis.export import to_dmis
 from cmm.dmis.runner import run_text
-from cmm.measurement.alignment import align_features, apply
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.measurement.routine import teach_routine
 from cmm.metrology.transform import invert
 from cmm.session.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
 
-# (name, ray origin in part coordinates, ray direction): what the operator clicks to auto-measure
-FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0, 20.0), (0, 1, 0)),
-         ("LEFT", (-50.0, 10.0, 20.0), (1, 0, 0)), ("bore", (30.0, 40.0, 20.0), (1, 0, 0)),
-         ("boss", (70.0, -20.0, 47.0), (0, 1, 0))]
+FACES = sup.BLOCK_FACES[:5]  # the five features the routine measures (no dome)
 TOL = 0.01  # mm: a feature measured twice with different hits' noise
 
 
@@ -36,15 +32,8 @@ def _part(pose, point):
 
 def test_a_taught_routine_exported_to_dmis_runs_again_on_a_part_placed_elsewhere(station):
     st, model = station, station.measurement
-    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    ids = {}
-    for name, origin, direction in FACES:
-        pose = model.part.pose
-        picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
-        ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
-    apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
+    ids, dist = sup.teach_block(model, FACES)
     taught_pose = np.asarray(model.part.pose, float)
-    dist = model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
     routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
                             part_nominals=model.part.nominal_features)
     routine.steps.insert(len(routine.steps) - 1, {"kind": "construct", "name": "skipped", "operation": "midpoint",

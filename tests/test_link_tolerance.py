@@ -16,22 +16,14 @@ from cmm.nmc.bus import Bus, LinkError, NmcError
 from cmm.nmc.faults import Fault, FaultyTransport
 from cmm.sim.cmm_sim import SimulatedCMM
 from cmm.sim.network import SimNetwork
-from test_bus import ready
+from test_bus import faulty_bus
 
 VEL = codec.velocity_to_fixed(50, 500)
 ACC = codec.acceleration_to_fixed(500, 500)
 
 
 def still_bus(seed: int = 1) -> tuple[FaultyTransport, Bus, list]:
-    net = SimNetwork(3, wire_time=True)
-    port = FaultyTransport(net.transport(), seed=seed)
-    bus = Bus(port)
-    bus.initialize(115200, expected_modules=3)
-    mods = ready(bus)
-    for m in mods:
-        m.nop()
-        m.nop()
-    return port, bus, mods
+    return faulty_bus(SimNetwork(3, wire_time=True).transport(), seed)
 
 
 def test_a_reply_torn_by_a_descheduled_host_is_taken_from_the_buffer():

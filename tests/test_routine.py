@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import session_support as sup
 from netutil import SIM, free_port
 
-from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
 from cmm.metrology.transform import invert
 from cmm.session.program import from_toml, load, machine_targets
@@ -20,10 +20,7 @@ from cmm.session.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
 from cmm.station import Station
 
-# (name, ray origin in part coordinates, ray direction): what the operator clicks to auto-measure
-FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0, 20.0), (0, 1, 0)),
-         ("LEFT", (-50.0, 10.0, 20.0), (1, 0, 0)), ("bore", (30.0, 40.0, 20.0), (1, 0, 0)),
-         ("boss", (70.0, -20.0, 47.0), (0, 1, 0)), ("dome", (73.0, 58.0, 100.0), (0, 0, -1))]
+FACES = sup.BLOCK_FACES
 # where the second part stands: 6 mm and 4 mm off, turned 3 degrees
 SECOND_POSE = pose_matrix((196.0, 146.0, 0.0), rz_deg=3.5)
 # the operator's 3-2-1 hits by hand (part coordinates): point on the face, approach into it
@@ -38,16 +35,7 @@ def taught(tmp_path_factory):
     st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("routine"),
                  calibration_dir=tmp_path_factory.mktemp("routine-calibration")).start("teach", home=True)
     model = st.measurement
-    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    ids = {}
-    for name, origin, direction in FACES:
-        pose = model.part.pose
-        picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
-        ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
-    from cmm.measurement.alignment import align_features, apply
-
-    apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
-    model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
+    sup.teach_block(model)
     session = open_session(model.journal.path)
     routine = teach_routine(session, name="block", part_mesh=model.part.mesh,
                             part_nominals=model.part.nominal_features)

@@ -24,7 +24,7 @@ from cmm.machine.motion import Machine
 from cmm.nmc.bus import Bus, Preempted
 from cmm.nmc.faults import Fault, FaultyTransport
 from cmm.sim.cmm_sim import SimulatedCMM
-from test_bus import ready
+from test_bus import faulty_bus
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -80,13 +80,7 @@ def test_a_stop_pre_empts_only_a_patient_retry_begun_before_it():
     begun after it (the stop's own) retries patiently as before and gets its answer."""
     config = load()
     sim = SimulatedCMM(config)
-    port = FaultyTransport(sim.transport())
-    bus = Bus(port)
-    bus.initialize(115200, expected_modules=3)
-    mods = ready(bus)
-    for m in mods:
-        m.nop()
-        m.nop()
+    port, bus, mods = faulty_bus(sim.transport())
     warn = bus._warn
 
     def on_warn(text: str) -> None:
