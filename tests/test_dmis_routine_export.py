@@ -120,3 +120,31 @@ def test_the_routine_tab_exports_dmis_beside_the_routine_file_and_offers_it(stat
     # a folder that is not there: said, nothing written
     assert panel.export_dmis(str(tmp_path / "nowhere" / "block.toml")) is None
     assert panel.ctx.messages[-1][0] == "error" and "cannot write" in panel.ctx.messages[-1][2]
+
+
+def test_a_line_in_a_routine_is_exported_as_a_bounded_line_in_its_face_and_measures_again(station):
+    """A line taught on the block's front face (three hits along X) is written FEAT/LINE, BND from the first to the
+    last hit with the face's normal as its plane, and the exported program measures the same edge line again."""
+    from cmm.session.program import Program, ProgramFeature, ProgramHit
+
+    station.measurement.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    top = float(station.measurement.part.mesh.bounds[1][2]) + 10.0  # part Z above everything on the part
+    hits = [ProgramHit(i, (x, 0.0, 25.0 + 0.5 * i), (0.0, 1.0, 0.0), top) for i, x in enumerate((15.0, 60.0, 105.0), 1)]
+    program = Program("edge", "block", "0" * 64, [ProgramFeature("edge", "line", "ls", [1, 2, 3])], hits)
+    text = to_dmis(program, TRUE_PART_POSE, tip_radius=station.prober.settings.tip_radius)
+    assert check(text)[1] == []
+    words = next(ln for ln in text.splitlines() if ln.startswith("F(EDGE) = FEAT/")).split("FEAT/")[1].split(", ")
+    assert words[:3] == ["LINE", "BND", "CART"]
+    # from (15, 0, 25.5) to (105, 0, 26.5) as the least-squares line puts them, in the plane of the face (0, -1, 0)
+    nums = [float(x) for x in words[3:]]
+    assert nums[0:3] == pytest.approx([15.0, 0.0, 25.5], abs=1e-3) and nums[3:6] == pytest.approx([105, 0, 26.5], abs=1e-3)
+    assert nums[6:9] == pytest.approx([0.0, -1.0, 0.0], abs=1e-6)
+    st = station
+    above = TRUE_PART_POSE @ np.array([60.0, -30.0, top, 1.0])
+    answer = st.controller.commands.call(None, "move", {"target": above[:3].tolist(), "frame": "machine",
+                                                        "path": "clearance"}, wait=True, timeout=120)
+    assert answer.ok, answer.error
+    run = run_text(text, st, name="edge")
+    g = run.actuals["EDGE"].geometry
+    d = TRUE_PART_POSE[:3, :3].T @ np.asarray(g["direction"], float)  # the measured line, in part axes
+    assert abs(d[0]) == pytest.approx(np.cos(np.arctan2(1.0, 90.0)), abs=1e-3)

@@ -81,7 +81,8 @@ def test_program_runs_are_parts_of_a_series_and_the_trends_tab_charts_them(stati
         assert len(panel.chart.history) == 0 and panel.chart.chart is None
         panel.choose_station("all stations")
         path = panel.export_csv(tmp_path / "dome.csv")
-        rows = list(csv.DictReader(path.open()))
+        with path.open() as f:
+            rows = list(csv.DictReader(f))
         assert [r["serial"] for r in rows] == ["P1", "P2"] and rows[0]["station"] == "cmm-test"
         # a part recorded on the station redraws the chart on the tab's next refresh
         t.record_part("dome check", [("dome / diameter", 20.05, 20.0, 19.97, 20.03)], serial="P3")

@@ -26,7 +26,7 @@ from ..metrology import fit_ls
 from ..metrology.construct import construct
 from ..metrology.pick import NominalFeature
 from .frames import datum_frame, inverse
-from .features import WORDS, from_model_nominal, nominal_line
+from .features import WORDS, Nominal, from_model_nominal, nominal_line
 
 FORM_WORDS = {"plane": "FLAT", "line": "STRGHT", "circle": "CIRLTY", "cylinder": "CYLCTY"}
 
@@ -99,6 +99,18 @@ def _dir_word(v: np.ndarray, taken: set[int]) -> tuple[int, str]:
     """The part axis (not yet taken) a datum's normal lies along, and its DATSET word (ZDIR, YMINUS ...)."""
     axis = max((k for k in range(3) if k not in taken), key=lambda k: abs(v[k]))
     return axis, "XYZ"[axis] + ("DIR" if v[axis] >= 0 else "MINUS")
+
+
+def _hit_line(pts: np.ndarray, face: np.ndarray) -> Nominal:
+    """The line through hit points (their principal direction), bounded by the first and last hit projected
+    onto it, lying in the face whose outward normal is ``face`` (the side the probe came from)."""
+    c = pts.mean(axis=0)
+    d = np.linalg.svd(pts - c)[2][0]
+    if (pts[-1] - pts[0]) @ d < 0:
+        d = -d  # from the first hit towards the last
+    a, b = (c + ((p - c) @ d) * d for p in (pts[0], pts[-1]))
+    plane = face - (face @ d) * d
+    return Nominal("LINE", None, a, d, length=float(np.linalg.norm(b - a)), plane=plane / np.linalg.norm(plane))
 
 
 def _align_lines(datums: list[str], labels: dict[str, str], planes: dict[str, NominalFeature | None]) -> list[str]:
@@ -178,7 +190,10 @@ def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach
             c = pts.mean(axis=0)
             n = -np.mean([hits[i].approach for i in f.hits], axis=0)
             n = n / np.linalg.norm(n)
-            out.append(f"F({label}) = FEAT/{word}, CART, " + ", ".join(_f(x) for x in (*c, *n)))
+            if f.kind == "line":  # BND through the first and last hit on the ideal line, in the probed face
+                out.append(nominal_line(label, _hit_line(pts, n), np.eye(4), 1.0, math.pi / 180.0))
+            else:
+                out.append(f"F({label}) = FEAT/{word}, CART, " + ", ".join(_f(x) for x in (*c, *n)))
         out.append(f"MEAS/{word}, F({label}), {len(f.hits)}")
         for i in f.hits:
             h = hits[i]
