@@ -1,8 +1,8 @@
 """The architecture holds: imports go down the layers only, and no module imports itself in a circle.
 
 Layers (README "Architecture"): front ends (ui, ippdme, cli) -> station (composition root) -> control -> machine
--> nmc, and station -> measurement -> session -> metrology; calibration beside them; the simulator speaks only
-bytes. Every import
+-> nmc, and station -> measurement -> session -> the journal's fold (cmm.measurement.records and .state, a layer
+of their own under both) -> metrology; calibration beside them; the simulator speaks only bytes. Every import
 counts: those inside functions, and those for type checkers only (``if TYPE_CHECKING:``), which draw the
 same circle for a reader and for the type checker. So do modules named in a string (the `cmm` command's
 sub-commands, loaded with ``importlib``; pyserial's handler package for ``sim://`` URLs): they are imported all the same.
@@ -25,13 +25,15 @@ ALLOWED = {
     "machine": {"nmc", "metrology", "data"},
     "control": {"machine", "nmc"},
     "sim": {"nmc", "machine", "metrology"},  # machine.config: the axes it simulates; never the driver
-    "session": {"machine", "metrology", "sim"},
+    # the fold of the journal's events (records + SessionState): the live model and the session files share it
+    "fold": {"machine", "metrology"},  # a HitRecord is the prober's Hit with its id
+    "session": {"machine", "metrology", "sim", "fold"},
     "calibration": {"machine", "metrology", "nmc", "sim", "session"},
-    "measurement": {"metrology", "session"},  # the measurement model: records into sessions, fits with metrology
-    "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
-    "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
-    "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
-    "ui": {"control", "station", "measurement", "metrology", "session", "ippdme", "dmis"},  # hosts I++ and DMIS runs
+    "measurement": {"metrology", "session", "fold"},  # the measurement model: records into sessions, fits with metrology
+    "station": {"control", "machine", "measurement", "fold", "metrology", "nmc", "session", "sim", "calibration"},
+    "ippdme": {"control", "station", "measurement", "fold", "metrology", "session"},  # a front end like the ui
+    "dmis": {"control", "station", "measurement", "fold", "metrology", "session"},  # DMIS programs: a front end too
+    "ui": {"control", "station", "measurement", "fold", "metrology", "session", "ippdme", "dmis"},  # hosts I++ and DMIS runs
     # its sub-commands live in the packages that own them (cmm/cli/__init__.py names their modules)
     "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis", "ippdme"},
 }
@@ -75,7 +77,13 @@ def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
     return {m for m in out if m.split(".")[0] == "cmm" and m in mods}
 
 
+# modules that are a layer of their own inside their package
+SUBLAYERS = {"cmm.measurement.records": "fold", "cmm.measurement.state": "fold"}
+
+
 def _layer(module: str) -> str:
+    if module in SUBLAYERS:
+        return SUBLAYERS[module]
     parts = module.split(".")
     return parts[1] if len(parts) > 1 else "cmm"
 

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 import session_support as sup
-from cmm.session.model import FeatureRecord, Session, SessionState
+from cmm.measurement.records import FeatureRecord
+from cmm.measurement.state import SessionState
+from cmm.session.model import Session
 from cmm.session.reevaluate import fit_hits, reevaluate
 from cmm.session.replay import Replay
 from cmm.session.store import DirectoryStore, load_session, write_session
@@ -123,7 +125,7 @@ def test_feature_events_read_and_write_back_unchanged_old_and_new(session):
     """The journal's feature and construction records are its events: read and written back, every recorded event
     gives itself again, keys in order; a feature event from before features named their probe (and without a
     tolerance) too, and re-evaluation keeps each feature's recorded probe and tolerance."""
-    from cmm.session.model import ConstructedRecord
+    from cmm.measurement.records import ConstructedRecord
 
     meta = ("seq", "time", "kind")
     recorded = [e for e in session.events if e["kind"] in ("feature", "constructed")]

@@ -11,9 +11,12 @@ import tomllib
 from dataclasses import dataclass, field, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
+
+import numpy as np
 
 from ..nmc.codec import BAUD_DIVISORS, Gains
+from .geometry import GeometryCorrection
 
 AXES = ("x", "y", "z")
 
@@ -36,8 +39,36 @@ class AxisConfig:
     def to_counts(self, mm: float) -> int:
         return round((mm - self.home) * self.counts_per_mm * self.direction)
 
-    def to_mm(self, counts: float) -> float:
+    def to_mm(self, counts: Any) -> Any:
+        """Counts (a number or an array) -> the axis reading in mm."""
         return self.home + counts / (self.counts_per_mm * self.direction)
+
+    def rate_to_mm(self, counts_per_s: float) -> float:
+        """A rate in counts per second -> mm/s along the axis."""
+        return counts_per_s / (self.counts_per_mm * self.direction)
+
+    def snapshot(self) -> dict:
+        """The fields that convert its counts, as a session's ``start`` event records them."""
+        return {"name": self.name, "counts_per_mm": self.counts_per_mm, "direction": self.direction,
+                "home": self.home, "min": self.min, "max": self.max}
+
+    @classmethod
+    def from_snapshot(cls, d: dict) -> "AxisConfig":
+        """The axis as a session recorded it (:meth:`snapshot`): its conversion and travel; address and gains are
+        not recorded and do not convert."""
+        return cls(str(d["name"]), int(d.get("address", 0)), float(d["counts_per_mm"]), int(d["direction"]),
+                   float(d.get("min", 0.0)), float(d.get("max", 500.0)), float(d["home"]))
+
+
+def counts_to_mm(counts: Any, axes: Sequence[AxisConfig], correction: GeometryCorrection | None = None) -> np.ndarray:
+    """Raw axis counts (one count per axis, or n rows of them) -> machine coordinates in mm: each axis's home,
+    scale and direction, then the geometry correction. The one conversion: the machine's positions and hits, and
+    a session's hits in re-evaluation (with the axes and correction it recorded), go through it."""
+    c = np.asarray(counts, dtype=np.float64)
+    readings = np.stack([a.to_mm(c[..., i]) for i, a in enumerate(axes)], axis=-1)
+    if correction is None or correction.is_identity:
+        return readings
+    return readings @ correction.matrix.T
 
 
 @dataclass(frozen=True)

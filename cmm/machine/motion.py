@@ -33,7 +33,7 @@ from ..nmc.link_process import GuardAxis, GuardHeld, GuardSpec, open_bus
 from ..nmc.module import Module
 from ..nmc.trace import ByteTrace
 from ..nmc.transport import is_virtual
-from .config import AXES, MachineConfig
+from .config import AXES, MachineConfig, counts_to_mm
 from .geometry import GeometryCorrection
 from .status import MotionError, MoveStatus
 
@@ -268,7 +268,7 @@ class Machine:
             mm = self.counts_to_mm([st.position for st in sts])
             for axis, st, p in zip(self.config.axes, sts, mm):
                 tick = codec.tick_seconds(axis.gains.sr)
-                vel = st.velocity / tick / (axis.counts_per_mm * axis.direction) if st.velocity is not None else 0.0
+                vel = axis.rate_to_mm(st.velocity / tick) if st.velocity is not None else 0.0
                 axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0, st.ad))
             self.state = MachineState(
                 now, tuple(axes), any(self.probe_active(s.status) for s in sts),  # type: ignore[arg-type]
@@ -286,7 +286,7 @@ class Machine:
 
     def counts_to_mm(self, counts: Any) -> np.ndarray:
         """Raw axis counts -> machine coordinates (mm), geometry correction applied."""
-        return self.correction.apply(np.array([a.to_mm(c) for a, c in zip(self.config.axes, counts)]))
+        return counts_to_mm(counts, self.config.axes, self.correction)
 
     def mm_to_counts(self, position: Any) -> list[int]:
         """Machine coordinates (mm) -> the axis counts that reach them."""
@@ -478,7 +478,7 @@ class Machine:
         # correction a move along one machine axis also moves the others a little
         here = (self.state or self.sample()).counts
         goals = self.mm_to_counts(target)
-        travel = np.array([(g - c) / a.counts_per_mm for a, g, c in zip(self.config.axes, goals, here)])
+        travel = np.array([a.to_mm(g) - a.to_mm(c) for a, g, c in zip(self.config.axes, goals, here)])
         length = float(np.linalg.norm(travel))
         for axis, mod, d, goal, now in zip(self.config.axes, self.modules, travel, goals, here):
             share = abs(d) / length if length > 0 else 0.0
@@ -574,7 +574,7 @@ class Machine:
         # steps go along the axis from its count grid, so repeated 1-count steps do not drift
         readings = self.correction.invert(self.position)
         idx = AXES.index(axis)
-        readings[idx] = cfg.to_mm(round((readings[idx] - cfg.home) * cfg.counts_per_mm * cfg.direction)) + step_mm
+        readings[idx] = cfg.to_mm(cfg.to_counts(readings[idx])) + step_mm
         return self.move_to(self.correction.apply(readings), speed or self.config.speeds.jog_slow)
 
     def _cancel(self, motion: _Motion) -> None:

@@ -1,5 +1,8 @@
 """The measurement model: what was measured and what it means, for every front end.
 
+- :mod:`.records` and :mod:`.state`: the records a journal's events hold and their one fold
+  (:class:`~.state.SessionState`): the live model folds what it journals, replay and re-evaluation a file's
+  events; they import neither the rest of this package nor :mod:`cmm.session`, which imports them;
 - :mod:`.model`: :class:`~.model.MeasurementModel`: the part, hits, features, undo, constructions,
   alignment pose, report header and the session journal they are written to;
 - :mod:`.recording`: the same model on a bare Machine + Prober (scripts, tests, benchmarks);

@@ -14,6 +14,7 @@ from several threads; hits are journalled on the control core's dispatcher threa
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from dataclasses import dataclass, field
@@ -25,10 +26,12 @@ import numpy as np
 from ..metrology.features import FitError, FitResult
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
-from ..session.journal import Journal
-from ..session.model import ConstructedRecord, FeatureRecord, HitRecord, file_sha256, machine_snapshot, mesh_sha256
+from ..session.journal import Journal, encode_event
+from ..session.model import file_sha256, machine_snapshot, mesh_sha256
 from ..session.reevaluate import fit_hit_records
 from ..session.store import check_name, is_url, open_store
+from .records import ConstructedRecord, FeatureRecord, HitRecord
+from .state import SessionState
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
@@ -64,7 +67,7 @@ class Part:
 class Feature:
     """A fitted feature as the model holds it: the whole fit (``result``: residuals, covariance, the
     better-fitting alternative) and its nominal as a :class:`NominalFeature`. What is recorded of it is its
-    :meth:`record`, the :class:`~cmm.session.model.FeatureRecord` the journal, the report, replay and
+    :meth:`record`, the :class:`~cmm.measurement.records.FeatureRecord` the journal, the report, replay and
     re-evaluation read."""
 
     id: int
@@ -86,7 +89,7 @@ class Feature:
 @dataclass
 class ConstructedFeature:
     """A feature constructed from two others (intersection, distance, angle, mid-point); what is recorded of it
-    is its :meth:`record` (:class:`~cmm.session.model.ConstructedRecord`)."""
+    is its :meth:`record` (:class:`~cmm.measurement.records.ConstructedRecord`)."""
 
     id: int
     name: str
@@ -132,6 +135,11 @@ class MeasurementModel:
     probe settings (tip radius, pre-travel), both live: a calibration applied later counts. ``probe(point,
     approach, clearance_z, client)`` takes a programmed hit and returns a status whose ``wait()`` gives the hit;
     ``start_fields()`` adds to each session's ``start`` event (port, calibration).
+
+    Every event the model journals is folded into :attr:`state` (:class:`~cmm.measurement.state.SessionState`,
+    the fold replay and re-evaluation make of a journal file), journal open or not: the hits (``hits``,
+    ``deleted``), datums, geometric tolerances, report header and notes are read from it. The live fitted and
+    constructed features (``features``, ``constructed``) keep their whole fits beside their records in the fold.
     """
 
     def __init__(self, machine: Any, prober: Any, probe: Callable[..., Any], *, part: Part | None = None,
@@ -144,13 +152,10 @@ class MeasurementModel:
         self._start_fields = start_fields
         self.lock = lock if lock is not None else threading.RLock()
         self.part = part
-        self.hits: dict[int, Any] = {}
-        self.deleted: dict[int, Any] = {}
+        self.state = SessionState()  # the fold of the events journalled (see new_part)
         self._undo: list[tuple[str, int]] = []
         self.features: dict[int, Feature] = {}
         self.constructed: dict[int, ConstructedFeature] = {}
-        self.datums: dict[str, dict[str, Any]] = {}  # datum definitions by label (cmm.metrology.gdt_eval)
-        self.gdt: dict[int, dict[str, Any]] = {}  # geometric tolerance definitions by id
         self._next_gdt = 1
         self._gdt_cache: tuple[Any, list, list] | None = None
         self._next_hit = 1
@@ -162,11 +167,37 @@ class MeasurementModel:
         self._listeners: list[Callable[[str, Any], None]] = []
         self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
         self.journal: Any = None
-        self.info: dict[str, Any] = {}  # report header: part number, drawing, operator, temperature ...
-        self.aligned = False  # an alignment was made since the part was loaded
+        # the pose in force came from an alignment (the page's frame label). Not the fold's ``aligned``: that one
+        # starts again with each part of a series (new_part), whose hits wait for that part's own alignment
+        self.aligned = False
         self.alignment_name = ""  # the alignment in force, as the operator knows it ("3-2-1 TOP/FRONT/LEFT")
         self.trends: Any = None  # cmm.session.trends.Trends: each program run is recorded there as a part
         self._on_close: list[Callable[[], None]] = []
+
+    @property
+    def hits(self) -> dict[int, HitRecord]:
+        """The active hits by id, in recording order (the fold's)."""
+        return self.state.hits
+
+    @property
+    def deleted(self) -> dict[int, HitRecord]:
+        """The deleted hits by id (undo or restore brings them back)."""
+        return self.state.deleted_hits
+
+    @property
+    def datums(self) -> dict[str, dict[str, Any]]:
+        """Datum definitions by label (:mod:`cmm.metrology.gdt_eval`)."""
+        return self.state.datums
+
+    @property
+    def gdt(self) -> dict[int, dict[str, Any]]:
+        """Geometric tolerance definitions by id."""
+        return self.state.gdt
+
+    @property
+    def info(self) -> dict[str, Any]:
+        """The report header: part number, drawing, operator, temperature ..."""
+        return self.state.info
 
     # --- events -------------------------------------------------------------------
 
@@ -204,7 +235,12 @@ class MeasurementModel:
     # --- session -------------------------------------------------------------------
 
     def new_session(self, name: str | None = None) -> Path | str:
-        """Open a new session journal (in ``session_dir``) with a ``start`` event: configuration and calibration."""
+        """Open a new session journal (in ``session_dir``) with a ``start`` event: configuration and calibration.
+        What was measured stays (the fold goes on; the new journal has it from its start on)."""
+        return self._open_session(name, fresh=False)
+
+    def _open_session(self, name: str | None, fresh: bool) -> Path | str:
+        """A new journal; ``fresh``: the fold starts again with its ``start`` event (the report header kept)."""
         stamp = time.strftime("session-%Y%m%d-%H%M%S")
         name = stamp if name is None else check_name(name)  # whatever the caller: no "../x", no absolute paths
         with self.lock:
@@ -220,9 +256,12 @@ class MeasurementModel:
                         break
                     path = self.session_dir / f"{stamp}-{n}.jsonl"
                 self.journal = Journal(path)
+            info = dict(self.info)
+            if fresh:
+                self.state = SessionState()
             self._start(self.journal, **self._start_fields())
-            if self.info:
-                self.journal.append("info", **self.info)
+            if info:
+                self._append(self.journal, "info", **info)
             return path
 
     def new_part(self, name: str | None = None) -> Path | str:
@@ -230,14 +269,10 @@ class MeasurementModel:
         previous part's hits, features, datums and geometric tolerances put away (they stay in its journal), so
         this part's tree, characteristics and report have its own rows only. Ids go on counting."""
         with self.lock:
-            path = self.new_session(name)
-            self.hits.clear()
-            self.deleted.clear()
+            path = self._open_session(name, fresh=True)  # hits, datums and tolerances: the fold starts again
             self._undo.clear()
             self.features.clear()
             self.constructed.clear()
-            self.datums.clear()
-            self.gdt.clear()
             self._gdt_cache = None
             self.hit_probes.clear()
             self.last_hit = None
@@ -254,16 +289,28 @@ class MeasurementModel:
     def _start(self, writer: Any, **start: Any) -> None:
         part = self.part
         port = start.pop("port", "")
-        writer.append("start", port=port, **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
+        self._append(writer, "start", port=port, **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
                       **start, part=None if part is None else part.name,
                       part_pose=None if part is None else part.pose,
                       part_sha256=None if part is None else part.sha256,
                       part_path=None if part is None or part.mesh is None else part.mesh.metadata.get("path"))
 
     def record(self, kind: str, **data: Any) -> None:
-        """An event in the session journal (if one is open)."""
-        if self.journal is not None:
-            self.journal.append(kind, **data)
+        """An event: in the session journal if one is open, and folded into :attr:`state` either way."""
+        with self.lock:
+            self._append(self.journal, kind, **data)
+
+    def _append(self, writer: Any, kind: str, **data: Any) -> dict:
+        """Journal an event with ``writer`` (None: no journal) and fold it, as a reader of the journal gets it
+        (lists, plain numbers), into :attr:`state`: the live state is the fold of the journal. An event the
+        journal refuses (a disk full, a number that is not finite) is not folded."""
+        if writer is not None:
+            event = writer.append(kind, **data)
+        else:
+            event = {"seq": self.state.seq + 1, "time": time.time(), "kind": kind, **data}
+        event = json.loads(encode_event(event))
+        self.state.apply(event)
+        return event
 
     def note(self, text: str) -> None:
         self.record("note", text=text)
@@ -286,7 +333,6 @@ class MeasurementModel:
             else:
                 clean[k] = "" if v is None else str(v).strip()
         with self.lock:
-            self.info.update(clean)
             self.record("info", **clean)
         self._notify("info", dict(self.info))
         return dict(self.info)
@@ -311,9 +357,8 @@ class MeasurementModel:
         with self.lock:
             self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))
             self.aligned = False
-            if self.journal is not None:
-                self.record("part", name=self.part.name, pose=self.part.pose, sha256=mesh.metadata["sha256"],
-                            path=mesh.metadata["path"])
+            self.record("part", name=self.part.name, pose=self.part.pose, sha256=mesh.metadata["sha256"],
+                        path=mesh.metadata["path"])
         self._notify("part", self.part)
         return self.part
 
@@ -373,16 +418,14 @@ class MeasurementModel:
 
     def add_hit(self, hit: Any) -> int:
         """Record a hit: journalled before anyone is shown it; returns its session id. The model keeps it as a
-        :class:`~cmm.session.model.HitRecord` (the probe's hit with its id), the type replay rebuilds."""
+        :class:`~cmm.measurement.records.HitRecord` (the probe's hit with its id) the fold makes of the event, the
+        record replay rebuilds."""
         with self.lock:
             hid = self._next_hit
             self._next_hit += 1
-            self.record("hit", id=hid, counts=hit.counts, machine=hit.machine, approach=hit.approach,
-                        speed=hit.speed, hit_time=hit.time, point=hit.point, mode=hit.mode, normal=hit.normal,
-                        probe=self.probe_name)
+            self.record("hit", **HitRecord.of(hit, hid).to_event(), probe=self.probe_name)
             self.hit_probes[hid] = self.probe_name
-            record = HitRecord.of(hit, hid)
-            self.hits[hid] = record  # on disk before anyone is shown it
+            record = self.hits[hid]  # on disk before anyone is shown it
             self.last_hit = record
             self._undo.append(("add", hid))
         self._notify("hit", (hid, record))
@@ -404,9 +447,8 @@ class MeasurementModel:
         with self.lock:
             if hid not in self.hits:
                 raise MeasurementError(f"there is no hit {hid}")
-            self.deleted[hid] = self.hits.pop(hid)
-            self._undo.append(("delete", hid))
             self.record("hit_deleted", id=hid)
+            self._undo.append(("delete", hid))
         self._notify("hits", None)
 
     def undo(self) -> str:
@@ -414,15 +456,14 @@ class MeasurementModel:
         with self.lock:
             if not self._undo:
                 raise MeasurementError("nothing to undo")
-            action, hid = self._undo.pop()
+            action, hid = self._undo[-1]
             if action == "add":
-                self.deleted[hid] = self.hits.pop(hid)
                 self.record("hit_deleted", id=hid, undo=True)
                 message = f"removed hit {hid}"
             else:
-                self.hits[hid] = self.deleted.pop(hid)
                 self.record("hit_restored", id=hid, undo=True)
                 message = f"restored hit {hid}"
+            self._undo.pop()  # journalled: undone
         self._notify("hits", None)
         return message
 
@@ -473,8 +514,8 @@ class MeasurementModel:
             else:
                 fid = feature_id
             feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal, tolerance)
-            self.features[fid] = feature
             self._record_feature(feature)
+            self.features[fid] = feature
         self._notify("feature", feature)
         return feature
 
@@ -543,8 +584,8 @@ class MeasurementModel:
             self._next_feature += 1
             feature = ConstructedFeature(fid, name or f"{operation} {fa.name} / {fb.name}", operation, (a, b), result,
                                          nominal, tolerance)
-            self.constructed[fid] = feature
             self.record("constructed", **feature.record().to_event())
+            self.constructed[fid] = feature
         self._notify("feature", feature)
         return feature
 
@@ -598,7 +639,6 @@ class MeasurementModel:
                     from ..metrology.gdt_eval import datum_of
 
                     datum_of(d["label"], {d["label"]: d}, self.measured_features(), False)
-                self.datums[d["label"]] = d
                 self.record("datum", **d)
         except (DatumError, ValueError, TypeError) as exc:
             raise MeasurementError(str(exc)) from None
@@ -644,25 +684,22 @@ class MeasurementModel:
             self._next_gdt = max(self._next_gdt, gid + 1)
             f = self.features.get(int(feature_id))
             d = {"id": gid, "name": name or f"{d['characteristic']} {f.name if f else feature_id}", **d}
-            self.gdt[gid] = d
             self.record("gdt", **d)
         self._notify("features", None)
         return d, self.gdt_characteristics([d])[0][1]
 
     def delete_gdt(self, gid: int) -> None:
         with self.lock:
-            if self.gdt.pop(int(gid), None) is None:
+            if int(gid) not in self.gdt:
                 raise MeasurementError(f"there is no geometric tolerance {gid}")
             self.record("gdt_deleted", id=int(gid))
         self._notify("features", None)
 
     def delete_feature(self, fid: int) -> None:
         with self.lock:
-            if self.constructed.pop(fid, None) is not None:
-                self.record("feature_deleted", id=fid)
-                self._notify("features", None)
-                return
-            if self.features.pop(fid, None) is None:
+            if fid not in self.constructed and fid not in self.features:
                 raise MeasurementError(f"there is no feature {fid}")
             self.record("feature_deleted", id=fid)
+            self.constructed.pop(fid, None)
+            self.features.pop(fid, None)
         self._notify("features", None)

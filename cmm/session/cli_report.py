@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from .trends import TrendError
 
     from ..metrology.colour_scale import ColourScale
-    from .model import DEFAULT_TOLERANCE
+    from ..metrology.characteristics import DEFAULT_TOLERANCE
 
     try:  # the colour map's bands (the 3D view's defaults unless given)
         scale = ColourScale(args.map_tolerance or args.tolerance or DEFAULT_TOLERANCE["form"], args.max_deviation,

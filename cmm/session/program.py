@@ -48,7 +48,8 @@ import numpy as np
 from ..metrology import fit_criteria, fit_ls
 from ..metrology.pick import NominalFeature
 from .toml_text import toml_value
-from .model import DEFAULT_TOLERANCE, Session, mesh_sha256
+from ..metrology.characteristics import DEFAULT_TOLERANCE
+from .model import Session, mesh_sha256
 
 FORMAT = "cmm-program/1"
 FORMAT_ROUTINE = "cmm-program/2"  # the same file with an ordered [[steps]] list (cmm.measurement.routine)

@@ -25,7 +25,8 @@ import numpy as np
 from ..metrology import fit_criteria
 from ..metrology.features import FitError, FitResult
 from ..metrology.probe_offset import offset_feature
-from .model import FeatureRecord, HitRecord, Session
+from ..measurement.records import FeatureRecord, HitRecord
+from .model import Session
 
 
 def fit_hits(kind: str, method: str, centres: Any, approach: Any, points: Any, settings: Any,

@@ -36,7 +36,9 @@ from .gdt_session import session_gdt
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from .export import hit_deviations
-from .model import DEFAULT_TOLERANCE, ConstructedRecord, FeatureRecord, Session
+from ..measurement.records import ConstructedRecord, FeatureRecord
+from ..metrology.characteristics import DEFAULT_TOLERANCE
+from .model import Session
 from .wording import error_text, grouped
 
 NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "

@@ -113,7 +113,7 @@ def measured(c: Characteristic) -> Measured | None:
 
 
 def feature_values(features: Iterable[Any], default_tolerance: dict[str, float] | None = None) -> list[Measured]:
-    """The characteristics of fitted features (:class:`~cmm.session.model.FeatureRecord`: a live feature's
+    """The characteristics of fitted features (:class:`~cmm.measurement.records.FeatureRecord`: a live feature's
     ``record()``) as trend values."""
     out = []
     for f in features:

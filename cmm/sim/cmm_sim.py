@@ -85,8 +85,6 @@ class SimulatedCMM:
         # modules[0] is furthest from the host and takes address 1 first: order the axes by address
         order = sorted(range(3), key=lambda i: self.config.axes[i].address)
         self._axis_module = [order.index(i) for i in range(3)]
-        self._scale = [1.0 / (a.counts_per_mm * a.direction) for a in self.config.axes]
-        self._home = [a.home for a in self.config.axes]
         self._input = self.config.probe.input
         self._active_high = self.config.probe.active_level == "high"
         self._level: bool | None = None
@@ -98,7 +96,7 @@ class SimulatedCMM:
     def axis_readings(self) -> tuple[float, float, float]:
         """Machine coordinates the ideal encoders would read now (continuous, mm)."""
         plants = self.network.plants
-        return tuple(h + plants[m].x * s for h, m, s in zip(self._home, self._axis_module, self._scale))  # type: ignore[return-value]
+        return tuple(float(a.to_mm(plants[m].x)) for a, m in zip(self.config.axes, self._axis_module))  # type: ignore[return-value]
 
     def tip_position(self) -> np.ndarray:
         """The true tip centre, machine mm (geometry errors included)."""
