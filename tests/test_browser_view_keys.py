@@ -217,7 +217,10 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
         # the feature's own row (Show > Each feature), whichever feature is selected
         capp.select_feature(None)
         row = _checkbox(page, f"{fid} {station.measurement.features[fid].name}")
-        bs.wait_until(lambda: row.count() and row.is_checked(), 30.0, "the feature's row ticked (shown)")
+        # ticked on both sides: the station's copy of the box too (a click on a page still showing the tick from
+        # before the hide, while the station's box already said unticked, changes nothing the station can see)
+        bs.wait_until(lambda: capp.features.rows[fid].value and row.count() and row.is_checked(), 30.0,
+                      "the feature's row ticked (shown)")
         row.evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the feature hidden by its row")
         page.get_by_text("(hidden)").first.wait_for()  # the tree says so
