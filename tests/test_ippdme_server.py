@@ -214,6 +214,21 @@ def test_a_second_client_is_refused_while_the_first_keeps_the_machine(served):
     assert "no client" in machine_markdown(station)
 
 
+def test_a_client_that_ends_its_session_and_connects_again_at_once_is_served(served):
+    """A client that closes right after EndSession and connects again is not refused as "another client" while
+    the server's threads have not yet seen the first connection end (half of such reconnections were)."""
+    server, station = served
+    for i in range(20):
+        with connected(server) as c:
+            assert c.call("StartSession()").ok, f"reconnection {i} refused: {c.received[-3:]}"
+            assert c.call("EndSession()").ok
+    with connected(server) as first:  # a client that keeps its connection still keeps the machine
+        assert first.call("StartSession()").ok
+        with pytest.raises(Exception, match="closed the connection"):
+            with connected(server) as second:
+                second.call("StartSession()")
+
+
 def test_a_client_that_never_reads_is_dropped_and_the_machine_stops(tmp_path):
     with ipp_station(tmp_path, send_timeout=0.5, send_buffer=4096) as (server, station):
         c = socket.socket()

@@ -11,6 +11,7 @@ station is busy and disconnected.
 from __future__ import annotations
 
 import queue
+import select
 import socket
 import threading
 from typing import Any
@@ -26,6 +27,7 @@ from .tools import Limits, ToolChanger
 
 DEFAULT_PORT = 1294
 OUT_QUEUE = 20000  # response lines waiting for a slow client before it is dropped
+ENDING_WAIT = 10.0  # s a new client waits for an ending connection to release the machine (it stops any motion)
 
 
 def parse_address(text: str | None, default_host: str = "127.0.0.1") -> tuple[str, int]:
@@ -113,6 +115,15 @@ class _Connection:
                 pass
             self.server._gone(self)
 
+    def peer_closed(self) -> bool:
+        """The client has closed its end (the reader will see the end of the stream when it next runs)."""
+        try:
+            readable, _, _ = select.select([self.sock], [], [], 0)
+            # readable with nothing to read is the end of the stream (the socket's time-out makes recv wait)
+            return bool(readable) and self.sock.recv(1, socket.MSG_PEEK) == b""
+        except (ValueError, OSError):  # closed here already
+            return True
+
     def _line(self, raw: bytes) -> None:
         if not raw.strip():
             return  # an empty line carries no command: ignored
@@ -162,9 +173,7 @@ class IppServer:
             except OSError:
                 return
             peer = f"{addr[0]}:{addr[1]}"
-            with self._lock:
-                busy = self._client is not None
-            if busy:
+            if not self._free():
                 self._refuse(sock, "another I++ DME client holds the machine")
                 continue
             backend = self.backend.for_client(peer)
@@ -176,6 +185,20 @@ class IppServer:
                 self._client = conn = _Connection(self, sock, peer, backend)
             self.status.connected(peer)
             conn.start()
+
+    def _free(self) -> bool:
+        """No client holds the machine. A client whose connection is ending (it closed its end, or its reader has
+        seen that) is waited for until its reader has released the machine: a client that ends its session,
+        closes and connects again at once is not refused because this server's threads had not run yet."""
+        with self._lock:
+            old = self._client
+        if old is None:
+            return True
+        if old.alive and not old.peer_closed():
+            return False
+        old.reader.join(ENDING_WAIT)
+        with self._lock:
+            return self._client is None
 
     def _refuse(self, sock: socket.socket, why: str) -> None:
         """A client that cannot have the machine: one line saying so, then the connection is closed."""
