@@ -21,13 +21,16 @@ events, see :mod:`cmm.measurement.state`):
   (:func:`cmm.metrology.gdt.composite_position`).
 
 A feature is a :class:`MeasuredFeature`: its name, kind, fit summary (geometry), nominal (a
-``NominalFeature.to_dict()`` in the same coordinates), measured points, and its size tolerance. The CAD
+``NominalFeature.to_dict()`` in the same coordinates), measured points, its size tolerance, and the fit's
+``alternative`` (another solution that fits the hits better, far from the nominal), if any. The CAD
 ``mesh`` and ``pose`` (part -> measured coordinates) serve profiles.
 
 :func:`evaluate` gives one :class:`~cmm.metrology.characteristics.Characteristic` per definition: nominal 0,
 actual the zone, upper the tolerance plus any bonus, ``datums`` the frame ("A|B|C"); a definition that cannot
 be evaluated (a datum not defined, a feature deleted, no mesh for a profile) is listed with no actual and the
-reason in its note: it shows as "not evaluated", never as a pass.
+reason in its note: it shows as "not evaluated", never as a pass. A row whose toleranced feature (or a
+feature of its pattern) or any datum feature of its frame has an ``alternative`` is marked ``check`` (its
+verdict "check"): the value stands on a fit the operator must confirm.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ class MeasuredFeature:
     hit_ids: tuple[int, ...] = ()  # the hit of each point (datum targets name hits)
     size_lower: float | None = None  # the diameter's own limits (deviations from the nominal), when not +-
     size_upper: float | None = None
+    alternative: dict[str, Any] | None = None  # a clearly different fit the hits fit better (fit summary), or None
 
 
 def check_definition(d: dict[str, Any]) -> dict[str, Any]:
@@ -432,7 +436,29 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
                                           note=f"{name}: not evaluated: {msg}",
                                           datums="|".join(d.get("datums") or []))))
             continue
+        check = check_text(d, datums, feats)
         for feature_name, r in rows:
             out.append((d, Characteristic(feature_name, r.label, 0.0, r.value, r.allowed, 0.0,
-                                          note=f"{name}: {r.note}", datums=r.drf)))
+                                          note=f"{name}: {r.note}", check=check, datums=r.drf)))
     return out
+
+
+def check_text(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature]) -> str:
+    """Why a definition's value needs the operator's check: the features it stands on (the toleranced
+    feature, the pattern's, the datum features of both tiers) whose fit has an alternative; "" when none."""
+    ids = [int(d.get("feature", -1)), *(int(x) for x in d.get("pattern") or [])]
+    labels = [*(d.get("datums") or []), *((d.get("composite") or {}).get("datums") or [])]
+    for label in labels:
+        for part in str(label).upper().split("-"):
+            dd = datums.get(part.strip())
+            if dd is not None:
+                ids.append(int(dd["feature"]))
+    names = []
+    for fid in dict.fromkeys(ids):
+        f = feats.get(fid)
+        if f is not None and f.alternative and f.name not in names:
+            names.append(f.name)
+    if not names:
+        return ""
+    return (f"another fit of {', '.join(names)} fits the hits better: the value stands on the "
+            f"{'fits' if len(names) > 1 else 'fit'} near the nominal")
