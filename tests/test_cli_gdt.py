@@ -77,6 +77,14 @@ def test_profile_needs_a_mesh_and_datums_must_constrain(tmp_path, capsys, datums
                  "--json"]) == 0
     (prof,) = json.loads(capsys.readouterr().out)["gdt"]
     assert prof["value"] == pytest.approx(0.02, abs=1e-9)
+    # an unequally disposed zone (ISO 1101 UZ): the points 0.01 out are 0.015 from a middle 0.005 inside
+    inside, outside = gdt_json(capsys, ["plane", top, *datums, "--mesh", str(stl), "--gdt",
+                                        "profile of a surface=0.05UZ-0.005@A|B|C", "--gdt",
+                                        "profile of a surface=0.05 UZ+0.01@A|B|C"])
+    assert inside["value"] == pytest.approx(0.03, abs=1e-9) and inside["offset"] == -0.005
+    assert outside["value"] == pytest.approx(0.0, abs=1e-9) and "UZ" in outside["note"]
+    assert main(["fit", "plane", top, *datums, "--mesh", str(stl), "--gdt", "flatness=0.05UZ+0.01"]) == 1
+    assert "applies to a profile tolerance only" in capsys.readouterr().err
     assert main(["fit", "plane", top, "--datum", "A=plane:" + str(tmp_path / "a.txt"),
                  "--datum", "D=plane:" + str(tmp_path / "top.txt"), "--gdt", "position=0.05@A|D",
                  "--nominal", "0,0,0"]) == 1

@@ -11,7 +11,8 @@ of the datum features' nominals (the design frame: every nominal moved by the co
 from the datums' nominals; without datums: against the FEAT nominal, moved with the part by the program's alignments
 since, as the station's report has it); RUNOUT circular (per section) or
 TOTAL, radial or axial for a face; CONCEN concentricity (a centre) or coaxiality (an axis). PROFS / PROFL: the
-deviations of the hits from the FEAT nominal surface (twice the largest, equally disposed).
+deviations of the hits from the FEAT nominal surface (twice the largest; with unequal lower and upper limits
+twice the largest distance from the zone's middle, as an ISO 1101 UZ zone).
 """
 
 from __future__ import annotations
@@ -271,10 +272,11 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
                           note=res.note if (tol.material or tol.datum_material) else "")
     elif w in ("PROFS", "PROFL"):
         # DMIS defines the profile against the FEAT nominal surface (not the CAD mesh), within its own lower
-        # and upper limits
+        # and upper limits; unequal limits are an unequally disposed zone of width up - lo whose middle is
+        # offset by (lo + up) / 2, so the value is twice the largest |d - offset| (gdt.profile's UZ)
         d = _nominal_surface_deviation(a)
         intol = bool(np.all(d >= lo - 1e-12) and np.all(d <= up + 1e-12))
-        return Evaluation(tol, 2.0 * float(np.max(np.abs(d))), intol, [a.label])
+        return Evaluation(tol, 2.0 * float(np.max(np.abs(d - (lo + up) / 2.0))), intol, [a.label])
     elif w == "RUNOUT":
         if not dat:
             raise ToleranceError("TOL/RUNOUT needs a datum axis: TOL/RUNOUT, CIRCLR, zone, DAT(A)")

@@ -11,7 +11,8 @@
 points towards the toleranced feature (into the material). The datums of a ``--gdt`` (after ``@``, in
 precedence order; ``B(M)`` / ``B(L)``: referenced at MMB / LMB, its size limits from ``--datum-size``) build
 the frame (:mod:`cmm.metrology.datums`): Z along the primary's normal or axis, X along the secondary's (squared
-to Z), Y = Z x X. ``--datum-targets A=1,7,13`` establishes datum plane A by those points of its file (1 = the
+to Z), Y = Z x X. A profile's ``UZ+0.02`` after its tolerance offsets its zone (ISO 1101 UZ, see
+:func:`cmm.metrology.gdt.profile`). ``--datum-targets A=1,7,13`` establishes datum plane A by those points of its file (1 = the
 first line) as target points. The nominal (``--nominal x,y,z[,dx,dy,dz]``) is in that frame's coordinates
 (basic dimensions from the datums); a ``--mesh`` (STL, OBJ, PLY ...) is in the points' coordinates.
 
@@ -40,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("geometric tolerances (ISO 1101)")
     g.add_argument("--gdt", action="append", default=[], metavar="CHAR=TOL[@A|B|C]",
                    help="a geometric tolerance on the fitted feature, e.g. flatness=0.01, "
-                        "'perpendicularity=0.02@A', 'position=0.05@A|B(M)|C' (repeatable)")
+                        "'perpendicularity=0.02@A', 'position=0.05@A|B(M)|C', 'profile of a surface=0.1UZ+0.02@A' "
+                        "(an unequally disposed profile zone: its middle 0.02 outside the material) (repeatable)")
     g.add_argument("--datum", action="append", default=[], metavar="LABEL=KIND:FILE",
                    help="a datum feature fitted from a point file, e.g. A=plane:top.txt (repeatable)")
     g.add_argument("--datum-size", action="append", default=[], metavar="LABEL=LOW,HIGH,hole|pin",
@@ -157,16 +159,20 @@ def definitions(args: argparse.Namespace) -> list[dict[str, Any]]:
     for k, spec in enumerate(args.gdt):
         head, _, refs = spec.partition("@")
         name, _, tol_text = head.partition("=")
+        tol_text, uz, offset_text = tol_text.upper().partition("UZ")
         try:
             tol = float(tol_text)
+            offset = float(offset_text) if uz else 0.0
         except ValueError:
-            raise gdt.GdtError(f"--gdt takes CHARACTERISTIC=TOLERANCE[@A|B|C], got {spec!r}") from None
+            raise gdt.GdtError(f"--gdt takes CHARACTERISTIC=TOLERANCE[UZ+OFFSET][@A|B|C], got {spec!r}") from None
         labels, mods = _frame(refs)
         d = {"id": k + 1, "name": name.strip().lower(), "characteristic": name.strip().lower(), "feature": 0,
              "tolerance": tol, "datums": labels, "material": (args.material or "") if name.strip().lower() == "position"
              else "", "angle": args.angle, "direction": args.direction}
         if mods:
             d["datum_modifiers"] = mods
+        if uz:
+            d["offset"] = offset
         out.append(d)
     return out
 
@@ -217,5 +223,5 @@ def evaluate(args: argparse.Namespace, kind: str, summary: dict[str, Any], point
             out.append({"characteristic": d_["characteristic"], "value": c.actual, "tolerance": float(d_["tolerance"]),
                         "bonus": max(c.upper - float(d_["tolerance"]), 0.0), "allowed": c.upper, "ok": bool(c.ok),
                         "drf": c.datums, "material": d_.get("material") or "",
-                        "note": c.note.partition(": ")[2]})
+                        "note": c.note.partition(": ")[2], **({"offset": d_["offset"]} if "offset" in d_ else {})})
     return out

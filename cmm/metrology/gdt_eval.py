@@ -14,7 +14,9 @@ events, see :mod:`cmm.measurement.state`):
   (id), "tolerance" (mm), "datums" (["A", "B", "C"], precedence order; "A-B" is the common datum of datums A
   and B, see :func:`cmm.metrology.datums.common_datum`), "material" ("" | "MMC" | "LMC"), "angle" (degrees,
   angularity), "direction" ("radial" | "axial", runout), optionally "datum_modifiers" ({"B": "MMB"}: how this
-  frame references a datum, as a feature control frame says, over the datum's own modifier)}``; a composite
+  frame references a datum, as a feature control frame says, over the datum's own modifier), optionally
+  "offset" (mm, profiles: the unequally disposed zone's offset, ISO 1101 UZ, + towards the outside of the
+  material, see :func:`cmm.metrology.gdt.profile`)}``; a composite
   position frame adds ``"pattern"`` (the ids of the pattern's features, "feature" among them) and
   ``"composite": {"tolerance", "datums"}`` (the feature-relating tier; its datums repeat the first of the upper
   tier's, orientation only): it gives one row per feature for the upper tier and one for the pattern's lower tier
@@ -90,8 +92,14 @@ def check_definition(d: dict[str, Any]) -> dict[str, Any]:
         parts = label.split("-")
         if not all(p.isalpha() for p in parts) or len(parts) > 2:
             raise gdt.GdtError(f"{label!r} is not a datum reference: use a letter (A) or a common datum of two (A-B)")
+    offset = gdt.check_offset(d.get("offset"), tol) if d.get("offset") not in (None, "") else 0.0
+    if offset and not ch.startswith("profile"):
+        raise gdt.GdtError("a zone offset (UZ, unequally disposed) applies to a profile tolerance only")
     out = {**d, "characteristic": ch, "tolerance": tol, "datums": datums, "material": material,
            "angle": None if angle is None else float(angle), "direction": direction}
+    out.pop("offset", None)
+    if offset:
+        out["offset"] = offset
     out.pop("datum_modifiers", None)
     if d.get("datum_modifiers"):
         out["datum_modifiers"] = _check_modifiers(d["datum_modifiers"], datums)
@@ -355,7 +363,7 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
         return gdt.runout(ch, f.points, drf, tol, d["direction"])  # type: ignore[arg-type]
     if pose is None and mesh is not None:
         raise gdt.GdtError("profile tolerance needs the part's pose (an alignment or the nominal set-up)")
-    return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf)
+    return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf, offset=d.get("offset", 0.0))
 
 
 def evaluate_rows(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature], mesh: Any = None,
@@ -410,6 +418,8 @@ def tolerance_text(d: dict[str, Any]) -> str:
     ch = d.get("characteristic", "")
     dia = "⌀" if ch in ("position", "coaxiality", "concentricity") else ""
     head = f"{gdt.SYMBOLS.get(ch, '')} {dia}{float(d.get('tolerance', 0)):.4f}{MATERIAL_SYMBOL.get(d.get('material') or '', '')}"
+    if d.get("offset"):  # an unequally disposed profile zone, as ISO 1101 writes it: "UZ+0.0050"
+        head += f" UZ{float(d['offset']):+.4f}"
     mods = {k: {"MMB": "(M)", "LMB": "(L)"}.get(v, "") for k, v in (d.get("datum_modifiers") or {}).items()}
     text = head + (f" | {'|'.join(x + mods.get(x, '') for x in d.get('datums') or [])}" if d.get("datums") else "")
     low = d.get("composite")
