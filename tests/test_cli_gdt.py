@@ -83,6 +83,9 @@ def test_profile_needs_a_mesh_and_datums_must_constrain(tmp_path, capsys, datums
                                         "profile of a surface=0.05 UZ+0.01@A|B|C"])
     assert inside["value"] == pytest.approx(0.03, abs=1e-9) and inside["offset"] == -0.005
     assert outside["value"] == pytest.approx(0.0, abs=1e-9) and "UZ" in outside["note"]
+    assert main(["fit", "plane", top, *datums, "--mesh", str(stl), "--gdt",
+                 "profile of a surface=0.05UZ-0.005@A|B|C"]) == 0
+    assert "profile of a surface: 0.030000 (allowed 0.050000, UZ-0.005000 | A|B|C) pass" in capsys.readouterr().out
     assert main(["fit", "plane", top, *datums, "--mesh", str(stl), "--gdt", "flatness=0.05UZ+0.01"]) == 1
     assert "applies to a profile tolerance only" in capsys.readouterr().err
     assert main(["fit", "plane", top, "--datum", "A=plane:" + str(tmp_path / "a.txt"),
