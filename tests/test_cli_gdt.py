@@ -200,5 +200,8 @@ def test_datum_shift_at_mmb_and_datum_targets(tmp_path, capsys, datums):
     assert targets["value"] == pytest.approx(0.0, abs=1e-9)
     (whole,) = gdt_json(capsys, ["plane", top, "--datum", f"A=plane:{a_file}", "--gdt", "parallelism=0.01@A"])
     assert whole["value"] > 1e-3
+    assert main(["fit", "plane", top, "--datum", f"A=plane:{a_file}", "--datum-targets", "A=1,5,26",
+                 "--gdt", "parallelism=0.01@A"]) == 1
+    assert "--datum-targets A: the targets are point numbers of" in capsys.readouterr().err
     assert main(["fit", "plane", top, "--datum-targets", "D=1,2,3", "--gdt", "flatness=0.01"]) == 1
     assert "datum D has a size or targets but no --datum D=KIND:FILE" in capsys.readouterr().err

@@ -125,12 +125,16 @@ def features(args: argparse.Namespace, kind: str, summary: dict[str, Any],
         feats[fid] = MeasuredFeature(points=pts, hit_ids=tuple(range(1, len(pts) + 1)), **f)
         datums[label] = {"label": label, "feature": fid, "modifier": ""}
         if label in targets:
-            datums[label]["targets"] = [int(x) for x in _floats(targets.pop(label), tuple(range(1, 4)),
-                                                                f"--datum-targets {label}")]
+            ids = _floats(targets.pop(label), (1, 2, 3), f"--datum-targets {label}")
+            if not all(x.is_integer() and 1 <= x <= len(pts) for x in ids):
+                raise gdt.GdtError(f"--datum-targets {label}: the targets are point numbers of {path} (1 to "
+                                   f"{len(pts)}), got {', '.join(f'{x:g}' for x in ids)}")
+            datums[label]["targets"] = [int(x) for x in ids]
     left = sorted({*sizes, *targets})
     if left:
         raise gdt.GdtError(f"datum {left[0]} has a size or targets but no --datum {left[0]}=KIND:FILE")
-    mine: dict[str, Any] = {"name": "feature", "kind": kind, "geometry": summary, "nominal": None}
+    mine: dict[str, Any] = {"name": str(getattr(args, "file", "") or "the feature"), "kind": kind, "geometry": summary,
+                            "nominal": None}
     if args.size_limits:
         mine["nominal"] = {"kind": kind}
         mine.update(_size(mine, *_floats(args.size_limits, (2,), "--size-limits"), bool(args.internal)))
