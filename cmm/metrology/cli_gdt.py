@@ -12,8 +12,8 @@ points towards the toleranced feature (into the material). The datums of a ``--g
 precedence order; ``B(M)`` / ``B(L)``: referenced at MMB / LMB, its size limits from ``--datum-size``) build
 the frame (:mod:`cmm.metrology.datums`): Z along the primary's normal or axis, X along the secondary's (squared
 to Z), Y = Z x X. A profile's ``UZ+0.02`` after its tolerance offsets its zone (ISO 1101 UZ, see
-:func:`cmm.metrology.gdt.profile`). ``--datum-targets A=1,7,13`` establishes datum plane A by those points of its file (1 = the
-first line) as target points. The nominal (``--nominal x,y,z[,dx,dy,dz]``) is in that frame's coordinates
+:func:`cmm.metrology.gdt.profile`). ``--datum-targets A=1,7,13`` establishes datum plane A by those points
+of its file (1 = the first line) as target points. The nominal (``--nominal x,y,z[,dx,dy,dz]``) is in that frame's coordinates
 (basic dimensions from the datums); a ``--mesh`` (STL, OBJ, PLY ...) is in the points' coordinates.
 
 The command line gives definitions (:func:`definitions`) and measured features (:func:`features`: the fitted

@@ -29,9 +29,10 @@ the feature), the stated ``tolerance``, a material-condition ``bonus``, the datu
   datum axis; axial: of the axial position) and total (all points);
 - profile of a surface / a line: twice the largest distance of the points from the CAD mesh (zone equally
   disposed), or with an ``offset`` o (an unequally disposed zone, ISO 1101 "UZ"): twice the largest
-  |d - o|, d the signed distance (+ outside the material); without datums the points are first fitted to the mesh (least squares, then minimum zone: the
-  profile is then form only), with datums only in the DOF the frame leaves free. A line profile's points
-  lie in one section; their fit without datums stays in that section's plane.
+  |d - o|, d the signed distance (+ outside the material); without datums the points are first fitted to
+  the mesh (least squares, then minimum zone: the profile is then form only), with datums only in the DOF
+  the frame leaves free. A line profile's points lie in one section; their fit without datums stays in that
+  section's plane.
 
 Refusals are :class:`GdtError` in words ("profile tolerance needs the part mesh").
 """

@@ -292,10 +292,7 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
         n = f.nominal
         if not n or n.get("kind") in (None, "surface"):
             raise DatumError(f"datum {label} ({f.name}) has no nominal: the nominal frame cannot be built")
-        kind = {"plane": "plane", "cylinder": "cylinder", "sphere": "sphere", "cone": "cone"}.get(n["kind"], n["kind"])
-        if f.kind == "circle" and kind == "cylinder":
-            kind = "cylinder"
-        return datum_from_feature(label, kind, n, feature=f.name)
+        return datum_from_feature(label, str(n["kind"]), n, feature=f.name)  # a circle's nominal is its cylinder
     return datum_from_feature(label, f.kind, _signed_like_nominal(f), modifier=modifier, boundary=boundary,
                               internal=internal, feature=f.name)
 
