@@ -97,13 +97,13 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
     def define_gdt(characteristic: str, feature: int, tolerance: float, datums: Any = "", material: str = "",
                    angle: float | None = None, direction: str = "radial", pattern: Any = None,
                    composite: dict | None = None, name: str | None = None,
-                   datum_modifiers: dict[str, str] | None = None) -> Any:
+                   datum_modifiers: dict[str, str] | None = None, offset: float = 0.0) -> Any:
         extra: dict[str, Any] = {}
         if composite is not None:
             extra = {"pattern": [int(f) for f in pattern or []], "composite": composite}
         return measurement.define_gdt(characteristic, int(feature), tolerance, datums, material=material,
                                       angle=angle, direction=direction, name=name, datum_modifiers=datum_modifiers,
-                                      **extra)
+                                      offset=offset or 0.0, **extra)
 
     def auto_measure(client: Any, plan: Any = None, face: int | None = None, n: int | None = None,
                      name: str | None = None, method: str = "ls", progress: Any = None) -> Any:
@@ -147,10 +147,11 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
     cmds.register("define_gdt", holder(define_gdt),
                   {"characteristic": REQUIRED, "feature": REQUIRED, "tolerance": REQUIRED, "datums": "",
                    "material": "", "angle": None, "direction": "radial", "pattern": None, "composite": None,
-                   "name": None, "datum_modifiers": None},
+                   "name": None, "datum_modifiers": None, "offset": 0.0},
                   "a geometric tolerance on a feature against datums \"A|B|C\" (a composite position: pattern "
                   "feature ids and composite {tolerance, datums}; datum_modifiers {label: MMB | LMB} as this frame "
-                  "references them); evaluated at once, refused in words when it cannot be; returns (definition, "
+                  "references them; offset: a profile's unequally disposed zone, mm, ISO 1101 UZ, + outside the "
+                  "material); evaluated at once, refused in words when it cannot be; returns (definition, "
                   "characteristic)")
     cmds.register("delete_gdt", holder(lambda gdt: measurement.delete_gdt(int(gdt))), {"gdt": REQUIRED},
                   "delete a geometric tolerance by id")

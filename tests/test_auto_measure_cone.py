@@ -5,14 +5,19 @@ the same numbers from the same result."""
 from __future__ import annotations
 
 import math
+import time
+from html import escape as e
 
 import numpy as np
 import pytest
 from netutil import SIM
 
+from cmm.machine.probing import Hit
 from cmm.measurement.plan import plan_at_pick, run_plan
 from cmm.metrology.characteristics import characteristics
 from cmm.metrology.fit_ls import fit_cone
+from cmm.metrology.pick import NominalFeature
+from cmm.session.export import session_json
 from cmm.session.report import features_csv, render
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.session.store import DirectoryStore, load_session
@@ -20,6 +25,14 @@ from cmm.station import Station
 from cmm.ui.panel_features import feature_chars, tree_html
 
 HALF_ANGLE = math.degrees(math.atan(0.5))  # the sample part's cone: radius 12 at z 40, 6 at z 52
+# eight tip centres from the simulator's cone (two rings of four at the same angles) with 0.5 um of noise: a
+# cone across the axis (half angle 1.94 deg) fits them better than the probed one, the nominal
+CHECK_TIPS = np.array([[284.3420629, 184.3399339, 49.2523202], [283.8040525, 196.1937322, 49.6301808],
+                       [296.192652, 196.1924735, 49.6296481], [295.6533673, 184.3436884, 49.2480207],
+                       [282.2168375, 182.2178906, 43.251377], [281.6796339, 198.3177279, 43.6318418],
+                       [298.3162058, 198.3165213, 43.6299357], [297.7786832, 182.2196674, 43.2501758]])
+CHECK_NOMINAL = {"kind": "cone", "apex": [290.0, 190.0, 64.0], "direction": [0.0, 0.0, -1.0],
+                 "half_angle": math.atan(0.5)}
 
 
 @pytest.fixture
@@ -89,12 +102,7 @@ def test_a_better_cone_far_from_the_nominal_is_shown_as_check_not_reported():
     """Eight tip centres from the simulator's cone (two rings of four at the same angles: the old plan) with
     0.5 um of noise: a cone across the axis (half angle 1.94 deg) fits them better than the probed one.
     With the CAD nominal the probed cone is reported and the other is the alternative to check."""
-    tips = np.array([[284.3420629, 184.3399339, 49.2523202], [283.8040525, 196.1937322, 49.6301808],
-                     [296.192652, 196.1924735, 49.6296481], [295.6533673, 184.3436884, 49.2480207],
-                     [282.2168375, 182.2178906, 43.251377], [281.6796339, 198.3177279, 43.6318418],
-                     [298.3162058, 198.3165213, 43.6299357], [297.7786832, 182.2196674, 43.2501758]])
-    nominal = {"kind": "cone", "apex": [290.0, 190.0, 64.0], "direction": [0.0, 0.0, -1.0],
-               "half_angle": math.atan(0.5)}
+    tips, nominal = CHECK_TIPS, CHECK_NOMINAL
     alone = fit_cone(tips)
     assert alone.half_angle_deg < 5.0  # without a nominal the best fit wins: not the probed cone
     r = fit_cone(tips, nominal)
@@ -125,3 +133,57 @@ def test_bore_to_boss_distance_is_axis_to_axis_in_the_alignment_plane(station):
     assert "XY plane" in planar.result.projection
     spatial = model.construct_feature("distance", ids[0], ids[1], "bore-boss 3-D", three_d=True)
     assert "3-D" in spatial.result.projection and spatial.result.value == pytest.approx(planar.result.value, abs=0.01)
+
+
+def test_check_reaches_the_tree_and_the_report_for_the_feature_and_its_gdt(station, tmp_path):
+    """The cone of CHECK_TIPS recorded and fitted with its nominal: its characteristics, a geometric tolerance on
+    it and one with it as the datum are "check" in the feature tree, the HTML report, the CSV and the JSON."""
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    tip = station.prober.settings.tip_radius
+    axis, apex = np.array([0.0, 0.0, -1.0]), np.array(CHECK_NOMINAL["apex"])
+    ids = []
+    for t in CHECK_TIPS:
+        radial = t - apex - ((t - apex) @ axis) * axis
+        n = math.cos(math.atan(0.5)) * radial / np.linalg.norm(radial) - math.sin(math.atan(0.5)) * axis
+        ids.append(model.add_hit(Hit(counts=(0, 0, 0), machine=tuple(t), approach=tuple(-n), speed=5.0,
+                                     time=time.time(), point=tuple(t - tip * n))))
+    nominal = NominalFeature("cone", {k: v for k, v in CHECK_NOMINAL.items() if k != "kind"})
+    cone = model.fit_feature("cone", ids, "ls", "cone", nominal=nominal)
+    assert cone.result.check
+    top = []  # the part's top face (z 40), a plane toleranced against the cone's axis
+    for x, y in ((10.0, 10.0), (110.0, 10.0), (60.0, 70.0), (20.0, 60.0)):
+        p = (model.part.pose @ np.array([x, y, 40.0, 1.0]))[:3]
+        top.append(model.add_hit(Hit(counts=(0, 0, 0), machine=tuple(p + [0, 0, tip]), approach=(0.0, 0.0, -1.0),
+                                     speed=5.0, time=time.time(), point=tuple(p))))
+    plane = model.fit_feature("plane", top, "ls", "top")
+    assert not plane.result.check
+    model.define_datum("A", cone.id)
+    model.define_gdt("cylindricity", cone.id, 0.05, name="cone form")
+    model.define_gdt("perpendicularity", plane.id, 0.05, "A", name="top to the cone")
+    model.define_gdt("flatness", plane.id, 0.05, name="top flat")
+    rows = {d["name"]: c for d, c in model.gdt_characteristics()}
+    assert rows["cone form"].verdict == rows["top to the cone"].verdict == "check"
+    assert "cone" in rows["top to the cone"].check and rows["top flat"].verdict != "check"
+    feature_rows = feature_chars(cone)
+    assert {c.verdict for c in feature_rows} == {"check"}
+
+    tree = tree_html(station)
+    model.journal.close()
+    session = load_session(DirectoryStore(tmp_path), "cone")
+    html = render(session)
+    csv_rows = [r.split(",") for r in features_csv(session).splitlines()[1:]]
+    exported = session_json(session)["gdt"]
+    assert "CHECK (" in html
+    for c in [*feature_rows, *rows.values()]:
+        assert f"{c.actual:.4f}" in tree and f"{c.actual:.4f}" in html
+        kind = "gdt" if c in rows.values() else "cone"
+        row = next(r for r in csv_rows if r[0] == c.feature and r[1] == kind and r[4] == c.name)
+        assert row[12] == c.verdict and row[9] == f"{c.actual:.6f}"
+    assert html.count("<td class='chk'>check</td>") == len(feature_rows) + 2
+    assert html.count("check: another fit of cone fits the hits better") == 2
+    # the tree: the check word on each such row, with the reason
+    assert tree.count(">check</td>") == len(feature_rows) + 2
+    assert e(rows["top to the cone"].check) in tree
+    assert [x["result"] for x in exported] == ["check", "check", "pass"]
+    assert exported[1]["check"] == rows["top to the cone"].check

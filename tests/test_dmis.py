@@ -291,6 +291,24 @@ def _ring(centre, radius, zs, n=12):
     return np.array([[centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a), z] for z in zs for a in t])
 
 
+def test_surface_profile_with_unequal_limits_is_an_offset_zone():
+    """TOL/PROFS, -0.025, 0.015: a zone 0.04 wide whose middle is 0.005 inside the material (ISO 1101 UZ-0.005);
+    hits at +0.01 and -0.02 from the nominal plane give 0.03 (twice the largest distance from the middle)."""
+    from cmm.dmis.features import Actual, Nominal
+    from cmm.dmis.tolerances import Tolerance, evaluate
+
+    z = np.array([0.0, 0.0, 1.0])
+    pts = np.array([[x, y, 50 + (0.01 if (x + y) % 2 else -0.02)] for x in range(4) for y in range(4)], float)
+    face = Actual("F", "plane", {"point": [1.5, 1.5, 50], "normal": [0, 0, 1], "form": 0.03},
+                  Nominal("PLANE", None, np.array([0, 0, 50.0]), z), hit_points=pts)
+    unequal = evaluate(Tolerance("U", "PROFS", lower=-0.025, upper=0.015), [face], {}, np.eye(4))
+    assert unequal.value == pytest.approx(0.03, abs=1e-12) and unequal.intol
+    equal = evaluate(Tolerance("E", "PROFS", lower=-0.02, upper=0.02), [face], {}, np.eye(4))
+    assert equal.value == pytest.approx(0.04, abs=1e-12) and equal.intol
+    outside = evaluate(Tolerance("O", "PROFS", lower=-0.01, upper=0.03), [face], {}, np.eye(4))
+    assert outside.value == pytest.approx(0.06, abs=1e-12) and not outside.intol
+
+
 def test_tolerances_on_known_geometry():
     """Runout, concentricity, orientation, angles, distances and constructions on exact geometry (no probing)."""
     from cmm.dmis.construct import construct_actual

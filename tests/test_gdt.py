@@ -225,3 +225,54 @@ def test_bad_input_is_explained():
         gdt.orientation("parallelism", "plane", {}, [[1, 0, 0], [0, 1, 0], [0, 0, 1]], None, 0.01)
     with pytest.raises(gdt.GdtError, match="needs a feature of size"):
         gdt.position("point", {"point": [0, 0, 0]}, {"point": [0, 0, 0]}, 0.1, material="MMC")
+
+
+def test_profile_with_an_unequally_disposed_zone():
+    """ISO 1101 UZ: the zone's middle offset o from the nominal surface (+ outside the material); the value is
+    twice the largest |d - o|. Top-face points at +0.01 and -0.02 (located by A|B|C): 0.04 equally disposed,
+    0.03 about -0.005 (the zone -0.025 .. +0.005 of 0.04 holds them), 0.06 about +0.01. A section whose side is
+    0.015 out: 0.015 about +0.0075."""
+    mesh = box_mesh()
+    xy = np.repeat(np.c_[RNG.uniform(2, 38, 20), RNG.uniform(2, 28, 20)], 2, axis=0)
+    pts = np.c_[xy, 20 + np.where(np.arange(40) % 2 == 0, 0.01, -0.02)]
+    drf = planes_drf()
+    def value(offset, tol=0.04, points=pts, ch="profile of a surface"):
+        return gdt.profile(ch, points, mesh, np.eye(4), tol, drf=drf, nominal_drf=drf, offset=offset)
+    assert value(0.0).value == pytest.approx(0.04, abs=1e-9)
+    inside = value(-0.005)
+    assert inside.value == pytest.approx(0.03, abs=1e-9) and inside.ok and "UZ" in inside.note
+    assert "-0.0250 .. +0.0150" in inside.note and "deviations -0.0200 .. +0.0100" in inside.note
+    assert value(0.01, tol=0.06).value == pytest.approx(0.06, abs=1e-9)
+    top = np.c_[np.linspace(2, 38, 10), np.full(10, 10.0), np.full(10, 20.0)]
+    side = np.c_[np.full(6, 40.015), np.full(6, 10.0), np.linspace(2, 18, 6)]
+    assert value(0.0075, 0.02, np.r_[top, side], "profile of a line").value == pytest.approx(0.015, abs=1e-9)
+    # without datums the fit minimises the largest |d - o|: a plane's points take up any offset by moving
+    flat = np.c_[xy, np.full(len(xy), 20.0)]
+    assert gdt.profile("profile of a surface", flat, mesh, np.eye(4), 0.04, offset=0.01).value == pytest.approx(
+        0.0, abs=1e-6)
+    with pytest.raises(gdt.GdtError, match="moves the profile zone of 0.04 off the nominal surface"):
+        value(0.03)
+
+
+def test_unequal_profile_zone_definitions_and_frame_text():
+    from cmm.metrology.gdt_eval import MeasuredFeature, check_definition, evaluate, tolerance_text
+
+    d = check_definition({"characteristic": "profile of a surface", "feature": 1, "tolerance": 0.04,
+                          "datums": [], "offset": -0.005})
+    assert d["offset"] == -0.005 and tolerance_text(d) == "⌓ 0.0400 UZ-0.0050"
+    assert "offset" not in check_definition({**d, "offset": 0})
+    with pytest.raises(gdt.GdtError, match="applies to a profile tolerance only"):
+        check_definition({"characteristic": "flatness", "feature": 1, "tolerance": 0.04, "offset": 0.01})
+    with pytest.raises(gdt.GdtError, match="is a number in mm"):
+        check_definition({**d, "offset": "high"})
+    xy = np.repeat(np.c_[RNG.uniform(2, 38, 20), RNG.uniform(2, 28, 20)], 2, axis=0)
+    top = np.c_[xy, 20 + np.where(np.arange(40) % 2 == 0, 0.01, -0.02)]
+    corner = {1: MeasuredFeature("top", "plane", {"point": [20, 15, 20], "normal": [0, 0, 1]}, None, top)}
+    for label, (point, normal) in zip("ABC", (((5, 5, 0), (0, 0, -1)), ((0, 5, 5), (-1, 0, 0)),
+                                             ((5, 0, 5), (0, -1, 0)))):
+        nominal = {"kind": "plane", "point": list(point), "normal": list(normal)}
+        corner[ord(label)] = MeasuredFeature(label, "plane", nominal, nominal,
+                                             np.array([point], float))
+    datums = {x: {"label": x, "feature": ord(x)} for x in "ABC"}
+    ((_, c),) = evaluate([{**d, "datums": ["A", "B", "C"]}], datums, corner, box_mesh(), np.eye(4))
+    assert c.actual == pytest.approx(0.03, abs=1e-9) and c.ok and "UZ" in c.note

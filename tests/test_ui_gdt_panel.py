@@ -78,3 +78,25 @@ def test_targets_common_datum_and_composite_from_the_tab(panel):
     s = load_session(store, "panel")
     assert s.state.datums["A"]["targets"] == [top_hits[0], top_hits[2], top_hits[4]]
     assert s.state.gdt[d["id"]]["composite"] == {"tolerance": 0.05, "datums": ["A"]}
+
+
+def test_unequally_disposed_profile_from_the_tab(panel):
+    """A profile's zone offset (ISO 1101 UZ) typed in the tab: in the definition, the journal and the report's
+    frame ("UZ-0.0020"); the top's profile without datums floats onto the offset zone (the same value as the
+    equally disposed one); an offset beyond half the zone is refused in words."""
+    from cmm.session.report import render
+
+    p, model, store = panel
+    top = next(f.id for f in model.features.values() if f.name == "top")
+    _, equal = p._gdt("profile of a surface", f"{top} top", 0.02, "", "RFS", 0.0, "radial")
+    d, c = p._gdt("profile of a surface", f"{top} top", 0.02, "", "RFS", 0.0, "radial", "", 0.0, "", -0.002)
+    assert d["offset"] == -0.002 and "zone offset -0.0020 mm (UZ)" in c.note
+    assert c.actual == pytest.approx(equal.actual, abs=1e-6)
+    n_defs = len(model.gdt)
+    p._gdt("profile of a surface", f"{top} top", 0.02, "", "RFS", 0.0, "radial", "", 0.0, "", 0.02)
+    assert "moves the profile zone of 0.02 off the nominal surface" in p.ctx.messages[-1][2]
+    assert len(model.gdt) == n_defs
+    model.journal.close()
+    s = load_session(store, "panel")
+    assert s.state.gdt[d["id"]]["offset"] == -0.002
+    assert "⌓ 0.0200 UZ-0.0020" in render(s, mesh=model.part.mesh)

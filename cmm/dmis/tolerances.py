@@ -2,7 +2,8 @@
 
 Size (DIAM, RAD), distance and angle between two features (DISTB, ANGLB) report the deviation from the nominal;
 the geometric tolerances are the GD&T functions' (:mod:`cmm.metrology.gdt`, ISO 1101) with the datum reference
-frame of the tolerance's ``DAT(..)`` (:func:`cmm.metrology.datums.build_drf` of the DATDEF features): form
+frame of the tolerance's ``DAT(..)`` (:func:`cmm.metrology.datums.build_drf` of the DATDEF features), form,
+orientation, runout and CONCEN through the station's dispatcher (:func:`cmm.metrology.gdt_eval.evaluate_one`): form
 (FLAT, STRGHT, CIRLTY, CYLCTY) the minimum zone of the hits (the fit's form for other kinds); orientation
 (PARLEL, PERPEND, ANGLR) the zone at the basic angle to the datum holding a plane's hits or an axis over its
 length; POS the position zone's diameter, the actual in the actual datum frame against the nominal in the frame
@@ -10,7 +11,8 @@ of the datum features' nominals (the design frame: every nominal moved by the co
 from the datums' nominals; without datums: against the FEAT nominal, moved with the part by the program's alignments
 since, as the station's report has it); RUNOUT circular (per section) or
 TOTAL, radial or axial for a face; CONCEN concentricity (a centre) or coaxiality (an axis). PROFS / PROFL: the
-deviations of the hits from the FEAT nominal surface (twice the largest, equally disposed).
+deviations of the hits from the FEAT nominal surface (twice the largest; with unequal lower and upper limits
+twice the largest distance from the zone's middle, as an ISO 1101 UZ zone).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from ..metrology import gdt
 from ..metrology.construct import construct
 from ..metrology.datums import DRF, DatumError, build_drf, datum_from_feature
 from ..metrology.features import FitError
+from ..metrology.gdt_eval import MeasuredFeature, evaluate_one
 from .features import Actual, Nominal
 
 SIZE = ("DIAM", "RAD")
@@ -238,15 +241,19 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
             raise ToleranceError(f"TOL/{w} applies to a {' or '.join(FORM[w])}, FA({a.label}) is a {a.kind}")
         characteristic = GDT_FORM.get((w, a.kind))
         if characteristic is not None and a.hit_points is not None and up > 0:
-            value = gdt.form(characteristic, a.hit_points, up).value
+            value = _station(characteristic, up, a, [], datums).value
         else:
             value = float(a.geometry["form"])
     elif w in ORIENT:
         if not dat:
             raise ToleranceError(f"TOL/{w} needs a datum: TOL/{w}, zone, DAT(A)")
-        value = gdt.orientation(GDT_ORIENT[w], a.kind, _signed(a), _points(a), _drf(tol.datums, datums), up,
-                                angle_deg=tol.nominal if w == "ANGLR" else None).value
+        _points(a)
+        value = _station(GDT_ORIENT[w], up, a, tol.datums, datums, angle=tol.nominal if w == "ANGLR" else None).value
     elif w == "POS":
+        # DMIS defines position's inputs its own way: the nominals are the design ones (moved by the coordinate
+        # systems the program built from the datums' nominals, not each FEAT's own alignment), and the size
+        # limits of the feature and of a datum at MMC / LMC are the program's TOL/DIAM outputs; the zone is
+        # gdt.position's, as in gdt_eval
         nom = a.nominal
         if nom is None or a.kind not in ("point", "circle", "cylinder", "sphere", "cone"):
             raise ToleranceError(f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
@@ -264,22 +271,44 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         return Evaluation(tol, res.value, res.value <= res.allowed + 1e-12, [a.label], bonus=res.bonus,
                           note=res.note if (tol.material or tol.datum_material) else "")
     elif w in ("PROFS", "PROFL"):
+        # DMIS defines the profile against the FEAT nominal surface (not the CAD mesh), within its own lower
+        # and upper limits; unequal limits are an unequally disposed zone of width up - lo whose middle is
+        # offset by (lo + up) / 2, so the value is twice the largest |d - offset| (gdt.profile's UZ)
         d = _nominal_surface_deviation(a)
         intol = bool(np.all(d >= lo - 1e-12) and np.all(d <= up + 1e-12))
-        return Evaluation(tol, 2.0 * float(np.max(np.abs(d))), intol, [a.label])
+        return Evaluation(tol, 2.0 * float(np.max(np.abs(d - (lo + up) / 2.0))), intol, [a.label])
     elif w == "RUNOUT":
         if not dat:
             raise ToleranceError("TOL/RUNOUT needs a datum axis: TOL/RUNOUT, CIRCLR, zone, DAT(A)")
-        value = gdt.runout("total runout" if "TOTAL" in tol.options else "circular runout", _points(a),
-                           _drf(tol.datums, datums), up, "axial" if a.kind == "plane" else "radial").value
+        _points(a)
+        value = _station("total runout" if "TOTAL" in tol.options else "circular runout", up, a, tol.datums, datums,
+                         direction="axial" if a.kind == "plane" else "radial").value
     elif w == "CONCEN":
         if not dat:
             raise ToleranceError("TOL/CONCEN needs a datum axis: TOL/CONCEN, zone, DAT(A)")
-        value = gdt.coaxiality("concentricity" if a.kind in ("circle", "sphere", "point") else "coaxiality", a.kind,
-                               _signed(a), _drf(tol.datums, datums), up, points=a.hit_points).value
+        value = _station("concentricity" if a.kind in ("circle", "sphere", "point") else "coaxiality", up, a,
+                         tol.datums, datums).value
     else:
         raise ToleranceError(f"TOL/{w} is not supported")
     return Evaluation(tol, value, value <= up + 1e-12, [a.label])
+
+
+def _measured(a: Actual) -> MeasuredFeature:
+    """An actual as the station's geometric tolerances take it: its geometry signed like its nominal, its hits."""
+    pts = np.zeros((0, 3)) if a.hit_points is None else np.asarray(a.hit_points, float).reshape(-1, 3)
+    return MeasuredFeature(f"FA({a.label})", a.kind, _signed(a), None, pts)
+
+
+def _station(characteristic: str, zone: float, a: Actual, names: list[str], datums: dict[str, Actual], *,
+             angle: float | None = None, direction: str = "radial") -> gdt.GdtResult:
+    """A tolerance DMIS defines as ISO 1101 does, evaluated by the station's dispatcher
+    (:func:`cmm.metrology.gdt_eval.evaluate_one`): FA(..) is feature 0, the DAT(..) features (at most three,
+    precedence order) are datums A, B, C of features 1, 2, 3."""
+    letters = [chr(ord("A") + k) for k in range(len(names[:3]))]
+    feats = {0: _measured(a), **{k + 1: _measured(datums[n]) for k, n in enumerate(names[:3])}}
+    defs = {x: {"label": x, "feature": k + 1, "modifier": ""} for k, x in enumerate(letters)}
+    return evaluate_one({"characteristic": characteristic, "feature": 0, "tolerance": zone, "datums": letters,
+                         "angle": angle, "direction": direction}, defs, feats)
 
 
 def model_tolerance(tol: Tolerance) -> dict[str, float]:

@@ -649,13 +649,15 @@ class MeasurementModel:
                    material: str = "", angle: float | None = None, direction: str = "radial",
                    name: str | None = None, gdt_id: int | None = None, pattern: Any = None,
                    composite: dict[str, Any] | None = None,
-                   datum_modifiers: dict[str, str] | None = None) -> tuple[dict[str, Any], Any]:
+                   datum_modifiers: dict[str, str] | None = None,
+                   offset: float = 0.0) -> tuple[dict[str, Any], Any]:
         """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
         ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
         refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
         mesh for a profile). A composite position frame: ``pattern`` (the ids of the pattern's features) and
         ``composite`` ({"tolerance", "datums"}: the feature-relating tier). ``datum_modifiers``: how this frame
-        references its datums ({"B": "MMB"}), over the datums' own modifiers. Journalled; returns (definition,
+        references its datums ({"B": "MMB"}), over the datums' own modifiers. ``offset``: a profile's unequally
+        disposed zone (mm, ISO 1101 UZ, + towards the outside of the material). Journalled; returns (definition,
         its first Characteristic)."""
         from ..metrology.datums import DatumError
         from ..metrology.gdt_eval import check_definition, evaluate_one
@@ -671,6 +673,8 @@ class MeasurementModel:
             raw.update(pattern=list(pattern or []), composite=low)
         if datum_modifiers:
             raw["datum_modifiers"] = dict(datum_modifiers)
+        if offset:
+            raw["offset"] = offset
         try:
             d = check_definition(raw)
             with self.lock:

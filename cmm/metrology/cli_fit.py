@@ -53,6 +53,7 @@ def format_table(summary: dict[str, Any]) -> str:
         if k == "gdt":  # one line per geometric tolerance: value, allowed, verdict, datums
             rows.extend(f"{(k if i == 0 else '').ljust(width)}  {t['characteristic']}: {t['value']:.6f} "
                         f"(allowed {t['allowed']:.6f}{', ' + t['material'] if t['material'] else ''}"
+                        f"{', UZ%+.6f' % t['offset'] if t.get('offset') else ''}"
                         f"{' | ' + t['drf'] if t['drf'] else ''}) {'pass' if t['ok'] else 'FAIL'}"
                         for i, t in enumerate(v))
             continue

@@ -28,9 +28,11 @@ the feature), the stated ``tolerance``, a material-condition ``bonus``, the datu
   feature's centre / axis; runout: circular (per section, radial: the range of the radius about the
   datum axis; axial: of the axial position) and total (all points);
 - profile of a surface / a line: twice the largest distance of the points from the CAD mesh (zone equally
-  disposed); without datums the points are first fitted to the mesh (least squares, then minimum zone: the
-  profile is then form only), with datums only in the DOF the frame leaves free. A line profile's points
-  lie in one section; their fit without datums stays in that section's plane.
+  disposed), or with an ``offset`` o (an unequally disposed zone, ISO 1101 "UZ"): twice the largest
+  |d - o|, d the signed distance (+ outside the material); without datums the points are first fitted to
+  the mesh (least squares, then minimum zone: the profile is then form only), with datums only in the DOF
+  the frame leaves free. A line profile's points lie in one section; their fit without datums stays in that
+  section's plane.
 
 Refusals are :class:`GdtError` in words ("profile tolerance needs the part mesh").
 """
@@ -486,15 +488,22 @@ def _sections(t: np.ndarray) -> list[np.ndarray]:
 
 
 def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: float, *, drf: DRF | None = None,
-            nominal_drf: DRF | None = None, iterations: int = 30) -> GdtResult:
+            nominal_drf: DRF | None = None, iterations: int = 30, offset: float = 0.0) -> GdtResult:
     """Profile of a surface or of a line against the CAD ``mesh`` (part coordinates) at ``pose`` (part ->
     measured coordinates): twice the largest |distance| of the points from the surface after the fit the
-    datums allow (none: a best fit in all DOF, a line's in its section plane)."""
+    datums allow (none: a best fit in all DOF, a line's in its section plane).
+
+    ``offset`` o (mm) makes the zone unequally disposed, as ISO 1101's "UZ": the zone's mid surface is the
+    nominal surface moved by o along its outward normal (+ towards the outside of the material, - into it);
+    the value is twice the largest |d - o| of the signed distances d (+ outside), so the points lie within
+    [o - t/2, o + t/2] of the surface when the value is at most the tolerance t. ASME Y14.5's "U u" (u of the
+    zone t outside the material) is o = u - t/2; o = +-t/2 puts the whole zone outside (inside)."""
     if characteristic not in ("profile of a surface", "profile of a line"):
         raise GdtError(f"{characteristic} is not a profile; use profile of a surface or profile of a line")
     if mesh is None:
         raise GdtError("profile tolerance needs the part mesh: load the part (CAD) the points were measured on")
     tol = _check_tol(tolerance, characteristic)
+    o = check_offset(offset, tol)
     from .mesh import closest_points, surface_index
     from .transform import as_pose, invert, rotation_from_rotvec
 
@@ -526,7 +535,7 @@ def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: f
         nrm = cp.normals @ M[:3, :3]  # part -> working frame
         c = q.mean(axis=0) if drf is None else np.zeros(3)  # a DRF's free rotations turn about its origin
         signed = np.einsum("ij,ij->i", qp - cp.points, cp.normals)
-        return np.sign(signed) * cp.distances, np.c_[nrm, np.cross(q - c, nrm)][:, free], c
+        return np.sign(signed) * cp.distances - o, np.c_[nrm, np.cross(q - c, nrm)][:, free], c
 
     def moved(q: np.ndarray, step: np.ndarray, c: np.ndarray) -> np.ndarray:
         full = np.zeros(6)
@@ -554,8 +563,24 @@ def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: f
     how = ("best fit to the CAD, minimum zone (form only)" if drf is None else
            "located by the datums" + (f"; {', '.join(n for n in ('Tx', 'Ty', 'Tz', 'Rx', 'Ry', 'Rz') if n not in drf.constrained)} free"
                                       if len(free) else ""))
-    how += f"; deviations {d.min():+.4f} .. {d.max():+.4f} mm"
+    how += f"; deviations {d.min() + o:+.4f} .. {d.max() + o:+.4f} mm"
+    if o:
+        how += f"; zone offset {o:+.4f} mm (UZ), {o - tol / 2:+.4f} .. {o + tol / 2:+.4f} mm"
     return GdtResult(characteristic, value, tol, drf=_drf_text(drf), note=how)
+
+
+def check_offset(offset: Any, tolerance: float) -> float:
+    """A profile zone's offset (mm, ISO 1101 UZ), checked: a finite number; 0 is the equally disposed zone."""
+    try:
+        o = float(offset or 0.0)
+    except (TypeError, ValueError):
+        raise GdtError(f"a profile zone offset (UZ) is a number in mm, got {offset!r}") from None
+    if not math.isfinite(o):
+        raise GdtError(f"a profile zone offset (UZ) is a finite number in mm, got {offset!r}")
+    if abs(o) > tolerance / 2.0 + 1e-12:
+        raise GdtError(f"the zone offset {o:+g} moves the profile zone of {tolerance:g} off the nominal surface: "
+                       f"use an offset within +-{tolerance / 2.0:g} (+ towards the outside of the material)")
+    return o
 
 
 def _minimax_step(d: np.ndarray, A: np.ndarray, reach: float = 1.0) -> np.ndarray | None:

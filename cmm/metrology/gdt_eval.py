@@ -14,20 +14,25 @@ events, see :mod:`cmm.measurement.state`):
   (id), "tolerance" (mm), "datums" (["A", "B", "C"], precedence order; "A-B" is the common datum of datums A
   and B, see :func:`cmm.metrology.datums.common_datum`), "material" ("" | "MMC" | "LMC"), "angle" (degrees,
   angularity), "direction" ("radial" | "axial", runout), optionally "datum_modifiers" ({"B": "MMB"}: how this
-  frame references a datum, as a feature control frame says, over the datum's own modifier)}``; a composite
+  frame references a datum, as a feature control frame says, over the datum's own modifier), optionally
+  "offset" (mm, profiles: the unequally disposed zone's offset, ISO 1101 UZ, + towards the outside of the
+  material, see :func:`cmm.metrology.gdt.profile`)}``; a composite
   position frame adds ``"pattern"`` (the ids of the pattern's features, "feature" among them) and
   ``"composite": {"tolerance", "datums"}`` (the feature-relating tier; its datums repeat the first of the upper
   tier's, orientation only): it gives one row per feature for the upper tier and one for the pattern's lower tier
   (:func:`cmm.metrology.gdt.composite_position`).
 
 A feature is a :class:`MeasuredFeature`: its name, kind, fit summary (geometry), nominal (a
-``NominalFeature.to_dict()`` in the same coordinates), measured points, and its size tolerance. The CAD
+``NominalFeature.to_dict()`` in the same coordinates), measured points, its size tolerance, and the fit's
+``alternative`` (another solution that fits the hits better, far from the nominal), if any. The CAD
 ``mesh`` and ``pose`` (part -> measured coordinates) serve profiles.
 
 :func:`evaluate` gives one :class:`~cmm.metrology.characteristics.Characteristic` per definition: nominal 0,
 actual the zone, upper the tolerance plus any bonus, ``datums`` the frame ("A|B|C"); a definition that cannot
 be evaluated (a datum not defined, a feature deleted, no mesh for a profile) is listed with no actual and the
-reason in its note: it shows as "not evaluated", never as a pass.
+reason in its note: it shows as "not evaluated", never as a pass. A row whose toleranced feature (or a
+feature of its pattern) or any datum feature of its frame has an ``alternative`` is marked ``check`` (its
+verdict "check"): the value stands on a fit the operator must confirm.
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ class MeasuredFeature:
     hit_ids: tuple[int, ...] = ()  # the hit of each point (datum targets name hits)
     size_lower: float | None = None  # the diameter's own limits (deviations from the nominal), when not +-
     size_upper: float | None = None
+    alternative: dict[str, Any] | None = None  # a clearly different fit the hits fit better (fit summary), or None
 
 
 def check_definition(d: dict[str, Any]) -> dict[str, Any]:
@@ -86,8 +92,14 @@ def check_definition(d: dict[str, Any]) -> dict[str, Any]:
         parts = label.split("-")
         if not all(p.isalpha() for p in parts) or len(parts) > 2:
             raise gdt.GdtError(f"{label!r} is not a datum reference: use a letter (A) or a common datum of two (A-B)")
+    offset = gdt.check_offset(d.get("offset"), tol) if d.get("offset") not in (None, "") else 0.0
+    if offset and not ch.startswith("profile"):
+        raise gdt.GdtError("a zone offset (UZ, unequally disposed) applies to a profile tolerance only")
     out = {**d, "characteristic": ch, "tolerance": tol, "datums": datums, "material": material,
            "angle": None if angle is None else float(angle), "direction": direction}
+    out.pop("offset", None)
+    if offset:
+        out["offset"] = offset
     out.pop("datum_modifiers", None)
     if d.get("datum_modifiers"):
         out["datum_modifiers"] = _check_modifiers(d["datum_modifiers"], datums)
@@ -280,10 +292,7 @@ def datum_of(label: str, defs: dict[str, dict], feats: dict[int, MeasuredFeature
         n = f.nominal
         if not n or n.get("kind") in (None, "surface"):
             raise DatumError(f"datum {label} ({f.name}) has no nominal: the nominal frame cannot be built")
-        kind = {"plane": "plane", "cylinder": "cylinder", "sphere": "sphere", "cone": "cone"}[n["kind"]]
-        if f.kind == "circle" and kind == "cylinder":
-            kind = "cylinder"
-        return datum_from_feature(label, kind, n, feature=f.name)
+        return datum_from_feature(label, str(n["kind"]), n, feature=f.name)  # a circle's nominal is its cylinder
     return datum_from_feature(label, f.kind, _signed_like_nominal(f), modifier=modifier, boundary=boundary,
                               internal=internal, feature=f.name)
 
@@ -351,7 +360,7 @@ def evaluate_one(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Me
         return gdt.runout(ch, f.points, drf, tol, d["direction"])  # type: ignore[arg-type]
     if pose is None and mesh is not None:
         raise gdt.GdtError("profile tolerance needs the part's pose (an alignment or the nominal set-up)")
-    return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf)
+    return gdt.profile(ch, f.points, mesh, pose, tol, drf=drf, nominal_drf=ndrf, offset=d.get("offset", 0.0))
 
 
 def evaluate_rows(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature], mesh: Any = None,
@@ -406,6 +415,8 @@ def tolerance_text(d: dict[str, Any]) -> str:
     ch = d.get("characteristic", "")
     dia = "⌀" if ch in ("position", "coaxiality", "concentricity") else ""
     head = f"{gdt.SYMBOLS.get(ch, '')} {dia}{float(d.get('tolerance', 0)):.4f}{MATERIAL_SYMBOL.get(d.get('material') or '', '')}"
+    if d.get("offset"):  # an unequally disposed profile zone, as ISO 1101 writes it: "UZ+0.0050"
+        head += f" UZ{float(d['offset']):+.4f}"
     mods = {k: {"MMB": "(M)", "LMB": "(L)"}.get(v, "") for k, v in (d.get("datum_modifiers") or {}).items()}
     text = head + (f" | {'|'.join(x + mods.get(x, '') for x in d.get('datums') or [])}" if d.get("datums") else "")
     low = d.get("composite")
@@ -432,7 +443,29 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
                                           note=f"{name}: not evaluated: {msg}",
                                           datums="|".join(d.get("datums") or []))))
             continue
+        check = check_text(d, datums, feats)
         for feature_name, r in rows:
             out.append((d, Characteristic(feature_name, r.label, 0.0, r.value, r.allowed, 0.0,
-                                          note=f"{name}: {r.note}", datums=r.drf)))
+                                          note=f"{name}: {r.note}", check=check, datums=r.drf)))
     return out
+
+
+def check_text(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature]) -> str:
+    """Why a definition's value needs the operator's check: the features it stands on (the toleranced
+    feature, the pattern's, the datum features of both tiers) whose fit has an alternative; "" when none."""
+    ids = [int(d.get("feature", -1)), *(int(x) for x in d.get("pattern") or [])]
+    labels = [*(d.get("datums") or []), *((d.get("composite") or {}).get("datums") or [])]
+    for label in labels:
+        for part in str(label).upper().split("-"):
+            dd = datums.get(part.strip())
+            if dd is not None:
+                ids.append(int(dd["feature"]))
+    names = []
+    for fid in dict.fromkeys(ids):
+        f = feats.get(fid)
+        if f is not None and f.alternative and f.name not in names:
+            names.append(f.name)
+    if not names:
+        return ""
+    return (f"another fit of {', '.join(names)} fits the hits better: the value stands on the "
+            f"{'fits' if len(names) > 1 else 'fit'} near the nominal")

@@ -124,7 +124,7 @@ def session_json(session: Session, mesh: Any = None) -> dict:
         "features": [{**f.to_event(), "seq": f.seq} for f in st.features.values()],
         "datums": st.datums,
         "gdt": [{**d, "feature_name": c.feature, "value": c.actual, "allowed": c.upper, "drf": c.datums,
-                 "result": c.verdict, "note": c.note} for d, c in session_gdt(session, mesh)],
+                 "result": c.verdict, "note": c.note, "check": c.check} for d, c in session_gdt(session, mesh)],
         "notes": [{"seq": s, "text": t} for s, t in st.notes],
         "errors": [{"seq": s, "message": m} for s, m in st.errors],
         "events": session.events,

@@ -385,11 +385,13 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
                 mod = {"MMB": "(M)", "LMB": "(L)"}.get(((df or {}).get("modifier") or "") if own is None else own, "")
                 frame.append(f"{label}{mod} = {f.name if f is not None else 'not defined'}")
         bonus = c.upper - float(d.get("tolerance") or 0.0)
-        result = {True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
-                  None: "<td class='l muted'>not evaluated</td>"}[c.ok]
+        result = "<td class='chk'>check</td>" if c.check else {
+            True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
+            None: "<td class='l muted'>not evaluated</td>"}[c.ok]
         cls = "fail" if c.ok is False else "none" if c.ok is None else ""
+        check = f"<br><span class='checknote'>check: {e(c.check)}</span>" if c.check else ""
         out.append(f"<tr class='{cls}'><td class='l'><b>{e(c.feature)}</b></td><td class='l'>{e(tolerance_text(d))}"
-                   f"<br><span class='muted'>{e(c.note)}</span></td><td class='l'>{e('; '.join(frame)) or '&mdash;'}</td>"
+                   f"<br><span class='muted'>{e(c.note)}</span>{check}</td><td class='l'>{e('; '.join(frame)) or '&mdash;'}</td>"
                    f"<td>{float(d.get('tolerance') or 0):.4f}</td><td>{'' if bonus < 1e-12 else f'{bonus:.4f}'}</td>"
                    f"<td>{_num(c.actual)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                    f"{result}</tr>")

@@ -323,15 +323,17 @@ class FeaturesPanel:
 
     def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
                    material: str = "", angle: float | None = None, direction: str = "radial",
-                   pattern: str = "", lower: float = 0.0, lower_datums: str = "") -> Any:
+                   pattern: str = "", lower: float = 0.0, lower_datums: str = "", offset: float = 0.0) -> Any:
         """A geometric tolerance on a feature against datums "A|B|C" or a common datum "A-B" (refused in words
         when it cannot be evaluated); the tree lists it under "Geometric tolerances". A composite position: the
         ``pattern``'s feature ids as typed ("3 5 8") and the feature-relating tier's tolerance ``lower`` and
-        datums ``lower_datums`` ("A")."""
+        datums ``lower_datums`` ("A"). ``offset``: a profile's unequally disposed zone (mm, UZ)."""
         def do() -> Any:
             extra: dict[str, Any] = {}
             if lower:
                 extra = {"pattern": parse_ids(pattern), "composite": {"tolerance": lower, "datums": lower_datums}}
+            if offset:
+                extra["offset"] = offset
             d, c = self.ctx.commands.invoke(self.ctx.who(), "define_gdt", characteristic=characteristic,
                                             feature=feature, tolerance=tolerance, datums=datums, material=material,
                                             angle=angle, direction=direction, **extra)
@@ -520,9 +522,12 @@ class FeaturesPanel:
             lower = gui.add_number("Lower tier ⌀ (mm)", 0.0, min=0.0, step=0.001,
                                    hint="composite position: the feature-relating tolerance; 0: not composite")
             lower_refs = gui.add_text("Lower tier datums", "A", hint="composite: orientation datums, e.g. A")
+            uz = gui.add_number("Profile zone offset (mm)", 0.0, step=0.001,
+                                hint="profile: unequally disposed zone (ISO UZ), its middle this far outside the "
+                                     "material (- inside); 0: equally disposed")
             gui.add_button("Add tolerance").on_click(lambda _: self._gdt(
                 ch.value, g["gdt_feature"].value, tol.value, refs.value, mat.value, ang.value, rdir.value,
-                pattern.value, lower.value, lower_refs.value))
+                pattern.value, lower.value, lower_refs.value, uz.value))
             gid = gui.add_number("Tolerance id", 1, min=1, step=1)
             gui.add_button("Delete tolerance").on_click(lambda _: self.delete_gdt(int(gid.value)))
         with gui.add_folder("Report header"):
@@ -545,13 +550,14 @@ class FeaturesPanel:
         return self.define_datum(label, int(m.group(1)), "" if modifier == "RFS" else modifier, targets)
 
     def _gdt(self, ch: str, feature: str, tol: float, refs: str, material: str, angle: float, direction: str,
-             pattern: str = "", lower: float = 0.0, lower_refs: str = "") -> Any:
+             pattern: str = "", lower: float = 0.0, lower_refs: str = "", offset: float = 0.0) -> Any:
         m = re.match(r"(\d+)", feature)
         if not m:
             return self.ctx.error("choose the toleranced feature", "GD&T")
         return self.define_gdt(ch, int(m.group(1)), tol, "" if ch in FORM else refs,
                                "" if material == "RFS" else material, angle if ch == "angularity" else None, direction,
-                               pattern, lower if ch == "position" else 0.0, lower_refs)
+                               pattern, lower if ch == "position" else 0.0, lower_refs,
+                               offset if ch.startswith("profile") else 0.0)
 
     def _chosen(self, value: str) -> None:
         m = re.match(r"(\d+)", value)
