@@ -109,7 +109,8 @@ def path_bound(station: Station, targets, start) -> float:
     rails allow: every rapid leg at the positioning speed and acceleration, the approach to the contact at the
     probing ones, the retract at the prober's retract speed (five times the probing speed)."""
     cfg = station.config
-    fast, probing = (cfg.speeds.positioning, cfg.accelerations.positioning), (cfg.speeds.probing, cfg.accelerations.probing)
+    fast = (cfg.speeds.positioning, cfg.accelerations.positioning)
+    probing = (cfg.speeds.probing, cfg.accelerations.probing)
     total = 0.0
     for c in station.controller.probe_paths(targets, start=np.asarray(start, float)):
         corners = [c.start, *c.rapid]

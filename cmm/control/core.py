@@ -371,7 +371,8 @@ class Controller:
         default: the part's, else the higher of here and the pre-hit point) unless ``path`` is 'straight' and
         the line is proven free of the part. With ``hop_z`` (machine Z; a feature's hits after its first) the rapid
         goes straight or over that lower height where the rails prove it free of the part. Distances (mm), speeds
-        (mm/s) and the probing acceleration default to the configuration's. The status completes with the :class:`Hit` once the hit recorders stored it."""
+        (mm/s) and the probing acceleration default to the configuration's. The status completes with the
+        :class:`Hit` once the hit recorders stored it."""
         p = self._to_machine(target, frame)
         u = self._to_machine(approach, frame, direction=True)
         if not np.linalg.norm(u):

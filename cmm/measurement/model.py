@@ -133,7 +133,8 @@ class MeasurementModel:
 
     ``machine`` is read for the configuration, the travel limits and the geometry correction, ``prober`` for the
     probe settings (tip radius, pre-travel), both live: a calibration applied later counts. ``probe(point,
-    approach, clearance_z, client[, hop_z=])`` takes a programmed hit and returns a status whose ``wait()`` gives the hit;
+    approach, clearance_z, client[, hop_z=])`` takes a programmed hit and returns a status whose ``wait()`` gives
+    the hit;
     ``start_fields()`` adds to each session's ``start`` event (port, calibration).
 
     Every event the model journals is folded into :attr:`state` (:class:`~cmm.measurement.state.SessionState`,

@@ -408,8 +408,8 @@ def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun 
     ``move_legs``: the rails and probing cycle the run executes): from where the tip is now (after an unexpected
     contact: backing off first), a manual alignment's hand hits named where they come, then the alignment's
     datums and every feature. ``mesh`` is the part's (the run hops between a feature's hits over it; without it
-    the preview takes every hit over its clearance height). With ``run`` stopped on a fault: its resume (the retract, then the stopped step
-    again and the rest). The run's alignment moves the hits after it by what it finds; with the part where
+    the preview takes every hit over its clearance height). With ``run`` stopped on a fault: its resume (the
+    retract, then the stopped step again and the rest). The run's alignment moves the hits after it by what it finds; with the part where
     ``pose`` says, the run passes every corner."""
     resume = run is not None and run.can_resume
     order = run.remaining() if resume else run_order(routine)
