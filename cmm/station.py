@@ -299,8 +299,8 @@ class Station:
         self.prober = Prober(self.machine)
         self.controller = Controller(self.machine, self.prober)
         self.measurement = MeasurementModel(
-            self.machine, self.prober, lambda point, approach, clearance_z, client: self.controller.probe(
-                client, point, approach, frame="machine", clearance_z=clearance_z),
+            self.machine, self.prober, lambda point, approach, clearance_z, client, hop_z=None: self.controller.probe(
+                client, point, approach, frame="machine", clearance_z=clearance_z, hop_z=hop_z),
             part=part, session_dir=session_dir, lock=self.lock,
             start_fields=lambda: {"port": str(self.port), "calibration": self.calibration.status})
         self.controller.on_hit(self.measurement.add_hit)

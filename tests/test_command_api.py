@@ -12,7 +12,7 @@ import trimesh
 
 from cmm.control import OpenPolicy, Refused
 from cmm.control.access import Client, Control, HolderPolicy, OriginPolicy, is_local_connection, is_loopback_host
-from cmm.control.rails import clearance_route, route, straight_blocked, to_frame, to_machine
+from cmm.control.rails import clearance_route, probe_clearance, route, straight_blocked, to_frame, to_machine
 from cmm.ippdme.backend import StationBackend
 from cmm.station import Station
 from control_support import wait_idle
@@ -115,6 +115,25 @@ def test_a_straight_line_is_accepted_only_when_proven_free_of_the_part():
     legs = route([90.0, 60.0, 45.0], [210.0, 60.0, 45.0], path="straight", workspace=box, radius=1.0, z_max=300.0,
                  backoff=[-1.0, 0.0, 0.0], restart=True)
     assert np.allclose(legs[0], [89.0, 60.0, 45.0]) and np.allclose(legs[1], [89.0, 60.0, 51.0])
+
+
+def test_a_hop_goes_straight_or_over_its_height_only_where_proven_free_else_over_the_plane():
+    box = Box()  # top at Z 40, front face at Y 50, back face at Y 130; tip radius 1
+
+    def height(here, pre, hop, **kw):
+        return probe_clearance(here, pre, path="clearance", workspace=kw.pop("workspace", box), radius=1.0,
+                               clearance_z=kw.pop("clearance_z", 60.0), hop_z=hop, **kw)
+
+    on_top = ([120.0, 70.0, 42.0], [180.0, 110.0, 43.0])  # a retract and the next pre-hit point over the top face
+    assert height(*on_top, 42.0) is None  # straight: 2 mm over the top all along
+    assert height(*on_top, None) == 60.0  # no hop asked for: over the clearance plane
+    front_to_back = ([150.0, 48.0, 20.0], [150.0, 133.0, 20.0])  # the straight line goes through the block
+    assert height(*front_to_back, 42.0) == 42.0  # up the front face, 2 mm over the top, down the back face
+    assert height(*front_to_back, 41.2) == 60.0  # 0.2 mm over the top: not proven, over the plane
+    assert height(*front_to_back, 30.0) == 60.0  # through the block: over the plane
+    assert height(*front_to_back, 30.0, clearance_z=None) == 51.0  # the part's plane
+    assert height(*front_to_back, 42.0, restart=True) == 60.0  # after a contact: never a hop
+    assert height(*on_top, 42.0, workspace=None) == 60.0  # without a part nothing is proven: no hop
 
 
 # --- the station: Go to after a bore cycle, a restart after a contact ----------------------------------

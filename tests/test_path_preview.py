@@ -81,7 +81,11 @@ def test_an_auto_measure_plan_runs_the_previewed_path(station):
     plan = plan_at_pick(model, _pick(model, (30.0, 40.0, 20.0), (1, 0, 0)).face_id, n=4)  # the bore
     cycles = ctl.probe_paths(plan_targets(plan))
     assert len(cycles) == len(plan) >= 4
-    assert all(max(q[2] for q in c.rapid) >= plan.clearance_z - 1e-9 for c in cycles)  # over the clearance plane
+    assert max(q[2] for q in cycles[0].rapid) >= plan.clearance_z - 1e-9  # the first hit over the clearance plane
+    # the others straight inside the bore, below its rim: the rails prove those lines free of the part
+    assert plan.hop_z < plan.clearance_z and all(len(c.rapid) == 1 for c in cycles[1:])
+    assert all(np.linalg.norm(c.rapid[0][:2] - plan.nominal.params["point"][:2]) < plan.nominal.params["radius"]
+               for c in cycles[1:])
     with Recorder(station) as rec:
         run_plan(model, plan, name="bore")
     assert_runs_as_previewed(cycles, rec.points)
@@ -129,7 +133,7 @@ def test_a_routine_runs_the_previewed_path_with_its_alignment_after_the_hand_hit
     routine = teach_routine(open_session(model.journal.path), name="aligned", part_mesh=model.part.mesh,
                             part_nominals=model.part.nominal_features)
     assert routine.steps[0]["kind"] == "align" and routine.steps[0]["manual"]
-    path = routine_path(routine, ctl, model.part.pose)
+    path = routine_path(routine, ctl, model.part.pose, mesh=model.part.mesh)
     assert routine.measured_features() == ["TOP", "FRONT", "LEFT", "boss"]  # the datums first, where they stand
     assert path.features == [n for n in routine.measured_features() for _ in routine.program.feature(n).hits]
     r = station.prober.settings.tip_radius
@@ -177,7 +181,7 @@ def test_a_resume_preview_backs_off_the_contact_and_retracts_first(station):
         station.sim.place_artifacts([])  # the operator takes the chip away
     ctl.reset(None)
     here = np.asarray(ctl.frame_position("machine"), float)
-    path = routine_path(routine, ctl, model.part.pose, run)
+    path = routine_path(routine, ctl, model.part.pose, run, mesh=model.part.mesh)
     assert path.features == ["boss"] * len(hits) and "first the retract" in path.text()
     back = path.lead[0] - here  # the back-off: up, the way the tip came down onto the chip
     assert np.linalg.norm(back) == pytest.approx(cfg.retract_distance) and back[2] > 0.9 * cfg.retract_distance

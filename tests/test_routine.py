@@ -174,7 +174,7 @@ def test_pause_skip_and_cancel_between_hits(taught):
 
 def test_a_fault_mid_routine_is_resumed_from_the_stopped_step_with_another_probe_per_step(taught):
     """Bore (Probe1) and boss (T2, a second stylus of the same ball) on the aligned first part; an obstacle on the
-    way down to the bore's second hit stops the run there with an unexpected contact; the operator clears it,
+    way to the bore's second hit stops the run there with an unexpected contact; the operator clears it,
     resets and resumes: the machine retracts, the bore's first hit is discarded (still in the journal), the bore is
     measured again from its first hit, the probe changes to T2 for the boss, and the part's session is complete."""
     st, routine = taught
@@ -190,13 +190,15 @@ def test_a_fault_mid_routine_is_resumed_from_the_stopped_step_with_another_probe
     st.calibration.add_probe("T2", tip_d)
     r.set_probe(1, "T2")
     assert "[T2]" in r.lines()[1] and 'probe = "T2"' in r.text()
-    # the obstacle: a 3 mm ball over the pre-hit point of the bore's second hit
+    # the obstacle: a 2 mm ball halfway along the straight rapid inside the bore from its first hit's retract to
+    # its second hit's pre-hit point
     cfg = st.config.probe
     bore = r.program.feature("bore")
     targets = {h.id: (p, u) for h, p, u, _cz in machine_targets(r.program, TRUE_PART_POSE)}
-    p, u = targets[bore.hits[1]]
-    pre = p - cfg.tip_radius * u - cfg.approach_distance * u
-    st.sim.place_artifacts([(pre + [0.0, 0.0, 6.0], 3.0)])
+    (p1, u1), (p2, u2) = targets[bore.hits[0]], targets[bore.hits[1]]
+    retract = p1 - (cfg.tip_radius + cfg.retract_distance) * u1
+    pre = p2 - (cfg.tip_radius + cfg.approach_distance) * u2
+    st.sim.place_artifacts([((retract + pre) / 2, 2.0)])
     run = RoutineRun(r, model, st.controller, part_name="part 4",
                      change_probe=lambda name: st.calibration.select_probe(None, name))
     with pytest.raises(Exception, match="unexpected probe contact"):

@@ -93,9 +93,10 @@ class CommandAPI:
         self.register("probe", c.probe, {"target": REQUIRED, "approach": REQUIRED, "frame": REQUIRED,
                                          "path": "clearance", "clearance_z": None, "normal": None, "speed": None,
                                          "accel": None, "approach_distance": None, "search_distance": None,
-                                         "retract_distance": None, "rapid_speed": None},
+                                         "retract_distance": None, "rapid_speed": None, "hop_z": None},
                       "a programmed hit at a surface point, coming along approach (into the surface); the rapid "
-                      "goes over the clearance plane unless path 'straight' is proven free", motion=True)
+                      "goes over the clearance plane unless path 'straight' is proven free; with hop_z (machine Z) "
+                      "straight or over that height where proven free", motion=True)
         self.register("jog_hold", lambda client, velocity, probe=False, heard=None, settle=0.0, on_error=None:
                       c.jogs.hold(client, velocity, probe=probe, heard=heard, settle=settle, on_error=on_error),
                       {"velocity": REQUIRED, "probe": False, "heard": None, "settle": 0.0, "on_error": None},

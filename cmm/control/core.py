@@ -365,12 +365,14 @@ class Controller:
               clearance_z: float | None = None, normal: Any = None, speed: float | None = None,
               accel: float | None = None, approach_distance: float | None = None,
               search_distance: float | None = None, retract_distance: float | None = None,
-              rapid_speed: float | None = None) -> MoveStatus:
+              rapid_speed: float | None = None, hop_z: float | None = None) -> MoveStatus:
         """A programmed hit at ``target`` (a nominal surface point in ``frame``), coming along ``approach`` (into the
         surface, same frame). The rapid to the pre-hit point goes over the clearance plane (``clearance_z``,
         default: the part's, else the higher of here and the pre-hit point) unless ``path`` is 'straight' and
-        the line is proven free of the part. Distances (mm), speeds (mm/s) and the probing acceleration default
-        to the configuration's. The status completes with the :class:`Hit` once the hit recorders stored it."""
+        the line is proven free of the part. With ``hop_z`` (machine Z; a feature's hits after its first) the rapid
+        goes straight or over that lower height where the rails prove it free of the part. Distances (mm), speeds
+        (mm/s) and the probing acceleration default to the configuration's. The status completes with the
+        :class:`Hit` once the hit recorders stored it."""
         p = self._to_machine(target, frame)
         u = self._to_machine(approach, frame, direction=True)
         if not np.linalg.norm(u):
@@ -383,7 +385,8 @@ class Controller:
         def start() -> MoveStatus:
             here = self.machine.position
             restart = self._restart is not None
-            cz = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, **distances)[0]
+            cz = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, hop_z=hop_z,
+                             **distances)[0]
             backoff = self._backoff_here(here) if restart else None
             if backoff is not None:  # a contact stopped the last motion: back off the way it came first
                 first = self.machine.move_to(here + backoff)
@@ -422,14 +425,15 @@ class Controller:
         return self._submit(client, "probe", start)
 
     def _cycle(self, here: np.ndarray, p: np.ndarray, u: np.ndarray, *, path: str, clearance_z: float | None,
-               restart: bool = False, **distances: float | None) -> tuple[float | None, CyclePath]:
+               restart: bool = False, hop_z: float | None = None,
+               **distances: float | None) -> tuple[float | None, CyclePath]:
         """The clearance height (None: straight) and the path of one programmed hit from ``here`` (machine mm):
         the rails decide the height, the prober's cycle the points; :meth:`probe` and :meth:`probe_paths` both
         ask here."""
         pre = self.prober.cycle_path(here, p, u, **distances).pre
         try:
             cz = rails.probe_clearance(here, pre, path=path, workspace=self.workspace, radius=self.tip_radius,
-                                       clearance_z=clearance_z, restart=restart)
+                                       clearance_z=clearance_z, restart=restart, hop_z=hop_z)
         except rails.RailError as exc:
             raise Refused(str(exc)) from None
         return cz, self.prober.cycle_path(here, p, u, clearance_z=cz, **distances)
@@ -437,7 +441,7 @@ class Controller:
     def probe_paths(self, targets: Any, *, frame: str = "machine", path: str = "clearance",
                     start: Any = None) -> list[CyclePath]:
         """The paths a sequence of programmed hits will take, for a preview before they run: ``targets`` are
-        (nominal point, approach, clearance Z or None) in ``frame`` (the clearance Z is machine Z) as
+        (nominal point, approach, clearance Z or None[, hop Z or None]) in ``frame`` (the heights are machine Z) as
         :meth:`probe` gets them; each cycle starts where the previous one retracted to (the surface taken where
         its nominal says), the first from ``start`` (default: where the tip is now). From where the tip is now
         after an unexpected contact, the first cycle backs off the way it came first (its first rapid corner)
@@ -450,11 +454,12 @@ class Controller:
         restart = start is None and self._restart is not None
         backoff = self._backoff_here(here) if restart else None
         out: list[CyclePath] = []
-        for target, approach, clearance_z in targets:
+        for target, approach, clearance_z, *hop in targets:
+            hop_z = hop[0] if hop else None
             p = self._to_machine(target, frame)
             u = self._to_machine(approach, frame, direction=True)
             try:
-                cz, cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart)
+                cz, cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, hop_z=hop_z)
                 if backoff is not None:  # probe(): the back-off, then the cycle from there at the same height
                     cycle = self.prober.cycle_path(here + backoff, p, u, clearance_z=cz)
                     cycle = replace(cycle, start=here, rapid=(here + backoff, *cycle.rapid))

@@ -8,6 +8,9 @@
   ``"straight"`` line instead; it is accepted only when the straight line is proven free of the part:
   the tip's centre stays at least its radius plus ``STRAIGHT_MARGIN`` from the part's surface all along it
   (sphere tracing on the part mesh).
+- **Hops within a feature**: a programmed hit may name a hop height below the clearance plane (the hits of a
+  feature after its first). Its rapid goes straight when that line is proven free, else over the hop height
+  when every leg of that route (climb, cross, descend) is proven free, else over the clearance plane.
 - **Restart after a fault or a contact retracts first**: the next move backs off along the way the stopped
   motion came (by the retract distance) when that is known, then takes the clearance route, whatever path
   the caller asked for.
@@ -29,6 +32,8 @@ FRAMES = ("machine", "part")
 PATHS = ("clearance", "straight")
 STRAIGHT_MARGIN = 0.5  # mm between the tip and the part that a straight move must keep, beyond the tip radius
 MAX_STEPS = 2000  # sphere-tracing steps before a line counts as not proven free (grazing the surface)
+SAMPLE_SPACING = 0.25  # mm between the points of a line checked in one query before any sphere tracing
+MAX_SAMPLES = 4000  # points of a line checked in one query (a longer line gets them wider apart)
 
 
 class Workspace(Protocol):
@@ -96,26 +101,40 @@ def straight_blocked(workspace: Workspace | None, a: Any, b: Any, radius: float,
                      margin: float = STRAIGHT_MARGIN) -> str | None:
     """Why the straight line a -> b of a tip of ``radius`` is not proven free of the part (None: it is free).
 
-    Sphere tracing: where the tip's centre is ``d`` from the surface, the next ``d - radius - margin`` of the
-    line cannot reach the part, so the line is walked in steps of that length; a step that would be empty
-    means the line comes too close."""
+    First the line's points ``spacing`` apart, in one query: one closer than ``radius + margin`` blocks it; all
+    farther than that plus half the spacing prove it free (no point between two of them can be nearer than
+    that half spacing). Otherwise sphere tracing: where the tip's centre is ``d`` from the surface, the next
+    ``d - radius - margin`` of the line cannot reach the part, so the line is walked in steps of that length; a
+    step that would be empty means the line comes too close."""
     if workspace is None or workspace.part_pose() is None:
         return None
     a, b = np.asarray(a, float), np.asarray(b, float)
     length = float(np.linalg.norm(b - a))
     u = (b - a) / length if length > 0 else np.zeros(3)
     need = radius + margin
+    count = min(MAX_SAMPLES, int(np.ceil(length / SAMPLE_SPACING)) + 1)
+    ts = np.linspace(0.0, length, max(count, 2))
+    ds = np.asarray(workspace.surface_distance(a + ts[:, None] * u[None, :]), float)
+    near = np.flatnonzero(ds < need)
+    if len(near):
+        return _too_close(a + ts[near[0]] * u, float(ds[near[0]]), radius, need)
+    if ds.min() >= need + (ts[1] - ts[0]) / 2:
+        return None
     t = 0.0
     for _ in range(MAX_STEPS):
         p = a + u * min(t, length)
         d = float(workspace.surface_distance(p[None, :])[0])
         if d < need:
-            return ("the straight line passes {:.2f} mm from the part at X={:.3f} Y={:.3f} Z={:.3f} (the tip needs "
-                    "{:.2f} mm): use the clearance path").format(max(d - radius, -99.0), *p, need - radius)
+            return _too_close(p, d, radius, need)
         if t >= length:
             return None
         t += d - need + 1e-6
     return "the straight line grazes the part too long to be proven free: use the clearance path"
+
+
+def _too_close(p: np.ndarray, d: float, radius: float, need: float) -> str:
+    return ("the straight line passes {:.2f} mm from the part at X={:.3f} Y={:.3f} Z={:.3f} (the tip needs "
+            "{:.2f} mm): use the clearance path").format(max(d - radius, -99.0), *p, need - radius)
 
 
 def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: float) -> list[np.ndarray]:
@@ -137,17 +156,37 @@ def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: fl
     return out or [target]
 
 
+def hop_free(workspace: Workspace | None, here: Any, pre: Any, hop_z: float, radius: float) -> bool:
+    """Whether the rapid from ``here`` up to ``hop_z`` (never down), across and down to ``pre`` is proven free of the
+    part, every leg of it (False without a part: nothing can be proven)."""
+    if workspace is None or workspace.part_pose() is None:
+        return False
+    here, pre = np.asarray(here, float), np.asarray(pre, float)
+    corners = [here, np.array([here[0], here[1], max(hop_z, here[2])]),
+               np.array([pre[0], pre[1], max(hop_z, pre[2])]), pre]
+    return all(straight_blocked(workspace, a, b, radius) is None
+               for a, b in zip(corners[:-1], corners[1:]) if np.linalg.norm(b - a) > 1e-9)
+
+
 def probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | None, radius: float,
-                    clearance_z: float | None = None, restart: bool = False) -> float | None:
+                    clearance_z: float | None = None, restart: bool = False,
+                    hop_z: float | None = None) -> float | None:
     """The height a programmed hit's rapid crosses at on its way to the pre-hit point ``pre`` (machine Z of the tip
     centre), or None for a straight rapid: ``clearance_z`` when the caller gave one, else the part's clearance
     plane, else the higher of here and the pre-hit point. A straight rapid only when asked for, proven free of
-    the part and no restart is pending (:class:`RailError` when it is not proven free)."""
+    the part and no restart is pending (:class:`RailError` when it is not proven free). With ``hop_z`` (and a
+    part, no restart pending): straight when that is proven free, else ``hop_z`` when that route is proven free,
+    else as without it."""
     if path == "straight" and not restart:
         why = straight_blocked(workspace, here, pre, radius)
         if why is not None:
             raise RailError(why)
         return None
+    if hop_z is not None and not restart and workspace is not None and workspace.part_pose() is not None:
+        if straight_blocked(workspace, here, pre, radius) is None:
+            return None
+        if hop_free(workspace, here, pre, float(hop_z), radius):
+            return float(hop_z)
     if clearance_z is not None:
         return float(clearance_z)
     plane = None if workspace is None else workspace.clearance_z()

@@ -133,7 +133,8 @@ class MeasurementModel:
 
     ``machine`` is read for the configuration, the travel limits and the geometry correction, ``prober`` for the
     probe settings (tip radius, pre-travel), both live: a calibration applied later counts. ``probe(point,
-    approach, clearance_z, client)`` takes a programmed hit and returns a status whose ``wait()`` gives the hit;
+    approach, clearance_z, client[, hop_z=])`` takes a programmed hit and returns a status whose ``wait()`` gives
+    the hit;
     ``start_fields()`` adds to each session's ``start`` event (port, calibration).
 
     Every event the model journals is folded into :attr:`state` (:class:`~cmm.measurement.state.SessionState`,
@@ -405,12 +406,16 @@ class MeasurementModel:
 
     # --- hits -----------------------------------------------------------------------
 
-    def probe(self, point: Any, approach: Any, clearance_z: float | None = None, client: Any = None) -> Any:
+    def probe(self, point: Any, approach: Any, clearance_z: float | None = None, client: Any = None,
+              hop_z: float | None = None) -> Any:
         """Programmed hit at a surface point; ``approach`` points into the surface. The rapid climbs to
-        ``clearance_z`` (default: clear of the part) before it crosses."""
+        ``clearance_z`` (default: clear of the part) before it crosses; with ``hop_z`` it may go straight or over
+        that lower height where the control core's rails prove it free of the part."""
         if clearance_z is None and self.part is not None:
             clearance_z = self.clearance_z()
-        return self._probe(point, approach, clearance_z, client)
+        if hop_z is None:
+            return self._probe(point, approach, clearance_z, client)
+        return self._probe(point, approach, clearance_z, client, hop_z=hop_z)
 
     def probe_here(self, point: Any, normal: Any, client: Any = None) -> Any:
         """Probe a picked point along its (outward) mesh normal, via the clearance height."""

@@ -15,8 +15,9 @@ def record(writer: Any, machine: Any, prober: Any, part: Part | None = None, *, 
     """A measurement model journalling into ``writer`` (a store's session writer) the hits ``prober`` takes;
     its ``close()`` detaches it from the prober and closes the writer."""
 
-    def probe(point: Any, approach: Any, clearance_z: float | None, client: Any = None) -> Any:
-        return prober.probe(point, approach, clearance_z=clearance_z)
+    def probe(point: Any, approach: Any, clearance_z: float | None, client: Any = None,
+              hop_z: float | None = None) -> Any:
+        return prober.probe(point, approach, clearance_z=clearance_z)  # no rails to prove a hop: over clearance_z
 
     model = MeasurementModel(machine, prober, probe, part=part)
     model.record_into(writer, port=port)

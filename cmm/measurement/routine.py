@@ -47,6 +47,7 @@ import numpy as np
 
 from ..metrology.align import AlignmentError
 from ..metrology.fit_ls import fit_plane
+from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
 from ..metrology.transform import invert
 from ..session.program import Program, ProgramError, check, machine_targets, teach, to_toml
@@ -401,12 +402,14 @@ class RoutinePath:
         return "; ".join(words)
 
 
-def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun | None" = None) -> RoutinePath:
+def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun | None" = None, *,
+                 mesh: Any = None) -> RoutinePath:
     """The path a run of ``routine`` on the part at ``pose`` takes, from the control core (``probe_paths``,
     ``move_legs``: the rails and probing cycle the run executes): from where the tip is now (after an unexpected
     contact: backing off first), a manual alignment's hand hits named where they come, then the alignment's
-    datums and every feature. With ``run`` stopped on a fault: its resume (the retract, then the stopped step
-    again and the rest). The run's alignment moves the hits after it by what it finds; with the part where
+    datums and every feature. ``mesh`` is the part's (the run hops between a feature's hits over it; without it
+    the preview takes every hit over its clearance height). With ``run`` stopped on a fault: its resume (the
+    retract, then the stopped step again and the rest). The run's alignment moves the hits after it by what it finds; with the part where
     ``pose`` says, the run passes every corner."""
     resume = run is not None and run.can_resume
     order = run.remaining() if resume else run_order(routine)
@@ -424,7 +427,7 @@ def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun 
         if kind == "hand":
             hand.append(what)
             continue
-        targets = [by_id[hid] for hid in routine.feature(what).hits]
+        targets = with_hops([by_id[hid] for hid in routine.feature(what).hits], mesh, pose, controller.tip_radius)
         if hand:  # after the hand hits: from over the first automatic hit's pre-hit point
             first = controller.probe_paths(targets[:1], start=out.cycles[-1].retract if out.cycles else start)[0]
             start = first.rapid[-2] if len(first.rapid) > 1 else first.pre
@@ -711,14 +714,15 @@ class RoutineRun:
         pose = np.asarray(model.part.pose, float)
         by_id = {h.id: t for h, *t in machine_targets(program, pose)}
         self._partial = ids = []
-        for hid in f.hits:
+        part = model.part
+        targets = with_hops([by_id[hid] for hid in f.hits], part.mesh, pose, float(model.prober.settings.tip_radius))
+        for p, u, cz, hop in targets:
             self._between_hits()
             if self._skip:
                 self.model.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
                 self._partial = []
                 return None
-            p, u, cz = by_id[hid]
-            hit = model.probe(p, u, clearance_z=cz, client=self.client).wait(self.timeout)
+            hit = model.probe(p, u, clearance_z=cz, client=self.client, hop_z=hop).wait(self.timeout)
             ids.append(model.hit_id(hit))
             self._tell(hits=self.progress.hits + 1)
         nominal = None

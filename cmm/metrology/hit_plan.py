@@ -29,8 +29,11 @@ that 3 leave none to check the form.
 
 Every planned hit must lie on the picked region of the mesh (a hit that would
 land on another face is dropped) and face upward enough to be reached from
-above (the probe comes down over a clearance plane). The path the probe takes to
-them is the control core's (``Controller.probe_paths`` previews it, from the same code the run executes).
+above (the probe comes down over a clearance plane to the first hit). The hits
+after the first may hop lower: ``HitPlan.hop_z`` is the feature's local top
+plus the tip radius and a margin (:func:`cmm.metrology.hops.hop_height`). The
+path the probe takes to them is the control core's (``Controller.probe_paths``
+previews it, from the same code the run executes).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from .hops import hop_height
 from .pick import NominalFeature
 from .transform import apply_points, apply_vectors, as_pose, invert
 
@@ -69,6 +73,7 @@ class HitPlan:
     description: str = ""
     notes: tuple[str, ...] = ()  # what the plan changed from the request, or what the hits do not determine
     per_ring: int = 0  # hits per ring (cylinder, cone: two rings; sphere: besides the pole; others: all hits)
+    hop_z: float | None = None  # machine Z of the tip centre for hops between the hits after the first
 
     def __len__(self) -> int:
         return len(self.points)
@@ -119,8 +124,9 @@ def _on_region(mesh: trimesh.Trimesh, region: np.ndarray, local: np.ndarray) -> 
 
 def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature, region: Any, *,
                  n: int | None = None, margin: float = 3.0, clearance: float = 15.0,
-                 seed: int = 0) -> HitPlan:
-    """The hits that measure ``nominal_local`` (part coordinates, on face ``region`` of ``mesh``)."""
+                 seed: int = 0, tip_radius: float = 1.0) -> HitPlan:
+    """The hits that measure ``nominal_local`` (part coordinates, on face ``region`` of ``mesh``); the hop
+    height between its hits is for a tip of ``tip_radius``."""
     T = as_pose(pose)
     region = np.asarray(region, dtype=np.int64)
     nom = nominal_local
@@ -216,7 +222,8 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
                      f"determine the {fit_kind}")
     plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
                    what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""),
-                   notes=tuple(notes), per_ring=count)
+                   notes=tuple(notes), per_ring=count,
+                   hop_z=min(hop_height(mesh, T, machine_pts, tip_radius, region=region), clearance_z))
     return plan
 
 

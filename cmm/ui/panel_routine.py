@@ -357,7 +357,7 @@ class RoutinePanel:
         found: list[RoutinePath] = []
 
         def paths() -> list[Any]:
-            found.append(routine_path(r, self.station.controller, part.pose, run))
+            found.append(routine_path(r, self.station.controller, part.pose, run, mesh=part.mesh))
             return found[0].cycles
         cycles = self.preview.show_cycles(paths, "Routine preview")
         words = found[0].text() if found and cycles is not None else ""
