@@ -511,3 +511,34 @@ def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(st
                                                                    "I++ DME session ended"]
     assert [(e["name"], e["path"]) for e in events if e["kind"] == "routine_saved"] == [("block", "block.toml")]
     assert not any(e["kind"] == "hit" for e in events)
+
+
+def test_pause_resume_and_skip_step_reach_the_running_job_for_the_holder_only(station):
+    """A job that can hold (a routine, a probe qualification) registers its pause / resume / skip: the ``pause``
+    verb is allowed like STOP, ``resume`` and ``skip_step`` only to the control holder; an anonymous observer is
+    refused all three, and with nothing running the answer says so."""
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api, done = station.controller.commands, []
+    holder, at_station, lan = Client("page", local=True), Client("pendant", local=True), Client("lan-tab")
+    try:
+        assert control.take("page", is_local=True)
+        with station.controller.jobs.running("a routine", lambda: done.append("cancel"),
+                                             pause=lambda: done.append("pause"), resume=lambda: done.append("resume"),
+                                             skip=lambda: done.append("skip")):
+            for verb in ("pause", "resume", "skip_step"):
+                assert api.call(lan, verb).error["code"] == "refused"
+            for verb in ("resume", "skip_step"):
+                r = api.call(at_station, verb)
+                assert r.error["code"] == "refused" and "Take control" in r.error["message"], r
+            assert done == []
+            assert api.call(at_station, "pause").result["paused"] == ["a routine"]
+            assert api.call(holder, "resume").result["resumed"] == ["a routine"]
+            assert api.call(holder, "skip_step").result["skipped"] == ["a routine"]
+            assert done == ["pause", "resume", "skip"]
+        with station.controller.jobs.running("a program", lambda: None):  # nothing to pause in it
+            r = api.call(holder, "pause")
+        assert r.ok and r.result["paused"] == [] and "nothing was running" in r.result["message"]
+    finally:
+        station.controller.policy = OpenPolicy()
+

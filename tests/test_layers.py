@@ -268,6 +268,14 @@ def test_front_ends_write_the_journal_only_through_verbs():
     assert not bad, "the journal written around the verbs:\n" + "\n".join(bad)
 
 
+def test_the_pages_run_controls_send_verbs():
+    """Pause, Resume and Skip step of a routine run or a probe qualification are the command API's ``pause``,
+    ``resume`` and ``skip_step`` verbs (with their access rule), not the run's or the calibration's own methods."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("pause", "resume", "skip") and owner.split(".")[-1] in ("run", "run_", "service", "calibration")]
+    assert not bad, "a run paused, resumed or skipped around the verbs:\n" + "\n".join(bad)
+
+
 def test_the_pendant_only_translates():
     """The pendant neither installs the access policy (the composition root does) nor judges access itself:
     the core's verbs refuse in the operator's words, the pendant passes them on."""

@@ -404,7 +404,8 @@ class CalibrationService:
             self._go.set()
             return self.host.controller.commands.invoke(
                 client, "run_job", description=LABELS[routine], work=lambda job: self._work(job, routine, certs, options),
-                progress=progress, cancel=self._cancel_run)
+                progress=progress, cancel=self._cancel_run,
+                **({"pause": self.pause, "resume": self.resume} if routine == "probe" else {}))  # the verbs
         finally:
             self.instruction = ""
             self._bar_event = None

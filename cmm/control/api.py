@@ -125,17 +125,30 @@ class CommandAPI:
         self.register("cancel", c.cancel_jobs, {},
                       "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
                       "progress; its hits stay recorded; allowed to everyone who may STOP")
+        self.register("pause", lambda client: c.hold_jobs(client, "pause"), {},
+                      "hold whatever job runs and can (a routine, a probe qualification) after the hit in progress; "
+                      "allowed to everyone who may STOP")
+        self.register("resume", lambda client: c.hold_jobs(client, "resume"), {},
+                      "a paused job goes on (a paused qualification lifts to the clearance height first); the "
+                      "control holder only")
+        self.register("skip_step", lambda client: c.hold_jobs(client, "skip"), {},
+                      "a running routine leaves the step in progress after its current hit (its feature is not "
+                      "fitted) and goes on; the control holder only")
         self.register("cancel_move", lambda client, status: c.cancel(client, status), {"status": REQUIRED},
                       "in process: cancel one move or probe cycle (its status, as move or probe returned it); it "
                       "decelerates to a stop")
         self.register("configure", c.configure, {"change": REQUIRED},
                       "in process: change the set-up while the machine is still; change(setup) gets "
                       "setup.machine and setup.prober (probe settings, geometry correction, servo gains)")
-        self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None:
-                      c.run_routine(client, description, work, progress=progress, cancel=cancel, timeout=timeout),
-                      {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None},
+        self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None,
+                      pause=None, resume=None, skip=None:
+                      c.run_routine(client, description, work, progress=progress, cancel=cancel, timeout=timeout,
+                                    pause=pause, resume=resume, skip=skip),
+                      {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None,
+                       "pause": None, "resume": None, "skip": None},
                       "in process: work(job) runs in the machine loop with the machine to itself (job.machine, "
-                      "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent")
+                      "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent; pause(), "
+                      "resume(), skip() (when given) are what the pause, resume and skip_step verbs call")
 
     # --- registry ---------------------------------------------------------------------
 

@@ -344,9 +344,13 @@ class CalibrationPanel:
 
     def pause(self) -> bool:
         """Hold the probe qualification after the point in progress."""
-        if not self.ctx.allowed("Pause"):
+        if not self.running or self.routine != "probe":
+            self.ctx.error("no probe qualification is running: only it can be paused", "Pause")
             return False
-        if not self.running or self.routine != "probe" or not self.service.pause():
+        answer = self.ctx.do("Pause", "pause", guarded=False)  # the core decides who may; its refusal is shown
+        if answer is None:
+            return False
+        if not answer["paused"]:
             self.ctx.error("no probe qualification is running: only it can be paused", "Pause")
             return False
         self.ctx.notify("Qualification paused", "after the point in progress; Resume lifts to the clearance height "
@@ -355,13 +359,16 @@ class CalibrationPanel:
 
     def resume(self) -> bool:
         """A paused qualification goes on; one a fault stopped goes on after Reset with the points kept."""
-        if not self.ctx.allowed("Resume"):
-            return False
         if self.running:
-            if not self.service.resume():
+            answer = self.ctx.do("Resume", "resume", guarded=False)  # the core decides who may
+            if answer is None:
+                return False
+            if not answer["resumed"]:
                 self.ctx.error("the qualification is not paused", "Resume")
                 return False
             return True
+        if not self.ctx.allowed("Resume"):
+            return False
         if self.service.checkpoint is None:
             self.ctx.error("no qualification was paused or stopped by a fault: press Run", "Resume")
             return False

@@ -444,7 +444,11 @@ class RoutinePanel:
         if run is None or not self.running:
             self.ctx.error("no routine is running", "Routine")
             return
-        getattr(run, action)()
+        verb, title = {"pause": ("pause", "Pause"), "resume": ("resume", "Resume"), "skip": ("skip_step", "Skip step"),
+                       "cancel": ("cancel", "Cancel")}[action]
+        answer = self.ctx.do(title, verb, guarded=False)  # the core decides who may; its refusal is shown in words
+        if answer is not None and not next(iter(answer.values())):
+            self.ctx.error(answer["message"], title)
         self._show_progress()
 
     # --- what the tab shows --------------------------------------------------------------
