@@ -542,3 +542,29 @@ def test_pause_resume_and_skip_step_reach_the_running_job_for_the_holder_only(st
     finally:
         station.controller.policy = OpenPolicy()
 
+
+def test_control_is_taken_and_released_through_verbs_and_the_ippdme_listener_grants_it(station):
+    """``take_control`` / ``release_control`` for every front end: a LAN client needs the access code, a local one
+    does not; an I++ connection takes control without a code only when its listener was opened to grant it (the
+    operator's address at start-up), which the server is told where it is built, not in the adapter."""
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api = station.controller.commands
+    try:
+        r = api.call(Client("lan-tab"), "take_control", {"peer": "10.0.0.7"})
+        assert r.error["code"] == "refused" and "access code" in r.error["message"], r
+        assert api.call(Client("lan-tab"), "take_control", {"code": "c0de", "peer": "10.0.0.8"}).ok
+        assert control.holder == "lan-tab"
+        assert api.call(Client("pendant", local=True), "take_control").ok and control.holder == "pendant"
+        assert api.call(Client("lan-tab"), "release_control").result["released"] is False
+        assert api.call(Client("pendant", local=True), "release_control").result["released"] is True
+        assert control.holder is None
+        plain = StationBackend(station).for_client("192.168.1.9:4000")
+        assert "access code" in plain.acquire() and control.holder is None
+        opened = StationBackend(station, grants_control=True).for_client("192.168.1.9:4000")
+        assert not opened.client.local and opened.acquire() is None
+        assert control.holder == "ippdme 192.168.1.9:4000"
+        opened.release()
+        assert control.holder is None
+    finally:
+        station.controller.policy = OpenPolicy()

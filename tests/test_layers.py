@@ -276,6 +276,16 @@ def test_the_pages_run_controls_send_verbs():
     assert not bad, "a run paused, resumed or skipped around the verbs:\n" + "\n".join(bad)
 
 
+def test_front_ends_take_and_release_control_through_verbs():
+    """Taking and giving up control (the page, the pendant, the I++ server) is the command API's ``take_control`` /
+    ``release_control``: the core decides who may (a local client, the access code, an I++ listener the operator
+    opened), not the adapter."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("try_take", "take", "release", "disconnected") and owner.split(".")[-1] in ("control", "_control",
+                                                                                                  "holder")]
+    assert not bad, "control taken or released around the verbs:\n" + "\n".join(bad)
+
+
 def test_the_pendant_only_translates():
     """The pendant neither installs the access policy (the composition root does) nor judges access itself:
     the core's verbs refuse in the operator's words, the pendant passes them on."""

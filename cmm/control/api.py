@@ -27,6 +27,7 @@ from typing import Any, Callable
 from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
+from . import access
 from .modes import ControlError, Refused
 from .rails import RailError
 
@@ -118,6 +119,15 @@ class CommandAPI:
         self.register("reconnect", c.reconnect, {}, "after a link fault: reopen the link, restart the modules")
         self.register("home", c.home, {}, "the homing cycle (blocks until it ends)")
         self.register("zero", c.zero, {"confirm": False}, "here becomes the home coordinates (confirm=true)")
+        self.register("take_control", lambda client, code=None, peer=None: access.take_control(c.holder, client,
+                                                                                             code, peer),
+                      {"code": None, "peer": None},
+                      "this client becomes the control holder (the only one that moves the machine): a client at "
+                      "the station PC, or one whose listener grants control (the I++ DME port), without a code; a "
+                      "LAN client with the access code (code); peer: its network address (the wrong-code rate limit)")
+        self.register("release_control", lambda client: access.release_control(c.holder, client), {},
+                      "this client gives control up (after a disconnect too); a client that did not hold it changes "
+                      "nothing")
         self.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
                       "where the tip centre is, in frame 'machine' or 'part'")
         self.register("state", lambda client: c.state, {},
@@ -209,7 +219,7 @@ class CommandAPI:
 def error_code(exc: BaseException) -> str:
     if getattr(exc, "cancelled", False) is True:  # a job that ended itself for the cancel verb (between hits)
         return "cancelled"
-    if isinstance(exc, (Refused, RailError)):
+    if isinstance(exc, (Refused, RailError, access.AccessRefused)):
         return "refused"
     if isinstance(exc, ContactError):
         return "contact"

@@ -17,7 +17,8 @@ def start(station: Any, address: str) -> IppServer:
     """
     host, port = parse_address(address)
     try:
-        server = IppServer(StationBackend(station), host, port).start()
+        # the operator chose this address at start-up: its clients take control without an access code
+        server = IppServer(StationBackend(station, grants_control=True), host, port).start()
     except OSError as exc:
         raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
     station.ippdme = server.status

@@ -438,7 +438,11 @@ class ClientApp:
         return address[0] if isinstance(address, (tuple, list)) and address else None
 
     def take_control(self, code: str | None = None) -> bool:
-        refusal = self.control.try_take(self.client_id, code or None, self.is_local, peer=self.peer())
+        try:
+            self.ctx.commands.invoke(self.ctx.who(), "take_control", code=code or None, peer=self.peer())
+            refusal = None
+        except PermissionError as exc:  # the core's refusal, in the operator's words
+            refusal = str(exc)
         if refusal is None:
             self.ctx.authenticated = True
             self.ctx.notify("Control", "you control the machine")
@@ -505,7 +509,7 @@ class ClientApp:
     def release_control(self) -> None:
         self.jog_release()
         self._had_control = False
-        self.control.release(self.client_id)
+        self.ctx.commands.invoke(self.ctx.who(), "release_control")
 
     def watch_control(self) -> None:
         """Tell this tab when another client took control from it (it may have been about to jog)."""
