@@ -286,6 +286,12 @@ def test_front_ends_take_and_release_control_through_verbs():
     assert not bad, "control taken or released around the verbs:\n" + "\n".join(bad)
 
 
+def test_the_page_runs_dmis_programs_with_the_verb():
+    """The Routine tab runs a DMIS program with the ``run_dmis`` verb (the holder only), never the runner itself."""
+    bad = [f"ui/{p.relative_to(ROOT / 'ui')}" for p in sorted((ROOT / "ui").rglob("*.py")) if "run_text" in p.read_text()]
+    assert not bad, "DMIS programs run around the verb:\n" + "\n".join(bad)
+
+
 def test_the_pendant_only_translates():
     """The pendant neither installs the access policy (the composition root does) nor judges access itself:
     the core's verbs refuse in the operator's words, the pendant passes them on."""

@@ -151,14 +151,18 @@ class CommandAPI:
                       "in process: change the set-up while the machine is still; change(setup) gets "
                       "setup.machine and setup.prober (probe settings, geometry correction, servo gains)")
         self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None,
-                      pause=None, resume=None, skip=None:
-                      c.run_routine(client, description, work, progress=progress, cancel=cancel, timeout=timeout,
-                                    pause=pause, resume=resume, skip=skip),
+                      pause=None, resume=None, skip=None, hold_machine=True: c.run_routine(
+                          client, description, work, progress=progress, cancel=cancel, timeout=timeout, pause=pause,
+                          resume=resume, skip=skip) if hold_machine else c.run_beside(
+                          client, description, lambda: work(None), cancel=cancel or (lambda: c.stop(None)),
+                          pause=pause, resume=resume, skip=skip),
                       {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None,
-                       "pause": None, "resume": None, "skip": None},
+                       "pause": None, "resume": None, "skip": None, "hold_machine": True},
                       "in process: work(job) runs in the machine loop with the machine to itself (job.machine, "
                       "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent; pause(), "
-                      "resume(), skip() (when given) are what the pause, resume and skip_step verbs call")
+                      "resume(), skip() (when given) are what the pause, resume and skip_step verbs call; "
+                      "hold_machine false: work(None) runs in the caller's thread beside the machine loop (a program "
+                      "waiting for the operator's manual hits), registered the same way")
 
     # --- registry ---------------------------------------------------------------------
 

@@ -556,6 +556,18 @@ class Controller:
             if progress is not None:
                 self.dispatcher.flush()
 
+    def run_beside(self, client: str | None, description: str, fn: Callable[[], Any], *,
+                   cancel: Callable[[], None], **holds: Callable[[], Any] | None) -> Any:
+        """Work that does not hold the machine (a program waiting for the operator's manual hits: the operator jogs
+        and probes meanwhile, each move its own command): run in the caller's thread, registered with its
+        ``cancel`` (and ``pause`` / ``resume`` / ``skip``) as a running job; only the client that may start a job
+        starts it."""
+        why = self.policy.refusal(client, "job")
+        if why is not None:
+            raise Refused(why)
+        with self.jobs.running(description, cancel, **holds):
+            return fn()
+
     def cancel_jobs(self, client: str | None) -> dict[str, Any]:
         """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
         to every client the access policy lets stop; a job that was not running is no error."""

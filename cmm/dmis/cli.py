@@ -71,7 +71,7 @@ def _run(args: Any, path: Path, text: str) -> int:
     from ..session.store import open_session
     from ..station import Station, load_config
     from .executor import DmisError
-    from .runner import run_text
+    from .runner import register_verbs
 
     station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions)
     try:
@@ -94,7 +94,8 @@ def _run(args: Any, path: Path, text: str) -> int:
             station.measurement.trends = open_trends(args.trends, station=args.station, database=args.trends_db,
                                                      sessions=args.sessions, background=False)
         try:
-            result = run_text(text, station, name=path.name, manual_hits=terminal_hits(station))
+            register_verbs(station)
+            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(station))
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
             print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)

@@ -71,6 +71,9 @@ class RoutinePanel:
         self.dmis_text = ""
         self.dmis_status = ""
         self.dmis_results: list[Any] = []
+        from ..dmis.runner import register_verbs
+
+        register_verbs(self.station)  # this tab runs DMIS programs with the run_dmis verb (registered once)
         self.preview = PathPreview(ctx, "/routine_preview")  # the path Run will take, drawn until Run or Clear
 
     # --- actions (also what the tests call) ------------------------------------------------
@@ -288,8 +291,6 @@ class RoutinePanel:
         path, text = self.dmis
 
         def work() -> None:
-            from ..dmis.runner import run_text
-
             model = self.station.measurement
             # each run is a part of the program's series: a session of its own (a name no earlier run took, also
             # of another page or before a restart) with none of the previous part's features or tolerances
@@ -301,8 +302,8 @@ class RoutinePanel:
                 self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
                 return
             try:
-                result = run_text(text, self.station, name=path.name, client=self.ctx.who(),
-                                  on_prompt=self._dmis_prompt)  # manual mode: the hits asked for, taken by jog
+                result = self.ctx.commands.invoke(self.ctx.who(), "run_dmis", text=text, name=path.name,
+                                                  on_prompt=self._dmis_prompt)  # manual mode: hits taken by jog
             except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
                 self.dmis_status = f"**STOPPED**: {exc}"
                 self.ctx.error(exc, "DMIS program stopped")
