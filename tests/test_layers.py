@@ -292,6 +292,24 @@ def test_the_page_runs_dmis_programs_with_the_verb():
     assert not bad, "DMIS programs run around the verb:\n" + "\n".join(bad)
 
 
+def test_front_ends_never_wire_the_station():
+    """The station is built with what it records into (its trends) and told what serves it (the I++ DME server's
+    status) through its own constructor and methods, and the probe in use reaches the measurement model through
+    the station's wiring: no front end assigns ``station.measurement.trends = ...``, ``station.ippdme = ...`` or
+    ``host.measurement.probe_name = ...``."""
+    bad = []
+    for pkg in FRONT_ENDS:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                targets = node.targets if isinstance(node, ast.Assign) else \
+                    [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
+                for t in targets:
+                    if isinstance(t, ast.Attribute) and ast.unparse(t.value).split(".")[-1] in (
+                            "station", "measurement", "host"):
+                        bad.append(f"{pkg}/{path.relative_to(ROOT / pkg)}:{node.lineno} {ast.unparse(t)}")
+    assert not bad, "a front end wiring the station:\n" + "\n".join(bad)
+
+
 def test_the_pendant_only_translates():
     """The pendant neither installs the access policy (the composition root does) nor judges access itself:
     the core's verbs refuse in the operator's words, the pendant passes them on."""
