@@ -311,9 +311,11 @@ def test_front_ends_never_wire_the_station():
 
 
 def test_the_pendant_only_translates():
-    """The pendant neither installs the access policy (the composition root does) nor judges access itself:
-    the core's verbs refuse in the operator's words, the pendant passes them on."""
-    uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == "ui/pendant.py"]
-    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
-           if attr in ("use_policy_of", "can_move", "may_stop", "policy")]
-    assert uses and not bad, "the pendant deciding access itself:\n" + "\n".join(bad)
+    """The pendant, the page's tab (ui/panels.py) and the panels' context (ui/context.py) neither install the access
+    policy (the composition root, StationApp, does) nor judge access themselves: the core's verbs refuse in the
+    operator's words, they pass them on (the page asks the core, ``check_access``, before an action of its own)."""
+    for name in ("ui/pendant.py", "ui/panels.py", "ui/context.py"):
+        uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == name]
+        bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
+               if attr in ("use_policy_of", "can_move", "may_stop", "policy", "refusal")]
+        assert uses and not bad, f"{name} deciding access itself:\n" + "\n".join(bad)
