@@ -272,6 +272,9 @@ class PartWorkspace:
 class Station:
     """Build the machine, the control core, the measurement model and the calibration service; wire them.
 
+    ``trends`` (:class:`cmm.session.trends.Trends`, opened by the caller, who closes it): every program run is
+    recorded there as a part of its series.
+
     ``port`` None or "sim" starts the simulated CMM in a process of its own
     (cmm/sim/sim_process.py), served in real time over TCP on loopback, and the
     driver talks to it through that byte stream (and its link process).
@@ -281,7 +284,7 @@ class Station:
 
     def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
                  part_path: str | Path | None = None, session_dir: str | Path = "sessions",
-                 sim_settings: Any = None, calibration_dir: str | Path | None = None) -> None:
+                 sim_settings: Any = None, calibration_dir: str | Path | None = None, trends: Any = None) -> None:
         self.config = config or load()
         if baud is not None:
             self.config = self.config.with_link(baud=baud)
@@ -303,9 +306,13 @@ class Station:
                 client, point, approach, frame="machine", clearance_z=clearance_z, hop_z=hop_z),
             part=part, session_dir=session_dir, lock=self.lock,
             start_fields=lambda: {"port": str(self.port), "calibration": self.calibration.status})
+        self.measurement.trends = trends  # cmm.session.trends.Trends: each program run is recorded there as a part
+        self.ippdme: Any = None  # the I++ DME server's status (cmm.ippdme.status.IppStatus) once one serves this station
         self.controller.on_hit(self.measurement.add_hit)
         self.controller.set_workspace(PartWorkspace(self.measurement))
-        self.calibration = CalibrationService(self, calibration_dir)  # routines, records and results, for every front end
+        # routines, records and results, for every front end; the probe it selects is the model's probe in use
+        self.calibration = CalibrationService(self, calibration_dir, use_probe=self.measurement.use_probe,
+                                              tell=self.measurement.log)
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         self.controller.subscribe(self.measurement.machine_event)
@@ -358,6 +365,11 @@ class Station:
             from .sim.home_switches import for_homing
 
             self.sim.home_switches = for_homing(self.sim, self.config.homing)
+
+    def serving_ippdme(self, status: Any) -> None:
+        """An I++ DME server now serves this station: the page shows its ``status`` (connected client, current
+        command, measured points)."""
+        self.ippdme = status
 
     @property
     def simulated(self) -> bool:

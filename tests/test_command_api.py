@@ -530,3 +530,60 @@ def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(st
                                                                    "I++ DME session ended"]
     assert [(e["name"], e["path"]) for e in events if e["kind"] == "routine_saved"] == [("block", "block.toml")]
     assert not any(e["kind"] == "hit" for e in events)
+
+
+def test_pause_resume_and_skip_step_reach_the_running_job_for_the_holder_only(station):
+    """A job that can hold (a routine, a probe qualification) registers its pause / resume / skip: the ``pause``
+    verb is allowed like STOP, ``resume`` and ``skip_step`` only to the control holder; an anonymous observer is
+    refused all three, and with nothing running the answer says so."""
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api, done = station.controller.commands, []
+    holder, at_station, lan = Client("page", local=True), Client("pendant", local=True), Client("lan-tab")
+    try:
+        assert control.take("page", is_local=True)
+        with station.controller.jobs.running("a routine", lambda: done.append("cancel"),
+                                             pause=lambda: done.append("pause"), resume=lambda: done.append("resume"),
+                                             skip=lambda: done.append("skip")):
+            for verb in ("pause", "resume", "skip_step"):
+                assert api.call(lan, verb).error["code"] == "refused"
+            for verb in ("resume", "skip_step"):
+                r = api.call(at_station, verb)
+                assert r.error["code"] == "refused" and "Take control" in r.error["message"], r
+            assert done == []
+            assert api.call(at_station, "pause").result["paused"] == ["a routine"]
+            assert api.call(holder, "resume").result["resumed"] == ["a routine"]
+            assert api.call(holder, "skip_step").result["skipped"] == ["a routine"]
+            assert done == ["pause", "resume", "skip"]
+        with station.controller.jobs.running("a program", lambda: None):  # nothing to pause in it
+            r = api.call(holder, "pause")
+        assert r.ok and r.result["paused"] == [] and "nothing was running" in r.result["message"]
+    finally:
+        station.controller.policy = OpenPolicy()
+
+
+def test_control_is_taken_and_released_through_verbs_and_the_ippdme_listener_grants_it(station):
+    """``take_control`` / ``release_control`` for every front end: a LAN client needs the access code, a local one
+    does not; an I++ connection takes control without a code only when its listener was opened to grant it (the
+    operator's address at start-up), which the server is told where it is built, not in the adapter."""
+    control = Control(lan=True, access_code="c0de")
+    station.controller.use_policy_of(control)
+    api = station.controller.commands
+    try:
+        r = api.call(Client("lan-tab"), "take_control", {"peer": "10.0.0.7"})
+        assert r.error["code"] == "refused" and "access code" in r.error["message"], r
+        assert api.call(Client("lan-tab"), "take_control", {"code": "c0de", "peer": "10.0.0.8"}).ok
+        assert control.holder == "lan-tab"
+        assert api.call(Client("pendant", local=True), "take_control").ok and control.holder == "pendant"
+        assert api.call(Client("lan-tab"), "release_control").result["released"] is False
+        assert api.call(Client("pendant", local=True), "release_control").result["released"] is True
+        assert control.holder is None
+        plain = StationBackend(station).for_client("192.168.1.9:4000")
+        assert "access code" in plain.acquire() and control.holder is None
+        opened = StationBackend(station, grants_control=True).for_client("192.168.1.9:4000")
+        assert not opened.client.local and opened.acquire() is None
+        assert control.holder == "ippdme 192.168.1.9:4000"
+        opened.release()
+        assert control.holder is None
+    finally:
+        station.controller.policy = OpenPolicy()

@@ -384,13 +384,28 @@ def test_cmm_run_writes_the_dmis_output_and_the_station_report(tmp_path, monkeyp
 
 def test_the_routine_tab_opens_checks_and_runs_a_dmis_program(station):
     """The page's Routine tab: a DMIS file is checked and listed, a refused one names its line, Run writes the
-    output beside the sessions."""
-    from cmm.control.access import Control
+    output beside the sessions; it runs with the run_dmis verb, which only the control holder may send."""
+    from cmm.control import OpenPolicy
+    from cmm.control.access import Client, Control
+    from cmm.dmis.runner import register_verbs
+
+    register_verbs(station)  # as the station's page does
+    control = Control()
+    assert control.take("operator", is_local=True)
+    station.controller.use_policy_of(control)
+    try:
+        refused = station.controller.commands.call(Client("observer", local=True), "run_dmis",
+                                                   {"text": placed_simple_program(), "name": "simple.dms"})
+        assert refused.error["code"] == "refused" and "only observes" in refused.error["message"], refused
+        _routine_tab_runs_dmis(station, control)
+    finally:
+        station.controller.policy = OpenPolicy()
+
+
+def _routine_tab_runs_dmis(station, control):
     from cmm.ui.context import PanelContext
     from cmm.ui.panel_routine import RoutinePanel
 
-    control = Control()
-    assert control.take("operator", is_local=True)
     panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
     folder = station.measurement.session_dir
     (folder / "bad.dmi").write_text(BAD)

@@ -268,10 +268,54 @@ def test_front_ends_write_the_journal_only_through_verbs():
     assert not bad, "the journal written around the verbs:\n" + "\n".join(bad)
 
 
+def test_the_pages_run_controls_send_verbs():
+    """Pause, Resume and Skip step of a routine run or a probe qualification are the command API's ``pause``,
+    ``resume`` and ``skip_step`` verbs (with their access rule), not the run's or the calibration's own methods."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("pause", "resume", "skip") and owner.split(".")[-1] in ("run", "run_", "service", "calibration")]
+    assert not bad, "a run paused, resumed or skipped around the verbs:\n" + "\n".join(bad)
+
+
+def test_front_ends_take_and_release_control_through_verbs():
+    """Taking and giving up control (the page, the pendant, the I++ server) is the command API's ``take_control`` /
+    ``release_control``: the core decides who may (a local client, the access code, an I++ listener the operator
+    opened), not the adapter."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("try_take", "take", "release", "disconnected") and owner.split(".")[-1] in ("control", "_control",
+                                                                                                  "holder")]
+    assert not bad, "control taken or released around the verbs:\n" + "\n".join(bad)
+
+
+def test_the_page_runs_dmis_programs_with_the_verb():
+    """The Routine tab runs a DMIS program with the ``run_dmis`` verb (the holder only), never the runner itself."""
+    bad = [f"ui/{p.relative_to(ROOT / 'ui')}" for p in sorted((ROOT / "ui").rglob("*.py")) if "run_text" in p.read_text()]
+    assert not bad, "DMIS programs run around the verb:\n" + "\n".join(bad)
+
+
+def test_front_ends_never_wire_the_station():
+    """The station is built with what it records into (its trends) and told what serves it (the I++ DME server's
+    status) through its own constructor and methods, and the probe in use reaches the measurement model through
+    the station's wiring: no front end assigns ``station.measurement.trends = ...``, ``station.ippdme = ...`` or
+    ``host.measurement.probe_name = ...``."""
+    bad = []
+    for pkg in FRONT_ENDS:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                targets = node.targets if isinstance(node, ast.Assign) else \
+                    [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
+                for t in targets:
+                    if isinstance(t, ast.Attribute) and ast.unparse(t.value).split(".")[-1] in (
+                            "station", "measurement", "host"):
+                        bad.append(f"{pkg}/{path.relative_to(ROOT / pkg)}:{node.lineno} {ast.unparse(t)}")
+    assert not bad, "a front end wiring the station:\n" + "\n".join(bad)
+
+
 def test_the_pendant_only_translates():
-    """The pendant neither installs the access policy (the composition root does) nor judges access itself:
-    the core's verbs refuse in the operator's words, the pendant passes them on."""
-    uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == "ui/pendant.py"]
-    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
-           if attr in ("use_policy_of", "can_move", "may_stop", "policy")]
-    assert uses and not bad, "the pendant deciding access itself:\n" + "\n".join(bad)
+    """The pendant, the page's tab (ui/panels.py) and the panels' context (ui/context.py) neither install the access
+    policy (the composition root, StationApp, does) nor judge access themselves: the core's verbs refuse in the
+    operator's words, they pass them on (the page asks the core, ``check_access``, before an action of its own)."""
+    for name in ("ui/pendant.py", "ui/panels.py", "ui/context.py"):
+        uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == name]
+        bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
+               if attr in ("use_policy_of", "can_move", "may_stop", "policy", "refusal")]
+        assert uses and not bad, f"{name} deciding access itself:\n" + "\n".join(bad)

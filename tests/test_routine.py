@@ -11,6 +11,8 @@ import pytest
 import session_support as sup
 from netutil import SIM, free_port
 
+from cmm.control import OpenPolicy
+from cmm.control.access import Client, Control
 from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
 from cmm.metrology.transform import invert
 from cmm.session.program import from_toml, load, machine_targets
@@ -141,27 +143,38 @@ def test_pause_skip_and_cancel_between_hits(taught):
     r = Routine(from_toml(routine.text()))
     r.steps[0]["manual"] = None  # this part is aligned: the datums are measured automatically
     run = RoutineRun(r, st.measurement, st.controller, part_name="part 3")
-    events, cancelled = [], []
+    events, cancelled, refused = [], [], []
     done = set()
+    api, holder, observer = st.controller.commands, Client("page", local=True), Client("lan-tab")
+    control = Control(lan=True, access_code="c0de")
+    assert control.take("page", is_local=True)
 
     def on_progress(p):
         events.append((p.state, p.step, p.hits))
-        if p.hits == 2 and "pause" not in done:  # the operator pauses after the second hit ...
+        if p.hits == 2 and "pause" not in done:  # the operator pauses after the second hit (an observer may not) ...
             done.add("pause")
-            run.pause()
-        elif p.state == "paused" and "resume" not in done:  # ... and resumes
+            refused.append(api.call(observer, "pause"))
+            assert api.call(holder, "pause").result["paused"] == ["routine 'block'"]
+        elif p.state == "paused" and "resume" not in done:  # ... and resumes (only the holder)
             done.add("resume")
-            run.resume()
+            refused.append(api.call(Client("pendant", local=True), "resume"))
+            assert api.call(holder, "resume").result["resumed"] == ["routine 'block'"]
         elif p.step == 4 and p.hits == 13 and "skip" not in done:  # the first bore hit taken: skip the bore
             done.add("skip")
-            run.skip()
+            refused.append(api.call(observer, "skip_step"))
+            assert api.call(holder, "skip_step").result["skipped"] == ["routine 'block'"]
         elif p.step == 6 and "cancel" not in done:  # any front end's cancel verb ends the routine between hits
             done.add("cancel")
             cancelled.append(st.controller.commands.call(None, "cancel"))
 
     run.on_progress = on_progress
-    with pytest.raises(RoutineCancelled):
-        run.run()
+    st.controller.use_policy_of(control)
+    try:
+        with pytest.raises(RoutineCancelled):
+            run.run()
+    finally:
+        st.controller.policy = OpenPolicy()
+    assert [x.error["code"] for x in refused] == ["refused"] * 3, refused
     assert ("paused", 0, 2) in events
     assert "bore" not in run.progress.results and "FRONT" in run.progress.results
     assert run.progress.state == "cancelled"

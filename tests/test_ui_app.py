@@ -322,6 +322,12 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     viewer.ctx.picked = operator.ctx.picked
     viewer.measure.make_plan()
     assert viewer.measure.run() is False and viewer.messages[-1][1] == "Not in control"
+    assert "only observes" in viewer.messages[-1][2]  # the core's refusal, in its words
+    # the page sends the verb without judging access itself: the core refuses and the tab shows why
+    before = len(st.measurement.features)
+    viewer.features.construct("distance", feature.id, feature.id)
+    assert viewer.messages[-1][1] == "Construct refused" and "only observes" in viewer.messages[-1][2]
+    assert len(st.measurement.features) == before
 
 
 def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, operator, unpaced):

@@ -71,7 +71,6 @@ class CalibrationHost(Protocol):
     """What the service needs from the station (the composition root that builds it)."""
 
     controller: Any  # the control core (cmm.control.Controller): its command API's run_job, configure, stop, note
-    measurement: Any  # the measurement model: the probe in use, the operator's event log
     config: Any
     lock: Any  # held while records are applied (the measurement reads the probe settings under it)
 
@@ -120,8 +119,16 @@ def records_summary(directory: Path) -> list[dict[str, str]]:
 
 
 class CalibrationService:
-    def __init__(self, host: CalibrationHost, directory: str | Path | None = None) -> None:
+    """The calibration routines, records and results of the station, for every front end. ``use_probe(name)`` makes
+    a probe the one the measurement journals with its hits; ``tell(kind, message)`` writes the operator's event
+    log (the station wires both to its measurement model)."""
+
+    def __init__(self, host: CalibrationHost, directory: str | Path | None = None, *,
+                 use_probe: Callable[[str], None] = lambda _name: None,
+                 tell: Callable[[str, str], None] = lambda _kind, _message: None) -> None:
         self.host = host
+        self.use_probe = use_probe
+        self.tell = tell
         self.directory = None if directory is None else Path(directory)  # records are read and written here
         self.log: list[str] = []  # what was applied from the records, and the records refused
         self.status: dict[str, Any] = {"probe": None, "machine": None, "problems": []}  # for the session journal
@@ -151,7 +158,7 @@ class CalibrationService:
         nominal = None
         try:
             probes, selected = self.probe_list()
-            self.host.measurement.probe_name = selected  # the selected probe: its name goes with every hit
+            self.use_probe(selected)  # the selected probe: its name goes with every hit
             if loaded.probe is None and (self.records_dir / PROBE_LIST).is_file():
                 nominal = next(p for p in probes if p.name == selected)  # selected, never qualified
         except CalibrationError as exc:
@@ -160,7 +167,7 @@ class CalibrationService:
         if nominal is not None:
             applied.append(self._apply_nominal(None, nominal))
         for problem in loaded.problems:
-            self.host.measurement.log("error", f"calibration record refused: {problem}")
+            self.tell("error", f"calibration record refused: {problem}")
         self.log = applied + [f"refused: {p}" for p in loaded.problems]
         self.status = {"probe": None if loaded.probe is None else probe_status(loaded.probe),
                        "machine": None if loaded.machine is None else machine_status(loaded.machine),
@@ -247,7 +254,6 @@ class CalibrationService:
             raise CalibrationError(f"there is no probe named {name!r}; the list has {', '.join(p.name for p in probes)}")
         rec = self.probe_record(name)
         self._keep_legacy_record(probes)
-        host = self.host
         if rec is not None:
             self._log(self.apply(LoadedCalibration(probe=rec), client=client))
             save_record(rec, self.records_dir / PROBE_RECORD)
@@ -257,7 +263,7 @@ class CalibrationService:
             (self.records_dir / PROBE_RECORD).unlink(missing_ok=True)  # its own record is in probes/<name>.toml
             text = f"probe {name} selected, NOT qualified: nominal radius {probe.tip_diameter / 2:.4f} mm"
         save_probe_list(self.records_dir, probes, name)
-        host.measurement.probe_name = name
+        self.use_probe(name)
         self.status["probe"] = None if rec is None else {"date": rec.date, "tip_radius": rec.tip_radius,
                                                          "artifact": rec.artifact, "probing_speed": rec.probing_speed}
         if self.status.get("probe") is not None:
@@ -404,7 +410,8 @@ class CalibrationService:
             self._go.set()
             return self.host.controller.commands.invoke(
                 client, "run_job", description=LABELS[routine], work=lambda job: self._work(job, routine, certs, options),
-                progress=progress, cancel=self._cancel_run)
+                progress=progress, cancel=self._cancel_run,
+                **({"pause": self.pause, "resume": self.resume} if routine == "probe" else {}))  # the verbs
         finally:
             self.instruction = ""
             self._bar_event = None

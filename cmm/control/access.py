@@ -95,6 +95,9 @@ class Client:
     id: str
     local: bool = False  # connects from the station PC itself
     authenticated: bool = False  # gave the access code on this connection (or is local)
+    # came through a listener the operator opened for programs that command the machine (the I++ DME port, its
+    # address chosen at start-up): that decision stands in for the access code when it takes control
+    listener_grants_control: bool = False
 
 
 def client_of(client: Any) -> Client | None:
@@ -322,6 +325,29 @@ class Control:
             fn(*args)
         except Exception as exc:  # noqa: BLE001 - a broken callback must not keep control stuck
             self.errors.append(f"{getattr(fn, '__name__', fn)!s} failed: {exc}")
+
+
+def take_control(control: "Control | None", client: Any, code: str | None = None, peer: str | None = None) -> dict:
+    """The ``take_control`` verb: ``client`` becomes the holder (a local client, or one whose listener grants
+    control, without a code; a LAN client with the access code); AccessRefused says why not. Without a holder
+    (a station driven by one script) every client may move: nothing to take."""
+    who = client_of(client)
+    if control is None or who is None:
+        return {"control": True, "message": "this station has no control holder: every client may command it"}
+    why = control.try_take(who.id, code if isinstance(code, str) and code else None,
+                           is_local=who.local or who.listener_grants_control, peer=peer)
+    if why is not None:
+        raise AccessRefused(why)
+    return {"control": True, "message": f"{control.name(who.id)} controls the machine"}
+
+
+def release_control(control: "Control | None", client: Any) -> dict:
+    """The ``release_control`` verb: the holder gives control up (a client that did not hold it: nothing changes)."""
+    who = client_of(client)
+    if control is None or who is None:
+        return {"released": False, "message": "this station has no control holder"}
+    released = control.release(who.id)
+    return {"released": released, "message": "control released" if released else "this client did not hold control"}
 
 
 # --- connections: local or not, which web page ---------------------------------------------

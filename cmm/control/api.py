@@ -27,6 +27,7 @@ from typing import Any, Callable
 from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
+from . import access
 from .modes import ControlError, Refused
 from .rails import RailError
 
@@ -119,6 +120,15 @@ class CommandAPI:
         self.register("reconnect", c.reconnect, {}, "after a link fault: reopen the link, restart the modules")
         self.register("home", c.home, {}, "the homing cycle (blocks until it ends)")
         self.register("zero", c.zero, {"confirm": False}, "here becomes the home coordinates (confirm=true)")
+        self.register("take_control", lambda client, code=None, peer=None: access.take_control(c.holder, client,
+                                                                                             code, peer),
+                      {"code": None, "peer": None},
+                      "this client becomes the control holder (the only one that moves the machine): a client at "
+                      "the station PC, or one whose listener grants control (the I++ DME port), without a code; a "
+                      "LAN client with the access code (code); peer: its network address (the wrong-code rate limit)")
+        self.register("release_control", lambda client: access.release_control(c.holder, client), {},
+                      "this client gives control up (after a disconnect too); a client that did not hold it changes "
+                      "nothing")
         self.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
                       "where the tip centre is, in frame 'machine' or 'part'")
         self.register("state", lambda client: c.state, {},
@@ -126,17 +136,34 @@ class CommandAPI:
         self.register("cancel", c.cancel_jobs, {},
                       "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
                       "progress; its hits stay recorded; allowed to everyone who may STOP")
+        self.register("pause", lambda client: c.hold_jobs(client, "pause"), {},
+                      "hold whatever job runs and can (a routine, a probe qualification) after the hit in progress; "
+                      "allowed to everyone who may STOP")
+        self.register("resume", lambda client: c.hold_jobs(client, "resume"), {},
+                      "a paused job goes on (a paused qualification lifts to the clearance height first); the "
+                      "control holder only")
+        self.register("skip_step", lambda client: c.hold_jobs(client, "skip"), {},
+                      "a running routine leaves the step in progress after its current hit (its feature is not "
+                      "fitted) and goes on; the control holder only")
         self.register("cancel_move", lambda client, status: c.cancel(client, status), {"status": REQUIRED},
                       "in process: cancel one move or probe cycle (its status, as move or probe returned it); it "
                       "decelerates to a stop")
         self.register("configure", c.configure, {"change": REQUIRED},
                       "in process: change the set-up while the machine is still; change(setup) gets "
                       "setup.machine and setup.prober (probe settings, geometry correction, servo gains)")
-        self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None:
-                      c.run_routine(client, description, work, progress=progress, cancel=cancel, timeout=timeout),
-                      {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None},
+        self.register("run_job", lambda client, description, work, progress=None, cancel=None, timeout=None,
+                      pause=None, resume=None, skip=None, hold_machine=True: c.run_routine(
+                          client, description, work, progress=progress, cancel=cancel, timeout=timeout, pause=pause,
+                          resume=resume, skip=skip) if hold_machine else c.run_beside(
+                          client, description, lambda: work(None), cancel=cancel or (lambda: c.stop(None)),
+                          pause=pause, resume=resume, skip=skip),
+                      {"description": REQUIRED, "work": REQUIRED, "progress": None, "cancel": None, "timeout": None,
+                       "pause": None, "resume": None, "skip": None, "hold_machine": True},
                       "in process: work(job) runs in the machine loop with the machine to itself (job.machine, "
-                      "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent")
+                      "job.prober, job.progress); cancel() ends it cleanly when the cancel verb is sent; pause(), "
+                      "resume(), skip() (when given) are what the pause, resume and skip_step verbs call; "
+                      "hold_machine false: work(None) runs in the caller's thread beside the machine loop (a program "
+                      "waiting for the operator's manual hits), registered the same way")
 
     # --- registry ---------------------------------------------------------------------
 
@@ -197,7 +224,7 @@ class CommandAPI:
 def error_code(exc: BaseException) -> str:
     if getattr(exc, "cancelled", False) is True:  # a job that ended itself for the cancel verb (between hits)
         return "cancelled"
-    if isinstance(exc, (Refused, RailError)):
+    if isinstance(exc, (Refused, RailError, access.AccessRefused)):
         return "refused"
     if isinstance(exc, ContactError):
         return "contact"

@@ -523,13 +523,16 @@ class Controller:
         self._submit(client, "reconnect", self._reconnect, timeout=30.0)
 
     def run_job(self, client: str | None, description: str, fn: Callable[[], Any], *,
-                timeout: float | None = None, cancel: Callable[[], None] | None = None) -> Any:
+                timeout: float | None = None, cancel: Callable[[], None] | None = None,
+                pause: Callable[[], Any] | None = None, resume: Callable[[], Any] | None = None,
+                skip: Callable[[], Any] | None = None) -> Any:
         """Run a routine (calibration, a measurement program) in the machine loop with the machine to itself.
 
         ``fn`` may use the machine and prober directly and wait on statuses (they drive the loop); other
         commands are refused while it runs, except STOP / E-STOP, which end its current move. While it runs,
         the ``cancel`` verb calls ``cancel`` (the job ends itself cleanly between hits); a job without one is
-        ended by a controlled stop of its current move.
+        ended by a controlled stop of its current move; ``pause`` / ``resume`` / ``skip`` (when given) are what
+        the ``pause``, ``resume`` and ``skip_step`` verbs call.
         """
         def run() -> Any:
             with self._lock:
@@ -541,22 +544,34 @@ class Controller:
                 with self._lock:
                     self._job = None
                 self._publish()
-        with self.jobs.running(description, cancel or (lambda: self.stop(None))):
+        with self.jobs.running(description, cancel or (lambda: self.stop(None)), pause=pause, resume=resume, skip=skip):
             return self._submit(client, "job", run, timeout=timeout)
 
     def run_routine(self, client: str | None, description: str, routine: Callable[["Job"], Any], *,
                     progress: Callable[[float, str], None] | None = None, timeout: float | None = None,
-                    cancel: Callable[[], None] | None = None) -> Any:
+                    cancel: Callable[[], None] | None = None, **holds: Callable[[], Any] | None) -> Any:
         """A routine that needs the machine itself (calibration): ``routine(job)`` runs as a :meth:`run_job`
         and gets the machine, the prober and ``job.progress(fraction, message)``, which reaches ``progress`` on
         the dispatcher thread (never in the loop); the last report is delivered before this returns."""
         job = Job(self.machine, self.prober, None if progress is None else
                   (lambda fraction, message: self.dispatcher.post(progress, fraction, message)))
         try:
-            return self.run_job(client, description, lambda: routine(job), timeout=timeout, cancel=cancel)
+            return self.run_job(client, description, lambda: routine(job), timeout=timeout, cancel=cancel, **holds)
         finally:
             if progress is not None:
                 self.dispatcher.flush()
+
+    def run_beside(self, client: str | None, description: str, fn: Callable[[], Any], *,
+                   cancel: Callable[[], None], **holds: Callable[[], Any] | None) -> Any:
+        """Work that does not hold the machine (a program waiting for the operator's manual hits: the operator jogs
+        and probes meanwhile, each move its own command): run in the caller's thread, registered with its
+        ``cancel`` (and ``pause`` / ``resume`` / ``skip``) as a running job; only the client that may start a job
+        starts it."""
+        why = self.policy.refusal(client, "job")
+        if why is not None:
+            raise Refused(why)
+        with self.jobs.running(description, cancel, **holds):
+            return fn()
 
     def cancel_jobs(self, client: str | None) -> dict[str, Any]:
         """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
@@ -567,6 +582,18 @@ class Controller:
         asked = self.jobs.cancel_all()
         return {"cancelled": asked,
                 "message": ("cancelled: " + "; ".join(asked)) if asked else "nothing was running to cancel"}
+
+    def hold_jobs(self, client: str | None, action: str) -> dict[str, Any]:
+        """Pause, resume or skip the step of whatever job runs and can (a routine, a probe qualification): the
+        ``pause`` (allowed like STOP), ``resume`` and ``skip_step`` (the control holder) verbs."""
+        command, done = {"pause": ("pause", "paused"), "resume": ("resume", "resumed"),
+                         "skip": ("skip_step", "skipped")}[action]
+        why = self.policy.refusal(client, command)
+        if why is not None:
+            raise Refused(why)
+        asked = self.jobs.ask_all(action)
+        what = {"pause": "pause", "resume": "resume (nothing is paused)", "skip": "skip a step of"}[action]
+        return {done: asked, "message": f"{done}: " + "; ".join(asked) if asked else f"nothing was running to {what}"}
 
     def wait_event(self, event: threading.Event, timeout: float) -> bool:
         """Wait for ``event``; from inside the machine loop (a routine waiting for the operator) keep the loop

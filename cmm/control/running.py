@@ -1,9 +1,11 @@
 """What runs now on the station (an auto-measure, a routine, a program, a calibration routine) and how to end it.
 
 Every long piece of work registers here while it runs (:meth:`RunningJobs.running`), with the callable that ends
-it cleanly: after the hit in progress, its hits kept in the session, the machine left standing. The command API's
-``cancel`` verb ends them all, whichever front end started them and whichever front end asks (the access policy
-treats ``cancel`` like STOP).
+it cleanly: after the hit in progress, its hits kept in the session, the machine left standing; work that can
+hold and go on (a routine, a probe qualification) also registers its ``pause`` / ``resume`` / ``skip`` callables.
+The command API's ``cancel``, ``pause``, ``resume`` and ``skip_step`` verbs reach them, whichever front end started
+them and whichever front end asks (the access policy treats ``cancel`` and ``pause`` like STOP; ``resume`` and
+``skip_step`` are the control holder's).
 """
 
 from __future__ import annotations
@@ -12,23 +14,28 @@ import itertools
 import logging
 import threading
 from contextlib import contextmanager
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Optional
 
 log = logging.getLogger(__name__)
+ACTIONS = ("cancel", "pause", "resume", "skip")
 
 
 class RunningJobs:
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._jobs: dict[int, tuple[str, Callable[[], None]]] = {}
+        self._jobs: dict[int, tuple[str, dict[str, Callable[[], object]]]] = {}
         self._ids = itertools.count(1)
 
     @contextmanager
-    def running(self, description: str, cancel: Callable[[], None]) -> Iterator[None]:
-        """Register ``description`` (what the operator is told) with its ``cancel`` while the block runs."""
+    def running(self, description: str, cancel: Callable[[], None], *,
+                pause: Optional[Callable[[], object]] = None, resume: Optional[Callable[[], object]] = None,
+                skip: Optional[Callable[[], object]] = None) -> Iterator[None]:
+        """Register ``description`` (what the operator is told) with its ``cancel`` (and, when it can hold, its
+        ``pause``, ``resume``, ``skip``: each returns False when it did nothing) while the block runs."""
+        actions = {k: fn for k, fn in zip(ACTIONS, (cancel, pause, resume, skip)) if fn is not None}
         with self._lock:
             key = next(self._ids)
-            self._jobs[key] = (description, cancel)
+            self._jobs[key] = (description, actions)
         try:
             yield
         finally:
@@ -41,15 +48,22 @@ class RunningJobs:
 
     def cancel_all(self) -> list[str]:
         """Ask every running job to end; returns what was asked (none: nothing was running)."""
+        return self.ask_all("cancel")
+
+    def ask_all(self, action: str) -> list[str]:
+        """Call ``action`` (cancel, pause, resume, skip) of every running job that has one; returns the jobs that
+        did it (a callable returning False did nothing: not paused, nothing to skip)."""
+        if action not in ACTIONS:
+            raise ValueError(f"a running job is asked to {', '.join(ACTIONS)}, not {action!r}")
         with self._lock:
-            jobs = list(self._jobs.values())
+            jobs = [(d, actions[action]) for d, actions in self._jobs.values() if action in actions]
         asked = []
-        for description, cancel in jobs:
+        for description, fn in jobs:
             try:
-                cancel()
-                asked.append(description)
-            except Exception:  # noqa: BLE001 - one job's broken cancel must not keep the others running
-                log.exception("cancelling %s failed", description)
+                if fn() is not False:
+                    asked.append(description)
+            except Exception:  # noqa: BLE001 - one job's broken callable must not keep the others running
+                log.exception("%s of %s failed", action, description)
         return asked
 
 

@@ -71,9 +71,21 @@ def _run(args: Any, path: Path, text: str) -> int:
     from ..session.store import open_session
     from ..station import Station, load_config
     from .executor import DmisError
-    from .runner import run_text
+    from .runner import register_verbs
 
-    station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions)
+    trends = None
+    if getattr(args, "trends", None):
+        from ..session.trends import open_trends
+
+        trends = open_trends(args.trends, station=args.station, database=args.trends_db, sessions=args.sessions,
+                             background=False)
+    try:
+        station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions,
+                          trends=trends)
+    except BaseException:
+        if trends is not None:
+            trends.close()
+        raise
     try:
         station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
@@ -88,13 +100,9 @@ def _run(args: Any, path: Path, text: str) -> int:
             print(f"no calibration records in {args.records}: the probe is not qualified (its nominal tip radius, "
                   "no pre-travel model); name the records with --records DIR")
         session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
-        if getattr(args, "trends", None):
-            from ..session.trends import open_trends
-
-            station.measurement.trends = open_trends(args.trends, station=args.station, database=args.trends_db,
-                                                     sessions=args.sessions, background=False)
         try:
-            result = run_text(text, station, name=path.name, manual_hits=terminal_hits(station))
+            register_verbs(station)
+            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(station))
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
             print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)

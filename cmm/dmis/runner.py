@@ -180,8 +180,33 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
     executor = Executor(stmts, target, name=name)
     description = f"DMIS program {name!r}"
-    if needs_operator(stmts):  # the cancel verb ends its waits for the operator's hits
-        with station.controller.jobs.running(description, target.cancel.set):
-            return executor.run()
+    # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside
+    # the machine loop, and the cancel verb ends its waits for the operator's hits
+    manual = needs_operator(stmts)
     return station.controller.commands.invoke(client, "run_job", description=description,
-                                              work=lambda job: executor.run())
+                                              work=lambda job: executor.run(), hold_machine=not manual,
+                                              **({"cancel": target.cancel.set} if manual else {}))
+
+
+def register_verbs(station: Any) -> None:
+    """The ``run_dmis`` verb on the station's command API (once): front ends that run DMIS programs send it."""
+    commands = station.controller.commands
+    if any(v.name == "run_dmis" for v in commands.verbs()):
+        return
+
+    def run_dmis(client: Any, text: str | None = None, path: Any = None, name: str | None = None,
+                 manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None) -> RunResult:
+        station.controller.check_access(client, "measure")
+        if (text is None) == (path is None):
+            raise DmisError("run_dmis needs the program's text or the path of its file (one of them)")
+        if text is None:
+            text, name = load_text(path), name or Path(path).name
+        return run_text(str(text), station, name=name or "program", client=client, manual_hits=manual_hits,
+                        on_prompt=on_prompt)
+
+    commands.register("run_dmis", run_dmis, {"text": None, "path": None, "name": None, "manual_hits": None,
+                                             "on_prompt": None},
+                      "run a DMIS program (its text, or the path of its file) after checking all of it; the control "
+                      "holder only; the machine is the program's until it ends (in manual mode the operator jogs and "
+                      "probes the hits it asks for: on_prompt(text), in process, tells them); cancel ends it "
+                      "after the hit in progress; returns its actuals, tolerances and output")

@@ -54,14 +54,17 @@ class StationBackend:
     """
 
     def __init__(self, station: Any, client: str = "ippdme", *, local: bool = True, peer: str | None = None,
-                 probe_name: str = "Probe1") -> None:
+                 probe_name: str = "Probe1", grants_control: bool = False) -> None:
         from ..control import Client
 
         self.station = station
         self.controller = station.controller
         self.commands = station.controller.commands  # the verbs every front end sends
         self.config = station.config
-        self.client = Client(client, local=local, authenticated=local)
+        # grants_control: the listener was opened by the operator for I++ clients (its address chosen at start-up),
+        # so its clients take control without the access code they have no way to give
+        self.grants_control = grants_control
+        self.client = Client(client, local=local, authenticated=local, listener_grants_control=grants_control)
         self.peer = peer
         self.probe_name = probe_name
 
@@ -71,27 +74,17 @@ class StationBackend:
 
         host = peer.rsplit(":", 1)[0].strip("[]")
         local = is_local_connection(host)
-        return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name)
-
-    @property
-    def _control(self) -> Any:
-        """The station's one control holder, when front ends share the station (None: this client alone)."""
-        return self.controller.holder
+        return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name,
+                              grants_control=self.grants_control)
 
     # --- control --------------------------------------------------------------------
     def acquire(self) -> str | None:
-        """Take the station's control for this client; the reason when refused."""
-        control = self._control
-        if control is None:
-            return None
-        # an I++ client has no way to give the access code: listening beyond this PC was the operator's
-        # decision at start-up (--ippdme ADDR:PORT), which stands in for it
-        return control.try_take(self.client.id, is_local=True, peer=self.peer)
+        """Take the station's control for this client (the take_control verb); the reason when refused."""
+        answer = self.commands.call(self.client, "take_control", {"peer": self.peer})
+        return None if answer.ok else answer.error["message"]
 
     def release(self) -> None:
-        control = self._control
-        if control is not None:
-            control.disconnected(self.client.id)
+        self.commands.call(self.client, "release_control")
 
     # --- queries --------------------------------------------------------------------
     @property

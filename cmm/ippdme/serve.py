@@ -17,10 +17,11 @@ def start(station: Any, address: str) -> IppServer:
     """
     host, port = parse_address(address)
     try:
-        server = IppServer(StationBackend(station), host, port).start()
+        # the operator chose this address at start-up: its clients take control without an access code
+        server = IppServer(StationBackend(station, grants_control=True), host, port).start()
     except OSError as exc:
         raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
-    station.ippdme = server.status
+    station.serving_ippdme(server.status)
     print(f"I++ DME server on {server.address}: point PC-DMIS, CALYPSO, ... at this address (one client at a time)")
     if not is_loopback_host(host):
         print("I++ DME: listening beyond this PC; anyone on the network can connect and move the machine")

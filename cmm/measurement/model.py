@@ -222,6 +222,10 @@ class MeasurementModel:
                 pass
         self._notify(kind, info)
 
+    def use_probe(self, name: str) -> None:
+        """The probe (stylus) in use from now on: its name is journalled with every hit and feature."""
+        self.probe_name = str(name or "")
+
     def log(self, kind: str, message: str) -> None:
         """A line for the operator's event log (not journalled)."""
         self.events.append((time.time(), kind, message))

@@ -510,10 +510,13 @@ class RoutineRun:
         self._go.clear()
         self._tell(state="paused", message="paused after the hit in progress: Resume to go on")
 
-    def resume(self) -> None:
+    def resume(self) -> bool:
+        """Go on after a pause; False when the run was not paused."""
         self._go.set()
         if self.progress.state == "paused":
             self._tell(state="running", message="resumed")
+            return True
+        return False
 
     def skip(self) -> None:
         """Leave the step in progress after its current hit (its feature is not fitted)."""
@@ -645,9 +648,11 @@ class RoutineRun:
     def _steps_from(self, start: int, manual_hits: Callable[[str, int], list[int]] | None) -> RunProgress:
         model, routine = self.model, self.routine
         self.faulted = None
-        jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel verb ends this
+        jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel, pause, resume
+        # and skip_step verbs reach this run through them
         try:
-            with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", self.cancel):
+            with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", self.cancel,
+                                                                 pause=self.pause, resume=self.resume, skip=self.skip):
                 for i in range(start, len(routine.steps)):
                     step = routine.steps[i]
                     self.progress.step = i

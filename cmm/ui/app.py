@@ -173,7 +173,7 @@ class StationApp:
                 if token and self.pendant is not None:
                     self.pendant.revoke(token)
             capp.jog_release()
-            self.control.disconnected(capp.client_id)
+            self.station.controller.commands.invoke(capp.ctx.who(), "release_control")  # a holder gone gives it up
 
     def _scene_clicked(self, event: Any) -> None:
         capp = self.clients.get(event.client_id)

@@ -5,10 +5,12 @@ features, alignment, auto-measure, colour map, sessions, calibration) instead of
 station, the tab's viser client, the shared 3-D view, the tab's selection (picked point, selected feature,
 manual probing armed), what the operator was told, and the two ways a panel acts:
 
-- :meth:`PanelContext.run`: a measurement- or record-changing action: the control check first (a server-side
-  check: hiding buttons is not security), an operator error shown as a notification;
-- :meth:`PanelContext.do`: the same for a verb of the command API (measure, construct, align, auto-measure,
-  cancel ...), sent as this tab's client, so the page gets the checks and answers every front end gets;
+- :meth:`PanelContext.do`: a verb of the command API (measure, construct, align, auto-measure, cancel ...), sent
+  as this tab's client: the core decides who may (the checks and answers every front end gets) and its refusal
+  is shown to the operator in its words;
+- :meth:`PanelContext.run`: an action of the page itself (a session renamed, a probe added to the list), asked of
+  the core's access policy first (:meth:`PanelContext.allowed`; ``guarded=False`` for a function that sends
+  verbs, which the core checks itself), an operator error shown as a notification;
 - :meth:`PanelContext.set`: set a widget attribute only when the value changed (idle pages send nothing).
 
 The few things only the tab can do (STOP and E-STOP with its held jog, selecting a feature across the
@@ -80,15 +82,19 @@ class PanelContext:
         """This browser as the control core's access policy sees it."""
         return Client(self.client_id, local=self.is_local, authenticated=bool(self.authenticated))
 
-    def allowed(self, action: str) -> bool:
-        """The server-side control check every machine- or measurement-changing action makes first."""
-        if self.control.can_move(self.client_id):
-            return True
-        self.error(f"{action}: this browser only observes. Take control first.", "Not in control")
-        return False
+    def allowed(self, action: str, command: str = "measure") -> bool:
+        """Whether the core's access policy lets this tab send ``command`` (the control holder changes the
+        measurement): asked before an action of the page that is no verb, or that changes what the page shows
+        before its verb is sent; the core's refusal is shown in its words."""
+        try:
+            self.station.controller.check_access(self.who(), command)
+        except MotionError as exc:
+            self.error(f"{action}: {exc}", "Not in control")
+            return False
+        return True
 
     def run(self, action: str, fn: Callable[[], Any], *, guarded: bool = True) -> Any:
-        """``fn()`` if this tab may act (``guarded``); an operator error is shown and gives None."""
+        """``fn()`` if the core lets this tab act (``guarded``); an operator error is shown and gives None."""
         if guarded and not self.allowed(action):
             return None
         try:
@@ -102,8 +108,8 @@ class PanelContext:
         """The command API (:mod:`cmm.control.api`): the verbs every front end sends."""
         return self.station.controller.commands
 
-    def do(self, action: str, method: str, /, *, guarded: bool = True, **params: Any) -> Any:
-        """Send the verb ``method`` as this tab (``run`` around it: the control check, an operator error shown)."""
+    def do(self, action: str, method: str, /, *, guarded: bool = False, **params: Any) -> Any:
+        """Send the verb ``method`` as this tab: the core checks it; its refusal or error is shown, giving None."""
         return self.run(action, lambda: self.commands.invoke(self.who(), method, **params), guarded=guarded)
 
     def control_text(self) -> str:

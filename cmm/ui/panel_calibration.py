@@ -234,8 +234,6 @@ class CalibrationPanel:
 
     def select_probe(self, name: str) -> bool:
         """Use probe ``name``: its qualified radius and pre-travel are what compensation uses from now on."""
-        if not self.ctx.allowed("Use probe"):
-            return False
         if self.running or not self.station.controller.allowed("configure"):
             self.ctx.error("change the probe when the machine is idle (not during a routine or a move)", "Use probe")
             return False
@@ -340,13 +338,17 @@ class CalibrationPanel:
         """Stop the running routine (it ends with an error; the previous calibration stays in force)."""
         if not self.running:
             return
-        self.ctx.do("Cancel", "cancel", guarded=False)  # the routine's own cancel: ends a wait, stops a move
+        self.ctx.do("Cancel", "cancel")  # the routine's own cancel: ends a wait, stops a move
 
     def pause(self) -> bool:
         """Hold the probe qualification after the point in progress."""
-        if not self.ctx.allowed("Pause"):
+        if not self.running or self.routine != "probe":
+            self.ctx.error("no probe qualification is running: only it can be paused", "Pause")
             return False
-        if not self.running or self.routine != "probe" or not self.service.pause():
+        answer = self.ctx.do("Pause", "pause")  # the core decides who may; its refusal is shown
+        if answer is None:
+            return False
+        if not answer["paused"]:
             self.ctx.error("no probe qualification is running: only it can be paused", "Pause")
             return False
         self.ctx.notify("Qualification paused", "after the point in progress; Resume lifts to the clearance height "
@@ -355,10 +357,11 @@ class CalibrationPanel:
 
     def resume(self) -> bool:
         """A paused qualification goes on; one a fault stopped goes on after Reset with the points kept."""
-        if not self.ctx.allowed("Resume"):
-            return False
         if self.running:
-            if not self.service.resume():
+            answer = self.ctx.do("Resume", "resume")  # the core decides who may
+            if answer is None:
+                return False
+            if not answer["resumed"]:
                 self.ctx.error("the qualification is not paused", "Resume")
                 return False
             return True
@@ -409,8 +412,6 @@ class CalibrationPanel:
 
     def accept_gains(self) -> bool:
         """Send the proposed servo gains to the modules and record them (servo.toml, accepted)."""
-        if not self.ctx.allowed("Accept gains"):
-            return False
         if self.result is None or self.result[0] != "servo":
             self.ctx.error("run the servo tuning first", "Accept gains")
             return False
@@ -431,8 +432,6 @@ class CalibrationPanel:
 
     def save_record(self) -> Path | None:
         """Write the last result's record; probe and geometry are also applied to the live station."""
-        if not self.ctx.allowed("Save record"):
-            return None
         if self.result is None:
             self.ctx.error("run a routine first: there is nothing to save", "Save record")
             return None

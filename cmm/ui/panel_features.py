@@ -223,7 +223,7 @@ class FeaturesPanel:
             self.ctx.notify("Fitted", f"{feature.name}: form {feature.result.form * 1000:.2f} um "
                                       f"from {len(ids)} hits")
             return feature
-        return self.ctx.run("Fit", do)
+        return self.ctx.run("Fit", do, guarded=False)  # the measure_feature verb decides who may
 
     def feature_markdown(self) -> str:
         fid = self.ctx.selected_feature
@@ -281,9 +281,9 @@ class FeaturesPanel:
             return
         self.retake = None
         ids = [fresh[0] if h == old else h for h in f.hit_ids]
-        feature = self.ctx.do("Re-take", "refit_feature", guarded=False, feature=fid, hits=ids)
+        feature = self.ctx.do("Re-take", "refit_feature", feature=fid, hits=ids)
         if feature is not None:
-            self.ctx.do("Re-take", "delete_hit", guarded=False, hit=old)
+            self.ctx.do("Re-take", "delete_hit", hit=old)
             self.ctx.notify("Re-take", f"hit {old} replaced by hit {fresh[0]}; {f.name} refitted")
 
     def nominal_from_pick(self) -> Any:
@@ -298,7 +298,7 @@ class FeaturesPanel:
         if f is None:
             return self.ctx.error("select a feature first", "Nominal")
         return self.ctx.run("Nominal", lambda: self.ctx.commands.invoke(
-            self.ctx.who(), "set_nominal", feature=f.id, nominal=typed_nominal(f, centre, diameter)))
+            self.ctx.who(), "set_nominal", feature=f.id, nominal=typed_nominal(f, centre, diameter)), guarded=False)
 
     def set_tolerance(self, **tol: float) -> Any:
         fid = self.ctx.selected_feature
@@ -319,7 +319,7 @@ class FeaturesPanel:
         areas and lines of hits "area(12-14) line(15 16) 17")."""
         return self.ctx.run("Datum", lambda: self.ctx.commands.invoke(
             self.ctx.who(), "define_datum", label=label, feature=feature, modifier=modifier,
-            targets=parse_targets(targets) if targets.strip() else None))
+            targets=parse_targets(targets) if targets.strip() else None), guarded=False)
 
     def define_gdt(self, characteristic: str, feature: int, tolerance: float, datums: str = "",
                    material: str = "", angle: float | None = None, direction: str = "radial",
@@ -339,7 +339,7 @@ class FeaturesPanel:
                                             angle=angle, direction=direction, **extra)
             self.ctx.notify("GD&T", f"{d['name']}: {c.actual:.4f} ({c.verdict})")
             return d, c
-        return self.ctx.run("GD&T", do)
+        return self.ctx.run("GD&T", do, guarded=False)  # the define_gdt verb decides who may
 
     def delete_gdt(self, gid: int) -> Any:
         return self.ctx.do("GD&T", "delete_gdt", gdt=gid)

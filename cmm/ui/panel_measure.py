@@ -154,7 +154,7 @@ class MeasurePanel:
 
     def cancel(self) -> None:
         """The command API's ``cancel``: the run ends after the hit in progress (whoever started it)."""
-        self.ctx.do("Cancel", "cancel", guarded=False)
+        self.ctx.do("Cancel", "cancel")
 
     def build(self, gui: Any) -> None:
         g = self.gui

@@ -71,6 +71,9 @@ class RoutinePanel:
         self.dmis_text = ""
         self.dmis_status = ""
         self.dmis_results: list[Any] = []
+        from ..dmis.runner import register_verbs
+
+        register_verbs(self.station)  # this tab runs DMIS programs with the run_dmis verb (registered once)
         self.preview = PathPreview(ctx, "/routine_preview")  # the path Run will take, drawn until Run or Clear
 
     # --- actions (also what the tests call) ------------------------------------------------
@@ -283,13 +286,9 @@ class RoutinePanel:
         if self.running:
             self.ctx.error("a routine or program is already running", "Run DMIS")
             return False
-        if not self.ctx.allowed("Run DMIS"):
-            return False
-        path, text = self.dmis
+        path, text = self.dmis  # the new_part and run_dmis verbs decide who may; a refusal is shown in words
 
         def work() -> None:
-            from ..dmis.runner import run_text
-
             model = self.station.measurement
             # each run is a part of the program's series: a session of its own (a name no earlier run took, also
             # of another page or before a restart) with none of the previous part's features or tolerances
@@ -301,8 +300,8 @@ class RoutinePanel:
                 self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
                 return
             try:
-                result = run_text(text, self.station, name=path.name, client=self.ctx.who(),
-                                  on_prompt=self._dmis_prompt)  # manual mode: the hits asked for, taken by jog
+                result = self.ctx.commands.invoke(self.ctx.who(), "run_dmis", text=text, name=path.name,
+                                                  on_prompt=self._dmis_prompt)  # manual mode: hits taken by jog
             except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
                 self.dmis_status = f"**STOPPED**: {exc}"
                 self.ctx.error(exc, "DMIS program stopped")
@@ -444,7 +443,11 @@ class RoutinePanel:
         if run is None or not self.running:
             self.ctx.error("no routine is running", "Routine")
             return
-        getattr(run, action)()
+        verb, title = {"pause": ("pause", "Pause"), "resume": ("resume", "Resume"), "skip": ("skip_step", "Skip step"),
+                       "cancel": ("cancel", "Cancel")}[action]
+        answer = self.ctx.do(title, verb)  # the core decides who may; its refusal is shown in words
+        if answer is not None and not next(iter(answer.values())):
+            self.ctx.error(answer["message"], title)
         self._show_progress()
 
     # --- what the tab shows --------------------------------------------------------------

@@ -29,6 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..control import Refused
 from .context import OPERATOR_ERRORS, PanelContext
 from .panel_align import AlignPanel
 from .panel_calibration import CalibrationPanel
@@ -340,12 +341,13 @@ class ClientApp:
 
     def jog_release(self) -> None:
         """The button was released (viser's click event fires on release)."""
-        if self._jogging or self.ctx.control.can_move(self.client_id):  # also marks the release for late holds
-            self._jogging = False
-            try:
-                self.ctx.commands.invoke(self.ctx.who(), "jog_release")
-            except OPERATOR_ERRORS as exc:
-                self.ctx.error(exc, "Jog release")
+        # also marks the release for late holds; with no jog of this tab known to run it is a let-go, which the
+        # core sends on only for the control holder (an observer's release never ends the holder's jog)
+        jogging, self._jogging = self._jogging, False
+        try:
+            self.ctx.commands.invoke(self.ctx.who(), "jog_release", let_go=not jogging)
+        except OPERATOR_ERRORS as exc:
+            self.ctx.error(exc, "Jog release")
 
     def _throttled_error(self, title: str, body: str) -> None:
         last, when = self._last_error
@@ -438,7 +440,11 @@ class ClientApp:
         return address[0] if isinstance(address, (tuple, list)) and address else None
 
     def take_control(self, code: str | None = None) -> bool:
-        refusal = self.control.try_take(self.client_id, code or None, self.is_local, peer=self.peer())
+        try:
+            self.ctx.commands.invoke(self.ctx.who(), "take_control", code=code or None, peer=self.peer())
+            refusal = None
+        except PermissionError as exc:  # the core's refusal, in the operator's words
+            refusal = str(exc)
         if refusal is None:
             self.ctx.authenticated = True
             self.ctx.notify("Control", "you control the machine")
@@ -488,13 +494,14 @@ class ClientApp:
     def _operator_to_report(self) -> None:
         """The named holder is the session's operator (journalled, so the report header shows them)."""
         name = self.operator
-        if name is None or not self.control.can_move(self.client_id):
+        if name is None or self.station.measurement.info.get("operator") == name:
             return
-        if self.station.measurement.info.get("operator") != name:
-            try:
-                self.ctx.commands.invoke(self.ctx.who(), "set_info", operator=name)
-            except Exception as exc:  # noqa: BLE001 - a closed session or a full disk: said, nothing else changes
-                self.ctx.error(f"the operator could not be recorded: {exc}", "Your name")
+        try:
+            self.ctx.commands.invoke(self.ctx.who(), "set_info", operator=name)
+        except Refused:  # an observer's name is not the session's operator: the core refused, nothing to tell
+            pass
+        except Exception as exc:  # noqa: BLE001 - a closed session or a full disk: said, nothing else changes
+            self.ctx.error(f"the operator could not be recorded: {exc}", "Your name")
 
     def set_lan_stop(self, allowed: bool) -> None:
         try:
@@ -505,7 +512,7 @@ class ClientApp:
     def release_control(self) -> None:
         self.jog_release()
         self._had_control = False
-        self.control.release(self.client_id)
+        self.ctx.commands.invoke(self.ctx.who(), "release_control")
 
     def watch_control(self) -> None:
         """Tell this tab when another client took control from it (it may have been about to jog)."""

@@ -309,7 +309,7 @@ class PendantServer:
         if session.grant is not None:
             self.grants.unclaim(session.grant)  # the page keeps its control
             return
-        self.control.disconnected(session.client_id)
+        self.commands.invoke(self._own(session), "release_control")  # a holder that goes away gives control up
 
     def revoke(self, token: str | None) -> None:
         """The station page behind a grant went away: the token dies, its pendant connections are closed."""
@@ -391,7 +391,7 @@ class PendantServer:
             if session.jogging:
                 session.jogging = False
                 self._release(session)
-            await self._call(self.control.release, session.client_id)
+            await self._call(self.commands.invoke, self._own(session), "release_control")
             await self._send(session, {"type": "control", "control": False})
         elif kind == "jog":
             await self._jog(session, msg.get("v"), heard=heard)
@@ -422,11 +422,12 @@ class PendantServer:
 
     async def _take(self, session: _Session, code: Any) -> None:
         code = code if isinstance(code, str) else None
-        reason = await self._call(self.control.try_take, session.client_id, code, session.local, session.peer)
-        if reason is None:
+        answer = await self._call(self.commands.request, self._own(session),
+                                  {"method": "take_control", "params": {"code": code, "peer": session.peer}})
+        if "error" not in answer:
             session.authenticated = True
             return await self._send(session, {"type": "control", "control": True})
-        await self._error_msg(session, reason)
+        await self._error_msg(session, answer["error"]["message"])
 
     async def _hold_button(self, session: _Session, label: Any, heard: float | None = None) -> None:
         """A station page's jog button is held (its hold refresher, web/hold_worker.js, acting as the page):
@@ -512,6 +513,11 @@ class PendantServer:
             page = session.grant.owner()
             return Client(page.id, local=session.local and page.local,
                           authenticated=session.authenticated or page.authenticated)
+        return PendantServer._own(session)
+
+    @staticmethod
+    def _own(session: _Session) -> Any:
+        """This connection's own client (taking and releasing control is always the connection's own)."""
         return Client(session.client_id, local=session.local, authenticated=session.authenticated)
 
     def _stop_machine(self, who: Any) -> dict[str, Any]:

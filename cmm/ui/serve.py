@@ -84,13 +84,18 @@ def run(args: argparse.Namespace) -> int:
 
     raise_station_priority()  # before any thread starts: the station's threads inherit it (control/priority.py)
     try:
+        trends = open_trends(args)
+    except (TrendError, OSError) as exc:
+        return _fail(f"cannot record trends in {args.trends}: {exc}")
+    try:
         station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
-                          session_dir=args.sessions, calibration_dir=calibration)
-    except MeshError as exc:
-        return _fail(f"cannot load the part: {exc}")
-    except ConfigError as exc:
-        return _fail(f"bad machine configuration: {exc}")
+                          session_dir=args.sessions, calibration_dir=calibration, trends=trends)
     except Exception as exc:  # noqa: BLE001 - serial errors come in many types; say what happened in one line
+        trends.close()
+        if isinstance(exc, MeshError):
+            return _fail(f"cannot load the part: {exc}")
+        if isinstance(exc, ConfigError):
+            return _fail(f"bad machine configuration: {exc}")
         where = args.serial or "the simulator"
         return _fail(f"cannot open {where}: {exc}")
     if calibration is None:
@@ -98,11 +103,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         for line in station.calibration.log or ["no records: nominal probe and geometry"]:
             print(f"calibration ({calibration}): {line}")
-    try:
-        station.measurement.trends = open_trends(args)
-    except (TrendError, OSError) as exc:
-        station.close()
-        return _fail(f"cannot record trends in {args.trends}: {exc}")
     print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
     try:
         station.start()
