@@ -136,6 +136,34 @@ def test_the_routine_runs_on_a_second_part_placed_differently(taught):
     assert progress.results["report"].suffix == ".html" and "bore" in report and "dome" in report
 
 
+def test_each_run_of_a_routine_is_a_part_of_its_trends_series(taught, tmp_path):
+    """Two parts through the routine: both in the routine's series, with their features' and constructions'
+    characteristics and the part names as serials."""
+    from cmm.session.trends import Trends
+
+    st, routine = taught
+    r = Routine(from_toml(routine.text()))
+    r.steps[0]["manual"] = None  # the parts are aligned: the datums are measured automatically
+    r.delete(8)  # no report step: the trends are what this test reads
+    next(s for s in r.steps if s["name"] == "dome")["skip"] = True  # nor the dome (a shorter run)
+    st.measurement.trends = trends = Trends(tmp_path / "trends", station="cmm-test")
+    try:
+        parts = []
+        for name, pose in (("P1", TRUE_PART_POSE), ("P2", SECOND_POSE)):
+            st.sim.place_part(pose)
+            st.measurement.set_alignment(pose, "manual", note=f"{name} placed")
+            parts.append(RoutineRun(r, st.measurement, st.controller, part_name=name).run().part)
+        assert [p.serial for p in parts] == ["P1", "P2"] and trends.series() == ["block"]
+        names = [n for n, _ in trends.characteristics("block")]
+        diameter = next(n for n in names if n.startswith("bore / diameter"))
+        assert any(n.startswith("bore-boss / ") for n in names) and any(n.startswith("TOP / ") for n in names)
+        h = trends.history("block", diameter)
+        assert h.serial == ["P1", "P2"] and h.station == ["cmm-test"] * 2 and np.allclose(h.value, 30.0, atol=0.01)
+    finally:
+        st.measurement.trends = None
+        trends.close()
+
+
 def test_pause_skip_and_cancel_between_hits(taught):
     st, routine = taught
     st.sim.place_part(TRUE_PART_POSE)

@@ -460,6 +460,7 @@ class RunProgress:
     prompt: str = ""  # what the operator must do now (manual alignment hits)
     results: dict[str, Any] = field(default_factory=dict)  # step name -> feature / constructed feature
     session: Any = None  # the part's session (path or name)
+    part: Any = None  # the trends record of the finished run (cmm.session.trends.PartResult), when recorded
 
 
 class RoutineCancelled(RoutineError):
@@ -682,8 +683,28 @@ class RoutineRun:
             model.note(f"routine {routine.name!r} stopped at step {self.faulted + 1} ({name}): {exc}")
             raise
         model.note(f"routine {routine.name!r} finished")
+        self.progress.part = self._record_trend()
         self._tell(state="done", step=len(routine.steps), message=f"routine {routine.name!r} done", prompt="")
         return self.progress
+
+    def _record_trend(self) -> Any:
+        """The finished run as a part of the routine's series, when the model records trends: the characteristics
+        of the features it measured and constructed (sizes, positions, form, distances) and of the part's
+        geometric tolerances, with the part's name as its serial (see :func:`.program.record_trend`)."""
+        from ..session.trends import feature_values, measured
+        from .program import record_trend
+
+        model = self.model
+        if getattr(model, "trends", None) is None:
+            return None
+        records = {**model.features, **model.constructed}
+        values = {m.name: m for m in feature_values(records[fid].record() for fid in self._fids.values()
+                                                    if fid in records)}
+        for _d, c in model.gdt_characteristics() if model.gdt else []:
+            m = measured(c)
+            if m is not None:
+                values.setdefault(m.name, m)  # a name given twice counts once: the part's record refuses twins
+        return record_trend(model, self.routine.name, values=list(values.values()), serial=self.part_name or "")
 
     def _use_probe(self, step: dict[str, Any]) -> None:
         """Change to the probe the step names, before it moves."""
