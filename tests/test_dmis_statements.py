@@ -290,8 +290,37 @@ def test_manual_hits_are_waited_for_with_the_prompt_on_the_routine_tab(station):
 def test_statement_refusals_name_their_line():
     assert check("MODE/MAN\nF(X) = FEAT/POINT, POL, 10, 30, 0, 0, 0, 1\n")[1] == []
     _, problems = check("CONST/CIRCLE, F(C), TTP, FA(A), FA(B)\nF(Y) = FEAT/CIRCLE, INNER, POL, 1, 2\n")
-    assert problems == ["line 1: CONST/CIRCLE needs one of BF, INTOF, MIDLI, MIDPL, MIDPT, PROJCT (other "
-                        "constructions are not supported)", "line 2: FEAT/CIRCLE takes 7 numbers after POL, it has 2"]
+    assert problems == ["line 1: CONST/CIRCLE, .., TTP is not supported: CONST/CIRCLE takes BF, INTOF or PROJCT",
+                        "line 2: FEAT/CIRCLE takes 7 numbers after POL, it has 2"]
+    # what the run would refuse, the check finds first, each with its line
+    _, problems = check("DID(IN) = DEVICE/STOR, 'in.dat'\nOPEN/DID(IN), DIRECT, INPUT\n"
+                        "CONST/CIRCLE, F(M), MIDPT, FA(A), FA(B)\nCONST/CIRCLE, F(T), TTP, FA(A), FA(B), INTOF\n"
+                        "CONST/POINT, F(P), MIDLI, FA(A), FA(B)\nF(X) = CONST/POINT, INTOF, FA(A), FA(B)\n"
+                        "D(X) = DATSET/FA(A), ZDIR, FA(B), XAXIS\nROTAT/ZAXIS, FA(A), ZDIR\n"
+                        "S(P) = SNSDEF/PROBE, INDEX, POL, 90, 0, 2\nT(F) = TOL/FLAT, 0.01, MMC\n"
+                        "S(D) = SNSDEF/PROBE, INDEX, POL, 0, 0, 2\nCONST/LINE, F(L), BF, FA(A), FA(B)\n")
+    assert problems == [
+        "line 2: OPEN for INPUT is not supported: the station reads no data files in a program",
+        "line 3: CONST/CIRCLE, .., MIDPT is not supported: CONST/CIRCLE takes BF, INTOF or PROJCT",
+        "line 4: CONST/CIRCLE, .., TTP is not supported: CONST/CIRCLE takes BF, INTOF or PROJCT",
+        "line 5: CONST/POINT, .., MIDLI is not supported: CONST/POINT takes INTOF, MIDPT or PROJCT",
+        "line 6: CONST/POINT names the feature it constructs among its parameters: CONST/POINT, F(name), INTOF, "
+        "FA(..), ...",
+        "line 7: DATSET/.., XAXIS is not supported: use XDIR, YDIR, ZDIR (XMINUS ...), XORIG, YORIG, ZORIG",
+        "line 8: ROTAT/ZAXIS cannot turn ZDIR onto a feature: it is the rotation axis",
+        "line 9: S(P) points along (1, 0, 0): the station has one fixed probe pointing down (0, 0, -1)",
+        "line 10: TOL/FLAT, MMC: a material condition applies to TOL/POS only"]
+    # a position at MMC needs its feature's size limits (a TOL/DIAM output with it) before it, a datum at MMC too
+    sized = ("F(B) = FEAT/CIRCLE, INNER, CART, 30, 40, 30, 0, 0, 1, 30\nF(C) = FEAT/CIRCLE, OUTER, CART, 70, 22, 40, "
+             "0, 0, 1, 20\nDATDEF/FA(C), DAT(C)\nT(D) = TOL/DIAM, -0.1, 0.1\nT(P) = TOL/POS, 2D, 0.05, MMC\n"
+             "T(Q) = TOL/POS, 2D, 0.05, DAT(C), MMC\n")
+    assert check(sized + "OUTPUT/FA(B), TA(P)\nOUTPUT/FA(B), TA(D), TA(P)\nOUTPUT/FA(B), TA(Q)\n"
+                 "OUTPUT/FA(C), TA(D)\nOUTPUT/FA(B), TA(Q)\n")[1] == [
+        "line 7: T(P) at MMC needs FA(B)'s size limits: output its TOL/DIAM first (OUTPUT/FA(B), TA(..))",
+        "line 9: DAT(C) at MMC needs FA(C)'s size limits: output its TOL/DIAM first (OUTPUT/FA(C), TA(..))"]
+    # the POL angles in the program's unit: a quarter turn in radians is sideways too
+    assert check("UNITS/MM, ANGRAD\nS(P) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n")[1] == [
+        "line 2: S(P) points along (1, 0, 0): the station has one fixed probe pointing down (0, 0, -1)"]
     # a line: UNBND or BND, each with the normal of its plane (or, as before, without it)
     assert check("F(L) = FEAT/LINE, UNBND, CART, 0, 0, 0, 1, 0, 0, 0, 0, 1\nF(M) = FEAT/LINE, BND, CART, 0, 0, 0, "
                  "5, 0, 0, 0, -1, 0\nF(N) = FEAT/LINE, UNBND, CART, 0, 0, 0, 1, 0, 0\n")[1] == []
@@ -347,3 +376,4 @@ def test_cmm_run_asks_for_manual_hits_at_the_terminal(tmp_path, monkeypatch, cap
     assert "three numbers please" in printed and "1 features, 3 hits" in printed
     top = _lines((tmp_path / "out.dms").read_text())["TOP"]
     assert top[2] == pytest.approx(40.0, abs=0.01) and top[5] == pytest.approx(1.0, abs=1e-4)
+

@@ -8,26 +8,15 @@ supported" (or "MEAS/TORUS", naming the minor word where only some are supported
 
 from __future__ import annotations
 
+import math
+
 from .features import KINDS, NUMBERS, SIZED
 from .lexer import DmisSyntaxError, statements
 from .parser import Expr, Label, Statement, Text, Word, parse_statement
-from .tolerances import ALL as TOLERANCES
+from .rules import (SUPPORTED, const_problem, datset_word_problem, material_problem, open_problem, probe_direction,
+                    probe_problem, rotat_problem)
 
-# major word -> the minor words supported (None: any parameters)
-SUPPORTED: dict[str, set[str] | None] = {
-    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None, "TEXT": None,
-    "MODE": {"PROG", "AUTO", "MAN"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
-    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None,
-    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
-    "FEDRAT": {"POSVEL", "MESVEL"}, "GOTO": None,
-    "FEAT": set(KINDS), "MEAS": set(KINDS), "PTMEAS": {"CART", "POL"}, "ENDMES": None,
-    "CONST": {"POINT", "LINE", "PLANE", "CIRCLE"}, "DATDEF": None, "TOL": set(TOLERANCES),
-    "DEVICE": {"STOR", "TERM", "PRINT"}, "OPEN": None, "CLOSE": None, "OUTPUT": None,
-    "DECL": None, "ASSIGN": None, "IF": None, "ELSE": None, "ENDIF": None, "DO": None, "ENDDO": None,
-    "MACRO": None, "ENDMAC": None, "CALL": None,
-}
 LABELLED = {"FEAT": "F", "TOL": "T", "SNSDEF": "S", "DEVICE": "DID", "MACRO": "M"}
-CONST_METHODS = {"INTOF", "MIDPT", "MIDLI", "MIDPL", "PROJCT", "BF"}
 OPEN_BLOCKS = {"MEAS": "ENDMES", "IF": "ENDIF", "DO": "ENDDO", "MACRO": "ENDMAC"}
 CLOSE_BLOCKS = {v: k for k, v in OPEN_BLOCKS.items()}
 
@@ -61,8 +50,13 @@ def _feat_problem(s: Statement) -> str | None:
     return None
 
 
-def statement_problem(s: Statement) -> str | None:
-    """What is wrong with one statement on its own, or None."""
+def _words(s: Statement) -> list[str]:
+    return [p.text for p in s.params if isinstance(p, Word)]
+
+
+def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0) -> str | None:
+    """What is wrong with one statement on its own, or None (``angle_scale``: radians per program angle unit,
+    as the UNITS before it set it)."""
     if s.major not in SUPPORTED:
         return f"{s.major} is not supported"
     minors = SUPPORTED[s.major]
@@ -91,25 +85,33 @@ def statement_problem(s: Statement) -> str | None:
             return f"GOTO takes X, Y, Z, it has {n} numbers"
     if m == "SNSDEF":
         values = [p.constant() for p in s.params if isinstance(p, Expr)]
-        words = {p.text for p in s.params if isinstance(p, Word)}
-        if "CART" in words and len(values) >= 7 and all(v is not None for v in values[3:6]):
-            i, j, k = values[3:6]
-            norm = (i * i + j * j + k * k) ** 0.5  # type: ignore[operator]
-            if norm < 1e-9 or -k / norm < 0.9999:  # type: ignore[operator]
-                return (f"{s.label} points along ({i:g}, {j:g}, {k:g}): the station has one fixed probe pointing "
-                        "down (0, 0, -1)")
+        if all(v is not None for v in values):  # constants: a variable is known only when it runs
+            direction, problem = probe_direction(_words(s), values, angle_scale)  # type: ignore[arg-type]
+            return problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
     if m == "SNSLCT" and (not labels or labels[0].type != "S"):
         return "SNSLCT needs the sensor: SNSLCT/S(name)"
     if m == "RECALL" and (not labels or labels[0].type not in ("D", "DA")):
         return "RECALL needs a datum system: RECALL/D(name)"
     if m == "CONST":
-        words = {p.text for p in s.params if isinstance(p, Word)}
-        if not (words & CONST_METHODS):
-            return f"CONST/{s.minor} needs one of {', '.join(sorted(CONST_METHODS))} (other constructions are not supported)"
+        named = bool(labels) and labels[0].type == "F"
+        return const_problem(s.minor, named, _words(s)[1:], len(labels) - 1)  # type: ignore[arg-type]
+    if m == "DATSET":
+        for w in _words(s):
+            if s.minor != "MCS" and (problem := datset_word_problem(w)) is not None:
+                return problem
+    if m == "ROTAT":
+        p = s.params
+        return rotat_problem(p[0].text if p and isinstance(p[0], Word) else None,
+                             len(p) > 1 and isinstance(p[1], Label),
+                             p[2].text if len(p) > 2 and isinstance(p[2], Word) else None, len(p))
+    if m == "TOL" and (problem := material_problem(s.minor, _words(s))) is not None:  # type: ignore[arg-type]
+        return problem
     if m == "DATDEF" and (len(labels) != 2 or labels[1].type != "DAT"):
         return "DATDEF names a feature and a datum: DATDEF/FA(name), DAT(A)"
     if m in ("OPEN", "CLOSE") and (not labels or labels[0].type != "DID"):
         return f"{m} needs a device: {m}/DID(name)..."
+    if m == "OPEN":
+        return open_problem(_words(s))
     if m == "DEVICE" and s.minor == "STOR" and not any(isinstance(p, Text) for p in s.params):
         return "DEVICE/STOR needs a file name in quotes"
     if m == "CALL" and (not labels or labels[0].type != "M"):
@@ -122,13 +124,82 @@ def statement_problem(s: Statement) -> str | None:
     return None
 
 
+def angle_scales(stmts: list[Statement]) -> list[float]:
+    """Radians per program angle unit at each statement: degrees until a UNITS/.., ANGRAD."""
+    out, scale = [], math.pi / 180.0
+    for s in stmts:
+        if s.major == "UNITS":
+            words = _words(s)
+            scale = 1.0 if "ANGRAD" in words else (math.pi / 180.0 if "ANGDEC" in words else scale)
+        out.append(scale)
+    return out
+
+
+def _material(s: Statement) -> tuple[str, list[tuple[str, str]]]:
+    """TOL/..: (the zone's material condition, the datums at MMC / LMC) as the run reads them."""
+    zone, datums = "", []
+    last = None
+    for p in s.params[1:]:
+        if isinstance(p, Word) and p.text in ("MMC", "LMC"):
+            if isinstance(last, Label) and last.type == "DAT":
+                datums.append((last.name, p.text))
+            else:
+                zone = p.text
+        last = p
+    return zone, datums
+
+
+def size_problems(stmts: list[Statement]) -> dict[int, str]:
+    """Statement index -> why its OUTPUT cannot evaluate a position at MMC / LMC: the feature (or a datum feature
+    at MMC / LMC) has no size limits yet, from a TOL/DIAM or TOL/RAD output with it before, in program order.
+    Inside a MACRO the order is the CALL's, so only its size outputs count there."""
+    kinds: dict[str, str] = {}
+    tols: dict[str, tuple[str, str, list[tuple[str, str]]]] = {}  # T label -> (word, zone material, datums at MMC / LMC)
+    datum_features: dict[str, str] = {}
+    sized: set[str] = set()
+    out: dict[int, str] = {}
+    in_macro = False
+    for k, s in enumerate(stmts):
+        labels = [p for p in s.params if isinstance(p, Label)]
+        in_macro = (in_macro or s.major == "MACRO") and s.major != "ENDMAC"
+        if s.major == "FEAT" and s.label is not None:
+            kinds[s.label.name] = s.minor or ""
+        elif s.major == "TOL" and s.label is not None:
+            tols[s.label.name] = (s.minor or "", *_material(s))
+        elif s.major == "DATDEF" and len(labels) == 2:
+            datum_features[labels[1].name] = labels[0].name
+        elif s.major == "OUTPUT":
+            pending: list[str] = []
+            after = False
+            for lab in labels:
+                if lab.type in ("FA", "F"):
+                    pending, after = ([] if after else pending) + [lab.name], False
+                elif lab.type in ("TA", "T") and lab.name in tols and pending:
+                    after = True
+                    word, zone, datums = tols[lab.name]
+                    if word in ("DIAM", "RAD") and kinds.get(pending[0]) in SIZED:
+                        sized.add(pending[0])
+                    elif word == "POS" and not in_macro and k not in out:
+                        f = pending[0]
+                        if zone and f not in sized:
+                            out[k] = (f"T({lab.name}) at {zone} needs FA({f})'s size limits: output its TOL/DIAM "
+                                      f"first (OUTPUT/FA({f}), TA(..))")
+                        for d, mod in datums:
+                            g = datum_features.get(d)
+                            if g is not None and g not in sized and k not in out:
+                                out[k] = (f"DAT({d}) at {mod} needs FA({g})'s size limits: output its "
+                                          f"TOL/DIAM first (OUTPUT/FA({g}), TA(..))")
+    return out
+
+
 def check_statements(stmts: list[Statement]) -> list[str]:
     problems: list[str] = []
     stack: list[Statement] = []
     defined: set[str] = set()
     in_meas = False
-    for s in stmts:
-        p = statement_problem(s)
+    sizes = size_problems(stmts)
+    for k, (s, scale) in enumerate(zip(stmts, angle_scales(stmts))):
+        p = statement_problem(s, scale) or sizes.get(k)
         if p is not None:
             problems.append(f"line {s.line}: {p}")
         if s.label is not None:
@@ -178,8 +249,8 @@ def check(text: str) -> tuple[list[Statement], list[str]]:
             found.append((exc.line, str(exc)))
     if not found:
         return stmts, check_statements(stmts)
-    for s in stmts:
-        p = statement_problem(s)
+    for s, scale in zip(stmts, angle_scales(stmts)):
+        p = statement_problem(s, scale)
         if p is not None:
             found.append((s.line, f"line {s.line}: {p}"))
     return [], [msg for _, msg in sorted(found, key=lambda f: f[0])]

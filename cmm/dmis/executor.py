@@ -21,11 +21,12 @@ from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal
 from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
+from .rules import (const_problem, datset_word_problem, material_problem, open_problem, probe_direction,
+                    probe_problem, rotat_problem)
 from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 LENGTH_UNITS = {"MM": 1.0, "CM": 10.0, "METER": 1000.0, "INCH": 25.4, "FEET": 304.8}
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
-DOWN = np.array([0.0, 0.0, -1.0])
 
 
 class DmisError(RuntimeError):
@@ -337,8 +338,9 @@ class Executor:
         name = self.labels(s)[0].name
         if name not in self.devices:
             raise self.fail(s, f"DID({name}) is not defined (DID({name}) = DEVICE/STOR, 'file')")
-        if "INPUT" in self.words(s):
-            raise self.fail(s, "OPEN for INPUT is not supported: the station reads no data files in a program")
+        problem = open_problem(self.words(s))
+        if problem:
+            raise self.fail(s, problem)
         self.open_devices.append(name)
 
     def do_close(self, s: Statement) -> None:
@@ -494,9 +496,9 @@ class Executor:
             elif isinstance(p, Word):
                 if current is None:
                     raise self.fail(s, f"{p.text} must follow a datum: DATSET/DAT(A), ZDIR, ZORIG, ...")
-                if p.text not in DIRS and p.text not in ORIGINS:
-                    raise self.fail(s, f"DATSET/.., {p.text} is not supported: use XDIR, YDIR, ZDIR (XMINUS ...), "
-                                       "XORIG, YORIG, ZORIG")
+                problem = datset_word_problem(p.text)
+                if problem:
+                    raise self.fail(s, problem)
                 entries.append((name, p.text, current.axis_point(), current.direction()))
                 nom = None if current.nominal is None else (current.nominal.design or current.nominal)
                 design.append(None if nom is None else (name, p.text, nom.point, nom.vector))
@@ -550,17 +552,14 @@ class Executor:
         the axis until XDIR (YDIR, XMINUS ...) points along the feature: its direction (a line, a plane's normal)
         or, for a feature whose direction is the rotation axis (a bore, a point), towards its location."""
         p = s.params
-        bad = ("ROTAT takes an axis and an angle (ROTAT/ZAXIS, 30) or an axis, a feature and the direction that "
-               "turns onto it (ROTAT/ZAXIS, FA(HOLE2), XDIR)")
-        if len(p) < 2 or not isinstance(p[0], Word) or p[0].text not in AXES:
-            raise self.fail(s, bad)
-        axis = AXES[p[0].text]
+        problem = rotat_problem(p[0].text if p and isinstance(p[0], Word) else None,
+                                len(p) > 1 and isinstance(p[1], Label),
+                                p[2].text if len(p) > 2 and isinstance(p[2], Word) else None, len(p))
+        if problem:
+            raise self.fail(s, problem)
+        axis = AXES[p[0].text]  # type: ignore[union-attr]
         if isinstance(p[1], Label):
-            if len(p) != 3 or not isinstance(p[2], Word) or p[2].text not in DIRS:
-                raise self.fail(s, bad)
-            d_axis, sign = DIRS[p[2].text]
-            if d_axis == axis:
-                raise self.fail(s, f"ROTAT/{p[0].text} cannot turn {p[2].text} onto a feature: it is the rotation axis")
+            d_axis, sign = DIRS[p[2].text]  # type: ignore[union-attr]
             a = self.actual(s, p[1])
             angle = self._turn_onto(s, self.frame, axis, d_axis, sign, a.direction(), a.location(), p[1].name)
             nom = None if a.nominal is None else (a.nominal.design or a.nominal)
@@ -572,10 +571,7 @@ class Executor:
             else:
                 self._not_aligned(s, f"FA({p[1].name}) has no nominal (FEAT), so where the part lies cannot be told")
             return
-        elif len(p) == 2:
-            angle = self.num(s, p[1]) * self.angle_scale
-        else:
-            raise self.fail(s, bad)
+        angle = self.num(s, p[1]) * self.angle_scale
         turn = rotation(axis, angle)
         self._set_frame(s, self.frame @ turn, self.design_frame @ turn)
 
@@ -610,24 +606,11 @@ class Executor:
     # --- sensors and motion ---------------------------------------------------------------------
 
     def do_snsdef(self, s: Statement) -> None:
-        w = self.words(s)
         v = self.numbers(s)
-        if "CART" in w:
-            if len(v) < 7:
-                raise self.fail(s, "SNSDEF/PROBE, .., CART takes the tip offset X, Y, Z, the direction I, J, K and "
-                                   "the tip diameter")
-            direction = np.array(v[3:6], float)
-        elif "POL" in w:
-            if len(v) < 3:
-                raise self.fail(s, "SNSDEF/PROBE, .., POL takes the angles A, B .. and the tip diameter")
-            a, b = v[0] * self.angle_scale, v[1] * self.angle_scale
-            direction = np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), -math.cos(a)])
-        else:
-            raise self.fail(s, "SNSDEF/PROBE needs CART or POL")
-        n = float(np.linalg.norm(direction))
-        if n < 1e-9 or float(direction @ DOWN) / n < 0.9999:
-            raise self.fail(s, f"{s.label} points along ({', '.join(f'{x:g}' for x in direction)}): the station "
-                               "has one fixed probe pointing down (0, 0, -1)")
+        direction, problem = probe_direction(self.words(s), v, self.angle_scale)
+        problem = problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
+        if problem:
+            raise self.fail(s, problem)
         self.sensors[s.label.name] = {"diameter": v[-1] * self.scale}  # type: ignore[union-attr]
 
     def do_snslct(self, s: Statement) -> None:
@@ -796,10 +779,13 @@ class Executor:
         from .construct import construct_actual
 
         labels = self.labels(s)
-        if not labels or labels[0].type != "F":
-            raise self.fail(s, f"CONST/{s.minor} names the feature it constructs: CONST/{s.minor}, F(name), ...")
+        words = [p.text for p in s.params[1:] if isinstance(p, Word)]
+        problem = const_problem(s.minor, bool(labels) and labels[0].type == "F", words,  # type: ignore[arg-type]
+                                len(labels) - 1)
+        if problem:
+            raise self.fail(s, problem)
         target = labels[0].name
-        method = next(w for w in self.words(s) if w in ("INTOF", "MIDPT", "MIDLI", "MIDPL", "PROJCT", "BF"))
+        method = words[0]
         operands = [self.actual(s, lab) for lab in labels[1:]]
         kind, geometry = construct_actual(s.minor.lower(), method, operands)  # type: ignore[union-attr]
         self.result.actuals[target] = Actual(target, kind, geometry, self.nominals.get(target))
@@ -822,8 +808,9 @@ class Executor:
         last: Param | None = None
         for p in w:
             if isinstance(p, Word) and p.text in ("MMC", "LMC", "RFS"):
-                if word != "POS" and p.text != "RFS":
-                    raise self.fail(s, f"TOL/{word}, {p.text}: a material condition applies to TOL/POS only")
+                problem = material_problem(word, [p.text])  # type: ignore[arg-type]
+                if problem:
+                    raise self.fail(s, problem)
                 if isinstance(last, Label) and last.type == "DAT":
                     if p.text != "RFS":
                         tol.datum_material[last.name] = p.text

@@ -1,0 +1,134 @@
+"""What each supported DMIS statement accepts: one table read by the check before any motion
+(:mod:`cmm.dmis.check`) and by the run (:mod:`cmm.dmis.executor`), so a statement the run would refuse is
+refused, with its line, before anything moves.
+
+Each ``*_problem`` function returns what is wrong in words (None: accepted)."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from .features import KINDS
+from .frames import AXES, DIRS, ORIGINS
+from .tolerances import ALL as TOLERANCES
+
+# major word -> the minor words supported (None: any parameters)
+SUPPORTED: dict[str, set[str] | None] = {
+    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None, "TEXT": None,
+    "MODE": {"PROG", "AUTO", "MAN"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
+    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None,
+    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
+    "FEDRAT": {"POSVEL", "MESVEL"}, "GOTO": None,
+    "FEAT": set(KINDS), "MEAS": set(KINDS), "PTMEAS": {"CART", "POL"}, "ENDMES": None,
+    "CONST": {"POINT", "LINE", "PLANE", "CIRCLE"}, "DATDEF": None, "TOL": set(TOLERANCES),
+    "DEVICE": {"STOR", "TERM", "PRINT"}, "OPEN": None, "CLOSE": None, "OUTPUT": None,
+    "DECL": None, "ASSIGN": None, "IF": None, "ELSE": None, "ENDIF": None, "DO": None, "ENDDO": None,
+    "MACRO": None, "ENDMAC": None, "CALL": None,
+}
+
+# CONST/<kind>: the construction methods each kind is built with (cmm.dmis.construct)
+CONST_METHODS: dict[str, tuple[str, ...]] = {
+    "POINT": ("INTOF", "MIDPT", "PROJCT"),
+    "LINE": ("BF", "INTOF", "MIDLI", "PROJCT"),
+    "PLANE": ("BF", "MIDPL"),
+    "CIRCLE": ("BF", "INTOF", "PROJCT"),
+}
+ALL_CONST_METHODS = {m for ms in CONST_METHODS.values() for m in ms}
+BF_OPERANDS = {"LINE": 2, "PLANE": 3, "CIRCLE": 3}  # the fewest features a best fit goes through
+
+DATSET_WORDS = {*DIRS, *ORIGINS}
+MATERIAL = ("MMC", "LMC", "RFS")
+DOWN_COS = 0.9999  # a probe points down when its direction is within 0.8 degrees of (0, 0, -1)
+
+
+def _one_of(words: Sequence[str]) -> str:
+    return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
+
+
+def const_problem(kind: str, named: bool, words: Sequence[str], operands: int) -> str | None:
+    """CONST/<kind>, F(name), <method>, FA(..), ...: ``named`` when F(name) is its first label; ``words`` its words
+    after the kind, ``operands`` the features after F(name)."""
+    methods = CONST_METHODS[kind]
+    if not named:
+        return (f"CONST/{kind} names the feature it constructs among its parameters: "
+                f"CONST/{kind}, F(name), {methods[0]}, FA(..), ...")
+    for w in words:
+        if w not in methods:
+            return f"CONST/{kind}, .., {w} is not supported: CONST/{kind} takes {_one_of(methods)}"
+    used = [w for w in words if w in methods]
+    if len(used) != 1:
+        return (f"CONST/{kind} needs one of {_one_of(methods)}" if not used else
+                f"CONST/{kind} takes one construction method, it has {', '.join(used)}")
+    method = used[0]
+    if method == "BF":
+        if operands < BF_OPERANDS[kind]:
+            return f"CONST/{kind}, .., BF takes {BF_OPERANDS[kind]} or more features, it has {operands}"
+    elif operands != 2:
+        return f"CONST/{kind}, .., {method} takes two features, it has {operands}"
+    return None
+
+
+def datset_word_problem(word: str) -> str | None:
+    if word in DATSET_WORDS:
+        return None
+    return f"DATSET/.., {word} is not supported: use XDIR, YDIR, ZDIR (XMINUS ...), XORIG, YORIG, ZORIG"
+
+
+ROTAT_FORMS = ("ROTAT takes an axis and an angle (ROTAT/ZAXIS, 30) or an axis, a feature and the direction that "
+               "turns onto it (ROTAT/ZAXIS, FA(HOLE2), XDIR)")
+
+
+def rotat_problem(axis: str | None, feature: bool, direction: str | None, count: int) -> str | None:
+    """ROTAT/<axis>, angle or ROTAT/<axis>, FA(..), <direction>: ``feature`` when the second parameter is a
+    feature label, ``direction`` the third parameter's word, ``count`` the parameters."""
+    if count < 2 or axis not in AXES:
+        return ROTAT_FORMS
+    if not feature:
+        return None if count == 2 else ROTAT_FORMS
+    if count != 3 or direction not in DIRS:
+        return ROTAT_FORMS
+    if DIRS[direction][0] == AXES[axis]:
+        return f"ROTAT/{axis} cannot turn {direction} onto a feature: it is the rotation axis"
+    return None
+
+
+def probe_direction(words: Sequence[str], values: Sequence[float], angle_scale: float
+                    ) -> tuple[tuple[float, float, float] | None, str | None]:
+    """(direction, problem) of SNSDEF/PROBE, .., CART, x, y, z, i, j, k, diameter or .., POL, a, b, diameter
+    (angles in the program's unit: ``angle_scale`` radians each)."""
+    if "CART" in words:
+        if len(values) < 7:
+            return None, "SNSDEF/PROBE, .., CART takes the tip offset X, Y, Z, the direction I, J, K and the tip diameter"
+        i, j, k = values[3:6]
+        return (float(i), float(j), float(k)), None
+    if "POL" in words:
+        if len(values) < 3:
+            return None, "SNSDEF/PROBE, .., POL takes the angles A, B .. and the tip diameter"
+        a, b = values[0] * angle_scale, values[1] * angle_scale
+        return (math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), -math.cos(a)), None
+    return None, "SNSDEF/PROBE needs CART or POL"
+
+
+def probe_problem(label: str, direction: tuple[float, float, float]) -> str | None:
+    """The station's probes point down: a sensor along any other direction is refused."""
+    n = math.sqrt(sum(x * x for x in direction))
+    if n > 1e-9 and -direction[2] / n >= DOWN_COS:
+        return None
+    shown = ", ".join(f"{round(x, 6) + 0.0:g}" for x in direction)
+    return f"{label} points along ({shown}): the station has one fixed probe pointing down (0, 0, -1)"
+
+
+def open_problem(words: Sequence[str]) -> str | None:
+    if "INPUT" in words:
+        return "OPEN for INPUT is not supported: the station reads no data files in a program"
+    return None
+
+
+def material_problem(word: str, words: Sequence[str]) -> str | None:
+    """TOL/<word>: MMC and LMC apply to TOL/POS only."""
+    for w in words:
+        if w in ("MMC", "LMC") and word != "POS":
+            return f"TOL/{word}, {w}: a material condition applies to TOL/POS only"
+    return None
+
