@@ -85,7 +85,8 @@ def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0) -> str
             return f"GOTO takes X, Y, Z, it has {n} numbers"
     if m == "SNSDEF":
         values = [p.constant() for p in s.params if isinstance(p, Expr)]
-        if all(v is not None for v in values):  # constants: a variable is known only when it runs
+        # constants only: a variable (an expression or a word) is known only when it runs
+        if all(v is not None for v in values) and set(_words(s)) <= {"PROBE", "FIXED", "INDEX", "CART", "POL"}:
             direction, problem = probe_direction(_words(s), values, angle_scale)  # type: ignore[arg-type]
             return problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
     if m == "SNSLCT" and (not labels or labels[0].type != "S"):
