@@ -21,8 +21,8 @@ from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal
 from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
-from .rules import (const_problem, datset_word_problem, material_problem, open_problem, probe_direction,
-                    probe_problem, rotat_problem)
+from .rules import (const_problem, datset_word_problem, match_probe, material_problem, open_problem,
+                    probe_direction, probe_problem, rotat_problem)
 from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 LENGTH_UNITS = {"MM": 1.0, "CM": 10.0, "METER": 1000.0, "INCH": 25.4, "FEET": 304.8}
@@ -52,6 +52,8 @@ class Target(Protocol):
     def define_datum(self, label: str, feature_id: int) -> None: ...
     def define_position(self, feature_id: int, tolerance: float, datums: list[str], *, material: str, name: str,
                         datum_modifiers: dict[str, str] | None) -> None: ...
+    def probes(self) -> list[dict[str, Any]] | None: ...
+    def select_probe(self, name: str) -> str: ...
     @property
     def tip_radius(self) -> float: ...
     @property
@@ -619,8 +621,17 @@ class Executor:
             raise self.fail(s, f"S({name}) is not defined (S({name}) = SNSDEF/PROBE, ...)")
         self.sensor = name
         want = self.sensors[name]["diameter"]
+        probes = self.target.probes()
+        if probes is not None:  # the station's probe list: the matching probe is the one in use from here on
+            probe, problem = match_probe(name, want, probes)
+            if problem:
+                raise self.fail(s, problem)
+            said = self.target.select_probe(probe)  # type: ignore[arg-type]
+            if said:
+                self.log(f"line {s.line}: S({name}): {said}")
+            return
         have = 2.0 * float(self.target.tip_radius)
-        if abs(want - have) > 0.005:
+        if abs(want - have) > 0.005:  # no probe list: the station's one probe measures
             self.log(f"line {s.line}: S({name}) is a {want:.3f} mm tip; the station measures with its qualified "
                      f"{have:.3f} mm tip (PTMEAS points are surface points: the tip is compensated)")
 

@@ -132,3 +132,28 @@ def material_problem(word: str, words: Sequence[str]) -> str | None:
             return f"TOL/{word}, {w}: a material condition applies to TOL/POS only"
     return None
 
+
+TIP_MATCH = 0.005  # mm: a probe-list tip within this of the SNSDEF's diameter is that sensor
+
+
+def match_probe(label: str, diameter: float, probes: Sequence[dict]) -> tuple[str | None, str | None]:
+    """(probe name, problem) for SNSLCT/S(label) of an SNSDEF tip ``diameter`` (mm) among the station's probe list
+    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected``): the probe named like the sensor, else
+    the one in use when its tip matches, else the first qualified one that matches, else any that matches."""
+    named = [p for p in probes if str(p["name"]).upper() == label.upper()]
+    if named:
+        return str(named[0]["name"]), None
+    fits = [p for p in probes if abs(float(p["tip_diameter"]) - diameter) <= TIP_MATCH]
+    fits.sort(key=lambda p: (not p.get("selected"), not p.get("qualified")))
+    if fits:
+        return str(fits[0]["name"]), None
+    listed = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if p.get("qualified")]
+    others = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if not p.get("qualified")]
+    return None, (f"SNSLCT/S({label}): no probe in the probe list has a {_mm(diameter)} mm tip; qualified probes: "
+                  f"{', '.join(listed) or 'none'}" + (f"; not qualified: {', '.join(others)}" if others else ""))
+
+
+def _mm(x: float) -> str:
+    """2.0, 2.54, 0.125: a length as written on a drawing."""
+    s = f"{float(x):.4f}".rstrip("0")
+    return s + "0" if s.endswith(".") else s

@@ -132,6 +132,22 @@ class StationTarget:
                              tolerance=tolerance, datums=datums, material=material, name=name,
                              datum_modifiers=datum_modifiers)
 
+    def probes(self) -> list[dict[str, Any]] | None:
+        """The station's probe list (name, tip_diameter, qualified, selected); None without a calibration folder,
+        where its one probe measures whatever the program's sensor."""
+        service = getattr(self.station, "calibration", None)
+        if service is None or getattr(service, "directory", None) is None:
+            return None
+        return [{"name": r["name"], "tip_diameter": float(r["tip_diameter"]), "selected": bool(r["selected"]),
+                 "qualified": r["tip_radius"] is not None and not r.get("expired")} for r in service.probes()]
+
+    def select_probe(self, name: str) -> str:
+        """Make a probe of the list the one in use (the command API's select_probe verb, as the Calibration tab
+        and the I++ server's ChangeTool do); "" when it already is."""
+        if name == getattr(self.model, "probe_name", None):
+            return ""
+        return str(self.commands.invoke(self.client, "select_probe", name=name))
+
     @property
     def tip_radius(self) -> float:
         return float(self.station.controller.tip_radius)
