@@ -138,12 +138,14 @@ TIP_MATCH = 0.005  # mm: a probe-list tip within this of the SNSDEF's diameter i
 
 def match_probe(label: str, diameter: float, probes: Sequence[dict]) -> tuple[str | None, str | None]:
     """(probe name, problem) for SNSLCT/S(label) of an SNSDEF tip ``diameter`` (mm) among the station's probe list
-    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected``): the probe named like the sensor, else
-    the one in use when its tip matches, else the first qualified one that matches, else any that matches."""
+    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected`` and optionally ``qualified_diameters``):
+    the probe named like the sensor, else the one in use when its tip (nominal or qualified) matches, else the
+    first qualified one that matches, else any that matches."""
     named = [p for p in probes if str(p["name"]).upper() == label.upper()]
     if named:
         return str(named[0]["name"]), None
-    fits = [p for p in probes if abs(float(p["tip_diameter"]) - diameter) <= TIP_MATCH]
+    fits = [p for p in probes if any(abs(float(d) - diameter) <= TIP_MATCH
+                                     for d in (p["tip_diameter"], *p.get("qualified_diameters", ())))]
     fits.sort(key=lambda p: (not p.get("selected"), not p.get("qualified")))
     if fits:
         return str(fits[0]["name"]), None

@@ -139,7 +139,9 @@ class StationTarget:
         if service is None or getattr(service, "directory", None) is None:
             return None
         return [{"name": r["name"], "tip_diameter": float(r["tip_diameter"]), "selected": bool(r["selected"]),
-                 "qualified": r["tip_radius"] is not None and not r.get("expired")} for r in service.probes()]
+                 "qualified": r["tip_radius"] is not None and not r.get("expired"),
+                 "qualified_diameters": () if r["tip_radius"] is None else (2.0 * float(r["tip_radius"]),)}
+                for r in service.probes()]
 
     def select_probe(self, name: str) -> str:
         """Make a probe of the list the one in use (the command API's select_probe verb, as the Calibration tab
