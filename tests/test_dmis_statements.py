@@ -380,7 +380,7 @@ def test_cmm_run_asks_for_manual_hits_at_the_terminal(tmp_path, monkeypatch, cap
 
 def test_snslct_selects_the_probe_of_the_list_with_the_sensor_tip_or_name(station, tmp_path):
     """SNSLCT makes the station's probe with the SNSDEF's tip (or the sensor's name) the one in use, through the
-    select_probe verb; a tip the probe list does not have stops the program in words."""
+    select_probe verb; a tip the probe list does not have is refused in words before anything moves."""
     station.calibration.load(tmp_path / "calibration")  # a probe list: Probe1, the configured 2 mm tip
     station.calibration.add_probe("T4", 4.0)
     result = run_text("S(BIG) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 4.0\nSNSLCT/S(BIG)\n", station)
@@ -388,7 +388,8 @@ def test_snslct_selects_the_probe_of_the_list_with_the_sensor_tip_or_name(statio
     assert any(line.startswith("line 2: S(BIG): probe T4 selected") for line in result.log)
     run_text("S(PROBE1) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.5\nSNSLCT/S(PROBE1)\n", station)  # by its name
     assert station.measurement.probe_name == "Probe1" and station.prober.settings.tip_radius == pytest.approx(1.0)
-    with pytest.raises(DmisError, match=r"^line 2: SNSLCT/S\(P2\): no probe in the probe list has a 3.0 mm tip; "
+    start = station.machine.position.copy()
+    with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(P2\): no probe in the probe list has a 3.0 mm tip; "
                                          r"qualified probes: none; not qualified: Probe1 \(2.0 mm\), T4 \(4.0 mm\)$"):
-        run_text("S(P2) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(P2)\n", station)
-    assert station.measurement.probe_name == "Probe1"
+        run_text("GOTO/100, 100, 250\nS(P2) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(P2)\n", station)
+    assert station.measurement.probe_name == "Probe1" and np.allclose(station.machine.position, start)  # unmoved

@@ -21,11 +21,10 @@ from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal
 from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
-from .rules import (const_problem, datset_word_problem, match_probe, material_problem, open_problem,
-                    probe_direction, probe_problem, rotat_problem)
+from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
+                    open_problem, probe_direction, probe_problem, rotat_problem)
 from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
-LENGTH_UNITS = {"MM": 1.0, "CM": 10.0, "METER": 1000.0, "INCH": 25.4, "FEET": 304.8}
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
 
 

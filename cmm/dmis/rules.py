@@ -11,6 +11,7 @@ from typing import Sequence
 
 from .features import KINDS
 from .frames import AXES, DIRS, ORIGINS
+from .parser import Expr, Label, Statement, Word
 from .tolerances import ALL as TOLERANCES
 
 # major word -> the minor words supported (None: any parameters)
@@ -37,6 +38,7 @@ CONST_METHODS: dict[str, tuple[str, ...]] = {
 ALL_CONST_METHODS = {m for ms in CONST_METHODS.values() for m in ms}
 BF_OPERANDS = {"LINE": 2, "PLANE": 3, "CIRCLE": 3}  # the fewest features a best fit goes through
 
+LENGTH_UNITS = {"MM": 1.0, "CM": 10.0, "METER": 1000.0, "INCH": 25.4, "FEET": 304.8}  # mm per program unit
 DATSET_WORDS = {*DIRS, *ORIGINS}
 MATERIAL = ("MMC", "LMC", "RFS")
 DOWN_COS = 0.9999  # a probe points down when its direction is within 0.8 degrees of (0, 0, -1)
@@ -154,6 +156,29 @@ def match_probe(label: str, diameter: float, probes: Sequence[dict]) -> tuple[st
     return None, (f"SNSLCT/S({label}): no probe in the probe list has a {_mm(diameter)} mm tip; qualified probes: "
                   f"{', '.join(listed) or 'none'}" + (f"; not qualified: {', '.join(others)}" if others else ""))
 
+
+
+def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None) -> list[str]:
+    """"line N: ..." for every SNSLCT whose sensor no probe of the station's list matches, read before the run
+    (a sensor whose diameter is a variable is judged when it runs); none without a probe list."""
+    if probes is None:
+        return []
+    scale, diameters, out = 1.0, {}, []
+    for s in stmts:
+        words = [p.text for p in s.params if isinstance(p, Word)]
+        if s.major == "UNITS" and words and words[0] in LENGTH_UNITS:
+            scale = LENGTH_UNITS[words[0]]
+        elif s.major == "SNSDEF" and s.label is not None:
+            last = s.params[-1] if s.params else None
+            value = last.constant() if isinstance(last, Expr) else None
+            diameters[s.label.name] = None if value is None else float(value) * scale
+        elif s.major == "SNSLCT":
+            label = next((p for p in s.params if isinstance(p, Label)), None)
+            if label is not None and diameters.get(label.name) is not None:
+                _, problem = match_probe(label.name, diameters[label.name], probes)  # type: ignore[arg-type]
+                if problem:
+                    out.append(f"line {s.line}: {problem}")
+    return out
 
 def _mm(x: float) -> str:
     """2.0, 2.54, 0.125: a length as written on a drawing."""

@@ -23,6 +23,7 @@ import numpy as np
 from .check import check
 from .executor import DmisError, Executor, RunResult
 from .parser import Statement, Word
+from .rules import sensor_problems
 
 ManualHits = Callable[[str, int, list[tuple[np.ndarray, np.ndarray]]], list[int]]
 
@@ -196,6 +197,9 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     if problems:
         raise DmisError(problems[0])
     target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
+    problems = sensor_problems(stmts, target.probes())  # a sensor the probe list has not: refused before motion
+    if problems:
+        raise DmisError(problems[0])
     executor = Executor(stmts, target, name=name)
     description = f"DMIS program {name!r}"
     # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside
