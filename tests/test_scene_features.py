@@ -1,11 +1,14 @@
 """Fitted features in the 3-D view: thin outlines and translucent patches at the measured extent, hidden and shown
-per feature and per kind from the Features tab, the selected one stronger, and a fit's check alternative drawn
-as a dashed ghost beside it. Checked on viser's server-side scene handles of a station on the simulator."""
+per feature and per kind from the Features tab, the selected one stronger, a fit's check alternative drawn
+as a dashed ghost beside it, and the face a click picked highlighted in the tab's own view. Checked on viser's
+server-side scene handles of a station on the simulator."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
+import ui_support
 from netutil import SIM, free_port
 
 pytest.importorskip("viser")
@@ -16,6 +19,7 @@ from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.feature_drawing import PATCH_OPACITY, feature_drawing  # noqa: E402
 from cmm.ui.panel_features import tree_html  # noqa: E402
+from cmm.ui.pick_highlight import HIGHLIGHT_OPACITY, OFFSET_MM  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 
 
@@ -172,3 +176,49 @@ def test_a_check_alternative_is_drawn_as_a_dashed_ghost(app):
     lengths = np.linalg.norm(ghost[:, 1] - ghost[:, 0], axis=1)
     assert lengths.max() < 1.0  # dashed: short dashes, no long lines
     assert tuple(node.ghost.colors.reshape(-1, 3)[0]) == node.GHOST_COLOUR
+
+
+def _part_mm(node, pose):
+    """A mesh node's vertices in part coordinates (mm), through the node's own pose in the scene."""
+    R = trimesh.transformations.quaternion_matrix(node.wxyz)[:3, :3]
+    machine = (np.asarray(node.vertices, float) @ R.T + np.asarray(node.position, float)) / SCALE
+    return (machine - pose[:3, 3]) @ pose[:3, :3]
+
+
+def test_the_picked_face_is_highlighted_replaced_by_the_next_pick_and_removed(app):
+    """A click on the top face draws its whole CAD face (the block's top less the bore, boss, dome and cone) over
+    the part as a translucent overlay lifted off the surface; a click into the bore replaces it by the bore's wall;
+    Clear pick removes it, and so does the next part of a series (the pick itself is kept for the same CAD part)."""
+    model = app.station.measurement
+    pose = np.asarray(model.part.pose, float)
+    R, t = pose[:3, :3], pose[:3, 3]
+    with ui_support.viser_tab(app) as (_ws, capp):
+        nodes = capp.client.scene._handle_from_node_name
+        assert capp.pick(R @ [20.0, 60.0, 90.0] + t, R @ [0.0, 0.0, -1.0]) is not None
+        top = capp.ctx.pick_drawing.face
+        assert top is not None and nodes.get("/pick/face") is top and "/pick/point" in nodes
+        assert top.opacity == HIGHLIGHT_OPACITY and top.color != (96, 128, 170)  # translucent, not the part's colour
+        local = _part_mm(top, pose)
+        assert np.allclose(local[:, 2], 40.0 + OFFSET_MM, atol=1e-4)  # on the top face, just above it
+        lo, hi = local.min(axis=0), local.max(axis=0)
+        assert np.allclose(lo[:2], [0.0, 0.0], atol=OFFSET_MM + 1e-3) and np.allclose(hi[:2], [120, 80], atol=0.2)
+        area = trimesh.Trimesh(local, np.asarray(top.faces), process=False).area
+        holes = np.pi * (15.0**2 + 10.0**2 + (10.0**2 - 1.0**2) + 12.0**2)  # bore, boss, dome's rim, cone's foot
+        assert area == pytest.approx(120 * 80 - holes, rel=0.002)
+        # the bore's wall, from its axis: the top face's overlay goes
+        assert capp.pick(R @ [30.0, 40.0, 20.0] + t, R @ [1.0, 0.0, 0.0]) is not None
+        bore = capp.ctx.pick_drawing.face
+        assert bore is not top and nodes.get("/pick/face") is bore
+        wall = _part_mm(bore, pose)
+        radius = np.linalg.norm(wall[:, :2] - [30.0, 40.0], axis=1)
+        assert np.allclose(radius, 15.0 - OFFSET_MM, atol=1e-3)  # lifted into the hole, off the material
+        assert wall[:, 2].min() < 0.5 and wall[:, 2].max() > 39.5  # the whole through bore
+        capp.clear_pick()
+        assert capp.ctx.picked is None and "/pick/face" not in nodes and "/pick/point" not in nodes
+        # the next part of a series: the drawing goes, the pick (same CAD faces) stays for its plan
+        assert capp.pick(R @ [20.0, 60.0, 90.0] + t, R @ [0.0, 0.0, -1.0]) is not None
+        assert capp.take_control()
+        capp.ctx.commands.invoke(capp.ctx.who(), "new_part", name="next")
+        capp.refresh()
+        assert "/pick/face" not in nodes and capp.ctx.pick_drawing.face is None and capp.ctx.picked is not None
+        capp.release_control()

@@ -76,12 +76,14 @@ def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(
         assert "Click a face of the part" in m.text()
         _pick(capp, st, (20.0, 60.0, 40.0), (0, 0, 1))
         assert "Picked: **plane**, the top face" in m.text()
+        assert capp.ctx.pick_drawing.face is not None  # the picked face highlighted in the tab's view
         plan = m.make_plan(0)
         assert plan is not None and plan.kind == "plane"
         assert m.gui["hits"].value == len(plan) > 0  # the field shows the plan's hits, not 0
         assert "Picked: **plane**, the top face" in m.text() and f"{len(plan)} hits · clearance plane" in m.text()
         m.gui["name"].value = "TOP"
         assert m.run(m.gui["name"].value)
+        assert not capp.ctx.pick_drawing.nodes  # the run's hits are drawn now, not the pick
         # the whole cycle is RUNNING in every tab's status bar, also between its moves (set before the first hit)
         assert app.shared.cycle == "auto-measure of TOP" and ">RUNNING</span>" in capp.status.html()
         m.running.join(120)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..metrology.features import FitError, FitResult
 from ..metrology.mesh import signed_deviation
-from ..metrology.pick import NominalFeature, PickResult, pick, suggest_feature
+from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
 from ..session.journal import Journal, encode_event
 from ..session.model import file_sha256, machine_snapshot, mesh_sha256
 from ..session.reevaluate import fit_hit_records
@@ -369,6 +369,15 @@ class MeasurementModel:
 
     def pick(self, origin: Any, direction: Any) -> tuple[PickResult, NominalFeature | None] | None:
         """Ray pick on the part: hit point and normal (machine coordinates) and a suggested nominal feature."""
+        picked = self.pick_region(origin, direction)
+        if picked is None:
+            return None
+        hit, suggestion = picked
+        return hit, suggestion.feature if suggestion is not None else None
+
+    def pick_region(self, origin: Any, direction: Any) -> tuple[PickResult, FeatureSuggestion | None] | None:
+        """Ray pick on the part: the hit (machine coordinates) and the feature suggested for the surface it hit, with
+        that surface's mesh faces (``face_ids``); None for the suggestion when none could be made."""
         if self.part is None:
             raise MeasurementError("no part is loaded")
         hit = pick(self.part.mesh, self.part.pose, origin, direction)
@@ -376,10 +385,9 @@ class MeasurementModel:
             return None
         try:
             suggestion = suggest_feature(self.part.mesh, hit.face_id, self.part.pose)
-            nominal = suggestion.feature if suggestion is not None else None
         except Exception:  # noqa: BLE001 - a suggestion is optional help
-            nominal = None
-        return hit, nominal
+            suggestion = None
+        return hit, suggestion
 
     def set_alignment(self, pose: Any, method: str = "manual", **info: Any) -> None:
         """Adopt a part -> machine pose from an alignment (3-2-1, best fit) and record it."""

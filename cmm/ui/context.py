@@ -14,8 +14,8 @@ manual probing armed), what the operator was told, and the two ways a panel acts
 - :meth:`PanelContext.set`: set a widget attribute only when the value changed (idle pages send nothing).
 
 The few things only the tab can do (STOP and E-STOP with its held jog, selecting a feature across the
-panels, switching the DRO's frame) are callables the tab installs (``stop``, ``emergency_stop``,
-``select_feature``, ``show_frame``).
+panels, forgetting the pick, switching the DRO's frame) are callables the tab installs (``stop``,
+``emergency_stop``, ``select_feature``, ``clear_pick``, ``show_frame``).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any, Callable
 from ..control import Client, MotionError
 from ..measurement.model import MeasurementError
 from ..metrology.features import FitError
+from .pick_highlight import PickDrawing
 
 # what an action may raise that is the operator's to read (not a bug): shown as a notification
 OPERATOR_ERRORS = (MotionError, MeasurementError, FitError, ValueError, OSError)
@@ -51,6 +52,7 @@ class PanelContext:
         self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
         self.gui: dict[str, Any] = {}  # the tab's own widgets by key
         self.picked: Any = None  # (PickResult, NominalFeature | None) of the last click on the part
+        self.pick_drawing = PickDrawing()  # its marker and face highlight in the tab's 3-D view
         self.selected_feature: int | None = None
         self.manual_probe = False  # jogs are armed: a trigger takes a manual hit
         self._shown: dict[str, Any] = {}
@@ -58,6 +60,7 @@ class PanelContext:
         self.stop: Callable[[], Any] = _none
         self.emergency_stop: Callable[[], Any] = _none
         self.select_feature: Callable[[int], None] = _none
+        self.clear_pick: Callable[[], None] = _none  # forget the last pick and remove its drawing
         self.show_frame: Callable[[str], None] = _none
         self.frame_shown: Callable[[str], None] = _none  # the DRO's frame changed (the Go to fields follow it)
 

@@ -1,6 +1,7 @@
 """The "Auto-measure" tab: click a face of the part, the station proposes the feature and its hits.
 
-After a pick (click on the part), *Plan* shows the proposed feature (plane,
+A pick (click on the part) highlights the picked face in this tab's 3D view
+and names it here (*Clear pick* forgets it); *Plan* shows the proposed feature (plane,
 circle / bore / boss, cylinder, sphere, cone), the number and pattern of hits,
 their approach directions and the clearance plane, and draws the planned path
 in this tab's 3D view (up over the clearance plane, across, down, in).
@@ -124,6 +125,7 @@ class MeasurePanel:
         if not self.ctx.allowed("Auto-measure"):
             return False
         self.preview.clear()  # the machine draws the path now
+        self.ctx.pick_drawing.clear()  # and its hits: the picked face's highlight would hide them
         name = (name or "").strip()
         cycle = f"auto-measure of {name or 'the ' + plan.kind}"
         self.ctx.shared.cycle = cycle  # every tab's status bar says RUNNING until the whole cycle ends
@@ -164,6 +166,7 @@ class MeasurePanel:
         gui.add_button_group("Path", ("Preview path", "Clear path")).on_click(
             lambda e: self.draw() if e.target.value == "Preview path" else self.clear_drawing())
         g["plan"] = gui.add_markdown(self.text())
+        gui.add_button("Clear pick").on_click(lambda _: self.ctx.clear_pick())
         name = g["name"] = gui.add_text("Feature name", "", hint="optional, e.g. TOP")
         gui.add_button("Run", color="green").on_click(lambda _: self.run(name.value))
         gui.add_button("Cancel after this hit").on_click(lambda _: self.cancel())

@@ -41,7 +41,7 @@ from .panel_sessions import SessionsPanel
 from .panel_status import StatusPanel, run_script
 from .panel_trends import TrendsPanel
 from .frames import alignment_text, frame_label
-from .scene import SCALE, draw_pick
+from .scene import SCALE
 
 
 def hold_worker_script(pendant_src: str, token: str) -> str:
@@ -56,6 +56,7 @@ def hold_worker_script(pendant_src: str, token: str) -> str:
 AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
+PICK_HINT = "Click the part to pick a point."
 JOG_KEYS_HELP = ("**Keyboard**: click the 3-D view (a blue frame shows it has the keys): arrows = X/Y, "
                  "PageUp/PageDown = Z at the Speed above, hold **Shift** = fast; releasing the key stops; **Esc** or "
                  "**Space** = stop; why a key does nothing is shown on the view. In the pendant below (click it "
@@ -144,6 +145,7 @@ class ClientApp:
                                 is_local=is_local, deviations=app.deviations, shared=app.shared)
         self.ctx.stop, self.ctx.emergency_stop = self.stop, self.emergency_stop
         self.ctx.select_feature = self.select_feature
+        self.ctx.clear_pick = self.clear_pick
         self.messages = self.ctx.messages  # (level, title, body): what the operator was told
         self.gui = self.ctx.gui
         self.speed_mode = "probing"
@@ -368,21 +370,37 @@ class ClientApp:
 
     def pick(self, origin_mm: Any, direction: Any) -> Any:
         """Ray pick on the part (machine mm). Anyone may pick: it moves nothing."""
+        m = self.station.measurement
         try:
-            result = self.station.measurement.pick(origin_mm, direction)
+            picked = m.pick_region(origin_mm, direction)
         except OPERATOR_ERRORS as exc:
             self.ctx.error(exc, "Pick")
             return None
-        if result is None:
+        if picked is None:
             self.ctx.notify("Pick", "the ray missed the part")
             return None
-        self.ctx.picked = result
-        hit, nominal = result
-        if self.client is not None:
-            draw_pick(self.client.scene, hit.point, hit.normal)
+        hit, suggestion = picked
+        nominal = suggestion.feature if suggestion is not None else None
+        result = self.ctx.picked = (hit, nominal)
+        if self.client is not None:  # the marker and the picked face, replacing the last pick's
+            faces = None if suggestion is None else suggestion.face_ids
+            self.ctx.pick_drawing.show(self.client.scene, hit, m.part, faces, m.state)
         self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f} (machine)".format(*hit.point)
                     + (f" · {nominal.kind}" if nominal is not None else ""))
         return result
+
+    def clear_pick(self) -> None:
+        """Forget the last pick and remove its marker and face highlight from this tab's 3-D view."""
+        self.ctx.picked = None
+        self.ctx.pick_drawing.clear()
+        self.ctx.set("pick", "content", PICK_HINT)
+
+    def _forget_stale_pick(self) -> None:
+        """A new part (another CAD part or the next part of a series) removes the drawing of a pick made on the one
+        before; another CAD part forgets the pick too (its faces are not the new part's)."""
+        m = self.station.measurement
+        if self.ctx.pick_drawing.drop_stale(m.part, m.state):
+            self.clear_pick()
 
     def on_scene_click(self, origin_scene: Any, direction: Any) -> Any:
         return self.pick(np.asarray(origin_scene, float) / SCALE, direction)
@@ -595,7 +613,7 @@ class ClientApp:
                 g["target"] = gui.add_vector3(self.target_label(), tuple(float(v) for v in pos), step=0.001)
                 gui.add_button("Go").on_click(lambda _: self.go_to(g["target"].value))
                 gui.add_button("Cancel").on_click(lambda _: self.cancel())
-                g["pick"] = gui.add_markdown("Click the part to pick a point.")
+                g["pick"] = gui.add_markdown(PICK_HINT)
                 gui.add_button("Move above").on_click(lambda _: self.move_above())
                 gui.add_button("Probe here").on_click(lambda _: self.probe_here())
             with machine.add_tab("Probe"):
@@ -644,6 +662,7 @@ class ClientApp:
     def refresh(self) -> None:
         """Copy station state into this client's read-outs (only what changed)."""
         self.watch_control()
+        self._forget_stale_pick()
         st_now = self.station.controller.state.machine
         if self._jogging and st_now is not None and not st_now.jogging:
             self._jogging = False  # the machine loop ended the jog (dead-man, limit, contact, stop)

@@ -519,21 +519,22 @@ class ReplayView:
             self._hidden = []
 
 
-def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") -> None:
-    """A marker and a normal arrow at a picked point (client scene, absolute position)."""
+def draw_pick(scene: Any, point_mm: Any, normal_mm: Any, name: str = "/pick") -> list[Any]:
+    """A marker and a normal arrow at a picked point (client scene, absolute position); returns their nodes."""
     p = np.asarray(point_mm, float)
     n = np.asarray(normal_mm, float)
     n = n / np.linalg.norm(n)
-    scene.add_icosphere(f"{name}/point", radius=0.8 * SCALE, color=(255, 230, 0), position=tuple(p * SCALE))
+    point = scene.add_icosphere(f"{name}/point", radius=0.8 * SCALE, color=(255, 230, 0), position=tuple(p * SCALE))
     seg = np.array([[[0, 0, 0], n * 12.0 * SCALE]], dtype=np.float32)
-    scene.add_line_segments(f"{name}/normal", seg, (255, 230, 0), thickness=3.0, thickness_units="screen",
-                            position=tuple(p * SCALE))
+    normal = scene.add_line_segments(f"{name}/normal", seg, (255, 230, 0), thickness=3.0, thickness_units="screen",
+                                     position=tuple(p * SCALE))
     head = trimesh.creation.cone(radius=1.2, height=3.0, sections=16)
     T = _frame_for_axis(n)
     T[:3, 3] = n * 12.0
     head.apply_transform(T)
-    scene.add_mesh_simple(f"{name}/head", (head.vertices * SCALE).astype(np.float32), head.faces,
-                          color=(255, 230, 0), position=tuple(p * SCALE))
+    arrow = scene.add_mesh_simple(f"{name}/head", (head.vertices * SCALE).astype(np.float32), head.faces,
+                                  color=(255, 230, 0), position=tuple(p * SCALE))
+    return [point, normal, arrow]
 
 
 PREVIEW_COLOURS = {"rapid": (255, 140, 0), "approach": (255, 60, 200), "retract": (0, 200, 230)}
