@@ -29,6 +29,11 @@ ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 # software here, and on a loaded 2-core machine (CPU hogs, the other test worker) its first paint of the viser
 # page alone has taken over 30 s.
 PAGE_WAIT_MS = 120_000
+# Device pixels per CSS pixel. Layout, clicks and sizes are in CSS pixels whatever this is; it sets how many
+# pixels chromium draws. Software WebGL costs in proportion: at 0.5 (a quarter of the pixels) the colour-map
+# test's chromium used 30 CPU s instead of 116, and the browser tests were three quarters of the suite's CPU.
+# CMM_TEST_DPR=1 draws (and screenshots) at full resolution.
+DEVICE_SCALE = float(os.environ.get("CMM_TEST_DPR", "0.5"))
 
 
 def chromium_path() -> str | None:
@@ -78,7 +83,8 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
         with sync_playwright() as p:
             context = p.chromium.launch_persistent_context(
                 profile, executable_path=chromium_path(), headless=True, args=CHROMIUM_ARGS,
-                viewport={"width": viewport[0], "height": viewport[1]}, timeout=PAGE_WAIT_MS, **options)
+                viewport={"width": viewport[0], "height": viewport[1]}, timeout=PAGE_WAIT_MS,
+                **{"device_scale_factor": DEVICE_SCALE, **options})
             context.set_default_timeout(PAGE_WAIT_MS)
             context.set_default_navigation_timeout(PAGE_WAIT_MS)
             try:
