@@ -18,6 +18,13 @@ Every result carries the fit statistics (FitResult fields) and its geometry:
   feature well (short arcs and caps, cones that are nearly cylinders), when
   several distinct solutions fit almost equally well, or when a criterion's
   global optimum could not be proven.
+- proof: for a cylinder by minzone / mic / mcc (all round), the domain its optimum
+  was searched in and the outcome: ``proven``, ``cone_deg`` (axis directions
+  within this angle of the least-squares axis), ``gap_um`` (value minus the
+  lowest bound over the domain), ``cells`` (direction cells bounded; of them
+  ``near_cells`` within 0.05 deg of the optimum), minimum zone also
+  ``centre_mm`` (axes within this distance of the least-squares axis at the
+  data centre); None otherwise.
 - alternative: a fit with a nominal reports the minimum near the nominal; when
   a clearly different solution far from it fits the points better, that
   solution is kept here (same kind, same units) and the result needs a
@@ -56,11 +63,12 @@ class FitResult:
     uncertainty: dict[str, float] = field(default_factory=dict, repr=False)
     warnings: tuple[str, ...] = field(default=())
     alternative: FitResult | None = field(default=None, repr=False)
+    proof: dict[str, Any] | None = None
 
     kind: ClassVar[str] = "feature"
     _stat_fields: ClassVar[frozenset[str]] = frozenset(
         {"residuals", "sigma", "form", "covariance", "n_points", "method", "param_names", "plane_residuals",
-         "uncertainty", "warnings", "alternative"}
+         "uncertainty", "warnings", "alternative", "proof"}
     )
 
     @property
@@ -92,6 +100,8 @@ class FitResult:
             "uncertainty": {k: float(v) for k, v in self.uncertainty.items() if math.isfinite(v)},
             "warnings": list(self.warnings),
         }
+        if self.proof is not None:  # the domain a criterion's global optimum was searched and proven in
+            out["proof"] = dict(self.proof)
         if self.alternative is not None:  # the better-fitting solution far from the nominal: the result needs a check
             alt = self.alternative.summary()
             out["alternative"] = {k: v for k, v in alt.items() if k not in ("warnings", "uncertainty")}

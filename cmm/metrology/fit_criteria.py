@@ -275,8 +275,9 @@ PROOF_FULL_POINTS = {"mcc": 20000, "minzone": 20000, "mic": 2000}
 CENTRE_FRACTION = 0.1
 CENTRE_FORMS = 5.0
 ZONE_LP_POINTS = 40  # minimum zone bound: points nearest and farthest from the axis in each cell's linear program
-PROOF_CELLS = 600  # direction cells the branch and bound may evaluate
-LOCAL_DEG = 0.05  # the neighbourhood of the refined optimum that its SLP convergence covers
+PROOF_CELLS = 600  # direction cells the branch and bound may evaluate away from the optimum ...
+NEAR_DEG = 0.05  # ... and, besides those, within this angle of the optimum's direction,
+NEAR_CELLS = 1800  # this many (first-order cell bounds close there only on cells ~ tolerance / length wide)
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
 
 
@@ -384,6 +385,37 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tupl
     return max(bound, 0.0), keep[lam > 1e-12], keep[mu > 1e-12]
 
 
+def _inner_radius_max(rel: np.ndarray, reach: float) -> float:
+    """An upper bound on min_i |rel_i - d| (the inner radius of an annulus centred at d) over every centre
+    |d| <= reach. With a reference centre d0 (the algebraic circle's), e = d - d0 (|e| <= rho = reach + |d0|),
+    R_i = |rel_i - d0| and n_i their unit vectors: |rel_i - d| <= R_i - n_i.e + rho^2 / (2 (R_i - rho)), and
+    for weights nu >= 0 summing to 1, min_i (R_i - n_i.e) <= sum nu R + rho |sum nu n| (the weights: the dual of
+    the linear program max s, s + n_i.e <= R_i, e in a 16-gon around the disc, on the points nearest d0; any
+    weights give a valid bound, the program makes it tight). Falls back to min |rel_i| + reach."""
+    plain = float(np.sqrt(np.einsum("ij,ij->i", rel, rel)).min()) + reach
+    d0 = algebraic_ball(rel)[0]
+    rho = reach + float(np.sqrt(d0 @ d0))
+    off = rel - d0
+    radii = np.sqrt(np.einsum("ij,ij->i", off, off))
+    near = np.argsort(radii)[:ZONE_LP_POINTS]
+    r_k, n_k = radii[near], off[near] / radii[near, None]
+    if r_k.min() <= 2.0 * rho:
+        return plain
+    ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+    a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]),
+                      np.column_stack([np.cos(ang), np.sin(ang), np.zeros(16)])])
+    res = linprog([0.0, 0.0, -1.0], A_ub=a_ub, b_ub=np.concatenate([r_k, np.full(16, rho)]),
+                  bounds=[(None, None)] * 3, method="highs")
+    if res.status != 0:
+        return plain
+    nu = np.abs(res.ineqlin.marginals[:len(near)])
+    if nu.sum() <= 0:
+        return plain
+    nu = nu / nu.sum()
+    upper = float(nu @ r_k) + rho * float(np.linalg.norm(nu @ n_k)) + rho * rho / (2.0 * (r_k.min() - rho))
+    return min(plain, upper + 1e-12 * float(radii.max()))
+
+
 def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best: float) -> Callable[..., float]:
     """Lower bound on the minimum-zone width of every cylinder whose direction lies in a direction cell and whose
     axis passes within ``centre_range`` of ``foot`` (scaled units), valid for the widths below ``best``.
@@ -396,7 +428,8 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
     the dual weights of the last cell's active points when they are still feasible and prune the cell, else
     the linear program), r_in <= min |rel_i| + q (q: how far c's projection can be from the foot's), so a
     cylinder with w' < best has w_u < W = best + slack and w_u >= F / (2 r_in_max + W): the returned bound is
-    F / (2 r_in_max + W) - slack."""
+    F / (2 r_in_max + W) - slack. A cell this does not prune gets r_in_max from _inner_radius_max (second order
+    in q instead of first), so the bound closes on cells around the optimum once they are small enough."""
     norm_foot = float(np.sqrt(foot @ foot))
     basis = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
 
@@ -411,15 +444,20 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
         scale = 2.0 * (float(dist.min()) + q) + best + slack
         if len(basis[0]) and len(basis[1]):
             area = _annulus_dual(rel, basis[0], basis[1], q)
-            if np.isfinite(area) and (area / scale - slack >= best or _annulus_basis_optimal(rel, basis[0], basis[1])):
+            if np.isfinite(area) and area / scale - slack >= best:
                 return area / scale - slack
+            if np.isfinite(area) and _annulus_basis_optimal(rel, basis[0], basis[1]):
+                return max(area / scale, area / (2.0 * _inner_radius_max(rel, q) + best + slack)) - slack
         order = np.argsort(dist)
         k = min(ZONE_LP_POINTS, len(xs))
         keep = np.unique(np.concatenate([order[:k], order[-k:]]))  # a subset: its bound holds for all points
         area, outer, inner = _annulus_area_lower(rel, keep, q)
         if len(outer) and len(inner):
             basis = (outer, inner)
-        return area / scale - slack
+        value = area / scale - slack
+        if value < best:  # not pruned: the inner radius bounded over the axis positions, not from the foot's
+            value = max(value, area / (2.0 * _inner_radius_max(rel, q) + best + slack) - slack)
+        return value
 
     return bound
 
@@ -446,71 +484,73 @@ def _ball_cell_bound(xs: np.ndarray, method: str) -> Callable[..., float]:
 
 
 def _direction_bound(cell_bound: Callable[..., float], u0: np.ndarray, best: float, u_best: np.ndarray,
-                     cone: float) -> tuple[float, int]:
-    """Branch and bound over the axis directions within ``cone`` degrees of u0: the lowest bound on the criterion
-    value (mcc: radius; mic: -radius; minzone: width; scaled units) of any direction there, outside LOCAL_DEG
-    of u_best (the refined optimum's own neighbourhood, which its SLP convergence covers).
+                     cone: float) -> tuple[float, int, int]:
+    """Branch and bound over every axis direction within ``cone`` degrees of u0: the lowest bound on the criterion
+    value (mcc: radius; mic: -radius; minzone: width; scaled units) of any direction there.
 
     Directions u = unit(u0 + p e1 + q e2) on square cells in (p, q); every direction of a cell lies within
     delta = sqrt(2) h of its centre's (h: half the cell side); ``cell_bound(u, delta)`` bounds the criterion
-    over the cell. Cells whose bound cannot beat ``best`` are dropped, the others split in four.
-    Returns (lowest bound left, cells evaluated)."""
+    over the cell. Cells whose bound cannot beat ``best`` are dropped, the others split in four; a cell is
+    only dropped on its bound, so the result bounds the whole cone, the optimum's own neighbourhood included
+    (there the cells shrink until the first-order bound closes). Cells whose centre lies within NEAR_DEG of
+    ``u_best`` count against NEAR_CELLS, the others against PROOF_CELLS; the search stops when either runs out.
+    Returns (lowest bound left, cells evaluated, of which near u_best)."""
     import heapq
 
     frame = frame_with_axis(u0)
     e1, e2 = frame[:, 0], frame[:, 1]
     t_max = np.tan(np.radians(cone))
-    local = np.radians(LOCAL_DEG)
+    near = np.radians(NEAR_DEG)
 
     def bound(p: float, q: float, h: float) -> float:
         return cell_bound(unit(u0 + p * e1 + q * e2), min(np.sqrt(2.0) * h, np.pi / 2))
 
+    def is_near(p: float, q: float) -> bool:
+        return bool(np.arccos(min(1.0, abs(float(unit(u0 + p * e1 + q * e2) @ u_best)))) <= near)
+
     n0 = 4
     h0 = t_max / n0
     heap: list[tuple[float, float, float, float]] = []
-    cells = 0
+    counts = [0, 0]  # cells evaluated away from / near u_best
     for i in range(n0):
         for j in range(n0):
             p, q = -t_max + (2 * i + 1) * h0, -t_max + (2 * j + 1) * h0
-            cells += 1
+            counts[is_near(p, q)] += 1
             heapq.heappush(heap, (bound(p, q, h0), p, q, h0))
     while heap:
         lower, p, q, h = heap[0]
-        if lower >= best or cells >= PROOF_CELLS:
-            return lower, cells
+        if lower >= best or counts[0] >= PROOF_CELLS or counts[1] >= NEAR_CELLS:
+            return lower, sum(counts), counts[1]
         heapq.heappop(heap)
         for dp, dq in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
             cp, cq, ch = p + dp * h / 2, q + dq * h / 2, h / 2
             if np.hypot(cp, cq) - np.sqrt(2.0) * ch > t_max:
                 continue  # outside the cone
-            u = unit(u0 + cp * e1 + cq * e2)
-            if np.arccos(min(1.0, abs(float(u @ u_best)))) + np.sqrt(2.0) * ch <= local:
-                continue  # inside the refined optimum's own neighbourhood
             child = bound(cp, cq, ch)
-            cells += 1
+            counts[is_near(cp, cq)] += 1
             if child < best:
                 heapq.heappush(heap, (child, cp, cq, ch))
-    return best, cells
+    return best, sum(counts), counts[1]
 
 
 def _prove_cylinder(xs: np.ndarray, crit: np.ndarray, method: str, u0: np.ndarray, value: float,
                     u_best: np.ndarray, cone: float, foot: np.ndarray, centre_range: float,
-                    tol: float) -> tuple[float, int]:
+                    tol: float) -> tuple[float, int, int]:
     """The gap (scaled units) between ``value`` (the criterion of the reported cylinder, all points) and the
-    lowest bound over the cone, and the cells searched. The bound runs on ``crit`` (a subset: valid for all
-    points, and fast) and, when that leaves a gap above ``tol``, on every point (when the subset is less than
-    half of them, up to PROOF_FULL_POINTS)."""
+    lowest bound over the cone, the cells searched and how many of them lay within NEAR_DEG of the optimum. The
+    bound runs on ``crit`` (a subset: valid for all points, and fast) and, when that leaves a gap above ``tol``,
+    on every point (when the subset is less than half of them, up to PROOF_FULL_POINTS)."""
     target = value - 0.5 * tol
-    gap, cells = np.inf, 0
+    gap, cells, near = np.inf, 0, 0
     for pts in (crit, xs) if 2 * len(crit) < len(xs) <= PROOF_FULL_POINTS[method] else (crit,):
         cb = (_zone_cell_bound(pts, foot, centre_range, target) if method == "minzone"
               else _ball_cell_bound(pts, method))
-        lower, n = _direction_bound(cb, u0, target, u_best, cone)
-        cells += n
+        lower, n, n_near = _direction_bound(cb, u0, target, u_best, cone)
+        cells, near = cells + n, near + n_near
         gap = min(gap, max(value - lower, 0.0))
         if gap <= tol:
             break
-    return gap, cells
+    return gap, cells, near
 
 
 def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
@@ -565,6 +605,7 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     d = model.residuals_jacobian(state)[0] * data.scale
     u = canonical_direction(uu)
     name = {"minzone": "minimum zone", "mcc": "minimum circumscribed", "mic": "maximum inscribed"}[method]
+    proof = None
     if coverage < 300.0:  # an arc: the bound would not close (the search is not worth its time)
         smaller = ("" if method == "minzone" else ": the smallest cylinder holding them, which for an arc is smaller "
                    "than the probed feature")
@@ -575,9 +616,13 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
                  "mic": float(-(ru * data.scale + d.min()))}[method] / data.scale
         crit = _critical_subset(data.x, model.residuals_jacobian((p, u0, ls.radius / data.scale))[0], method)
         centre_range = min(CENTRE_FRACTION * ls.radius, max(CENTRE_FORMS * ls.form, 1e-3 * ls.radius)) / data.scale
-        gap, cells = _prove_cylinder(data.x, crit, method, u0, value, unit(uu), cone, p, centre_range,
-                                     PROOF_GAP / data.scale)
+        gap, cells, near = _prove_cylinder(data.x, crit, method, u0, value, unit(uu), cone, p, centre_range,
+                                           PROOF_GAP / data.scale)
         gap *= data.scale
+        proof = {"proven": bool(gap <= PROOF_GAP), "cone_deg": cone, "gap_um": float(gap) * 1000.0, "cells": cells,
+                 "near_cells": near}
+        if method == "minzone":
+            proof["centre_mm"] = centre_range * data.scale
         where = (f"among axes within {cone:.3g} degrees of the least-squares axis" if method != "minzone" else
                  f"among axes within {cone:.3g} degrees of the least-squares axis and "
                  f"{centre_range * data.scale:.3g} mm of it at the data centre")
@@ -585,7 +630,7 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
             f"the {name} cylinder is proven optimal {where} only to within {gap:.2g} mm ({cells} direction cells "
             "searched); its global optimum is not proven",)
     return Cylinder(point=axis_foot(data.to_mm(pu), u, data.c), direction=u, radius=ru * data.scale,
-                    warnings=warnings, **_stats(d, 5, method))
+                    warnings=warnings, proof=proof, **_stats(d, 5, method))
 
 
 # ---------------------------------------------------------------- dispatcher
