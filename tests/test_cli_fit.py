@@ -149,3 +149,14 @@ def test_fast_reader_agrees_with_the_line_parser_and_keeps_line_errors(tmp_path)
     path.write_text("1 2 3 4\n5 6\n")  # right number of values, wrong rows
     with pytest.raises(PointFileError, match="line 1"):
         read_points_array(str(path))
+
+
+def test_a_cylinder_criterion_reports_its_proof_domain(tmp_path, capsys):
+    """`cmm fit cylinder --method mcc`: the JSON carries the proof record, the table states it in words."""
+    data = ka.cylinder(np.array([100.0, 20.0, -30.0]), [0.0, 0.3, 1.0], 20.0, m=200, length=40.0, form=0.01)
+    path = write(tmp_path / "c.txt", data.points)
+    out = run_json(capsys, "cylinder", path, "--method", "mcc")
+    assert out["proof"]["proven"] and out["proof"]["cone_deg"] == pytest.approx(10.0) and out["warnings"] == []
+    assert out["proof"]["cells"] >= out["proof"]["near_cells"] > 0
+    assert main(["fit", "cylinder", path, "--method", "mcc"]) == 0
+    assert "global optimum proven among axes within 10 deg of the LS axis" in capsys.readouterr().out

@@ -119,3 +119,66 @@ def test_a_bound_from_a_subset_holds_for_every_point(method):
             assert value >= lower - 1e-12, (tilt, value, lower)
             checked += 1
     assert checked == 12
+
+
+@pytest.mark.parametrize("method", ["mcc", "mic", "minzone"])
+def test_an_optimum_near_the_start_is_proven_with_its_neighbourhood_bounded(method, monkeypatch):
+    """Known-answer data (tests/knownanswer.py: the LS axis is the chosen one) with 0.01 mm form: the optimum of each
+    criterion lies within 0.05 deg of the LS axis (the search's start). Its neighbourhood is bounded like the rest
+    of the cone: cells there are evaluated (none skipped) down to the size where the bound closes, every cell is
+    either split or dropped on its bound, and the recorded domain is the whole cone."""
+    data = ka.cylinder(C3, [0.2, 0.3, 0.9], 20.0, m=300, length=40.0, form=0.01)
+    ls = fit_ls.fit_cylinder(data.points)
+    seen = []
+    real = fc._direction_bound
+
+    def spy(cell_bound, u0, best, u_best, cone):
+        def recording(u, delta):
+            value = cell_bound(u, delta)
+            seen.append((np.arccos(min(1.0, abs(float(u @ u_best)))), delta, value, best))
+            return value
+        return real(recording, u0, best, u_best, cone)
+
+    monkeypatch.setattr(fc, "_direction_bound", spy)
+    res = fc.fit("cylinder", data.points, method)
+    tilt = np.degrees(np.arccos(min(1.0, abs(float(res.direction @ ls.direction)))))
+    assert tilt < fc.NEAR_DEG  # the case this test is about
+    assert res.warnings == () and res.proof["proven"] and res.proof["gap_um"] <= fc.PROOF_GAP * 1000
+    assert res.proof["cone_deg"] == pytest.approx(10.0) and res.proof["cells"] == len(seen)
+    near = [s for s in seen if s[0] + s[1] <= np.radians(fc.NEAR_DEG)]  # cells wholly inside the neighbourhood
+    assert near and res.proof["near_cells"] >= len(near)
+    # the optimum's own cell: bounded at a size where the bound reaches the proof target
+    holding = [s for s in near if s[0] <= s[1]]
+    assert holding and max(s[2] - s[3] for s in holding) >= 0.0
+    summary = res.summary()
+    assert summary["proof"] == res.proof and summary["proof"]["cone_deg"] == pytest.approx(10.0)
+    if method == "minzone":
+        assert summary["proof"]["centre_mm"] > 0
+
+
+def test_a_short_band_records_its_narrower_cone_and_the_gap():
+    """The recorded domain is the cone actually searched (atan(length / diameter) for a short band) and, when not
+    proven, the gap in um, as the warning says."""
+    data = ka.cylinder(C3, [0.2, 0.3, 0.9], 20.0, m=150, length=5.0, form=0.05)
+    res = fc.fit("cylinder", data.points, "minzone")
+    proof = res.summary()["proof"]
+    assert proof["cone_deg"] == pytest.approx(np.degrees(np.arctan(5.0 / 40.0)), abs=0.2)  # from the LS length
+    assert f"within {proof['cone_deg']:.3g} degrees" in res.warnings[0]
+    assert not proof["proven"] and proof["gap_um"] > fc.PROOF_GAP * 1000
+    assert f"{proof['gap_um'] / 1000:.2g} mm" in res.warnings[0]
+
+
+def test_the_inner_radius_bound_holds_over_the_centre_disc():
+    """_inner_radius_max bounds min_i |rel_i - d| for every centre |d| <= reach (sampled, also on the rim)."""
+    rng = np.random.default_rng(2)
+    a = rng.uniform(0, 2 * np.pi, 200)
+    r = 8.0 + rng.uniform(-0.01, 0.01, 200)
+    rel = np.column_stack([r * np.cos(a), r * np.sin(a)]) + [0.03, -0.02]
+    for reach in (0.0, 0.05, 0.3):
+        upper = fc._inner_radius_max(rel, reach)
+        b = rng.uniform(0, 2 * np.pi, 400)
+        d = reach * np.sqrt(rng.uniform(0, 1, 400))[:, None] * np.column_stack([np.cos(b), np.sin(b)])
+        d = np.vstack([d, reach * np.column_stack([np.cos(b), np.sin(b)])])
+        r_in = np.linalg.norm(rel[None, :, :] - d[:, None, :], axis=2).min(axis=1)
+        assert r_in.max() <= upper + 1e-12
+        assert upper <= np.linalg.norm(rel, axis=1).min() + reach + 1e-12  # never looser than the plain bound

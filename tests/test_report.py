@@ -116,3 +116,16 @@ def test_tolerances_from_a_program_decide_pass_and_fail(session):
 def test_the_report_renders_without_the_part_mesh(session):
     page = render(session)
     assert "hits only" in page and "No deviations" in page
+
+
+def test_a_criterion_fits_proof_domain_is_stated_in_the_report(session):
+    """A cylinder by a criterion carries its proof record; the report names the domain it was proven in."""
+    proof = {"proven": True, "cone_deg": 10.0, "gap_um": 0.0, "cells": 644, "near_cells": 520}
+
+    def with_proof(e):
+        return dict(e, method="mcc", proof=proof) if e.get("kind") == "feature" and e.get("name") == "boss" else e
+
+    variant = Session.from_events([with_proof(e) for e in session.events], session.name)
+    page = render(variant)
+    assert "global optimum proven among axes within 10 deg of the LS axis (644 direction cells bounded)" in page
+    assert "proven among" not in render(session)  # least-squares features state nothing of the kind

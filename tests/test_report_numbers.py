@@ -210,3 +210,28 @@ def test_every_gdt_characteristic_reaches_the_report_unchanged(measured):
     composite = [c for d, c in rows if "composite" in d]
     assert [c.feature for c in composite] == ["bore", "boss", "pattern of 2"]
     assert "⊕ ⌀0.5000 | A|B|C / ⌀0.0500 | A" in html and "E = bore low; F = bore high" in html
+
+
+def test_a_criterion_cylinders_proof_reaches_the_tree_the_journal_and_the_report(tmp_path):
+    """A cylinder fitted by MCC carries the domain its optimum was searched (and proven or not) in: the tree
+    states it briefly, the journal's record keeps it, the report states it in full, all from the same record."""
+    from cmm.metrology.features import proof_text
+
+    sim, machine, prober = ss.setup()
+    prober.settings.pretravel = PretravelModel()
+    store = DirectoryStore(tmp_path)
+    model = record(store.create("proof"), machine, prober, Part("sample part", sim.part_mesh, T.copy(),
+                                                                dict(sim.nominal_features)), port="in-process")
+    pts = dict((name, p) for name, _, p in surfaces())["boss"]
+    ids = [model.add_hit(hit_on(p, n, k, prober.settings.tip_radius)) for k, (p, n) in enumerate(pts)]
+    feature = model.fit_feature("cylinder", ids, "mcc", "boss mcc")
+    proof = feature.result.proof
+    assert proof is not None and proof["cone_deg"] > 0 and proof["cells"] > 0
+    tree = tree_html(SimpleNamespace(measurement=model))
+    model.close()
+    machine.close()
+    assert proof_text(proof, short=True) in tree
+    s = load_session(store, "proof")
+    (rec,) = s.features.values()
+    assert rec.fit["proof"] == proof
+    assert proof_text(proof) in render(s, mesh=sim.part_mesh)

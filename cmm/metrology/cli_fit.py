@@ -57,6 +57,11 @@ def format_table(summary: dict[str, Any]) -> str:
                         f"{' | ' + t['drf'] if t['drf'] else ''}) {'pass' if t['ok'] else 'FAIL'}"
                         for i, t in enumerate(v))
             continue
+        if k == "proof":  # the domain a criterion's optimum was searched and proven in
+            from .features import proof_text
+
+            rows.append(f"{k.ljust(width)}  {proof_text(v)}")
+            continue
         if isinstance(v, list) and v and isinstance(v[0], str):  # warnings: one per line
             rows.extend(f"{(k if i == 0 else '').ljust(width)}  ! {w}" for i, w in enumerate(v))
         else:

@@ -51,6 +51,21 @@ class FitError(ValueError):
     """A fit was refused or failed; str(error) is a sentence for the operator."""
 
 
+def proof_text(proof: dict[str, Any] | None, short: bool = False) -> str:
+    """A criterion fit's ``proof`` record in words ("" when there is none); ``short`` for the feature tree."""
+    if not proof:
+        return ""
+    where = f"within {proof['cone_deg']:.3g} deg of the LS axis"
+    if proof.get("centre_mm") is not None:
+        where += f" and {proof['centre_mm']:.3g} mm of it at the data centre"
+    if short:
+        return f"proven {where}" if proof["proven"] else f"not proven (gap {proof['gap_um']:.2g} um)"
+    if proof["proven"]:
+        return f"global optimum proven among axes {where} ({proof['cells']} direction cells bounded)"
+    return (f"global optimum not proven: among axes {where} only to within {proof['gap_um']:.2g} um "
+            f"({proof['cells']} direction cells bounded)")
+
+
 @dataclass(frozen=True, kw_only=True, eq=False)
 class FitResult:
     residuals: np.ndarray = field(repr=False)

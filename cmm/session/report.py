@@ -35,6 +35,7 @@ from ..metrology.characteristics import Characteristic, verdict
 from .gdt_session import session_gdt
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
+from ..metrology.features import proof_text
 from .export import hit_deviations
 from ..measurement.records import ConstructedRecord, FeatureRecord
 from ..metrology.characteristics import DEFAULT_TOLERANCE
@@ -548,6 +549,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                 probe = ""
             else:
                 what = f"{f.kind}, {f.method}, {len(f.hit_ids)} hits"
+                proof = proof_text(f.fit.get("proof"))
+                what += f"; {proof}" if proof else ""
                 probe = f.probe or ""  # "": recorded before features named their probe
             fname = f.name
             name_cell = (f"<td class='l' rowspan='{len(cs)}'><b>{e(fname)}</b><br><span class='muted'>{e(what)}"

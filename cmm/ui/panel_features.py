@@ -29,6 +29,7 @@ import numpy as np
 from ..metrology import fit_criteria
 from ..metrology.construct import OPERATIONS
 from ..metrology.feature_distance import surface_distance
+from ..metrology.features import proof_text
 from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
 from ..measurement.model import FEATURE_KINDS, MeasurementError
@@ -56,7 +57,9 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> st
     rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11px system-ui'>"
             "<tr style='color:#666'><th align=left>feature</th><th align=right>nominal</th><th align=right>actual</th>"
             "<th align=right>dev</th><th align=right>tol</th><th></th></tr>"]
-    items = [(fid, f.name, f"{f.kind} · {f.method} · {len(f.hit_ids)} hits", feature_chars(f)) for fid, f in feats]
+    items = [(fid, f.name, " · ".join(filter(None, (f.kind, f.method, f"{len(f.hit_ids)} hits",
+                                                     proof_text(getattr(f.result, "proof", None), short=True)))),
+              feature_chars(f)) for fid, f in feats]
     items += [(fid, c.name, f"constructed {c.operation} of {c.operands[0]} and {c.operands[1]}",
                c.record().characteristics()) for fid, c in built]
     gdt_rows = station.measurement.gdt_characteristics()
@@ -238,6 +241,8 @@ class FeaturesPanel:
             lines.append("u (1 sigma): " + " · ".join(
                 f"{k} {v * 1e6:.1f} urad" if k in ("normal", "direction", "half_angle") else f"{k} {v * 1000:.2f} um"
                 for k, v in s["uncertainty"].items()))
+        if s.get("proof"):
+            lines.append(f"\n{proof_text(s['proof'])}")
         lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
         lines.append("\ngeometry (machine coordinates, mm):")
         for k, v in feature.result.geometry().items():
