@@ -3,7 +3,7 @@
     python3 benchmarks/bench_cylinder_proof.py [--points 300 3000] [--repeat 3]
 
 Cases (D 40, 1000 mm from the origin, tilted): a full 40 mm cylinder with 0.01 mm form (proven), a 10 mm band
-with 0.01 mm form, and a 5 mm band with 0.05 mm form (tilting the axis barely widens the zone: the bound does
+with 0.01 mm form, and a 5 mm band with 0.05 mm form (tilting the axis barely widens the zone: the bound may
 not close within the cells allowed, the honest "not proven"). Prints per criterion the wall and CPU seconds
 (median of the repeats), the form, and "proven" or the warning's gap. The minimum zone's proof adds a branch
 and bound over direction cells, each bounded by the annulus-area linear program (or the last cell's dual

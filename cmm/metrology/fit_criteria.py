@@ -562,8 +562,10 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     the full 5-parameter problem. Proof: a branch and bound over the directions in the cone
     (``_direction_bound``; for the minimum zone over the axes passing near the LS axis at the data centre, see
     CENTRE_FORMS) gives a lower bound on every other cylinder's value there; when the
-    reported value is within PROOF_GAP of it, no warning, else a warning with the gap. An arc (< 300 degrees
-    covered) is not searched for a proof and always carries the warning.
+    reported value is within PROOF_GAP of it, no warning, else a warning with the gap. The result's ``proof``
+    records the domain and the outcome (``proven``, ``cone_deg``, ``gap_um``, ``cells``, ``near_cells``; minimum
+    zone ``centre_mm``). An arc (< 300 degrees covered) is not searched for a proof (``proof`` None) and always
+    carries the warning.
     """
     ls = fit_ls.fit_cylinder(points, nominal=nominal)
     data = _prepare(points, "cylinder", 3)
