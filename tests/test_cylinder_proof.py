@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import knownanswer as ka
+from cmm.metrology import cylinder_proof as cp
 from cmm.metrology import fit_criteria as fc
 from cmm.metrology import fit_ls
 from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball
@@ -66,7 +67,7 @@ def test_minzone_of_a_short_rough_band_is_honestly_not_proven():
                   r"to within ([\d.e-]+) mm", w)
     assert m, w
     assert float(m.group(1)) == pytest.approx(np.degrees(np.arctan(5.0 / 40.0)), abs=0.2)
-    assert float(m.group(3)) > fc.PROOF_GAP and "global optimum is not proven" in w
+    assert float(m.group(3)) > cp.PROOF_GAP and "global optimum is not proven" in w
     assert res.form <= fit_ls.fit_cylinder(data.points).form
 
 
@@ -99,9 +100,9 @@ def test_a_bound_from_a_subset_holds_for_every_point(method):
     for tilt, delta in ((0.0, 0.01), (0.3, 0.005), (2.0, 0.02)):
         u = unit(frame_with_axis(ls.direction) @ np.array([np.tan(np.radians(tilt)), 0.0, 1.0]))
         if method == "minzone":
-            lower = fc._zone_cell_bound(sub, foot, centre_range, best)(u, delta)
+            lower = cp._zone_cell_bound(sub, foot, centre_range, best)(u, delta)
         else:
-            lower = fc._ball_cell_bound(sub, method)(u, delta)
+            lower = cp._ball_cell_bound(sub, method)(u, delta)
         for v in _cell_samples(u, delta, 4, 11):
             f = frame_with_axis(v)[:, :2]
             flat = xs @ f
@@ -130,7 +131,7 @@ def test_an_optimum_near_the_start_is_proven_with_its_neighbourhood_bounded(meth
     data = ka.cylinder(C3, [0.2, 0.3, 0.9], 20.0, m=300, length=40.0, form=0.01)
     ls = fit_ls.fit_cylinder(data.points)
     seen = []
-    real = fc._direction_bound
+    real = cp._direction_bound
 
     def spy(cell_bound, u0, best, u_best, cone):
         def recording(u, delta):
@@ -139,13 +140,13 @@ def test_an_optimum_near_the_start_is_proven_with_its_neighbourhood_bounded(meth
             return value
         return real(recording, u0, best, u_best, cone)
 
-    monkeypatch.setattr(fc, "_direction_bound", spy)
+    monkeypatch.setattr(cp, "_direction_bound", spy)
     res = fc.fit("cylinder", data.points, method)
     tilt = np.degrees(np.arccos(min(1.0, abs(float(res.direction @ ls.direction)))))
-    assert tilt < fc.NEAR_DEG  # the case this test is about
-    assert res.warnings == () and res.proof["proven"] and res.proof["gap_um"] <= fc.PROOF_GAP * 1000
+    assert tilt < cp.NEAR_DEG  # the case this test is about
+    assert res.warnings == () and res.proof["proven"] and res.proof["gap_um"] <= cp.PROOF_GAP * 1000
     assert res.proof["cone_deg"] == pytest.approx(10.0) and res.proof["cells"] == len(seen)
-    near = [s for s in seen if s[0] + s[1] <= np.radians(fc.NEAR_DEG)]  # cells wholly inside the neighbourhood
+    near = [s for s in seen if s[0] + s[1] <= np.radians(cp.NEAR_DEG)]  # cells wholly inside the neighbourhood
     assert near and res.proof["near_cells"] >= len(near)
     # the optimum's own cell: bounded at a size where the bound reaches the proof target
     holding = [s for s in near if s[0] <= s[1]]
@@ -164,7 +165,7 @@ def test_a_short_band_records_its_narrower_cone_and_the_gap():
     proof = res.summary()["proof"]
     assert proof["cone_deg"] == pytest.approx(np.degrees(np.arctan(5.0 / 40.0)), abs=0.2)  # from the LS length
     assert f"within {proof['cone_deg']:.3g} degrees" in res.warnings[0]
-    assert not proof["proven"] and proof["gap_um"] > fc.PROOF_GAP * 1000
+    assert not proof["proven"] and proof["gap_um"] > cp.PROOF_GAP * 1000
     assert f"{proof['gap_um'] / 1000:.2g} mm" in res.warnings[0]
 
 
@@ -175,7 +176,7 @@ def test_the_inner_radius_bound_holds_over_the_centre_disc():
     r = 8.0 + rng.uniform(-0.01, 0.01, 200)
     rel = np.column_stack([r * np.cos(a), r * np.sin(a)]) + [0.03, -0.02]
     for reach in (0.0, 0.05, 0.3):
-        upper = fc._inner_radius_max(rel, reach)
+        upper = cp._inner_radius_max(rel, reach)
         b = rng.uniform(0, 2 * np.pi, 400)
         d = reach * np.sqrt(rng.uniform(0, 1, 400))[:, None] * np.column_stack([np.cos(b), np.sin(b)])
         d = np.vstack([d, reach * np.column_stack([np.cos(b), np.sin(b)])])
