@@ -189,12 +189,16 @@ def _fault_and_resume(page, station, size):
         bs.wait_until(lambda: panel.routine.steps[number - 1].get("skip"), 30.0, f"step {number} skipped")
     page.locator("li", has_text=re.compile(r"^LEFT: plane.*\(skipped\)")).first.wait_for()  # the step list
 
-    # a chip in the bore over its third hit's way down
+    # a chip in the bore on the third hit's way: halfway along the straight rapid inside the bore from the second
+    # hit's retract to the third hit's pre-hit point
     pose = np.asarray(station.sim.settings.part_pose, float)
     cfg = station.config.probe
     hits = panel.routine.program.feature(bore).hits
-    p, u = next((p, u) for h, p, u, _cz in machine_targets(panel.routine.program, pose) if h.id == hits[2])
-    station.sim.place_artifacts([(p - (cfg.tip_radius + cfg.approach_distance) * u + [0.0, 0.0, 6.0], 3.0)])
+    targets = {h.id: (p, u) for h, p, u, _cz in machine_targets(panel.routine.program, pose)}
+    (p2, u2), (p3, u3) = targets[hits[1]], targets[hits[2]]
+    retract = p2 - (cfg.tip_radius + cfg.retract_distance) * u2
+    pre = p3 - (cfg.tip_radius + cfg.approach_distance) * u3
+    station.sim.place_artifacts([((retract + pre) / 2, 2.0)])
     part = f"SN-0003-{size}"
     bs.text_field(page, "Part name").fill(part)
     bs.wait_until(lambda: panel.gui["part"].value == part, 30.0, "the part name at the station")
