@@ -101,7 +101,8 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
     page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
-    assert page.capp.measure.preview.nodes  # the planned path is drawn in this tab's scene
+    # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
+    bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
     if shot:
         bs.screenshot(page, shot)
     before = set(station.measurement.features)
@@ -135,7 +136,8 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
         page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
         assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
-        assert page.capp.measure.preview.nodes  # the planned path is drawn in this tab's scene
+        # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
+        bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
         bs.screenshot(page, "station-automeasure-plan")
         name_field.fill("TOP")  # the operator's name for it is kept
         bs.wait_until(lambda: page.capp.measure.gui["name"].value == "TOP", 20.0, "the typed name at the server")
