@@ -90,6 +90,12 @@ def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.
     return page.capp.measure.plan, station.measurement.features[fid]
 
 
+def _started(page, station, before) -> bool:
+    """The tab's auto-measure run has started (or already ended with its feature)."""
+    running = page.capp.measure.running
+    return (running is not None and running.is_alive()) or bool(set(station.measurement.features) - before)
+
+
 def automeasure_in_page(page, station, local_point, outward, hits_per_ring, proposal, shot=None):
     """Auto-measure a feature through the page: the pick a click on it sends, the hits per ring typed, Plan (the
     proposal and its path shown), Run (the feature measured and fitted against its CAD nominal)."""
@@ -97,7 +103,8 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
     page.get_by_label("Hits (per ring)", exact=True).press("Enter")
     page.wait_for_timeout(300)
-    page.get_by_role("button", name="Plan", exact=True).click(force=True)
+    planned_before = page.capp.measure.plan
+    bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not planned_before, "the plan")
     page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
     page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
@@ -106,8 +113,10 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     if shot:
         bs.screenshot(page, shot)
     before = set(station.measurement.features)
-    page.get_by_role("button", name="Run", exact=True).click(force=True)
-    bs.wait_until(lambda: set(station.measurement.features) - before, 90.0, f"the auto-measured {proposal}")
+    # pressed in the page (a click at the button's place can miss it while the panel re-lays out its path text)
+    bs.press_until(page, "Run", lambda: _started(page, station, before), "the run", every=30.0)
+    bs.wait_until(lambda: set(station.measurement.features) - before, 90.0, f"the auto-measured {proposal}",
+                  why=lambda: f"{page.capp.measure.progress!r}; told {page.capp.messages[-3:]}")
     (fid,) = set(station.measurement.features) - before
     feature = station.measurement.features[fid]
     page.get_by_text(f"done: {feature.name}").wait_for()
@@ -131,7 +140,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
         bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
-        page.get_by_role("button", name="Plan", exact=True).click(force=True)
+        bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not None, "the plan")
         page.get_by_text("4 hits · clearance plane").wait_for()
         name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
         page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
@@ -141,7 +150,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.screenshot(page, "station-automeasure-plan")
         name_field.fill("TOP")  # the operator's name for it is kept
         bs.wait_until(lambda: page.capp.measure.gui["name"].value == "TOP", 20.0, "the typed name at the server")
-        page.get_by_role("button", name="Run", exact=True).click(force=True)
+        bs.press_until(page, "Run", lambda: _started(page, station, set()), "the run", every=30.0)
         bs.wait_until(lambda: station.measurement.features, 90.0, "the auto-measured top face")
         (top,) = station.measurement.features.values()
         assert top.kind == "plane" and len(top.hit_ids) == 4
