@@ -294,14 +294,24 @@ def enter_sphere_certificate(page: Any, diameter: float, serial: str, uncertaint
     """Setup > Calibration: the reference sphere's certificate typed in its folder and saved."""
     open_tab(page, "Setup", "Calibration")
     page.get_by_text("Reference sphere certificate").click()
-    page.get_by_label("Diameter (mm)", exact=True).fill(f"{diameter}")
-    page.get_by_label("Diameter (mm)", exact=True).press("Enter")
-    text_field(page, "Serial").fill(serial)
-    page.get_by_label("U k=2 (um)", exact=True).fill(f"{uncertainty_um}")
-    page.get_by_label("U k=2 (um)", exact=True).press("Enter")
     panel = page.capp.calibration.gui
-    wait_until(lambda: (panel["cert_serial"].value, round(panel["cert_uncertainty"].value, 6))
-               == (serial, uncertainty_um), 30.0, "the typed certificate at the station")
+
+    def at_station() -> bool:
+        return (round(panel["cert_diameter"].value, 6), panel["cert_serial"].value,
+                round(panel["cert_uncertainty"].value, 6)) == (diameter, serial, uncertainty_um)
+    end = time.monotonic() + 90.0
+    while not at_station():  # typed again while the station has not heard it (a field still being laid out)
+        if time.monotonic() > end:
+            raise AssertionError("the typed certificate did not reach the station within 90 s")
+        page.get_by_label("Diameter (mm)", exact=True).fill(f"{diameter}")
+        page.get_by_label("Diameter (mm)", exact=True).press("Enter")
+        text_field(page, "Serial").fill(serial)
+        text_field(page, "Serial").press("Enter")
+        page.get_by_label("U k=2 (um)", exact=True).fill(f"{uncertainty_um}")
+        page.get_by_label("U k=2 (um)", exact=True).press("Enter")
+        again = time.monotonic() + 15.0
+        while not at_station() and time.monotonic() < again:
+            time.sleep(0.05)
     press(page, "Save certificate")
     page.get_by_text(serial).first.wait_for()
 

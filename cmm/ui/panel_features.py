@@ -203,6 +203,7 @@ class FeaturesPanel:
         self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
         self._nominal_shown: Any = None  # the feature (and its nominal) the nominal fields were filled from
         self.rows: dict[int, Any] = {}  # feature id -> its Show checkbox (Show > Each feature), one per tree row
+        self._row_view: dict[int, bool] = {}  # feature id -> shown in the view when its box was last synced
         self._rows_lock = threading.Lock()  # refresh runs in the refresher and after a selection
         self._gui_api: Any = None
 
@@ -408,6 +409,7 @@ class FeaturesPanel:
         with self._rows_lock:
             for fid in [f for f in self.rows if f not in feats]:
                 self.rows.pop(fid).remove()
+                self._row_view.pop(fid, None)
             for fid in sorted(feats):
                 name, kind = feats[fid]
                 label, shown = f"{fid} {name}", fid not in hidden
@@ -417,11 +419,16 @@ class FeaturesPanel:
                         box = self._gui_api.add_checkbox(label, shown, hint=f"draw {name} ({kind}) in the 3-D view")
                     box.on_update(lambda e, fid=fid: self.show_feature(fid, e.target.value))
                     self.rows[fid] = box
+                    self._row_view[fid] = shown
                     continue
                 if box.label != label:
                     box.label = label  # renamed
-                if box.value != shown:
-                    box.value = shown
+                # the box follows the view only when the view changed (another tab, Show all): a click whose
+                # callback has not run yet is not overridden by the view's state from before it
+                if self._row_view.get(fid) != shown:
+                    self._row_view[fid] = shown
+                    if box.value != shown:
+                        box.value = shown
 
     # --- read-outs -------------------------------------------------------------------------
 
