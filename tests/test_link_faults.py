@@ -612,3 +612,29 @@ def test_a_command_lost_on_the_way_right_after_start_up_is_sent_again_once(code)
     assert done == [1, 0, 0] and bus.stats["verified"] == 1
     st = x.read_status(codec.SEND_POS | codec.SEND_HOME)
     assert st.home_in_progress if code == codec.SET_HOMING else abs(st.home - 1500) <= 3
+
+
+@pytest.mark.parametrize("fault", [Fault("stall", "rx", duration=0.4), Fault("drop", "rx", count=2)],
+                         ids=lambda f: f.describe().replace(" ", "-"))
+def test_a_probing_move_whose_reply_was_lost_and_that_touched_before_the_check_is_known_carried_out(fault):
+    """A loaded host: the reply to a probing move's LOAD_TRAJ comes too late, and by the time the bus asks the
+    module, the probe has touched and the capture has stopped the axis short of its goal. The axis was at rest
+    before the command and nothing else moves it, so it moved because the command was carried out: the move is
+    not sent again and the touch is reported, not a link fault."""
+    net, port, bus, mods = parked()
+    x = mods[0]
+    starts = count_starts(net)
+    x.arm_home("limit1", "abrupt")
+    touch_at = PARK[1] + 400
+
+    def probe(network, tick):
+        if network.modules[0].pos >= touch_at:
+            network.set_inputs(0, limit1=True)
+
+    net.add_tick_hook(probe)
+    port.inject(fault)
+    x.load_position(PARK[1] + 9000, VEL, ACC)  # START_NOW position move, toward the touch 400 counts ahead
+    st = x.wait_move_done(5.0)
+    assert starts[0] == 1 and bus.stats["verified"] == 1
+    assert not st.home_in_progress and touch_at <= st.position < touch_at + 200
+    assert positions_ok(mods[1:], PARK) == []

@@ -191,6 +191,9 @@ class Bus:
         self._before: dict[int, tuple[Reading | None, int | None]] = {}  # address -> (last position
         # reply, home value) when a SET_HOMING, SAVE_AS_HOME or RESET_POS was sent to it
         self._free: set[int] = set()  # modules not under position servo (PWM mode, motor off): any speed
+        # address -> the last reply before a motion start was sent, when it showed the axis standing under servo
+        # (move done): nothing but that command can have moved it since
+        self._held: dict[int, Reading] = {}
         self._command_at = 0.0  # when the command being transacted was first sent (nothing it did is older)
         # address -> replies in a row that showed the module at rest (move done, same position as the one before);
         # 0 after a motion command. A module not in it stands as it powered up. See :meth:`still`.
@@ -404,6 +407,11 @@ class Bus:
                 code == codec.STOP_MOTOR and data and data[0] & codec.STOP_HERE):
             for a in members:
                 self._calm[a] = 0  # it may move from now on, until its replies show it at rest
+                last = self._last.get(a)
+                if last is not None and last.status & codec.MOVE_DONE and a not in self._free:
+                    self._held[a] = last
+                else:
+                    self._held.pop(a, None)
         # (any other STOP_MOTOR starts no motion: an axis standing still stays so, and a stop's missed reply is
         # retried as patiently as any other while all stands; STOP_HERE servos to a position: it may move)
         if code == codec.LOAD_TRAJ:
@@ -682,7 +690,13 @@ class Bus:
             if last is not None and abs(goal - last[0]) <= GOAL_TOLERANCE:
                 continue  # this axis does not move: it tells nothing
             st = self._query(a, codec.SEND_POS)
+            held = self._held.get(a)
             if not st.move_done or abs((st.position or 0) - goal) <= GOAL_TOLERANCE:
+                started.append(a)
+            elif held is not None and abs((st.position or 0) - held.position) > REST_TOLERANCE:
+                # it stood under servo before the command and now stands elsewhere: nothing else moves it, so
+                # the command was carried out and something stopped it short (a probe touch on a loaded host
+                # whose reply came late: the capture stopped the axis before the bus asked)
                 started.append(a)
             elif (last is not None and abs((st.position or 0) - last[0]) <= REST_TOLERANCE and not st.pos_error
                   and not (a in self._armed and not st.home_in_progress)):
@@ -1060,6 +1074,7 @@ class Bus:
                 self.items.clear()
                 self.leaders.clear()
                 self._last.clear()
+                self._held.clear()
                 self._buffered.clear()
                 self._armed.clear()
                 self._free.clear()
@@ -1164,6 +1179,7 @@ class Bus:
             for info in self.modules:
                 self.resync(info.address)
             self._last.clear()
+            self._held.clear()
             return list(self.modules)
 
     def set_group(self, address: int, group: int, *, leader: bool = False) -> None:
