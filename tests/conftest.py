@@ -21,18 +21,22 @@ def sim_machine():
     machine.close()
 
 
-REAL_TIME_FILES = {"test_link_process.py", "test_kill9.py", "test_calibrate_tcp.py", "test_sim_process.py"}
+# Test files in the order the two xdist workers should start them, the longest first (wall seconds of a quiet
+# 2-core run, most to least), so that no long file starts last and keeps one worker busy alone at the end
+# (longest-processing-time-first: pyproject.toml runs --dist loadfile --no-loadscope-reorder, which keeps this
+# order instead of xdist's "most tests first"). Files not listed follow in collection order. Scheduling only:
+# every file runs alone as well.
+LONGEST_FIRST = (
+    "test_browser_station.py", "test_browser_routine.py", "test_browser_viser.py", "test_browser_colour_map.py",
+    "test_browser_walk.py", "test_routine.py", "test_browser_view_keys.py", "test_browser.py",
+    "test_calibration_geometry.py", "test_browser_probes.py", "test_dmis_routine_export.py", "test_dmis.py",
+    "test_path_preview.py", "test_link_process.py", "test_calibrate_tcp.py", "test_calibration_probe.py",
+    "test_ippdme_nist.py", "test_session_station.py", "test_program.py", "test_control.py",
+    "test_calibration_probes.py", "test_dmis_statements.py",
+)
 
 
 def pytest_collection_modifyitems(config, items):
-    """The groups for ``--dist loadgroup``, which does not group with pytest 9.2 and xdist 3.8 (pyproject.toml runs
-    ``--dist loadfile``: a test file stays in one worker, but browser files may run beside each other). The intent:
-    two xdist workers, a test file stays in one worker (its module fixtures are built once),
-    and all browser tests share one worker, so two software-rendered WebGL browsers never compete for the two
-    cores while their wall-time-paced jogs are timed. The real-time tests on a served simulator join that worker:
-    their simulator and link processes run at raised priority and starved a browser beside them of CPU (its hold
-    events came over 1 s apart)."""
-    for item in items:
-        path = item.nodeid.split("::", 1)[0]
-        timed = item.get_closest_marker("browser") or path.rsplit("/", 1)[-1] in REAL_TIME_FILES
-        item.add_marker(pytest.mark.xdist_group("browser" if timed else path))
+    """Longest files first (see LONGEST_FIRST); a file's tests stay together and in their order (a stable sort)."""
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::", 1)[0].rsplit("/", 1)[-1], len(rank)))

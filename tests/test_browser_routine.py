@@ -142,10 +142,18 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
 
 
 def choose_step(page, number):
-    """Select step ``number`` (1-based) in the Step dropdown, as the operator does."""
-    page.get_by_label("Step", exact=True).click(force=True)
-    page.get_by_role("option", name=re.compile(rf"^{number}\. ")).first.click(force=True)
-    page.wait_for_timeout(300)
+    """Select step ``number`` (1-based) in the Step dropdown, as the operator does, until the station has it (a
+    choice made while the list is re-drawn can be lost; a Skip pressed then would skip the step chosen before)."""
+    chosen = page.capp.routine.gui["step"]
+    for _ in range(4):
+        page.get_by_label("Step", exact=True).click(force=True)
+        page.get_by_role("option", name=re.compile(rf"^{number}\. ")).first.click(force=True)
+        try:
+            bs.wait_until(lambda: str(chosen.value).startswith(f"{number}. "), 10.0, f"step {number} chosen")
+            return
+        except AssertionError:
+            page.keyboard.press("Escape")
+    raise AssertionError(f"step {number} was not chosen at the station: it has {chosen.value!r}")
 
 
 @pytest.mark.parametrize("size", ["laptop", "tablet"])
@@ -185,8 +193,7 @@ def _fault_and_resume(page, station, size):
     assert panel.routine.steps[4]["kind"] == "feature" and bore.lower() == "bore"
     for number in (1, 2, 3, 4):  # this part is aligned: only the bore is measured
         choose_step(page, number)
-        press(page, "Skip")
-        bs.wait_until(lambda: panel.routine.steps[number - 1].get("skip"), 30.0, f"step {number} skipped")
+        bs.press_until(page, "Skip", lambda: panel.routine.steps[number - 1].get("skip"), f"step {number} skipped")
     page.locator("li", has_text=re.compile(r"^LEFT: plane.*\(skipped\)")).first.wait_for()  # the step list
 
     # a chip in the bore on the third hit's way: halfway along the straight rapid inside the bore from the second

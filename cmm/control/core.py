@@ -22,6 +22,7 @@ from ..machine.motion import Machine, MachineState
 from ..machine.probing import CyclePath, Hit, Prober
 from ..machine.status import MotionError, MoveStatus
 from ..nmc.bus import IDLE_PATIENCE, NmcError, Preempted
+from ..nmc.transport import rest
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
@@ -909,7 +910,14 @@ class Controller:
         self.loop_priority_raised = raise_priority_on(self.clock)
         while self._running:
             self.poll()
-            self.clock.sleep(self.poll_pause)
+            if self._idle():
+                rest(self.clock, self.poll_pause)  # on an uncapped simulator clock: no racing ahead at full CPU
+            else:
+                self.clock.sleep(self.poll_pause)
+
+    def _idle(self) -> bool:
+        """Nothing moves and nothing waits on the machine: no motion, job, homing or probe cycle."""
+        return self.machine.motion is None and self._job is None and not self._homing and not self._probing
 
     def run_for(self, seconds: float) -> None:
         """Drive the loop for ``seconds`` of machine time (no thread: scripts and tests on the virtual clock)."""

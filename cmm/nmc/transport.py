@@ -27,7 +27,16 @@ class Clock(Protocol):
     def now(self) -> float: ...
     def sleep(self, seconds: float) -> None: ...
 
-    # optional: ``virtual`` True for a simulated clock that only runs while the host waits
+    # optional: ``virtual`` True for a simulated clock that only runs while the host waits; ``rest(seconds)`` a
+    # sleep of a host with nothing to do (see :func:`rest`)
+
+
+def rest(clock: object, seconds: float) -> None:
+    """Sleep ``seconds`` of machine time with nothing moving and no job waiting on the machine. On the simulator's
+    uncapped virtual clock this also waits that long in wall time: an idle loop that only slept in machine time
+    would race the simulated clock ahead at full CPU (a core spent on nothing, starving a browser or a test beside
+    it). Other clocks just sleep."""
+    getattr(clock, "rest", clock.sleep)(seconds)  # type: ignore[attr-defined]
 
 
 def is_virtual(clock: object) -> bool:

@@ -117,3 +117,6 @@ class Serial(SerialBase):
 
     def sleep(self, seconds: float) -> None:
         self._linked().sleep(seconds)
+
+    def rest(self, seconds: float) -> None:
+        self._linked().rest(seconds)

@@ -141,6 +141,12 @@ class SimTransport:
                 net.sync()
         return net.now_ns * 1e-9
 
+    def rest(self, seconds: float) -> None:
+        """A sleep of a host with nothing to do (:func:`cmm.nmc.transport.rest`): uncapped, also in wall time."""
+        self.sleep(seconds)
+        if not self.network.realtime and not self.network.pace and seconds > 0:
+            time.sleep(seconds)
+
     def sleep(self, seconds: float) -> None:
         net = self.network
         if seconds <= 0:
