@@ -9,7 +9,11 @@ not depend on how busy the computer is):
   the Measure tab makes: a feature's first hit over the clearance plane, the
   others straight or over the feature's hop height where the rails prove it free);
 - an I++ DME sequence, GoTo over a point then PtMeas on it, as a commercial
-  front end sends it.
+  front end sends it;
+- the program taught from the auto-measure session, run by the program runner
+  (``run_program``, what the ``run_program`` command runs), its hits
+  over the clearance height and hopping within each feature (machine s/hit and
+  the as-run bound only).
 
 Two bounds, each the time trapezoid profiles need (a triangle on short lines)
 with a stop at every corner and no time between moves:
@@ -172,6 +176,22 @@ def ippdme_ptmeas(station: Station, log: LineLog, points: int) -> None:
         server.close()
 
 
+def program_run(station: Station, log: LineLog) -> None:
+    from cmm.measurement.program import run_program
+    from cmm.session.program import teach
+    from cmm.session.store import open_session
+
+    model, clock = station.measurement, station.machine.clock
+    program = teach(open_session(model.journal.path), name="cycle time", part_mesh=model.part.mesh,
+                    part_nominals=model.part.nominal_features)
+    for hops in (False, True):
+        mark, t0 = log.mark(), clock.now()
+        station.controller.run_job(None, "program", lambda: run_program(program, model, hops=hops))
+        t, b, n = clock.now() - t0, log.bound_since(mark), len(program.hits)
+        print(f"{'program, ' + ('hops' if hops else 'over the clearance'):38s} {n:3d} hits  {t / n:5.2f} machine s/hit  "
+              f"as-run bound {b / n:5.2f} s/hit (ratio {t / b:4.2f})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, default=8, help="I++ PtMeas cycles")
@@ -187,6 +207,7 @@ def main() -> None:
             station.measurement.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
             log = LineLog(station.machine)
             auto_measure(station, log)
+            program_run(station, log)  # from the auto-measure session (the I++ one opens a session of its own)
             ippdme_ptmeas(station, log, args.points)
         finally:
             station.close()

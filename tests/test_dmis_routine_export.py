@@ -12,7 +12,7 @@ from cmm.dmis.check import check
 from cmm.dmis.export import to_dmis
 from cmm.dmis.runner import run_text
 from cmm.measurement.plan import plan_at_pick, run_plan
-from cmm.measurement.routine import teach_routine
+from cmm.measurement.routine import routine_path, teach_routine
 from cmm.metrology.transform import invert
 from cmm.session.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
@@ -148,3 +148,56 @@ def test_a_line_in_a_routine_is_exported_as_a_bounded_line_in_its_face_and_measu
     g = run.actuals["EDGE"].geometry
     d = TRUE_PART_POSE[:3, :3].T @ np.asarray(g["direction"], float)  # the measured line, in part axes
     assert abs(d[0]) == pytest.approx(np.cos(np.arctan2(1.0, 90.0)), abs=1e-3)
+
+
+def test_an_exported_features_later_hits_hop_as_the_routine_runner_and_measure_the_same(station):
+    """With the part mesh the exporter writes a feature's later hits as the routine runner takes them (the rails'
+    hop: straight or over the feature's local top, GOTO points between the PTMEAS statements, none up at the
+    clearance height); the program checks, runs on the simulator in less machine time per hit and measures the
+    same plane as the export without the mesh (every hit over the clearance height)."""
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    name, origin, direction = FACES[0]  # the top face
+    picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
+    run_plan(model, plan_at_pick(model, picked[0].face_id, n=5), name=name)
+    routine = teach_routine(open_session(model.journal.path), name="top", part_mesh=model.part.mesh,
+                            part_nominals=model.part.nominal_features)
+    program, top = routine.program, routine.program.hits[0].clearance_z
+    probe = station.config.probe
+    kw = dict(tip_radius=station.prober.settings.tip_radius, approach=probe.approach_distance,
+              search=probe.search_distance, retract=probe.retract_distance)
+    texts = {False: to_dmis(program, TRUE_PART_POSE, **kw),
+             True: to_dmis(program, TRUE_PART_POSE, mesh=model.part.mesh, **kw)}
+    gotos = {k: [[float(x) for x in ln.split("GOTO/")[1].split(", ")] for ln in t.splitlines() if "GOTO/" in ln]
+             for k, t in texts.items()}
+    assert all(g[2] == pytest.approx(top) for g in gotos[False])  # every hit up and over the clearance height
+    high = [g for g in gotos[True] if g[2] >= top - 1e-6]
+    assert len(high) == 2  # up for the first hit, back up after the last: the others hop
+    assert check(texts[True])[1] == []
+    # the routine runner's path: each later hit straight, or over the same height as the exported GOTOs
+    heights, goto = [], []
+    for ln in texts[True].split("MEAS/PLANE")[1].splitlines()[1:]:
+        if "GOTO/" in ln:
+            goto.append(float(ln.split(", ")[-1]))
+        elif "PTMEAS/" in ln:
+            heights.append(max(goto) if goto else None)
+            goto = []
+    cycles = routine_path(routine, station.controller, TRUE_PART_POSE, mesh=model.part.mesh).cycles
+    assert [None if len(c.rapid) == 1 else pytest.approx(max(q[2] for q in c.rapid) - TRUE_PART_POSE[2, 3])
+            for c in cycles[1:]] == heights[1:]
+    assert None in heights[1:]  # the rails prove some of the lines over the top face straight
+    results = {}
+    for hops, text in texts.items():
+        above = TRUE_PART_POSE @ np.array([60.0, 40.0, top, 1.0])
+        answer = station.controller.commands.call(None, "move", {"target": above[:3].tolist(), "frame": "machine",
+                                                                  "path": "clearance"}, wait=True, timeout=120)
+        assert answer.ok, answer.error
+        t0 = station.machine.clock.now()
+        run = run_text(text, station, name=f"top {hops}")
+        results[hops] = ((station.machine.clock.now() - t0) / len(program.hits), run.actuals["TOP"].geometry)
+    (s_over, over), (s_hop, hop) = results[False], results[True]
+    print(f"exported top plane: {s_over:.2f} machine s/hit over the clearance height, {s_hop:.2f} hopping")
+    assert s_hop < 0.9 * s_over
+    n1, n2 = np.asarray(over["normal"], float), np.asarray(hop["normal"], float)
+    assert abs(n1 @ n2) > 1 - 1e-6
+    assert abs((np.asarray(hop["point"], float) - np.asarray(over["point"], float)) @ n1) < TOL

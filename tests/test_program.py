@@ -169,3 +169,44 @@ def test_a_program_run_on_the_station_journals_its_features_with_their_tolerance
     s = load_session(DirectoryStore(tmp_path), "station-run")
     assert {f.name: f.tolerance for f in s.features.values()} == tolerances
     assert any("program 'sample-part check' finished" in text for _, text in s.state.notes)
+
+
+def test_a_programs_later_hits_of_a_feature_hop_below_the_clearance_height_and_fit_the_same(taught, tmp_path):
+    """The CLI's program runner hops within a feature as the routine runner does: on the station (rails, the part
+    mesh) the plane's later hits never climb to the clearance height, each takes less machine time (the
+    simulator's virtual clock) and the fitted plane is the one the clearance route gives, within probing noise."""
+    from cmm.sim.cmm_sim import TRUE_PART_POSE
+    from cmm.station import Station
+
+    program = prog.from_toml(prog.to_toml(taught))
+    program.features = [f for f in program.features if f.name == "top_plane"]
+    program.hits = [h for h in program.hits if h.id in program.features[0].hits]
+    assert len(program.hits) >= 4
+    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start("program-hops", home=True)
+    try:
+        model = station.measurement
+        model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+        clearance = min(cz for *_, cz in prog.machine_targets(program, TRUE_PART_POSE))  # the hits' own
+        runs = {}
+        for hops in (False, True):
+            zs, done = [], []
+            station.sim.network.add_tick_hook(lambda net, tick: zs.append(station.sim.axis_readings()[2]))
+            clock = station.machine.clock
+            try:
+                run = station.controller.run_job(None, "program", lambda: run_program(
+                    program, model, progress=lambda k, n: done.append((len(zs), clock.now())), hops=hops))
+            finally:
+                station.sim.network.tick_hooks.pop()
+            later = zs[done[0][0]:done[-1][0]]  # the tip from the first hit's end to the last one's
+            per_hit = (done[-1][1] - done[0][1]) / (len(done) - 1)
+            runs[hops] = (max(later), per_hit, _part_coords(run.features["top_plane"], TRUE_PART_POSE))
+    finally:
+        station.close()
+    (z_over, s_over, over), (z_hop, s_hop, hop) = runs[False], runs[True]
+    print(f"top plane, later hits: over the clearance height {s_over:.2f} machine s/hit (Z up to {z_over:.1f}), "
+          f"hopping {s_hop:.2f} machine s/hit (Z up to {z_hop:.1f})")
+    assert z_over > clearance - 0.5  # every hit over the clearance height
+    assert z_hop < clearance - 5.0  # the later hits hop low over the plane
+    assert s_hop < 0.9 * s_over  # the hits lie far apart: most of the time is the travel across
+    assert hop["offset"] == pytest.approx(over["offset"], abs=5 * COUNT)
+    assert np.allclose(hop["normal"], over["normal"], atol=1e-4)

@@ -17,6 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "default 190,150,0: the station's nominal set-up")
     p.add_argument("--tip-radius", type=float, default=None, help="stylus tip radius (default: the configuration's)")
     p.add_argument("--config", metavar="FILE", help="machine configuration TOML (probe distances, tip)")
+    p.add_argument("--part", metavar="FILE", help="the part the program was taught on (STL, OBJ, PLY): a feature's "
+                   "later hits then hop over it as the routine runner's; without it every hit goes over its "
+                   "clearance height")
 
 
 def run(args: Any) -> int:
@@ -40,9 +43,24 @@ def run(args: Any) -> int:
     except ProgramError as exc:
         print(f"cmm dmis-export: {exc}", file=sys.stderr)
         return 1
+    mesh = None
+    if args.part:
+        from ..metrology.mesh import load_part
+        from ..session.model import file_sha256, mesh_sha256
+
+        try:
+            mesh = load_part(args.part)
+            sums = {file_sha256(args.part), mesh_sha256(mesh)}  # as a loaded part's, or of a mesh made in memory
+        except (OSError, ValueError) as exc:
+            print(f"cmm dmis-export: cannot read the part {args.part}: {exc}", file=sys.stderr)
+            return 1
+        if program.part_sha256 not in sums:
+            print(f"cmm dmis-export: {args.part} is not the part {program.part_name!r} the program was taught on",
+                  file=sys.stderr)
+            return 1
     probe = load_config(args.config).probe
     text = to_dmis(program, pose, tip_radius=args.tip_radius or probe.tip_radius, approach=probe.approach_distance,
-                   search=probe.search_distance, retract=probe.retract_distance)
+                   search=probe.search_distance, retract=probe.retract_distance, mesh=mesh)
     out = Path(args.output) if args.output else Path(Path(args.program).stem + ".dmi")
     out.write_text(text, encoding="utf-8")
     print(f"wrote {out}: {len(program.features)} features, {len(program.hits)} hits")

@@ -2,10 +2,13 @@
 
 The program's hits are in part coordinates; the DMIS program places the part with ``D(PART) = TRANS/..`` and
 ``ROTAT`` statements from a part pose (part -> machine: the set-up the program will run on, by default the
-station's nominal set-up), then measures each feature with ``MEAS .. PTMEAS .. ENDMES``, reaching every hit as the
-station's program runner does: up to the hit's clearance height, across, straight down to the pre-hit point, and
-back up. Each feature gets a ``FEAT`` nominal (the taught nominal, else the ideal geometry through its nominal
-hit points) and ``TOL`` statements from its tolerance (size, form, position), and is output with them.
+station's nominal set-up), then measures each feature with ``MEAS .. PTMEAS .. ENDMES``, reaching its hits as the
+station's routine runner does: the first up at its clearance height, across and straight down to the pre-hit
+point; with the part mesh the later ones straight from the last hit, else over the feature's local top, where the
+rails prove that free of the part (:mod:`cmm.dmis.export_hops`: GOTO points between the PTMEAS statements), else
+over the clearance height; back up after the last. Each feature gets a ``FEAT`` nominal (the taught nominal, else
+the ideal geometry through its nominal hit points) and ``TOL`` statements from its tolerance (size, form,
+position), and is output with them.
 
 A routine's steps are followed in their order, skipped steps left out: a 3-2-1 alignment measures its three datum
 planes and sets ``D(ALIGN) = DATSET/..`` from them (then ``TRANS``/``ROTAT`` back to the part's own origin, so
@@ -26,6 +29,7 @@ from ..metrology import fit_ls
 from ..metrology.construct import construct
 from ..metrology.pick import NominalFeature
 from .frames import datum_frame, inverse
+from .export_hops import hop_gotos
 from .features import WORDS, Nominal, from_model_nominal, nominal_line
 
 FORM_WORDS = {"plane": "FLAT", "line": "STRGHT", "circle": "CIRLTY", "cylinder": "CYLCTY"}
@@ -56,6 +60,10 @@ def _euler_zyx(R: np.ndarray) -> tuple[float, float, float]:
 
 def _f(x: float) -> str:
     return f"{x + 0.0:.4f}"
+
+
+def _goto(q: Any) -> str:
+    return "  GOTO/" + ", ".join(_f(x) for x in q)
 
 
 def _ideal(kind: str, points: np.ndarray) -> NominalFeature | None:
@@ -142,9 +150,11 @@ def _align_lines(datums: list[str], labels: dict[str, str], planes: dict[str, No
 
 
 def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach: float = 2.0, search: float = 3.0,
-            retract: float = 1.0) -> str:
+            retract: float = 1.0, mesh: Any = None) -> str:
     """The DMIS text of a taught ``program`` for the part at ``pose`` (part -> machine; default: none, the part
-    coordinates are the machine's), its routine steps in their order."""
+    coordinates are the machine's), its routine steps in their order. With the part's ``mesh`` (part
+    coordinates) a feature's later hits hop as the routine runner's (:mod:`cmm.dmis.export_hops`); without it
+    every hit goes over its clearance height."""
     P = np.eye(4) if pose is None else np.asarray(pose, float)
     hits = {h.id: h for h in program.hits}
     used: set[str] = set()
@@ -195,16 +205,13 @@ def to_dmis(program: Any, pose: Any = None, *, tip_radius: float = 1.0, approach
             else:
                 out.append(f"F({label}) = FEAT/{word}, CART, " + ", ".join(_f(x) for x in (*c, *n)))
         out.append(f"MEAS/{word}, F({label}), {len(f.hits)}")
-        for i in f.hits:
-            h = hits[i]
-            p, u = np.array(h.point, float), np.array(h.approach, float)
-            pre = p - (tip_radius + approach) * u
-            top = max(float(h.clearance_z), float(pre[2]))
-            out.extend([f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}",
-                        f"  PTMEAS/CART, {_f(p[0])}, {_f(p[1])}, {_f(p[2])}, "
-                        + ", ".join(f"{-x + 0.0:.6f}" for x in u),
-                        f"  GOTO/{_f(pre[0])}, {_f(pre[1])}, {_f(top)}"])
-        out.append("ENDMES")
+        before, after = hop_gotos([hits[i] for i in f.hits], mesh, tip_radius=tip_radius, approach=approach,
+                                  retract=retract)
+        for i, gotos in zip(f.hits, before):
+            p, u = np.array(hits[i].point, float), np.array(hits[i].approach, float)
+            out.extend([_goto(q) for q in gotos] + [f"  PTMEAS/CART, {_f(p[0])}, {_f(p[1])}, {_f(p[2])}, "
+                                                    + ", ".join(f"{-x + 0.0:.6f}" for x in u)])
+        out.extend([_goto(after), "ENDMES"])
         refs = [f"FA({label})"]
         tol = f.tolerance or {}
         if "size" in tol and f.kind in ("circle", "cylinder", "sphere") and nf is not None:

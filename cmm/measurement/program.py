@@ -1,21 +1,28 @@
 """Run a taught measurement program (:mod:`cmm.session.program`) on a measurement model.
 
 :func:`run_program` checks the program against the loaded part and the machine's travel BEFORE anything moves
-(:func:`cmm.session.program.check`), then probes every hit through the model (over its clearance height) and
-fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
+(:func:`cmm.session.program.check`), then probes every hit through the model and fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
 as a job of the control core (:func:`run_on`), so it holds the machine like any other command. When the model
 records trends (``model.trends``, :class:`cmm.session.trends.Trends`), the run is a part of the program's
 series: every characteristic of its features, with the part's ``serial``.
+
+A feature's first hit arrives over its clearance height; its later hits (the program's consecutive hits of one
+feature) hop as the routine runner's do (:func:`hop_targets`, :func:`cmm.metrology.hops.with_hops`): straight
+where the control core's rails prove the line free of the part mesh, else over the feature's local top, else
+over the clearance height. A model without rails (:func:`cmm.measurement.recording.record`) takes every hit
+over its clearance height.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import groupby
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
+from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
 from ..session.program import Program, ProgramError, check, load, machine_targets
 from .model import Feature, MeasurementModel
@@ -35,12 +42,29 @@ class ProgramRun:
     part: Any = None  # the trends record (cmm.session.trends.PartResult) when the model records trends
 
 
+def hop_targets(program: Program, pose: Any, mesh: Any, tip_radius: float) -> list[tuple]:
+    """(hit, machine point, approach, clearance Z, hop Z or None) for every hit in the program's order: each run of
+    consecutive hits of one feature gets its hop heights as the routine runner's (:func:`with_hops`: None for
+    the first, the feature's local top for the others); a hit of no feature, or without ``mesh``, none."""
+    owner: dict[int, str] = {}
+    for f in program.features:
+        for i in f.hits:
+            owner.setdefault(i, f.name)
+    out: list[tuple] = []
+    targets = machine_targets(program, np.asarray(pose, float))
+    for _, run in groupby(targets, key=lambda t: owner.get(t[0].id, f"#{t[0].id}")):
+        run = list(run)
+        out += [(t[0], *h) for t, h in zip(run, with_hops([t[1:] for t in run], mesh, pose, tip_radius))]
+    return out
+
+
 def run_program(program: Program, model: MeasurementModel, part_pose: Any = None, *,
                 progress: Callable[[int, int], None] | None = None, timeout: float = 120.0,
-                serial: str = "", cancelled: Callable[[], bool] = lambda: False) -> ProgramRun:
+                serial: str = "", cancelled: Callable[[], bool] = lambda: False, hops: bool = True) -> ProgramRun:
     """Run ``program`` on ``model`` with the part at ``part_pose`` (part -> machine; default: the model's
     current part pose, i.e. its last alignment). ``cancelled()`` is asked before every hit: when it says so the
-    run ends there (ProgramError), the hits taken stay recorded."""
+    run ends there (ProgramError), the hits taken stay recorded. A feature's later hits hop within it
+    (:func:`hop_targets`); ``hops=False`` takes every hit over its clearance height."""
     if not isinstance(model, MeasurementModel):
         raise TypeError(f"a program runs on a measurement model, not on {type(model).__name__}")
     part = model.part
@@ -48,13 +72,13 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
     check(program, part, pose, model.machine, model.prober.settings.tip_radius)
     model.note(f"program {program.name!r} started ({len(program.hits)} hits, {len(program.features)} features)")
     ids: dict[int, int] = {}
-    targets = machine_targets(program, pose)
-    for k, (h, p, u, cz) in enumerate(targets):
+    targets = hop_targets(program, pose, part.mesh if hops else None, float(model.prober.settings.tip_radius))
+    for k, (h, p, u, cz, hop) in enumerate(targets):
         if cancelled():
             model.note(f"program {program.name!r} cancelled after {k} of {len(targets)} hits")
             raise ProgramCancelled(f"program {program.name!r} cancelled after {k} of {len(targets)} hits; "
                                "the hits taken stay recorded")
-        hit = model.probe(p, u, clearance_z=cz).wait(timeout)
+        hit = model.probe(p, u, clearance_z=cz, hop_z=hop).wait(timeout)
         ids[h.id] = model.hit_id(hit)
         if progress is not None:
             progress(k + 1, len(targets))

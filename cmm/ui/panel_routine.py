@@ -30,7 +30,7 @@ from typing import Any
 
 from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, RoutinePath, RoutineRun, routine_path,
                                    teach_routine)
-from ..session.program import ProgramError, load
+from ..session.program import ProgramError, load, part_hash
 from ..session.store import open_session
 from .context import OPERATOR_ERRORS, PanelContext
 from .path_preview import PathPreview
@@ -125,7 +125,8 @@ class RoutinePanel:
 
     def export_dmis(self, path: str) -> Path | None:
         """Write the routine as a DMIS program, ``<routine name>.dmi`` beside its routine file (``path``, as Save
-        takes it), for the part where the station has it now; offered to the browser as a download."""
+        takes it), for the part where the station has it now (a feature's later hits hop over its mesh as the
+        routine runner's); offered to the browser as a download."""
         from ..dmis.export import to_dmis
 
         if self.routine is None:
@@ -134,12 +135,14 @@ class RoutinePanel:
         part = self.station.measurement.part
         pose = part.pose if part is not None else [[1, 0, 0, 190.0], [0, 1, 0, 150.0], [0, 0, 1, 0], [0, 0, 0, 1]]
         probe = self.station.config.probe
+        # the part the routine was taught on: its later hits of a feature hop over its mesh as the runner's
+        mesh = part.mesh if part is not None and part_hash(part) == self.routine.program.part_sha256 else None
         stem = re.sub(r"[^\w.-]+", "_", self.routine.name).strip("._") or "routine"
         out = self._path(path).parent / f"{stem}.dmi"
         try:
             text = to_dmis(self.routine.program, pose, tip_radius=probe.tip_radius,
                            approach=probe.approach_distance, search=probe.search_distance,
-                           retract=probe.retract_distance)
+                           retract=probe.retract_distance, mesh=mesh)
             out.write_text(text, encoding="utf-8")
         except OSError as exc:
             self.ctx.error(f"cannot write {out}: {exc.strerror or exc}", "Export DMIS")
