@@ -534,3 +534,62 @@ class JogRecord:
         released = min(r for r in self.releases if r >= since)
         wait_until(lambda: self._standstill(max(self.releases)) is not None, 60.0, f"the stop after {what}")
         return released, self._standstill(released) - released, self._standstill(max(self.releases))
+
+
+# A button pressed only where an operator could press it: scrolled into view (first as little as needed, then to the
+# middle of its scroll box, as a hand scrolls a button out from under the sticky status bar), inside the viewport
+# and on top at its centre (not under the status bar, a toast or another panel); then clicked, in the same task as
+# the check so a re-layout cannot come between. Returns why it could not be pressed, or "" once pressed.
+PRESS_ON_SCREEN_JS = """b => {
+  let why = "";
+  for (const block of ["nearest", "center"]) {
+    b.scrollIntoView({ block, inline: "nearest" });
+    const r = b.getBoundingClientRect();
+    if (r.width < 1 || r.height < 1) { why = "it has no size"; continue; }
+    if (r.left < 0 || r.top < 0 || r.right > window.innerWidth + 0.5 || r.bottom > window.innerHeight + 0.5) {
+      why = `off-screen at (${r.left.toFixed(0)}, ${r.top.toFixed(0)})-(${r.right.toFixed(0)}, ${r.bottom.toFixed(0)}) `
+        + `in a ${window.innerWidth} x ${window.innerHeight} viewport`;
+      continue;
+    }
+    const top = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+    if (!top || !(top === b || b.contains(top))) {
+      why = `covered at its centre by ${top ? top.outerHTML.slice(0, 160) : "nothing"}`;
+      continue;
+    }
+    b.click();
+    return "";
+  }
+  return why;
+}"""
+
+
+def press_on_screen(page: Any, name: str, timeout: float = 60.0) -> None:
+    """Press the button ``name`` as an operator at this page's size can: scrolled into view, inside the viewport and
+    not covered (see PRESS_ON_SCREEN_JS); tried again while it is not (a toast over it, a panel being laid out) and
+    AssertionError with the reason after ``timeout`` s. Unlike ``press`` this fails on a button out of reach."""
+    button = page.get_by_role("button", name=name, exact=True)
+    button.wait_for(timeout=PAGE_WAIT_MS)
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            why = button.evaluate(PRESS_ON_SCREEN_JS, timeout=10_000)
+        except Exception as e:  # noqa: BLE001 - the button replaced while the panel was re-drawn: try again
+            why = f"not pressed ({type(e).__name__})"
+        if not why:
+            return
+        if time.monotonic() > end:
+            raise AssertionError(f"the {name!r} button is out of the operator's reach: {why}")
+        time.sleep(0.25)
+
+
+def press_on_screen_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.0,
+                          every: float = 10.0) -> None:
+    """``press_until`` with ``press_on_screen``: pressed (within reach) again until ``done()`` holds."""
+    end = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what} did not happen within {timeout:g} s of pressing {name}")
+        press_on_screen(page, name)
+        again = time.monotonic() + every
+        while not done() and time.monotonic() < again:
+            time.sleep(0.05)

@@ -1,8 +1,13 @@
-"""In headless chromium at 1280 x 800: the start dialog asks who operates and the browser keeps the name (a
-second tab is named by itself); the reference sphere's certificate entered in the Calibration tab of a fresh
-calibration folder clears the certificate problem; the probe list shows the probe in use. A probe qualification
-paused from the page holds the machine (judged on the machine's clock) and says PAUSED; Resume lifts to the safe
-height before the next point, and the qualified radius is shown and saved to the probe list.
+"""In headless chromium on a tablet (820 x 1180), on a station not homed with a fresh calibration folder: the start
+dialog asks who operates and the browser keeps the name (a second tab is named by itself); Home pressed in
+Machine > Home homes the machine; the reference sphere's certificate entered in the Calibration tab clears the
+certificate problem; the probe list shows the probe in use. Then the folder's first probe qualification, run from
+the page: paused, it holds the machine (judged on the machine's clock) and says PAUSED; Resume lifts to the safe
+height before the next point, and the qualified radius is shown and saved to the probe list. Every button is
+pressed only where the tablet's operator can reach it (scrolled into view, on screen, not covered).
+
+Sizes: tests/test_browser_walk.py does all of this at 1280 x 800 (name, Home, certificate, qualification), so
+this file covers the tablet size.
 Screenshots: test-artifacts/probes-calibration.png, probes-paused.png, probes-qualified.png."""
 
 from __future__ import annotations
@@ -22,8 +27,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(300),
 
 pytest.importorskip("viser")
 
-LAPTOP = (1280, 800)
-TABLET = (820, 1180)  # the walk qualifies at the laptop size; the pause test runs on a tablet
+TABLET = (820, 1180)  # the walk does the same steps at 1280 x 800
 
 
 @pytest.fixture(scope="module")
@@ -32,22 +36,41 @@ def app(tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("fresh-calibration")
     st = Station(port=bs.SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=folder).start(
-        "probes", home=True)
+        "probes")  # not homed: the operator homes it from the page
     try:
         yield from bs.station_app(st, pendant=False, ask_name=True)
     finally:
         st.close()
 
 
-def test_name_dialog_saved_name_and_certificate_entry(app):
-    with bs.browser_context(LAPTOP) as context:
+@pytest.fixture
+def within_reach(monkeypatch):
+    """Every button press of the test (its own and browser_support's helpers') only where the operator can reach it
+    at the page's size: scrolled into view, on screen and not covered (bs.press_on_screen)."""
+    monkeypatch.setattr(bs, "press", bs.press_on_screen)
+
+
+def home_in_page(page, station):
+    """Machine > Home: the tab says to home first; Home pressed; the homing cycle runs to idle."""
+    bs.open_tab(page, "Machine", "Home")
+    page.get_by_text("Press Home before measuring").first.wait_for()
+    bs.press(page, "Home")
+    bs.wait_until(lambda: station.controller.state.homed and station.controller.state.mode.value == "idle",
+                  180.0, "the homing cycle")
+    page.get_by_text("Press Home before measuring").first.wait_for(state="hidden")
+
+
+# Tablet size: the laptop size's name dialog, Home and certificate entry are in test_browser_walk.py.
+def test_name_dialog_saved_name_home_and_certificate_entry(app, within_reach):
+    with bs.browser_context(TABLET) as context:
         page = bs.open_page(context, app)
+        assert bs.top_tab_rows(page) == [list(bs.TABS)]  # the tabs grouped in one row, as on the laptop
         page.get_by_text("Who is operating?").wait_for()
         field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
         field.wait_for(state="visible")
         page.wait_for_timeout(1000)  # the dialog's opening transition
         field.fill("Maria")
-        page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).click()
+        page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).click()  # a real click: in reach
         bs.wait_until(lambda: page.capp.operator == "Maria", 60.0, "the operator's name")
         page.get_by_text("Who is operating?").wait_for(state="hidden")
         assert page.evaluate("() => localStorage.getItem('cmm-operator')") == "Maria"
@@ -55,9 +78,11 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         second = bs.open_page(context, app)
         bs.wait_until(lambda: second.capp.operator == "Maria", 60.0, "the saved name in the second tab")
         second.close()
-        page.get_by_role("button", name="Take control").click()
+        bs.press(page, "Take control")
         bs.wait_until(lambda: app.control.holder == page.capp.client_id, 60.0, "control")
         page.get_by_text("Maria (you) controls the machine").first.wait_for()
+        assert not app.station.controller.state.homed
+        home_in_page(page, app.station)
         bs.open_tab(page, "Setup", "Calibration")
         page.get_by_text("certificate problem").first.wait_for()
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
@@ -70,7 +95,8 @@ def test_name_dialog_saved_name_and_certificate_entry(app):
         bs.screenshot(page, "probes-calibration")
 
 
-def test_qualification_paused_and_resumed_from_the_page(app):
+# Tablet size: the laptop size's qualification (not paused) is in test_browser_walk.py.
+def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
     st = app.station
     safe_z = st.config.axis("z").max - 5.0  # the qualification's safe height
     with bs.browser_context(TABLET) as context:
@@ -78,6 +104,8 @@ def test_qualification_paused_and_resumed_from_the_page(app):
         bs.start_as(page, "Quinn")
         bs.press(page, "Take control")
         bs.wait_until(lambda: app.control.holder == page.capp.client_id, 30.0, "control")
+        if not st.controller.state.homed:  # run alone
+            home_in_page(page, st)
         bs.open_tab(page, "Setup", "Calibration")
         if st.calibration.certificate_problem("probe") is not None:  # run alone: the fresh folder's certificate
             bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
