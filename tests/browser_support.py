@@ -418,12 +418,14 @@ def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) 
         if time.monotonic() > end:
             raise AssertionError(f"the typed target {target.round(3).tolist()} did not reach the station "
                                  f"(it has {panel.gui['target'].value})")
-        for i in range(3):
-            fields.nth(i).fill(f"{target[i]:.3f}")
-            fields.nth(i).press("Tab")
+        for i in range(3):  # only the coordinates that differ from the field's (each typed costs the page a redraw)
+            if abs(float(panel.gui["target"].value[i]) - target[i]) > 5e-4:
+                fields.nth(i).fill(f"{target[i]:.3f}")
+                fields.nth(i).press("Tab")
         again = time.monotonic() + 5.0
         while not typed() and time.monotonic() < again:
             time.sleep(0.05)
+    wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle before Go")
     press(page, "Go")
     wait_until(lambda: (np.allclose(station.machine.state.position, target, atol=0.01)
                         and station.controller.state.mode.value == "idle"), timeout,
@@ -473,9 +475,10 @@ def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float =
                 page.mouse.up()
         finally:
             network.set_pace(pace)
-    wait_until(lambda: station.controller.state.mode.value == "idle" and not station.machine.state.jogging, 60.0,
-               "the machine standing after the touch")
-    return max(model.hits)
+    # the touch's hit: the first after ``before`` (the routine may go on probing by itself after the last one)
+    hit = min(h for h in model.hits if h > before)
+    wait_until(lambda: not station.machine.state.jogging, 60.0, "the jog's end at the touch")
+    return hit
 
 
 def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, Any]],
