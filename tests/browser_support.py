@@ -433,12 +433,14 @@ def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) 
                why=lambda: f"at {station.machine.state.position.round(3).tolist()}, {page.capp.messages[-2:]}")
 
 
-def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float = 120.0) -> int:
+def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float = 120.0,
+                 beyond: float | None = None) -> int:
     """Machine > Jog (the armed jog ticked): the page's jog button for ``axis`` toward ``sign`` held with the mouse
     until the probe touches and the station records a manual hit (its id). The simulator's clock runs at the wall
     clock (pace 1.0) only while the button is held (the page's wall-time hold events meet the dead-man), and at
     its previous pace again after. A jog the dead-man ended (a late hold on a loaded machine) is held again, as an
-    operator presses again."""
+    operator presses again. ``beyond`` (machine mm along the axis): where the probe is past the surface without a
+    touch; the helper lets go there and fails (a real machine would crash)."""
     model = station.measurement
     before = max(model.hits, default=0)
     open_tab(page, "Machine", "Jog")
@@ -463,6 +465,10 @@ def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float =
                 started = time.monotonic()
                 still_since = None
                 while max(model.hits, default=0) <= before and time.monotonic() < end:
+                    if beyond is not None and sign * (station.machine.state.position[axis] - beyond) > 0:
+                        raise AssertionError(
+                            f"the probe passed the surface ({AXES[axis]} {beyond:.3f}) without a touch, at "
+                            f"{station.machine.state.position.round(3).tolist()} (told {page.capp.messages[-3:]})")
                     moving = station.machine.state.jogging or max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
                     if moving:
                         still_since = None
@@ -509,7 +515,7 @@ def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, 
         along = np.zeros(3)
         along[axis] = sign
         go_to_in_page(page, station, point - (radius + JOG_GAP_MM) * along)
-        hit = jog_to_touch(page, station, axis, sign)
+        hit = jog_to_touch(page, station, axis, sign, beyond=point[axis] + sign * 1.0)
         assert model.hits[hit].mode == "manual", model.hits[hit]
         taken.append(hit)
     page.get_by_text("Manual probing (armed jog)").first.click()  # the jog unarmed again (still on the Jog tab)
