@@ -391,6 +391,157 @@ def manual_321(page: Any, station: Any, pose: Any, hits: list[tuple[Any, Any]], 
         station.measurement.probe(target, pose[:3, :3] @ np.array(u, float), clearance_z=90.0).wait(120)
 
 
+AXES = "XYZ"
+JOG_GAP_MM = 2.0  # how far from the surface (probe tip to surface) the operator starts a hand hit's jog
+
+
+def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) -> None:
+    """Machine > Go to: the Machine frame chosen, ``target`` (machine mm) typed into "Target, machine (mm)" and Go
+    pressed, as an operator positions the probe; returns once the machine stands there."""
+    target = np.asarray(target, float)
+    open_tab(page, "Machine", "Go to")
+    panel = page.capp
+    end = time.monotonic() + 60.0
+    while panel.goto_frame != "Machine":  # the Frame buttons' "Machine" (the status bar's DRO has one too)
+        if time.monotonic() > end:
+            raise AssertionError("the Go to tab's frame did not become Machine within 60 s")
+        page.get_by_role("button", name="Machine", exact=True).last.evaluate("b => b.click()")
+        time.sleep(0.5)
+    fields = page.locator("xpath=//label[normalize-space()='Target, machine (mm)']/ancestor::div[contains(@class, "
+                          "'mantine-Flex-root')][1]//input")
+    fields.nth(2).wait_for()
+
+    def typed() -> bool:
+        return np.allclose(np.asarray(panel.gui["target"].value, float), target, atol=5e-4)
+    end = time.monotonic() + 60.0
+    while not typed():  # typed again while the station has not heard it (a field being laid out, redrawn)
+        if time.monotonic() > end:
+            raise AssertionError(f"the typed target {target.round(3).tolist()} did not reach the station "
+                                 f"(it has {panel.gui['target'].value})")
+        for i in range(3):  # only the coordinates that differ from the field's (each typed costs the page a redraw)
+            if abs(float(panel.gui["target"].value[i]) - target[i]) > 5e-4:
+                fields.nth(i).fill(f"{target[i]:.3f}")
+                fields.nth(i).press("Tab")
+        again = time.monotonic() + 5.0
+        while not typed() and time.monotonic() < again:
+            time.sleep(0.05)
+    wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle before Go")
+    press(page, "Go")
+    wait_until(lambda: (np.allclose(station.machine.state.position, target, atol=0.01)
+                        and station.controller.state.mode.value == "idle"), timeout,
+               f"the move to {target.round(3).tolist()}", poll=0.02,
+               why=lambda: f"at {station.machine.state.position.round(3).tolist()}, {page.capp.messages[-2:]}")
+
+
+def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float = 120.0,
+                 beyond: float | None = None) -> int:
+    """Machine > Jog (the armed jog ticked): the page's jog button for ``axis`` toward ``sign`` held with the mouse
+    until the probe touches and the station records a manual hit (its id). The simulator's clock runs at the wall
+    clock (pace 1.0) only while the button is held (the page's wall-time hold events meet the dead-man), and at
+    its previous pace again after. A jog the dead-man ended (a late hold on a loaded machine) is held again, as an
+    operator presses again. ``beyond`` (machine mm along the axis): where the probe is past the surface without a
+    touch; the helper lets go there and fails (a real machine would crash)."""
+    model = station.measurement
+    before = max(model.hits, default=0)
+    open_tab(page, "Machine", "Jog")
+    button = page.get_by_role("button", name=f"hold {AXES[axis]} {'+' if sign > 0 else '−'}", exact=True)
+    network = station.sim.network
+    pace = network.pace
+    end = time.monotonic() + timeout
+    while max(model.hits, default=0) <= before:
+        if time.monotonic() > end:
+            raise AssertionError(f"no manual hit within {timeout:g} s of holding {AXES[axis]} "
+                                 f"{'+' if sign > 0 else '-'} (at {station.machine.state.position.round(3).tolist()}; "
+                                 f"told {page.capp.messages[-3:]})")
+        button.scroll_into_view_if_needed()
+        box = button.bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        network.set_pace(1.0)
+        try:
+            page.mouse.down()
+            try:
+                # held while the jog runs (and for its start); let go on the touch, or when it stood still for a
+                # second of the machine's clock without one (the dead-man ended it): pressed again then
+                started = time.monotonic()
+                still_since = None
+                while max(model.hits, default=0) <= before and time.monotonic() < end:
+                    if beyond is not None and sign * (station.machine.state.position[axis] - beyond) > 0:
+                        raise AssertionError(
+                            f"the probe passed the surface ({AXES[axis]} {beyond:.3f}) without a touch, at "
+                            f"{station.machine.state.position.round(3).tolist()} (told {page.capp.messages[-3:]})")
+                    moving = station.machine.state.jogging or max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
+                    if moving:
+                        still_since = None
+                    elif time.monotonic() - started > 5.0:
+                        still_since = still_since or time.monotonic()
+                        if time.monotonic() - still_since > 1.0:
+                            break
+                    time.sleep(0.02)
+            finally:
+                page.mouse.up()
+        finally:
+            network.set_pace(pace)
+    # the touch's hit: the first after ``before`` (the routine may go on probing by itself after the last one)
+    hit = min(h for h in model.hits if h > before)
+    wait_until(lambda: not station.machine.state.jogging, 60.0, "the jog's end at the touch")
+    return hit
+
+
+def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, Any]],
+                      prompts: dict[int, str]) -> list[int]:
+    """The operator's hands at a routine's manual 3-2-1, through the page only: Machine > Jog, "Manual probing
+    (armed jog)" ticked; for each prompted hit (part coordinates ``hits``: point, approach direction, where the part
+    really stands: ``pose``), after the prompt ``prompts[k]`` shows in the Routine tab, the probe brought
+    ``JOG_GAP_MM`` from the surface with Go to (typed machine target) and the jog button of the machine axis
+    closest to the approach held until the probe touches: the station's manual hit, which the routine takes. The
+    probe starts on that axis's line through the prompted point, so the jog touches the surface there (on a face
+    not square to the axis, within the stylus radius times the tilt). Then the jog unarmed and the Routine tab
+    shown again. The ids of the hits taken."""
+    model = station.measurement
+    radius = station.controller.probe_settings.tip_radius
+    taken: list[int] = []
+    for k, (p, u) in enumerate(hits):
+        if k in prompts:
+            open_tab(page, "Routine")
+            page.get_by_text(prompts[k]).first.wait_for(timeout=120_000)
+        if not page.capp.ctx.manual_probe:
+            open_tab(page, "Machine", "Jog")
+            page.get_by_text("Manual probing (armed jog)").first.click()
+            wait_until(lambda: page.capp.ctx.manual_probe, 30.0, "the armed jog ticked")
+        point = (pose @ np.array([*p, 1.0]))[:3]
+        approach = pose[:3, :3] @ np.array(u, float)
+        axis = int(np.argmax(np.abs(approach)))
+        sign = 1 if approach[axis] > 0 else -1
+        along = np.zeros(3)
+        along[axis] = sign
+        go_to_in_page(page, station, point - (radius + JOG_GAP_MM) * along)
+        hit = jog_to_touch(page, station, axis, sign, beyond=point[axis] + sign * 1.0)
+        assert model.hits[hit].mode == "manual", model.hits[hit]
+        taken.append(hit)
+    page.get_by_text("Manual probing (armed jog)").first.click()  # the jog unarmed again (still on the Jog tab)
+    wait_until(lambda: not page.capp.ctx.manual_probe, 30.0, "the armed jog unticked")
+    open_tab(page, "Routine")  # back to the routine, which runs on by itself
+    return taken
+
+
+def assert_taken_by_jog(station: Any, session: Any, taken: list[int]) -> None:
+    """The routine's manual 3-2-1 in ``session``'s journal was made from the hits ``taken`` (manual_321_by_jog's):
+    each recorded as a manual hit, approached along one machine axis (the page's jog, not a programmed probe along
+    the face normal) at the qualified probing speed (the armed jog's clamp)."""
+    from cmm.session.journal import read_events
+
+    events = read_events(session).events
+    aligned = [e for e in events if e["kind"] == "alignment" and e.get("method") == "3-2-1 manual"]
+    assert len(aligned) == 1 and list(aligned[0]["hit_ids"]) == list(taken), (aligned, taken)
+    recorded = {e["id"]: e for e in events if e["kind"] == "hit"}
+    qualified = float(station.calibration.qualified_probing_speed)
+    for h in taken:
+        hit = station.measurement.hits[h]
+        assert recorded[h].get("mode") == "manual" and hit.mode == "manual", recorded[h]
+        assert np.count_nonzero(np.round(hit.approach, 9)) == 1, hit.approach  # along one machine axis: the jog
+        assert abs(hit.speed - qualified) < 1e-9 * qualified, (hit.speed, qualified)
+
+
 def stop_time(station, since: float, what: str, limit: float = 2.0) -> float:
     """Simulated seconds from ``since`` (the station's clock, ``station.machine.state.time``) until every axis stands still.
 

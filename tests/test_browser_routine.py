@@ -1,8 +1,9 @@
 """The Routine tab in headless chromium: a routine taught from the session the operator measured, a step renamed
 in the page, and "Run on next part" on a part placed differently on the simulator: the page prompts for the manual
-3-2-1 hits, the operator takes them, the rest runs by itself, and the page shows the progress and DONE; on a
-tablet (820 x 1180), every button pressed where the tablet's operator can reach it (tests/test_browser_walk.py
-teaches and runs a routine at 1280 x 800). Then a fault mid-routine: an obstacle in the bore stops the run with an
+3-2-1 hits, the operator takes them in the page (Go to near each, the armed jog held until the probe touches), the
+rest runs by itself, and the page shows the progress and DONE; on a tablet (820 x 1180), every button pressed
+where the tablet's operator can reach it (tests/test_browser_walk.py teaches and runs a routine at 1280 x 800).
+Then a fault mid-routine: an obstacle in the bore stops the run with an
 unexpected contact, the page names the stopped step and why; Resume is refused while the operator's E-STOP is
 latched; after Reset in the page, "Resume from step N" finishes the part in the same session with the stopped
 step measured again; the fault and its recovery at 1280 x 800 and on a tablet (820 x 1180). Screenshots go to
@@ -117,14 +118,9 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         page.get_by_text("Take 3 hits by hand on TOP (primary datum)").first.wait_for()
         bs.screenshot(page, "routine-prompt")
         model = station.measurement
-        for k, (p, u) in enumerate(MANUAL):  # the operator's hands: each hit where the part really is
-            if k == 3:
-                page.get_by_text("Take 2 hits by hand on FRONT (secondary datum)").first.wait_for()
-            if k == 5:
-                page.get_by_text("Take 1 hit by hand on LEFT (tertiary datum)").first.wait_for()
-            target = (SECOND_POSE @ np.array([*p, 1.0]))[:3]
-            bs.wait_until(lambda: not station.controller.state.mode.value.startswith("prob"), 30.0, "idle")
-            model.probe(target, SECOND_POSE[:3, :3] @ np.array(u, float), clearance_z=90.0).wait(120)
+        # the operator's hands: each hit where the part really is, by the page's armed jog
+        taken = bs.manual_321_by_jog(page, station, SECOND_POSE, MANUAL, {
+            3: "Take 2 hits by hand on FRONT (secondary datum)", 5: "Take 1 hit by hand on LEFT (tertiary datum)"})
         page.get_by_text("RUNNING").first.wait_for()
         bs.wait_until(lambda: capp.routine.run_.progress.state in ("done", "failed"), 400.0, "the routine's end")
         assert capp.routine.run_.progress.state == "done", capp.routine.run_.progress.message
@@ -136,6 +132,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bore = progress.results["BORE"]
         assert_bore_radius(station, bore.result.geometry()["radius"])
         assert "SN-0002" in str(progress.session)
+        bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
 
         box = page.get_by_role("button", name="Run on next part").bounding_box()
         assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= TABLET[0]

@@ -4,7 +4,8 @@ At 1280 x 800, Ada names herself in the start dialog, takes control, homes the m
 from a fresh calibration folder (the reference sphere's certificate typed in the page), auto-measures three
 planes and aligns 3-2-1 on them, auto-measures a bore, a boss and a sphere, gives the bore a tolerance, teaches
 the six-feature routine and saves it, runs it on a second part the simulator placed elsewhere and turned (the
-manual 3-2-1 hits taken where the page prompts), and writes the first part's report from Report > Sessions.
+manual 3-2-1 hits taken where the page prompts, by hand: Go to typed near each, then the armed jog held until the
+probe touches), and writes the first part's report from Report > Sessions.
 Then Ben, on a tablet (820 x 1180), takes control (Ada's page is told by name), opens the saved routine and
 runs it on a third part. Every part's features are checked against the simulator's true part (the CAD
 feature of the mesh where the simulator really put it) within probing noise, and the reports name the
@@ -83,7 +84,7 @@ def run_routine_on(page, station, pose, part_name):
     bs.wait_until(lambda: page.capp.routine.gui["part"].value == part_name, 30.0, "the part name at the station")
     bs.press(page, "Run on next part")
     page.get_by_text("WAITING FOR THE OPERATOR").first.wait_for(timeout=120_000)
-    bs.manual_321(page, station, pose, bs.SAMPLE_321_HITS, PROMPTS)
+    taken = bs.manual_321_by_jog(page, station, pose, bs.SAMPLE_321_HITS, PROMPTS)  # by hand: the page's armed jog
     run = page.capp.routine
     bs.wait_until(lambda: run.run_ is not None and run.run_.progress.state in ("done", "failed", "cancelled"),
                   600.0, "the routine's end")
@@ -91,6 +92,7 @@ def run_routine_on(page, station, pose, part_name):
     page.get_by_text("DONE").first.wait_for()
     progress = run.run_.progress
     assert part_name in str(progress.session)
+    bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
     hits = station.measurement.hits
     for name in FEATURES:
         assert_true_feature(station, progress.results[name], pose, hits, f"{part_name} {name}")
