@@ -378,23 +378,6 @@ SAMPLE_321_HITS = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0
                    ((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((0.0, 20.0, 15.0), (1, 0, 0))]
 
 
-def manual_321(page: Any, station: Any, pose: Any, hits: list[tuple[Any, Any]], prompts: dict[int, str]) -> None:
-    """The operator's hands at a routine's manual 3-2-1: each prompted hit (part coordinates ``hits``: point,
-    approach direction) taken where the part really stands (``pose``), after the prompt ``prompts[k]`` shows."""
-    import numpy as np
-
-    for k, (p, u) in enumerate(hits):
-        if k in prompts:
-            page.get_by_text(prompts[k]).first.wait_for(timeout=120_000)
-        target = (pose @ np.array([*p, 1.0]))[:3]
-        wait_until(lambda: not station.controller.state.mode.value.startswith("prob"), 60.0, "idle")
-        station.measurement.probe(target, pose[:3, :3] @ np.array(u, float), clearance_z=90.0).wait(120)
-
-
-AXES = "XYZ"
-JOG_GAP_MM = 2.0  # how far from the surface (probe tip to surface) the operator starts a hand hit's jog
-
-
 def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) -> None:
     """Machine > Go to: the Machine frame chosen, ``target`` (machine mm) typed into "Target, machine (mm)" and Go
     pressed, as an operator positions the probe; returns once the machine stands there."""
