@@ -210,3 +210,66 @@ def test_the_original_firmwares_inputs_byte_would_stop_an_sc_axis_on_the_probe()
         assert st.probe_triggered and st.position[2] < hit.machine[2] + 0.1
     finally:
         m.close()
+
+
+def _touch_while_braking(sim, m):
+    """Jog +X at full speed toward the left face and let go inside the braking distance: the probe touches while
+    the axes brake (no jog velocity left). Returns the face point (machine mm)."""
+    r = m.config.probe.tip_radius
+    face = part_to_machine(sim, [0.0, 20.0, 15.0])  # the left face (the part's x = 0), approached along +X
+    fast = m.config.speeds.jog_fast
+    braking = fast ** 2 / (2 * m.config.accelerations.stop)
+    m.move_to(face - [r + 5.0, 0.0, 0.0]).wait()
+    hits = []
+    while m.position[0] < face[0] - r - braking * 0.5:  # held at full speed, then let go
+        m.jog([fast, 0.0, 0.0], manual_probe=lambda latched, v: hits.append(latched))
+        m.run_for(0.002)
+    m.jog_release()
+    m.run_for(0.5)
+    assert m.state.probe_triggered and not hits  # a touch while braking: a contact stop, not a hit at a known speed
+    return face
+
+
+def _jog_on(m, v, seconds=1.0):
+    """The operator holds a jog (refreshed every 10 ms); returns the refusal, if any."""
+    for _ in range(round(seconds / 0.01)):
+        try:
+            m.jog(v)
+        except ContactError as exc:
+            return str(exc)
+        m.run_for(0.01)
+    m.run_for(0.3)
+    return None
+
+
+def test_a_touch_while_a_released_jog_brakes_is_not_jogged_through(sim_machine):
+    """The operator lets go (or the dead-man stops the jog) just before the surface and the probe touches while
+    the axes brake: the touch keeps the way the jog went, so a jog on into the part is refused while the probe is
+    deflected (seen in the browser walk: an X+ jog then ran 95 mm through the part's left face), and one off the
+    part frees the probe and is armed again, so the next touch stops it."""
+    sim, m, prober = sim_machine
+    face = _touch_while_braking(sim, m)
+    stopped = m.position[0]
+    fast = m.config.speeds.jog_fast
+    assert "jog away from the part" in (_jog_on(m, [fast, 0.0, 0.0]) or "")
+    assert m.position[0] == pytest.approx(stopped, abs=0.01)
+    assert _jog_on(m, [-10.0, 0.0, 0.0], seconds=0.2) is None  # off the part: allowed, and armed once free
+    assert not m.state.probe_triggered and m.position[0] < stopped - 1.0
+    _jog_on(m, [10.0, 0.0, 0.0], seconds=1.0)  # back toward the face: the touch stops it
+    assert m.state.probe_triggered
+    assert m.position[0] == pytest.approx(face[0] - m.config.probe.tip_radius, abs=0.2)
+
+
+def test_a_jog_with_the_probe_deflected_the_way_unknown_stops_if_it_stays_deflected(sim_machine):
+    """Deflected with no touch direction known (the probe pushed by hand, a station restarted on the part): a jog
+    runs unarmed, so it is watched: it stops within DEFLECTED_JOG_MM if the probe stays deflected, saying why."""
+    from cmm.machine.motion import DEFLECTED_JOG_MM
+
+    sim, m, prober = sim_machine
+    _touch_while_braking(sim, m)
+    m._contact_dir = None  # the way it touched is not known
+    stopped = m.position[0]
+    _jog_on(m, [m.config.speeds.jog_fast, 0.0, 0.0], seconds=0.2)  # on into the part
+    assert m.position[0] - stopped <= DEFLECTED_JOG_MM + 0.5  # its braking distance at full speed: 0.8 mm
+    assert m.state.probe_triggered
+    assert "jog away from the part" in (_jog_on(m, [10.0, 0.0, 0.0]) or "")  # the way it went in is known now

@@ -43,6 +43,8 @@ POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; t
 # instead of every servo tick makes the simulated station about 2x cheaper to run (tests, calibration);
 # probe triggers are latched by the modules, so nothing measured depends on the sample rate.
 VIRTUAL_POLL_PAUSE = 0.004
+DEFLECTED_JOG_MM = 0.5  # travel a jog started with the probe deflected may make while it stays deflected (a probe
+# freed by jogging off the surface is free within micrometres; further in, the stylus bends and then breaks)
 JOG_LOOKAHEAD = 0.03  # s of travel allowed for sampling latency before a jog reaches a travel limit
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
@@ -682,7 +684,11 @@ class Machine:
                 motion = _Motion(status, "jog")
                 self._motion = motion
                 motion.armed = self._arm("abrupt")  # a deflected probe may jog (off the part), unarmed
+                if not motion.armed:  # watched: armed once the probe is free, stopped if it stays deflected
+                    motion.extra["deflected_at"] = np.array(pos, dtype=np.float64)
                 motion.on_capture = lambda latched: self._jog_contact(motion, latched, manual_probe)
+            if np.any(v):  # the way it goes: a touch while it brakes (no velocity left) still has a direction
+                motion.extra["dir"] = v / float(np.linalg.norm(v))
             if self.guarded:
                 if not np.any(v):  # all zeros: a release
                     self._guard_stop(motion)
@@ -831,6 +837,8 @@ class Machine:
                 _jog_stopped(motion)
 
     def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
+        if "deflected_at" in motion.extra and self._watch_deflected(motion, state):
+            return
         v = motion.extra.get("v", np.zeros(3))
         if self.guarded:  # the dead-man runs in the link process: did it (or a release) stop this jog?
             epoch, fired = self.bus.guard
@@ -865,18 +873,37 @@ class Machine:
         if not np.any(v) and all(abs(a.velocity) < 1e-9 for a in state.axes):
             self._finish(motion, result=state.position)
 
+    def _watch_deflected(self, motion: _Motion, state: MachineState) -> bool:
+        """A jog that started with the probe deflected runs unarmed (a deflected probe cannot be armed). Once the
+        probe is free it is armed, so the next touch stops it; if the probe stays deflected over DEFLECTED_JOG_MM of
+        travel the jog goes into the part, not off it: stopped (True)."""
+        if not state.probe_triggered:
+            del motion.extra["deflected_at"]
+            motion.armed = self._arm("abrupt")
+            return False
+        if float(np.linalg.norm(state.position - motion.extra["deflected_at"])) <= DEFLECTED_JOG_MM:
+            return False
+        self.halt("abrupt")
+        way = motion.extra.get("dir")
+        self._contact_dir = None if way is None else np.asarray(way, dtype=np.float64)
+        self._finish(motion, error=ContactError(
+            f"the probe stayed deflected over {DEFLECTED_JOG_MM:g} mm of jog: the machine stopped; jog the other way, "
+            "off the part"))
+        return True
+
     def _jog_contact(self, motion: _Motion, latched: tuple[int, int, int],
                      record: Callable[[tuple[int, int, int], np.ndarray], None] | None) -> None:
         """The probe touched during a jog: the modules stopped on that tick; a manual hit or a contact stop."""
         v = np.array(motion.extra.get("v", np.zeros(3)), dtype=np.float64)
         self.halt("abrupt")
+        way = motion.extra.get("dir")  # the way it went, also when it touched while braking (no velocity left)
+        self._contact_dir = None if way is None else np.asarray(way, dtype=np.float64)
         if record is not None and np.any(v):
             self._finish(motion, result=latched)
             record(latched, v)  # the jog velocity gives the approach direction and the probing speed
             return
         pos = self.counts_to_mm(latched).tolist()
-        self._contact_dir = v / max(float(np.linalg.norm(v)), 1e-12)
-        self.emit("contact", position=pos, direction=self._contact_dir.tolist())
+        self.emit("contact", position=pos, direction=None if way is None else self._contact_dir.tolist())
         self._finish(motion, error=ContactError(
             "probe contact while jogging at X={:.3f} Y={:.3f} Z={:.3f} mm: the machine stopped; "
             "jog away from the part".format(*pos)))
