@@ -378,6 +378,10 @@ SAMPLE_321_HITS = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0
                    ((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((0.0, 20.0, 15.0), (1, 0, 0))]
 
 
+AXES = "XYZ"
+JOG_GAP_MM = 2.0  # how far from the surface (probe tip to surface) the operator starts a hand hit's jog
+
+
 def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) -> None:
     """Machine > Go to: the Machine frame chosen, ``target`` (machine mm) typed into "Target, machine (mm)" and Go
     pressed, as an operator positions the probe; returns once the machine stands there."""
