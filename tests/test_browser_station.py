@@ -155,6 +155,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         (top,) = station.measurement.features.values()
         assert top.kind == "plane" and len(top.hit_ids) == 4
         assert top.nominal is not None and top.nominal.kind == "plane" and top.name == "TOP"
+        bs.wait_until(lambda: page.capp.measure.progress == "done: TOP", 120.0, "the run's end at the station",
+                      why=lambda: f"progress {page.capp.measure.progress!r}, mode {station.controller.state.mode}, "
+                                  f"jobs {station.controller.jobs!r}, told {page.capp.messages[-3:]}")
         page.get_by_text("done: TOP").wait_for()
         bs.wait_until(lambda: name_field.input_value() == "", 20.0,
                       "the name field cleared for the next feature")
