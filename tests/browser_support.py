@@ -420,44 +420,45 @@ def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) 
                why=lambda: f"at {station.machine.state.position.round(3).tolist()}, {page.capp.messages[-2:]}")
 
 
+HAND_PACE = 0.4  # simulated s per wall s while the page holds a jog button: the page's hold events, late on a
+# loaded machine, still come within the dead-man (0.15 s of machine time), so the jog is rarely cut short
+
+
 def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float = 120.0,
                  beyond: float | None = None) -> int:
     """Machine > Jog (the armed jog ticked): the page's jog button for ``axis`` toward ``sign`` held with the mouse
-    until the probe touches and the station records a manual hit (its id). The simulator's clock runs at the wall
-    clock (pace 1.0) only while the button is held (the page's wall-time hold events meet the dead-man), and at
-    its previous pace again after. A jog the dead-man ended (a late hold on a loaded machine) is held again, as an
-    operator presses again. ``beyond`` (machine mm along the axis): where the probe is past the surface without a
-    touch; the helper lets go there and fails (a real machine would crash)."""
+    until the probe touches and the station records a manual hit (its id). The simulator's clock runs at HAND_PACE
+    only while a button is held, and at its previous pace again after. A jog the dead-man ended (a late hold on a
+    loaded machine) is held again, as an operator presses again; a touch while such a jog braked is a contact, not
+    a hit, and the station refuses a jog on into the part ("jog away from the part"): the operator jogs off the
+    surface first (the opposite button, until the probe is free), then on again. ``beyond`` (machine mm along the
+    axis): where the probe is past the surface without a touch; the helper lets go there and fails (a real machine
+    would crash)."""
     model = station.measurement
     before = max(model.hits, default=0)
     open_tab(page, "Machine", "Jog")
-    button = page.get_by_role("button", name=f"hold {AXES[axis]} {'+' if sign > 0 else '−'}", exact=True)
     network = station.sim.network
     pace = network.pace
     end = time.monotonic() + timeout
-    while max(model.hits, default=0) <= before:
-        if time.monotonic() > end:
-            raise AssertionError(f"no manual hit within {timeout:g} s of holding {AXES[axis]} "
-                                 f"{'+' if sign > 0 else '-'} (at {station.machine.state.position.round(3).tolist()}; "
-                                 f"told {page.capp.messages[-3:]})")
+
+    def hold(way: int, until: Any) -> None:
+        """Hold the button toward ``way`` until ``until()`` or the jog stood still a machine second (dead-man)."""
+        button = page.get_by_role("button", name=f"hold {AXES[axis]} {'+' if way > 0 else '−'}", exact=True)
         button.scroll_into_view_if_needed()
         box = button.bounding_box()
         page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-        network.set_pace(1.0)
+        network.set_pace(HAND_PACE)
         try:
             page.mouse.down()
             try:
-                # held while the jog runs (and for its start); let go on the touch, or when it stood still for a
-                # second of the machine's clock without one (the dead-man ended it): pressed again then
-                started = time.monotonic()
-                still_since = None
-                while max(model.hits, default=0) <= before and time.monotonic() < end:
+                started, still_since = time.monotonic(), None
+                while not until() and time.monotonic() < end:
                     if beyond is not None and sign * (station.machine.state.position[axis] - beyond) > 0:
                         raise AssertionError(
                             f"the probe passed the surface ({AXES[axis]} {beyond:.3f}) without a touch, at "
                             f"{station.machine.state.position.round(3).tolist()} (told {page.capp.messages[-3:]})")
-                    moving = station.machine.state.jogging or max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
-                    if moving:
+                    state = station.machine.state
+                    if state.jogging or max(abs(a.velocity) for a in state.axes) > 1e-9:
                         still_since = None
                     elif time.monotonic() - started > 5.0:
                         still_since = still_since or time.monotonic()
@@ -468,6 +469,18 @@ def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float =
                 page.mouse.up()
         finally:
             network.set_pace(pace)
+
+    touched = lambda: max(model.hits, default=0) > before  # noqa: E731
+    while not touched():
+        if time.monotonic() > end:
+            raise AssertionError(f"no manual hit within {timeout:g} s of holding {AXES[axis]} "
+                                 f"{'+' if sign > 0 else '-'} (at {station.machine.state.position.round(3).tolist()}; "
+                                 f"told {page.capp.messages[-3:]})")
+        if station.machine.state.probe_triggered:  # a contact without a hit: off the surface first
+            wait_until(lambda: not station.machine.state.jogging, 60.0, "the jog's end at the contact")
+            hold(-sign, lambda: not station.machine.state.probe_triggered)
+            continue
+        hold(sign, touched)
     # the touch's hit: the first after ``before`` (the routine may go on probing by itself after the last one)
     hit = min(h for h in model.hits if h > before)
     wait_until(lambda: not station.machine.state.jogging, 60.0, "the jog's end at the touch")
