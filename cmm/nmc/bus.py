@@ -123,6 +123,24 @@ MAX_REPLY_WAIT = 1.0
 DISCOVERY_WAITS = (DISCOVERY_WAIT, 0.6, 1.2)  # the marker's waits for a module the chain is known to have
 OVERSLEPT = 0.02  # s a read may return past its deadline before the host counts as descheduled meanwhile
 OVERSLEPT_EXTENSIONS = 3  # a reply's wait is renewed at most this often for a descheduled host
+# Modules served by a process on this computer (the built-in simulator over TCP on loopback) share its CPU: on a
+# loaded computer they answer, but late (on a 2-core machine at load 8.5, three retries in a row missed Kerr's 60 ms
+# during motion while every marker between them was answered in 0.1-0.2 s: a false fault). For such a peer a reply
+# may take REPLY_ROUND_TRIPS times the link's recent round trip (the largest that replies and markers took, halved
+# every TRIP_HALF_LIFE s), never less than Kerr's time and never more than MARKER_WAIT. Hardware (a serial port, a
+# serial server on another computer) keeps Kerr's time and the strict rules during motion: a late module there is
+# a failing module. The count of lost replies that faults the machine is the same for both.
+REPLY_ROUND_TRIPS = 2.0
+TRIP_HALF_LIFE = 5.0
+LOCAL_HOSTS = ("127.", "localhost", "[::1]")
+
+
+def local_peer(port: Any) -> bool:
+    """Is ``port`` a URL of modules served by a process on this computer (TCP or RFC 2217 on loopback)?"""
+    if not isinstance(port, str) or "://" not in port:
+        return False
+    scheme, rest = port.split("://", 1)
+    return scheme.lower() in ("socket", "rfc2217") and rest.lower().startswith(LOCAL_HOSTS)
 HEARD_KEEP = 64  # received chunks kept for the error messages ("what was seen")
 STORM_LIMIT = 6  # transactions in a row that needed a resynchronisation: the link is down
 GOAL_TOLERANCE = 3  # counts: a started move that already arrived
@@ -158,8 +176,9 @@ class Bus:
     """
 
     def __init__(self, port: Any, *, firmware: str = "pic-servo", trace: ByteTrace | None = None,
-                 expected_modules: int | None = None) -> None:
+                 expected_modules: int | None = None, local: bool | None = None) -> None:
         self.firmware = firmware
+        self.local = local_peer(port) if local is None else local  # modules served on this computer (see above)
         self.baud = codec.POWER_UP_BAUD
         self._url = port
         self.port_name = _port_name(port)
@@ -175,6 +194,7 @@ class Bus:
                       "suspect": 0}
         self.link_up = True
         self._marker_turn = 0
+        self._trip, self._trip_at = 0.0, 0.0  # the link's recent round trip (s) and when it was last raised
         self._storm = 0  # transactions in a row that needed a resynchronisation
         # address -> the last good reply's reading, its time being when its request was sent: the module samples
         # after the request arrives, so (unlike the time the reply was read) it never follows the sample
@@ -352,9 +372,10 @@ class Bus:
         self._sent_at = self.clock.now()
         self._write(packet, address)
         n = codec.status_length(items)
-        data = self._read(n, address, wait, since=self.clock.now())
+        data = self._read(n, address, self._reply_wait(items) if wait is None else wait, since=self._sent_at)
         if len(data) != n:
             return None
+        self._note_trip(self.clock.now() - self._sent_at)
         try:
             status = codec.parse_status(data, items)
         except codec.CodecError:
@@ -363,6 +384,23 @@ class Bus:
             self.stats["suspect"] += 1
             return None
         return status
+
+    def _note_trip(self, seconds: float) -> None:
+        """A round trip just seen (request sent to reply read): the recent round trip is the larger of it and the
+        earlier one, halved for every TRIP_HALF_LIFE s since."""
+        now = self.clock.now()
+        decayed = self._trip * 0.5 ** (max(now - self._trip_at, 0.0) / TRIP_HALF_LIFE)
+        if seconds >= decayed:
+            self._trip, self._trip_at = seconds, now
+        elif decayed < 1e-4:
+            self._trip = 0.0
+
+    def _reply_wait(self, items: int) -> float:
+        """How long a reply of ``items`` may take now (see REPLY_ROUND_TRIPS)."""
+        if not self.local:
+            return reply_timeout(codec.status_length(items))
+        trip = self._trip * 0.5 ** (max(self.clock.now() - self._trip_at, 0.0) / TRIP_HALF_LIFE)
+        return min(max(reply_timeout(codec.status_length(items)), REPLY_ROUND_TRIPS * trip), MARKER_WAIT)
 
     def _reply_items(self, address: int) -> int | None:
         """Items in the reply to a command sent to ``address``; None if nobody replies."""
@@ -597,7 +635,8 @@ class Bus:
                            f"{self.heard(self._sent_at)}); retrying")
                 self._resync_patiently(address, first_sent)
                 self._check_preempt(packet)
-                wait = min(reply_timeout(codec.status_length(expected)) * 2 ** lost, MAX_REPLY_WAIT)
+                wait = max(min(reply_timeout(codec.status_length(expected)) * 2 ** lost, MAX_REPLY_WAIT),
+                           self._reply_wait(expected))
                 done = self._after_lost_reply(packet, expected)
                 if done is not None:
                     return self._accept(address, done)
@@ -917,7 +956,9 @@ class Bus:
             info = next((m for m in self.modules if m.address == address), None)
         self._write(codec.read_stat(address, items), address)
         buf = bytearray()
-        deadline = self.clock.now() + wait
+        sent = self.clock.now()
+        away = 0.0  # time this process was off the CPU while waiting: not the link's
+        deadline = sent + wait
         while True:
             left = deadline - self.clock.now()
             if left <= 1e-4:  # (a clock that counts whole nanoseconds never reaches a float deadline exactly)
@@ -932,11 +973,13 @@ class Bus:
             late = self.clock.now() - asked - step
             if late > OVERSLEPT:  # this process was off the CPU meanwhile: that time is not the module's
                 deadline += late
+                away += late
             if not chunk:
                 continue
             buf += chunk
             if not self._is_marker(bytes(buf[-n:]), items, info):
                 continue
+            self._note_trip(self.clock.now() - sent - away)
             extra = self._read_some(QUIET_CONFIRM, address)
             if extra:  # the marker pattern was not the end: keep reading
                 buf += extra
