@@ -36,6 +36,23 @@ PAGE_WAIT_MS = 120_000
 DEVICE_SCALE = float(os.environ.get("CMM_TEST_DPR", "0.5"))
 
 
+# The 3-D view's frames at most every FRAME_MS ms (requestAnimationFrame held back; viser draws on demand, and its
+# timers, jog holds and messages do not wait for frames): 10 a second, a slow tablet's rate. Chromium's software
+# WebGL drew up to 25 a second while the probe moved, a core's worth per page; capped, the routine test's chromium
+# used 36 CPU s instead of 75. CMM_TEST_FRAME_MS=0: uncapped.
+FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "100"))
+# Every callback waiting when a frame is let through runs in it (callbacks of one frame share its time stamp), so
+# no requester (the 3-D view, a panel's opening transition) is starved by another.
+FRAME_CAP = """(() => { const raf = window.requestAnimationFrame.bind(window);
+  const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, next = 1;
+  window.requestAnimationFrame = (cb) => { const id = next++;
+    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + %g; }
+                                                       ids.delete(id); cb(t); } else { ids.set(id, raf(go)); } };
+    ids.set(id, raf(go)); return id; };
+  window.cancelAnimationFrame = (id) => { const r = ids.get(id); if (r !== undefined) { caf(r); ids.delete(id); } };
+})();"""
+
+
 def chromium_path() -> str | None:
     for candidate in (os.environ.get("CMM_CHROMIUM"), "/usr/bin/chromium", shutil.which("chromium"),
                       shutil.which("chromium-browser")):
@@ -87,6 +104,8 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
                 **{"device_scale_factor": DEVICE_SCALE, **options})
             context.set_default_timeout(PAGE_WAIT_MS)
             context.set_default_navigation_timeout(PAGE_WAIT_MS)
+            if FRAME_MS:
+                context.add_init_script(FRAME_CAP % FRAME_MS)
             try:
                 yield context
             finally:
@@ -122,6 +141,7 @@ def station_app(station: Any, **options: Any) -> Iterator[Any]:
     from cmm.ui.app import StationApp
 
     options.setdefault("ask_name", False)  # no start dialog over the page unless the test is about it
+    options.setdefault("shadows", False)  # software WebGL: the shadow maps were most of chromium's CPU (see app_url)
     ui = StationApp(station, host="127.0.0.1", port=free_port(), **options)
     yield ui
     ui.close()
@@ -148,6 +168,13 @@ def viser_ready(page: Any) -> None:
     page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
 
 
+def app_url(app: Any) -> str:
+    """The station page's address for a test page: viser's 3-D view drawn at DEVICE_SCALE device pixels per CSS
+    pixel too (its ``fixedDpr``; by default it never draws under 1). With the shadows off (``station_app``), an idle
+    page's software WebGL went from 0.54 to 0.11 of a core."""
+    return f"{app.url}?fixedDpr={DEVICE_SCALE:g}"
+
+
 def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -> Any:
     """A new page on the station app with its viser client: ``page.capp`` is the tab's ClientApp, ``page.cid`` its
     client id, ``page.log`` the console errors and failed requests it saw. ``viewport`` (width, height): the page's
@@ -159,13 +186,28 @@ def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -
         page.set_viewport_size({"width": viewport[0], "height": viewport[1]})
     page.log = PageLog()
     page.log.attach(page)
-    page.goto(app.url)
+    page.goto(app_url(app))
     viser_ready(page)
     wait_until(lambda: set(app.clients) - before, 30.0, "the page's viser client")
     (cid,) = set(app.clients) - before
     page.cid = cid
     page.capp = app.clients[cid]
     return page
+
+
+def typed(page: Any, label: str, value: Any, timeout: float = 30.0) -> None:
+    """Wait until the station holds ``value`` in this page's field ``label`` (typed and Enter pressed): a button
+    pressed before the value arrived would act on the old one (a fixed pause is a race on a loaded machine)."""
+    handles = page.capp.ctx.client.gui._gui_input_handle_from_uuid
+
+    def arrived() -> bool:
+        found = [h for h in list(handles.values()) if getattr(h, "label", None) == label]
+        if not found:
+            raise AssertionError(f"this page has no field {label!r}")
+        return any(h.value == value or (isinstance(value, float) and isinstance(h.value, (int, float))
+                                        and abs(h.value - value) < 1e-9) for h in found)
+
+    wait_until(arrived, timeout, f"{value!r} typed into {label!r} at the station")
 
 
 def text_field(page: Any, label: str) -> Any:
@@ -258,14 +300,16 @@ def press(page: Any, name: str) -> None:
     button.evaluate("b => b.click()")
 
 
-def press_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.0, every: float = 10.0) -> None:
+def press_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.0, every: float = 10.0,
+                press_with: Any = None) -> None:
     """Press the button ``name`` until ``done()`` holds (for idempotent actions): a press on a panel that is being
-    re-drawn (a result arriving) can reach a button that is replaced a moment later and be lost."""
+    re-drawn (a result arriving) can reach a button that is replaced a moment later and be lost. ``press_with``:
+    how to press (default ``press``; ``press_on_screen`` for a tablet operator's reach)."""
     end = time.monotonic() + timeout
     while not done():
         if time.monotonic() > end:
             raise AssertionError(f"{what} did not happen within {timeout:g} s of pressing {name}")
-        press(page, name)
+        (press_with or press)(page, name)
         again = time.monotonic() + every
         while not done() and time.monotonic() < again:
             time.sleep(0.05)
@@ -733,14 +777,3 @@ def press_on_screen(page: Any, name: str, timeout: float = 60.0) -> None:
         time.sleep(0.25)
 
 
-def press_on_screen_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.0,
-                          every: float = 10.0) -> None:
-    """``press_until`` with ``press_on_screen``: pressed (within reach) again until ``done()`` holds."""
-    end = time.monotonic() + timeout
-    while not done():
-        if time.monotonic() > end:
-            raise AssertionError(f"{what} did not happen within {timeout:g} s of pressing {name}")
-        press_on_screen(page, name)
-        again = time.monotonic() + every
-        while not done() and time.monotonic() < again:
-            time.sleep(0.05)

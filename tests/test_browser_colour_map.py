@@ -67,7 +67,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         log = bs.PageLog()
         log.attach(page)
         before = set(app.clients)
-        page.goto(app.url)
+        page.goto(bs.app_url(app))
         page.get_by_role("button", name="E-STOP").wait_for()
         bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
         (cid,) = set(app.clients) - before

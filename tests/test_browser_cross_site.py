@@ -54,7 +54,7 @@ open("pendant", "ws://127.0.0.1:%(pendant)d/ws", null, (ws) => {
 @pytest.fixture(scope="module")
 def app(tmp_path_factory):
     station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False)
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False, shadows=False)
     yield ui
     ui.close()
     station.close()
@@ -97,7 +97,7 @@ def test_a_page_from_another_origin_cannot_take_control_or_move(app, evil_site):
         bs.screenshot(page, "cross-site-attack")
         # the same browser, on the station's own page, is welcome (the refusal is about the origin)
         own = context.new_page()
-        own.goto(app.url)
+        own.goto(bs.app_url(app))
         bs.wait_until(lambda: len(app.clients) > clients_before, 30, "the station's own page connecting")
     assert result["viser"]["messages"] == 0 and result["viser"]["closed"] == 1008, result
     # the pendant refuses the handshake itself (403): the socket never opens

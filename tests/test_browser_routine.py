@@ -102,7 +102,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         choose_step(page, 5)
         bs.text_field(page, "New name").fill("BORE")
         bs.text_field(page, "New name").press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "New name", "BORE")
         bs.press_on_screen(page, "Rename")
         page.get_by_text(re.compile(r"BORE: cylinder, 8 hits, ls")).first.wait_for()  # case-sensitive: renamed
         assert capp.routine.routine.program.feature("BORE")
@@ -112,7 +112,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         station.sim.place_part(SECOND_POSE)
         bs.text_field(page, "Part name").fill("SN-0002")
         bs.text_field(page, "Part name").press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "Part name", "SN-0002")
         bs.press_on_screen(page, "Run on next part")
         page.get_by_text("WAITING FOR THE OPERATOR").first.wait_for()
         page.get_by_text("Take 3 hits by hand on TOP (primary datum)").first.wait_for()

@@ -102,7 +102,7 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     bs.pick_face(page, station, local_point, outward)
     page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
     page.get_by_label("Hits (per ring)", exact=True).press("Enter")
-    page.wait_for_timeout(300)
+    bs.wait_until(lambda: page.capp.measure.gui["hits"].value == hits_per_ring, 30.0, "the typed hits per ring")
     planned_before = page.capp.measure.plan
     bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not planned_before, "the plan")
     page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
@@ -134,7 +134,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         text = status.inner_text()
         assert f"X {x:.4f}" in text and f"Z {z:.4f}" in text, text
         assert "Nobody controls the machine" in text and "not qualified" in text, text
-        page.get_by_role("button", name="Take control").click(force=True)
+        bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
         status.get_by_text("You control the machine.").wait_for()
 
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
@@ -206,7 +206,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         old_point = np.array(station.measurement.hits[old].point, float)
         page.get_by_label("Hit", exact=True).fill(str(old))
         page.get_by_label("Hit", exact=True).press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "Hit", old)
         page.get_by_role("button", name="Re-take hit").click(force=True)
         bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
         assert page.capp.features.retake[:2] == (top.id, old)
@@ -237,14 +237,14 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.open_folder(page, "Nominal and tolerance", "Nominal diameter")
         page.get_by_label("Nominal diameter", exact=True).fill("20.1")
         page.get_by_label("Nominal diameter", exact=True).press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "Nominal diameter", 20.1)
         page.get_by_role("button", name="Apply typed nominal").click(force=True)
         bs.wait_until(lambda: station.measurement.features[boss.id].nominal.params["radius"] == pytest.approx(10.05), 20.0,
                       "the typed nominal diameter")
         bs.wait_until(lambda: fails() > clean, 20.0, "the boss shown as FAIL in the tree")
         page.get_by_label("Size ± (mm)", exact=True).fill("0.15")
         page.get_by_label("Size ± (mm)", exact=True).press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "Size ± (mm)", 0.15)
         page.get_by_role("button", name="Apply tolerances").click(force=True)
         bs.wait_until(lambda: (station.measurement.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
                       "the typed size tolerance")
@@ -390,7 +390,7 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         page = context.new_page()
         page.on("websocket", lambda ws: ws.on("framereceived", lambda payload: received.append(
             (ws.url, len(payload) if isinstance(payload, (bytes, str)) else 0))) if f":{app.port}" in ws.url else None)
-        page.goto(app.url)
+        page.goto(bs.app_url(app))
         page.get_by_role("button", name="E-STOP").wait_for()
         page.wait_for_timeout(3000)  # the initial GUI and scene
         received.clear()
@@ -407,7 +407,7 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
     with bs.browser_context(viewport=TABLET, has_touch=True, is_mobile=True) as context:
         # the station page on a tablet: the status bar stays on screen at the end of a long tab
         page = context.new_page()
-        page.goto(app.url)
+        page.goto(bs.app_url(app))
         page.locator("#cmm-status").wait_for()
         assert bs.top_tab_rows(page) == [list(bs.TABS)], bs.top_tab_rows(page)
         bs.open_tab(page, "Measure", "Features")

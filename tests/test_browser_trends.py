@@ -44,7 +44,7 @@ def test_the_trends_tab_shows_the_chart_inside_the_panel(app, station):
         page = ctx.new_page()
         log = bs.PageLog()
         log.attach(page)
-        page.goto(app.url)
+        page.goto(bs.app_url(app))
         page.get_by_role("button", name="E-STOP").wait_for()
         bs.open_tab(page, "Report", "Trends")
         chart = page.locator("svg.trend")

@@ -80,7 +80,7 @@ def held_on_a_slow_clock(world):
 
 @pytest.fixture(scope="module")
 def app(station):
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False)
+    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False, shadows=False)
     yield ui
     ui.close()
 
@@ -116,7 +116,7 @@ def speed(station) -> float:
 
 
 def take_control(page, app) -> None:
-    page.get_by_role("button", name="Take control").click()
+    bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
     page.get_by_text("You control the machine.").first.wait_for()
     assert app.control.holder == page.capp.client_id
 

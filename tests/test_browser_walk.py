@@ -173,7 +173,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.open_folder(page, "Nominal and tolerance", "Size ± (mm)")
         page.get_by_label("Size ± (mm)", exact=True).fill("0.01")
         page.get_by_label("Size ± (mm)", exact=True).press("Enter")
-        page.wait_for_timeout(300)
+        bs.typed(page, "Size ± (mm)", 0.01)
         bs.press(page, "Apply tolerances")
         bs.wait_until(lambda: (model.features[bore.id].tolerance or {}).get("size") == pytest.approx(0.01), 30.0,
                       "the bore's tolerance")

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: CMM_TRENDS_DB, else --sessions when it is a postgresql:// URL)")
     parser.add_argument("--station", metavar="NAME", default=None,
                         help="this station's name in the shared trends (default: CMM_STATION, else the host name)")
+    parser.add_argument("--no-shadows", dest="shadows", action="store_false",
+                        help="draw the 3-D view without the probe's shadow: each frame a few times cheaper for "
+                             "browsers on computers or tablets without a graphics processor")
     parser.add_argument("--tolerance", type=float, default=0.02,
                         help="colour map tolerance, mm: red / blue beyond it, amber / cyan (warning) beyond half "
                              "of it (default 0.02)")
@@ -118,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
                          pendant_port=args.pendant_port, tolerance=args.tolerance,
-                         allow_hosts=tuple(args.allow_host),
+                         allow_hosts=tuple(args.allow_host), shadows=args.shadows,
                          control=Control(lan=args.lan, lan_stop=args.lan_stop))
     except Exception as exc:  # noqa: BLE001
         station.close()
