@@ -168,6 +168,22 @@ def viser_ready(page: Any) -> None:
     page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
 
 
+COUNT_PASSES = """() => { const m = window.__passes = new Map(); let now = 0;
+  const raf = window.requestAnimationFrame;
+  window.requestAnimationFrame = (cb) => raf((t) => { now = t; cb(t); });
+  for (const P of [WebGLRenderingContext.prototype, WebGL2RenderingContext.prototype]) {
+    const clear = P.clear;
+    P.clear = function (...a) { m.set(now, (m.get(now) || 0) + 1); return clear.apply(this, a); }; } }"""
+
+
+def render_passes(page: Any, wait_ms: int = 3000) -> int:
+    """The most render passes (WebGL clears) the page's 3-D view drew in one frame over ``wait_ms`` (viser redraws
+    an idle scene about once a second): 1 without shadows, one more per shadow-casting light with them."""
+    page.evaluate(COUNT_PASSES)
+    page.wait_for_timeout(wait_ms)
+    return int(page.evaluate("Math.max(0, ...window.__passes.values())"))
+
+
 def app_url(app: Any) -> str:
     """The station page's address for a test page: viser's 3-D view drawn at DEVICE_SCALE device pixels per CSS
     pixel too (its ``fixedDpr``; by default it never draws under 1). With the shadows off (``station_app``), an idle

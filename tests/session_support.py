@@ -167,3 +167,25 @@ def teach_block(model, faces=BLOCK_FACES):
         ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
     apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
     return ids, model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
+
+
+def standing(station, what: str, still: float = 0.2, timeout: float = 60.0) -> None:
+    """Wait until no axis of ``station`` has moved for ``still`` s of the machine's clock (a zero velocity in one
+    sample is not enough: on a starved host a late hold can restart a jog that had run out its horizon, and an
+    abrupt stop's servo settles for a few samples)."""
+    import time
+
+    since = [station.machine.state.time, station.machine.state.position.copy()]
+
+    def stood() -> bool:
+        s = station.machine.state
+        if any(abs(a.velocity) > 1e-9 for a in s.axes) or not np.array_equal(s.position, since[1]):
+            since[:] = [s.time, s.position.copy()]
+            return False
+        return s.time - since[0] >= still
+
+    end = time.monotonic() + timeout
+    while not stood():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what}: the axes did not stand still within {timeout:g} s")
+        time.sleep(0.02)

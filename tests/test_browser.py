@@ -362,7 +362,7 @@ def test_viser_app_loads(context, tmp_path):
         page.wait_for_timeout(500)
         page.get_by_role("dialog").get_by_role("button", name="Skip", exact=True).click()
         page.get_by_text("Who is operating?").wait_for(state="hidden")
-        page.wait_for_timeout(2000)
+        assert bs.render_passes(page) > 1  # `cmm serve` draws the probe's shadow (a pass per light)
         bs.screenshot(page, "viser-main")
         shot = 0
         for top, subs in bs.TABS.items():  # every tab and sub-tab of the grouped side panel

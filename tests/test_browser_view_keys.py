@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import session_support as sup
 from netutil import SIM_PACED
 from ui_support import unpaced
 
@@ -40,21 +41,6 @@ def app(station):
 
 def _velocity(station):
     return np.array([a.velocity for a in station.machine.state.axes])
-
-
-def _standing(station, what, still=0.2):
-    """Wait until no axis has moved for ``still`` s of the machine's clock (a zero velocity in one sample is not
-    enough: on a starved host a late hold can restart a jog that had run out its horizon, and a fault's abrupt
-    stop takes a sample or two)."""
-    since = [station.machine.state.time, station.machine.state.position.copy()]
-
-    def stood() -> bool:
-        s = station.machine.state
-        if np.any(np.abs(_velocity(station)) > 1e-9) or not np.array_equal(s.position, since[1]):
-            since[:] = [s.time, s.position.copy()]
-            return False
-        return s.time - since[0] >= still
-    bs.wait_until(stood, 60.0, what)
 
 
 def _focus_view(page):
@@ -101,12 +87,12 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
             assert abs(_velocity(station)[1]) < 1e-9 and abs(_velocity(station)[2]) < 1e-9
         finally:
             page.keyboard.up("ArrowRight")
-        _standing(station, "the jog stopping on key up")
+        sup.standing(station, "the jog stopping on key up")
         assert station.machine.state.position[0] > x0
         # in FAULT a key says why it does nothing, and nothing moves
         station.controller.fault("a test fault")
         bs.wait_until(lambda: station.controller.state.mode.value == "fault", 30.0, "the fault")
-        _standing(station, "the axes standing in the fault")
+        sup.standing(station, "the axes standing in the fault")
         here = station.machine.state.position.copy()
         _press_until_told(page, "ArrowUp", "fault", "the view saying the machine is in fault")
         assert "Reset" in badge.inner_text()

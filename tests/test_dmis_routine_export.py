@@ -201,3 +201,48 @@ def test_an_exported_features_later_hits_hop_as_the_routine_runner_and_measure_t
     n1, n2 = np.asarray(over["normal"], float), np.asarray(hop["normal"], float)
     assert abs(n1 @ n2) > 1 - 1e-6
     assert abs((np.asarray(hop["point"], float) - np.asarray(over["point"], float)) @ n1) < TOL
+
+
+def test_cmm_dmis_export_with_the_part_writes_the_hops_and_refuses_another_part(station, tmp_path, capsys):
+    """`cmm dmis-export PROGRAM --part FILE`: a program taught on a part loaded from an STL file, that file given
+    (its checksum matches the program's): the exported top plane's later hits hop (GOTO points below the
+    clearance height); without --part every hit goes over the clearance height; another part is refused with a
+    message naming the program's part, and nothing is written."""
+    from cmm.cli import main
+    from cmm.session.model import file_sha256
+    from cmm.session.program import save
+
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    name, origin, direction = FACES[0]  # the top face
+    picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
+    run_plan(model, plan_at_pick(model, picked[0].face_id, n=4), name=name)
+    routine = teach_routine(open_session(model.journal.path), name="top", part_mesh=model.part.mesh,
+                            part_nominals=model.part.nominal_features)
+    part_file = tmp_path / "block.stl"
+    model.part.mesh.export(part_file)
+    # as a program taught with the part loaded from that file (its file's checksum; the sample part has no file)
+    routine.program.part_sha256 = file_sha256(part_file)
+    program_file = save(routine.program, tmp_path / "top.toml")
+    top = routine.program.hits[0].clearance_z
+    at = ",".join(f"{v:g}" for v in TRUE_PART_POSE[:3, 3])
+
+    def gotos(path):
+        return [float(ln.split("GOTO/")[1].split(", ")[2]) for ln in path.read_text().splitlines() if "GOTO/" in ln]
+
+    assert main(["dmis-export", str(program_file), "--at", at, "-o", str(tmp_path / "over.dmi")]) == 0
+    assert main(["dmis-export", str(program_file), "--at", at, "--part", str(part_file),
+                 "-o", str(tmp_path / "hop.dmi")]) == 0
+    over, hop = gotos(tmp_path / "over.dmi"), gotos(tmp_path / "hop.dmi")
+    assert over and all(z == pytest.approx(top) for z in over)  # every hit over the clearance height
+    assert any(z < top - 1.0 for z in hop)  # later hits hop below it
+    assert check((tmp_path / "hop.dmi").read_text())[1] == []
+
+    other = tmp_path / "other.stl"
+    import trimesh
+
+    trimesh.creation.box((10.0, 10.0, 10.0)).export(other)
+    capsys.readouterr()
+    assert main(["dmis-export", str(program_file), "--part", str(other), "-o", str(tmp_path / "x.dmi")]) == 1
+    assert f"is not the part {routine.program.part_name!r}" in capsys.readouterr().err
+    assert not (tmp_path / "x.dmi").exists()

@@ -17,6 +17,7 @@ from cmm.ippdme.server import parse_address
 from cmm.session.store import DirectoryStore, load_session
 from cmm.ui.panels import machine_markdown
 
+import session_support as sup
 from ippdme_support import connected, ipp_station
 
 FAR = "GoTo(X(400), Y(300), Z(250))"  # from home (0, 0, 300): 500 mm, 100 s at 5 mm/s
@@ -95,6 +96,7 @@ def test_a_fast_query_is_answered_during_a_move_and_a_reused_tag_is_refused(serv
         assert not station.machine.busy
         assert c.call("Get(X())").errors[0].error_number == 514  # AbortE: ClearAllErrors comes next
         assert c.call("ClearAllErrors()").ok
+        sup.standing(station, "the axes after the abort's stop")  # its servo settles for a few samples
         # after the stop, a move that leaves Y and Z where they are still arrives
         assert c.call("SetProp(Tool.GoToPar.Speed(50))").ok
         here = c.call("Get(X(), Y(), Z())").values()

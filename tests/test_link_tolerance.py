@@ -172,6 +172,7 @@ def test_only_modules_served_on_this_computer_get_the_slow_peer_allowance():
     from cmm.nmc.bus import local_peer
 
     assert local_peer("socket://127.0.0.1:5000") and local_peer("rfc2217://localhost:7000")
+    assert local_peer("/dev/pts/4")  # cmm sim --pty
     assert not local_peer("socket://10.0.0.7:4001") and not local_peer("/dev/ttyUSB0")
     assert not local_peer("sim://?cmm=1") and not local_peer(SimNetwork(1).transport())
 

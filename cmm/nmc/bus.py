@@ -133,14 +133,6 @@ OVERSLEPT_EXTENSIONS = 3  # a reply's wait is renewed at most this often for a d
 REPLY_ROUND_TRIPS = 2.0
 TRIP_HALF_LIFE = 5.0
 LOCAL_HOSTS = ("127.", "localhost", "[::1]")
-
-
-def local_peer(port: Any) -> bool:
-    """Is ``port`` a URL of modules served by a process on this computer (TCP or RFC 2217 on loopback)?"""
-    if not isinstance(port, str) or "://" not in port:
-        return False
-    scheme, rest = port.split("://", 1)
-    return scheme.lower() in ("socket", "rfc2217") and rest.lower().startswith(LOCAL_HOSTS)
 HEARD_KEEP = 64  # received chunks kept for the error messages ("what was seen")
 STORM_LIMIT = 6  # transactions in a row that needed a resynchronisation: the link is down
 GOAL_TOLERANCE = 3  # counts: a started move that already arrived
@@ -155,6 +147,19 @@ RESEND_SAFE = {codec.NOP, codec.READ_STAT, codec.DEF_STAT, codec.SET_GAIN, codec
 MARKER_ITEMS = (codec.SEND_ID, codec.SEND_ID | codec.SEND_AUX, codec.SEND_ID | codec.SEND_AD | codec.SEND_AUX,
                 codec.SEND_ID | codec.SEND_VEL | codec.SEND_AUX)
 CAPTURE_BITS = codec.ON_LIMIT1 | codec.ON_LIMIT2 | codec.ON_INDEX | codec.ON_POS_ERR | codec.ON_CUR_ERR
+
+
+def local_peer(port: Any) -> bool:
+    """Is ``port`` a URL of modules served by a process on this computer (TCP or RFC 2217 on loopback, or a
+    pseudo-terminal: ``cmm sim --pty``)?"""
+    if not isinstance(port, str):
+        return False
+    if port.startswith("/dev/pts/"):
+        return True
+    if "://" not in port:
+        return False
+    scheme, rest = port.split("://", 1)
+    return scheme.lower() in ("socket", "rfc2217") and rest.lower().startswith(LOCAL_HOSTS)
 
 
 def reply_timeout(n_bytes: int) -> float:
@@ -372,7 +377,7 @@ class Bus:
         self._sent_at = self.clock.now()
         self._write(packet, address)
         n = codec.status_length(items)
-        data = self._read(n, address, self._reply_wait(items) if wait is None else wait, since=self._sent_at)
+        data = self._read(n, address, self._reply_wait(items) if wait is None else wait, since=self.clock.now())
         if len(data) != n:
             return None
         self._note_trip(self.clock.now() - self._sent_at)
