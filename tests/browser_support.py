@@ -34,6 +34,10 @@ PAGE_WAIT_MS = 120_000
 # test's chromium used 30 CPU s instead of 116, and the browser tests were three quarters of the suite's CPU.
 # CMM_TEST_DPR=1 draws (and screenshots) at full resolution.
 DEVICE_SCALE = float(os.environ.get("CMM_TEST_DPR", "0.5"))
+# Device pixels per CSS pixel of viser's 3-D view alone (its ``fixedDpr``; viser never goes under 1 by itself):
+# software WebGL's cost is the pixels it shades, and no test reads the view's pixels (picks are rays from CSS
+# coordinates). CMM_TEST_VIEW_DPR=1 for sharp screenshots of the view.
+VIEW_SCALE = float(os.environ.get("CMM_TEST_VIEW_DPR", "0.25"))
 
 
 # The 3-D view's frames at most every FRAME_MS ms (requestAnimationFrame held back; viser draws on demand, and its
@@ -185,10 +189,10 @@ def render_passes(page: Any, wait_ms: int = 3000) -> int:
 
 
 def app_url(app: Any) -> str:
-    """The station page's address for a test page: viser's 3-D view drawn at DEVICE_SCALE device pixels per CSS
-    pixel too (its ``fixedDpr``; by default it never draws under 1). With the shadows off (``station_app``), an idle
-    page's software WebGL went from 0.54 to 0.11 of a core."""
-    return f"{app.url}?fixedDpr={DEVICE_SCALE:g}"
+    """The station page's address for a test page: viser's 3-D view drawn at VIEW_SCALE device pixels per CSS
+    pixel. With the shadows off too (``station_app``), an idle page's software WebGL went from 0.54 of a core to
+    0.11 at 0.5 pixels."""
+    return f"{app.url}?fixedDpr={VIEW_SCALE:g}"
 
 
 def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -> Any:

@@ -356,7 +356,7 @@ def test_viser_app_loads(context, tmp_path):
         page.set_viewport_size({"width": 1400, "height": 900})
         log = bs.PageLog()
         log.attach(page)
-        page.goto(f"{url}?fixedDpr={bs.DEVICE_SCALE:g}")  # as bs.app_url (the product's shadows kept)
+        page.goto(f"{url}?fixedDpr={bs.VIEW_SCALE:g}")  # as bs.app_url (the product's shadows kept)
         bs.viser_ready(page)  # the scene and the panels that arrived over viser's socket
         page.get_by_text("Who is operating?").wait_for()  # the start dialog; Skip leaves it unnamed
         page.wait_for_timeout(500)

@@ -150,18 +150,23 @@ def test_a_line_in_a_routine_is_exported_as_a_bounded_line_in_its_face_and_measu
     assert abs(d[0]) == pytest.approx(np.cos(np.arctan2(1.0, 90.0)), abs=1e-3)
 
 
+def _taught_top(station, hits):
+    """The top face auto-measured with ``hits`` hits on the part at its true set-up, and the routine taught from it."""
+    model = station.measurement
+    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
+    name, origin, direction = FACES[0]  # the top face
+    picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
+    run_plan(model, plan_at_pick(model, picked[0].face_id, n=hits), name=name)
+    return model, teach_routine(open_session(model.journal.path), name="top", part_mesh=model.part.mesh,
+                                part_nominals=model.part.nominal_features)
+
+
 def test_an_exported_features_later_hits_hop_as_the_routine_runner_and_measure_the_same(station):
     """With the part mesh the exporter writes a feature's later hits as the routine runner takes them (the rails'
     hop: straight or over the feature's local top, GOTO points between the PTMEAS statements, none up at the
     clearance height); the program checks, runs on the simulator in less machine time per hit and measures the
     same plane as the export without the mesh (every hit over the clearance height)."""
-    model = station.measurement
-    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    name, origin, direction = FACES[0]  # the top face
-    picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
-    run_plan(model, plan_at_pick(model, picked[0].face_id, n=5), name=name)
-    routine = teach_routine(open_session(model.journal.path), name="top", part_mesh=model.part.mesh,
-                            part_nominals=model.part.nominal_features)
+    model, routine = _taught_top(station, 5)
     program, top = routine.program, routine.program.hits[0].clearance_z
     probe = station.config.probe
     kw = dict(tip_radius=station.prober.settings.tip_radius, approach=probe.approach_distance,
@@ -212,13 +217,7 @@ def test_cmm_dmis_export_with_the_part_writes_the_hops_and_refuses_another_part(
     from cmm.session.model import file_sha256
     from cmm.session.program import save
 
-    model = station.measurement
-    model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    name, origin, direction = FACES[0]  # the top face
-    picked = model.pick((TRUE_PART_POSE @ np.array([*origin, 1.0]))[:3], np.array(direction, float))
-    run_plan(model, plan_at_pick(model, picked[0].face_id, n=4), name=name)
-    routine = teach_routine(open_session(model.journal.path), name="top", part_mesh=model.part.mesh,
-                            part_nominals=model.part.nominal_features)
+    model, routine = _taught_top(station, 4)
     part_file = tmp_path / "block.stl"
     model.part.mesh.export(part_file)
     # as a program taught with the part loaded from that file (its file's checksum; the sample part has no file)
