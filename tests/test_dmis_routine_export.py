@@ -211,13 +211,15 @@ def test_an_exported_features_later_hits_hop_as_the_routine_runner_and_measure_t
 def test_cmm_dmis_export_with_the_part_writes_the_hops_and_refuses_another_part(station, tmp_path, capsys):
     """`cmm dmis-export PROGRAM --part FILE`: a program taught on a part loaded from an STL file, that file given
     (its checksum matches the program's): the exported top plane's later hits hop (GOTO points below the
-    clearance height); without --part every hit goes over the clearance height; another part is refused with a
-    message naming the program's part, and nothing is written."""
+    clearance height); without --part every hit goes over the clearance height; a program taught on the
+    simulator's sample part (no file) hops without --part; another part is refused with a message naming the
+    program's part, and nothing is written."""
     from cmm.cli import main
     from cmm.session.model import file_sha256
     from cmm.session.program import save
 
     model, routine = _taught_top(station, 4)
+    taught_on_sample = save(routine.program, tmp_path / "sample.toml")  # taught on the simulator's sample part
     part_file = tmp_path / "block.stl"
     model.part.mesh.export(part_file)
     # as a program taught with the part loaded from that file (its file's checksum; the sample part has no file)
@@ -236,6 +238,9 @@ def test_cmm_dmis_export_with_the_part_writes_the_hops_and_refuses_another_part(
     assert over and all(z == pytest.approx(top) for z in over)  # every hit over the clearance height
     assert any(z < top - 1.0 for z in hop)  # later hits hop below it
     assert check((tmp_path / "hop.dmi").read_text())[1] == []
+    # the sample part has no file: it is made again, and its program's later hits hop without --part
+    assert main(["dmis-export", str(taught_on_sample), "--at", at, "-o", str(tmp_path / "sample.dmi")]) == 0
+    assert gotos(tmp_path / "sample.dmi") == hop
 
     other = tmp_path / "other.stl"
     import trimesh

@@ -18,8 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tip-radius", type=float, default=None, help="stylus tip radius (default: the configuration's)")
     p.add_argument("--config", metavar="FILE", help="machine configuration TOML (probe distances, tip)")
     p.add_argument("--part", metavar="FILE", help="the part the program was taught on (STL, OBJ, PLY): a feature's "
-                   "later hits then hop over it as the routine runner's; without it every hit goes over its "
-                   "clearance height")
+                   "later hits then hop over it as the routine runner's (the simulator's sample part is found without "
+                   "it); without it every hit goes over its clearance height")
 
 
 def run(args: Any) -> int:
@@ -58,6 +58,12 @@ def run(args: Any) -> int:
             print(f"cmm dmis-export: {args.part} is not the part {program.part_name!r} the program was taught on",
                   file=sys.stderr)
             return 1
+    elif program.part_name == "sample part":  # the simulator's part has no file: made again, as session export does
+        from ..session.model import mesh_sha256
+        from ..sim.sample_part import sample_part
+
+        sample, _ = sample_part()
+        mesh = sample if mesh_sha256(sample) == program.part_sha256 else None
     probe = load_config(args.config).probe
     text = to_dmis(program, pose, tip_radius=args.tip_radius or probe.tip_radius, approach=probe.approach_distance,
                    search=probe.search_distance, retract=probe.retract_distance, mesh=mesh)
