@@ -107,7 +107,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         status = page.locator("#cmm-status")
         # --- who operates: the start dialog; the status bar and the control messages name her
         bs.start_as(page, "Ada")
-        bs.press(page, "Take control")
+        bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "Ada's control")
         status.get_by_text("Ada (you) controls the machine").wait_for()
         assert model.info.get("operator") == "Ada"  # the report header's operator
 
@@ -204,8 +204,8 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         sessions.refresh_list()
         sessions.gui["session"].value = "day-part-1"  # what choosing it in the Session dropdown sets
         page.get_by_text("Export", exact=True).click()
-        bs.press(page, "Report (HTML + CSV)")
-        bs.wait_until(lambda: any(f.suffix == ".html" for f in sessions.last_files), 120.0, "the report")
+        bs.press_until(page, "Report (HTML + CSV)", lambda: any(f.suffix == ".html" for f in sessions.last_files),
+                       "the report", timeout=120.0, every=30.0)
         html = next(f for f in sessions.last_files if f.suffix == ".html").read_text(encoding="utf-8")
         assert "Ada" in html and all(name in html for name in FEATURES)
         page.get_by_text("-report.html").first.wait_for()
@@ -216,7 +216,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         tablet = bs.open_page(context, app, viewport=TABLET)
         bs.start_as(tablet, "Ben")
         assert bs.top_tab_rows(tablet) == [list(bs.TABS)]
-        bs.press(tablet, "Take control")
+        bs.press_until(tablet, "Take control", lambda: app.control.holder == tablet.capp.client_id, "Ben's control")
         tablet.locator("#cmm-status").get_by_text("Ben (you) controls the machine").wait_for()
         status.get_by_text("control is held by Ben").wait_for()
         bs.wait_until(lambda: any(title == "Control taken" and "Ben now controls the machine" in body
