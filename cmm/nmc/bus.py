@@ -390,22 +390,21 @@ class Bus:
             return None
         return status
 
+    def _recent_trip(self) -> float:
+        """The link's recent round trip: the largest seen, halved for every TRIP_HALF_LIFE s since."""
+        return self._trip * 0.5 ** (max(self.clock.now() - self._trip_at, 0.0) / TRIP_HALF_LIFE)
+
     def _note_trip(self, seconds: float) -> None:
-        """A round trip just seen (request sent to reply read): the recent round trip is the larger of it and the
-        earlier one, halved for every TRIP_HALF_LIFE s since."""
-        now = self.clock.now()
-        decayed = self._trip * 0.5 ** (max(now - self._trip_at, 0.0) / TRIP_HALF_LIFE)
-        if seconds >= decayed:
-            self._trip, self._trip_at = seconds, now
-        elif decayed < 1e-4:
-            self._trip = 0.0
+        """A round trip just seen (request sent to reply read)."""
+        if seconds >= self._recent_trip():
+            self._trip, self._trip_at = seconds, self.clock.now()
 
     def _reply_wait(self, items: int) -> float:
         """How long a reply of ``items`` may take now (see REPLY_ROUND_TRIPS)."""
+        kerr = reply_timeout(codec.status_length(items))
         if not self.local:
-            return reply_timeout(codec.status_length(items))
-        trip = self._trip * 0.5 ** (max(self.clock.now() - self._trip_at, 0.0) / TRIP_HALF_LIFE)
-        return min(max(reply_timeout(codec.status_length(items)), REPLY_ROUND_TRIPS * trip), MARKER_WAIT)
+            return kerr
+        return min(max(kerr, REPLY_ROUND_TRIPS * self._recent_trip()), MARKER_WAIT)
 
     def _reply_items(self, address: int) -> int | None:
         """Items in the reply to a command sent to ``address``; None if nobody replies."""
