@@ -59,11 +59,9 @@ def run(args: Any) -> int:
                   file=sys.stderr)
             return 1
     elif program.part_name == "sample part":  # the simulator's part has no file: made again, as session export does
-        from ..session.model import mesh_sha256
-        from ..sim.sample_part import sample_part
+        from ..session.export import sample_part_mesh
 
-        sample, _ = sample_part()
-        mesh = sample if mesh_sha256(sample) == program.part_sha256 else None
+        mesh = sample_part_mesh(program.part_sha256)
     probe = load_config(args.config).probe
     text = to_dmis(program, pose, tip_radius=args.tip_radius or probe.tip_radius, approach=probe.approach_distance,
                    search=probe.search_distance, retract=probe.retract_distance, mesh=mesh)

@@ -59,12 +59,16 @@ def resolve_part_mesh(session: Session, part: Any = None, search: list[str | Pat
         if ref.sha256 is None or mesh_sha256(mesh) == ref.sha256:
             return mesh
     if ref.name == "sample part":
-        from ..sim.sample_part import sample_part
-
-        mesh, _ = sample_part()
-        if ref.sha256 is None or mesh_sha256(mesh) == ref.sha256:
-            return mesh
+        return sample_part_mesh(ref.sha256)
     return None
+
+
+def sample_part_mesh(sha256: str | None) -> Any:
+    """The simulator's sample part, made again (it has no file), if its hash is ``sha256`` (or none was recorded)."""
+    from ..sim.sample_part import sample_part
+
+    mesh, _ = sample_part()
+    return mesh if sha256 is None or mesh_sha256(mesh) == sha256 else None
 
 
 def hit_deviations(session: Session, mesh: Any) -> dict[int, float]:
