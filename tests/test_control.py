@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import time
 
 import numpy as np
 import pytest
@@ -324,3 +325,33 @@ def test_state_listeners_get_coalesced_states_and_every_move_end_at_once(homed):
     assert last.mode is Mode.IDLE and last is ctl.state
     assert last.machine.position == pytest.approx([200.0, 150.0, 250.0], abs=0.003)
     assert [s.mode for s in states].count(Mode.MOVING) >= 1
+
+
+def test_a_front_end_waits_for_a_slow_loop_and_gives_up_on_a_stuck_one(rig):
+    """A busy computer makes the loop slow, not stuck: a command waits as long as the loop keeps stepping (here a
+    command that keeps the loop sampling for many times the patience), and gives up only when no step comes."""
+    import threading
+
+    sim, ctl, _ = rig
+    ctl.command_timeout = 0.5
+    ctl.start()
+    steps = 0
+
+    def busy(setup):  # the loop is working: it samples, as a routine waiting on a move does, for 2 s or more
+        nonlocal steps
+        start = time.monotonic()
+        while time.monotonic() - start < 2.0 or steps < 100:
+            ctl.poll()
+            steps += 1
+            time.sleep(0.005)
+        return setup.machine.position
+
+    assert ctl.configure(None, busy) is not None
+    assert steps >= 100
+    release = threading.Event()
+    try:
+        with pytest.raises(ControlError, match="took no step for 0.5 s"):
+            ctl.configure(None, lambda setup: release.wait(30))
+    finally:
+        release.set()
+    assert ctl.configure(None, lambda setup: "again") == "again"  # the loop went on once free

@@ -13,7 +13,7 @@ import time
 from dataclasses import replace
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -37,7 +37,10 @@ log = logging.getLogger(__name__)
 
 SWITCH_INTERVAL = 0.001  # s: how long another Python thread may hold the interpreter lock when the loop waits
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
-COMMAND_TIMEOUT = 5.0  # s a front end waits for the loop to take a command
+# s a front end waits without the loop taking a step (a sample, or a command started) before it gives up: the loop
+# is stuck. A busy computer makes the loop slow, not stuck: the wait goes on while it steps (it was a flat 5 s and
+# an auto-measure failed beside two CPU hogs).
+COMMAND_TIMEOUT = 20.0
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
 STOP_PATIENCE = IDLE_PATIENCE + 2.0  # s a STOP the loop is carrying out may take (its own patient retries)
 STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
@@ -82,6 +85,8 @@ class Controller:
         self._urgent: collections.deque[_Command] = collections.deque()
         self._thread: threading.Thread | None = None
         self._running = False
+        self._steps = 0  # loop steps begun (samples and commands): how a waiting front end tells slow from stuck
+        self.command_timeout = COMMAND_TIMEOUT
         self._fault: str | None = None
         self._link_ok = True
         self._warnings_seen = 0  # the bus's link warnings already told (see _link_warning)
@@ -640,15 +645,29 @@ class Controller:
             raise Refused(why)
 
     def _submit(self, client: str | None, name: str, fn: Callable[[], Any], *, urgent: bool = False,
-                timeout: float | None = COMMAND_TIMEOUT) -> Any:
+                timeout: float | None | Literal["command"] = "command") -> Any:
         cmd = _Command(client, name, fn)
         if self._thread is None or threading.current_thread() is self._thread:
             return self._run_command(cmd, internal=self._job is not None and name != "job")
         (self._urgent if urgent else self._queue).append(cmd)
-        try:
-            return cmd.future.result(timeout)
-        except FutureTimeout:
-            raise ControlError(f"{name}: the machine loop did not answer within {timeout:g} s") from None
+        return self._await(cmd, self.command_timeout if timeout == "command" else timeout)
+
+    def _await(self, cmd: _Command, timeout: float | None) -> Any:
+        """The result of ``cmd`` from the loop; gives up when the loop has taken no step for ``timeout`` s (stuck)
+        or has stopped, never while it is only slow."""
+        step, since = self._steps, time.monotonic()
+        while True:
+            try:
+                return cmd.future.result(None if timeout is None else min(timeout, 0.25))
+            except FutureTimeout:
+                pass
+            now, thread = time.monotonic(), self._thread
+            if thread is None or not thread.is_alive():
+                raise ControlError(f"{cmd.name}: the machine loop has stopped")
+            if self._steps != step:
+                step, since = self._steps, now
+            elif timeout is not None and now - since > timeout:
+                raise ControlError(f"{cmd.name}: the machine loop took no step for {timeout:g} s (it is stuck)")
 
     def _run_command(self, cmd: _Command, check: bool = True, internal: bool = False) -> Any:
         """Check and execute one command in the loop (or inline); link failures put the machine in fault."""
@@ -846,6 +865,7 @@ class Controller:
                 return
             if not cmd.future.set_running_or_notify_cancel():
                 continue
+            self._steps += 1
             try:
                 result = self._run_command(cmd, check=cmd.name not in ("fault", "stop", "estop"))
             except BaseException as exc:  # noqa: BLE001 - the caller gets it
@@ -855,6 +875,7 @@ class Controller:
 
     def poll(self) -> MachineState | None:
         """One loop step: urgent commands, queued commands, one sample with its watchers; never raises."""
+        self._steps += 1
         try:
             if self._urgent:
                 self._serve(self._urgent)
