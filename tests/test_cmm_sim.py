@@ -119,3 +119,36 @@ def test_cmm_sim_honours_firmware_modules_and_version_and_says_so():
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_a_standing_machine_skips_its_idle_servo_ticks_and_still_feels_a_part_put_on_the_probe():
+    """The probe and the home switches read only the axes: while every module is idle the network skips the
+    servo ticks between host packets (they would change nothing), and the probe check runs again at the end of
+    each skipped stretch, so a ball put on the standing stylus still trips it."""
+    from cmm.sim.home_switches import HomeSwitches
+
+    sim = SimulatedCMM(load())
+    HomeSwitches(sim)
+    net = sim.network
+    m = Machine(sim.config, sim.transport())
+    m.connect()
+    try:
+        m.move_to([300.0, 200.0, 250.0]).wait()
+        watched, every = [], []
+        net.add_tick_hook(lambda n, tick: watched.append(tick), reads_axes_only=True)
+        for _ in range(200):  # 10 s of a host sampling every 50 ms
+            m.poll()
+            m.clock.sleep(0.05)
+        assert 150 <= len(watched) < 2000  # about one check per host packet, not 20 000 ticks
+        trips = sim.triggers
+        sim.place_artifacts([(sim.tip_position() + [0.0, 0.0, -12.0], 25.0)])  # a 25 mm ball pushed onto the tip
+        m.poll()
+        m.clock.sleep(0.05)
+        assert sim.triggers == trips + 1
+        net.add_tick_hook(lambda n, tick: every.append(tick))  # a hook that must see every tick stops the skip
+        for _ in range(20):
+            m.poll()
+            m.clock.sleep(0.05)
+        assert len(every) >= 0.99 * 2000
+    finally:
+        m.close()

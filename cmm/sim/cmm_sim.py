@@ -88,7 +88,7 @@ class SimulatedCMM:
         self._input = self.config.probe.input
         self._active_high = self.config.probe.active_level == "high"
         self._level: bool | None = None
-        self.network.add_tick_hook(self._tick)
+        self.network.add_tick_hook(self._tick, reads_axes_only=True)
         self.triggers = 0
         self.last_trigger_wall = 0.0
         self._tick(self.network, 0)

@@ -19,7 +19,7 @@ class HomeSwitches:
         self._toward_max = [a.home >= (a.min + a.max) / 2 for a in axes]
         self._home = [a.home for a in axes]
         self._levels: list[bool | None] = [None, None, None]
-        cmm.network.add_tick_hook(self)
+        cmm.network.add_tick_hook(self, reads_axes_only=True)
         self(cmm.network, 0)
 
     def __call__(self, network: Any, tick: int) -> None:

@@ -126,6 +126,7 @@ class SimNetwork:
         self.modules = [PicServo(p, self.version, firmware) for p in self.plants]
         self._parsers = [_Parser() for _ in self.modules]
         self.tick_hooks: list[TickHook] = [tick_hook] if tick_hook else []
+        self._watchers: set[int] = set()  # ids of hooks that only read the axes (see add_tick_hook)
         self.host_baud: int | None = c.POWER_UP_BAUD
         self.tick = 0  # completed base ticks
         self.now_ns = 0
@@ -148,10 +149,16 @@ class SimNetwork:
         return SimTransport(self, baudrate=baudrate, timeout=timeout)
 
     # --- world API ------------------------------------------------------------
-    def add_tick_hook(self, hook: TickHook) -> None:
+    def add_tick_hook(self, hook: TickHook, *, reads_axes_only: bool = False) -> None:
         """``hook(network, tick)`` runs every base tick after the plants move,
-        before the modules read their inputs (capture logic)."""
+        before the modules read their inputs (capture logic).
+
+        ``reads_axes_only``: the hook's effect is a function of the axis positions alone (the probe, home
+        switches), so while every module is provably idle the ticks may still be skipped: the hook runs again
+        on the last tick of the skipped stretch. Other hooks (a test recording every tick) run on every tick."""
         self.tick_hooks.append(hook)
+        if reads_axes_only:
+            self._watchers.add(id(hook))
 
     def set_inputs(self, axis: int, **levels: bool) -> None:
         """Set LIMIT1 / LIMIT2 / INDEX levels of ``modules[axis]`` (see Plant.set_inputs)."""
@@ -283,8 +290,11 @@ class SimNetwork:
         self._deliver(t_ns)
 
     def _skippable(self) -> bool:
-        if self.tick_hooks or self._arrivals or self._tx:
+        if self._arrivals or self._tx:
             return False
+        for hook in self.tick_hooks:
+            if id(hook) not in self._watchers:
+                return False
         for m in self.modules:
             if not m.quiet:
                 return False
