@@ -85,6 +85,9 @@ class SimulatedCMM:
         # modules[0] is furthest from the host and takes address 1 first: order the axes by address
         order = sorted(range(3), key=lambda i: self.config.axes[i].address)
         self._axis_module = [order.index(i) for i in range(3)]
+        # (plant, home, counts per mm along the axis): axis_readings runs twice a servo tick (probe, switches)
+        self._encoders = [(self.network.plants[m], a.home, a.counts_per_mm * a.direction)
+                          for a, m in zip(self.config.axes, self._axis_module)]
         self._input = self.config.probe.input
         self._active_high = self.config.probe.active_level == "high"
         self._level: bool | None = None
@@ -95,8 +98,8 @@ class SimulatedCMM:
 
     def axis_readings(self) -> tuple[float, float, float]:
         """Machine coordinates the ideal encoders would read now (continuous, mm)."""
-        plants = self.network.plants
-        return tuple(float(a.to_mm(plants[m].x)) for a, m in zip(self.config.axes, self._axis_module))  # type: ignore[return-value]
+        (px, hx, kx), (py, hy, ky), (pz, hz, kz) = self._encoders  # as AxisConfig.to_mm, inlined
+        return hx + px.x / kx, hy + py.x / ky, hz + pz.x / kz
 
     def tip_position(self) -> np.ndarray:
         """The true tip centre, machine mm (geometry errors included)."""
