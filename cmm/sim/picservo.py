@@ -75,6 +75,7 @@ def rates_match(module_rate: float, host_rate: float | None) -> bool:
 
 
 SC = "pic-servo-sc"
+_L1_IN, _L1_OUT, _L2_IN, _L2_OUT = c.IO_LIMIT1_IN, c.IO_LIMIT1_OUT, c.IO_LIMIT2_IN, c.IO_LIMIT2_OUT
 # SC IO_CTRL bits
 LIMSTOP_OFF, LIMSTOP_ABRUPT = 0x04, 0x08
 # SC HARD_RESET control byte bits
@@ -204,13 +205,10 @@ class PicServo:
         self.quiet = False
 
     # --- inputs ---------------------------------------------------------------
-    def _pin(self, is_input: int, out_bit: int, level: bool) -> bool:
-        return level if self.io & is_input else bool(self.io & out_bit)
-
     def _input_levels(self) -> tuple[bool, bool, bool]:
-        p = self.plant
-        return (self._pin(c.IO_LIMIT1_IN, c.IO_LIMIT1_OUT, p.limit1),
-                self._pin(c.IO_LIMIT2_IN, c.IO_LIMIT2_OUT, p.limit2), p.index)
+        p, io = self.plant, self.io  # _pin inlined: every servo tick of an armed probe move reads them
+        return (p.limit1 if io & _L1_IN else bool(io & _L1_OUT), p.limit2 if io & _L2_IN else bool(io & _L2_OUT),
+                p.index)
 
     # --- the servo interrupt ------------------------------------------------
     def servo(self) -> None:
