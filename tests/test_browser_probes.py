@@ -146,7 +146,15 @@ def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
             bs.press(page, "Pause")
             bs.wait_until(lambda: st.calibration.holding, 300.0, "the hold between two points",
                           why=lambda: f"{calib.job.message}; done: {calib.job.done}")
-            page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so ...
+            status = calib.progress_view.status  # the station's status line, then the page's
+            bs.wait_until(lambda: re.search(r"PAUSED.*holding", status.content) is not None, 60.0,
+                          "PAUSED ... holding in the station's status line", why=lambda: status.content)
+            try:
+                page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so ...
+            except Exception:  # once beside CPU hogs the page never did: say what it showed instead
+                bs.screenshot(page, "probes-paused-missing")
+                raise AssertionError(f"the page never said PAUSED ... holding (the station's line: {status.content!r}); "
+                                     f"the page's Calibration tab: {page.inner_text('body')[:3000]!r}") from None
             page.locator("#cmm-status").get_by_text("PAUSED", exact=True).wait_for()  # ... and its status bar
             bs.screenshot(page, "probes-paused")
             # the machine stands: one machine second (the simulator's clock) without a move
