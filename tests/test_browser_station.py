@@ -104,7 +104,11 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     page.get_by_label("Hits (per ring)", exact=True).press("Enter")
     bs.wait_until(lambda: page.capp.measure.gui["hits"].value == hits_per_ring, 30.0, "the typed hits per ring")
     planned_before = page.capp.measure.plan
-    bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not planned_before, "the plan")
+    measure = page.capp.measure
+    bs.press_until(page, "Plan", lambda: measure.plan is not None and measure.plan is not planned_before, "the plan")
+    planned = lambda: getattr(measure.plan, "description", "")  # noqa: E731
+    bs.wait_until(lambda: proposal in planned(), 60.0, f"the plan at the station: {proposal}",
+                  why=lambda: f"planned {planned()!r}; told {page.capp.messages[-3:]}")
     page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
     page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
