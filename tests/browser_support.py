@@ -41,16 +41,18 @@ VIEW_SCALE = float(os.environ.get("CMM_TEST_VIEW_DPR", "0.25"))
 
 
 # The 3-D view's frames at most every FRAME_MS ms (requestAnimationFrame held back; viser draws on demand, and its
-# timers, jog holds and messages do not wait for frames): 10 a second, a slow tablet's rate. Chromium's software
-# WebGL drew up to 25 a second while the probe moved, a core's worth per page; capped, the routine test's chromium
-# used 36 CPU s instead of 75. CMM_TEST_FRAME_MS=0: uncapped.
-FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "100"))
+# timers, jog holds and GUI-only messages do not wait for frames): 2 a second. Chromium's software WebGL (SwiftShader)
+# costs about 50 CPU ms a frame of the station's scene whatever the view's size (its worker threads, not the pixels),
+# and viser draws continuously for 250 ms after each scene update, so a page whose probe moved drew as fast as it was
+# let: 10 frames a second (FRAME_MS 100) were half a core per page, 2 a second a tenth. CMM_TEST_FRAME_MS=0: uncapped.
+FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "500"))
 # Every callback waiting when a frame is let through runs in it (callbacks of one frame share its time stamp), so
-# no requester (the 3-D view, a panel's opening transition) is starved by another.
+# no requester (the 3-D view, a panel's opening transition) is starved by another. A test may space the frames
+# further for a while: ``page.evaluate("window.__cmmFrameMs = 5000")``.
 FRAME_CAP = """(() => { const raf = window.requestAnimationFrame.bind(window);
   const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, next = 1;
   window.requestAnimationFrame = (cb) => { const id = next++;
-    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + %g; }
+    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g); }
                                                        ids.delete(id); cb(t); } else { ids.set(id, raf(go)); } };
     ids.set(id, raf(go)); return id; };
   window.cancelAnimationFrame = (id) => { const r = ids.get(id); if (r !== undefined) { caf(r); ids.delete(id); } };
@@ -303,13 +305,27 @@ def open_folder(page: Any, folder: str, field: str, timeout: float = PAGE_WAIT_M
 
 
 def top_tab_rows(page: Any) -> list[list[str]]:
-    """The side panel's top tabs as laid out, one list of names per row of the tab bar."""
-    rows: dict[int, list[str]] = {}
-    for name in TABS:
-        box = page.get_by_role("tab", name=name, exact=True).first.bounding_box()
-        assert box is not None, f"the {name} tab is not on the page"
-        rows.setdefault(round(box["y"] / 8), []).append(name)
-    return [rows[k] for k in sorted(rows)]
+    """The side panel's top tabs as laid out, one list of names per row of the tab bar: all read in one go, once two
+    readings agree (a layout still settling, read tab by tab, split the bar into rows it never had)."""
+    def reading() -> list[list[str]]:
+        tops = page.evaluate("""names => Object.fromEntries([...document.querySelectorAll('[role=tab]')]
+            .filter(t => names.includes(t.textContent.trim()) && t.getClientRects().length)
+            .map(t => [t.textContent.trim(), t.getBoundingClientRect().top]))""", list(TABS))
+        missing = [name for name in TABS if name not in tops]
+        assert not missing, f"the tabs {missing} are not on the page"
+        rows: dict[int, list[str]] = {}
+        for name in TABS:
+            rows.setdefault(round(tops[name] / 8), []).append(name)
+        return [rows[k] for k in sorted(rows)]
+
+    last = reading()
+    for _ in range(20):
+        page.wait_for_timeout(250)
+        now = reading()
+        if now == last:
+            return now
+        last = now
+    raise AssertionError(f"the tab bar's layout did not settle (last two readings differ, the last {last})")
 
 
 def press(page: Any, name: str) -> None:

@@ -364,6 +364,10 @@ def test_viser_app_loads(context, tmp_path):
         page.get_by_text("Who is operating?").wait_for(state="hidden")
         assert bs.render_passes(page) > 1  # `cmm serve` draws the probe's shadow (a pass per light)
         bs.screenshot(page, "viser-main")
+        # The tab screenshots are of the panels. With the product's shadows a frame of the view costs chromium's
+        # software WebGL several times a plain one, and beside two CPU hogs a screenshot waited over 2 min behind
+        # them: the view now draws once every 5 s (the panels do not wait for its frames).
+        page.evaluate("window.__cmmFrameMs = 5000")
         shot = 0
         for top, subs in bs.TABS.items():  # every tab and sub-tab of the grouped side panel
             for sub in subs or (None,):
