@@ -117,7 +117,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         # --- new bands and reach from the page: the legend and the map follow
         page.get_by_label("Tolerance ± (mm)", exact=True).fill("0.004")
         page.get_by_label("Reach (mm)", exact=True).fill("40")
-        page.get_by_role("button", name="Apply bands").click(force=True)
+        bs.press(page, "Apply bands")
         legend.get_by_text("within ±2 µm").wait_for()
         shown = legend.inner_text()
         assert "> +4 µm out of tolerance" in shown and "no hit within 40 mm" in shown, shown

@@ -200,8 +200,11 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_text(f"{top.name} hits (residual)").wait_for()
         bs.open_folder(page, "Hits of the feature", "Hit")
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
-        page.get_by_role("button", name="Remove hit and refit").click(force=True)
-        bs.wait_until(lambda: len(station.measurement.features[top.id].hit_ids) == 3, 20.0, "the refit without the hit")
+        page.get_by_label("Hit", exact=True).press("Enter")
+        bs.typed(page, "Hit", top.hit_ids[0])  # the button acts on the number the station holds
+        # pressed again if a press reached a button the panel replaced a moment later (press_until)
+        bs.press_until(page, "Remove hit and refit", lambda: len(station.measurement.features[top.id].hit_ids) == 3,
+                       "the refit without the hit")
         assert station.measurement.features[top.id].hit_ids == top.hit_ids[1:]
         # re-take a hit: Re-take arms it, the next hit (Probe here at the same point of the face, from the Go to
         # tab) replaces it in the plane, which refits; the old hit goes to the deleted ones
@@ -211,13 +214,13 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_label("Hit", exact=True).fill(str(old))
         page.get_by_label("Hit", exact=True).press("Enter")
         bs.typed(page, "Hit", old)
-        page.get_by_role("button", name="Re-take hit").click(force=True)
+        bs.press(page, "Re-take hit")
         bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
         assert page.capp.features.retake[:2] == (top.id, old)
         pose = station.measurement.part.pose
         bs.pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
         bs.open_tab(page, "Machine", "Go to")
-        page.get_by_role("button", name="Probe here", exact=True).click(force=True)
+        bs.press(page, "Probe here")
         bs.wait_until(lambda: old not in station.measurement.hits, 90.0,
                       f"hit {old} replaced by the re-taken one (told {page.capp.messages[-3:]})")
         refit = station.measurement.features[top.id]
@@ -242,14 +245,14 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_label("Nominal diameter", exact=True).fill("20.1")
         page.get_by_label("Nominal diameter", exact=True).press("Enter")
         bs.typed(page, "Nominal diameter", 20.1)
-        page.get_by_role("button", name="Apply typed nominal").click(force=True)
+        bs.press(page, "Apply typed nominal")
         bs.wait_until(lambda: station.measurement.features[boss.id].nominal.params["radius"] == pytest.approx(10.05), 20.0,
                       "the typed nominal diameter")
         bs.wait_until(lambda: fails() > clean, 20.0, "the boss shown as FAIL in the tree")
         page.get_by_label("Size ± (mm)", exact=True).fill("0.15")
         page.get_by_label("Size ± (mm)", exact=True).press("Enter")
         bs.typed(page, "Size ± (mm)", 0.15)
-        page.get_by_role("button", name="Apply tolerances").click(force=True)
+        bs.press(page, "Apply tolerances")
         bs.wait_until(lambda: (station.measurement.features[boss.id].tolerance or {}).get("size") == pytest.approx(0.15), 20.0,
                       "the typed size tolerance")
         bs.wait_until(lambda: fails() == clean, 20.0, "the boss passing with its typed tolerance")
@@ -271,7 +274,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
 
         text_input("Operator").fill("A. Operator")
         text_input("Temperature (°C)").fill("20.3")
-        page.get_by_role("button", name="Save header").click(force=True)
+        bs.press(page, "Save header")
         bs.wait_until(lambda: station.measurement.info.get("temperature") == 20.3, 20.0, "the report header saved")
         save_box = page.get_by_role("button", name="Save header").bounding_box()
         assert save_box["y"] > LAPTOP[1] / 2 and scrolled_by(page) > 200  # scrolled down to the end of the tab ...
@@ -283,10 +286,10 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.capp.align.refresh()
         for key, f in (("p", top), ("s", front), ("t", left)):
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
-        page.get_by_role("button", name="Compute 3-2-1").click(force=True)
+        bs.press(page, "Compute 3-2-1")
         page.get_by_text("part origin at").wait_for()
         before = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
-        page.get_by_role("button", name="Apply alignment").click(force=True)
+        bs.press(page, "Apply alignment")
         bs.wait_until(lambda: station.measurement.aligned, 20.0, "the alignment applied")
         after = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         assert before > 0.1 and after < 0.01, (before, after)  # the set-up error is found to a few um
@@ -297,9 +300,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.screenshot(page, "station-aligned")
 
         # --- best fit of all hits to the mesh from the Align tab: transform and residuals shown, then applied
-        page.get_by_role("button", name="Machine", exact=True).click(force=True)  # the DRO back in machine axes
+        bs.press(page, "Machine")  # the DRO back in machine axes
         status.get_by_text("machine", exact=True).wait_for()
-        page.get_by_role("button", name="Compute best fit").click(force=True)
+        bs.press(page, "Compute best fit")
         page.get_by_text("best_fit", exact=True).wait_for()
         page.get_by_text("RMS:").wait_for()
         fit = page.capp.align.result
@@ -307,7 +310,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         assert np.abs(fit.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
         page.get_by_text("moved ").wait_for()  # the shift from the 3-2-1 set-up it replaces
         bs.screenshot(page, "station-best-fit")
-        page.get_by_role("button", name="Apply alignment").click(force=True)
+        bs.press(page, "Apply alignment")
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
         status.get_by_text("part", exact=True).wait_for()
         assert np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
@@ -354,7 +357,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
                           "the pendant's FAULT and its reason")
             pendant.close()
             # a motion button (Probe here, at the point picked for the re-take) is refused with the reason, on the page
-            page.get_by_role("button", name="Probe here", exact=True).click(force=True)
+            bs.press(page, "Probe here")
             page.get_by_text("cannot probe: the machine is in fault (link failure").first.wait_for()
             assert any(t == "Probe here refused" and "Reset (or reconnect) first" in b
                        for _l, t, b in page.capp.messages), page.capp.messages[-3:]
@@ -365,7 +368,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.wait_for_timeout(500)
             bs.open_tab(page, "Machine", "Home")
             page.get_by_text("then Home (positions are lost)").wait_for()
-            page.get_by_role("button", name="Reset", exact=True).click(force=True)
+            bs.press(page, "Reset")
             bs.wait_until(lambda: any(t == "Reset refused" and "Reconnect first" in b
                                       for _l, t, b in page.capp.messages), 20.0, "Reset refused on a dead link")
             assert station.controller.state.mode.value == "fault"
@@ -373,7 +376,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             plug.broken = False
             bs.wait_until(lambda: station.controller.state.link_ok, 20.0, "the link answering again")
             page.get_by_text("press Reset (the link answers)").wait_for()
-            page.get_by_role("button", name="Reset", exact=True).click(force=True)
+            bs.press(page, "Reset")
             status.get_by_text("IDLE", exact=True).wait_for()
             bs.wait_until(lambda: "link ok" in status.inner_text() and "link failure" not in status.inner_text(),
                           20.0, f"the status bar clear of the fault ({status.inner_text()!r})")
