@@ -202,7 +202,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
         page.get_by_label("Hit", exact=True).press("Enter")
         bs.typed(page, "Hit", top.hit_ids[0])  # the button acts on the number the station holds
-        # pressed again if a press reached a button the panel replaced a moment later (press_until)
+        # on the element (a click at coordinates missed while the panels above re-flowed), again if not refitted
         bs.press_until(page, "Remove hit and refit", lambda: len(station.measurement.features[top.id].hit_ids) == 3,
                        "the refit without the hit")
         assert station.measurement.features[top.id].hit_ids == top.hit_ids[1:]
