@@ -289,18 +289,28 @@ def open_tab(page: Any, top: str, sub: str | None = None, timeout: float = PAGE_
                 raise AssertionError(f"the {name} tab did not open within {timeout:g} s")
 
 
+# Any of the elements shown, as Playwright's is_visible judges one (a non-empty box, not hidden by style).
+VISIBLE_ANY_JS = """es => es.some(e => {
+  const r = e.getBoundingClientRect();
+  return r.width > 0 && r.height > 0 && e.checkVisibility({ visibilityProperty: true });
+})"""
+
+
 def open_folder(page: Any, folder: str, field: str, timeout: float = PAGE_WAIT_MS / 1000) -> None:
-    """Open the side panel's folder ``folder`` until its field labelled ``field`` is visible. A panel redrawn just
-    before (a feature chosen, a result arriving) replaces its folders, closed again; a click on the old one is lost,
-    so the title is clicked again while the field stays hidden (never twice in 3 s: a click toggles the folder)."""
-    target = page.get_by_label(field, exact=True)
+    """Open the side panel's folder ``folder`` until its field labelled ``field`` (or its button ``field``) is
+    visible. A panel redrawn just before (a feature chosen, a result arriving) replaces its folders, closed again; a
+    click on the old one, or one on a panel that re-flowed under it, is lost, so the title is clicked again while
+    the field stays hidden (never twice in 3 s: a click toggles the folder)."""
+    targets = (page.get_by_label(field, exact=True), text_field(page, field),
+               page.get_by_role("button", name=field, exact=True))
+    shown = lambda: any(t.evaluate_all(VISIBLE_ANY_JS) for t in targets)  # noqa: E731
     end = time.monotonic() + timeout
-    while not target.is_visible():
+    while not shown():
         if time.monotonic() > end:
             raise AssertionError(f"the {folder!r} folder did not show {field!r} within {timeout:g} s")
-        page.get_by_text(folder, exact=True).first.click(force=True)
+        page.get_by_text(folder, exact=True).first.evaluate("e => e.click()")
         again = time.monotonic() + 3.0
-        while not target.is_visible() and time.monotonic() < again:
+        while not shown() and time.monotonic() < again:
             time.sleep(0.05)
 
 
@@ -353,6 +363,29 @@ def press_until(page: Any, name: str, done: Any, what: str, timeout: float = 60.
             time.sleep(0.05)
 
 
+def checkbox(page: Any, label: str) -> Any:
+    """The checkbox input of the viser checkbox labelled ``label``."""
+    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::div[contains(@class, "
+                        "'mantine-Flex-root')][1]//input[@type='checkbox']").first
+
+
+def tick_until(page: Any, label: str, want: bool, done: Any, what: str, timeout: float = 60.0,
+               every: float = 5.0) -> None:
+    """Set the checkbox ``label`` to ``want`` until ``done()`` holds at the station. A tick is a toggle, so it is
+    clicked again only while the page's own box still shows the other state (a click on a panel that re-flowed, or
+    one the page had not yet applied, is then repeated; one still on its way to the station is not undone)."""
+    box = checkbox(page, label)
+    end = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what} did not happen within {timeout:g} s of ticking {label!r}")
+        if box.evaluate("e => e.checked") != want:
+            box.evaluate("e => e.click()")
+        again = time.monotonic() + every
+        while not done() and time.monotonic() < again:
+            time.sleep(0.05)
+
+
 def start_as(page: Any, name: str) -> None:
     """Answer the start dialog ("Who is operating?") with ``name`` and Start; the station hears the name."""
     page.get_by_text("Who is operating?").wait_for(timeout=90_000)
@@ -375,7 +408,7 @@ def _typed(field: Any, text: str) -> bool:
 def enter_sphere_certificate(page: Any, diameter: float, serial: str, uncertainty_um: float) -> None:
     """Setup > Calibration: the reference sphere's certificate typed in its folder and saved."""
     open_tab(page, "Setup", "Calibration")
-    page.get_by_text("Reference sphere certificate").click()
+    open_folder(page, "Reference sphere certificate", "Diameter (mm)")
     panel = page.capp.calibration.gui
 
     def at_station() -> bool:
@@ -588,8 +621,8 @@ def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, 
             page.get_by_text(prompts[k]).first.wait_for(timeout=120_000)
         if not page.capp.ctx.manual_probe:
             open_tab(page, "Machine", "Jog")
-            page.get_by_text("Manual probing (armed jog)").first.click()
-            wait_until(lambda: page.capp.ctx.manual_probe, 30.0, "the armed jog ticked")
+            tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe,
+                       "the armed jog ticked")
         point = (pose @ np.array([*p, 1.0]))[:3]
         approach = pose[:3, :3] @ np.array(u, float)
         axis = int(np.argmax(np.abs(approach)))
@@ -600,8 +633,8 @@ def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, 
         hit = jog_to_touch(page, station, axis, sign, beyond=point[axis] + sign * 1.0)
         assert model.hits[hit].mode == "manual", model.hits[hit]
         taken.append(hit)
-    page.get_by_text("Manual probing (armed jog)").first.click()  # the jog unarmed again (still on the Jog tab)
-    wait_until(lambda: not page.capp.ctx.manual_probe, 30.0, "the armed jog unticked")
+    tick_until(page, "Manual probing (armed jog)", False, lambda: not page.capp.ctx.manual_probe,
+               "the armed jog unticked")  # the jog unarmed again (still on the Jog tab)
     open_tab(page, "Routine")  # back to the routine, which runs on by itself
     return taken
 

@@ -151,11 +151,6 @@ def _click_button(page, name):
                                                                      "b.click(); }")
 
 
-def _checkbox(page, label):
-    return page.locator(f"xpath=//label[normalize-space()='{label}']/ancestor::div[contains(@class, "
-                        "'mantine-Flex-root')][1]//input[@type='checkbox']").first
-
-
 def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
     """Plan draws the path the run will take in this tab's 3-D view, Clear path removes it, Run clears it; the
     Features tab's Show checkboxes hide and show the measured feature (the selected one, and by its own row) and its
@@ -191,18 +186,18 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
         capp.select_feature(fid)
         bs.open_tab(page, "Measure", "Features")
         page.get_by_text("Show", exact=True).first.evaluate("e => e.click()")  # the Show folder opens
-        _checkbox(page, "Planes").wait_for(state="attached")
-        _checkbox(page, "Planes").evaluate("e => e.click()")
+        bs.checkbox(page, "Planes").wait_for(state="attached")
+        bs.checkbox(page, "Planes").evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the planes hidden")
         page.get_by_text("(hidden)").first.wait_for()  # the tree says so
         _click_button(page, "Show all")
         bs.wait_until(lambda: app.view._feature_nodes[fid].visible, 30.0, "the planes shown again")
-        _checkbox(page, "Selected feature").evaluate("e => e.click()")
+        bs.checkbox(page, "Selected feature").evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the selected feature hidden")
         app.view.show_all()
         # the feature's own row (Show > Each feature), whichever feature is selected
         capp.select_feature(None)
-        row = _checkbox(page, f"{fid} {station.measurement.features[fid].name}")
+        row = bs.checkbox(page, f"{fid} {station.measurement.features[fid].name}")
         # ticked on both sides: the station's copy of the box too (a click on a page still showing the tick from
         # before the hide, while the station's box already said unticked, changes nothing the station can see)
         bs.wait_until(lambda: capp.features.rows[fid].value and row.count() and row.is_checked(), 30.0,

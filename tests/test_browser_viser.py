@@ -412,8 +412,8 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     page.capp.go_to(*target).wait(60)
     # pressed until it takes (a press on a page being re-drawn can be lost; the loaded run lost one here)
     bs.press_until(page, "positioning", lambda: page.capp.speed_mode == "positioning", "the positioning speed")
-    page.get_by_text("Manual probing (armed jog)").click()
-    bs.wait_until(lambda: page.capp.ctx.manual_probe and page.capp.speed_mode == "positioning", 60.0, "armed, fast")
+    bs.tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe, "the armed jog")
+    assert page.capp.speed_mode == "positioning"
     qualified = page.capp.station_probing_speed()
     assert qualified < station.config.speeds.jog_fast / 4
     hits = len(station.measurement.hits)

@@ -123,7 +123,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         page.get_by_text("certificate problem").first.wait_for()
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
-        page.get_by_text("Probe options").click()
+        bs.open_folder(page, "Probe options", "Points per ring")
         for label, value in (("Points per ring", 8), ("Hits per point", 1)):  # a quick qualification
             page.get_by_label(label, exact=True).fill(str(value))
             page.get_by_label(label, exact=True).press("Enter")
@@ -185,7 +185,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         routine = page.capp.routine.routine
         assert routine.measured_features() == list(FEATURES)
         assert routine.program.feature("BORE").tolerance.get("size") == pytest.approx(0.01)
-        page.get_by_text("File", exact=True).first.click()
+        bs.open_folder(page, "File", "Routine file")
         bs.text_field(page, "Routine file").fill("day.toml")
         bs.wait_until(lambda: page.capp.routine.gui["file"].value == "day.toml", 30.0, "the file name at the station")
         bs.press_until(page, "Save", lambda: (station.measurement.session_dir / "day.toml").exists(), "the routine file")
@@ -203,7 +203,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         sessions = page.capp.sessions
         sessions.refresh_list()
         sessions.gui["session"].value = "day-part-1"  # what choosing it in the Session dropdown sets
-        page.get_by_text("Export", exact=True).click()
+        bs.open_folder(page, "Export", "Report (HTML + CSV)")
         bs.press_until(page, "Report (HTML + CSV)", lambda: any(f.suffix == ".html" for f in sessions.last_files),
                        "the report", timeout=120.0, every=30.0)
         html = next(f for f in sessions.last_files if f.suffix == ".html").read_text(encoding="utf-8")
@@ -224,7 +224,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
                       "Ada's 'Control taken' message", why=lambda: str(page.capp.messages[-3:]))
         assert model.info.get("operator") == "Ben"
         bs.open_tab(tablet, "Routine")
-        tablet.get_by_text("File", exact=True).first.click()
+        bs.open_folder(tablet, "File", "Routine file")
         bs.text_field(tablet, "Routine file").fill("day.toml")
         bs.wait_until(lambda: tablet.capp.routine.gui["file"].value == "day.toml", 30.0, "the file name")
         bs.press_until(tablet, "Open", lambda: tablet.capp.routine.routine is not None, "the routine opened")
