@@ -205,7 +205,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
                                                             "width": 160, "height": 160})
 
     before = len(station.measurement.hits)
-    page.get_by_role("button", name="Probe here", exact=True).click()
+    bs.press(page, "Probe here")  # on the element: not idempotent, so pressed once
     bs.wait_until(lambda: len(station.measurement.hits) == before + 1, 40.0, "the hit from Probe here")
     newest = station.measurement.hits[max(station.measurement.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
@@ -319,8 +319,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     # keep it live. X - at the fast speed retraces the path just jogged.
     for mode, button, axis_sign, expected in (("fine", "hold X +", 1, station.config.speeds.jog_fine),
                                                ("positioning", "hold X −", -1, station.config.speeds.jog_fast)):
-        page.get_by_role("button", name=mode, exact=True).click()
-        bs.wait_until(lambda: page.capp.speed_mode == mode, 10.0, f"the {mode} speed chosen")
+        bs.press_until(page, mode, lambda: page.capp.speed_mode == mode, f"the {mode} speed chosen")
         x0 = station.machine.state.position[0]
         with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
             page.mouse.move(*button_centre(page, button))
@@ -389,8 +388,8 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
         forged.get_by_text("grant is not valid").wait_for()
         forged.close()
         # the page releases control: the embedded pendant follows
-        page.get_by_role("button", name="Release").click()
-        bs.wait_until(lambda: control.inner_text() == "observer", 10.0, "the embedded pendant following the release")
+        bs.press_until(page, "Release", lambda: app.control.holder != page.capp.client_id, "the release")
+        bs.wait_until(lambda: control.inner_text() == "observer", 30.0, "the embedded pendant following the release")
         # the page closes: its grant dies with it
         page.close()
         bs.wait_until(lambda: token not in app.pendant.grants._grants, 10.0, "the grant revoked")
