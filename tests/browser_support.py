@@ -49,13 +49,20 @@ FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "500"))
 # Every callback waiting when a frame is let through runs in it (callbacks of one frame share its time stamp), so
 # no requester (the 3-D view, a panel's opening transition) is starved by another. A test may space the frames
 # further for a while: ``page.evaluate("window.__cmmFrameMs = 5000")``.
+# ``window.__cmmPage`` keeps what a failed wait reports (page_diagnosis): the frames let through and when the last
+# was, the callbacks waiting, and the page's longest main-thread tasks.
 FRAME_CAP = """(() => { const raf = window.requestAnimationFrame.bind(window);
   const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, next = 1;
+  const stats = window.__cmmPage = { frames: 0, lastFrame: -1, waiting: () => ids.size, longTasks: [] };
   window.requestAnimationFrame = (cb) => { const id = next++;
-    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g); }
+    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g);
+                                                                        stats.frames++; stats.lastFrame = t; }
                                                        ids.delete(id); cb(t); } else { ids.set(id, raf(go)); } };
     ids.set(id, raf(go)); return id; };
   window.cancelAnimationFrame = (id) => { const r = ids.get(id); if (r !== undefined) { caf(r); ids.delete(id); } };
+  try { new PerformanceObserver((list) => { for (const e of list.getEntries()) { stats.longTasks.push([e.startTime, e.duration]);
+          stats.longTasks.sort((a, b) => b[1] - a[1]); stats.longTasks.length = Math.min(stats.longTasks.length, 5); } })
+        .observe({ type: "longtask", buffered: true }); } catch (e) { /* no long-task timing here */ }
 })();"""
 
 
@@ -118,6 +125,34 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
                 context.close()
     finally:
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def page_diagnosis(page: Any) -> str:
+    """What a page was doing, for a failed wait's message: its frames (a page whose frames stopped applies no more
+    scene messages, nor GUI messages queued behind them), its longest main-thread tasks, and its clock."""
+    try:
+        d = page.evaluate("""() => { const s = window.__cmmPage; const now = performance.now();
+            return s ? { now, frames: s.frames, sinceFrame: s.lastFrame < 0 ? null : now - s.lastFrame,
+                         waiting: s.waiting(), longTasks: s.longTasks } : { now }; }""")
+    except Exception as exc:  # noqa: BLE001 - a diagnosis never hides the failure it explains
+        return f"the page did not answer ({type(exc).__name__}: {str(exc).splitlines()[0]})"
+    if "frames" not in d:
+        return f"page clock {d['now'] / 1000:.1f} s (no frame statistics)"
+    since = "none yet" if d["sinceFrame"] is None else f"the last {d['sinceFrame'] / 1000:.1f} s ago"
+    tasks = ", ".join(f"{dur / 1000:.2f} s at {at / 1000:.1f} s" for at, dur in d["longTasks"]) or "none"
+    return (f"page clock {d['now'] / 1000:.1f} s; {d['frames']} frames, {since}; {d['waiting']} frame callbacks "
+            f"waiting; longest main-thread tasks: {tasks}")
+
+
+def shows(page: Any, text: str, station_has: Any = None, timeout: float = PAGE_WAIT_MS / 1000) -> None:
+    """Wait until the page shows ``text``; if it does not, say whether the station had it to show
+    (``station_has()``: what the station's widget holds) and what the page was doing."""
+    try:
+        page.get_by_text(text).filter(visible=True).first.wait_for(timeout=timeout * 1000)
+    except Exception as exc:  # noqa: BLE001 - Playwright's timeout, re-raised with the diagnosis
+        had = "" if station_has is None else f"; the station's widget holds {str(station_has())[-300:]!r}"
+        raise AssertionError(f"the page did not show {text!r} within {timeout:g} s{had}; "
+                             f"{page_diagnosis(page)}") from exc
 
 
 def screenshot(page: Any, name: str, **options: Any) -> Path:
@@ -388,7 +423,7 @@ def tick_until(page: Any, label: str, want: bool, done: Any, what: str, timeout:
 
 def start_as(page: Any, name: str) -> None:
     """Answer the start dialog ("Who is operating?") with ``name`` and Start; the station hears the name."""
-    page.get_by_text("Who is operating?").wait_for(timeout=90_000)
+    page.get_by_text("Who is operating?").filter(visible=True).first.wait_for(timeout=90_000)
     field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
     field.wait_for(state="visible", timeout=90_000)
     wait_until(lambda: _typed(field, name), 60.0, "the name typed into the start dialog")
@@ -428,7 +463,7 @@ def enter_sphere_certificate(page: Any, diameter: float, serial: str, uncertaint
         while not at_station() and time.monotonic() < again:
             time.sleep(0.05)
     press(page, "Save certificate")
-    page.get_by_text(serial).first.wait_for()
+    page.get_by_text(serial).filter(visible=True).first.wait_for()
 
 
 def part_point(station: Any, local: Any) -> Any:
@@ -468,9 +503,9 @@ def automeasure_in_page(page: Any, station: Any, hits_per_ring: int, proposal: s
     wait_until(lambda: page.capp.measure.plan is not None and page.capp.measure.plan is not before_plan, 60.0,
                f"the plan ({page.capp.messages[-1:]})")
     if proposal:
-        page.get_by_text(proposal).first.wait_for()  # the proposed feature and its pattern of hits
+        page.get_by_text(proposal).filter(visible=True).first.wait_for()  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
-    page.get_by_text(f"{len(plan)} hits · clearance plane").first.wait_for()
+    page.get_by_text(f"{len(plan)} hits · clearance plane").filter(visible=True).first.wait_for()
     if name:
         text_field(page, "Feature name").fill(name)
         wait_until(lambda: page.capp.measure.gui["name"].value == name, 30.0, "the typed name at the station")
@@ -618,7 +653,7 @@ def manual_321_by_jog(page: Any, station: Any, pose: Any, hits: list[tuple[Any, 
     for k, (p, u) in enumerate(hits):
         if k in prompts:
             open_tab(page, "Routine")
-            page.get_by_text(prompts[k]).first.wait_for(timeout=120_000)
+            page.get_by_text(prompts[k]).filter(visible=True).first.wait_for(timeout=120_000)
         if not page.capp.ctx.manual_probe:
             open_tab(page, "Machine", "Jog")
             tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe,

@@ -75,7 +75,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         bs.open_tab(page, "Measure", "Colour map")
         legend = page.locator(".cmm-legend")
         # the legend lists the band limits of the shared scale (default: +-20 um, warning from +-10 um)
-        legend.get_by_text("within ±10 µm").wait_for()
+        legend.get_by_text("within ±10 µm").filter(visible=True).first.wait_for()
         shown = legend.inner_text()
         for text in ("> +20 µm out of tolerance", "+10 .. +20 µm warning", "-20 .. -10 µm warning",
                      "< -20 µm out of tolerance", "beyond ±0.5 mm, unknown, or no hit within 15 mm"):
@@ -97,7 +97,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
             @ station.measurement.part.pose[:3, :3]
         nearest = np.linalg.norm(dmap.mesh.vertices[:, None, :] - local[None], axis=2).argmin(axis=0)
         assert {tuple(c) for c in dmap.vertex_colours[nearest].tolist()} == {GREEN}
-        page.get_by_text(f"{len(HITS)} hits paint").wait_for()  # "6 hits paint N % of the surface"
+        page.get_by_text(f"{len(HITS)} hits paint").filter(visible=True).first.wait_for()  # "6 hits paint N % of the surface"
         covered = dmap.coverage
         # look at the part for the screenshot
         centre = (station.measurement.part.pose[:3, :3] @ np.array([60.0, 40.0, 20.0]) + station.measurement.part.pose[:3, 3]) * SCALE
@@ -111,14 +111,14 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         station.measurement.probe(target, -station.measurement.part.pose[:3, 2]).wait(60)
         bs.wait_until(lambda: app.view.map is not None and app.view.map.hits_used == len(HITS) + 1, 30.0,
                       "the map with the new hit")
-        page.get_by_text(f"{len(HITS) + 1} hits paint").wait_for()
+        page.get_by_text(f"{len(HITS) + 1} hits paint").filter(visible=True).first.wait_for()
         covered = app.view.map.coverage
 
         # --- new bands and reach from the page: the legend and the map follow
         page.get_by_label("Tolerance ± (mm)", exact=True).fill("0.004")
         page.get_by_label("Reach (mm)", exact=True).fill("40")
         bs.press(page, "Apply bands")
-        legend.get_by_text("within ±2 µm").wait_for()
+        legend.get_by_text("within ±2 µm").filter(visible=True).first.wait_for()
         shown = legend.inner_text()
         assert "> +4 µm out of tolerance" in shown and "no hit within 40 mm" in shown, shown
         bs.wait_until(lambda: app.view.map is not None and app.view.map.scale.reach == 40.0, 30.0,

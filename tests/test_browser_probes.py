@@ -53,7 +53,7 @@ def within_reach(monkeypatch):
 def home_in_page(page, station):
     """Machine > Home: the tab says to home first; Home pressed; the homing cycle runs to idle."""
     bs.open_tab(page, "Machine", "Home")
-    page.get_by_text("Press Home before measuring").first.wait_for()
+    page.get_by_text("Press Home before measuring").filter(visible=True).first.wait_for()
     bs.press(page, "Home")
     bs.wait_until(lambda: station.controller.state.homed and station.controller.state.mode.value == "idle",
                   180.0, "the homing cycle")
@@ -65,7 +65,7 @@ def test_name_dialog_saved_name_home_and_certificate_entry(app, within_reach):
     with bs.browser_context(TABLET) as context:
         page = bs.open_page(context, app)
         assert bs.top_tab_rows(page) == [list(bs.TABS)]  # the tabs grouped in one row, as on the laptop
-        page.get_by_text("Who is operating?").wait_for()
+        page.get_by_text("Who is operating?").filter(visible=True).first.wait_for()
         field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
         field.wait_for(state="visible")
         page.wait_for_timeout(1000)  # the dialog's opening transition
@@ -80,17 +80,17 @@ def test_name_dialog_saved_name_home_and_certificate_entry(app, within_reach):
         second.close()
         bs.press(page, "Take control")
         bs.wait_until(lambda: app.control.holder == page.capp.client_id, 60.0, "control")
-        page.get_by_text("Maria (you) controls the machine").first.wait_for()
+        page.get_by_text("Maria (you) controls the machine").filter(visible=True).first.wait_for()
         assert not app.station.controller.state.homed
         home_in_page(page, app.station)
         bs.open_tab(page, "Setup", "Calibration")
-        page.get_by_text("certificate problem").first.wait_for()
+        page.get_by_text("certificate problem").filter(visible=True).first.wait_for()
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
         cert = app.station.calibration.certificates("probe")
         assert (cert.serial, cert.diameter, cert.uncertainty) == ("RS-77", pytest.approx(25.0002),
                                                                   pytest.approx(0.00012))
-        page.get_by_text("in use").first.wait_for()
+        page.get_by_text("in use").filter(visible=True).first.wait_for()
         assert page.get_by_text("not qualified").count() >= 1
         bs.screenshot(page, "probes-calibration")
 
@@ -150,12 +150,12 @@ def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
             bs.wait_until(lambda: re.search(r"PAUSED.*holding", status.content) is not None, 60.0,
                           "PAUSED ... holding in the station's status line", why=lambda: status.content)
             try:
-                page.get_by_text(re.compile(r"PAUSED.*holding")).first.wait_for()  # the page says so ...
+                page.get_by_text(re.compile(r"PAUSED.*holding")).filter(visible=True).first.wait_for()  # the page says so ...
             except Exception:  # once beside CPU hogs the page never did: say what it showed instead
                 bs.screenshot(page, "probes-paused-missing")
                 raise AssertionError(f"the page never said PAUSED ... holding (the station's line: {status.content!r}); "
                                      f"the page's Calibration tab: {page.inner_text('body')[:3000]!r}") from None
-            page.locator("#cmm-status").get_by_text("PAUSED", exact=True).wait_for()  # ... and its status bar
+            page.locator("#cmm-status").get_by_text("PAUSED", exact=True).filter(visible=True).first.wait_for()  # ... and its status bar
             bs.screenshot(page, "probes-paused")
             # the machine stands: one machine second (the simulator's clock) without a move
             held = st.machine.state.time
@@ -180,11 +180,11 @@ def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
         result = calib.result[1]
         assert result.record.n_points == points >= 7 and result.skipped == []
         radius = f"{result.record.tip_radius:.5f} mm"
-        page.get_by_text(radius).first.wait_for()  # the results: the effective tip radius
+        page.get_by_text(radius).filter(visible=True).first.wait_for()  # the results: the effective tip radius
         bs.press_until(page, "Save record", lambda: st.calibration.status.get("probe"), "the qualification saved")
         rows = {r["name"]: r for r in calib.probes()}
         assert rows["Probe1"]["tip_radius"] == pytest.approx(result.record.tip_radius)
         bs.wait_until(lambda: radius in calib.gui["probes"].content, 30.0, "the probe list's qualified radius")
-        page.get_by_text(re.compile(r"Probe1.*\(in use\)")).first.wait_for()
+        page.get_by_text(re.compile(r"Probe1.*\(in use\)")).filter(visible=True).first.wait_for()
         bs.screenshot(page, "probes-qualified")
         assert not page.log.page_errors, page.log.page_errors

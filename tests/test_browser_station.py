@@ -109,9 +109,9 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     planned = lambda: getattr(measure.plan, "description", "")  # noqa: E731
     bs.wait_until(lambda: proposal in planned(), 60.0, f"the plan at the station: {proposal}",
                   why=lambda: f"planned {planned()!r}; told {page.capp.messages[-3:]}")
-    page.get_by_text(proposal).wait_for()  # the proposed feature and its pattern of hits
+    page.get_by_text(proposal).filter(visible=True).first.wait_for()  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
-    page.get_by_text(f"{len(plan)} hits · clearance plane").wait_for()
+    page.get_by_text(f"{len(plan)} hits · clearance plane").filter(visible=True).first.wait_for()
     # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
     bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
     if shot:
@@ -123,7 +123,7 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
                   why=lambda: f"{page.capp.measure.progress!r}; told {page.capp.messages[-3:]}")
     (fid,) = set(station.measurement.features) - before
     feature = station.measurement.features[fid]
-    page.get_by_text(f"done: {feature.name}").wait_for()
+    bs.shows(page, f"done: {feature.name}", lambda: page.capp.measure.gui["plan"].content)
     assert len(feature.hit_ids) == len(plan)
     return plan, feature
 
@@ -133,21 +133,21 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         page = bs.open_page(context, app)
         # --- status bar: state, who has control, DRO, probe; STOP / E-STOP
         status = page.locator("#cmm-status")
-        status.get_by_text("IDLE").wait_for()
+        status.get_by_text("IDLE").filter(visible=True).first.wait_for()
         x, y, z = station.machine.state.position
         text = status.inner_text()
         assert f"X {x:.4f}" in text and f"Z {z:.4f}" in text, text
         assert "Nobody controls the machine" in text and "not qualified" in text, text
         bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
-        status.get_by_text("You control the machine.").wait_for()
+        status.get_by_text("You control the machine.").filter(visible=True).first.wait_for()
 
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
         bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
         bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not None, "the plan")
-        page.get_by_text("4 hits · clearance plane").wait_for()
+        page.get_by_text("4 hits · clearance plane").filter(visible=True).first.wait_for()
         name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
-        page.get_by_text("the top face at X").wait_for()  # the tab says what was picked
+        page.get_by_text("the top face at X").filter(visible=True).first.wait_for()  # the tab says what was picked
         assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
         # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
         bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
@@ -162,7 +162,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: page.capp.measure.progress == "done: TOP", 120.0, "the run's end at the station",
                       why=lambda: f"progress {page.capp.measure.progress!r}, mode {station.controller.state.mode}, "
                                   f"jobs {station.controller.jobs!r}, told {page.capp.messages[-3:]}")
-        page.get_by_text("done: TOP").wait_for()
+        page.get_by_text("done: TOP").filter(visible=True).first.wait_for()
         bs.wait_until(lambda: name_field.input_value() == "", 20.0,
                       "the name field cleared for the next feature")
         # the front and left faces (3 hits each)
@@ -190,14 +190,14 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # --- feature tree: every feature with its characteristics and pass / fail colours
         bs.open_tab(page, "Measure", "Features")
         tree = page.locator(".cmm-tree")
-        tree.get_by_text("cylindricity").wait_for()
+        tree.get_by_text("cylindricity").filter(visible=True).first.wait_for()
         for f in (top, front, left, boss):
             assert f.name in tree.inner_text()
         assert "position ⌀" in tree.inner_text() and "flatness" in tree.inner_text()
         # select the top plane (it and its hits highlighted); remove a hit and it refits
         page.capp.features._chosen(f"{top.id} {top.name}")  # what choosing it in the Feature dropdown calls
         assert page.capp.ctx.selected_feature == top.id and app.view.selected == top.id
-        page.get_by_text(f"{top.name} hits (residual)").wait_for()
+        page.get_by_text(f"{top.name} hits (residual)").filter(visible=True).first.wait_for()
         bs.open_folder(page, "Hits of the feature", "Hit")
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
         page.get_by_label("Hit", exact=True).press("Enter")
@@ -260,7 +260,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # a constructed angle between the front and left faces: 90 degrees, its nominal from the CAD
         angle = page.capp.features.construct("angle", front.id, left.id)
         assert angle.result.value == pytest.approx(90.0, abs=0.05) and angle.nominal.value == pytest.approx(90.0)
-        tree.get_by_text("angle", exact=True).wait_for()
+        tree.get_by_text("angle", exact=True).filter(visible=True).first.wait_for()
         page.mouse.move(1100, 600)
         page.mouse.wheel(0, -5000)  # back to the top of the tab: the tree under the tab bar
         page.wait_for_timeout(500)
@@ -287,32 +287,32 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         for key, f in (("p", top), ("s", front), ("t", left)):
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
         bs.press(page, "Compute 3-2-1")
-        page.get_by_text("part origin at").wait_for()
+        page.get_by_text("part origin at").filter(visible=True).first.wait_for()
         before = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: station.measurement.aligned, 20.0, "the alignment applied")
         after = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         assert before > 0.1 and after < 0.01, (before, after)  # the set-up error is found to a few um
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates")
-        status.get_by_text("part", exact=True).wait_for()
+        status.get_by_text("part", exact=True).filter(visible=True).first.wait_for()
         pos = station.measurement.part.pose[:3, :3].T @ (station.machine.state.position - station.measurement.part.pose[:3, 3])
         assert f"X {pos[0]:.4f}" in status.inner_text()
         bs.screenshot(page, "station-aligned")
 
         # --- best fit of all hits to the mesh from the Align tab: transform and residuals shown, then applied
         bs.press(page, "Machine")  # the DRO back in machine axes
-        status.get_by_text("machine", exact=True).wait_for()
+        status.get_by_text("machine", exact=True).filter(visible=True).first.wait_for()
         bs.press(page, "Compute best fit")
-        page.get_by_text("best_fit", exact=True).wait_for()
-        page.get_by_text("RMS:").wait_for()
+        page.get_by_text("best_fit", exact=True).filter(visible=True).first.wait_for()
+        page.get_by_text("RMS:").filter(visible=True).first.wait_for()
         fit = page.capp.align.result
         assert fit.method == "best_fit" and fit.residuals["RMS"] < 0.005, fit.residuals  # um-level on a true part
         assert np.abs(fit.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
-        page.get_by_text("moved ").wait_for()  # the shift from the 3-2-1 set-up it replaces
+        page.get_by_text("moved ").filter(visible=True).first.wait_for()  # the shift from the 3-2-1 set-up it replaces
         bs.screenshot(page, "station-best-fit")
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
-        status.get_by_text("part", exact=True).wait_for()
+        status.get_by_text("part", exact=True).filter(visible=True).first.wait_for()
         assert np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
         assert page.log.page_errors == [], page.log.problems
 
@@ -347,7 +347,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             bs.open_tab(page, "Machine", "Go to")
             plug.broken = True
             bs.wait_until(lambda: station.controller.state.mode.value == "fault", 20.0, "the fault on the dropped link")
-            status.get_by_text("FAULT", exact=True).wait_for()
+            status.get_by_text("FAULT", exact=True).filter(visible=True).first.wait_for()
             bs.wait_until(lambda: "link failure" in status.inner_text() and "SILENT" in status.inner_text(), 20.0,
                           f"the fault's reason and the silent link in the status bar ({status.inner_text()!r})")
             # the pendant says FAULT and why, never "idle"
@@ -358,7 +358,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             pendant.close()
             # a motion button (Probe here, at the point picked for the re-take) is refused with the reason, on the page
             bs.press(page, "Probe here")
-            page.get_by_text("cannot probe: the machine is in fault (link failure").first.wait_for()
+            page.get_by_text("cannot probe: the machine is in fault (link failure").filter(visible=True).first.wait_for()
             assert any(t == "Probe here refused" and "Reset (or reconnect) first" in b
                        for _l, t, b in page.capp.messages), page.capp.messages[-3:]
             assert not station.machine.state.moving
@@ -367,7 +367,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.mouse.wheel(0, -5000)
             page.wait_for_timeout(500)
             bs.open_tab(page, "Machine", "Home")
-            page.get_by_text("then Home (positions are lost)").wait_for()
+            page.get_by_text("then Home (positions are lost)").filter(visible=True).first.wait_for()
             bs.press(page, "Reset")
             bs.wait_until(lambda: any(t == "Reset refused" and "Reconnect first" in b
                                       for _l, t, b in page.capp.messages), 20.0, "Reset refused on a dead link")
@@ -375,9 +375,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             # the plug back in: the loop finds the modules answering; Reset from the page clears the fault
             plug.broken = False
             bs.wait_until(lambda: station.controller.state.link_ok, 20.0, "the link answering again")
-            page.get_by_text("press Reset (the link answers)").wait_for()
+            page.get_by_text("press Reset (the link answers)").filter(visible=True).first.wait_for()
             bs.press(page, "Reset")
-            status.get_by_text("IDLE", exact=True).wait_for()
+            status.get_by_text("IDLE", exact=True).filter(visible=True).first.wait_for()
             bs.wait_until(lambda: "link ok" in status.inner_text() and "link failure" not in status.inner_text(),
                           20.0, f"the status bar clear of the fault ({status.inner_text()!r})")
             cs = station.controller.state
@@ -406,7 +406,7 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         assert rate < 2000, f"an idle page received {rate:.0f} B/s"  # was ~80 kB/s (the plot re-sent 5x/s)
         assert bs.top_tab_rows(page) == [list(bs.TABS)], bs.top_tab_rows(page)  # the six tabs in one row
         bs.open_tab(page, "Machine", "Jog")
-        page.get_by_text("Keyboard").first.wait_for()
+        page.get_by_text("Keyboard").filter(visible=True).first.wait_for()
         page.get_by_text("PageUp/PageDown").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
         bs.screenshot(page, "station-jog-laptop")
@@ -431,5 +431,5 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
             box = pendant.locator(sel).bounding_box()
             assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= TABLET[1], (sel, box)
         x = station.machine.state.position[0]
-        pendant.get_by_text(f"{x:.3f}").first.wait_for()  # the DRO
+        pendant.get_by_text(f"{x:.3f}").filter(visible=True).first.wait_for()  # the DRO
         bs.screenshot(pendant, "station-pendant-tablet")

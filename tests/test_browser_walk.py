@@ -83,13 +83,13 @@ def run_routine_on(page, station, pose, part_name):
     bs.text_field(page, "Part name").fill(part_name)
     bs.wait_until(lambda: page.capp.routine.gui["part"].value == part_name, 30.0, "the part name at the station")
     bs.press(page, "Run on next part")
-    page.get_by_text("WAITING FOR THE OPERATOR").first.wait_for(timeout=120_000)
+    page.get_by_text("WAITING FOR THE OPERATOR").filter(visible=True).first.wait_for(timeout=120_000)
     taken = bs.manual_321_by_jog(page, station, pose, bs.SAMPLE_321_HITS, PROMPTS)  # by hand: the page's armed jog
     run = page.capp.routine
     bs.wait_until(lambda: run.run_ is not None and run.run_.progress.state in ("done", "failed", "cancelled"),
                   600.0, "the routine's end")
     assert run.run_.progress.state == "done", run.run_.progress.message
-    page.get_by_text("DONE").first.wait_for()
+    page.get_by_text("DONE").filter(visible=True).first.wait_for()
     progress = run.run_.progress
     assert part_name in str(progress.session)
     bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
@@ -108,19 +108,19 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         # --- who operates: the start dialog; the status bar and the control messages name her
         bs.start_as(page, "Ada")
         bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "Ada's control")
-        status.get_by_text("Ada (you) controls the machine").wait_for()
+        status.get_by_text("Ada (you) controls the machine").filter(visible=True).first.wait_for()
         assert model.info.get("operator") == "Ada"  # the report header's operator
 
         # --- Machine > Home
         bs.open_tab(page, "Machine", "Home")
-        page.get_by_text("Press Home before measuring").first.wait_for()
+        page.get_by_text("Press Home before measuring").filter(visible=True).first.wait_for()
         bs.press(page, "Home")
         bs.wait_until(lambda: station.controller.state.homed and station.controller.state.mode.value == "idle",
                       180.0, "the homing cycle")
 
         # --- Setup > Calibration: a fresh folder has no certificate; typed in the page, then the probe qualified
         bs.open_tab(page, "Setup", "Calibration")
-        page.get_by_text("certificate problem").first.wait_for()
+        page.get_by_text("certificate problem").filter(visible=True).first.wait_for()
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
         bs.open_folder(page, "Probe options", "Points per ring")
@@ -134,14 +134,14 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.wait_until(lambda: calib.job is not None and calib.job.done, 300.0, "the probe qualification")
         assert calib.job.error is None and calib.result[0] == "probe", calib.job.error
         bs.press_until(page, "Save record", lambda: station.calibration.status.get("probe"), "the qualification applied")
-        status.get_by_text("qualified 20").wait_for()  # the status bar: qualified and when
+        status.get_by_text("qualified 20").filter(visible=True).first.wait_for()  # the status bar: qualified and when
         assert "not qualified" not in status.inner_text()
         bs.screenshot(page, "walk-qualified")
 
         # --- Measure > Auto-measure: three planes, named; Align: 3-2-1 on them
         bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
-        page.get_by_text("the top face at X").first.wait_for()  # the tab says what was picked
+        page.get_by_text("the top face at X").filter(visible=True).first.wait_for()  # the tab says what was picked
         _, top = bs.automeasure_in_page(page, station, 4, name="TOP", shot="walk-plan-top")
         bs.pick_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0))
         _, front = bs.automeasure_in_page(page, station, 3, name="FRONT")
@@ -152,7 +152,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         for key, f in (("p", top), ("s", front), ("t", left)):  # what choosing them in the dropdowns sets
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
         bs.press(page, "Compute 3-2-1")
-        page.get_by_text("part origin at").first.wait_for()
+        page.get_by_text("part origin at").filter(visible=True).first.wait_for()
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: model.aligned, 30.0, "the alignment applied")
         assert np.abs(model.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01  # the set-up found to um
@@ -181,7 +181,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         # --- Routine: taught from this session (the alignment, the six features, the report), saved as a file
         bs.open_tab(page, "Routine")
         bs.press(page, "Teach from this session")
-        page.get_by_text("align 3-2-1: TOP | FRONT | LEFT").first.wait_for()
+        page.get_by_text("align 3-2-1: TOP | FRONT | LEFT").filter(visible=True).first.wait_for()
         routine = page.capp.routine.routine
         assert routine.measured_features() == list(FEATURES)
         assert routine.program.feature("BORE").tolerance.get("size") == pytest.approx(0.01)
@@ -208,7 +208,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
                        "the report", timeout=120.0, every=30.0)
         html = next(f for f in sessions.last_files if f.suffix == ".html").read_text(encoding="utf-8")
         assert "Ada" in html and all(name in html for name in FEATURES)
-        page.get_by_text("-report.html").first.wait_for()
+        page.get_by_text("-report.html").filter(visible=True).first.wait_for()
         assert page.log.page_errors == [], page.log.problems
 
         # --- Ben, on a tablet, takes over: Ada's page names him; he runs the saved routine on the third part
@@ -217,8 +217,8 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.start_as(tablet, "Ben")
         assert bs.top_tab_rows(tablet) == [list(bs.TABS)]
         bs.press_until(tablet, "Take control", lambda: app.control.holder == tablet.capp.client_id, "Ben's control")
-        tablet.locator("#cmm-status").get_by_text("Ben (you) controls the machine").wait_for()
-        status.get_by_text("control is held by Ben").wait_for()
+        tablet.locator("#cmm-status").get_by_text("Ben (you) controls the machine").filter(visible=True).first.wait_for()
+        status.get_by_text("control is held by Ben").filter(visible=True).first.wait_for()
         bs.wait_until(lambda: any(title == "Control taken" and "Ben now controls the machine" in body
                                   for _level, title, body in page.capp.messages), 30.0,
                       "Ada's 'Control taken' message", why=lambda: str(page.capp.messages[-3:]))
