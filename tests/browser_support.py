@@ -146,7 +146,10 @@ def page_diagnosis(page: Any) -> str:
 
 def shows(page: Any, text: str, station_has: Any = None, timeout: float = PAGE_WAIT_MS / 1000) -> None:
     """Wait until the page shows ``text``; if it does not, say whether the station had it to show
-    (``station_has()``: what the station's widget holds) and what the page was doing."""
+    (``station_has()``: what the station's widget holds) and what the page was doing. Every text wait in the
+    tests looks among the visible matches only (``.filter(visible=True).first``): the hidden tabs hold the same
+    words (the routine's DONE also matched a hidden "accel done" cell of the Diagnostics table, and ``.first``
+    waited on that one in vain)."""
     try:
         page.get_by_text(text).filter(visible=True).first.wait_for(timeout=timeout * 1000)
     except Exception as exc:  # noqa: BLE001 - Playwright's timeout, re-raised with the diagnosis
