@@ -65,14 +65,7 @@ def test_name_dialog_saved_name_home_and_certificate_entry(app, within_reach):
     with bs.browser_context(TABLET) as context:
         page = bs.open_page(context, app)
         assert bs.top_tab_rows(page) == [list(bs.TABS)]  # the tabs grouped in one row, as on the laptop
-        page.get_by_text("Who is operating?").filter(visible=True).first.wait_for()
-        field = page.locator(".mantine-Modal-content input").first  # the dialog's one field, "Your name"
-        field.wait_for(state="visible")
-        page.wait_for_timeout(1000)  # the dialog's opening transition
-        field.fill("Maria")
-        page.get_by_role("dialog").get_by_role("button", name="Start", exact=True).click()  # a real click: in reach
-        bs.wait_until(lambda: page.capp.operator == "Maria", 60.0, "the operator's name")
-        page.get_by_text("Who is operating?").wait_for(state="hidden")
+        bs.start_as(page, "Maria", real_click=True)  # a real click on Start: in reach
         assert page.evaluate("() => localStorage.getItem('cmm-operator')") == "Maria"
         # a second tab of the same browser names itself from the saved name
         second = bs.open_page(context, app)

@@ -292,3 +292,30 @@ def test_a_jog_for_the_link_process_carries_plain_numbers_only(sim_machine):
     spec = machine._guard_spec(np.array([10.0, -7.5, 0.0]))  # numpy in, as the control core passes it
     assert b"numpy" not in pickle.dumps(spec)
     assert spec.axes[0].velocity == 10.0 * machine.config.axes[0].counts_per_mm
+
+
+def test_a_wait_on_the_virtual_clock_counts_machine_time_not_wall_time(sim_machine):
+    """With the poll loop running on the simulator's virtual clock, a wait's limit is machine time: a move of well
+    under a second of machine time, paced to a tenth of real time (several wall seconds, as on a busy computer
+    where the simulation gets a tenth of a core), finishes inside a 1 s limit; a loop that hung (the clock stands
+    still) is given up on after the limit instead of waited for forever."""
+    sim, m, _ = sim_machine
+    sim.network.set_pace(0.1)
+    m.start_polling()
+    try:
+        t0 = m.clock.now()
+        status = m.move_to(m.position + np.array([5.0, 0.0, 0.0]))
+        status.wait(1.0)  # wall-clock limit before the fix: TimeoutError after 1 s of a move 10 times longer
+        took = m.clock.now() - t0
+        assert status.success and 0.1 < took < 1.0, took  # paced: at least 1 s of wall time
+        assert m.position[0] == pytest.approx(5.0, abs=0.01)
+    finally:
+        m.stop_polling()
+        sim.network.set_pace(None)
+    m.polling = True  # as a loop thread that hung: the flag up, nobody sampling
+    try:
+        status = m.move_to(m.position + np.array([5.0, 0.0, 0.0]))
+        with pytest.raises(TimeoutError, match="clock stood still"):
+            status.wait(0.5)
+    finally:
+        m.polling = False

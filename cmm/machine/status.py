@@ -8,7 +8,12 @@ on the simulator's virtual clock), ``wait`` drives the polling itself.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any, Callable
+
+from ..nmc.transport import is_virtual
+
+VIRTUAL_CHECK_S = 0.05  # wall s between looks at the virtual clock while the machine loop polls
 
 
 class MotionError(RuntimeError):
@@ -75,7 +80,8 @@ class MoveStatus:
         """Block until done; return the result or raise the error.
 
         ``timeout`` is in seconds of the machine's clock when this call drives
-        the polling, else in wall seconds.
+        the polling or the clock is the simulator's virtual one, else in wall
+        seconds.
         """
         drv = self._driver
         if drv is not None and not drv.polling:
@@ -88,6 +94,21 @@ class MoveStatus:
                 pause = getattr(drv, "poll_pause", 0.0)
                 if pause and not self.done:
                     clock.sleep(pause)
+        elif timeout is not None and drv is not None and is_virtual(drv.clock):
+            # the machine loop polls on the simulator's virtual clock: the time limit is machine time too. On a
+            # busy computer a move took minutes of wall time and was declared a link failure that was not one.
+            # A clock that stands still for ``timeout`` wall seconds is a loop that stopped: given up on too.
+            deadline = drv.clock.now() + timeout
+            seen, still_since = drv.clock.now(), time.monotonic()
+            while not self._event.wait(VIRTUAL_CHECK_S):
+                now = drv.clock.now()
+                if now > deadline:
+                    raise TimeoutError(f"{self.description} not finished after {timeout} s of machine time")
+                if now != seen:
+                    seen, still_since = now, time.monotonic()
+                elif time.monotonic() - still_since > timeout:
+                    raise TimeoutError(f"{self.description} not finished: the machine's clock stood still for "
+                                       f"{timeout} s")
         elif not self._event.wait(timeout):
             raise TimeoutError(f"{self.description} not finished after {timeout} s")
         if self.error is not None:

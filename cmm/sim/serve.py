@@ -42,6 +42,17 @@ _POLL_S = 0.002  # loop period when idle (new bytes wake it at once; this bounds
 # A server thread woken by the OS must then take the GIL from any busy Python thread of the host
 # (the UI, the poll loop): it waits up to the interpreter's switch interval (5 ms by default).
 SWITCH_INTERVAL_S = 0.001
+# The serving thread keeps wire time like a real module: it asks for the priority the link process has (nice -10,
+# where permitted), so on a busy computer the bytes a host wrote before and after switching its rate are not
+# read together, late, and judged at one rate (a pty carries no rate per byte).
+SERVE_NICE = -10
+
+
+def _raise_serving_priority() -> None:
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), SERVE_NICE)
+    except (AttributeError, OSError):
+        pass  # not permitted: the thread keeps the process's priority
 
 
 def _tighten_gil() -> None:
@@ -224,6 +235,7 @@ def serve_tcp(network: SimNetwork, host: str = "127.0.0.1", port: int = 0, *, rf
             telnet.append(PortManager(_AnnouncedLine(network, flush), _Conn()))
 
     def loop() -> None:
+        _raise_serving_priority()
         while not handle._stop.is_set():
             for key, _ in sel.select(_wait_s(network)):
                 if key.fileobj is listener:
@@ -276,6 +288,7 @@ def serve_pty(network: SimNetwork) -> ServedSim:
             return last
 
     def loop() -> None:
+        _raise_serving_priority()
         last = c.POWER_UP_BAUD
         while not handle._stop.is_set():
             data = None
