@@ -482,7 +482,7 @@ def enter_sphere_certificate(page: Any, diameter: float, serial: str, uncertaint
         while not at_station() and time.monotonic() < again:
             time.sleep(0.05)
     press(page, "Save certificate")
-    page.get_by_text(serial).filter(visible=True).first.wait_for()
+    shows(page, serial)
 
 
 def part_point(station: Any, local: Any) -> Any:
@@ -522,9 +522,9 @@ def automeasure_in_page(page: Any, station: Any, hits_per_ring: int, proposal: s
     wait_until(lambda: page.capp.measure.plan is not None and page.capp.measure.plan is not before_plan, 60.0,
                f"the plan ({page.capp.messages[-1:]})")
     if proposal:
-        page.get_by_text(proposal).filter(visible=True).first.wait_for()  # the proposed feature and its pattern of hits
+        shows(page, proposal)  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
-    page.get_by_text(f"{len(plan)} hits · clearance plane").filter(visible=True).first.wait_for()
+    shows(page, f"{len(plan)} hits · clearance plane")
     if name:
         text_field(page, "Feature name").fill(name)
         wait_until(lambda: page.capp.measure.gui["name"].value == name, 30.0, "the typed name at the station")

@@ -358,7 +358,7 @@ def test_viser_app_loads(context, tmp_path):
         log.attach(page)
         page.goto(f"{url}?fixedDpr={bs.VIEW_SCALE:g}")  # as bs.app_url (the product's shadows kept)
         bs.viser_ready(page)  # the scene and the panels that arrived over viser's socket
-        page.get_by_text("Who is operating?").filter(visible=True).first.wait_for()  # the start dialog; Skip leaves it unnamed
+        bs.shows(page, "Who is operating?")  # the start dialog; Skip leaves it unnamed
         page.wait_for_timeout(500)
         page.get_by_role("dialog").get_by_role("button", name="Skip", exact=True).click()
         page.get_by_text("Who is operating?").wait_for(state="hidden")

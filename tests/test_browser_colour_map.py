@@ -97,7 +97,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
             @ station.measurement.part.pose[:3, :3]
         nearest = np.linalg.norm(dmap.mesh.vertices[:, None, :] - local[None], axis=2).argmin(axis=0)
         assert {tuple(c) for c in dmap.vertex_colours[nearest].tolist()} == {GREEN}
-        page.get_by_text(f"{len(HITS)} hits paint").filter(visible=True).first.wait_for()  # "6 hits paint N % of the surface"
+        bs.shows(page, f"{len(HITS)} hits paint")  # "6 hits paint N % of the surface"
         covered = dmap.coverage
         # look at the part for the screenshot
         centre = (station.measurement.part.pose[:3, :3] @ np.array([60.0, 40.0, 20.0]) + station.measurement.part.pose[:3, 3]) * SCALE
@@ -111,7 +111,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         station.measurement.probe(target, -station.measurement.part.pose[:3, 2]).wait(60)
         bs.wait_until(lambda: app.view.map is not None and app.view.map.hits_used == len(HITS) + 1, 30.0,
                       "the map with the new hit")
-        page.get_by_text(f"{len(HITS) + 1} hits paint").filter(visible=True).first.wait_for()
+        bs.shows(page, f"{len(HITS) + 1} hits paint")
         covered = app.view.map.coverage
 
         # --- new bands and reach from the page: the legend and the map follow

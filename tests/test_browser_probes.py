@@ -53,7 +53,7 @@ def within_reach(monkeypatch):
 def home_in_page(page, station):
     """Machine > Home: the tab says to home first; Home pressed; the homing cycle runs to idle."""
     bs.open_tab(page, "Machine", "Home")
-    page.get_by_text("Press Home before measuring").filter(visible=True).first.wait_for()
+    bs.shows(page, "Press Home before measuring")
     bs.press(page, "Home")
     bs.wait_until(lambda: station.controller.state.homed and station.controller.state.mode.value == "idle",
                   180.0, "the homing cycle")
@@ -73,17 +73,17 @@ def test_name_dialog_saved_name_home_and_certificate_entry(app, within_reach):
         second.close()
         bs.press(page, "Take control")
         bs.wait_until(lambda: app.control.holder == page.capp.client_id, 60.0, "control")
-        page.get_by_text("Maria (you) controls the machine").filter(visible=True).first.wait_for()
+        bs.shows(page, "Maria (you) controls the machine")
         assert not app.station.controller.state.homed
         home_in_page(page, app.station)
         bs.open_tab(page, "Setup", "Calibration")
-        page.get_by_text("certificate problem").filter(visible=True).first.wait_for()
+        bs.shows(page, "certificate problem")
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
         cert = app.station.calibration.certificates("probe")
         assert (cert.serial, cert.diameter, cert.uncertainty) == ("RS-77", pytest.approx(25.0002),
                                                                   pytest.approx(0.00012))
-        page.get_by_text("in use").filter(visible=True).first.wait_for()
+        bs.shows(page, "in use")
         assert page.get_by_text("not qualified").count() >= 1
         bs.screenshot(page, "probes-calibration")
 
@@ -143,7 +143,7 @@ def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
             bs.wait_until(lambda: re.search(r"PAUSED.*holding", status.content) is not None, 60.0,
                           "PAUSED ... holding in the station's status line", why=lambda: status.content)
             try:
-                page.get_by_text(re.compile(r"PAUSED.*holding")).filter(visible=True).first.wait_for()  # the page says so ...
+                bs.shows(page, re.compile(r"PAUSED.*holding"))  # the page says so ...
             except Exception:  # once beside CPU hogs the page never did: say what it showed instead
                 bs.screenshot(page, "probes-paused-missing")
                 raise AssertionError(f"the page never said PAUSED ... holding (the station's line: {status.content!r}); "
@@ -173,7 +173,7 @@ def test_qualification_paused_and_resumed_from_the_page(app, within_reach):
         result = calib.result[1]
         assert result.record.n_points == points >= 7 and result.skipped == []
         radius = f"{result.record.tip_radius:.5f} mm"
-        page.get_by_text(radius).filter(visible=True).first.wait_for()  # the results: the effective tip radius
+        bs.shows(page, radius)  # the results: the effective tip radius
         bs.press_until(page, "Save record", lambda: st.calibration.status.get("probe"), "the qualification saved")
         rows = {r["name"]: r for r in calib.probes()}
         assert rows["Probe1"]["tip_radius"] == pytest.approx(result.record.tip_radius)

@@ -91,12 +91,12 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         capp = page.capp
         assert bs.top_tab_rows(page) == [list(bs.TABS)]  # the tabs grouped in one row, as on the laptop
         bs.press_on_screen(page, "Take control")
-        page.get_by_text("You control the machine.").filter(visible=True).first.wait_for()
+        bs.shows(page, "You control the machine.")
         bs.open_tab(page, "Routine")
-        page.get_by_text("No routine yet").filter(visible=True).first.wait_for()
+        bs.shows(page, "No routine yet")
         bs.press_on_screen(page, "Teach from this session")
-        page.get_by_text("align 3-2-1: TOP | FRONT | LEFT (manual hits, then automatic)").filter(visible=True).first.wait_for()
-        page.get_by_text("bore: cylinder, 8 hits, ls").filter(visible=True).first.wait_for()
+        bs.shows(page, "align 3-2-1: TOP | FRONT | LEFT (manual hits, then automatic)")
+        bs.shows(page, "bore: cylinder, 8 hits, ls")
 
         # rename the bore in the page
         choose_step(page, 5)
@@ -104,7 +104,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bs.text_field(page, "New name").press("Enter")
         bs.typed(page, "New name", "BORE")
         bs.press_on_screen(page, "Rename")
-        page.get_by_text(re.compile(r"BORE: cylinder, 8 hits, ls")).filter(visible=True).first.wait_for()  # case-sensitive: renamed
+        bs.shows(page, re.compile(r"BORE: cylinder, 8 hits, ls"))  # case-sensitive: renamed
         assert capp.routine.routine.program.feature("BORE")
         bs.screenshot(page, "routine-taught")
 
@@ -114,17 +114,17 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bs.text_field(page, "Part name").press("Enter")
         bs.typed(page, "Part name", "SN-0002")
         bs.press_on_screen(page, "Run on next part")
-        page.get_by_text("WAITING FOR THE OPERATOR").filter(visible=True).first.wait_for()
-        page.get_by_text("Take 3 hits by hand on TOP (primary datum)").filter(visible=True).first.wait_for()
+        bs.shows(page, "WAITING FOR THE OPERATOR")
+        bs.shows(page, "Take 3 hits by hand on TOP (primary datum)")
         bs.screenshot(page, "routine-prompt")
         model = station.measurement
         # the operator's hands: each hit where the part really is, by the page's armed jog
         taken = bs.manual_321_by_jog(page, station, SECOND_POSE, MANUAL, {
             3: "Take 2 hits by hand on FRONT (secondary datum)", 5: "Take 1 hit by hand on LEFT (tertiary datum)"})
-        page.get_by_text("RUNNING").filter(visible=True).first.wait_for()
+        bs.shows(page, "RUNNING")
         bs.wait_until(lambda: capp.routine.run_.progress.state in ("done", "failed"), 400.0, "the routine's end")
         assert capp.routine.run_.progress.state == "done", capp.routine.run_.progress.message
-        page.get_by_text("DONE").filter(visible=True).first.wait_for()
+        bs.shows(page, "DONE")
         bs.screenshot(page, "routine-done")
         progress = capp.routine.run_.progress
         delta = model.part.pose @ invert(SECOND_POSE)
@@ -177,9 +177,9 @@ def _fault_and_resume(page, station, size):
     model = station.measurement
     capp = page.capp
     press(page, "Take control")
-    page.get_by_text("You control the machine.").filter(visible=True).first.wait_for()
+    bs.shows(page, "You control the machine.")
     bs.open_tab(page, "Routine")
-    page.get_by_text("No routine yet").filter(visible=True).first.wait_for()
+    bs.shows(page, "No routine yet")
     # the routine taught on the first part (its session is the station's first), saved as a file and opened
     first = open_session(model.session_dir / "routine.jsonl")
     saved = teach_routine(first, name="block", part_mesh=model.part.mesh,
@@ -212,7 +212,7 @@ def _fault_and_resume(page, station, size):
                   400.0, "the stop on the obstacle")
     run = panel.run_
     session = run.progress.session
-    page.get_by_text("STOPPED").filter(visible=True).first.wait_for()
+    bs.shows(page, "STOPPED")
     page.get_by_text(re.compile(rf"step 5 \({bore}\) stopped: unexpected probe contact")).filter(visible=True).first.wait_for()
     page.get_by_role("button", name="Resume from step 5", exact=True).wait_for()
     bs.screenshot(page, f"routine-fault-{size}")
@@ -239,7 +239,7 @@ def _fault_and_resume(page, station, size):
                                                            and run.progress.message != stopped), 400.0,
                   "the resumed routine's end")
     assert run.progress.state == "done", run.progress.message
-    page.get_by_text("DONE").filter(visible=True).first.wait_for()
+    bs.shows(page, "DONE")
     bs.screenshot(page, f"routine-resumed-{size}")
     result = run.progress.results[bore]
     assert run.progress.session == session and len(result.hit_ids) == len(hits)

@@ -109,9 +109,9 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     planned = lambda: getattr(measure.plan, "description", "")  # noqa: E731
     bs.wait_until(lambda: proposal in planned(), 60.0, f"the plan at the station: {proposal}",
                   why=lambda: f"planned {planned()!r}; told {page.capp.messages[-3:]}")
-    page.get_by_text(proposal).filter(visible=True).first.wait_for()  # the proposed feature and its pattern of hits
+    bs.shows(page, proposal)  # the proposed feature and its pattern of hits
     plan = page.capp.measure.plan
-    page.get_by_text(f"{len(plan)} hits · clearance plane").filter(visible=True).first.wait_for()
+    bs.shows(page, f"{len(plan)} hits · clearance plane")
     # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
     bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
     if shot:
@@ -145,9 +145,9 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
         bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not None, "the plan")
-        page.get_by_text("4 hits · clearance plane").filter(visible=True).first.wait_for()
+        bs.shows(page, "4 hits · clearance plane")
         name_field = page.get_by_text("Feature name", exact=True).locator("xpath=following::input[1]")
-        page.get_by_text("the top face at X").filter(visible=True).first.wait_for()  # the tab says what was picked
+        bs.shows(page, "the top face at X")  # the tab says what was picked
         assert page.get_by_label("Hits (per ring)", exact=True).input_value() == "4"  # the plan's, not 0
         # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)
         bs.wait_until(lambda: page.capp.measure.preview.nodes, 60.0, "the planned path drawn")
@@ -162,7 +162,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: page.capp.measure.progress == "done: TOP", 120.0, "the run's end at the station",
                       why=lambda: f"progress {page.capp.measure.progress!r}, mode {station.controller.state.mode}, "
                                   f"jobs {station.controller.jobs!r}, told {page.capp.messages[-3:]}")
-        page.get_by_text("done: TOP").filter(visible=True).first.wait_for()
+        bs.shows(page, "done: TOP")
         bs.wait_until(lambda: name_field.input_value() == "", 20.0,
                       "the name field cleared for the next feature")
         # the front and left faces (3 hits each)
@@ -197,7 +197,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         # select the top plane (it and its hits highlighted); remove a hit and it refits
         page.capp.features._chosen(f"{top.id} {top.name}")  # what choosing it in the Feature dropdown calls
         assert page.capp.ctx.selected_feature == top.id and app.view.selected == top.id
-        page.get_by_text(f"{top.name} hits (residual)").filter(visible=True).first.wait_for()
+        bs.shows(page, f"{top.name} hits (residual)")
         bs.open_folder(page, "Hits of the feature", "Hit")
         page.get_by_label("Hit", exact=True).fill(str(top.hit_ids[0]))
         page.get_by_label("Hit", exact=True).press("Enter")
@@ -287,7 +287,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         for key, f in (("p", top), ("s", front), ("t", left)):
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
         bs.press(page, "Compute 3-2-1")
-        page.get_by_text("part origin at").filter(visible=True).first.wait_for()
+        bs.shows(page, "part origin at")
         before = np.abs(station.measurement.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max()
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: station.measurement.aligned, 20.0, "the alignment applied")
@@ -304,11 +304,11 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         status.get_by_text("machine", exact=True).filter(visible=True).first.wait_for()
         bs.press(page, "Compute best fit")
         page.get_by_text("best_fit", exact=True).filter(visible=True).first.wait_for()
-        page.get_by_text("RMS:").filter(visible=True).first.wait_for()
+        bs.shows(page, "RMS:")
         fit = page.capp.align.result
         assert fit.method == "best_fit" and fit.residuals["RMS"] < 0.005, fit.residuals  # um-level on a true part
         assert np.abs(fit.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01
-        page.get_by_text("moved ").filter(visible=True).first.wait_for()  # the shift from the 3-2-1 set-up it replaces
+        bs.shows(page, "moved ")  # the shift from the 3-2-1 set-up it replaces
         bs.screenshot(page, "station-best-fit")
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: page.capp.status.frame == "Part", 20.0, "the DRO in part coordinates after the best fit")
@@ -367,7 +367,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             page.mouse.wheel(0, -5000)
             page.wait_for_timeout(500)
             bs.open_tab(page, "Machine", "Home")
-            page.get_by_text("then Home (positions are lost)").filter(visible=True).first.wait_for()
+            bs.shows(page, "then Home (positions are lost)")
             bs.press(page, "Reset")
             bs.wait_until(lambda: any(t == "Reset refused" and "Reconnect first" in b
                                       for _l, t, b in page.capp.messages), 20.0, "Reset refused on a dead link")
@@ -375,7 +375,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
             # the plug back in: the loop finds the modules answering; Reset from the page clears the fault
             plug.broken = False
             bs.wait_until(lambda: station.controller.state.link_ok, 20.0, "the link answering again")
-            page.get_by_text("press Reset (the link answers)").filter(visible=True).first.wait_for()
+            bs.shows(page, "press Reset (the link answers)")
             bs.press(page, "Reset")
             status.get_by_text("IDLE", exact=True).filter(visible=True).first.wait_for()
             bs.wait_until(lambda: "link ok" in status.inner_text() and "link failure" not in status.inner_text(),
@@ -406,7 +406,7 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
         assert rate < 2000, f"an idle page received {rate:.0f} B/s"  # was ~80 kB/s (the plot re-sent 5x/s)
         assert bs.top_tab_rows(page) == [list(bs.TABS)], bs.top_tab_rows(page)  # the six tabs in one row
         bs.open_tab(page, "Machine", "Jog")
-        page.get_by_text("Keyboard").filter(visible=True).first.wait_for()
+        bs.shows(page, "Keyboard")
         page.get_by_text("PageUp/PageDown").scroll_into_view_if_needed()
         page.wait_for_timeout(500)
         bs.screenshot(page, "station-jog-laptop")
@@ -431,5 +431,5 @@ def test_idle_page_is_quiet_and_layouts_fit_laptop_and_tablet(app, station):
             box = pendant.locator(sel).bounding_box()
             assert box is not None and 0 <= box["y"] and box["y"] + box["height"] <= TABLET[1], (sel, box)
         x = station.machine.state.position[0]
-        pendant.get_by_text(f"{x:.3f}").filter(visible=True).first.wait_for()  # the DRO
+        bs.shows(pendant, f"{x:.3f}")  # the DRO
         bs.screenshot(pendant, "station-pendant-tablet")

@@ -129,7 +129,7 @@ def test_the_pendant_page_says_why_a_key_does_nothing(app, station):
         pendant = context.new_page()
         pendant.goto(app.pendant.url)
         pendant.get_by_role("button", name="Take control").click()
-        pendant.get_by_text("you have control").filter(visible=True).first.wait_for()
+        bs.shows(pendant, "you have control")
         station.controller.fault("a test fault")
         try:
             bs.wait_until(lambda: "FAULT" in pendant.locator("#motion").inner_text(), 10.0, "the pendant's FAULT")
@@ -168,7 +168,7 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
         nodes = capp.measure.preview.nodes
         assert set(nodes) == {"rapid", "approach", "retract", "hits"}
         assert len(nodes["hits"].points) == len(capp.measure.plan)
-        page.get_by_text("Path preview:").filter(visible=True).first.wait_for()
+        bs.shows(page, "Path preview:")
         bs.screenshot(page, "path-preview")
         _click_button(page, "Clear path")
         bs.wait_until(lambda: not capp.measure.preview.nodes, 30.0, "the path preview cleared")
@@ -189,7 +189,7 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
         bs.checkbox(page, "Planes").wait_for(state="attached")
         bs.checkbox(page, "Planes").evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the planes hidden")
-        page.get_by_text("(hidden)").filter(visible=True).first.wait_for()  # the tree says so
+        bs.shows(page, "(hidden)")  # the tree says so
         _click_button(page, "Show all")
         bs.wait_until(lambda: app.view._feature_nodes[fid].visible, 30.0, "the planes shown again")
         bs.checkbox(page, "Selected feature").evaluate("e => e.click()")
@@ -204,5 +204,5 @@ def test_the_path_preview_and_the_show_checkboxes_in_the_page(app, station):
                       "the feature's row ticked (shown)")
         row.evaluate("e => e.click()")
         bs.wait_until(lambda: not app.view._feature_nodes[fid].visible, 30.0, "the feature hidden by its row")
-        page.get_by_text("(hidden)").filter(visible=True).first.wait_for()  # the tree says so
+        bs.shows(page, "(hidden)")  # the tree says so
         app.view.show_all()

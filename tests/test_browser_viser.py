@@ -117,7 +117,7 @@ def speed(station) -> float:
 
 def take_control(page, app) -> None:
     bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
-    page.get_by_text("You control the machine.").filter(visible=True).first.wait_for()
+    bs.shows(page, "You control the machine.")
     assert app.control.holder == page.capp.client_id
 
 
@@ -198,7 +198,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     assert np.linalg.norm(hit.point[:2] - target[:2]) < 5.0, (hit.point, target)  # a few pixels of slack
     assert nominal is not None and nominal.kind == "plane"
     shown = "picked X={:.3f} Y={:.3f} Z={:.3f}, normal (".format(*hit.point)
-    page.get_by_text(shown).filter(visible=True).first.wait_for()  # the Go to panel shows it (refresher, 5 Hz)
+    bs.shows(page, shown)  # the Go to panel shows it (refresher, 5 Hz)
     page.wait_for_timeout(300)  # the pick marker drawn
     bs.screenshot(page, "viser-browser-picked")
     bs.screenshot(page, "viser-browser-picked-zoom", clip={"x": max(px - 80, 0), "y": max(py - 80, 0),
@@ -210,7 +210,7 @@ def test_click_on_the_part_picks_and_probe_here_adds_a_hit(open_page, app, stati
     newest = station.measurement.hits[max(station.measurement.hits)]
     assert np.linalg.norm(newest.point - hit.point) < 0.1, (newest.point, hit.point)
     bs.open_tab(page, "Machine", "Probe")
-    page.get_by_text("contact point (machine):").filter(visible=True).first.wait_for()
+    bs.shows(page, "contact point (machine):")
     page.wait_for_timeout(500)
     bs.screenshot(page, "viser-browser-probe-tab")
     assert page.log.console_errors == [] and page.log.page_errors == [], page.log.problems
@@ -381,7 +381,7 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
     other = context.new_page()
     try:
         other.goto(f"{app.pendant.url}#as={token}")
-        other.get_by_text("already open in another frame").filter(visible=True).first.wait_for()
+        bs.shows(other, "already open in another frame")
         assert other.locator("#control").inner_text() == "observer: another client has control"
         forged = context.new_page()
         forged.goto(f"{app.pendant.url}#as={token[:-2]}xx")
@@ -394,7 +394,7 @@ def test_embedded_pendant_shares_the_page_control(open_page, app, station, conte
         page.close()
         bs.wait_until(lambda: token not in app.pendant.grants._grants, 10.0, "the grant revoked")
         other.reload()
-        other.get_by_text("grant is not valid").filter(visible=True).first.wait_for()
+        bs.shows(other, "grant is not valid")
         assert other.locator("#control").inner_text() == "observer"
     finally:
         other.close()

@@ -89,7 +89,7 @@ def run_routine_on(page, station, pose, part_name):
     bs.wait_until(lambda: run.run_ is not None and run.run_.progress.state in ("done", "failed", "cancelled"),
                   600.0, "the routine's end")
     assert run.run_.progress.state == "done", run.run_.progress.message
-    page.get_by_text("DONE").filter(visible=True).first.wait_for()
+    bs.shows(page, "DONE")
     progress = run.run_.progress
     assert part_name in str(progress.session)
     bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
@@ -113,14 +113,14 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
 
         # --- Machine > Home
         bs.open_tab(page, "Machine", "Home")
-        page.get_by_text("Press Home before measuring").filter(visible=True).first.wait_for()
+        bs.shows(page, "Press Home before measuring")
         bs.press(page, "Home")
         bs.wait_until(lambda: station.controller.state.homed and station.controller.state.mode.value == "idle",
                       180.0, "the homing cycle")
 
         # --- Setup > Calibration: a fresh folder has no certificate; typed in the page, then the probe qualified
         bs.open_tab(page, "Setup", "Calibration")
-        page.get_by_text("certificate problem").filter(visible=True).first.wait_for()
+        bs.shows(page, "certificate problem")
         bs.enter_sphere_certificate(page, 25.0002, "RS-77", 0.12)
         assert page.get_by_text("certificate problem").count() == 0
         bs.open_folder(page, "Probe options", "Points per ring")
@@ -141,7 +141,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         # --- Measure > Auto-measure: three planes, named; Align: 3-2-1 on them
         bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
-        page.get_by_text("the top face at X").filter(visible=True).first.wait_for()  # the tab says what was picked
+        bs.shows(page, "the top face at X")  # the tab says what was picked
         _, top = bs.automeasure_in_page(page, station, 4, name="TOP", shot="walk-plan-top")
         bs.pick_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0))
         _, front = bs.automeasure_in_page(page, station, 3, name="FRONT")
@@ -152,7 +152,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         for key, f in (("p", top), ("s", front), ("t", left)):  # what choosing them in the dropdowns sets
             page.capp.align.gui[key].value = f"{f.id} {f.name} ({f.kind})"
         bs.press(page, "Compute 3-2-1")
-        page.get_by_text("part origin at").filter(visible=True).first.wait_for()
+        bs.shows(page, "part origin at")
         bs.press(page, "Apply alignment")
         bs.wait_until(lambda: model.aligned, 30.0, "the alignment applied")
         assert np.abs(model.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01  # the set-up found to um
@@ -181,7 +181,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         # --- Routine: taught from this session (the alignment, the six features, the report), saved as a file
         bs.open_tab(page, "Routine")
         bs.press(page, "Teach from this session")
-        page.get_by_text("align 3-2-1: TOP | FRONT | LEFT").filter(visible=True).first.wait_for()
+        bs.shows(page, "align 3-2-1: TOP | FRONT | LEFT")
         routine = page.capp.routine.routine
         assert routine.measured_features() == list(FEATURES)
         assert routine.program.feature("BORE").tolerance.get("size") == pytest.approx(0.01)
@@ -208,7 +208,7 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
                        "the report", timeout=120.0, every=30.0)
         html = next(f for f in sessions.last_files if f.suffix == ".html").read_text(encoding="utf-8")
         assert "Ada" in html and all(name in html for name in FEATURES)
-        page.get_by_text("-report.html").filter(visible=True).first.wait_for()
+        bs.shows(page, "-report.html")
         assert page.log.page_errors == [], page.log.problems
 
         # --- Ben, on a tablet, takes over: Ada's page names him; he runs the saved routine on the third part

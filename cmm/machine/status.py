@@ -98,8 +98,8 @@ class MoveStatus:
             # the machine loop polls on the simulator's virtual clock: the time limit is machine time too. On a
             # busy computer a move took minutes of wall time and was declared a link failure that was not one.
             # A clock that stands still for ``timeout`` wall seconds is a loop that stopped: given up on too.
-            deadline = drv.clock.now() + timeout
             seen, still_since = drv.clock.now(), time.monotonic()
+            deadline = seen + timeout
             while not self._event.wait(VIRTUAL_CHECK_S):
                 now = drv.clock.now()
                 if now > deadline:
