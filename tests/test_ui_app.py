@@ -330,6 +330,31 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     assert len(st.measurement.features) == before
 
 
+def test_a_new_pick_drops_the_plan_of_the_face_picked_before(app, operator):
+    """Plan on the top, then a click on the front face: the page must not show the top's plan under the front's
+    name, and Run must not measure the top (the face no longer picked); Plan again plans the front."""
+    st = app.station
+    assert operator.pick(_above_part(st), [0, 0, -1]) is not None
+    top = operator.measure.make_plan(3)
+    assert top is not None and "top face" in operator.measure.text() and "3 hits · clearance" in operator.measure.text()
+    part = st.measurement.part
+    lo, hi = part.mesh.bounds
+    front = part.pose[:3, :3] @ [60.0, lo[1] - 40.0, lo[2] + 0.3 * (hi[2] - lo[2])] + part.pose[:3, 3]
+    assert operator.pick(front, part.pose[:3, :3] @ [0, 1, 0]) is not None
+    text = operator.measure.text()
+    assert "front face" in text and "then Plan" in text and "clearance plane" not in text, text
+    hits_before = len(st.measurement.hits)
+    assert operator.measure.run() is False
+    assert operator.messages[-1][1] == "Auto-measure" and "plan a measurement of the picked face" in operator.messages[-1][2]
+    assert len(st.measurement.hits) == hits_before
+    plan = operator.measure.make_plan(3)
+    assert plan is not None and plan is not top
+    towards = part.pose[:3, :3] @ [0, 1, 0]  # onto the front face: along the part's +Y
+    assert all(np.dot(u, towards) > 0.999 for u in plan.approaches), plan.approaches
+    operator.ctx.clear_pick()
+    assert operator.measure.run() is False and "click a face of the part" in operator.messages[-1][2]
+
+
 def test_a_tab_is_told_when_control_is_taken_from_it_and_a_hit_is_retaken(app, operator, unpaced):
     """Another local client takes over: the previous holder gets an alert. Re-take: the next hit replaces
     the chosen one in the selected feature, which refits."""

@@ -57,6 +57,7 @@ class MeasurePanel:
         self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.plan: Any = None
+        self.plan_pick: Any = None  # the pick the plan was made for: a new pick makes it stale
         self.running: threading.Thread | None = None
         self.progress = ""
         self.feature: Any = None
@@ -71,11 +72,21 @@ class MeasurePanel:
         except (PlanError, ValueError) as exc:
             self.plan = None
             return self.ctx.error(exc, "Auto-measure")
+        self.plan_pick = self.ctx.picked
         self.progress = ""
         self.hits_per_ring = hits_per_ring or 0
         if "hits" in self.gui:  # the field shows the hits per ring the plan uses (not 0 for "the default")
             self.gui["hits"].value = self.plan_hits_per_ring()
         self.draw()
+        return self.plan
+
+    def current_plan(self) -> Any:
+        """The plan, or None when another face was picked (or the pick cleared) since Plan: Run must never
+        measure a face the operator no longer has picked."""
+        if self.plan is not None and self.plan_pick is not self.ctx.picked:
+            self.plan = self.plan_pick = None
+            self.progress = ""
+            self.preview.clear()
         return self.plan
 
     def plan_hits_per_ring(self) -> int:
@@ -88,7 +99,7 @@ class MeasurePanel:
         return len(p) // 2 if p.kind in ("cylinder", "cone") else len(p)
 
     def text(self) -> str:
-        p = self.plan
+        p = self.current_plan()
         picked = picked_text(self.station, self.ctx.picked)
         if p is None:
             return picked + ("" if self.ctx.picked is None else "; then Plan.")
@@ -106,18 +117,20 @@ class MeasurePanel:
 
     def draw(self) -> None:
         """The plan's path preview in this tab's 3-D view, from where the tip is now (Plan and Preview path)."""
-        if self.plan is None:
+        plan = self.current_plan()
+        if plan is None:
             self.preview.clear()
             return
-        self.preview.show(plan_targets(self.plan), "Auto-measure preview")
+        self.preview.show(plan_targets(plan), "Auto-measure preview")
 
     def clear_drawing(self) -> None:
         self.preview.clear()
 
     def run(self, name: str = "", wait: bool = False) -> bool:
-        plan = self.plan
+        plan = self.current_plan()
         if plan is None:
-            self.ctx.error("plan a measurement first", "Auto-measure")
+            self.ctx.error("plan a measurement of the picked face first" if self.ctx.picked is not None
+                           else "click a face of the part, then Plan", "Auto-measure")
             return False
         if self.running is not None and self.running.is_alive():
             self.ctx.error("a measurement is already running", "Auto-measure")
