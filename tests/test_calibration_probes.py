@@ -44,6 +44,7 @@ def test_certificate_entered_in_the_page_lets_qualification_run(fresh):
     ui, operator, folder = fresh
     panel = operator.calibration
     assert "certificate problem" in panel.certificate_markdown("probe")
+    assert "enter the sphere's diameter, serial and uncertainty" in panel.certificate_markdown("probe")  # here
     assert panel.run("probe") is None and "missing" in _errors(operator)[-1][2]
     # a wrong entry is refused with a sentence and writes nothing
     assert not panel.enter_certificate(25.0, "", 0.1)
@@ -51,9 +52,15 @@ def test_certificate_entered_in_the_page_lets_qualification_run(fresh):
     assert not panel.enter_certificate(25.0, "RS-7", 50.0)  # 50 um: not a sphere certificate's uncertainty
     assert "uncertainty" in _errors(operator)[-1][2]
     assert not (folder / "artifacts" / "reference-sphere.toml").exists()
-    assert panel.enter_certificate(25.0, "RS-7", 0.1)
+    assert not panel.enter_certificate(25.0, "RS-7", 0.1, 0.0, "12/03/2026")
+    assert "YYYY-MM-DD" in _errors(operator)[-1][2]
+    assert not panel.enter_certificate(25.0, "RS-7", 0.1, 0.0, "2999-01-01")
+    assert "in the future" in _errors(operator)[-1][2]
+    assert not (folder / "artifacts" / "reference-sphere.toml").exists()
+    assert panel.enter_certificate(25.0, "RS-7", 0.1, 0.05, "2026-03-12")
     cert = load_sphere_certificate(folder / "artifacts" / "reference-sphere.toml")
     assert (cert.diameter, cert.serial, cert.uncertainty) == (25.0, "RS-7", pytest.approx(0.0001))
+    assert cert.certified == "2026-03-12" and cert.form == pytest.approx(0.00005)
     # on the simulator the set-up centre is where its sphere stands
     assert np.allclose(cert.approx_centre, ui.station.sim.settings.sphere_centre)
     text = panel.certificate_markdown("probe")
@@ -74,6 +81,8 @@ def test_probe_list_add_select_and_qualify_after_a_fault(fresh):
     tip_d = 2 * st.config.probe.tip_radius
     assert panel.add_probe("T2", tip_d, "0, 0, -1")
     assert not panel.add_probe("T2", tip_d)  # the name is taken
+    assert panel.add_probe("T5", tip_d, "1 0 0"), _errors(operator)[-1:]  # spaces between the numbers, too
+    assert next(r for r in panel.probes() if r["name"] == "T5")["stylus"] in ((1.0, 0.0, 0.0), [1.0, 0.0, 0.0])
     assert panel.select_probe("T2"), _errors(operator)[-1:]
     assert st.measurement.probe_name == "T2"
     assert st.prober.settings.tip_radius == pytest.approx(tip_d / 2)  # not qualified: nominal radius
@@ -196,7 +205,7 @@ def test_hits_remember_their_probe_and_ippdme_lists_the_probes(fresh):
     assert hits and hits[-1]["probe"] == st.measurement.probe_name == "T2"
     backend = StationBackend(st)
     probes = dict(backend.probes())
-    assert set(probes) == {"Probe1", "T2"}
+    assert set(probes) == {"Probe1", "T2", "T5"}  # T5: added with its stylus along +X
     assert probes["T2"] == pytest.approx(st.prober.settings.tip_radius)
     tools = ToolChanger.build(Limits.from_config(st.config), backend.probes())
     assert {"Probe1", "T2"} <= set(tools.names())

@@ -134,6 +134,11 @@ def test_a_hop_goes_straight_or_over_its_height_only_where_proven_free_else_over
     assert height(*front_to_back, 30.0, clearance_z=None) == 51.0  # the part's plane
     assert height(*front_to_back, 42.0, restart=True) == 60.0  # after a contact: never a hop
     assert height(*on_top, 42.0, workspace=None) == 60.0  # without a part nothing is proven: no hop
+    # a caller's clearance below the part's plane (a routine step's edited clearance): taken where proven free,
+    # over the part's plane where it would cross the part
+    assert height(*front_to_back, None, clearance_z=45.0) == 45.0  # 5 mm over the top: free
+    assert height(*front_to_back, None, clearance_z=20.0) == 51.0  # through the block: the plane
+    assert height(*front_to_back, None, clearance_z=20.0, workspace=None) == 20.0  # no part: the caller's
 
 
 # --- the station: Go to after a bore cycle, a restart after a contact ----------------------------------
@@ -216,6 +221,22 @@ def test_a_restart_after_a_fault_goes_over_the_clearance_plane_even_when_a_strai
         assert np.allclose(ctl.frame_position("part"), a, atol=0.003)
     finally:
         station.sim.network.tick_hooks.pop()
+
+
+def test_a_programmed_hit_whose_clearance_is_below_the_part_goes_over_the_plane_not_through_the_part(station):
+    """A routine step's clearance edited to below the part's top (part Z 25, the top is at 40): the rapid from in
+    front of the block to over the top face would cut through the front face at that height."""
+    api, m = station.controller.commands, station.measurement
+    pose = m.part.pose
+    in_front = [60.0, -15.0, 20.0]  # part coordinates: 15 mm in front of the front face, half way up
+    assert api.call(None, "move", {"target": in_front, "frame": "part"}, wait=True, timeout=120).ok
+    contacts = _contacts(station)
+    low = float((pose @ np.array([0.0, 0.0, 25.0, 1.0]))[2])
+    point = (pose @ np.array([60.0, 40.0, 40.0, 1.0]))[:3]
+    hit = m.probe(point, pose[:3, :3] @ [0.0, 0.0, -1.0], clearance_z=low).wait(120)
+    station.controller.dispatcher.flush()
+    assert contacts == [], contacts
+    assert abs(float((np.linalg.inv(pose) @ np.array([*hit.point, 1.0]))[2]) - 40.0) < 0.05  # on the top face
 
 
 # --- the jog-hold pipeline ------------------------------------------------------------------------------

@@ -4,6 +4,8 @@ go through). And the Plan button's path preview, which Run clears."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from netutil import SIM, free_port
@@ -86,5 +88,20 @@ def test_the_routine_tabs_preview_is_the_routines_hits_and_run_clears_it(app):
                for c, (_n, p, u, _cz) in zip(cycles, targets))
     assert capp.routine.start("p2")
     assert capp.routine.preview.cycles == []  # Run clears the preview
+    # the whole run is RUNNING in every tab's status bar, also between its steps (set before its first move)
+    assert app.shared.cycle == "routine preview on p2" and ">RUNNING</span>" in capp.status.html()
     capp.routine.thread.join(300)
     assert capp.routine.run_.progress.state == "done", capp.routine.progress_text()
+    assert app.shared.cycle is None and ">RUNNING</span>" not in capp.status.html()
+    # a step that stopped: Reset is asked for only when the machine needs it (not after a skipped datum)
+    run, ctl = capp.routine.run_, app.station.controller
+    assert capp.routine._recovery(run).startswith("Then Resume from step")
+    ctl.fault("a test fault")
+    try:
+        for _ in range(200):  # the loop publishes the fault with its next sample
+            if ctl.state.mode.value == "fault":
+                break
+            time.sleep(0.05)
+        assert capp.routine._recovery(run).startswith("Clear the cause, press Reset, then Resume from step")
+    finally:
+        ctl.reset(None)

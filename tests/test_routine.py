@@ -81,6 +81,15 @@ def test_edits_rename_reorder_refuse_what_would_break_the_routine(taught):
         r.set_clearance("TOP", 10.0)
     r.set_clearance("TOP", 80.0)
     assert all(h.clearance_z == 80.0 for h in r.program.hits if h.id in r.program.feature("TOP").hits)
+    # the bore's hits stand at two depths: a height between them is refused for all of them, none changed
+    bore = [h for h in r.program.hits if h.id in r.program.feature("BORE").hits]
+    zs = sorted({round(h.point[2], 3) for h in bore})
+    assert len(zs) >= 2, zs
+    before = [h.clearance_z for h in bore]
+    r.program.hits.sort(key=lambda h: h.point[2])  # whatever order the file keeps them in: the deepest first here
+    with pytest.raises(RoutineError, match="below hit .*nothing was changed"):
+        r.set_clearance("BORE", (zs[0] + zs[-1]) / 2)
+    assert [h.clearance_z for h in bore] == before
     r.delete(8)
     r.insert(8, {"kind": "report", "name": "final report"})
     with pytest.raises(RoutineError, match="not a feature"):
@@ -391,5 +400,36 @@ def test_every_edit_of_the_routine_tab(taught):
         assert panel.edit("delete") and r.steps[0]["kind"] == "align"  # TOP deleted: the alignment's datum stays
         again = Routine(from_toml(r.text()))  # every edit is in the file
         assert again.lines() == r.lines() and again.program.feature("BORE").hits == hits[1:][::-1]
+    finally:
+        ui.close()
+
+
+def test_the_routine_tab_shows_each_steps_settings_and_fills_the_edit_fields_with_them(taught):
+    """A step chosen in the page's Step list fills the edit fields with what the step has (the hit plan's ids, the
+    nominal, the tolerance, the clearance), and the list shows each feature's settings after an edit, without
+    saving the file."""
+    import ui_support
+    from cmm.ui.app import StationApp
+
+    st, routine = taught
+    ui = StationApp(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    try:
+        with ui_support.viser_tab(ui, lambda c: "hits" in c.routine.gui) as (_ws, capp):
+            panel = capp.routine
+            panel.routine = r = Routine(from_toml(routine.text()))
+            panel._show(select=0)
+            k = next(i for i, s in enumerate(r.steps) if s["name"] == "bore")
+            panel.select(k)
+            f = r.program.feature("bore")
+            clearance = max(h.clearance_z for h in r.program.hits if h.id in f.hits)
+            assert panel.gui["hits"].value == " ".join(map(str, f.hits))
+            assert "radius=15" in panel.gui["nominal"].value and "point=" in panel.gui["nominal"].value
+            assert panel.gui["clearance"].value == pytest.approx(clearance)
+            size, form, location = (float(x) for x in panel.gui["tolerance"].value.split())
+            assert (size, form, location) == (f.tolerance["size"], f.tolerance["form"], f.tolerance["location"])
+            assert panel.edit("tolerance", "0.01 0.005 0.02") and panel.edit("clearance", clearance + 5.0)
+            assert f"± 0.01 0.005 0.02 mm (size form location) · clearance Z {clearance + 5.0:g}" in panel.text()
+            panel.select(0)  # the alignment: nothing of a feature to fill, the fields keep what they had
+            assert panel.gui["hits"].value == " ".join(map(str, f.hits))
     finally:
         ui.close()

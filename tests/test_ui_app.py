@@ -249,6 +249,7 @@ def test_move_above_a_picked_point_arrives_above_it_without_contact(app, operato
 def test_pick_miss_and_move_above_without_pick(app):
     capp = app.add_client(client_id="viewer")
     assert capp.pick([0, 0, 200], [0, 0, 1]) is None  # pointing away from everything
+    assert capp.messages == []  # no toast: a click into the view to give it the keyboard is no pick either
     assert capp.move_above() is None
     assert capp.messages[-1][0] == "error"
 
@@ -303,6 +304,7 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     mode = str(st.controller.state.mode.value).upper()  # idle, or stopped after the previous test's STOP
     assert f">{mode}</span>" in text and f"X {x:.4f}" in text and "link <span class=''>ok" in text
     assert "SILENT" in status_html(st, "", link_rate=0.0)
+    assert "probe Probe1 <span" in text  # no calibration folder given: the list's first probe, named
     part = status_html(st, "", frame="Part")
     assert "no alignment made" in part
     above = _above_part(st)

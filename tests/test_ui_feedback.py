@@ -67,6 +67,8 @@ def test_face_names_and_running_status_between_moves(app):
     running = status_html(st, "", cycle="auto-measure of TOP")
     assert ">RUNNING</span>" in running and "auto-measure of TOP" in running
     assert ">IDLE</span>" in status_html(st, "")
+    paused = status_html(st, "", cycle="routine block on part 2", cycle_paused=True)  # a routine paused between hits
+    assert ">PAUSED</span>" in paused and "routine block on part 2: Resume goes on" in paused
 
 
 def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(app):

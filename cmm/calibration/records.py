@@ -483,9 +483,11 @@ def probe_expiry(date: str, days: int = PROBE_VALIDITY_DAYS) -> str:
 
 
 def write_sphere_certificate(path: str | Path, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
-                             centre: Any = None, name: str = "reference sphere") -> SphereCertificate:
-    """Write the reference sphere's certificate as the operator entered it (uncertainty and form in mm); checked
-    before it replaces the old one, so a bad entry leaves the previous certificate."""
+                             centre: Any = None, name: str = "reference sphere",
+                             certified: str | None = None) -> SphereCertificate:
+    """Write the reference sphere's certificate as the operator entered it (uncertainty and form in mm, the
+    certificate's date YYYY-MM-DD, default today); checked before it replaces the old one, so a bad entry leaves
+    the previous certificate."""
     def number(v: Any, what: str) -> float:
         try:
             x = float(v)
@@ -508,8 +510,16 @@ def write_sphere_certificate(path: str | Path, *, diameter: Any, serial: str, un
     serial = str(serial or "").strip()
     if not serial:
         raise CalibrationError("enter the sphere's serial number as on its certificate")
+    day = _dt.date.today()
+    if str(certified or "").strip():
+        try:
+            day = _dt.date.fromisoformat(str(certified).strip())
+        except ValueError:
+            raise CalibrationError(f"the certificate's date must be written YYYY-MM-DD, got {certified!r}") from None
+        if day > _dt.date.today():
+            raise CalibrationError(f"the certificate's date {day.isoformat()} is in the future")
     data: dict[str, Any] = {"artifact": {"kind": "sphere", "name": name, "serial": serial, "diameter": d, "form": f,
-                                         "uncertainty": u, "certified": _dt.date.today().isoformat()}}
+                                         "uncertainty": u, "certified": day.isoformat()}}
     if centre is not None:
         data["setup"] = {"centre": [number(c, "set-up centre") for c in centre]}
     p = write_atomic(path, dumps(data, "Certificate of the reference sphere, entered in the Calibration tab.\n"

@@ -299,7 +299,7 @@ class CalibrationService:
             save_record(rec, qdir / f"{probes[0].name}.toml")
 
     def set_sphere_certificate(self, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
-                               centre: Any = None, client: Any = None) -> Any:
+                               centre: Any = None, client: Any = None, certified: str | None = None) -> Any:
         """Write the reference sphere's certificate where qualification and the ISO test read it. ``centre``
         None keeps the set-up centre of the previous certificate (on the simulator: where its sphere stands);
         the journal notes it as ``client`` (the operator who entered it)."""
@@ -314,7 +314,7 @@ class CalibrationService:
                 if sim_settings is not None:
                     centre = tuple(float(c) for c in sim_settings.sphere_centre)
         cert = write_sphere_certificate(path, diameter=diameter, serial=serial, uncertainty=uncertainty, form=form,
-                                        centre=centre)
+                                        centre=centre, certified=certified)
         self._note(client, f"reference sphere certificate entered: {cert.describe()}, "
                            f"U {cert.uncertainty * 1000:.2f} um")
         return cert
@@ -369,6 +369,10 @@ class CalibrationService:
         """The artifact certificate(s) in use, one line of markdown."""
         if routine == "servo":
             return "Servo tuning uses no artifact: small step moves on each axis at mid-travel."
+        if routine in ("probe", "iso") and not (self.artifacts_dir / SPHERE_CERTIFICATE).is_file():
+            return (f"**certificate problem:** no reference sphere certificate in {self.artifacts_dir} yet: enter the "
+                    "sphere's diameter, serial and uncertainty from its certificate under *Reference sphere "
+                    "certificate*")
         try:
             cert = self.certificates(routine)
         except CalibrationError as exc:

@@ -172,7 +172,8 @@ def probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | No
                     clearance_z: float | None = None, restart: bool = False,
                     hop_z: float | None = None) -> float | None:
     """The height a programmed hit's rapid crosses at on its way to the pre-hit point ``pre`` (machine Z of the tip
-    centre), or None for a straight rapid: ``clearance_z`` when the caller gave one, else the part's clearance
+    centre), or None for a straight rapid: ``clearance_z`` when the caller gave one (below the part's clearance
+    plane only when that route is proven free of the part, else the plane), else the part's clearance
     plane, else the higher of here and the pre-hit point. A straight rapid only when asked for, proven free of
     the part and no restart is pending (:class:`RailError` when it is not proven free). With ``hop_z`` (and a
     part, no restart pending): straight when that is proven free, else ``hop_z`` when that route is proven free,
@@ -187,9 +188,14 @@ def probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | No
             return None
         if hop_free(workspace, here, pre, float(hop_z), radius):
             return float(hop_z)
-    if clearance_z is not None:
-        return float(clearance_z)
     plane = None if workspace is None else workspace.clearance_z()
+    if clearance_z is not None:
+        cz = float(clearance_z)
+        # a caller's height below the part's plane (a routine step's edited clearance, a program's) is taken only
+        # when its route is proven free: one that would cross the part goes over the plane instead
+        if plane is not None and cz < plane and not hop_free(workspace, here, pre, cz, radius):
+            return float(plane)
+        return cz
     return max(float(np.asarray(here, float)[2]), float(np.asarray(pre, float)[2])) if plane is None else float(plane)
 
 

@@ -119,6 +119,26 @@ class Routine:
     def lines(self) -> list[str]:
         return [self.describe(i) for i in range(len(self.steps))]
 
+    def settings(self, index: int) -> dict[str, str]:
+        """What an operator edits on a feature step, as the edit fields write it (part mm): ``tolerance`` (size
+        form location), ``clearance`` (the highest of its hits'), ``nominal`` (name=value ...), ``hits`` (ids in
+        order); {} for any other step."""
+        s = self.steps[index]
+        if s["kind"] != "feature":
+            return {}
+        f = self.feature(s["name"])
+        t = f.tolerance or {}
+        by_id = {h.id: h for h in self.program.hits}
+        clear = max((by_id[i].clearance_z for i in f.hits if i in by_id), default=float("nan"))
+
+        def value(v: Any) -> str:
+            return " ".join(f"{float(x):g}" for x in v) if isinstance(v, (list, tuple)) else f"{float(v):g}"
+
+        nominal = " ".join(f"{k}={value(v)}" for k, v in (f.nominal or {}).items()
+                           if k != "kind" and isinstance(v, (int, float, list, tuple)))
+        return {"tolerance": " ".join(f"{float(t.get(k, 0.0)):g}" for k in ("size", "form", "location")),
+                "clearance": f"{clear:g}", "nominal": nominal, "hits": " ".join(map(str, f.hits))}
+
     def measured_features(self) -> list[str]:
         """The features a run probes, in its order: an alignment's datums where it stands (always), a feature
         step unless it was measured already; skipped steps left out."""
@@ -308,12 +328,13 @@ class Routine:
         if not np.isfinite(clearance_z):
             raise RoutineError(f"{name}: the clearance height must be a number of mm")
         ids = set(f.hits)
-        for h in self.program.hits:
-            if h.id in ids:
-                if clearance_z < h.point[2]:
-                    raise RoutineError(f"{name}: the clearance Z {clearance_z:g} mm is below hit {h.id} "
-                                       f"(Z {h.point[2]:.3f} in the part)")
-                h.clearance_z = float(clearance_z)
+        hits = [h for h in self.program.hits if h.id in ids]
+        low = next((h for h in hits if clearance_z < h.point[2]), None)
+        if low is not None:  # checked for every hit before any changes: a refused edit changes nothing
+            raise RoutineError(f"{name}: the clearance Z {clearance_z:g} mm is below hit {low.id} "
+                               f"(Z {low.point[2]:.3f} in the part); nothing was changed")
+        for h in hits:
+            h.clearance_z = float(clearance_z)
 
 
 def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = None,

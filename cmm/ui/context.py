@@ -79,6 +79,17 @@ class PanelContext:
     def error(self, exc: BaseException | str, title: str = "Refused") -> None:
         self.notify(title, str(exc), "error")
 
+    def begin_cycle(self, description: str) -> str:
+        """A cycle of several moves starts (an auto-measure, a routine or DMIS run): every tab's status bar reads
+        RUNNING (``description``) until :meth:`end_cycle`, also between its moves, when the machine itself is
+        idle. Called before the cycle's thread starts, so the bar says so from the first moment."""
+        self.shared.cycle, self.shared.cycle_paused = description, False
+        return description
+
+    def end_cycle(self, description: str) -> None:
+        if getattr(self.shared, "cycle", None) == description:
+            self.shared.cycle, self.shared.cycle_paused = None, False
+
     # --- acting -------------------------------------------------------------------------
 
     def who(self) -> Client:

@@ -29,6 +29,7 @@ instruction and the **Bar placed, continue** button.
 from __future__ import annotations
 
 import html
+import re
 from pathlib import Path
 from typing import Any
 
@@ -221,8 +222,8 @@ class CalibrationPanel:
         """Add a stylus to the probe list (then select it and qualify it)."""
         if not self.ctx.allowed("Add probe"):
             return False
-        if isinstance(stylus, str):
-            stylus = [x for x in stylus.replace(";", ",").split(",") if x.strip()]
+        if isinstance(stylus, str):  # "0, 0, -1", "0 0 -1" or "0;0;-1", as the other fields of the page take numbers
+            stylus = [x for x in re.split(r"[,;\s]+", stylus.strip()) if x]
         try:
             probe = self.service.add_probe(name, tip_diameter, stylus)
         except self.service.errors as exc:
@@ -247,14 +248,17 @@ class CalibrationPanel:
         self._refresh_records()
         return True
 
-    def enter_certificate(self, diameter: Any, serial: str, uncertainty_um: Any, form_um: Any = 0.0) -> bool:
-        """The reference sphere's certificate as printed (diameter mm, serial, U k=2 and form in um)."""
+    def enter_certificate(self, diameter: Any, serial: str, uncertainty_um: Any, form_um: Any = 0.0,
+                          certified: str = "") -> bool:
+        """The reference sphere's certificate as printed (diameter mm, serial, U k=2 and form in um, its date
+        YYYY-MM-DD; empty: today)."""
         if not self.ctx.allowed("Save certificate"):
             return False
         try:
             cert = self.service.set_sphere_certificate(diameter=diameter, serial=serial,
                                                        uncertainty=float(uncertainty_um) / 1000.0,
-                                                       form=float(form_um or 0.0) / 1000.0, client=self.ctx.who())
+                                                       form=float(form_um or 0.0) / 1000.0, client=self.ctx.who(),
+                                                       certified=certified or None)
         except self.service.errors + (TypeError,) as exc:
             self.ctx.error(f"{exc}. The previous certificate stays.", "Save certificate")
             return False
@@ -484,8 +488,11 @@ class CalibrationPanel:
             g["cert_diameter"] = gui.add_number("Diameter (mm)", 25.0, min=1.0, max=200.0, step=0.0001)
             g["cert_serial"] = gui.add_text("Serial", "")
             g["cert_uncertainty"] = gui.add_number("U k=2 (um)", 0.1, min=0.0, max=10.0, step=0.01)
+            g["cert_form"] = gui.add_number("Form (um)", 0.0, min=0.0, max=100.0, step=0.01)
+            g["cert_date"] = gui.add_text("Certified on", "", hint="the certificate's date, YYYY-MM-DD; empty: today")
             gui.add_button("Save certificate").on_click(lambda _: self.enter_certificate(
-                g["cert_diameter"].value, g["cert_serial"].value, g["cert_uncertainty"].value))
+                g["cert_diameter"].value, g["cert_serial"].value, g["cert_uncertainty"].value, g["cert_form"].value,
+                g["cert_date"].value))
         with gui.add_folder("Probes", expand_by_default=True):
             g["probes"] = gui.add_markdown(self.probes_markdown())
             rows = self.probes()
@@ -495,7 +502,8 @@ class CalibrationPanel:
             gui.add_button("Use this probe").on_click(lambda _: self.select_probe(g["probe_choice"].value))
             g["new_name"] = gui.add_text("New probe name", "")
             g["new_tip"] = gui.add_number("Tip diameter (mm)", 2.0, min=0.1, max=30.0, step=0.01)
-            g["new_stylus"] = gui.add_text("Stylus vector", "0, 0, -1")
+            g["new_stylus"] = gui.add_text("Stylus vector", "0, 0, -1",
+                                           hint="I J K from the probe head to the tip, e.g. 0 0 -1 (vertical)")
             gui.add_button("Add probe").on_click(lambda _: self.add_probe(
                 g["new_name"].value, g["new_tip"].value, g["new_stylus"].value))
         g["probe_opts"] = gui.add_folder("Probe options", expand_by_default=False)

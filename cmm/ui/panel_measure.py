@@ -140,8 +140,7 @@ class MeasurePanel:
         self.preview.clear()  # the machine draws the path now
         self.ctx.pick_drawing.clear()  # and its hits: the picked face's highlight would hide them
         name = (name or "").strip()
-        cycle = f"auto-measure of {name or 'the ' + plan.kind}"
-        self.ctx.shared.cycle = cycle  # every tab's status bar says RUNNING until the whole cycle ends
+        cycle = self.ctx.begin_cycle(f"auto-measure of {name or 'the ' + plan.kind}")
 
         def work() -> None:
             try:
@@ -153,8 +152,7 @@ class MeasurePanel:
                 self.ctx.error(exc, "Auto-measure")
                 return
             finally:
-                if getattr(self.ctx.shared, "cycle", None) == cycle:
-                    self.ctx.shared.cycle = None
+                self.ctx.end_cycle(cycle)
             self.progress = f"done: {self.feature.name}"
             if "name" in self.gui and self.gui["name"].value == name and name:
                 self.gui["name"].value = ""  # a name is one feature's: the next gets its own

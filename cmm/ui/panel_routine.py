@@ -299,6 +299,7 @@ class RoutinePanel:
                 session = self.ctx.commands.invoke(self.ctx.who(), "new_part", name=self._part_session(path.stem))
             except Exception as exc:  # noqa: BLE001 - a store that cannot take the session, in words
                 self.dmis_status = f"**NOT STARTED**: {exc}"
+                self.ctx.end_cycle(cycle)
                 self.ctx.error(exc, "DMIS program not started")
                 self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
                 return
@@ -321,9 +322,12 @@ class RoutinePanel:
                                     f"output {', '.join(written) or '-'}")
                 self.dmis_results.append(result)
                 self.ctx.notify("DMIS program done", self.dmis_status.replace("**", ""))
+            finally:
+                self.ctx.end_cycle(cycle)
             self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
         self.dmis_status = f"**RUNNING** {path.name}"
+        cycle = self.ctx.begin_cycle(f"DMIS program {path.name}")
         self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
         self.thread = threading.Thread(target=work, name="dmis", daemon=True)
         self.thread.start()
@@ -399,19 +403,22 @@ class RoutinePanel:
         """Run the run (``action`` 'run'), its resume or its restart through the command API, in a thread; every
         stop is told."""
 
+        run = self.run_
+        cycle = self.ctx.begin_cycle(f"routine {run.routine.name}" + (f" on {name}" if name else ""))
+
         def work() -> None:
-            run = self.run_
             try:
                 self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action)  # the API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
                 if run.can_resume:  # the step's stop, or a resume that could not start (the retract refused)
                     what = run.progress.message if str(exc) in run.progress.message else str(exc)
-                    self.ctx.error(f"{what}. Reset the machine, then Resume from step {(run.faulted or 0) + 1}, "
-                                   "Restart or Cancel.", "Routine stopped")
+                    self.ctx.error(f"{what}. {self._recovery(run)}", "Routine stopped")
                 else:
                     self.ctx.error(exc, "Routine stopped")
             else:
                 self.ctx.notify("Routine done", f"{run.routine.name} on {name}: results in session {Path(str(run.progress.session)).stem}")
+            finally:
+                self.ctx.end_cycle(cycle)
             self._show_progress()
 
         self.thread = threading.Thread(target=work, name="routine", daemon=True)
@@ -475,7 +482,31 @@ class RoutinePanel:
         r = self.routine
         if r is None:
             return "*No routine yet.* Measure the part (alignment, features, constructions), then **Teach from this session**, or open a routine file."
-        return f"**{r.name}** · {len(r.steps)} steps\n\n" + "\n".join(f"- {line}" for line in r.lines())
+        rows = []
+        for i, line in enumerate(r.lines()):
+            rows.append(f"- {line}")
+            got = r.settings(i)
+            if got:  # what the edits set, seen without saving the file
+                rows.append(f"  <br><small>± {got['tolerance']} mm (size form location) · clearance Z {got['clearance']}"
+                            f" · {got['nominal'] or 'no nominal'} · hits {got['hits']}</small>")
+        return f"**{r.name}** · {len(r.steps)} steps\n\n" + "\n".join(rows)
+
+    def fill_fields(self) -> None:
+        """The edit fields show the selected step's present values (tolerance, clearance, nominal, hit plan,
+        probe), so an edit starts from what the step has."""
+        r = self.routine
+        if r is None or not r.steps:
+            return
+        i = min(self.selected(), len(r.steps) - 1)
+        got = r.settings(i)
+        g = self.gui
+        for key in ("tolerance", "nominal", "hits"):
+            if key in got and g.get(key) is not None:
+                g[key].value = got[key]
+        if "clearance" in got and g.get("clearance") is not None and got["clearance"] != "nan":
+            g["clearance"].value = float(got["clearance"])
+        if g.get("probe") is not None:
+            g["probe"].value = r.steps[i].get("probe") or ""
 
     def progress_text(self) -> str:
         run = self.run_
@@ -491,10 +522,19 @@ class RoutinePanel:
             lines.append(p.message)
         if run.can_resume and not self.running:
             n = (run.faulted or 0) + 1
-            lines.append(f"Clear the cause, press **Reset**, then **Resume from step {n}** (the machine retracts to the "
-                         f"clearance height and measures step {n} again; its partial hits are discarded), "
-                         "**Restart** from step 1, or **Cancel**.")
+            lines.append(self._recovery(run, bold=True) + f" (the machine retracts to the clearance height and measures "
+                         f"step {n} again; its partial hits are discarded)")
         return "\n\n".join(lines)
+
+    def _recovery(self, run: RoutineRun, bold: bool = False) -> str:
+        """What the operator does after a stopped step: Reset first only when the machine needs it (a fault, an
+        E-STOP, a STOP), never after a stop of the routine's own (a skipped datum)."""
+        b = "**" if bold else ""
+        n = (run.faulted or 0) + 1
+        mode = str(getattr(self.station.controller.state.mode, "value", ""))
+        first = (f"Clear the cause, press {b}Reset{b}, then " if mode in ("fault", "e-stopped", "stopped")
+                 else "Then ")
+        return f"{first}{b}Resume from step {n}{b}, {b}Restart{b} from step 1, or {b}Cancel{b}."
 
     def _show(self, select: int | None = None) -> None:
         self.ctx.set("routine:list", "content", self.text(), self.gui.get("list"))
@@ -516,6 +556,9 @@ class RoutinePanel:
         if stopped and self.gui.get("resume") is not None:
             self.ctx.set("routine:resume:label", "label", f"Resume from step {(run.faulted or 0) + 1}",
                          self.gui["resume"])
+        shared = self.ctx.shared
+        if run is not None and self.running and getattr(shared, "cycle", None):
+            shared.cycle_paused = run.progress.state == "paused"  # the status bar: PAUSED, not RUNNING
         bar = self.gui.get("bar")
         if bar is not None and run is not None:
             p = run.progress
@@ -529,6 +572,7 @@ class RoutinePanel:
         name = gui.add_text("Routine name", "", hint="default: the session's name")
         gui.add_button("Teach from this session").on_click(lambda _: self.teach(name.value))
         g["step"] = gui.add_dropdown("Step", ("-",), initial_value="-")
+        g["step"].on_update(lambda _: self.fill_fields())
         with gui.add_folder("Edit step"):
             new_name = gui.add_text("New name", "")
             gui.add_button("Rename").on_click(lambda _: self.edit("rename", new_name.value))
@@ -536,17 +580,18 @@ class RoutinePanel:
                 lambda e: self.edit(e.target.value.lower()))
             gui.add_button("Manual 3-2-1 hits on/off", hint="an align step: the operator's 6 hits first, or not"
                            ).on_click(lambda _: self.edit("manual"))
-            tol = gui.add_text("Tolerance ± mm (size form location)", "0.02 0.02 0.02")
+            tol = g["tolerance"] = gui.add_text("Tolerance ± mm (size form location)", "0.02 0.02 0.02")
             gui.add_button("Set tolerance").on_click(lambda _: self.edit("tolerance", tol.value))
-            clear = gui.add_number("Clearance Z (part mm)", 60.0, step=1.0)
+            clear = g["clearance"] = gui.add_number("Clearance Z (part mm)", 60.0, step=1.0)
             gui.add_button("Set clearance").on_click(lambda _: self.edit("clearance", clear.value))
-            nominal = gui.add_text("Nominal (part mm)", "", hint="e.g. radius=15.01  or  point=30 40 0")
+            nominal = g["nominal"] = gui.add_text("Nominal (part mm)", "", hint="e.g. radius=15.01  or  point=30 40 0")
             gui.add_button("Set nominal").on_click(lambda _: self.edit("nominal", nominal.value))
-            hits = gui.add_text("Hit plan (hit ids in order)", "", hint="e.g. 12 13 14 16: drop or reorder hits")
+            hits = g["hits"] = gui.add_text("Hit plan (hit ids in order)", "",
+                                            hint="e.g. 12 13 14 16: drop or reorder hits")
             gui.add_button("Set hit plan").on_click(lambda _: self.edit("hits", hits.value))
             hit = gui.add_text("Move hit (id X Y Z [I J K], part mm)", "", hint="e.g. 14 45 40 20")
             gui.add_button("Move hit").on_click(lambda _: self.edit("hit", hit.value))
-            probe = gui.add_text("Probe of the step", "", hint="a probe's name (Calibration tab); empty: any")
+            probe = g["probe"] = gui.add_text("Probe of the step", "", hint="a probe's name (Calibration tab); empty: any")
             gui.add_button("Set probe").on_click(lambda _: self.edit("probe", probe.value))
             new = gui.add_text("Insert after", "", hint="report NAME, feature NAME, align A B C [manual], "
                                "distance A B [NAME]")

@@ -376,8 +376,9 @@ class ClientApp:
         except OPERATOR_ERRORS as exc:
             self.ctx.error(exc, "Pick")
             return None
-        if picked is None:
-            self.ctx.notify("Pick", "the ray missed the part")
+        if picked is None:  # no toast: a click into the view to give it the keyboard is no pick either
+            if self.ctx.picked is None:
+                self.ctx.set("pick", "content", "The click missed the part. " + PICK_HINT)
             return None
         hit, suggestion = picked
         nominal = suggestion.feature if suggestion is not None else None
