@@ -402,7 +402,6 @@ class RoutinePanel:
     def _go(self, action: str, name: str) -> None:
         """Run the run (``action`` 'run'), its resume or its restart through the command API, in a thread; every
         stop is told."""
-
         run = self.run_
         cycle = self.ctx.begin_cycle(f"routine {run.routine.name}" + (f" on {name}" if name else ""))
 
