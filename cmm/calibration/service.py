@@ -371,8 +371,7 @@ class CalibrationService:
             return "Servo tuning uses no artifact: small step moves on each axis at mid-travel."
         if routine in ("probe", "iso") and not (self.artifacts_dir / SPHERE_CERTIFICATE).is_file():
             return (f"**certificate problem:** no reference sphere certificate in {self.artifacts_dir} yet: enter the "
-                    "sphere's diameter, serial and uncertainty from its certificate under *Reference sphere "
-                    "certificate*")
+                    "sphere's diameter, serial and uncertainty from its certificate in the folder below")
         try:
             cert = self.certificates(routine)
         except CalibrationError as exc:
