@@ -48,13 +48,6 @@ def app(station):
     yield from bs.station_app(station, pendant_port=0)
 
 
-def choose(page, label, option):
-    """Pick ``option`` in the viser dropdown labelled ``label``."""
-    page.get_by_label(label, exact=True).click(force=True)
-    page.get_by_role("option", name=option, exact=True).click(force=True)
-    page.wait_for_timeout(200)
-
-
 def scrolled_by(page) -> float:
     """How far the scroll box around the status bar (viser's side panel) is scrolled down, px."""
     return page.evaluate("""() => { let e = document.getElementById("cmm-status");
