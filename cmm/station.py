@@ -320,7 +320,7 @@ class Station:
             self.calibration.load(calibration_dir)
         else:  # no records yet: the probe in use is the list's first (Probe1), named on the status bar and the hits
             try:
-                self.measurement.use_probe(self.calibration.probe_list()[1])
+                self.calibration.use_listed_probe()
             except self.calibration.errors:
                 pass  # a probe list that cannot be read: said when the calibration tab opens it
         if part_path is not None and self.sim is None:

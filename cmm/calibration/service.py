@@ -157,8 +157,7 @@ class CalibrationService:
         loaded = load_station_calibration(directory)
         nominal = None
         try:
-            probes, selected = self.probe_list()
-            self.use_probe(selected)  # the selected probe: its name goes with every hit
+            probes, selected = self.use_listed_probe()
             if loaded.probe is None and (self.records_dir / PROBE_LIST).is_file():
                 nominal = next(p for p in probes if p.name == selected)  # selected, never qualified
         except CalibrationError as exc:
@@ -192,6 +191,13 @@ class CalibrationService:
         return speed if speed > 0 else float(self.host.config.speeds.probing)
 
     # --- the probe list ------------------------------------------------------------
+
+    def use_listed_probe(self) -> tuple[list[ProbeDefinition], str]:
+        """The list's selected probe (Probe1 without a list) becomes the probe in use: its name goes with every
+        hit and is on the status bar. Returns :meth:`probe_list`."""
+        probes, selected = self.probe_list()
+        self.use_probe(selected)
+        return probes, selected
 
     def probe_list(self) -> tuple[list[ProbeDefinition], str]:
         """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
