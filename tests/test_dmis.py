@@ -26,7 +26,9 @@ from cmm.measurement.program import run_on
 from cmm.session import program as prog
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
-DATA = Path(__file__).parent / "data" / "dmis"
+from shared_refs import require, shared_path
+
+DATA = shared_path("dmis")  # NIST's simple DMIS program and its output, read in place
 SAMPLE = Path(__file__).resolve().parents[1] / "cmm" / "data" / "sample_part.dmi"
 NOISE = 0.004  # mm: two encoder counts and the probe's repeatability
 FACETS = {"SPHERE": 0.006}  # mm: the simulated sphere is an icosphere, up to 2.9 um inside the true sphere
@@ -62,7 +64,7 @@ PLACEMENT = "D(BORE) = TRANS/XORIG, 170, YORIG, 140, ZORIG, -10"
 
 
 def placed_simple_program() -> str:
-    text = (DATA / "simple_in.dms").read_text()
+    text = (require("dmis") / "simple_in.dms").read_text()
     text = text.replace("D(START) = DATSET/MCS", "D(START) = DATSET/MCS\n" + PLACEMENT)
     # the program's points lie on a D50 circle: 10 mm inside our D30 bore's wall, where its 10 mm approach would
     # start touching the wall; 15 mm starts 5 mm clear of it

@@ -44,8 +44,9 @@ from cmm.sim.probe_world import PlaneObstacle
 from cmm.station import Station
 
 from ippdme_support import POLL_PAUSE, SIM_URL, nist_config
+from shared_refs import require, shared_path
 
-DATA = Path(__file__).parent / "data" / "nist_ippdme"
+DATA = shared_path("ippdme", "nist-test-files")  # NIST's I++ DME test suite, read in place
 PROGRAMS = sorted(p.stem for p in DATA.glob("*.prg") if (DATA / f"{p.stem}.res").exists())
 TIP = load().probe.tip_radius
 POS_TOL = 0.005
@@ -309,6 +310,7 @@ def check_values(tag: str, mine: dict, ref: dict, direction: np.ndarray | None, 
 
 
 def test_the_deviations_are_explained():
+    require("ippdme", "nist-test-files")
     assert all(reason for _, reason in DEVIATIONS.values())
     assert all(reason for _, reason in VALUE_DEVIATIONS.values())
     assert len(PROGRAMS) >= 60
