@@ -49,6 +49,7 @@ WARNING_SHOWN = 10.0  # s a link warning stays in the state (the status bar) aft
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
 
 EventFn = Callable[[str, dict], None]
+_NOBODY = object()
 
 
 class _Command:
@@ -110,6 +111,8 @@ class Controller:
         self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
         self._queued_jogs: dict[Any, _Command] = {}  # per client: the jog queued and not run yet (see jog)
+        self._touched: dict[Any, int] = {}  # per client: its release count when its armed jog took a hit
+        self._armed_jogger: Any = _NOBODY  # the client whose armed jog ran last (None: scripts, tests)
         self._release_epoch = 0  # all clients' releases: the link process refuses a jog sent before the last one
         self._in_poll = False
         self._stop_local = threading.local()
@@ -235,6 +238,8 @@ class Controller:
         seq = self._releases.get(key, 0) if after is None else after
         epoch = self._release_epoch
         heard = self.clock.now() if heard is None else heard
+        if probe and np.any(v) and self._touched.get(key) == seq:
+            return None  # one hit per touch (see touched): the still-held jog starts nothing, is refused nothing
         if np.any(v) and self.policy.refusal(client, "jog") is None:
             self.machine.jog_alive(epoch, heard)  # with a link process: its dead-man hears the operator at once
 
@@ -242,6 +247,9 @@ class Controller:
             if self._releases.get(key, 0) != seq:
                 return  # released while this jog waited: a release is never undone by an older jog
             if probe:
+                if self._touched.get(key) == seq:
+                    return  # it took its hit since the operator last let go: the next needs a new press
+                self._armed_jogger = key
                 self.prober.jog_probe(v, release_epoch=epoch, heard=heard)
             else:
                 self.machine.jog(v, release_epoch=epoch, heard=heard)
@@ -1175,7 +1183,16 @@ class Controller:
             outer.finish(inner.result, inner.error)
 
     def _on_hit(self, hit: Hit) -> None:
+        jogger = self._armed_jogger
+        if hit.mode == "manual" and jogger is not _NOBODY:  # one hit per touch: this jog stays stopped until let go
+            self._touched[jogger] = self._releases.get(jogger, 0)
         self.dispatcher.post(self._record_hit, hit)
+
+    def touched(self, client: Any) -> bool:
+        """Has this client's armed jog taken a hit since the client last let go? Then its holds start nothing (one
+        hit per touch: the still-held button must not drive back in for another); a release ends that."""
+        key = getattr(client, "id", client)
+        return key in self._touched and self._touched[key] == self._releases.get(key, 0)
 
     def _record_hit(self, hit: Hit) -> None:
         for fn in list(self._hit_listeners):
