@@ -149,7 +149,14 @@ class Controller:
         return self
 
     def close(self) -> None:
-        """Stop the loop; the machine is stopped and its servos switched off by ``machine.close``."""
+        """Stop the loop; the machine is stopped and its servos switched off by ``machine.close``. A motion still
+        running (the command line's Ctrl-C in the middle of a run) gets the operator's STOP first, straight to the
+        modules, before the loop is asked to end."""
+        if self.machine.motion is not None or self._job is not None:
+            try:
+                self._halt_now("stop")
+            except Exception:  # noqa: BLE001 - a dead link: machine.close below does what it can
+                log.exception("the stop on close failed")
         self._running = False
         if self._thread is not None:
             self._thread.join(timeout=3)
