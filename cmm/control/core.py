@@ -529,29 +529,37 @@ class Controller:
     def stop(self, client: str | None) -> StopReport:
         """Controlled stop of whatever moves; says whether every module acknowledged it.
 
-        The press goes to the modules from the caller's thread at once (:meth:`_halt_now`: nothing queued in the
+        The press goes to the modules from the caller's thread at once (:meth:`press`: nothing queued in the
         machine loop, the web pages or the reports delays it); the loop then ends the motion that ran, and the
-        answer comes when every axis stands still (see docs/operator-stop.md)."""
-        self._may(client, "stop")
-        press = self.clock.now()
-        failed = self._halt_now("stop")
-        self._end_jobs()
-        sent = failed is not None and not failed
-        report = self._stop(client, "stop", lambda: self._do_stop(sent=sent), sent=sent)
-        return self._when_still(report, press, "stop")
+        answer comes when every axis stands still (:meth:`answer`; see docs/operator-stop.md)."""
+        return self.answer(self.press(client, "stop"))
 
     def emergency_stop(self, client: str | None) -> StopReport:
         """Abrupt stop and amplifiers off, latched until :meth:`reset`; says whether every module acknowledged."""
-        self._may(client, "estop")
-        press = self.clock.now()
-        with self._lock:
-            self._estop = self._estop or "emergency stop pressed"
-        self.machine.inhibit = "emergency stop latched"
-        failed = self._halt_now("estop")
+        return self.answer(self.press(client, "estop"))
+
+    def press(self, client: str | None, verb: str) -> tuple[Any, str, float, bool]:
+        """The operator's STOP (``verb`` "stop") or E-STOP ("estop"), sent to the modules now from this thread (a
+        front end's own thread calls this as the press arrives; it waits for nothing but the bus's stop-all);
+        Refused for a client the access policy does not let stop. :meth:`answer` with what it returns finishes it."""
+        if verb not in ("stop", "estop"):
+            raise ValueError(f"a press is 'stop' or 'estop', not {verb!r}")
+        self._may(client, verb)
+        at = self.clock.now()
+        if verb == "estop":
+            with self._lock:
+                self._estop = self._estop or "emergency stop pressed"
+            self.machine.inhibit = "emergency stop latched"
+        failed = self._halt_now(verb)
         self._end_jobs()
-        sent = failed is not None and not failed
-        report = self._stop(client, "estop", lambda: self._do_estop(sent=sent), sent=sent)
-        return self._when_still(report, press, "estop")
+        return client, verb, at, failed is not None and not failed
+
+    def answer(self, pressed: tuple[Any, str, float, bool]) -> StopReport:
+        """The loop ends the motion the press cut short; the report once every axis stands still."""
+        client, verb, at, sent = pressed
+        do = (lambda: self._do_stop(sent=sent)) if verb == "stop" else (lambda: self._do_estop(sent=sent))
+        report = self._stop(client, verb, do, sent=sent)
+        return self._when_still(report, at, verb)
 
     def _may(self, client: str | None, name: str) -> None:
         why = self.policy.refusal(client, name)

@@ -410,7 +410,15 @@ class PendantServer:
             session.jogging = False
             # a thread of its own per press, never a pool another call can fill: the press reaches the modules at
             # once (the core sends it from this thread) and its answer comes when every axis stands still
-            report = await self._own_thread(self._stop_machine, self._who(session), kind)  # the core checks may_stop
+            # the press itself right here, as the message is read (no other thread to be scheduled first)
+            try:
+                pressed = self.api.press(self._who(session), kind)  # the core checks may_stop
+            except Refused as exc:
+                return await self._error_msg(session, str(exc))
+            except Exception as exc:  # noqa: BLE001 - then the verb, on its own thread, as before
+                log.exception("the direct %s failed", kind)
+                pressed = None
+            report = await self._own_thread(self._stop_machine, self._who(session), kind, pressed)
             if not report["ok"]:
                 await self._error_msg(session, report["message"])
             else:
@@ -542,10 +550,14 @@ class PendantServer:
         threading.Thread(target=run, name="pendant-stop", daemon=True).start()
         return await future
 
-    def _stop_machine(self, who: Any, verb: str = "stop") -> dict[str, Any]:
-        """The stop (or estop) verb's report ({ok, message, failed_axes}); a refusal or a failure as a report that is
-        not ok."""
+    def _stop_machine(self, who: Any, verb: str = "stop", pressed: Any = None) -> dict[str, Any]:
+        """The stop (or estop) verb's report ({ok, message, failed_axes}) or, for a press already sent to the modules
+        (``pressed``, :meth:`~cmm.control.core.Controller.press`), its answer; a refusal or a failure as a report that
+        is not ok."""
         try:
+            if pressed is not None:
+                r = self.api.answer(pressed)
+                return {"ok": r.ok, "message": r.message, "failed_axes": list(r.failed_axes)}
             return self.commands.invoke(who, verb)
         except Refused as exc:
             return {"ok": False, "message": str(exc)}
