@@ -1,6 +1,6 @@
 """STOP and E-STOP during a Go to at the fastest speed -> deceleration and standstill, per front end, under load.
 
-Target (issue 34): press-to-standstill p99 <= 0.3 s (the deceleration itself included) on the page and the pendant,
+Target: press-to-standstill p99 <= 0.3 s (the deceleration itself included) on the page and the pendant,
 with 2 CPU hogs per core and 20 observer tabs.
 
 The machinery is bench_jog_release.py's (reused from it): four processes as in use, the simulated CMM (real time,

@@ -1,6 +1,6 @@
 """E-STOP and STOP pressed in the station page (headless chromium, 1280 x 800) during a Go to at the fastest speed.
 
-The operator's defect (issue 34): the page's E-STOP during a Go to at 50 mm/s lost to the move (it finished at its
+The operator's defect: the page's E-STOP during a Go to at 50 mm/s lost to the move (it finished at its
 target 114 mm further), another time it acted 1.29 s late. Here the button is clicked with the mouse as an operator
 clicks it; the page hands the press to its hold refresher's own socket (web/hold_worker.js), which reaches the
 modules from a thread of its own in the station. Asserted on the simulator's (paced) clock and positions: the axes

@@ -1,6 +1,6 @@
 """One hit per touch: a still-held armed jog takes its hit, backs off and stays stopped until the operator lets go.
 
-The operator's defect (issue 34): holding the armed jog took hit after hit: each touch backed off 1 mm and the
+The operator's defect: holding the armed jog took hit after hit: each touch backed off 1 mm and the
 still-held button drove back in (8 s of holding gave 7 identical hits, 0.7 s gave 2), and all went into the fit.
 Every front end (page button, key, pendant, gamepad stick) feeds the same jog-hold pipeline with holds while the
 input is held and a release when it is let go; here the holds are fed as a front end feeds them (one every 40 ms),

@@ -1,6 +1,6 @@
 """STOP and E-STOP win over a machine loop that is late: the press reaches the modules at once, from the caller's thread.
 
-The operator's defect (issue 34): on a busy computer, E-STOP pressed during a Go to at 50 mm/s acted 1.29 s late (the
+The operator's defect: on a busy computer, E-STOP pressed during a Go to at 50 mm/s acted 1.29 s late (the
 machine ran about 50 mm past), once not at all (the move finished at its target 114 mm further while the toast said
 "Move ended | emergency stop"). The press waited for the machine loop, which a loaded station schedules late.
 

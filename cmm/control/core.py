@@ -531,7 +531,7 @@ class Controller:
 
         The press goes to the modules from the caller's thread at once (:meth:`press`: nothing queued in the
         machine loop, the web pages or the reports delays it); the loop then ends the motion that ran, and the
-        answer comes when every axis stands still (:meth:`answer`; see docs/operator-stop.md)."""
+        answer comes when every axis stands still (:meth:`answer`; the operator's stop notes in the docs folder)."""
         return self.answer(self.press(client, "stop"))
 
     def emergency_stop(self, client: str | None) -> StopReport:

@@ -47,7 +47,7 @@ client -> server
   same as the viser page's): the holder, a local pendant, or one that gave
   the access code on this connection; an anonymous LAN observer only when the
   operator allowed LAN stops. ``{"type": "estop"}``: the emergency stop, under the same policy. Each press runs
-  on a thread of its own and reaches the modules at once (docs/operator-stop.md); the answer, a ``notice``
+  on a thread of its own and reaches the modules at once (the operator's stop notes in the docs folder); the answer, a ``notice``
   ("stopped: every axis stands still") or an ``error``, comes when every axis stands still. The station page's
   STOP and E-STOP buttons and its Esc / Space keys send these through the page's hold refresher.
 
@@ -412,7 +412,7 @@ class PendantServer:
             # once (the core sends it from this thread) and its answer comes when every axis stands still
             # the press itself right here, as the message is read (no other thread to be scheduled first)
             try:
-                pressed = self.api.press(self._who(session), kind)  # the core checks may_stop
+                pressed = self.commands.invoke(self._who(session), "press", verb=kind)  # the core checks may_stop
             except Refused as exc:
                 return await self._error_msg(session, str(exc))
             except Exception as exc:  # noqa: BLE001 - then the verb, on its own thread, as before
@@ -556,8 +556,7 @@ class PendantServer:
         is not ok."""
         try:
             if pressed is not None:
-                r = self.api.answer(pressed)
-                return {"ok": r.ok, "message": r.message, "failed_axes": list(r.failed_axes)}
+                return self.commands.invoke(who, "answer", pressed=pressed)
             return self.commands.invoke(who, verb)
         except Refused as exc:
             return {"ok": False, "message": str(exc)}
