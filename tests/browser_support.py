@@ -766,8 +766,10 @@ class JogRecord:
         now = lambda: machine.state.time  # noqa: E731
         machine.jog = lambda v, **kw: (self._took(now(), v, kw.get("heard")), self._jog(v, **kw))[1]
         jogs.release = lambda *a, **kw: (self.releases.append(now()), self._release(*a, **kw))[1]
-        self._controller, self._stop = station.controller, station.controller.stop
-        station.controller.stop = lambda *a, **kw: (self.stops.append(now()), self._stop(*a, **kw))[1]
+        # every STOP goes through the core's press (the stop verb, and the pendant's own thread as the press arrives)
+        self._controller, self._press = station.controller, station.controller.press
+        station.controller.press = lambda client, verb, *a, **kw: (
+            self.stops.append(now()) if verb == "stop" else None, self._press(client, verb, *a, **kw))[1]
         self._capp = capp
         if capp is not None:
             click = capp.jog_release
@@ -790,7 +792,7 @@ class JogRecord:
         self.live = False
         del self._machine.jog  # the class's method again
         self._jogs.release = self._release
-        del self._controller.stop  # the class's method again
+        del self._controller.press  # the class's method again
         if self._capp is not None:
             del self._capp.jog_release  # the class's method again
         self._unsubscribe()

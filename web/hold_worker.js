@@ -9,7 +9,7 @@
 // worker that hears no beat for MAIN_SILENT_MS (a frozen tab) stops on its own, and a closed tab or a lost
 // network stops the machine by its dead-man 0.15 s after the worker's last message. The keyboard jog of the
 // 3-D view (web/view_keys.js) holds through the same worker with a "keys +x -y [fast]" label and may send a
-// STOP; what the station answers (a refusal and why) comes back as a "cmm-pendant-message" window event.
+// STOP; the page's STOP and E-STOP buttons send their press through it too; what the station answers (a refusal and why) comes back as a "cmm-pendant-message" window event.
 (function () {
   var WS_URL = "__WS_URL__", TOKEN = "__TOKEN__";
   if (window.__cmmHoldWorker) return;
@@ -17,8 +17,9 @@
     "var ws = null, timer = null, button = null, beat = 0, MAIN_SILENT_MS = 1000;",
     "function open() {",
     "  ws = new WebSocket(" + JSON.stringify(WS_URL) + ");",
-    "  ws.onopen = function () { ws.send(JSON.stringify({type: 'hello', as: " + JSON.stringify(TOKEN) + "})); };",
-    "  ws.onclose = function () { ws = null; setTimeout(open, 500); };",
+    "  ws.onopen = function () { ws.send(JSON.stringify({type: 'hello', as: " + JSON.stringify(TOKEN) + "}));",
+    "    postMessage({type: 'link', open: true}); };",
+    "  ws.onclose = function () { ws = null; postMessage({type: 'link', open: false}); setTimeout(open, 500); };",
     "  ws.onmessage = function (e) { var m; try { m = JSON.parse(e.data); } catch (x) { return; }",
     "    if (m.type === 'error' || m.type === 'notice') postMessage(m); };",
     "}",
@@ -39,14 +40,34 @@
     "  else if (m.type === 'beat') { beat = Date.now(); }",
     "  else if (m.type === 'release') { stop(); }",
     "  else if (m.type === 'stop') { stop(); send({type: 'stop'}); }",
+    "  else if (m.type === 'estop') { stop(); send({type: 'estop'}); }",
     "};",
     "open();"
   ].join("\n");
   var worker = new Worker(URL.createObjectURL(new Blob([src], {type: "text/javascript"})));
   window.__cmmHoldWorker = worker;
+  var linkOpen = false, pressedAt = 0;
   worker.onmessage = function (e) {
+    if (e.data && e.data.type === "link") { linkOpen = !!e.data.open; return; }
     window.dispatchEvent(new CustomEvent("cmm-pendant-message", { detail: e.data }));
   };
+  // The page's STOP and E-STOP buttons: the press goes from here, on pointer-down, through the worker's own
+  // WebSocket to the pendant port (a thread of its own in the station, straight to the modules), not through
+  // viser's socket and its queue of frames, panels and callbacks. While that socket is not open the button's own
+  // viser click carries the press instead (never both: the click is kept from viser when the worker sent it).
+  function stopButton(e) {
+    var b = e.target && e.target.closest ? e.target.closest("button") : null;
+    var label = b ? b.textContent.trim() : "";
+    if ((label !== "STOP" && label !== "E-STOP") || !linkOpen) return;
+    e.preventDefault();
+    e.stopImmediatePropagation();
+    var now = Date.now();
+    if (e.type === "click" && now - pressedAt < 2000) return;  // the pointer-down sent it already
+    pressedAt = now;
+    worker.postMessage({type: label === "STOP" ? "stop" : "estop"});
+  }
+  document.addEventListener("pointerdown", stopButton, true);
+  document.addEventListener("click", stopButton, true);
   document.addEventListener("pointerdown", function (e) {
     var b = e.target && e.target.closest ? e.target.closest("button") : null;
     var label = b ? b.textContent.trim() : "";

@@ -137,6 +137,11 @@
     send({ type: "stop" });
   }
 
+  function estopNow() {
+    releaseAll(false);
+    send({ type: "estop" });
+  }
+
   function loop() {
     tick();
     window.requestAnimationFrame(loop);
@@ -217,6 +222,8 @@
   document.querySelector(".pad .stop").addEventListener("pointerdown", function (e) { e.preventDefault(); stopNow(); });
   $("stop").addEventListener("pointerdown", function (e) { e.preventDefault(); stopNow(); });
   $("stop").addEventListener("keydown", function (e) { if (e.key === "Enter") stopNow(); });
+  $("estop").addEventListener("pointerdown", function (e) { e.preventDefault(); estopNow(); });
+  $("estop").addEventListener("keydown", function (e) { if (e.key === "Enter") estopNow(); });
 
   Array.prototype.forEach.call(document.querySelectorAll(".speeds button"), function (btn) {
     btn.addEventListener("click", function () {

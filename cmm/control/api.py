@@ -116,6 +116,12 @@ class CommandAPI:
         self.register("stop", lambda client: _report(c.stop(client)), {}, "controlled stop of whatever moves")
         self.register("estop", lambda client: _report(c.emergency_stop(client)), {},
                       "emergency stop: abrupt, amplifiers off, latched until reset")
+        self.register("press", lambda client, verb="stop": c.press(client, verb), {"verb": "stop"},
+                      "in process: the operator's STOP (verb 'stop') or E-STOP ('estop') sent to the modules now from "
+                      "the caller's thread; returns the press, which 'answer' finishes (stop and estop do both)")
+        self.register("answer", lambda client, pressed: _report(c.answer(pressed)), {"pressed": REQUIRED},
+                      "in process: a press's report, once the loop ended the motion it cut short and every axis "
+                      "stands still")
         self.register("reset", c.reset, {}, "clear an E-stop latch, a stop or a fault (link answering)")
         self.register("reconnect", c.reconnect, {}, "after a link fault: reopen the link, restart the modules")
         self.register("home", c.home, {}, "the homing cycle (blocks until it ends)")

@@ -42,12 +42,14 @@ FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 # an auto-measure failed beside two CPU hogs).
 COMMAND_TIMEOUT = 20.0
 STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus itself
+STILL_TIMEOUT = 3.0  # s of machine time a STOP / E-STOP waits for every axis to stand still before it answers
 STOP_PATIENCE = IDLE_PATIENCE + 2.0  # s a STOP the loop is carrying out may take (its own patient retries)
 STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
 WARNING_SHOWN = 10.0  # s a link warning stays in the state (the status bar) after the last one
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
 
 EventFn = Callable[[str, dict], None]
+_NOBODY = object()
 
 
 class _Command:
@@ -109,8 +111,11 @@ class Controller:
         self.loop_priority_raised: bool | None = None  # set by the loop thread when it starts
         self._releases: dict[Any, int] = {}  # per client: jog releases so far (jogs queued before one are dropped)
         self._queued_jogs: dict[Any, _Command] = {}  # per client: the jog queued and not run yet (see jog)
+        self._touched: dict[Any, int] = {}  # per client: its release count when its armed jog took a hit
+        self._armed_jogger: Any = _NOBODY  # the client whose armed jog ran last (None: scripts, tests)
         self._release_epoch = 0  # all clients' releases: the link process refuses a jog sent before the last one
         self._in_poll = False
+        self._stop_local = threading.local()
         self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
         self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
         self.jobs = RunningJobs()  # what runs now (auto-measure, routine, program, calibration): the cancel verb
@@ -144,7 +149,14 @@ class Controller:
         return self
 
     def close(self) -> None:
-        """Stop the loop; the machine is stopped and its servos switched off by ``machine.close``."""
+        """Stop the loop; the machine is stopped and its servos switched off by ``machine.close``. A motion still
+        running (the command line's Ctrl-C in the middle of a run) gets the operator's STOP first, straight to the
+        modules, before the loop is asked to end."""
+        if self.machine.motion is not None or self._job is not None:
+            try:
+                self._halt_now("stop")
+            except Exception:  # noqa: BLE001 - a dead link: machine.close below does what it can
+                log.exception("the stop on close failed")
         self._running = False
         if self._thread is not None:
             self._thread.join(timeout=3)
@@ -233,6 +245,8 @@ class Controller:
         seq = self._releases.get(key, 0) if after is None else after
         epoch = self._release_epoch
         heard = self.clock.now() if heard is None else heard
+        if probe and np.any(v) and self._touched.get(key) == seq:
+            return None  # one hit per touch (see touched): the still-held jog starts nothing, is refused nothing
         if np.any(v) and self.policy.refusal(client, "jog") is None:
             self.machine.jog_alive(epoch, heard)  # with a link process: its dead-man hears the operator at once
 
@@ -240,6 +254,9 @@ class Controller:
             if self._releases.get(key, 0) != seq:
                 return  # released while this jog waited: a release is never undone by an older jog
             if probe:
+                if self._touched.get(key) == seq:
+                    return  # it took its hit since the operator last let go: the next needs a new press
+                self._armed_jogger = key
                 self.prober.jog_probe(v, release_epoch=epoch, heard=heard)
             else:
                 self.machine.jog(v, release_epoch=epoch, heard=heard)
@@ -510,15 +527,115 @@ class Controller:
         self._submit(client, "zero", do)
 
     def stop(self, client: str | None) -> StopReport:
-        """Controlled stop of whatever moves; says whether every module acknowledged it."""
-        return self._stop(client, "stop", self._do_stop)
+        """Controlled stop of whatever moves; says whether every module acknowledged it.
+
+        The press goes to the modules from the caller's thread at once (:meth:`press`: nothing queued in the
+        machine loop, the web pages or the reports delays it); the loop then ends the motion that ran, and the
+        answer comes when every axis stands still (:meth:`answer`; the operator's stop notes in the docs folder)."""
+        return self.answer(self.press(client, "stop"))
 
     def emergency_stop(self, client: str | None) -> StopReport:
         """Abrupt stop and amplifiers off, latched until :meth:`reset`; says whether every module acknowledged."""
-        with self._lock:
-            self._estop = self._estop or "emergency stop pressed"
-        self.machine.inhibit = "emergency stop latched"
-        return self._stop(client, "estop", self._do_estop)
+        return self.answer(self.press(client, "estop"))
+
+    def press(self, client: str | None, verb: str) -> tuple[Any, str, float, bool]:
+        """The operator's STOP (``verb`` "stop") or E-STOP ("estop"), sent to the modules now from this thread (a
+        front end's own thread calls this as the press arrives; it waits for nothing but the bus's stop-all);
+        Refused for a client the access policy does not let stop. :meth:`answer` with what it returns finishes it."""
+        if verb not in ("stop", "estop"):
+            raise ValueError(f"a press is 'stop' or 'estop', not {verb!r}")
+        self._may(client, verb)
+        at = self.clock.now()
+        if verb == "estop":
+            with self._lock:
+                self._estop = self._estop or "emergency stop pressed"
+            self.machine.inhibit = "emergency stop latched"
+        failed = self._halt_now(verb)
+        self._end_jobs()
+        return client, verb, at, failed is not None and not failed
+
+    def answer(self, pressed: tuple[Any, str, float, bool]) -> StopReport:
+        """The loop ends the motion the press cut short; the report once every axis stands still."""
+        client, verb, at, sent = pressed
+        do = (lambda: self._do_stop(sent=sent)) if verb == "stop" else (lambda: self._do_estop(sent=sent))
+        report = self._stop(client, verb, do, sent=sent)
+        return self._when_still(report, at, verb)
+
+    def _may(self, client: str | None, name: str) -> None:
+        why = self.policy.refusal(client, name)
+        if why is not None:
+            raise Refused(why)
+
+    def _halt_now(self, name: str) -> list[str] | None:
+        """The operator's STOP / E-STOP, straight to the modules from the caller's thread: the motion latch first
+        (no motion starts, in this process or in the link process, until the loop has carried the stop out), then
+        the bus's stop-all (STOP: decelerate at the loaded acceleration; E-STOP: the modules' abrupt stop, then
+        motors off). With a link process it goes over its urgent pipe; in process it takes the bus between two
+        of the loop's transactions (a retry in progress gives the link up to it). Returns the axes that did not
+        acknowledge (None: no bus stop-all, the loop stops them)."""
+        why = "stopped by the operator" if name == "stop" else "emergency stop"
+        self.machine.halted = why
+        stop_all = getattr(self.machine.bus, "stop_all", None)
+        if stop_all is None:
+            return None
+        failed: set[int] = set()
+        for mode in (("smooth",) if name == "stop" else ("abrupt", "off")):
+            try:
+                report = stop_all(mode, latch=why)
+            except Exception:  # noqa: BLE001 - it never should; then the loop stops them as before
+                log.exception("the direct stop failed")
+                return None
+            failed |= set(report.silent)
+        return [a.name.upper() for a in self.config.axes if a.address in failed]
+
+    def _end_jobs(self) -> None:
+        """A STOP during a routine, an auto-measure or a program ends the run too (after the hit in progress),
+        not only its current move; a jog beside a program waiting for manual hits ends alone."""
+        if getattr(self._stop_local, "busy", False):
+            return
+        motion = self.machine.motion
+        if self._job is None and (motion is None or motion.kind == "jog"):
+            return
+        self._stop_local.busy = True  # a job without a cancel of its own is cancelled by a STOP: no recursion
+        try:
+            self.jobs.cancel_all()
+        finally:
+            self._stop_local.busy = False
+
+    def _when_still(self, report: StopReport, press: float, name: str) -> StopReport:
+        """The stop's answer once every axis stands still (a sample taken after the press shows no velocity): no
+        message says "stopped" while an axis still moves. Told as the 'stop' / 'estop' event."""
+        still = self._wait_still(press)
+        if report.ok and still is not None:
+            report = StopReport(True, ("stopped: every axis stands still" if name == "stop" else
+                                       "emergency stop: every axis stands still, amplifiers off. Reset re-enables "
+                                       "the servos."), report.failed_axes)
+        elif report.ok:
+            report = StopReport(True, f"{'STOP' if name == 'stop' else 'E-STOP'} acknowledged by every axis, but an "
+                                f"axis was still moving {STILL_TIMEOUT:g} s after the press", report.failed_axes)
+        self._event(name, ok=report.ok, message=report.message, still=still)
+        self._publish()
+        return report
+
+    def _wait_still(self, press: float) -> float | None:
+        """The machine time of the first sample after ``press`` in which every axis stands still (None: not within
+        STILL_TIMEOUT of machine time). Drives the loop when nobody else does; never waits in the loop itself."""
+        end = press + STILL_TIMEOUT
+        wall_end = time.monotonic() + STILL_TIMEOUT + COMMAND_TIMEOUT
+        inline = self._thread is None
+        if not inline and threading.current_thread() is self._thread:
+            return None
+        while True:
+            st = self._state.machine
+            if st is not None and st.time > press and all(abs(a.velocity) < 1e-9 for a in st.axes):
+                return float(st.time)
+            if self.clock.now() > end or time.monotonic() > wall_end:
+                return None
+            if inline:
+                self.poll()
+                self.clock.sleep(self.poll_pause)
+            else:
+                time.sleep(0.002)
 
     def reset(self, client: str | None) -> None:
         """Clear an E-stop latch, a stop or a fault (when the link answers): servos on where the axes stand."""
@@ -689,34 +806,37 @@ class Controller:
 
     # --- stops -------------------------------------------------------------------------------
 
-    def _stop(self, client: str | None, name: str, fn: Callable[[], StopReport]) -> StopReport:
-        why = self.policy.refusal(client, name)
-        if why is not None:
-            raise Refused(why)
+    def _stop(self, client: str | None, name: str, fn: Callable[[], StopReport], *, sent: bool = False) -> StopReport:
+        """The loop's part of a stop: it ends the motion that ran (and stops the axes itself when the direct stop
+        could not: ``sent`` False). The answer is told by :meth:`_when_still`."""
         cmd = _Command(client, name, fn)
         if self._thread is None or threading.current_thread() is self._thread:
-            report = fn()
-        else:
-            self._urgent.appendleft(cmd)
-            preempt = getattr(self.machine.bus, "preempt", None)
-            if preempt is not None:  # a loop patiently retrying a missed reply (all standing) comes back at once
-                preempt()
+            return fn()
+        self._urgent.appendleft(cmd)
+        preempt = getattr(self.machine.bus, "preempt", None)
+        if preempt is not None:  # a loop patiently retrying a missed reply (all standing) comes back at once
+            preempt()
+        if sent:  # the axes have their stop and motion is latched off: a slow loop only ends the motion late
             try:
-                try:
-                    report = cmd.future.result(STOP_TIMEOUT)
-                except FutureTimeout:
-                    if not cmd.future.running():
-                        raise
-                    # the loop is carrying the stop out (a module slow to confirm it while all stands still is
-                    # retried patiently): wait for its answer, never a second stop beside it
-                    report = cmd.future.result(STOP_PATIENCE)
-            except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
+                return self._await(cmd, self.command_timeout)
+            except ControlError:  # stuck: end the motion from here
                 report = fn()
-                report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
-                                    report.failed_axes)
                 self.fault("the machine loop stopped answering")
-        self._event(name, ok=report.ok, message=report.message)
-        self._publish()
+                return report
+        try:
+            try:
+                report = cmd.future.result(STOP_TIMEOUT)
+            except FutureTimeout:
+                if not cmd.future.running():
+                    raise
+                # the loop is carrying the stop out (a module slow to confirm it while all stands still is
+                # retried patiently): wait for its answer, never a second stop beside it
+                report = cmd.future.result(STOP_PATIENCE)
+        except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
+            report = fn()
+            report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
+                                report.failed_axes)
+            self.fault("the machine loop stopped answering")
         return report
 
     def _halt_all(self, mode: str) -> list[str]:
@@ -738,9 +858,13 @@ class Controller:
                 failed.append(axis.name.upper())
         return failed
 
-    def _do_stop(self) -> StopReport:
+    def _do_stop(self, sent: bool = False) -> StopReport:
         try:
-            self.machine.stop()
+            if sent:  # every module acknowledged the direct stop: end the motion that ran, send nothing more
+                self.machine.finish_halted(MotionError("stopped by the operator"))
+            else:
+                self.machine.stop()
+                self.machine.finish_halted(MotionError("stopped by the operator"))
             with self._lock:
                 self._stopped = "stopped by the operator"
             return StopReport(True, "stopped: every axis acknowledged")
@@ -752,9 +876,14 @@ class Controller:
                               f"STOP NOT CONFIRMED by axis {', '.join(failed)}: the link failed ({exc}). "
                               "Use the machine's emergency stop button.", tuple(failed))
 
-    def _do_estop(self) -> StopReport:
-        failed = sorted(set(self._halt_all("abrupt")) | set(self._halt_all("off")))
+    def _do_estop(self, sent: bool = False) -> StopReport:
+        failed = [] if sent else sorted(set(self._halt_all("abrupt")) | set(self._halt_all("off")))
         self.machine.abort(MotionError("emergency stop"))
+        try:
+            self.machine.finish_halted(MotionError("emergency stop"))  # the latch: the E-stop's inhibit stays
+        except LINK_ERRORS as exc:
+            failed = failed or [a.name.upper() for a in self.config.axes]
+            log.error("clearing the stop latch failed: %s", exc)
         if failed:
             self._enter_fault(f"E-STOP not acknowledged by axis {', '.join(failed)}", link=True)
             return StopReport(False, f"E-STOP NOT CONFIRMED by axis {', '.join(failed)}: the link failed. "
@@ -786,6 +915,8 @@ class Controller:
         self._publish()
 
     def _reset(self) -> None:
+        if self.machine.halted is not None:  # a stop the loop never carried out: its latch ends here
+            self.machine.finish_halted(MotionError("reset"))
         with self._lock:
             was_fault = self._fault is not None
         for mod in self.machine.modules:
@@ -970,6 +1101,9 @@ class Controller:
         if self._probing:
             return Mode.PROBING, "", "probe cycle"
         if self._stopped is not None:
+            st = m.state
+            if st is not None and any(abs(a.velocity) >= 1e-9 for a in st.axes):
+                return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
             return Mode.STOPPED, self._stopped, ""
         if not self._homed:
             return Mode.NOT_HOMED, "", ""
@@ -1064,7 +1198,16 @@ class Controller:
             outer.finish(inner.result, inner.error)
 
     def _on_hit(self, hit: Hit) -> None:
+        jogger = self._armed_jogger
+        if hit.mode == "manual" and jogger is not _NOBODY:  # one hit per touch: this jog stays stopped until let go
+            self._touched[jogger] = self._releases.get(jogger, 0)
         self.dispatcher.post(self._record_hit, hit)
+
+    def touched(self, client: Any) -> bool:
+        """Has this client's armed jog taken a hit since the client last let go? Then its holds start nothing (one
+        hit per touch: the still-held button must not drive back in for another); a release ends that."""
+        key = getattr(client, "id", client)
+        return key in self._touched and self._touched[key] == self._releases.get(key, 0)
 
     def _record_hit(self, hit: Hit) -> None:
         for fn in list(self._hit_listeners):

@@ -23,6 +23,9 @@ does the rest, the same for everyone:
   that moment, wherever the hold is taken later. A hold that waited in this process (a busy station, a
   thread pool, the machine loop's queue) can never extend a jog past ``heard + grace``, and one heard longer
   ago than the grace neither starts nor refreshes a jog.
+- **One hit per touch.** After an armed jog took a hit (and backed off), the client's holds start nothing until
+  it lets go (a release: button, key, stick back to centre); ``hold`` says so once (:data:`TOUCHED`). Only a
+  new press takes the next hit, on every front end alike.
 - **Never waits.** ``hold`` checks access and the machine's mode at once (a refusal comes back as a
   sentence), tells the link process the operator is still there, and queues the jog for the machine loop
   without waiting for it: a front end's event loop never blocks on the machine. A newer hold of the same
@@ -41,6 +44,7 @@ import numpy as np
 from .modes import Refused
 
 ErrorFn = Callable[[str], None]
+TOUCHED = "hit taken: let go, then press again for the next hit"
 AT_END = 0.005  # mm: an axis this close to the end of its travel counts as at it (a jog there would not start)
 
 
@@ -121,6 +125,8 @@ class JogHolds:
             self.release(client, let_go=True)
             return note
         self.controller.check_access(client, "jog")  # an observer is told to take control, not where the axes stand
+        if probe and self.controller.touched(client):
+            return TOUCHED  # one hit per touch: the held jog stays stopped until the operator lets go
         v, at_end = self.travel(v)
         if not np.any(v):  # every axis asked for stands at the end it would jog to
             raise Refused(at_end)

@@ -150,6 +150,10 @@ class Machine:
         self.driver: Any = self  # what MoveStatus.wait drives: this machine or the control core owning it
         self._contact_dir: np.ndarray | None = None  # direction of the last jog that touched
         self.inhibit: str | None = None  # set by the control core (fault, E-stop): every new motion is refused
+        # set by the control core the moment the operator presses STOP / E-STOP (any thread, before the modules are
+        # told): no motion starts, and the motion running ends cut short (never "done") at the next sample, until
+        # the machine loop has carried the stop out (finish_halted)
+        self.halted: str | None = None
 
     # --- connection -------------------------------------------------------
 
@@ -328,6 +332,9 @@ class Machine:
             return state
 
     def _watch(self, motion: _Motion, state: MachineState) -> None:
+        if self.halted is not None:  # the operator's stop reached the modules: this motion was cut short
+            self._finish(motion, error=MotionError(self.halted))
+            return
         captured = motion.armed and any(not (a.status & codec.HOME_IN_PROG) for a in state.axes)
         if captured:
             latched = tuple(m.home_position() for m in self.modules)
@@ -476,6 +483,8 @@ class Machine:
         """
         if self.inhibit is not None:
             raise MotionError(f"motion inhibited: {self.inhibit}")
+        if self.halted is not None:
+            raise MotionError(self.halted)
         # shares come from what each axis really travels (encoder counts): with a geometry
         # correction a move along one machine axis also moves the others a little
         here = (self.state or self.sample()).counts
@@ -602,6 +611,18 @@ class Machine:
             if motion is not None:
                 self._finish(motion, error=MotionError("stopped by the operator"))
 
+    def finish_halted(self, error: BaseException) -> None:
+        """The operator's stop was sent to the modules from another thread (the control core's stop path): end the
+        motion running with ``error`` (no command sent: the modules have theirs) and let motion start again."""
+        with self._lock:
+            motion = self._motion
+            if motion is not None:
+                self._finish(motion, error=error)
+            self.halted = None
+            clear = getattr(self.bus, "clear_halt", None)
+            if clear is not None:
+                clear()
+
     def emergency_stop(self) -> None:
         """Abrupt stop, then amplifiers off. Motion needs ``reset()`` afterwards."""
         with self._lock:
@@ -656,6 +677,8 @@ class Machine:
             raise MotionError(f"a jog needs three finite axis velocities, got {velocity!r}")
         if self.inhibit is not None:
             raise MotionError(f"motion inhibited: {self.inhibit}")
+        if self.halted is not None and np.any(v):
+            raise MotionError(self.halted)
         limit = self.config.speeds.jog_fast
         if np.any(np.abs(v) > limit + 1e-9):
             raise MotionError(f"jog speed {np.max(np.abs(v)):.1f} mm/s is above jog_fast ({limit:g} mm/s)")
@@ -804,7 +827,7 @@ class Machine:
         """Stop a horizon jog at the stop deceleration: re-target to where it can stand still."""
         v = None if motion is None else motion.extra.get("v")
         speed = 0.0 if v is None else float(np.linalg.norm(v))
-        if speed == 0 or self.state is None or self.inhibit is not None:
+        if speed == 0 or self.state is None or self.inhibit is not None or self.halted is not None:
             self.halt("smooth")  # a stop is never inhibited
             return
         a = self.config.accelerations.stop

@@ -149,6 +149,22 @@ MARKER_ITEMS = (codec.SEND_ID, codec.SEND_ID | codec.SEND_AUX, codec.SEND_ID | c
 CAPTURE_BITS = codec.ON_LIMIT1 | codec.ON_LIMIT2 | codec.ON_INDEX | codec.ON_POS_ERR | codec.ON_CUR_ERR
 
 
+def starts_motion(packet: bytes) -> bool:
+    """Does this command packet start a motion (START_MOVE, or LOAD_TRAJ with start now that is not a stop)?"""
+    if len(packet) < 3:
+        return False
+    code = packet[2] & 0x0F
+    if code == codec.START_MOVE:
+        return True
+    if code != codec.LOAD_TRAJ or len(packet) < 4 or not packet[3] & codec.START_NOW:
+        return False
+    try:
+        lt = codec.parse_load_traj(bytes(packet[3:-1]))
+    except codec.CodecError:
+        return True
+    return not (lt.control & codec.VEL_MODE and not lt.velocity)
+
+
 def local_peer(port: Any) -> bool:
     """Is ``port`` a URL of modules served by a process on this computer (TCP or RFC 2217 on loopback, or a
     pseudo-terminal: ``cmm sim --pty``)?"""
@@ -229,6 +245,10 @@ class Bus:
         self._busy: tuple[int, int] | None = None  # both counts when the outermost transaction in progress began
         self._busy_since = 0.0  # and the time it began
         self._heard: deque[tuple[float, bytes]] = deque(maxlen=HEARD_KEEP)  # (time, bytes) as they came in
+        # the operator's STOP / E-STOP (stop_all with a latch): every motion start is refused (Preempted) until the
+        # station has carried the stop out and clears it (clear_halt), so nothing started in the same moment as the
+        # stop can run after it
+        self.halt_latch: str | None = None
 
     # --- port I/O: every pyserial failure becomes a LinkError ------------------
 
@@ -570,6 +590,11 @@ class Bus:
             raise Preempted(f"the retry of {self._name(packet)} to {self._who(packet[1])} was cut short by a stop "
                             f"({self.heard(self._busy_since)})", packet[1])
 
+    def clear_halt(self) -> None:
+        """The station has carried the operator's stop out: motion starts pass again."""
+        with self.lock:
+            self.halt_latch = None
+
     def transact(self, packet: bytes, items: int | None = None) -> codec.Status | None:
         """Send a command packet and return the parsed status reply.
 
@@ -579,6 +604,9 @@ class Bus:
         short its patient retries (every axis standing still).
         """
         with self.lock:
+            if self.halt_latch is not None and starts_motion(packet):
+                raise Preempted(f"{self._name(packet)} to {self._who(packet[1])} was not sent: {self.halt_latch}",
+                                packet[1])
             outer = self._busy is None
             if outer:
                 self._busy, self._busy_since = (self._preempts, self._urgent), self.clock.now()
@@ -1009,20 +1037,31 @@ class Bus:
 
     # --- stopping on a failing link ---------------------------------------------------
 
-    def stop_all(self, mode: str = "abrupt") -> StopReport:
+    def stop_all(self, mode: str = "abrupt", *, latch: str | None = None) -> StopReport:
         """Stop every axis however bad the link is; never raises. Says which modules acknowledged.
 
         First a burst that asks for no reply (nulls, STOP_MOTOR to every group
         and every module, back to back: the fastest way to reach a module on a
         noisy line), then an acknowledged STOP_MOTOR to each module.
-        ``mode``: "abrupt" (servo holds where it is) or "off" (motor off).
+        ``mode``: "abrupt" (servo holds where it is), "smooth" (decelerate at the loaded acceleration; an axis
+        without servo, motor off or PWM, is left as it is: a stop would switch its servo on) or "off" (motor off).
+        ``latch``: the operator's stop (why, in words): motion starts are refused until :meth:`clear_halt`, and a
+        transaction retrying a lost reply gives the link up to this stop at once (also during motion).
         """
-        control = codec.MOTOR_OFF if mode == "off" else codec.STOP_ABRUPT | codec.AMP_ENABLE
+        control = {"off": codec.MOTOR_OFF, "smooth": codec.STOP_SMOOTH | codec.AMP_ENABLE}.get(
+            mode, codec.STOP_ABRUPT | codec.AMP_ENABLE)
+        if latch is not None:
+            self.halt_latch = latch  # before the lock: a start waiting for it is refused, not sent
+            self.preempt(urgent=True)
         addresses = [m.address for m in self.modules]
+        if mode == "smooth":
+            addresses = [a for a in addresses if self.servoing(a)]
         reason = ""
         with self.lock:
+            if latch is not None:
+                self.halt_latch = latch
             burst = bytearray(NULLS_RESYNC)
-            for g in sorted({codec.GROUP_ALL, *self.groups.values()}):
+            for g in sorted({codec.GROUP_ALL, *self.groups.values()}) if mode != "smooth" else ():
                 burst += codec.stop_motor(g, control)
             for a in addresses:
                 burst += codec.stop_motor(a, control)

@@ -49,7 +49,7 @@ START_TIMEOUT = 30.0  # s for the child to start and open the port
 CALL_TIMEOUT = 10.0  # s for one call (a transaction takes ms; a resync with retries well under a second)
 LONG_CALLS = {"initialize": 120.0, "reopen": 60.0, "release": 30.0, "change_baud": 30.0}  # discovery retries
 FORWARDED = {"transact", "define_status", "set_group", "initialize", "release", "start_move",
-             "reopen", "change_baud", "flush_input", "resync"}
+             "reopen", "change_baud", "flush_input", "resync", "clear_halt"}
 MIRRORED = ("items", "link_up", "baud", "modules", "leaders", "groups", "warning")
 STILL = 0.5  # counts per servo tick: below this an axis is taken as standing
 RUN_PERIOD = 0.01  # s between the link process's looks at a jog it drives (re-target, dead-man)
@@ -365,7 +365,9 @@ class JogGuard:
                 self.bus.preempt()
             elif isinstance(msg, tuple) and msg[0] == "stop_all":
                 self.halted("stop")
-                report = self.bus.stop_all(msg[1])  # never raises
+                # the operator's STOP / E-STOP latches: no motion starts (the jog driver's goals included) until
+                # the station has carried it out (clear_halt, through the calls pipe, in order with its calls)
+                report = self.bus.stop_all(msg[1], latch=msg[2] if len(msg) > 2 else None)  # never raises
                 try:
                     urgent.send(report)
                 except (EOFError, OSError):
@@ -573,11 +575,11 @@ class RemoteBus:
         finally:
             self.lock.release()
 
-    def stop_all(self, mode: str = "abrupt") -> StopReport:
+    def stop_all(self, mode: str = "abrupt", *, latch: str | None = None) -> StopReport:
         """The bus's stop-all, over the second pipe: STOP and E-STOP never wait behind the loop's calls."""
         with self._urgent_lock:
             try:
-                self._urgent.send(("stop_all", mode))
+                self._urgent.send(("stop_all", mode, latch))
                 if self._urgent.poll(LONG_CALLS["release"]):
                     return self._urgent.recv()
                 why = "the link process did not answer the stop"

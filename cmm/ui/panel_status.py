@@ -13,8 +13,9 @@ its text changes.
 from __future__ import annotations
 
 import html
+import threading
 import time
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -188,10 +189,19 @@ class StatusPanel:
         run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
             self.gui["status"] = gui.add_html(self.html())
-            gui.add_button("STOP", color="orange").on_click(lambda _: self.ctx.stop())
-            gui.add_button("E-STOP", color="red").on_click(lambda _: self.ctx.emergency_stop())
+            gui.add_button("STOP", color="orange").on_click(self._press(lambda: self.ctx.stop()))
+            gui.add_button("E-STOP", color="red").on_click(self._press(lambda: self.ctx.emergency_stop()))
             frame = gui.add_button_group("DRO", FRAMES)
             frame.on_click(lambda e: self.set_frame(e.target.value))
+
+    @staticmethod
+    def _press(fn: Callable[[], Any]) -> Callable[[Any], Any]:
+        """A STOP / E-STOP click that came over viser's socket (the page's hold refresher sends it first when its
+        own socket is open, web/hold_worker.js): a coroutine, so viser runs it as the message arrives, not behind
+        its thread pool's queue; the press runs on a thread of its own (it answers when every axis stands)."""
+        async def pressed(_event: Any) -> None:
+            threading.Thread(target=fn, name="page-stop", daemon=True).start()
+        return pressed
 
     def set_frame(self, frame: str) -> None:
         if frame in FRAMES:

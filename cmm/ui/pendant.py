@@ -46,7 +46,10 @@ client -> server
   the station's one STOP policy (:meth:`~cmm.control.access.Control.may_stop`, the
   same as the viser page's): the holder, a local pendant, or one that gave
   the access code on this connection; an anonymous LAN observer only when the
-  operator allowed LAN stops.
+  operator allowed LAN stops. ``{"type": "estop"}``: the emergency stop, under the same policy. Each press runs
+  on a thread of its own and reaches the modules at once (the operator's stop notes in the docs folder); the answer, a ``notice``
+  ("stopped: every axis stands still") or an ``error``, comes when every axis stands still. The station page's
+  STOP and E-STOP buttons and its Esc / Space keys send these through the page's hold refresher.
 
 server -> client
 
@@ -403,12 +406,23 @@ class PendantServer:
             await self._step(session, msg.get("axis"), msg.get("mm"))
         elif kind == "call":
             await self._command(session, msg)
-        elif kind == "stop":
-            report = await asyncio.to_thread(self._stop_machine, self._who(session))  # the core checks may_stop
-            if report["ok"]:
-                session.jogging = False
-            else:
+        elif kind in ("stop", "estop"):
+            session.jogging = False
+            # a thread of its own per press, never a pool another call can fill: the press reaches the modules at
+            # once (the core sends it from this thread) and its answer comes when every axis stands still
+            # the press itself right here, as the message is read (no other thread to be scheduled first)
+            try:
+                pressed = self.commands.invoke(self._who(session), "press", verb=kind)  # the core checks may_stop
+            except Refused as exc:
+                return await self._error_msg(session, str(exc))
+            except Exception as exc:  # noqa: BLE001 - then the verb, on its own thread, as before
+                log.exception("the direct %s failed", kind)
+                pressed = None
+            report = await self._own_thread(self._stop_machine, self._who(session), kind, pressed)
+            if not report["ok"]:
                 await self._error_msg(session, report["message"])
+            else:
+                await self._send(session, {"type": "notice", "message": report["message"]})
         else:
             await self._error_msg(session, f"unknown pendant message type {kind!r}")
 
@@ -520,14 +534,34 @@ class PendantServer:
         """This connection's own client (taking and releasing control is always the connection's own)."""
         return Client(session.client_id, local=session.local, authenticated=session.authenticated)
 
-    def _stop_machine(self, who: Any) -> dict[str, Any]:
-        """The stop verb's report ({ok, message, failed_axes}); a refusal or a failure as a report that is not ok."""
+    async def _own_thread(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)`` on a new thread (no executor's queue in front of it); awaited without blocking the loop."""
+        assert self._loop is not None
+        future = self._loop.create_future()
+        loop = self._loop
+
+        def run() -> None:
+            try:
+                result = fn(*args)
+            except BaseException as exc:  # noqa: BLE001 - handed to the awaiting coroutine
+                loop.call_soon_threadsafe(lambda: future.done() or future.set_exception(exc))
+            else:
+                loop.call_soon_threadsafe(lambda: future.done() or future.set_result(result))
+        threading.Thread(target=run, name="pendant-stop", daemon=True).start()
+        return await future
+
+    def _stop_machine(self, who: Any, verb: str = "stop", pressed: Any = None) -> dict[str, Any]:
+        """The stop (or estop) verb's report ({ok, message, failed_axes}) or, for a press already sent to the modules
+        (``pressed``, :meth:`~cmm.control.core.Controller.press`), its answer; a refusal or a failure as a report that
+        is not ok."""
         try:
-            return self.commands.invoke(who, "stop")
+            if pressed is not None:
+                return self.commands.invoke(who, "answer", pressed=pressed)
+            return self.commands.invoke(who, verb)
         except Refused as exc:
             return {"ok": False, "message": str(exc)}
         except Exception as exc:  # noqa: BLE001 - a failed stop is reported, never hidden
-            return {"ok": False, "message": f"STOP failed: {exc}"}
+            return {"ok": False, "message": f"{'STOP' if verb == 'stop' else 'E-STOP'} failed: {exc}"}
 
 
 def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1", port: int = 0,
