@@ -134,9 +134,13 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     if warning:
         out.append(f" &middot; <span class='warn'>link warning: {e(warning)}</span>")
     if link_rate is not None:
-        ok = link_ok and link_rate > 5.0
-        # no figure: a rate that changes every refresh would re-send the bar from an idle page
-        out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
+        # no figure: a rate that changes every refresh would re-send the bar from an idle page. A paused run holds
+        # the machine loop (no samples are taken while it stands): that is not a silent link
+        if link_ok and link_rate <= 5.0 and mode == "paused":
+            out.append(" &middot; link <span class='muted'>ok (paused: not sampling)</span>")
+        else:
+            ok = link_ok and link_rate > 5.0
+            out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
     if st is not None:
         pos = st.position
         label = "machine"
