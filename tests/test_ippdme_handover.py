@@ -1,0 +1,56 @@
+"""Control hand-over to I++ clients (issue 34): an I++ client that connects while the holder's machine moves gets an
+I++ error naming the holder, and the motion goes on; once the holder stands still and releases, it connects.
+
+The simulated station in-process on its virtual clock (paced), a real I++ client over TCP on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from cmm.control import Client
+from cmm.control.access import Control
+from ippdme_support import connected, ipp_station
+
+
+def wait_until(predicate, timeout: float = 30.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < end, "condition not reached"
+        time.sleep(0.01)
+
+
+@pytest.fixture
+def served(tmp_path):
+    with ipp_station(tmp_path) as (server, station):
+        yield server, station
+
+
+def test_an_i_client_does_not_take_control_from_a_holder_whose_machine_moves(served):
+    server, station = served
+    pendant = Client("pendant-1", local=True)
+    control = Control()
+    station.controller.use_policy_of(control)
+    control.set_name(pendant.id, "Ahmed")
+    assert control.take(pendant.id, is_local=True)
+    station.controller.home(pendant)
+    here = np.asarray(station.controller.frame_position("machine"), float)
+    status = station.controller.move(pendant, here + [300.0, 200.0, -40.0], frame="machine", speed=5.0)
+    wait_until(lambda: station.machine.busy)
+    with connected(server) as c:
+        wait_until(lambda: any(r.kind == "!" for r in c.received))
+        err = next(r for r in c.received if r.kind == "!")
+        assert err.error_number == 508, err.body
+        assert "Ahmed holds the station's control" in err.body and "moving" in err.body, err.body
+        assert "Release" in err.body
+    assert control.holder == pendant.id  # the holder keeps control ...
+    assert station.machine.busy and not status.done  # ... and the machine goes on moving
+    assert station.controller.stop(pendant).ok
+    wait_until(lambda: not station.machine.busy)
+    assert control.release(pendant.id)  # handing over is explicit: the holder releases, the client connects
+    with connected(server) as c:
+        assert c.call("StartSession()").ok
+        assert control.holder is not None and control.holder.startswith("ippdme")
