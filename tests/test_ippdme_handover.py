@@ -54,3 +54,37 @@ def test_an_i_client_does_not_take_control_from_a_holder_whose_machine_moves(ser
     with connected(server) as c:
         assert c.call("StartSession()").ok
         assert control.holder is not None and control.holder.startswith("ippdme")
+
+
+def test_absurd_numbers_get_the_right_error_and_a_sentence_in_the_journal(served):
+    """Issue 34: a PtMeas with X 1e308 got a bare error of the wrong kind; a 1e308 target was written as a
+    300-digit number. Both GoTo and PtMeas get 1008 (target out of the machine volume) and the session journal
+    says why, with the number formatted."""
+    server, station = served
+    with connected(server) as c:
+        for cmd in ("StartSession()", "Home()", 'ChangeTool("Probe1")'):
+            assert c.call(cmd).ok, cmd
+        for cmd in ("PtMeas(X(1e308), Y(100), Z(50), IJK(0, 0, 1))", "GoTo(X(1e308), Y(100), Z(250))"):
+            t = c.call(cmd)
+            assert [r.error_number for r in t.errors] == [1008], (cmd, t.errors)
+            assert c.call("ClearAllErrors()").ok
+        assert c.call("EndSession()").ok
+    journal = station.measurement.journal.path.read_text() if station.measurement.journal else ""
+    notes = [line for line in journal.splitlines() if "1e+308" in line]
+    assert len(notes) >= 2 and all("is outside the travel 0..500 mm" in n for n in notes), notes
+    assert "000000000000000000000" not in journal
+
+
+def test_one_error_for_one_oversized_line(served):
+    """Issue 34: one 10 MB line without a newline got about 150 protocol errors; it gets one, and the client's
+    next command is served."""
+    server, station = served
+    with connected(server) as c:
+        assert c.call("StartSession()").ok
+        start = len(c.received)
+        c.sock.sendall(b"00009 GoTo(X(" + b"1" * (10 * 1024 * 1024))
+        wait_until(lambda: any(r.kind == "!" for r in c.received[start:]))
+        c.sock.sendall(b"))\r\n")
+        assert c.call("ClearAllErrors()").ok  # the line's end went with it: the next command is served
+        errors = [r for r in c.received[start:] if r.kind == "!"]
+        assert len(errors) == 1 and errors[0].error_number == 8, errors
