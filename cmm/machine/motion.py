@@ -586,7 +586,7 @@ class Machine:
         one_count = 1.0 / cfg.counts_per_mm
         if not math.isfinite(step_mm) or not one_count - 1e-12 <= abs(step_mm) <= STEP_MAX_MM:
             raise MotionError(f"a step must be between one count ({one_count * 1000:g} um) and {STEP_MAX_MM:g} mm, "
-                              f"got {step_mm} mm")
+                              f"got {num(step_mm, 4)}" + (" mm" if math.isfinite(step_mm) else ""))
         # steps go along the axis from its count grid, so repeated 1-count steps do not drift
         readings = self.correction.invert(self.position)
         idx = AXES.index(axis)
