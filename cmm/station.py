@@ -117,7 +117,10 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         with controller.jobs.running(f"auto-measure of {name or 'the ' + plan.kind}", cancel):
             feature = run_plan(measurement, plan, name=name, method=method, progress=progress, cancelled=cancelled,
                                client=client)
-            end_at_clearance(controller, client)  # the run ends at the clearance plane (cmm.control.run_end)
+            try:  # the run ends at the clearance plane (cmm.control.run_end); the feature stands either way
+                end_at_clearance(controller, client)
+            except Exception as exc:  # noqa: BLE001 - told in the journal, in words
+                measurement.note(f"auto-measure: the climb to the clearance plane at its end failed: {exc}")
             return feature
 
     def program(client: Any, path: Any, serial: str = "") -> Any:

@@ -457,8 +457,8 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
     next(s for s in r.steps if s["name"] == "dome")["skip"] = True  # a shorter run
     r.program.feature("bore").tolerance = {"position": 0.05, "size": 0.01}  # no location given
     st.sim.place_part(TRUE_PART_POSE)
-    model.set_alignment(TRUE_PART_POSE, "manual", note="P1 placed")
-    first = RoutineRun(r, model, st.controller, part_name="P1").run()
+    model.set_alignment(TRUE_PART_POSE, "manual", note="GDT1 placed")
+    first = RoutineRun(r, model, st.controller, part_name="GDT1").run()  # part names no other test's run took
     fids = {n: f.id for n, f in first.results.items() if hasattr(f, "id")}
     for label, name in zip("ABC", ("TOP", "FRONT", "LEFT")):
         model.define_datum(label, fids[name])
@@ -479,8 +479,8 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
     assert again.program.feature("bore").tolerance["position"] == 0.05
     assert next(s for s in again.steps if s["name"] == "bore-boss toleranced")["tolerance"] == {"location": 0.03}
     st.sim.place_part(SECOND_POSE)
-    model.set_alignment(SECOND_POSE, "manual", note="P2 placed")
-    second = RoutineRun(again, model, st.controller, part_name="P2").run()
+    model.set_alignment(SECOND_POSE, "manual", note="GDT2 placed")
+    second = RoutineRun(again, model, st.controller, part_name="GDT2").run()
     assert second.state == "done"
     # the run ends with the tip at the clearance plane (issue 34: it stood beside the cone at part Z 43)
     assert st.controller.frame_position("machine")[2] >= st.controller.workspace.clearance_z() - 0.01

@@ -210,7 +210,12 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
         result = executor.run()
         # the program's last hit retracts a few mm only: the run ends at the clearance plane, so the next
         # program's first GOTO does not start beside the part (cmm.control.run_end)
-        z = end_at_clearance(station.controller, client, target.timeout)
+        try:
+            z = end_at_clearance(station.controller, client, target.timeout)
+        except Exception as exc:  # noqa: BLE001 - the program's results stand; the failed climb is told
+            result.log.append(f"the climb to the clearance plane at the end failed: {exc}")
+            target.note(f"DMIS program {name!r}: the climb to the clearance plane at its end failed: {exc}")
+            return result
         if z is not None:
             target.note(f"DMIS program {name!r} ended at the clearance plane, machine Z {z:.3f}")
         return result

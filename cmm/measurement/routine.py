@@ -629,6 +629,8 @@ class RoutineRun:
                 pass
         self._discard(self._taken + self._partial, "the routine restarted")
         self._fids.clear()
+        self._hit_map.clear()
+        self._gdt_done = False
         self._taken, self._partial, self._manual = [], [], None
         self.progress.results.clear()
         self.model.note(f"routine {self.routine.name!r} restarted from step 1")
@@ -820,8 +822,10 @@ class RoutineRun:
         try:
             z = end_at_clearance(self.controller, self.client, self.timeout)
         except Exception as exc:  # noqa: BLE001 - the part's results stand; the climb's refusal is told
-            raise RoutineError(f"the routine measured everything but the climb to the clearance plane failed: "
-                               f"{exc}") from exc
+            text = f"routine {self.routine.name!r}: the climb to the clearance plane at its end failed: {exc}"
+            self.model.note(text)
+            self._tell(message=text)
+            return
         if z is not None:
             self.model.note(f"routine {self.routine.name!r}: ended at the clearance plane, machine Z {z:.3f}")
 
