@@ -433,3 +433,67 @@ def test_the_routine_tab_shows_each_steps_settings_and_fills_the_edit_fields_wit
             assert panel.gui["hits"].value == " ".join(map(str, f.hits))
     finally:
         ui.close()
+
+
+def _csv_rows(path):
+    import csv
+    import io
+
+    rows = list(csv.DictReader(io.StringIO(features_csv(open_session(path)))))
+    return {(r["feature"], r["kind"], r["method"], r["characteristic"]): r for r in rows}
+
+
+def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
+    """Issue 34: the GD&T position with datums A|B|C was dropped from the taught routine (the next part's report
+    had no datum-referenced position) and the routine list showed the bore's location tolerance as 0. A part is
+    measured by the routine, the operator adds datums A|B|C, feature control frames (position at MMC to A|B|C,
+    flatness, perpendicularity to A), a position-only tolerance on the bore and a toleranced construction; the
+    routine taught from that session runs on a second part placed differently, and its report has the same
+    characteristics, line by line, with the same tolerances and values within microns."""
+    st, routine = taught
+    model = st.measurement
+    r = Routine(from_toml(routine.text()))
+    r.steps[0]["manual"] = None  # the parts are aligned by hand beforehand: the datums are measured automatically
+    next(s for s in r.steps if s["name"] == "dome")["skip"] = True  # a shorter run
+    r.program.feature("bore").tolerance = {"position": 0.05, "size": 0.01}  # no location given
+    st.sim.place_part(TRUE_PART_POSE)
+    model.set_alignment(TRUE_PART_POSE, "manual", note="GDT1 placed")
+    first = RoutineRun(r, model, st.controller, part_name="GDT1").run()  # part names no other test's run took
+    fids = {n: f.id for n, f in first.results.items() if hasattr(f, "id")}
+    for label, name in zip("ABC", ("TOP", "FRONT", "LEFT")):
+        model.define_datum(label, fids[name])
+    model.define_gdt("position", fids["bore"], 0.05, "A|B|C", material="MMC", name="bore position")
+    model.define_gdt("flatness", fids["TOP"], 0.02, name="TOP flatness")
+    model.define_gdt("perpendicularity", fids["boss"], 0.05, "A", name="boss perpendicularity")
+    model.construct_feature("distance", fids["bore"], fids["boss"], "bore-boss toleranced", tolerance={"location": 0.03})
+    p1 = first.session
+    taught2 = teach_routine(open_session(p1), name="block2", part_mesh=model.part.mesh,
+                            part_nominals=model.part.nominal_features, manual_alignment=False)
+    assert not taught2.program.untaught, taught2.program.untaught
+    assert [d["label"] for d in taught2.program.datums] == ["A", "B", "C"]
+    assert {g["name"] for g in taught2.program.gdt} == {"bore position", "TOP flatness", "boss perpendicularity"}
+    again = Routine(from_toml(taught2.text()))  # through the file, as a saved routine is
+    assert again.program.gdt == taught2.program.gdt and again.program.datums == taught2.program.datums
+    bore_step = next(i for i, s in enumerate(again.steps) if s["name"] == "bore")
+    assert again.settings(bore_step)["tolerance"] == "0.01 0.02 0.02"  # size form location: location not 0
+    assert again.program.feature("bore").tolerance["position"] == 0.05
+    assert next(s for s in again.steps if s["name"] == "bore-boss toleranced")["tolerance"] == {"location": 0.03}
+    st.sim.place_part(SECOND_POSE)
+    model.set_alignment(SECOND_POSE, "manual", note="GDT2 placed")
+    second = RoutineRun(again, model, st.controller, part_name="GDT2").run()
+    assert second.state == "done"
+    # the run ends with the tip at the clearance plane (issue 34: it stood beside the cone at part Z 43)
+    assert st.controller.frame_position("machine")[2] >= st.controller.workspace.clearance_z() - 0.01
+    a, b = _csv_rows(p1), _csv_rows(second.session)
+    gdt_lines = {k for k in a if k[1] == "gdt"}
+    assert ("bore", "gdt", "A|B|C", "⊕ position") in gdt_lines, gdt_lines
+    assert set(a) == set(b), (set(a) ^ set(b))  # every characteristic of the first part, and no other
+    for key, ra in a.items():
+        rb = b[key]
+        for col in ("nominal", "upper_tol", "lower_tol"):
+            if ra[col] or rb[col]:
+                assert float(rb[col]) == pytest.approx(float(ra[col]), abs=0.005), (key, col, ra[col], rb[col])
+        if ra["actual"]:
+            assert rb["actual"], key
+            assert float(rb["actual"]) == pytest.approx(float(ra["actual"]), abs=0.02), (key, ra["actual"], rb["actual"])
+        assert ra["result"] == rb["result"], (key, ra["result"], rb["result"])

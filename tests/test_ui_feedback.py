@@ -71,6 +71,17 @@ def test_face_names_and_running_status_between_moves(app):
     assert ">PAUSED</span>" in paused and "routine block on part 2: Resume goes on" in paused
 
 
+def test_a_paused_run_is_not_called_silent(app):
+    """Issue 34: 'link SILENT: no samples' in red while a routine stood paused (the paused run holds the machine
+    loop, so no samples come). Paused: the link is ok, not sampling; a link without samples otherwise is SILENT."""
+    st = app.station
+    wait_idle(st, 10)
+    paused = status_html(st, "", link_rate=0.0, cycle="routine block on part 2", cycle_paused=True)
+    assert ">PAUSED</span>" in paused and "SILENT" not in paused and "ok (paused: not sampling)" in paused, paused
+    assert "SILENT: no samples" in status_html(st, "", link_rate=0.0)  # idle and no samples: that is silent
+    assert "SILENT" not in status_html(st, "", link_rate=100.0)
+
+
 def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(app):
     st = app.station
     with browser_tab(app) as capp:
@@ -130,3 +141,14 @@ def test_one_toast_per_event(app):
         wait_idle(st, 10)
         titles = [t for _l, t, _b in capp.messages[n0:]]
         assert titles.count("Emergency stop") == 1 and titles.count("Homed") == 1, titles
+
+
+def test_diagnostics_shows_the_link_counters_and_retry_rate(app):
+    """Issue 34: a retry that succeeded is counted where the operator can see it (Setup > Diagnostics), with the
+    rate and the threshold above which the status bar warns."""
+    with browser_tab(app) as capp:
+        capp._show_trace()
+        text = capp.gui["link_health"].content
+        stats = app.station.machine.bus.stats
+        assert "transactions" in text and "late replies" in text and "the status bar warns above 1%" in text, text
+        assert stats["transactions"] > 0 and "window_retries" in stats

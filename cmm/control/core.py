@@ -45,6 +45,7 @@ STOP_TIMEOUT = 0.5  # s a STOP waits for the loop before it talks to the bus its
 STILL_TIMEOUT = 3.0  # s of machine time a STOP / E-STOP waits for every axis to stand still before it answers
 STOP_PATIENCE = IDLE_PATIENCE + 2.0  # s a STOP the loop is carrying out may take (its own patient retries)
 STATE_INTERVAL = 0.01  # s of machine time between states sent to state listeners while nothing but positions change
+ABSURD = 1e6  # mm: a probe target this far out is refused by the travel check before any path is computed
 WARNING_SHOWN = 10.0  # s a link warning stays in the state (the status bar) after the last one
 LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErrors
 
@@ -304,6 +305,7 @@ class Controller:
         the clearance height, travels and descends; 'straight' only when the line is proven free of the part.
         After a fault or a contact the move backs off and takes the clearance route first (:mod:`.rails`)."""
         goal = self._to_machine(target, frame)
+        self.machine.check_target(goal)  # before the rails measure the line: a 1e308 is a sentence, not an overflow
         rails.check_path(path)
 
         def start() -> MoveStatus:
@@ -397,6 +399,8 @@ class Controller:
         (mm/s) and the probing acceleration default to the configuration's. The status completes with the
         :class:`Hit` once the hit recorders stored it."""
         p = self._to_machine(target, frame)
+        if not np.all(np.abs(p) < ABSURD):  # far beyond any travel: the travel's sentence, before any path is measured
+            self.machine.check_target(p)
         u = self._to_machine(approach, frame, direction=True)
         if not np.linalg.norm(u):
             raise Refused("a probe needs an approach direction that is not zero")

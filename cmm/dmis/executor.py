@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from ..numbers_text import num
 from ..measurement.program import record_trend
 from ..session.trends import tolerance_values
 from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal_from, nominal_line
@@ -328,8 +329,11 @@ class Executor:
         if len(s.params) != 1:
             raise self.fail(s, "ASSIGN takes one expression")
         p = s.params[0]
-        self.variables[s.variable] = p.text if isinstance(p, Text) else (
+        value = p.text if isinstance(p, Text) else (
             self.variables.get(p.text, p.text) if isinstance(p, Word) else evaluate(p, self.variables, s.line))  # type: ignore[arg-type]
+        if isinstance(value, float) and not math.isfinite(value):
+            raise self.fail(s, f"{s.variable or 'the variable'} = {_text(p)} is {num(value)}: give a finite number")
+        self.variables[s.variable] = value
 
     def do_device(self, s: Statement) -> None:
         texts = [p.text for p in s.params if isinstance(p, Text)]
@@ -649,8 +653,9 @@ class Executor:
     def do_fedrat(self, s: Statement) -> None:
         w = self.words(s)
         v = self.numbers(s)
-        if len(v) != 1 or v[0] <= 0:
-            raise self.fail(s, f"FEDRAT/{s.minor} takes a unit and a positive speed")
+        if len(v) != 1 or not math.isfinite(v[0]) or v[0] <= 0:
+            raise self.fail(s, f"FEDRAT/{s.minor} takes a unit and a positive speed"
+                               + (f", not {num(v[0])}" if len(v) == 1 else ""))
         if "PCENT" in w:
             base = self.target.positioning_speed if s.minor == "POSVEL" else self.target.probing_speed
             speed = base * v[0] / 100.0
@@ -660,11 +665,14 @@ class Executor:
                 raise self.fail(s, f"FEDRAT/{s.minor} needs a unit: MPM, MMPS, IPM, IPS or PCENT")
             speed = v[0] * SPEED_UNITS[unit]
         if s.minor == "POSVEL":
+            if not speed <= self.target.positioning_speed:
+                self.log(f"line {s.line}: POSVEL {num(speed, 2)} mm/s is above the station's positioning speed "
+                         f"{self.target.positioning_speed:.2f} mm/s; moves are made at {self.target.positioning_speed:.2f} mm/s")
             self.posvel = min(speed, self.target.positioning_speed)
         else:
             limit = self.target.probing_speed
             if speed > limit:
-                self.log(f"line {s.line}: MESVEL {speed:.2f} mm/s is above the probe's qualified {limit:.2f} mm/s; "
+                self.log(f"line {s.line}: MESVEL {num(speed, 2)} mm/s is above the probe's qualified {limit:.2f} mm/s; "
                          f"hits are taken at {limit:.2f} mm/s")
             self.mesvel = min(speed, limit)
 

@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..control.run_end import end_at_clearance
 from .check import check
 from .executor import DmisError, Executor, RunResult
 from .parser import Statement, Word
@@ -205,8 +206,22 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside
     # the machine loop, and the cancel verb ends its waits for the operator's hits
     manual = needs_operator(stmts)
+    def work(_job: Any) -> RunResult:
+        result = executor.run()
+        # the program's last hit retracts a few mm only: the run ends at the clearance plane, so the next
+        # program's first GOTO does not start beside the part (cmm.control.run_end)
+        try:
+            z = end_at_clearance(station.controller, client, target.timeout)
+        except Exception as exc:  # noqa: BLE001 - the program's results stand; the failed climb is told
+            result.log.append(f"the climb to the clearance plane at the end failed: {exc}")
+            target.note(f"DMIS program {name!r}: the climb to the clearance plane at its end failed: {exc}")
+            return result
+        if z is not None:
+            target.note(f"DMIS program {name!r} ended at the clearance plane, machine Z {z:.3f}")
+        return result
+
     return station.controller.commands.invoke(client, "run_job", description=description,
-                                              work=lambda job: executor.run(), hold_machine=not manual,
+                                              work=work, hold_machine=not manual,
                                               **({"cancel": target.cancel.set} if manual else {}))
 
 

@@ -39,6 +39,35 @@ class Backend(Protocol):
     def note(self, text: str) -> None: ...
 
 
+MOVING_MODES = ("moving", "jogging", "probing", "homing")
+
+
+def busy_holder(controller: Any, me: str) -> str | None:
+    """Why an I++ client may not take control now, naming the holder; None when it may.
+
+    The rule (docs/reliability.md): a connecting I++ client takes control only from nobody, or from a holder whose
+    machine stands still with nothing running (no jog, move, probe, homing, routine, program, auto-measure or
+    qualification). A pendant operator jogging, or a routine running, keeps control: the client gets an I++
+    error naming the holder and what the machine does, and connects again after the holder has released
+    control (Release in the page, or the pendant closed) or stopped. Nothing waits: a client is never left
+    hanging on a connection the operator does not know about."""
+    control = getattr(controller, "holder", None)
+    holder = None if control is None else control.holder
+    if holder is None or holder == me:
+        return None
+    mode = str(getattr(controller.state.mode, "value", controller.state.mode))
+    machine = controller.state.machine
+    turning = machine is not None and any(abs(a.velocity) > 0 for a in machine.axes)
+    jobs = controller.jobs.descriptions()
+    if mode not in MOVING_MODES and not turning and not jobs:
+        return None
+    doing = f"{jobs[0]} is running" if jobs else (f"the machine is {mode}" if mode in MOVING_MODES
+                                                   else "the machine is moving")
+    return (f"{control.name(holder)} holds the station's control and {doing}: an I++ client does not take "
+            f"control from them. Ask {control.name(holder)} to stop and release control (Release in the page), "
+            "then connect again")
+
+
 class StationBackend:
     """The I++ DME backend on a started :class:`~cmm.station.Station`, through its control core.
 
@@ -79,7 +108,11 @@ class StationBackend:
 
     # --- control --------------------------------------------------------------------
     def acquire(self) -> str | None:
-        """Take the station's control for this client (the take_control verb); the reason when refused."""
+        """Take the station's control for this client (the take_control verb); the reason when refused. Never
+        from a holder whose machine is moving or running something (docs/reliability.md): the holder is named."""
+        busy = busy_holder(self.controller, self.client.id)
+        if busy is not None:
+            return busy
         answer = self.commands.call(self.client, "take_control", {"peer": self.peer})
         return None if answer.ok else answer.error["message"]
 

@@ -518,6 +518,10 @@ class Dme:
         if not math.isfinite(norm) or norm < 1e-9:
             raise IppError(1010, cmd.name, "the approach direction has no length")
         direction = direction / norm
+        try:  # the nominal point within the travel before anything moves (a 1e308 got a bare 0511 / 0507)
+            self.backend.check_target(nominal_m)
+        except LimitError as exc:
+            raise IppError(1008, cmd.name, str(exc)) from None
         t, g = tool.ptmeas, tool.goto
         assert t is not None
         centre = self._motion(lambda: self.backend.probe(

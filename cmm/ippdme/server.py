@@ -205,7 +205,12 @@ class IppServer:
         try:
             sock.settimeout(1.0)
             err = IppError(508, "Connect", why)
-            sock.sendall(P.error(P.UNSOLICITED, err).encode("ascii") + b"\r\n")
+            # the spec's text, then why (who holds the machine): a client connecting is told whom to ask, and a
+            # client matching the text by its start still sees "Bad context"
+            line = P.error(P.UNSOLICITED, err)
+            detail = "".join(ch if 32 <= ord(ch) < 127 and ch != '"' else "'" if ch == '"' else "?" for ch in why)
+            line = line[:-2] + f': {detail}")' if detail else line
+            sock.sendall(line.encode("ascii") + b"\r\n")
             sock.shutdown(socket.SHUT_RDWR)
         except OSError:
             pass

@@ -36,6 +36,7 @@ from ..nmc.transport import is_virtual
 from .config import AXES, MachineConfig, counts_to_mm
 from .geometry import GeometryCorrection
 from .status import MotionError, MoveStatus
+from ..numbers_text import num
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
 POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; the link is the limit
@@ -428,11 +429,26 @@ class Machine:
             raise LimitError(f"a target needs X, Y and Z, got {t.size} values")
         for axis, v in zip(self.config.axes, t):
             if not math.isfinite(v):
-                raise LimitError(f"target {axis.name.upper()}={v} is not a number")
+                raise LimitError(f"target {axis.name.upper()} is {num(v)}: give a number of mm within the travel "
+                                 f"{axis.min:g}..{axis.max:g} mm")
             if not axis.min <= v <= axis.max:
-                raise LimitError(f"target {axis.name.upper()}={v:.3f} mm is outside the travel "
+                raise LimitError(f"target {axis.name.upper()}={num(v)} mm is outside the travel "
                                  f"{axis.min:g}..{axis.max:g} mm")
         return t
+
+    def fastest(self) -> float:
+        """The highest speed (mm/s) every axis's module can be given (Kerr's 16.16 velocity register)."""
+        return min(codec.fixed_to_velocity(0x7FFFFFFF, a.counts_per_mm, a.gains.sr) for a in self.config.axes)
+
+    def check_rates(self, speed: float, accel: float) -> None:
+        """A speed and an acceleration the modules can be given, else one sentence (formatted numbers)."""
+        if not (math.isfinite(speed) and speed > 0 and math.isfinite(accel) and accel > 0):
+            raise MotionError(f"speed and acceleration must be positive numbers, got {num(speed)} mm/s and "
+                              f"{num(accel)} mm/s²")
+        top = self.fastest()
+        if speed > top:
+            raise MotionError(f"the speed {num(speed)} mm/s is more than this machine can move: at most "
+                              f"{top:,.0f} mm/s")
 
     def _require_idle(self) -> None:
         if self._motion is not None:
@@ -509,8 +525,7 @@ class Machine:
         t = self.check_target(target)
         speed = self.config.speeds.positioning if speed is None else speed
         accel = self.config.accelerations.positioning if accel is None else accel
-        if not (math.isfinite(speed) and speed > 0 and math.isfinite(accel) and accel > 0):
-            raise MotionError(f"speed and acceleration must be positive numbers, got {speed} and {accel}")
+        self.check_rates(speed, accel)
         with self._lock:
             self._require_idle()
             status = MoveStatus("move to X={:.3f} Y={:.3f} Z={:.3f}".format(*t), self.driver)
@@ -529,8 +544,7 @@ class Machine:
         :class:`ContactError` before anything moves if the probe is deflected.
         """
         t = self.check_target(target)
-        if not (math.isfinite(speed) and speed > 0 and math.isfinite(accel) and accel > 0):
-            raise MotionError(f"speed and acceleration must be positive numbers, got {speed} and {accel}")
+        self.check_rates(speed, accel)
         with self._lock:
             self._require_idle()
             if not self._arm("abrupt"):
@@ -581,7 +595,7 @@ class Machine:
         one_count = 1.0 / cfg.counts_per_mm
         if not math.isfinite(step_mm) or not one_count - 1e-12 <= abs(step_mm) <= STEP_MAX_MM:
             raise MotionError(f"a step must be between one count ({one_count * 1000:g} um) and {STEP_MAX_MM:g} mm, "
-                              f"got {step_mm} mm")
+                              f"got {num(step_mm, 4)}" + (" mm" if math.isfinite(step_mm) else ""))
         # steps go along the axis from its count grid, so repeated 1-count steps do not drift
         readings = self.correction.invert(self.position)
         idx = AXES.index(axis)

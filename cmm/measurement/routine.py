@@ -46,6 +46,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..metrology.align import AlignmentError
+from ..metrology.characteristics import DEFAULT_TOLERANCE
 from ..metrology.fit_ls import fit_plane
 from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
@@ -127,7 +128,7 @@ class Routine:
         if s["kind"] != "feature":
             return {}
         f = self.feature(s["name"])
-        t = f.tolerance or {}
+        t = {**DEFAULT_TOLERANCE, **(f.tolerance or {})}  # a key the feature lacks is the default, never 0
         by_id = {h.id: h for h in self.program.hits}
         clear = max((by_id[i].clearance_z for i in f.hits if i in by_id), default=float("nan"))
 
@@ -224,6 +225,11 @@ class Routine:
                     for key in ("datums", "of"):
                         if key in s:
                             s[key] = [name if n == old else n for n in s[key]]
+                for d in [*self.program.datums, *self.program.gdt]:  # the taught datums and tolerances follow
+                    if d.get("feature") == old:
+                        d["feature"] = name
+                    if d.get("pattern"):
+                        d["pattern"] = [name if n == old else n for n in d["pattern"]]
             step["name"] = name
 
         self._edit(change)
@@ -362,7 +368,12 @@ def teach_routine(session: Any, *, name: str | None = None, part_mesh: Any = Non
         ops = [names.get(i) for i in c.operands]
         if c.operation in CONSTRUCTIONS and len(ops) == 2 and all(ops):
             names[cid] = c.name
-            made.append((cid, {"kind": "construct", "name": c.name, "operation": c.operation, "of": ops}))
+            step = {"kind": "construct", "name": c.name, "operation": c.operation, "of": ops}
+            if c.tolerance:  # the construction's own tolerance (a distance's +- location, an angle's ...)
+                step["tolerance"] = {k: float(v) for k, v in c.tolerance.items()}
+            if (c.result or {}).get("projection", "").startswith("axis to axis, 3-D"):  # taken in 3-D: again so
+                step["three_d"] = True
+            made.append((cid, step))
     steps += [s for _seq, s in sorted(made, key=lambda t: t[0])]
     steps.append({"kind": "report", "name": "report"})
     program.steps = steps
@@ -519,6 +530,8 @@ class RoutineRun:
         self._manual: list[list[int]] | None = None  # the manual 3-2-1 hits, once all were taken
         self.faulted: int | None = None  # index of the step a fault stopped
         self.discarded: list[int] = []  # hits of stopped steps, deleted (they stay in the journal)
+        self._hit_map: dict[int, int] = {}  # program hit id -> this run's hit id
+        self._gdt_done = False  # the taught datums and geometric tolerances are defined once per run
 
     def _total_hits(self) -> int:
         r = self.routine
@@ -616,6 +629,8 @@ class RoutineRun:
                 pass
         self._discard(self._taken + self._partial, "the routine restarted")
         self._fids.clear()
+        self._hit_map.clear()
+        self._gdt_done = False
         self._taken, self._partial, self._manual = [], [], None
         self.progress.results.clear()
         self.model.note(f"routine {self.routine.name!r} restarted from step 1")
@@ -692,7 +707,9 @@ class RoutineRun:
                     elif step["kind"] == "construct":
                         self._construct(step)
                     else:
+                        self._define_gdt()
                         self.progress.results[step["name"]] = self._report()
+                self._define_gdt()  # a routine without a report step still evaluates its tolerances
         except RoutineCancelled as exc:
             self._tell(state="cancelled", message=str(exc), prompt="")
             model.note(f"routine {routine.name!r} cancelled")
@@ -703,6 +720,7 @@ class RoutineRun:
             self._tell(state="failed", message=f"step {self.faulted + 1} ({name}) stopped: {exc}", prompt="")
             model.note(f"routine {routine.name!r} stopped at step {self.faulted + 1} ({name}): {exc}")
             raise
+        self._end_at_clearance()
         model.note(f"routine {routine.name!r} finished")
         self.progress.part = self._record_trend()
         self._tell(state="done", step=len(routine.steps), message=f"routine {routine.name!r} done", prompt="")
@@ -771,6 +789,7 @@ class RoutineRun:
                 return None
             hit = model.probe(p, u, clearance_z=cz, client=self.client, hop_z=hop).wait(self.timeout)
             ids.append(model.hit_id(hit))
+            self._hit_map[f.hits[len(ids) - 1]] = ids[-1]  # program hit id -> this part's (datum targets)
             self._tell(hits=self.progress.hits + 1)
         nominal = None
         if f.nominal:
@@ -788,9 +807,39 @@ class RoutineRun:
         if a is None or b is None:
             self.model.note(f"{step['name']} not constructed: {' or '.join(step['of'])} was not measured")
             return
-        c = self.model.construct_feature(step["operation"], a, b, step["name"])
+        c = self.model.construct_feature(step["operation"], a, b, step["name"], tolerance=step.get("tolerance"),
+                                         three_d=bool(step.get("three_d")))
         self._fids[step["name"]] = c.id
         self.progress.results[step["name"]] = c
+
+    def _end_at_clearance(self) -> None:
+        """The run ends with the tip at the clearance plane (the last hit retracts only a few mm): the next run's
+        first move starts clear of the part."""
+        if self.controller is None:
+            return
+        from ..control.run_end import end_at_clearance
+
+        try:
+            z = end_at_clearance(self.controller, self.client, self.timeout)
+        except Exception as exc:  # noqa: BLE001 - the part's results stand; the climb's refusal is told
+            text = f"routine {self.routine.name!r}: the climb to the clearance plane at its end failed: {exc}"
+            self.model.note(text)
+            self._tell(message=text)
+            return
+        if z is not None:
+            self.model.note(f"routine {self.routine.name!r}: ended at the clearance plane, machine Z {z:.3f}")
+
+    def _define_gdt(self) -> None:
+        """The taught datums and geometric tolerances (A|B|C, modifiers, composite tiers ...) on the features this
+        part's run measured; once per run. What cannot be defined (a skipped feature) is a note, not a failure."""
+        program = self.routine.program
+        if self._gdt_done or not (program.datums or program.gdt):
+            return
+        self._gdt_done = True
+        from ..session.program_gdt import define
+
+        for text in define(self.model, program.datums, program.gdt, dict(self._fids), dict(self._hit_map)):
+            self.model.note(f"routine {self.routine.name!r}: {text}")
 
     def _report(self) -> Any:
         """The part's report (HTML beside its session journal); the journal holds everything up to here."""

@@ -35,6 +35,7 @@ from typing import Any, NamedTuple
 import serial
 
 from . import codec
+from .link_health import RetryRate
 from .trace import ByteTrace
 from .transport import open_port
 
@@ -114,7 +115,8 @@ QUIET_CONFIRM = 0.02  # no byte may follow the marker's reply for this long
 RESYNC_ATTEMPTS = 3
 DISCOVERY_ATTEMPTS = 3
 # While every axis stands still a missed reply costs nothing but time: it is retried, each time waiting twice as
-# long (up to MAX_REPLY_WAIT), and reported as a link warning; only after IDLE_PATIENCE s without an answer is
+# long (up to MAX_REPLY_WAIT), and counted (a link warning only above the retry-rate threshold of link_health.py);
+# only after IDLE_PATIENCE s without an answer is
 # the link declared failed. A host descheduled for seconds under load (seen: 0.5 s and more at load 6 to 22) is
 # not a failed link. During motion the limits below stay as they are.
 IDLE_PATIENCE = 6.0
@@ -212,7 +214,8 @@ class Bus:
         self.groups: dict[int, int] = {}  # individual address -> group address
         self.modules: list[ModuleInfo] = []
         self.stats = {"transactions": 0, "retries": 0, "resyncs": 0, "discarded": 0, "verified": 0,
-                      "suspect": 0}
+                      "suspect": 0, "late": 0, "window_retries": 0, "window_transactions": 0}
+        self._rate = RetryRate()  # the retry rate over the last minute: a warning only above its threshold
         self.link_up = True
         self._marker_turn = 0
         self._trip, self._trip_at = 0.0, 0.0  # the link's recent round trip (s) and when it was last raised
@@ -335,6 +338,19 @@ class Bus:
         shown = data[-24:].hex(" ")
         return (f"received {len(data)} byte{'s' if len(data) != 1 else ''} in {len(chunks)} "
                 f"piece{'s' if len(chunks) != 1 else ''} ({'... ' if len(data) > 24 else ''}{shown})")
+
+    def _late(self, text: str) -> None:
+        """A late reply being retried while all stands still: counted and traced; a link warning only when the
+        retry rate passes its threshold (see :mod:`cmm.nmc.link_health`)."""
+        self.stats["late"] += 1
+        self.trace.record(self.clock.now(), "rx", b"", f"late: {text}")
+        alarm = self._rate.alarming(self.clock.now(), self.stats["transactions"], self.stats["retries"])
+        if alarm:
+            self._warn(f"{alarm}; last: {text}")
+
+    def _count_window(self) -> None:
+        n, total, _ = self._rate.window(self.clock.now(), self.stats["transactions"], self.stats["retries"])
+        self.stats["window_retries"], self.stats["window_transactions"] = n, total
 
     def _warn(self, text: str) -> None:
         """A link warning: shown to the operator (the control state), nothing is stopped for it."""
@@ -627,6 +643,7 @@ class Bus:
         expected = self._reply_items(address) if items is None else items
         self._read_home_before(packet)
         self.stats["transactions"] += 1
+        self._count_window()
         self._before_send(packet)
         if code == codec.HARD_RESET:  # never answered: the module is back at its power-up state
             expected = None
@@ -663,7 +680,7 @@ class Bus:
                 # nothing moves: a slow answer costs only time. Retry, waiting longer each time, and say so;
                 # a stop waiting for the link cuts this short
                 self._check_preempt(packet)
-                self._warn(f"{self._who(address)} did not answer {self._name(packet)} in time ({lost}x, "
+                self._late(f"{self._who(address)} did not answer {self._name(packet)} in time ({lost}x, "
                            f"{self.heard(self._sent_at)}); retrying")
                 self._resync_patiently(address, first_sent)
                 self._check_preempt(packet)
@@ -930,6 +947,7 @@ class Bus:
                     raise Preempted(f"a resynchronisation was cut short by a stop ({exc})", address) from exc
                 if not self.link_up or not self.still() or self.clock.now() - since >= IDLE_PATIENCE:
                     raise
+                # the markers went unanswered too: replies are being lost, not merely late
                 self._warn(f"the link did not answer for {self.clock.now() - since:.1f} s ({exc}); retrying")
 
     def resync(self, address: int | None = None) -> None:

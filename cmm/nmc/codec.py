@@ -535,10 +535,10 @@ def tick_seconds(sr: int = 1) -> float:
 
 def velocity_to_fixed(mm_per_s: float, counts_per_mm: float, sr: int = 1) -> int:
     """mm/s -> 16.16 counts per servo tick (the LOAD_TRAJ velocity field)."""
-    value = round(abs(mm_per_s) * counts_per_mm * tick_seconds(sr) * 65536)
-    if value > 0x7FFFFFFF:
-        raise CodecError(f"{mm_per_s} mm/s is beyond the largest velocity the module can represent")
-    return value
+    raw = abs(mm_per_s) * counts_per_mm * tick_seconds(sr) * 65536
+    if not raw <= 0x7FFFFFFF:  # also an infinite or not-a-number product: never int(inf)
+        raise CodecError(f"{mm_per_s:.4g} mm/s is beyond the largest velocity the module can represent")
+    return round(raw)
 
 
 def fixed_to_velocity(value: int, counts_per_mm: float, sr: int = 1) -> float:
@@ -549,10 +549,10 @@ def fixed_to_velocity(value: int, counts_per_mm: float, sr: int = 1) -> float:
 def acceleration_to_fixed(mm_per_s2: float, counts_per_mm: float, sr: int = 1) -> int:
     """mm/s^2 -> 16.16 counts per tick^2 (the LOAD_TRAJ acceleration field)."""
     t = tick_seconds(sr)
-    value = round(abs(mm_per_s2) * counts_per_mm * t * t * 65536)
-    if value > 0x7FFFFFFF:
-        raise CodecError(f"{mm_per_s2} mm/s^2 is beyond the largest acceleration the module can represent")
-    return value
+    raw = abs(mm_per_s2) * counts_per_mm * t * t * 65536
+    if not raw <= 0x7FFFFFFF:  # also an infinite or not-a-number product: never int(inf)
+        raise CodecError(f"{mm_per_s2:.4g} mm/s^2 is beyond the largest acceleration the module can represent")
+    return round(raw)
 
 
 def fixed_to_acceleration(value: int, counts_per_mm: float, sr: int = 1) -> float:

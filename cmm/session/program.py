@@ -48,6 +48,7 @@ import numpy as np
 from ..metrology import fit_criteria, fit_ls
 from ..metrology.pick import NominalFeature
 from .toml_text import toml_value
+from . import program_gdt
 from ..metrology.characteristics import DEFAULT_TOLERANCE
 from .model import Session, mesh_sha256
 
@@ -89,6 +90,9 @@ class Program:
     clearance: float = 10.0
     taught_from: str | None = None
     steps: list[dict[str, Any]] = field(default_factory=list)  # the routine's ordered steps (format 2)
+    datums: list[dict[str, Any]] = field(default_factory=list)  # datum definitions by feature name (program_gdt)
+    gdt: list[dict[str, Any]] = field(default_factory=list)  # geometric tolerances by feature name (program_gdt)
+    untaught: list[str] = field(default_factory=list)  # what teaching could not keep, in words (not written)
 
     def feature(self, name: str) -> ProgramFeature:
         for f in self.features:
@@ -144,9 +148,13 @@ def teach(session: Session, *, name: str | None = None, clearance: float = 10.0,
             nf = NominalFeature(f.nominal["kind"], {k: v for k, v in f.nominal.items() if k != "kind"})
             nominal = nf.transformed(inv).to_dict()
         ref = f.name if part_nominals and f.name in part_nominals else None
+        # every kind of tolerance the feature had (position, angle, size limits ...) over the defaults: a
+        # feature given only a position tolerance kept no location and the routine list showed it as 0
         out.append(ProgramFeature(f.name, f.kind, f.method, [renumber[h] for h in f.hit_ids],
-                                  dict(f.tolerance or DEFAULT_TOLERANCE), nominal, ref))
-    return Program(name or session.name, st.part.name, st.part.sha256, out, hits, clearance, session.name)
+                                  {**DEFAULT_TOLERANCE, **(f.tolerance or {})}, nominal, ref))
+    datums, gdts, left = program_gdt.taught(st, renumber, {f.name for f in out})
+    return Program(name or session.name, st.part.name, st.part.sha256, out, hits, clearance, session.name,
+                   datums=datums, gdt=gdts, untaught=left)
 
 
 # ------------------------------------------------------------------------ TOML
@@ -181,6 +189,10 @@ def to_toml(program: Program) -> str:
     for h in program.hits:
         lines += ["", "[[hits]]", f"id = {h.id}", f"point = {_val([float(x) for x in h.point])}",
                   f"approach = {_val([float(x) for x in h.approach])}", f"clearance_z = {_val(float(h.clearance_z))}"]
+    try:
+        lines += program_gdt.toml_lines(program.datums, program.gdt)
+    except (TypeError, ValueError) as exc:
+        raise ProgramError(f"cannot write this into a program: {exc}") from None
     for step in program.steps:
         lines += ["", "[[steps]]"] + [f"{k} = {_val(v)}" for k, v in step.items() if v is not None]
     return "\n".join(lines) + "\n"
@@ -234,8 +246,10 @@ def from_toml(text: str, source: str = "<program>") -> Program:
     if not isinstance(steps, list) or not all(isinstance(st, dict) and isinstance(st.get("kind"), str)
                                               for st in steps):
         raise ProgramError(f"{source}: every [[steps]] entry needs a kind")
+    datums, gdts = program_gdt.parse(data, source)
     return Program(str(data.get("name", "program")), str(part.get("name", "")), str(part["sha256"]), features, hits,
-                   float(data.get("clearance", 10.0)), data.get("taught_from"), [dict(st) for st in steps])
+                   float(data.get("clearance", 10.0)), data.get("taught_from"), [dict(st) for st in steps],
+                   datums=datums, gdt=gdts)
 
 
 def save(program: Program, path: str | Path) -> Path:

@@ -60,7 +60,7 @@ class StationApp:
         self._dirty = {"hits": True, "features": True, "part": False}
         self._deviations: dict[int, float] = {}
         self._redraw_lock = threading.Lock()
-        self.shared = SimpleNamespace(calibration_job=None, cycle=None, cycle_paused=False)  # state every tab's panels share
+        self.shared = SimpleNamespace(calibration_job=None, cycle=None, cycle_paused=False, run_stopped="")  # state every tab's panels share
         # (a running calibration; the cycle running, e.g. an auto-measure, that the status bars show as RUNNING)
         self.view = SceneView(self.server.scene, station, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)

@@ -84,11 +84,16 @@ class PanelContext:
         RUNNING (``description``) until :meth:`end_cycle`, also between its moves, when the machine itself is
         idle. Called before the cycle's thread starts, so the bar says so from the first moment."""
         self.shared.cycle, self.shared.cycle_paused = description, False
+        self.shared.run_stopped = ""  # a new run: the last one's stop is no longer the news
         return description
 
-    def end_cycle(self, description: str) -> None:
+    def end_cycle(self, description: str, failure: BaseException | str | None = None) -> None:
+        """The cycle ended; with ``failure`` it was refused or stopped: every tab's status bar says STOPPED with
+        the run and the reason until the next run starts (a toast alone is seen in one tab, for seconds)."""
         if getattr(self.shared, "cycle", None) == description:
             self.shared.cycle, self.shared.cycle_paused = None, False
+        if failure is not None:
+            self.shared.run_stopped = f"{description} stopped: {failure}"
 
     # --- acting -------------------------------------------------------------------------
 

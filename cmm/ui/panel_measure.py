@@ -143,16 +143,18 @@ class MeasurePanel:
         cycle = self.ctx.begin_cycle(f"auto-measure of {name or 'the ' + plan.kind}")
 
         def work() -> None:
+            failure = None
             try:
                 self.feature = self.ctx.commands.invoke(
                     self.ctx.who(), "auto_measure", plan=plan, name=name or None,
                     progress=lambda k, n: setattr(self, "progress", f"measured {k} of {n} hits"))
             except Exception as exc:  # noqa: BLE001 - every failure is told; the machine layer stopped itself
+                failure = exc
                 self.progress = f"stopped: {exc}"
-                self.ctx.error(exc, "Auto-measure")
+                self.ctx.error(exc, "Auto-measure stopped")
                 return
             finally:
-                self.ctx.end_cycle(cycle)
+                self.ctx.end_cycle(cycle, failure)  # a stop: the status bar says STOPPED with the reason
             self.progress = f"done: {self.feature.name}"
             if "name" in self.gui and self.gui["name"].value == name and name:
                 self.gui["name"].value = ""  # a name is one feature's: the next gets its own

@@ -299,14 +299,16 @@ class RoutinePanel:
                 session = self.ctx.commands.invoke(self.ctx.who(), "new_part", name=self._part_session(path.stem))
             except Exception as exc:  # noqa: BLE001 - a store that cannot take the session, in words
                 self.dmis_status = f"**NOT STARTED**: {exc}"
-                self.ctx.end_cycle(cycle)
+                self.ctx.end_cycle(cycle, exc)
                 self.ctx.error(exc, "DMIS program not started")
                 self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
                 return
+            failure = None
             try:
                 result = self.ctx.commands.invoke(self.ctx.who(), "run_dmis", text=text, name=path.name,
                                                   on_prompt=self._dmis_prompt)  # manual mode: hits taken by jog
             except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
+                failure = exc
                 self.dmis_status = f"**STOPPED**: {exc}"
                 self.ctx.error(exc, "DMIS program stopped")
             else:
@@ -323,7 +325,7 @@ class RoutinePanel:
                 self.dmis_results.append(result)
                 self.ctx.notify("DMIS program done", self.dmis_status.replace("**", ""))
             finally:
-                self.ctx.end_cycle(cycle)
+                self.ctx.end_cycle(cycle, failure)  # a stop: the status bar says STOPPED with the reason
             self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
         self.dmis_status = f"**RUNNING** {path.name}"
@@ -406,9 +408,11 @@ class RoutinePanel:
         cycle = self.ctx.begin_cycle(f"routine {run.routine.name}" + (f" on {name}" if name else ""))
 
         def work() -> None:
+            failure = None
             try:
                 self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action)  # the API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
+                failure = exc
                 if run.can_resume:  # the step's stop, or a resume that could not start (the retract refused)
                     what = run.progress.message if str(exc) in run.progress.message else str(exc)
                     self.ctx.error(f"{what}. {self._recovery(run)}", "Routine stopped")
@@ -417,7 +421,7 @@ class RoutinePanel:
             else:
                 self.ctx.notify("Routine done", f"{run.routine.name} on {name}: results in session {Path(str(run.progress.session)).stem}")
             finally:
-                self.ctx.end_cycle(cycle)
+                self.ctx.end_cycle(cycle, failure)  # a stop: the status bar says STOPPED with the reason
             self._show_progress()
 
         self.thread = threading.Thread(target=work, name="routine", daemon=True)

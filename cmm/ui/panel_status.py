@@ -115,7 +115,8 @@ def part_position(station: Any, position: np.ndarray) -> np.ndarray | None:
 
 
 def status_html(station: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
-                armed: bool = False, aligned: bool = False, cycle: str | None = None, cycle_paused: bool = False) -> str:
+                armed: bool = False, aligned: bool = False, cycle: str | None = None, cycle_paused: bool = False,
+                run_stopped: str = "") -> str:
     """The status block's HTML (pure: every input is passed in, so it is tested without a browser).
     ``cycle``: the cycle running (an auto-measure, a routine run), shown as RUNNING while the machine is in it
     (PAUSED with ``cycle_paused``: a routine paused between hits)."""
@@ -123,6 +124,8 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     mode, reason, link_ok = machine_mode(station)
     if cycle and mode in CYCLE_MODES:
         mode, reason = ("paused", f"{cycle}: Resume goes on") if cycle_paused else ("running", cycle)
+    elif run_stopped and mode == "idle":  # the last run was refused or stopped: not back to a plain IDLE
+        mode, reason = "stopped", run_stopped
     if getattr(getattr(station, "calibration", None), "holding", False):  # the job stands in the machine loop
         mode, reason = "paused", f"{reason or 'calibration'}: Resume goes on"
     st = station.controller.state.machine  # the control core's last sample (the observer's snapshot)
@@ -135,9 +138,13 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     if warning:
         out.append(f" &middot; <span class='warn'>link warning: {e(warning)}</span>")
     if link_rate is not None:
-        ok = link_ok and link_rate > 5.0
-        # no figure: a rate that changes every refresh would re-send the bar from an idle page
-        out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
+        # no figure: a rate that changes every refresh would re-send the bar from an idle page. A paused run holds
+        # the machine loop (no samples are taken while it stands): that is not a silent link
+        if link_ok and link_rate <= 5.0 and mode == "paused":
+            out.append(" &middot; link <span class='muted'>ok (paused: not sampling)</span>")
+        else:
+            ok = link_ok and link_rate > 5.0
+            out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
     if st is not None:
         pos = st.position
         label = "machine"
@@ -215,7 +222,8 @@ class StatusPanel:
         return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
                            armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned,
                            cycle=getattr(self.ctx.shared, "cycle", None),
-                           cycle_paused=bool(getattr(self.ctx.shared, "cycle_paused", False)))
+                           cycle_paused=bool(getattr(self.ctx.shared, "cycle_paused", False)),
+                           run_stopped=str(getattr(self.ctx.shared, "run_stopped", "") or ""))
 
     def refresh(self) -> None:
         text = self.html()

@@ -111,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
         station.start()
     except Exception as exc:  # noqa: BLE001
         station.close()
-        return _fail(f"the machine did not answer on {station.port}: {exc}")
+        from ..startup_errors import startup_failure
+
+        return _fail(startup_failure(exc, port=station.port, sessions=args.sessions))  # its real cause
 
     from .app import StationApp
 

@@ -1,0 +1,46 @@
+"""Runs end safe: every routine, DMIS program and auto-measure leaves the tip at the clearance plane.
+
+A run's last hit retracts only a few millimetres from the surface (the probing cycle's retract); left there (a
+routine ended with the tip beside the cone at part Z 43), the next run's first straight move was refused ("the
+straight line passes 0.29 mm from the part"). :func:`end_at_clearance` climbs straight up to the part's clearance
+plane (the motion rails' own, :meth:`Workspace.clearance_z`) through the command API as the run's client, so the
+access policy, STOP and the rails apply as to any move. It moves nothing when the tip is at or above the plane,
+without a part, or when the machine is not idle (a stop, a fault or an E-STOP ended the run: the operator's
+stop stands, nothing moves on its own after it).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+ABOVE = 1e-3  # mm: the tip at the plane within this is at the plane
+
+
+def clearance_target(controller: Any) -> np.ndarray | None:
+    """Straight above the tip at the clearance plane (machine mm); None when no climb is needed or possible."""
+    ws = getattr(controller, "workspace", None)
+    plane = None if ws is None else ws.clearance_z()
+    here = controller.frame_position("machine")
+    if plane is None or here is None:
+        return None
+    z_max = float(controller.config.axis("z").max)
+    z = min(float(plane), z_max)
+    if float(here[2]) >= z - ABOVE:
+        return None
+    return np.array([float(here[0]), float(here[1]), z])
+
+
+def end_at_clearance(controller: Any, client: Any, timeout: float = 120.0) -> float | None:
+    """Climb to the clearance plane after a run (see the module docstring). Returns the machine Z reached, None when
+    nothing moved. A refused or failed climb raises the command API's error (the caller tells it)."""
+    mode = str(getattr(controller.state.mode, "value", controller.state.mode))
+    if mode in ("stopped", "e-stopped", "fault", "not homed"):  # a stop ended the run: it stands
+        return None
+    target = clearance_target(controller)
+    if target is None:
+        return None
+    controller.commands.invoke(client, "move", target=[float(x) for x in target], frame="machine",
+                               path="clearance").wait(timeout)
+    return float(target[2])

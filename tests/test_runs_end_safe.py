@@ -1,0 +1,114 @@
+"""Runs end safe (issue 34): every DMIS run and auto-measure ends at the clearance plane, so the next run can start;
+a refused or stopped run is a toast and a STOPPED status-bar state, not only a line in its folder.
+
+On the in-process simulator (virtual clock), through the command API and the page's Routine and Auto-measure panels
+(a PanelContext stands in for the tab).
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import session_support as sup
+
+from cmm.control import OpenPolicy
+from cmm.control.access import Client, Control
+from cmm.dmis.runner import register_verbs, run_text
+from cmm.sim.cmm_sim import TRUE_PART_POSE
+
+# three hits on the front face: the last one leaves the tip 5 mm in front of it, below the part's top
+FRONT = """FILNAM/'front'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+SNSET/APPRCH, 5
+SNSET/RETRCT, 5
+GOTO/60, -30, 60
+GOTO/20, -15, 20
+F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
+MEAS/PLANE, F(FRONT), 3
+  PTMEAS/CART, 20, 0, 20, 0, -1, 0
+  PTMEAS/CART, 60, 0, 30, 0, -1, 0
+  PTMEAS/CART, 100, 0, 20, 0, -1, 0
+ENDMES
+ENDFIL
+"""
+# straight to a point over the middle of the part: through its front edge from where FRONT's last hit left the tip
+GOTO_OVER = """FILNAM/'over'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+GOTO/60, 40, 70
+ENDFIL
+"""
+
+
+@pytest.fixture
+def station(tmp_path):
+    yield from sup.sim_station(tmp_path, "ends")
+
+
+def _plane(station) -> float:
+    return float(station.controller.workspace.clearance_z())
+
+
+def test_a_dmis_run_ends_at_the_clearance_plane_and_the_next_program_can_start(station):
+    """Issue 34: a run left the tip beside the part and the next program's first straight GOTO was refused ("the
+    straight line passes 0.29 mm from the part"). The front-face program's last hit leaves the tip 5 mm in front
+    of the face, below the part's top: the run now climbs to the clearance plane, and a program that goes
+    straight over the part runs."""
+    run_text(FRONT, station, name="front.dmi")
+    z = station.controller.frame_position("machine")[2]
+    assert z == pytest.approx(_plane(station), abs=0.01), (z, _plane(station))
+    result = run_text(GOTO_OVER, station, name="over.dmi")  # refused on the old code: through the front edge
+    assert "ENDFIL" in result.outputs[None]
+    here = station.controller.frame_position("machine")
+    assert here[2] >= _plane(station) - 0.01, here
+
+
+def test_an_auto_measure_ends_at_the_clearance_plane(station):
+    """The bore's last hit leaves the tip down in the bore: the auto-measure ends with it at the clearance plane."""
+    from cmm.measurement.plan import plan_at_pick
+
+    model = station.measurement
+    pose = model.part.pose
+    picked = model.pick((pose @ np.array([30.0, 40.0, 20.0, 1.0]))[:3], pose[:3, :3] @ np.array([1.0, 0.0, 0.0]))
+    plan = plan_at_pick(model, picked[0].face_id)
+    answer = station.controller.commands.call(None, "auto_measure", {"plan": plan, "name": "bore"}, wait=True)
+    assert answer.ok, answer.error
+    assert station.controller.frame_position("machine")[2] == pytest.approx(_plane(station), abs=0.01)
+
+
+def test_a_refused_dmis_run_is_a_toast_and_a_stopped_status_bar(station):
+    """Issue 34: Run DMIS refused as one line of text in its folder, no toast, and the status bar back to IDLE.
+    The refusal is a toast (an error notification) and every tab's status bar says STOPPED with the program and
+    the reason until the next run starts."""
+    from cmm.ui.context import PanelContext
+    from cmm.ui.panel_routine import RoutinePanel
+    from cmm.ui.panel_status import status_html
+
+    register_verbs(station)
+    control = Control()
+    assert control.take("operator", is_local=True)
+    station.controller.use_policy_of(control)
+    try:
+        shared = SimpleNamespace(calibration_job=None, cycle=None, cycle_paused=False, run_stopped="")
+        panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True, shared=shared))
+        folder = station.measurement.session_dir
+        # the tip stands 1 mm in front of the front face, below its top: a straight line to the back is refused
+        start = (TRUE_PART_POSE @ np.array([60.0, -3.0, 20.0, 1.0]))[:3]
+        assert station.controller.commands.call(Client("operator", local=True), "move",
+                                                {"target": list(start), "frame": "machine"}, wait=True).ok
+        (folder / "through.dmi").write_text(GOTO_OVER.replace("GOTO/60, 40, 70", "GOTO/60, 90, 20"))
+        assert panel.open_dmis("through.dmi")
+        assert panel.run_dmis(wait=True)
+        assert panel.dmis_status.startswith("**STOPPED**"), panel.dmis_status
+        level, title, body = panel.ctx.messages[-1]
+        assert (level, title) == ("error", "DMIS program stopped") and "straight line" in body, panel.ctx.messages
+        assert shared.cycle is None and "DMIS program through.dmi stopped: " in shared.run_stopped
+        bar = status_html(station, "", run_stopped=shared.run_stopped)
+        assert ">STOPPED</span>" in bar and "through.dmi stopped" in bar and ">IDLE</span>" not in bar, bar
+        panel.ctx.begin_cycle("DMIS program next.dmi")  # the next run starts: the stop is no longer the news
+        assert shared.run_stopped == ""
+    finally:
+        station.controller.policy = OpenPolicy()
