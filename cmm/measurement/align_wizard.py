@@ -291,7 +291,6 @@ class AlignWizard:
         e = s.element
         if e.kind == "hits":
             s.feature = None
-            self.index = i + 1
         else:
             params: dict[str, Any] = {"kind": e.kind, "hits": list(s.hit_ids), "name": f"ALN {e.name}"}
             if e.kind == "circle":
@@ -309,7 +308,9 @@ class AlignWizard:
                 self.message = f"{e.name} could not be fitted. Take its hits again."
                 return
             self.message = f"{e.name} fitted: {describe(s.feature)}"
-            self.index = i + 1
+        # on to the first element still without its fit (an element taken again: the later ones stand)
+        self.index = next((k for k, t in enumerate(self.steps)
+                           if not t.complete or (t.feature is None and t.element.kind != "hits")), len(self.steps))
         if self.done:
             self._compute()
 
