@@ -129,6 +129,14 @@ def machine_markdown(station: Any) -> str:
     return "\n".join(lines)
 
 
+def probe_markdown(station: Any) -> str:
+    """Machine > Probe: the probe in use and the data the next hit uses (live: a qualification applied shows)."""
+    d = station.measurement.probe_data()
+    name = station.measurement.probe_name or "probe"
+    q = f"qualified {d['qualified'][:16].replace('T', ' ')}" if d["qualified"] else "**not qualified** (nominal radius)"
+    return (f"**{name}**: stylus radius **{d['tip_radius']:.5f} mm** · {q} · pre-travel {d['pretravel']}")
+
+
 class ClientApp:
     """One browser client (or a test standing in for one)."""
 
@@ -618,9 +626,7 @@ class ClientApp:
                 gui.add_button("Move above").on_click(lambda _: self.move_above())
                 gui.add_button("Probe here").on_click(lambda _: self.probe_here())
             with machine.add_tab("Probe"):
-                settings = self.station.controller.probe_settings
-                gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
-                                 f"{settings.pretravel.describe()}")
+                g["probe_data"] = gui.add_markdown(probe_markdown(self.station))
                 g["contact"] = gui.add_markdown("*no hit yet*")
                 g["hits"] = gui.add_markdown("")
                 g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
@@ -674,6 +680,7 @@ class ClientApp:
         self.status.refresh()
         self.ctx.set("machine", "content", machine_markdown(st))
         self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
+        self.ctx.set("probe_data", "content", probe_markdown(st))  # a qualification applied shows at once
         hit = st.measurement.last_hit
         if hit is not None:
             self.ctx.set("contact", "content",
