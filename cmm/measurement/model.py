@@ -453,11 +453,14 @@ class MeasurementModel:
         the pre-travel model and the date of the qualification they came from ("" never qualified)."""
         settings = self.prober.settings
         try:
-            cal = self._start_fields().get("calibration") or {}
+            fields = self._start_fields()
         except Exception:  # noqa: BLE001 - a status that cannot be read: the radius and the model still go
-            cal = {}
+            fields = {}
+        cal = fields.get("calibration") if isinstance(fields.get("calibration"), dict) else None
+        # None: no calibration service (a headless recording): the start snapshot's word stands
+        qualified = None if cal is None else str((cal.get("probe") or {}).get("date") or "")
         return {"tip_radius": float(settings.tip_radius), "pretravel": settings.pretravel.describe(),
-                "qualified": str((cal.get("probe") or {}).get("date") or "")}
+                "qualified": qualified}
 
     def hit_id(self, hit: Any) -> int:
         """The session id of a recorded hit (the record, or the probe's hit it was recorded from)."""

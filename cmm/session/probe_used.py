@@ -47,8 +47,10 @@ def probe_uses(session: Any) -> list[ProbeUse]:
             continue
         d = ev.get("probe_data") if isinstance(ev.get("probe_data"), dict) else fallback
         r = d.get("tip_radius")
+        q = d.get("qualified")
+        q = fallback["qualified"] if q is None else q  # recorded without a calibration service: the start's word
         key = (str(ev.get("probe") or ""), None if r is None else round(float(r), 7), str(d.get("pretravel") or ""),
-               str(d.get("qualified") or ""))
+               str(q or ""))
         use = groups.get(key)
         if use is None:
             use = groups[key] = ProbeUse(key[0], key[1], key[2], key[3])

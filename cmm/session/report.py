@@ -558,8 +558,10 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     used = probe_uses(session)  # the probe data the hits were taken with, not the start's snapshot
     right = [("machine", ", ".join(x for x in (machine, config) if x) or "-"),
              ("calibration", calibration_text(s, used)),
-             *([("probe data of the hits", "; ".join(u.text() for u in used))] if used else
-               [("tip radius", _tip_radius(s)), ("pre-travel", _pretravel(s))]),
+             ("tip radius", ", ".join(dict.fromkeys(f"{u.tip_radius:.4f} mm" for u in used if u.tip_radius is not None))
+              or _tip_radius(s)),
+             ("pre-travel", "; ".join(dict.fromkeys(u.pretravel for u in used if u.pretravel)) or _pretravel(s)),
+             *([("probe data of the hits", "; ".join(u.text() for u in used))] if used else []),
              ("alignment", "none" if st.alignment is None else
               st.alignment.method.replace("_", " ")
               + "".join(f" {'/'.join(str(n) for n in names)}" for names in [st.alignment.info.get("names")] if names)

@@ -134,6 +134,7 @@ def probe_markdown(station: Any) -> str:
     d = station.measurement.probe_data()
     name = station.measurement.probe_name or "probe"
     q = f"qualified {d['qualified'][:16].replace('T', ' ')}" if d["qualified"] else "**not qualified** (nominal radius)"
+    q = q if d["qualified"] is not None else "qualification not known"
     return (f"**{name}**: stylus radius **{d['tip_radius']:.5f} mm** · {q} · pre-travel {d['pretravel']}")
 
 
