@@ -61,7 +61,13 @@ def test_coordinate_fields_name_their_frame_and_the_alignment(app):
     assert capp.measure.run("TOP", wait=True), capp.messages[-2:]
     assert capp.measure.preview.cycles == [] and "Path preview" not in capp.measure.text()
     capp.select_feature(capp.measure.feature.id)
-    assert "geometry (machine coordinates, mm):" in capp.features.feature_markdown()
+    # the actuals are in the alignment's frame, named; machine coordinates on demand
+    text = capp.features.feature_markdown()
+    assert "actual in part coordinates (3-2-1 TOP/FRONT/LEFT)" in text and "geometry (machine" not in text
+    capp.features.machine = True
+    text = capp.features.feature_markdown()
+    assert "actual in machine coordinates" in text and "geometry (machine coordinates, mm):" in text
+    capp.features.machine = False
 
 
 def test_a_preview_the_rails_refuse_says_why(app):

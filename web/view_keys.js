@@ -12,6 +12,7 @@
   window.__cmmViewKeys = true;
   var AXIS = { ArrowRight: ["x", 1], ArrowLeft: ["x", -1], ArrowUp: ["y", 1], ArrowDown: ["y", -1],
                PageUp: ["z", 1], PageDown: ["z", -1] };
+  var GIZMO_PX = 100;  // the axis gizmo's corner of the view, left free
   var held = {}, shift = false, label = null, beat = null, canvas = null, badge = null, note = null, noteTimer = null;
 
   var style = document.createElement("style");
@@ -30,7 +31,8 @@
   function place() {
     if (!canvas || !badge) return;
     var r = canvas.getBoundingClientRect();
-    badge.style.left = (r.left + 10) + "px";
+    // right of viser's axis gizmo (the bottom-left 90 px of the view): the hint never covers it
+    badge.style.left = (r.left + GIZMO_PX) + "px";
     badge.style.top = (r.bottom - badge.offsetHeight - 10) + "px";
   }
 

@@ -64,6 +64,13 @@ def datum_frame(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary
     """(plane point, normal, line point, line direction, origin point) of a 3-2-1 datum system."""
     p0, n0 = _plane(*primary, "primary datum")
     ks, gs = secondary
+    kt, gt = tertiary
+    if ks in ("circle", "sphere", "point") and kt in ("circle", "sphere", "point"):
+        # plane-circle-circle: the line from the secondary centre to the tertiary's is X, the secondary the origin
+        a, b = _centre(ks, gs), _centre(kt, gt)
+        if np.linalg.norm(b - a) < 1.0:
+            raise AlignmentError("the two circles' centres are less than 1 mm apart: they cannot fix X")
+        return p0, n0, a, b - a, a
     if ks in ("plane", "surface"):
         ps, ns = _plane(ks, gs, "secondary datum")
         axis = intersect_plane_plane(_Ns(point=p0, normal=n0), _Ns(point=ps, normal=ns))
@@ -71,8 +78,8 @@ def datum_frame(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary
     elif ks in ("line", "cylinder"):
         lp, ld = np.asarray(gs["point"], float), np.asarray(gs["direction"], float)
     else:
-        raise AlignmentError(f"the secondary datum must be a plane or a line, not a {ks}")
-    kt, gt = tertiary
+        raise AlignmentError(f"the secondary datum must be a plane or a line (or, with a circle as the tertiary, "
+                             f"a circle), not a {ks}")
     if kt in ("point",):
         q = np.asarray(gt["point"], float)
     elif kt in ("circle", "sphere"):
@@ -91,9 +98,58 @@ def datum_frame(primary: tuple[str, dict], secondary: tuple[str, dict], tertiary
     return p0, n0, lp, ld, q
 
 
-def _nominal_part(feature: Any, pose: np.ndarray) -> tuple[str, dict[str, Any]]:
-    """A feature's CAD nominal in part coordinates, as (kind, geometry) of the fitted kind."""
+def _centre(kind: str, g: dict[str, Any]) -> np.ndarray:
+    return np.asarray(g["center"] if kind in ("circle", "sphere") else g["point"], float)
+
+
+def _face_plane(part: Any, pose: np.ndarray, point: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(point, unit normal), part coordinates, of the CAD face nearest to a machine point at ``pose``."""
+    from ..metrology.nominal_match import nominal_for_points
+
+    plane = nominal_for_points(part.mesh, pose, [point], "plane")
+    if plane is None:
+        raise AlignmentError(f"{name} has no CAD nominal and lies on no flat face of the part: measure it on a "
+                             "face of the part or give it a nominal")
+    local = plane.transformed(invert(pose)).params
+    n = np.asarray(local["normal"], float)
+    return np.asarray(local["point"], float), n / np.linalg.norm(n)
+
+
+def _derived_nominal(part: Any, feature: Any, pose: np.ndarray, primary_normal: np.ndarray | None
+                     ) -> tuple[str, dict[str, Any]]:
+    """The CAD nominal (part coordinates) of a point or line fitted from hand hits that has none: the CAD face it
+    was taken on. A point's nominal is its foot on that face; a line's is the line on that face, along the face's
+    intersection with the primary datum's nominal plane, through the foot of the measured line's point. Both are
+    read at ``pose``; align_features repeats until the pose they give no longer moves them."""
+    g = feature.result.geometry()
+    inv = invert(pose)
+    if feature.kind == "point":
+        x = inv[:3, :3] @ np.asarray(g["point"], float) + inv[:3, 3]
+        fp, fn = _face_plane(part, pose, np.asarray(g["point"], float), feature.name)
+        return "point", {"point": x - ((x - fp) @ fn) * fn}
+    if feature.kind == "line":
+        lp = np.asarray(g["point"], float)
+        fp, fn = _face_plane(part, pose, lp, feature.name)
+        x = inv[:3, :3] @ lp + inv[:3, 3]
+        d_meas = inv[:3, :3] @ np.asarray(g["direction"], float)
+        if primary_normal is None:
+            d = d_meas - (d_meas @ fn) * fn
+        else:
+            d = np.cross(primary_normal, fn)
+            if np.linalg.norm(d) < 1e-6:
+                raise AlignmentError(f"{feature.name} lies on a face parallel to the primary datum: it cannot fix X")
+        d = d / np.linalg.norm(d)
+        return "line", {"point": x - ((x - fp) @ fn) * fn, "direction": d if d @ d_meas >= 0 else -d}
+    raise AlignmentError(f"{feature.name} has no CAD nominal: measure it on the part or give it one")
+
+
+def _nominal_part(feature: Any, pose: np.ndarray, part: Any = None, primary_normal: np.ndarray | None = None,
+                  at: np.ndarray | None = None) -> tuple[str, dict[str, Any]]:
+    """A feature's CAD nominal in part coordinates, as (kind, geometry) of the fitted kind (a hand-hit point or
+    line without one: the CAD face it was taken on at the pose ``at``, :func:`_derived_nominal`)."""
     if feature.nominal is None:
+        if part is not None and feature.kind in ("point", "line"):
+            return _derived_nominal(part, feature, pose if at is None else at, primary_normal)
         raise AlignmentError(f"{feature.name} has no CAD nominal: measure it on the part or give it one")
     n = feature.nominal.transformed(invert(pose))
     p = n.params
@@ -118,21 +174,42 @@ def align_features(model: Any, primary: int, secondary: int, tertiary: int) -> A
     if len({primary, secondary, tertiary}) < 3:
         raise AlignmentError("3-2-1 needs three different features")
     pose = np.asarray(part.pose, float)
-    p0, n0, lp, ld, q = datum_frame(*[(f.kind, f.result.geometry()) for f in feats])
-    nominal = datum_frame(*[_nominal_part(f, pose) for f in feats])
+    measured = datum_frame(*[(f.kind, f.result.geometry()) for f in feats])
+    derived = any(f.nominal is None for f in feats)
+    new = pose
+    for _ in range(8 if derived else 1):  # a derived nominal is read at the pose: again until it stands still
+        last = new
+        nominal, new = _321_pose(feats, measured, new, part)
+        if np.max(np.abs(new - last)) < 1e-10:
+            break
+    p0, n0, lp, ld, q = measured
+    n0 = n0 if n0 @ (new[:3, :3] @ nominal[1]) >= 0 else -n0
+    # how well the nominal datums land on the measured ones (non-zero when the features are not square)
+    unit_n = n0 / np.linalg.norm(n0)
+    res = {"primary plane offset": abs(float((new[:3, :3] @ nominal[0] + new[:3, 3] - p0) @ unit_n)),
+           "origin point offset": _in_plane(new[:3, :3] @ nominal[4] + new[:3, 3] - q, unit_n)}
+    info = {"features": [primary, secondary, tertiary], "names": [f.name for f in feats]}
+    return AlignmentResult("3-2-1", new, res, info)
+
+
+def _in_plane(d: np.ndarray, n: np.ndarray) -> float:
+    """The length of ``d`` along the primary plane (its height above the plane is no error of the origin)."""
+    return float(np.linalg.norm(d - (d @ n) * n))
+
+
+def _321_pose(feats: list[Any], measured: tuple, pose: np.ndarray, part: Any) -> tuple[tuple, np.ndarray]:
+    """(the nominal datum system, the part pose it gives) with the features' nominals read at ``pose``."""
+    now = np.asarray(part.pose, float)  # stored nominals are machine coordinates at the part's pose
+    primary = _nominal_part(feats[0], now, part, at=pose)
+    normal = np.asarray(primary[1]["normal"], float) if primary[0] == "plane" else None
+    nominal = datum_frame(primary, *[_nominal_part(f, now, part, normal, at=pose) for f in feats[1:]])
+    p0, n0, lp, ld, q = measured
     # fitted normals and axes carry a canonical sign, not the CAD's: sign them like the nominal seen through
     # the current pose (the part is within a few degrees of it)
     R = pose[:3, :3]
     n0 = n0 if n0 @ (R @ nominal[1]) >= 0 else -n0
     ld = ld if ld @ (R @ nominal[3]) >= 0 else -ld
-    M = align_321(p0, n0, lp, ld, q)
-    new = M @ invert(align_321(*nominal))
-    # how well the nominal datums land on the measured ones (non-zero when the features are not square)
-    unit_n = n0 / np.linalg.norm(n0)
-    res = {"primary plane offset": abs(float((new[:3, :3] @ nominal[0] + new[:3, 3] - p0) @ unit_n)),
-           "origin point offset": float(np.linalg.norm(new[:3, :3] @ nominal[4] + new[:3, 3] - q))}
-    info = {"features": [primary, secondary, tertiary], "names": [f.name for f in feats]}
-    return AlignmentResult("3-2-1", new, res, info)
+    return nominal, align_321(p0, n0, lp, ld, q) @ invert(align_321(*nominal))
 
 
 def best_fit_hits(model: Any, hit_ids: list[int]) -> AlignmentResult:

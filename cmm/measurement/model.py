@@ -440,13 +440,27 @@ class MeasurementModel:
         with self.lock:
             hid = self._next_hit
             self._next_hit += 1
-            self.record("hit", **HitRecord.of(hit, hid).to_event(), probe=self.probe_name)
+            self.record("hit", **HitRecord.of(hit, hid).to_event(), probe=self.probe_name, probe_data=self.probe_data())
             self.hit_probes[hid] = self.probe_name
             record = self.hits[hid]  # on disk before anyone is shown it
             self.last_hit = record
             self._undo.append(("add", hid))
         self._notify("hit", (hid, record))
         return hid
+
+    def probe_data(self) -> dict[str, Any]:
+        """The probe data in force now, as each hit journals it (:mod:`cmm.session.probe_used`): the tip radius,
+        the pre-travel model and the date of the qualification they came from ("" never qualified)."""
+        settings = self.prober.settings
+        try:
+            fields = self._start_fields()
+        except Exception:  # noqa: BLE001 - a status that cannot be read: the radius and the model still go
+            fields = {}
+        cal = fields.get("calibration") if isinstance(fields.get("calibration"), dict) else None
+        # None: no calibration service (a headless recording): the start snapshot's word stands
+        qualified = None if cal is None else str((cal.get("probe") or {}).get("date") or "")
+        return {"tip_radius": float(settings.tip_radius), "pretravel": settings.pretravel.describe(),
+                "qualified": qualified}
 
     def hit_id(self, hit: Any) -> int:
         """The session id of a recorded hit (the record, or the probe's hit it was recorded from)."""

@@ -37,9 +37,11 @@ from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from ..metrology.features import proof_text
 from .export import hit_deviations
+from ..measurement.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
 from ..measurement.records import ConstructedRecord, FeatureRecord
 from ..metrology.characteristics import DEFAULT_TOLERANCE
 from .model import Session
+from .probe_used import probe_uses
 from .wording import error_text, grouped
 
 NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "
@@ -267,14 +269,19 @@ def _date(t: Any) -> str:
         return "-"
 
 
-def calibration_text(start: dict) -> str:
-    """Calibration status and date from the session's start snapshot."""
+def calibration_text(start: dict, used: list[Any] | None = None) -> str:
+    """Calibration status and date from the session's start snapshot; the probe's from the hits (``used``:
+    :func:`cmm.session.probe_used.probe_uses`) when they recorded it: a requalification during the session counts."""
     cal = start.get("calibration")
     if not isinstance(cal, dict):
         return "not recorded in this session"
     parts = []
     probe, machine = cal.get("probe"), cal.get("machine")
-    if probe:
+    dates = sorted({u.qualified[:10] for u in used or () if u.qualified})
+    if used:
+        parts.append(f"probe qualified {', '.join(dates)}" if dates else
+                     "probe not qualified (nominal tip radius)")
+    elif probe:
         parts.append(f"probe qualified {str(probe.get('date', '?'))[:10]}")
     else:
         parts.append("probe not qualified (nominal tip radius)")
@@ -409,28 +416,58 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     as kind ``gdt`` with their datum frame in the method column (``mesh``: for profiles)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
+    # the feature's actual location, diameter, axis and angle in the frame of the alignment in force (named in
+    # the last column; machine coordinates when nothing was aligned): the same on every row of the feature
+    frame = session_frame(session.state)
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
-                "actual", "deviation", "out_of_tolerance", "result", "probe"])
+                "actual", "deviation", "out_of_tolerance", "result", "probe",
+                *[f"actual_{k.lower()}" for k in ACTUAL_COLUMNS], "frame"])
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
+        where = [*actual_cells(actuals(f.kind, f.fit, frame)), frame.label]
         for c in f.characteristics(tols[fid]):
             w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict,
-                        f.probe or ""])
+                        f.probe or "", *where])
     for rec, cs in _constructed_rows(session, default_tolerance):
+        where = [*actual_cells(actuals(str(rec.result.get("kind", "")), rec.result, frame)), frame.label]
         for c in cs:
             w.writerow([c.feature, "constructed", rec.operation, "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "",
+                        *where])
     # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
     for d, c in session_gdt(session, mesh, tols):
         w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
                     f"{c.upper:.6f}", f"{c.lower:.6f}", "" if c.actual is None else f"{c.actual:.6f}",
                     "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
     return buf.getvalue()
+
+
+def actuals_table(session: Session) -> str:
+    """Every feature's actual X, Y, Z, D, axis and angle in the frame of the alignment in force, the frame named."""
+    st = session.state
+    frame = session_frame(st)
+    rows = [(f.name, f.kind, actuals(f.kind, f.fit, frame)) for f in st.features.values()]
+    rows += [(c.name, f"constructed {c.operation}", actuals(str(c.result.get("kind", "")), c.result, frame))
+             for c in st.constructed.values()]
+    rows = [r for r in rows if r[2]]
+    if not rows:
+        return ""
+    e = html.escape
+    out = [f"<h2>Actuals in {e(frame.label)}</h2><table><thead><tr><th class='l'>feature</th>"
+           + "".join(f"<th>{'angle °' if k == 'angle' else k}</th>" for k in ACTUAL_COLUMNS) + "</tr></thead><tbody>"]
+    for name, kind, v in rows:
+        out.append(f"<tr><td class='l'><b>{e(name)}</b> <span class='muted'>{e(kind)}</span></td>" + "".join(
+            "<td></td>" if k not in v else f"<td>{v[k]:.6f}</td>" if k in "IJK" else f"<td>{v[k]:.4f}</td>"
+            for k in ACTUAL_COLUMNS) + "</tr>")
+    out.append("</tbody></table><p class='muted'>Where each feature is: its centre (a circle, sphere), a point of its "
+               "axis (a cylinder, line) or plane, or its apex (a cone), its diameter D, its axis or normal (I, J, K) "
+               "and a cone's included angle, in the coordinates named above.</p>")
+    return "".join(out)
 
 
 def render(session: Session, *, mesh: Any = None, program: Any = None, title: str | None = None,
@@ -518,13 +555,18 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
         left.append(("remarks", str(info["remarks"])))
     machine = str(info.get("machine_name") or "")
     config = Path(str(s.get("config", ""))).name
+    used = probe_uses(session)  # the probe data the hits were taken with, not the start's snapshot
     right = [("machine", ", ".join(x for x in (machine, config) if x) or "-"),
-             ("calibration", calibration_text(s)),
-             ("tip radius", _tip_radius(s)), ("pre-travel", _pretravel(s)),
+             ("calibration", calibration_text(s, used)),
+             ("tip radius", ", ".join(dict.fromkeys(f"{u.tip_radius:.4f} mm" for u in used if u.tip_radius is not None))
+              or _tip_radius(s)),
+             ("pre-travel", "; ".join(dict.fromkeys(u.pretravel for u in used if u.pretravel)) or _pretravel(s)),
+             *([("probe data of the hits", "; ".join(u.text() for u in used))] if used else []),
              ("alignment", "none" if st.alignment is None else
               st.alignment.method.replace("_", " ")
               + "".join(f" {'/'.join(str(n) for n in names)}" for names in [st.alignment.info.get("names")] if names)
               + (f", RMS {st.alignment.info['rms'] * 1000:.2f} µm" if isinstance(st.alignment.info.get("rms"), (int, float)) else "")),
+             ("actuals in", session_frame(st).label),
              ("hits", f"{len(st.hits)}" + (f" (+{len(st.deleted_hits)} deleted)" if st.deleted_hits else "")),
              ("part sha256", "" if st.part is None or not st.part.sha256 else st.part.sha256[:16] + "…")]
     if session.derived_from:
@@ -576,6 +618,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
                "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
                "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic.</p>")
+    out.append(actuals_table(session))
     if gdt_rows:
         out.append(gdt_table(gdt_rows, session))
     out.append("<h2>Deviation of each hit from the part</h2>")

@@ -32,6 +32,7 @@ from ..metrology.feature_distance import surface_distance
 from ..metrology.features import proof_text
 from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
+from ..measurement.actuals import actuals, actuals_text, model_frame
 from ..measurement.model import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
 from .ids import parse_ids, parse_targets
@@ -46,22 +47,30 @@ def feature_chars(f: Any) -> list[Any]:
     return f.record().characteristics()
 
 
-def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> str:
-    """The feature tree (pure: tested without a browser); features in ``hidden`` are marked so."""
+def tree_html(station: Any, selected: int | None = None, hidden: Any = (), machine: bool = False) -> str:
+    """The feature tree (pure: tested without a browser); features in ``hidden`` are marked so. Under each
+    feature its actual X, Y, Z (D, axis, angle) in the alignment's frame, named at the top (``machine``: in
+    machine coordinates)."""
     e = html.escape
+    frame = model_frame(station.measurement, machine)
     with station.measurement.lock:
         feats = sorted(station.measurement.features.items())
         built = sorted(station.measurement.constructed.items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
-    rows = ["<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11px system-ui'>"
+    rows = [f"<div class='cmm-frame' style='font:11px system-ui;color:#444'>actuals in <b>{e(frame.label)}</b></div>"
+            "<table class='cmm-tree' style='border-collapse:collapse;width:100%;font:11px system-ui'>"
             "<tr style='color:#666'><th align=left>feature</th><th align=right>nominal</th><th align=right>actual</th>"
             "<th align=right>dev</th><th align=right>tol</th><th></th></tr>"]
     items = [(fid, f.name, " · ".join(filter(None, (f.kind, f.method, f"{len(f.hit_ids)} hits",
                                                      proof_text(getattr(f.result, "proof", None), short=True)))),
               feature_chars(f)) for fid, f in feats]
+    where = {fid: actuals_text(actuals(f.kind, f.result.geometry(), frame)) for fid, f in feats}
     items += [(fid, c.name, f"constructed {c.operation} of {c.operands[0]} and {c.operands[1]}",
                c.record().characteristics()) for fid, c in built]
+    for fid, c in built:
+        summary = c.result.summary()
+        where[fid] = actuals_text(actuals(str(summary.get("kind", "")), summary, frame))
     gdt_rows = station.measurement.gdt_characteristics()
     if gdt_rows or station.measurement.datums:
         datums = ", ".join(f"{k}{ {'MMB': '(M)', 'LMB': '(L)'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
@@ -79,6 +88,9 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = ()) -> st
         rows.append(f"<tr style='{bg}border-top:1px solid #ccc'><td colspan=6 data-feature='{fid}'>"
                     f"<b style='color:{head}'>{mark}{'' if fid is None else fid} {e(name)}</b> "
                     f"<span style='color:#777'>{e(what)}</span>{off}</td></tr>")
+        if where.get(fid):
+            rows.append(f"<tr style='{bg}'><td colspan=6 class='cmm-actual' style='padding-left:10px;"
+                        f"font-family:monospace'>{e(where[fid])}</td></tr>")
         for c in chars:
             unit = "°" if c.unit == "deg" else ""
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
@@ -206,6 +218,7 @@ class FeaturesPanel:
         self._row_view: dict[int, bool] = {}  # feature id -> shown in the view when its box was last synced
         self._rows_lock = threading.Lock()  # refresh runs in the refresher and after a selection
         self._gui_api: Any = None
+        self.machine = False  # actuals in machine coordinates (on demand) instead of the alignment's frame
 
     # --- actions (each checks control through ctx.run) -------------------------------------
 
@@ -245,9 +258,12 @@ class FeaturesPanel:
         if s.get("proof"):
             lines.append(f"\n{proof_text(s['proof'])}")
         lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
-        lines.append("\ngeometry (machine coordinates, mm):")
-        for k, v in feature.result.geometry().items():
-            lines.append(f"- {k}: {_fmt(v)}")
+        frame = model_frame(self.station.measurement, self.machine)
+        lines.append(f"\nactual in {frame.label}: **{actuals_text(actuals(feature.kind, feature.result.geometry(), frame))}**")
+        if self.machine:
+            lines.append("\ngeometry (machine coordinates, mm):")
+            for k, v in feature.result.geometry().items():
+                lines.append(f"- {k}: {_fmt(v)}")
         dev = nominal_deviation(feature.kind, feature.result.geometry(), feature.nominal)
         if dev:
             lines.append(f"\nvs nominal {feature.nominal.kind}:")
@@ -466,6 +482,9 @@ class FeaturesPanel:
 
     def build(self, gui: Any) -> None:
         g = self.gui
+        g["machine"] = gui.add_checkbox("Machine coordinates", False,
+                                        hint="actuals in machine coordinates instead of the alignment's frame")
+        g["machine"].on_update(lambda e: setattr(self, "machine", bool(e.target.value)))
         g["tree"] = gui.add_html(tree_html(self.station))
         g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
         g["features"].on_update(lambda e: self._chosen(e.target.value))
@@ -596,7 +615,8 @@ class FeaturesPanel:
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
         self._sync_show()
         self._sync_rows()
-        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature, self.hidden()),
+        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature, self.hidden(),
+                                                       self.machine),
                      self.gui.get("tree"))
         self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))
         self.ctx.set("features:detail", "content", self.detail_markdown(), self.gui.get("detail"))

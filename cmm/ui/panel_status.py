@@ -31,13 +31,20 @@ FRAMES = ("Machine", "Part")
 #    nearest scrolling ancestor of #cmm-status, and below it the largest ancestor of the bar that is not yet
 #    as tall as the scrolled content. It marks that block data-cmm-sticky (and any clipping ancestor
 #    data-cmm-unclip), and re-checks once a second (tabs change the content height; React may re-create nodes).
+# 3. compact (room to work at 1280 x 800 and on a tablet): the block has no folder header (it cannot be folded
+#    away), STOP and E-STOP share one row, and its cover against the content scrolled under it reaches up only
+#    (a shadow all round painted over the top of the Control folder below it).
 STICKY_CSS = """<style>
 [data-cmm-sticky] { position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
-  box-shadow: 0 0 0 10px var(--mantine-color-body, #fff); }
+  box-shadow: 0 -10px 0 0 var(--mantine-color-body, #fff); }
 [data-cmm-unclip] { overflow: visible !important; }
 .mantine-ScrollArea-content .mantine-Paper-root:has(#cmm-status) {
   position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
-  box-shadow: 0 0 0 10px var(--mantine-color-body, #fff); }
+  box-shadow: 0 -10px 0 0 var(--mantine-color-body, #fff); }
+.mantine-Paper-root:has(#cmm-status) > .mantine-Paper-root:first-child { display: none; }
+.mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) { display: flex; flex-wrap: wrap; column-gap: 6px; }
+.mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div { flex: 1 1 100%; min-width: 0; }
+.mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div:has(> button) { flex: 1 1 40%; }
 .mantine-ScrollArea-content div:has(.mantine-Paper-root #cmm-status) { overflow: visible !important; }
 .cmm-status { font: 12.5px/1.35 system-ui, sans-serif; padding: 2px 0 4px; }
 .cmm-status .mode { font-weight: 700; padding: 1px 6px; border-radius: 3px; color: #fff; }

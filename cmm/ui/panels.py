@@ -58,6 +58,7 @@ AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
 PICK_HINT = "Click the part to pick a point."
+CONTROL_FOLDS = ("operator", "set_name", "code", "take")  # the Control folder's widgets hidden while holding control
 JOG_KEYS_HELP = ("**Keyboard**: click the 3-D view (a blue frame shows it has the keys): arrows = X/Y, "
                  "PageUp/PageDown = Z at the Speed above, hold **Shift** = fast; releasing the key stops; **Esc** or "
                  "**Space** = stop; why a key does nothing is shown on the view. In the pendant below (click it "
@@ -128,6 +129,15 @@ def machine_markdown(station: Any) -> str:
 
         lines.append("\n" + ippdme_markdown(station.ippdme))
     return "\n".join(lines)
+
+
+def probe_markdown(station: Any) -> str:
+    """Machine > Probe: the probe in use and the data the next hit uses (live: a qualification applied shows)."""
+    d = station.measurement.probe_data()
+    name = station.measurement.probe_name or "probe"
+    q = f"qualified {d['qualified'][:16].replace('T', ' ')}" if d["qualified"] else "**not qualified** (nominal radius)"
+    q = q if d["qualified"] is not None else "qualification not known"
+    return (f"**{name}**: stylus radius **{d['tip_radius']:.5f} mm** · {q} · pre-travel {d['pretravel']}")
 
 
 class ClientApp:
@@ -554,9 +564,10 @@ class ClientApp:
         with gui.add_folder("Control"):
             g["control"] = gui.add_markdown(self.ctx.control_text())
             g["operator"] = gui.add_text("Operator", self.operator or "", hint="your name, for the messages and the report")
-            gui.add_button("Set name").on_click(lambda _: self.set_operator(g["operator"].value))
+            g["set_name"] = gui.add_button("Set name")
+            g["set_name"].on_click(lambda _: self.set_operator(g["operator"].value))
             g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
-            take = gui.add_button("Take control", color="green")
+            g["take"] = take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
             gui.add_button("Release").on_click(lambda _: self.release_control())
             if self.is_local and self.control.access_code is not None:  # only the person at the station decides
@@ -619,9 +630,7 @@ class ClientApp:
                 gui.add_button("Move above").on_click(lambda _: self.move_above())
                 gui.add_button("Probe here").on_click(lambda _: self.probe_here())
             with machine.add_tab("Probe"):
-                settings = self.station.controller.probe_settings
-                gui.add_markdown(f"stylus radius **{settings.tip_radius:.4f} mm** · pre-travel "
-                                 f"{settings.pretravel.describe()}")
+                g["probe_data"] = gui.add_markdown(probe_markdown(self.station))
                 g["contact"] = gui.add_markdown("*no hit yet*")
                 g["hits"] = gui.add_markdown("")
                 g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
@@ -674,9 +683,14 @@ class ClientApp:
             return
         st = self.station
         self.ctx.set("control", "content", self.ctx.control_text())
+        # the Control folder folds to its sentence and Release once this tab holds control: room to work
+        holding = self.control.holder == self.client_id
+        for key in CONTROL_FOLDS:
+            self.ctx.set(f"control:{key}", "visible", not holding, self.gui.get(key))
         self.status.refresh()
         self.ctx.set("machine", "content", machine_markdown(st))
         self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
+        self.ctx.set("probe_data", "content", probe_markdown(st))  # a qualification applied shows at once
         hit = st.measurement.last_hit
         if hit is not None:
             self.ctx.set("contact", "content",

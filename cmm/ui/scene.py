@@ -62,6 +62,8 @@ FEATURE_COLOURS = {"plane": (240, 180, 40), "circle": (250, 120, 20), "sphere": 
                    "line": (250, 250, 250)}
 
 
+PART_FILL_DISTANCE = 3.5  # camera distance in part radii at start: the part fills the view beside the panel
+
 class SceneView:
     """Draws the station into a viser scene (``server.scene``)."""
 
@@ -101,10 +103,23 @@ class SceneView:
     # --- building -------------------------------------------------------------
 
     def frame_camera(self, camera: Any) -> None:
-        """Start new clients (viser's initial camera) looking at the whole envelope from the front right."""
+        """Start new clients (viser's initial camera) from the front right looking at the part, close enough that it
+        fills the view beside the panel (the envelope without a part)."""
         cfg = self.station.config
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
+        part = self.station.measurement.part
+        if part is not None and part.mesh is not None:
+            corners = np.array([[x, y, z] for x in part.mesh.bounds[:, 0] for y in part.mesh.bounds[:, 1]
+                                for z in part.mesh.bounds[:, 2]])
+            pose = np.asarray(part.pose, float)
+            world = corners @ pose[:3, :3].T + pose[:3, 3]
+            centre = world.mean(axis=0) * SCALE
+            radius = float(np.max(np.linalg.norm(world * SCALE - centre, axis=1)))
+            direction = np.array([1.1, -1.5, 1.0]) / np.linalg.norm([1.1, -1.5, 1.0])
+            camera.look_at = tuple(float(v) for v in centre)
+            camera.position = tuple(float(v) for v in centre + direction * radius * PART_FILL_DISTANCE)
+            return
         centre = (lo + hi) / 2 * SCALE
         size = float(np.max(hi - lo)) * SCALE
         camera.look_at = (float(centre[0]), float(centre[1]), float(lo[2] * SCALE))
