@@ -593,21 +593,13 @@ def check_offset(offset: Any, tolerance: float) -> float:
     return o
 
 
-# a combination of the free DOF that moves the points' distances by less than this fraction of its own motion
-# (mm, or rad x the points' lever arm) is not located by the toleranced surface: it is left where it is. Without
-# this, a datum tilted by 0.01 deg made a translation along the face a DOF with a 1e-4 effect, and the fit slid
-# the points thousands of mm along it (2.1e12 mm profiles)
-DEAD_DOF = 1e-2
-
-
 def _live_dof(A: np.ndarray, free: list[int], lever: float) -> np.ndarray:
-    """A basis (free DOF x k) of the combinations of the free DOF the distances respond to, each column moving
-    the points by 1 mm (translations) or 1 mm at the lever arm (turns); dead combinations (DEAD_DOF) left out."""
-    sc = np.array([1.0 if k < 3 else lever for k in free])
-    As = A / sc
-    _, sv, vt = np.linalg.svd(As / np.sqrt(len(As)), full_matrices=False)
-    keep = sv > DEAD_DOF
-    return (vt[keep].T) / sc[:, None]
+    """The combinations of the free DOF the distances respond to (geom_basics.live_dof): a datum tilted by
+    0.01 deg made a translation along the face a DOF with a 1e-4 effect, and the fit slid the points thousands
+    of mm along it (2.1e12 mm profiles)."""
+    from .geom_basics import live_dof
+
+    return live_dof(A, np.array([1.0 if k < 3 else lever for k in free]))
 
 
 def _minimax_step(d: np.ndarray, A: np.ndarray, reach: float = 1.0) -> np.ndarray | None:
