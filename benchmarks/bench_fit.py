@@ -45,9 +45,9 @@ def angle(u: np.ndarray, v: np.ndarray) -> float:
 
 def error(kind: str, res: Any, ans: dict) -> float:
     """Worst of position / size / direction error against the known answer."""
-    if kind == "line":
+    if kind == "line":  # axis points compared at the foot of the origin on each (NIST), not the centroid's foot
         return max(angle(res.direction, ans["direction"]),
-                   float(np.linalg.norm(res.point - closest(ans["point"], res.direction))))
+                   float(np.linalg.norm(closest(res.point, res.direction) - closest(ans["point"], res.direction))))
     if kind == "plane":
         return max(angle(res.normal, ans["normal"]), abs(float((res.point - ans["point"]) @ res.normal)))
     if kind in ("circle", "sphere"):
@@ -55,7 +55,7 @@ def error(kind: str, res: Any, ans: dict) -> float:
         return max(e + ([angle(res.normal, ans["normal"])] if kind == "circle" else []))
     if kind == "cylinder":
         return max(angle(res.direction, ans["direction"]), abs(res.radius - ans["radius"]),
-                   float(np.linalg.norm(res.point - closest(ans["point"], res.direction))))
+                   float(np.linalg.norm(closest(res.point, res.direction) - closest(ans["point"], res.direction))))
     if kind == "cone":
         return max(angle(res.direction, ans["direction"]), abs(res.half_angle - ans["half_angle"]),
                    float(np.linalg.norm(res.apex - ans["apex"])))

@@ -34,8 +34,8 @@ def test_distances():
     assert rel.distance_line_plane(axis([0, 0, 4], [1, 1, 0]), P([0, 0, 1], [0, 0, 1])) == pytest.approx(3.0)
     assert rel.distance_line_plane(axis([0, 0, 4], [1, 1, 1]), P([0, 0, 1], [0, 0, 1])) == 0.0
     assert rel.distance_plane_plane(P([0, 0, 1], [0, 0, 1]), P([3, 3, 6], [0, 0, -1])) == pytest.approx(5.0)
-    with pytest.raises(FitError, match="not parallel"):
-        rel.distance_plane_plane(P([0, 0, 1], [0, 0, 1]), P([0, 0, 1], [0, 1, 1]))
+    # tilted planes: a step height from b's centroid to plane a (no longer refused)
+    assert rel.distance_plane_plane(P([0, 0, 1], [0, 0, 1]), P([4, 0, 3], [0, 1, 1])) == pytest.approx(2.0)
 
 
 def test_angles():

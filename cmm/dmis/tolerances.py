@@ -222,6 +222,7 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         return Evaluation(tol, dev, lo - 1e-12 <= dev <= up + 1e-12, [a.label])
     if w in ("DISTB", "ANGLB"):
         b = features[1]
+        note = ""
         try:
             if w == "ANGLB":
                 value = construct("angle", (a.kind, a.geometry), (b.kind, b.geometry)).value
@@ -231,11 +232,12 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
             elif a.kind in AXIAL and b.kind in AXIAL and _nearly_parallel(a, b):
                 value = _axis_distance(a, b)
             else:
-                value = construct("distance", (a.kind, a.geometry), (b.kind, b.geometry)).value
+                c = construct("distance", (a.kind, a.geometry), (b.kind, b.geometry))
+                value, note = c.value, c.warning
         except (FitError, ValueError, KeyError) as exc:
             raise ToleranceError(f"TOL/{w} between FA({a.label}) and FA({b.label}): {exc}") from None
         dev = float(value) - float(tol.nominal or 0.0)
-        return Evaluation(tol, dev, lo - 1e-12 <= dev <= up + 1e-12, [a.label, b.label])
+        return Evaluation(tol, dev, lo - 1e-12 <= dev <= up + 1e-12, [a.label, b.label], note=note)
     if w in FORM:
         if a.kind not in FORM[w]:
             raise ToleranceError(f"TOL/{w} applies to a {' or '.join(FORM[w])}, FA({a.label}) is a {a.kind}")

@@ -12,6 +12,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from cmm.metrology.geom_basics import live_dof
 from cmm.metrology.mesh import closest_points, signed_deviation, surface_index
 from cmm.metrology.transform import TransformError, apply_points, as_pose, invert, make_pose, rotation_from_rotvec, unit
 
@@ -115,7 +116,10 @@ def best_fit(
         r = q - centroid
         A = np.c_[np.cross(r, normals), normals]  # d(n.(R q + t))/d(omega, t)
         b = -np.einsum("ij,ij->i", q - cp.points, normals)
-        step, *_ = np.linalg.lstsq(A, b, rcond=1e-12)
+        # only the combinations the surface locates (a float32 mesh's 1e-5 mm facets otherwise let it slide)
+        B = live_dof(A, np.r_[np.full(3, max(1.0, float(np.linalg.norm(r, axis=1).max()))), np.ones(3)])
+        z, *_ = np.linalg.lstsq(A @ B, b, rcond=None)
+        step = B @ z
         R = rotation_from_rotvec(step[:3])
         delta = make_pose(R, centroid - R @ centroid + step[3:])
         M = delta @ M

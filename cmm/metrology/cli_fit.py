@@ -18,8 +18,6 @@ import argparse
 import sys
 from typing import Any
 
-from .pointfile import PointFileError, read_points_array
-
 KINDS = ("line", "plane", "circle", "sphere", "cylinder", "cone")
 METHODS = ("ls", "minzone", "mic", "mcc")
 
@@ -31,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ls: least squares (default); minzone: minimum zone; "
                              "mic: maximum inscribed; mcc: minimum circumscribed")
     parser.add_argument("--json", action="store_true", help="print the result as JSON (full float precision)")
-    from .cli_gdt import add_arguments as add_gdt
+    from .cli_gdt_args import add_arguments as add_gdt
 
     add_gdt(parser)
 
@@ -74,21 +72,36 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from cmm.metrology.cli_gdt import evaluate as evaluate_gdt
-    from cmm.metrology.datums import DatumError
     from cmm.metrology.features import FitError
-    from cmm.metrology.fit_criteria import fit
-    from cmm.metrology.mesh import MeshError
+    from cmm.metrology.pointfile import PointFileError, read_points_array
 
+    # only what the command needs: a least-squares fit without tolerances loads neither scipy nor trimesh
+    errors: tuple[type[Exception], ...] = (FitError,)
+    if args.gdt:
+        from cmm.metrology.datums import DatumError
+        from cmm.metrology.mesh import MeshError
+
+        errors += (DatumError, MeshError)
     try:
         points = read_points_array(args.file)
-        result = fit(args.kind, points, args.method)
+        if args.method == "ls":
+            from cmm.metrology.fit_ls import LS_FITS
+
+            result = LS_FITS[args.kind](points)
+        else:
+            from cmm.metrology.fit_criteria import fit
+
+            result = fit(args.kind, points, args.method)
         summary = result.summary()
-        tolerances = evaluate_gdt(args, args.kind, summary, np.asarray(points, float))
+        tolerances = []
+        if args.gdt:
+            from cmm.metrology.cli_gdt import evaluate as evaluate_gdt
+
+            tolerances = evaluate_gdt(args, args.kind, summary, np.asarray(points, float))
     except PointFileError as exc:
         print(f"cmm fit: {exc}", file=sys.stderr)
         return 2
-    except (FitError, DatumError, MeshError) as exc:
+    except errors as exc:
         print(f"cmm fit: {exc}", file=sys.stderr)
         return 1
     if tolerances:

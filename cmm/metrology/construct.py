@@ -11,7 +11,11 @@ toleranced against the drawing's distance.
   line, cylinder, cone or circle normal through its centre);
 - ``distance``: between two point-like features (centres, points, apexes:
   3-D), a point-like feature and a plane, a point-like feature and an axis,
-  two parallel planes, two axes. Two parallel axes (cylinders, circles,
+  two planes (a step height: from the centroid of the second plane
+  perpendicular to the first, the angle between them given with it and a
+  warning past ``STEP_ANGLE_WARN_DEG``), an axis and a plane (from the axis's
+  location point perpendicular to the plane, the same warning when the axis
+  is not parallel to the plane), two axes. Two parallel axes (cylinders, circles,
   lines, cones within ``PARALLEL_DEG``; ISO / PC-DMIS): the axis-to-axis
   distance between their location points (the foot of the data centroid on
   the axis; a circle's centre) in the plane of the alignment (perpendicular to
@@ -53,6 +57,7 @@ class Constructed:
     geometry: dict[str, Any] = field(default_factory=dict)
     value: float | None = None  # mm for a distance, degrees for an angle
     projection: str = ""  # how a distance or angle was taken (the plane it was projected into, or 3-D)
+    warning: str = ""  # a distance whose operands are further from parallel than STEP_ANGLE_WARN_DEG, in words
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind, **self.geometry}
@@ -60,11 +65,23 @@ class Constructed:
             out["value"] = self.value
         if self.projection:
             out["projection"] = self.projection
+        if self.warning:
+            out["warning"] = self.warning
         return out
 
 
 PARALLEL_DEG = 5.0  # axes closer to parallel than this have an axis-to-axis distance
 WORKPLANE_DEG = 10.0  # parallel axes this close to the alignment's Z are measured in its XY plane
+# a step height (plane to plane, axis to plane) between features further from parallel than this is reported
+# with a warning: the distance then depends on where it is taken (0.5 deg over a 20 mm face: 0.17 mm)
+STEP_ANGLE_WARN_DEG = 0.5
+
+
+def _step_warning(angle_deg: float, what: str) -> str:
+    if angle_deg <= STEP_ANGLE_WARN_DEG:
+        return ""
+    return (f"{what} are {angle_deg:.3f} deg from parallel (more than {STEP_ANGLE_WARN_DEG:g} deg): the distance "
+            "is taken at the centroid and varies across the face")
 
 
 def _unit(v: Any) -> np.ndarray:
@@ -172,7 +189,17 @@ def construct(operation: str, a: tuple[str, dict[str, Any]], b: tuple[str, dict[
         projection = "3-D, from the centre perpendicular to the plane"
     elif ka == "plane" and kb == "plane":
         d = rel.distance_plane_plane(_ns(ka, ga), _ns(kb, gb))
-        projection = "3-D, perpendicular to the parallel planes"
+        ang = math.degrees(rel.angle_plane_plane(_ns(ka, ga), _ns(kb, gb)))
+        return Constructed("distance", value=float(d), projection=(
+            f"step height: from the centroid of the second plane perpendicular to the first; the planes are "
+            f"{ang:.4f} deg apart"), warning=_step_warning(ang, "the planes"))
+    elif "plane" in (ka, kb) and ({ka, kb} - {"plane"}) <= set(AXIS_LIKE):
+        (lk, lg), (qk, qg) = (a, b) if kb == "plane" else (b, a)
+        d = abs(rel.distance_point_plane(_location(lk, lg), _ns(qk, qg)))
+        ang = math.degrees(rel.angle_line_plane(_ns(lk, lg), _ns(qk, qg)))
+        return Constructed("distance", value=float(d), projection=(
+            f"from the {lk}'s location point perpendicular to the plane; the axis is {ang:.4f} deg from parallel "
+            "to the plane"), warning=_step_warning(ang, f"the {lk}'s axis and the plane"))
     elif (ka in POINT_LIKE and kb in AXIS_LIKE) or (kb in POINT_LIKE and ka in AXIS_LIKE):
         (pk, pg), (lk, lg) = (a, b) if kb in AXIS_LIKE else (b, a)
         d = rel.distance_point_line(_point_of(pk, pg), _ns(lk, lg))

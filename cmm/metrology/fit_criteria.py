@@ -277,6 +277,41 @@ CYLINDER_REFINE = 3
 # at least 1e-3 x it) of the LS axis at the data centre: zones of about the LS form lie there
 CENTRE_FRACTION = 0.1
 CENTRE_FORMS = 5.0
+# a band shorter than half its diameter: smaller circumscribed (larger inscribed, thinner zone) cylinders turned away
+# from the band exist, and the search would find them. Such a band is refused when its hits know the least-squares
+# axis only to more than SHORT_AXIS_DEG / 2 (3 standard uncertainties); a criterion cylinder turned more than
+# SHORT_AXIS_DEG / 2 from that axis is replaced by the criterion about the least-squares axis, held: the axis
+# reported is within SHORT_AXIS_DEG of the band's
+SHORT_AXIS_DEG = 0.5
+SHORT_RATIO = 0.5  # a band shorter than this times its diameter is short (a cone of atan(0.5) = 26.6 deg before)
+
+
+def _short_axis_check(ls: Cylinder, method: str, length: float) -> float:
+    """The least-squares axis's spread (deg, 3 standard uncertainties) of a short band; refused when too wide."""
+    name = {"minzone": "minimum zone", "mcc": "minimum circumscribed", "mic": "maximum inscribed"}[method]
+    u_dir = float(ls.uncertainty.get("direction", float("nan")))
+    spread = float(np.degrees(3.0 * u_dir)) if np.isfinite(u_dir) else float("inf")
+    if spread > SHORT_AXIS_DEG / 2:
+        known = f"+-{spread:.2g} deg" if np.isfinite(spread) else "not at all"
+        raise FitError(f"the band is {length:.3g} mm long for a {2 * ls.radius:.4g} mm cylinder: its hits know the "
+                       f"axis only to {known} (more than {SHORT_AXIS_DEG / 2:g} deg), and a {name} cylinder would "
+                       "turn away from the band; probe a longer band or more hits, or measure it as a circle")
+    return spread
+
+
+def _short_cylinder(ls: Cylinder, points: Any, method: str, length: float, spread: float) -> Cylinder:
+    """The criterion of a short band about the held least-squares axis."""
+    name = {"minzone": "minimum zone", "mcc": "minimum circumscribed", "mic": "maximum inscribed"}[method]
+    x = np.asarray(points, dtype=np.float64)
+    frame = frame_with_axis(ls.direction)
+    c2 = circle_2d((x - ls.point) @ frame[:, :2], method)
+    centre = ls.point + frame[:, :2] @ c2.center
+    note = (f"a short band ({length:.3g} mm long for a {2 * c2.radius:.4g} mm cylinder): the axis is the "
+            f"least-squares axis, held (+-{spread:.2g} deg at 3 standard uncertainties), and the {name} criterion is "
+            "that of the hits projected along it")
+    return Cylinder(point=axis_foot(centre, ls.direction, x.mean(axis=0)), direction=ls.direction,
+                    radius=c2.radius, warnings=(note,) + tuple(c2.warnings), proof=None,
+                    **_stats(c2.residuals, 5, method))
 
 
 def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
@@ -295,6 +330,9 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     """
     ls = fit_ls.fit_cylinder(points, nominal=nominal)
     data = _prepare(points, "cylinder", 3)
+    length = float(np.ptp(data.x @ ls.direction)) * data.scale
+    short = length < SHORT_RATIO * 2.0 * ls.radius
+    spread = _short_axis_check(ls, method, length) if short else 0.0
     p = data.to_scaled(ls.point)
     p = p - (p @ ls.direction) * ls.direction
     model = fm.CylinderModel(data.x)
@@ -302,6 +340,8 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
     coverage = angular_coverage_deg(data.x, p, u0)
     frame = frame_with_axis(u0)
     cone = cone_deg(float(np.ptp(data.x @ u0)), 2.0 * ls.radius / data.scale)
+    if short:
+        cone = min(cone, SHORT_AXIS_DEG / 2)
     if method == "mic" and not _surrounds((data.x - p) @ frame[:, :2], np.zeros(2)):
         raise FitError(f"the points cover only {coverage:.0f} degrees around the axis: a maximum inscribed cylinder "
                        "is not defined (it could grow without bound); probe all round or use least squares / "
@@ -322,13 +362,19 @@ def cylinder(points: Any, method: str, nominal: Any = None) -> Cylinder:
 
     sub_model = fm.CylinderModel(sub)
 
+    turn = np.radians(cone)
+
     def merit(st: Any) -> float:
+        if abs(float(unit(st[1]) @ u0)) < np.cos(turn):
+            return float("inf")  # turned away from the probed feature: another cylinder
         d = sub_model.residuals_jacobian(st)[0]
         return {"minzone": float(np.ptp(d)), "mcc": float(st[2] + d.max()), "mic": float(-(st[2] + d.min()))}[method]
 
     state, runs, _ = _multi_start(sub_model, starts, method, merit)
     if len(sub) < len(data.x):
         state = chebyshev_fit(model, state, method)  # the best search result, on all points
+    if short and abs(float(unit(state[1]) @ u0)) < np.cos(turn):
+        return _short_cylinder(ls, points, method, length, spread)
     pu, uu, ru = state
     d = model.residuals_jacobian(state)[0] * data.scale
     u = canonical_direction(uu)

@@ -543,17 +543,27 @@ def profile(characteristic: str, points: Any, mesh: Any, pose: Any, tolerance: f
         return (q - c) @ rotation_from_rotvec(full[3:]).T + c + full[:3]
 
     q = local.copy()
+    lever = max(1.0, float(np.linalg.norm(q - q.mean(axis=0), axis=1).max()))  # mm per rad of a free turn
     for _ in range(iterations if free else 0):  # least squares (point to plane ICP) in the free DOF
         d, A, c = linearised(q)
-        step, *_ = np.linalg.lstsq(A, -d, rcond=1e-12)
-        q = moved(q, step, c)
-        if np.abs(step).max() < 1e-10:
+        B = _live_dof(A, free, lever)
+        if not B.shape[1]:
+            break
+        z, *_ = np.linalg.lstsq(A @ B, -d, rcond=None)
+        step = B @ z
+        q2 = moved(q, step, c)
+        if np.linalg.norm(linearised(q2)[0]) > np.linalg.norm(d) + 1e-12:
+            break
+        q = q2
+        if np.abs(z).max() < 1e-10:
             break
     d, A, c = linearised(q)
     for _ in range(iterations if free else 0):  # then minimum zone: the largest |distance| as small as it goes
-        step = _minimax_step(d, A)
-        if step is None:
+        B = _live_dof(A, free, lever)
+        z = _minimax_step(d, A @ B)
+        if z is None:
             break
+        step = B @ z
         q2 = moved(q, step, c)
         d2, A2, c2 = linearised(q2)
         if np.abs(d2).max() >= np.abs(d).max() - 1e-12:
@@ -583,14 +593,24 @@ def check_offset(offset: Any, tolerance: float) -> float:
     return o
 
 
+def _live_dof(A: np.ndarray, free: list[int], lever: float) -> np.ndarray:
+    """The combinations of the free DOF the distances respond to (geom_basics.live_dof): a datum tilted by
+    0.01 deg made a translation along the face a DOF with a 1e-4 effect, and the fit slid the points thousands
+    of mm along it (2.1e12 mm profiles)."""
+    from .geom_basics import live_dof
+
+    return live_dof(A, np.array([1.0 if k < 3 else lever for k in free]))
+
+
 def _minimax_step(d: np.ndarray, A: np.ndarray, reach: float = 1.0) -> np.ndarray | None:
-    """The step x (free DOF, within +-reach mm / rad) minimising max |d + A x| (a linear program), or None."""
+    """The step x (within +-reach, the columns of A scaled to mm) minimising max |d + A x| (a linear program),
+    or None."""
     from scipy.optimize import linprog
 
     n, k = A.shape
+    if k == 0:
+        return None
     cost = np.r_[np.zeros(k), 1.0]
     a_ub = np.block([[A, -np.ones((n, 1))], [-A, -np.ones((n, 1))]])
-    scale = np.abs(A).max(axis=0) + 1e-300  # columns in mm per unit: a turn is scaled to the part's size
-    res = linprog(cost, A_ub=a_ub, b_ub=np.r_[-d, d],
-                  bounds=[(-reach / s, reach / s) for s in scale] + [(0, None)], method="highs")
+    res = linprog(cost, A_ub=a_ub, b_ub=np.r_[-d, d], bounds=[(-reach, reach)] * k + [(0, None)], method="highs")
     return res.x[:k] if res.status == 0 else None

@@ -176,3 +176,21 @@ def angular_coverage_deg(points: np.ndarray, p: np.ndarray, u: np.ndarray) -> fl
     a = np.sort(np.arctan2(loc[:, 1], loc[:, 0]))
     gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
     return float(360.0 - np.degrees(gaps.max()))
+
+
+# a combination of free DOF that moves the distances of points to a surface by less than this fraction of its own
+# motion (mm, or rad x the points' lever arm) is not located by the surface (a translation along a face): linearised
+# fits (ICP, profile) leave it alone. Without this, a float32 mesh's or a tilted datum's 1e-5 .. 1e-4 effect made
+# the fits slide the points hundreds of mm along the face
+DEAD_DOF = 1e-2
+
+
+def live_dof(A: np.ndarray, scales: np.ndarray, dead: float = DEAD_DOF) -> np.ndarray:
+    """A basis (columns of A x k) of the combinations of A's unknowns the rows respond to; each basis column moves
+    the unknowns by 1 in units of ``scales`` (1 for a translation in mm, the lever arm for a turn in rad)."""
+    sc = np.asarray(scales, dtype=np.float64)
+    As = A / sc
+    if not As.size:
+        return np.zeros((A.shape[1], 0))
+    _, sv, vt = np.linalg.svd(As / np.sqrt(len(As)), full_matrices=False)
+    return vt[sv > dead].T / sc[:, None]

@@ -95,9 +95,10 @@ def distance_line_plane(line: Any, plane: Any) -> float:
 
 
 def distance_plane_plane(a: Any, b: Any) -> float:
-    """Distance between parallel planes (b's point to plane a); refuses non-parallel ones."""
-    if angle_plane_plane(a, b) > 1e-9:
-        raise FitError("the planes are not parallel: their distance is not defined (use an angle)")
+    """Step height: the distance from b's point (a fitted plane's centroid) perpendicular to plane a.
+
+    Measured planes are never exactly parallel; the value is taken at b's centroid whatever their angle
+    (ISO 10360 / commercial practice), and the caller shows the angle (:func:`angle_plane_plane`) with it."""
     return abs(distance_point_plane(_plane(b)[0], a))
 
 
