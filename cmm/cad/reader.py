@@ -208,7 +208,11 @@ def _build(shape, name: str, fmt: str, unit: str, schema: str, deflection: float
     if not faces:
         raise CadError(f"'{name}' could not be triangulated: its faces have no valid boundaries")
     vertices, triangles = _merge(np.concatenate(verts), np.concatenate(tris))
-    model = CadModel(name, fmt, unit, faces, vertices, triangles, np.concatenate(owner),
+    owners = np.concatenate(owner)
+    # a triangle whose corners merged (at a sphere's pole) has no area: drop it
+    keep = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
+    triangles, owners = triangles[keep], owners[keep]
+    model = CadModel(name, fmt, unit, faces, vertices, triangles, owners,
                      bodies=[n for n, _ in bodies], deflection=deflection, schema=schema)
     assign_groups(model)
     return model
