@@ -31,7 +31,7 @@ FREE_FORM = "free-form"
 KINDS = (*surfaces.ANALYTIC, FREE_FORM)
 # a closest point found on the triangulation is refined onto its face's exact surface when the exact foot lies within
 # this of it: the chordal error, plus the lateral shift a facet's tilt gives at the point's distance
-ANGLE_SLACK = 0.15  # rad (the triangulation's angular deflection is 0.1 rad)
+ANGLE_SLACK = 0.3  # rad: half the largest angle between neighbouring facets (0.5 rad), with a margin
 
 
 class CadError(ValueError):
@@ -115,7 +115,15 @@ class CadModel:
         return [f.index for f in self.faces if f.group == g] if g >= 0 else [face]
 
     def triangles_of(self, faces: list[int]) -> NDArray[np.int64]:
-        return np.nonzero(np.isin(self.tri_face, np.asarray(faces, dtype=np.int64)))[0]
+        """The triangles of the given faces (the triangulation lists each face's triangles together, in face order)."""
+        start = self.__dict__.get("_starts")
+        if start is None or len(start) != len(self.faces) + 1:
+            ordered = bool(np.all(np.diff(self.tri_face) >= 0))
+            start = np.searchsorted(self.tri_face, np.arange(len(self.faces) + 1)) if ordered else np.zeros(0)
+            self.__dict__["_starts"] = start
+        if len(start) == 0:  # not in face order: the slow way
+            return np.nonzero(np.isin(self.tri_face, np.asarray(faces, dtype=np.int64)))[0]
+        return np.concatenate([np.arange(start[f], start[f + 1]) for f in faces] or [np.zeros(0, np.int64)])
 
     def nominal(self, face: int) -> tuple[str, dict[str, Any], NDArray[np.int64]]:
         """The nominal feature (kind, params, part coordinates) of a face's exact surface, over the faces of its

@@ -19,7 +19,7 @@ from .model import FREE_FORM, CadError, CadFace, CadModel, assign_groups
 
 CAD_EXTENSIONS = (".step", ".stp", ".iges", ".igs")
 DEFLECTION = 0.01  # mm, the triangulation's chordal error
-ANGULAR = 0.1  # rad, the largest angle between neighbouring facets
+ANGULAR = 0.5  # rad, the largest angle between neighbouring facets (the chordal error governs on all but tiny radii)
 RECOGNISE_TOL = 1e-6  # mm: a free-form surface this close to an analytic one is taken as that surface
 
 _SCHEMAS = (("AP242", "AP242"), ("MANAGED_MODEL_BASED_3D", "AP242"), ("AUTOMOTIVE_DESIGN", "AP214"),
@@ -228,18 +228,14 @@ def _triangulate(face):
     tri = BRep_Tool.Triangulation_s(face, loc)
     if tri is None or tri.NbTriangles() == 0:
         return None
-    trsf = loc.Transformation()
-    identity = loc.IsIdentity()
-    v = np.empty((tri.NbNodes(), 3))
-    for i in range(tri.NbNodes()):
-        node = tri.Node(i + 1)
-        if not identity:
-            node = node.Transformed(trsf)
-        v[i] = node.X(), node.Y(), node.Z()
-    t = np.empty((tri.NbTriangles(), 3), dtype=np.int64)
-    for i in range(tri.NbTriangles()):
-        t[i] = tri.Triangle(i + 1).Get()
-    t -= 1
+    n, m = tri.NbNodes(), tri.NbTriangles()
+    v = np.array([tri.Node(i).Coord() for i in range(1, n + 1)], dtype=np.float64).reshape(n, 3)
+    t = np.array([tri.Triangle(i).Get() for i in range(1, m + 1)], dtype=np.int64).reshape(m, 3) - 1
+    if not loc.IsIdentity():  # an assembly's placement: one matrix for all the nodes
+        trsf = loc.Transformation()
+        rot = np.array([[trsf.Value(r, c) for c in (1, 2, 3)] for r in (1, 2, 3)])
+        shift = np.array([trsf.Value(r, 4) for r in (1, 2, 3)])
+        v = v @ rot.T + shift
     if face.Orientation() == TopAbs_REVERSED:
         t = t[:, ::-1]
     return v, t
