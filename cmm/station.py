@@ -250,6 +250,20 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
                       "radius) go to the live machine; returns what was applied")
 
 
+def pose_param(pose: Any) -> np.ndarray:
+    """A part pose as front ends send it: "X,Y,Z[,RZ]" (mm, degrees), [X, Y, Z(, RZ)] or a 4x4 matrix."""
+    from .sim.placement import parse_pose
+
+    if isinstance(pose, str):
+        return parse_pose(pose)
+    arr = np.asarray(pose, dtype=np.float64)
+    if arr.shape in ((3,), (4,)):
+        return parse_pose(",".join(repr(float(v)) for v in arr))
+    if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
+        raise StationError(f"a part pose is X,Y,Z[,RZ] or a 4x4 matrix, not an array of shape {arr.shape}")
+    return arr
+
+
 class PartWorkspace:
     """The measurement model's part as the control core's motion rails see it (:class:`cmm.control.rails.Workspace`)."""
 
@@ -317,6 +331,7 @@ class Station:
                                               tell=self.measurement.log)
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
+        self._register_part_verbs()
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)
@@ -410,6 +425,52 @@ class Station:
                         sphere_diameter=settings.sphere_diameter, travel=travel_of(self.config),
                         name="the part" if part is None else f"the part {part.name}")
         self.sim.place_part(pose)
+
+    def _register_part_verbs(self) -> None:
+        """``load_part`` and ``place_sim_part`` in the command API (the control holder's, as the measurement verbs)."""
+        from .control.api import REQUIRED
+
+        def load(client: Any, path: str, pose: Any = None) -> Any:
+            self.controller.check_access(client, "measure")
+            return self.load_part(path, None if pose is None else pose_param(pose))
+
+        def place(client: Any, pose: Any) -> list:
+            self.controller.check_access(client, "measure")
+            pose = pose_param(pose)
+            self.place_sim_part(pose)
+            return pose.tolist()
+
+        cmds = self.controller.commands
+        cmds.register("load_part", load, {"path": REQUIRED, "pose": None},
+                      "load a part file (STEP, IGES with exact surfaces; STL, OBJ, PLY, 3MF, GLB) as the nominal CAD at "
+                      "pose (\"X,Y,Z[,RZ]\" mm and degrees, or a 4x4 part -> machine; none: its lowest corner at the "
+                      "nominal set-up); on the simulator the part is put on the table there; the control holder only")
+        cmds.register("place_sim_part", place, {"pose": REQUIRED},
+                      "on the simulator: the next part is put on the table at pose (\"X,Y,Z[,RZ]\" or a 4x4), where "
+                      "the station does not know it until it is aligned; refused next to the reference sphere or off "
+                      "the table; the control holder only; returns the pose (4x4)")
+
+    def load_part(self, path: str | Path, pose: Any = None) -> Part:
+        """Load the part file ``path`` (STEP, IGES or a mesh) as the station's nominal CAD at ``pose`` (4x4 part ->
+        machine; None: its lowest corner at the nominal set-up); on the simulator the same part is put on the table
+        there (refused with a PlacementError when it would collide with the reference sphere or leave the table)."""
+        from .metrology.mesh import load_part
+        from .sim.cmm_sim import NOMINAL_PART_POSE
+
+        mesh = load_part(path)
+        if pose is None:
+            shift = np.eye(4)
+            shift[:3, 3] = -mesh.bounds[0]
+            pose = NOMINAL_PART_POSE @ shift
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        if self.sim is not None:
+            from .sim.placement import check_placement, travel_of
+
+            settings = self.sim.settings
+            check_placement(mesh, pose, sphere_centre=settings.sphere_centre, sphere_diameter=settings.sphere_diameter,
+                            travel=travel_of(self.config), name=f"the part {Path(path).name}")
+            self.sim.place_part(pose, mesh)
+        return self.measurement.load_part(path, pose, mesh=mesh)
 
     def place_sim_artifacts(self, spheres: list) -> None:
         """On the simulator: the operator sets up artifacts [(centre, diameter)]; under the simulator's lock, so
