@@ -85,8 +85,10 @@ def _cmm_network(args: argparse.Namespace):
 
         if for_homing(cmm, config.homing) is not None:
             switches = f", home switches on {config.homing.input.upper()}"
-    print(f"cmm sim: simulated CMM, part at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
-          f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
+    what = f"the part {Path(args.part).name}" if args.part else "the sample part"
+    exact = "" if args.part_pose is None else " (exactly as --part-pose says)"
+    print(f"cmm sim: simulated CMM, {what} at X={settings.part_pose[0, 3]:.2f} Y={settings.part_pose[1, 3]:.2f} "
+          f"Z={settings.part_pose[2, 3]:.2f}{exact or ' (not exactly where the station assumes)'}, reference sphere D {settings.sphere_diameter:g} mm "
           f"at {settings.sphere_centre}{switches}", flush=True)
     return cmm.network
 
