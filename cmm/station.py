@@ -29,6 +29,7 @@ from .machine.motion import Machine
 from .machine.probing import Prober
 from .measurement.model import MeasurementError, MeasurementModel, Part
 from .nmc.trace import ByteTrace
+from .sim.placement import PlacementError, part_pose_of  # noqa: F401 - --part-pose of the front ends
 
 StationError = MeasurementError  # the station's refusals and the model's are one kind of operator sentence
 # the journal events a front end may write itself (record_event); everything else the model records as it changes
@@ -255,6 +256,20 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
                       "radius) go to the live machine; returns what was applied")
 
 
+def pose_param(pose: Any) -> np.ndarray:
+    """A part pose as front ends send it: "X,Y,Z[,RZ]" (mm, degrees), [X, Y, Z(, RZ)] or a 4x4 matrix."""
+    from .sim.placement import parse_pose
+
+    if isinstance(pose, str):
+        return parse_pose(pose)
+    arr = np.asarray(pose, dtype=np.float64)
+    if arr.shape in ((3,), (4,)):
+        return parse_pose(",".join(repr(float(v)) for v in arr))
+    if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
+        raise StationError(f"a part pose is X,Y,Z[,RZ] or a 4x4 matrix, not an array of shape {arr.shape}")
+    return arr
+
+
 class PartWorkspace:
     """The measurement model's part as the control core's motion rails see it (:class:`cmm.control.rails.Workspace`)."""
 
@@ -290,7 +305,8 @@ class Station:
 
     def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
                  part_path: str | Path | None = None, session_dir: str | Path = "sessions",
-                 sim_settings: Any = None, calibration_dir: str | Path | None = None, trends: Any = None) -> None:
+                 sim_settings: Any = None, calibration_dir: str | Path | None = None, trends: Any = None,
+                 part_pose: Any = None) -> None:
         self.config = config or load()
         if baud is not None:
             self.config = self.config.with_link(baud=baud)
@@ -302,7 +318,7 @@ class Station:
         port = port or self.config.link.port
         part: Part | None = None
         if port == "sim" or (isinstance(port, str) and port.startswith("sim://")):
-            part, port = self._start_simulator(port, sim_settings, part_path)
+            part, port = self._start_simulator(port, sim_settings, part_path, part_pose)
         self.port = port
         self.machine = Machine(self.config, port, trace=self.trace)
         self.prober = Prober(self.machine)
@@ -321,6 +337,7 @@ class Station:
                                               tell=self.measurement.log)
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
+        self._register_part_verbs()
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)
@@ -330,14 +347,17 @@ class Station:
             except self.calibration.errors:
                 pass  # a probe list that cannot be read: said when the calibration tab opens it
         if part_path is not None and self.sim is None:
-            self.measurement.load_part(part_path)
+            self.measurement.load_part(part_path, None if part_pose is None else np.asarray(part_pose, float))
 
-    def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None) -> tuple[Part, str]:
+    def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None,
+                         part_pose: Any = None) -> tuple[Part, str]:
         """The simulated CMM ("sim": a child process serving it over TCP on loopback in real time; "sim://...": in-process
         on the world that URL names); a user's part is placed on its table. Returns (part, port URL).
 
-        The part lies where the station believes it is (its lowest corner at the
-        nominal set-up position) up to the simulator's deliberate set-up error.
+        Without ``part_pose`` the part lies where the station believes it is (its lowest corner at the
+        nominal set-up position) up to the simulator's deliberate set-up error; with it (4x4 part -> machine,
+        ``--part-pose``) the part's CAD origin sits exactly there and the station believes so. A part that would
+        collide with the reference sphere or leave the table raises a PlacementError.
         """
         from dataclasses import replace
 
@@ -348,13 +368,23 @@ class Station:
         settings = settings or CmmSimSettings()
         nominal_pose = NOMINAL_PART_POSE.copy()
         name = "sample part"
-        if part_path is not None:
-            mesh = load_part(part_path)
-            shift = np.eye(4)
-            shift[:3, 3] = -mesh.bounds[0]
-            nominal_pose = nominal_pose @ shift
-            settings = replace(settings, part_mesh=mesh, part_pose=TRUE_PART_POSE @ shift)
-            name = Path(part_path).name
+        if part_path is not None or part_pose is not None:
+            from .sim.placement import check_placement, travel_of
+            from .sim.sample_part import sample_part
+
+            mesh = load_part(part_path) if part_path is not None else sample_part()[0]
+            if part_path is not None:
+                name = Path(part_path).name
+            if part_pose is not None:
+                true_pose = nominal_pose = np.asarray(part_pose, dtype=np.float64).reshape(4, 4).copy()
+            else:
+                shift = np.eye(4)
+                shift[:3, 3] = -mesh.bounds[0]
+                nominal_pose, true_pose = nominal_pose @ shift, TRUE_PART_POSE @ shift
+            check_placement(mesh, true_pose, sphere_centre=settings.sphere_centre,
+                            sphere_diameter=settings.sphere_diameter, travel=travel_of(self.config),
+                            name=name if part_path is None else f"the part {name}")
+            settings = replace(settings, part_mesh=mesh if part_path is not None else None, part_pose=true_pose)
         if port == "sim":  # in a process of its own, never under this process's interpreter lock
             self.sim = self._served = SimProcess(self.config, settings)
             port = self._served.url
@@ -385,6 +415,68 @@ class Station:
     @property
     def simulated(self) -> bool:
         return self.sim is not None
+
+    def place_sim_part(self, pose: Any) -> None:
+        """On the simulator: the operator puts the next part on the table at ``pose`` (4x4 part -> machine; the
+        station's belief does not change: align the part). Refused with a PlacementError when it would collide with
+        the reference sphere or leave the table."""
+        from .sim.placement import check_placement, travel_of
+
+        if self.sim is None:
+            raise StationError("there is no simulator: put the part on the table by hand")
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        settings = self.sim.settings
+        part = self.measurement.part
+        check_placement(self.sim.part_mesh, pose, sphere_centre=settings.sphere_centre,
+                        sphere_diameter=settings.sphere_diameter, travel=travel_of(self.config),
+                        name="the part" if part is None else f"the part {part.name}")
+        self.sim.place_part(pose)
+
+    def _register_part_verbs(self) -> None:
+        """``load_part`` and ``place_sim_part`` in the command API (the control holder's, as the measurement verbs)."""
+        from .control.api import REQUIRED
+
+        def load(client: Any, path: str, pose: Any = None) -> Any:
+            self.controller.check_access(client, "measure")
+            return self.load_part(path, None if pose is None else pose_param(pose))
+
+        def place(client: Any, pose: Any) -> list:
+            self.controller.check_access(client, "measure")
+            pose = pose_param(pose)
+            self.place_sim_part(pose)
+            return pose.tolist()
+
+        cmds = self.controller.commands
+        cmds.register("load_part", load, {"path": REQUIRED, "pose": None},
+                      "load a part file (STEP, IGES with exact surfaces; STL, OBJ, PLY, 3MF, GLB) as the nominal CAD at "
+                      "pose (\"X,Y,Z[,RZ]\" mm and degrees, or a 4x4 part -> machine; none: its lowest corner at the "
+                      "nominal set-up); on the simulator the part is put on the table there; the control holder only")
+        cmds.register("place_sim_part", place, {"pose": REQUIRED},
+                      "on the simulator: the next part is put on the table at pose (\"X,Y,Z[,RZ]\" or a 4x4), where "
+                      "the station does not know it until it is aligned; refused next to the reference sphere or off "
+                      "the table; the control holder only; returns the pose (4x4)")
+
+    def load_part(self, path: str | Path, pose: Any = None) -> Part:
+        """Load the part file ``path`` (STEP, IGES or a mesh) as the station's nominal CAD at ``pose`` (4x4 part ->
+        machine; None: its lowest corner at the nominal set-up); on the simulator the same part is put on the table
+        there (refused with a PlacementError when it would collide with the reference sphere or leave the table)."""
+        from .metrology.mesh import load_part
+        from .sim.cmm_sim import NOMINAL_PART_POSE
+
+        mesh = load_part(path)
+        if pose is None:
+            shift = np.eye(4)
+            shift[:3, 3] = -mesh.bounds[0]
+            pose = NOMINAL_PART_POSE @ shift
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        if self.sim is not None:
+            from .sim.placement import check_placement, travel_of
+
+            settings = self.sim.settings
+            check_placement(mesh, pose, sphere_centre=settings.sphere_centre, sphere_diameter=settings.sphere_diameter,
+                            travel=travel_of(self.config), name=f"the part {Path(path).name}")
+            self.sim.place_part(pose, mesh)
+        return self.measurement.load_part(path, pose, mesh=mesh)
 
     def place_sim_artifacts(self, spheres: list) -> None:
         """On the simulator: the operator sets up artifacts [(centre, diameter)]; under the simulator's lock, so

@@ -354,10 +354,11 @@ class MeasurementModel:
 
     # --- part -------------------------------------------------------------------
 
-    def load_part(self, path: str | Path, pose: np.ndarray | None = None) -> Part:
+    def load_part(self, path: str | Path, pose: np.ndarray | None = None, mesh: Any = None) -> Part:
+        """The part ``path`` (a mesh or a CAD file; ``mesh``: that file already read) at ``pose`` (part -> machine)."""
         from ..metrology.mesh import load_part
 
-        mesh = load_part(path)
+        mesh = load_part(path) if mesh is None else mesh
         mesh.metadata["sha256"], mesh.metadata["path"] = file_sha256(path), str(Path(path).resolve())
         with self.lock:
             self.part = Part(Path(path).name, mesh, np.eye(4) if pose is None else np.asarray(pose, float))

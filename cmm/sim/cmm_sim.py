@@ -126,10 +126,14 @@ class SimulatedCMM:
             self.world.obstacles.extend(self._artifacts)
             self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
 
-    def place_part(self, pose: np.ndarray) -> None:
-        """The operator puts the next part on the table at ``pose`` (part -> machine)."""
-        part = MeshObstacle(self.part_mesh, pose)
+    def place_part(self, pose: np.ndarray, mesh: object | None = None) -> None:
+        """The operator puts the next part on the table at ``pose`` (part -> machine); ``mesh``: another part
+        (a trimesh in part coordinates, a CAD part's with its exact surfaces) instead of the present one."""
+        part = MeshObstacle(self.part_mesh if mesh is None else mesh, pose)
         with self.network.lock:
+            if mesh is not None:
+                self.part_mesh, self.nominal_features = mesh, {}
+                self.settings.part_mesh = mesh
             self.world.obstacles[self.world.obstacles.index(self._part)] = part
             self._part = part
             self.settings.part_pose = np.asarray(pose, dtype=np.float64).copy()

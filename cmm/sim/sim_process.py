@@ -81,6 +81,17 @@ class SimProcess:
         """The operator sets up artifacts [(centre, diameter)] (under the simulator's lock, in the child)."""
         self._call("place", [(tuple(map(float, c)), float(d)) for c, d in spheres])
 
+    def place_part(self, pose: Any, mesh: Any = None) -> None:
+        """The operator puts the next part on the table at ``pose`` (4x4 part -> machine), in the child; ``mesh``:
+        another part instead of the present one."""
+        import numpy as np
+
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        self._call("place_part", pose.tolist(), mesh)
+        self.settings.part_pose = pose.copy()
+        if mesh is not None:
+            self.part_mesh, self.nominal_features = mesh, {}
+
     @property
     def last_trigger_wall(self) -> float:
         """``time.perf_counter()`` of the last probe trigger (CLOCK_MONOTONIC: comparable across processes)."""
@@ -170,6 +181,11 @@ def serve(conn: Connection, parent: int) -> None:
                 if msg[0] == "place":
                     cmm.place_artifacts(msg[1])
                     reply: tuple = ("ok", None)
+                elif msg[0] == "place_part":
+                    import numpy as np
+
+                    cmm.place_part(np.array(msg[1], dtype=np.float64), msg[2] if len(msg) > 2 else None)
+                    reply = ("ok", None)
                 elif msg[0] == "get" and msg[1] in ("last_trigger_wall", "triggers"):
                     reply = ("ok", getattr(cmm, msg[1]))
                 else:

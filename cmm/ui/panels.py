@@ -36,6 +36,7 @@ from .panel_align import AlignPanel
 from .panel_calibration import CalibrationPanel
 from .panel_colour_map import ColourMapPanel
 from .panel_features import FeaturesPanel
+from .panel_part import PartPanel
 from .panel_measure import MeasurePanel
 from .panel_routine import RoutinePanel
 from .panel_sessions import SessionsPanel
@@ -177,6 +178,7 @@ class ClientApp:
         self.features = FeaturesPanel(self.ctx)
         self.align = AlignPanel(self.ctx)
         self.measure = MeasurePanel(self.ctx)
+        self.part = PartPanel(self.ctx)
         self.routine = RoutinePanel(self.ctx)
         self.colour_map = ColourMapPanel(self.ctx)
         self.trends = TrendsPanel(self.ctx)
@@ -636,6 +638,8 @@ class ClientApp:
                 g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
                 gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
                 gui.add_button("Undo").on_click(lambda _: self.undo())
+        with tabs.add_tab("Part"):
+            self.part.build(gui)
         with tabs.add_tab("Align"):
             self.align.build(gui)
         with tabs.add_tab("Measure"):
@@ -704,6 +708,7 @@ class ClientApp:
         self.ctx.set("hits", "content", "hits (last 12, machine coordinates):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
         self.features.refresh()
         self.align.refresh()
+        self.part.refresh()
         self.colour_map.refresh()
         self.measure.refresh()
         self.routine.refresh()
