@@ -89,16 +89,18 @@ def _run(args: Any, path: Path, text: str) -> int:
     try:
         station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
-        if not commands.invoke(None, "state").homed:
-            if not args.home:
-                print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
-                return 1
-            commands.invoke(None, "home")
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
         else:  # the run still measures, but its sizes carry the probe's pre-travel: say so before the results
             print(f"no calibration records in {args.records}: the probe is not qualified (its nominal tip radius, "
                   "no pre-travel model); name the records with --records DIR")
+        if _refuse_sensors(station, path, text):  # before anything moves, homing included
+            return 1
+        if not commands.invoke(None, "state").homed:
+            if not args.home:
+                print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
+                return 1
+            commands.invoke(None, "home")
         session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
         try:
             register_verbs(station)
@@ -126,6 +128,19 @@ def _run(args: Any, path: Path, text: str) -> int:
     write_report(s, report, mesh=resolve_part_mesh(s))
     print(f"wrote {report} (session {name})")
     return 0
+
+
+def _refuse_sensors(station: Any, path: Path, text: str) -> bool:
+    """Whether a SNSLCT names a stylus the station has not qualified (said with the command that qualifies it)."""
+    from .check import check
+    from .rules import sensor_problems
+    from .runner import StationTarget
+
+    target = StationTarget(station)
+    problems = sensor_problems(check(text)[0], target.probes(), target.nominal_tip_diameter)
+    for problem in problems:
+        print(f"{path}: {problem}", file=sys.stderr)
+    return bool(problems)
 
 
 def terminal_hits(station: Any) -> Any:

@@ -22,7 +22,7 @@ from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
 from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
-                    open_problem, probe_direction, probe_problem, rotat_problem)
+                    open_problem, probe_direction, probe_problem, rotat_problem, station_tip_problem)
 from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
@@ -55,6 +55,8 @@ class Target(Protocol):
     def select_probe(self, name: str) -> str: ...
     @property
     def tip_radius(self) -> float: ...
+    @property
+    def nominal_tip_diameter(self) -> float: ...
     @property
     def probing_speed(self) -> float: ...
     @property
@@ -629,10 +631,9 @@ class Executor:
             if said:
                 self.log(f"line {s.line}: S({name}): {said}")
             return
-        have = 2.0 * float(self.target.tip_radius)
-        if abs(want - have) > 0.005:  # no probe list: the station's one probe measures
-            self.log(f"line {s.line}: S({name}) is a {want:.3f} mm tip; the station measures with its qualified "
-                     f"{have:.3f} mm tip (PTMEAS points are surface points: the tip is compensated)")
+        problem = station_tip_problem(name, want, float(self.target.nominal_tip_diameter))
+        if problem:  # no probe list: the station's one probe measures, when it is the sensor's tip
+            raise self.fail(s, problem)
 
     def do_snset(self, s: Statement) -> None:
         v = self.numbers(s)

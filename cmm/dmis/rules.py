@@ -138,30 +138,56 @@ def material_problem(word: str, words: Sequence[str]) -> str | None:
 TIP_MATCH = 0.005  # mm: a probe-list tip within this of the SNSDEF's diameter is that sensor
 
 
+def qualify_command(label: str, diameter: float) -> str:
+    """The command that qualifies the stylus S(label) of an SNSDEF tip ``diameter`` mm."""
+    return f"cmm calibrate probe --probe {label} --tip-diameter {_mm(diameter)}"
+
+
+def _fits(p: dict, diameter: float) -> bool:
+    return any(abs(float(d) - diameter) <= TIP_MATCH for d in (p["tip_diameter"], *p.get("qualified_diameters", ())))
+
+
 def match_probe(label: str, diameter: float, probes: Sequence[dict]) -> tuple[str | None, str | None]:
     """(probe name, problem) for SNSLCT/S(label) of an SNSDEF tip ``diameter`` (mm) among the station's probe list
-    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected`` and optionally ``qualified_diameters``):
-    the probe named like the sensor, else the one in use when its tip (nominal or qualified) matches, else the
-    first qualified one that matches, else any that matches."""
+    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected`` and optionally ``qualified_diameters``).
+    The probe named like the sensor when the list has one (its tip must be the sensor's and it must be qualified),
+    else the qualified probe with that tip (the one in use first). A stylus not qualified is refused with the
+    command that qualifies it."""
+    how = f"qualify it with `{qualify_command(label, diameter)}` (or in the Calibration tab's probe list)"
     named = [p for p in probes if str(p["name"]).upper() == label.upper()]
     if named:
-        return str(named[0]["name"]), None
-    fits = [p for p in probes if any(abs(float(d) - diameter) <= TIP_MATCH
-                                     for d in (p["tip_diameter"], *p.get("qualified_diameters", ())))]
-    fits.sort(key=lambda p: (not p.get("selected"), not p.get("qualified")))
+        p = named[0]
+        if not _fits(p, diameter):
+            return None, (f"SNSLCT/S({label}): the probe {p['name']} of the probe list has a {_mm(p['tip_diameter'])} "
+                          f"mm tip, the program's S({label}) a {_mm(diameter)} mm tip")
+        if not p.get("qualified"):
+            return None, f"SNSLCT/S({label}): the probe {p['name']} ({_mm(diameter)} mm) is not qualified: {how}"
+        return str(p["name"]), None
+    fits = [p for p in probes if p.get("qualified") and _fits(p, diameter)]
+    fits.sort(key=lambda p: not p.get("selected"))
     if fits:
         return str(fits[0]["name"]), None
     listed = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if p.get("qualified")]
-    others = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if not p.get("qualified")]
-    return None, (f"SNSLCT/S({label}): no probe in the probe list has a {_mm(diameter)} mm tip; qualified probes: "
-                  f"{', '.join(listed) or 'none'}" + (f"; not qualified: {', '.join(others)}" if others else ""))
+    return None, (f"SNSLCT/S({label}): no qualified probe has a {_mm(diameter)} mm tip: {how}; qualified probes: "
+                  f"{', '.join(listed) or 'none'}")
 
 
+def station_tip_problem(label: str, diameter: float, tip_diameter: float) -> str | None:
+    """A station without a probe list (no calibration records) measures with its one configured probe: a sensor
+    with another tip is refused with the command that qualifies it."""
+    if abs(diameter - tip_diameter) <= TIP_MATCH:
+        return None
+    return (f"SNSLCT/S({label}): the station's probe has a {_mm(tip_diameter)} mm tip, the program's S({label}) a "
+            f"{_mm(diameter)} mm tip: qualify it with `{qualify_command(label, diameter)}` and run with its "
+            "--records folder")
 
-def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None) -> list[str]:
-    """"line N: ..." for every SNSLCT whose sensor no probe of the station's list matches, read before the run
-    (a sensor whose diameter is a variable is judged when it runs); none without a probe list."""
-    if probes is None:
+
+def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None,
+                    tip_diameter: float | None = None) -> list[str]:
+    """"line N: ..." for every SNSLCT whose sensor is not a qualified probe of the station's list (without a list:
+    whose tip is not the station's probe's, ``tip_diameter``), read before the run (a sensor whose diameter is a
+    variable is judged when it runs)."""
+    if probes is None and tip_diameter is None:
         return []
     scale, diameters, out = 1.0, {}, []
     for s in stmts:
@@ -175,10 +201,13 @@ def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None) -
         elif s.major == "SNSLCT":
             label = next((p for p in s.params if isinstance(p, Label)), None)
             if label is not None and diameters.get(label.name) is not None:
-                _, problem = match_probe(label.name, diameters[label.name], probes)  # type: ignore[arg-type]
+                d = float(diameters[label.name])  # type: ignore[arg-type]
+                problem = (match_probe(label.name, d, probes)[1] if probes is not None
+                           else station_tip_problem(label.name, d, float(tip_diameter)))  # type: ignore[arg-type]
                 if problem:
                     out.append(f"line {s.line}: {problem}")
     return out
+
 
 def _mm(x: float) -> str:
     """2.0, 2.54, 0.125: a length as written on a drawing."""

@@ -156,6 +156,11 @@ class StationTarget:
         return float(self.station.controller.tip_radius)
 
     @property
+    def nominal_tip_diameter(self) -> float:
+        """The configured probe's tip (mm): the one a station without a probe list measures with."""
+        return 2.0 * float(self.station.config.probe.tip_radius)
+
+    @property
     def probing_speed(self) -> float:
         return float(self.station.calibration.qualified_probing_speed)
 
@@ -197,7 +202,8 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     if problems:
         raise DmisError(problems[0])
     target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
-    problems = sensor_problems(stmts, target.probes())  # a sensor the probe list has not: refused before motion
+    # a sensor that is no qualified probe of the list (no list: not the station's tip): refused before motion
+    problems = sensor_problems(stmts, target.probes(), target.nominal_tip_diameter)
     if problems:
         raise DmisError(problems[0])
     executor = Executor(stmts, target, name=name)

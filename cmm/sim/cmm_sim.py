@@ -126,6 +126,19 @@ class SimulatedCMM:
             self.world.obstacles.extend(self._artifacts)
             self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
 
+    def mount_stylus(self, tip_diameter: float) -> None:
+        """The operator mounts a stylus with a ``tip_diameter`` mm ball (the probe list's probe selected): the tip
+        that touches the part from now on; its pre-travel and noise stay the probe body's."""
+        from dataclasses import replace
+
+        d = float(tip_diameter)
+        if not 0.1 <= d <= 30.0:
+            raise ValueError(f"a stylus tip of {d:g} mm cannot be mounted (0.1 to 30 mm)")
+        with self.network.lock:  # not between two servo ticks' probe checks
+            self.world.probe = replace(self.world.probe, tip_radius=d / 2.0)
+            self.settings.probe = self.world.probe
+            self.world._safe_from = None  # the conservative-advancement cache assumed the old radius
+
     def place_part(self, pose: np.ndarray) -> None:
         """The operator puts the next part on the table at ``pose`` (part -> machine)."""
         part = MeshObstacle(self.part_mesh, pose)

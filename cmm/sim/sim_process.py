@@ -81,6 +81,10 @@ class SimProcess:
         """The operator sets up artifacts [(centre, diameter)] (under the simulator's lock, in the child)."""
         self._call("place", [(tuple(map(float, c)), float(d)) for c, d in spheres])
 
+    def mount_stylus(self, tip_diameter: float) -> None:
+        """The operator mounts a stylus of ``tip_diameter`` mm (in the child, under the simulator's lock)."""
+        self._call("mount", float(tip_diameter))
+
     @property
     def last_trigger_wall(self) -> float:
         """``time.perf_counter()`` of the last probe trigger (CLOCK_MONOTONIC: comparable across processes)."""
@@ -170,6 +174,9 @@ def serve(conn: Connection, parent: int) -> None:
                 if msg[0] == "place":
                     cmm.place_artifacts(msg[1])
                     reply: tuple = ("ok", None)
+                elif msg[0] == "mount":
+                    cmm.mount_stylus(msg[1])
+                    reply = ("ok", None)
                 elif msg[0] == "get" and msg[1] in ("last_trigger_wall", "triggers"):
                     reply = ("ok", getattr(cmm, msg[1]))
                 else:
