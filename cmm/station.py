@@ -284,7 +284,8 @@ class Station:
 
     def __init__(self, config: MachineConfig | None = None, *, port: str | None = None, baud: int | None = None,
                  part_path: str | Path | None = None, session_dir: str | Path = "sessions",
-                 sim_settings: Any = None, calibration_dir: str | Path | None = None, trends: Any = None) -> None:
+                 sim_settings: Any = None, calibration_dir: str | Path | None = None, trends: Any = None,
+                 part_pose: Any = None) -> None:
         self.config = config or load()
         if baud is not None:
             self.config = self.config.with_link(baud=baud)
@@ -296,7 +297,7 @@ class Station:
         port = port or self.config.link.port
         part: Part | None = None
         if port == "sim" or (isinstance(port, str) and port.startswith("sim://")):
-            part, port = self._start_simulator(port, sim_settings, part_path)
+            part, port = self._start_simulator(port, sim_settings, part_path, part_pose)
         self.port = port
         self.machine = Machine(self.config, port, trace=self.trace)
         self.prober = Prober(self.machine)
@@ -324,14 +325,17 @@ class Station:
             except self.calibration.errors:
                 pass  # a probe list that cannot be read: said when the calibration tab opens it
         if part_path is not None and self.sim is None:
-            self.measurement.load_part(part_path)
+            self.measurement.load_part(part_path, None if part_pose is None else np.asarray(part_pose, float))
 
-    def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None) -> tuple[Part, str]:
+    def _start_simulator(self, port: str, settings: Any, part_path: str | Path | None,
+                         part_pose: Any = None) -> tuple[Part, str]:
         """The simulated CMM ("sim": a child process serving it over TCP on loopback in real time; "sim://...": in-process
         on the world that URL names); a user's part is placed on its table. Returns (part, port URL).
 
-        The part lies where the station believes it is (its lowest corner at the
-        nominal set-up position) up to the simulator's deliberate set-up error.
+        Without ``part_pose`` the part lies where the station believes it is (its lowest corner at the
+        nominal set-up position) up to the simulator's deliberate set-up error; with it (4x4 part -> machine,
+        ``--part-pose``) the part's CAD origin sits exactly there and the station believes so. A part that would
+        collide with the reference sphere or leave the table raises a PlacementError.
         """
         from dataclasses import replace
 
@@ -342,13 +346,23 @@ class Station:
         settings = settings or CmmSimSettings()
         nominal_pose = NOMINAL_PART_POSE.copy()
         name = "sample part"
-        if part_path is not None:
-            mesh = load_part(part_path)
-            shift = np.eye(4)
-            shift[:3, 3] = -mesh.bounds[0]
-            nominal_pose = nominal_pose @ shift
-            settings = replace(settings, part_mesh=mesh, part_pose=TRUE_PART_POSE @ shift)
-            name = Path(part_path).name
+        if part_path is not None or part_pose is not None:
+            from .sim.placement import check_placement, travel_of
+            from .sim.sample_part import sample_part
+
+            mesh = load_part(part_path) if part_path is not None else sample_part()[0]
+            if part_path is not None:
+                name = Path(part_path).name
+            if part_pose is not None:
+                true_pose = nominal_pose = np.asarray(part_pose, dtype=np.float64).reshape(4, 4).copy()
+            else:
+                shift = np.eye(4)
+                shift[:3, 3] = -mesh.bounds[0]
+                nominal_pose, true_pose = nominal_pose @ shift, TRUE_PART_POSE @ shift
+            check_placement(mesh, true_pose, sphere_centre=settings.sphere_centre,
+                            sphere_diameter=settings.sphere_diameter, travel=travel_of(self.config),
+                            name=name if part_path is None else f"the part {name}")
+            settings = replace(settings, part_mesh=mesh if part_path is not None else None, part_pose=true_pose)
         if port == "sim":  # in a process of its own, never under this process's interpreter lock
             self.sim = self._served = SimProcess(self.config, settings)
             port = self._served.url
@@ -379,6 +393,22 @@ class Station:
     @property
     def simulated(self) -> bool:
         return self.sim is not None
+
+    def place_sim_part(self, pose: Any) -> None:
+        """On the simulator: the operator puts the next part on the table at ``pose`` (4x4 part -> machine; the
+        station's belief does not change: align the part). Refused with a PlacementError when it would collide with
+        the reference sphere or leave the table."""
+        from .sim.placement import check_placement, travel_of
+
+        if self.sim is None:
+            raise StationError("there is no simulator: put the part on the table by hand")
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        settings = self.sim.settings
+        part = self.measurement.part
+        check_placement(self.sim.part_mesh, pose, sphere_centre=settings.sphere_centre,
+                        sphere_diameter=settings.sphere_diameter, travel=travel_of(self.config),
+                        name="the part" if part is None else f"the part {part.name}")
+        self.sim.place_part(pose)
 
     def place_sim_artifacts(self, spheres: list) -> None:
         """On the simulator: the operator sets up artifacts [(centre, diameter)]; under the simulator's lock, so

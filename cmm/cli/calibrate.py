@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("routine", choices=ROUTINES, help="what to calibrate")
     p.add_argument("--serial", metavar="URL", help="pyserial URL of the NMC network (default: in-process simulator)")
     p.add_argument("--config", metavar="FILE", help="machine configuration TOML (default: the shipped one)")
+    from ..sim.placement import add_part_arguments
+
+    add_part_arguments(p)
     p.add_argument("--records", metavar="DIR", default="calibration", help="calibration records folder (default: calibration)")
     p.add_argument("--artifacts", metavar="DIR", help="artifact certificates folder (default: RECORDS/artifacts)")
     p.add_argument("--centre", metavar="X,Y,Z", help="approximate reference sphere centre (overrides its certificate)")
@@ -63,7 +66,10 @@ class _Rig:
             settings = CmmSimSettings()
             if args.inject_errors:
                 settings.errors = GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))
-        self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings)
+        from ..sim.placement import part_pose_of
+
+        self.station = Station(config, port=args.serial or SIM_URL, sim_settings=settings,
+                               part_path=getattr(args, "part", None), part_pose=part_pose_of(args))
         try:
             self.station.connect()  # the modules started in this thread (no machine loop: a script)
             self.commands = self.station.controller.commands  # every command below goes through the command API
@@ -146,9 +152,12 @@ def run(args: Any) -> int:
     from ..calibration.service import calibration_errors
     from ..control import ControlError
 
+    from ..metrology.mesh import MeshError
+    from ..sim.placement import PlacementError
+
     try:
         rig = _Rig(args)
-    except RigError as exc:
+    except (RigError, MeshError, PlacementError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except Exception as exc:  # noqa: BLE001 - an operator's message, not a traceback

@@ -32,9 +32,12 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from cmm.cad import cad_for_mesh
 from cmm.metrology.transform import apply_points, apply_vectors, as_pose, invert
 
-SUPPORTED_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf", ".3mf")
+MESH_EXTENSIONS: tuple[str, ...] = (".stl", ".obj", ".ply", ".off", ".glb", ".gltf", ".3mf")
+# CAD with exact surfaces (cmm.cad, OpenCASCADE): its triangulation carries the model in metadata["cad"]
+SUPPORTED_EXTENSIONS: tuple[str, ...] = (".step", ".stp", ".iges", ".igs") + MESH_EXTENSIONS
 
 SIGN_CONVENTION = (
     "deviation = signed distance to the nominal surface in mm: "
@@ -77,6 +80,8 @@ def load_part(path: str | Path) -> trimesh.Trimesh:
         )
     if not p.is_file():
         raise MeshError(f"mesh file '{p}' does not exist")
+    if ext not in MESH_EXTENSIONS:
+        return _load_cad(p)
     try:
         loaded = trimesh.load(str(p), file_type=ext[1:], force="mesh", process=False)
     except Exception as exc:  # parsers raise anything from KeyError to struct.error
@@ -102,6 +107,23 @@ def load_part(path: str | Path) -> trimesh.Trimesh:
             MeshWarning,
             stacklevel=2,
         )
+    return mesh
+
+
+def _load_cad(p: Path) -> trimesh.Trimesh:
+    """A STEP or IGES part: its triangulation, with the exact B-rep model in ``metadata["cad"]``."""
+    from cmm.cad import CadError, read_cad
+
+    try:
+        model = read_cad(p)
+    except CadError as exc:
+        raise MeshError(str(exc)) from None
+    except Exception as exc:  # noqa: BLE001 - OpenCASCADE failures come as many types: one sentence
+        raise MeshError(f"'{p.name}' could not be read as {p.suffix[1:].upper()} ({type(exc).__name__}: {exc})") from None
+    mesh = model.mesh()
+    if not mesh.metadata["watertight"]:
+        warnings.warn(f"CAD part '{p.name}' is not a closed solid: the sign of deviations near its open edges may "
+                      "be wrong", MeshWarning, stacklevel=3)
     return mesh
 
 
@@ -209,6 +231,7 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     n = len(pts)
     index = index or surface_index(mesh)
+    cad = cad_for_mesh(mesh)
     best_pt = np.empty((n, 3))
     dist = np.empty(n)
     face = np.empty(n, dtype=np.int64)
@@ -218,6 +241,10 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex
         d2, f, c = index.query(pts[sl])
         best_pt[sl], dist[sl], face[sl] = c, np.sqrt(np.maximum(d2, 0.0)), f
         normals[sl] = pseudo_normals(mesh, f, c)
+        if cad is not None:  # analytic faces: the closest point on the exact surface
+            foot, signed, normal, exact = cad.refine(pts[sl], f, c)
+            idx = np.arange(sl.start, sl.stop)[exact]
+            best_pt[idx], dist[idx], normals[idx] = foot[exact], np.abs(signed[exact]), normal[exact]
         if progress is not None:
             progress(sl.stop, n)
     if not np.all(np.isfinite(dist)):  # cannot happen for finite input; guard the invariant

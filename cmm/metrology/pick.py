@@ -121,12 +121,45 @@ def pick(mesh: trimesh.Trimesh, pose: ArrayLike | None, origin: ArrayLike, direc
     if not np.isfinite(t[best]):
         return None
     hit = o + t[best] * d
+    tb, normal = float(t[best]), normals[best]
+    exact = _exact_hit(mesh, int(tri[best]), o, d, tb)
+    if exact is not None:  # a CAD part: where the ray meets the face's exact surface
+        tb, normal = exact
+        hit = o + tb * d
     return PickResult(
         point=apply_points(T, hit),
-        normal=apply_vectors(T, normals[best]),
+        normal=apply_vectors(T, normal),
         face_id=int(tri[best]),
-        distance=float(t[best]),
+        distance=tb,
     )
+
+
+def _exact_hit(mesh: trimesh.Trimesh, triangle: int, o: Array, d: Array, t0: float) -> tuple[float, Array] | None:
+    """Newton steps along the ray onto the exact surface of the CAD face the triangle belongs to (None: no CAD model,
+    a free-form face, or the ray grazes it)."""
+    from cmm.cad import cad_for_mesh
+    from cmm.cad.surfaces import project
+
+    cad = cad_for_mesh(mesh)
+    if cad is None:
+        return None
+    face = cad.face_of(triangle)
+    if not face.analytic:
+        return None
+    t = t0
+    for _ in range(8):
+        _, dist, n = project(face.kind, face.params, (o + t * d)[None, :])
+        slope = float(n[0] @ d)
+        if abs(slope) < 1e-3:
+            return None
+        step = float(dist[0]) / slope
+        t -= step
+        if abs(step) < 1e-13:
+            break
+    if abs(t - t0) > 4 * cad.deflection + 1e-6:
+        return None
+    _, _, n = project(face.kind, face.params, (o + t * d)[None, :])
+    return t, face.sense * n[0]
 
 
 def suggest_feature(
@@ -153,6 +186,9 @@ def suggest_feature(
     """
     if not 0 <= face_id < len(mesh.faces):
         raise ValueError(f"face {face_id} does not exist (mesh has {len(mesh.faces)} faces)")
+    exact = _cad_suggestion(mesh, face_id, pose)
+    if exact is not None:
+        return exact
     graph = _Adjacency(mesh)
     smooth = graph.grow([face_id], edge_ok=graph.angles < np.radians(smooth_angle_deg))
     tol = tolerance if tolerance is not None else max(1e-3 * _size(mesh, smooth), 1e-3)
@@ -165,6 +201,29 @@ def suggest_feature(
     return FeatureSuggestion(
         feature=feature.transformed(T),
         face_ids=np.sort(faces),
+        max_residual=float(np.abs(residuals).max()),
+        rms_residual=float(np.sqrt(np.mean(residuals**2))),
+    )
+
+
+def _cad_suggestion(mesh: trimesh.Trimesh, face_id: int, pose: ArrayLike | None) -> FeatureSuggestion | None:
+    """A CAD part: the nominal is the picked face's exact surface (type, position, direction and size from the
+    B-rep, over the faces of the same surface), not a fit to its triangles. None for a plain mesh."""
+    from cmm.cad import cad_for_mesh
+
+    cad = cad_for_mesh(mesh)
+    if cad is None:
+        return None
+    face = cad.face_of(face_id)
+    kind, params, tris = cad.nominal(face.index)
+    if face.analytic:  # how far the triangulation's vertices are from the exact surface (the chords touch it)
+        verts = mesh.vertices[np.unique(mesh.faces[tris])]
+        residuals = cad.exact_distance(face.index, verts)
+    else:
+        residuals = np.zeros(1)
+    return FeatureSuggestion(
+        feature=NominalFeature(kind, params).transformed(as_pose(pose)),
+        face_ids=np.sort(tris),
         max_residual=float(np.abs(residuals).max()),
         rms_residual=float(np.sqrt(np.mean(residuals**2))),
     )

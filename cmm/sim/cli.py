@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="serve the whole simulated CMM: 3 axes, the sample part on the table, a 25 mm reference "
                           "sphere and a touch-trigger probe on the LIMIT inputs")
     cmm.add_argument("--config", metavar="FILE", help="machine configuration (axes, probe wiring); default shipped")
+    from .placement import add_part_arguments
+
+    add_part_arguments(cmm)
     cmm.add_argument("--no-home-switches", dest="home_switches", action="store_false",
                      help="serve the CMM without home switches (by default it has the ones the configuration's "
                           "[homing] cycle looks for, as the real machine does)")
@@ -70,6 +76,7 @@ def _cmm_network(args: argparse.Namespace):
 
     config = load(args.config)
     settings = CmmSimSettings(errors=GeometryErrors(tuple(args.scale_ppm), tuple(args.squareness_urad)))
+    _place(args, config, settings)
     cmm = SimulatedCMM(config, settings, wire_time=args.wire_time, realtime=True,
                        n_modules=args.modules, firmware=args.firmware, version=args.module_version)
     switches = ""
@@ -82,6 +89,28 @@ def _cmm_network(args: argparse.Namespace):
           f"(not exactly where the station assumes), reference sphere D {settings.sphere_diameter:g} mm "
           f"at {settings.sphere_centre}{switches}", flush=True)
     return cmm.network
+
+
+def _place(args: argparse.Namespace, config, settings) -> None:
+    """--part and --part-pose: the part on the table, checked against the reference sphere and the table."""
+    from cmm.metrology.mesh import load_part
+
+    from .cmm_sim import TRUE_PART_POSE
+    from .placement import check_placement, part_pose_of, travel_of
+    from .sample_part import sample_part
+
+    pose = part_pose_of(args)
+    if args.part is None and pose is None:
+        return
+    mesh = load_part(args.part) if args.part else sample_part()[0]
+    if pose is None:
+        shift = np.eye(4)
+        shift[:3, 3] = -mesh.bounds[0]
+        pose = TRUE_PART_POSE @ shift
+    check_placement(mesh, pose, sphere_centre=settings.sphere_centre, sphere_diameter=settings.sphere_diameter,
+                    travel=travel_of(config), name=f"the part {Path(args.part).name}" if args.part else "the sample part")
+    settings.part_mesh = mesh if args.part else None
+    settings.part_pose = pose
 
 
 def run(args: argparse.Namespace) -> int:
@@ -98,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             network = SimNetwork(args.modules, version=args.module_version, wire_time=args.wire_time,
                                  realtime=True, firmware=args.firmware or "pic-servo")
-    except ValueError as exc:  # ConfigError is a ValueError
+    except ValueError as exc:  # ConfigError, MeshError and PlacementError are ValueErrors
         print(f"cmm sim: {exc}", file=sys.stderr)
         return 2
     if args.pty:

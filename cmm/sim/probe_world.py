@@ -99,6 +99,12 @@ class MeshObstacle(Obstacle):
     LOCAL_REACH = 0.5  # mm
 
     def __init__(self, mesh, pose: np.ndarray) -> None:
+        from ..cad import cad_of
+
+        # a CAD part: the contact found on the triangulation is moved onto its face's exact surface
+        self.cad = cad_of(mesh)
+        pose = np.asarray(pose, dtype=np.float64)
+        self._rot, self._shift = pose[:3, :3].copy(), pose[:3, 3].copy()
         self.mesh = mesh.copy()
         self.mesh.apply_transform(np.asarray(pose, dtype=np.float64))
         self.lo, self.hi = self.mesh.bounds
@@ -133,6 +139,11 @@ class MeshObstacle(Obstacle):
         n = self.mesh.face_normals[faces[k]]
         v = p - c
         dv = float(np.sqrt(d2[k]))
+        if self.cad is not None:
+            local = self._rot.T @ (np.stack([p, c]) - self._shift).T
+            _, signed, normal, exact = self.cad.refine(local[:, :1].T, faces[k:k + 1], local[:, 1:].T)
+            if exact[0]:
+                return float(signed[0]), self._rot @ normal[0]
         inside = float(np.dot(v, n)) < 0 if dv > 1e-12 else False
         normal = (v / dv if dv > 1e-9 else n) * (-1 if inside else 1)
         return (-dv if inside else dv), normal

@@ -85,6 +85,14 @@ class SimProcess:
         """The operator mounts a stylus of ``tip_diameter`` mm (in the child, under the simulator's lock)."""
         self._call("mount", float(tip_diameter))
 
+    def place_part(self, pose: Any) -> None:
+        """The operator puts the next part on the table at ``pose`` (4x4 part -> machine), in the child."""
+        import numpy as np
+
+        pose = np.asarray(pose, dtype=np.float64).reshape(4, 4)
+        self._call("place_part", pose.tolist())
+        self.settings.part_pose = pose.copy()
+
     @property
     def last_trigger_wall(self) -> float:
         """``time.perf_counter()`` of the last probe trigger (CLOCK_MONOTONIC: comparable across processes)."""
@@ -176,6 +184,11 @@ def serve(conn: Connection, parent: int) -> None:
                     reply: tuple = ("ok", None)
                 elif msg[0] == "mount":
                     cmm.mount_stylus(msg[1])
+                    reply = ("ok", None)
+                elif msg[0] == "place_part":
+                    import numpy as np
+
+                    cmm.place_part(np.array(msg[1], dtype=np.float64))
                     reply = ("ok", None)
                 elif msg[0] == "get" and msg[1] in ("last_trigger_wall", "triggers"):
                     reply = ("ok", getattr(cmm, msg[1]))

@@ -22,7 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http-port", type=int, default=8080, help="port of the browser station (default 8080)")
     parser.add_argument("--pendant-port", type=int, default=None,
                         help="port of the pendant page (default: the HTTP port + 1)")
-    parser.add_argument("--part", metavar="FILE", default=None, help="part mesh (STL, OBJ, PLY, ...)")
+    from ..sim.placement import add_part_arguments
+
+    add_part_arguments(parser)
     parser.add_argument("--config", metavar="FILE", default=None, help="machine configuration TOML")
     parser.add_argument("--lan", action="store_true",
                         help="listen on every interface (0.0.0.0) and print an access code for remote operators")
@@ -90,11 +92,16 @@ def run(args: argparse.Namespace) -> int:
         trends = open_trends(args)
     except (TrendError, OSError) as exc:
         return _fail(f"cannot record trends in {args.trends}: {exc}")
+    from ..sim.placement import PlacementError, part_pose_of
+
     try:
         station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
-                          session_dir=args.sessions, calibration_dir=calibration, trends=trends)
+                          session_dir=args.sessions, calibration_dir=calibration, trends=trends,
+                          part_pose=part_pose_of(args))
     except Exception as exc:  # noqa: BLE001 - serial errors come in many types; say what happened in one line
         trends.close()
+        if isinstance(exc, PlacementError):
+            return _fail(str(exc))
         if isinstance(exc, MeshError):
             return _fail(f"cannot load the part: {exc}")
         if isinstance(exc, ConfigError):
