@@ -22,7 +22,8 @@ from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
 from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
-                    open_problem, probe_direction, probe_problem, rotat_problem, station_tip_problem)
+                    mounted, probe_direction, probe_problem, rotat_problem, station_tip_problem)
+from .vendor import VendorStatements
 from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
@@ -53,6 +54,8 @@ class Target(Protocol):
                         datum_modifiers: dict[str, str] | None) -> None: ...
     def probes(self) -> list[dict[str, Any]] | None: ...
     def select_probe(self, name: str) -> str: ...
+    def tell(self, text: str) -> None: ...
+    def ask(self, prompt: str, *, answer: bool) -> str: ...
     @property
     def tip_radius(self) -> float: ...
     @property
@@ -109,7 +112,7 @@ def blocks(stmts: list[Statement]) -> dict[int, int]:
     return pairs
 
 
-class Executor:
+class Executor(VendorStatements):
     """One run of a program on a target."""
 
     def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program") -> None:
@@ -148,6 +151,7 @@ class Executor:
         # theirs to make); MODE/AUTO: the machine does
         self.manual = False
         self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
+        self._vendor_init()
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -186,9 +190,6 @@ class Executor:
             raise self.fail(s, f"FA({label.name}) has not been measured or constructed yet")
         return a
 
-    def emit(self, line: str) -> None:
-        self.output.append(line)
-
     def log(self, text: str) -> None:
         self.result.log.append(text)
 
@@ -213,13 +214,6 @@ class Executor:
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
         return self.result
-
-    def _finish(self) -> None:
-        self.emit("ENDFIL")
-        text = "\n".join(self.output) + "\n"
-        targets = [self.devices[d] for d in self.devices if self.devices[d]] or [None]
-        for path in targets:
-            self.result.outputs[path] = text
 
     def _run(self) -> None:
         pairs = blocks(self.stmts)
@@ -306,9 +300,6 @@ class Executor:
     def do_filnam(self, s: Statement) -> None:
         self.emit(statement_text(s))
 
-    def do_text(self, s: Statement) -> None:
-        self.log(" ".join(p.text for p in s.params if isinstance(p, Text)))
-
     def do_units(self, s: Statement) -> None:
         w = self.words(s)
         self.scale = LENGTH_UNITS[w[0]]
@@ -332,24 +323,6 @@ class Executor:
         p = s.params[0]
         self.variables[s.variable] = p.text if isinstance(p, Text) else (
             self.variables.get(p.text, p.text) if isinstance(p, Word) else evaluate(p, self.variables, s.line))  # type: ignore[arg-type]
-
-    def do_device(self, s: Statement) -> None:
-        texts = [p.text for p in s.params if isinstance(p, Text)]
-        self.devices[s.label.name] = texts[0] if s.minor == "STOR" else None  # type: ignore[union-attr]
-
-    def do_open(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name not in self.devices:
-            raise self.fail(s, f"DID({name}) is not defined (DID({name}) = DEVICE/STOR, 'file')")
-        problem = open_problem(self.words(s))
-        if problem:
-            raise self.fail(s, problem)
-        self.open_devices.append(name)
-
-    def do_close(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name in self.open_devices:
-            self.open_devices.remove(name)
 
     def do_output(self, s: Statement) -> None:
         self.emit(statement_text(s))
@@ -598,20 +571,12 @@ class Executor:
         current[d_axis] = 1.0
         return math.atan2(float(np.cross(current, target) @ e), float(current @ target))
 
-    def do_recall(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name not in self.frames:
-            raise self.fail(s, f"D({name}) has not been defined")
-        self.frame = self.frames[name].copy()
-        self.design_frame = self.design_frames[name].copy()
-        self.emit(statement_text(s))
-
     # --- sensors and motion ---------------------------------------------------------------------
 
     def do_snsdef(self, s: Statement) -> None:
         v = self.numbers(s)
         direction, problem = probe_direction(self.words(s), v, self.angle_scale)
-        problem = problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
+        problem = problem or probe_problem(str(s.label), mounted(self.mount, direction))  # type: ignore[arg-type]
         if problem:
             raise self.fail(s, problem)
         self.sensors[s.label.name] = {"diameter": v[-1] * self.scale}  # type: ignore[union-attr]
@@ -814,6 +779,8 @@ class Executor:
         v = self.numbers(s, w)
         options = [p.text for p in w if isinstance(p, Word) and p.text not in self.variables]
         datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
+        if word == "POS" and "2D" in options:  # a point's 2D position is taken in the working plane (WKPLAN)
+            options.append(self.work_plane)
         tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
         # material conditions: MMC / LMC / RFS after the zone is the feature's, after a DAT(..) that datum's
         last: Param | None = None

@@ -16,10 +16,11 @@ from .tolerances import ALL as TOLERANCES
 
 # major word -> the minor words supported (None: any parameters)
 SUPPORTED: dict[str, set[str] | None] = {
-    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None, "TEXT": None,
+    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None,
     "MODE": {"PROG", "AUTO", "MAN"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
-    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None,
-    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
+    "TEXT": {"OPER", "OUTFIL", "QUERY", "MAN"},
+    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None, "SAVE": None, "WKPLAN": {"XYPLAN", "YZPLAN", "ZXPLAN"},
+    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSMNT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
     "FEDRAT": {"POSVEL", "MESVEL"}, "GOTO": None,
     "FEAT": set(KINDS), "MEAS": set(KINDS), "PTMEAS": {"CART", "POL"}, "ENDMES": None,
     "CONST": {"POINT", "LINE", "PLANE", "CIRCLE"}, "DATDEF": None, "TOL": set(TOLERANCES),
@@ -122,9 +123,63 @@ def probe_problem(label: str, direction: tuple[float, float, float]) -> str | No
 
 
 def open_problem(words: Sequence[str]) -> str | None:
+    """OPEN/DID(..), DIRECT | FDATA [, DMIS], OUTPUT [, APPEND | OVERWR]: a file of the run's output folder that
+    receives the program's DMIS output while it is open."""
     if "INPUT" in words:
         return "OPEN for INPUT is not supported: the station reads no data files in a program"
+    if "OUTPUT" not in words:
+        return "OPEN/DID(..) takes OUTPUT: OPEN/DID(name), FDATA, DMIS, OUTPUT, OVERWR (or DIRECT, OUTPUT)"
+    if "FDATA" in words and any(w not in OPEN_WORDS for w in words):
+        other = next(w for w in words if w not in OPEN_WORDS)
+        return f"OPEN/DID(..), FDATA, {other} is not supported: the station writes FDATA in the DMIS format only"
+    if not {"DIRECT", "FDATA"} & set(words):
+        return "OPEN/DID(..) needs DIRECT or FDATA: OPEN/DID(name), FDATA, DMIS, OUTPUT, OVERWR"
+    for w in words:
+        if w not in OPEN_WORDS:
+            return f"OPEN/DID(..), {w} is not supported: OPEN takes DIRECT or FDATA, DMIS, OUTPUT, APPEND or OVERWR"
     return None
+
+
+OPEN_WORDS = {"DIRECT", "FDATA", "DMIS", "OUTPUT", "APPEND", "OVERWR"}
+
+
+def device_file(path: str) -> str | None:
+    """The file a DEVICE/STOR names, as it is written: its last name only (``C:\\QC\\part.dms``, ``/tmp/x.dms``,
+    ``../x.dms`` are all ``part.dms`` / ``x.dms`` of the run's output folder: a program never writes outside
+    it); None when nothing usable is left."""
+    name = str(path).replace("\\", "/").rstrip("/").rsplit("/", 1)[-1].strip()
+    if ":" in name:  # C:part.dms
+        name = name.rsplit(":", 1)[-1]
+    if name in ("", ".", "..") or any(ord(c) < 32 for c in name):
+        return None
+    return name
+
+
+def mount_matrix(values: Sequence[float], words: Sequence[str]) -> tuple[list[list[float]] | None, str | None]:
+    """(3x3 rotation, problem) of SNSMNT/XVEC, i, j, k, ZVEC, i, j, k, MNTOFF, x, y, z: the columns are the
+    probe head's X, Y, Z axes in machine axes (the sensors SNSDEF defines after it are given in the head's)."""
+    form = "SNSMNT takes XVEC, i, j, k, ZVEC, i, j, k, MNTOFF, x, y, z"
+    if list(words) != ["XVEC", "ZVEC", "MNTOFF"] or len(values) != 9:
+        return None, form
+    x, z = [float(v) for v in values[0:3]], [float(v) for v in values[3:6]]
+    nx, nz = math.sqrt(sum(v * v for v in x)), math.sqrt(sum(v * v for v in z))
+    if nx < 1e-9 or nz < 1e-9:
+        return None, "SNSMNT: XVEC and ZVEC must not be zero"
+    x, z = [v / nx for v in x], [v / nz for v in z]
+    if abs(sum(a * b for a, b in zip(x, z))) > 1e-3:
+        return None, "SNSMNT: XVEC and ZVEC must be perpendicular"
+    y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]]
+    return [[x[i], y[i], z[i]] for i in range(3)], None
+
+
+def mounted(matrix: Sequence[Sequence[float]] | None, direction: Sequence[float]) -> tuple[float, float, float]:
+    """A sensor direction given in the probe head's axes, in machine axes."""
+    if matrix is None:
+        return (float(direction[0]), float(direction[1]), float(direction[2]))
+    return tuple(sum(matrix[i][k] * float(direction[k]) for k in range(3)) for i in range(3))  # type: ignore[return-value]
+
+
+SAVED = ("D", "DA", "DAT", "FA", "SA")  # what SAVE / RECALL keep: coordinate systems, datums, actuals, sensors
 
 
 def material_problem(word: str, words: Sequence[str]) -> str | None:
