@@ -70,6 +70,7 @@ class SimulatedCMM:
             self.nominal_features = {}
         self.part_mesh = mesh
         self._part = MeshObstacle(mesh, self.settings.part_pose)
+        self._part.box_reach = max(1.0, self.settings.probe.tip_radius + 0.5)
         obstacles = [
             PlaneObstacle(0.0),
             self._part,
@@ -136,12 +137,16 @@ class SimulatedCMM:
             raise ValueError(f"a stylus tip of {d:g} mm cannot be mounted (0.1 to 30 mm)")
         with self.network.lock:  # not between two servo ticks' probe checks
             self.world.probe = replace(self.world.probe, tip_radius=d / 2.0)
+            for ob in self.world.obstacles:  # their cheap box bound stays beyond any contact of this tip
+                if isinstance(ob, MeshObstacle):
+                    ob.box_reach = max(1.0, d / 2.0 + 0.5)
             self.settings.probe = self.world.probe
             self.world._safe_from = None  # the conservative-advancement cache assumed the old radius
 
     def place_part(self, pose: np.ndarray) -> None:
         """The operator puts the next part on the table at ``pose`` (part -> machine)."""
         part = MeshObstacle(self.part_mesh, pose)
+        part.box_reach = self._part.box_reach
         with self.network.lock:
             self.world.obstacles[self.world.obstacles.index(self._part)] = part
             self._part = part
