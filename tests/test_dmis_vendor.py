@@ -149,3 +149,71 @@ def test_a_query_without_an_operator_is_refused_in_words(station):
     with pytest.raises(DmisError, match=r"^line 2: the program asks the operator \(for an answer\) and this run has "
                                         r"no one to ask"):
         run_text("DECL/CHAR, 10, SN\nTEXT/QUERY, (SN), 10, ALPHA, L, 'Serial?'\nENDFIL\n", station)
+
+
+UPLOADED = b"""FILNAM/'uploaded'
+UNITS/MM, ANGDEC
+DECL/CHAR, 20, SN
+TEXT/OPER, 'Clamp the part'
+TEXT/QUERY, (SN), 20, ALPHA, L, 'Serial number?'
+GOTO/250, 200, 100
+GOTO/260, 200, 100
+TEXT/OUTFIL, 'done'
+ENDFIL
+"""
+
+
+def _panel(station):
+    from cmm.control.access import Control
+    from cmm.ui.context import PanelContext
+    from cmm.ui.panel_routine import RoutinePanel
+
+    control = Control()
+    assert control.take("operator", is_local=True)
+    station.controller.use_policy_of(control)
+    return RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+
+
+def _wait_for(what, timeout=120.0):
+    import time
+
+    end = time.monotonic() + timeout
+    while not what():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.05)
+
+
+def test_the_routine_tab_runs_an_uploaded_dmis_file_and_asks_its_questions(station):
+    """The page: a DMIS file uploaded from the operator's computer is checked and run with the routine's progress
+    bar; TEXT/OPER shows on the program's status, TEXT/QUERY waits for the Answer; Cancel ends a waiting run."""
+    from cmm.control import OpenPolicy
+
+    panel = _panel(station)
+    try:
+        progress = []
+        shown = panel._dmis_progress
+        panel._dmis_progress = lambda f, m: (progress.append((f, m)), shown(f, m))
+        assert panel.upload_dmis("notes.txt", UPLOADED) is None  # not a DMIS file: said
+        assert panel.ctx.messages[-1][:2] == ("error", "Upload DMIS")
+        lines = panel.upload_dmis(r"C:\QC\Programs\op20.dms", UPLOADED)
+        assert lines and lines[0] == "line 1: FILNAM/'uploaded'" and panel.dmis[0].name == "op20.dms"
+        assert panel.run_dmis()
+        _wait_for(lambda: panel.dmis_question)
+        assert panel.dmis_question == "line 5: Serial number?" and panel.dmis_status.startswith("**QUESTION**")
+        assert panel.answer_dmis("SN-7")
+        panel.thread.join(120)
+        assert panel.dmis_status.startswith("**DONE**"), panel.dmis_status
+        out = panel.dmis_results[-1].outputs[None]
+        assert "TEXT/OUTFIL, 'Serial number? SN-7'" in out and "TEXT/OUTFIL, 'done'" in out
+        assert any("line 4: Clamp the part" in line for line in panel.dmis_results[-1].log)
+        assert progress and progress[0][0] == 0.0 and any(m.endswith("GOTO") for _, m in progress)
+        # asked again, the operator cancels: the run ends there, nothing moves
+        assert panel.run_dmis()
+        _wait_for(lambda: panel.dmis_question)
+        start = station.machine.position.copy()
+        panel.control("cancel")
+        panel.thread.join(120)
+        assert panel.dmis_status.startswith("**STOPPED**: line 5: the question was not answered"), panel.dmis_status
+        assert np.allclose(station.machine.position, start)
+    finally:
+        station.controller.policy = OpenPolicy()

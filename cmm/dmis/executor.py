@@ -10,6 +10,7 @@ in force (``UNITS``, ``DATSET``, ``TRANS``, ``ROTAT``, ``RECALL``) and output th
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -55,6 +56,7 @@ class Target(Protocol):
     def probes(self) -> list[dict[str, Any]] | None: ...
     def select_probe(self, name: str) -> str: ...
     def tell(self, text: str) -> None: ...
+    def hold(self, done: Any) -> None: ...
     def ask(self, prompt: str, *, answer: bool) -> str: ...
     @property
     def tip_radius(self) -> float: ...
@@ -152,6 +154,9 @@ class Executor(VendorStatements):
         self.manual = False
         self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
         self._vendor_init()
+        self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
+        self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
+        self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -219,10 +224,15 @@ class Executor(VendorStatements):
         pairs = blocks(self.stmts)
         calls: list[int] = []
         pc = 0
+        told = -1
         while pc < len(self.stmts):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
+            self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
+            if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
+                told = int(100 * pc / len(self.stmts))
+                self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
             try:
                 if m == "IF":
                     cond = evaluate(s.params[0], self.variables, s.line)  # type: ignore[arg-type]
@@ -278,6 +288,14 @@ class Executor(VendorStatements):
             except Exception as exc:  # noqa: BLE001 - motion, probing and fit errors are operator sentences
                 raise self.fail(s, f"{s.name}: {exc}") from None
             pc = nxt
+
+    def _between(self, s: Statement) -> None:
+        """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
+        if self.paused.is_set() and not self.cancelled.is_set():
+            self.log(f"line {s.line}: paused by the operator")
+            self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
+        if self.cancelled.is_set():
+            raise self.fail(s, "the program was cancelled by the operator before this statement")
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)

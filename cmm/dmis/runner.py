@@ -51,6 +51,12 @@ class StationTarget:
         if self.on_prompt is not None:
             self.on_prompt(text)
 
+    def hold(self, done: Callable[[], bool]) -> None:
+        """Wait (the machine standing still, the machine loop serving STOP) until ``done()``."""
+        event = threading.Event()
+        while not done():
+            self.station.controller.wait_event(event, 0.1)
+
     def tell(self, text: str) -> None:
         """TEXT/OPER: the operator reads it (the page's program status, the terminal) and the journal keeps it."""
         self._tell(text)
@@ -216,7 +222,8 @@ def needs_operator(stmts: list[Statement]) -> bool:
 
 def run_text(text: str, station: Any, *, name: str = "program", client: Any = None,
              manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
-             cancel: threading.Event | None = None, query: Query | None = None) -> RunResult:
+             cancel: threading.Event | None = None, query: Query | None = None,
+             progress: Callable[[float, str], None] | None = None) -> RunResult:
     """Check ``text`` and run it on ``station`` (connected, homed): the run's actuals, tolerances and output.
     ``manual_hits``, ``on_prompt``, ``cancel``: how the operator's hits are taken in manual mode (see above);
     ``query(prompt, answer)``: how TEXT/MAN and TEXT/QUERY ask the operator."""
@@ -234,9 +241,30 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside
     # the machine loop, and the cancel verb ends its waits for the operator's hits
     manual = needs_operator(stmts)
-    return station.controller.commands.invoke(client, "run_job", description=description,
-                                              work=lambda job: executor.run(), hold_machine=not manual,
-                                              **({"cancel": target.cancel.set} if manual else {}))
+
+    def work(job: Any) -> RunResult:
+        if job is not None and progress is not None:  # the progress reaches ``progress`` on the dispatcher thread
+            executor.on_progress = job.progress
+        elif progress is not None:
+            executor.on_progress = progress
+        return executor.run()
+
+    def cancel_run() -> None:  # the cancel verb: the run ends before its next statement (or its wait for hits)
+        executor.cancelled.set()
+        target.cancel.set()
+
+    def pause() -> bool:
+        executor.paused.set()
+        return True
+
+    def resume() -> bool:
+        was = executor.paused.is_set()
+        executor.paused.clear()
+        return was
+
+    return station.controller.commands.invoke(client, "run_job", description=description, work=work,
+                                              hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
+                                              **({"progress": progress} if progress is not None and not manual else {}))
 
 
 def register_verbs(station: Any) -> None:
@@ -247,17 +275,18 @@ def register_verbs(station: Any) -> None:
 
     def run_dmis(client: Any, text: str | None = None, path: Any = None, name: str | None = None,
                  manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
-                 query: Query | None = None) -> RunResult:
+                 query: Query | None = None, progress: Callable[[float, str], None] | None = None) -> RunResult:
         station.controller.check_access(client, "measure")
         if (text is None) == (path is None):
             raise DmisError("run_dmis needs the program's text or the path of its file (one of them)")
         if text is None:
             text, name = load_text(path), name or Path(path).name
         return run_text(str(text), station, name=name or "program", client=client, manual_hits=manual_hits,
-                        on_prompt=on_prompt, query=query)
+                        on_prompt=on_prompt, query=query, progress=progress)
 
     commands.register("run_dmis", run_dmis, {"text": None, "path": None, "name": None, "manual_hits": None,
-                                             "on_prompt": None, "query": None},
+                                             "on_prompt": None, "query": None,
+                                             "progress": None},
                       "run a DMIS program (its text, or the path of its file) after checking all of it; the control "
                       "holder only; the machine is the program's until it ends (in manual mode the operator jogs and "
                       "probes the hits it asks for: on_prompt(text), in process, tells them); cancel ends it "
