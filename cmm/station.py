@@ -28,6 +28,7 @@ from .machine.motion import Machine
 from .machine.probing import Prober
 from .measurement.model import MeasurementError, MeasurementModel, Part
 from .nmc.trace import ByteTrace
+from .sim.placement import PlacementError, part_pose_of  # noqa: F401 - --part-pose of the front ends
 
 StationError = MeasurementError  # the station's refusals and the model's are one kind of operator sentence
 # the journal events a front end may write itself (record_event); everything else the model records as it changes

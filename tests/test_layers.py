@@ -20,11 +20,13 @@ ROOT = Path(__file__).resolve().parents[1] / "cmm"
 # package -> the cmm packages it may import (itself always)
 ALLOWED = {
     "nmc": set(),
-    "metrology": set(),
+    "cad": set(),  # STEP/IGES read with OpenCASCADE into plain data: faces with exact surfaces
+    "metrology": {"cad"},  # picks, nominals and deviations use a CAD part's exact surfaces
     "data": set(),
     "machine": {"nmc", "metrology", "data"},
     "control": {"machine", "nmc"},
-    "sim": {"nmc", "machine", "metrology"},  # machine.config: the axes it simulates; never the driver
+    # machine.config: the axes it simulates, never the driver; cad: a CAD part's probe contacts on its exact surfaces
+    "sim": {"nmc", "machine", "metrology", "cad"},
     # the fold of the journal's events (records + SessionState): the live model and the session files share it
     "fold": {"machine", "metrology"},  # a HitRecord is the prober's Hit with its id
     "session": {"machine", "metrology", "sim", "fold"},

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cmm.metrology.mesh import SUPPORTED_EXTENSIONS, MeshError, MeshWarning, load_part, signed_deviation
+from cmm.metrology.mesh import MESH_EXTENSIONS, MeshError, MeshWarning, load_part, signed_deviation
 from cmm.metrology.transform import make_pose, rotation_about_axis
 
 # a pose far from the origin: 1000 mm away, rotated about a skew axis
@@ -24,7 +24,7 @@ def box():
     return trimesh.creation.box(extents=(40.0, 20.0, 10.0))  # centred at the origin
 
 
-@pytest.mark.parametrize("ext", SUPPORTED_EXTENSIONS)
+@pytest.mark.parametrize("ext", MESH_EXTENSIONS)  # CAD formats: tests/test_cad.py
 def test_every_format_round_trips(tmp_path, ext, box):
     path = tmp_path / f"part{ext}"
     box.export(path)
@@ -51,9 +51,9 @@ def test_ascii_stl_and_scene_flattening(tmp_path, box):
 
 
 def test_unsupported_extension_lists_supported(tmp_path):
-    path = tmp_path / "part.step"
-    path.write_text("ISO-10303-21;")
-    with pytest.raises(MeshError, match=r"unsupported mesh format '\.step'.*\.stl.*\.3mf"):
+    path = tmp_path / "part.x_t"  # Parasolid: not read (STEP and IGES are, tests/test_cad.py)
+    path.write_text("**ABCDEFGHIJKLMNOPQRSTUVWXYZ")
+    with pytest.raises(MeshError, match=r"unsupported mesh format '\.x_t'.*\.step.*\.igs.*\.stl.*\.3mf"):
         load_part(path)
 
 

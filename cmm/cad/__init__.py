@@ -1,4 +1,4 @@
-"""CAD models with exact surfaces: STEP and IGES read with OpenCASCADE into plain data (see docs/cad.md).
+"""CAD models with exact surfaces: STEP and IGES read with OpenCASCADE into plain data.
 
 ``read_cad(path)`` -> :class:`CadModel` (faces with their exact surface, a triangulation tagged with faces);
 ``CadModel.mesh()`` is the trimesh the station draws, picks and measures against, carrying the model in

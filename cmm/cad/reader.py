@@ -76,7 +76,7 @@ def _read_shape(p: Path, fmt: str):
     status = reader.ReadFile(str(p))
     if status != IFSelect_RetDone:
         raise CadError(f"'{p.name}' is broken or not a valid {fmt} file (the {fmt} reader could not parse it)")
-    unit = _file_unit(reader, fmt)
+    unit = _file_unit(reader, fmt, p)
     try:
         reader.TransferRoots(Message_ProgressRange())
         shape = reader.OneShape()
@@ -87,19 +87,27 @@ def _read_shape(p: Path, fmt: str):
     return shape, unit
 
 
-def _file_unit(reader, fmt: str) -> str:
+_SI_PREFIX = {"": "m", ".MILLI.": "mm", ".CENTI.": "cm", ".MICRO.": "um", ".KILO.": "km", ".DECI.": "dm"}
+
+
+def _step_unit(p: Path) -> str:
+    """The length unit a STEP file declares (the reader converts to mm whatever it is)."""
+    text = p.read_bytes().decode("latin-1", "replace")
+    m = re.search(r"CONVERSION_BASED_UNIT\s*\(\s*'([^']*)'[^;]*LENGTH_UNIT", text, re.I)
+    if m:
+        return m.group(1).strip().lower()
+    m = re.search(r"LENGTH_UNIT\s*\(\s*\)[^;]*SI_UNIT\s*\(\s*([.A-Z$]*)\s*,\s*\.METRE\.", text, re.I)
+    return _SI_PREFIX.get(m.group(1).replace("$", "").upper(), "mm") if m else "mm"
+
+
+def _file_unit(reader, fmt: str, p: Path) -> str:
     try:
         if fmt == "STEP":
-            scale = float(reader.StepModel().LocalLengthUnit())  # mm per file unit
-        else:
-            name = reader.IGESModel().GlobalSection().UnitName().ToCString().strip().lower()
-            return {"in": "inch", "inch": "inch", "ft": "foot", "mm": "mm", "m": "m", "cm": "cm"}.get(name, name)
+            return _step_unit(p)
+        name = reader.IGESModel().GlobalSection().UnitName().ToCString().strip().lower()
+        return {"in": "inch", "inch": "inch", "ft": "foot"}.get(name, name or "mm")
     except Exception:  # noqa: BLE001 - the unit is information only: the readers convert anyway
         return "mm"
-    for name, mm in (("mm", 1.0), ("inch", 25.4), ("m", 1000.0), ("cm", 10.0), ("foot", 304.8), ("um", 0.001)):
-        if abs(scale - mm) <= 1e-9 * mm:
-            return name
-    return f"{scale:g} mm"
 
 
 def _solidify(shape):
@@ -200,7 +208,11 @@ def _build(shape, name: str, fmt: str, unit: str, schema: str, deflection: float
     if not faces:
         raise CadError(f"'{name}' could not be triangulated: its faces have no valid boundaries")
     vertices, triangles = _merge(np.concatenate(verts), np.concatenate(tris))
-    model = CadModel(name, fmt, unit, faces, vertices, triangles, np.concatenate(owner),
+    owners = np.concatenate(owner)
+    # a triangle whose corners merged (at a sphere's pole) has no area: drop it
+    keep = (triangles[:, 0] != triangles[:, 1]) & (triangles[:, 1] != triangles[:, 2]) & (triangles[:, 0] != triangles[:, 2])
+    triangles, owners = triangles[keep], owners[keep]
+    model = CadModel(name, fmt, unit, faces, vertices, triangles, owners,
                      bodies=[n for n, _ in bodies], deflection=deflection, schema=schema)
     assign_groups(model)
     return model

@@ -24,9 +24,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DMIS output file when the program opens no output device (default: PROGRAM_out.dms here)")
     p.add_argument("--report", metavar="FILE", help="the station's HTML report (default: PROGRAM_report.html here)")
     p.add_argument("--serial", metavar="URL", help="pyserial URL of the NMC network (default: in-process simulator)")
-    from ..sim.placement import add_part_arguments
-
-    add_part_arguments(p)
+    p.add_argument("--part", metavar="FILE", default=None,
+                   help="the part: STEP/IGES (exact surfaces) or a mesh (STL, OBJ, PLY, 3MF, GLB); on the simulator "
+                        "it is also the part on the table")
+    p.add_argument("--part-pose", metavar="X,Y,Z[,RZ]", default=None,
+                   help="where the part's CAD origin sits in machine coordinates (mm), turned RZ degrees about Z")
     p.add_argument("--config", metavar="FILE", help="machine configuration TOML (default: the shipped one)")
     p.add_argument("--records", metavar="DIR", default="calibration", help="calibration records (default: calibration)")
     p.add_argument("--sessions", metavar="DIR|URL", default="sessions", help="session store (default: ./sessions)")
@@ -87,7 +89,7 @@ def _run(args: Any, path: Path, text: str) -> int:
         trends = open_trends(args.trends, station=args.station, database=args.trends_db, sessions=args.sessions,
                              background=False)
     from ..metrology.mesh import MeshError
-    from ..sim.placement import PlacementError, part_pose_of
+    from ..station import PlacementError, part_pose_of
 
     try:
         station = Station(load_config(args.config), port=args.serial or SIM_URL, session_dir=args.sessions,

@@ -22,9 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--http-port", type=int, default=8080, help="port of the browser station (default 8080)")
     parser.add_argument("--pendant-port", type=int, default=None,
                         help="port of the pendant page (default: the HTTP port + 1)")
-    from ..sim.placement import add_part_arguments
-
-    add_part_arguments(parser)
+    parser.add_argument("--part", metavar="FILE", default=None,
+                        help="the part: STEP/IGES (exact surfaces) or a mesh (STL, OBJ, PLY, 3MF, GLB); on the simulator "
+                             "it is also the part on the table")
+    parser.add_argument("--part-pose", metavar="X,Y,Z[,RZ]", default=None,
+                        help="where the part's CAD origin sits in machine coordinates (mm), turned RZ degrees about Z")
     parser.add_argument("--config", metavar="FILE", default=None, help="machine configuration TOML")
     parser.add_argument("--lan", action="store_true",
                         help="listen on every interface (0.0.0.0) and print an access code for remote operators")
@@ -92,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         trends = open_trends(args)
     except (TrendError, OSError) as exc:
         return _fail(f"cannot record trends in {args.trends}: {exc}")
-    from ..sim.placement import PlacementError, part_pose_of
+    from ..station import PlacementError, part_pose_of
 
     try:
         station = Station(config, port=args.serial, baud=args.baud, part_path=args.part,
