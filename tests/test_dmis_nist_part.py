@@ -5,7 +5,7 @@ The program's comments put the part's edges on the machine's +X and +Y axes and 
 part's CAD origin (the STEP file's, a corner of the block) at machine X0 Y0 Z0, unturned, which this machine's
 travel (X 0-500, Y 0-400, Z 0-300) reaches; so ``--part-pose 0,0,0`` places it and no line is changed (no DMIS
 TRANS is needed; on a machine whose travel could not reach it, ``--part-pose`` elsewhere with a
-``D(..) = TRANS/XORIG, x, YORIG, y, ZORIG, z`` added after ``D(START) = DATSET/MCS`` is the way, see docs/dmis.md).
+``D(..) = TRANS/XORIG, x, YORIG, y, ZORIG, z`` added after ``D(START) = DATSET/MCS`` is the way, as the DMIS guide of the docs folder says).
 Its 4 mm probe (S(PROBE6), line 12) is qualified first with `cmm calibrate probe --probe PROBE6 --tip-diameter 4`,
 on the same simulated table. The shared files are read in place."""
 
