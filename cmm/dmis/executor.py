@@ -25,7 +25,7 @@ from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
 from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
                     mounted, probe_direction, probe_problem, rotat_problem, station_tip_problem)
 from .vendor import VendorStatements
-from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
+from .tolerances import Evaluation, planar_position, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
 
@@ -390,7 +390,7 @@ class Executor(VendorStatements):
             self.target.set_tolerance(fid, keys)
         tol = ev.tolerance
         if tol.word == "POS" and (tol.datums or tol.material) and fid is not None and fid in self.model.features:
-            why = self._position_to_model(tol, fid)
+            why = planar_position(tol, features[0].kind) or self._position_to_model(tol, fid)
             if why:
                 self.log(f"T({tol.label}) is not in the station's GD&T: {why}")
                 self.target.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")

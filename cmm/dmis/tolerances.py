@@ -295,6 +295,18 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
     return Evaluation(tol, value, value <= up + 1e-12, [a.label])
 
 
+def planar_position(tol: Tolerance, kind: str) -> str:
+    """Why a TOL/POS cannot be the station's GD&T position (ISO 1101: a cylinder's axis over its length, a point's
+    and a sphere's centre in space, a circle's centre across its axis): its 2D or 3D zone is DMIS's own here
+    ("": it is the same)."""
+    opts = set(tol.options)
+    if "2D" in opts and kind in ("cylinder", "point", "sphere"):
+        return f"TOL/POS, 2D on a {kind} is a circular zone across it (the station's GD&T takes it in space)"
+    if "3D" in opts and kind == "circle":
+        return "TOL/POS, 3D on a circle is a spherical zone (the station's GD&T takes it across the circle's axis)"
+    return ""
+
+
 PLANE_NORMAL = {"XYPLAN": 2, "YZPLAN": 0, "ZXPLAN": 1}  # WKPLAN -> the axis of the current system normal to it
 
 
