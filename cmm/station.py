@@ -485,6 +485,13 @@ class Station:
             raise StationError("there is no simulator: place the artifact by hand")
         self.sim.place_artifacts(spheres)  # under the simulator's lock, wherever it runs
 
+    def mount_sim_stylus(self, tip_diameter: float) -> None:
+        """On the simulator: the stylus of the probe selected (``tip_diameter`` mm) is the one that touches the
+        part; nothing on a real machine (its operator changes the stylus)."""
+        mount = getattr(self.sim, "mount_stylus", None)
+        if mount is not None:
+            mount(tip_diameter)
+
     # --- life cycle -----------------------------------------------------------
 
     def connect(self) -> "Station":

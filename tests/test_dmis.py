@@ -68,6 +68,9 @@ def placed_simple_program() -> str:
     text = text.replace("D(START) = DATSET/MCS", "D(START) = DATSET/MCS\n" + PLACEMENT)
     # the program's points lie on a D50 circle: 10 mm inside our D30 bore's wall, where its 10 mm approach would
     # start touching the wall; 15 mm starts 5 mm clear of it
+    # and its comment lets the probe lines change for the station's probe: its 2 mm tip (a station without a probe
+    # list refuses a sensor with another tip)
+    text = text.replace("0.0, 0.0, -1.0, 4.0", "0.0, 0.0, -1.0, 2.0")
     return text.replace("SNSET/APPRCH, 10.0", "SNSET/APPRCH, 15.0")
 
 
@@ -90,7 +93,13 @@ def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
     assert values[3:6] == pytest.approx([0.0, 0.0, 1.0], abs=1e-4)
     assert values[6] == pytest.approx(30.0, abs=NOISE)
     assert result.hits == 4 and len(station.measurement.hits) == 4
-    assert any("4.000 mm tip" in line for line in result.log)  # SNSDEF's tip is not the station's: said so
+    # the program as NIST wrote it asks for a 4 mm tip, which this station has not: refused before anything moves
+    start = station.machine.position.copy()
+    with pytest.raises(DmisError, match=r"^line 14: SNSLCT/S\(PROBE6\): the station's probe has a 2.0 mm tip, the "
+                                        r"program's S\(PROBE6\) a 4.0 mm tip: qualify it with `cmm calibrate probe "
+                                        r"--probe PROBE6 --tip-diameter 4.0`"):
+        run_text(placed_simple_program().replace("-1.0, 2.0", "-1.0, 4.0"), station)
+    assert np.allclose(station.machine.position, start)
 
 
 def test_the_sample_part_program_measures_the_true_part(station):

@@ -378,18 +378,41 @@ def test_cmm_run_asks_for_manual_hits_at_the_terminal(tmp_path, monkeypatch, cap
     assert top[2] == pytest.approx(40.0, abs=0.01) and top[5] == pytest.approx(1.0, abs=1e-4)
 
 
-def test_snslct_selects_the_probe_of_the_list_with_the_sensor_tip_or_name(station, tmp_path):
-    """SNSLCT makes the station's probe with the SNSDEF's tip (or the sensor's name) the one in use, through the
-    select_probe verb; a tip the probe list does not have is refused in words before anything moves."""
-    station.calibration.load(tmp_path / "calibration")  # a probe list: Probe1, the configured 2 mm tip
+def _qualified(folder, name, radius):
+    """A qualification record of probe ``name`` in the records folder (as `cmm calibrate probe` files it)."""
+    from cmm.calibration.records import PROBE_QUALIFICATIONS, ProbeRecord, now, save_record
+
+    save_record(ProbeRecord(now(), "sphere", radius, {}, radius, (400.0, 300.0, 100.0)),
+                folder / PROBE_QUALIFICATIONS / f"{name}.toml")
+
+
+def test_snslct_selects_the_qualified_probe_of_the_list_with_the_sensor_tip_or_name(station, tmp_path):
+    """SNSLCT makes the station's qualified probe named like the sensor (or with the SNSDEF's tip) the one in use,
+    through the select_probe verb, and the simulator mounts its stylus; a stylus that is not qualified is refused
+    before anything moves, with the command that qualifies it."""
+    folder = tmp_path / "calibration"
+    station.calibration.load(folder)  # a probe list: Probe1, the configured 2 mm tip
     station.calibration.add_probe("T4", 4.0)
+    station.calibration.add_probe("T3", 3.0)
+    _qualified(folder, "T4", 1.9962)
+    _qualified(folder, "Probe1", 0.9961)
     result = run_text("S(BIG) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 4.0\nSNSLCT/S(BIG)\n", station)
-    assert station.measurement.probe_name == "T4" and station.prober.settings.tip_radius == pytest.approx(2.0)
+    assert station.measurement.probe_name == "T4" and station.prober.settings.tip_radius == pytest.approx(1.9962)
+    assert station.sim.world.probe.tip_radius == 2.0  # the simulator's head carries the 4 mm stylus now
     assert any(line.startswith("line 2: S(BIG): probe T4 selected") for line in result.log)
-    run_text("S(PROBE1) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.5\nSNSLCT/S(PROBE1)\n", station)  # by its name
-    assert station.measurement.probe_name == "Probe1" and station.prober.settings.tip_radius == pytest.approx(1.0)
+    run_text("S(PROBE1) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.0\nSNSLCT/S(PROBE1)\n", station)  # by its name
+    assert station.measurement.probe_name == "Probe1" and station.prober.settings.tip_radius == pytest.approx(0.9961)
+    assert station.sim.world.probe.tip_radius == 1.0
     start = station.machine.position.copy()
-    with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(P2\): no probe in the probe list has a 3.0 mm tip; "
-                                         r"qualified probes: none; not qualified: Probe1 \(2.0 mm\), T4 \(4.0 mm\)$"):
+    with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(P2\): no qualified probe has a 3.0 mm tip: qualify "
+                                         r"it with `cmm calibrate probe --probe P2 --tip-diameter 3.0` \(or in the "
+                                         r"Calibration tab's probe list\); qualified probes: Probe1 \(2.0 mm\), "
+                                         r"T4 \(4.0 mm\)$"):
         run_text("GOTO/100, 100, 250\nS(P2) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(P2)\n", station)
+    with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(T3\): the probe T3 \(3.0 mm\) is not qualified: "
+                                         r"qualify it with `cmm calibrate probe --probe T3 --tip-diameter 3.0`"):
+        run_text("GOTO/100, 100, 250\nS(T3) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(T3)\n", station)
+    with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(T4\): the probe T4 of the probe list has a 4.0 mm tip, "
+                                         r"the program's S\(T4\) a 2.5 mm tip$"):
+        run_text("GOTO/100, 100, 250\nS(T4) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.5\nSNSLCT/S(T4)\n", station)
     assert station.measurement.probe_name == "Probe1" and np.allclose(station.machine.position, start)  # unmoved

@@ -197,7 +197,14 @@ class CalibrationService:
         hit and is on the status bar. Returns :meth:`probe_list`."""
         probes, selected = self.probe_list()
         self.use_probe(selected)
+        self._mount(next((p for p in probes if p.name == selected), None))
         return probes, selected
+
+    def _mount(self, probe: ProbeDefinition | None) -> None:
+        """On the simulator the selected probe's stylus is the one that touches (its nominal tip diameter)."""
+        mount = getattr(self.host, "mount_sim_stylus", None)
+        if probe is not None and mount is not None and getattr(self.host, "simulated", False):
+            mount(probe.tip_diameter)
 
     def probe_list(self) -> tuple[list[ProbeDefinition], str]:
         """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
@@ -270,6 +277,7 @@ class CalibrationService:
             text = f"probe {name} selected, NOT qualified: nominal radius {probe.tip_diameter / 2:.4f} mm"
         save_probe_list(self.records_dir, probes, name)
         self.use_probe(name)
+        self._mount(probe)
         self.status["probe"] = None if rec is None else {"date": rec.date, "tip_radius": rec.tip_radius,
                                                          "artifact": rec.artifact, "probing_speed": rec.probing_speed}
         if self.status.get("probe") is not None:

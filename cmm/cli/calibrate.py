@@ -32,6 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--records", metavar="DIR", default="calibration", help="calibration records folder (default: calibration)")
     p.add_argument("--artifacts", metavar="DIR", help="artifact certificates folder (default: RECORDS/artifacts)")
     p.add_argument("--centre", metavar="X,Y,Z", help="approximate reference sphere centre (overrides its certificate)")
+    p.add_argument("--probe", metavar="NAME", help="probe: qualify the stylus of this name in the probe list (added "
+                   "with --tip-diameter when the list has none of that name; the simulator mounts it)")
+    p.add_argument("--tip-diameter", metavar="D", type=float,
+                   help="probe: the nominal tip diameter (mm) of the stylus --probe names")
     p.add_argument("--repeats", type=int, default=None, help="hits averaged per point (dithered)")
     p.add_argument("--accept", action="store_true", help="servo: apply the proposed gains without asking")
     p.add_argument("--inject-errors", action="store_true",
@@ -168,8 +172,33 @@ def run(args: Any) -> int:
         rig.close()
 
 
+def _mount_probe(args: Any, rig: _Rig) -> None:
+    """--probe NAME [--tip-diameter D]: the stylus NAME (added to the probe list when new) becomes the probe in
+    use, so the qualification that follows is its own."""
+    from ..calibration.records import CalibrationError
+
+    if args.probe is None:
+        if args.tip_diameter is not None:
+            raise CalibrationError("--tip-diameter needs --probe NAME: the stylus it is the diameter of")
+        return
+    svc = rig.service
+    probes, _ = svc.probe_list()
+    have = next((p for p in probes if p.name == args.probe), None)
+    if have is None:
+        if args.tip_diameter is None:
+            raise CalibrationError(f"the probe list has no probe {args.probe}: give its tip with --tip-diameter D "
+                                   f"(the list has {', '.join(p.name for p in probes)})")
+        have = svc.add_probe(args.probe, args.tip_diameter)
+        print(f"probe {have.name} added to the probe list: {have.tip_diameter:g} mm tip")
+    elif args.tip_diameter is not None and abs(have.tip_diameter - args.tip_diameter) > 1e-6:
+        raise CalibrationError(f"the probe {have.name} of the list has a {have.tip_diameter:g} mm tip, not "
+                               f"{args.tip_diameter:g} mm: give another name to a stylus with another tip")
+    print(rig.commands.invoke(None, "select_probe", name=have.name))
+
+
 def _run_probe(args: Any, rig: _Rig) -> int:
     svc = rig.service
+    _mount_probe(args, rig)
     cert = svc.certificates("probe")
     q = rig.qualify("probe", _progress(args), repeats=args.repeats or 2, approx_centre=_centre(args))
     r = q.record

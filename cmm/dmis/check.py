@@ -13,8 +13,9 @@ import math
 from .features import KINDS, NUMBERS, SIZED
 from .lexer import DmisSyntaxError, statements
 from .parser import Expr, Label, Statement, Text, Word, parse_statement
-from .rules import (SUPPORTED, const_problem, datset_word_problem, material_problem, open_problem, probe_direction,
-                    probe_problem, rotat_problem)
+from .parser import evaluate
+from .rules import (SAVED, SUPPORTED, const_problem, datset_word_problem, material_problem, mount_matrix, mounted,
+                    open_problem, probe_direction, probe_problem, rotat_problem)
 
 LABELLED = {"FEAT": "F", "TOL": "T", "SNSDEF": "S", "DEVICE": "DID", "MACRO": "M"}
 OPEN_BLOCKS = {"MEAS": "ENDMES", "IF": "ENDIF", "DO": "ENDDO", "MACRO": "ENDMAC"}
@@ -24,6 +25,14 @@ CLOSE_BLOCKS = {v: k for k, v in OPEN_BLOCKS.items()}
 # words that are not values (anything else may be a variable holding one)
 NOT_VALUES = {"CART", "POL", "INCR", "INNER", "OUTER", "BND", "UNBND", *KINDS}
 IN_MEAS = {"PTMEAS", "GOTO", "DO", "ENDDO", "IF", "ELSE", "ENDIF", "ASSIGN", "CALL", "TEXT"}
+LIMIT = 1e6  # a number larger than this (a kilometre in mm) is no coordinate, speed or tolerance of a CMM
+NOT_FINITE = {"NAN", "INF", "INFINITY", "NANQ", "NANS"}
+# the statements whose words after the minor word are values (a word there must be a declared variable)
+VALUED = {"FEAT", "PTMEAS", "GOTO", "SNSDEF", "SNSET", "FEDRAT", "TOL", "SNSMNT"}
+VALUE_WORDS = {"CART", "POL", "INCR", "INNER", "OUTER", "BND", "UNBND", "PROBE", "FIXED", "INDEX", "XVEC", "ZVEC",
+               "MNTOFF", "MPM", "MMPS", "IPM", "IPS", "PCENT", "NOMINL", "MMC", "LMC", "RFS", "2D", "3D", "CIRCLR",
+               "TOTAL", "XAXIS", "YAXIS", "ZAXIS", "PT2PT", "AVG", "MINIMUM", "MAXIMUM", "XDIR", "YDIR", "ZDIR",
+               "UNDEF", "HEIGHT", "DIST", *KINDS}
 
 
 def numbers(params: list) -> int:
@@ -54,11 +63,62 @@ def _words(s: Statement) -> list[str]:
     return [p.text for p in s.params if isinstance(p, Word)]
 
 
-def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0) -> str | None:
+def number_problem(s: Statement, variables: set[str] | None = None) -> str | None:
+    """A number no run could use: not finite (``nan``, ``1e999``), absurdly large (``GOTO/1e308, 0, 0``), or a
+    word where a value goes that no DECL, ASSIGN, DO or MACRO gives a value (``variables``; None: not judged)."""
+    for p in s.params:
+        if isinstance(p, Word) and p.text in NOT_FINITE:
+            return f"{p.text.lower()} is not a finite number"
+        if isinstance(p, Expr) and all(t.kind != "word" for t in p.tokens):
+            try:
+                v = evaluate(p, {}, s.line)
+            except (DmisSyntaxError, OverflowError, ZeroDivisionError) as exc:
+                return f"{''.join(t.text for t in p.tokens)} cannot be computed: {exc}"
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                shown = "".join(t.text for t in p.tokens)
+                if not math.isfinite(v):
+                    return f"{shown} is not a finite number"
+                if abs(v) > LIMIT:
+                    return f"{shown} is not a usable number (more than {LIMIT:g} in size)"
+    if variables is not None and s.major in VALUED:
+        for p in s.params[1 if s.name != s.major else 0:]:
+            if isinstance(p, Word) and p.text not in VALUE_WORDS and p.text not in variables:
+                return f"{p.text} is not a number (nor a variable given a value by DECL, ASSIGN or DO)"
+    return None
+
+
+def declared(stmts: list[Statement]) -> set[str]:
+    """The names a program gives values: DECL'd, ASSIGNed, DO loop variables, MACRO arguments."""
+    out: set[str] = set()
+    for s in stmts:
+        if s.major == "DECL":
+            out |= {p.text for p in s.params if isinstance(p, Word)}
+        elif s.major == "ASSIGN" and s.variable:
+            out.add(s.variable)
+        elif s.major == "DO" and s.params and isinstance(s.params[0], Word):
+            out.add(s.params[0].text)
+        elif s.major == "MACRO":
+            out |= {p.text.upper() for p in s.params if isinstance(p, (Word, Text))}
+    return out
+
+
+def warnings(text: str, stmts: list[Statement]) -> list[str]:
+    """What runs but is not as the standard writes it: another spelling of a major word, no ENDFIL at the end."""
+    out = [f"line {s.line}: {s.spelled} is not DMIS: read as {s.major} (write {s.major}/...)"
+           for s in stmts if s.spelled]
+    if stmts and not any(s.major == "ENDFIL" for s in stmts):
+        last = len(text.splitlines())
+        out.append(f"line {last}: the program does not end with ENDFIL: it is taken to end at its last line")
+    return out
+
+
+def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0, mount: list | None = None) -> str | None:
     """What is wrong with one statement on its own, or None (``angle_scale``: radians per program angle unit,
-    as the UNITS before it set it)."""
+    as the UNITS before it set it; ``mount``: the probe head's axes an SNSMNT before it set)."""
     if s.major not in SUPPORTED:
         return f"{s.major} is not supported"
+    if (problem := number_problem(s)) is not None:
+        return problem
     minors = SUPPORTED[s.major]
     if minors is not None and s.minor not in minors:
         what = f"{s.major}/{s.minor}" if s.minor else s.major
@@ -88,11 +148,19 @@ def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0) -> str
         # constants only: a variable (an expression or a word) is known only when it runs
         if all(v is not None for v in values) and set(_words(s)) <= {"PROBE", "FIXED", "INDEX", "CART", "POL"}:
             direction, problem = probe_direction(_words(s), values, angle_scale)  # type: ignore[arg-type]
-            return problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
+            return problem or probe_problem(str(s.label), mounted(mount, direction))  # type: ignore[arg-type]
+    if m == "SNSMNT":
+        values = [p.constant() for p in s.params if isinstance(p, Expr)]
+        if all(v is not None for v in values):
+            return mount_matrix(values, _words(s))[1]  # type: ignore[arg-type]
+    if m == "SAVE" and (len(s.params) != 1 or not labels or labels[0].type not in SAVED):
+        return "SAVE takes one label: SAVE/DA(name) (a coordinate system), DAT(A), FA(name) or SA(name)"
+    if m == "TEXT" and not any(isinstance(p, Text) for p in s.params):
+        return f"TEXT/{s.minor} needs its text in quotes: TEXT/{s.minor}, 'text'"
     if m == "SNSLCT" and (not labels or labels[0].type != "S"):
         return "SNSLCT needs the sensor: SNSLCT/S(name)"
-    if m == "RECALL" and (not labels or labels[0].type not in ("D", "DA")):
-        return "RECALL needs a datum system: RECALL/D(name)"
+    if m == "RECALL" and (len(s.params) != 1 or not labels or labels[0].type not in SAVED):
+        return "RECALL takes one label: RECALL/DA(name) (a coordinate system), DAT(A), FA(name) or SA(name)"
     if m == "CONST":
         named = bool(labels) and labels[0].type == "F"
         return const_problem(s.minor, named, _words(s)[1:], len(labels) - 1)  # type: ignore[arg-type]
@@ -123,6 +191,44 @@ def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0) -> str
     if m == "IF" and len(s.params) != 1:
         return "IF takes one condition: IF/(X .GT. 1)"
     return None
+
+
+def mounts(stmts: list[Statement]) -> list[list | None]:
+    """The probe head's axes (SNSMNT) in force at each statement: the machine's until an SNSMNT."""
+    out, current = [], None
+    for s in stmts:
+        if s.major == "SNSMNT":
+            values = [p.constant() for p in s.params if isinstance(p, Expr)]
+            if all(v is not None for v in values):
+                current = mount_matrix(values, _words(s))[0] or current  # type: ignore[arg-type]
+        out.append(current)
+    return out
+
+
+def recall_problems(stmts: list[Statement]) -> dict[int, str]:
+    """Statement index -> why its RECALL cannot find what it names: nothing of that name was defined or saved
+    before it (in program order)."""
+    known: set[str] = set()
+    out: dict[int, str] = {}
+    for k, s in enumerate(stmts):
+        labels = [p for p in s.params if isinstance(p, Label)]
+        if s.label is not None:
+            known.add(f"{'DA' if s.label.type == 'D' else s.label.type}({s.label.name})")
+        if s.major == "DATDEF" and len(labels) == 2:
+            known.add(str(labels[1]))
+        if s.major in ("MEAS", "CONST") and labels:
+            known.add(f"FA({labels[0].name})")
+        if s.major == "SAVE" and labels:
+            lab = labels[0]
+            name = f"{'DA' if lab.type == 'D' else lab.type}({lab.name})"
+            if name not in known:
+                out[k] = f"SAVE/{lab}: nothing named {lab} is defined before it"
+        if s.major == "RECALL" and labels:
+            lab = labels[0]
+            name = f"{'DA' if lab.type == 'D' else lab.type}({lab.name})"
+            if name not in known:
+                out[k] = f"RECALL/{lab}: nothing named {lab} is defined or saved before it"
+    return out
 
 
 def angle_scales(stmts: list[Statement]) -> list[float]:
@@ -199,8 +305,10 @@ def check_statements(stmts: list[Statement]) -> list[str]:
     defined: set[str] = set()
     in_meas = False
     sizes = size_problems(stmts)
-    for k, (s, scale) in enumerate(zip(stmts, angle_scales(stmts))):
-        p = statement_problem(s, scale) or sizes.get(k)
+    recalls = recall_problems(stmts)
+    variables = declared(stmts)
+    for k, (s, scale, mount) in enumerate(zip(stmts, angle_scales(stmts), mounts(stmts))):
+        p = statement_problem(s, scale, mount) or number_problem(s, variables) or sizes.get(k) or recalls.get(k)
         if p is not None:
             problems.append(f"line {s.line}: {p}")
         if s.label is not None:
@@ -250,8 +358,8 @@ def check(text: str) -> tuple[list[Statement], list[str]]:
             found.append((exc.line, str(exc)))
     if not found:
         return stmts, check_statements(stmts)
-    for s, scale in zip(stmts, angle_scales(stmts)):
-        p = statement_problem(s, scale)
+    for s, scale, mount in zip(stmts, angle_scales(stmts), mounts(stmts)):
+        p = statement_problem(s, scale, mount)
         if p is not None:
             found.append((s.line, f"line {s.line}: {p}"))
     return [], [msg for _, msg in sorted(found, key=lambda f: f[0])]

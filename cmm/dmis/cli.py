@@ -64,6 +64,10 @@ def run(args: Any) -> int:
         print(f"{path}: {problem}", file=sys.stderr)
     if problems:
         return 1
+    from .check import warnings
+
+    for warning in warnings(text, stmts):
+        print(f"{path}: warning: {warning}")
     if args.check:
         print(f"{path}: {len(stmts)} statements, all supported")
         return 0
@@ -102,20 +106,23 @@ def _run(args: Any, path: Path, text: str) -> int:
     try:
         station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
-        if not commands.invoke(None, "state").homed:
-            if not args.home:
-                print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
-                return 1
-            commands.invoke(None, "home")
         if Path(args.records).is_dir():
             station.calibration.load(args.records)
         else:  # the run still measures, but its sizes carry the probe's pre-travel: say so before the results
             print(f"no calibration records in {args.records}: the probe is not qualified (its nominal tip radius, "
                   "no pre-travel model); name the records with --records DIR")
+        if _refuse_sensors(station, path, text):  # before anything moves, homing included
+            return 1
+        if not commands.invoke(None, "state").homed:
+            if not args.home:
+                print("cmm run: the machine is not homed and --no-home was given", file=sys.stderr)
+                return 1
+            commands.invoke(None, "home")
         session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
         try:
             register_verbs(station)
-            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(station))
+            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(station),
+                                    query=terminal_query)
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
             print(f"the hits taken so far are in the session {Path(session).stem}", file=sys.stderr)
@@ -139,6 +146,29 @@ def _run(args: Any, path: Path, text: str) -> int:
     write_report(s, report, mesh=resolve_part_mesh(s))
     print(f"wrote {report} (session {name})")
     return 0
+
+
+def terminal_query(prompt: str, answer: bool) -> str:
+    """TEXT/MAN and TEXT/QUERY on the command line: asked at the terminal (refused in words without one)."""
+    from .executor import DmisError
+
+    if not sys.stdin or not sys.stdin.isatty():
+        raise DmisError(f"{prompt.split(':')[0]}: the program asks the operator and the input is not a terminal; "
+                        "run it at a terminal or from the page's Routine tab")
+    return input(f"{prompt} " + ("(type the answer, Enter): " if answer else "(Enter to go on): ")).strip()
+
+
+def _refuse_sensors(station: Any, path: Path, text: str) -> bool:
+    """Whether a SNSLCT names a stylus the station has not qualified (said with the command that qualifies it)."""
+    from .check import check
+    from .rules import sensor_problems
+    from .runner import StationTarget
+
+    target = StationTarget(station)
+    problems = sensor_problems(check(text)[0], target.probes(), target.nominal_tip_diameter)
+    for problem in problems:
+        print(f"{path}: {problem}", file=sys.stderr)
+    return bool(problems)
 
 
 def terminal_hits(station: Any) -> Any:
@@ -182,7 +212,10 @@ def terminal_hits(station: Any) -> Any:
 def _write_outputs(args: Any, path: Path, result: Any, what: str = "") -> None:
     """The DMIS output files: the program's STOR devices (beside ``-o``), else ``-o``."""
     out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
+    from .rules import device_file
+
     for device, content in result.outputs.items():
-        target = out_default if device is None else out_default.parent / device
+        # a program's device is written in the run's output folder under its last name, never elsewhere
+        target = out_default if device is None else out_default.parent / (device_file(device) or "device.dms")
         target.write_text(content, encoding="utf-8")
         print(f"wrote {target}" + (f" ({what})" if what else ""))

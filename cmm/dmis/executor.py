@@ -10,6 +10,7 @@ in force (``UNITS``, ``DATSET``, ``TRANS``, ``ROTAT``, ``RECALL``) and output th
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -23,8 +24,9 @@ from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
 from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
-                    open_problem, probe_direction, probe_problem, rotat_problem)
-from .tolerances import Evaluation, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
+                    mounted, probe_direction, probe_problem, rotat_problem, station_tip_problem)
+from .vendor import VendorStatements
+from .tolerances import Evaluation, planar_position, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
 
@@ -54,8 +56,13 @@ class Target(Protocol):
                         datum_modifiers: dict[str, str] | None) -> None: ...
     def probes(self) -> list[dict[str, Any]] | None: ...
     def select_probe(self, name: str) -> str: ...
+    def tell(self, text: str) -> None: ...
+    def hold(self, done: Any) -> None: ...
+    def ask(self, prompt: str, *, answer: bool) -> str: ...
     @property
     def tip_radius(self) -> float: ...
+    @property
+    def nominal_tip_diameter(self) -> float: ...
     @property
     def probing_speed(self) -> float: ...
     @property
@@ -108,7 +115,7 @@ def blocks(stmts: list[Statement]) -> dict[int, int]:
     return pairs
 
 
-class Executor:
+class Executor(VendorStatements):
     """One run of a program on a target."""
 
     def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program") -> None:
@@ -147,6 +154,10 @@ class Executor:
         # theirs to make); MODE/AUTO: the machine does
         self.manual = False
         self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
+        self._vendor_init()
+        self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
+        self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
+        self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -185,9 +196,6 @@ class Executor:
             raise self.fail(s, f"FA({label.name}) has not been measured or constructed yet")
         return a
 
-    def emit(self, line: str) -> None:
-        self.output.append(line)
-
     def log(self, text: str) -> None:
         self.result.log.append(text)
 
@@ -213,21 +221,19 @@ class Executor:
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
         return self.result
 
-    def _finish(self) -> None:
-        self.emit("ENDFIL")
-        text = "\n".join(self.output) + "\n"
-        targets = [self.devices[d] for d in self.devices if self.devices[d]] or [None]
-        for path in targets:
-            self.result.outputs[path] = text
-
     def _run(self) -> None:
         pairs = blocks(self.stmts)
         calls: list[int] = []
         pc = 0
+        told = -1
         while pc < len(self.stmts):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
+            self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
+            if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
+                told = int(100 * pc / len(self.stmts))
+                self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
             try:
                 if m == "IF":
                     cond = evaluate(s.params[0], self.variables, s.line)  # type: ignore[arg-type]
@@ -284,6 +290,14 @@ class Executor:
                 raise self.fail(s, f"{s.name}: {exc}") from None
             pc = nxt
 
+    def _between(self, s: Statement) -> None:
+        """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
+        if self.paused.is_set() and not self.cancelled.is_set():
+            self.log(f"line {s.line}: paused by the operator")
+            self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
+        if self.cancelled.is_set():
+            raise self.fail(s, "the program was cancelled by the operator before this statement")
+
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
         if handler is None:  # the check lets through only what has a handler or is a no-op
@@ -304,9 +318,6 @@ class Executor:
 
     def do_filnam(self, s: Statement) -> None:
         self.emit(statement_text(s))
-
-    def do_text(self, s: Statement) -> None:
-        self.log(" ".join(p.text for p in s.params if isinstance(p, Text)))
 
     def do_units(self, s: Statement) -> None:
         w = self.words(s)
@@ -334,24 +345,6 @@ class Executor:
         if isinstance(value, float) and not math.isfinite(value):
             raise self.fail(s, f"{s.variable or 'the variable'} = {_text(p)} is {num(value)}: give a finite number")
         self.variables[s.variable] = value
-
-    def do_device(self, s: Statement) -> None:
-        texts = [p.text for p in s.params if isinstance(p, Text)]
-        self.devices[s.label.name] = texts[0] if s.minor == "STOR" else None  # type: ignore[union-attr]
-
-    def do_open(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name not in self.devices:
-            raise self.fail(s, f"DID({name}) is not defined (DID({name}) = DEVICE/STOR, 'file')")
-        problem = open_problem(self.words(s))
-        if problem:
-            raise self.fail(s, problem)
-        self.open_devices.append(name)
-
-    def do_close(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name in self.open_devices:
-            self.open_devices.remove(name)
 
     def do_output(self, s: Statement) -> None:
         self.emit(statement_text(s))
@@ -401,7 +394,7 @@ class Executor:
             self.target.set_tolerance(fid, keys)
         tol = ev.tolerance
         if tol.word == "POS" and (tol.datums or tol.material) and fid is not None and fid in self.model.features:
-            why = self._position_to_model(tol, fid)
+            why = planar_position(tol, features[0].kind) or self._position_to_model(tol, fid)
             if why:
                 self.log(f"T({tol.label}) is not in the station's GD&T: {why}")
                 self.target.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")
@@ -600,20 +593,12 @@ class Executor:
         current[d_axis] = 1.0
         return math.atan2(float(np.cross(current, target) @ e), float(current @ target))
 
-    def do_recall(self, s: Statement) -> None:
-        name = self.labels(s)[0].name
-        if name not in self.frames:
-            raise self.fail(s, f"D({name}) has not been defined")
-        self.frame = self.frames[name].copy()
-        self.design_frame = self.design_frames[name].copy()
-        self.emit(statement_text(s))
-
     # --- sensors and motion ---------------------------------------------------------------------
 
     def do_snsdef(self, s: Statement) -> None:
         v = self.numbers(s)
         direction, problem = probe_direction(self.words(s), v, self.angle_scale)
-        problem = problem or probe_problem(str(s.label), direction)  # type: ignore[arg-type]
+        problem = problem or probe_problem(str(s.label), mounted(self.mount, direction))  # type: ignore[arg-type]
         if problem:
             raise self.fail(s, problem)
         self.sensors[s.label.name] = {"diameter": v[-1] * self.scale}  # type: ignore[union-attr]
@@ -633,10 +618,9 @@ class Executor:
             if said:
                 self.log(f"line {s.line}: S({name}): {said}")
             return
-        have = 2.0 * float(self.target.tip_radius)
-        if abs(want - have) > 0.005:  # no probe list: the station's one probe measures
-            self.log(f"line {s.line}: S({name}) is a {want:.3f} mm tip; the station measures with its qualified "
-                     f"{have:.3f} mm tip (PTMEAS points are surface points: the tip is compensated)")
+        problem = station_tip_problem(name, want, float(self.target.nominal_tip_diameter))
+        if problem:  # no probe list: the station's one probe measures, when it is the sensor's tip
+            raise self.fail(s, problem)
 
     def do_snset(self, s: Statement) -> None:
         v = self.numbers(s)
@@ -821,6 +805,8 @@ class Executor:
         v = self.numbers(s, w)
         options = [p.text for p in w if isinstance(p, Word) and p.text not in self.variables]
         datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
+        if word == "POS" and "2D" in options:  # a point's 2D position is taken in the working plane (WKPLAN)
+            options.append(self.work_plane)
         tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
         # material conditions: MMC / LMC / RFS after the zone is the feature's, after a DAT(..) that datum's
         last: Param | None = None

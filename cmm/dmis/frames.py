@@ -57,7 +57,8 @@ def datum_frame(entries: list[tuple[str, str, np.ndarray | None, np.ndarray | No
     """A coordinate system from datums, in machine coordinates.
 
     ``entries``: (datum name, word, location point, direction) in the order of the DATSET statement: the first
-    direction word (XDIR ... ZMINUS) fixes its axis exactly, the second turns the next axis about it, and each
+    direction word (XDIR ... ZMINUS) fixes its axis exactly, the second turns the next axis about it (with one
+    direction word the ``previous`` system is turned the least way onto it; with none its axes stay), and each
     ORIG word puts the origin's coordinate on that axis at the datum's location (a plane: its point; a circle,
     sphere: its centre; an axis: its point). An origin no datum sets stays where the ``previous`` system had it.
     """
@@ -75,22 +76,33 @@ def datum_frame(entries: list[tuple[str, str, np.ndarray | None, np.ndarray | No
             origins.append((ORIGINS[word], np.asarray(point, float), name))
         else:
             raise FrameError(f"{word} is not a DATSET word: use XDIR, YDIR, ZDIR (XMINUS ...) and XORIG, YORIG, ZORIG")
-    if len(dirs) != 2:
-        raise FrameError(f"DATSET needs two direction words (a primary and a secondary axis), it has {len(dirs)}")
-    (a1, d1, n1), (a2, d2, n2) = dirs
-    if a1 == a2:
-        raise FrameError(f"{n1} and {n2} both set the {'XYZ'[a1]} axis")
-    d2 = d2 - (d2 @ d1) * d1
-    if np.linalg.norm(d2) < 1e-6:
-        raise FrameError(f"{n2} is parallel to {n1}: it cannot fix the second axis")
-    d2 /= np.linalg.norm(d2)
-    axes: list[np.ndarray | None] = [None, None, None]
-    axes[a1], axes[a2] = d1, d2
-    a3 = 3 - a1 - a2
-    # right-handed: x = y cross z, y = z cross x, z = x cross y
-    nxt, prv = (a3 + 1) % 3, (a3 + 2) % 3
-    axes[a3] = np.cross(axes[nxt], axes[prv])  # type: ignore[arg-type]
-    R = np.column_stack(axes)  # type: ignore[arg-type]
+    if len(dirs) > 2:
+        raise FrameError(f"DATSET takes at most two direction words (a primary and a secondary axis), it has {len(dirs)}")
+    R_prev = np.eye(3) if previous is None else previous[:3, :3]
+    if not dirs:  # origins only: the axes stay the current system's
+        R = R_prev.copy()
+    else:
+        if len(dirs) == 1:  # the primary axis only: the current system turned the least way onto it
+            a1, d1, n1 = dirs[0]
+            for cand in ((a1 + 1) % 3, (a1 + 2) % 3):
+                d2 = R_prev[:, cand] - (R_prev[:, cand] @ d1) * d1
+                if np.linalg.norm(d2) > 0.1:
+                    dirs.append((cand, d2 / np.linalg.norm(d2), "the current system"))
+                    break
+        (a1, d1, n1), (a2, d2, n2) = dirs
+        if a1 == a2:
+            raise FrameError(f"{n1} and {n2} both set the {'XYZ'[a1]} axis")
+        d2 = d2 - (d2 @ d1) * d1
+        if np.linalg.norm(d2) < 1e-6:
+            raise FrameError(f"{n2} is parallel to {n1}: it cannot fix the second axis")
+        d2 /= np.linalg.norm(d2)
+        axes: list[np.ndarray | None] = [None, None, None]
+        axes[a1], axes[a2] = d1, d2
+        a3 = 3 - a1 - a2
+        # right-handed: x = y cross z, y = z cross x, z = x cross y
+        nxt, prv = (a3 + 1) % 3, (a3 + 2) % 3
+        axes[a3] = np.cross(axes[nxt], axes[prv])  # type: ignore[arg-type]
+        R = np.column_stack(axes)  # type: ignore[arg-type]
     old = np.zeros(3) if previous is None else previous[:3, 3]
     coords = [float(R[:, k] @ old) for k in range(3)]
     seen = set()

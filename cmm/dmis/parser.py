@@ -69,6 +69,7 @@ class Statement:
     label: Label | None = None  # F(..) = ...
     variable: str | None = None  # X = ASSIGN/ ...
     text: str = ""
+    spelled: str = ""  # the major word as written when it was another spelling of it (ROTATE for ROTAT)
 
     @property
     def minor(self) -> str | None:
@@ -82,9 +83,12 @@ class Statement:
         return f"{self.major}/{m}" if m and self.major in MINOR_NAMED else self.major
 
 
+# vendors' spellings of DMIS major words, read as the standard's with a warning naming it
+SPELLINGS = {"ROTATE": "ROTAT"}
+
 # statements whose first word names what they do (their support is checked per minor word)
 MINOR_NAMED = {"FEAT", "MEAS", "TOL", "CONST", "SNSDEF", "SNSET", "FEDRAT", "MODE", "DEVICE", "PTMEAS", "DECL", "OPEN",
-               "UNITS", "DATSET", "SNSDEF"}
+               "UNITS", "DATSET", "SNSDEF", "TEXT", "WKPLAN"}
 
 
 def _label(toks: list[Token], k: int, line: int) -> tuple[Label, int] | None:
@@ -154,6 +158,9 @@ def parse_statement(raw: RawStatement) -> Statement:
     if k >= len(toks) or toks[k].kind != "word":
         raise DmisSyntaxError(line, f"a statement starts with a word such as FEAT or GOTO: {raw.text!r}")
     major = toks[k].text
+    spelled = ""
+    if major in SPELLINGS:  # a vendor's spelling of a DMIS major word: read as the standard's (the check warns)
+        spelled, major = major, SPELLINGS[major]
     rest = toks[k + 1:]
     params: list[Param] = []
     if rest:
@@ -163,7 +170,7 @@ def parse_statement(raw: RawStatement) -> Statement:
             params = [_param(p, line) for p in _split(rest[1:], line)]
     if variable is not None and major != "ASSIGN":
         raise DmisSyntaxError(line, f"a variable is given a value with {variable} = ASSIGN/ ...; got {raw.text!r}")
-    return Statement(line, major, params, label, variable, raw.text)
+    return Statement(line, major, params, label, variable, raw.text, spelled)
 
 
 def parse(text: str) -> list[Statement]:

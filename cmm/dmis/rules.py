@@ -16,10 +16,11 @@ from .tolerances import ALL as TOLERANCES
 
 # major word -> the minor words supported (None: any parameters)
 SUPPORTED: dict[str, set[str] | None] = {
-    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None, "TEXT": None,
+    "DMISMN": None, "DMISMD": None, "FILNAM": None, "ENDFIL": None, "DISPLY": None, "PRCOMP": None,
     "MODE": {"PROG", "AUTO", "MAN"}, "UNITS": {"MM", "INCH", "CM", "METER", "FEET"},
-    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None,
-    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
+    "TEXT": {"OPER", "OUTFIL", "QUERY", "MAN"},
+    "DATSET": None, "TRANS": None, "ROTAT": None, "RECALL": None, "SAVE": None, "WKPLAN": {"XYPLAN", "YZPLAN", "ZXPLAN"},
+    "SNSDEF": {"PROBE"}, "SNSLCT": None, "SNSMNT": None, "SNSET": {"APPRCH", "SEARCH", "RETRCT", "DEPTH"},
     "FEDRAT": {"POSVEL", "MESVEL"}, "GOTO": None,
     "FEAT": set(KINDS), "MEAS": set(KINDS), "PTMEAS": {"CART", "POL"}, "ENDMES": None,
     "CONST": {"POINT", "LINE", "PLANE", "CIRCLE"}, "DATDEF": None, "TOL": set(TOLERANCES),
@@ -122,9 +123,63 @@ def probe_problem(label: str, direction: tuple[float, float, float]) -> str | No
 
 
 def open_problem(words: Sequence[str]) -> str | None:
+    """OPEN/DID(..), DIRECT | FDATA [, DMIS], OUTPUT [, APPEND | OVERWR]: a file of the run's output folder that
+    receives the program's DMIS output while it is open."""
     if "INPUT" in words:
         return "OPEN for INPUT is not supported: the station reads no data files in a program"
+    if "OUTPUT" not in words:
+        return "OPEN/DID(..) takes OUTPUT: OPEN/DID(name), FDATA, DMIS, OUTPUT, OVERWR (or DIRECT, OUTPUT)"
+    if "FDATA" in words and any(w not in OPEN_WORDS for w in words):
+        other = next(w for w in words if w not in OPEN_WORDS)
+        return f"OPEN/DID(..), FDATA, {other} is not supported: the station writes FDATA in the DMIS format only"
+    if not {"DIRECT", "FDATA"} & set(words):
+        return "OPEN/DID(..) needs DIRECT or FDATA: OPEN/DID(name), FDATA, DMIS, OUTPUT, OVERWR"
+    for w in words:
+        if w not in OPEN_WORDS:
+            return f"OPEN/DID(..), {w} is not supported: OPEN takes DIRECT or FDATA, DMIS, OUTPUT, APPEND or OVERWR"
     return None
+
+
+OPEN_WORDS = {"DIRECT", "FDATA", "DMIS", "OUTPUT", "APPEND", "OVERWR"}
+
+
+def device_file(path: str) -> str | None:
+    """The file a DEVICE/STOR names, as it is written: its last name only (``C:\\QC\\part.dms``, ``/tmp/x.dms``,
+    ``../x.dms`` are all ``part.dms`` / ``x.dms`` of the run's output folder: a program never writes outside
+    it); None when nothing usable is left."""
+    name = str(path).replace("\\", "/").rstrip("/").rsplit("/", 1)[-1].strip()
+    if ":" in name:  # C:part.dms
+        name = name.rsplit(":", 1)[-1]
+    if name in ("", ".", "..") or any(ord(c) < 32 for c in name):
+        return None
+    return name
+
+
+def mount_matrix(values: Sequence[float], words: Sequence[str]) -> tuple[list[list[float]] | None, str | None]:
+    """(3x3 rotation, problem) of SNSMNT/XVEC, i, j, k, ZVEC, i, j, k, MNTOFF, x, y, z: the columns are the
+    probe head's X, Y, Z axes in machine axes (the sensors SNSDEF defines after it are given in the head's)."""
+    form = "SNSMNT takes XVEC, i, j, k, ZVEC, i, j, k, MNTOFF, x, y, z"
+    if list(words) != ["XVEC", "ZVEC", "MNTOFF"] or len(values) != 9:
+        return None, form
+    x, z = [float(v) for v in values[0:3]], [float(v) for v in values[3:6]]
+    nx, nz = math.sqrt(sum(v * v for v in x)), math.sqrt(sum(v * v for v in z))
+    if nx < 1e-9 or nz < 1e-9:
+        return None, "SNSMNT: XVEC and ZVEC must not be zero"
+    x, z = [v / nx for v in x], [v / nz for v in z]
+    if abs(sum(a * b for a, b in zip(x, z))) > 1e-3:
+        return None, "SNSMNT: XVEC and ZVEC must be perpendicular"
+    y = [z[1] * x[2] - z[2] * x[1], z[2] * x[0] - z[0] * x[2], z[0] * x[1] - z[1] * x[0]]
+    return [[x[i], y[i], z[i]] for i in range(3)], None
+
+
+def mounted(matrix: Sequence[Sequence[float]] | None, direction: Sequence[float]) -> tuple[float, float, float]:
+    """A sensor direction given in the probe head's axes, in machine axes."""
+    if matrix is None:
+        return (float(direction[0]), float(direction[1]), float(direction[2]))
+    return tuple(sum(matrix[i][k] * float(direction[k]) for k in range(3)) for i in range(3))  # type: ignore[return-value]
+
+
+SAVED = ("D", "DA", "DAT", "FA", "SA")  # what SAVE / RECALL keep: coordinate systems, datums, actuals, sensors
 
 
 def material_problem(word: str, words: Sequence[str]) -> str | None:
@@ -138,30 +193,56 @@ def material_problem(word: str, words: Sequence[str]) -> str | None:
 TIP_MATCH = 0.005  # mm: a probe-list tip within this of the SNSDEF's diameter is that sensor
 
 
+def qualify_command(label: str, diameter: float) -> str:
+    """The command that qualifies the stylus S(label) of an SNSDEF tip ``diameter`` mm."""
+    return f"cmm calibrate probe --probe {label} --tip-diameter {_mm(diameter)}"
+
+
+def _fits(p: dict, diameter: float) -> bool:
+    return any(abs(float(d) - diameter) <= TIP_MATCH for d in (p["tip_diameter"], *p.get("qualified_diameters", ())))
+
+
 def match_probe(label: str, diameter: float, probes: Sequence[dict]) -> tuple[str | None, str | None]:
     """(probe name, problem) for SNSLCT/S(label) of an SNSDEF tip ``diameter`` (mm) among the station's probe list
-    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected`` and optionally ``qualified_diameters``):
-    the probe named like the sensor, else the one in use when its tip (nominal or qualified) matches, else the
-    first qualified one that matches, else any that matches."""
+    (rows with ``name``, ``tip_diameter``, ``qualified``, ``selected`` and optionally ``qualified_diameters``).
+    The probe named like the sensor when the list has one (its tip must be the sensor's and it must be qualified),
+    else the qualified probe with that tip (the one in use first). A stylus not qualified is refused with the
+    command that qualifies it."""
+    how = f"qualify it with `{qualify_command(label, diameter)}` (or in the Calibration tab's probe list)"
     named = [p for p in probes if str(p["name"]).upper() == label.upper()]
     if named:
-        return str(named[0]["name"]), None
-    fits = [p for p in probes if any(abs(float(d) - diameter) <= TIP_MATCH
-                                     for d in (p["tip_diameter"], *p.get("qualified_diameters", ())))]
-    fits.sort(key=lambda p: (not p.get("selected"), not p.get("qualified")))
+        p = named[0]
+        if not _fits(p, diameter):
+            return None, (f"SNSLCT/S({label}): the probe {p['name']} of the probe list has a {_mm(p['tip_diameter'])} "
+                          f"mm tip, the program's S({label}) a {_mm(diameter)} mm tip")
+        if not p.get("qualified"):
+            return None, f"SNSLCT/S({label}): the probe {p['name']} ({_mm(diameter)} mm) is not qualified: {how}"
+        return str(p["name"]), None
+    fits = [p for p in probes if p.get("qualified") and _fits(p, diameter)]
+    fits.sort(key=lambda p: not p.get("selected"))
     if fits:
         return str(fits[0]["name"]), None
     listed = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if p.get("qualified")]
-    others = [f"{p['name']} ({_mm(p['tip_diameter'])} mm)" for p in probes if not p.get("qualified")]
-    return None, (f"SNSLCT/S({label}): no probe in the probe list has a {_mm(diameter)} mm tip; qualified probes: "
-                  f"{', '.join(listed) or 'none'}" + (f"; not qualified: {', '.join(others)}" if others else ""))
+    return None, (f"SNSLCT/S({label}): no qualified probe has a {_mm(diameter)} mm tip: {how}; qualified probes: "
+                  f"{', '.join(listed) or 'none'}")
 
 
+def station_tip_problem(label: str, diameter: float, tip_diameter: float) -> str | None:
+    """A station without a probe list (no calibration records) measures with its one configured probe: a sensor
+    with another tip is refused with the command that qualifies it."""
+    if abs(diameter - tip_diameter) <= TIP_MATCH:
+        return None
+    return (f"SNSLCT/S({label}): the station's probe has a {_mm(tip_diameter)} mm tip, the program's S({label}) a "
+            f"{_mm(diameter)} mm tip: qualify it with `{qualify_command(label, diameter)}` and run with its "
+            "--records folder")
 
-def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None) -> list[str]:
-    """"line N: ..." for every SNSLCT whose sensor no probe of the station's list matches, read before the run
-    (a sensor whose diameter is a variable is judged when it runs); none without a probe list."""
-    if probes is None:
+
+def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None,
+                    tip_diameter: float | None = None) -> list[str]:
+    """"line N: ..." for every SNSLCT whose sensor is not a qualified probe of the station's list (without a list:
+    whose tip is not the station's probe's, ``tip_diameter``), read before the run (a sensor whose diameter is a
+    variable is judged when it runs)."""
+    if probes is None and tip_diameter is None:
         return []
     scale, diameters, out = 1.0, {}, []
     for s in stmts:
@@ -175,10 +256,13 @@ def sensor_problems(stmts: Sequence[Statement], probes: Sequence[dict] | None) -
         elif s.major == "SNSLCT":
             label = next((p for p in s.params if isinstance(p, Label)), None)
             if label is not None and diameters.get(label.name) is not None:
-                _, problem = match_probe(label.name, diameters[label.name], probes)  # type: ignore[arg-type]
+                d = float(diameters[label.name])  # type: ignore[arg-type]
+                problem = (match_probe(label.name, d, probes)[1] if probes is not None
+                           else station_tip_problem(label.name, d, float(tip_diameter)))  # type: ignore[arg-type]
                 if problem:
                     out.append(f"line {s.line}: {problem}")
     return out
+
 
 def _mm(x: float) -> str:
     """2.0, 2.54, 0.125: a length as written on a drawing."""

@@ -21,12 +21,13 @@ from typing import Any, Callable
 import numpy as np
 
 from ..control.run_end import end_at_clearance
-from .check import check
+from .check import check, warnings
 from .executor import DmisError, Executor, RunResult
 from .parser import Statement, Word
 from .rules import sensor_problems
 
 ManualHits = Callable[[str, int, list[tuple[np.ndarray, np.ndarray]]], list[int]]
+Query = Callable[[str, bool], str]  # (prompt, an answer wanted) -> the operator's answer ("" to confirm)
 
 
 class StationTarget:
@@ -34,7 +35,8 @@ class StationTarget:
 
     def __init__(self, station: Any, client: Any = None, timeout: float = 120.0, *,
                  manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
-                 manual_timeout: float = 1800.0, cancel: threading.Event | None = None) -> None:
+                 manual_timeout: float = 1800.0, cancel: threading.Event | None = None,
+                 query: Query | None = None) -> None:
         self.station = station
         self.commands = station.controller.commands  # moves and hits go through the command API as ``client``
         self.model = station.measurement
@@ -44,10 +46,35 @@ class StationTarget:
         self.on_prompt = on_prompt
         self.manual_timeout = manual_timeout
         self.cancel = cancel or threading.Event()
+        self._query = query
 
     def _tell(self, text: str) -> None:
         if self.on_prompt is not None:
             self.on_prompt(text)
+
+    def hold(self, done: Callable[[], bool]) -> None:
+        """Wait (the machine standing still, the machine loop serving STOP) until ``done()``."""
+        event = threading.Event()
+        while not done():
+            self.station.controller.wait_event(event, 0.1)
+
+    def tell(self, text: str) -> None:
+        """TEXT/OPER: the operator reads it (the page's program status, the terminal) and the journal keeps it."""
+        self._tell(text)
+        self.note(f"DMIS operator text: {text}")
+
+    def ask(self, prompt: str, *, answer: bool) -> str:
+        """TEXT/MAN (confirm) and TEXT/QUERY (answer): the operator's reply, the given way; refused in words
+        where no operator can be asked."""
+        if self._query is None:
+            raise DmisError(f"{prompt.split(':')[0]}: the program asks the operator "
+                            f"({'for an answer' if answer else 'to confirm'}) and this run has no one to ask: run "
+                            "it at a terminal or from the page's Routine tab")
+        self._tell(prompt)
+        try:
+            return str(self._query(prompt, answer))
+        finally:
+            self._tell("")
 
     def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]:
         """The ids of n hits the operator takes by hand (MODE/MAN): the given way, else the next n hits that
@@ -157,6 +184,11 @@ class StationTarget:
         return float(self.station.controller.tip_radius)
 
     @property
+    def nominal_tip_diameter(self) -> float:
+        """The configured probe's tip (mm): the one a station without a probe list measures with."""
+        return 2.0 * float(self.station.config.probe.tip_radius)
+
+    @property
     def probing_speed(self) -> float:
         return float(self.station.calibration.qualified_probing_speed)
 
@@ -191,22 +223,31 @@ def needs_operator(stmts: list[Statement]) -> bool:
 
 def run_text(text: str, station: Any, *, name: str = "program", client: Any = None,
              manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
-             cancel: threading.Event | None = None) -> RunResult:
+             cancel: threading.Event | None = None, query: Query | None = None,
+             progress: Callable[[float, str], None] | None = None) -> RunResult:
     """Check ``text`` and run it on ``station`` (connected, homed): the run's actuals, tolerances and output.
-    ``manual_hits``, ``on_prompt``, ``cancel``: how the operator's hits are taken in manual mode (see above)."""
+    ``manual_hits``, ``on_prompt``, ``cancel``: how the operator's hits are taken in manual mode (see above);
+    ``query(prompt, answer)``: how TEXT/MAN and TEXT/QUERY ask the operator."""
     stmts, problems = check(text)
     if problems:
         raise DmisError(problems[0])
-    target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel)
-    problems = sensor_problems(stmts, target.probes())  # a sensor the probe list has not: refused before motion
+    target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel, query=query)
+    # a sensor that is no qualified probe of the list (no list: not the station's tip): refused before motion
+    problems = sensor_problems(stmts, target.probes(), target.nominal_tip_diameter)
     if problems:
         raise DmisError(problems[0])
     executor = Executor(stmts, target, name=name)
+    executor.result.log.extend(f"warning: {w}" for w in warnings(text, stmts))
     description = f"DMIS program {name!r}"
     # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside
     # the machine loop, and the cancel verb ends its waits for the operator's hits
     manual = needs_operator(stmts)
-    def work(_job: Any) -> RunResult:
+
+    def work(job: Any) -> RunResult:
+        if job is not None and progress is not None:  # the progress reaches ``progress`` on the dispatcher thread
+            executor.on_progress = job.progress
+        elif progress is not None:
+            executor.on_progress = progress
         result = executor.run()
         # the program's last hit retracts a few mm only: the run ends at the clearance plane, so the next
         # program's first GOTO does not start beside the part (cmm.control.run_end)
@@ -220,9 +261,22 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
             target.note(f"DMIS program {name!r} ended at the clearance plane, machine Z {z:.3f}")
         return result
 
-    return station.controller.commands.invoke(client, "run_job", description=description,
-                                              work=work, hold_machine=not manual,
-                                              **({"cancel": target.cancel.set} if manual else {}))
+    def cancel_run() -> None:  # the cancel verb: the run ends before its next statement (or its wait for hits)
+        executor.cancelled.set()
+        target.cancel.set()
+
+    def pause() -> bool:
+        executor.paused.set()
+        return True
+
+    def resume() -> bool:
+        was = executor.paused.is_set()
+        executor.paused.clear()
+        return was
+
+    return station.controller.commands.invoke(client, "run_job", description=description, work=work,
+                                              hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
+                                              **({"progress": progress} if progress is not None and not manual else {}))
 
 
 def register_verbs(station: Any) -> None:
@@ -232,17 +286,19 @@ def register_verbs(station: Any) -> None:
         return
 
     def run_dmis(client: Any, text: str | None = None, path: Any = None, name: str | None = None,
-                 manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None) -> RunResult:
+                 manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
+                 query: Query | None = None, progress: Callable[[float, str], None] | None = None) -> RunResult:
         station.controller.check_access(client, "measure")
         if (text is None) == (path is None):
             raise DmisError("run_dmis needs the program's text or the path of its file (one of them)")
         if text is None:
             text, name = load_text(path), name or Path(path).name
         return run_text(str(text), station, name=name or "program", client=client, manual_hits=manual_hits,
-                        on_prompt=on_prompt)
+                        on_prompt=on_prompt, query=query, progress=progress)
 
     commands.register("run_dmis", run_dmis, {"text": None, "path": None, "name": None, "manual_hits": None,
-                                             "on_prompt": None},
+                                             "on_prompt": None, "query": None,
+                                             "progress": None},
                       "run a DMIS program (its text, or the path of its file) after checking all of it; the control "
                       "holder only; the machine is the program's until it ends (in manual mode the operator jogs and "
                       "probes the hits it asks for: on_prompt(text), in process, tells them); cancel ends it "

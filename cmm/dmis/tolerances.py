@@ -267,7 +267,9 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         if tol.material and (limits is None or nom.inner is None):
             raise ToleranceError(f"T({tol.label}) at {tol.material} needs FA({a.label})'s size limits: output its "
                                  f"TOL/DIAM first (OUTPUT/FA({a.label}), TA(..))")
-        res = gdt.position(a.kind, _signed(a), nominal, up, drf=drf, nominal_drf=ndrf, points=a.hit_points,
+        kind, geometry, points = a.kind, _signed(a), a.hit_points
+        kind, geometry, nominal, points = _dimension(tol, kind, geometry, nominal, points, frame)
+        res = gdt.position(kind, geometry, nominal, up, drf=drf, nominal_drf=ndrf, points=points,
                            material=tol.material, size_limits=limits if tol.material else None,
                            internal=None if nom.inner is None else bool(nom.inner))
         return Evaluation(tol, res.value, res.value <= res.allowed + 1e-12, [a.label], bonus=res.bonus,
@@ -293,6 +295,44 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
     else:
         raise ToleranceError(f"TOL/{w} is not supported")
     return Evaluation(tol, value, value <= up + 1e-12, [a.label])
+
+
+def planar_position(tol: Tolerance, kind: str) -> str:
+    """Why a TOL/POS cannot be the station's GD&T position (ISO 1101: a cylinder's axis over its length, a point's
+    and a sphere's centre in space, a circle's centre across its axis): its 2D or 3D zone is DMIS's own here
+    ("": it is the same)."""
+    opts = set(tol.options)
+    if "2D" in opts and kind in ("cylinder", "point", "sphere"):
+        return f"TOL/POS, 2D on a {kind} is a circular zone across it (the station's GD&T takes it in space)"
+    if "3D" in opts and kind == "circle":
+        return "TOL/POS, 3D on a circle is a spherical zone (the station's GD&T takes it across the circle's axis)"
+    return ""
+
+
+PLANE_NORMAL = {"XYPLAN": 2, "YZPLAN": 0, "ZXPLAN": 1}  # WKPLAN -> the axis of the current system normal to it
+
+
+def _dimension(tol: Tolerance, kind: str, geometry: dict[str, Any], nominal: dict[str, Any], points: Any,
+               frame: np.ndarray) -> tuple[str, dict[str, Any], dict[str, Any], Any]:
+    """TOL/POS, 2D or 3D as DMIS defines them: 2D a circular zone about the nominal in the plane across the
+    feature (a cylinder's axis point, not its ends; a point or sphere in the working plane, WKPLAN), 3D a
+    spherical zone about a point, sphere or circle centre and the cylindrical zone about a cylinder's nominal
+    axis over its length. Without either, the feature's own (as ISO 1101)."""
+    opts = set(tol.options)
+    if "2D" in opts:
+        if kind == "cylinder":
+            return kind, geometry, nominal, None  # the axis point only: its offset across the nominal axis
+        if kind in ("point", "sphere"):
+            axis = next((PLANE_NORMAL[o] for o in opts if o in PLANE_NORMAL), 2)
+            n = frame[:3, axis].tolist()
+            centre = geometry.get("center", geometry.get("point"))
+            nom = nominal.get("center", nominal.get("point"))
+            g = {"center": centre, "normal": n, **({"radius": geometry["radius"]} if "radius" in geometry else {})}
+            return "circle", g, {"center": nom, "normal": n}, None
+    if "3D" in opts and kind == "circle":
+        g = {"center": geometry["center"], **({"radius": geometry["radius"]} if "radius" in geometry else {})}
+        return "sphere", g, {"center": nominal["center"]}, None
+    return kind, geometry, nominal, points
 
 
 def _measured(a: Actual) -> MeasuredFeature:

@@ -70,6 +70,7 @@ class SimulatedCMM:
             self.nominal_features = {}
         self.part_mesh = mesh
         self._part = MeshObstacle(mesh, self.settings.part_pose)
+        self._part.box_reach = max(1.0, self.settings.probe.tip_radius + 0.5)
         obstacles = [
             PlaneObstacle(0.0),
             self._part,
@@ -126,10 +127,27 @@ class SimulatedCMM:
             self.world.obstacles.extend(self._artifacts)
             self.world._safe_from = None  # the conservative-advancement cache knew nothing of them
 
+    def mount_stylus(self, tip_diameter: float) -> None:
+        """The operator mounts a stylus with a ``tip_diameter`` mm ball (the probe list's probe selected): the tip
+        that touches the part from now on; its pre-travel and noise stay the probe body's."""
+        from dataclasses import replace
+
+        d = float(tip_diameter)
+        if not 0.1 <= d <= 30.0:
+            raise ValueError(f"a stylus tip of {d:g} mm cannot be mounted (0.1 to 30 mm)")
+        with self.network.lock:  # not between two servo ticks' probe checks
+            self.world.probe = replace(self.world.probe, tip_radius=d / 2.0)
+            for ob in self.world.obstacles:  # their cheap box bound stays beyond any contact of this tip
+                if isinstance(ob, MeshObstacle):
+                    ob.box_reach = max(1.0, d / 2.0 + 0.5)
+            self.settings.probe = self.world.probe
+            self.world._safe_from = None  # the conservative-advancement cache assumed the old radius
+
     def place_part(self, pose: np.ndarray, mesh: object | None = None) -> None:
         """The operator puts the next part on the table at ``pose`` (part -> machine); ``mesh``: another part
         (a trimesh in part coordinates, a CAD part's with its exact surfaces) instead of the present one."""
         part = MeshObstacle(self.part_mesh if mesh is None else mesh, pose)
+        part.box_reach = self._part.box_reach
         with self.network.lock:
             if mesh is not None:
                 self.part_mesh, self.nominal_features = mesh, {}

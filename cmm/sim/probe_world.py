@@ -97,6 +97,9 @@ class MeshObstacle(Obstacle):
     """
 
     LOCAL_REACH = 0.5  # mm
+    # beyond this distance from the bounding box (mm) a query answers the box's distance, a lower bound: it must
+    # exceed the mounted tip's radius (SimulatedCMM.mount_stylus keeps it so), or a bound would read as a contact
+    box_reach = 1.0
 
     def __init__(self, mesh, pose: np.ndarray) -> None:
         from ..cad import cad_of
@@ -126,7 +129,7 @@ class MeshObstacle(Obstacle):
         # a cheap lower bound first: the distance to the bounding box
         gap = np.maximum(np.maximum(self.lo - p, p - self.hi), 0.0)
         box = float(np.linalg.norm(gap))
-        if box > 1.0:
+        if box > self.box_reach:  # farther than any contact of the mounted tip: the bound is enough
             return box, np.array([0.0, 0.0, 1.0])
         if self._local_at is None or float(np.linalg.norm(p - self._local_at)) > self.LOCAL_REACH:
             self._gather(p)

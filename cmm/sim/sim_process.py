@@ -81,6 +81,10 @@ class SimProcess:
         """The operator sets up artifacts [(centre, diameter)] (under the simulator's lock, in the child)."""
         self._call("place", [(tuple(map(float, c)), float(d)) for c, d in spheres])
 
+    def mount_stylus(self, tip_diameter: float) -> None:
+        """The operator mounts a stylus of ``tip_diameter`` mm (in the child, under the simulator's lock)."""
+        self._call("mount", float(tip_diameter))
+
     def place_part(self, pose: Any, mesh: Any = None) -> None:
         """The operator puts the next part on the table at ``pose`` (4x4 part -> machine), in the child; ``mesh``:
         another part instead of the present one."""
@@ -181,6 +185,9 @@ def serve(conn: Connection, parent: int) -> None:
                 if msg[0] == "place":
                     cmm.place_artifacts(msg[1])
                     reply: tuple = ("ok", None)
+                elif msg[0] == "mount":
+                    cmm.mount_stylus(msg[1])
+                    reply = ("ok", None)
                 elif msg[0] == "place_part":
                     import numpy as np
 

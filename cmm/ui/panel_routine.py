@@ -71,6 +71,11 @@ class RoutinePanel:
         self.dmis_text = ""
         self.dmis_status = ""
         self.dmis_results: list[Any] = []
+        self.dmis_running = False  # a DMIS program runs: the routine's Pause / Resume / Cancel reach it
+        self.dmis_question = ""  # what the running program asks the operator (TEXT/MAN, TEXT/QUERY)
+        self.dmis_answer = ""
+        self._dmis_answered = threading.Event()
+        self._dmis_cancel = False
         from ..dmis.runner import register_verbs
 
         register_verbs(self.station)  # this tab runs DMIS programs with the run_dmis verb (registered once)
@@ -269,6 +274,24 @@ class RoutinePanel:
         except DmisError as exc:
             self.ctx.error(exc, "Open DMIS")
             return None
+        return self._take_dmis(p, text)
+
+    def upload_dmis(self, name: str, content: bytes) -> list[str] | None:
+        """A DMIS program uploaded from the operator's computer (the Upload DMIS button): checked as one opened."""
+        from ..dmis.rules import device_file
+
+        if not content:
+            self.ctx.error("the uploaded DMIS file is empty", "Upload DMIS")
+            return None
+        if Path(str(name)).suffix.lower() not in (".dmi", ".dms"):
+            self.ctx.error(f"{name} is not a DMIS program (.dmi or .dms)", "Upload DMIS")
+            return None
+        return self._take_dmis(Path(device_file(str(name)) or "upload.dms"),
+                               bytes(content).decode("utf-8", errors="replace"))
+
+    def _take_dmis(self, p: Path, text: str) -> list[str] | None:
+        from ..dmis.check import check, warnings
+
         stmts, problems = check(text)
         self.dmis = (p, text)
         if problems:
@@ -277,7 +300,8 @@ class RoutinePanel:
             self.ctx.error(problems[0], "DMIS program refused")
         else:
             lines = [f"line {st.line}: {(st.text or st.major).strip()[:70]}" for st in stmts]
-            self.dmis_text = f"**{p.name}** · {len(stmts)} statements, all supported\n\n" + "\n".join(
+            told = "".join(f"\n\nwarning: {w}" for w in warnings(text, stmts))
+            self.dmis_text = f"**{p.name}** · {len(stmts)} statements, all supported{told}\n\n" + "\n".join(
                 f"- {x}" for x in lines[:60]) + ("\n- ..." if len(lines) > 60 else "")
         self.ctx.set("routine:dmis", "content", self.dmis_text, self.gui.get("dmis"))
         return None if self.dmis is None else lines
@@ -305,8 +329,11 @@ class RoutinePanel:
                 return
             failure = None
             try:
+                self.dmis_running, self._dmis_cancel = True, False
+                # manual mode: hits taken by jog; TEXT/MAN and QUERY answered here; the routine's bar and stops
                 result = self.ctx.commands.invoke(self.ctx.who(), "run_dmis", text=text, name=path.name,
-                                                  on_prompt=self._dmis_prompt)  # manual mode: hits taken by jog
+                                                  on_prompt=self._dmis_prompt, query=self._dmis_query,
+                                                  progress=self._dmis_progress)
             except Exception as exc:  # noqa: BLE001 - every stop is told; the hits taken stay in the session
                 failure = exc
                 self.dmis_status = f"**STOPPED**: {exc}"
@@ -325,7 +352,11 @@ class RoutinePanel:
                 self.dmis_results.append(result)
                 self.ctx.notify("DMIS program done", self.dmis_status.replace("**", ""))
             finally:
+                self.dmis_running = False
                 self.ctx.end_cycle(cycle, failure)  # a stop: the status bar says STOPPED with the reason
+                bar = self.gui.get("bar")
+                if bar is not None:
+                    self.ctx.set("routine:bar", "visible", False, bar)
             self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
         self.dmis_status = f"**RUNNING** {path.name}"
@@ -346,6 +377,46 @@ class RoutinePanel:
         while store.exists(f"{stem} {n}"):
             n += 1
         return f"{stem} {n}"
+
+    def _dmis_progress(self, fraction: float, message: str) -> None:
+        """The run goes on: the routine's progress bar and the program's status line."""
+        bar = self.gui.get("bar")
+        if bar is not None:
+            self.ctx.set("routine:bar", "visible", True, bar)
+            self.ctx.set("routine:bar:value", "value", round(100.0 * fraction, 1), bar)
+        if self.dmis is not None and not self.dmis_question:
+            self.dmis_status = f"**RUNNING** {self.dmis[0].name} · {message}"
+            self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
+
+    def _dmis_query(self, prompt: str, answer: bool) -> str:
+        """TEXT/MAN (confirm) or TEXT/QUERY (answer): asked on this tab; the run waits (the machine standing still)
+        until the operator presses Answer, or Cancel."""
+        self.dmis_question = prompt
+        self._dmis_answered.clear()
+        self.dmis_status = (f"**QUESTION**: {prompt}" + (" (type the answer in Answer, then press Answer)" if answer
+                                                          else " (press Answer to go on)"))
+        self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
+        self.ctx.notify("DMIS program asks", prompt)
+        try:
+            while not self.station.controller.wait_event(self._dmis_answered, 0.2):
+                if not self.dmis_running or self._dmis_cancel:
+                    break
+            if not self._dmis_answered.is_set():
+                from ..dmis.executor import DmisError
+
+                raise DmisError(f"{prompt.split(':')[0]}: the question was not answered")
+            return self.dmis_answer
+        finally:
+            self.dmis_question = ""
+
+    def answer_dmis(self, text: str = "") -> bool:
+        """The operator's answer to the program's question (False: none is asked)."""
+        if not self.dmis_question:
+            self.ctx.error("the DMIS program asks nothing now", "Answer")
+            return False
+        self.dmis_answer = str(text)
+        self._dmis_answered.set()
+        return True
 
     def _dmis_prompt(self, text: str) -> None:
         """A DMIS program in manual mode asks the operator for hits (text) or has them (empty)."""
@@ -453,9 +524,11 @@ class RoutinePanel:
             run.cancel()  # stopped on a fault: cancel ends it
             self._show_progress()
             return
-        if run is None or not self.running:
+        if (run is None or not self.running) and not (self.dmis_running and action != "skip"):
             self.ctx.error("no routine is running", "Routine")
             return
+        if self.dmis_running and action == "cancel":
+            self._dmis_cancel = True  # a question the program waits on ends too
         verb, title = {"pause": ("pause", "Pause"), "resume": ("resume", "Resume"), "skip": ("skip_step", "Skip step"),
                        "cancel": ("cancel", "Cancel")}[action]
         answer = self.ctx.do(title, verb)  # the core decides who may; its refusal is shown in words
@@ -621,9 +694,14 @@ class RoutinePanel:
         with gui.add_folder("DMIS program", expand_by_default=False):
             dmis = gui.add_text("DMIS file", "", hint="PROGRAM.dmi (in the sessions folder) or a full path")
             gui.add_button("Open DMIS").on_click(lambda _: self.open_dmis(dmis.value))
+            upload = gui.add_upload_button("Upload DMIS", hint="a .dmi / .dms file from this computer: checked, then "
+                                           "Run DMIS")
+            upload.on_upload(lambda _: self.upload_dmis(upload.value.name, upload.value.content))
             g["dmis"] = gui.add_markdown("")
             gui.add_button("Run DMIS", color="green").on_click(lambda _: self.run_dmis())
             g["dmis_status"] = gui.add_markdown("")
+            reply = gui.add_text("Answer", "", hint="the answer to the program's question (TEXT/QUERY)")
+            gui.add_button("Answer").on_click(lambda _: self.answer_dmis(reply.value))
 
     def refresh(self) -> None:
         if self.run_ is not None:
