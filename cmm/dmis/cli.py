@@ -29,7 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sessions", metavar="DIR|URL", default="sessions", help="session store (default: ./sessions)")
     p.add_argument("--no-home", dest="home", action="store_false",
                    help="do not run the homing cycle (a machine configured with [homing] method = \"none\")")
-    p.add_argument("--qif", action="store_true", help="QIF 3 Results output (not available: see the README)")
+    p.add_argument("--qif", metavar="FILE", nargs="?", const=True,
+                   help="also write the run's QIF 3 Results (default: PROGRAM.qif beside the DMIS output)")
     p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
                    "trends folder (its tolerance results; see cmm trends)")
     p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
@@ -44,10 +45,6 @@ def run(args: Any) -> int:
     path = Path(args.program)
     if path.suffix.lower() not in (".dmi", ".dms"):
         print(f"cmm run: {path} is not a DMIS program (.dmi or .dms)", file=sys.stderr)
-        return 2
-    if args.qif:
-        print("cmm run: QIF 3 Results output is not available: no QIF schema to validate it against is installed",
-              file=sys.stderr)
         return 2
     try:
         text = load_text(path)
@@ -123,8 +120,16 @@ def _run(args: Any, path: Path, text: str) -> int:
     name = Path(session).stem
     s = open_session(name, args.sessions)
     report = Path(args.report) if args.report else Path(f"{path.stem}_report.html")
-    write_report(s, report, mesh=resolve_part_mesh(s))
+    mesh = resolve_part_mesh(s)
+    write_report(s, report, mesh=mesh)
     print(f"wrote {report} (session {name})")
+    if getattr(args, "qif", None):
+        from ..session.qif import write_qif
+
+        out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
+        qif = out_default.parent / f"{path.stem}.qif" if args.qif is True else Path(args.qif)
+        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report))
+        print(f"wrote {qif} (QIF 3 Results)")
     return 0
 
 

@@ -99,7 +99,7 @@ class _Doc:
         return box
 
 
-def program_name(session: Session) -> str:
+def recorded_program(session: Session) -> str:
     """The program the session ran, from its notes ("DMIS program 'x.dmi' started"), or ""."""
     for _seq, text in session.state.notes:
         m = _PROGRAM_NOTE.match(text)
@@ -192,7 +192,7 @@ def _characteristic_rows(session: Session, program: Any, default_tolerance: floa
 
 
 def qif_document(session: Session, *, program: Any = None, default_tolerance: float | None = None, mesh: Any = None,
-                 program_name_: str | None = None, operator: str | None = None, station: str | None = None,
+                 program_name: str | None = None, operator: str | None = None, station: str | None = None,
                  report: str | None = None) -> ET.ElementTree:
     """The session as a QIF 3 Results document (see the module docstring)."""
     d = _Doc()
@@ -241,9 +241,9 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
                 d.ids(e, "FeatureNominalIds", [fids[int(fid)]["nominal"]])
     drf_ids: dict[tuple, str] = {}
     frames = []
-    for kind, owner, _c in rows:
-        refs = tuple(owner.get("datums") or ()) if kind == "gdt" else ()
-        labels = [lab for ref in refs for lab in ref.split("-")]
+    for kind, owner, c in rows:
+        refs = _refs(kind, c)
+        labels = [_label(lab)[0] for ref in refs for lab in ref.split("-")]
         if refs and all(lab in datum_ids for lab in labels) and refs not in drf_ids:
             drf_ids[refs] = d.id()
             frames.append((refs, owner))
@@ -256,13 +256,17 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
             for k, ref in enumerate(refs):
                 datum = d.el(ds, "Datum")
                 labels = ref.split("-")
-                target = datum if len(labels) == 1 else d.el(datum, "CompoundDatum")
-                for lab in labels:
-                    simple = d.el(target, "SimpleDatum")
+                compound = None if len(labels) == 1 else d.el(datum, "CompoundDatum", n=str(len(labels)))
+                for seq, lab in enumerate(labels, 1):
+                    inner = None if compound is None else d.el(compound, "Datum")
+                    simple = d.el(datum if inner is None else inner, "SimpleDatum")
+                    lab, own = _label(lab)
                     d.el(simple, "DatumDefinitionId", datum_ids[lab])
-                    mod = mods.get(lab) or (st.datums.get(lab) or {}).get("modifier") or ""
+                    mod = own or mods.get(lab) or (st.datums.get(lab) or {}).get("modifier") or ""
                     d.el(simple, "MaterialModifier", {"MMB": "MAXIMUM", "LMB": "LEAST"}.get(mod, "NONE"))
                     d.el(simple, "ReferencedComponent", "ACTUAL")
+                    if inner is not None:
+                        d.el(inner, "SequenceNumber", str(seq))
                 prec = d.el(datum, "Precedence")
                 d.el(prec, "PrecedenceEnum", ("PRIMARY", "SECONDARY", "TERTIARY")[k] if k < 3 else "PRIMARY")
 
@@ -378,6 +382,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
             if ref_fids:
                 d.ids(ne, "FeatureNominalIds", [fids[f]["nominal"] for f in ref_fids])
             d.el(ne, "Name", _token(f"{c.feature} {c.name}"))
+            if qt == "LineProfile":  # the normal of the section the profile's points lie in
+                d.el(ne, "Vector", _vec(_section_normal(session, ref_fids, frame)))
             if qt in ("DistanceBetween", "AngleBetween"):
                 if c.nominal is not None:
                     d.el(ne, "TargetValue", c.nominal)
@@ -408,7 +414,7 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
         d.el(tr, "InspectionStart", _iso(t0))
     if t1:
         d.el(tr, "InspectionEnd", _iso(t1))
-    prog = program_name_ if program_name_ is not None else program_name(session)
+    prog = program_name if program_name is not None else recorded_program(session)
     if prog:
         ip = d.el(tr, "InspectionProgram")
         d.el(d.el(ip, "File"), "Name", prog)
@@ -448,6 +454,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
                 attrs.append(_attr_d(d, "CoverageFactor", 2.0))
             if c.check:
                 attrs.append(_attr_str(d, "Check", c.check))
+            if kind == "gdt" and "composite" not in owner and str(owner.get("material") or "") in ("MMC", "LMC"):
+                attrs.append(_attr_d(d, "AllowedWithBonus", c.upper))
             if attrs:
                 box = d.el(me, "Attributes", n=str(len(attrs)))
                 box.extend(attrs)
@@ -485,6 +493,19 @@ def _attr_d(d: _Doc, name: str, value: float) -> ET.Element:
     return d.el(None, "AttributeD1", name=name, value=_num(value))
 
 
+def _label(token: str) -> tuple[str, str]:
+    """A datum reference's label and modifier: "G(M)" -> ("G", "MMB"), "A" -> ("A", "")."""
+    m = re.match(r"^\s*([A-Za-z]+)\s*(?:\((M|L)\))?", token)
+    if m is None:
+        return token.strip(), ""
+    return m.group(1), {"M": "MMB", "L": "LMB"}.get(m.group(2) or "", "")
+
+
+def _refs(kind: str, c: Characteristic) -> tuple[str, ...]:
+    """A geometric tolerance's datum references in precedence order ("A", "B", "E-F"), from its row."""
+    return tuple(x.strip() for x in c.datums.split("|") if x.strip()) if kind == "gdt" and c.datums else ()
+
+
 def _owner_features(kind: str, owner: Any, features: dict) -> list[int]:
     if kind == "feature":
         return [owner.id] if owner.id in features else []
@@ -508,11 +529,13 @@ def _char_definition(d: _Doc, parent: ET.Element, qt: str, family: str, kind: st
             d.el(de, "WhatToMeasure", c.name)
         return
     # zone tolerances: the stated zone (a bonus at MMC / LMC is in c.upper; the stated one in the definition)
-    stated = float(owner.get("tolerance") or c.upper) if kind == "gdt" else c.upper
-    d.el(de, "ToleranceValue", stated)
-    refs = tuple(owner.get("datums") or ()) if kind == "gdt" else ()
     material = {"MMC": "MAXIMUM", "LMC": "LEAST"}.get(str(owner.get("material") or "").upper(), "NONE") \
-        if kind == "gdt" else "NONE"
+        if kind == "gdt" and "composite" not in owner else "NONE"
+    # at MMC / LMC the stated zone (the bonus the actual size gives is the measurement's AllowedWithBonus);
+    # otherwise the zone allowed (a composite frame's lower tier has its own)
+    stated = float(owner.get("tolerance") or c.upper) if material != "NONE" else c.upper
+    d.el(de, "ToleranceValue", stated)
+    refs = _refs(kind, c)
     if qt == "Position":
         if refs in drf_ids:
             d.el(de, "DatumReferenceFrameId", drf_ids[refs])
@@ -527,15 +550,26 @@ def _char_definition(d: _Doc, parent: ET.Element, qt: str, family: str, kind: st
     if qt in ORIENTATION or qt == "Straightness":
         d.el(de, "MaterialCondition", material)
     if qt in WITH_ZONE_SHAPE:
-        _zone_shape(d, de, qt)
+        _zone_shape(d, de, qt, "⌀" in c.tolerance_text)
 
 
-def _zone_shape(d: _Doc, de: ET.Element, qt: str) -> None:
+def _zone_shape(d: _Doc, de: ET.Element, qt: str, diametral: bool) -> None:
     z = d.el(de, "ZoneShape")
-    if qt in ("Concentricity", "Coaxiality"):
+    if qt in ("Concentricity", "Coaxiality") or diametral:
         d.el(z, "DiametricalZone")
     else:
-        d.el(z, "ParallelPlanesZone") if qt != "Straightness" else d.el(z, "ParallelLinesZone")
+        d.el(z, "NonDiametricalZone" if qt == "Straightness" else "PlanarZone")
+
+
+def _section_normal(session: Session, fids: list[int], frame: _Frame) -> np.ndarray:
+    """The least-squares plane normal of a feature's hit points (a line profile's section), in the part's frame."""
+    st = session.state
+    hits = {**st.deleted_hits, **st.hits}
+    pts = np.array([hits[h].point for f in fids for h in st.features[f].hit_ids if h in hits], float).reshape(-1, 3)
+    if len(pts) < 3:
+        return frame.vector([0.0, 0.0, 1.0])
+    n = np.linalg.svd(pts - pts.mean(axis=0))[2][-1]
+    return frame.vector(n if n[np.argmax(np.abs(n))] > 0 else -n)
 
 
 def write_qif(session: Session, path: str | Path, **kw: Any) -> Path:
