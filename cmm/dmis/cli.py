@@ -31,6 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="do not run the homing cycle (a machine configured with [homing] method = \"none\")")
     p.add_argument("--qif", metavar="FILE", nargs="?", const=True,
                    help="also write the run's QIF 3 Results (default: PROGRAM.qif beside the DMIS output)")
+    from ..session.notify import add_arguments as notify_arguments
+
+    notify_arguments(p)
     p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
                    "trends folder (its tolerance results; see cmm trends)")
     p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
@@ -67,6 +70,7 @@ def _run(args: Any, path: Path, text: str) -> int:
     from ..session.report import write_report
     from ..session.store import open_session
     from ..station import Station, load_config
+    from ..session.notify import NotifyError, from_args
     from .executor import DmisError
     from .runner import register_verbs
 
@@ -83,7 +87,14 @@ def _run(args: Any, path: Path, text: str) -> int:
         if trends is not None:
             trends.close()
         raise
+    notifier = None
     try:
+        report = Path(args.report) if args.report else Path(f"{path.stem}_report.html")
+        if not getattr(args, "report_url", None):
+            args.report_url = report.resolve().as_uri()  # the report this command writes
+        notifier = from_args(args, args.sessions)
+        if notifier is not None:
+            notifier.attach(station.measurement)
         station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
         if not commands.invoke(None, "state").homed:
@@ -106,8 +117,15 @@ def _run(args: Any, path: Path, text: str) -> int:
             if exc.result is not None:
                 _write_outputs(args, path, exc.result, "the output up to that line")
             return 1
+    except NotifyError as exc:
+        print(f"cmm run: {exc}", file=sys.stderr)
+        return 2
     finally:
         station.close()
+        if notifier is not None:
+            notifier.close()
+            for why in notifier.errors:
+                print(f"cmm run: {why}", file=sys.stderr)
         if station.measurement.trends is not None:
             print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
             station.measurement.trends.close()
