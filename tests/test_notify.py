@@ -50,7 +50,7 @@ def webhook():
 
 @pytest.fixture
 def broker(tmp_path):
-    """A mosquitto broker on 127.0.0.1 and a subscriber to cmm/#: (broker URL, queue of (topic, message))."""
+    """A mosquitto broker on 127.0.0.1 and a subscriber to every topic: (broker URL, queue of (topic, message))."""
     if MOSQUITTO is None:
         pytest.skip("mosquitto is not installed (apt-get install mosquitto): MQTT notifications not tested")
     import paho.mqtt.client as mqtt
@@ -74,7 +74,7 @@ def broker(tmp_path):
         sub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-subscriber")
         sub.on_message = lambda c, u, m: got.put((m.topic, json.loads(m.payload)))
         sub.on_subscribe = lambda *a: subscribed.set()
-        sub.on_connect = lambda c, u, f, rc, p=None: c.subscribe("cmm/#", qos=1)
+        sub.on_connect = lambda c, u, f, rc, p=None: c.subscribe("#", qos=1)
         sub.connect("127.0.0.1", port)
         sub.loop_start()
         assert subscribed.wait(20), "the test's subscriber could not subscribe"
@@ -172,15 +172,15 @@ def test_a_receiver_that_is_down_never_holds_up_the_run_and_is_reported(tmp_path
 
 
 def test_settings_come_from_the_station_toml_and_the_flags_win(tmp_path):
+    from cmm.machine.config import default_text, load
+
     toml = tmp_path / "machine.toml"
-    toml.write_text('[notify]\nwebhook = "http://127.0.0.1:9/x"\nmqtt = "mqtt://127.0.0.1:1883"\n'
+    toml.write_text(default_text() + '\n[notify]\nwebhook = "http://127.0.0.1:9/x"\nmqtt = "mqtt://127.0.0.1:1883"\n'
                     'events = ["fault"]\nstation = "cell 2"\n')
     cfg = load_config(toml)
     assert (cfg.webhook, cfg.mqtt, cfg.events, cfg.station) == ("http://127.0.0.1:9/x", "mqtt://127.0.0.1:1883",
                                                                  ("fault",), "cell 2")
     assert load_config(toml, webhook="http://127.0.0.1:10/y").webhook == "http://127.0.0.1:10/y"
-    from cmm.machine.config import load
-
     load(toml)  # the machine configuration accepts the [notify] section
     with pytest.raises(NotifyError, match="not an http"):
         load_config(None, webhook="ftp://x")
