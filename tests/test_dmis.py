@@ -572,14 +572,6 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
         run_text("UNITS/MM, ANGRAD\nS(SIDE) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n", station)
 
 
-def test_cmm_run_refuses_qif_output_in_words(tmp_path, capsys):
-    """`--qif` is refused before anything runs: no QIF 3 schema is at hand to check the XML against."""
-    program = tmp_path / "top.dmi"
-    program.write_text("UNITS/MM, ANGDEC\nENDFIL\n")
-    assert main(["run", str(program), "--qif"]) == 2
-    assert "QIF 3 Results output is not available" in capsys.readouterr().err
-
-
 def test_cmm_run_ends_without_noise_on_stderr(tmp_path):
     """A run from the shell prints its results and nothing else: libigl's bindings report every surface index
     still alive when the interpreter ends as a leak (49 lines on stderr), so the cached indexes go at exit."""

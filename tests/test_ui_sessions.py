@@ -163,3 +163,17 @@ def test_browser_tab_builds_tabs_and_draws_replay(app, operator, recorded):
                 ws.recv(timeout=0.05)
             except TimeoutError:
                 pass
+
+
+def test_qif_button_writes_valid_qif_results(app, operator, recorded):
+    """The Report tab's "QIF 3 results": the session's QIF document in the sessions folder, valid against the
+    QIF 3.0.0 schemas (skipped with the reason when ../shared/qif is absent), with the plane's flatness."""
+    import qif_support
+    from qif_support import NS
+
+    qif_support.schema_or_skip()
+    (path,) = _wait(operator.sessions.qif("first"))
+    assert path.name == "first.qif" and operator.sessions.last_files == [path]
+    root = qif_support.validate(path)
+    assert root.find(".//q:PlaneFeatureItem/q:FeatureName", NS) is not None
+    assert root.find(".//q:FlatnessCharacteristicMeasurement/q:Value", NS) is not None

@@ -34,7 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sessions", metavar="DIR|URL", default="sessions", help="session store (default: ./sessions)")
     p.add_argument("--no-home", dest="home", action="store_false",
                    help="do not run the homing cycle (a machine configured with [homing] method = \"none\")")
-    p.add_argument("--qif", action="store_true", help="QIF 3 Results output (not available: see the README)")
+    p.add_argument("--qif", metavar="FILE", nargs="?", const=True,
+                   help="also write the run's QIF 3 Results (default: PROGRAM.qif beside the DMIS output)")
+    from ..session.notify import add_arguments as notify_arguments
+
+    notify_arguments(p)
     p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
                    "trends folder (its tolerance results; see cmm trends)")
     p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
@@ -49,10 +53,6 @@ def run(args: Any) -> int:
     path = Path(args.program)
     if path.suffix.lower() not in (".dmi", ".dms"):
         print(f"cmm run: {path} is not a DMIS program (.dmi or .dms)", file=sys.stderr)
-        return 2
-    if args.qif:
-        print("cmm run: QIF 3 Results output is not available: no QIF schema to validate it against is installed",
-              file=sys.stderr)
         return 2
     try:
         text = load_text(path)
@@ -79,6 +79,7 @@ def _run(args: Any, path: Path, text: str) -> int:
     from ..session.report import write_report
     from ..session.store import open_session
     from ..station import Station, load_config
+    from ..session.notify import NotifyError, from_args
     from .executor import DmisError
     from .runner import register_verbs
 
@@ -103,7 +104,14 @@ def _run(args: Any, path: Path, text: str) -> int:
         if trends is not None:
             trends.close()
         raise
+    notifier = None
     try:
+        report = Path(args.report) if args.report else Path(f"{path.stem}_report.html")
+        if not getattr(args, "report_url", None):
+            args.report_url = report.resolve().as_uri()  # the report this command writes
+        notifier = from_args(args, args.sessions)
+        if notifier is not None:
+            notifier.attach(station.measurement)
         station.connect()  # the modules started in this thread (no machine loop: a script)
         commands = station.controller.commands  # every command below goes through the command API
         if Path(args.records).is_dir():
@@ -129,8 +137,15 @@ def _run(args: Any, path: Path, text: str) -> int:
             if exc.result is not None:
                 _write_outputs(args, path, exc.result, "the output up to that line")
             return 1
+    except NotifyError as exc:
+        print(f"cmm run: {exc}", file=sys.stderr)
+        return 2
     finally:
         station.close()
+        if notifier is not None:
+            notifier.close()
+            for why in notifier.errors:
+                print(f"cmm run: {why}", file=sys.stderr)
         if station.measurement.trends is not None:
             print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
             station.measurement.trends.close()
@@ -143,8 +158,16 @@ def _run(args: Any, path: Path, text: str) -> int:
     name = Path(session).stem
     s = open_session(name, args.sessions)
     report = Path(args.report) if args.report else Path(f"{path.stem}_report.html")
-    write_report(s, report, mesh=resolve_part_mesh(s))
+    mesh = resolve_part_mesh(s)
+    write_report(s, report, mesh=mesh)
     print(f"wrote {report} (session {name})")
+    if getattr(args, "qif", None):
+        from ..session.qif import write_qif
+
+        out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
+        qif = out_default.parent / f"{path.stem}.qif" if args.qif is True else Path(args.qif)
+        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report))
+        print(f"wrote {qif} (QIF 3 Results)")
     return 0
 
 

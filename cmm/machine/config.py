@@ -207,7 +207,8 @@ def _gains(source: str, key: str, data: dict, base: Gains) -> Gains:
 
 def parse(data: dict, source: str = "<config>") -> MachineConfig:
     """Build a validated configuration from parsed TOML."""
-    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe", "homing"}
+    # [notify]: the station's notifications, read by cmm.session.notify from the same file
+    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe", "homing", "notify"}
     if unknown:
         raise _fail(source, sorted(unknown)[0], "is not a known section")
     link = LinkConfig(**{k: v for k, v in data.get("link", {}).items()})

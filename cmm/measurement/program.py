@@ -101,6 +101,12 @@ def record_trend(model: MeasurementModel, series: str, features: Any = (), *, va
     trend that cannot be written is noted in the session and the operator's log; the measurement stands."""
     from ..session.trends import TrendError, feature_values
 
+    notifier = getattr(model, "notifier", None)  # cmm.session.notify: the run's end to a webhook / MQTT
+    if notifier is not None:
+        try:
+            notifier.run_end(model, series, feature_values(f.record() for f in features) + list(values), serial)
+        except Exception as exc:  # noqa: BLE001 - a notification never spoils the run
+            model.log("error", f"the end of the run was not notified: {exc}")
     trends = getattr(model, "trends", None)
     if trends is None:
         return None

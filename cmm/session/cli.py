@@ -33,10 +33,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("delete", help="delete a session")
     p.add_argument("name")
     p.add_argument("--yes", action="store_true", help="do not ask for confirmation")
-    p = sub.add_parser("export", help="export hits as CSV and/or the whole session as JSON")
+    p = sub.add_parser("export", help="export hits as CSV, the whole session as JSON and/or its results as QIF 3")
     p.add_argument("name")
     p.add_argument("--csv", metavar="FILE")
     p.add_argument("--json", metavar="FILE")
+    p.add_argument("--qif", metavar="FILE", nargs="?", const=True,
+                   help="QIF 3 Results document (default NAME.qif here)")
+    p.add_argument("--program", metavar="PROGRAM.toml", help="with --qif: take the feature tolerances from a program")
     p.add_argument("--part", metavar="MESH", help="part mesh for deviations (else the recorded one if found)")
     p = sub.add_parser("reevaluate", help="recompute points and features from the raw counts into a new session")
     p.add_argument("name")
@@ -117,8 +120,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.action == "export":
         from .export import resolve_part_mesh, write_csv, write_json
 
-        if not args.csv and not args.json:
-            print("cmm sessions: export needs --csv FILE and/or --json FILE", file=sys.stderr)
+        if not args.csv and not args.json and not args.qif:
+            print("cmm sessions: export needs --csv FILE, --json FILE and/or --qif [FILE]", file=sys.stderr)
             return 2
         s = load_session(store, args.name)
         mesh = resolve_part_mesh(s, args.part)
@@ -130,6 +133,14 @@ def _run(args: argparse.Namespace) -> int:
         if args.json:
             write_json(s, args.json, mesh)
             print(f"wrote {len(s.events)} events to {args.json}")
+        if args.qif:
+            from .program import load as load_program
+            from .qif import write_qif
+
+            target = f"{args.name}.qif" if args.qif is True else args.qif
+            program = load_program(args.program) if args.program else None
+            write_qif(s, target, mesh=mesh, program=program)
+            print(f"wrote the QIF 3 results of {args.name!r} to {target}")
         for w in s.warnings:
             print(f"warning: {w}", file=sys.stderr)
         return 0

@@ -5,8 +5,10 @@ Two backends share one API (:class:`SessionStore`):
 - :class:`DirectoryStore` (the embedded default, no server): a directory of
   JSON Lines journals ``<name>.jsonl`` (see :mod:`cmm.session.journal`).
 - :class:`PostgresStore`: tables ``cmm_sessions`` (id, name, created) and
-  ``cmm_events`` (session_id, seq, event JSON text); each event is committed
-  before ``append`` returns, so the same "acknowledged = durable" rule holds.
+  ``cmm_events`` (session_id, seq, event JSON text). Each event is fsync'ed to a
+  local journal (the spool folder) before ``append`` returns, so the same
+  "acknowledged = durable" rule holds, and uploaded in the background
+  (:mod:`cmm.session.store_pg`): a database outage never refuses an event.
 
 ``open_store(spec)`` picks the backend from a directory path or a
 ``postgresql://`` URL.
@@ -21,15 +23,15 @@ asks for confirmation unless ``--yes``.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Protocol
 
-from .journal import Journal, JournalBusy, JournalContents, encode_event, is_locked, parse_lines, read_events
+from .journal import Journal, JournalBusy, JournalContents, is_locked, parse_lines, read_events
 from .model import Session
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._ -]{0,127}$")
@@ -200,57 +202,54 @@ CREATE TABLE IF NOT EXISTS cmm_events (
 LOCK_SPACE = 0x434D4D  # "CMM": first key of the two-key advisory locks
 
 
-def _connect(url: str) -> Any:
+def json_seq(raw: bytes) -> int:
+    """The seq of one journal line (0 when it has none)."""
     try:
-        import psycopg
-    except ImportError:
-        raise StoreError("the PostgreSQL session store needs psycopg: pip install 'cmm[postgres]'") from None
-    try:
-        return psycopg.connect(url, autocommit=True)
-    except psycopg.Error as exc:
-        raise StoreError(f"cannot connect to the session database: {exc}".strip()) from None
-
-
-class PgWriter:
-    """Appends events to one session; each INSERT is committed before ``append`` returns."""
-
-    def __init__(self, url: str, session_id: int, name: str) -> None:
-        self.name = name
-        self.session_id = session_id
-        self._conn = _connect(url)
-        row = self._conn.execute("SELECT pg_try_advisory_lock(%s, %s)", (LOCK_SPACE, session_id)).fetchone()
-        if not row[0]:
-            self._conn.close()
-            raise SessionBusy(f"session {name!r} is already open for writing by another station")
-        row = self._conn.execute("SELECT coalesce(max(seq), 0) FROM cmm_events WHERE session_id = %s",
-                                 (session_id,)).fetchone()
-        self.seq = int(row[0])
-
-    def append(self, kind: str, **data: Any) -> dict:
-        event = {"seq": self.seq + 1, "time": time.time(), "kind": kind, **data}
-        line = encode_event(event)
-        self._conn.execute("INSERT INTO cmm_events (session_id, seq, event) VALUES (%s, %s, %s)",
-                           (self.session_id, event["seq"], line))
-        self.seq += 1
-        return event
-
-    @property
-    def closed(self) -> bool:
-        return self._conn.closed
-
-    def close(self) -> None:
-        if not self._conn.closed:
-            self._conn.close()  # ends the server session: the advisory lock goes with it
+        return int(json.loads(raw).get("seq", 0))
+    except (ValueError, AttributeError):
+        return 0
 
 
 class PostgresStore:
-    """Sessions in a PostgreSQL database (psycopg 3), selected by a ``postgresql://`` URL."""
+    """Sessions in a PostgreSQL database (psycopg 3), selected by a ``postgresql://`` URL.
 
-    def __init__(self, url: str) -> None:
+    A session being recorded is journalled locally first and uploaded in the background
+    (:mod:`cmm.session.store_pg`): an outage of the database delays the upload, it never refuses an event.
+    Opening the store does not need the database; listing and reading do (with the local journals of sessions
+    still uploading as a fallback)."""
+
+    def __init__(self, url: str, spool: str | Path | None = None) -> None:
+        from .store_pg import default_spool, uploader
+
         self.url = url
         self.location = re.sub(r"//([^:@/]*):[^@/]*@", r"//\1:***@", url)  # never print a password
-        with _connect(url) as conn:
-            conn.execute(SCHEMA)
+        self.spool = Path(spool) if spool is not None else default_spool(self.location)
+        self.uploader = uploader(url, self.spool)
+
+    def _conn(self) -> Any:
+        """A short-lived connection, or StoreError in words."""
+        try:
+            import psycopg  # noqa: F401
+        except ImportError:
+            raise StoreError("the PostgreSQL session store needs psycopg: pip install 'cmm[postgres]'") from None
+        from .store_pg import connect
+
+        try:
+            conn = connect(self.url, 3.0)
+        except Exception as exc:  # noqa: BLE001 - psycopg's errors, in words
+            raise StoreError(f"cannot connect to the session database: {' '.join(str(exc).split())}") from None
+        try:
+            with conn.transaction():
+                conn.execute("SELECT pg_advisory_xact_lock(%s, %s)", (LOCK_SPACE, 0x53455353))
+                conn.execute(SCHEMA)
+        except Exception as exc:  # noqa: BLE001
+            conn.close()
+            raise StoreError(f"cannot use the session database: {' '.join(str(exc).split())}") from None
+        return conn
+
+    def _spooled(self, name: str) -> Path | None:
+        p = self.spool / f"{name}.jsonl"
+        return p if p.exists() else None
 
     def _id(self, conn: Any, name: str) -> int:
         row = conn.execute("SELECT id FROM cmm_sessions WHERE name = %s", (check_name(name),)).fetchone()
@@ -259,17 +258,33 @@ class PostgresStore:
         return int(row[0])
 
     def list(self) -> list[SessionInfo]:
-        with _connect(self.url) as conn:
-            rows = conn.execute(
-                "SELECT s.id, s.name, s.created, count(e.seq), "
-                "coalesce(max((e.event::json->>'time')::double precision), s.created) "
-                "FROM cmm_sessions s LEFT JOIN cmm_events e ON e.session_id = s.id "
-                "GROUP BY s.id ORDER BY s.name").fetchall()
-            out = []
-            for sid, name, _created, n, modified in rows:
-                busy = not self._try_lock(conn, sid)
-                out.append(SessionInfo(name, int(n), float(modified), busy, f"{self.location}#{name}"))
-            return out
+        """The database's sessions, and those still waiting in the local journal to upload; while the database
+        is unreachable, the local ones only."""
+        local = {p.stem: p for p in sorted(self.spool.glob("*.jsonl"))}
+        out: dict[str, SessionInfo] = {}
+        try:
+            conn = self._conn()
+        except StoreError:
+            if not local:
+                raise
+            conn = None
+        if conn is not None:
+            with conn:
+                rows = conn.execute(
+                    "SELECT s.id, s.name, s.created, count(e.seq), "
+                    "coalesce(max((e.event::json->>'time')::double precision), s.created) "
+                    "FROM cmm_sessions s LEFT JOIN cmm_events e ON e.session_id = s.id "
+                    "GROUP BY s.id ORDER BY s.name").fetchall()
+                for sid, name, _created, n, modified in rows:
+                    busy = not self._try_lock(conn, sid) or (name in local and is_locked(local[name]))
+                    events = int(n) + (self.uploader.pending(name) if name in local else 0)
+                    out[name] = SessionInfo(name, events, float(modified), busy, f"{self.location}#{name}")
+        for name, p in local.items():
+            if name not in out:
+                st = p.stat()
+                out[name] = SessionInfo(name, count_lines(p, st), st.st_mtime, is_locked(p),
+                                        f"{self.location}#{name} (waiting to upload: {p})")
+        return [out[k] for k in sorted(out)]
 
     def _try_lock(self, conn: Any, sid: int) -> bool:
         ok = conn.execute("SELECT pg_try_advisory_lock(%s, %s)", (LOCK_SPACE, sid)).fetchone()[0]
@@ -278,42 +293,81 @@ class PostgresStore:
         return bool(ok)
 
     def exists(self, name: str) -> bool:
-        with _connect(self.url) as conn:
+        if self._spooled(check_name(name)) is not None:
+            return True
+        with self._conn() as conn:
             return conn.execute("SELECT 1 FROM cmm_sessions WHERE name = %s", (check_name(name),)).fetchone() is not None
 
-    def create(self, name: str, *, append: bool = False) -> PgWriter:
-        with _connect(self.url) as conn:
-            row = conn.execute("INSERT INTO cmm_sessions (name, created) VALUES (%s, %s) "
-                               "ON CONFLICT (name) DO NOTHING RETURNING id", (check_name(name), time.time())).fetchone()
-            if row is None:
-                if not append:
-                    raise StoreError(f"a session named {name!r} already exists in {self.location}")
-                sid = self._id(conn, name)
-            else:
-                sid = int(row[0])
-        return PgWriter(self.url, sid, name)
+    def create(self, name: str, *, append: bool = False) -> Any:
+        """A writer for ``name`` (a new session, or with ``append`` an existing one continued); works while the
+        database is down (the name is claimed in the database when it is back)."""
+        from .store_pg import SpooledWriter
+
+        check_name(name)
+        self.spool.mkdir(parents=True, exist_ok=True)
+        path = self.spool / f"{name}.jsonl"
+        if path.exists() and not append and count_lines(path):
+            raise StoreError(f"a session named {name!r} already exists in {self.location}")
+        try:
+            journal = Journal(path)
+        except JournalBusy:
+            raise SessionBusy(f"session {name!r} is already open for writing by another station") from None
+        try:
+            base = self.uploader.register(
+                name, append=append,
+                exists_error=StoreError(f"a session named {name!r} already exists in {self.location}"),
+                busy_error=SessionBusy(f"session {name!r} is already open for writing by another station"))
+        except StoreError:
+            journal.close()
+            if not count_lines(path):
+                path.unlink(missing_ok=True)
+            raise
+        return SpooledWriter(self.uploader, name, journal, base)
 
     def read(self, name: str) -> JournalContents:
-        with _connect(self.url) as conn:
-            sid = self._id(conn, name)
-            rows = conn.execute("SELECT event FROM cmm_events WHERE session_id = %s ORDER BY seq", (sid,)).fetchall()
-        return parse_lines((r[0].encode("utf-8") + b"\n" for r in rows), f"{self.location}#{name}")
+        """The database's events, then those journalled here and not uploaded yet; while the database is
+        unreachable, the local journal of a session recorded here."""
+        check_name(name)
+        local = self._spooled(name)
+        try:
+            with self._conn() as conn:
+                row = conn.execute("SELECT id FROM cmm_sessions WHERE name = %s", (name,)).fetchone()
+                rows = [] if row is None else conn.execute(
+                    "SELECT event FROM cmm_events WHERE session_id = %s ORDER BY seq", (int(row[0]),)).fetchall()
+        except StoreError:
+            if local is None:
+                raise
+            return read_events(local)
+        if row is None and local is None:
+            raise SessionNotFound(f"there is no session {name!r} in {self.location}")
+        lines = [r[0].encode("utf-8") + b"\n" for r in rows]
+        if local is not None:
+            top = json_seq(lines[-1]) if lines else 0
+            with open(local, "rb") as fh:
+                lines += [raw for raw in fh if raw.endswith(b"\n") and json_seq(raw) > top]
+        return parse_lines(iter(lines), f"{self.location}#{name}")
 
     def _locked(self, conn: Any, name: str, action: str) -> int:
+        local = self._spooled(name)
+        if local is not None:
+            if is_locked(local):
+                raise SessionBusy(f"session {name!r} is being recorded by a station: close it before you {action} it")
+            raise SessionBusy(f"session {name!r} still has events waiting to upload to the database: "
+                              f"{action} it once they are there")
         sid = self._id(conn, name)
         if not conn.execute("SELECT pg_try_advisory_lock(%s, %s)", (LOCK_SPACE, sid)).fetchone()[0]:
             raise SessionBusy(f"session {name!r} is being recorded by a station: close it before you {action} it")
         return sid
 
     def rename(self, old: str, new: str) -> None:
-        with _connect(self.url) as conn:
+        with self._conn() as conn:
             sid = self._locked(conn, old, "rename")
             if conn.execute("SELECT 1 FROM cmm_sessions WHERE name = %s", (check_name(new),)).fetchone():
                 raise StoreError(f"a session named {new!r} already exists in {self.location}")
             conn.execute("UPDATE cmm_sessions SET name = %s WHERE id = %s", (new, sid))
 
     def delete(self, name: str) -> None:
-        with _connect(self.url) as conn:
+        with self._conn() as conn:
             sid = self._locked(conn, name, "delete")
             conn.execute("DELETE FROM cmm_sessions WHERE id = %s", (sid,))
 

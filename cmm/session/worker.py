@@ -197,6 +197,19 @@ def report(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, c
             write_features_csv(session, out / f"{name}-features.csv", mesh=mesh)]
 
 
+def qif(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None) -> list[Path]:
+    """Write ``<name>.qif`` (QIF 3 Results, :mod:`cmm.session.qif`) into ``out_dir``, naming the report
+    ``<name>-report.html`` beside it when one was written; its path in a list."""
+    from .qif import write_qif
+
+    session = _load(store, name)
+    mesh = _mesh(session, part)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    report = out / f"{name}-report.html"
+    return [write_qif(session, out / f"{name}.qif", mesh=mesh, report=str(report) if report.exists() else None)]
+
+
 def export(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, csv: bool = True,
            json: bool = True) -> list[Path]:
     """Write ``<name>.csv`` (hits) and/or ``<name>.json`` (whole session) into ``out_dir``; their paths."""

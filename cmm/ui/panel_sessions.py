@@ -382,6 +382,18 @@ class SessionsPanel:
 
         return self._start("Export", work, self._files_done)
 
+    def qif(self, name: str) -> Job | None:
+        """Write the session's QIF 3 Results ``<name>.qif`` into the sessions folder (and offer it); written in the
+        session worker process (:func:`cmm.session.worker.qif`)."""
+        from ..session import worker
+
+        def work(progress: Callable[[float, str], None]) -> list[Path]:
+            progress(0.1, f"writing the QIF results of {name} (session worker)")
+            return shared_worker().call(worker.qif, self.station.measurement.session_dir, name, self.export_dir(),
+                                        self._live_mesh())
+
+        return self._start("QIF", work, self._files_done)
+
     def _files_done(self, files: list[Path]) -> str:
         self.last_files = list(files)
         for f in files:
@@ -482,6 +494,7 @@ class SessionsPanel:
                                                 hint="the control charts of the series the session's part belongs to")
             gui.add_button("Report (HTML + CSV)").on_click(
                 lambda _: (n := self._need()) and self.report(n, bool(g["with_trends"].value)))
+            gui.add_button("QIF 3 results").on_click(lambda _: (n := self._need()) and self.qif(n))
             g["files"] = gui.add_markdown("")
         with gui.add_folder("Re-evaluate", expand_by_default=False):
             g["re_name"] = gui.add_text("New session", "", hint="empty: <name>-reevaluated")

@@ -152,6 +152,10 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         else:
             ok = link_ok and link_rate > 5.0
             out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
+    upload = getattr(getattr(getattr(station, "measurement", None), "journal", None), "upload_status", None)
+    offline = upload() if callable(upload) else ""  # the shop's session database: "database offline, N events waiting"
+    if offline:
+        out.append(f" &middot; <span class='warn'>{e(offline)}</span>")
     if st is not None:
         pos = st.position
         label = "machine"

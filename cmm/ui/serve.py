@@ -54,6 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-shadows", dest="shadows", action="store_false",
                         help="draw the 3-D view without the probe's shadow: each frame a few times cheaper for "
                              "browsers on computers or tablets without a graphics processor")
+    from ..session.notify import add_arguments as notify_arguments
+
+    notify_arguments(parser)
     parser.add_argument("--tolerance", type=float, default=0.02,
                         help="colour map tolerance, mm: red / blue beyond it, amber / cyan (warning) beyond half "
                              "of it (default 0.02)")
@@ -116,6 +119,18 @@ def run(args: argparse.Namespace) -> int:
         for line in station.calibration.log or ["no records: nominal probe and geometry"]:
             print(f"calibration ({calibration}): {line}")
     print(f"trends: {station.measurement.trends.status_text().replace('**', '')}")
+    from ..session.notify import NotifyError, from_args
+
+    try:
+        notifier = from_args(args, args.sessions)
+    except NotifyError as exc:
+        station.close()
+        trends.close()
+        return _fail(str(exc))
+    if notifier is not None:
+        notifier.log = station.measurement.log
+        notifier.attach(station.measurement)
+        print("notifications: " + ", ".join(x for x in (notifier.config.webhook, notifier.config.mqtt) if x))
     try:
         station.start()
     except Exception as exc:  # noqa: BLE001
@@ -169,4 +184,6 @@ def run(args: argparse.Namespace) -> int:
         app.close()
         station.close()
         station.measurement.trends.close()
+        if notifier is not None:
+            notifier.close()
     return 0
