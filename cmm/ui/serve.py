@@ -39,6 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ippdme", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:1294", default=None,
                         help="also serve I++ DME clients (PC-DMIS, CALYPSO, ...) on ADDR:PORT "
                              "(default 127.0.0.1:1294; 0.0.0.0:1294 to accept them from the LAN)")
+    parser.add_argument("--opcua", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:4840", default=None,
+                        help="also serve OPC UA clients (OPC 40210 Geometrical Measuring Systems model) on ADDR:PORT "
+                             "(default 127.0.0.1:4840; 0.0.0.0:4840 for the LAN): anonymous clients read, users "
+                             "with a role write and call methods")
     parser.add_argument("--trends", metavar="DIR", default="trends",
                         help="this station's trends journal (every program run is a part of its series; default "
                              "./trends)")
@@ -146,6 +150,18 @@ def run(args: argparse.Namespace) -> int:
             app.close()
             station.close()
             return _fail(str(exc))
+    opcua = None
+    if getattr(args, "opcua", None):
+        from ..opcua.serve import start as start_opcua
+
+        try:
+            opcua = start_opcua(station.controller.commands, args.opcua, name=args.station or "CMM")
+        except (OSError, ValueError) as exc:
+            if ippdme is not None:
+                ippdme.close()
+            app.close()
+            station.close()
+            return _fail(str(exc))
     print("Press Ctrl-C to stop.")
     try:
         while True:
@@ -153,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nstopping...")
     finally:
+        if opcua is not None:
+            opcua.close()
         if ippdme is not None:
             ippdme.close()
         app.close()
