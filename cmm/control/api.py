@@ -85,6 +85,9 @@ class Response:
 class CommandAPI:
     controller: Any
     _verbs: dict[str, Verb] = field(default_factory=dict)
+    # cmm.control.roles.RolePolicy on a station with a user file: each verb checked against the client's role;
+    # None: the local, no-login mode (the control holder rule alone)
+    roles: Any = None
 
     def __post_init__(self) -> None:
         c = self.controller
@@ -198,6 +201,10 @@ class CommandAPI:
         missing = [k for k, v in verb.params.items() if v is REQUIRED and k not in params]
         if missing:
             raise CommandError("bad_params", f"{method} needs {', '.join(missing)}")
+        if self.roles is not None:
+            why = self.roles.refusal(access.client_of(client), method, verb.query)
+            if why is not None:
+                raise access.AccessRefused(why)
         return verb.fn(client, **params)
 
     def call(self, client: Any, method: str, params: dict[str, Any] | None = None, *, id: Any = None,
