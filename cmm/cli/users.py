@@ -1,7 +1,7 @@
 """`cmm users`: the station's users and roles (add, list, remove, passwd, role, token, revoke).
 
 The user file (default ``./users.toml``, or CMM_USERS) is what ``cmm serve --users FILE`` reads: with it the
-station asks every client to log in and checks each command against the role table (docs/users.md).
+station asks every client to log in and checks each command against the role table (the users page of the docs).
 """
 
 from __future__ import annotations

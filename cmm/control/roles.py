@@ -1,6 +1,6 @@
 """What each role may do: the one table of every front end (page, pendant, I++, OPC UA, scripts with a token).
 
-Four roles, each a set of the command API's verbs (by group; docs/users.md prints :func:`table`):
+Four roles, each a set of the command API's verbs (by group; the users page of the docs prints :func:`table`):
 
 =============  ==============================================================================================
 role           may
