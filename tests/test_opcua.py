@@ -16,6 +16,9 @@ from asyncua.ua.uaerrors import UaStatusCodeError  # noqa: E402
 
 import opcua_support as ops  # noqa: E402
 from cmm.control.access import Control  # noqa: E402
+from cmm.control import tls  # noqa: E402
+from cmm.control.roles import RolePolicy  # noqa: E402
+from cmm.control.users import UserStore  # noqa: E402
 from cmm.opcua import model  # noqa: E402
 from cmm.opcua.server import OpcUaServer  # noqa: E402
 from cmm.station import Station  # noqa: E402
@@ -26,19 +29,20 @@ USERS = {"maria": ("s3cret-maria", "operator")}
 SHARED = ops.shared_dir()
 
 
-def authenticate(name: str, password: str):
-    entry = USERS.get(name)
-    return entry[1] if entry is not None and entry[0] == password else None
-
-
 @pytest.fixture(scope="module")
 def served(tmp_path_factory):
     station = Station(nist_config(), port=SIM_URL, session_dir=tmp_path_factory.mktemp("sessions"))
     station.machine.poll_pause = POLL_PAUSE
     station.controller.use_policy_of(Control())  # the holder rule of `cmm serve`: observers do not command
+    store = UserStore(tmp_path_factory.mktemp("users") / "users.toml")  # `cmm serve --users FILE`
+    for name, (password, role) in USERS.items():
+        store.add(name, role, password)
+    station.controller.commands.roles = RolePolicy()
     station.start()
+    cert = tls.certificate(tmp_path_factory.mktemp("tls"), application_uri="urn:cmm-station:CMM-7")  # self-signed
     server = OpcUaServer(station.controller.commands, "127.0.0.1", free_port(), name="CMM-7",
-                         authenticate=authenticate, rate=20.0).start()
+                         authenticate=store.identify, rate=20.0, certificate=cert).start()
+    server.store = store
     try:
         yield server, station
     finally:
@@ -248,6 +252,17 @@ def test_an_anonymous_client_is_refused_writes_and_methods_and_a_user_may(served
             production = await gms.get_child([f"{mt}:Production"])
             assert await production.call_method(f"{st}:Stop") == "stopped"
         assert api.invoke(None, "report_info")["part_number"] == "P-100"
+        assert station.controller.holder.holder_name == "maria"  # the person, in every control message
+
+        program = Client(server.url, timeout=60)  # a program with an API token: user "token", the token as password
+        program.set_user("token")
+        program.set_password(server.store.new_token("maria", "mes"))
+        async with program:
+            gms, ns = await gms_node(program)
+            part = await gms.get_child([f"{ns.index(model.MACHINE_TOOL)}:Production",
+                                        f"{ns.index(model.STATION)}:ReportHeader", f"{ns.index(model.STATION)}:drawing"])
+            await part.write_value(ua.Variant("D-7", ua.VariantType.String))
+        assert api.invoke(None, "report_info")["drawing"] == "D-7"
 
     run(check())
 
@@ -310,3 +325,35 @@ def _top_face_program(station, tmp_path):
     program = prog.Program("top face", part.name, prog.part_hash(part),
                            [prog.ProgramFeature("top", "plane", "ls", [1, 2, 3])], hits)
     return prog.save(program, tmp_path / "top.toml")
+
+
+def test_a_client_logs_in_over_basic256sha256_and_sees_the_fingerprint_the_station_printed(served, tmp_path):
+    server, station = served
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+    assert server.certificate.made and len(server.certificate.fingerprint.split(":")) == 32
+    cert, key = tmp_path / "client-cert.pem", tmp_path / "client-key.pem"
+    tls.make(cert, key, application_uri="urn:cmm-test:client", common_name="test client")
+
+    async def check():
+        client = Client(server.url, timeout=60)
+        client.application_uri = "urn:cmm-test:client"
+        endpoints = await client.connect_and_get_server_endpoints()
+        secure = [e for e in endpoints if e.SecurityPolicyUri == SecurityPolicyBasic256Sha256.URI]
+        assert secure, "the server offers Basic256Sha256 with its certificate"
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes
+
+        seen = x509.load_der_x509_certificate(secure[0].ServerCertificate).fingerprint(hashes.SHA256())
+        assert ":".join(f"{b:02X}" for b in seen) == server.certificate.fingerprint
+        await client.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key),
+                                  server_certificate=str(server.certificate.cert_path),
+                                  mode=ua.MessageSecurityMode.SignAndEncrypt)
+        client.set_user("maria")
+        client.set_password(USERS["maria"][0])
+        async with client:
+            gms, ns = await gms_node(client)
+            serial = await gms.get_child([f"{ns.index(model.DI)}:Identification", f"{ns.index(model.DI)}:SerialNumber"])
+            assert await serial.read_value() == "CMM-7"
+
+    run(check())

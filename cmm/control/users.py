@@ -229,6 +229,14 @@ class UserStore:
         except LoginError:
             return None
 
+    def identify(self, name: str, password: str) -> tuple[str, str] | None:
+        """(user, role) of a good login (a token names its holder), None otherwise (the OPC UA server's check)."""
+        try:
+            login = self.login(name, password)
+        except LoginError:
+            return None
+        return login.user, login.role
+
     def __len__(self) -> int:
         with self._lock:
             self._load()

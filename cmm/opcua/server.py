@@ -42,7 +42,8 @@ class StationUser(User):
 
 
 class _Users:
-    """asyncua's user manager over the station's ``authenticate(name, password) -> role | None``."""
+    """asyncua's user manager over the station's ``authenticate(name, password) -> (user, role) | role | None``
+(:meth:`cmm.control.users.UserStore.identify`)."""
 
     def __init__(self, authenticate: Callable[[str, str], Any] | None) -> None:
         self.authenticate = authenticate
@@ -53,10 +54,11 @@ class _Users:
             return StationUser(role=UserRole.User)
         if self.authenticate is None:
             return None  # no user file: nobody logs in
-        role = self.authenticate(username, password or "")
-        if role is None:
+        found = self.authenticate(username, password or "")
+        if found is None:
             return None  # BadUserAccessDenied
-        return StationUser(role=UserRole.User, name=username, station_role=str(role))
+        name, role = found if isinstance(found, tuple) else (username, found)  # a token names its holder
+        return StationUser(role=UserRole.User, name=name, station_role=str(role))
 
 
 class OpcUaServer:
@@ -85,6 +87,10 @@ class OpcUaServer:
         self._failure: BaseException | None = None
         self._last: dict[str, Any] = {}
         self._workers: list[threading.Thread] = []
+
+    @property
+    def application_uri(self) -> str:
+        return f"urn:cmm-station:{self.name}"
 
     @property
     def url(self) -> str:
@@ -131,6 +137,7 @@ class OpcUaServer:
         server.set_server_name(f"CMM station {self.name}")
         policies = [ua.SecurityPolicyType.NoSecurity]
         if self.certificate is not None:
+            await server.set_application_uri(self.application_uri)  # the certificate names it
             await server.load_certificate(str(self.certificate.cert_path))
             await server.load_private_key(str(self.certificate.key_path))
             policies.append(ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt)
@@ -403,7 +410,7 @@ def default_client(user: str | None, role: str | None) -> Any:
 
     if user is None:
         return Client("opcua (anonymous)")
-    return Client(f"opcua {user}", authenticated=True, listener_grants_control=True)
+    return Client(f"opcua {user}", authenticated=True, listener_grants_control=True, user=user, role=role)
 
 
 def _version() -> str:
