@@ -109,3 +109,55 @@ def test_cmm_users_manages_the_file_from_the_command_line(tmp_path, capsys, monk
     assert main(["users", "--file", str(path), "remove", "maria"]) == 0
     assert main(["users", "--file", str(path), "remove", "maria"]) == 2
     assert "there is no user 'maria'" in capsys.readouterr().err
+
+
+def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
+    """The pendant served over https / wss with the station's self-signed certificate (checked by its file, as a
+    client that was given the printed fingerprint would): an anonymous connection only observes, a wrong password
+    is refused without saying which part was wrong, a logged-in operator takes control under the person's name and
+    is refused calibration in the role table's words."""
+    import json
+    import ssl
+
+    from websockets.sync.client import connect
+
+    from cmm.control import tls
+    from cmm.station import Station
+    from cmm.ui.pendant import start_pendant_server
+    from netutil import SIM
+
+    store = UserStore(tmp_path / "users.toml")
+    store.add("maria", "operator", "correct horse")
+    cert = tls.certificate(tmp_path / "tls")
+    assert cert.made and tls.certificate(tmp_path / "tls").fingerprint == cert.fingerprint  # made once, then reused
+    station = Station(port=SIM, session_dir=tmp_path / "sessions").start()
+    control = Control()
+    station.controller.use_policy_of(control)
+    station.controller.commands.roles = RolePolicy()
+    server = start_pendant_server(station, control, "127.0.0.1", 0, ssl=cert.ssl_context(), users=store)
+    try:
+        assert server.ws_url.startswith("wss://")
+        trust = ssl.create_default_context(cafile=str(cert.cert_path))
+        ws = connect(server.ws_url, ssl=trust, open_timeout=10, close_timeout=2)
+
+        def ask(**msg):
+            ws.send(json.dumps(msg))
+            while True:
+                answer = json.loads(ws.recv(timeout=30))
+                if answer.get("type") in ("hello", "login", "error", "result", "control"):
+                    return answer
+
+        assert ask(type="hello")["type"] == "hello"
+        refused = ask(type="call", id=1, method="take_control")
+        assert refused["error"]["code"] == "refused" and "needs a user: log in" in refused["error"]["message"]
+        assert ask(type="login", user="maria", password="wrong one!")["message"] == "wrong user name or password"
+        assert ask(type="login", user="maria", password="correct horse") == {"type": "login", "user": "maria",
+                                                                            "role": "operator"}
+        assert ask(type="call", id=2, method="take_control")["result"]["message"] == "maria controls the machine"
+        refused = ask(type="call", id=3, method="qualify")
+        assert refused["error"]["message"] == "maria (operator) may not qualify: that needs the role metrologist or admin"
+        assert ask(type="call", id=4, method="stop")["result"]["ok"] is True
+        ws.close()
+    finally:
+        server.close()
+        station.close()
