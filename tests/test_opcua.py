@@ -38,6 +38,7 @@ def served(tmp_path_factory):
     for name, (password, role) in USERS.items():
         store.add(name, role, password)
     station.controller.commands.roles = RolePolicy()
+    station.measurement.holder_name = lambda: station.controller.holder.holder_name  # as `cmm serve --users`
     station.start()
     cert = tls.certificate(tmp_path_factory.mktemp("tls"), application_uri="urn:cmm-station:CMM-7")  # self-signed
     server = OpcUaServer(station.controller.commands, "127.0.0.1", free_port(), name="CMM-7",
@@ -303,6 +304,13 @@ def test_a_program_run_shows_its_progress_and_ends_as_a_result(served, tmp_path)
             assert value.ResultContent, "the result lists the run's characteristics"
             assert 100.0 in seen
             await sub.delete()
+        # the holder's name in every record: the program's hits and its feature were taken by maria
+        import json
+
+        events = [json.loads(line) for line in station.measurement.journal.path.read_text().splitlines() if line]
+        taken = [e for e in events if e["kind"] in ("hit", "feature")][-4:]
+        assert [e["kind"] for e in taken] == ["hit", "hit", "hit", "feature"]
+        assert {e.get("by") for e in taken} == {"maria"}
     run(check())
 
 
