@@ -28,6 +28,7 @@ from .machine.config import load as load_config  # front ends read the machine c
 from .machine.motion import Machine
 from .machine.probing import Prober
 from .measurement.model import MeasurementError, MeasurementModel, Part
+from .measurement.queries import register_queries
 from .nmc.trace import ByteTrace
 from .sim.placement import PlacementError, part_pose_of  # noqa: F401 - --part-pose of the front ends
 
@@ -338,6 +339,7 @@ class Station:
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         self._register_part_verbs()
+        register_queries(self.controller.commands, self.measurement, self.calibration)
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)

@@ -35,7 +35,8 @@ ALLOWED = {
     "station": {"control", "machine", "measurement", "fold", "metrology", "nmc", "session", "sim", "calibration"},
     "ippdme": {"control", "station", "measurement", "fold", "metrology", "session"},  # a front end like the ui
     "dmis": {"control", "station", "measurement", "fold", "metrology", "session"},  # DMIS programs: a front end too
-    "ui": {"control", "station", "measurement", "fold", "metrology", "session", "ippdme", "dmis"},  # hosts I++ and DMIS runs
+    "opcua": {"control"},  # the OPC UA server: a front end on the command API only
+    "ui": {"control", "station", "measurement", "fold", "metrology", "session", "ippdme", "dmis", "opcua"},  # hosts I++ and DMIS runs
     # its sub-commands live in the packages that own them (cmm/cli/__init__.py names their modules)
     "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis", "ippdme"},
 }
@@ -177,7 +178,7 @@ def test_comments_say_what_the_code_does_not_its_history():
     assert not bad, "history or outside references in comments:\n" + "\n".join(bad)
 
 
-FRONT_ENDS = ("ui", "cli", "ippdme", "dmis", "calibration")
+FRONT_ENDS = ("ui", "cli", "ippdme", "dmis", "calibration", "opcua")
 # what holds the machine in the composition root and the control core: a front end names these only to reach the
 # command API (``station.controller.commands``) or the control core's read-only views, never their machine
 OWNERS = {"station", "host", "st", "controller", "api", "core", "ctl", "self.station", "self.host", "self.controller",

@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "trends": ("cmm.session.cli_trends", "a series of parts across stations: control charts, Cp/Cpk, CSV, upload"),
     "run": ("cmm.dmis.cli", "run a DMIS part program (.dmi, .dms) on the station; --check only checks it"),
     "dmis-export": ("cmm.dmis.cli_export", "write a taught program (TOML) as a DMIS program"),
+    "users": ("cmm.cli.users", "the station's users and roles: add, list, remove, passwd, role, token, revoke"),
     "ippdme-client": ("cmm.ippdme.client", "send I++ DME commands (or a NIST .prg file) to an I++ DME server"),
 }
 

@@ -98,6 +98,10 @@ class Client:
     # came through a listener the operator opened for programs that command the machine (the I++ DME port, its
     # address chosen at start-up): that decision stands in for the access code when it takes control
     listener_grants_control: bool = False
+    # who logged in on this connection (a station with a user file, cmm.control.users): the name every message and
+    # record carries, and the role cmm.control.roles checks; None: nobody logged in
+    user: str | None = None
+    role: str | None = None
 
 
 def client_of(client: Any) -> Client | None:
@@ -335,9 +339,11 @@ def take_control(control: "Control | None", client: Any, code: str | None = None
     if control is None or who is None:
         return {"control": True, "message": "this station has no control holder: every client may command it"}
     why = control.try_take(who.id, code if isinstance(code, str) and code else None,
-                           is_local=who.local or who.listener_grants_control, peer=peer)
+                           is_local=who.local or who.listener_grants_control or who.user is not None, peer=peer)
     if why is not None:
         raise AccessRefused(why)
+    if who.user is not None:  # a user who logged in: messages and records name the person
+        control.set_name(who.id, who.user)
     return {"control": True, "message": f"{control.name(who.id)} controls the machine"}
 
 

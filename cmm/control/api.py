@@ -62,6 +62,7 @@ class Verb:
     params: dict[str, Any]  # name -> default (REQUIRED when it must be given)
     doc: str
     motion: bool = False  # returns a MoveStatus
+    query: bool = False  # read-only: a snapshot, changes nothing (open to every client, anonymous observers too)
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,9 @@ class Response:
 class CommandAPI:
     controller: Any
     _verbs: dict[str, Verb] = field(default_factory=dict)
+    # cmm.control.roles.RolePolicy on a station with a user file: each verb checked against the client's role;
+    # None: the local, no-login mode (the control holder rule alone)
+    roles: Any = None
 
     def __post_init__(self) -> None:
         c = self.controller
@@ -136,9 +140,13 @@ class CommandAPI:
                       "this client gives control up (after a disconnect too); a client that did not hold it changes "
                       "nothing")
         self.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
-                      "where the tip centre is, in frame 'machine' or 'part'")
+                      "where the tip centre is, in frame 'machine' or 'part'", query=True)
         self.register("state", lambda client: c.state, {},
-                      "the machine's state: mode and why, homed, link, the commands allowed now, the last sample")
+                      "the machine's state: mode and why, homed, link, the commands allowed now, the last sample",
+                      query=True)
+        self.register("job", lambda client: c.jobs.snapshot(), {},
+                      "what runs now (auto-measure, routine, program, calibration), oldest first: description, "
+                      "done and total (hits of a program; 0 when the job does not say) and step", query=True)
         self.register("cancel", c.cancel_jobs, {},
                       "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
                       "progress; its hits stay recorded; allowed to everyone who may STOP")
@@ -174,9 +182,10 @@ class CommandAPI:
     # --- registry ---------------------------------------------------------------------
 
     def register(self, name: str, fn: Callable[..., Any], params: dict[str, Any], doc: str, *,
-                 motion: bool = False) -> None:
-        """Add a verb: ``fn(client, **params)``; ``params`` maps each name to its default (``REQUIRED``)."""
-        self._verbs[name] = Verb(name, fn, dict(params), doc, motion)
+                 motion: bool = False, query: bool = False) -> None:
+        """Add a verb: ``fn(client, **params)``; ``params`` maps each name to its default (``REQUIRED``);
+        ``query``: a read-only snapshot (changes nothing)."""
+        self._verbs[name] = Verb(name, fn, dict(params), doc, motion, query)
 
     def verbs(self) -> list[Verb]:
         return list(self._verbs.values())
@@ -198,6 +207,10 @@ class CommandAPI:
         missing = [k for k, v in verb.params.items() if v is REQUIRED and k not in params]
         if missing:
             raise CommandError("bad_params", f"{method} needs {', '.join(missing)}")
+        if self.roles is not None:
+            why = self.roles.refusal(access.client_of(client), method, verb.query)
+            if why is not None:
+                raise access.AccessRefused(why)
         return verb.fn(client, **params)
 
     def call(self, client: Any, method: str, params: dict[str, Any] | None = None, *, id: Any = None,

@@ -25,6 +25,7 @@ class RunningJobs:
         self._lock = threading.Lock()
         self._jobs: dict[int, tuple[str, dict[str, Callable[[], object]]]] = {}
         self._ids = itertools.count(1)
+        self._progress: dict[str, tuple[int, int, str]] = {}  # description -> (done, total, step) while it runs
 
     @contextmanager
     def running(self, description: str, cancel: Callable[[], None], *,
@@ -41,6 +42,24 @@ class RunningJobs:
         finally:
             with self._lock:
                 self._jobs.pop(key, None)
+                if description not in {d for d, _ in self._jobs.values()}:
+                    self._progress.pop(description, None)
+
+    def report(self, description: str, done: int, total: int, step: str = "") -> None:
+        """How far the running job ``description`` is (``done`` of ``total`` hits or steps; ``step``: what it does
+        now), for the ``job`` query."""
+        with self._lock:
+            if description in {d for d, _ in self._jobs.values()}:
+                self._progress[description] = (int(done), int(total), str(step))
+
+    def snapshot(self) -> list[dict[str, object]]:
+        """What runs now, oldest first: description, done, total (0 when it does not say) and step."""
+        with self._lock:
+            out = []
+            for d, _ in self._jobs.values():
+                done, total, step = self._progress.get(d, (0, 0, ""))
+                out.append({"description": d, "done": done, "total": total, "step": step})
+            return out
 
     def descriptions(self) -> list[str]:
         with self._lock:

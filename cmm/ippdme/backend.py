@@ -83,7 +83,8 @@ class StationBackend:
     """
 
     def __init__(self, station: Any, client: str = "ippdme", *, local: bool = True, peer: str | None = None,
-                 probe_name: str = "Probe1", grants_control: bool = False) -> None:
+                 probe_name: str = "Probe1", grants_control: bool = False,
+                 user: tuple[str, str] | None = None) -> None:
         from ..control import Client
 
         self.station = station
@@ -93,7 +94,11 @@ class StationBackend:
         # grants_control: the listener was opened by the operator for I++ clients (its address chosen at start-up),
         # so its clients take control without the access code they have no way to give
         self.grants_control = grants_control
-        self.client = Client(client, local=local, authenticated=local, listener_grants_control=grants_control)
+        # user: (name, role) the operator named at start-up (--ippdme-user): I++ DME has no login of its own
+        self.user = user
+        self.client = Client(client, local=local, authenticated=local or user is not None,
+                             listener_grants_control=grants_control, user=None if user is None else user[0],
+                             role=None if user is None else user[1])
         self.peer = peer
         self.probe_name = probe_name
 
@@ -104,7 +109,7 @@ class StationBackend:
         host = peer.rsplit(":", 1)[0].strip("[]")
         local = is_local_connection(host)
         return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name,
-                              grants_control=self.grants_control)
+                              grants_control=self.grants_control, user=self.user)
 
     # --- control --------------------------------------------------------------------
     def acquire(self) -> str | None:

@@ -9,7 +9,7 @@ from .backend import StationBackend
 from .server import IppServer, parse_address
 
 
-def start(station: Any, address: str) -> IppServer:
+def start(station: Any, address: str, *, user: tuple[str, str] | None = None) -> IppServer:
     """Start the I++ DME server for ``station``; raises ValueError/OSError with an operator's message.
 
     ``station.ippdme`` is then the server's :class:`~cmm.ippdme.status.IppStatus`
@@ -18,7 +18,7 @@ def start(station: Any, address: str) -> IppServer:
     host, port = parse_address(address)
     try:
         # the operator chose this address at start-up: its clients take control without an access code
-        server = IppServer(StationBackend(station, grants_control=True), host, port).start()
+        server = IppServer(StationBackend(station, grants_control=True, user=user), host, port).start()
     except OSError as exc:
         raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
     station.serving_ippdme(server.status)

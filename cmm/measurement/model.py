@@ -166,6 +166,7 @@ class MeasurementModel:
         self.hit_probes: dict[int, str] = {}  # hit id -> the probe that took it
         self.events: list[tuple[float, str, str]] = []  # (time, kind, message) for the UI
         self._listeners: list[Callable[[str, Any], None]] = []
+        self.holder_name: Callable[[], str | None] | None = None  # who holds control, for every record (``by``)
         self.session_dir = session_dir if is_url(session_dir) else Path(session_dir)  # or a postgresql:// URL
         self.journal: Any = None
         # the pose in force came from an alignment (the page's frame label). Not the fold's ``aligned``: that one
@@ -301,7 +302,12 @@ class MeasurementModel:
                       part_path=None if part is None or part.mesh is None else part.mesh.metadata.get("path"))
 
     def record(self, kind: str, **data: Any) -> None:
-        """An event: in the session journal if one is open, and folded into :attr:`state` either way."""
+        """An event: in the session journal if one is open, and folded into :attr:`state` either way. With
+        :attr:`holder_name` set (a station with users), each event says who held control (``by``)."""
+        if self.holder_name is not None and "by" not in data:
+            name = self.holder_name()
+            if name:
+                data["by"] = name
         with self.lock:
             self._append(self.journal, kind, **data)
 

@@ -131,5 +131,8 @@ def run_on(controller: Any, model: MeasurementModel, program: Program | str | Pa
 
     prog = load(program) if isinstance(program, (str, Path)) else program
     stop = threading.Event()
-    return controller.run_job(client, f"program {prog.name!r}", lambda: run_program(
-        prog, model, part_pose, serial=serial, cancelled=stop.is_set), cancel=stop.set)
+    description = f"program {prog.name!r}"
+    jobs = getattr(controller, "jobs", None)
+    progress = None if jobs is None else (lambda k, n: jobs.report(description, k, n, f"hit {k} of {n}"))
+    return controller.run_job(client, description, lambda: run_program(
+        prog, model, part_pose, serial=serial, cancelled=stop.is_set, progress=progress), cancel=stop.set)

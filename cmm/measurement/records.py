@@ -45,7 +45,7 @@ class HitRecord(Hit):
 
 
 _FEATURE_META = ("seq", "time", "recorded_time", "kind", "id", "name", "feature_kind", "method", "hit_ids", "nominal",
-                 "tolerance", "probe")
+                 "tolerance", "probe", "by")  # by: the person who held control (a station with users)
 
 
 @dataclass(frozen=True)

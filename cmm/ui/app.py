@@ -33,11 +33,14 @@ class StationApp:
     def __init__(self, station: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
                  tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False,
-                 allow_hosts: tuple[str, ...] = (), ask_name: bool = True, shadows: bool = True) -> None:
+                 allow_hosts: tuple[str, ...] = (), ask_name: bool = True, shadows: bool = True,
+                 users: Any = None, tls: Any = None) -> None:
         import viser
 
         self.station = station
         self.ask_name = ask_name  # each new tab opens with the "Who is operating?" dialog
+        self.users = users  # cmm.control.users.UserStore: each tab logs in (the start dialog); None: no login
+        self.tls = tls  # cmm.control.tls.Certificate: the pendant serves https / wss with it
         self.host = host
         self.control = control or Control(lan=lan)
         if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running
@@ -95,7 +98,9 @@ class StationApp:
             return
         for p in dict.fromkeys((port, 0)):
             try:
-                self.pendant = start_pendant_server(self.station, self.control, self.host, p, origins=self.origins)
+                self.pendant = start_pendant_server(self.station, self.control, self.host, p, origins=self.origins,
+                                                    ssl=None if self.tls is None else self.tls.ssl_context(),
+                                                    users=self.users)
                 self.pendant_url = self.pendant.url
                 return
             except OSError:

@@ -47,6 +47,8 @@ class PanelContext:
         self.client_id = client_id
         self.is_local = is_local
         self.authenticated = is_local  # local, or gave the right access code on this connection
+        self.user: str | None = None  # who logged in on this tab (a station with a user file), and their role
+        self.role: str | None = None
         self.deviations = deviations  # hit id -> deviation from the part (mm), computed once for every tab
         self.shared = shared if shared is not None else SimpleNamespace(calibration_job=None)  # the app's, all tabs
         self.messages: list[tuple[str, str, str]] = []  # (level, title, body): what the operator was told
@@ -99,7 +101,8 @@ class PanelContext:
 
     def who(self) -> Client:
         """This browser as the control core's access policy sees it."""
-        return Client(self.client_id, local=self.is_local, authenticated=bool(self.authenticated))
+        return Client(self.client_id, local=self.is_local, authenticated=bool(self.authenticated) or self.user is not None,
+                      user=self.user, role=self.role)
 
     def allowed(self, action: str, command: str = "measure") -> bool:
         """Whether the core's access policy lets this tab send ``command`` (the control holder changes the

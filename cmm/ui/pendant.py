@@ -25,6 +25,9 @@ client -> server
 - ``{"type": "take", "code": "..."}``: take control (:class:`~cmm.control.access.Control`
   rules: local clients need no code, remote clients need the LAN access code).
   Answer ``{"type": "control", "control": true}`` or ``{"type": "error", ...}``.
+- ``{"type": "login", "user": "...", "password": "..."}`` (a station with a user file): this connection acts
+  as that user from now on (its role is checked by the command API; the name ``token`` with an API token as
+  the password logs a program in). Answer ``{"type": "login", "user", "role"}`` or an ``error``.
 - ``{"type": "observe"}``: give control back (any jog of this pendant is ended).
 - ``{"type": "jog", "v": [vx, vy, vz]}``: velocity jog in mm/s, fed to the core's jog-hold pipeline
   (:mod:`cmm.control.jog`): each component limited to ``speeds.jog_fast`` (a ``notice`` says so); an axis
@@ -153,6 +156,8 @@ class _Session:
     last_message: float = 0.0
     last_error: float = 0.0
     grant: Grant | None = None  # the embedded pendant of a station page acts as that page's client
+    user: str | None = None  # who logged in on this connection (a station with a user file), and their role
+    role: str | None = None
 
     @property
     def peer(self) -> str | None:
@@ -165,8 +170,10 @@ class PendantServer:
 
     def __init__(self, station: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
                  state_hz: float = STATE_HZ, static_dir: Path | None = None,
-                 origins: OriginPolicy | None = None) -> None:
+                 origins: OriginPolicy | None = None, ssl: Any = None, users: Any = None) -> None:
         self.station = station
+        self.ssl = ssl  # an ssl.SSLContext: the page and its WebSocket over https / wss (cmm.control.tls)
+        self.users = users  # cmm.control.users.UserStore: connections log in; None: the local, no-login mode
         self.control = control
         self.origins = origins or OriginPolicy(lan=not is_loopback_host(host))
         self.host = host
@@ -207,11 +214,11 @@ class PendantServer:
 
     @property
     def url(self) -> str:
-        return f"http://{self._url_host}:{self.port}/"
+        return f"{'https' if self.ssl is not None else 'http'}://{self._url_host}:{self.port}/"
 
     @property
     def ws_url(self) -> str:
-        return f"ws://{self._url_host}:{self.port}/ws"
+        return f"{'wss' if self.ssl is not None else 'ws'}://{self._url_host}:{self.port}/ws"
 
     # --- life cycle ----------------------------------------------------------
 
@@ -228,7 +235,7 @@ class PendantServer:
         self._stop = asyncio.Event()
         async with serve(self._handler, self.host, port, process_request=self._process_request,
                          ping_interval=5, ping_timeout=5, max_size=4096, compression=None,
-                         logger=log) as server:
+                         logger=log, ssl=self.ssl) as server:
             self.port = next(iter(server.sockets)).getsockname()[1]
             self._ready.set()
             await self._stop.wait()
@@ -390,6 +397,8 @@ class PendantServer:
                 await self._take(session, msg.get("code"))
         elif kind == "take":
             await self._take(session, msg.get("code"))
+        elif kind == "login":
+            await self._login(session, msg.get("user"), msg.get("password"))
         elif kind == "observe":
             if session.jogging:
                 session.jogging = False
@@ -425,6 +434,16 @@ class PendantServer:
                 await self._send(session, {"type": "notice", "message": report["message"]})
         else:
             await self._error_msg(session, f"unknown pendant message type {kind!r}")
+
+    async def _login(self, session: _Session, user: Any, password: Any) -> None:
+        if self.users is None:
+            return await self._error_msg(session, "this station has no users: no login needed")
+        try:
+            login = await asyncio.to_thread(self.users.login, str(user or ""), str(password or ""))
+        except PermissionError as exc:
+            return await self._error_msg(session, str(exc))
+        session.user, session.role = login.user, login.role
+        await self._send(session, {"type": "login", "user": login.user, "role": login.role})
 
     async def _command(self, session: _Session, msg: dict) -> None:
         """Any verb of the command API: ``{"type": "call", "id", "method", "params", "wait"}`` ->
@@ -526,13 +545,15 @@ class PendantServer:
         if session.grant is not None:  # the station page's client, with what this connection adds
             page = session.grant.owner()
             return Client(page.id, local=session.local and page.local,
-                          authenticated=session.authenticated or page.authenticated)
+                          authenticated=session.authenticated or page.authenticated,
+                          user=getattr(page, "user", None), role=getattr(page, "role", None))
         return PendantServer._own(session)
 
     @staticmethod
     def _own(session: _Session) -> Any:
         """This connection's own client (taking and releasing control is always the connection's own)."""
-        return Client(session.client_id, local=session.local, authenticated=session.authenticated)
+        return Client(session.client_id, local=session.local, authenticated=session.authenticated or session.user
+                      is not None, user=session.user, role=session.role)
 
     async def _own_thread(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)`` on a new thread (no executor's queue in front of it); awaited without blocking the loop."""

@@ -43,6 +43,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ippdme", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:1294", default=None,
                         help="also serve I++ DME clients (PC-DMIS, CALYPSO, ...) on ADDR:PORT "
                              "(default 127.0.0.1:1294; 0.0.0.0:1294 to accept them from the LAN)")
+    parser.add_argument("--opcua", metavar="ADDR:PORT", nargs="?", const="127.0.0.1:4840", default=None,
+                        help="also serve OPC UA clients (OPC 40210 Geometrical Measuring Systems model) on ADDR:PORT "
+                             "(default 127.0.0.1:4840; 0.0.0.0:4840 for the LAN): anonymous clients read, users "
+                             "with a role write and call methods")
+    parser.add_argument("--users", metavar="FILE", default=None,
+                        help="the user file (cmm users add ...): every client logs in and each command is checked "
+                             "against its role; default: the local, no-login mode of a single-user bench")
+    parser.add_argument("--ippdme-user", metavar="NAME", default=None,
+                        help="with --users: the user I++ DME clients act as (the protocol has no login)")
+    parser.add_argument("--tls", action="store_true",
+                        help="encrypt the pendant and OPC UA with the station's certificate (--tls-cert/--tls-key, "
+                             "or a self-signed one made on first start in ./tls; its fingerprint is printed)")
+    parser.add_argument("--tls-cert", metavar="FILE", default=None, help="the certificate (PEM) for --tls")
+    parser.add_argument("--tls-key", metavar="FILE", default=None, help="its private key (PEM) for --tls")
     parser.add_argument("--trends", metavar="DIR", default="trends",
                         help="this station's trends journal (every program run is a part of its series; default "
                              "./trends)")
@@ -90,6 +104,29 @@ def run(args: argparse.Namespace) -> int:
         calibration = "calibration"
     if calibration is not None and not Path(calibration).is_dir():
         return _fail(f"the calibration folder {calibration} does not exist")
+    users = certificate = None
+    if args.users:
+        from ..control.users import UserStore
+
+        try:
+            users = UserStore(args.users)
+        except (ValueError, OSError) as exc:
+            return _fail(str(exc))
+        if not len(users):
+            return _fail(f"no users in {args.users}: add one first (cmm users --file {args.users} add NAME --role "
+                         "admin)")
+        if args.ippdme_user and args.ippdme_user not in {u["name"] for u in users.users()}:
+            return _fail(f"--ippdme-user {args.ippdme_user}: there is no such user in {args.users}")
+    if args.tls or args.tls_cert or args.tls_key:
+        from ..control import tls
+
+        try:
+            certificate = tls.certificate("tls", args.tls_cert, args.tls_key,
+                                          application_uri=f"urn:cmm-station:{args.station or 'CMM'}")
+        except (ValueError, OSError) as exc:
+            return _fail(f"TLS: {exc}")
+        made = "made now, self-signed" if certificate.made else "in use"
+        print(f"TLS certificate {certificate.cert_path} ({made}); SHA-256 fingerprint {certificate.fingerprint}")
     from ..control.priority import raise_station_priority
 
     raise_station_priority()  # before any thread starts: the station's threads inherit it (control/priority.py)
@@ -145,13 +182,20 @@ def run(args: argparse.Namespace) -> int:
 
     host = "0.0.0.0" if args.lan else "127.0.0.1"
     try:
+        if users is not None:
+            from ..control.roles import RolePolicy
+
+            station.controller.commands.roles = RolePolicy()  # every command checked against the client's role
         app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
                          pendant_port=args.pendant_port, tolerance=args.tolerance,
                          allow_hosts=tuple(args.allow_host), shadows=args.shadows,
-                         control=Control(lan=args.lan, lan_stop=args.lan_stop))
+                         control=Control(lan=args.lan, lan_stop=args.lan_stop), users=users,
+                         tls=certificate)
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
+    if users is not None:  # every journal event names the person who held control
+        station.measurement.holder_name = lambda: app.control.holder_name
     print(f"CMM station on {station.port}; session journal {station.measurement.journal.path if station.measurement.journal else '-'}")
     print(f"Open {app.url} in a browser")
     if args.lan:
@@ -167,8 +211,23 @@ def run(args: argparse.Namespace) -> int:
         from ..ippdme.serve import start as start_ippdme
 
         try:
-            ippdme = start_ippdme(station, args.ippdme)
+            ippdme = start_ippdme(station, args.ippdme, user=None if users is None or not args.ippdme_user else
+                                  (args.ippdme_user, next(u["role"] for u in users.users()
+                                                          if u["name"] == args.ippdme_user)))
         except (OSError, ValueError) as exc:
+            app.close()
+            station.close()
+            return _fail(str(exc))
+    opcua = None
+    if getattr(args, "opcua", None):
+        from ..opcua.serve import start as start_opcua
+
+        try:
+            opcua = start_opcua(station.controller.commands, args.opcua, name=args.station or "CMM",
+                                authenticate=None if users is None else users.identify, certificate=certificate)
+        except (OSError, ValueError) as exc:
+            if ippdme is not None:
+                ippdme.close()
             app.close()
             station.close()
             return _fail(str(exc))
@@ -179,6 +238,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("\nstopping...")
     finally:
+        if opcua is not None:
+            opcua.close()
         if ippdme is not None:
             ippdme.close()
         app.close()

@@ -1,0 +1,91 @@
+"""The official OPC UA nodesets (read in place from ../shared/opcua, never copied) and browsing helpers for the
+OPC UA tests."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lxml import etree
+
+NS = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
+UA = "http://opcfoundation.org/UA/"
+FILES = ("Opc.Ua.Di.NodeSet2.xml", "Opc.Ua.IA.NodeSet2.xml", "Opc.Ua.Machinery.NodeSet2.xml",
+         "opc.ua.isa95-jobcontrol.nodeset2.xml", "Opc.Ua.Machinery.Jobs.Nodeset2.xml",
+         "Opc.Ua.MachineTool.NodeSet2.xml", "Opc.Ua.Machinery.Result.NodeSet2.xml", "opc.ua.gms.nodeset2.xml")
+HAS_SUBTYPE, HAS_TYPEDEF = "i=45", "i=40"
+HIERARCHICAL = {"i=47", "i=46", "i=35", "i=17604", "i=24136"}  # HasComponent, HasProperty, Organizes, HasAddIn ...
+
+
+def shared_dir() -> Path | None:
+    """../shared/opcua beside the checkout (CI), or CMM_SHARED, or the shared folder of this machine."""
+    here = Path(__file__).resolve().parents[1]
+    for base in (os.environ.get("CMM_SHARED"), here.parent / "shared", here.parent.parent / "shared", "/work/shared"):
+        if base and (Path(base) / "opcua" / FILES[-1]).is_file():
+            return Path(base) / "opcua"
+    return None
+
+
+@dataclass
+class Official:
+    node_class: str
+    browse_name: tuple[str, str]  # (namespace URI, name)
+    refs: list[tuple[str, bool, tuple[str, str]]] = field(default_factory=list)  # (ref type, forward, target)
+
+    def target(self, ref: str, forward: bool = True) -> tuple[str, str] | None:
+        return next((t for r, f, t in self.refs if r == ref and f == forward), None)
+
+
+def load_official(folder: Path) -> dict[tuple[str, str], Official]:
+    """Every node of the official nodesets: (namespace URI, "i=N") -> its class, browse name and references."""
+    nodes: dict[tuple[str, str], Official] = {}
+    for name in FILES:
+        root = etree.parse(str(folder / name)).getroot()
+        uris = [u.text for u in root.find(NS + "NamespaceUris")]
+        aliases = {a.get("Alias"): a.text for a in root.find(NS + "Aliases")}
+
+        def nid(text: str) -> tuple[str, str]:
+            text = aliases.get(text, text)
+            if text.startswith("ns="):
+                index, rest = text.split(";", 1)
+                return uris[int(index[3:]) - 1], rest
+            return UA, text
+
+        def qname(text: str) -> tuple[str, str]:
+            if ":" in text:
+                index, rest = text.split(":", 1)
+                if index.isdigit():
+                    return (uris[int(index) - 1] if int(index) else UA), rest
+            return UA, text
+
+        for el in root:
+            if not isinstance(el.tag, str) or not el.tag.startswith(NS + "UA"):
+                continue
+            refs_el = el.find(NS + "References")
+            refs = [] if refs_el is None else [(aliases.get(r.get("ReferenceType"), r.get("ReferenceType")),
+                                                r.get("IsForward", "true") != "false", nid(r.text)) for r in refs_el]
+            refs = [(nid(r)[1] if not r.startswith("ns=") else r, f, t) for r, f, t in refs]
+            nodes[nid(el.get("NodeId"))] = Official(el.tag[len(NS) + 2:], qname(el.get("BrowseName")), refs)
+    return nodes
+
+
+def declarations(nodes: dict, type_id: tuple[str, str]) -> dict[tuple[str, str], tuple[str, str] | None]:
+    """The instance declarations of a type and its supertypes: browse name -> the declaration's type definition
+    (the nearest type's declaration wins)."""
+    out: dict[tuple[str, str], tuple[str, str] | None] = {}
+    while type_id in nodes:
+        t = nodes[type_id]
+        for ref, forward, target in t.refs:
+            if forward and ref in HIERARCHICAL and target in nodes:
+                out.setdefault(nodes[target].browse_name, nodes[target].target(HAS_TYPEDEF))
+        type_id = t.target(HAS_SUBTYPE, forward=False)
+    return out
+
+
+def is_subtype(nodes: dict, sub: tuple[str, str], sup: tuple[str, str]) -> bool:
+    while sub is not None:
+        if sub == sup:
+            return True
+        sub = nodes[sub].target(HAS_SUBTYPE, forward=False) if sub in nodes else None
+    return False

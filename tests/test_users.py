@@ -1,0 +1,163 @@
+"""Users and roles: the user file (argon2id hashes, API tokens), the one role table enforced in the command API
+(every front end's verbs), STOP for any user who logged in, and the local no-login mode unchanged."""
+
+from __future__ import annotations
+
+import os
+import stat
+
+import pytest
+
+from cmm.cli import main
+from cmm.control import Client, CommandAPI
+from cmm.control.access import AccessRefused, Control, HolderPolicy
+from cmm.control.roles import ROLES, RolePolicy, allowed, table
+from cmm.control.users import LoginError, UserStore
+
+
+def test_the_user_file_keeps_argon2_hashes_and_token_digests_never_the_secrets(tmp_path):
+    store = UserStore(tmp_path / "users.toml")
+    store.add("maria", "operator", "correct horse")
+    store.add("li", "metrologist", "battery staple")
+    token = store.new_token("maria", "spc-export")
+    text = (tmp_path / "users.toml").read_text()
+    assert "correct horse" not in text and token not in text and "$argon2id$" in text
+    assert stat.S_IMODE(os.stat(tmp_path / "users.toml").st_mode) == 0o600
+    again = UserStore(tmp_path / "users.toml")  # read back as another process would
+    assert again.login("maria", "correct horse").role == "operator"
+    assert again.login("token", token).user == "maria"
+    with pytest.raises(LoginError, match="wrong user name or password"):
+        again.login("maria", "wrong password")
+    with pytest.raises(LoginError, match="wrong user name or password"):
+        again.login("nobody", "correct horse")
+    again.revoke_token("maria", "spc-export")
+    with pytest.raises(LoginError):
+        UserStore(tmp_path / "users.toml").login_token(token)
+    with pytest.raises(ValueError, match="one of operator, programmer, metrologist, admin"):
+        store.add("tom", "boss", "long enough")
+    with pytest.raises(ValueError, match="at least 8"):
+        store.add("tom", "operator", "short")
+    store.passwd("li", "new password!")
+    assert store.authenticate("li", "battery staple") is None
+    assert store.authenticate("li", "new password!") == "metrologist"
+    store.remove("li")
+    assert [u["name"] for u in store.users()] == ["maria"]
+
+
+def test_the_role_table_is_enforced_in_the_api_for_every_front_end(sim_machine):
+    from cmm.control import Controller
+
+    sim, machine, prober = sim_machine
+    controller = Controller(machine, prober)
+    controller.use_policy_of(Control(lan=True))
+    controller.connect()
+    api: CommandAPI = controller.commands
+    calls = {}
+    api.register("qualify", lambda client, **kw: calls.setdefault("qualify", client), {"routine": "probe"}, "test")
+    api.register("define_gdt", lambda client, **kw: calls.setdefault("gdt", client), {}, "test")
+    api.roles = RolePolicy()
+    operator = Client("page 1", authenticated=True, user="maria", role="operator")
+    programmer = Client("pendant 2", authenticated=True, user="tom", role="programmer")
+    metrologist = Client("opcua li", authenticated=True, user="li", role="metrologist")
+    anonymous = Client("page 3")
+    # queries are open to everyone, commands need a role that lists them, refused in the operator's words
+    assert api.call(anonymous, "state").ok and api.call(anonymous, "job").ok
+    refused = api.call(anonymous, "take_control")
+    assert refused.error["code"] == "refused" and "needs a user: log in" in refused.error["message"]
+    refused = api.call(operator, "qualify")
+    assert refused.error["message"] == "maria (operator) may not qualify: that needs the role metrologist or admin"
+    assert api.call(operator, "define_gdt").error["code"] == "refused"
+    assert api.call(programmer, "define_gdt").ok and calls["gdt"] is programmer
+    assert api.call(programmer, "qualify").error["code"] == "refused"
+    assert api.call(metrologist, "qualify").ok
+    # a user takes control without an access code, and the holder's name is the person's
+    assert api.call(operator, "take_control").result["message"] == "maria controls the machine"
+    assert controller.holder.holder_name == "maria"
+    # STOP: any user who logged in, never refused for a role; an anonymous LAN observer is refused
+    assert api.call(programmer, "stop").ok
+    assert api.call(anonymous, "stop").error["code"] == "refused"
+    # the station itself (None) is never refused
+    assert api.call(None, "qualify").ok
+    # the local, no-login mode: no user file, no role checked (the holder rule alone)
+    api.roles = None
+    local = Client("page 4", local=True)
+    assert api.call(local, "take_control").ok and api.call(local, "qualify").ok
+    controller.close()
+
+
+def test_every_role_in_the_documented_table():
+    rows = {group: roles for group, roles, _ in table()}
+    assert rows == {"operate": "operator, programmer, metrologist, admin", "program": "programmer, metrologist, admin",
+                    "calibrate": "metrologist, admin", "administer": "admin"}
+    assert all(allowed(r, "take_control") for r in ROLES) and not allowed(None, "move")
+    assert isinstance(RolePolicy().refusal(None, "zero"), type(None))
+    assert AccessRefused and HolderPolicy
+
+
+def test_cmm_users_manages_the_file_from_the_command_line(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "users.toml"
+    monkeypatch.setattr("sys.stdin", __import__("io").StringIO("pass-word-1\n"))
+    assert main(["users", "--file", str(path), "add", "maria", "--role", "programmer", "--password-stdin"]) == 0
+    assert main(["users", "--file", str(path), "list"]) == 0
+    assert "maria" in capsys.readouterr().out
+    assert main(["users", "--file", str(path), "token", "maria", "--label", "mes"]) == 0
+    token = capsys.readouterr().out.strip().splitlines()[-1].split()[-1]
+    assert UserStore(path).login_token(token).role == "programmer"
+    monkeypatch.setattr("sys.stdin", __import__("io").StringIO("other-pass-2\n"))
+    assert main(["users", "--file", str(path), "passwd", "maria", "--password-stdin"]) == 0
+    assert UserStore(path).authenticate("maria", "other-pass-2") == "programmer"
+    assert main(["users", "--file", str(path), "remove", "maria"]) == 0
+    assert main(["users", "--file", str(path), "remove", "maria"]) == 2
+    assert "there is no user 'maria'" in capsys.readouterr().err
+
+
+def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
+    """The pendant served over https / wss with the station's self-signed certificate (checked by its file, as a
+    client that was given the printed fingerprint would): an anonymous connection only observes, a wrong password
+    is refused without saying which part was wrong, a logged-in operator takes control under the person's name and
+    is refused calibration in the role table's words."""
+    import json
+    import ssl
+
+    from websockets.sync.client import connect
+
+    from cmm.control import tls
+    from cmm.station import Station
+    from cmm.ui.pendant import start_pendant_server
+    from netutil import SIM
+
+    store = UserStore(tmp_path / "users.toml")
+    store.add("maria", "operator", "correct horse")
+    cert = tls.certificate(tmp_path / "tls")
+    assert cert.made and tls.certificate(tmp_path / "tls").fingerprint == cert.fingerprint  # made once, then reused
+    station = Station(port=SIM, session_dir=tmp_path / "sessions").start()
+    control = Control()
+    station.controller.use_policy_of(control)
+    station.controller.commands.roles = RolePolicy()
+    server = start_pendant_server(station, control, "127.0.0.1", 0, ssl=cert.ssl_context(), users=store)
+    try:
+        assert server.ws_url.startswith("wss://")
+        trust = ssl.create_default_context(cafile=str(cert.cert_path))
+        ws = connect(server.ws_url, ssl=trust, open_timeout=10, close_timeout=2)
+
+        def ask(**msg):
+            ws.send(json.dumps(msg))
+            while True:
+                answer = json.loads(ws.recv(timeout=30))
+                if answer.get("type") in ("hello", "login", "error", "result", "control"):
+                    return answer
+
+        assert ask(type="hello")["type"] == "hello"
+        refused = ask(type="call", id=1, method="take_control")
+        assert refused["error"]["code"] == "refused" and "needs a user: log in" in refused["error"]["message"]
+        assert ask(type="login", user="maria", password="wrong one!")["message"] == "wrong user name or password"
+        assert ask(type="login", user="maria", password="correct horse") == {"type": "login", "user": "maria",
+                                                                            "role": "operator"}
+        assert ask(type="call", id=2, method="take_control")["result"]["message"] == "maria controls the machine"
+        refused = ask(type="call", id=3, method="qualify")
+        assert refused["error"]["message"] == "maria (operator) may not qualify: that needs the role metrologist or admin"
+        assert ask(type="call", id=4, method="stop")["result"]["ok"] is True
+        ws.close()
+    finally:
+        server.close()
+        station.close()
