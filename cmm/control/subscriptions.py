@@ -40,7 +40,7 @@ class Subscription:
 
     def close(self) -> None:
         self.closed = True
-        self._hub._remove(self)
+        self._hub.remove(self)
 
     def __enter__(self) -> "Subscription":
         return self
@@ -94,7 +94,7 @@ class Subscriptions:
         with self._lock:
             return len(self._subs)
 
-    def _remove(self, sub: Subscription) -> None:
+    def remove(self, sub: Subscription) -> None:
         with self._lock:
             if sub in self._subs:
                 self._subs.remove(sub)
