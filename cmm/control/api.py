@@ -29,6 +29,7 @@ from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
 from . import access
 from .modes import ControlError, Refused
+from .subscriptions import Subscription, Subscriptions
 from .rails import RailError
 
 # error code -> what it means (the operator's sentence is in the message)
@@ -91,6 +92,7 @@ class CommandAPI:
 
     def __post_init__(self) -> None:
         c = self.controller
+        self._subscriptions = Subscriptions(lambda client, name, params: jsonable(self.invoke(client, name, **params)))
         self.register("move", c.move, {"target": REQUIRED, "frame": REQUIRED, "path": "clearance", "speed": None,
                                         "accel": None},
                       "move the tip centre to target (X, Y, Z mm) in frame 'machine' or 'part'; path 'clearance' "
@@ -212,6 +214,25 @@ class CommandAPI:
             if why is not None:
                 raise access.AccessRefused(why)
         return verb.fn(client, **params)
+
+    def queries(self) -> list[Verb]:
+        """The read-only verbs: snapshots a front end may query or subscribe to."""
+        return [v for v in self._verbs.values() if v.query]
+
+    def subscribe(self, client: Any, queries: dict[str, dict[str, Any] | None], on_change: Callable[[dict], None], *,
+                  rate: float = 10.0) -> Subscription:
+        """Change streams of query verbs (Klipper's ``objects/subscribe``): ``on_change({query: value})`` first with
+        every value, then with those that changed, at most ``rate`` times a second, from the API's own thread.
+        Each snapshot is taken as ``client`` (the same role checks as a call). ``close()`` the result to end it."""
+        for name in queries:
+            verb = self._verbs.get(name)
+            if verb is None or not verb.query:
+                raise CommandError("bad_params", f"{name!r} is not a query; the queries are "
+                                   + ", ".join(sorted(v.name for v in self.queries())))
+        try:
+            return self._subscriptions.subscribe(client, queries, on_change, rate=rate)
+        except ValueError as exc:
+            raise CommandError("bad_params", str(exc)) from None
 
     def call(self, client: Any, method: str, params: dict[str, Any] | None = None, *, id: Any = None,
              wait: bool = False, timeout: float | None = None) -> Response:

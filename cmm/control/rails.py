@@ -88,7 +88,7 @@ def to_machine(point: Any, frame: str, workspace: Workspace | None, *, direction
 def to_frame(point: Any, frame: str, workspace: Workspace | None) -> np.ndarray | None:
     """A machine point in ``frame`` (None when that frame is not known: part coordinates without a part)."""
     p = np.asarray(point, float)
-    if frame == "machine":
+    if check_frame(frame) == "machine":
         return p
     pose = None if workspace is None else workspace.part_pose()
     if pose is None:
