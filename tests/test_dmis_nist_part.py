@@ -72,3 +72,33 @@ def test_the_nist_simple_program_on_the_nist_part_prints_nist_output(tmp_path):
     assert [g[0] for g in got] == [w[0] for w in want]  # the same statements, in NIST's format
     for (head, g), (_, w) in zip(got, want):
         assert g == pytest.approx(w, abs=0.002), head  # within 2 um
+
+
+def test_a_mounted_4_mm_stylus_does_not_touch_the_air_over_a_bore():
+    """Over the sample part's D30 bore, 1.5 mm above the top face, the nearest material is the bore's rim 15 mm
+    away: with a 4 mm stylus mounted the simulator must not answer the bounding box's 1.5 mm (a contact in the air
+    the NIST program met over its hole)."""
+    import numpy as np
+
+    from cmm.sim.cmm_sim import TRUE_PART_POSE, SimulatedCMM
+
+    sim = SimulatedCMM()
+    sim.mount_stylus(4.0)
+    assert sim.world.probe.tip_radius == 2.0
+    over_bore = (TRUE_PART_POSE @ np.array([30.0, 40.0, 41.5, 1.0]))[:3]
+    distance, _ = sim.world.obstacles[1].query(over_bore)
+    assert distance == pytest.approx(np.hypot(15.0, 1.5), abs=0.05)
+    with pytest.raises(ValueError, match="a stylus tip of 40 mm cannot be mounted"):
+        sim.mount_stylus(40.0)
+
+
+def test_calibrate_refuses_a_stylus_whose_tip_is_not_the_listed_one(tmp_path):
+    records = tmp_path / "calibration"
+    shutil.copytree(ARTIFACTS, records / "artifacts")
+    done = _cmm("calibrate", "probe", "--records", str(records), "--probe", "Probe1", "--tip-diameter", "3",
+                "--quiet", cwd=tmp_path)
+    assert done.returncode == 1
+    assert "the probe Probe1 of the list has a 2 mm tip, not 3 mm: give another name to a stylus with another tip" \
+        in done.stderr
+    done = _cmm("calibrate", "probe", "--records", str(records), "--probe", "T9", "--quiet", cwd=tmp_path)
+    assert done.returncode == 1 and "the probe list has no probe T9: give its tip with --tip-diameter D" in done.stderr
