@@ -104,7 +104,7 @@ def test_the_report_includes_the_series_charts_and_the_cli_prints_and_exports(ri
 
 def test_cmm_serve_opens_the_stations_trends_from_its_options(tmp_path, monkeypatch):
     from cmm.cli import build_parser
-    from cmm.ui.serve import open_trends
+    from cmm.cli.serve import open_trends
 
     monkeypatch.delenv("CMM_TRENDS_DB", raising=False)
     args = build_parser().parse_args(["serve", "--trends", str(tmp_path / "t"), "--station", "cmm-7"])

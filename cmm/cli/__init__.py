@@ -1,8 +1,9 @@
 """The `cmm` command line: one sub-command per capability.
 
-Each sub-command lives in the module that owns the capability; that module
-exposes ``add_arguments(parser)`` and ``run(args) -> int`` and keeps heavy
-imports inside ``run`` so `cmm --help` stays fast.
+Every sub-command is a module of this package (a front end like the page: it
+translates options into the capability's calls); each exposes
+``add_arguments(parser)`` and ``run(args) -> int`` and keeps heavy imports
+inside ``run`` so `cmm --help` stays fast.
 """
 
 from __future__ import annotations
@@ -13,16 +14,16 @@ import sys
 
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "sim": ("cmm.sim.cli", "serve the simulated PIC-SERVO network (TCP or pseudo-terminal)"),
-    "fit": ("cmm.metrology.cli_fit", "fit a feature to points from a text file"),
-    "deviation": ("cmm.metrology.cli_deviation", "signed deviation of points to a part mesh"),
-    "serve": ("cmm.ui.serve", "start the browser station"),
+    "sim": ("cmm.cli.sim", "serve the simulated PIC-SERVO network (TCP or pseudo-terminal)"),
+    "fit": ("cmm.cli.fit", "fit a feature to points from a text file"),
+    "deviation": ("cmm.cli.deviation", "signed deviation of points to a part mesh"),
+    "serve": ("cmm.cli.serve", "start the browser station"),
     "calibrate": ("cmm.cli.calibrate", "calibrate the probe, test it (ISO 10360-5), machine geometry, servo tuning"),
-    "sessions": ("cmm.session.cli", "list, show, rename, delete, export and re-evaluate recorded sessions"),
-    "report": ("cmm.session.cli_report", "HTML inspection report of a recorded session"),
-    "trends": ("cmm.session.cli_trends", "a series of parts across stations: control charts, Cp/Cpk, CSV, upload"),
-    "run": ("cmm.dmis.cli", "run a DMIS part program (.dmi, .dms) on the station; --check only checks it"),
-    "dmis-export": ("cmm.dmis.cli_export", "write a taught program (TOML) as a DMIS program"),
+    "sessions": ("cmm.cli.sessions", "list, show, rename, delete, export and re-evaluate recorded sessions"),
+    "report": ("cmm.cli.report", "HTML inspection report of a recorded session"),
+    "trends": ("cmm.cli.trends", "a series of parts across stations: control charts, Cp/Cpk, CSV, upload"),
+    "run": ("cmm.cli.run", "run a DMIS part program (.dmi, .dms) on the station; --check only checks it"),
+    "dmis-export": ("cmm.cli.dmis_export", "write a taught program (TOML) as a DMIS program"),
     "users": ("cmm.cli.users", "the station's users and roles: add, list, remove, passwd, role, token, revoke"),
     "ippdme-client": ("cmm.ippdme.client", "send I++ DME commands (or a NIST .prg file) to an I++ DME server"),
 }

@@ -10,6 +10,9 @@ in red) with the tolerance and control limits, and the range chart under it.
 
 from __future__ import annotations
 
+import os
+from typing import Any
+
 import csv
 import html
 import io
@@ -289,3 +292,26 @@ def trends_section(charts: list[TrendChart], title: str = "Trends across parts")
     for tc in charts:
         out.append(f"<div class='trend'>{trend_svg(tc)}{summary_html(tc)}</div>")
     return "".join(out)
+
+
+def open_trends(directory: str, db: str | None) -> Any:
+    from .trends import Trends
+
+    return Trends(directory, database=db or os.environ.get("CMM_TRENDS_DB") or None)
+
+
+def charts_for(trends: Any, series: str, characteristic: str | None = None, *, subgroup: int = 1,
+               station: str | None = None) -> list[Any]:
+    """The charts of one characteristic or of every characteristic of a series (what the report includes)."""
+    from .trends import TrendError
+
+    names = [c for c, _unit in trends.characteristics(series)]
+    if not names:
+        known = ", ".join(trends.series()) or "none"
+        raise TrendError(f"there is no series {series!r} (recorded series: {known})")
+    if characteristic is not None:
+        if characteristic not in names:
+            raise TrendError(f"the series {series!r} has no characteristic {characteristic!r}; it has: "
+                             + ", ".join(names))
+        names = [characteristic]
+    return [trend(trends.history(series, n, station), subgroup) for n in names]

@@ -416,7 +416,7 @@ class SessionsPanel:
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             charts = None
             if trends:
-                from ..session.cli_trends import charts_for
+                from ..session.trends_chart import charts_for
                 from ..session.trends import TrendError
 
                 series = shared_worker().call(worker.trend_series, store, name)

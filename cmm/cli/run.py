@@ -46,9 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: Any) -> int:
-    from .check import check
-    from .executor import DmisError
-    from .runner import load_text
+    from ..dmis.check import check
+    from ..dmis.executor import DmisError
+    from ..dmis.runner import load_text
 
     path = Path(args.program)
     if path.suffix.lower() not in (".dmi", ".dms"):
@@ -64,7 +64,7 @@ def run(args: Any) -> int:
         print(f"{path}: {problem}", file=sys.stderr)
     if problems:
         return 1
-    from .check import warnings
+    from ..dmis.check import warnings
 
     for warning in warnings(text, stmts):
         print(f"{path}: warning: {warning}")
@@ -80,8 +80,8 @@ def _run(args: Any, path: Path, text: str) -> int:
     from ..session.store import open_session
     from ..station import Station, load_config
     from ..session.notify import NotifyError, from_args
-    from .executor import DmisError
-    from .runner import register_verbs
+    from ..dmis.executor import DmisError
+    from ..dmis.runner import register_verbs
 
     trends = None
     if getattr(args, "trends", None):
@@ -173,7 +173,7 @@ def _run(args: Any, path: Path, text: str) -> int:
 
 def terminal_query(prompt: str, answer: bool) -> str:
     """TEXT/MAN and TEXT/QUERY on the command line: asked at the terminal (refused in words without one)."""
-    from .executor import DmisError
+    from ..dmis.executor import DmisError
 
     if not sys.stdin or not sys.stdin.isatty():
         raise DmisError(f"{prompt.split(':')[0]}: the program asks the operator and the input is not a terminal; "
@@ -183,9 +183,9 @@ def terminal_query(prompt: str, answer: bool) -> str:
 
 def _refuse_sensors(station: Any, path: Path, text: str) -> bool:
     """Whether a SNSLCT names a stylus the station has not qualified (said with the command that qualifies it)."""
-    from .check import check
-    from .rules import sensor_problems
-    from .runner import StationTarget
+    from ..dmis.check import check
+    from ..dmis.rules import sensor_problems
+    from ..dmis.runner import StationTarget
 
     target = StationTarget(station)
     problems = sensor_problems(check(text)[0], target.probes(), target.nominal_tip_diameter)
@@ -198,7 +198,7 @@ def terminal_hits(station: Any) -> Any:
     """Manual mode (MODE/MAN) on the command line, which has no jog: each hit is asked for at the terminal and,
     once the operator confirms it, taken by the machine at the program's point (Enter) or where the operator
     types it (X, Y, Z machine coordinates, e.g. read off the part's real place), approaching as the program says."""
-    from .executor import DmisError
+    from ..dmis.executor import DmisError
 
     def take(prompt: str, n: int, guides: list) -> list[int]:
         line = prompt.split(":")[0]
@@ -235,7 +235,7 @@ def terminal_hits(station: Any) -> Any:
 def _write_outputs(args: Any, path: Path, result: Any, what: str = "") -> None:
     """The DMIS output files: the program's STOR devices (beside ``-o``), else ``-o``."""
     out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
-    from .rules import device_file
+    from ..dmis.rules import device_file
 
     for device, content in result.outputs.items():
         # a program's device is written in the run's output folder under its last name, never elsewhere

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                      help="serve the whole simulated CMM: 3 axes, the sample part on the table, a 25 mm reference "
                           "sphere and a touch-trigger probe on the LIMIT inputs")
     cmm.add_argument("--config", metavar="FILE", help="machine configuration (axes, probe wiring); default shipped")
-    from .placement import add_part_arguments
+    from ..sim.placement import add_part_arguments
 
     add_part_arguments(cmm)
     cmm.add_argument("--no-home-switches", dest="home_switches", action="store_false",
@@ -97,9 +97,9 @@ def _place(args: argparse.Namespace, config, settings) -> None:
     """--part and --part-pose: the part on the table, checked against the reference sphere and the table."""
     from cmm.metrology.mesh import load_part
 
-    from .cmm_sim import TRUE_PART_POSE
-    from .placement import check_placement, part_pose_of, travel_of
-    from .sample_part import sample_part
+    from ..sim.cmm_sim import TRUE_PART_POSE
+    from ..sim.placement import check_placement, part_pose_of, travel_of
+    from ..sim.sample_part import sample_part
 
     pose = part_pose_of(args)
     if args.part is None and pose is None:

@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from . import gdt
-from .datums import DatumError
-from .gdt_eval import MeasuredFeature, build_frames, evaluate as evaluate_definitions
+from ..metrology import gdt
+from ..metrology.datums import DatumError
+from ..metrology.gdt_eval import MeasuredFeature, build_frames, evaluate as evaluate_definitions
 
-from .cli_gdt_args import add_arguments  # noqa: F401 - the options live in a light module (`cmm fit --help`)
+from .gdt_args import add_arguments  # noqa: F401 - the options live in a light module (`cmm fit --help`)
 
 MODIFIER_MARKS = {"(M)": "MMB", "(L)": "LMB"}
 
@@ -76,8 +76,8 @@ def features(args: argparse.Namespace, kind: str, summary: dict[str, Any],
              points: np.ndarray) -> tuple[dict[int, MeasuredFeature], dict[str, dict]]:
     """The measured features (0: the fitted one; 1, 2 ...: the datum features) and the datum definitions of
     the command line."""
-    from .fit_criteria import fit
-    from .pointfile import read_points_array
+    from ..metrology.fit_criteria import fit
+    from ..metrology.pointfile import read_points_array
 
     towards = points.mean(axis=0)
     sizes = _labelled(args.datum_size, "--datum-size", "LABEL=LOW,HIGH,hole|pin (e.g. B=9.98,10.02,hole)")
@@ -186,7 +186,7 @@ def evaluate(args: argparse.Namespace, kind: str, summary: dict[str, Any], point
     feats, datums = features(args, kind, summary, points)
     mesh = None
     if args.mesh and any(d["characteristic"].startswith("profile") for d in defs):
-        from .mesh import load_part
+        from ..metrology.mesh import load_part
 
         mesh = load_part(args.mesh)
     out = []

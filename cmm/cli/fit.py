@@ -6,7 +6,7 @@ line with the number of points (NIST data set format); blank lines and ``#``
 comments are skipped; ``-`` reads standard input.  The output (table or
 ``--json``) carries the standard uncertainties (``uncertainty``, mm / rad)
 and ``warnings`` (poorly determined fits, ambiguous or unproven optima); ``--gdt`` adds geometric
-tolerances against ``--datum`` features (see :mod:`cmm.metrology.cli_gdt`) as ``gdt``.  Exit status: 0
+tolerances against ``--datum`` features (see :mod:`cmm.cli.gdt`) as ``gdt``.  Exit status: 0
 success, 1 the fit or a tolerance was refused (too few / degenerate points, method not
 available for the kind, a datum that constrains nothing, a profile without a mesh), 2 a file is missing
 or malformed.
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ls: least squares (default); minzone: minimum zone; "
                              "mic: maximum inscribed; mcc: minimum circumscribed")
     parser.add_argument("--json", action="store_true", help="print the result as JSON (full float precision)")
-    from .cli_gdt_args import add_arguments as add_gdt
+    from .gdt_args import add_arguments as add_gdt
 
     add_gdt(parser)
 
@@ -56,7 +56,7 @@ def format_table(summary: dict[str, Any]) -> str:
                         for i, t in enumerate(v))
             continue
         if k == "proof":  # the domain a criterion's optimum was searched and proven in
-            from .features import proof_text
+            from ..metrology.features import proof_text
 
             rows.append(f"{k.ljust(width)}  {proof_text(v)}")
             continue
@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         summary = result.summary()
         tolerances = []
         if args.gdt:
-            from cmm.metrology.cli_gdt import evaluate as evaluate_gdt
+            from cmm.cli.gdt import evaluate as evaluate_gdt
 
             tolerances = evaluate_gdt(args, args.kind, summary, np.asarray(points, float))
     except PointFileError as exc:

@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Callable, TextIO
 
-from .pointfile import PointFileError, read_points_array, read_text
+from ..metrology.pointfile import PointFileError, read_points_array, read_text
 
 _SPLIT = re.compile(r"[,\s;]+")
 

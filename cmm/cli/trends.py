@@ -17,6 +17,8 @@ import os
 import sys
 from typing import Any
 
+from ..session.trends_chart import charts_for, open_trends
+
 
 def add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trends", metavar="DIR", default="trends", help="the local trends journal (default ./trends)")
@@ -41,33 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub.add_parser("sync", help="upload the parts waiting in the local journal to the shared database")
 
 
-def open_trends(directory: str, db: str | None) -> Any:
-    from .trends import Trends
-
-    return Trends(directory, database=db or os.environ.get("CMM_TRENDS_DB") or None)
-
-
-def charts_for(trends: Any, series: str, characteristic: str | None = None, *, subgroup: int = 1,
-               station: str | None = None) -> list[Any]:
-    """The charts of one characteristic or of every characteristic of a series (what the report includes)."""
-    from .trends import TrendError
-    from .trends_chart import trend
-
-    names = [c for c, _unit in trends.characteristics(series)]
-    if not names:
-        known = ", ".join(trends.series()) or "none"
-        raise TrendError(f"there is no series {series!r} (recorded series: {known})")
-    if characteristic is not None:
-        if characteristic not in names:
-            raise TrendError(f"the series {series!r} has no characteristic {characteristic!r}; it has: "
-                             + ", ".join(names))
-        names = [characteristic]
-    return [trend(trends.history(series, n, station), subgroup) for n in names]
-
-
 def run(args: argparse.Namespace) -> int:
-    from .trends import TrendError
-    from .trends_chart import history_csv, summary
+    from ..session.trends import TrendError
+    from ..session.trends_chart import history_csv, summary
 
     if not getattr(args, "action", None):
         print("cmm trends: choose list, show, export or sync (cmm trends --help)", file=sys.stderr)

@@ -57,9 +57,9 @@ def _when(t: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .journal import JournalError
-    from .program import ProgramError
-    from .store import StoreError
+    from ..session.journal import JournalError
+    from ..session.program import ProgramError
+    from ..session.store import StoreError
 
     try:
         return _run(args)
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .store import load_session, open_store
+    from ..session.store import load_session, open_store
 
     store = open_store(args.store)
     if args.action == "list":
@@ -118,7 +118,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"deleted {args.name!r}")
         return 0
     if args.action == "export":
-        from .export import resolve_part_mesh, write_csv, write_json
+        from ..session.export import resolve_part_mesh, write_csv, write_json
 
         if not args.csv and not args.json and not args.qif:
             print("cmm sessions: export needs --csv FILE, --json FILE and/or --qif [FILE]", file=sys.stderr)
@@ -134,8 +134,8 @@ def _run(args: argparse.Namespace) -> int:
             write_json(s, args.json, mesh)
             print(f"wrote {len(s.events)} events to {args.json}")
         if args.qif:
-            from .program import load as load_program
-            from .qif import write_qif
+            from ..session.program import load as load_program
+            from ..session.qif import write_qif
 
             target = f"{args.name}.qif" if args.qif is True else args.qif
             program = load_program(args.program) if args.program else None
@@ -147,8 +147,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.action == "reevaluate":
         from dataclasses import replace
 
-        from .reevaluate import reevaluate
-        from .store import write_session
+        from ..session.reevaluate import reevaluate
+        from ..session.store import write_session
 
         s = load_session(store, args.name)
         settings = s.probe_settings()
@@ -158,8 +158,8 @@ def _run(args: argparse.Namespace) -> int:
         write_session(store, args.new, new.events)
         print(f"wrote {args.new!r}: {len(new.hits)} hits, {len(new.features)} features re-evaluated from raw counts")
         if new.state.gdt:  # the geometric tolerances, recorded and re-evaluated, one line each
-            from .export import resolve_part_mesh
-            from .gdt_session import session_gdt
+            from ..session.export import resolve_part_mesh
+            from ..session.gdt_session import session_gdt
 
             mesh = resolve_part_mesh(s)
             before = {d.get("id"): c for d, c in session_gdt(s, mesh)}
@@ -173,8 +173,8 @@ def _run(args: argparse.Namespace) -> int:
             print(f"warning: {m}", file=sys.stderr)
         return 0
     if args.action == "teach":
-        from .export import resolve_part_mesh
-        from .program import save, teach
+        from ..session.export import resolve_part_mesh
+        from ..session.program import save, teach
 
         s = load_session(store, args.name)
         prog = teach(s, clearance=args.clearance, part_mesh=resolve_part_mesh(s))

@@ -1,4 +1,4 @@
-"""The `cmm fit` options of geometric tolerances (see :mod:`cmm.metrology.cli_gdt`), in a module that imports
+"""The `cmm fit` options of geometric tolerances (see :mod:`cmm.cli.gdt`), in a module that imports
 nothing heavy: `cmm fit --help` loads neither scipy nor trimesh nor the GD&T code."""
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ SESSION is a name in the store (``--store DIR|URL``, default ./sessions) or
 the path of a ``.jsonl`` journal. The part mesh is found from the recorded
 path, ``--part`` or the simulator's sample part, and used only if its sha256
 matches the recorded one. ``--program`` takes tolerances from a program. ``--trend SERIES`` adds the
-control charts of the series' characteristics (:mod:`cmm.session.cli_trends`).
+control charts of the series' characteristics (:mod:`cmm.cli.trends`).
 """
 
 from __future__ import annotations
@@ -38,10 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .journal import JournalError
-    from .program import ProgramError
-    from .store import StoreError
-    from .trends import TrendError
+    from ..session.journal import JournalError
+    from ..session.program import ProgramError
+    from ..session.store import StoreError
+    from ..session.trends import TrendError
 
     from ..metrology.colour_scale import ColourScale
     from ..metrology.characteristics import DEFAULT_TOLERANCE
@@ -53,17 +53,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"cmm report: {exc}", file=sys.stderr)
         return 2
     try:
-        from .export import resolve_part_mesh
-        from .program import load as load_program
-        from .report import write_features_csv, write_report
-        from .store import open_session
+        from ..session.export import resolve_part_mesh
+        from ..session.program import load as load_program
+        from ..session.report import write_features_csv, write_report
+        from ..session.store import open_session
 
         session = open_session(args.session, args.store)
         mesh = resolve_part_mesh(session, args.part)
         program = load_program(args.program) if args.program else None
         charts = None
         if getattr(args, "trend", None):
-            from .cli_trends import charts_for, open_trends
+            from ..session.trends_chart import charts_for, open_trends
 
             trends = open_trends(args.trends, args.trends_db)
             try:

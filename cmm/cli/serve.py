@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
 
         return _fail(startup_failure(exc, port=station.port, sessions=args.sessions))  # its real cause
 
-    from .app import StationApp
+    from ..ui.app import StationApp
 
     from ..control.access import Control
 

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: Any) -> int:
     from ..session.program import ProgramError, load
     from ..station import load_config
-    from .export import to_dmis
+    from ..dmis.export import to_dmis
 
     try:
         values = [float(x) for x in args.at.split(",")]
