@@ -146,7 +146,7 @@ def _run(args: Any, path: Path, text: str) -> int:
 
         out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
         qif = out_default.parent / f"{path.stem}.qif" if args.qif is True else Path(args.qif)
-        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report))
+        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report), dmis=result.evaluations)
         print(f"wrote {qif} (QIF 3 Results)")
     return 0
 
