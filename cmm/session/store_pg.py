@@ -284,9 +284,10 @@ class SessionUploader:
 
     def _loop(self) -> None:
         while not self._stop.is_set():
-            with self._lock:
-                delay = self.POLL if self.connected else max(0.05, self.next_try - time.monotonic())
-            self._wake.wait(delay)
+            if self.connected:
+                self._wake.wait(self.POLL)
+            else:  # offline: appends do not wake it (each would only cost the station time); the back-off does
+                self._stop.wait(max(0.05, self.next_try - time.monotonic()))
             self._wake.clear()
             if self._stop.is_set():
                 break
