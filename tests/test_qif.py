@@ -275,3 +275,29 @@ def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp
     before = {c["name"]: c["value"] for c in characteristics(exported)}
     bore = next(c for c in chars if c["name"] == "BORE diameter")
     assert not math.isclose(bore["value"], before["BORE diameter"], abs_tol=1e-4)  # the tip is 0.01 mm bigger
+
+
+def test_an_auto_measured_session_on_the_station_is_valid_qif_with_the_reports_values(tmp_path):
+    """Auto-measure on the station (the operator's clicks on the block, a 3-2-1 alignment, a constructed distance):
+    the QIF document of its session validates and carries the report's characteristics, the part from CAD."""
+    import session_support as sup
+
+    from cmm.session.export import resolve_part_mesh
+    from cmm.session.store import open_session
+
+    qif_support.schema_or_skip()
+    gen = sup.sim_station(tmp_path, "auto")
+    st = next(gen)
+    try:
+        sup.teach_block(st.measurement, sup.BLOCK_FACES[:5])
+        st.measurement.set_info(operator="R. Quality")
+        path = st.measurement.journal.path
+    finally:
+        gen.close()
+    s = open_session(path)
+    mesh = resolve_part_mesh(s)
+    root = qif_support.validate(write_qif(s, tmp_path / "auto.qif", mesh=mesh))
+    chars = check_against_csv(root, features_csv(s, mesh=mesh))
+    assert {"DistanceBetween", "Diameter", "Flatness", "UserDefinedLinear"} <= {c["type"] for c in chars}
+    assert root.find(".//q:InspectionOperator/q:Name", NS).text == "R. Quality"
+    assert len(root.findall(".//q:Part/q:FeatureNominalIds/q:Id", NS)) == 5  # every feature's nominal from CAD
