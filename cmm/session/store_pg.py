@@ -57,7 +57,9 @@ def connect(url: str, timeout: float = 3.0) -> Any:
 
 
 def _words(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """The error's first line (psycopg adds hints on further lines), or its type."""
+    lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
 
 
 class _File:
