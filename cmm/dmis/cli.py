@@ -37,7 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
                    "trends folder (its tolerance results; see cmm trends)")
     p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
-    p.add_argument("--station", metavar="NAME", help="this station's name in the trends (--trends) and the notifications (default: the host name)")
+    p.add_argument("--station", metavar="NAME",
+                   help="this station's name in the trends (--trends) and the notifications (default: the host name)")
 
 
 def run(args: Any) -> int:

@@ -343,7 +343,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
             de = d.el(defs, f"{t}FeatureDefinition", id=ids["definition"])
             if f.kind in ("circle", "cylinder", "sphere", "cone"):
                 inner = (f.nominal or {}).get("inner")
-                d.el(de, "InternalExternal", "NOT_APPLICABLE" if inner is None else ("INTERNAL" if inner else "EXTERNAL"))
+                side = "NOT_APPLICABLE" if inner is None else ("INTERNAL" if inner else "EXTERNAL")
+                d.el(de, "InternalExternal", side)
                 d.el(de, "Diameter", nom_geo.get("Diameter", act_geo.get("Diameter", 0.0)))
                 if f.kind == "cone":
                     d.el(de, "HalfAngle", nom_geo.get("HalfAngle", act_geo.get("HalfAngle", 0.0)))
