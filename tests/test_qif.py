@@ -59,9 +59,12 @@ def characteristics(root) -> list[dict]:
     return out
 
 
+DMIS_ONLY = re.compile(r" [A-Z]+ T\(\w+\)$")  # a DMIS run's tolerances the report has no row for
+
+
 def check_against_csv(root, csv_text: str) -> list[dict]:
     """Every report CSV row is the QIF characteristic at the same place: nominal, limits, actual, verdict."""
-    chars = characteristics(root)
+    chars = [c for c in characteristics(root) if not DMIS_ONLY.search(c["name"])]
     rows = [r.split(",") for r in csv_text.splitlines()[1:]]
     assert len(chars) == len(rows) and rows
     for c, r in zip(chars, rows):
@@ -175,8 +178,10 @@ def dmis_run(tmp_path_factory):
     program.write_text("\n".join(body + [
         "T(FLAT_A) = TOL/FLAT, 0.010", "T(DIAM_B) = TOL/DIAM, -0.020, 0.020", "T(CYL_B) = TOL/CYLCTY, 0.010",
         "T(DIAM_BOSS) = TOL/DIAM, -0.020, 0.020", "T(POS_BOSS) = TOL/POS, 2D, 0.040, DAT(A), DAT(B), DAT(C)",
-        "T(DIAM_SPH) = TOL/DIAM, -0.020, 0.020",
-        "OUTPUT/FA(TOP), TA(FLAT_A)", "OUTPUT/FA(BORE), TA(DIAM_B), TA(CYL_B)",
+        "T(DIAM_SPH) = TOL/DIAM, -0.020, 0.020", "T(PERP_B) = TOL/PERPEND, 0.020, DAT(A)",
+        "T(DIST_BOSS) = TOL/DISTB, NOMINL, 43.863, -0.030, 0.030",
+        "OUTPUT/FA(TOP), TA(FLAT_A)", "OUTPUT/FA(BORE), TA(DIAM_B), TA(CYL_B), TA(PERP_B)",
+        "OUTPUT/FA(BORE), FA(BOSS), TA(DIST_BOSS)",
         "OUTPUT/FA(BOSS), TA(DIAM_BOSS), TA(POS_BOSS)", "OUTPUT/FA(SPHERE), TA(DIAM_SPH)", "ENDFIL", ""]))
     import os
 
@@ -219,6 +224,16 @@ def test_cmm_run_qif_is_valid_and_its_values_are_the_dmis_outputs(dmis_run):
     pos = next(c for c in chars.values() if c["type"] == "Position" and c["drf"] is not None)
     assert pos["features"] == ["BOSS"] and round(pos["value"], 5) == pytest.approx(tols["POS_BOSS"][0], abs=1.1e-5)
     assert {x.find("q:DatumLabel", NS).text for x in root.findall(".//q:DatumDefinition", NS)} == {"A", "B", "C"}
+    # the DMIS tolerances the report has no row for: their TA values and verdicts, after the report's
+    perp = chars["BORE perpendicularity PERPEND T(PERP_B)"]
+    assert perp["type"] == "Perpendicularity" and perp["zone"] == 0.02 and perp["features"] == ["BORE"]
+    assert round(perp["value"], 5) == pytest.approx(tols["PERP_B"][0], abs=1.1e-5)
+    assert perp["status"] == ("PASS" if tols["PERP_B"][1] == "INTOL" else "FAIL")
+    dist = chars["BORE-BOSS distance DISTB T(DIST_BOSS)"]
+    assert dist["type"] == "DistanceBetween" and dist["features"] == ["BORE", "BOSS"] and dist["target"] == 43.863
+    assert round(dist["value"] - dist["target"], 5) == pytest.approx(tols["DIST_BOSS"][0], abs=1.1e-5)
+    assert (dist["max"], dist["min"]) == (0.03, -0.03) and dist["status"] == "PASS" == \
+        ("PASS" if tols["DIST_BOSS"][1] == "INTOL" else "FAIL")
     # the run: program, station, the report beside it, the overall verdict
     assert root.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "qifpart.dmi"
     assert root.find(".//q:ExternalFileReference/q:URI", NS).text.endswith("qifpart_report.html")
@@ -245,7 +260,7 @@ def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp
     run = qif_support.validate(dmis_run / "out" / "qifpart.qif")
     # the same session: the same characteristics and values (the program is read from the session's notes)
     assert [(c["name"], c["value"], c["status"]) for c in characteristics(exported)] == \
-        [(c["name"], c["value"], c["status"]) for c in characteristics(run)]
+        [(c["name"], c["value"], c["status"]) for c in characteristics(run) if not DMIS_ONLY.search(c["name"])]
     assert exported.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "qifpart.dmi"
     # re-evaluated with another tip radius: a new session, a valid document with its own QPId and values
     new = f"{info.name}-r"
@@ -260,3 +275,29 @@ def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp
     before = {c["name"]: c["value"] for c in characteristics(exported)}
     bore = next(c for c in chars if c["name"] == "BORE diameter")
     assert not math.isclose(bore["value"], before["BORE diameter"], abs_tol=1e-4)  # the tip is 0.01 mm bigger
+
+
+def test_an_auto_measured_session_on_the_station_is_valid_qif_with_the_reports_values(tmp_path):
+    """Auto-measure on the station (the operator's clicks on the block, a 3-2-1 alignment, a constructed distance):
+    the QIF document of its session validates and carries the report's characteristics, the part from CAD."""
+    import session_support as sup
+
+    from cmm.session.export import resolve_part_mesh
+    from cmm.session.store import open_session
+
+    qif_support.schema_or_skip()
+    gen = sup.sim_station(tmp_path, "auto")
+    st = next(gen)
+    try:
+        sup.teach_block(st.measurement, sup.BLOCK_FACES[:5])
+        st.measurement.set_info(operator="R. Quality")
+        path = st.measurement.journal.path
+    finally:
+        gen.close()
+    s = open_session(path)
+    mesh = resolve_part_mesh(s)
+    root = qif_support.validate(write_qif(s, tmp_path / "auto.qif", mesh=mesh))
+    chars = check_against_csv(root, features_csv(s, mesh=mesh))
+    assert {"DistanceBetween", "Diameter", "Flatness", "UserDefinedLinear"} <= {c["type"] for c in chars}
+    assert root.find(".//q:InspectionOperator/q:Name", NS).text == "R. Quality"
+    assert len(root.findall(".//q:Part/q:FeatureNominalIds/q:Id", NS)) == 5  # every feature's nominal from CAD

@@ -42,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trends", metavar="DIR", help="also record the run as a part of the program's series in this "
                    "trends folder (its tolerance results; see cmm trends)")
     p.add_argument("--trends-db", metavar="URL", help="with --trends: the shared trends database (default: CMM_TRENDS_DB)")
-    p.add_argument("--station", metavar="NAME", help="with --trends: this station's name (default: the host name)")
+    p.add_argument("--station", metavar="NAME",
+                   help="this station's name in the trends (--trends) and the notifications (default: the host name)")
 
 
 def run(args: Any) -> int:
@@ -166,7 +167,7 @@ def _run(args: Any, path: Path, text: str) -> int:
 
         out_default = Path(args.output) if args.output else Path(f"{path.stem}_out.dms")
         qif = out_default.parent / f"{path.stem}.qif" if args.qif is True else Path(args.qif)
-        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report))
+        write_qif(s, qif, mesh=mesh, program_name=path.name, report=str(report), dmis=result.evaluations)
         print(f"wrote {qif} (QIF 3 Results)")
     return 0
 

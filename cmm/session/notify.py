@@ -86,9 +86,11 @@ def load_config(path: str | Path | None, *, webhook: str | None = None, mqtt: st
         unknown = sorted(set(section) - {"webhook", "mqtt", "report_url", "events", "station", "timeout"})
         if unknown:
             raise NotifyError(f"{path}: [notify] {unknown[0]} is not a known setting")
-    cfg = NotifyConfig(webhook=str(webhook or section.get("webhook") or ""), mqtt=str(mqtt or section.get("mqtt") or ""),
+    cfg = NotifyConfig(webhook=str(webhook or section.get("webhook") or ""),
+                       mqtt=str(mqtt or section.get("mqtt") or ""),
                        report_url=str(report_url or section.get("report_url") or ""),
-                       events=tuple(section.get("events") or EVENTS), station=str(station or section.get("station") or ""),
+                       events=tuple(section.get("events") or EVENTS),
+                       station=str(station or section.get("station") or ""),
                        timeout=float(section.get("timeout", 5.0)))
     return cfg.check()
 

@@ -193,8 +193,11 @@ def _characteristic_rows(session: Session, program: Any, default_tolerance: floa
 
 def qif_document(session: Session, *, program: Any = None, default_tolerance: float | None = None, mesh: Any = None,
                  program_name: str | None = None, operator: str | None = None, station: str | None = None,
-                 report: str | None = None) -> ET.ElementTree:
-    """The session as a QIF 3 Results document (see the module docstring)."""
+                 report: str | None = None, dmis: Any = ()) -> ET.ElementTree:
+    """The session as a QIF 3 Results document (see the module docstring). ``dmis``: a DMIS run's tolerance
+    evaluations (:class:`cmm.dmis.tolerances.Evaluation`), whose characteristics the report has no row for
+    (orientation, distances and angles between features, profiles, runout, concentricity) are added after the
+    report's, named ``<features> <word> T(<label>)``, with the DMIS output's value and INTOL / OUTOL."""
     d = _Doc()
     st = session.state
     info = st.info
@@ -223,7 +226,7 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
     d.el(lin, "UnitName", "mm")
     d.el(d.el(lin, "UnitConversion"), "Factor", "0.001")
 
-    rows = _characteristic_rows(session, program, default_tolerance, mesh)
+    rows = _characteristic_rows(session, program, default_tolerance, mesh) + _dmis_rows(dmis)
     features = st.features
     # ids, reserved up front so that datums and the part can refer to features written later
     fids = {fid: {k: d.id() for k in ("definition", "nominal", "item", "measurement")} for fid in features}
@@ -252,7 +255,7 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
         for refs, owner in frames:
             e = d.el(box, "DatumReferenceFrame", id=drf_ids[refs])
             ds = d.el(e, "Datums", n=str(len(refs)))
-            mods = owner.get("datum_modifiers") or {}
+            mods = (owner.get("datum_modifiers") or {}) if isinstance(owner, dict) else {}
             for k, ref in enumerate(refs):
                 datum = d.el(ds, "Datum")
                 labels = ref.split("-")
@@ -340,7 +343,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
             de = d.el(defs, f"{t}FeatureDefinition", id=ids["definition"])
             if f.kind in ("circle", "cylinder", "sphere", "cone"):
                 inner = (f.nominal or {}).get("inner")
-                d.el(de, "InternalExternal", "NOT_APPLICABLE" if inner is None else ("INTERNAL" if inner else "EXTERNAL"))
+                side = "NOT_APPLICABLE" if inner is None else ("INTERNAL" if inner else "EXTERNAL")
+                d.el(de, "InternalExternal", side)
                 d.el(de, "Diameter", nom_geo.get("Diameter", act_geo.get("Diameter", 0.0)))
                 if f.kind == "cone":
                     d.el(de, "HalfAngle", nom_geo.get("HalfAngle", act_geo.get("HalfAngle", 0.0)))
@@ -364,6 +368,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
         feature_kind = features[ref_fids[0]].kind if ref_fids else ""
         if kind == "gdt":
             qt, family = qif_type(str(owner.get("characteristic", c.name)), feature_kind)
+        elif kind == "dmis":
+            qt, family = qif_type(c.name.split(f" {owner.tolerance.word} ")[0], feature_kind)
         else:
             qt, family = qif_type(c.name, feature_kind)
         crow.append((kind, owner, c, ref_fids, qt, family,
@@ -461,7 +467,8 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
                 box.extend(attrs)
             if c.note:
                 d.el(me, "Description", c.note)
-            d.el(d.el(me, "Status"), "CharacteristicStatusEnum", status(c))
+            d.el(d.el(me, "Status"), "CharacteristicStatusEnum",
+                 ("PASS" if owner.intol else "FAIL") if kind == "dmis" else status(c))
             d.el(me, "CharacteristicItemId", ids["item"])
             if ref_fids:
                 d.ids(me, "FeatureMeasurementIds", [fids[f]["measurement"] for f in ref_fids])
@@ -503,7 +510,35 @@ def _label(token: str) -> tuple[str, str]:
 
 def _refs(kind: str, c: Characteristic) -> tuple[str, ...]:
     """A geometric tolerance's datum references in precedence order ("A", "B", "E-F"), from its row."""
-    return tuple(x.strip() for x in c.datums.split("|") if x.strip()) if kind == "gdt" and c.datums else ()
+    return tuple(x.strip() for x in c.datums.split("|") if x.strip()) if kind in ("gdt", "dmis") and c.datums else ()
+
+
+# DMIS tolerance words the station's report has no row for -> the characteristic name qif_map types them by
+DMIS_ONLY = {"PARLEL": "parallelism", "PERPEND": "perpendicularity", "ANGLR": "angularity", "DISTB": "distance",
+             "ANGLB": "angle", "PROFS": "profile of a surface", "PROFL": "profile of a line",
+             "RUNOUT": "circular runout", "CONCEN": "concentricity"}
+
+
+def _dmis_rows(evaluations: Any) -> list[tuple[str, Any, Characteristic]]:
+    rows: list[tuple[str, Any, Characteristic]] = []
+    for ev in evaluations or ():
+        t = ev.tolerance
+        kind = DMIS_ONLY.get(t.word)
+        if kind is None:
+            continue
+        if t.word == "RUNOUT" and "TOTAL" in t.options:
+            kind = "total runout"
+        feature = "-".join(ev.features)
+        unit = "deg" if t.word in ("ANGLB", "ANGLR") and kind != "angularity" else "mm"
+        if t.word in ("DISTB", "ANGLB"):  # the value is the deviation from the nominal distance / angle
+            nominal = float(t.nominal or 0.0)
+            c = Characteristic(feature, f"{kind} {t.word} T({t.label})", nominal, nominal + float(ev.value),
+                               float(t.upper), float(t.lower), unit=unit, note=ev.note)
+        else:  # a zone
+            c = Characteristic(feature, f"{kind} {t.word} T({t.label})", 0.0, float(ev.value),
+                               float(t.upper) + float(ev.bonus), 0.0, note=ev.note, datums="|".join(t.datums))
+        rows.append(("dmis", ev, c))
+    return rows
 
 
 def _owner_features(kind: str, owner: Any, features: dict) -> list[int]:
@@ -511,6 +546,9 @@ def _owner_features(kind: str, owner: Any, features: dict) -> list[int]:
         return [owner.id] if owner.id in features else []
     if kind == "constructed":
         return [i for i in owner.operands if i in features]
+    if kind == "dmis":
+        by_name = {f.name: fid for fid, f in features.items()}
+        return [by_name[n] for n in owner.features if n in by_name]
     fid = owner.get("feature")
     return [int(fid)] if fid is not None and int(fid) in features else []
 

@@ -296,7 +296,8 @@ class PostgresStore:
         if self._spooled(check_name(name)) is not None:
             return True
         with self._conn() as conn:
-            return conn.execute("SELECT 1 FROM cmm_sessions WHERE name = %s", (check_name(name),)).fetchone() is not None
+            row = conn.execute("SELECT 1 FROM cmm_sessions WHERE name = %s", (check_name(name),)).fetchone()
+            return row is not None
 
     def create(self, name: str, *, append: bool = False) -> Any:
         """A writer for ``name`` (a new session, or with ``append`` an existing one continued); works while the

@@ -57,7 +57,9 @@ def connect(url: str, timeout: float = 3.0) -> Any:
 
 
 def _words(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """The error's first line (psycopg adds hints on further lines), or its type."""
+    lines = [ln.strip() for ln in str(exc).strip().splitlines() if ln.strip()]
+    return lines[0] if lines else type(exc).__name__
 
 
 class _File:
@@ -284,9 +286,10 @@ class SessionUploader:
 
     def _loop(self) -> None:
         while not self._stop.is_set():
-            with self._lock:
-                delay = self.POLL if self.connected else max(0.05, self.next_try - time.monotonic())
-            self._wake.wait(delay)
+            if self.connected:
+                self._wake.wait(self.POLL)
+            else:  # offline: appends do not wake it (each would only cost the station time); the back-off does
+                self._stop.wait(max(0.05, self.next_try - time.monotonic()))
             self._wake.clear()
             if self._stop.is_set():
                 break
