@@ -22,7 +22,7 @@ import numpy as np
 
 from .calibration.service import CalibrationService
 from .control import Controller
-from .control.run_end import end_at_clearance
+from .measurement.run_end import end_at_clearance
 from .machine.config import ConfigError, MachineConfig, load
 from .machine.config import load as load_config  # front ends read the machine configuration through the station
 from .machine.motion import Machine
@@ -119,7 +119,7 @@ def register_measurement_verbs(controller: Controller, measurement: MeasurementM
         with controller.jobs.running(f"auto-measure of {name or 'the ' + plan.kind}", cancel):
             feature = run_plan(measurement, plan, name=name, method=method, progress=progress, cancelled=cancelled,
                                client=client)
-            try:  # the run ends at the clearance plane (cmm.control.run_end); the feature stands either way
+            try:  # the run ends at the clearance plane (cmm.measurement.run_end); the feature stands either way
                 end_at_clearance(controller, client)
             except Exception as exc:  # noqa: BLE001 - told in the journal, in words
                 measurement.note(f"auto-measure: the climb to the clearance plane at its end failed: {exc}")

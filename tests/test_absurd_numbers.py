@@ -12,7 +12,7 @@ import session_support as sup
 
 from cmm.dmis.executor import DmisError
 from cmm.dmis.runner import run_text
-from cmm.numbers_text import num
+from cmm.metrology.numbers_text import num
 
 HEAD = "FILNAM/'x'\nUNITS/MM, ANGRAD\n"
 LONG_NUMBER = re.compile(r"\d{12,}")  # no message writes a number with a dozen digits

@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         station.start()
     except Exception as exc:  # noqa: BLE001
         station.close()
-        from ..startup_errors import startup_failure
+        from .startup_errors import startup_failure
 
         return _fail(startup_failure(exc, port=station.port, sessions=args.sessions))  # its real cause
 

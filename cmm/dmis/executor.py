@@ -16,7 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..numbers_text import num
+from ..metrology.numbers_text import num
 from ..measurement.program import record_trend
 from ..session.trends import tolerance_values
 from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal_from, nominal_line

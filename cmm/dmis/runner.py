@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..control.run_end import end_at_clearance
+from ..measurement.run_end import end_at_clearance
 from .check import check, warnings
 from .executor import DmisError, Executor, RunResult
 from .parser import Statement, Word
@@ -250,7 +250,7 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
             executor.on_progress = progress
         result = executor.run()
         # the program's last hit retracts a few mm only: the run ends at the clearance plane, so the next
-        # program's first GOTO does not start beside the part (cmm.control.run_end)
+        # program's first GOTO does not start beside the part (cmm.measurement.run_end)
         try:
             z = end_at_clearance(station.controller, client, target.timeout)
         except Exception as exc:  # noqa: BLE001 - the program's results stand; the failed climb is told

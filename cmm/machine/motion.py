@@ -36,7 +36,7 @@ from ..nmc.transport import is_virtual
 from .config import AXES, MachineConfig, counts_to_mm
 from .geometry import GeometryCorrection
 from .status import MotionError, MoveStatus
-from ..numbers_text import num
+from ..metrology.numbers_text import num
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
 POLL_PAUSE = 0.0002  # between samples: lets UI threads take the machine lock; the link is the limit

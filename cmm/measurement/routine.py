@@ -817,7 +817,7 @@ class RoutineRun:
         first move starts clear of the part."""
         if self.controller is None:
             return
-        from ..control.run_end import end_at_clearance
+        from .run_end import end_at_clearance
 
         try:
             z = end_at_clearance(self.controller, self.client, self.timeout)
@@ -836,7 +836,7 @@ class RoutineRun:
         if self._gdt_done or not (program.datums or program.gdt):
             return
         self._gdt_done = True
-        from ..session.program_gdt import define
+        from .program_gdt import define
 
         for text in define(self.model, program.datums, program.gdt, dict(self._fids), dict(self._hit_map)):
             self.model.note(f"routine {self.routine.name!r}: {text}")

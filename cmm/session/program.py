@@ -246,7 +246,10 @@ def from_toml(text: str, source: str = "<program>") -> Program:
     if not isinstance(steps, list) or not all(isinstance(st, dict) and isinstance(st.get("kind"), str)
                                               for st in steps):
         raise ProgramError(f"{source}: every [[steps]] entry needs a kind")
-    datums, gdts = program_gdt.parse(data, source)
+    try:
+        datums, gdts = program_gdt.parse(data, source)
+    except ValueError as exc:
+        raise ProgramError(str(exc)) from None
     return Program(str(data.get("name", "program")), str(part.get("name", "")), str(part["sha256"]), features, hits,
                    float(data.get("clearance", 10.0)), data.get("taught_from"), [dict(st) for st in steps],
                    datums=datums, gdt=gdts)

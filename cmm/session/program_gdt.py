@@ -33,7 +33,7 @@ from .toml_text import toml_value
 SKIPPED = ("id", "feature", "pattern", "seq", "time", "kind", "feature_name")
 
 
-def _map_targets(targets: Any, ids: Callable[[int], int | None]) -> list[Any] | None:
+def map_targets(targets: Any, ids: Callable[[int], int | None]) -> list[Any] | None:
     out: list[Any] = []
     for t in targets or []:
         if isinstance(t, dict):
@@ -63,7 +63,7 @@ def taught(state: Any, renumber: dict[int, int], taught_names: set[str]) -> tupl
             continue
         out = {"label": label, "feature": name, "modifier": str(d.get("modifier") or "")}
         if d.get("targets"):
-            targets = _map_targets(d["targets"], renumber.get)
+            targets = map_targets(d["targets"], renumber.get)
             if targets is None:
                 left.append(f"datum {label}: a datum target hit is not in the program")
                 continue
@@ -93,55 +93,17 @@ def toml_lines(datums: list[dict], gdts: list[dict]) -> list[str]:
 
 
 def parse(data: dict, source: str) -> tuple[list[dict], list[dict]]:
-    """The ``[[datums]]`` and ``[[gdt]]`` tables of a program file, checked for what a run needs."""
-    from .program import ProgramError
+    """The ``[[datums]]`` and ``[[gdt]]`` tables of a program file, checked for what a run needs (ValueError in
+    words: the program loader tells it as its ProgramError)."""
 
     datums, gdts = data.get("datums") or [], data.get("gdt") or []
     for k, d in enumerate(datums, 1):
         if not isinstance(d, dict) or not isinstance(d.get("label"), str) or not isinstance(d.get("feature"), str):
-            raise ProgramError(f"{source}: datum #{k} needs a label and a feature name")
+            raise ValueError(f"{source}: datum #{k} needs a label and a feature name")
     for k, d in enumerate(gdts, 1):
         if not isinstance(d, dict) or not isinstance(d.get("feature"), str) or not isinstance(
                 d.get("characteristic"), str):
-            raise ProgramError(f"{source}: geometric tolerance #{k} needs a characteristic and a feature name")
+            raise ValueError(f"{source}: geometric tolerance #{k} needs a characteristic and a feature name")
         if not isinstance(d.get("tolerance"), (int, float)) or isinstance(d.get("tolerance"), bool):
-            raise ProgramError(f"{source}: geometric tolerance #{k} ({d['feature']}) needs a tolerance in mm")
+            raise ValueError(f"{source}: geometric tolerance #{k} ({d['feature']}) needs a tolerance in mm")
     return [dict(d) for d in datums], [dict(d) for d in gdts]
-
-
-def define(model: Any, datums: list[dict], gdts: list[dict], fids: dict[str, int],
-           hits: dict[int, int]) -> list[str]:
-    """Define the program's datums and geometric tolerances on ``model`` (a run's), on the features it measured
-    (``fids``: name -> this run's feature id; ``hits``: program hit id -> this run's hit id). Returns what was
-    not defined, in words (a feature skipped, a definition the model refused); the rest is defined."""
-    from ..measurement.model import MeasurementError
-
-    left = []
-    for d in datums:
-        fid = fids.get(d["feature"])
-        if fid is None:
-            left.append(f"datum {d['label']} not defined: {d['feature']} was not measured")
-            continue
-        targets = _map_targets(d.get("targets"), hits.get) if d.get("targets") else None
-        if d.get("targets") and targets is None:
-            left.append(f"datum {d['label']} not defined: a datum target hit was not taken")
-            continue
-        try:
-            model.define_datum(d["label"], fid, d.get("modifier", ""), targets=targets)
-        except MeasurementError as exc:
-            left.append(f"datum {d['label']} not defined: {exc}")
-    for d in gdts:
-        fid = fids.get(d["feature"])
-        pattern = [fids.get(p) for p in d.get("pattern") or []]
-        if fid is None or any(p is None for p in pattern):
-            left.append(f"{d.get('name')} not evaluated: a feature it tolerances was not measured")
-            continue
-        try:
-            model.define_gdt(d["characteristic"], fid, float(d["tolerance"]), d.get("datums") or [],
-                             material=d.get("material", ""), angle=d.get("angle"),
-                             direction=d.get("direction", "radial"), name=d.get("name"),
-                             pattern=pattern or None, composite=d.get("composite"),
-                             datum_modifiers=d.get("datum_modifiers"), offset=float(d.get("offset") or 0.0))
-        except MeasurementError as exc:
-            left.append(f"{d.get('name')} not evaluated: {exc}")
-    return left

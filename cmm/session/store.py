@@ -186,19 +186,7 @@ class DirectoryStore:
 
 # --------------------------------------------------------------------------- PostgreSQL
 
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS cmm_sessions (
-    id      bigserial PRIMARY KEY,
-    name    text NOT NULL UNIQUE,
-    created double precision NOT NULL
-);
-CREATE TABLE IF NOT EXISTS cmm_events (
-    session_id bigint NOT NULL REFERENCES cmm_sessions(id) ON DELETE CASCADE,
-    seq        integer NOT NULL,
-    event      text NOT NULL,   -- the journal line, byte-identical to the JSON Lines format
-    PRIMARY KEY (session_id, seq)
-);
-"""
+
 LOCK_SPACE = 0x434D4D  # "CMM": first key of the two-key advisory locks
 
 
@@ -232,7 +220,7 @@ class PostgresStore:
             import psycopg  # noqa: F401
         except ImportError:
             raise StoreError("the PostgreSQL session store needs psycopg: pip install 'cmm[postgres]'") from None
-        from .store_pg import connect
+        from .store_pg import connect, pg_schema
 
         try:
             conn = connect(self.url, 3.0)
@@ -241,7 +229,7 @@ class PostgresStore:
         try:
             with conn.transaction():
                 conn.execute("SELECT pg_advisory_xact_lock(%s, %s)", (LOCK_SPACE, 0x53455353))
-                conn.execute(SCHEMA)
+                conn.execute(pg_schema())
         except Exception as exc:  # noqa: BLE001
             conn.close()
             raise StoreError(f"cannot use the session database: {' '.join(str(exc).split())}") from None

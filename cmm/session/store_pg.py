@@ -34,6 +34,25 @@ from typing import Any
 
 from .journal import Journal, is_locked, try_lock
 
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS cmm_sessions (
+    id      bigserial PRIMARY KEY,
+    name    text NOT NULL UNIQUE,
+    created double precision NOT NULL
+);
+CREATE TABLE IF NOT EXISTS cmm_events (
+    session_id bigint NOT NULL REFERENCES cmm_sessions(id) ON DELETE CASCADE,
+    seq        integer NOT NULL,
+    event      text NOT NULL,   -- the journal line, byte-identical to the JSON Lines format
+    PRIMARY KEY (session_id, seq)
+);
+"""
+
+
+def pg_schema() -> str:
+    """The session tables (created if missing)."""
+    return SCHEMA
+
 LOCK_SPACE = 0x434D4D  # "CMM": first key of the two-key advisory locks (as cmm.session.store)
 OFFLINE_SUFFIX = " (recorded offline)"
 
@@ -225,7 +244,6 @@ class SessionUploader:
     # --- the connection ----------------------------------------------------------------------------
 
     def _connection(self, force: bool = False) -> Any:
-        from .store import SCHEMA
 
         if self._conn is not None and not self._conn.closed:
             return self._conn
