@@ -159,7 +159,10 @@ def run(args: argparse.Namespace) -> int:
         if users is not None:
             from ..control.roles import RolePolicy
 
+            from ..control.users import register_user_verbs
+
             station.controller.commands.roles = RolePolicy()  # every command checked against the client's role
+            register_user_verbs(station.controller.commands, users)  # the admin's page manages the file
         app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
                          pendant_port=args.pendant_port, tolerance=args.tolerance,
                          allow_hosts=tuple(args.allow_host), shadows=args.shadows,
