@@ -317,6 +317,9 @@ class Station:
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         register_queries(self.controller.commands, self.measurement, self.calibration)
+        # a station with users (the API checks roles): every journal event names the person who held control
+        self.measurement.holder_name = lambda: (getattr(self.controller.holder, "holder_name", None)
+                                                if self.controller.commands.roles is not None else None)
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)

@@ -171,8 +171,6 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
-    if users is not None:  # every journal event names the person who held control
-        station.measurement.holder_name = lambda: app.control.holder_name
     print(f"CMM station on {station.port}; session journal {station.measurement.journal.path if station.measurement.journal else '-'}")
     print(f"Open {app.url} in a browser")
     if args.lan:
