@@ -161,7 +161,7 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
                 if answer.get("type") in ("hello", "login", "error", "result", "control"):
                     return answer
 
-        assert ask(type="hello")["type"] == "hello"
+        assert ask(type="hello")["users"] is True  # the page shows its login row
         refused = ask(type="call", id=1, method="take_control")
         assert refused["error"]["code"] == "refused" and "needs a user: log in" in refused["error"]["message"]
         assert ask(type="login", user="maria", password="wrong one!")["message"] == "wrong user name or password"
