@@ -172,6 +172,13 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
         assert refused["error"]["message"] == "maria (operator) may not qualify: that needs the role metrologist or admin"
         assert ask(type="call", id=4, method="stop")["result"]["ok"] is True
         ws.close()
+        # I++ DME has no login: its clients act as the user the operator named (--ippdme-user), or only observe
+        from cmm.ippdme.backend import StationBackend
+
+        anonymous = StationBackend(station, grants_control=True).for_client("10.0.0.5:5000")
+        assert "needs a user: log in" in anonymous.acquire()
+        named = StationBackend(station, grants_control=True, user=("maria", "operator")).for_client("10.0.0.5:5001")
+        assert named.acquire() is None and control.holder_name == "maria"
     finally:
         server.close()
         station.close()
@@ -206,3 +213,16 @@ def test_a_page_tab_logs_in_in_its_start_dialog_and_only_an_admin_manages_users(
             assert store.authenticate("tom", "pass-word-3") == "programmer"
     finally:
         gen.close()
+
+
+def test_cmm_serve_refuses_an_empty_user_file_and_a_half_given_certificate(tmp_path, capsys):
+    empty = tmp_path / "users.toml"
+    empty.write_text("")
+    assert main(["serve", "--users", str(empty)]) == 2
+    assert "no users in" in capsys.readouterr().err
+    store = UserStore(tmp_path / "u.toml")
+    store.add("maria", "operator", "correct horse")
+    assert main(["serve", "--users", str(tmp_path / "u.toml"), "--ippdme-user", "tom"]) == 2
+    assert "--ippdme-user tom: there is no such user" in capsys.readouterr().err
+    assert main(["serve", "--tls-cert", str(tmp_path / "c.pem")]) == 2
+    assert "give both the certificate and its key" in capsys.readouterr().err
