@@ -340,6 +340,9 @@ class Station:
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         self._register_part_verbs()
         register_queries(self.controller.commands, self.measurement, self.calibration)
+        # a station with users (the API checks roles): every journal event names the person who held control
+        self.measurement.holder_name = lambda: (getattr(self.controller.holder, "holder_name", None)
+                                                if self.controller.commands.roles is not None else None)
         self.controller.subscribe(self.measurement.machine_event)
         if calibration_dir is not None:
             self.calibration.load(calibration_dir)

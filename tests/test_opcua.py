@@ -38,7 +38,6 @@ def served(tmp_path_factory):
     for name, (password, role) in USERS.items():
         store.add(name, role, password)
     station.controller.commands.roles = RolePolicy()
-    station.measurement.holder_name = lambda: station.controller.holder.holder_name  # as `cmm serve --users`
     station.start()
     cert = tls.certificate(tmp_path_factory.mktemp("tls"), application_uri="urn:cmm-station:CMM-7")  # self-signed
     server = OpcUaServer(station.controller.commands, "127.0.0.1", free_port(), name="CMM-7",

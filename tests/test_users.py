@@ -44,7 +44,7 @@ def test_the_user_file_keeps_argon2_hashes_and_token_digests_never_the_secrets(t
     assert [u["name"] for u in store.users()] == ["maria"]
 
 
-def test_the_role_table_is_enforced_in_the_api_for_every_front_end(sim_machine):
+def test_the_role_table_is_enforced_in_the_api_for_every_front_end(sim_machine, tmp_path):
     from cmm.control import Controller
 
     sim, machine, prober = sim_machine
@@ -78,6 +78,19 @@ def test_the_role_table_is_enforced_in_the_api_for_every_front_end(sim_machine):
     assert api.call(anonymous, "stop").error["code"] == "refused"
     # the station itself (None) is never refused
     assert api.call(None, "qualify").ok
+    # the admin manages the users through the API (the page's Users folder); nobody else may
+    from cmm.control.users import register_user_verbs
+
+    store = UserStore(tmp_path / "users.toml")
+    store.add("ada", "admin", "admin password")
+    register_user_verbs(api, store)
+    admin = Client("page 5", authenticated=True, user="ada", role="admin")
+    assert api.call(admin, "add_user", {"name": "maria", "role": "operator", "password": "correct horse"}).ok
+    assert [u["name"] for u in api.call(admin, "users").result] == ["ada", "maria"]
+    assert api.call(metrologist, "users").error["message"] == ("li (metrologist) may not users: that needs the role "
+                                                              "admin")
+    token = api.call(admin, "new_token", {"name": "maria", "label": "mes"}).result
+    assert store.login_token(token).user == "maria"
     # the local, no-login mode: no user file, no role checked (the holder rule alone)
     api.roles = None
     local = Client("page 4", local=True)
@@ -89,6 +102,7 @@ def test_every_role_in_the_documented_table():
     rows = {group: roles for group, roles, _ in table()}
     assert rows == {"operate": "operator, programmer, metrologist, admin", "program": "programmer, metrologist, admin",
                     "calibrate": "metrologist, admin", "administer": "admin"}
+    assert not allowed("metrologist", "add_user") and allowed("admin", "add_user")
     assert all(allowed(r, "take_control") for r in ROLES) and not allowed(None, "move")
     assert isinstance(RolePolicy().refusal(None, "zero"), type(None))
     assert AccessRefused and HolderPolicy
@@ -147,7 +161,7 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
                 if answer.get("type") in ("hello", "login", "error", "result", "control"):
                     return answer
 
-        assert ask(type="hello")["type"] == "hello"
+        assert ask(type="hello")["users"] is True  # the page shows its login row
         refused = ask(type="call", id=1, method="take_control")
         assert refused["error"]["code"] == "refused" and "needs a user: log in" in refused["error"]["message"]
         assert ask(type="login", user="maria", password="wrong one!")["message"] == "wrong user name or password"
@@ -158,6 +172,57 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
         assert refused["error"]["message"] == "maria (operator) may not qualify: that needs the role metrologist or admin"
         assert ask(type="call", id=4, method="stop")["result"]["ok"] is True
         ws.close()
+        # I++ DME has no login: its clients act as the user the operator named (--ippdme-user), or only observe
+        from cmm.ippdme.backend import StationBackend
+
+        anonymous = StationBackend(station, grants_control=True).for_client("10.0.0.5:5000")
+        assert "needs a user: log in" in anonymous.acquire()
+        named = StationBackend(station, grants_control=True, user=("maria", "operator")).for_client("10.0.0.5:5001")
+        assert named.acquire() is None and control.holder_name == "maria"
     finally:
         server.close()
         station.close()
+
+
+def test_a_page_tab_logs_in_in_its_start_dialog_and_only_an_admin_manages_users(tmp_path_factory):
+    """The station page with a user file: a tab logs in (a wrong password refused in one sentence), then acts as
+    its user: control under the person's name, the Users folder's verbs refused for an operator and done for an
+    admin (the API decides)."""
+    import ui_support
+    from cmm.control.users import register_user_verbs
+
+    store = UserStore(tmp_path_factory.mktemp("users") / "users.toml")
+    store.add("maria", "operator", "correct horse")
+    store.add("ada", "admin", "admin password")
+    gen = ui_support.station_app(tmp_path_factory, pendant=False, users=store, home=False)
+    app = next(gen)
+    try:
+        app.station.controller.commands.roles = RolePolicy()
+        register_user_verbs(app.station.controller.commands, store)
+        with ui_support.viser_tab(app) as (_ws, capp):
+            assert not capp.log_in("maria", "not her password")
+            assert capp.ctx.messages[-1][2] == "wrong user name or password"
+            assert capp.take_control("") is False  # nobody logged in: observe only
+            assert capp.log_in("maria", "correct horse")
+            assert capp.ctx.who().user == "maria" and capp.ctx.who().role == "operator"
+            assert capp.take_control("") is True and app.control.holder_name == "maria"
+            assert capp.users_action("add_user", name="tom", role="programmer", password="pass-word-3") is None
+            assert "maria (operator) may not add user" in capp.ctx.messages[-1][2]
+            assert capp.log_in("ada", "admin password")
+            capp.users_action("add_user", name="tom", role="programmer", password="pass-word-3")
+            assert store.authenticate("tom", "pass-word-3") == "programmer"
+    finally:
+        gen.close()
+
+
+def test_cmm_serve_refuses_an_empty_user_file_and_a_half_given_certificate(tmp_path, capsys):
+    empty = tmp_path / "users.toml"
+    empty.write_text("")
+    assert main(["serve", "--users", str(empty)]) == 2
+    assert "no users in" in capsys.readouterr().err
+    store = UserStore(tmp_path / "u.toml")
+    store.add("maria", "operator", "correct horse")
+    assert main(["serve", "--users", str(tmp_path / "u.toml"), "--ippdme-user", "tom"]) == 2
+    assert "--ippdme-user tom: there is no such user" in capsys.readouterr().err
+    assert main(["serve", "--tls-cert", str(tmp_path / "c.pem")]) == 2
+    assert "give both the certificate and its key" in capsys.readouterr().err

@@ -244,6 +244,14 @@
   $("code").addEventListener("keydown", function (e) { if (e.key === "Enter") { e.preventDefault(); take(); } });
   $("observe").addEventListener("click", function () { releaseAll(false); send({ type: "observe" }); });
 
+  // a station with users: log in first (the station checks every command against the user's role)
+  function login() {
+    send({ type: "login", user: $("user").value.trim(), password: $("password").value });
+    $("password").value = "";
+  }
+  $("login-button").addEventListener("click", login);
+  $("password").addEventListener("keydown", function (e) { if (e.key === "Enter") { e.preventDefault(); login(); } });
+
   function setControl(control, holder, holderName) {
     if (control !== hasControl) {
       hasControl = control;
@@ -281,7 +289,11 @@
       if (msg.speeds) speeds = msg.speeds;
       isLocal = !!msg.local; lanEnabled = !!msg.lan; shared = !!msg.shared;
       $("code").placeholder = isLocal ? "no code needed here" : "access code";
-      if (!isLocal && !lanEnabled) showMessage("this station only accepts control from its own computer", true);
+      if (!isLocal && !lanEnabled && !msg.users) showMessage("this station only accepts control from its own computer", true);
+      $("login").hidden = !msg.users;
+    } else if (msg.type === "login") {
+      $("login").hidden = true;
+      showMessage("logged in as " + msg.user + " (" + msg.role + ")", false);
     } else if (msg.type === "control") {
       setControl(!!msg.control, msg.control ? "you" : null);
       showMessage(msg.control ? "you have control" : "control given back", false);

@@ -185,7 +185,10 @@ def run(args: argparse.Namespace) -> int:
         if users is not None:
             from ..control.roles import RolePolicy
 
+            from ..control.users import register_user_verbs
+
             station.controller.commands.roles = RolePolicy()  # every command checked against the client's role
+            register_user_verbs(station.controller.commands, users)  # the admin's page manages the file
         app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
                          pendant_port=args.pendant_port, tolerance=args.tolerance,
                          allow_hosts=tuple(args.allow_host), shadows=args.shadows,
@@ -194,8 +197,6 @@ def run(args: argparse.Namespace) -> int:
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
-    if users is not None:  # every journal event names the person who held control
-        station.measurement.holder_name = lambda: app.control.holder_name
     print(f"CMM station on {station.port}; session journal {station.measurement.journal.path if station.measurement.journal else '-'}")
     print(f"Open {app.url} in a browser")
     if args.lan:

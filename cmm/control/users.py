@@ -245,3 +245,21 @@ class UserStore:
 
 def _sha(token: str) -> str:
     return hashlib.sha256(token.encode("utf-8")).hexdigest()
+
+
+def register_user_verbs(api: Any, store: UserStore) -> None:
+    """The admin's verbs of the command API (the page's Users folder, scripts with an admin's token): the role
+    table puts them in the ``administer`` group, so only an admin may; the file changes as ``cmm users`` does."""
+    from .api import REQUIRED
+
+    api.register("users", lambda client: store.users(), {}, "the users, their roles and token labels (admin)")
+    api.register("add_user", lambda client, name, role, password: store.add(name, role, password),
+                 {"name": REQUIRED, "role": REQUIRED, "password": REQUIRED},
+                 "add a user with a role and a password (admin)")
+    api.register("remove_user", lambda client, name: store.remove(name), {"name": REQUIRED}, "remove a user (admin)")
+    api.register("set_password", lambda client, name, password: store.passwd(name, password),
+                 {"name": REQUIRED, "password": REQUIRED}, "set a user's password (admin)")
+    api.register("new_token", lambda client, name, label="": store.new_token(name, label),
+                 {"name": REQUIRED, "label": ""}, "an API token for a user, shown once (admin)")
+    api.register("revoke_token", lambda client, name, label: store.revoke_token(name, label),
+                 {"name": REQUIRED, "label": REQUIRED}, "revoke a user's token by its label (admin)")

@@ -40,6 +40,7 @@ from .panel_part import PartPanel
 from .panel_measure import MeasurePanel
 from .panel_routine import RoutinePanel
 from .panel_sessions import SessionsPanel
+from . import panel_users
 from .panel_status import StatusPanel, run_script
 from .panel_trends import TrendsPanel
 from .frames import alignment_text, frame_label
@@ -78,16 +79,6 @@ TABS_CSS = """<style>
 .mantine-Tabs-tab { padding-left: 0.6em !important; padding-right: 0.6em !important; }
 </style>"""
 OPERATOR_KEY = "cmm-operator"  # where the browser keeps the operator's name (localStorage)
-# The login dialog's password field: typed characters hidden (viser's text field has no password mode)
-PASSWORD_JS = """
-(function hide(n) {
-  for (const input of document.querySelectorAll("input")) {
-    const label = input.closest("div") && input.closest("div").parentElement;
-    if (label && /Password/.test(label.textContent || "")) { input.type = "password"; return; }
-  }
-  if (n > 0) setTimeout(() => hide(n - 1), 200);
-})(50);
-"""
 # The start dialog's name field filled from the browser's saved name, then its Start pressed, as the operator
 # would: the value goes through the field's own input event (React's onChange), so the station hears it.
 OPERATOR_JS = """
@@ -518,40 +509,17 @@ class ClientApp:
         return True
 
     def log_in(self, name: str, password: str) -> bool:
-        """A station with a user file: this tab acts as the user (name, role) from now on; its name is the
-        operator's. Refused in one sentence that does not say which part was wrong."""
-        users = getattr(self.app, "users", None)
-        if users is None:
-            return self.set_operator(name)
-        try:
-            login = users.login(str(name or "").strip(), str(password or ""))
-        except PermissionError as exc:
-            self.ctx.error(exc, "Log in")
-            return False
-        self.ctx.user, self.ctx.role = login.user, login.role
-        self.set_operator(login.user)
-        self.ctx.notify("Logged in", f"{login.user} ({login.role})", "info")
-        return True
+        """A station with a user file: this tab acts as the user from now on (:mod:`.panel_users`)."""
+        return panel_users.log_in(self, name, password)
 
-    def _login_dialog(self, gui: Any) -> None:
-        """A station with users: log in with a name and password (or observe without)."""
-        modal = gui.add_modal("Log in")
-        with modal:
-            gui.add_markdown("This station has users: log in to command it (observers see everything).")
-            name = gui.add_text("User", "")
-            password = gui.add_text("Password", "")
-
-            def go(_: Any) -> None:
-                if self.log_in(name.value, password.value):
-                    modal.close()
-            gui.add_button("Log in", color="green").on_click(go)
-            gui.add_button("Observe").on_click(lambda _: modal.close())
-        run_script(gui, PASSWORD_JS)
+    def users_action(self, verb: str, **params: Any) -> Any:
+        """The admin's Users folder: a user verb as this tab's client (the API refuses all but an admin)."""
+        return panel_users.users_action(self, verb, **params)
 
     def _start_dialog(self, gui: Any) -> None:
         """Ask who operates (the browser's saved name fills it in by itself); Skip leaves the tab unnamed."""
         if getattr(self.app, "users", None) is not None:
-            self._login_dialog(gui)
+            panel_users.login_dialog(self, gui)
             return
         if self.operator is not None:
             return
@@ -616,6 +584,8 @@ class ClientApp:
             g["take"] = take = gui.add_button("Take control", color="green")
             take.on_click(lambda _: self.take_control(g["code"].value))
             gui.add_button("Release").on_click(lambda _: self.release_control())
+        if getattr(self.app, "users", None) is not None:
+            panel_users.users_folder(self, gui)
             if self.is_local and self.control.access_code is not None:  # only the person at the station decides
                 lan_stop = gui.add_checkbox("LAN observers may stop", self.control.lan_stop)
                 lan_stop.on_update(lambda e: self.set_lan_stop(e.target.value))

@@ -392,6 +392,7 @@ class PendantServer:
                 "shared": session.grant is not None,
                 "type": "hello", "client": session.client_id, "local": session.local,
                 "code_required": not session.local, "lan": self.control.access_code is not None,
+                "users": self.users is not None,
                 "speeds": self._speeds(), "deadman_ms": round(self.api.jogs.grace * 1000), "state_hz": self.state_hz})
             if "code" in msg:
                 await self._take(session, msg.get("code"))
