@@ -1,4 +1,4 @@
-"""Non-finite or absurd numbers get a sentence everywhere, with formatted numbers (issue 34: a move speed of 1e308
+"""Non-finite or absurd numbers get a sentence everywhere, with formatted numbers (a move speed of 1e308
 was refused as "cannot convert float infinity to integer", a 1e308 target printed a 300-digit number, a DMIS GOTO
 to 1e308 overflowed in the motion rails). Through the command API, the page's Go to, DMIS and the command line,
 on the in-process simulator (virtual clock). I++ is covered in test_ippdme_handover.py."""

@@ -1,4 +1,4 @@
-"""The under-load benchmark's CPU hogs run at normal priority, as its docstring says (issue 34: it raised its own
+"""The under-load benchmark's CPU hogs run at normal priority, as its docstring says (it raised its own
 priority first and the hogs, started after, inherited nice -10)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""`cmm fit --help` and a 5-point least-squares fit load no heavy module (issue 36, item 6: 7 to 33 s to start
+"""`cmm fit --help` and a 5-point least-squares fit load no heavy module (7 to 33 s to start
 on a busy machine): scipy, trimesh, igl and the GD&T / criteria / mesh code are imported only when a command
 needs them. Checked by the modules loaded in a fresh interpreter, not by a time."""
 

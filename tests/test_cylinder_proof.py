@@ -62,7 +62,7 @@ def test_minzone_of_a_short_rough_band_is_honestly_not_proven():
     data = ka.cylinder(C3, [0.2, 0.3, 0.9], 20.0, m=150, length=5.0, form=0.05)
     res = fc.fit("cylinder", data.points, "minzone")
     ls = fit_ls.fit_cylinder(data.points)
-    # a short band (issue 36): the axes searched are those within SHORT_AXIS_DEG / 2 of the LS axis, not
+    # a short band: the axes searched are those within SHORT_AXIS_DEG / 2 of the LS axis, not
     # atan(5 / 40) = 7.1 deg (where thinner zones turned away from the band are another feature)
     assert np.degrees(np.arccos(min(1.0, abs(float(res.direction @ ls.direction))))) <= fc.SHORT_AXIS_DEG / 2 + 1e-9
     if not res.warnings:
@@ -166,7 +166,7 @@ def test_an_optimum_near_the_start_is_proven_with_its_neighbourhood_bounded(meth
 
 def test_a_short_band_records_its_narrower_cone_and_the_gap():
     """The recorded domain is the cone actually searched (SHORT_AXIS_DEG / 2 about the LS axis for a band shorter
-    than half its diameter, issue 36) and, when not proven, the gap in um, as the warning says."""
+    than half its diameter) and, when not proven, the gap in um, as the warning says."""
     data = ka.cylinder(C3, [0.2, 0.3, 0.9], 20.0, m=150, length=5.0, form=0.05)
     res = fc.fit("cylinder", data.points, "minzone")
     proof = res.summary()["proof"]

@@ -1,4 +1,4 @@
-"""Control hand-over to I++ clients (issue 34): an I++ client that connects while the holder's machine moves gets an
+"""Control hand-over to I++ clients: an I++ client that connects while the holder's machine moves gets an
 I++ error naming the holder, and the motion goes on; once the holder stands still and releases, it connects.
 
 The simulated station in-process on its virtual clock (paced), a real I++ client over TCP on 127.0.0.1.
@@ -57,7 +57,7 @@ def test_an_i_client_does_not_take_control_from_a_holder_whose_machine_moves(ser
 
 
 def test_absurd_numbers_get_the_right_error_and_a_sentence_in_the_journal(served):
-    """Issue 34: a PtMeas with X 1e308 got a bare error of the wrong kind; a 1e308 target was written as a
+    """a PtMeas with X 1e308 got a bare error of the wrong kind; a 1e308 target was written as a
     300-digit number. Both GoTo and PtMeas get 1008 (target out of the machine volume) and the session journal
     says why, with the number formatted."""
     server, station = served
@@ -76,7 +76,7 @@ def test_absurd_numbers_get_the_right_error_and_a_sentence_in_the_journal(served
 
 
 def test_one_error_for_one_oversized_line(served):
-    """Issue 34: one 10 MB line without a newline got about 150 protocol errors; it gets one, and the client's
+    """one 10 MB line without a newline got about 150 protocol errors; it gets one, and the client's
     next command is served."""
     server, station = served
     with connected(server) as c:

@@ -40,7 +40,7 @@ def test_a_reply_torn_by_a_descheduled_host_is_taken_from_the_buffer():
 
 
 def test_an_idle_reply_held_up_for_seconds_is_retried_and_counted_not_a_warning_nor_a_fault():
-    """Issue 34: a retry that succeeded is counted (Diagnostics), not a red warning. A link that stays silent for
+    """a retry that succeeded is counted (Diagnostics), not a red warning. A link that stays silent for
     seconds (the resynchronisation's markers unanswered too: replies lost, not late) is a warning."""
     port, bus, mods = still_bus()
     assert bus.still()
@@ -110,7 +110,7 @@ def test_during_motion_a_simulator_process_that_answers_every_command_late_is_sl
 
 
 def test_occasional_late_replies_on_a_healthy_idle_link_are_counted_without_a_warning():
-    """Issue 34: 65 red 'did not answer NOP in time ... retrying' warnings in 46 minutes on a healthy idle link.
+    """65 red 'did not answer NOP in time ... retrying' warnings in 46 minutes on a healthy idle link.
     One reply in 400 late (each recovered by a retry) is far below the retry-rate threshold: no warning at all,
     the counters show them; one in 4 is above it: a warning that states the rate and the threshold."""
     from cmm.nmc.link_health import RETRY_WARN_RATE, health_text

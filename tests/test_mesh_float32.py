@@ -1,4 +1,4 @@
-"""Meshes as they come (issue 36, item 5): an STL (float32 vertices) of a part turned and placed about 400 mm out
+"""Meshes as they come: an STL (float32 vertices) of a part turned and placed about 400 mm out
 gives the same form-only profile and best fit as the float64 mesh (within 0.1 um); before, the fit slid along the
 face on the float32 facets' 1e-5 mm unevenness (128.9 mm instead of 0.0018)."""
 

@@ -1,4 +1,4 @@
-"""Profile against partial datum reference frames (issue 36, item 4): the free DOF are fitted in the datum
+"""Profile against partial datum reference frames: the free DOF are fitted in the datum
 frame, and a combination of them the toleranced surface does not locate (a translation along the face it lies
 in) is left alone; before, a datum frame @A|B with the part turned 0.5 deg on the table gave 5.3e6 mm.
 Known answers: the part's faces with a known form, the part tilted and shifted off its nominal set-up; the

@@ -444,7 +444,7 @@ def _csv_rows(path):
 
 
 def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
-    """Issue 34: the GD&T position with datums A|B|C was dropped from the taught routine (the next part's report
+    """the GD&T position with datums A|B|C was dropped from the taught routine (the next part's report
     had no datum-referenced position) and the routine list showed the bore's location tolerance as 0. A part is
     measured by the routine, the operator adds datums A|B|C, feature control frames (position at MMC to A|B|C,
     flatness, perpendicularity to A), a position-only tolerance on the bore and a toleranced construction; the
@@ -482,7 +482,7 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
     model.set_alignment(SECOND_POSE, "manual", note="GDT2 placed")
     second = RoutineRun(again, model, st.controller, part_name="GDT2").run()
     assert second.state == "done"
-    # the run ends with the tip at the clearance plane (issue 34: it stood beside the cone at part Z 43)
+    # the run ends with the tip at the clearance plane (it stood beside the cone at part Z 43)
     assert st.controller.frame_position("machine")[2] >= st.controller.workspace.clearance_z() - 0.01
     a, b = _csv_rows(p1), _csv_rows(second.session)
     gdt_lines = {k for k in a if k[1] == "gdt"}

@@ -1,4 +1,4 @@
-"""Runs end safe (issue 34): every DMIS run and auto-measure ends at the clearance plane, so the next run can start;
+"""Runs end safe: every DMIS run and auto-measure ends at the clearance plane, so the next run can start;
 a refused or stopped run is a toast and a STOPPED status-bar state, not only a line in its folder.
 
 On the in-process simulator (virtual clock), through the command API and the page's Routine and Auto-measure panels
@@ -53,7 +53,7 @@ def _plane(station) -> float:
 
 
 def test_a_dmis_run_ends_at_the_clearance_plane_and_the_next_program_can_start(station):
-    """Issue 34: a run left the tip beside the part and the next program's first straight GOTO was refused ("the
+    """a run left the tip beside the part and the next program's first straight GOTO was refused ("the
     straight line passes 0.29 mm from the part"). The front-face program's last hit leaves the tip 5 mm in front
     of the face, below the part's top: the run now climbs to the clearance plane, and a program that goes
     straight over the part runs."""
@@ -80,7 +80,7 @@ def test_an_auto_measure_ends_at_the_clearance_plane(station):
 
 
 def test_a_refused_dmis_run_is_a_toast_and_a_stopped_status_bar(station):
-    """Issue 34: Run DMIS refused as one line of text in its folder, no toast, and the status bar back to IDLE.
+    """Run DMIS refused as one line of text in its folder, no toast, and the status bar back to IDLE.
     The refusal is a toast (an error notification) and every tab's status bar says STOPPED with the program and
     the reason until the next run starts."""
     from cmm.ui.context import PanelContext

@@ -1,4 +1,4 @@
-"""Short cylinders (issue 36, item 3): a D40 band 2 mm long with 24 hits all round; the minimum circumscribed,
+"""Short cylinders: a D40 band 2 mm long with 24 hits all round; the minimum circumscribed,
 maximum inscribed and minimum zone cylinders turned 72-89 deg from the band before. Now the axis is the band's
 (within 0.5 deg), or the fit is refused with a sentence when the hits do not know the axis well enough."""
 

@@ -1,4 +1,4 @@
-"""A start-up failure says its real cause (issue 34: every one was headed "the machine did not answer on <port>",
+"""A start-up failure says its real cause (every one was headed "the machine did not answer on <port>",
 also for a session database that was down or a full disk). ``cmm serve`` is started for real, on the built-in
 simulator; the database is a PostgreSQL URL on a port where nothing listens, the full disk a 64 kB tmpfs filled
 up (mounted when this user may, else that case is skipped)."""

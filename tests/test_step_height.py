@@ -1,4 +1,4 @@
-"""Step heights and distances between measured features (issue 36, item 2): plane to plane from the centroid of
+"""Step heights and distances between measured features: plane to plane from the centroid of
 the second to the first with the angle shown and a warning past STEP_ANGLE_WARN_DEG, axis to plane, and DMIS
 TOL/DISTB between two measured faces on the simulated station (it stopped the program before: planes that are
 not parallel within 1e-9 rad were refused)."""

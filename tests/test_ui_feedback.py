@@ -72,7 +72,7 @@ def test_face_names_and_running_status_between_moves(app):
 
 
 def test_a_paused_run_is_not_called_silent(app):
-    """Issue 34: 'link SILENT: no samples' in red while a routine stood paused (the paused run holds the machine
+    """'link SILENT: no samples' in red while a routine stood paused (the paused run holds the machine
     loop, so no samples come). Paused: the link is ok, not sampling; a link without samples otherwise is SILENT."""
     st = app.station
     wait_idle(st, 10)
@@ -144,7 +144,7 @@ def test_one_toast_per_event(app):
 
 
 def test_diagnostics_shows_the_link_counters_and_retry_rate(app):
-    """Issue 34: a retry that succeeded is counted where the operator can see it (Setup > Diagnostics), with the
+    """a retry that succeeded is counted where the operator can see it (Setup > Diagnostics), with the
     rate and the threshold above which the status bar warns."""
     with browser_tab(app) as capp:
         capp._show_trace()

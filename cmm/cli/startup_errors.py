@@ -1,4 +1,4 @@
-"""Why a station did not start, in one sentence that names the real cause (issue 34: every start-up failure was
+"""Why a station did not start, in one sentence that names the real cause (every start-up failure was
 headed "the machine did not answer on <port>", also for a full disk or a session database that was down).
 
 :func:`startup_failure` looks through the exception and its causes for, in this order: a full disk (ENOSPC,

@@ -146,6 +146,9 @@ class CommandAPI:
         self.register("state", lambda client: c.state, {},
                       "the machine's state: mode and why, homed, link, the commands allowed now, the last sample",
                       query=True)
+        self.register("link_health", lambda client: c.link_health(), {},
+                      "the link's counters (transactions, retries, late replies recovered, the last minute's retry "
+                      "rate) and the Diagnostics tab's words for them", query=True)
         self.register("job", lambda client: c.jobs.snapshot(), {},
                       "what runs now (auto-measure, routine, program, calibration), oldest first: description, "
                       "done and total (hits of a program; 0 when the job does not say) and step", query=True)

@@ -21,6 +21,7 @@ from ..machine.homing import home_axes
 from ..machine.motion import Machine, MachineState
 from ..machine.probing import CyclePath, Hit, Prober
 from ..machine.status import MotionError, MoveStatus
+from ..nmc.link_health import health_text
 from ..nmc.bus import IDLE_PATIENCE, NmcError, Preempted
 from ..nmc.transport import rest
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
@@ -367,6 +368,12 @@ class Controller:
         return {"port": str(getattr(bus, "port_name", "")), "baud": int(getattr(bus, "baud", self.config.link.baud)),
                 "firmware": self.config.link.firmware,
                 "modules": [(m.address, m.module_type, m.version) for m in (getattr(bus, "modules", None) or [])]}
+
+    def link_health(self) -> dict:
+        """The link's counters (transactions, retries, late replies recovered, the last minute's rate) and the
+        Diagnostics tab's words for them; a retry that succeeded is counted here, not shouted."""
+        stats = dict(getattr(self.machine.bus, "stats", {}) or {})
+        return {"stats": stats, "text": health_text(stats)}
 
     def trace_text(self, last: int = 30) -> str:
         """The last packets on the link (the byte trace), for the diagnostics view."""

@@ -1,4 +1,4 @@
-"""A taught program keeps the session's datums and geometric tolerances (issue 34: the routine forgot them).
+"""A taught program keeps the session's datums and geometric tolerances (the routine forgot them).
 
 A session's ``datum`` and ``gdt`` definitions name features and hits by their ids in that session; a program
 names them by FEATURE NAME and by the program's own hit ids, so a run on the next part defines the same datums

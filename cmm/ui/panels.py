@@ -30,7 +30,6 @@ from typing import Any, Callable
 import numpy as np
 
 from ..control import Refused
-from ..nmc.link_health import health_text
 from .context import OPERATOR_ERRORS, PanelContext
 from .panel_align import AlignPanel
 from .panel_calibration import CalibrationPanel
@@ -683,7 +682,7 @@ class ClientApp:
                 g["trace"] = gui.add_text("NMC bytes (Tx/Rx)", "", multiline=True, disabled=True)
                 gui.add_button("Snapshot of the bytes").on_click(lambda _: self._show_trace())
                 # late replies a retry recovered: counted here, not shouted in the status bar (docs/reliability.md)
-                g["link_health"] = gui.add_markdown(health_text(dict(getattr(self.station.machine.bus, "stats", {}))))
+                g["link_health"] = gui.add_markdown(self._link_health())
                 t, fe = self.app.following_error_series()
                 g["plot"] = gui.add_uplot(
                     (t, *fe), ({"label": "t (s)"}, {"label": "X", "stroke": "red"}, {"label": "Y", "stroke": "green"},
@@ -746,7 +745,10 @@ class ClientApp:
 
     def _show_trace(self) -> None:
         self.ctx.set("trace", "value", self.station.controller.trace_text(last=30))  # the link process's on a real port
-        self.ctx.set("link_health", "content", health_text(dict(getattr(self.station.machine.bus, "stats", {}))))
+        self.ctx.set("link_health", "content", self._link_health())
+
+    def _link_health(self) -> str:
+        return self.ctx.commands.invoke(self.ctx.who(), "link_health")["text"]
 
     def fast_refresh(self) -> None:
         """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""
