@@ -277,11 +277,14 @@ class Controller:
         self._queue.append(cmd)
         return None
 
-    def jog_release(self, client: str | None, *, wait: bool = False) -> None:
+    def jog_release(self, client: str | None, *, wait: bool = False, keep_touch: bool = False) -> None:
         """End the jog now. Does not wait for the loop unless ``wait``: a release must never queue behind
         anything (it goes first in the loop's next step)."""
         key = getattr(client, "id", client)
+        touched = self.touched(client)
         self._releases[key] = self._releases.get(key, 0) + 1
+        if keep_touch and touched:  # not the operator letting go (a front end's own stop): the touch stays taken
+            self._touched[key] = self._releases[key]
         self._release_epoch += 1
         # with a link process: it stops the jog now, whatever this process is doing, and refuses jogs sent before
         self.machine.release_now(self._release_epoch)
