@@ -89,3 +89,42 @@ def test_estop_in_the_page_wins_over_a_go_to(app, station):
         assert events == ["stop"], events
         assert station.controller.state.mode.value == "stopped"
         assert np.all(np.abs([a.velocity for a in station.machine.state.axes]) < 1e-9)
+
+
+def test_the_page_takes_one_hit_per_touch(app, station):
+    """The armed jog held down with the mouse onto the part (1280 x 800): one hit at the touch, and none more while
+    the button stays pressed 3 s of machine time longer; the operator lets go, and only a new press takes another."""
+    with bs.browser_context(viewport=LAPTOP) as context:
+        page = bs.open_page(context, app)
+        bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
+        if station.controller.state.mode.value != "idle":
+            page.capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle")
+        bs.open_tab(page, "Machine", "Jog")
+        page.capp.go_to([250.0, 190.0, 42.5], frame="machine").wait(120)  # the part's face is at Z 40 here
+        bs.tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe, "the armed jog")
+        model = station.measurement
+        before = len(model.hits)
+        button = page.get_by_role("button", name="hold Z −", exact=True)
+        button.scroll_into_view_if_needed()
+        box = button.bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        network = station.sim.network
+        pace = network.pace
+        network.set_pace(bs.HAND_PACE)
+        try:
+            page.mouse.down()
+            try:
+                bs.wait_until(lambda: len(model.hits) > before, 180.0, "the touch's hit",
+                              why=lambda: f"Z {station.machine.state.position[2]:.3f}, told {page.capp.messages[-3:]}")
+                touched = station.machine.state.time
+                bs.wait_until(lambda: station.machine.state.time > touched + 3.0, 120.0, "3 s held past the touch")
+            finally:
+                page.mouse.up()
+        finally:
+            network.set_pace(pace)
+        page.wait_for_timeout(1000)
+        assert len(model.hits) == before + 1, [model.hits[h].machine for h in sorted(model.hits)[before:]]
+        hit = model.hits[max(model.hits)]
+        assert hit.mode == "manual"
+        assert station.machine.state.position[2] > hit.machine[2] + 0.5  # backed off, and stayed there

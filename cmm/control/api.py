@@ -112,10 +112,10 @@ class CommandAPI:
                       "hold (machine clock; the dead-man counts from then); settle: s after a release in which "
                       "holds are late events and dropped; on_error(text), in process: an error the machine loop "
                       "finds later")
-        self.register("jog_release", lambda client, let_go=False: c.jogs.release(client, let_go=let_go),
-                      {"let_go": False},
+        self.register("jog_release", lambda client, let_go=False, lapse=False: c.jogs.release(
+                      client, let_go=let_go, lapse=lapse), {"let_go": False, "lapse": False},
                       "end the jog now (allowed to everyone who may STOP); let_go: the operator let go of a key or "
-                      "button with no jog of this front end known to run: ignored quietly (false) unless this client "
+                      "button with no jog of this front end known to run: ignored quietly (false) unless this client; lapse: the front end's own safety stop (the page went silent), not the operator letting go: a hit taken stays taken (one hit per touch) "
                       "holds control, so an observer's let-go never ends the holder's jog; true when it was sent")
         self.register("step", lambda client, axis, mm: c.step(client, axis, mm), {"axis": REQUIRED, "mm": REQUIRED},
                       "one step along a machine axis x, y or z (1 count .. 10 mm)", motion=True)

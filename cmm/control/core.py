@@ -117,7 +117,6 @@ class Controller:
         self._armed_jogger: Any = _NOBODY  # the client whose armed jog ran last (None: scripts, tests)
         self._release_epoch = 0  # all clients' releases: the link process refuses a jog sent before the last one
         self._in_poll = False
-        self._stop_local = threading.local()
         self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
         self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
         self.jobs = RunningJobs()  # what runs now (auto-measure, routine, program, calibration): the cancel verb
@@ -280,11 +279,14 @@ class Controller:
         self._queue.append(cmd)
         return None
 
-    def jog_release(self, client: str | None, *, wait: bool = False) -> None:
+    def jog_release(self, client: str | None, *, wait: bool = False, keep_touch: bool = False) -> None:
         """End the jog now. Does not wait for the loop unless ``wait``: a release must never queue behind
         anything (it goes first in the loop's next step)."""
         key = getattr(client, "id", client)
+        touched = self.touched(client)
         self._releases[key] = self._releases.get(key, 0) + 1
+        if keep_touch and touched:  # not the operator letting go (a front end's own stop): the touch stays taken
+            self._touched[key] = self._releases[key]
         self._release_epoch += 1
         # with a link process: it stops the jog now, whatever this process is doing, and refuses jogs sent before
         self.machine.release_now(self._release_epoch)
@@ -562,7 +564,6 @@ class Controller:
                 self._estop = self._estop or "emergency stop pressed"
             self.machine.inhibit = "emergency stop latched"
         failed = self._halt_now(verb)
-        self._end_jobs()
         return client, verb, at, failed is not None and not failed
 
     def answer(self, pressed: tuple[Any, str, float, bool]) -> StopReport:
@@ -598,20 +599,6 @@ class Controller:
                 return None
             failed |= set(report.silent)
         return [a.name.upper() for a in self.config.axes if a.address in failed]
-
-    def _end_jobs(self) -> None:
-        """A STOP during a routine, an auto-measure or a program ends the run too (after the hit in progress),
-        not only its current move; a jog beside a program waiting for manual hits ends alone."""
-        if getattr(self._stop_local, "busy", False):
-            return
-        motion = self.machine.motion
-        if self._job is None and (motion is None or motion.kind == "jog"):
-            return
-        self._stop_local.busy = True  # a job without a cancel of its own is cancelled by a STOP: no recursion
-        try:
-            self.jobs.cancel_all()
-        finally:
-            self._stop_local.busy = False
 
     def _when_still(self, report: StopReport, press: float, name: str) -> StopReport:
         """The stop's answer once every axis stands still (a sample taken after the press shows no velocity): no

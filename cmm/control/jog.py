@@ -135,7 +135,7 @@ class JogHolds:
                             wait=False, on_error=on_error, heard=heard)
         return note
 
-    def release(self, client: Any, *, let_go: bool = False) -> bool:
+    def release(self, client: Any, *, let_go: bool = False, lapse: bool = False) -> bool:
         """The operator let go (or went away): the jog ends now, whatever is queued. ``let_go``: a key or button
         let go with no jog of this client known to run; it ends the jog only when ``client`` may jog (holds
         control): an observer's let-go is ignored quietly, so it never ends the holder's jog. True when the
@@ -143,5 +143,5 @@ class JogHolds:
         if let_go and self.controller.policy.refusal(client, "jog") is not None:
             return False
         self._released_at[getattr(client, "id", client)] = time.monotonic()
-        self.controller.jog_release(client)
+        self.controller.jog_release(client, keep_touch=lapse)  # a lapse is no let-go: a hit taken stays taken
         return True

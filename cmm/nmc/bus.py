@@ -1072,14 +1072,15 @@ class Bus:
             self.halt_latch = latch  # before the lock: a start waiting for it is refused, not sent
             self.preempt(urgent=True)
         addresses = [m.address for m in self.modules]
-        if mode == "smooth":
-            addresses = [a for a in addresses if self.servoing(a)]
+        groups = sorted({codec.GROUP_ALL, *self.groups.values()})
+        if mode == "smooth" and not all(self.servoing(a) for a in addresses):
+            addresses, groups = [a for a in addresses if self.servoing(a)], []
         reason = ""
         with self.lock:
             if latch is not None:
                 self.halt_latch = latch
             burst = bytearray(NULLS_RESYNC)
-            for g in sorted({codec.GROUP_ALL, *self.groups.values()}) if mode != "smooth" else ():
+            for g in groups:
                 burst += codec.stop_motor(g, control)
             for a in addresses:
                 burst += codec.stop_motor(a, control)

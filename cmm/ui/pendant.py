@@ -411,7 +411,7 @@ class PendantServer:
         elif kind == "hold":
             await self._hold_button(session, msg.get("button"), heard)
         elif kind == "release":
-            self._let_go(session)
+            self._let_go(session, lapse=msg.get("lapse") is True)
         elif kind == "step":
             await self._step(session, msg.get("axis"), msg.get("mm"))
         elif kind == "call":
@@ -527,19 +527,19 @@ class PendantServer:
         if error:
             await self._error_msg(session, error, throttle=True)
 
-    def _release(self, session: _Session, *, let_go: bool = False) -> None:
+    def _release(self, session: _Session, *, let_go: bool = False, lapse: bool = False) -> None:
         """End this pendant's jog at once (the pipeline's release goes ahead of anything queued). ``let_go``: a
         key let go with no jog of this pendant running: the core ignores it unless this client holds control.
         A refused release has nothing to tell (the jog it would end is not this pendant's)."""
         session.last_note = None
-        self._station_call(lambda: self.commands.invoke(self._who(session), "jog_release", let_go=let_go))
+        self._station_call(lambda: self.commands.invoke(self._who(session), "jog_release", let_go=let_go, lapse=lapse))
 
-    def _let_go(self, session: _Session) -> None:
+    def _let_go(self, session: _Session, *, lapse: bool = False) -> None:
         """Every key, button and stick let go: this pendant's jog ends. With none of its jogs known to run, the
         release is a let-go, which the core sends on only for the holder (an observer's key-up never ends the
         holder's jog)."""
         jogging, session.jogging = session.jogging, False
-        self._release(session, let_go=not jogging)
+        self._release(session, let_go=not jogging, lapse=lapse)
 
     @staticmethod
     def _who(session: _Session) -> Any:
