@@ -23,6 +23,7 @@ viser Align tab (:mod:`cmm.ui.panel_align`) shows :meth:`AlignWizard.text` and :
 
 from __future__ import annotations
 
+import queue
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -194,6 +195,9 @@ class AlignWizard:
         self.applied = False
         self.message = ""  # the last fit or refusal, in words
         self.circle_nominals: dict[int, tuple[str, Any]] = {}
+        self._seen: set[int] = set()  # every hit counted once, by whichever path told of it first
+        self._queue: queue.Queue[int | None] = queue.Queue()
+        self._worker: threading.Thread | None = None
         self._plan_targets()
 
     def _plan_targets(self) -> None:
@@ -268,19 +272,39 @@ class AlignWizard:
     # --- hits ---------------------------------------------------------------------------------------------
 
     def listen(self) -> None:
-        """Count the model's new hits for the element in hand (until :meth:`close`)."""
-        self.model.subscribe(self._event)
+        """Count the model's new hits for the element in hand (until :meth:`close`). The model tells of a hit on
+        the control core's dispatcher thread: the wizard only queues it there, and counts and fits it on a thread
+        of its own (a fit never holds up the machine)."""
+        if self._worker is None:
+            self._worker = threading.Thread(target=self._drain, name="align-wizard", daemon=True)
+            self._worker.start()
+            self.model.subscribe(self._event)
 
     def _event(self, kind: str, info: Any) -> None:
         if kind == "hit" and self.active and isinstance(info, tuple):
-            self.hit_taken(int(info[0]))
+            self._queue.put(int(info[0]))
+
+    def _drain(self) -> None:
+        while True:
+            hid = self._queue.get()
+            try:
+                if hid is None:
+                    return
+                self.hit_taken(hid)
+            finally:
+                self._queue.task_done()
+
+    def settle(self) -> None:
+        """Wait until the hits told so far are counted (and their element fitted)."""
+        self._queue.join()
 
     def hit_taken(self, hid: int) -> None:
         """A hit was recorded: it counts for the element in hand; the element is fitted once it has its hits."""
         with self.lock:
             s = self.step
-            if s is None or not self.active or hid in s.hit_ids:
+            if s is None or not self.active or hid in self._seen:
                 return
+            self._seen.add(hid)
             s.hit_ids.append(hid)
             if s.complete:
                 self._fit(self.index)
@@ -336,8 +360,8 @@ class AlignWizard:
         p, n, _hit = self.markers()[len(s.hit_ids)]
         status = self.invoke("probe", target=[float(x) for x in p], approach=[float(-x) for x in n], frame="machine")
         hit = status.wait() if hasattr(status, "wait") else status
-        if hit is not None and self.step is s and not any(h == self.model.hit_id(hit) for h in s.hit_ids):
-            self.hit_taken(self.model.hit_id(hit))  # the listener may not be subscribed (a headless use)
+        if hit is not None:
+            self.hit_taken(self.model.hit_id(hit))  # once: the listener's copy of it is not counted again
         return hit
 
     def retake(self, element: int | None = None) -> None:
@@ -384,7 +408,10 @@ class AlignWizard:
         return done
 
     def close(self) -> None:
+        """Stop counting hits (the listener stays subscribed, idle: the model has no unsubscribe)."""
         self.active = False
+        if self._worker is not None:
+            self._queue.put(None)
 
     def _changed(self) -> None:
         if self.on_change is not None:
