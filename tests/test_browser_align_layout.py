@@ -83,7 +83,7 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app):
     IMAGES.mkdir(parents=True, exist_ok=True)
     shares = {}
     for name, size in (("1280x800", LAPTOP), ("tablet", TABLET)):
-        with bs.browser_context(size) as context:
+        with bs.browser_context(size, device_scale_factor=1) as context:  # README-sharp screenshots
             page = bs.open_page(context, app, size)
             _take_control(page, app)
             shares[name] = _assert_room(page, name)
@@ -95,7 +95,7 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app):
 
 
 def test_the_prompted_plane_line_point_alignment_in_the_page(app, station):
-    with bs.browser_context(LAPTOP) as context:
+    with bs.browser_context(LAPTOP, device_scale_factor=1) as context:
         page = bs.open_page(context, app, LAPTOP)
         _take_control(page, app)
         bs.open_tab(page, "Align")
