@@ -180,15 +180,18 @@ class AlignWizard:
     :meth:`apply` sends the ``align`` verb."""
 
     def __init__(self, model: Any, invoke: Callable[..., Any], kind: str = "plane-line-point",
-                 on_change: Callable[["AlignWizard"], None] | None = None) -> None:
-        if kind not in KINDS:
+                 on_change: Callable[["AlignWizard"], None] | None = None,
+                 elements: tuple[Element, ...] | None = None) -> None:
+        if elements is None and kind not in KINDS:
             raise WizardError(f"the alignment kind must be one of {', '.join(KINDS)}, not {kind!r}")
         if model.part is None:
             raise WizardError("load a part before aligning it")
         self.model, self.invoke, self.kind = model, invoke, kind
         self.on_change = on_change
         self.lock = threading.RLock()
-        self.steps = [Step(e) for e in KINDS[kind]]
+        self.elements = KINDS[kind] if elements is None else tuple(elements)
+        self.fits = elements is None  # a routine's manual alignment: the routine fits and aligns, the wizard prompts
+        self.steps = [Step(e) for e in self.elements]
         self.index = 0
         self.active = True
         self.result: Any = None  # the AlignmentResult computed after the last element
@@ -210,7 +213,7 @@ class AlignWizard:
                 name, cyl, s.targets = circle_targets(self.model.part, e, e.hits)
                 self.circle_nominals[i] = (name, cyl)
             else:
-                s.targets = face_targets(mesh, e, np.asarray(KINDS[self.kind][0].face, float))
+                s.targets = face_targets(mesh, e, np.asarray(self.elements[0].face, float))
 
     # --- what the page shows ------------------------------------------------------------------------------
 
@@ -226,6 +229,8 @@ class AlignWizard:
         """What to do now, one sentence."""
         s = self.step
         if s is None:
+            if not self.fits:
+                return "Every hit taken: the routine aligns the part and measures on."
             if self.applied:
                 return "Alignment applied."
             return "Alignment computed: check it, then Apply (or take an element again)."
@@ -240,7 +245,10 @@ class AlignWizard:
             return f"the {self.circle_nominals[i][0]} at the markers"
         if e.kind == "hits":
             return "the part at the markers"
-        face = {(0, 0, 1): "top", (0, -1, 0): "front", (-1, 0, 0): "left"}.get(tuple(e.face or ()), "marked")
+        face = {(0, 0, 1): "top", (0, -1, 0): "front", (-1, 0, 0): "left"}.get(
+            tuple(float(round(v, 6)) for v in e.face or ()), "marked")
+        if not self.fits:  # a routine's datum: its name
+            return f"{e.name.split(' (')[0]} at the marker{'s' if e.hits > 1 else ''}"
         return f"the {face} face at the marker{'s' if e.hits > 1 else ''}"
 
     def markers(self) -> list[tuple[np.ndarray, np.ndarray, bool]]:
@@ -313,7 +321,7 @@ class AlignWizard:
     def _fit(self, i: int) -> None:
         s = self.steps[i]
         e = s.element
-        if e.kind == "hits":
+        if e.kind == "hits" or not self.fits:
             s.feature = None
         else:
             params: dict[str, Any] = {"kind": e.kind, "hits": list(s.hit_ids), "name": f"ALN {e.name}"}
@@ -333,9 +341,9 @@ class AlignWizard:
                 return
             self.message = f"{e.name} fitted: {describe(s.feature)}"
         # on to the first element still without its fit (an element taken again: the later ones stand)
-        self.index = next((k for k, t in enumerate(self.steps)
-                           if not t.complete or (t.feature is None and t.element.kind != "hits")), len(self.steps))
-        if self.done:
+        self.index = next((k for k, t in enumerate(self.steps) if not t.complete or (
+            self.fits and t.feature is None and t.element.kind != "hits")), len(self.steps))
+        if self.done and self.fits:
             self._compute()
 
     def _compute(self) -> None:
@@ -419,6 +427,50 @@ class AlignWizard:
                 self.on_change(self)
             except Exception:  # noqa: BLE001 - a page that went away must not stop the counting
                 pass
+
+
+def routine_elements(routine: Any, datums: list[str]) -> tuple[Element, ...]:
+    """A routine's manual 3-2-1 as the wizard's elements: 3 hits on the primary datum plane, 2 on the secondary, 1
+    on the tertiary (:data:`cmm.measurement.routine.MANUAL_HITS`), each on the CAD face of its nominal plane."""
+    out = []
+    for what, kind, n, d in zip(("primary", "secondary", "tertiary"), ("plane", "line", "point"), (3, 2, 1), datums):
+        nom = routine.feature(d).nominal
+        if not nom or nom.get("kind") != "plane":
+            raise WizardError(f"the manual alignment needs the nominal plane of {d}")
+        normal = np.asarray(nom["normal"], float)
+        out.append(Element(f"{d} ({what} datum)", kind, n, tuple(float(v) for v in normal / np.linalg.norm(normal))))
+    return tuple(out)
+
+
+def routine_manual_hits(run: Any, wizard_for: Callable[[list[str]], "AlignWizard"]) -> Callable[[str, int], list[int]]:
+    """A routine run's ``manual_hits(prompt, n)`` that the wizard prompts: on the first datum it starts the wizard
+    (``wizard_for(datums)``: the front end's, so its page shows the markers and the counts); each call waits until
+    the element in hand has its ``n`` hits and returns them. The run's progress says what to touch meanwhile; a
+    cancel of the run ends the wait."""
+    state: dict[str, Any] = {}
+
+    def hits(prompt: str, n: int) -> list[int]:
+        step = run.routine.steps[next(i for i, s in enumerate(run.routine.steps) if s["kind"] == "align")]
+        w = state.get("wizard")
+        if w is None or w.done:
+            w = state["wizard"] = wizard_for(list(step["datums"]))
+        i = w.index
+        run._tell(state="waiting", prompt=prompt)
+        while True:
+            w.settle() if w._worker is not None else None
+            if w.index > i or w.done:
+                run._tell(state="running", prompt="")
+                return list(w.steps[i].hit_ids[:n])
+            if run._cancel:
+                w.close()
+                from .routine import RoutineCancelled
+
+                raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
+            shown = f"{prompt}: {len(w.steps[i].hit_ids)} of {n} taken"
+            if run.progress.prompt != shown:
+                run._tell(prompt=shown)
+            run._stopped.wait(0.1)
+    return hits
 
 
 def describe(feature: Any) -> str:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..metrology.align import AlignmentError
 from ..measurement import alignment
-from ..measurement.align_wizard import KINDS, AlignWizard, WizardError
+from ..measurement.align_wizard import KINDS, AlignWizard, WizardError, routine_elements
 from .context import PanelContext
 
 
@@ -64,6 +64,18 @@ class AlignPanel:
             return None
         self.wizard.listen()
         self.show_wizard()
+        return self.wizard
+
+    def routine_wizard(self, routine: Any, datums: list[str]) -> AlignWizard:
+        """The wizard for a routine's manual alignment (its datums' faces marked, the hits counted; the routine
+        aligns): shown in this tab while the routine waits for the hits."""
+        if self.wizard is not None:
+            self.wizard.close()
+        self.wizard = AlignWizard(self.station.measurement, self._verb, f"routine {routine.name}",
+                                  on_change=lambda _w: self.show_wizard(), elements=routine_elements(routine, datums))
+        self.wizard.listen()
+        self.show_wizard()
+        self.ctx.notify("Manual alignment", f"routine {routine.name}: take the hits the Align tab marks")
         return self.wizard
 
     def touch_marker(self) -> Any:

@@ -177,6 +177,7 @@ class ClientApp:
         self.align = AlignPanel(self.ctx)
         self.measure = MeasurePanel(self.ctx)
         self.routine = RoutinePanel(self.ctx)
+        self.routine.align = self.align  # a routine's manual alignment is prompted by the Align tab's wizard
         self.colour_map = ColourMapPanel(self.ctx)
         self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
