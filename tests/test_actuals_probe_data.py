@@ -17,7 +17,7 @@ from netutil import SIM
 
 from cmm.calibration.records import ProbeRecord
 from cmm.control.access import Client
-from cmm.measurement.actuals import model_frame
+from cmm.metrology.actuals import model_frame
 from cmm.metrology.compensation import PretravelModel
 from cmm.session.report import features_csv, render
 from cmm.session.store import open_session

@@ -37,7 +37,7 @@ from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from ..metrology.features import proof_text
 from .export import hit_deviations
-from ..measurement.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
+from ..metrology.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
 from ..measurement.records import ConstructedRecord, FeatureRecord
 from ..metrology.characteristics import DEFAULT_TOLERANCE
 from .model import Session

@@ -32,7 +32,7 @@ from ..metrology.feature_distance import surface_distance
 from ..metrology.features import proof_text
 from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
-from ..measurement.actuals import actuals, actuals_text, model_frame
+from ..metrology.actuals import actuals, actuals_text, model_frame
 from ..measurement.model import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
 from .ids import parse_ids, parse_targets
