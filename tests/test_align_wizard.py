@@ -50,6 +50,7 @@ def test_plane_line_point_from_hand_hits_without_cad_nominals(station):
         s = w.step
         p, n, _ = w.markers()[len(s.hit_ids)]
         st.measurement.probe(p, -n).wait()
+        w.settle()
     assert w.done and w.result is not None
     line, point = w.steps[1].feature, w.steps[2].feature
     assert (line.kind, point.kind) == ("line", "point") and line.nominal is None and point.nominal is None
@@ -91,6 +92,7 @@ def test_a_hit_or_an_element_is_taken_again(station):
     top = w.steps[0].targets[0]
     pose = st.measurement.part.pose
     st.measurement.probe(pose[:3, :3] @ top[0] + pose[:3, 3], -(pose[:3, :3] @ top[1])).wait()
+    w.settle()
     wrong = w.steps[1].hit_ids[-1]
     w.retake_last_hit()
     assert wrong not in st.measurement.hits and w.steps[1].hit_ids == [] and "again" in w.text()

@@ -497,3 +497,51 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
             assert rb["actual"], key
             assert float(rb["actual"]) == pytest.approx(float(ra["actual"]), abs=0.02), (key, ra["actual"], rb["actual"])
         assert ra["result"] == rb["result"], (key, ra["result"], rb["result"])
+
+
+def test_the_wizard_prompts_the_routines_manual_alignment(taught):
+    """The routine's manual 3-2-1 is prompted by the Align tab's wizard: its datums' faces marked, the hits counted as
+    the operator takes them (here where the part really is, beside each marker), then the routine aligns and runs."""
+    import threading
+
+    from cmm.measurement.align_wizard import AlignWizard, routine_elements, routine_manual_hits
+
+    st, routine = taught
+    pose = pose_matrix((193.0, 148.0, 0.0), rz_deg=1.5)
+    st.sim.place_part(pose)
+    model = st.measurement
+    me = Client("page", local=True)
+    wizards = []
+
+    def wizard_for(datums):
+        w = AlignWizard(model, lambda verb, **p: st.controller.commands.invoke(me, verb, **p), "routine",
+                        elements=routine_elements(routine, datums))
+        w.listen()
+        wizards.append(w)
+        return w
+
+    run = RoutineRun(routine, model, st.controller, part_name="wizard part")
+    run.client = me
+    done = []
+    worker = threading.Thread(target=lambda: done.append(run.run(manual_hits=routine_manual_hits(run, wizard_for))),
+                              daemon=True)
+    worker.start()
+    import time
+
+    end = time.monotonic() + 120
+    while not wizards and time.monotonic() < end:
+        time.sleep(0.05)
+    (w,) = wizards
+    assert [s.element.name for s in w.steps] == ["TOP (primary datum)", "FRONT (secondary datum)",
+                                                 "LEFT (tertiary datum)"]
+    assert "touch TOP at the markers" in w.prompt() and [s.element.hits for s in w.steps] == [3, 2, 1]
+    for _ in range(6):
+        s = w.step
+        p, n = s.targets[len(s.hit_ids)]  # the marker (part coordinates): touched where the part really is
+        model.probe((pose @ np.array([*p, 1.0]))[:3], -(pose[:3, :3] @ n), clearance_z=90.0).wait(120)
+        w.settle()
+    assert w.done and "the routine aligns the part" in w.prompt()
+    worker.join(600)
+    assert done and done[0].state == "done", run.progress.message
+    delta = model.part.pose @ invert(pose)
+    assert np.linalg.norm(delta[:3, 3]) < 0.01

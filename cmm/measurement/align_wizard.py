@@ -23,6 +23,7 @@ viser Align tab (:mod:`cmm.ui.panel_align`) shows :meth:`AlignWizard.text` and :
 
 from __future__ import annotations
 
+import queue
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -179,21 +180,27 @@ class AlignWizard:
     :meth:`apply` sends the ``align`` verb."""
 
     def __init__(self, model: Any, invoke: Callable[..., Any], kind: str = "plane-line-point",
-                 on_change: Callable[["AlignWizard"], None] | None = None) -> None:
-        if kind not in KINDS:
+                 on_change: Callable[["AlignWizard"], None] | None = None,
+                 elements: tuple[Element, ...] | None = None) -> None:
+        if elements is None and kind not in KINDS:
             raise WizardError(f"the alignment kind must be one of {', '.join(KINDS)}, not {kind!r}")
         if model.part is None:
             raise WizardError("load a part before aligning it")
         self.model, self.invoke, self.kind = model, invoke, kind
         self.on_change = on_change
         self.lock = threading.RLock()
-        self.steps = [Step(e) for e in KINDS[kind]]
+        self.elements = KINDS[kind] if elements is None else tuple(elements)
+        self.fits = elements is None  # a routine's manual alignment: the routine fits and aligns, the wizard prompts
+        self.steps = [Step(e) for e in self.elements]
         self.index = 0
         self.active = True
         self.result: Any = None  # the AlignmentResult computed after the last element
         self.applied = False
         self.message = ""  # the last fit or refusal, in words
         self.circle_nominals: dict[int, tuple[str, Any]] = {}
+        self._seen: set[int] = set()  # every hit counted once, by whichever path told of it first
+        self._queue: queue.Queue[int | None] = queue.Queue()
+        self._worker: threading.Thread | None = None
         self._plan_targets()
 
     def _plan_targets(self) -> None:
@@ -206,7 +213,7 @@ class AlignWizard:
                 name, cyl, s.targets = circle_targets(self.model.part, e, e.hits)
                 self.circle_nominals[i] = (name, cyl)
             else:
-                s.targets = face_targets(mesh, e, np.asarray(KINDS[self.kind][0].face, float))
+                s.targets = face_targets(mesh, e, np.asarray(self.elements[0].face, float))
 
     # --- what the page shows ------------------------------------------------------------------------------
 
@@ -222,6 +229,8 @@ class AlignWizard:
         """What to do now, one sentence."""
         s = self.step
         if s is None:
+            if not self.fits:
+                return "Every hit taken: the routine aligns the part and measures on."
             if self.applied:
                 return "Alignment applied."
             return "Alignment computed: check it, then Apply (or take an element again)."
@@ -236,7 +245,10 @@ class AlignWizard:
             return f"the {self.circle_nominals[i][0]} at the markers"
         if e.kind == "hits":
             return "the part at the markers"
-        face = {(0, 0, 1): "top", (0, -1, 0): "front", (-1, 0, 0): "left"}.get(tuple(e.face or ()), "marked")
+        face = {(0, 0, 1): "top", (0, -1, 0): "front", (-1, 0, 0): "left"}.get(
+            tuple(float(round(v, 6)) for v in e.face or ()), "marked")
+        if not self.fits:  # a routine's datum: its name
+            return f"{e.name.split(' (')[0]} at the marker{'s' if e.hits > 1 else ''}"
         return f"the {face} face at the marker{'s' if e.hits > 1 else ''}"
 
     def markers(self) -> list[tuple[np.ndarray, np.ndarray, bool]]:
@@ -268,19 +280,39 @@ class AlignWizard:
     # --- hits ---------------------------------------------------------------------------------------------
 
     def listen(self) -> None:
-        """Count the model's new hits for the element in hand (until :meth:`close`)."""
-        self.model.subscribe(self._event)
+        """Count the model's new hits for the element in hand (until :meth:`close`). The model tells of a hit on
+        the control core's dispatcher thread: the wizard only queues it there, and counts and fits it on a thread
+        of its own (a fit never holds up the machine)."""
+        if self._worker is None:
+            self._worker = threading.Thread(target=self._drain, name="align-wizard", daemon=True)
+            self._worker.start()
+            self.model.subscribe(self._event)
 
     def _event(self, kind: str, info: Any) -> None:
         if kind == "hit" and self.active and isinstance(info, tuple):
-            self.hit_taken(int(info[0]))
+            self._queue.put(int(info[0]))
+
+    def _drain(self) -> None:
+        while True:
+            hid = self._queue.get()
+            try:
+                if hid is None:
+                    return
+                self.hit_taken(hid)
+            finally:
+                self._queue.task_done()
+
+    def settle(self) -> None:
+        """Wait until the hits told so far are counted (and their element fitted)."""
+        self._queue.join()
 
     def hit_taken(self, hid: int) -> None:
         """A hit was recorded: it counts for the element in hand; the element is fitted once it has its hits."""
         with self.lock:
             s = self.step
-            if s is None or not self.active or hid in s.hit_ids:
+            if s is None or not self.active or hid in self._seen:
                 return
+            self._seen.add(hid)
             s.hit_ids.append(hid)
             if s.complete:
                 self._fit(self.index)
@@ -289,7 +321,7 @@ class AlignWizard:
     def _fit(self, i: int) -> None:
         s = self.steps[i]
         e = s.element
-        if e.kind == "hits":
+        if e.kind == "hits" or not self.fits:
             s.feature = None
         else:
             params: dict[str, Any] = {"kind": e.kind, "hits": list(s.hit_ids), "name": f"ALN {e.name}"}
@@ -309,9 +341,9 @@ class AlignWizard:
                 return
             self.message = f"{e.name} fitted: {describe(s.feature)}"
         # on to the first element still without its fit (an element taken again: the later ones stand)
-        self.index = next((k for k, t in enumerate(self.steps)
-                           if not t.complete or (t.feature is None and t.element.kind != "hits")), len(self.steps))
-        if self.done:
+        self.index = next((k for k, t in enumerate(self.steps) if not t.complete or (
+            self.fits and t.feature is None and t.element.kind != "hits")), len(self.steps))
+        if self.done and self.fits:
             self._compute()
 
     def _compute(self) -> None:
@@ -336,8 +368,8 @@ class AlignWizard:
         p, n, _hit = self.markers()[len(s.hit_ids)]
         status = self.invoke("probe", target=[float(x) for x in p], approach=[float(-x) for x in n], frame="machine")
         hit = status.wait() if hasattr(status, "wait") else status
-        if hit is not None and self.step is s and not any(h == self.model.hit_id(hit) for h in s.hit_ids):
-            self.hit_taken(self.model.hit_id(hit))  # the listener may not be subscribed (a headless use)
+        if hit is not None:
+            self.hit_taken(self.model.hit_id(hit))  # once: the listener's copy of it is not counted again
         return hit
 
     def retake(self, element: int | None = None) -> None:
@@ -384,7 +416,10 @@ class AlignWizard:
         return done
 
     def close(self) -> None:
+        """Stop counting hits (the listener stays subscribed, idle: the model has no unsubscribe)."""
         self.active = False
+        if self._worker is not None:
+            self._queue.put(None)
 
     def _changed(self) -> None:
         if self.on_change is not None:
@@ -392,6 +427,50 @@ class AlignWizard:
                 self.on_change(self)
             except Exception:  # noqa: BLE001 - a page that went away must not stop the counting
                 pass
+
+
+def routine_elements(routine: Any, datums: list[str]) -> tuple[Element, ...]:
+    """A routine's manual 3-2-1 as the wizard's elements: 3 hits on the primary datum plane, 2 on the secondary, 1
+    on the tertiary (:data:`cmm.measurement.routine.MANUAL_HITS`), each on the CAD face of its nominal plane."""
+    out = []
+    for what, kind, n, d in zip(("primary", "secondary", "tertiary"), ("plane", "line", "point"), (3, 2, 1), datums):
+        nom = routine.feature(d).nominal
+        if not nom or nom.get("kind") != "plane":
+            raise WizardError(f"the manual alignment needs the nominal plane of {d}")
+        normal = np.asarray(nom["normal"], float)
+        out.append(Element(f"{d} ({what} datum)", kind, n, tuple(float(v) for v in normal / np.linalg.norm(normal))))
+    return tuple(out)
+
+
+def routine_manual_hits(run: Any, wizard_for: Callable[[list[str]], "AlignWizard"]) -> Callable[[str, int], list[int]]:
+    """A routine run's ``manual_hits(prompt, n)`` that the wizard prompts: on the first datum it starts the wizard
+    (``wizard_for(datums)``: the front end's, so its page shows the markers and the counts); each call waits until
+    the element in hand has its ``n`` hits and returns them. The run's progress says what to touch meanwhile; a
+    cancel of the run ends the wait."""
+    state: dict[str, Any] = {}
+
+    def hits(prompt: str, n: int) -> list[int]:
+        step = run.routine.steps[next(i for i, s in enumerate(run.routine.steps) if s["kind"] == "align")]
+        w = state.get("wizard")
+        if w is None or w.done:
+            w = state["wizard"] = wizard_for(list(step["datums"]))
+        i = w.index
+        run._tell(state="waiting", prompt=prompt)
+        while True:
+            w.settle() if w._worker is not None else None
+            if w.index > i or w.done:
+                run._tell(state="running", prompt="")
+                return list(w.steps[i].hit_ids[:n])
+            if run._cancel:
+                w.close()
+                from .routine import RoutineCancelled
+
+                raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
+            shown = f"{prompt}: {len(w.steps[i].hit_ids)} of {n} taken"
+            if run.progress.prompt != shown:
+                run._tell(prompt=shown)
+            run._stopped.wait(0.1)
+    return hits
 
 
 def describe(feature: Any) -> str:

@@ -28,6 +28,7 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from ..measurement.align_wizard import routine_manual_hits
 from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, RoutinePath, RoutineRun, routine_path,
                                    teach_routine)
 from ..session.program import ProgramError, load, part_hash
@@ -477,11 +478,15 @@ class RoutinePanel:
         stop is told."""
         run = self.run_
         cycle = self.ctx.begin_cycle(f"routine {run.routine.name}" + (f" on {name}" if name else ""))
+        align = getattr(self, "align", None)  # the Align tab's wizard prompts the manual alignment's hits
+        manual = None if align is None else routine_manual_hits(
+            run, lambda datums: align.routine_wizard(run.routine, datums))
 
         def work() -> None:
             failure = None
             try:
-                self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action)  # the API runs it
+                self.ctx.commands.invoke(self.ctx.who(), "run_routine", run=run, action=action,
+                                         manual_hits=manual)  # the API runs it
             except Exception as exc:  # noqa: BLE001 - every stop is told; the machine layer stopped itself
                 failure = exc
                 if run.can_resume:  # the step's stop, or a resume that could not start (the retract refused)

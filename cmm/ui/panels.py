@@ -180,6 +180,7 @@ class ClientApp:
         self.measure = MeasurePanel(self.ctx)
         self.part = PartPanel(self.ctx)
         self.routine = RoutinePanel(self.ctx)
+        self.routine.align = self.align  # a routine's manual alignment is prompted by the Align tab's wizard
         self.colour_map = ColourMapPanel(self.ctx)
         self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
