@@ -79,8 +79,10 @@ def test_the_page_go_to_with_1e308_is_a_sentence(tmp_path_factory):
         assert not LONG_NUMBER.search(body)
 
 
-def test_cmm_run_prints_one_sentence_for_a_1e308_goto(tmp_path, capsys):
+def test_cmm_run_prints_one_sentence_for_a_1e308_goto(tmp_path, capsys, monkeypatch):
     from cmm.cli import main
+
+    monkeypatch.chdir(tmp_path)  # the run writes its output beside it
 
     program = tmp_path / "far.dmi"
     program.write_text(HEAD + "GOTO/1e308, 10, 300\nENDFIL\n")
