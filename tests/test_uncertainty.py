@@ -63,3 +63,50 @@ def test_coverage_on_the_simulator_error_model():
                 continue
             assert r["worst"] <= 2.0, (feature, name, r)
             assert r["coverage"] >= 11 / 12, (feature, name, r)
+
+
+def test_station_features_carry_their_budget_into_the_session_and_the_csv(tmp_path):
+    """On the simulated station: the bore measured by a DMIS program has a budget (U k = 2) in the journal and a
+    U column in the CSV; its diameter is within U of the true part's 30 mm."""
+    import csv
+    import io
+
+    import session_support as sup
+    from cmm.dmis.runner import run_text
+    from cmm.session.report import features_csv
+    from cmm.session.store import DirectoryStore, load_session
+
+    gen = sup.sim_station(tmp_path, "budget")
+    station = next(gen)
+    try:
+        text = """FILNAM/'bore'
+UNITS/MM, ANGDEC
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+GOTO/30, 40, 70
+GOTO/30, 40, 30
+F(BORE) = FEAT/CYLNDR, INNER, CART, 30, 40, 0, 0, 0, 1, 30, 40
+MEAS/CYLNDR, F(BORE), 8
+  PTMEAS/CART, 45.0000, 40.0000, 30, -1, 0, 0
+  PTMEAS/CART, 30.0000, 55.0000, 30, 0, -1, 0
+  PTMEAS/CART, 15.0000, 40.0000, 30, 1, 0, 0
+  PTMEAS/CART, 30.0000, 25.0000, 30, 0, 1, 0
+  PTMEAS/CART, 40.6066, 50.6066, 10, -0.707107, -0.707107, 0
+  PTMEAS/CART, 19.3934, 50.6066, 10, 0.707107, -0.707107, 0
+  PTMEAS/CART, 19.3934, 29.3934, 10, 0.707107, 0.707107, 0
+  PTMEAS/CART, 40.6066, 29.3934, 10, -0.707107, 0.707107, 0
+ENDMES
+GOTO/30, 40, 70
+ENDFIL
+"""
+        run_text(text, station, name="bore.dmi")
+        feats = list(station.measurement.features.values())
+        assert len(feats) == 1 and feats[0].budget is not None
+        U = feats[0].budget["U"]["diameter"]
+        assert 0 < U < 0.01
+        assert abs(2 * feats[0].result.radius - 30.0) <= U
+        session = load_session(DirectoryStore(station.measurement.session_dir), "budget")
+        rows = list(csv.DictReader(io.StringIO(features_csv(session))))
+        dia = next(r for r in rows if r["characteristic"] == "diameter")
+        assert float(dia["U_k2"]) == pytest.approx(U, abs=1e-6)
+    finally:
+        gen.close()

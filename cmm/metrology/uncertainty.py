@@ -345,3 +345,31 @@ def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = 
 
 def with_reference(sources: Sources, reference: Any) -> Sources:
     return replace(sources, reference=None if reference is None else tuple(float(v) for v in reference))
+
+
+def characteristic_u(name: str, expanded_u: dict[str, float] | None) -> float | None:
+    """U (k = 2) of a reported characteristic (cmm.metrology.characteristics names) from a feature's budget; None
+    where the budget has no term for it (form, constructed values)."""
+    if not expanded_u:
+        return None
+    if name == "diameter":
+        return expanded_u.get("diameter")
+    if name == "half angle":
+        return expanded_u.get("half_angle_deg")
+    if name.startswith("location"):
+        return expanded_u.get("offset")
+    if name.startswith("position"):  # the diameter 2 |deviation|: conservatively all three coordinates
+        xyz = [expanded_u.get(k) for k in ("x", "y", "z")]
+        return None if any(v is None for v in xyz) else 2.0 * math.sqrt(sum(v * v for v in xyz))  # type: ignore[operator]
+    return None
+
+
+def feature_budget(kind: str, method: str, points: Any, fit: Any, sources: Sources | None = None) -> dict | None:
+    """The budget of a station feature as its record keeps it (``{"U": .., "u_c": .., "terms": ..}``), or None
+    when none is defined (criteria other than least squares, kinds without one, too few hits)."""
+    if method != "ls" or kind not in ("plane", "circle", "sphere", "cylinder", "cone", "point"):
+        return None
+    try:
+        return budget(kind, points, fit, sources).summary()
+    except Exception:  # noqa: BLE001 - the budget is help; the feature stands without one
+        return None
