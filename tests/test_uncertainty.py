@@ -5,6 +5,7 @@ sphere cap with their default plans (benchmarks/bench_uncertainty.py runs every 
 from __future__ import annotations
 
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -66,8 +67,8 @@ def test_coverage_on_the_simulator_error_model():
 
 
 def test_station_features_carry_their_budget_into_the_session_and_the_csv(tmp_path):
-    """On the simulated station: the bore measured by a DMIS program has a budget (U k = 2) in the journal and a
-    U column in the CSV; its diameter is within U of the true part's 30 mm."""
+    """On the simulated station: the bore measured by a DMIS program has a budget (U k = 2) in the journal, a
+    comment with U in the DMIS output and a U column in the CSV; its diameter is within U of the true 30 mm."""
     import csv
     import io
 
@@ -96,9 +97,11 @@ MEAS/CYLNDR, F(BORE), 8
   PTMEAS/CART, 40.6066, 29.3934, 10, -0.707107, 0.707107, 0
 ENDMES
 GOTO/30, 40, 70
+OUTPUT/FA(BORE)
 ENDFIL
 """
-        run_text(text, station, name="bore.dmi")
+        result = run_text(text, station, name="bore.dmi")
+        assert re.search(r"^\$\$ FA\(BORE\): U \(k=2\) diameter 0\.00\d+, x ", result.outputs[None], re.M)
         feats = list(station.measurement.features.values())
         assert len(feats) == 1 and feats[0].budget is not None
         U = feats[0].budget["U"]["diameter"]

@@ -99,6 +99,7 @@ class Budget:
     kind: str
     values: dict[str, float]
     terms: list[Term] = field(default_factory=list)
+    reference: tuple[float, ...] | None = None  # the point the machine's and thermal errors were taken about
 
     def combined(self) -> dict[str, float]:
         return {k: math.sqrt(sum(t.u.get(k, 0.0) ** 2 for t in self.terms)) for k in self.values}
@@ -110,7 +111,8 @@ class Budget:
     def summary(self) -> dict[str, Any]:
         """JSON-ready: values, U (k = 2) and the terms (standard uncertainties, mm / deg)."""
         return {"k": K_COVERAGE, "U": self.expanded(), "u_c": self.combined(),
-                "terms": [{"source": t.source, "note": t.note, "u": t.u} for t in self.terms]}
+                "terms": [{"source": t.source, "note": t.note, "u": t.u} for t in self.terms],
+                "reference": None if self.reference is None else [float(v) for v in self.reference]}
 
     def text(self) -> str:
         """The budget as lines for the feature's detail."""
@@ -335,7 +337,7 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
         for t in terms:
             if "half_angle_deg" in t.u:
                 t.u["half_angle_deg"] = float(t.u["half_angle_deg"])
-    return Budget(kind, base, terms)
+    return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference)
 
 
 def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = None) -> dict[str, float]:
