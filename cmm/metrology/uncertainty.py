@@ -375,3 +375,26 @@ def feature_budget(kind: str, method: str, points: Any, fit: Any, sources: Sourc
         return budget(kind, points, fit, sources).summary()
     except Exception:  # noqa: BLE001 - the budget is help; the feature stands without one
         return None
+
+
+def plan_note(kind: str, points: Any, nominal: Any = None, tolerance: dict[str, float] | None = None,
+              sources: Sources | None = None) -> str:
+    """A sentence for a hit plan whose expected U (k = 2; the budget of its exact nominal points, the form prior
+    for the sampling) is more than a quarter of the feature's tolerance zone (2 x the +- tolerance), else ""."""
+    from .characteristics import DEFAULT_TOLERANCE
+    from .fit_ls import LS_FITS
+
+    tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
+    x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    try:
+        fit = LS_FITS[kind](x, nominal=nominal) if nominal is not None and kind in ("cylinder", "cone") else \
+            LS_FITS[kind](x)
+        expected = budget(kind, x, fit, sources).expanded()
+    except Exception:  # noqa: BLE001 - no expectation: nothing to say
+        return ""
+    name, value, zone = ("diameter", expected.get("diameter"), 2 * tol["size"]) if "diameter" in expected else (
+        ("location", expected.get("offset"), 2 * tol["location"]) if "offset" in expected else ("", None, 0.0))
+    if value is None or value <= zone / 4:
+        return ""
+    return (f"the expected uncertainty of the {name} with these {len(x)} hits is U = {value * 1000:.1f} um (k=2), "
+            f"more than a quarter of its {zone:.3f} mm tolerance zone: take more hits, or accept a U that large")
