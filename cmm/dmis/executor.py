@@ -357,6 +357,9 @@ class Executor(VendorStatements):
                 a = self.actual(s, lab)
                 pending.append(a)
                 self.emit(actual_line(a, self.frame, self.scale, self.angle_scale))
+                u_line = self._uncertainty_line(a)
+                if u_line:
+                    self.emit(u_line)
             elif lab.type == "F":
                 nom = self.nominals.get(lab.name)
                 if nom is None:
@@ -383,6 +386,15 @@ class Executor(VendorStatements):
                 after_tolerance = True
             else:
                 raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
+
+    def _uncertainty_line(self, a: Actual) -> str:
+        """A comment with the feature's expanded uncertainty (k = 2, cmm.metrology.uncertainty), or ""."""
+        f = self.model.features.get(a.feature_id) if a.feature_id is not None else None
+        expanded = ((getattr(f, "budget", None) or {}).get("U")) if f is not None else None
+        if not expanded:
+            return ""
+        parts = [f"{k} {v / (1.0 if k.endswith('_deg') else self.scale):.5f}" for k, v in expanded.items()]
+        return f"$$ FA({a.label}): U (k=2) " + ", ".join(parts)
 
     def _to_model(self, ev: Evaluation, features: list[Actual]) -> None:
         """The station's report carries the DMIS tolerance too (where the model has the same characteristic):

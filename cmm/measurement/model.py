@@ -78,12 +78,16 @@ class Feature:
     result: FitResult
     nominal: NominalFeature | None = None
     tolerance: dict[str, float] | None = None  # {"size", "form", "location", "position"}: DEFAULT_TOLERANCE otherwise
+    budget: dict[str, Any] | None = None  # the uncertainty budget (cmm.metrology.uncertainty.feature_budget)
 
     def record(self, probe: str | None = None) -> FeatureRecord:
         """The feature as journalled (``probe``: the probe(s) that took its hits)."""
-        return FeatureRecord.of(self.result, id=self.id, name=self.name, hit_ids=self.hit_ids,
-                                nominal=None if self.nominal is None else self.nominal.to_dict(),
-                                tolerance=self.tolerance, probe=probe)
+        rec = FeatureRecord.of(self.result, id=self.id, name=self.name, hit_ids=self.hit_ids,
+                               nominal=None if self.nominal is None else self.nominal.to_dict(),
+                               tolerance=self.tolerance, probe=probe)
+        if self.budget is not None:
+            rec.fit["budget"] = self.budget  # U (k = 2) per value and its terms, kept with the fit
+        return rec
 
 
 @dataclass
@@ -545,13 +549,19 @@ class MeasurementModel:
             result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
         except FitError as exc:
             raise MeasurementError(str(exc)) from None
+        from ..metrology.uncertainty import Sources, feature_budget
+
+        origin = None if part is None else tuple(np.asarray(part.pose, float)[:3, 3])
+        budget = feature_budget(kind, method, np.array([h.point for h in hits], float).reshape(-1, 3), result,
+                                Sources(reference=origin))
         with self.lock:
             if feature_id is None:
                 fid = self._next_feature
                 self._next_feature += 1
             else:
                 fid = feature_id
-            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal, tolerance)
+            feature = Feature(fid, name or f"{kind} {fid}", kind, method, list(hit_ids), result, nominal, tolerance,
+                              budget)
             self._record_feature(feature)
             self.features[fid] = feature
         self._notify("feature", feature)

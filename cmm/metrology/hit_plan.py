@@ -220,7 +220,14 @@ def plan_feature(mesh: trimesh.Trimesh, pose: Any, nominal_local: NominalFeature
     if fit_kind in ("cylinder", "cone") and (~keep).any():
         notes.append(f"{int((~keep).sum())} planned hits are not on the surface or not reachable: the rest may not "
                      f"determine the {fit_kind}")
-    plan = HitPlan(fit_kind, nom.transformed(T), machine_pts, machine_app, clearance_z,
+    from .uncertainty import Sources, plan_note
+
+    nominal_m = nom.transformed(T)
+    expectation = plan_note(fit_kind, machine_pts, nominal_m.params if fit_kind in ("cylinder", "cone") else None,
+                            sources=Sources(reference=tuple(T[:3, 3])))
+    if expectation:  # said before Run: the plan's hits cannot hold the default tolerance to a quarter
+        notes.append(expectation)
+    plan = HitPlan(fit_kind, nominal_m, machine_pts, machine_app, clearance_z,
                    what + (f" ({int((~keep).sum())} dropped: not on the surface)" if (~keep).any() else ""),
                    notes=tuple(notes), per_ring=count,
                    hop_z=min(hop_height(mesh, T, machine_pts, tip_radius, region=region), clearance_z))

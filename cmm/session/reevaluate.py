@@ -133,6 +133,14 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
                 continue
             refit = FeatureRecord.of(result, id=rec.id, name=rec.name, hit_ids=rec.hit_ids, kind=rec.kind,
                                      nominal=rec.nominal, tolerance=rec.tolerance, probe=rec.probe)
+            if "budget" in rec.fit:  # the uncertainty budget of the refitted hits (its terms' reference kept)
+                from ..metrology.uncertainty import Sources, feature_budget
+
+                ref = (rec.fit.get("budget") or {}).get("reference")
+                budget = feature_budget(rec.kind, fmethod, np.array([h.point for h in recs], float).reshape(-1, 3),
+                                        result, Sources(reference=None if ref is None else tuple(ref)))
+                if budget is not None:
+                    refit.fit["budget"] = budget
             events.append({**head, **refit.to_event()})
         else:
             events.append(dict(e))

@@ -420,24 +420,28 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     # the last column; machine coordinates when nothing was aligned): the same on every row of the feature
     frame = session_frame(session.state)
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
-                "actual", "deviation", "out_of_tolerance", "result", "probe",
+                "actual", "deviation", "out_of_tolerance", "result", "probe", "U_k2",
                 *[f"actual_{k.lower()}" for k in ACTUAL_COLUMNS], "frame"])
+    from ..metrology.uncertainty import characteristic_u
+
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
         where = [*actual_cells(actuals(f.kind, f.fit, frame)), frame.label]
+        expanded = (f.fit.get("budget") or {}).get("U")
         for c in f.characteristics(tols[fid]):
+            u = characteristic_u(c.name, expanded)
             w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict,
-                        f.probe or "", *where])
+                        f.probe or "", "" if u is None else f"{u:.6f}", *where])
     for rec, cs in _constructed_rows(session, default_tolerance):
         where = [*actual_cells(actuals(str(rec.result.get("kind", "")), rec.result, frame)), frame.label]
         for c in cs:
             w.writerow([c.feature, "constructed", rec.operation, "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "",
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "", "",
                         *where])
     # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
     for d, c in session_gdt(session, mesh, tols):

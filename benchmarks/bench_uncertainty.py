@@ -1,0 +1,168 @@
+"""Coverage of the uncertainty budget (cmm.metrology.uncertainty) on the simulator's error model.
+
+    python3 benchmarks/bench_uncertainty.py [--trials 200] [--seed 1]
+
+Each sample-part feature (the simulator's true geometry at its true pose) is measured ``--trials`` times with
+the station's default hit plans (plane 4 hits, cylinders and cone 2 rings of 4, the sphere cap the pole and 4 at
+45 deg). Each hit carries the simulator's error sources (cmm.sim.probe_world): the probe's pre-travel (4 um
+horizontal with a 1.5 um 3-lobed pattern at a random phase per trial, 2 um vertical) left after an isotropic
+qualification (its mean, known to u_tip), the trigger noise (0.25 um), the machine's per-axis scale and
+squareness errors (drawn within the MPE's 1/K per trial), and the part's expansion at a temperature within the
+allowance. The budget is computed from the measured hits alone; the error is the fitted value minus the true
+one. Printed per feature and value: coverage (|error| <= U), the worst |error| / U, and U / the observed spread
+(the standard deviation of the errors): targets >= 95 %, < 2, <= 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from cmm.metrology.fit_ls import LS_FITS  # noqa: E402
+from cmm.metrology.uncertainty import Sources, budget, values_of  # noqa: E402
+from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
+from cmm.sim.probe_world import ProbeModel  # noqa: E402
+
+PROBE = ProbeModel()
+U_TIP = 0.0004
+
+
+def _ring(c, axis, r, z, n, turn=0.0, half_angle=None):
+    axis = np.asarray(axis, float)
+    e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False) + turn
+    return np.array([c + z * axis + r * (math.cos(a) * e1 + math.sin(a) * e2) for a in t])
+
+
+def plans() -> dict[str, tuple[str, np.ndarray]]:
+    """Exact surface points of the default hit plans, part coordinates."""
+    out = {}
+    out["top_plane"] = ("plane", np.array([[10, 10, 40], [110, 8, 40], [112, 72, 40], [8, 70, 40.0]]))
+    bore = np.r_[_ring(np.array([30, 40, 0.0]), [0, 0, 1], 15, 8, 4), _ring(np.array([30, 40, 0.0]), [0, 0, 1], 15,
+                                                                            32, 4, math.pi / 4)]
+    out["bore"] = ("cylinder", bore)
+    boss = np.r_[_ring(np.array([70, 22, 40.0]), [0, 0, 1], 10, 3, 4), _ring(np.array([70, 22, 40.0]), [0, 0, 1], 10,
+                                                                             12, 4, math.pi / 4)]
+    out["boss"] = ("cylinder", boss)
+    c = np.array([70, 58, 39.0])
+    ring = _ring(c, [0, 0, 1], 10 * math.cos(math.pi / 4), 10 * math.sin(math.pi / 4), 4, math.pi / 4)
+    out["dome"] = ("sphere", np.r_[[c + [0, 0, 10]], ring])
+    apex, half = np.array([100, 40, 64.0]), math.atan(0.5)
+    cone = []
+    for depth, turn in ((14.4, 0.0), (21.6, math.pi / 4)):  # a fifth and four fifths of Z 52 .. 40
+        z = 64.0 - depth
+        cone.append(_ring(np.array([100, 40, z]), [0, 0, 1], depth * math.tan(half), 0.0, 4, turn))
+    out["cone"] = ("cone", np.vstack(cone))
+    return out
+
+
+_NORMALS: dict[int, np.ndarray] = {}
+
+
+def measure(kind: str, true_pts: np.ndarray, rng: np.random.Generator, pose: np.ndarray):
+    """Machine hits of exact surface points with the simulator's error sources; (hits, sources for the budget)."""
+    if id(true_pts) not in _NORMALS:
+        fit = LS_FITS[kind](true_pts) if kind != "cone" else LS_FITS[kind](true_pts, nominal={
+            "apex": [100, 40, 64.0], "direction": [0, 0, -1.0], "half_angle": math.atan(0.5)})
+        from cmm.metrology.uncertainty import _geometry, _normals
+
+        _NORMALS[id(true_pts)] = _normals(kind, _geometry(kind, fit), true_pts)
+    n = _NORMALS[id(true_pts)]
+    phase = rng.uniform(0, 2 * np.pi)
+    phi = np.arctan2(-n[:, 1], -n[:, 0])
+    s2 = n[:, 0] ** 2 + n[:, 1] ** 2
+    delta = s2 * (PROBE.pretravel_xy + PROBE.pretravel_lobe * np.cos(3 * phi + phase)) + (1 - s2) * PROBE.pretravel_z
+    delta = delta + rng.normal(0, PROBE.noise_sigma, len(delta))
+    # the isotropic qualification: the mean pre-travel over the sphere, known to U_TIP
+    qual = 0.5 * (PROBE.pretravel_xy + PROBE.pretravel_z) + rng.normal(0, U_TIP)
+    local = true_pts - (delta - qual)[:, None] * n
+    # machine geometry (scale, squareness within the MPE's 1/K) and the part's expansion about its origin
+    src = Sources(u_tip=U_TIP, lobing=PROBE.pretravel_lobe, z_xy=abs(PROBE.pretravel_xy - PROBE.pretravel_z) / 2,
+                  repeatability=PROBE.noise_sigma, reference=tuple(pose[:3, 3]))
+    h = 1e-3 / src.mpe_k
+    t = 20.0 + rng.uniform(-src.temperature_allowance, src.temperature_allowance)
+    cte = src.cte + rng.normal(0, src.cte_u)
+    machine = pose[:3, :3] @ local.T
+    machine = machine.T + pose[:3, 3]
+    rel = machine - pose[:3, 3]
+    g = np.eye(3) + np.diag(rng.uniform(-h, h, 3))
+    g[0, 1], g[0, 2], g[1, 2] = rng.uniform(-h, h, 3)
+    hits = pose[:3, 3] + rel @ g.T + rel * cte * (t - 20.0)
+    truth = pose[:3, :3] @ true_pts.T
+    return hits, truth.T + pose[:3, 3], src
+
+
+def run(trials: int, seed: int, verbose: bool = True,
+        features: tuple[str, ...] | None = None) -> dict[str, dict[str, dict[str, float]]]:
+    rng = np.random.default_rng(seed)
+    pose = TRUE_PART_POSE
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for name, (kind, pts) in plans().items():
+        if features is not None and name not in features:
+            continue
+        errs: dict[str, list[float]] = {}
+        us: dict[str, list[float]] = {}
+        true_fit = None
+        for _ in range(trials):
+            hits, truth, src = measure(kind, pts, rng, pose)
+            nominal = None
+            if kind == "cone":
+                ax = pose[:3, :3] @ [0, 0, -1.0]
+                nominal = {"apex": (pose[:3, :3] @ [100, 40, 64.0]) + pose[:3, 3], "direction": ax,
+                           "half_angle": math.atan(0.5)}
+            fit = LS_FITS[kind](hits) if nominal is None else LS_FITS[kind](hits, nominal=nominal)
+            if true_fit is None:  # the true geometry (exact points: the fit is the truth), once per feature
+                true_fit = LS_FITS[kind](truth) if nominal is None else LS_FITS[kind](truth, nominal=nominal)
+            centroid = hits.mean(axis=0)
+            b = budget(kind, hits, fit, src)
+            true_values = values_of(kind, true_fit, centroid)
+            U = b.expanded()
+            for k, v in b.values.items():
+                errs.setdefault(k, []).append(v - true_values[k])
+                us.setdefault(k, []).append(U[k])
+        out[name] = {}
+        for k in errs:
+            e, u = np.abs(np.array(errs[k])), np.array(us[k])
+            spread = float(np.std(errs[k])) or 1e-12
+            rms = float(np.sqrt(np.mean(np.square(errs[k])))) or 1e-12
+            out[name][k] = {"coverage": float(np.mean(e <= u)), "worst": float(np.max(e / np.maximum(u, 1e-15))),
+                            "U_over_spread": float(np.mean(u) / spread), "U_over_rms": float(np.mean(u) / rms),
+                            "U": float(np.mean(u)), "err_max": float(e.max())}
+            if verbose:
+                r = out[name][k]
+                unit = "deg" if k.endswith("_deg") else "um"
+                f = 1.0 if unit == "deg" else 1000.0
+                print(f"{name:10s} {k:15s} U {r['U'] * f:8.3f} {unit}  max|err| {r['err_max'] * f:8.3f}  coverage "
+                      f"{r['coverage'] * 100:5.1f} %  worst |err|/U {r['worst']:5.2f}  U/spread {r['U_over_spread']:5.2f}  "
+                      f"U/rms {r['U_over_rms']:5.2f}",
+                      flush=True)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+    res = run(args.trials, args.seed)
+    cov = [r["coverage"] for f in res.values() for r in f.values()]
+    worst = max(r["worst"] for f in res.values() for r in f.values())
+    # (an axis point's coordinate along its own axis is the hits' centroid's: never in error, U ~ 0: left out of
+    # the U / spread figures)
+    real = [r for f in res.values() for r in f.values() if r["err_max"] > 1e-9]  # values the errors move at all
+    ratio = max(r["U_over_spread"] for r in real)
+    ratio_rms = max(r["U_over_rms"] for r in real)
+    print(f"\nall values: coverage min {min(cov) * 100:.1f} %, mean {np.mean(cov) * 100:.1f} %; worst |err|/U "
+          f"{worst:.2f}; largest U / spread {ratio:.2f}, largest U / rms error {ratio_rms:.2f}")
+
+
+if __name__ == "__main__":
+    main()
