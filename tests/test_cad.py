@@ -147,6 +147,15 @@ def test_an_inch_file_comes_in_millimetres(tmp_path):
     assert sphere.params["radius"] == pytest.approx(10.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("schema, ap", [("AP203", "AP203"), ("AP214IS", "AP214"), ("AP242DIS", "AP242")])
+def test_every_step_schema_is_read(tmp_path, schema, ap):
+    path = cs.write_step(cs.filleted_box(7.5), tmp_path / f"{schema}.stp", schema=schema)
+    model = read_cad(path)
+    assert model.schema == ap and model.counts() == {"plane": 6, "cylinder": 1}
+    (fillet,) = _faces(model, "cylinder")
+    assert fillet.params["radius"] == pytest.approx(7.5, abs=1e-12) and fillet.sense == 1
+
+
 def test_an_assembly_is_flattened_with_its_placements(tmp_path):
     model = read_cad(cs.bolt_assembly(tmp_path / "assembly.step"))
     assert len(model.bodies) == 3  # the plate twice and the pin
