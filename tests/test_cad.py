@@ -244,3 +244,11 @@ def test_auto_measure_plan_at_a_pick_on_the_hole_bottom(nist_mesh):
     assert plan.kind == "plane"
     np.testing.assert_allclose(plan.nominal.params["normal"], [0, 0, 1], atol=1e-15)
     np.testing.assert_allclose(plan.points[:, 2], 25.0, atol=1e-12)
+
+
+def test_a_point_above_the_hole_is_measured_to_the_rim_not_to_the_plane_around_it(nist_mesh):
+    # 3 mm above the top face and 0.3 mm in from the hole's rim: the rim is nearest (the plane under the point is the
+    # hole's opening, not material); a foot accepted on the top plane's exact surface would read 3.000
+    point = np.array([[50.0 + 25.0 - 0.3, 50.0, 53.0]])
+    deviation = signed_deviation(nist_mesh, point).deviations[0]
+    assert deviation == pytest.approx(math.hypot(3.0, 0.3), abs=2e-3)
