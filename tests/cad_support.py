@@ -9,8 +9,9 @@ def write_step(shape, path: Path, unit: str = "MM", schema: str | None = None) -
     """Write a shape as STEP (AP214 by default; ``unit`` MM or INCH: the file's coordinates are in that unit)."""
     from OCP.Interface import Interface_Static
     from OCP.Message import Message_ProgressRange
-    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Controller, STEPControl_Writer
 
+    STEPControl_Controller.Init_s()  # defines the write.step.* parameters (before the first writer they are unknown)
     Interface_Static.SetCVal_s("write.step.unit", unit)
     if schema:
         Interface_Static.SetCVal_s("write.step.schema", schema)

@@ -147,6 +147,15 @@ def test_an_inch_file_comes_in_millimetres(tmp_path):
     assert sphere.params["radius"] == pytest.approx(10.0, abs=1e-9)
 
 
+@pytest.mark.parametrize("schema, ap", [("AP203", "AP203"), ("AP214IS", "AP214"), ("AP242DIS", "AP242")])
+def test_every_step_schema_is_read(tmp_path, schema, ap):
+    path = cs.write_step(cs.filleted_box(7.5), tmp_path / f"{schema}.stp", schema=schema)
+    model = read_cad(path)
+    assert model.schema == ap and model.counts() == {"plane": 6, "cylinder": 1}
+    (fillet,) = _faces(model, "cylinder")
+    assert fillet.params["radius"] == pytest.approx(7.5, abs=1e-12) and fillet.sense == 1
+
+
 def test_an_assembly_is_flattened_with_its_placements(tmp_path):
     model = read_cad(cs.bolt_assembly(tmp_path / "assembly.step"))
     assert len(model.bodies) == 3  # the plate twice and the pin
@@ -235,3 +244,11 @@ def test_auto_measure_plan_at_a_pick_on_the_hole_bottom(nist_mesh):
     assert plan.kind == "plane"
     np.testing.assert_allclose(plan.nominal.params["normal"], [0, 0, 1], atol=1e-15)
     np.testing.assert_allclose(plan.points[:, 2], 25.0, atol=1e-12)
+
+
+def test_a_point_above_the_hole_is_measured_to_the_rim_not_to_the_plane_around_it(nist_mesh):
+    # 3 mm above the top face and 0.3 mm in from the hole's rim: the rim is nearest (the plane under the point is the
+    # hole's opening, not material); a foot accepted on the top plane's exact surface would read 3.000
+    point = np.array([[50.0 + 25.0 - 0.3, 50.0, 53.0]])
+    deviation = signed_deviation(nist_mesh, point).deviations[0]
+    assert deviation == pytest.approx(math.hypot(3.0, 0.3), abs=2e-3)

@@ -158,29 +158,35 @@ class CadModel:
 
     # --- exact distances --------------------------------------------------------------
 
-    def refine(self, points: Array, triangles: NDArray[np.int64], mesh_closest: Array
+    def refine(self, points: Array, triangles: NDArray[np.int64], mesh_closest: Array, locate: Any = None
                ) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
         """Closest points found on the triangulation, moved onto the exact surfaces of their faces.
 
         ``points`` (n, 3, part mm), the triangle each one's closest mesh point lies on and that point. Returns the
         closest points, signed distances (+ outside the material), outward unit normals and which points were
         refined: those whose face is analytic and whose exact foot lies where the mesh found the closest point
-        (within the chordal error and the facet tilt at that distance); the others keep the mesh's values (NaN
-        distance and normal: the caller keeps its own)."""
+        (within the chordal error and, on a curved face, the facet tilt at that distance) and on the face itself:
+        ``locate(feet)`` gives the distance of each foot to the triangulation and the triangle nearest it, which must
+        be of the same face group (a point above a hole projects onto the plane around it, inside the hole: the
+        rim is nearer). The others keep the mesh's values (NaN distance and normal: the caller keeps its own)."""
         points = np.asarray(points, float).reshape(-1, 3)
         faces = self.tri_face[np.asarray(triangles, dtype=np.int64)]
         foot = np.array(mesh_closest, dtype=np.float64, copy=True).reshape(-1, 3)
         dist = np.full(len(points), np.nan)
         normal = np.full((len(points), 3), np.nan)
         done = np.zeros(len(points), dtype=bool)
-        for fi in np.unique(faces):
-            f = self.faces[int(fi)]
+        order = np.argsort(faces, kind="stable")
+        for sel in np.split(order, np.flatnonzero(np.diff(faces[order])) + 1) if len(order) else ():
+            f = self.faces[int(faces[sel[0]])]
             if not f.analytic:
                 continue
-            sel = np.nonzero(faces == fi)[0]
             q, d, n = surfaces.project(f.kind, f.params, points[sel])
-            slack = 2.0 * self.deflection + ANGLE_SLACK * np.abs(d) + 1e-9
+            slack = 2.0 * self.deflection + (0.0 if f.kind == "plane" else ANGLE_SLACK) * np.abs(d) + 1e-9
             ok = np.linalg.norm(q - foot[sel], axis=1) <= slack
+            if locate is not None and ok.any():
+                gap, tri = locate(q[ok])
+                groups = np.array([self.faces[int(k)].group for k in self.tri_face[np.asarray(tri, dtype=np.int64)]])
+                ok[np.flatnonzero(ok)] = (np.asarray(gap) <= 2.0 * self.deflection + 1e-9) & (groups == f.group)
             idx = sel[ok]
             foot[idx], dist[idx], normal[idx] = q[ok], f.sense * d[ok], f.sense * n[ok]
             done[idx] = True

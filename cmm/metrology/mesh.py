@@ -242,7 +242,11 @@ def closest_points(mesh: trimesh.Trimesh, points: ArrayLike, index: SurfaceIndex
         best_pt[sl], dist[sl], face[sl] = c, np.sqrt(np.maximum(d2, 0.0)), f
         normals[sl] = pseudo_normals(mesh, f, c)
         if cad is not None:  # analytic faces: the closest point on the exact surface
-            foot, signed, normal, exact = cad.refine(pts[sl], f, c)
+            def locate(q, index=index):
+                d2q, fq, _ = index.query(np.ascontiguousarray(q))
+                return np.sqrt(np.maximum(d2q, 0.0)), fq
+
+            foot, signed, normal, exact = cad.refine(pts[sl], f, c, locate)
             idx = np.arange(sl.start, sl.stop)[exact]
             best_pt[idx], dist[idx], normals[idx] = foot[exact], np.abs(signed[exact]), normal[exact]
         if progress is not None:

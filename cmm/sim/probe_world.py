@@ -144,7 +144,14 @@ class MeshObstacle(Obstacle):
         dv = float(np.sqrt(d2[k]))
         if self.cad is not None:
             local = self._rot.T @ (np.stack([p, c]) - self._shift).T
-            _, signed, normal, exact = self.cad.refine(local[:, :1].T, faces[k:k + 1], local[:, 1:].T)
+
+            def locate(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # among the triangles near the tip
+                world = q @ self._rot.T + self._shift
+                near = trimesh.triangles.closest_point(tris, np.repeat(world, len(faces), axis=0))
+                j = int(np.argmin(np.einsum("ij,ij->i", near - world, near - world)))
+                return np.array([float(np.linalg.norm(near[j] - world[0]))]), faces[j:j + 1]
+
+            _, signed, normal, exact = self.cad.refine(local[:, :1].T, faces[k:k + 1], local[:, 1:].T, locate)
             if exact[0]:
                 return float(signed[0]), self._rot @ normal[0]
         inside = float(np.dot(v, n)) < 0 if dv > 1e-12 else False
