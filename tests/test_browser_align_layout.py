@@ -67,7 +67,7 @@ def _assert_room(page, where):
     panel, pinned, control, tabs = m["panel"], m["pinned"], m["control"], m["tabs"]
     height = panel["bottom"] - panel["top"]
     work = panel["bottom"] - tabs["top"]
-    assert work >= 0.6 * height, f"{where}: the tabs have {work:.0f} of the panel's {height:.0f} px"
+    assert work >= 0.6 * height, f"{where}: the tabs have {work:.0f} of the panel's {height:.0f} px: {m}"
     assert pinned["bottom"] <= control["top"] + 0.5, f"{where}: the status block overlaps the Control folder: {m}"
     assert m["controlOnTop"], f"{where}: something covers the top of the Control folder"
     w, h = m["viewport"]
@@ -86,6 +86,9 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app):
         with bs.browser_context(size, device_scale_factor=1) as context:  # README-sharp screenshots
             page = bs.open_page(context, app, size)
             _take_control(page, app)
+            # measured once the panel has laid out the folded Control folder (viser applies one message at a time)
+            bs.wait_until(lambda: page.evaluate(LAYOUT_JS)["tabs"]["top"] < 0.5 * size[1], 60.0, "the panel laid out",
+                          poll=0.5)
             shares[name] = _assert_room(page, name)
             page.wait_for_timeout(1500)  # the 3-D view drawn (software WebGL)
             page.screenshot(path=str(IMAGES / f"station-{name}.png"), timeout=bs.PAGE_WAIT_MS)
