@@ -80,7 +80,10 @@ def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
     # the output has the NIST output's statements, plus the placement, in its format
     expected = (DATA / "simple_out.dms").read_text().replace("D(START) = DATSET/MCS",
                                                                  "D(START) = DATSET/MCS\n" + PLACEMENT)
-    got_lines, want_lines = out.strip().splitlines(), expected.strip().splitlines()
+    # each actual is followed by a comment with its expanded uncertainty (issue 36), which NIST's output has not
+    got_lines = [x for x in out.strip().splitlines() if not x.startswith("$$ FA(")]
+    assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(k=2\) diameter \d", out, re.M)
+    want_lines = expected.strip().splitlines()
     assert len(got_lines) == len(want_lines)
     for got, want in zip(got_lines, want_lines):
         if not re.search(r"\d+\.\d{5}", want):
