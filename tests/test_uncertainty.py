@@ -111,5 +111,11 @@ ENDFIL
         rows = list(csv.DictReader(io.StringIO(features_csv(session))))
         dia = next(r for r in rows if r["characteristic"] == "diameter")
         assert float(dia["U_k2"]) == pytest.approx(U, abs=1e-6)
+        # the same U beside the actual in the HTML report and in the page's feature tree
+        from cmm.session.report import render
+        from cmm.ui.panel_features import tree_html
+
+        assert "<th>U (k=2)</th>" in render(session) and f"<td class='muted'>{U:.4f}</td>" in render(session)
+        assert f"±{U:.4f}" in tree_html(station)
     finally:
         gen.close()

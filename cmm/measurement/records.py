@@ -109,8 +109,16 @@ class FeatureRecord:
         """Its toleranced characteristics (:func:`cmm.metrology.characteristics.characteristics`), as the
         report, the trends and the feature tree show them, at ``tolerance`` (its own when not given; over the
         defaults)."""
-        return characteristics(self.name, self.kind, self.fit, self.nominal,
-                               self.tolerance if tolerance is None else tolerance)
+        out = characteristics(self.name, self.kind, self.fit, self.nominal,
+                              self.tolerance if tolerance is None else tolerance)
+        expanded = (self.fit.get("budget") or {}).get("U")
+        if not expanded:
+            return out
+        from dataclasses import replace
+
+        from ..metrology.uncertainty import characteristic_u
+
+        return [replace(c, uncertainty=characteristic_u(c.name, expanded)) for c in out]
 
     def measured(self, hits: dict[int, Any], tolerance: dict[str, float] | None = None) -> Any:
         """The feature as geometric tolerances evaluate it (:class:`cmm.metrology.gdt_eval.MeasuredFeature`),

@@ -54,6 +54,7 @@ class Characteristic:
     note: str = ""
     check: str = ""  # why the operator must check this value (another solution fits better), or ""
     datums: str = ""  # a geometric tolerance's datum reference frame ("A|B|C", see cmm.metrology.gdt_eval)
+    uncertainty: float | None = None  # expanded U (k = 2) from the feature's budget (cmm.metrology.uncertainty)
 
     @property
     def deviation(self) -> float | None:

@@ -422,14 +422,11 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
                 "actual", "deviation", "out_of_tolerance", "result", "probe", "U_k2",
                 *[f"actual_{k.lower()}" for k in ACTUAL_COLUMNS], "frame"])
-    from ..metrology.uncertainty import characteristic_u
-
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
         where = [*actual_cells(actuals(f.kind, f.fit, frame)), frame.label]
-        expanded = (f.fit.get("budget") or {}).get("U")
         for c in f.characteristics(tols[fid]):
-            u = characteristic_u(c.name, expanded)
+            u = c.uncertainty
             w.writerow([f.name, f.kind, f.method, len(f.hit_ids), c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
@@ -584,8 +581,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     out.append(f"<div class='head'>{dl(left)}{dl(right)}</div>")
     out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>probe</th>"
                "<th class='l'>characteristic</th>"
-               "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>deviation</th><th>out of tol</th>"
-               "<th>result</th></tr></thead><tbody>")
+               "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>U (k=2)</th><th>deviation</th>"
+               "<th>out of tol</th><th>result</th></tr></thead><tbody>")
     for f, cs in per_feature:
         for k, c in enumerate(cs):
             cls = ("fail" if c.ok is False else "none" if c.ok is None else "") + (" feat" if k == 0 else "")
@@ -614,14 +611,16 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
             out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
                        f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
                        f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"
-                       f"<td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                       f"<td class='muted'>{_num(c.uncertainty)}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                        f"{result}</tr>")
     if not per_feature:
-        out.append("<tr><td class='l' colspan='10'>no features were fitted in this session</td></tr>")
+        out.append("<tr><td class='l' colspan='11'>no features were fitted in this session</td></tr>")
     out.append("</tbody></table><p class='muted'>Lengths in mm, angles in degrees. Sizes and locations against the "
                "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
                "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
-               "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic.</p>")
+               "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic. U (k=2): the expanded "
+               "uncertainty from the feature's budget (probe, machine, temperature, sampling, scatter), where it has "
+               "one.</p>")
     out.append(actuals_table(session))
     if gdt_rows:
         out.append(gdt_table(gdt_rows, session))
