@@ -285,7 +285,7 @@ TABS = {
     "Measure": ("Auto-measure", "Features", "Colour map"),
     "Routine": (),
     "Report": ("Sessions", "Trends"),
-    "Setup": ("Calibration", "Diagnostics"),
+    "Setup": ("Part", "Calibration", "Diagnostics"),
 }
 
 

@@ -1,4 +1,4 @@
-"""The page's Part tab: a part file uploaded, placed, picked with its exact surfaces, and the simulator's next part
+"""The page's Setup > Part tab: a part file uploaded, placed, picked with its exact surfaces, and the simulator's next part
 moved and turned (or refused off the table), through the command API as the page sends it."""
 
 from __future__ import annotations

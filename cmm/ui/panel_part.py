@@ -1,4 +1,4 @@
-"""The "Part" tab: load a part file (upload), place it, and on the simulator put the next part down elsewhere.
+"""The Setup tab's "Part" sub-tab: load a part file (upload), place it, and on the simulator put the next part down elsewhere.
 
 *Load part file* uploads a STEP or IGES file (read with its exact surfaces) or a mesh (STL, OBJ, PLY, 3MF, GLB);
 it is kept in the ``parts`` folder beside the session journals and loaded through the command API's ``load_part``

@@ -652,8 +652,6 @@ class ClientApp:
                 g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
                 gui.add_button("Delete hit").on_click(lambda _: self.delete_hit(int(g["hit_id"].value)))
                 gui.add_button("Undo").on_click(lambda _: self.undo())
-        with tabs.add_tab("Part"):
-            self.part.build(gui)
         with tabs.add_tab("Align"):
             self.align.build(gui)
         with tabs.add_tab("Measure"):
@@ -674,6 +672,8 @@ class ClientApp:
                 self.trends.build(gui)
         with tabs.add_tab("Setup"):
             setup = gui.add_tab_group()
+            with setup.add_tab("Part"):  # the part file, where it sits, the next part (on the simulator)
+                self.part.build(gui)
             with setup.add_tab("Calibration"):
                 self.calibration.build(gui)
             with setup.add_tab("Diagnostics"):
