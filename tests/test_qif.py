@@ -177,7 +177,7 @@ def dmis_run(tmp_path_factory):
     program = d / "qifpart.dmi"
     program.write_text("\n".join(body + [
         "T(FLAT_A) = TOL/FLAT, 0.010", "T(DIAM_B) = TOL/DIAM, -0.020, 0.020", "T(CYL_B) = TOL/CYLCTY, 0.010",
-        "T(DIAM_BOSS) = TOL/DIAM, -0.020, 0.020", "T(POS_BOSS) = TOL/POS, 2D, 0.040, DAT(A), DAT(B), DAT(C)",
+        "T(DIAM_BOSS) = TOL/DIAM, -0.020, 0.020", "T(POS_BOSS) = TOL/POS, 3D, 0.040, DAT(A), DAT(B), DAT(C)",
         "T(DIAM_SPH) = TOL/DIAM, -0.020, 0.020", "T(PERP_B) = TOL/PERPEND, 0.020, DAT(A)",
         "T(DIST_BOSS) = TOL/DISTB, NOMINL, 43.863, -0.030, 0.030",
         "OUTPUT/FA(TOP), TA(FLAT_A)", "OUTPUT/FA(BORE), TA(DIAM_B), TA(CYL_B), TA(PERP_B)",
