@@ -58,10 +58,12 @@ def _segment_distance(points, a, b):
     return np.linalg.norm(points - (a + t[:, None] * ab), axis=1)
 
 
-def assert_runs_as_previewed(cycles, recorded):
+def assert_runs_as_previewed(cycles, recorded, tail=()):
+    """``tail``: the preview's end after the last cycle (a routine's climb to the clearance plane)."""
     pts = np.asarray(recorded, float)
     assert len(pts) > 100
-    line = np.concatenate([cycles[0].polyline()[:1]] + [c.polyline()[1:] for c in cycles])
+    line = np.concatenate([cycles[0].polyline()[:1]] + [c.polyline()[1:] for c in cycles]
+                          + ([np.asarray(tail[1:], float)] if len(tail) else []))
     # every corner is passed, in order (the contact within the pre-travel and the stop)
     at = 0
     for c in cycles:
@@ -160,7 +162,8 @@ def test_a_routine_runs_the_previewed_path_with_its_alignment_after_the_hand_hit
         if recording:
             rec.__exit__()
     assert progress.state == "done" and progress.hits == len(path.cycles)  # the automatic hits: hand hits apart
-    assert_runs_as_previewed(path.cycles, _from_corner(rec.points, first.start))
+    assert path.tail and path.tail[-1][2] > path.tail[0][2] and "up to the clearance plane" in path.text()
+    assert_runs_as_previewed(path.cycles, _from_corner(rec.points, first.start), path.tail)
 
 
 def test_a_resume_preview_backs_off_the_contact_and_retracts_first(station):
@@ -191,4 +194,4 @@ def test_a_resume_preview_backs_off_the_contact_and_retracts_first(station):
     with Recorder(station) as rec:
         progress = run.resume_after_fault()
     assert progress.state == "done" and len(run.discarded) == 1
-    assert_runs_as_previewed(path.cycles, rec.points)
+    assert_runs_as_previewed(path.cycles, rec.points, path.tail)

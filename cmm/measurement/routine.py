@@ -421,6 +421,7 @@ class RoutinePath:
     features: list[str]
     hand: dict[int, list[str]] = field(default_factory=dict)
     lead: list[np.ndarray] = field(default_factory=list)
+    tail: list[np.ndarray] = field(default_factory=list)  # the run's end: from the last retract up to the clearance plane
 
     def text(self) -> str:
         """The hand-taken hits and the resume's retract, in words (the path itself is drawn)."""
@@ -431,6 +432,8 @@ class RoutinePath:
             where = f"before hit {k + 1}" if k else "first"
             words.append(f"{where}: {', '.join(prompts)} (the path goes on over hit {k + 1} from where the hand "
                          "leaves the tip)")
+        if self.tail:
+            words.append(f"at the end: up to the clearance plane, Z {float(self.tail[-1][2]):.1f} mm (machine)")
         return "; ".join(words)
 
 
@@ -475,6 +478,12 @@ def routine_path(routine: Routine, controller: Any, pose: Any, run: "RoutineRun 
     if out.lead and out.cycles and 0 not in out.hand:  # the retract's corners lead the first cycle's rapid
         c0 = out.cycles[0]
         out.cycles[0] = replace(c0, start=here, rapid=(*out.lead, *c0.rapid))
+    if out.cycles:  # the run ends at the clearance plane (cmm.measurement.run_end)
+        from .run_end import clearance_target
+
+        end = np.asarray(out.cycles[-1].retract, float)
+        top = clearance_target(controller, end)
+        out.tail = [] if top is None else [end, top]
     return out
 
 

@@ -18,11 +18,12 @@ import numpy as np
 ABOVE = 1e-3  # mm: the tip at the plane within this is at the plane
 
 
-def clearance_target(controller: Any) -> np.ndarray | None:
-    """Straight above the tip at the clearance plane (machine mm); None when no climb is needed or possible."""
+def clearance_target(controller: Any, here: Any = None) -> np.ndarray | None:
+    """Straight above the tip (or ``here``, machine mm: where a previewed run ends) at the clearance plane; None
+    when no climb is needed or possible."""
     ws = getattr(controller, "workspace", None)
     plane = None if ws is None else ws.clearance_z()
-    here = controller.frame_position("machine")
+    here = controller.frame_position("machine") if here is None else np.asarray(here, float)
     if plane is None or here is None:
         return None
     z_max = float(controller.config.axis("z").max)
