@@ -65,7 +65,7 @@ def test_wrong_column_count():
 
 def test_mesh_errors_go_to_stderr(tmp_path, capsys):
     pts = _points_file(tmp_path, "1 2 3\n")
-    assert main(["deviation", str(tmp_path / "part.iges"), str(pts)]) == 1
+    assert main(["deviation", str(tmp_path / "part.x_t"), str(pts)]) == 1
     captured = capsys.readouterr()
     assert "unsupported mesh format" in captured.err and captured.out == ""
     assert main(["deviation", str(tmp_path / "missing.stl"), str(pts)]) == 1

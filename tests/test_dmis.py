@@ -80,7 +80,7 @@ def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
     # the output has the NIST output's statements, plus the placement, in its format
     expected = (DATA / "simple_out.dms").read_text().replace("D(START) = DATSET/MCS",
                                                                  "D(START) = DATSET/MCS\n" + PLACEMENT)
-    # each actual is followed by a comment with its expanded uncertainty (issue 36), which NIST's output has not
+    # each actual is followed by a comment with its expanded uncertainty, which NIST's output has not
     got_lines = [x for x in out.strip().splitlines() if not x.startswith("$$ FA(")]
     assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(k=2\) diameter \d", out, re.M)
     want_lines = expected.strip().splitlines()

@@ -1,4 +1,4 @@
-"""Default hit plans against the expected uncertainty (issue 36, item 1): a plan whose expected U (k = 2) is more
+"""Default hit plans against the expected uncertainty: a plan whose expected U (k = 2) is more
 than a quarter of the feature's tolerance zone says so before Run (the sphere cap's 5 hits: U of the diameter
 about 15 um against the +-0.02 zone); the top face's 4 hits and the bore's 2 rings of 4 do not."""
 

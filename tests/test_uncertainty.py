@@ -1,4 +1,4 @@
-"""The uncertainty budget (issue 36, item 1): known answers for single terms, and coverage on the simulator's
+"""The uncertainty budget: known answers for single terms, and coverage on the simulator's
 error model (probe pre-travel and lobing, noise, scale and squareness, thermal) for the sample part's plane and
 sphere cap with their default plans (benchmarks/bench_uncertainty.py runs every feature, more trials)."""
 
