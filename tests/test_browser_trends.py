@@ -50,7 +50,7 @@ def test_the_trends_tab_shows_the_chart_inside_the_panel(app, station):
         chart = page.locator("svg.trend")
         chart.wait_for()
         chart.scroll_into_view_if_needed()
-        panel = page.get_by_role("button", name="E-STOP").bounding_box()  # as wide as the panel's content
+        panel = page.locator("#cmm-status").bounding_box()  # the status block: as wide as the panel's content
         svg = chart.bounding_box()
         assert svg["width"] <= panel["width"] + 40 and svg["x"] + svg["width"] <= 1280
         assert page.locator("svg.trend circle").count() == 40

@@ -507,6 +507,7 @@ def test_the_wizard_prompts_the_routines_manual_alignment(taught):
     from cmm.measurement.align_wizard import AlignWizard, routine_elements, routine_manual_hits
 
     st, routine = taught
+    st.controller.policy = OpenPolicy()  # the bench's open policy (a test before may have served a LAN policy)
     pose = pose_matrix((193.0, 148.0, 0.0), rz_deg=1.5)
     st.sim.place_part(pose)
     model = st.measurement
