@@ -121,13 +121,15 @@ def test_every_feature_kind_and_gdt_characteristic_in_qif_is_the_reports(measure
     assert root.find(".//q:InspectionOperator/q:Name", NS).text == "A. Operator"
     assert uuid.UUID(root.find("q:QPId", NS).text) and uuid.UUID(root.find(".//q:ThisResultsInstanceQPId", NS).text)
     assert root.find(".//q:ExternalFileReference/q:URI", NS).text == "numbers-report.html"
-    # expanded uncertainty: U = 2 u of the fit (the scatter-based value), on every size and position with one
+    # expanded uncertainty: the characteristic's U from the feature's budget where it has one (the report's and the
+    # CSV's value), else U = 2 u of the fit (the scatter-based value), on every size and position with one
     diam = [(f, c) for f in st.features.values() for c in f.characteristics() if c.name == "diameter"]
     assert diam
     by_name = {c["name"]: c for c in chars}
     for f, c in diam:
         q = by_name[f"{f.name} diameter"]
-        assert q["U"] == pytest.approx(2.0 * f.fit["uncertainty"]["diameter"], rel=1e-12, abs=1e-15), f.name
+        want = c.uncertainty if c.uncertainty is not None else 2.0 * f.fit["uncertainty"]["diameter"]
+        assert q["U"] == pytest.approx(want, rel=1e-12, abs=1e-15), f.name
         assert q["combined"] == pytest.approx(q["U"] / 2.0, rel=1e-12, abs=1e-15)
     assert any(c["U"] for c in chars if c["type"] == "Position")
     # the same session exported twice: the same QPId (a re-export replaces, it does not add a part)
