@@ -31,7 +31,6 @@ def hide_password(url: str) -> str:
 
 def startup_failure(exc: BaseException, *, port: Any, sessions: Any) -> str:
     """The one sentence ``cmm serve`` prints when the station did not start (see the module docstring)."""
-    from ..nmc.bus import NmcError
     from ..session.store import StoreError, is_url
 
     where = hide_password(str(sessions))
@@ -46,11 +45,11 @@ def startup_failure(exc: BaseException, *, port: Any, sessions: Any) -> str:
             return (f"the session database {where} did not answer: {first}. Start the database, or record the "
                     "sessions in a folder (--sessions DIR)")
     for e in chain:
-        if isinstance(e, OSError) and not isinstance(e, NmcError) and getattr(e, "filename", None) is not None:
+        if isinstance(e, OSError) and not _link_error(e) and getattr(e, "filename", None) is not None:
             return (f"cannot write the sessions in {where}: {e.strerror or e} ({e.filename}). Check the folder "
                     "and its permissions")
     for e in chain:
-        if isinstance(e, NmcError):
+        if _link_error(e):
             text = str(e)
             if re.search(r"\bfound \d+ modules?\b|\bfound modules\b|\bexpected \d+\b|\bmodules? \d+(, \d+)* (did not|never)", text):
                 return f"not every module answered on {port}: {text}"
@@ -58,3 +57,9 @@ def startup_failure(exc: BaseException, *, port: Any, sessions: Any) -> str:
     if is_url(sessions) and isinstance(exc, (ConnectionError, TimeoutError)):
         return f"the session database {where} did not answer: {exc}"
     return f"the station did not start on {port}: {type(exc).__name__}: {exc}"
+
+
+def _link_error(exc: BaseException) -> bool:
+    """An error of the NMC link (the driver's NmcError and its kinds), told apart without importing the driver:
+    the command line reaches the machine only through the station."""
+    return any(k.__name__ == "NmcError" for k in type(exc).__mro__)
