@@ -22,6 +22,7 @@ from typing import Any
 
 from ..machine.geometry import GeometryCorrection
 from ..metrology.compensation import ALL_PRETRAVEL_TERMS, PretravelModel
+from ..metrology.numbers_text import finite
 from ..session.toml_text import toml_key, toml_value
 
 DEFAULT_DIR = Path("calibration")
@@ -490,12 +491,9 @@ def write_sphere_certificate(path: str | Path, *, diameter: Any, serial: str, un
     the previous certificate."""
     def number(v: Any, what: str) -> float:
         try:
-            x = float(v)
-        except (TypeError, ValueError):
-            raise CalibrationError(f"the sphere's {what} must be a number in mm, got {v!r}") from None
-        if not math.isfinite(x):
-            raise CalibrationError(f"the sphere's {what} must be a number in mm, got {v!r}")
-        return x
+            return finite(v, f"the sphere's {what}")
+        except ValueError as e:
+            raise CalibrationError(str(e)) from None
 
     d = number(diameter, "diameter")
     if not 1.0 <= d <= 200.0:

@@ -29,6 +29,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+def action(sub: argparse._SubParsersAction, name: str, help_text: str, *positionals: str) -> argparse.ArgumentParser:
+    """A sub-command's action (``cmm sessions rename OLD NEW``) with its positional arguments, in one line."""
+    p = sub.add_parser(name, help=help_text)
+    for positional in positionals:
+        p.add_argument(positional)
+    return p
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The command line's parser; ``only``: the command given, whose module alone is imported (the others are
     listed without their options, so `cmm fit --help` does not load the station, numpy or scipy)."""

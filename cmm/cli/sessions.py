@@ -20,34 +20,29 @@ import sys
 import time
 from typing import Any
 
+from . import action
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--store", default=None, help="session directory or postgresql:// URL (default ./sessions)")
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     sub.add_parser("list", help="list the sessions")
-    p = sub.add_parser("show", help="summary, features and warnings of a session")
-    p.add_argument("name")
-    p = sub.add_parser("rename", help="rename a session")
-    p.add_argument("old")
-    p.add_argument("new")
-    p = sub.add_parser("delete", help="delete a session")
-    p.add_argument("name")
+    action(sub, "show", "summary, features and warnings of a session", "name")
+    action(sub, "rename", "rename a session", "old", "new")
+    p = action(sub, "delete", "delete a session", "name")
     p.add_argument("--yes", action="store_true", help="do not ask for confirmation")
-    p = sub.add_parser("export", help="export hits as CSV, the whole session as JSON and/or its results as QIF 3")
-    p.add_argument("name")
+    p = action(sub, "export", "export hits as CSV, the whole session as JSON and/or its results as QIF 3", "name")
     p.add_argument("--csv", metavar="FILE")
     p.add_argument("--json", metavar="FILE")
     p.add_argument("--qif", metavar="FILE", nargs="?", const=True,
                    help="QIF 3 Results document (default NAME.qif here)")
     p.add_argument("--program", metavar="PROGRAM.toml", help="with --qif: take the feature tolerances from a program")
     p.add_argument("--part", metavar="MESH", help="part mesh for deviations (else the recorded one if found)")
-    p = sub.add_parser("reevaluate", help="recompute points and features from the raw counts into a new session")
-    p.add_argument("name")
-    p.add_argument("new")
+    p = action(sub, "reevaluate",
+               "recompute points and features from the raw counts into a new session", "name", "new")
     p.add_argument("--tip-radius", type=float, help="tip radius in mm (default: the recorded one)")
     p.add_argument("--method", choices=("ls", "minzone", "mic", "mcc"), help="refit every feature with this criterion")
-    p = sub.add_parser("teach", help="write a measurement program (TOML) from a session")
-    p.add_argument("name")
+    p = action(sub, "teach", "write a measurement program (TOML) from a session", "name")
     p.add_argument("-o", "--output", required=True, metavar="PROGRAM.toml")
     p.add_argument("--clearance", type=float, default=10.0, help="mm above the part for moves between hits")
 

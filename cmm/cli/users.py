@@ -11,30 +11,24 @@ import getpass
 import os
 import sys
 
+from . import action
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--file", metavar="FILE", default=os.environ.get("CMM_USERS", "users.toml"),
                         help="the user file (default: CMM_USERS, else ./users.toml)")
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    p = sub.add_parser("add", help="add a user with a role and a password")
-    p.add_argument("name")
+    p = action(sub, "add", "add a user with a role and a password", "name")
     p.add_argument("--role", required=True, help="operator, programmer, metrologist or admin")
     p.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
     sub.add_parser("list", help="the users, their roles and token labels")
-    p = sub.add_parser("remove", help="remove a user (and its tokens)")
-    p.add_argument("name")
-    p = sub.add_parser("passwd", help="set a user's password")
-    p.add_argument("name")
+    action(sub, "remove", "remove a user (and its tokens)", "name")
+    p = action(sub, "passwd", "set a user's password", "name")
     p.add_argument("--password-stdin", action="store_true", help="read the password from standard input")
-    p = sub.add_parser("role", help="change a user's role")
-    p.add_argument("name")
-    p.add_argument("role")
-    p = sub.add_parser("token", help="make an API token for a program that acts as this user (shown once)")
-    p.add_argument("name")
+    action(sub, "role", "change a user's role", "name", "role")
+    p = action(sub, "token", "make an API token for a program that acts as this user (shown once)", "name")
     p.add_argument("--label", default="", help="what the token is for (revoke names it)")
-    p = sub.add_parser("revoke", help="revoke a user's token by its label")
-    p.add_argument("name")
-    p.add_argument("label")
+    action(sub, "revoke", "revoke a user's token by its label", "name", "label")
 
 
 def _password(args: argparse.Namespace) -> str:

@@ -279,13 +279,17 @@ class SessionUploader:
         self.connected, self.error = False, _words(exc)
         self.next_try = time.monotonic() + self.backoff
         self.backoff = min(self.backoff * 2.0, self.RETRY_MAX)
+        self._drop_connection()
+        self._locked.clear()
+
+    def _drop_connection(self) -> None:
+        """Close the connection if any (a dead one may fail to close: that is fine) and forget it."""
         if self._conn is not None:
             try:
                 self._conn.close()
             except Exception:  # noqa: BLE001
                 pass
         self._conn = None
-        self._locked.clear()
 
     def _session_id(self, conn: Any, name: str, created: float | None = None) -> tuple[int, bool]:
         row = conn.execute("INSERT INTO cmm_sessions (name, created) VALUES (%s, %s) ON CONFLICT (name) DO NOTHING "
@@ -412,12 +416,7 @@ class SessionUploader:
         self._wake.set()
         self._thread.join(timeout=5)
         with self._lock:
-            if self._conn is not None:
-                try:
-                    self._conn.close()
-                except Exception:  # noqa: BLE001
-                    pass
-            self._conn = None
+            self._drop_connection()
 
 
 def _read_batch(path: Path, offset: int, after: int, limit: int) -> tuple[list[tuple[int, str]], int]:
