@@ -27,6 +27,7 @@ from ..nmc.transport import rest
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
+from .liveness import Liveness
 from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
 from .api import CommandAPI
 from .jog import JogHolds
@@ -768,21 +769,26 @@ class Controller:
         return self._await(cmd, self.command_timeout if timeout == "command" else timeout)
 
     def _await(self, cmd: _Command, timeout: float | None) -> Any:
-        """The result of ``cmd`` from the loop; gives up when the loop has taken no step for ``timeout`` s (stuck)
-        or has stopped, never while it is only slow."""
-        step, since = self._steps, time.monotonic()
+        """The result of ``cmd`` from the loop; gives up when the loop has made no progress for ``timeout`` s (stuck)
+        or has stopped, never while it is only slow (:mod:`.liveness`)."""
+        live = None if timeout is None else Liveness(self._progress, timeout)
         while True:
             try:
-                return cmd.future.result(None if timeout is None else min(timeout, 0.25))
+                return cmd.future.result(0.25 if live is None else live.slice)
             except FutureTimeout:
                 pass
-            now, thread = time.monotonic(), self._thread
+            thread = self._thread
             if thread is None or not thread.is_alive():
                 raise ControlError(f"{cmd.name}: the machine loop has stopped")
-            if self._steps != step:
-                step, since = self._steps, now
-            elif timeout is not None and now - since > timeout:
+            if live is not None and live.stuck():
                 raise ControlError(f"{cmd.name}: the machine loop took no step for {timeout:g} s (it is stuck)")
+
+    def _progress(self) -> tuple[int, int, int, int]:
+        """What changes whenever the loop does anything: steps begun, and the link's transactions, retries and
+        resynchronisations (a loop patiently retrying a slow module is working, not stuck)."""
+        stats = getattr(self.machine.bus, "stats", None) or {}
+        return (self._steps, int(stats.get("transactions", 0)), int(stats.get("retries", 0)),
+                int(stats.get("resyncs", 0)))
 
     def _run_command(self, cmd: _Command, check: bool = True, internal: bool = False) -> Any:
         """Check and execute one command in the loop (or inline); link failures put the machine in fault."""
@@ -821,20 +827,30 @@ class Controller:
                 report = fn()
                 self.fault("the machine loop stopped answering")
                 return report
-        try:
+        # the direct stop was not confirmed by every module: the loop stops them, unless it is stuck. Judged by its
+        # progress (a busy computer makes it slow, not stuck); while it carries the stop out (a module slow to
+        # confirm it is retried patiently) it gets STOP_PATIENCE, and never a second stop beside it
+        live = Liveness(self._progress, STOP_TIMEOUT)
+        while True:
             try:
-                report = cmd.future.result(STOP_TIMEOUT)
+                return cmd.future.result(live.slice)
             except FutureTimeout:
-                if not cmd.future.running():
-                    raise
-                # the loop is carrying the stop out (a module slow to confirm it while all stands still is
-                # retried patiently): wait for its answer, never a second stop beside it
-                report = cmd.future.result(STOP_PATIENCE)
-        except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
+                pass
+            if cmd.future.running():
+                live.patience = STOP_PATIENCE
+            thread = self._thread
+            if thread is None or not thread.is_alive() or live.stuck():
+                break
+        if cmd.future.cancel():  # the loop never took it (nor will): this one time the caller talks to the bus
             report = fn()
-            report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
-                                report.failed_axes)
-            self.fault("the machine loop stopped answering")
+        else:
+            try:
+                return cmd.future.result(STOP_PATIENCE)
+            except FutureTimeout:
+                report = fn()
+        report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
+                            report.failed_axes)
+        self.fault("the machine loop stopped answering")
         return report
 
     def _halt_all(self, mode: str) -> list[str]:
