@@ -74,10 +74,13 @@ def _press_during_go_to(page, station, button: str):
         bs.wait_until(lambda: abs(station.machine.state.axes[0].velocity) >= 45.0, 60.0, "the Go to at speed")
         network.set_pace(PRESS_PACE)
         try:
+            # where the button is now (the status text above it may have changed its height since the move began)
+            box = target.bounding_box()
+            page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
             pressed = station.machine.state.time, float(station.machine.state.position[0])
             page.mouse.down()
             page.mouse.up()
-            bs.stop_time(station, pressed[0], f"standstill after {button}", limit=5.0)
+            bs.stop_time(station, pressed[0], f"standstill after {button} (clicked at {box})", limit=5.0)
         finally:
             network.set_pace(pace)
         bs.wait_until(lambda: status.done, 30.0, "the Go to ended")
