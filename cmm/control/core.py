@@ -27,7 +27,8 @@ from ..nmc.transport import rest
 from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
-from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, StopReport, refusal
+from .liveness import Liveness
+from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, RunStopped, StopReport, refusal
 from .api import CommandAPI
 from .jog import JogHolds
 from .rails import Workspace
@@ -52,6 +53,10 @@ LINK_ERRORS = (NmcError, OSError)  # SerialException and socket errors are OSErr
 
 EventFn = Callable[[str, dict], None]
 _NOBODY = object()
+
+
+def _press_name(why: str) -> str:
+    return "STOP" if why == "stopped by the operator" else "E-STOP"
 
 
 class _Command:
@@ -96,6 +101,9 @@ class Controller:
         self._warnings_seen = 0  # the bus's link warnings already told (see _link_warning)
         self._estop: str | None = None
         self._stopped: str | None = None
+        # the operator's STOP / E-STOP during a run (routine, program, DMIS, auto-measure, calibration): the whole
+        # run ends, not only its current move. Every further motion of the run is refused until it has ended
+        self._run_stopped: str | None = None
         self._homed = self.config.homing.method == "none"
         self._homing = False
         self._job: str | None = None
@@ -564,7 +572,21 @@ class Controller:
                 self._estop = self._estop or "emergency stop pressed"
             self.machine.inhibit = "emergency stop latched"
         failed = self._halt_now(verb)
+        self._stop_runs("stopped by the operator" if verb == "stop" else "emergency stop")
         return client, verb, at, failed is not None and not failed
+
+    def _stop_runs(self, why: str) -> None:
+        """A stop pressed while a run goes on ends the whole run: its next motion is refused (the control core's
+        checks and the machine's inhibit, for runs that move the machine directly) and its cancel is asked for
+        (a run waiting for the operator's hits ends its wait). Nothing moves on its own after the press."""
+        if self._job is None and not self.jobs.descriptions():
+            return
+        with self._lock:
+            self._run_stopped = self._run_stopped or why
+        if self.machine.inhibit is None:
+            self.machine.inhibit = f"{why}: the run ends"
+        if self._job is None:  # a run beside the loop (waiting for the operator's hits) is ended by its cancel
+            self.jobs.ask_all("cancel", unless=lambda fn: getattr(fn, "is_stop", False))
 
     def answer(self, pressed: tuple[Any, str, float, bool]) -> StopReport:
         """The loop ends the motion the press cut short; the report once every axis stands still."""
@@ -572,6 +594,10 @@ class Controller:
         do = (lambda: self._do_stop(sent=sent)) if verb == "stop" else (lambda: self._do_estop(sent=sent))
         report = self._stop(client, verb, do, sent=sent)
         return self._when_still(report, at, verb)
+
+    def _run_stopped_words(self) -> str:
+        why = self._run_stopped or ""
+        return "stopped by the operator (STOP)" if why == "stopped by the operator" else f"ended by {why}"
 
     def _may(self, client: str | None, name: str) -> None:
         why = self.policy.refusal(client, name)
@@ -660,13 +686,33 @@ class Controller:
                 self._job = description
             self._publish()
             try:
-                return fn()
-            finally:
-                with self._lock:
-                    self._job = None
-                self._publish()
-        with self.jobs.running(description, cancel or (lambda: self.stop(None)), pause=pause, resume=resume, skip=skip):
+                result = fn()
+            except BaseException as exc:
+                why = self._end_run()
+                if why is not None and not isinstance(exc, RunStopped):
+                    raise RunStopped(f"{description} ended by the operator's {_press_name(why)}: {exc}") from exc
+                raise
+            why = self._end_run()
+            if why is not None:  # the run swallowed its cut-short move: it still says it was stopped
+                raise RunStopped(f"{description} ended by the operator's {_press_name(why)}")
+            return result
+
+        def stop_it() -> None:  # the cancel verb of a run that cannot end itself: a controlled stop
+            self.stop(None)
+        stop_it.is_stop = True  # type: ignore[attr-defined]  # not asked again by the stop it is
+        with self.jobs.running(description, cancel or stop_it, pause=pause, resume=resume, skip=skip):
             return self._submit(client, "job", run, timeout=timeout)
+
+    def _end_run(self) -> str | None:
+        """The run ended (in the loop): the operator's stop that ended it (None: it was not stopped); the inhibit
+        that refused its motions is lifted (an E-STOP's latch stays until Reset)."""
+        with self._lock:
+            self._job = None
+            why, self._run_stopped = self._run_stopped, None
+        if why is not None and self.machine.inhibit == f"{why}: the run ends":
+            self.machine.inhibit = None
+        self._publish()
+        return why
 
     def run_routine(self, client: str | None, description: str, routine: Callable[["Job"], Any], *,
                     progress: Callable[[float, str], None] | None = None, timeout: float | None = None,
@@ -692,7 +738,27 @@ class Controller:
         if why is not None:
             raise Refused(why)
         with self.jobs.running(description, cancel, **holds):
-            return fn()
+            try:
+                result = fn()
+            except BaseException as exc:
+                why = self._end_beside()
+                if why is not None and not isinstance(exc, RunStopped):
+                    raise RunStopped(f"{description} ended by the operator's {_press_name(why)}: {exc}") from exc
+                raise
+            why = self._end_beside()
+            if why is not None:
+                raise RunStopped(f"{description} ended by the operator's {_press_name(why)}")
+            return result
+
+    def _end_beside(self) -> str | None:
+        """A run beside the loop ended: the operator's stop that ended it, once no other run goes on (see _end_run)."""
+        if self._job is not None or len(self.jobs.descriptions()) > 1:
+            return self._run_stopped
+        with self._lock:
+            why, self._run_stopped = self._run_stopped, None
+        if why is not None and self.machine.inhibit == f"{why}: the run ends":
+            self.machine.inhibit = None
+        return why
 
     def cancel_jobs(self, client: str | None) -> dict[str, Any]:
         """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
@@ -747,9 +813,11 @@ class Controller:
         if why is not None:
             raise Refused(why)
         st = self._current_mode()
-        if internal:  # a routine's own moves: only a fault or the E-stop latch stops them
+        if internal:  # a routine's own moves: a fault, the E-stop latch or the operator's stop of the run stop them
             if st[0] in (Mode.FAULT, Mode.ESTOPPED):
                 raise Refused(refusal(name, st[0], st[1]) or "refused")
+            if self._run_stopped is not None:
+                raise RunStopped(f"{name} refused: the run was {self._run_stopped_words()}")
             return
         why = refusal(name, st[0], st[1], st[2])
         if why is None and name in ("move", "probe", "job") and not self._homed:
@@ -768,21 +836,26 @@ class Controller:
         return self._await(cmd, self.command_timeout if timeout == "command" else timeout)
 
     def _await(self, cmd: _Command, timeout: float | None) -> Any:
-        """The result of ``cmd`` from the loop; gives up when the loop has taken no step for ``timeout`` s (stuck)
-        or has stopped, never while it is only slow."""
-        step, since = self._steps, time.monotonic()
+        """The result of ``cmd`` from the loop; gives up when the loop has made no progress for ``timeout`` s (stuck)
+        or has stopped, never while it is only slow (:mod:`.liveness`)."""
+        live = None if timeout is None else Liveness(self._progress, timeout)
         while True:
             try:
-                return cmd.future.result(None if timeout is None else min(timeout, 0.25))
+                return cmd.future.result(0.25 if live is None else live.slice)
             except FutureTimeout:
                 pass
-            now, thread = time.monotonic(), self._thread
+            thread = self._thread
             if thread is None or not thread.is_alive():
                 raise ControlError(f"{cmd.name}: the machine loop has stopped")
-            if self._steps != step:
-                step, since = self._steps, now
-            elif timeout is not None and now - since > timeout:
+            if live is not None and live.stuck():
                 raise ControlError(f"{cmd.name}: the machine loop took no step for {timeout:g} s (it is stuck)")
+
+    def _progress(self) -> tuple[int, int, int, int]:
+        """What changes whenever the loop does anything: steps begun, and the link's transactions, retries and
+        resynchronisations (a loop patiently retrying a slow module is working, not stuck)."""
+        stats = getattr(self.machine.bus, "stats", None) or {}
+        return (self._steps, int(stats.get("transactions", 0)), int(stats.get("retries", 0)),
+                int(stats.get("resyncs", 0)))
 
     def _run_command(self, cmd: _Command, check: bool = True, internal: bool = False) -> Any:
         """Check and execute one command in the loop (or inline); link failures put the machine in fault."""
@@ -821,20 +894,30 @@ class Controller:
                 report = fn()
                 self.fault("the machine loop stopped answering")
                 return report
-        try:
+        # the direct stop was not confirmed by every module: the loop stops them, unless it is stuck. Judged by its
+        # progress (a busy computer makes it slow, not stuck); while it carries the stop out (a module slow to
+        # confirm it is retried patiently) it gets STOP_PATIENCE, and never a second stop beside it
+        live = Liveness(self._progress, STOP_TIMEOUT)
+        while True:
             try:
-                report = cmd.future.result(STOP_TIMEOUT)
+                return cmd.future.result(live.slice)
             except FutureTimeout:
-                if not cmd.future.running():
-                    raise
-                # the loop is carrying the stop out (a module slow to confirm it while all stands still is
-                # retried patiently): wait for its answer, never a second stop beside it
-                report = cmd.future.result(STOP_PATIENCE)
-        except FutureTimeout:  # the loop is stuck: this one time the caller talks to the bus itself
+                pass
+            if cmd.future.running():
+                live.patience = STOP_PATIENCE
+            thread = self._thread
+            if thread is None or not thread.is_alive() or live.stuck():
+                break
+        if cmd.future.cancel():  # the loop never took it (nor will): this one time the caller talks to the bus
             report = fn()
-            report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
-                                report.failed_axes)
-            self.fault("the machine loop stopped answering")
+        else:
+            try:
+                return cmd.future.result(STOP_PATIENCE)
+            except FutureTimeout:
+                report = fn()
+        report = StopReport(report.ok, report.message + " (sent directly: the machine loop was not answering)",
+                            report.failed_axes)
+        self.fault("the machine loop stopped answering")
         return report
 
     def _halt_all(self, mode: str) -> list[str]:
@@ -925,6 +1008,7 @@ class Controller:
             self._estop = None
             self._stopped = None
             self._fault = None
+            self._run_stopped = None
         self.machine.inhibit = None
         if was_fault:
             self._event("reset", message="fault cleared: servos on where the axes stand")
@@ -960,6 +1044,12 @@ class Controller:
         self._publish()
         try:
             home_axes(self.machine, tick=self._homing_tick)
+        except Exception as exc:
+            # the press cut a search move short: the cycle was stopped, its switch was not missing
+            why = self._fault or self._estop or self._stopped or self.machine.halted
+            if why and not str(exc).startswith("homing aborted"):
+                raise MotionError(f"homing aborted: {why}") from exc
+            raise
         finally:
             with self._lock:
                 self._homing = False
@@ -1087,6 +1177,11 @@ class Controller:
             return Mode.ESTOPPED, self._estop, ""
         if self._homing:
             return Mode.HOMING, "", "homing cycle"
+        if self._job is not None and self._run_stopped is not None:  # the run unwinds after the operator's stop
+            st = m.state
+            if motion is not None or st is not None and any(abs(a.velocity) >= 1e-9 for a in st.axes):
+                return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
+            return Mode.STOPPED, f"{self._job}: {self._run_stopped}", ""
         if self._job is not None:
             return (Mode.PROBING if self._probing or (motion is not None and motion.kind == "probe") else Mode.MOVING,
                     "", self._job)

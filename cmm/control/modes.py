@@ -25,6 +25,11 @@ class Refused(MotionError):
     """A command the control core does not accept now, in an operator's words (nothing was sent to the machine)."""
 
 
+class RunStopped(MotionError):
+    """A run (routine, program, DMIS, auto-measure, calibration) ended by the operator's STOP or E-STOP: the whole run
+    ends, not only its current move, and it says so."""
+
+
 class ControlError(MotionError):
     """The machine loop could not carry a command out (it is not answering, or the link failed)."""
 

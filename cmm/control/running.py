@@ -69,13 +69,15 @@ class RunningJobs:
         """Ask every running job to end; returns what was asked (none: nothing was running)."""
         return self.ask_all("cancel")
 
-    def ask_all(self, action: str) -> list[str]:
+    def ask_all(self, action: str, *, unless: Optional[Callable[[Callable[[], object]], bool]] = None) -> list[str]:
         """Call ``action`` (cancel, pause, resume, skip) of every running job that has one; returns the jobs that
-        did it (a callable returning False did nothing: not paused, nothing to skip)."""
+        did it (a callable returning False did nothing: not paused, nothing to skip). ``unless(callable)`` True:
+        that job's callable is left out."""
         if action not in ACTIONS:
             raise ValueError(f"a running job is asked to {', '.join(ACTIONS)}, not {action!r}")
         with self._lock:
-            jobs = [(d, actions[action]) for d, actions in self._jobs.values() if action in actions]
+            jobs = [(d, actions[action]) for d, actions in self._jobs.values()
+                    if action in actions and not (unless is not None and unless(actions[action]))]
         asked = []
         for description, fn in jobs:
             try:

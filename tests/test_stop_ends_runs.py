@@ -1,0 +1,181 @@
+"""STOP and E-STOP end the whole run, not only its current move: homing, a probe qualification, a DMIS program.
+
+A run is many moves; a STOP that only cut the current move short let the run go on with its next one (a DMIS program's
+next PTMEAS, a routine's next hit, a run's climb to the clearance plane), motion the operator did not ask for. Here the
+real station runs its threaded machine loop on the simulator's virtual clock; the press is made as the page and the
+pendant make it (the command API's stop / estop verb) from another thread while the run moves. Asserted on the
+simulator's machine clock and its own probe triggers: once the axes stand after the press, nothing moves again for
+2 s of machine time, no further hit is taken, the run ends with an error that names the stop, and the station says
+STOPPED (E-STOPPED) with every axis standing.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import session_support as sup
+
+from cmm.control import Mode
+from cmm.dmis.runner import run_text
+
+pytestmark = pytest.mark.timeout(600)
+
+# three hits on each of two faces: long enough to be stopped between its hits
+PROGRAM = """FILNAM/'faces'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+SNSET/APPRCH, 5
+SNSET/RETRCT, 5
+GOTO/60, -30, 60
+GOTO/20, -15, 20
+F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
+MEAS/PLANE, F(FRONT), 3
+  PTMEAS/CART, 20, 0, 20, 0, -1, 0
+  PTMEAS/CART, 60, 0, 30, 0, -1, 0
+  PTMEAS/CART, 100, 0, 20, 0, -1, 0
+ENDMES
+GOTO/60, -30, 60
+F(FRONT2) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
+MEAS/PLANE, F(FRONT2), 3
+  PTMEAS/CART, 30, 0, 20, 0, -1, 0
+  PTMEAS/CART, 60, 0, 25, 0, -1, 0
+  PTMEAS/CART, 90, 0, 20, 0, -1, 0
+ENDMES
+ENDFIL
+"""
+QUIET_S = 2.0  # machine seconds after the standstill in which nothing may move
+
+
+@pytest.fixture(scope="module")
+def station(tmp_path_factory):
+    from cmm.station import Station
+
+    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
+    try:
+        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
+        st.measurement.new_session("stops")
+        yield st
+    finally:
+        st.close()
+
+
+class Watch:
+    """Every sample the machine loop takes (machine time, position, largest axis speed), from the press on."""
+
+    def __init__(self, station) -> None:
+        self.samples: list[tuple[float, np.ndarray, float]] = []
+        self.on = False
+        self.unsubscribe = station.machine.subscribe(self)
+
+    def __call__(self, state) -> None:
+        if self.on:
+            self.samples.append((float(state.time), np.array(state.position, float),
+                                 max(abs(a.velocity) for a in state.axes)))
+
+    def moved_after_standstill(self) -> float:
+        """The largest distance (mm) the tip moved after the first sample in which every axis stood still."""
+        still = next((i for i, (_, _, v) in enumerate(self.samples) if v < 1e-9), None)
+        assert still is not None, "the axes never stood still after the press"
+        here = self.samples[still][1]
+        return max(float(np.linalg.norm(p - here)) for _, p, _ in self.samples[still:])
+
+
+def _ready(station) -> None:
+    ctl = station.controller
+    if ctl.state.mode is not Mode.IDLE:
+        ctl.commands.invoke(None, "reset")
+    end = time.monotonic() + 60
+    while ctl.state.mode is not Mode.IDLE and time.monotonic() < end:
+        time.sleep(0.01)
+    assert ctl.state.mode is Mode.IDLE, ctl.state
+
+
+def _stop_during(station, run, when, verb: str):
+    """``run()`` on a thread; ``verb`` pressed (the command API, as the page's and the pendant's press) once
+    ``when()`` holds while the machine moves. Returns (the run's error, the stop's report, the watch, hits taken
+    after the press). Waits on the machine clock for QUIET_S after the answer."""
+    ctl = station.controller
+    outcome: dict[str, object] = {}
+
+    def go() -> None:
+        try:
+            outcome["result"] = run()
+        except Exception as exc:  # noqa: BLE001 - the run's end, asserted by the caller
+            outcome["error"] = exc
+    thread = threading.Thread(target=go, daemon=True)
+    watch = Watch(station)
+    try:
+        thread.start()
+        end = time.monotonic() + 300
+        while not (when() and ctl.state.machine is not None and
+                   max(abs(a.velocity) for a in ctl.state.machine.axes) > 1.0):
+            assert thread.is_alive(), f"the run ended before the press: {outcome}"
+            assert time.monotonic() < end, "the run never reached the moment of the press"
+            time.sleep(0.002)
+        watch.on = True
+        triggers = station.sim.triggers
+        report = ctl.commands.invoke(None, verb)
+        thread.join(120)
+        assert not thread.is_alive(), "the run did not end after the stop"
+        answered = ctl.clock.now()
+        while ctl.clock.now() < answered + QUIET_S:  # machine time: does anything move on its own?
+            time.sleep(0.005)
+            assert thread.is_alive() is False
+        return outcome.get("error"), report, watch, station.sim.triggers - triggers
+    finally:
+        watch.unsubscribe()
+
+
+def _assert_ended(station, error, report, watch, hits_after, verb: str) -> None:
+    word = "STOP" if verb == "stop" else "E-STOP"
+    assert report["ok"] and "stands still" in report["message"], report
+    assert error is not None, "the run went on to its end after the stop"
+    text = str(error)
+    assert ("stopped by the operator" in text or word in text or "emergency stop" in text), text
+    assert watch.moved_after_standstill() < 0.01, "the machine moved again after it stood still"
+    assert hits_after <= 1, f"{hits_after} hits were taken after the press"  # at most the touch being made
+    st = station.controller.state
+    assert st.mode is (Mode.STOPPED if verb == "stop" else Mode.ESTOPPED), st
+    assert max(abs(a.velocity) for a in st.machine.axes) < 1e-9
+
+
+@pytest.mark.parametrize("verb", ["stop", "estop"])
+def test_a_stop_ends_a_dmis_run(station, verb):
+    _ready(station)
+    # where the program starts (its first GOTO, part coordinates), over the clearance plane from wherever a stop left it
+    station.controller.commands.invoke(None, "move", target=[60.0, -30.0, 60.0], frame="part").wait(120)
+    first = station.sim.triggers
+    error, report, watch, after = _stop_during(
+        station, lambda: run_text(PROGRAM, station, name=f"{verb}.dmi"), lambda: station.sim.triggers >= first + 1, verb)
+    _assert_ended(station, error, report, watch, after, verb)
+    assert station.sim.triggers - first <= 2  # the program had six hits: it did not go on to the others
+    assert "DMIS program" in str(error), error  # the run says that it ended, not only the move
+
+
+@pytest.mark.parametrize("verb", ["stop", "estop"])
+def test_a_stop_ends_the_homing_cycle(station, verb):
+    _ready(station)
+    ctl = station.controller
+    error, report, watch, _ = _stop_during(station, lambda: ctl.home(None),
+                                           lambda: ctl.state.mode is Mode.HOMING, verb)
+    _assert_ended(station, error, report, watch, 0, verb)
+    assert not ctl.state.homed
+    ctl.commands.invoke(None, "reset")
+    ctl.home(None)  # the next test needs a homed machine
+    assert ctl.state.homed
+
+
+@pytest.mark.parametrize("verb", ["stop", "estop"])
+def test_a_stop_ends_a_probe_qualification(station, verb):
+    _ready(station)
+    first = station.sim.triggers
+
+    def qualify():
+        return station.controller.commands.invoke(None, "qualify", routine="probe",
+                                                  options={"per_ring": 4, "repeats": 1})
+    error, report, watch, after = _stop_during(station, qualify, lambda: station.sim.triggers >= first + 2, verb)
+    _assert_ended(station, error, report, watch, after, verb)
+    assert not station.calibration.holding
