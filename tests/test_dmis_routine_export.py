@@ -12,7 +12,8 @@ from cmm.dmis.check import check
 from cmm.dmis.export import to_dmis
 from cmm.dmis.runner import run_text
 from cmm.measurement.plan import plan_at_pick, run_plan
-from cmm.measurement.routine import routine_path, teach_routine
+from cmm.measurement.routine import teach_routine
+from cmm.measurement.routine_path import routine_path
 from cmm.metrology.transform import invert
 from cmm.session.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix

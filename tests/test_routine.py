@@ -13,7 +13,8 @@ from netutil import SIM, free_port
 
 from cmm.control import OpenPolicy
 from cmm.control.access import Client, Control
-from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
+from cmm.measurement.routine import Routine, RoutineError, teach_routine
+from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
 from cmm.metrology.transform import invert
 from cmm.session.program import from_toml, load, machine_targets
 from cmm.session.journal import read_events

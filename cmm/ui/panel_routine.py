@@ -29,8 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from ..measurement.align_wizard import routine_manual_hits
-from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, RoutinePath, RoutineRun, routine_path,
-                                   teach_routine)
+from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, teach_routine
+from ..measurement.routine_path import RoutinePath, routine_path
+from ..measurement.routine_run import RoutineRun
 from ..session.program import ProgramError, load, part_hash
 from ..session.store import open_session
 from .context import OPERATOR_ERRORS, PanelContext
