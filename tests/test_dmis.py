@@ -212,7 +212,7 @@ def _program() -> prog.Program:
             ids.append(len(hits))
         feats.append(prog.ProgramFeature(name, kind, "ls", ids, {"size": 0.02, "form": 0.02, "location": 0.02},
                                          sim.nominal_features[name].to_dict(), name))
-    from cmm.session.model import mesh_sha256
+    from cmm.journal.session import mesh_sha256
 
     return prog.Program("sample check", "sample part", mesh_sha256(sim.part_mesh), feats, hits, 10.0)
 

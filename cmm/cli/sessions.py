@@ -57,9 +57,9 @@ def _when(t: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..session.journal import JournalError
-    from ..session.program import ProgramError
-    from ..session.store import StoreError
+    from ..journal.writer import JournalError
+    from ..program.toml_program import ProgramError
+    from ..journal.store import StoreError
 
     try:
         return _run(args)
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ..session.store import load_session, open_store
+    from ..journal.store import load_session, open_store
 
     store = open_store(args.store)
     if args.action == "list":
@@ -134,7 +134,7 @@ def _run(args: argparse.Namespace) -> int:
             write_json(s, args.json, mesh)
             print(f"wrote {len(s.events)} events to {args.json}")
         if args.qif:
-            from ..session.program import load as load_program
+            from ..program.toml_program import load as load_program
             from ..session.qif import write_qif
 
             target = f"{args.name}.qif" if args.qif is True else args.qif
@@ -148,7 +148,7 @@ def _run(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         from ..session.reevaluate import reevaluate
-        from ..session.store import write_session
+        from ..journal.store import write_session
 
         s = load_session(store, args.name)
         settings = s.probe_settings()
@@ -174,7 +174,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.action == "teach":
         from ..session.export import resolve_part_mesh
-        from ..session.program import save, teach
+        from ..program.toml_program import save, teach
 
         s = load_session(store, args.name)
         prog = teach(s, clearance=args.clearance, part_mesh=resolve_part_mesh(s))

@@ -1,6 +1,6 @@
 """Routines: a taught measurement program as an ordered list of steps, edited and run on every part.
 
-A routine is a program file (:mod:`cmm.session.program`, format ``cmm-program/2``) whose ``[[steps]]`` list
+A routine is a program file (:mod:`cmm.program.toml_program`, format ``cmm-program/2``) whose ``[[steps]]`` list
 the order of work, like PC-DMIS's edit window or CALYPSO's characteristic list::
 
     [[steps]]
@@ -45,7 +45,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..metrology.characteristics import DEFAULT_TOLERANCE
-from ..session.program import Program, ProgramError, machine_targets, teach, to_toml
+from ..program.toml_program import Program, ProgramError, machine_targets, teach, to_toml
 
 STEP_KINDS = ("align", "feature", "construct", "report")
 MANUAL_HITS = (3, 2, 1)  # 3-2-1: hits on the primary, secondary and tertiary datum

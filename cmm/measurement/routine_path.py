@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..metrology.hops import with_hops
-from ..session.program import machine_targets
+from ..program.toml_program import machine_targets
 from .routine import MANUAL_HITS, Routine
 
 

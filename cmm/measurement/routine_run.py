@@ -18,7 +18,7 @@ from ..metrology.fit_ls import fit_plane
 from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
 from ..metrology.transform import invert
-from ..session.program import check, machine_targets
+from ..program.toml_program import check, machine_targets
 from .alignment import AlignmentResult, align_321, align_features, apply, datum_frame
 from .routine import MANUAL_HITS, Routine, RoutineError
 from .routine_path import run_order
@@ -273,7 +273,7 @@ class RoutineRun:
         """The finished run as a part of the routine's series, when the model records trends: the characteristics
         of the features it measured and constructed (sizes, positions, form, distances) and of the part's
         geometric tolerances, with the part's name as its serial (see :func:`.program.record_trend`)."""
-        from ..session.trends import feature_values, measured
+        from ..metrology.measured import feature_values, measured
         from .program import record_trend
 
         model = self.model
@@ -386,16 +386,17 @@ class RoutineRun:
 
     def _report(self) -> Any:
         """The part's report (HTML beside its session journal); the journal holds everything up to here."""
-        from ..session.report import write_report
-        from ..session.store import open_session
-
         path = self.progress.session
         if not isinstance(path, Path):
             self.model.note("report step: the session is in a database; make its report with cmm report")
             return None
+        reporter = getattr(self.model, "reporter", None)  # cmm.session.report.write_part_report on a station
+        if reporter is None:
+            self.model.note("report step: this measurement model writes no reports; make its report with cmm report")
+            return None
         part = self.model.part
-        return write_report(open_session(path), path.with_suffix(".html"),
-                            mesh=None if part is None else part.mesh, title=f"{self.routine.name} {self.part_name or ''}".strip())
+        return reporter(path, mesh=None if part is None else part.mesh,
+                        title=f"{self.routine.name} {self.part_name or ''}".strip())
 
     # --- alignment --------------------------------------------------------------------------
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..metrology.characteristics import Characteristic
 from ..metrology.gdt_eval import MeasuredFeature, evaluate
-from .model import Session
+from ..journal.session import Session
 
 
 def measured_features(session: Session, tolerances: dict[int, dict[str, float]] | None = None) -> dict[int, MeasuredFeature]:
