@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Protocol
 
-from .writer import Journal, JournalBusy, JournalContents, is_locked, parse_lines, read_events
 from .session import Session
+from .writer import Journal, JournalBusy, JournalContents, is_locked, parse_lines, read_events
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._ -]{0,127}$")
 

@@ -23,15 +23,15 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..journal.records import ConstructedRecord, FeatureRecord, HitRecord
+from ..journal.session import file_sha256, machine_snapshot, mesh_sha256
+from ..journal.state import SessionState
+from ..journal.store import check_name, is_url, open_store
+from ..journal.writer import Journal, encode_event
 from ..metrology.features import FitError, FitResult
+from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
-from ..journal.writer import Journal, encode_event
-from ..journal.session import file_sha256, machine_snapshot, mesh_sha256
-from ..metrology.fit_hits import fit_hit_records
-from ..journal.store import check_name, is_url, open_store
-from ..journal.records import ConstructedRecord, FeatureRecord, HitRecord
-from ..journal.state import SessionState
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from .gdt_session import session_gdt
 from ..journal.session import Session, mesh_sha256
+from .gdt_session import session_gdt
 
 CSV_COLUMNS = ["id", "mode", "deleted", "counts_x", "counts_y", "counts_z", "machine_x", "machine_y", "machine_z",
                "approach_x", "approach_y", "approach_z", "speed", "time", "point_x", "point_y", "point_z", "deviation"]

@@ -26,9 +26,9 @@ import bisect
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from ..journal.writer import read_events
-from ..journal.state import SessionState
 from ..journal.session import Session
+from ..journal.state import SessionState
+from ..journal.writer import read_events
 
 CHECKPOINT_EVERY = 256
 MAX_CHECKPOINTS = 32  # each is a full copy of the state: their number, not their spacing, bounds the memory

@@ -31,18 +31,18 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.records import ConstructedRecord, FeatureRecord
+from ..journal.session import Session
+from ..journal.wording import error_text, grouped
+from ..metrology.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
 from ..metrology.characteristics import Characteristic, verdict
-from .gdt_session import session_gdt
+from ..metrology.characteristics import DEFAULT_TOLERANCE
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from ..metrology.features import proof_text
 from .export import hit_deviations
-from ..metrology.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
-from ..journal.records import ConstructedRecord, FeatureRecord
-from ..metrology.characteristics import DEFAULT_TOLERANCE
-from ..journal.session import Session
+from .gdt_session import session_gdt
 from .probe_used import probe_uses
-from ..journal.wording import error_text, grouped
 
 NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "
                 "where it was measured to be. Deviations from the part and positions include the set-up error.")
