@@ -23,7 +23,7 @@ from cmm.dmis.lexer import statements
 from cmm.dmis.parser import Expr, Word, evaluate, parse
 from cmm.dmis.runner import run_text
 from cmm.measurement.program import run_on
-from cmm.session import program as prog
+from cmm.program import toml_program as prog
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
 from shared_refs import require, shared_path

@@ -12,7 +12,7 @@ import pytest
 
 import session_support as sup
 from cmm.metrology.colour_scale import ColourScale
-from cmm.session import program as prog
+from cmm.program import toml_program as prog
 from cmm.session.export import resolve_part_mesh
 from cmm.journal.session import Session
 from cmm.session.report import NO_ALIGNMENT, features_csv, render
