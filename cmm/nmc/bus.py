@@ -15,7 +15,7 @@ and discards every byte up to the marker's reply. Bytes keep their order on
 the line, so once the marker's reply is in, nothing older can follow. A
 command whose reply was lost is sent again only if doing it twice is
 harmless; a motion start is checked on the module instead (see
-``_after_lost_reply``). Every port failure surfaces as :class:`LinkError`.
+:mod:`cmm.nmc.lost_reply`). Every port failure surfaces as :class:`LinkError`.
 
 A slow host is not a failed link: a reply's time-out counts from the moment the request left and never
 passes over bytes already in the port's buffer; a read that came back well past its deadline (the process
