@@ -54,6 +54,11 @@ EXCEPTIONS: dict[tuple[str, str], str] = {
 FORBIDDEN = {("ui", "cmm.machine.motion"), ("ui", "cmm.sim.cmm_sim"), ("ui", "cmm.nmc.bus"),
              ("ippdme", "cmm.ui.origin"), ("machine", "cmm.control.core"),
              ("cli", "cmm.machine.motion"), ("cli", "cmm.machine.probing"), ("cli", "cmm.nmc.bus")}
+# the machine's and the bus's parts are the machine and the bus: what is forbidden of them is forbidden of these
+FORBIDDEN |= {(pkg, part) for pkg, whole in list(FORBIDDEN) if whole in ("cmm.machine.motion", "cmm.nmc.bus")
+              for part in {"cmm.machine.motion": ("cmm.machine.connection", "cmm.machine.jogging"),
+                           "cmm.nmc.bus": ("cmm.nmc.framing", "cmm.nmc.transactions", "cmm.nmc.lost_reply",
+                                           "cmm.nmc.resync", "cmm.nmc.startup")}[whole]}
 
 
 def _modules() -> dict[str, Path]:
