@@ -178,8 +178,8 @@ def ippdme_ptmeas(station: Station, log: LineLog, points: int) -> None:
 
 def program_run(station: Station, log: LineLog) -> None:
     from cmm.measurement.program import run_program
-    from cmm.session.program import teach
-    from cmm.session.store import open_session
+    from cmm.program.toml_program import teach
+    from cmm.journal.store import open_session
 
     model, clock = station.measurement, station.machine.clock
     program = teach(open_session(model.journal.path), name="cycle time", part_mesh=model.part.mesh,

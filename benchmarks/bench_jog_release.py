@@ -347,7 +347,7 @@ def stop_hogs(hogs: list[subprocess.Popen]) -> None:
 
 def write_big_session(root: Path, hits: int) -> str:
     """A session journal with ``hits`` hits (written without fsync: it only has to exist)."""
-    from cmm.session.journal import encode_event
+    from cmm.journal.writer import encode_event
 
     rng = random.Random(1)
     name = f"big-{hits}"

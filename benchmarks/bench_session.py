@@ -14,11 +14,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from cmm.session.journal import Journal, read_events
-from cmm.session.model import Session
+from cmm.journal.writer import Journal, read_events
+from cmm.journal.session import Session
 from cmm.session.reevaluate import reevaluate
 from cmm.session.replay import Replay
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 
 
 def hit_event(k: int) -> dict:

@@ -28,7 +28,7 @@ def bench_store(n: int) -> None:
     import psycopg
     from pg_support import PgServer
 
-    from cmm.session.store import PostgresStore
+    from cmm.journal.store import PostgresStore
 
     server = PgServer()
     if server.skip_reason:
@@ -72,7 +72,7 @@ def bench_store(n: int) -> None:
 def bench_qif(n: int) -> None:
     import numpy as np
 
-    from cmm.session.model import Session
+    from cmm.journal.session import Session
     from cmm.session.qif import qif_bytes
 
     events = [{"seq": 1, "time": 0.0, "kind": "start", "port": "bench"}]

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # pg_support: the tests' server helper
 
-from cmm.session.journal import encode_event  # noqa: E402
+from cmm.journal.writer import encode_event  # noqa: E402
 from cmm.session.trends import Trends  # noqa: E402
 from cmm.session.trends_chart import trend, trend_svg  # noqa: E402
 

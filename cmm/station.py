@@ -30,6 +30,7 @@ from .machine.probing import Prober
 from .measurement.model import MeasurementError, MeasurementModel, Part
 from .measurement.queries import register_queries
 from .nmc.trace import ByteTrace
+from .session.report import write_part_report
 from .sim.placement import PlacementError, part_pose_of  # noqa: F401 - --part-pose of the front ends
 
 StationError = MeasurementError  # the station's refusals and the model's are one kind of operator sentence
@@ -330,6 +331,7 @@ class Station:
             part=part, session_dir=session_dir, lock=self.lock,
             start_fields=lambda: {"port": str(self.port), "calibration": self.calibration.status})
         self.measurement.trends = trends  # cmm.session.trends.Trends: each program run is recorded there as a part
+        self.measurement.reporter = write_part_report  # a routine's report step: the part's report beside its journal
         self.ippdme: Any = None  # the I++ DME server's status (cmm.ippdme.status.IppStatus) once one serves this station
         self.controller.on_hit(self.measurement.add_hit)
         self.controller.set_workspace(PartWorkspace(self.measurement))

@@ -697,7 +697,7 @@ def assert_taken_by_jog(station: Any, session: Any, taken: list[int]) -> None:
     """The routine's manual 3-2-1 in ``session``'s journal was made from the hits ``taken`` (manual_321_by_jog's):
     each recorded as a manual hit, approached along one machine axis (the page's jog, not a programmed probe along
     the face normal) at the qualified probing speed (the armed jog's clamp)."""
-    from cmm.session.journal import read_events
+    from cmm.journal.writer import read_events
 
     events = read_events(session).events
     aligned = [e for e in events if e["kind"] == "alignment" and e.get("method") == "3-2-1 manual"]

@@ -16,7 +16,7 @@ from cmm.metrology.align import best_fit
 from cmm.metrology.compensation import PretravelModel
 from cmm.measurement.model import Part
 from cmm.measurement.recording import record
-from cmm.session.store import DirectoryStore
+from cmm.journal.store import DirectoryStore
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE, CmmSimSettings, SimulatedCMM, pose_matrix
 
 

@@ -20,7 +20,7 @@ from cmm.control.access import Client
 from cmm.metrology.actuals import model_frame
 from cmm.metrology.compensation import PretravelModel
 from cmm.session.report import features_csv, render
-from cmm.session.store import open_session
+from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.station import Station
 from cmm.ui.panel_features import tree_html

@@ -20,7 +20,7 @@ from cmm.metrology.pick import NominalFeature
 from cmm.session.export import session_json
 from cmm.session.report import features_csv, render
 from cmm.sim.cmm_sim import TRUE_PART_POSE
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.station import Station
 from cmm.ui.panel_features import feature_chars, tree_html
 

@@ -24,8 +24,8 @@ import trimesh  # noqa: E402
 from cmm.measurement import alignment  # noqa: E402
 from cmm.metrology.colour_map import to_linear  # noqa: E402
 from cmm.metrology.colour_scale import GREEN, GREY  # noqa: E402
-from cmm.session.journal import read_events  # noqa: E402
-from cmm.session.model import Session  # noqa: E402
+from cmm.journal.writer import read_events  # noqa: E402
+from cmm.journal.session import Session  # noqa: E402
 from cmm.session.report import render  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 

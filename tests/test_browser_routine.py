@@ -28,9 +28,9 @@ from cmm.measurement.alignment import align_features, apply  # noqa: E402
 from cmm.measurement.plan import plan_at_pick, run_plan  # noqa: E402
 from cmm.measurement.routine import teach_routine  # noqa: E402
 from cmm.metrology.transform import invert  # noqa: E402
-from cmm.session.journal import read_events  # noqa: E402
-from cmm.session.program import machine_targets  # noqa: E402
-from cmm.session.store import open_session  # noqa: E402
+from cmm.journal.writer import read_events  # noqa: E402
+from cmm.program.toml_program import machine_targets  # noqa: E402
+from cmm.journal.store import open_session  # noqa: E402
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix  # noqa: E402
 
 LAPTOP = (1280, 800)

@@ -29,8 +29,8 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
 
 pytest.importorskip("viser")
 
-from cmm.session.model import Session  # noqa: E402
-from cmm.session.journal import read_events  # noqa: E402
+from cmm.journal.session import Session  # noqa: E402
+from cmm.journal.writer import read_events  # noqa: E402
 from cmm.session.report import features_csv, render  # noqa: E402
 from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
 

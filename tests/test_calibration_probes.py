@@ -18,7 +18,7 @@ pytest.importorskip("viser")
 from cmm.calibration.records import load_probe_record, load_sphere_certificate  # noqa: E402
 from cmm.ippdme.backend import StationBackend  # noqa: E402
 from cmm.ippdme.tools import Limits, ToolChanger  # noqa: E402
-from cmm.session.journal import read_events  # noqa: E402
+from cmm.journal.writer import read_events  # noqa: E402
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 

@@ -13,7 +13,7 @@ from cmm.metrology.colour_scale import BLUE, CYAN, GREEN, GREY, RED, AMBER, Colo
 from cmm.metrology.feature_distance import around_axis, surface_distance
 from cmm.metrology.nominal_match import nominal_for_points
 from cmm.metrology.transform import as_pose
-from cmm.session.wording import error_text, event_text, event_title, grouped
+from cmm.journal.wording import error_text, event_text, event_title, grouped
 from cmm.sim.sample_part import sample_part
 
 

@@ -380,8 +380,8 @@ def test_cancel_ends_a_program_and_a_job_without_a_cancel_of_its_own(station, tm
     ended by a controlled stop of its move: either way the machine is left standing, nothing in fault."""
     import threading
 
-    from cmm.session.program import teach, to_toml
-    from cmm.session.store import open_session
+    from cmm.program.toml_program import teach, to_toml
+    from cmm.journal.store import open_session
 
     api, m = station.controller.commands, station.measurement
     pose = m.part.pose
@@ -440,7 +440,7 @@ def test_nominal_tolerance_datum_gdt_refit_and_report_header_are_verbs_checked_a
     """The Features tab's edits as requests (the JSON shape an adapter sends): only the control holder may make
     them, each is journalled (the session replays to the same nominal, tolerance, datum and header), and a
     nominal the model cannot use is refused in a sentence with nothing changed."""
-    from cmm.session.store import open_session
+    from cmm.journal.store import open_session
 
     control = Control()
     station.controller.use_policy_of(control)
@@ -520,7 +520,7 @@ def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(st
     """New session, note and a front end's own event are verbs: a note by the holder or a client at the station's
     own computer (or the station itself), never by an anonymous LAN observer; a new session by the holder only;
     a front end records only its own kinds of event (a routine saved), never a hit."""
-    from cmm.session.journal import read_events
+    from cmm.journal.writer import read_events
 
     control = Control(lan=True, access_code="c0de")
     station.controller.use_policy_of(control)

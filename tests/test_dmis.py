@@ -23,7 +23,7 @@ from cmm.dmis.lexer import statements
 from cmm.dmis.parser import Expr, Word, evaluate, parse
 from cmm.dmis.runner import run_text
 from cmm.measurement.program import run_on
-from cmm.session import program as prog
+from cmm.program import toml_program as prog
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
 from shared_refs import require, shared_path
@@ -212,7 +212,7 @@ def _program() -> prog.Program:
             ids.append(len(hits))
         feats.append(prog.ProgramFeature(name, kind, "ls", ids, {"size": 0.02, "form": 0.02, "location": 0.02},
                                          sim.nominal_features[name].to_dict(), name))
-    from cmm.session.model import mesh_sha256
+    from cmm.journal.session import mesh_sha256
 
     return prog.Program("sample check", "sample part", mesh_sha256(sim.part_mesh), feats, hits, 10.0)
 

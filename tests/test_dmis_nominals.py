@@ -10,7 +10,7 @@ import pytest
 
 import session_support as sup
 from cmm.session.gdt_session import session_gdt
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
 # the sample part at the nominal set-up (machine X190 Y150); every FEAT is given before the TRANS onto the bore

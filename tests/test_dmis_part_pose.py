@@ -14,7 +14,7 @@ from cmm.metrology.align import AlignmentError
 from cmm.metrology.mesh import signed_deviation
 from cmm.metrology.transform import invert
 from cmm.session.report import render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE, pose_matrix
 
 # the part put down 5 mm and 2 mm off the nominal set-up (190, 150) and turned 1 degree

@@ -12,9 +12,10 @@ from cmm.dmis.check import check
 from cmm.dmis.export import to_dmis
 from cmm.dmis.runner import run_text
 from cmm.measurement.plan import plan_at_pick, run_plan
-from cmm.measurement.routine import routine_path, teach_routine
+from cmm.measurement.routine import teach_routine
+from cmm.measurement.routine_path import routine_path
 from cmm.metrology.transform import invert
-from cmm.session.store import open_session
+from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
 
 FACES = sup.BLOCK_FACES[:5]  # the five features the routine measures (no dome)
@@ -125,7 +126,7 @@ def test_the_routine_tab_exports_dmis_beside_the_routine_file_and_offers_it(stat
 def test_a_line_in_a_routine_is_exported_as_a_bounded_line_in_its_face_and_measures_again(station):
     """A line taught on the block's front face (three hits along X) is written FEAT/LINE, BND from the first to the
     last hit with the face's normal as its plane, and the exported program measures the same edge line again."""
-    from cmm.session.program import Program, ProgramFeature, ProgramHit
+    from cmm.program.toml_program import Program, ProgramFeature, ProgramHit
 
     station.measurement.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
     top = float(station.measurement.part.mesh.bounds[1][2]) + 10.0  # part Z above everything on the part
@@ -215,8 +216,8 @@ def test_cmm_dmis_export_with_the_part_writes_the_hops_and_refuses_another_part(
     simulator's sample part (no file) hops without --part; another part is refused with a message naming the
     program's part, and nothing is written."""
     from cmm.cli import main
-    from cmm.session.model import file_sha256
-    from cmm.session.program import save
+    from cmm.journal.session import file_sha256
+    from cmm.program.toml_program import save
 
     model, routine = _taught_top(station, 4)
     taught_on_sample = save(routine.program, tmp_path / "sample.toml")  # taught on the simulator's sample part

@@ -18,7 +18,7 @@ from cmm.dmis.executor import DmisError
 from cmm.dmis.runner import needs_operator, run_text
 from cmm.session.export import session_json
 from cmm.session.report import features_csv, render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import pose_matrix
 
 NOISE = 0.004  # mm: two encoder counts and the probe's repeatability

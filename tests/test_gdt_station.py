@@ -19,7 +19,7 @@ from cmm.session.export import session_json
 from cmm.session.reevaluate import reevaluate
 from cmm.session.replay import Replay
 from cmm.session.report import features_csv, render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.station import Station
 from cmm.ui.panel_features import tree_html

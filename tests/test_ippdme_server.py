@@ -14,7 +14,7 @@ from cmm.ippdme.client import IppClient
 from cmm.ippdme.executor import Dme
 from cmm.ippdme.protocol import parse_response
 from cmm.ippdme.server import parse_address
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.ui.panels import machine_markdown
 
 import session_support as sup

@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from cmm.machine.config import default_text, load
-from cmm.machine.motion import STOP_MARGIN_S
+from cmm.machine.jogging import STOP_MARGIN_S
 from cmm.nmc import codec
 from cmm.nmc.bus import Bus
 from cmm.nmc.module import Module

@@ -1,8 +1,9 @@
 """The architecture holds: imports go down the layers only, and no module imports itself in a circle.
 
 Layers (README "Architecture"): front ends (ui, ippdme, cli) -> station (composition root) -> control -> machine
--> nmc, and station -> measurement -> session -> the journal's fold (cmm.measurement.records and .state, a layer
-of their own under both) -> metrology; calibration beside them; the simulator speaks only bytes. Every import
+-> nmc, and station -> measurement and session, beside each other, -> the program files (cmm.program) -> the
+journal (cmm.journal: records, fold, writer, stores) -> metrology; the measurement model never imports the
+sessions; calibration beside them; the simulator speaks only bytes. Every import
 counts: those inside functions, and those for type checkers only (``if TYPE_CHECKING:``), which draw the
 same circle for a reader and for the type checker. So do modules named in a string (the `cmm` command's
 sub-commands, loaded with ``importlib``; pyserial's handler package for ``sim://`` URLs): they are imported all the same.
@@ -27,19 +28,22 @@ ALLOWED = {
     "control": {"machine", "nmc"},
     # machine.config: the axes it simulates, never the driver; cad: a CAD part's probe contacts on its exact surfaces
     "sim": {"nmc", "machine", "metrology", "cad"},
-    # the fold of the journal's events (records + SessionState): the live model and the session files share it
-    "fold": {"machine", "metrology"},  # a HitRecord is the prober's Hit with its id
-    "session": {"machine", "metrology", "sim", "fold"},
-    "calibration": {"machine", "metrology", "nmc", "sim", "session"},
-    "measurement": {"metrology", "session", "fold"},  # the measurement model: records into sessions, fits with metrology
-    "station": {"control", "machine", "measurement", "fold", "metrology", "nmc", "session", "sim", "calibration"},
-    "ippdme": {"control", "station", "measurement", "fold", "metrology", "session"},  # a front end like the ui
-    "dmis": {"control", "station", "measurement", "fold", "metrology", "session"},  # DMIS programs: a front end too
+    # the journal: the records of its events, their fold (SessionState), its writer and stores; the live model
+    # and the session files share it
+    "journal": {"machine", "metrology"},  # a HitRecord is the prober's Hit with its id
+    "program": {"metrology", "journal"},  # program files (TOML): taught from a recorded session
+    "session": {"machine", "metrology", "sim", "journal"},
+    "calibration": {"machine", "metrology", "nmc", "sim", "session", "program"},  # program: its TOML text writer
+    "measurement": {"metrology", "journal", "program"},  # the measurement model: journals its events, fits with metrology
+    "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
+    "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
+    "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
     "opcua": {"control"},  # the OPC UA server: a front end on the command API only
-    "ui": {"control", "station", "measurement", "fold", "metrology", "session", "ippdme", "dmis", "opcua"},  # hosts I++ and DMIS runs
+    "ui": {"control", "station", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
+           "opcua"},  # hosts I++ and DMIS runs
     # every sub-command is a module of cmm/cli (a front end: it translates options into the capability's calls)
     "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis", "ippdme",
-            "opcua", "cad", "measurement", "fold"},
+            "opcua", "cad", "measurement", "journal", "program"},
 }
 # known exceptions (module, package) -> the reason it is there
 EXCEPTIONS: dict[tuple[str, str], str] = {
@@ -50,6 +54,11 @@ EXCEPTIONS: dict[tuple[str, str], str] = {
 FORBIDDEN = {("ui", "cmm.machine.motion"), ("ui", "cmm.sim.cmm_sim"), ("ui", "cmm.nmc.bus"),
              ("ippdme", "cmm.ui.origin"), ("machine", "cmm.control.core"),
              ("cli", "cmm.machine.motion"), ("cli", "cmm.machine.probing"), ("cli", "cmm.nmc.bus")}
+# the machine's and the bus's parts are the machine and the bus: what is forbidden of them is forbidden of these
+FORBIDDEN |= {(pkg, part) for pkg, whole in list(FORBIDDEN) if whole in ("cmm.machine.motion", "cmm.nmc.bus")
+              for part in {"cmm.machine.motion": ("cmm.machine.connection", "cmm.machine.jogging"),
+                           "cmm.nmc.bus": ("cmm.nmc.framing", "cmm.nmc.transactions", "cmm.nmc.lost_reply",
+                                           "cmm.nmc.resync", "cmm.nmc.startup")}[whole]}
 
 
 def _modules() -> dict[str, Path]:
@@ -82,7 +91,7 @@ def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
 
 
 # modules that are a layer of their own inside their package
-SUBLAYERS = {"cmm.measurement.records": "fold", "cmm.measurement.state": "fold"}
+SUBLAYERS: dict[str, str] = {}
 
 
 def _layer(module: str) -> str:
@@ -119,6 +128,18 @@ def test_imports_go_down_the_layers():
 def test_no_import_cycles():
     cycles = [c for c in nx.simple_cycles(_graph()) if len(c) > 1]
     assert not cycles, f"import cycles: {cycles[:5]}"
+
+
+def test_the_measurement_model_never_imports_the_sessions():
+    """cmm/measurement journals through cmm.journal and reads programs from cmm.program; no module of it imports
+    cmm.session, at module level, inside a function or for type checkers (a routine's report goes through the
+    model's ``reporter``, which the station wires)."""
+    g = _graph()
+    bad = sorted(f"{a} -> {b}" for a, b in g.edges
+                 if (a == "cmm.measurement" or a.startswith("cmm.measurement."))
+                 and (b == "cmm.session" or b.startswith("cmm.session.")))
+    assert "cmm.measurement.model" in g and "cmm.journal.writer" in set(g.successors("cmm.measurement.model"))
+    assert not bad, "the measurement model imports the sessions:\n" + "\n".join(bad)
 
 
 def test_the_ui_reaches_the_machine_only_through_the_command_api():

@@ -263,7 +263,7 @@ def test_a_touch_while_a_released_jog_brakes_is_not_jogged_through(sim_machine):
 def test_a_jog_with_the_probe_deflected_the_way_unknown_stops_if_it_stays_deflected(sim_machine):
     """Deflected with no touch direction known (the probe pushed by hand, a station restarted on the part): a jog
     runs unarmed, so it is watched: it stops within DEFLECTED_JOG_MM if the probe stays deflected, saying why."""
-    from cmm.machine.motion import DEFLECTED_JOG_MM
+    from cmm.machine.jogging import DEFLECTED_JOG_MM
 
     sim, m, prober = sim_machine
     _touch_while_braking(sim, m)

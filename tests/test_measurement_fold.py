@@ -11,9 +11,9 @@ from netutil import SIM
 
 from cmm.machine.probing import Hit
 from cmm.measurement.model import MeasurementError, MeasurementModel
-from cmm.measurement.state import SessionState
-from cmm.session.journal import read_events
-from cmm.session.model import Session
+from cmm.journal.state import SessionState
+from cmm.journal.writer import read_events
+from cmm.journal.session import Session
 from cmm.station import Station
 
 TOP = ((20.0, 15.0, 40.0), (50.0, 5.0, 40.0), (110.0, 70.0, 40.0), (95.0, 10.0, 40.0))  # part mm, on the top face

@@ -319,7 +319,7 @@ async def _count(folder, n: int) -> bool:
 
 def _top_face_program(station, tmp_path):
     """A program of three hits on the part's top face, fitted as a plane, saved as a TOML program file."""
-    from cmm.session import program as prog
+    from cmm.program import toml_program as prog
 
     part = station.measurement.part
     lo, hi = part.mesh.bounds

@@ -10,7 +10,7 @@ pytest.importorskip("viser")
 
 from cmm.control import Refused  # noqa: E402
 from cmm.session.report import render  # noqa: E402
-from cmm.session.store import DirectoryStore, load_session  # noqa: E402
+from cmm.journal.store import DirectoryStore, load_session  # noqa: E402
 from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 

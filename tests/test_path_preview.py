@@ -14,9 +14,11 @@ from netutil import SIM
 from cmm.control import Refused
 from cmm.measurement.plan import plan_at_pick, plan_targets, run_plan
 from cmm.measurement.alignment import align_features, apply
-from cmm.measurement.routine import RoutineRun, routine_path, teach_routine
-from cmm.session.program import machine_targets
-from cmm.session.store import open_session
+from cmm.measurement.routine import teach_routine
+from cmm.measurement.routine_path import routine_path
+from cmm.measurement.routine_run import RoutineRun
+from cmm.program.toml_program import machine_targets
+from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.station import Station
 

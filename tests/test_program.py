@@ -9,8 +9,8 @@ import session_support as sup
 from cmm.measurement.model import Part
 from cmm.measurement.program import run_on, run_program
 from cmm.measurement.recording import record
-from cmm.session import program as prog
-from cmm.session.store import DirectoryStore, load_session
+from cmm.program import toml_program as prog
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.sample_part import reference_sphere
 
 COUNT = 0.002

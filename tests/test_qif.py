@@ -198,7 +198,7 @@ def dmis_run(tmp_path_factory):
 
 
 def test_cmm_run_qif_is_valid_and_its_values_are_the_dmis_outputs(dmis_run):
-    from cmm.session.store import open_store, load_session
+    from cmm.journal.store import open_store, load_session
 
     d = dmis_run
     qif = d / "out" / "qifpart.qif"  # beside the DMIS output, named for the program
@@ -251,7 +251,7 @@ def test_cmm_run_qif_is_valid_and_its_values_are_the_dmis_outputs(dmis_run):
 
 def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp_path, capsys):
     from cmm.cli import main
-    from cmm.session.store import open_store, load_session
+    from cmm.journal.store import open_store, load_session
 
     sessions = str(dmis_run / "sessions")
     (info,) = open_store(sessions).list()
@@ -285,7 +285,7 @@ def test_an_auto_measured_session_on_the_station_is_valid_qif_with_the_reports_v
     import session_support as sup
 
     from cmm.session.export import resolve_part_mesh
-    from cmm.session.store import open_session
+    from cmm.journal.store import open_session
 
     qif_support.schema_or_skip()
     gen = sup.sim_station(tmp_path, "auto")

@@ -12,11 +12,11 @@ import pytest
 
 import session_support as sup
 from cmm.metrology.colour_scale import ColourScale
-from cmm.session import program as prog
+from cmm.program import toml_program as prog
 from cmm.session.export import resolve_part_mesh
-from cmm.session.model import Session
+from cmm.journal.session import Session
 from cmm.session.report import NO_ALIGNMENT, features_csv, render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,7 @@ from cmm.metrology.gdt import CHARACTERISTICS
 from cmm.session.export import session_json
 from cmm.session.gdt_session import session_gdt
 from cmm.session.report import features_csv, render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE
 from cmm.ui.panel_features import feature_chars, tree_html
 

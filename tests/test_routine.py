@@ -13,12 +13,13 @@ from netutil import SIM, free_port
 
 from cmm.control import OpenPolicy
 from cmm.control.access import Client, Control
-from cmm.measurement.routine import Routine, RoutineCancelled, RoutineError, RoutineRun, teach_routine
+from cmm.measurement.routine import Routine, RoutineError, teach_routine
+from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
 from cmm.metrology.transform import invert
-from cmm.session.program import from_toml, load, machine_targets
-from cmm.session.journal import read_events
+from cmm.program.toml_program import from_toml, load, machine_targets
+from cmm.journal.writer import read_events
 from cmm.session.report import features_csv, render
-from cmm.session.store import open_session
+from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
 from cmm.station import Station
 

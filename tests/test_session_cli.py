@@ -9,7 +9,7 @@ import pytest
 
 import session_support as sup
 from cmm.cli import main
-from cmm.session.journal import Journal
+from cmm.journal.writer import Journal
 
 
 @pytest.fixture

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from cmm.session.journal import Journal, JournalBusy, JournalError, read_events
+from cmm.journal.writer import Journal, JournalBusy, JournalError, read_events
 from cmm.session.replay import Replay
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 
 import session_support as sup
 
@@ -27,7 +27,7 @@ CHILD = textwrap.dedent("""
     import session_support as sup
     from cmm.measurement.model import Part
     from cmm.measurement.recording import record
-    from cmm.session.store import DirectoryStore
+    from cmm.journal.store import DirectoryStore
     sim, machine, prober = sup.setup()
     part = Part("sample part", sim.part_mesh, sim.settings.part_pose.copy())
     rec = record(DirectoryStore({root!r}).create("killed"), machine, prober, part)

@@ -18,10 +18,10 @@ import pytest
 from netutil import free_port
 
 import session_support as sup
-from cmm.session.journal import read_events
-from cmm.session.model import Session
+from cmm.journal.writer import read_events
+from cmm.journal.session import Session
 from cmm.session.replay import Replay
-from cmm.session.store import PostgresStore, SessionBusy, SessionNotFound, StoreError, load_session, open_store, write_session
+from cmm.journal.store import PostgresStore, SessionBusy, SessionNotFound, StoreError, load_session, open_store, write_session
 
 
 
@@ -233,7 +233,7 @@ def test_a_station_records_through_a_database_restart_and_every_event_arrives_on
 def test_a_session_closed_while_the_database_is_down_is_uploaded_when_it_is_back(pg_server, tmp_path):
     """A station stopped during the outage leaves its journal in the spool folder: the next store opened on it
     (another process: here a fresh uploader) uploads it, once; the local journal then goes."""
-    from cmm.session import store_pg
+    from cmm.journal import store_pg
 
     spool = tmp_path / "spool"
     store = PostgresStore(pg_server.url, spool=spool)

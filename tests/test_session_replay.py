@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 import session_support as sup
-from cmm.measurement.records import FeatureRecord
-from cmm.measurement.state import SessionState
-from cmm.session.model import Session
-from cmm.session.reevaluate import fit_hits, reevaluate
+from cmm.journal.records import FeatureRecord
+from cmm.journal.state import SessionState
+from cmm.journal.session import Session
+from cmm.metrology.fit_hits import fit_hits
+from cmm.session.reevaluate import reevaluate
 from cmm.session.replay import Replay
-from cmm.session.store import DirectoryStore, load_session, write_session
+from cmm.journal.store import DirectoryStore, load_session, write_session
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +126,7 @@ def test_feature_events_read_and_write_back_unchanged_old_and_new(session):
     """The journal's feature and construction records are its events: read and written back, every recorded event
     gives itself again, keys in order; a feature event from before features named their probe (and without a
     tolerance) too, and re-evaluation keeps each feature's recorded probe and tolerance."""
-    from cmm.measurement.records import ConstructedRecord
+    from cmm.journal.records import ConstructedRecord
 
     meta = ("seq", "time", "kind")
     recorded = [e for e in session.events if e["kind"] in ("feature", "constructed")]

@@ -9,8 +9,8 @@ import pytest
 from netutil import SIM
 
 from cmm.control.modes import Refused
-from cmm.session.model import mesh_sha256
-from cmm.session.store import DirectoryStore, SessionBusy, load_session
+from cmm.journal.session import mesh_sha256
+from cmm.journal.store import DirectoryStore, SessionBusy, load_session
 from cmm.station import Station
 
 
@@ -50,7 +50,7 @@ def test_the_station_journals_config_part_hash_alignment_and_hits(station, tmp_p
 
 @pytest.mark.parametrize("bad", ["../../escape", "/tmp/absolute", "a/b", "", ".hidden", "x" * 200])
 def test_session_names_are_checked_by_the_station_itself(station, tmp_path, bad):
-    from cmm.session.store import StoreError
+    from cmm.journal.store import StoreError
 
     with pytest.raises(StoreError, match="not a usable session name"):
         station.measurement.new_session(bad)

@@ -13,11 +13,11 @@ import pytest
 
 import session_support as sup
 from cmm.session import worker
-from cmm.session.journal import encode_event, read_events
-from cmm.session.model import Session
+from cmm.journal.writer import encode_event, read_events
+from cmm.journal.session import Session
 from cmm.session.replay import MAX_CHECKPOINTS, Replay
 from cmm.session.report import render
-from cmm.session.store import DirectoryStore, SessionNotFound, count_lines, load_session
+from cmm.journal.store import DirectoryStore, SessionNotFound, count_lines, load_session
 
 
 @pytest.fixture(scope="module")
@@ -147,7 +147,7 @@ def _alive(pid: int) -> bool:
 
 
 def test_dispose_empties_a_replay_piece_by_piece_in_the_background():
-    from cmm.session.bulk import dispose
+    from cmm.journal.bulk import dispose
 
     events = _hit_events(6000)
     replay = Replay.from_events(events, "big")

@@ -12,7 +12,7 @@ import pytest
 from cmm.cli import main
 from cmm.metrology import spc
 from cmm.session.report import render
-from cmm.session.store import DirectoryStore, load_session
+from cmm.journal.store import DirectoryStore, load_session
 from cmm.session.trends import Measured, Trends
 from cmm.session.trends_chart import history_csv, summary, trend, trend_svg
 from test_spc import PISTON_RINGS

@@ -11,7 +11,7 @@ import ui_support
 from netutil import SIM, free_port
 
 from cmm.measurement.program import run_on
-from cmm.session import program as prog
+from cmm.program import toml_program as prog
 from cmm.session.trends import Trends
 
 pytest.importorskip("viser")

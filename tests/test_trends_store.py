@@ -10,7 +10,8 @@ import pytest
 from pg_support import PgServer
 
 from cmm.metrology.characteristics import Characteristic
-from cmm.session.trends import Measured, TrendError, Trends, measured
+from cmm.metrology.measured import measured
+from cmm.session.trends import Measured, TrendError, Trends
 
 BORE = "bore / diameter"
 FLAT = "top / flatness"

@@ -116,7 +116,7 @@ def test_export_report_and_reevaluate(app, operator, recorded):
     _wait(panel.reevaluate("first", "first-r12", tip_radius=1.2, method="ls"))
     rows = {r["name"]: r for r in panel.sessions()}
     assert rows["first-r12"]["hits"] == 3 and rows["first-r12"]["features"] == 1
-    from cmm.session.store import load_session
+    from cmm.journal.store import load_session
 
     derived = load_session(panel.store(), "first-r12")
     assert derived.start["tip_radius"] == pytest.approx(1.2) and derived.derived_from["session"] == "first"

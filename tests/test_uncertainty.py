@@ -75,7 +75,7 @@ def test_station_features_carry_their_budget_into_the_session_and_the_csv(tmp_pa
     import session_support as sup
     from cmm.dmis.runner import run_text
     from cmm.session.report import features_csv
-    from cmm.session.store import DirectoryStore, load_session
+    from cmm.journal.store import DirectoryStore, load_session
 
     gen = sup.sim_station(tmp_path, "budget")
     station = next(gen)

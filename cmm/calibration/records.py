@@ -23,7 +23,7 @@ from typing import Any
 from ..machine.geometry import GeometryCorrection
 from ..metrology.compensation import ALL_PRETRAVEL_TERMS, PretravelModel
 from ..metrology.numbers_text import finite
-from ..session.toml_text import toml_key, toml_value
+from ..program.toml_text import toml_key, toml_value
 
 DEFAULT_DIR = Path("calibration")
 PROBE_RECORD = "probe.toml"

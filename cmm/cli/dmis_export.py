@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: Any) -> int:
-    from ..session.program import ProgramError, load
+    from ..program.toml_program import ProgramError, load
     from ..station import load_config
     from ..dmis.export import to_dmis
 
@@ -46,7 +46,7 @@ def run(args: Any) -> int:
     mesh = None
     if args.part:
         from ..metrology.mesh import load_part
-        from ..session.model import file_sha256, mesh_sha256
+        from ..journal.session import file_sha256, mesh_sha256
 
         try:
             mesh = load_part(args.part)

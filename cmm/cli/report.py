@@ -38,9 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..session.journal import JournalError
-    from ..session.program import ProgramError
-    from ..session.store import StoreError
+    from ..journal.writer import JournalError
+    from ..program.toml_program import ProgramError
+    from ..journal.store import StoreError
     from ..session.trends import TrendError
 
     from ..metrology.colour_scale import ColourScale
@@ -54,9 +54,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         from ..session.export import resolve_part_mesh
-        from ..session.program import load as load_program
+        from ..program.toml_program import load as load_program
         from ..session.report import write_features_csv, write_report
-        from ..session.store import open_session
+        from ..journal.store import open_session
 
         session = open_session(args.session, args.store)
         mesh = resolve_part_mesh(session, args.part)

@@ -78,7 +78,7 @@ def run(args: Any) -> int:
 def _run(args: Any, path: Path, text: str) -> int:
     from ..session.export import resolve_part_mesh
     from ..session.report import write_report
-    from ..session.store import open_session
+    from ..journal.store import open_session
     from ..station import Station, load_config
     from ..session.notify import NotifyError, from_args
     from ..dmis.executor import DmisError

@@ -52,9 +52,9 @@ def _when(t: float | None) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..session.journal import JournalError
-    from ..session.program import ProgramError
-    from ..session.store import StoreError
+    from ..journal.writer import JournalError
+    from ..program.toml_program import ProgramError
+    from ..journal.store import StoreError
 
     try:
         return _run(args)
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from ..session.store import load_session, open_store
+    from ..journal.store import load_session, open_store
 
     store = open_store(args.store)
     if args.action == "list":
@@ -129,7 +129,7 @@ def _run(args: argparse.Namespace) -> int:
             write_json(s, args.json, mesh)
             print(f"wrote {len(s.events)} events to {args.json}")
         if args.qif:
-            from ..session.program import load as load_program
+            from ..program.toml_program import load as load_program
             from ..session.qif import write_qif
 
             target = f"{args.name}.qif" if args.qif is True else args.qif
@@ -143,7 +143,7 @@ def _run(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         from ..session.reevaluate import reevaluate
-        from ..session.store import write_session
+        from ..journal.store import write_session
 
         s = load_session(store, args.name)
         settings = s.probe_settings()
@@ -169,7 +169,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.action == "teach":
         from ..session.export import resolve_part_mesh
-        from ..session.program import save, teach
+        from ..program.toml_program import save, teach
 
         s = load_session(store, args.name)
         prog = teach(s, clearance=args.clearance, part_mesh=resolve_part_mesh(s))

@@ -31,7 +31,7 @@ def hide_password(url: str) -> str:
 
 def startup_failure(exc: BaseException, *, port: Any, sessions: Any) -> str:
     """The one sentence ``cmm serve`` prints when the station did not start (see the module docstring)."""
-    from ..session.store import StoreError, is_url
+    from ..journal.store import StoreError, is_url
 
     where = hide_password(str(sessions))
     chain = list(_chain(exc))

@@ -1,4 +1,4 @@
-"""A taught program or routine (:mod:`cmm.session.program`, ``cmm-program/1`` or ``/2``) written as a DMIS program.
+"""A taught program or routine (:mod:`cmm.program.toml_program`, ``cmm-program/1`` or ``/2``) written as a DMIS program.
 
 The program's hits are in part coordinates; the DMIS program places the part with ``D(PART) = TRANS/..`` and
 ``ROTAT`` statements from a part pose (part -> machine: the set-up the program will run on, by default the

@@ -463,7 +463,7 @@ def routine_manual_hits(run: Any, wizard_for: Callable[[list[str]], "AlignWizard
                 return list(w.steps[i].hit_ids[:n])
             if run._cancel:
                 w.close()
-                from .routine import RoutineCancelled
+                from .routine_run import RoutineCancelled
 
                 raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
             shown = f"{prompt}: {len(w.steps[i].hit_ids)} of {n} taken"

@@ -4,7 +4,7 @@ One :class:`MeasurementModel` per station (``station.measurement``) and one per 
 (:func:`cmm.measurement.recording.record`): hits arrive through :meth:`MeasurementModel.add_hit` (the control
 core's hit recorder, or the prober's listener), are journalled (fsync'ed / committed) before anyone is shown
 them, and features are fitted from them the same way everywhere: fit the pre-travel-corrected tip centres, then
-offset by the tip radius (:func:`cmm.session.reevaluate.fit_hit_records`, which re-evaluation uses too).
+offset by the tip radius (:func:`cmm.metrology.fit_hits.fit_hit_records`, which re-evaluation uses too).
 
 Probing goes through the ``probe`` callable the owner gives (the station: its control core; headless: the
 prober). Listeners (:meth:`subscribe`) get 'hit', 'hits', 'feature', 'features', 'part', 'info' and the machine
@@ -23,15 +23,15 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..journal.records import ConstructedRecord, FeatureRecord, HitRecord
+from ..journal.session import file_sha256, machine_snapshot, mesh_sha256
+from ..journal.state import SessionState
+from ..journal.store import check_name, is_url, open_store
+from ..journal.writer import Journal, encode_event
 from ..metrology.features import FitError, FitResult
+from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
-from ..session.journal import Journal, encode_event
-from ..session.model import file_sha256, machine_snapshot, mesh_sha256
-from ..session.reevaluate import fit_hit_records
-from ..session.store import check_name, is_url, open_store
-from .records import ConstructedRecord, FeatureRecord, HitRecord
-from .state import SessionState
 
 FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
 INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
@@ -67,7 +67,7 @@ class Part:
 class Feature:
     """A fitted feature as the model holds it: the whole fit (``result``: residuals, covariance, the
     better-fitting alternative) and its nominal as a :class:`NominalFeature`. What is recorded of it is its
-    :meth:`record`, the :class:`~cmm.measurement.records.FeatureRecord` the journal, the report, replay and
+    :meth:`record`, the :class:`~cmm.journal.records.FeatureRecord` the journal, the report, replay and
     re-evaluation read."""
 
     id: int
@@ -93,7 +93,7 @@ class Feature:
 @dataclass
 class ConstructedFeature:
     """A feature constructed from two others (intersection, distance, angle, mid-point); what is recorded of it
-    is its :meth:`record` (:class:`~cmm.measurement.records.ConstructedRecord`)."""
+    is its :meth:`record` (:class:`~cmm.journal.records.ConstructedRecord`)."""
 
     id: int
     name: str
@@ -141,7 +141,7 @@ class MeasurementModel:
     the hit;
     ``start_fields()`` adds to each session's ``start`` event (port, calibration).
 
-    Every event the model journals is folded into :attr:`state` (:class:`~cmm.measurement.state.SessionState`,
+    Every event the model journals is folded into :attr:`state` (:class:`~cmm.journal.state.SessionState`,
     the fold replay and re-evaluation make of a journal file), journal open or not: the hits (``hits``,
     ``deleted``), datums, geometric tolerances, report header and notes are read from it. The live fitted and
     constructed features (``features``, ``constructed``) keep their whole fits beside their records in the fold.
@@ -178,6 +178,9 @@ class MeasurementModel:
         self.aligned = False
         self.alignment_name = ""  # the alignment in force, as the operator knows it ("3-2-1 TOP/FRONT/LEFT")
         self.trends: Any = None  # cmm.session.trends.Trends: each program run is recorded there as a part
+        # writes a part's report beside its session journal (journal path, mesh=, title=) -> the report's path: a
+        # routine's report step (the station gives cmm.session.report.write_part_report)
+        self.reporter: Callable[..., Any] | None = None
         self._on_close: list[Callable[[], None]] = []
 
     @property
@@ -217,7 +220,7 @@ class MeasurementModel:
         if kind == "hit" and isinstance(info, dict):
             return  # the control core's hit event: add_hit has notified already, with the hit id
         if kind in MACHINE_EVENTS:
-            from ..session.wording import event_text
+            from ..journal.wording import event_text
 
             text = event_text(kind, info)
             self.events.append((time.time(), kind, text))
@@ -446,7 +449,7 @@ class MeasurementModel:
 
     def add_hit(self, hit: Any) -> int:
         """Record a hit: journalled before anyone is shown it; returns its session id. The model keeps it as a
-        :class:`~cmm.measurement.records.HitRecord` (the probe's hit with its id) the fold makes of the event, the
+        :class:`~cmm.journal.records.HitRecord` (the probe's hit with its id) the fold makes of the event, the
         record replay rebuilds."""
         with self.lock:
             hid = self._next_hit

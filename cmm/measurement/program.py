@@ -1,7 +1,7 @@
-"""Run a taught measurement program (:mod:`cmm.session.program`) on a measurement model.
+"""Run a taught measurement program (:mod:`cmm.program.toml_program`) on a measurement model.
 
 :func:`run_program` checks the program against the loaded part and the machine's travel BEFORE anything moves
-(:func:`cmm.session.program.check`), then probes every hit through the model and fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
+(:func:`cmm.program.toml_program.check`), then probes every hit through the model and fits the features with their recorded kind, method, nominal and tolerance. On the station a front end runs it
 as a job of the control core (:func:`run_on`), so it holds the machine like any other command. When the model
 records trends (``model.trends``, :class:`cmm.session.trends.Trends`), the run is a part of the program's
 series: every characteristic of its features, with the part's ``serial``.
@@ -24,7 +24,7 @@ import numpy as np
 
 from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
-from ..session.program import Program, ProgramError, check, load, machine_targets
+from ..program.toml_program import Program, ProgramError, check, load, machine_targets
 from .model import Feature, MeasurementModel
 
 
@@ -97,9 +97,9 @@ def record_trend(model: MeasurementModel, series: str, features: Any = (), *, va
                  run_id: str | None = None) -> Any:
     """Record a finished run as a part of ``series`` in ``model.trends`` (None when the model records no trends):
     the characteristics of its fitted ``features`` and any other ``values``
-    (:class:`cmm.session.trends.Measured`, e.g. :func:`cmm.session.trends.tolerance_values` of a DMIS run). A
+    (:class:`cmm.metrology.measured.Measured`, e.g. :func:`cmm.session.trends.tolerance_values` of a DMIS run). A
     trend that cannot be written is noted in the session and the operator's log; the measurement stands."""
-    from ..session.trends import TrendError, feature_values
+    from ..metrology.measured import TrendError, feature_values
 
     notifier = getattr(model, "notifier", None)  # cmm.session.notify: the run's end to a webhook / MQTT
     if notifier is not None:

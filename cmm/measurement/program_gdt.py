@@ -1,11 +1,11 @@
 """A taught routine's datums and geometric tolerances defined on the run's model, on the features it measured
-(the program file's tables are read and written by :mod:`cmm.session.program_gdt`)."""
+(the program file's tables are read and written by :mod:`cmm.program.gdt`)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from ..session.program_gdt import map_targets
+from ..program.gdt import map_targets
 from .model import MeasurementError
 
 

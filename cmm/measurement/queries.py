@@ -24,7 +24,7 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                 "tip_radius": radius, "qualified_on": row.get("qualified_on", ""), "status": status}
 
     def characteristics(client: Any) -> list[dict[str, Any]]:
-        from ..session.trends import feature_values
+        from ..metrology.measured import feature_values
 
         with measurement.lock:
             records = [f.record() for f in measurement.features.values()]

@@ -48,7 +48,7 @@ def model_frame(model: Any, machine: bool = False) -> Frame:
 
 
 def session_frame(state: Any) -> Frame:
-    """A journal's frame (:class:`cmm.measurement.state.SessionState`): its last alignment's."""
+    """A journal's frame (:class:`cmm.journal.state.SessionState`): its last alignment's."""
     a = state.alignment
     if a is None or state.part_pose is None:
         return MACHINE

@@ -2,7 +2,7 @@
 
 The one code path from definitions to the numbers the feature tree, the report, the JSON/CSV export and
 re-evaluation show. Definitions are plain JSON-ready dicts (they are journalled as ``datum`` and ``gdt``
-events, see :mod:`cmm.measurement.state`):
+events, see :mod:`cmm.journal.state`):
 
 - datum: ``{"label": "A", "feature": 3, "modifier": "" | "MMB" | "LMB", "targets": [hit ids]}`` (targets: the
   datum plane through those hits of its feature, see :func:`cmm.metrology.datums.datum_from_targets`; a target

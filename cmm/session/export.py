@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.session import Session, mesh_sha256
 from .gdt_session import session_gdt
-from .model import Session, mesh_sha256
 
 CSV_COLUMNS = ["id", "mode", "deleted", "counts_x", "counts_y", "counts_z", "machine_x", "machine_y", "machine_z",
                "approach_x", "approach_y", "approach_z", "speed", "time", "point_x", "point_y", "point_z", "deviation"]
@@ -36,7 +36,7 @@ def resolve_part_mesh(session: Session, part: Any = None, search: list[str | Pat
     if ref is None:
         return None
     from ..metrology.mesh import load_part
-    from .model import file_sha256
+    from ..journal.session import file_sha256
 
     candidates: list[Any] = []
     if part is not None:

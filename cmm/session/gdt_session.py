@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.session import Session
 from ..metrology.characteristics import Characteristic
 from ..metrology.gdt_eval import MeasuredFeature, evaluate
-from .model import Session
 
 
 def measured_features(session: Session, tolerances: dict[int, dict[str, float]] | None = None) -> dict[int, MeasuredFeature]:

@@ -152,7 +152,7 @@ class Notifier:
                        "characteristics": len(values), "message": text})
 
     def fault(self, model: Any, kind: str, info: Any) -> None:
-        from .wording import event_text
+        from ..journal.wording import event_text
 
         try:
             text = event_text(kind, info)

@@ -41,9 +41,9 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.session import Session
 from ..metrology.characteristics import Characteristic, verdict
 from .gdt_session import session_gdt
-from .model import Session
 from .qif_map import FEATURE_TYPES, ORIENTATION, QIF_NS, WITH_ZONE_SHAPE, expanded_uncertainty, qif_type, status
 from .report import _constructed_rows, _tolerances
 

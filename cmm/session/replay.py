@@ -13,7 +13,7 @@
 of more than 8,192 events: at most 32 checkpoints, each a copy of the state,
 so a 200,000-hit session needs a few hundred MB, not tens of GB), so
 dragging a slider over a 10,000-hit session stays interactive. States are independent
-copies: the UI may keep them. ``SessionState`` (see :mod:`cmm.measurement.state`)
+copies: the UI may keep them. ``SessionState`` (see :mod:`cmm.journal.state`)
 has ``hits`` / ``deleted_hits`` (HitRecord: id, counts, machine, approach,
 point, ...), ``features`` (FeatureRecord: name, kind, method, hit_ids, fit,
 nominal, tolerance, probe: the record the live feature journalled), ``part`` / ``part_pose`` / ``alignments``, ``notes``, ``errors``
@@ -26,9 +26,9 @@ import bisect
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from .journal import read_events
-from ..measurement.state import SessionState
-from .model import Session
+from ..journal.session import Session
+from ..journal.state import SessionState
+from ..journal.writer import read_events
 
 CHECKPOINT_EVERY = 256
 MAX_CHECKPOINTS = 32  # each is a full copy of the state: their number, not their spacing, bounds the memory

@@ -31,18 +31,18 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.records import ConstructedRecord, FeatureRecord
+from ..journal.session import Session
+from ..journal.wording import error_text, grouped
+from ..metrology.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
 from ..metrology.characteristics import Characteristic, verdict
-from .gdt_session import session_gdt
+from ..metrology.characteristics import DEFAULT_TOLERANCE
 from ..metrology.colour_scale import ColourScale
 from ..metrology.feature_distance import around_axis, surface_distance
 from ..metrology.features import proof_text
 from .export import hit_deviations
-from ..metrology.actuals import COLUMNS as ACTUAL_COLUMNS, actuals, cells as actual_cells, session_frame
-from ..measurement.records import ConstructedRecord, FeatureRecord
-from ..metrology.characteristics import DEFAULT_TOLERANCE
-from .model import Session
+from .gdt_session import session_gdt
 from .probe_used import probe_uses
-from .wording import error_text, grouped
 
 NO_ALIGNMENT = ("No alignment was made: the part is where the station assumed it to be (nominal set-up), not "
                 "where it was measured to be. Deviations from the part and positions include the set-up error.")
@@ -477,9 +477,9 @@ def render(session: Session, *, mesh: Any = None, program: Any = None, title: st
     """The report as an HTML string. ``colour_scale`` (e.g. the 3D scene's) sets the colour map's bands, cut-off
     and reach; by default the form tolerance's bands. ``trends``: charts
     (:func:`cmm.session.trends_chart.trend`) shown in a section "Trends across parts"."""
-    from .bulk import gc_paused
+    from ..journal.bulk import gc_paused
 
-    with gc_paused():  # see cmm.session.bulk: no collector passes over a big session while it is drawn
+    with gc_paused():  # see cmm.journal.bulk: no collector passes over a big session while it is drawn
         return _render(session, mesh=mesh, program=program, title=title, default_tolerance=default_tolerance,
                        colour_scale=colour_scale, trends=trends)
 
@@ -691,6 +691,14 @@ def write_report(session: Session, path: str | Path, **kw: Any) -> Path:
     p = Path(path)
     p.write_text(render(session, **kw), encoding="utf-8")
     return p
+
+
+def write_part_report(journal: Path, *, mesh: Any = None, title: str = "") -> Path:
+    """The report of the session journalled at ``journal`` (a file), written beside it as HTML: what a routine's
+    report step makes (the measurement model's ``reporter``)."""
+    from ..journal.store import open_session
+
+    return write_report(open_session(journal), journal.with_suffix(".html"), mesh=mesh, title=title)
 
 
 def write_features_csv(session: Session, path: str | Path, **kw: Any) -> Path:

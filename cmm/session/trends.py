@@ -3,11 +3,11 @@
 A part (:class:`PartResult`) is the series key (the routine or program name), the station that measured it,
 its run id (unique per station), its serial, the time, and per characteristic the measured value, nominal,
 tolerance limits and unit (:class:`Measured`). :meth:`Trends.record_part` is the one call a runner makes
-(:func:`feature_values` turns fitted features into characteristics).
+(:func:`cmm.metrology.measured.feature_values` turns fitted features into characteristics).
 
-Storage, built like the session store (:mod:`cmm.session.store`):
+Storage, built like the session store (:mod:`cmm.journal.store`):
 
-- **local** (always): ``<dir>/parts.jsonl``, an append-only journal (:class:`cmm.session.journal.Journal`:
+- **local** (always): ``<dir>/parts.jsonl``, an append-only journal (:class:`cmm.journal.writer.Journal`:
   fsync'ed before ``record_part`` returns) and ``<dir>/index.sqlite``, a query index rebuilt from the journal
   whenever it is behind or missing (it holds nothing the journal does not);
 - **shared** (optional): a PostgreSQL database several stations point at (:mod:`cmm.session.trends_pg`).
@@ -35,37 +35,9 @@ from typing import Any, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from ..metrology.characteristics import Characteristic
-from .journal import Journal, JournalBusy, _decode
+from ..journal.writer import Journal, JournalBusy, _decode
+from ..metrology.measured import SEP, Measured, TrendError
 from .trends_parts import PartsCache
-
-SEP = " / "  # feature / characteristic
-
-
-class TrendError(RuntimeError):
-    """A trends action refused, in an operator's words."""
-
-
-@dataclass(frozen=True)
-class Measured:
-    """One characteristic of one part: limits are absolute (nominal + tolerance); None: no limit that side."""
-
-    name: str  # "boss / diameter"
-    value: float
-    nominal: float | None = None
-    lower: float | None = None
-    upper: float | None = None
-    unit: str = "mm"
-
-    @property
-    def ok(self) -> bool | None:
-        if self.lower is None and self.upper is None:
-            return None
-        return not ((self.upper is not None and self.value > self.upper + 1e-12)
-                    or (self.lower is not None and self.value < self.lower - 1e-12))
-
-    def row(self) -> list[Any]:
-        return [self.name, self.value, self.nominal, self.lower, self.upper, self.unit]
 
 
 @dataclass(frozen=True)
@@ -97,31 +69,6 @@ class History:
 
     def __len__(self) -> int:
         return len(self.value)
-
-
-def measured(c: Characteristic) -> Measured | None:
-    """A report characteristic as a trend value; None when it was not measured (it needs a nominal).
-    Form and position (nominal 0, tolerance zone from 0 up) have an upper limit only."""
-    if c.actual is None:
-        return None
-    name = f"{c.feature}{SEP}{c.name}"
-    if c.nominal is None:
-        return Measured(name, float(c.actual), None, None, None, c.unit)
-    one_sided = c.lower == 0.0 and c.nominal == 0.0
-    return Measured(name, float(c.actual), float(c.nominal), None if one_sided else c.nominal + c.lower,
-                    c.nominal + c.upper, c.unit)
-
-
-def feature_values(features: Iterable[Any], default_tolerance: dict[str, float] | None = None) -> list[Measured]:
-    """The characteristics of fitted features (:class:`~cmm.measurement.records.FeatureRecord`: a live feature's
-    ``record()``) as trend values."""
-    out = []
-    for f in features:
-        for c in f.characteristics({**(default_tolerance or {}), **(f.tolerance or {})}):
-            m = measured(c)
-            if m is not None:
-                out.append(m)
-    return out
 
 
 DEVIATION_WORDS = ("DIAM", "RAD", "DISTB", "ANGLB")  # DMIS tolerances whose value is a deviation from a nominal
@@ -181,7 +128,7 @@ def open_trends(directory: str | Path, *, station: str | None = None, database: 
     """A station's trends as its front ends open them (``cmm serve``, ``cmm run``): the database is ``database``,
     else CMM_TRENDS_DB, else the session store when that is a ``postgresql://`` URL; connected (and what waited
     uploaded) at once, then kept up to date in the background."""
-    from .store import is_url
+    from ..journal.store import is_url
 
     db = database or os.environ.get("CMM_TRENDS_DB") or (str(sessions) if is_url(sessions) else None)
     trends = Trends(directory, station=station, database=db)

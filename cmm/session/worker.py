@@ -157,7 +157,7 @@ getattr(threading, "_register_atexit", atexit.register)(_close_shared)
 
 
 def _load(store: StoreSpec, name: str) -> Any:
-    from .store import load_session, open_store
+    from ..journal.store import load_session, open_store
 
     return load_session(open_store(store), name)
 
@@ -232,7 +232,7 @@ def reevaluate(store: StoreSpec, name: str, new: str, tip_radius: float = 0.0,
     """Re-evaluate ``name`` from its raw counts into the new session ``new``; its hit and feature counts and
     the features that could not be refitted (``errors``: their messages)."""
     from .reevaluate import reevaluate as derive
-    from .store import open_store, write_session
+    from ..journal.store import open_store, write_session
 
     session = _load(store, name)
     settings = session.probe_settings()

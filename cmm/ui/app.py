@@ -211,7 +211,7 @@ class StationApp:
             self._dirty["part"] = True
         elif kind in ("deadman", "limit", "contact", "error", "estop", "fault", "homed", "reset", "reconnect") or \
                 (kind == "stop" and isinstance(info, dict) and not info.get("ok", True)):
-            from ..session.wording import event_text, event_title
+            from ..journal.wording import event_text, event_title
 
             # toasts in words: "Unexpected probe contact at X ... Y ... Z ...", not "contact {'position': [...]}"
             text = event_text(kind, info)

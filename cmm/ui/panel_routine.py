@@ -29,10 +29,11 @@ from pathlib import Path
 from typing import Any
 
 from ..measurement.align_wizard import routine_manual_hits
-from ..measurement.routine import (CONSTRUCTIONS, Routine, RoutineError, RoutinePath, RoutineRun, routine_path,
-                                   teach_routine)
-from ..session.program import ProgramError, load, part_hash
-from ..session.store import open_session
+from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, teach_routine
+from ..measurement.routine_path import RoutinePath, routine_path
+from ..measurement.routine_run import RoutineRun
+from ..program.toml_program import ProgramError, load, part_hash
+from ..journal.store import open_session
 from .context import OPERATOR_ERRORS, PanelContext
 from .path_preview import PathPreview
 
@@ -371,7 +372,7 @@ class RoutinePanel:
 
     def _part_session(self, stem: str) -> str:
         """``PROGRAM n``: the first n from this page's run count on that names no session in the store yet."""
-        from ..session.store import open_store
+        from ..journal.store import open_store
 
         store = open_store(self.station.measurement.session_dir)
         n = len(self.dmis_results) + 1

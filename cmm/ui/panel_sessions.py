@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..control import MotionError
-from ..session.bulk import dispose, gc_paused
-from ..session.journal import JournalError
-from ..session.store import StoreError, check_name, is_url, open_store
+from ..journal.bulk import dispose, gc_paused
+from ..journal.writer import JournalError
+from ..journal.store import StoreError, check_name, is_url, open_store
 from ..session.worker import WorkerError, shared_summaries, shared_worker
 
 from .context import PanelContext

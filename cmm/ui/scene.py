@@ -427,7 +427,7 @@ class FeatureNode:
 
 
 class ReplayView:
-    """A recorded session's state (``cmm.measurement.state.SessionState``) drawn into one client's scene.
+    """A recorded session's state (``cmm.journal.state.SessionState``) drawn into one client's scene.
 
     The live scene (:class:`SceneView`, shared by every tab) is left alone: a
     replay is what one browser looks at, so it goes to ``client.scene`` under

@@ -45,12 +45,12 @@ from typing import Any
 
 import numpy as np
 
+from ..journal.session import Session, mesh_sha256
 from ..metrology import fit_criteria, fit_ls
-from ..metrology.pick import NominalFeature
-from .toml_text import toml_value
-from . import program_gdt
 from ..metrology.characteristics import DEFAULT_TOLERANCE
-from .model import Session, mesh_sha256
+from ..metrology.pick import NominalFeature
+from . import gdt as program_gdt
+from .toml_text import toml_value
 
 FORMAT = "cmm-program/1"
 FORMAT_ROUTINE = "cmm-program/2"  # the same file with an ordered [[steps]] list (cmm.measurement.routine)

@@ -2,7 +2,7 @@
 
 The live measurement model (:class:`cmm.measurement.model.MeasurementModel`) folds every event it journals
 into its own state with :meth:`SessionState.apply`; replay, re-evaluation, the report and the scrubber fold a
-journal file's events (:class:`cmm.session.model.Session`) with the same ``apply``, so an event means one thing.
+journal file's events (:class:`cmm.journal.session.Session`) with the same ``apply``, so an event means one thing.
 
 Event kinds (every event also has ``seq``, ``time`` and ``kind``):
 
@@ -24,7 +24,7 @@ Event kinds (every event also has ``seq``, ``time`` and ``kind``):
   the fit summary (``n_points``, ``form``, ``sigma`` and geometry such as
   ``point``, ``normal``, ``center``, ``radius``, ``diameter``...), ``nominal``
   (machine coordinates), optional ``tolerance`` ({"size", "form", "location"}) and ``probe`` (the probe(s)
-  that took its hits). :class:`~cmm.measurement.records.FeatureRecord` reads and writes it.
+  that took its hits). :class:`~cmm.journal.records.FeatureRecord` reads and writes it.
 - ``constructed``: ``id``, ``name``, ``operation`` (intersection, distance,
   angle, midpoint), ``operands`` (feature ids), ``result`` and ``nominal``
   ({"kind": point/line/distance/angle, geometry or ``value``}), ``tolerance``.

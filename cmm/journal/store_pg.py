@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .journal import Journal, is_locked, try_lock
+from .writer import Journal, is_locked, try_lock
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS cmm_sessions (
@@ -53,7 +53,7 @@ def pg_schema() -> str:
     """The session tables (created if missing)."""
     return SCHEMA
 
-LOCK_SPACE = 0x434D4D  # "CMM": first key of the two-key advisory locks (as cmm.session.store)
+LOCK_SPACE = 0x434D4D  # "CMM": first key of the two-key advisory locks (as cmm.journal.store)
 OFFLINE_SUFFIX = " (recorded offline)"
 
 

@@ -14,7 +14,7 @@ JSON Lines (not SQLite, not a binary log) for the embedded default because:
 On-disk format (unchanged since the first version, so old journals open):
 one JSON object per line with ``seq`` (1, 2, ... per journal), ``time`` (wall
 seconds since the epoch), ``kind`` and the event's fields (see
-:mod:`cmm.measurement.state` for the kinds). Non-finite floats are refused.
+:mod:`cmm.journal.state` for the kinds). Non-finite floats are refused.
 
 A writer holds an exclusive advisory lock (``flock``) on the file while it is
 open, so the session store can refuse to rename or delete a session that is

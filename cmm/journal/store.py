@@ -3,12 +3,12 @@
 Two backends share one API (:class:`SessionStore`):
 
 - :class:`DirectoryStore` (the embedded default, no server): a directory of
-  JSON Lines journals ``<name>.jsonl`` (see :mod:`cmm.session.journal`).
+  JSON Lines journals ``<name>.jsonl`` (see :mod:`cmm.journal.writer`).
 - :class:`PostgresStore`: tables ``cmm_sessions`` (id, name, created) and
   ``cmm_events`` (session_id, seq, event JSON text). Each event is fsync'ed to a
   local journal (the spool folder) before ``append`` returns, so the same
   "acknowledged = durable" rule holds, and uploaded in the background
-  (:mod:`cmm.session.store_pg`): a database outage never refuses an event.
+  (:mod:`cmm.journal.store_pg`): a database outage never refuses an event.
 
 ``open_store(spec)`` picks the backend from a directory path or a
 ``postgresql://`` URL.
@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterator, Protocol
 
-from .journal import Journal, JournalBusy, JournalContents, is_locked, parse_lines, read_events
-from .model import Session
+from .session import Session
+from .writer import Journal, JournalBusy, JournalContents, is_locked, parse_lines, read_events
 
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._ -]{0,127}$")
 
@@ -202,7 +202,7 @@ class PostgresStore:
     """Sessions in a PostgreSQL database (psycopg 3), selected by a ``postgresql://`` URL.
 
     A session being recorded is journalled locally first and uploaded in the background
-    (:mod:`cmm.session.store_pg`): an outage of the database delays the upload, it never refuses an event.
+    (:mod:`cmm.journal.store_pg`): an outage of the database delays the upload, it never refuses an event.
     Opening the store does not need the database; listing and reading do (with the local journals of sessions
     still uploading as a fallback)."""
 

@@ -1,6 +1,6 @@
-"""A session journal file: its events, their fold (:class:`cmm.measurement.state.SessionState`) and the
+"""A session journal file: its events, their fold (:class:`cmm.journal.state.SessionState`) and the
 configuration it was recorded with (the ``start`` event); the snapshot helpers the measurement model writes the
-``start`` event with. The event kinds are listed in :mod:`cmm.measurement.state`.
+``start`` event with. The event kinds are listed in :mod:`cmm.journal.state`.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import numpy as np
 
 from ..machine.config import AxisConfig, counts_to_mm, load
 from ..machine.geometry import GeometryCorrection
-from ..measurement.records import FeatureRecord, HitRecord, PartRef
-from ..measurement.state import SessionState
+from .records import FeatureRecord, HitRecord, PartRef
+from .state import SessionState
 
 FORMAT = 2
 

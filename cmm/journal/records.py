@@ -2,7 +2,7 @@
 
 Each record reads its event (``from_event``) and, where the measurement model journals it, writes it
 (``to_event``), so the live model, replay, re-evaluation and the report read the same fields. The fold of the
-events into these records is :class:`cmm.measurement.state.SessionState`.
+events into these records is :class:`cmm.journal.state.SessionState`.
 """
 
 from __future__ import annotations
