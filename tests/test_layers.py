@@ -344,3 +344,45 @@ def test_the_pendant_only_translates():
         bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
                if attr in ("use_policy_of", "can_move", "may_stop", "policy", "refusal")]
         assert uses and not bad, f"{name} deciding access itself:\n" + "\n".join(bad)
+
+
+# front-end modules that compose a station themselves, and why: each is a program's entry point that builds the
+# station it then drives only through the command API (the composition a front end needs, never the model)
+COMPOSERS = {
+    "cmm.cli.serve": "`cmm serve` builds the station it serves (the page, the pendant, I++, OPC UA)",
+    "cmm.cli.run": "`cmm run` builds the station a program runs on, then sends the run_program verb",
+    "cmm.cli.calibrate": "`cmm calibrate` builds the station whose routines it runs with the qualify verb",
+}
+FRONT_END_PACKAGES = ("ui", "ippdme", "opcua", "cli", "dmis")
+
+
+def test_front_ends_import_neither_the_station_nor_the_measurement_model():
+    """The page, the pendant, the I++ server, OPC UA, DMIS and the command line receive the command API and read
+    the model through its queries: none imports ``cmm.station`` or ``cmm.measurement.model`` (their sentences and
+    names come from ``cmm.measurement.errors``), except the entry points in COMPOSERS, which build the station."""
+    g = _graph()
+    bad = [f"{a} -> {b}" for a, b in g.edges
+           if _layer(a) in FRONT_END_PACKAGES and b in ("cmm.station", "cmm.measurement.model")
+           and not (b == "cmm.station" and a in COMPOSERS)]
+    assert not bad, "front ends importing the station or the model:\n" + "\n".join(sorted(bad))
+    assert all(m in g for m in COMPOSERS), "a composer named here no longer exists: drop it from COMPOSERS"
+
+
+def test_the_page_never_holds_the_models_lock():
+    """The page draws from the API's ``model`` query (a snapshot copied under the model's lock inside the
+    measurement package) and never takes ``measurement.lock`` itself, so a slow redraw never holds up a hit."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if f.split("/")[0] in FRONT_END_PACKAGES
+           and attr == "lock" and owner.split(".")[-1] in ("measurement", "model", "station", "st", "host")]
+    assert not bad, "front ends holding the model's lock:\n" + "\n".join(bad)
+
+
+def test_in_process_front_ends_call_the_api_one_way():
+    """The page, the pendant, the I++ server, DMIS, the command line and calibration call the API with
+    ``invoke`` (the verb's result, its own error raised); ``call`` and ``request`` are the forms of the wire
+    adapters, which answer a remote client with an error code: the OPC UA server's."""
+    wire = ("opcua/",)
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("call", "request") and owner.split(".")[-1] in ("commands", "api", "cmds")
+           and not f.startswith(wire)]
+    assert not bad, "the API called another way than invoke:\n" + "\n".join(bad)

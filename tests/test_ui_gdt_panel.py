@@ -15,7 +15,7 @@ from cmm.measurement.model import Part
 from cmm.measurement.recording import record
 from cmm.metrology.compensation import PretravelModel
 from cmm.journal.store import DirectoryStore, load_session
-from cmm.station import register_measurement_verbs
+from cmm.measurement.verbs import register_measurement_verbs
 from cmm.ui.context import PanelContext
 from cmm.ui.panel_features import FeaturesPanel, tree_html
 

@@ -24,7 +24,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: Any) -> int:
     from ..program.toml_program import ProgramError, load
-    from ..station import load_config
+    from ..machine.config import load as load_config
     from ..dmis.export import to_dmis
 
     try:

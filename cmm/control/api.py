@@ -12,10 +12,12 @@ Front ends in this process may use :meth:`CommandAPI.invoke` instead: the same v
 returned and the verb's own error raised (the UI and the CLI tell it in their words). A few verbs take Python
 callables and so exist in process only (``configure``, ``run_job``, the progress callbacks).
 
-The machine verbs are registered by the control core; the station registers the measurement verbs
-(``measure_feature``, ``construct``, ``undo``, ``align``, ``auto_measure``, ``run_program``, ``qualify``, the
-journal's ``new_session``, ``note`` and ``record_event`` ...)
-with :meth:`CommandAPI.register`, since the measurement model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
+The machine verbs are registered by the control core; each package registers its own where it lives, with
+:meth:`CommandAPI.register`: the measurement (``measure_feature``, ``construct``, ``undo``, ``align``,
+``auto_measure``, ``run_program``, the journal's ``new_session``, ``note`` and ``record_event`` ...:
+:mod:`cmm.measurement.verbs`, its queries :mod:`cmm.measurement.queries`), the calibration (``qualify``,
+``save_calibration`` ...: :mod:`cmm.calibration.verbs`); the station only calls them once it has built both sides,
+since the measurement model sits beside the control layer, not under it. :meth:`CommandAPI.verbs` lists them all with their
 parameters (the README's table).
 """
 
@@ -89,6 +91,7 @@ class CommandAPI:
     # cmm.control.roles.RolePolicy on a station with a user file: each verb checked against the client's role;
     # None: the local, no-login mode (the control holder rule alone)
     roles: Any = None
+    REQUIRED = REQUIRED  # the marker, for packages that register verbs without importing this module
 
     def __post_init__(self) -> None:
         c = self.controller

@@ -118,19 +118,25 @@ class StationBackend:
         busy = busy_holder(self.controller, self.client.id)
         if busy is not None:
             return busy
-        answer = self.commands.call(self.client, "take_control", {"peer": self.peer})
-        return None if answer.ok else answer.error["message"]
+        try:
+            self.commands.invoke(self.client, "take_control", peer=self.peer)
+        except Exception as exc:  # noqa: BLE001 - the refusal is told to the I++ client in its words
+            return str(exc) or type(exc).__name__
+        return None
 
     def release(self) -> None:
-        self.commands.call(self.client, "release_control")
+        try:
+            self.commands.invoke(self.client, "release_control")
+        except Exception:  # noqa: BLE001 - a connection that ends releases what it can; nothing to tell
+            pass
 
     # --- queries --------------------------------------------------------------------
     @property
     def homed(self) -> bool:
-        return bool(self.controller.state.homed)
+        return bool(self.commands.invoke(self.client, "state").homed)
 
     def position(self) -> np.ndarray:
-        return np.asarray(self.controller.frame_position("machine"), dtype=float)
+        return np.asarray(self.commands.invoke(self.client, "position", frame="machine"), dtype=float)
 
     def check_target(self, target: np.ndarray) -> np.ndarray:
         return self.controller.check_target(target)

@@ -33,18 +33,13 @@ from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
 
-FEATURE_KINDS = ("point", "line", "plane", "circle", "sphere", "cylinder", "cone")
-INFO_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
+from .errors import FEATURE_KINDS, INFO_FIELDS, MeasurementError  # noqa: F401 - front ends import them there
 TOLERANCE_KEYS = ("size", "form", "location", "position", "angle", "size_lower", "size_upper")
 # the diameter's own limits (deviations from the nominal, mm; a DMIS TOL/DIAM, -0.01, 0.05): any sign
 SIZE_LIMITS = ("size_lower", "size_upper")
 # machine events the journal records, and which of them as errors
 MACHINE_EVENTS = ("contact", "deadman", "limit", "error", "estop", "fault", "stop", "reset", "reconnect")
 MACHINE_ERRORS = ("contact", "error", "fault", "estop")
-
-
-class MeasurementError(RuntimeError):
-    """An action the measurement model refuses, in an operator's words."""
 
 
 @dataclass

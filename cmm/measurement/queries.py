@@ -4,7 +4,40 @@ client, anonymous observers too)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
+
+
+@dataclass(frozen=True)
+class ModelSnapshot:
+    """The measurement model at one moment, copied under the model's lock: its hits (id -> HitRecord), the hits
+    deleted (undo brings them back), fitted features and constructions (id -> the model's feature
+    objects, as a copy of the dicts under the lock gave them), the part and the last hit. Front ends draw from it and never take the lock
+    themselves; an in-process query (the objects are the model's records, not JSON)."""
+
+    hits: dict[int, Any] = field(default_factory=dict)
+    deleted: dict[int, Any] = field(default_factory=dict)
+    features: dict[int, Any] = field(default_factory=dict)
+    constructed: dict[int, Any] = field(default_factory=dict)
+    part: Any = None
+    last_hit: Any = None
+
+    def hit_or_deleted(self) -> dict[int, Any]:
+        """Every hit by id, the deleted ones too (a feature's hits that were deleted after its fit)."""
+        return {**self.deleted, **self.hits}
+
+    def named(self) -> list[tuple[int, str]]:
+        """(id, name) of every feature and construction, by id."""
+        return sorted([(fid, f.name) for fid, f in self.features.items()]
+                      + [(fid, c.name) for fid, c in self.constructed.items()])
+
+
+def snapshot(measurement: Any) -> ModelSnapshot:
+    """A :class:`ModelSnapshot` of ``measurement``, taken under its lock (the one place that lock is taken for a
+    reader outside the model)."""
+    with measurement.lock:
+        return ModelSnapshot(dict(measurement.hits), dict(measurement.deleted), dict(measurement.features),
+                             dict(measurement.constructed), measurement.part, measurement.last_hit)
 
 
 def register_queries(api: Any, measurement: Any, calibration: Any = None) -> None:
@@ -34,6 +67,9 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                         "unit": m.unit, "ok": m.ok})
         return out
 
+    api.register("model", lambda client: snapshot(measurement), {},
+                 "in process: the measurement model at this moment (hits, deleted hits, features, constructions, "
+                 "the part, the last hit), copied under the model's lock; front ends draw from it", query=True)
     api.register("probe_in_use", probe, {}, "the probe in use: name, tip diameter and qualified radius (mm), the date "
                  "of its qualification and its status: qualified, expired or not qualified", query=True)
     api.register("characteristics", characteristics, {},

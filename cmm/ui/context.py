@@ -24,7 +24,7 @@ from types import SimpleNamespace
 from typing import Any, Callable
 
 from ..control import Client, MotionError
-from ..measurement.model import MeasurementError
+from ..measurement.errors import MeasurementError
 from ..metrology.features import FitError
 from .pick_highlight import PickDrawing
 
@@ -129,6 +129,11 @@ class PanelContext:
     def commands(self) -> Any:
         """The command API (:mod:`cmm.control.api`): the verbs every front end sends."""
         return self.station.controller.commands
+
+    def model(self) -> Any:
+        """The measurement model now (:class:`cmm.measurement.queries.ModelSnapshot`): the API's ``model``
+        query as this tab, so a panel never holds the model's lock while it draws."""
+        return self.commands.invoke(self.who(), "model")
 
     def do(self, action: str, method: str, /, *, guarded: bool = False, **params: Any) -> Any:
         """Send the verb ``method`` as this tab: the core checks it; its refusal or error is shown, giving None."""

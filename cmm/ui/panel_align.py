@@ -228,8 +228,7 @@ class AlignPanel:
     def refresh(self) -> None:
         if self.wizard is not None:
             self.show_wizard()
-        with self.station.measurement.lock:
-            feats = sorted(self.station.measurement.features.items())
+        feats = sorted(self.ctx.model().features.items())
         opts = tuple(f"{fid} {f.name} ({f.kind})" for fid, f in feats) or ("-",)
         for k in ("p", "s", "t"):
             self.ctx.set(f"align:{k}", "options", opts, self.gui.get(k))

@@ -33,9 +33,10 @@ from ..metrology.features import proof_text
 from ..metrology.gdt import CHARACTERISTICS, FORM
 from ..metrology.pick import NominalFeature
 from ..metrology.actuals import actuals, actuals_text, model_frame
-from ..measurement.model import FEATURE_KINDS, MeasurementError
+from ..measurement.errors import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
 from .ids import parse_ids, parse_targets
+from .model_view import model_of
 
 RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
 RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
@@ -53,9 +54,8 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = (), machi
     machine coordinates)."""
     e = html.escape
     frame = model_frame(station.measurement, machine)
-    with station.measurement.lock:
-        feats = sorted(station.measurement.features.items())
-        built = sorted(station.measurement.constructed.items())
+    view = model_of(station)
+    feats, built = sorted(view.features.items()), sorted(view.constructed.items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
     rows = [f"<div class='cmm-frame' style='font:11px system-ui;color:#444'>actuals in <b>{e(frame.label)}</b></div>"
@@ -227,8 +227,7 @@ class FeaturesPanel:
     def hit_ids_for(self, ids_text: str, last_n: int) -> list[int]:
         if ids_text.strip():
             return parse_ids(ids_text)
-        with self.station.measurement.lock:
-            ids = sorted(self.station.measurement.hits)
+        ids = sorted(self.ctx.model().hits)
         return ids[-int(last_n):] if last_n > 0 else ids
 
     def fit(self, kind: str, method: str = "ls", ids_text: str = "", last_n: int = 0) -> Any:
@@ -298,9 +297,8 @@ class FeaturesPanel:
         if self.retake is None:
             return
         fid, old, newest = self.retake
-        with self.station.measurement.lock:
-            fresh = sorted(h for h in self.station.measurement.hits if h > newest)
-            f = self.station.measurement.features.get(fid)
+        view = self.ctx.model()
+        fresh, f = sorted(h for h in view.hits if h > newest), view.features.get(fid)
         if not fresh or f is None:
             return
         self.retake = None
@@ -402,8 +400,7 @@ class FeaturesPanel:
 
     def hidden(self) -> set[int]:
         """The features the 3-D view does not draw now (hidden themselves or by their kind)."""
-        with self.station.measurement.lock:
-            kinds = {fid: f.kind for fid, f in self.station.measurement.features.items()}
+        kinds = {fid: f.kind for fid, f in self.ctx.model().features.items()}
         return {fid for fid, kind in kinds.items() if not self.ctx.view.feature_shown(fid, kind)}
 
     def _sync_show(self) -> None:
@@ -421,8 +418,7 @@ class FeaturesPanel:
         folder = self.gui.get("show_rows")
         if folder is None or self._gui_api is None:
             return
-        with self.station.measurement.lock:
-            feats = {fid: (f.name, f.kind) for fid, f in self.station.measurement.features.items()}
+        feats = {fid: (f.name, f.kind) for fid, f in self.ctx.model().features.items()}
         hidden = self.ctx.view.hidden_features
         with self._rows_lock:
             for fid in [f for f in self.rows if f not in feats]:
@@ -454,8 +450,7 @@ class FeaturesPanel:
         f = self.selected()
         if f is None:
             return ""
-        with self.station.measurement.lock:
-            hits = {**self.station.measurement.deleted, **self.station.measurement.hits}
+        hits = self.ctx.model().hit_or_deleted()
         pts = np.array([hits[h].point for h in f.hit_ids if h in hits], float).reshape(-1, 3)
         try:
             res = surface_distance(f.kind, f.result.summary(), pts)
@@ -475,10 +470,7 @@ class FeaturesPanel:
         return f"**{c.name}**: constructed {c.operation} of features {c.operands[0]} and {c.operands[1]}: {value}"
 
     def options(self) -> tuple[str, ...]:
-        with self.station.measurement.lock:
-            ids = sorted([(fid, f.name) for fid, f in self.station.measurement.features.items()]
-                         + [(fid, c.name) for fid, c in self.station.measurement.constructed.items()])
-        return tuple(f"{fid} {name}" for fid, name in ids) or ("-",)
+        return tuple(f"{fid} {name}" for fid, name in self.ctx.model().named()) or ("-",)
 
     # --- GUI ---------------------------------------------------------------------------------
 

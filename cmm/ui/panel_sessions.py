@@ -131,8 +131,8 @@ class SessionsPanel:
         rows = []
         for info in self.store().list():
             if info.name == live:
-                with self.station.measurement.lock:
-                    hits, features = len(self.station.measurement.hits), len(self.station.measurement.features)
+                view = self.ctx.model()
+                hits, features = len(view.hits), len(view.features)
             else:
                 try:
                     summary = shared_summaries().get(self.station.measurement.session_dir, info.name,

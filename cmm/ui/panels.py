@@ -714,8 +714,7 @@ class ClientApp:
             self.ctx.set("contact", "content",
                       "last trigger (tip centre, machine): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
                       + "contact point (machine): X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
-        with st.measurement.lock:
-            hits = sorted(st.measurement.hits.items())
+        hits = sorted(self.ctx.model().hits.items())
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]

@@ -27,6 +27,7 @@ from ..metrology.colour_map import DeviationMap, deviation_map
 from ..metrology.colour_scale import DEFAULT_TOLERANCE, ColourScale
 from ..metrology.transform import apply_points, invert
 from .feature_drawing import Drawing, feature_drawing, ghost_drawing
+from .model_view import model_of
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0  # the probe updater's rate (it also samples the following-error plot)
@@ -206,8 +207,7 @@ class SceneView:
         mesh painted by the interpolated deviation, grey beyond the scale's reach; the plain part while off."""
         st = self.station
         part = st.measurement.part
-        with st.measurement.lock:
-            hits = dict(st.measurement.hits)
+        hits = model_of(st).hits
         if self.map_on and part is not None:
             if deviations is None:
                 try:
@@ -263,8 +263,7 @@ class SceneView:
 
     def draw_hits(self, deviations: dict[int, float] | None = None) -> None:
         st = self.station
-        with st.measurement.lock:
-            hits = dict(st.measurement.hits)
+        hits = model_of(st).hits
         with self._lock:
             if not hits:
                 self.scene.add_frame("/local/hits", show_axes=False)  # replaces the previous hits with nothing
@@ -295,9 +294,8 @@ class SceneView:
         """Draw each feature as it was measured (:mod:`cmm.ui.feature_drawing`): a translucent patch or a faint
         surface with thin outlines, its check alternative as a dashed ghost; a feature redraws when it is refit."""
         st = self.station
-        with st.measurement.lock:
-            features = dict(st.measurement.features)
-            hits = dict(st.measurement.hits) | dict(st.measurement.deleted)
+        view = model_of(st)
+        features, hits = view.features, view.hit_or_deleted()
         with self._lock:
             for fid in list(self._feature_nodes):
                 if fid not in features:
@@ -355,9 +353,9 @@ class SceneView:
         for fid, node in self._feature_nodes.items():
             node.set_selected(fid == self.selected)
         # the selected feature's hits: larger yellow spheres around them
-        with self.station.measurement.lock:
-            feature = self.station.measurement.features.get(self.selected) if self.selected is not None else None
-            hits = dict(self.station.measurement.hits)
+        view = model_of(self.station)
+        feature = view.features.get(self.selected) if self.selected is not None else None
+        hits = view.hits
         pts = [hits[h].point for h in (feature.hit_ids if feature is not None else []) if h in hits]
         if not pts:
             self.scene.add_frame("/local/selection", show_axes=False)
