@@ -130,6 +130,7 @@ def measure(kind: str, true_pts: np.ndarray, rng: np.random.Generator, pose: np.
     rel = machine - pose[:3, 3]
     hits = pose[:3, 3] + rel @ g.T + rel * cte * (t - 20.0)
     truth = pose[:3, :3] @ true_pts.T
+    measure.surface = (pose[:3, :3] @ surface.T).T + pose[:3, 3]  # the part's surface under the hits (its form)
     return hits, truth.T + pose[:3, 3], src
 
 
@@ -157,6 +158,10 @@ def run(trials: int, seed: int, verbose: bool = True, features: tuple[str, ...] 
             centroid = hits.mean(axis=0)
             b = budget(kind, hits, fit, src)
             true_values = values_of(kind, true_fit, centroid)
+            if "form" in b.values:  # the true form: the part's surface under the hits, fitted the same way
+                surf = measure.surface
+                sf = LS_FITS[kind](surf) if nominal is None else LS_FITS[kind](surf, nominal=nominal)
+                true_values["form"] = float(sf.form)
             U = b.expanded()
             for k, v in b.values.items():
                 errs.setdefault(k, []).append(v - true_values[k])

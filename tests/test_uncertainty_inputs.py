@@ -151,7 +151,7 @@ def test_station_fit_uses_the_records_in_force(tmp_path):
         for p in _bore() + [190.0, 150.0, 0.0]:
             n = np.r_[p[:2] - [220.0, 190.0], 0.0]
             n /= np.linalg.norm(n)
-            hit = m.probe(p, n)
+            hit = m.probe(p, n, clearance_z=70.0).wait()
             ids.append(m.hit_id(hit))
         f = m.fit_feature("cylinder", ids)
         origins = {t["source"]: t["from"] for t in f.budget["terms"]}
@@ -162,3 +162,33 @@ def test_station_fit_uses_the_records_in_force(tmp_path):
         assert f.budget["U"]["diameter"] < 0.003
     finally:
         gen.close()
+
+
+def test_form_values_carry_their_uncertainty_known_answer():
+    """Flatness is the difference of two hits' residuals: their scatter counts at both ends (sqrt 2), what moves
+    every hit alike (tip radius, machine, thermal) cancels; a roundness whose extreme hits lie in different
+    directions also carries the probe's directional errors. The characteristic shows U of the form."""
+    from cmm.metrology.characteristics import characteristics
+    from cmm.metrology.fit_ls import fit_circle, fit_plane
+    from cmm.metrology.uncertainty import characteristic_u
+
+    plane = np.array([[0, 0, 0], [50, 0, 0], [50, 40, 0], [0, 40, 0.0], [25, 20, 0.004]])
+    src = Sources(repeatability=0.00025, lobing=0.0015, z_xy=0.001)
+    b = budget("plane", plane, fit_plane(plane), src)
+    assert b.values["form"] == pytest.approx(fit_plane(plane).form)
+    # all normals along Z: the lobing and Z/XY patterns are the same at both ends and cancel
+    assert b.expanded()["form"] == pytest.approx(2 * math.sqrt(2) * 0.00025, rel=1e-9)
+    assert characteristic_u("flatness", b.expanded()) == b.expanded()["form"]
+    # a circle: out at 0 deg, in at 60 deg: the 3-lobed pattern differs by 2 there (cos 0 - cos 180)
+    a = np.radians(np.arange(0, 360, 30))
+    r = 10 + np.where(np.isclose(a, 0), 0.003, 0) + np.where(np.isclose(a, np.radians(60)), -0.003, 0)
+    circle = np.c_[r * np.cos(a), r * np.sin(a), np.zeros_like(a)]
+    fit = fit_circle(circle)
+    b = budget("circle", circle, fit, src)
+    t = _terms(b)
+    assert t["probe lobing"].u["form"] == pytest.approx(0.0015 / math.sqrt(2) * 2, rel=1e-6)
+    assert t["probe qualification"].u["form"] == 0.0 and t["machine scale"].u["form"] == 0.0
+    # the feature's characteristics: roundness with its U
+    chars = characteristics("c", "circle", {**fit.summary(), "form": fit.form}, None)
+    roundness = next(c for c in chars if c.name == "roundness")
+    assert characteristic_u(roundness.name, b.expanded()) == pytest.approx(b.expanded()["form"])

@@ -389,11 +389,48 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
         note = f"{len(x)} hits ({nu} residual degrees of freedom): form assumed {form * 1000:.2f} um"
     terms.append(Term("sampling", note, {k: v * form for k, v in g.items()},
                       f"the hits' residuals and {src.origin_of('sampling')} prior"))
+    _form_terms(kind, fit, n, src, terms, base)
     if kind == "cone":  # the half angle in degrees
         for t in terms:
             if "half_angle_deg" in t.u:
                 t.u["half_angle_deg"] = float(t.u["half_angle_deg"])
     return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference, src)
+
+
+FORM_KINDS = ("plane", "circle", "sphere", "cylinder", "cone")
+
+
+def _form_terms(kind: str, fit: Any, n: np.ndarray, src: Sources, terms: list[Term], base: dict[str, float]) -> None:
+    """The form value (max - min residual) and its terms: it is the difference of two hits' residuals (the one
+    furthest out and the one furthest in), so what moves every hit alike (the tip radius, the machine's and the
+    part's affine errors: second order) cancels; each hit's scatter counts at both ends (sqrt 2), the probe's
+    directional errors by the difference of their pattern at the two hits' directions. The fit's own change
+    is neglected (it lowers the range slightly: conservative)."""
+    resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
+    if kind not in FORM_KINDS or resid.size != len(n) or resid.size < 2:
+        return
+    a, b = int(np.argmax(resid)), int(np.argmin(resid))
+    base["form"] = float(getattr(fit, "form", resid[a] - resid[b]))
+    by = {t.source: t for t in terms}
+    if "probe direction" in by and src.pretravel_u:
+        from .compensation import pretravel_basis
+
+        keys = tuple(k for k in src.pretravel_u if k != "const")
+        basis = pretravel_basis(-n[[a, b]], keys)
+        by["probe direction"].u["form"] = math.sqrt(sum(
+            (src.pretravel_u[k] * (basis[0, i] - basis[1, i])) ** 2 for i, k in enumerate(keys)))
+    if "probe lobing" in by:
+        phi = np.arctan2(-n[[a, b], 1], -n[[a, b], 0])
+        hz = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2
+        c, s_ = hz * np.cos(3 * phi), hz * np.sin(3 * phi)
+        by["probe lobing"].u["form"] = src.lobing / math.sqrt(2.0) * math.hypot(c[0] - c[1], s_[0] - s_[1])
+    if "probe Z/XY" in by:
+        p = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2 - n[[a, b], 2] ** 2
+        by["probe Z/XY"].u["form"] = abs(p[0] - p[1]) * src.z_xy
+    if "scatter" in by:
+        by["scatter"].u["form"] = math.sqrt(2.0) * src.repeatability
+    for t in terms:
+        t.u.setdefault("form", 0.0)
 
 
 def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = None) -> dict[str, float]:
@@ -414,6 +451,8 @@ def characteristic_u(name: str, expanded_u: dict[str, float] | None) -> float | 
         return expanded_u.get("diameter")
     if name == "half angle":
         return expanded_u.get("half_angle_deg")
+    if name in ("flatness", "straightness", "roundness", "cylindricity", "sphericity", "cone form"):
+        return expanded_u.get("form")
     if name.startswith("location"):
         return expanded_u.get("offset")
     if name.startswith("position"):  # the diameter 2 |deviation|: conservatively all three coordinates
