@@ -192,3 +192,16 @@ def test_form_values_carry_their_uncertainty_known_answer():
     chars = characteristics("c", "circle", {**fit.summary(), "form": fit.form}, None)
     roundness = next(c for c in chars if c.name == "roundness")
     assert characteristic_u(roundness.name, b.expanded()) == pytest.approx(b.expanded()["form"])
+
+
+def test_the_probing_test_run_after_the_qualification_is_loaded_with_the_records(tmp_path):
+    from cmm.calibration.records import load_station_calibration
+
+    save_record(_record(), tmp_path / "probe.toml")
+    iso = "[record]\nkind = 'iso10360-5'\ndate = '{}'\n[results.calibrated]\nform_um = 1.1\nsize_um = -0.4\n"
+    (tmp_path / "iso10360-5.toml").write_text(iso.format("2026-11-28T11:00:00+00:00"))
+    loaded = load_station_calibration(tmp_path)
+    assert loaded.probing_test == {"date": "2026-11-28T11:00:00+00:00", "form_um": 1.1, "size_um": -0.4}
+    # a test from before the qualification in force says nothing about it
+    (tmp_path / "iso10360-5.toml").write_text(iso.format("2026-11-20T11:00:00+00:00"))
+    assert load_station_calibration(tmp_path).probing_test is None

@@ -429,10 +429,10 @@ def apply_calibration(loaded: LoadedCalibration, machine: Any, prober: Any) -> l
     if loaded.machine is not None:
         machine.correction = loaded.machine.correction
         machine.geometry_record = loaded.machine  # its uncertainties feed the measurement uncertainty budget
-    if loaded.probing_test is not None or loaded.probe is not None:
-        machine.probing_test = loaded.probing_test
         done.append(f"machine geometry from {loaded.machine.date}: scale {loaded.machine.scale_ppm} ppm, "
                     f"squareness {loaded.machine.squareness_urad} urad")
+    if loaded.probing_test is not None or loaded.probe is not None:  # a new qualification voids an older test
+        machine.probing_test = loaded.probing_test
     if loaded.probe is not None:
         prober.settings = ProbeSettings(loaded.probe.tip_radius, loaded.probe.model, record=loaded.probe)
         done.append(f"probe from {loaded.probe.date}: r_eff {loaded.probe.tip_radius:.4f} mm, "
