@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 K_COVERAGE = 2.0
-PRIOR_DOF = 3  # degrees of freedom the form prior is worth against the residuals' own
+PRIOR_DOF = 8  # degrees of freedom the form prior is worth against the residuals' own
 SOURCES_DOC = ("probe qualification", "probe lobing", "probe Z/XY", "machine scale", "machine squareness",
                "thermal", "scatter", "sampling")
 
