@@ -40,7 +40,7 @@ def test_single_terms_known_answers():
                    temperature_allowance=0.0, cte_u=0.0, form_prior=0.0)
     b = budget("sphere", sph, fit_sphere(sph), warm)
     assert _terms(b)["thermal"]["diameter"] == pytest.approx(20 * 11.5e-6, rel=1e-5)
-    assert "U (k=2)" in b.text() and set(b.summary()["U"]) == {"diameter", "x", "y", "z"}
+    assert "U (k=2)" in b.text() and set(b.summary()["U"]) == {"diameter", "x", "y", "z", "form"}
 
 
 def test_a_five_hit_cap_has_a_sampling_term_from_the_prior():

@@ -365,6 +365,16 @@ def analyse_qualification(centres: np.ndarray, approach: np.ndarray, certificate
     # uncertainty (k = 2) of r_eff: fit scatter over sqrt(n), the certificate, one count of scale in quadrature
     sigma = float(np.std(e1, ddof=min(len(e1) - 1, 4 + len(terms))))
     u_r = 2 * math.sqrt((sigma / math.sqrt(len(t))) ** 2 + (certificate.uncertainty / 4) ** 2)
+    # standard uncertainties of the directional coefficients (the joint fit's covariance, residuals in um)
+    res1 = sol.fun
+    dof1 = max(1, len(res1) - len(sol.x))
+    try:
+        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(res1 @ res1) / dof1
+        coef_u = {k: float(math.sqrt(max(cov[4 + i, 4 + i], 0.0)) * 1000.0) for i, k in enumerate(rest)}
+    except np.linalg.LinAlgError:
+        coef_u = {}
+    # each term's mean over the pattern went into r_eff: an error of a coefficient moves a hit by (basis - mean)
+    basis_mean = {k: float(v) for k, v in zip(rest, basis.mean(axis=0))} if rest else {}
     offset = (0.0, 0.0, 0.0) if master_centre is None else tuple(float(x) for x in c1 - np.asarray(master_centre))
     record = ProbeRecord(
         date=now(), artifact=certificate.describe(), tip_radius=float(r_eff),
@@ -372,7 +382,8 @@ def analyse_qualification(centres: np.ndarray, approach: np.ndarray, certificate
         nominal_tip_radius=float(nominal_tip_radius), sphere_centre=tuple(float(x) for x in c1),  # type: ignore[arg-type]
         tip_offset=offset, probing_speed=float(probing_speed), n_points=int(len(t)),  # type: ignore[arg-type]
         form_before_um=float(np.ptp(e0) * 1000), form_after_um=float(np.ptp(e1) * 1000),
-        uncertainty_um=float(u_r * 1000), machine=machine,
+        uncertainty_um=float(u_r * 1000), machine=machine, pretravel_u_um=coef_u, pretravel_mean=basis_mean,
+        hit_sigma_um=float(sigma * math.sqrt(max(1, repeats)) * 1000),
         note=f"{len(t)} points x {repeats} hits; pre-travel terms {', '.join(terms)} (zero mean)")
     return ProbeQualification(record, ProbeSettings(float(r_eff), model), c1, float(fit1.radius), u, t, e0, e1,
                               list(skipped or []))

@@ -228,6 +228,11 @@ class ProbeRecord:
     uncertainty_um: float = 0.0  # expanded (k = 2) uncertainty of r_eff
     machine: str = ""
     note: str = ""
+    # standard uncertainties (um) of the directional pre-travel coefficients the qualification fitted (e.g. z2,
+    # s2_cos3, s2_sin3): what the compensation leaves by direction; and the scatter of one hit about the model
+    pretravel_u_um: dict[str, float] = field(default_factory=dict)
+    hit_sigma_um: float = 0.0
+    pretravel_mean: dict[str, float] = field(default_factory=dict)  # each term's mean over the pattern (in r_eff)
 
     @property
     def model(self) -> PretravelModel:
@@ -241,7 +246,8 @@ class ProbeRecord:
                         "sphere_centre": list(self.sphere_centre), "tip_offset": list(self.tip_offset),
                         "n_points": self.n_points, "form_before_um": self.form_before_um,
                         "form_after_um": self.form_after_um, "pretravel": dict(self.pretravel)},
-            "uncertainty": {"tip_radius_um": self.uncertainty_um},
+            "uncertainty": {"tip_radius_um": self.uncertainty_um, "hit_sigma_um": self.hit_sigma_um,
+                            "pretravel_um": dict(self.pretravel_u_um), "pretravel_mean": dict(self.pretravel_mean)},
         }
 
 
@@ -314,6 +320,12 @@ def load_probe_record(path: str | Path) -> ProbeRecord:
         raise CalibrationError(f"{src}: unknown pre-travel terms {sorted(unknown)}; known: {', '.join(ALL_PRETRAVEL_TERMS)}")
     coef = {k: _num(src, pre, k) for k in pre}
     r = _num(src, res, "tip_radius", positive=True)
+    unc = data.get("uncertainty", {})
+    unc = unc if isinstance(unc, dict) else {}
+    pre_u = unc.get("pretravel_um", {})
+    pre_u = pre_u if isinstance(pre_u, dict) else {}
+    pre_m = unc.get("pretravel_mean", {})
+    pre_m = pre_m if isinstance(pre_m, dict) else {}
     return ProbeRecord(
         date=str(rec.get("date", "")), artifact=str(rec.get("artifact", "")), tip_radius=r, pretravel=coef,
         nominal_tip_radius=_num(src, res, "nominal_tip_radius", positive=True, default=r),
@@ -322,8 +334,11 @@ def load_probe_record(path: str | Path) -> ProbeRecord:
         probing_speed=_num(src, rec, "probing_speed", default=0.0), n_points=int(_num(src, res, "n_points", default=0)),
         form_before_um=_num(src, res, "form_before_um", default=0.0),
         form_after_um=_num(src, res, "form_after_um", default=0.0),
-        uncertainty_um=_num(src, data.get("uncertainty", {}), "tip_radius_um", default=0.0),
-        machine=str(rec.get("machine", "")), note=str(rec.get("note", "")))
+        uncertainty_um=_num(src, unc, "tip_radius_um", default=0.0),
+        machine=str(rec.get("machine", "")), note=str(rec.get("note", "")),
+        pretravel_u_um={k: _num(src, pre_u, k) for k in pre_u if k in ALL_PRETRAVEL_TERMS},
+        hit_sigma_um=_num(src, unc, "hit_sigma_um", default=0.0),
+        pretravel_mean={k: _num(src, pre_m, k) for k in pre_m if k in ALL_PRETRAVEL_TERMS})
 
 
 def load_machine_record(path: str | Path) -> MachineRecord:
@@ -368,6 +383,7 @@ class LoadedCalibration:
     probe: ProbeRecord | None = None
     machine: MachineRecord | None = None
     problems: list[str] = field(default_factory=list)
+    probing_test: dict | None = None  # the ISO 10360-5 test's calibrated figures (date, form_um, size_um)
 
 
 def load_station_calibration(directory: str | Path = DEFAULT_DIR) -> LoadedCalibration:
@@ -380,7 +396,30 @@ def load_station_calibration(directory: str | Path = DEFAULT_DIR) -> LoadedCalib
                 setattr(out, attr, loader(d / name))
             except CalibrationError as exc:
                 out.problems.append(str(exc))
+    out.probing_test = _probing_test(d / ISO_RECORD, out.probe)
     return out
+
+
+ISO_RECORD = "iso10360-5.toml"
+
+
+def _probing_test(path: Path, probe: ProbeRecord | None) -> dict | None:
+    """The ISO 10360-5 test's calibrated figures when it was run with the qualification in force (dated no
+    earlier than it), else None."""
+    if not path.is_file():
+        return None
+    try:
+        data = tomllib.loads(path.read_text())
+        cal = data.get("results", {}).get("calibrated", {})
+        date = str(data.get("record", {}).get("date", ""))
+        fig = {"date": date, "form_um": float(cal["form_um"]), "size_um": float(cal["size_um"])}
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, AttributeError):
+        return None
+    if not all(math.isfinite(v) for v in (fig["form_um"], fig["size_um"])):
+        return None
+    if probe is not None and date < probe.date:
+        return None
+    return fig
 
 
 def apply_calibration(loaded: LoadedCalibration, machine: Any, prober: Any) -> list[str]:
@@ -390,10 +429,13 @@ def apply_calibration(loaded: LoadedCalibration, machine: Any, prober: Any) -> l
     done = []
     if loaded.machine is not None:
         machine.correction = loaded.machine.correction
+        machine.geometry_record = loaded.machine  # its uncertainties feed the measurement uncertainty budget
         done.append(f"machine geometry from {loaded.machine.date}: scale {loaded.machine.scale_ppm} ppm, "
                     f"squareness {loaded.machine.squareness_urad} urad")
+    if loaded.probing_test is not None or loaded.probe is not None:  # a new qualification voids an older test
+        machine.probing_test = loaded.probing_test
     if loaded.probe is not None:
-        prober.settings = ProbeSettings(loaded.probe.tip_radius, loaded.probe.model)
+        prober.settings = ProbeSettings(loaded.probe.tip_radius, loaded.probe.model, record=loaded.probe)
         done.append(f"probe from {loaded.probe.date}: r_eff {loaded.probe.tip_radius:.4f} mm, "
                     f"{loaded.probe.model.describe()}")
     return done

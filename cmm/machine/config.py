@@ -208,9 +208,18 @@ def _gains(source: str, key: str, data: dict, base: Gains) -> Gains:
 def parse(data: dict, source: str = "<config>") -> MachineConfig:
     """Build a validated configuration from parsed TOML."""
     # [notify]: the station's notifications, read by cmm.session.notify from the same file
-    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe", "homing", "notify"}
+    # [uncertainty]: the measurement uncertainty budget's inputs, read by cmm.metrology.uncertainty_inputs
+    unknown = set(data) - {"link", "axes", "speeds", "accelerations", "jog", "gains", "probe", "homing", "notify",
+                           "uncertainty"}
     if unknown:
         raise _fail(source, sorted(unknown)[0], "is not a known section")
+    if "uncertainty" in data:
+        from ..metrology.uncertainty_inputs import UncertaintyConfigError, check_table
+
+        try:
+            check_table(data["uncertainty"], source)
+        except UncertaintyConfigError as exc:
+            raise ConfigError(str(exc)) from None
     link = LinkConfig(**{k: v for k, v in data.get("link", {}).items()})
     if link.process not in ("auto", "same"):
         raise _fail(source, "link.process", f"must be \"auto\" or \"same\", got {link.process!r}")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time as _time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -42,6 +42,9 @@ class ProbeSettings:
 
     tip_radius: float
     pretravel: PretravelModel = field(default_factory=PretravelModel)
+    # the qualification record these come from (cmm.calibration.records.ProbeRecord; its uncertainties feed the
+    # measurement uncertainty budget), None for nominal settings
+    record: Any = field(default=None, compare=False, repr=False)
 
     def compensate(self, centre: np.ndarray, approach: np.ndarray, normal: np.ndarray | None = None) -> np.ndarray:
         return compensate(centre, approach, self.tip_radius, self.pretravel, normal)

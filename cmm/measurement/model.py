@@ -547,11 +547,12 @@ class MeasurementModel:
             result = fit_hit_records(kind, method, hits, self.prober.settings, nominal)
         except FitError as exc:
             raise MeasurementError(str(exc)) from None
-        from ..metrology.uncertainty import Sources, feature_budget
+        from ..metrology.uncertainty import feature_budget
+        from ..metrology.uncertainty_inputs import model_sources
 
         origin = None if part is None else tuple(np.asarray(part.pose, float)[:3, 3])
         budget = feature_budget(kind, method, np.array([h.point for h in hits], float).reshape(-1, 3), result,
-                                Sources(reference=origin))
+                                model_sources(self, origin))
         with self.lock:
             if feature_id is None:
                 fid = self._next_feature

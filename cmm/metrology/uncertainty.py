@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 K_COVERAGE = 2.0
+PRIOR_DOF = 8  # degrees of freedom the form prior is worth against the residuals' own
 SOURCES_DOC = ("probe qualification", "probe lobing", "probe Z/XY", "machine scale", "machine squareness",
                "thermal", "scatter", "sampling")
 
@@ -63,6 +64,14 @@ class Sources:
     cte_u: float = 1.0e-6
     form_prior: float = 0.001  # mm, one sigma of form expected when the residuals cannot show it
     reference: tuple[float, float, float] | None = None  # the part's origin (machine); None: the hits' centroid
+    # the qualification's directional pre-travel model: standard uncertainty of each coefficient (mm) and each
+    # basis term's mean over the qualification pattern; when given it replaces ``lobing`` and ``z_xy`` (the
+    # compensation corrects those; what is left is how well the coefficients are known)
+    pretravel_u: dict[str, float] | None = None
+    pretravel_mean: dict[str, float] | None = None
+    scale_temperature: float = 20.0  # the machine's scales, C (their expansion is not corrected either)
+    scale_cte: float = 0.0  # 1/K; 0: scales taken as compensated (or of zero expansion)
+    origin: dict[str, str] | None = None  # budget term -> where its input came from (shown with the term)
 
     @classmethod
     def from_config(cls, config: Any = None, **overrides: Any) -> "Sources":
@@ -81,10 +90,31 @@ class Sources:
         return self.squareness_u if self.squareness_u is not None else 1e-3 / self.mpe_k / math.sqrt(3.0)
 
     def thermal_u(self) -> float:
-        """Relative standard uncertainty of the uncorrected expansion of the part."""
+        """Relative standard uncertainty of the uncorrected expansion of the part against the scales."""
         dt = self.temperature - 20.0
-        return math.sqrt((self.cte * dt) ** 2 + (self.cte_u * dt) ** 2
+        ds = self.scale_temperature - 20.0
+        return math.sqrt((self.cte * dt - self.scale_cte * ds) ** 2 + (self.cte_u * dt) ** 2
                          + (self.cte * self.temperature_allowance / math.sqrt(3.0)) ** 2)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready fields (``from_dict`` reads them back)."""
+        out: dict[str, Any] = {}
+        for k in self.__dataclass_fields__:
+            v = getattr(self, k)
+            out[k] = list(v) if isinstance(v, tuple) else (dict(v) if isinstance(v, dict) else v)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None, **overrides: Any) -> "Sources":
+        """The inputs a budget recorded (``as_dict``); unknown keys are ignored."""
+        known = set(cls.__dataclass_fields__)
+        d = {k: v for k, v in {**(data or {}), **overrides}.items() if k in known}
+        if d.get("reference") is not None:
+            d["reference"] = tuple(float(v) for v in d["reference"])
+        return cls(**d)
+
+    def origin_of(self, term: str) -> str:
+        return (self.origin or {}).get(term, "default")
 
 
 @dataclass
@@ -92,6 +122,7 @@ class Term:
     source: str
     note: str
     u: dict[str, float]  # value name -> standard uncertainty contribution
+    origin: str = "default"  # where the input came from: a calibration record, the configuration, a default
 
 
 @dataclass
@@ -100,6 +131,7 @@ class Budget:
     values: dict[str, float]
     terms: list[Term] = field(default_factory=list)
     reference: tuple[float, ...] | None = None  # the point the machine's and thermal errors were taken about
+    sources: "Sources | None" = None  # the inputs (kept with the budget: re-evaluation uses the same)
 
     def combined(self) -> dict[str, float]:
         return {k: math.sqrt(sum(t.u.get(k, 0.0) ** 2 for t in self.terms)) for k in self.values}
@@ -111,15 +143,17 @@ class Budget:
     def summary(self) -> dict[str, Any]:
         """JSON-ready: values, U (k = 2) and the terms (standard uncertainties, mm / deg)."""
         return {"k": K_COVERAGE, "U": self.expanded(), "u_c": self.combined(),
-                "terms": [{"source": t.source, "note": t.note, "u": t.u} for t in self.terms],
-                "reference": None if self.reference is None else [float(v) for v in self.reference]}
+                "terms": [{"source": t.source, "note": t.note, "u": t.u, "from": t.origin} for t in self.terms],
+                "reference": None if self.reference is None else [float(v) for v in self.reference],
+                **({} if self.sources is None else {"inputs": self.sources.as_dict()})}
 
     def text(self) -> str:
         """The budget as lines for the feature's detail."""
         names = list(self.values)
-        rows = [f"{'source':22s}" + "".join(f"{n:>12s}" for n in names)]
+        rows = [f"{'source':22s}" + "".join(f"{n:>12s}" for n in names) + "  from"]
         for t in self.terms:
-            rows.append(f"{t.source:22s}" + "".join(f"{t.u.get(n, 0.0) * 1000:10.2f}um" for n in names))
+            rows.append(f"{t.source:22s}" + "".join(f"{t.u.get(n, 0.0) * 1000:10.2f}um" for n in names)
+                        + f"  {t.origin}")
         rows.append(f"{'U (k=2)':22s}" + "".join(f"{v * 1000:10.2f}um" for v in self.expanded().values()))
         return "\n".join(rows)
 
@@ -283,15 +317,30 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
     terms: list[Term] = []
     ones = np.ones(len(x))
     terms.append(Term("probe qualification", f"effective tip radius known to {src.u_tip * 1000:.2f} um",
-                      systematic(ones, src.u_tip)))
-    phi = np.arctan2(-n[:, 1], -n[:, 0])
-    horizontal = n[:, 0] ** 2 + n[:, 1] ** 2
-    lob = quad(systematic(horizontal * np.cos(3 * phi), src.lobing / math.sqrt(2.0)),
-               systematic(horizontal * np.sin(3 * phi), src.lobing / math.sqrt(2.0)))
-    terms.append(Term("probe lobing", f"3-lobed residual pre-travel {src.lobing * 1000:.2f} um, phase unknown", lob))
-    # an isotropic qualification leaves horizontal hits +z_xy and vertical ones -z_xy (or the other way round)
-    terms.append(Term("probe Z/XY", f"vertical vs horizontal pre-travel residual +-{src.z_xy * 1000:.2f} um",
-                      systematic(horizontal - n[:, 2] ** 2, src.z_xy)))
+                      systematic(ones, src.u_tip), src.origin_of("probe qualification")))
+    if src.pretravel_u:
+        # the directional model the station compensates with: each coefficient known to u_k; its error moves a
+        # hit along the approach by (basis_k - its mean over the qualification pattern, which r_eff holds)
+        from .compensation import pretravel_basis
+
+        keys = tuple(k for k in src.pretravel_u if k != "const")
+        if keys:
+            basis = pretravel_basis(-n, keys)
+            mean = src.pretravel_mean or {}
+            parts = [systematic(basis[:, i] - mean.get(k, 0.0), src.pretravel_u[k]) for i, k in enumerate(keys)]
+            terms.append(Term("probe direction", "pre-travel model (" + ", ".join(
+                f"{k} +-{src.pretravel_u[k] * 1000:.2f}" for k in keys) + " um)", quad(*parts),
+                src.origin_of("probe direction")))
+    else:
+        phi = np.arctan2(-n[:, 1], -n[:, 0])
+        horizontal = n[:, 0] ** 2 + n[:, 1] ** 2
+        lob = quad(systematic(horizontal * np.cos(3 * phi), src.lobing / math.sqrt(2.0)),
+                   systematic(horizontal * np.sin(3 * phi), src.lobing / math.sqrt(2.0)))
+        terms.append(Term("probe lobing", f"3-lobed residual pre-travel {src.lobing * 1000:.2f} um, phase unknown",
+                          lob, src.origin_of("probe lobing")))
+        # an isotropic qualification leaves horizontal hits +z_xy and vertical ones -z_xy (or the other way round)
+        terms.append(Term("probe Z/XY", f"vertical vs horizontal pre-travel residual +-{src.z_xy * 1000:.2f} um",
+                          systematic(horizontal - n[:, 2] ** 2, src.z_xy), src.origin_of("probe Z/XY")))
     rel = x - ref
     su, qu = src.machine_scale_u(), src.machine_squareness_u()
     scale_parts = []
@@ -300,18 +349,21 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
         m[:, k] = rel[:, k]
         d = delta(1e-4 * m, 1e-4)
         scale_parts.append({kk: abs(v) * su for kk, v in d.items()})
-    terms.append(Term("machine scale", f"per axis, u = {su * 1e6:.2f} um/m", quad(*scale_parts)))
+    terms.append(Term("machine scale", f"per axis, u = {su * 1e6:.2f} um/m", quad(*scale_parts),
+                      src.origin_of("machine scale")))
     sq_parts = []
     for a, b in ((0, 1), (0, 2), (1, 2)):
         m = np.zeros_like(x)
         m[:, a] = rel[:, b]
         d = delta(1e-4 * m, 1e-4)
         sq_parts.append({kk: abs(v) * qu for kk, v in d.items()})
-    terms.append(Term("machine squareness", f"xy, xz, yz, u = {qu * 1e6:.2f} urad", quad(*sq_parts)))
+    terms.append(Term("machine squareness", f"xy, xz, yz, u = {qu * 1e6:.2f} urad", quad(*sq_parts),
+                      src.origin_of("machine squareness")))
     d = delta(1e-4 * rel, 1e-4)
     tu = src.thermal_u()
     terms.append(Term("thermal", f"part at {src.temperature:g} C +- {src.temperature_allowance:g} K, CTE "
-                                 f"{src.cte * 1e6:g} +- {src.cte_u * 1e6:g} um/m/K", {k: abs(v) * tu for k, v in d.items()}))
+                                 f"{src.cte * 1e6:g} +- {src.cte_u * 1e6:g} um/m/K", {k: abs(v) * tu for k, v in d.items()},
+                      src.origin_of("thermal")))
     # random terms: the hits one at a time
     sens = {k: 0.0 for k in base}
     for i in range(len(x)):
@@ -322,22 +374,63 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
             sens[k] += di[k] ** 2
     g = {k: math.sqrt(v) for k, v in sens.items()}
     terms.append(Term("scatter", f"repeatability {src.repeatability * 1000:.2f} um per hit",
-                      {k: v * src.repeatability for k, v in g.items()}))
+                      {k: v * src.repeatability for k, v in g.items()}, src.origin_of("scatter")))
     resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
     n_params = {"plane": 3, "line": 4, "circle": 6, "sphere": 4, "cylinder": 5, "cone": 6, "point": 3}.get(kind, 3)
     dof = len(x) - n_params
     sigma = float(np.sqrt(resid @ resid / dof)) if dof > 0 and resid.size else 0.0
-    form = math.sqrt(max(0.0, sigma ** 2 - src.repeatability ** 2))
-    note = f"form seen by {len(x)} hits, {form * 1000:.2f} um"
+    seen = math.sqrt(max(0.0, sigma ** 2 - src.repeatability ** 2)) if dof > 0 else 0.0
+    # the form the residuals show, pooled with the prior (worth PRIOR_DOF degrees of freedom): a few residuals
+    # estimate it poorly (3 of them give a sigma anywhere from 0.2 to 1.8 times the truth)
+    nu = max(dof, 0)
+    form = math.sqrt((nu * seen ** 2 + PRIOR_DOF * src.form_prior ** 2) / (nu + PRIOR_DOF))
+    note = f"form seen by {len(x)} hits {seen * 1000:.2f} um, pooled with the prior: {form * 1000:.2f} um"
     if dof < 3:
-        form = max(form, src.form_prior)
-        note = f"{len(x)} hits ({max(dof, 0)} residual degrees of freedom): form assumed {form * 1000:.2f} um"
-    terms.append(Term("sampling", note, {k: v * form for k, v in g.items()}))
+        note = f"{len(x)} hits ({nu} residual degrees of freedom): form assumed {form * 1000:.2f} um"
+    terms.append(Term("sampling", note, {k: v * form for k, v in g.items()},
+                      f"the hits' residuals and {src.origin_of('sampling')} prior"))
+    _form_terms(kind, fit, n, src, terms, base)
     if kind == "cone":  # the half angle in degrees
         for t in terms:
             if "half_angle_deg" in t.u:
                 t.u["half_angle_deg"] = float(t.u["half_angle_deg"])
-    return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference)
+    return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference, src)
+
+
+FORM_KINDS = ("plane", "circle", "sphere", "cylinder", "cone")
+
+
+def _form_terms(kind: str, fit: Any, n: np.ndarray, src: Sources, terms: list[Term], base: dict[str, float]) -> None:
+    """The form value (max - min residual) and its terms: it is the difference of two hits' residuals (the one
+    furthest out and the one furthest in), so what moves every hit alike (the tip radius, the machine's and the
+    part's affine errors: second order) cancels; each hit's scatter counts at both ends (sqrt 2), the probe's
+    directional errors by the difference of their pattern at the two hits' directions. The fit's own change
+    is neglected (it lowers the range slightly: conservative)."""
+    resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
+    if kind not in FORM_KINDS or resid.size != len(n) or resid.size < 2:
+        return
+    a, b = int(np.argmax(resid)), int(np.argmin(resid))
+    base["form"] = float(getattr(fit, "form", resid[a] - resid[b]))
+    by = {t.source: t for t in terms}
+    if "probe direction" in by and src.pretravel_u:
+        from .compensation import pretravel_basis
+
+        keys = tuple(k for k in src.pretravel_u if k != "const")
+        basis = pretravel_basis(-n[[a, b]], keys)
+        by["probe direction"].u["form"] = math.sqrt(sum(
+            (src.pretravel_u[k] * (basis[0, i] - basis[1, i])) ** 2 for i, k in enumerate(keys)))
+    if "probe lobing" in by:
+        phi = np.arctan2(-n[[a, b], 1], -n[[a, b], 0])
+        hz = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2
+        c, s_ = hz * np.cos(3 * phi), hz * np.sin(3 * phi)
+        by["probe lobing"].u["form"] = src.lobing / math.sqrt(2.0) * math.hypot(c[0] - c[1], s_[0] - s_[1])
+    if "probe Z/XY" in by:
+        p = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2 - n[[a, b], 2] ** 2
+        by["probe Z/XY"].u["form"] = abs(p[0] - p[1]) * src.z_xy
+    if "scatter" in by:
+        by["scatter"].u["form"] = math.sqrt(2.0) * src.repeatability
+    for t in terms:
+        t.u.setdefault("form", 0.0)
 
 
 def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = None) -> dict[str, float]:
@@ -358,6 +451,8 @@ def characteristic_u(name: str, expanded_u: dict[str, float] | None) -> float | 
         return expanded_u.get("diameter")
     if name == "half angle":
         return expanded_u.get("half_angle_deg")
+    if name in ("flatness", "straightness", "roundness", "cylindricity", "sphericity", "cone form"):
+        return expanded_u.get("form")
     if name.startswith("location"):
         return expanded_u.get("offset")
     if name.startswith("position"):  # the diameter 2 |deviation|: conservatively all three coordinates

@@ -91,9 +91,10 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
             if "budget" in rec.fit:  # the uncertainty budget of the refitted hits (its terms' reference kept)
                 from ..metrology.uncertainty import Sources, feature_budget
 
-                ref = (rec.fit.get("budget") or {}).get("reference")
+                recorded = rec.fit.get("budget") or {}
+                ref = recorded.get("reference")
                 budget = feature_budget(rec.kind, fmethod, np.array([h.point for h in recs], float).reshape(-1, 3),
-                                        result, Sources(reference=None if ref is None else tuple(ref)))
+                                        result, Sources.from_dict(recorded.get("inputs"), reference=ref))
                 if budget is not None:
                     refit.fit["budget"] = budget
             events.append({**head, **refit.to_event()})
