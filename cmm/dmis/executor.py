@@ -76,6 +76,13 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
         self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
         self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
+        # the operator's Skip step: the measurement in progress ends after its current hit (its feature is not
+        # fitted), or the next one (a MEAS block) is left out; moves are never skipped (the program's GOTOs keep
+        # the probe clear of the part); the features skipped, by label
+        self.skip_asked = threading.Event()
+        self.skipped: dict[str, str] = {}
+        self._meas_at = -1  # the statement index of the MEAS block in progress
+        self._fraction = 0.0  # how far the run is (statements), for the progress it reports
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -110,6 +117,9 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         if label.type not in ("FA", "F"):
             raise self.fail(s, f"{label} is not a feature")
         a = self.result.actuals.get(label.name)
+        if a is None and label.name in self.skipped:
+            raise self.fail(s, f"FA({label.name}) was skipped by the operator ({self.skipped[label.name]}): "
+                               "this statement needs it")
         if a is None:
             raise self.fail(s, f"FA({label.name}) has not been measured or constructed yet")
         return a
@@ -148,7 +158,15 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
+            self._fraction = pc / len(self.stmts)
             self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
+            if self.skip_asked.is_set():
+                skip_to = self._skip(pc, s, pairs)
+                if skip_to is not None:
+                    pc = skip_to
+                    continue
+            if m == "MEAS":
+                self._meas_at = pc
             if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
                 told = int(100 * pc / len(self.stmts))
                 self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
@@ -212,9 +230,42 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
         if self.paused.is_set() and not self.cancelled.is_set():
             self.log(f"line {s.line}: paused by the operator")
+            if self.on_progress is not None:
+                self.on_progress(self._fraction, f"paused before line {s.line}: {s.name}; Resume to go on")
             self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
+            if self.on_progress is not None and not self.cancelled.is_set():
+                self.on_progress(self._fraction, f"line {s.line}: {s.name}")
         if self.cancelled.is_set():
             raise self.fail(s, "the program was cancelled by the operator before this statement")
+
+    def skip(self) -> bool:
+        """The operator's Skip step (any thread): the feature measurement in progress (MEAS .. ENDMES) ends after
+        its current hit, else the next one is left out; a paused run goes on to do it."""
+        self.skip_asked.set()
+        self.paused.clear()
+        return True
+
+    def _skip(self, pc: int, s: Statement, pairs: dict[int, int]) -> int | None:
+        """Where the run goes on when the operator asked to skip before statement ``pc`` (None: no step here to
+        skip, the request waits for the next one). The skipped feature is said in the output, the log and the
+        journal; the hits it took stay in the session, not fitted."""
+        if self._meas is not None:  # inside MEAS .. ENDMES: its remaining hits are not taken
+            meas, ids = self._meas
+            self._meas, self._guides = None, []
+            nxt = pairs[self._meas_at] + 1
+            why = f"after {len(ids)} hit{'s' if len(ids) != 1 else ''}"
+        elif s.major == "MEAS":
+            meas, nxt, why = s, pairs[pc] + 1, "before its first hit"
+        else:
+            return None
+        self.skip_asked.clear()
+        label = self.labels(meas)[0].name
+        self.skipped[label] = f"line {meas.line}, {why}"
+        self.result.actuals.pop(label, None)
+        self.log(f"line {meas.line}: F({label}) skipped by the operator {why}; it is not fitted")
+        self.emit(f"$$ F({label}) skipped by the operator {why} (line {meas.line}): not measured")
+        self.target.note(f"DMIS F({label}) skipped by the operator {why} (line {meas.line}); not fitted")
+        return nxt
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)

@@ -16,14 +16,20 @@ from .tolerances import (Evaluation, Tolerance, evaluate as evaluate_tolerance, 
 class OutputStatements:
     """Mixin of :class:`cmm.dmis.executor.Executor` (its state: actuals, nominals, tolerances, datums, frame)."""
 
+    skipped: dict[str, str]  # FA label -> where the operator skipped it (see Executor.skip)
+
     def do_output(self, s: Statement) -> None:
         self.emit(statement_text(s))
         pending: list[Actual] = []
         after_tolerance = False  # FA(a), TA(x), TA(y), FA(b), TA(z): x and y apply to a, z to b
+        gap = ""  # a feature of the group the operator skipped: its tolerances are not evaluated, said so
         for lab in self.labels(s):
             if lab.type in ("FA", "F") and after_tolerance:
-                pending, after_tolerance = [], False
-            if lab.type == "FA":
+                pending, after_tolerance, gap = [], False, ""
+            if lab.type == "FA" and lab.name in self.skipped and lab.name not in self.result.actuals:
+                gap = lab.name
+                self.emit(f"$$ FA({lab.name}): skipped by the operator ({self.skipped[lab.name]}), not measured")
+            elif lab.type == "FA":
                 a = self.actual(s, lab)
                 pending.append(a)
                 self.emit(actual_line(a, self.frame, self.scale, self.angle_scale))
@@ -40,6 +46,10 @@ class OutputStatements:
                 tol = self.tolerances.get(lab.name)
                 if tol is None:
                     raise self.fail(s, f"T({lab.name}) is not defined (T({lab.name}) = TOL/...)")
+                if gap:
+                    self.emit(f"$$ TA({lab.name}): not evaluated: FA({gap}) was skipped by the operator")
+                    after_tolerance = True
+                    continue
                 if not pending:
                     raise self.fail(s, f"TA({lab.name}) needs the feature it applies to before it: "
                                        f"OUTPUT/FA(name), TA({lab.name})")

@@ -276,6 +276,7 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
 
     return station.controller.commands.invoke(client, "run_job", description=description, work=work,
                                               hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
+                                              skip=executor.skip,
                                               **({"progress": progress} if progress is not None and not manual else {}))
 
 
@@ -302,4 +303,6 @@ def register_verbs(station: Any) -> None:
                       "run a DMIS program (its text, or the path of its file) after checking all of it; the control "
                       "holder only; the machine is the program's until it ends (in manual mode the operator jogs and "
                       "probes the hits it asks for: on_prompt(text), in process, tells them); cancel ends it "
-                      "after the hit in progress; returns its actuals, tolerances and output")
+                      "after the hit in progress; pause holds it between statements, resume goes on, skip_step ends "
+                      "the feature measurement in progress after its current hit (or leaves out the next one); "
+                      "returns its actuals, tolerances and output")
