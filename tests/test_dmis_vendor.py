@@ -108,7 +108,7 @@ def test_datset_with_one_direction_keeps_the_rest_of_the_current_system():
     ("GOTO/1e999, 0, 0\n", "line 1: 1e999 is not a finite number"),
     ("GOTO/1e300*1e300, 0, 0\n", "line 1: 1e300*1e300 is not a finite number"),
     ("GOTO/X1, 0, 0\n", "line 1: X1 is not a number (nor a variable given a value by DECL, ASSIGN or DO)"),
-    ("RECALL/DA(NONE)\n", "line 1: RECALL/DA(NONE): nothing named DA(NONE) is defined or saved before it"),
+    ("SAVE/DA(NONE)\n", "line 1: SAVE/DA(NONE): nothing named DA(NONE) is defined before it"),
     ("DID(X) = DEVICE/STOR, 'a.dms'\nOPEN/DID(X), FDATA, VENDOR, OUTPUT\n",
      "line 2: OPEN/DID(..), FDATA, VENDOR is not supported: the station writes FDATA in the DMIS format only"),
     ("SNSMNT/XVEC, 1, 0, 0, ZVEC, 1, 0, 0, MNTOFF, 0, 0, 0\n", "line 1: SNSMNT: XVEC and ZVEC must be perpendicular"),

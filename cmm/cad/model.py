@@ -11,8 +11,9 @@ file's own (design) frame, assemblies flattened with their placements applied:
   tagged with its face (wound so its normal points out of the material).
 
 Nothing here imports OpenCASCADE: the model pickles (the simulator runs in a process of its own) and copies cheaply.
-Distances to analytic faces are closed-form (:mod:`cmm.cad.surfaces`); free-form faces are measured against their
-triangulation, whose chordal error is ``deflection``.
+Distances to analytic faces are closed-form (:mod:`cmm.cad.surfaces`); to free-form faces OpenCASCADE projects onto
+the exact surface (:mod:`cmm.cad.freeform`, the face kept as BREP text: this module itself never imports it); a
+face without it is measured against its triangulation, whose chordal error is ``deflection``.
 """
 
 from __future__ import annotations
@@ -164,7 +165,7 @@ class CadModel:
 
         ``points`` (n, 3, part mm), the triangle each one's closest mesh point lies on and that point. Returns the
         closest points, signed distances (+ outside the material), outward unit normals and which points were
-        refined: those whose face is analytic and whose exact foot lies where the mesh found the closest point
+        refined: those whose face is analytic (or free-form with its exact surface) and whose exact foot lies where the mesh found the closest point
         (within the chordal error and, on a curved face, the facet tilt at that distance) and on the face itself:
         ``locate(feet)`` gives the distance of each foot to the triangulation and the triangle nearest it, which must
         be of the same face group (a point above a hole projects onto the plane around it, inside the hole: the
@@ -178,9 +179,15 @@ class CadModel:
         order = np.argsort(faces, kind="stable")
         for sel in np.split(order, np.flatnonzero(np.diff(faces[order])) + 1) if len(order) else ():
             f = self.faces[int(faces[sel[0]])]
-            if not f.analytic:
+            if f.analytic:
+                q, d, n = surfaces.project(f.kind, f.params, points[sel])
+                d, n = f.sense * d, f.sense * n
+            elif "brep" in f.params:  # free-form: OpenCASCADE's projection, signed by the facets' outward side
+                q, d, n, projected = self._free_form(f, points[sel], np.asarray(triangles, dtype=np.int64)[sel])
+                sel = sel[projected]
+                q, d, n = q[projected], d[projected], n[projected]
+            else:
                 continue
-            q, d, n = surfaces.project(f.kind, f.params, points[sel])
             slack = 2.0 * self.deflection + (0.0 if f.kind == "plane" else ANGLE_SLACK) * np.abs(d) + 1e-9
             ok = np.linalg.norm(q - foot[sel], axis=1) <= slack
             if locate is not None and ok.any():
@@ -188,9 +195,19 @@ class CadModel:
                 groups = np.array([self.faces[int(k)].group for k in self.tri_face[np.asarray(tri, dtype=np.int64)]])
                 ok[np.flatnonzero(ok)] = (np.asarray(gap) <= 2.0 * self.deflection + 1e-9) & (groups == f.group)
             idx = sel[ok]
-            foot[idx], dist[idx], normal[idx] = q[ok], f.sense * d[ok], f.sense * n[ok]
+            foot[idx], dist[idx], normal[idx] = q[ok], d[ok], n[ok]
             done[idx] = True
         return foot, dist, normal, done
+
+    def _free_form(self, f: CadFace, points: Array, triangles: NDArray[np.int64]
+                   ) -> tuple[Array, Array, Array, NDArray[np.bool_]]:
+        """Feet, signed distances, outward normals on a free-form face's exact surface (:mod:`cmm.cad.freeform`),
+        the outward side that of the triangles the points' closest mesh points lie on; which points projected."""
+        from . import freeform
+
+        corners = self.vertices[self.triangles[triangles]]
+        outward = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        return freeform.project(f.params, points, outward)
 
     def exact_distance(self, face: int, points: Array) -> Array:
         """Signed distances (+ outside the material) of points to the exact surface of one analytic face (not

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .freeform import face_brep
 from .model import FREE_FORM, CadError, CadFace, CadModel, assign_groups
 
 CAD_EXTENSIONS = (".step", ".stp", ".iges", ".igs")
@@ -193,6 +194,8 @@ def _build(shape, name: str, fmt: str, unit: str, schema: str, deflection: float
                 continue
             v, t = mesh
             kind, params, source = _surface(face)
+            if kind == FREE_FORM:  # its exact surface for projections (cmm.cad.freeform), as plain text
+                params["brep"] = face_brep(face)
             index = len(faces)
             f = CadFace(index, kind, params, +1, b, source=source)
             f.sense = _sense(f, v, t)

@@ -106,6 +106,9 @@ def warnings(text: str, stmts: list[Statement]) -> list[str]:
     """What runs but is not as the standard writes it: another spelling of a major word, no ENDFIL at the end."""
     out = [f"line {s.line}: {s.spelled} is not DMIS: read as {s.major} (write {s.major}/...)"
            for s in stmts if s.spelled]
+    out += [f"line {line}: RECALL/{key}: nothing named {key} is defined or saved before it in this program: the "
+            "run takes it from the station's saved items (an earlier program's SAVE) and stops before any motion "
+            "when it has none" for line, key in outside_recalls(stmts)]
     if stmts and not any(s.major == "ENDFIL" for s in stmts):
         last = len(text.splitlines())
         out.append(f"line {last}: the program does not end with ENDFIL: it is taken to end at its last line")
@@ -205,11 +208,14 @@ def mounts(stmts: list[Statement]) -> list[list | None]:
     return out
 
 
-def recall_problems(stmts: list[Statement]) -> dict[int, str]:
-    """Statement index -> why its RECALL cannot find what it names: nothing of that name was defined or saved
-    before it (in program order)."""
+def recall_problems(stmts: list[Statement], *, earlier: bool = False) -> dict[int, str]:
+    """Statement index -> why its SAVE has nothing to save or its RECALL cannot find what it names in the program:
+    nothing of that name was defined or saved before it (in program order). ``earlier``: the RECALLs of that kind
+    instead, with the saved item's key (``DA(x)``): they take what an earlier program saved on the station (the
+    run looks before any motion; see :func:`outside_recalls`)."""
     known: set[str] = set()
     out: dict[int, str] = {}
+    recalls: dict[int, str] = {}
     for k, s in enumerate(stmts):
         labels = [p for p in s.params if isinstance(p, Label)]
         if s.label is not None:
@@ -227,8 +233,14 @@ def recall_problems(stmts: list[Statement]) -> dict[int, str]:
             lab = labels[0]
             name = f"{'DA' if lab.type == 'D' else lab.type}({lab.name})"
             if name not in known:
-                out[k] = f"RECALL/{lab}: nothing named {lab} is defined or saved before it"
-    return out
+                recalls[k] = name
+    return recalls if earlier else out
+
+
+def outside_recalls(stmts: list[Statement]) -> list[tuple[int, str]]:
+    """(line, key) of each RECALL of an item this program neither defines nor saves before it: it must have been
+    saved by an earlier program on the station (cmm.dmis.saved)."""
+    return [(stmts[k].line, key) for k, key in recall_problems(stmts, earlier=True).items()]
 
 
 def angle_scales(stmts: list[Statement]) -> list[float]:

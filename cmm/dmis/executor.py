@@ -11,111 +11,29 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from ..metrology.numbers_text import num
 from ..measurement.program import record_trend
 from ..session.trends import tolerance_values
-from .features import KINDS, Actual, Nominal, actual_line, bounded_line, nominal_from, nominal_line
-from .frames import AXES, DIRS, ORIGINS, FrameError, apply, apply_vector, datum_frame, inverse, rotation, translation
+from .alignments import AlignmentStatements
+from .features import KINDS, Actual, Nominal, bounded_line, nominal_from
+from .frames import FrameError, apply, apply_vector
 from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
-from .rules import (LENGTH_UNITS, const_problem, datset_word_problem, match_probe, material_problem,
-                    mounted, probe_direction, probe_problem, rotat_problem, station_tip_problem)
+from .reporting import OutputStatements
+from .rules import LENGTH_UNITS, const_problem, match_probe, mounted, probe_direction, probe_problem, station_tip_problem
+from .run_state import DmisError, RunResult, Target, _text, blocks, statement_text
+from .tolerances import Tolerance, ToleranceError
 from .vendor import VendorStatements
-from .tolerances import Evaluation, planar_position, Tolerance, ToleranceError, evaluate as evaluate_tolerance, model_tolerance, output_line
 
 SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.4}
+__all__ = ["DmisError", "Executor", "RunResult", "SPEED_UNITS", "Target", "blocks", "statement_text"]
 
 
-class DmisError(RuntimeError):
-    """A DMIS program stopped: "line N: what happened". ``result``: what the run had done by then (its actuals
-    and the output up to that line, ending in a ``$$`` comment that says why), or None when nothing ran."""
-
-    result: "RunResult | None" = None
-
-
-class Target(Protocol):
-    model: Any  # the measurement model, read: hits and features (fits go through ``fit``, notes through ``note``)
-
-    def position(self) -> np.ndarray: ...
-    def move(self, target: np.ndarray, speed: float | None) -> None: ...
-    def probe(self, point: np.ndarray, approach: np.ndarray, *, speed: float | None, approach_distance: float,
-              search_distance: float, retract_distance: float, rapid_speed: float | None) -> int: ...
-    def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]: ...
-    def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str: ...
-    def fit(self, kind: str, hit_ids: list[int], name: str, nominal: Any) -> Any: ...
-    def note(self, text: str) -> None: ...
-    def set_tolerance(self, feature_id: int, tolerance: dict[str, float]) -> None: ...
-    def set_nominal(self, feature_id: int, nominal: Any) -> None: ...
-    def define_datum(self, label: str, feature_id: int) -> None: ...
-    def define_position(self, feature_id: int, tolerance: float, datums: list[str], *, material: str, name: str,
-                        datum_modifiers: dict[str, str] | None) -> None: ...
-    def probes(self) -> list[dict[str, Any]] | None: ...
-    def select_probe(self, name: str) -> str: ...
-    def tell(self, text: str) -> None: ...
-    def hold(self, done: Any) -> None: ...
-    def ask(self, prompt: str, *, answer: bool) -> str: ...
-    @property
-    def tip_radius(self) -> float: ...
-    @property
-    def nominal_tip_diameter(self) -> float: ...
-    @property
-    def probing_speed(self) -> float: ...
-    @property
-    def positioning_speed(self) -> float: ...
-    @property
-    def probe_distances(self) -> tuple[float, float, float]: ...
-
-
-@dataclass
-class RunResult:
-    actuals: dict[str, Actual] = field(default_factory=dict)
-    evaluations: list[Evaluation] = field(default_factory=list)
-    outputs: dict[str | None, str] = field(default_factory=dict)  # device file (None: the default output) -> text
-    log: list[str] = field(default_factory=list)
-    hits: int = 0
-    frames: dict[str, np.ndarray] = field(default_factory=dict)  # D(label) -> program -> machine, as defined
-
-
-def _text(p: Param) -> str:
-    if isinstance(p, Word):
-        return p.text
-    if isinstance(p, Text):
-        return f"'{p.text}'"
-    if isinstance(p, Label):
-        return str(p)
-    toks = p.tokens
-    return "".join(t.text if t.kind != "str" else f"'{t.value}'" for t in toks)
-
-
-def statement_text(s: Statement) -> str:
-    head = f"{s.label} = " if s.label else (f"{s.variable} = " if s.variable else "")
-    return head + s.major + ("/" + ", ".join(_text(p) for p in s.params) if s.params else "")
-
-
-def blocks(stmts: list[Statement]) -> dict[int, int]:
-    """Statement index -> where its block goes on: MEAS <-> ENDMES, DO <-> ENDDO, MACRO -> ENDMAC, IF -> ELSE (or
-    ENDIF), ELSE -> ENDIF. The check has matched them already."""
-    pairs: dict[int, int] = {}
-    stack: list[int] = []
-    for k, s in enumerate(stmts):
-        if s.major in ("MEAS", "IF", "DO", "MACRO"):
-            stack.append(k)
-        elif s.major == "ELSE":
-            pairs[stack[-1]] = k
-            stack[-1] = k
-        elif s.major in ("ENDMES", "ENDIF", "ENDDO", "ENDMAC"):
-            start = stack.pop()
-            pairs[start] = k
-            pairs[k] = start
-    return pairs
-
-
-class Executor(VendorStatements):
+class Executor(AlignmentStatements, OutputStatements, VendorStatements):
     """One run of a program on a target."""
 
     def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program") -> None:
@@ -158,6 +76,13 @@ class Executor(VendorStatements):
         self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
         self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
         self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
+        # the operator's Skip step: the measurement in progress ends after its current hit (its feature is not
+        # fitted), or the next one (a MEAS block) is left out; moves are never skipped (the program's GOTOs keep
+        # the probe clear of the part); the features skipped, by label
+        self.skip_asked = threading.Event()
+        self.skipped: dict[str, str] = {}
+        self._meas_at = -1  # the statement index of the MEAS block in progress
+        self._fraction = 0.0  # how far the run is (statements), for the progress it reports
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -192,6 +117,9 @@ class Executor(VendorStatements):
         if label.type not in ("FA", "F"):
             raise self.fail(s, f"{label} is not a feature")
         a = self.result.actuals.get(label.name)
+        if a is None and label.name in self.skipped:
+            raise self.fail(s, f"FA({label.name}) was skipped by the operator ({self.skipped[label.name]}): "
+                               "this statement needs it")
         if a is None:
             raise self.fail(s, f"FA({label.name}) has not been measured or constructed yet")
         return a
@@ -230,7 +158,15 @@ class Executor(VendorStatements):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
+            self._fraction = pc / len(self.stmts)
             self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
+            if self.skip_asked.is_set():
+                skip_to = self._skip(pc, s, pairs)
+                if skip_to is not None:
+                    pc = skip_to
+                    continue
+            if m == "MEAS":
+                self._meas_at = pc
             if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
                 told = int(100 * pc / len(self.stmts))
                 self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
@@ -294,9 +230,42 @@ class Executor(VendorStatements):
         """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
         if self.paused.is_set() and not self.cancelled.is_set():
             self.log(f"line {s.line}: paused by the operator")
+            if self.on_progress is not None:
+                self.on_progress(self._fraction, f"paused before line {s.line}: {s.name}; Resume to go on")
             self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
+            if self.on_progress is not None and not self.cancelled.is_set():
+                self.on_progress(self._fraction, f"line {s.line}: {s.name}")
         if self.cancelled.is_set():
             raise self.fail(s, "the program was cancelled by the operator before this statement")
+
+    def skip(self) -> bool:
+        """The operator's Skip step (any thread): the feature measurement in progress (MEAS .. ENDMES) ends after
+        its current hit, else the next one is left out; a paused run goes on to do it."""
+        self.skip_asked.set()
+        self.paused.clear()
+        return True
+
+    def _skip(self, pc: int, s: Statement, pairs: dict[int, int]) -> int | None:
+        """Where the run goes on when the operator asked to skip before statement ``pc`` (None: no step here to
+        skip, the request waits for the next one). The skipped feature is said in the output, the log and the
+        journal; the hits it took stay in the session, not fitted."""
+        if self._meas is not None:  # inside MEAS .. ENDMES: its remaining hits are not taken
+            meas, ids = self._meas
+            self._meas, self._guides = None, []
+            nxt = pairs[self._meas_at] + 1
+            why = f"after {len(ids)} hit{'s' if len(ids) != 1 else ''}"
+        elif s.major == "MEAS":
+            meas, nxt, why = s, pairs[pc] + 1, "before its first hit"
+        else:
+            return None
+        self.skip_asked.clear()
+        label = self.labels(meas)[0].name
+        self.skipped[label] = f"line {meas.line}, {why}"
+        self.result.actuals.pop(label, None)
+        self.log(f"line {meas.line}: F({label}) skipped by the operator {why}; it is not fitted")
+        self.emit(f"$$ F({label}) skipped by the operator {why} (line {meas.line}): not measured")
+        self.target.note(f"DMIS F({label}) skipped by the operator {why} (line {meas.line}); not fitted")
+        return nxt
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
@@ -345,265 +314,6 @@ class Executor(VendorStatements):
         if isinstance(value, float) and not math.isfinite(value):
             raise self.fail(s, f"{s.variable or 'the variable'} = {_text(p)} is {num(value)}: give a finite number")
         self.variables[s.variable] = value
-
-    def do_output(self, s: Statement) -> None:
-        self.emit(statement_text(s))
-        pending: list[Actual] = []
-        after_tolerance = False  # FA(a), TA(x), TA(y), FA(b), TA(z): x and y apply to a, z to b
-        for lab in self.labels(s):
-            if lab.type in ("FA", "F") and after_tolerance:
-                pending, after_tolerance = [], False
-            if lab.type == "FA":
-                a = self.actual(s, lab)
-                pending.append(a)
-                self.emit(actual_line(a, self.frame, self.scale, self.angle_scale))
-                u_line = self._uncertainty_line(a)
-                if u_line:
-                    self.emit(u_line)
-            elif lab.type == "F":
-                nom = self.nominals.get(lab.name)
-                if nom is None:
-                    raise self.fail(s, f"F({lab.name}) is not defined")
-                pending.append(self.result.actuals.get(lab.name) or Actual(lab.name, nom.kind, {}, nom))
-                self.emit(nominal_line(lab.name, nom, self.frame, self.scale, self.angle_scale))
-            elif lab.type in ("TA", "T"):
-                tol = self.tolerances.get(lab.name)
-                if tol is None:
-                    raise self.fail(s, f"T({lab.name}) is not defined (T({lab.name}) = TOL/...)")
-                if not pending:
-                    raise self.fail(s, f"TA({lab.name}) needs the feature it applies to before it: "
-                                       f"OUTPUT/FA(name), TA({lab.name})")
-                ev = evaluate_tolerance(tol, pending, self.datums, self.frame, self.sizes)
-                self.result.evaluations.append(ev)
-                self.emit(output_line(ev))
-                if ev.note:
-                    self.emit(f"$$ T({tol.label}): {ev.note}; allowed {tol.upper + ev.bonus:.5f}")
-                nom = pending[0].nominal
-                if tol.word in ("DIAM", "RAD") and nom is not None and nom.diameter is not None:
-                    k = 2.0 if tol.word == "RAD" else 1.0  # the size limits as diameters, for MMC / LMC
-                    self.sizes[pending[0].label] = (nom.diameter + k * tol.lower, nom.diameter + k * tol.upper)
-                self._to_model(ev, pending)
-                after_tolerance = True
-            else:
-                raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
-
-    def _uncertainty_line(self, a: Actual) -> str:
-        """A comment with the feature's expanded uncertainty (k = 2, cmm.metrology.uncertainty), or ""."""
-        f = self.model.features.get(a.feature_id) if a.feature_id is not None else None
-        expanded = ((getattr(f, "budget", None) or {}).get("U")) if f is not None else None
-        if not expanded:
-            return ""
-        parts = [f"{k} {v / (1.0 if k.endswith('_deg') else self.scale):.5f}" for k, v in expanded.items()]
-        return f"$$ FA({a.label}): U (k=2) " + ", ".join(parts)
-
-    def _to_model(self, ev: Evaluation, features: list[Actual]) -> None:
-        """The station's report carries the DMIS tolerance too (where the model has the same characteristic):
-        sizes and form as the feature's tolerance, a position with datums or at MMC / LMC as the station's
-        GD&T (its datums defined on the same features), so the report gives the same value and bonus."""
-        keys = model_tolerance(ev.tolerance)
-        fid = features[0].feature_id
-        if keys and fid is not None and fid in self.model.features:
-            self.target.set_tolerance(fid, keys)
-        tol = ev.tolerance
-        if tol.word == "POS" and (tol.datums or tol.material) and fid is not None and fid in self.model.features:
-            why = planar_position(tol, features[0].kind) or self._position_to_model(tol, fid)
-            if why:
-                self.log(f"T({tol.label}) is not in the station's GD&T: {why}")
-                self.target.note(f"DMIS T({tol.label}) is not in the station's GD&T: {why}")
-        self.target.note(f"{output_line(ev)} ({', '.join('FA(' + f + ')' for f in ev.features)})")
-
-    def _position_to_model(self, tol: Tolerance, fid: int) -> str:
-        """Define TOL/POS in the station's GD&T: its datums on the DATDEF features (at RFS; the frame says how
-        it references each: MMB / LMB for a DAT(..) at MMC / LMC), then the position. Why not, in words ("" when
-        it is)."""
-        names = list(tol.datums[:3])
-        for name in names:
-            d = self.datums.get(name)
-            if d is None or d.feature_id is None or d.feature_id not in self.model.features:
-                return f"DAT({name}) is not a measured feature of the station"
-            have = self.model.datums.get(name)
-            if have is None or int(have["feature"]) != d.feature_id or have.get("targets"):
-                try:
-                    self.target.define_datum(name, d.feature_id)
-                except Exception as exc:  # noqa: BLE001 - a datum the station's GD&T cannot take, in words
-                    return str(exc)
-        modifiers = {n: {"MMC": "MMB", "LMC": "LMB"}.get(tol.datum_material.get(n, ""), "") for n in names}
-        try:
-            self.target.define_position(fid, tol.upper, names, material=tol.material, name=f"T({tol.label})",
-                                        datum_modifiers=modifiers or None)
-        except Exception as exc:  # noqa: BLE001 - the station's GD&T refuses it, in words
-            return str(exc)
-        return ""
-
-    # --- coordinate systems -----------------------------------------------------------------------
-
-    def _set_frame(self, s: Statement, frame: np.ndarray, design: np.ndarray) -> None:
-        self.frame, self.design_frame = frame, design
-        if s.label is not None:
-            self.frames[s.label.name] = frame.copy()
-            self.design_frames[s.label.name] = design.copy()
-            self.result.frames[s.label.name] = frame.copy()
-        self.emit(statement_text(s))
-
-    def _align_part(self, s: Statement, features: list[Actual]) -> None:
-        """The alignment the statement made moves the station's part (its pose: the rails, the 3-D view and the
-        report follow): the part lies ``frame @ inverse(design_frame)`` from where the program's nominals put it.
-        Checked on the part with the hits of the features it used; when that fails the part stays and the run's
-        log and the journal say why."""
-        hits = [a.hit_points for a in features if a.hit_points is not None and len(a.hit_points)]
-        if not hits:  # constructed features only: the hits of everything measured so far
-            hits = [a.hit_points for a in self.result.actuals.values()
-                    if a.hit_points is not None and len(a.hit_points)]
-        if not hits:
-            return self._not_aligned(s, "no measured hits to check it on the part")
-        name = f"D({s.label.name})" if s.label is not None else f"line {s.line}"
-        try:
-            said = self.target.align(self.frame, self.design_frame, np.vstack(hits), name)
-        except Exception as exc:  # noqa: BLE001 - not this part at its set-up: said, and the part stays
-            return self._not_aligned(s, str(exc), said=True)
-        self.log(f"line {s.line}: {said}")
-        self._move_nominals(self.frame @ inverse(self.design_frame))
-
-    def _move_nominals(self, placement: np.ndarray) -> None:
-        """The part lies ``placement`` (machine, 4x4) away from where the program's nominals put it (the align
-        verb moved the station's part by as much): every FEAT nominal defined so far moves with it, from where
-        the previous alignment had put it, and the station's features measured so far take the same nominals.
-        So a position without datums judges a feature against one nominal in the DMIS output and in the
-        station's report, measured before the alignment or after it, on the first part or the tenth. The design
-        nominals (for positions with datums) stay where the program's nominals put the part."""
-        move = placement @ inverse(self.placement)
-        self.placement = placement
-        for nom in self.nominals.values():
-            nom.point = apply(move, nom.point)
-            if nom.vector is not None:
-                nom.vector = apply_vector(move, nom.vector)
-        for a in self.result.actuals.values():
-            nominal = None if a.nominal is None else a.nominal.to_model()
-            if nominal is not None and a.feature_id is not None and a.feature_id in self.model.features:
-                self.target.set_nominal(a.feature_id, nominal)
-
-    def _not_aligned(self, s: Statement, why: str, *, said: bool = False) -> None:
-        text = why if said else f"{statement_text(s)} does not move the station's part: {why}"
-        self.log(f"line {s.line}: {text}")
-        self.target.note(f"DMIS line {s.line}: {text}")
-
-    def do_datset(self, s: Statement) -> None:
-        if self.words(s) == ["MCS"]:
-            return self._set_frame(s, np.eye(4), np.eye(4))
-        entries, design = [], []
-        current: Actual | None = None
-        name = ""
-        used: list[Actual] = []
-        for p in s.params:
-            if isinstance(p, Label):
-                if p.type == "DAT":
-                    if p.name not in self.datums:
-                        raise self.fail(s, f"DAT({p.name}) is not defined (DATDEF/FA(name), DAT({p.name}))")
-                    current, name = self.datums[p.name], str(p)
-                else:
-                    current, name = self.actual(s, p), str(p)
-                used.append(current)
-            elif isinstance(p, Word):
-                if current is None:
-                    raise self.fail(s, f"{p.text} must follow a datum: DATSET/DAT(A), ZDIR, ZORIG, ...")
-                problem = datset_word_problem(p.text)
-                if problem:
-                    raise self.fail(s, problem)
-                entries.append((name, p.text, current.axis_point(), current.direction()))
-                nom = None if current.nominal is None else (current.nominal.design or current.nominal)
-                design.append(None if nom is None else (name, p.text, nom.point, nom.vector))
-            else:
-                raise self.fail(s, f"DATSET takes datums and words, not {_text(p)}")
-        frame = datum_frame(entries, self.frame)
-        if all(d is not None for d in design):
-            design_frame = datum_frame(design, self.design_frame)  # type: ignore[arg-type]
-        else:  # a datum without a nominal: the design frame follows the measured one
-            design_frame = frame.copy()
-        self._set_frame(s, frame, design_frame)
-        if all(d is not None for d in design):
-            self._align_part(s, used)
-        else:
-            self._not_aligned(s, "a datum has no nominal (FEAT), so where the part lies cannot be told")
-
-    def do_trans(self, s: Statement) -> None:
-        origin = np.zeros(3)
-        design_origin = np.zeros(3)
-        params = list(s.params)
-        k = 0
-        inv = inverse(self.frame)
-        design_inv = inverse(self.design_frame)
-        used: list[Actual] = []
-        nominal_less = False
-        while k < len(params):
-            w = params[k]
-            if not isinstance(w, Word) or w.text not in ORIGINS or k + 1 >= len(params):
-                raise self.fail(s, "TRANS takes XORIG, YORIG, ZORIG each followed by a value or a feature FA(..)")
-            v = params[k + 1]
-            axis = ORIGINS[w.text]
-            if isinstance(v, Label):  # the origin on a measured feature; in the design frame on its nominal
-                a = self.actual(s, v)
-                origin[axis] = apply(inv, a.axis_point())[axis]
-                nom = None if a.nominal is None else (a.nominal.design or a.nominal)
-                design_origin[axis] = (origin[axis] if nom is None
-                                       else apply(design_inv, nom.point)[axis])
-                used.append(a)
-                nominal_less |= nom is None
-            else:
-                origin[axis] = design_origin[axis] = self.num(s, v) * self.scale
-            k += 2
-        self._set_frame(s, self.frame @ translation(origin), self.design_frame @ translation(design_origin))
-        if used and not nominal_less:
-            self._align_part(s, used)
-        elif used:
-            self._not_aligned(s, "its feature has no nominal (FEAT), so where the part lies cannot be told")
-
-    def do_rotat(self, s: Statement) -> None:
-        """ROTAT/ZAXIS, angle: turn about an axis of the current system. ROTAT/ZAXIS, FA(x), XDIR: turn about
-        the axis until XDIR (YDIR, XMINUS ...) points along the feature: its direction (a line, a plane's normal)
-        or, for a feature whose direction is the rotation axis (a bore, a point), towards its location."""
-        p = s.params
-        problem = rotat_problem(p[0].text if p and isinstance(p[0], Word) else None,
-                                len(p) > 1 and isinstance(p[1], Label),
-                                p[2].text if len(p) > 2 and isinstance(p[2], Word) else None, len(p))
-        if problem:
-            raise self.fail(s, problem)
-        axis = AXES[p[0].text]  # type: ignore[union-attr]
-        if isinstance(p[1], Label):
-            d_axis, sign = DIRS[p[2].text]  # type: ignore[union-attr]
-            a = self.actual(s, p[1])
-            angle = self._turn_onto(s, self.frame, axis, d_axis, sign, a.direction(), a.location(), p[1].name)
-            nom = None if a.nominal is None else (a.nominal.design or a.nominal)
-            design_angle = angle if nom is None else self._turn_onto(
-                s, self.design_frame, axis, d_axis, sign, nom.vector, nom.point, p[1].name)
-            self._set_frame(s, self.frame @ rotation(axis, angle), self.design_frame @ rotation(axis, design_angle))
-            if nom is not None:
-                self._align_part(s, [a])
-            else:
-                self._not_aligned(s, f"FA({p[1].name}) has no nominal (FEAT), so where the part lies cannot be told")
-            return
-        angle = self.num(s, p[1]) * self.angle_scale
-        turn = rotation(axis, angle)
-        self._set_frame(s, self.frame @ turn, self.design_frame @ turn)
-
-    def _turn_onto(self, s: Statement, frame: np.ndarray, axis: int, d_axis: int, sign: float,
-                   direction: np.ndarray | None, location: np.ndarray, name: str) -> float:
-        """The angle about ``axis`` of ``frame`` that turns its ``d_axis`` (times ``sign``) onto a feature."""
-        inv = inverse(frame)
-        e = np.zeros(3)
-        e[axis] = 1.0
-        v = None
-        if direction is not None:
-            v = apply_vector(inv, direction)
-            v = v - (v @ e) * e
-        if v is None or np.linalg.norm(v) < 0.05:  # within 3 degrees of the axis: towards the feature's location
-            v = apply(inv, location)
-            v = v - (v @ e) * e
-            if np.linalg.norm(v) < 1e-6:
-                raise self.fail(s, f"FA({name}) lies on the rotation axis: it cannot set the direction")
-        target = sign * v / np.linalg.norm(v)
-        current = np.zeros(3)
-        current[d_axis] = 1.0
-        return math.atan2(float(np.cross(current, target) @ e), float(current @ target))
 
     # --- sensors and motion ---------------------------------------------------------------------
 
@@ -811,58 +521,3 @@ class Executor(VendorStatements):
         self.datums[dat.name] = self.actual(s, feat)
         self.target.note(f"DMIS datum {dat.name}: FA({feat.name})")
 
-    def do_tol(self, s: Statement) -> None:
-        word = s.minor
-        w = [p for p in s.params[1:]]
-        v = self.numbers(s, w)
-        options = [p.text for p in w if isinstance(p, Word) and p.text not in self.variables]
-        datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
-        if word == "POS" and "2D" in options:  # a point's 2D position is taken in the working plane (WKPLAN)
-            options.append(self.work_plane)
-        tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
-        # material conditions: MMC / LMC / RFS after the zone is the feature's, after a DAT(..) that datum's
-        last: Param | None = None
-        for p in w:
-            if isinstance(p, Word) and p.text in ("MMC", "LMC", "RFS"):
-                problem = material_problem(word, [p.text])  # type: ignore[arg-type]
-                if problem:
-                    raise self.fail(s, problem)
-                if isinstance(last, Label) and last.type == "DAT":
-                    if p.text != "RFS":
-                        tol.datum_material[last.name] = p.text
-                elif p.text != "RFS":
-                    tol.material = p.text
-            last = p
-        if word in ("DIAM", "RAD"):
-            if len(v) != 2:
-                raise self.fail(s, f"TOL/{word} takes the lower and the upper tolerance")
-            tol.lower, tol.upper = v
-        elif word in ("DISTB", "ANGLB"):
-            if len(v) != 3:
-                raise self.fail(s, f"TOL/{word} takes NOMINL, the nominal, the lower and the upper tolerance")
-            tol.nominal, tol.lower, tol.upper = v[0] * (self.scale if word == "DISTB" else 1.0), v[1], v[2]
-        elif word == "ANGLR":
-            if len(v) != 2:
-                raise self.fail(s, "TOL/ANGLR takes the angle and the zone")
-            tol.nominal, tol.upper = v[0], v[1]
-        elif word in ("PROFS", "PROFL"):
-            if len(v) == 1:
-                tol.lower, tol.upper = -v[0] / 2.0, v[0] / 2.0
-            elif len(v) == 2:
-                tol.lower, tol.upper = v
-            else:
-                raise self.fail(s, f"TOL/{word} takes the zone, or the lower and the upper tolerance")
-        else:
-            if len(v) != 1:
-                raise self.fail(s, f"TOL/{word} takes one zone value, it has {len(v)} numbers")
-            tol.upper = v[0]
-        degrees = self.angle_scale * 180.0 / math.pi  # program angle units -> degrees
-        if word == "ANGLB":
-            tol.nominal, tol.lower, tol.upper = v[0] * degrees, v[1] * degrees, v[2] * degrees
-        elif word == "ANGLR":
-            tol.nominal, tol.upper = v[0] * degrees, v[1] * self.scale
-        else:
-            tol.lower, tol.upper = tol.lower * self.scale, tol.upper * self.scale
-        if tol.lower > tol.upper:
-            raise self.fail(s, f"TOL/{word}: the lower tolerance {tol.lower:g} is above the upper {tol.upper:g}")
-        self.tolerances[tol.label] = tol

@@ -21,7 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..measurement.run_end import end_at_clearance
-from .check import check, warnings
+from .check import check, outside_recalls, warnings
 from .executor import DmisError, Executor, RunResult
 from .parser import Statement, Word
 from .rules import sensor_problems
@@ -179,6 +179,14 @@ class StationTarget:
             return ""
         return str(self.commands.invoke(self.client, "select_probe", name=name))
 
+    def saved_items(self) -> Any:
+        """The station's record of what DMIS programs SAVE (cmm.dmis.saved): in its sessions folder; None without
+        one (SAVE then holds within the run)."""
+        from .saved import SavedItems
+
+        folder = getattr(self.model, "session_dir", None)
+        return SavedItems(folder) if isinstance(folder, Path) else None
+
     @property
     def tip_radius(self) -> float:
         return float(self.station.controller.tip_radius)
@@ -236,6 +244,15 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
     problems = sensor_problems(stmts, target.probes(), target.nominal_tip_diameter)
     if problems:
         raise DmisError(problems[0])
+    store = target.saved_items()  # a RECALL of what an earlier program saved: refused before motion when none did
+    for line, key in outside_recalls(stmts):
+        try:
+            found = None if store is None else store.recall(key)
+        except OSError as exc:
+            raise DmisError(f"line {line}: {exc}") from None
+        if found is None:
+            raise DmisError(f"line {line}: RECALL/{key}: nothing named {key} is defined or saved before it, nor "
+                            "saved by an earlier program on this station")
     executor = Executor(stmts, target, name=name)
     executor.result.log.extend(f"warning: {w}" for w in warnings(text, stmts))
     description = f"DMIS program {name!r}"
@@ -276,6 +293,7 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
 
     return station.controller.commands.invoke(client, "run_job", description=description, work=work,
                                               hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
+                                              skip=executor.skip,
                                               **({"progress": progress} if progress is not None and not manual else {}))
 
 
@@ -302,4 +320,6 @@ def register_verbs(station: Any) -> None:
                       "run a DMIS program (its text, or the path of its file) after checking all of it; the control "
                       "holder only; the machine is the program's until it ends (in manual mode the operator jogs and "
                       "probes the hits it asks for: on_prompt(text), in process, tells them); cancel ends it "
-                      "after the hit in progress; returns its actuals, tolerances and output")
+                      "after the hit in progress; pause holds it between statements, resume goes on, skip_step ends "
+                      "the feature measurement in progress after its current hit (or leaves out the next one); "
+                      "returns its actuals, tolerances and output")

@@ -3,7 +3,9 @@
 - ``SNSMNT/XVEC, i, j, k, ZVEC, i, j, k, MNTOFF, x, y, z``: the probe head's axes; the SNSDEF directions after it
   are given in them (the station's probe must still point down);
 - ``SAVE/DA(x)`` and ``RECALL/DA(x)`` (``D(x)`` too): a coordinate system kept and put back; ``SAVE/DAT(A)``,
-  ``SAVE/FA(x)``, ``SAVE/SA(x)`` and their RECALL: a datum, an actual, a sensor kept for the rest of the run;
+  ``SAVE/FA(x)``, ``SAVE/SA(x)`` and their RECALL: a datum, an actual, a sensor kept; on the station they are kept
+  in its records for later programs too (:mod:`cmm.dmis.saved`): a RECALL of what this run did not save finds
+  the last SAVE of an earlier program;
 - ``WKPLAN/XYPLAN | YZPLAN | ZXPLAN``: the working plane a 2D position of a point is taken in;
 - ``TEXT/OUTFIL, 'text'``: a line of the output file; ``TEXT/OPER, 'text'``: told to the operator (the page's
   program status, the terminal, the journal); ``TEXT/MAN, 'text'`` waits for the operator to confirm it and
@@ -155,21 +157,51 @@ class VendorStatements:
                 raise self.fail(s, f"S({name}) is not defined (S({name}) = SNSDEF/PROBE, ...)")  # type: ignore
             self.saved[key] = dict(self.sensors[name])  # type: ignore[attr-defined]
         self.emit(f"SAVE/{key}")
+        store = self._store()
+        if store is not None:  # kept for the station's next programs too (cmm.dmis.saved)
+            try:
+                store.keep(key, self.saved[key], self.name)  # type: ignore[attr-defined]
+            except OSError as exc:
+                self.log(f"line {s.line}: {key} is saved for this run only: {exc}")  # type: ignore[attr-defined]
+
+    def _store(self) -> Any:
+        """The station's saved items (None: a target without records keeps SAVE within the run)."""
+        get = getattr(self.target, "saved_items", None)  # type: ignore[attr-defined]
+        return None if get is None else get()
+
+    def _recalled(self, s: Statement, key: str) -> Any:
+        """An item another program saved on this station (None: none was)."""
+        store = self._store()
+        if store is None:
+            return None
+        try:
+            got = store.recall(key)
+        except OSError as exc:
+            raise self.fail(s, str(exc))  # type: ignore[attr-defined]
+        if got is None:
+            return None
+        self.log(f"line {s.line}: {key} as saved by {got[1]}")  # type: ignore[attr-defined]
+        self.saved[key] = got[0]
+        return got[0]
 
     def do_recall(self, s: Statement) -> None:
         label = self.labels(s)[0]  # type: ignore[attr-defined]
         key, name = self._saved_key(label), label.name
         kept = self.saved.get(key)
+        if kept is None and (label.type not in ("D", "DA") or name not in self.frames):  # type: ignore[attr-defined]
+            kept = self._recalled(s, key)  # saved by an earlier program on this station
         if label.type in ("D", "DA"):
             if kept is None:
                 if name not in self.frames:  # type: ignore[attr-defined]
-                    raise self.fail(s, f"D({name}) has not been defined or saved")  # type: ignore[attr-defined]
+                    raise self.fail(s, f"D({name}) has not been defined or saved (by this program or an earlier "  # type: ignore
+                                       "one on this station)")
                 kept = (self.frames[name], self.design_frames[name])  # type: ignore[attr-defined]
             self.frame, self.design_frame = kept[0].copy(), kept[1].copy()
             self.emit(f"RECALL/D({name})" if label.type == "D" else f"RECALL/DA({name})")
             return
         if kept is None:
-            raise self.fail(s, f"{label} has not been saved (SAVE/{label})")  # type: ignore[attr-defined]
+            raise self.fail(s, f"{label} has not been saved (SAVE/{label}, by this program or an earlier one on "  # type: ignore
+                               "this station)")
         if label.type == "DAT":
             self.datums[name] = kept  # type: ignore[attr-defined]
         elif label.type == "FA":

@@ -387,7 +387,8 @@ class RoutinePanel:
             self.ctx.set("routine:bar", "visible", True, bar)
             self.ctx.set("routine:bar:value", "value", round(100.0 * fraction, 1), bar)
         if self.dmis is not None and not self.dmis_question:
-            self.dmis_status = f"**RUNNING** {self.dmis[0].name} · {message}"
+            head = "PAUSED" if message.startswith("paused") else "RUNNING"
+            self.dmis_status = f"**{head}** {self.dmis[0].name} · {message}"
             self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
     def _dmis_query(self, prompt: str, answer: bool) -> str:
@@ -530,11 +531,13 @@ class RoutinePanel:
             run.cancel()  # stopped on a fault: cancel ends it
             self._show_progress()
             return
-        if (run is None or not self.running) and not (self.dmis_running and action != "skip"):
+        if (run is None or not self.running) and not self.dmis_running:
             self.ctx.error("no routine is running", "Routine")
             return
         if self.dmis_running and action == "cancel":
             self._dmis_cancel = True  # a question the program waits on ends too
+        if self.dmis_running and action in ("pause", "resume", "skip") and getattr(self.ctx.shared, "cycle", None):
+            self.ctx.shared.cycle_paused = action == "pause"  # the status bar: PAUSED, not RUNNING
         verb, title = {"pause": ("pause", "Pause"), "resume": ("resume", "Resume"), "skip": ("skip_step", "Skip step"),
                        "cancel": ("cancel", "Cancel")}[action]
         answer = self.ctx.do(title, verb)  # the core decides who may; its refusal is shown in words
