@@ -198,6 +198,8 @@ def test_a_client_browses_the_gms_instance_and_sees_the_position_change_as_the_m
             assert len(between) >= 2, f"the position did not change as the machine moved: {sorted(set(seen))}"
             assert abs(seen[-1] - target[0]) < 1e-3
             assert not server.errors
+            # a front end on the API: the values came through the API's change streams, not a poll of the station
+            assert api._subscriptions.count() >= 2 and server.deliveries >= len(between)
             assert (await state.read_value()).Text in ("NotExecuting", "Executing")
             await sub.delete()
 

@@ -1,9 +1,10 @@
 """The OPC UA server: a front end on the command API, serving the GMS model (:mod:`cmm.opcua.model`).
 
-It receives only the command API (``station.controller.commands``). A task asks the API's queries (``state``,
-``position``, ``job``, ``probe_in_use``, ``characteristics``) at a bounded rate (``rate`` Hz, 10 by default) and writes
-what changed into the address space, so subscribed clients see the machine move at no more than that rate
-whatever the machine does. A finished program run becomes a result (``GMSResultType``) in
+It receives only the command API (``station.controller.commands``) and never reads the station: it subscribes to
+the API's queries (:meth:`cmm.control.api.CommandAPI.subscribe`: ``state``, ``position``, ``job`` at ``rate`` Hz, 10
+by default; ``probe_in_use`` and ``report_info`` once a second) and writes what each delivery changed into the
+address space, so subscribed clients see the machine move at no more than that rate whatever the machine does;
+an idle machine sends nothing. A run's characteristics are a query when it ends. A finished program run becomes a result (``GMSResultType``) in
 ``ResultManagement/Results`` (the last :data:`KEEP_RESULTS`).
 
 Writes (the report header) and methods (``StartProgram``, ``Stop``) are commands of the session's client: an
@@ -18,7 +19,6 @@ import asyncio
 import contextvars
 import logging
 import threading
-import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Callable
@@ -85,7 +85,10 @@ class OpcUaServer:
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
         self._failure: BaseException | None = None
-        self._last: dict[str, Any] = {}
+        self._last: dict[str, Any] = {}  # what the address space shows, by path
+        self._latest: dict[str, Any] = {}  # the API's queries as last delivered
+        self._subscriptions: list[Any] = []
+        self.deliveries = 0  # change deliveries applied (each is at most one per subscription period)
         self._workers: list[threading.Thread] = []
 
     @property
@@ -148,22 +151,44 @@ class OpcUaServer:
         self.server = server
         await self._fill_identification()
         async with server:
-            self._ready.set()
-            period = 1.0 / self.rate
-            slow = 0.0
+            await self._follow()
+
+    async def _follow(self) -> None:
+        """Follow the API's change streams until close(): the machine's at ``rate``, the probe's and the report
+        header's once a second; each delivery (only what changed) is written into the address space."""
+        loop = asyncio.get_running_loop()
+        changes: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+        def deliver(changed: dict[str, Any]) -> None:  # on the API's subscription thread
+            if not loop.is_closed():
+                loop.call_soon_threadsafe(changes.put_nowait, changed)
+
+        observer = self.client_factory(None, None)
+        subs = [self.api.subscribe(observer, {"state": {}, "position": {"frame": "machine"}, "job": {}}, deliver,
+                                   rate=self.rate),
+                self.api.subscribe(observer, {"probe_in_use": {}, "report_info": {}}, deliver, rate=1.0)]
+        self._subscriptions = subs
+        self._ready.set()
+        stop = asyncio.ensure_future(self._stop.wait())
+        try:
             while not self._stop.is_set():
-                started = time.monotonic()
+                get = asyncio.ensure_future(changes.get())
+                await asyncio.wait({get, stop}, return_when=asyncio.FIRST_COMPLETED)
+                if not get.done():
+                    get.cancel()
+                    break
+                changed = dict(get.result())
+                while not changes.empty():  # a slow pass: what arrived meanwhile, merged (the newest wins)
+                    changed.update(changes.get_nowait())
                 try:
-                    await self._update(full=started >= slow)
-                except Exception as exc:  # noqa: BLE001 - one bad pass must not end the server
+                    await self._apply(changed)
+                except Exception as exc:  # noqa: BLE001 - one bad delivery must not end the server
                     log.exception("OPC UA update failed")
                     self.errors.append(str(exc))
-                if started >= slow:
-                    slow = started + 1.0  # the probe and the results: once a second is plenty
-                try:
-                    await asyncio.wait_for(self._stop.wait(), max(0.0, period - (time.monotonic() - started)))
-                except asyncio.TimeoutError:
-                    pass
+        finally:
+            for sub in subs:
+                sub.close()
+            stop.cancel()
 
     # --- the API, as the session's client ----------------------------------------------------
     def client_for(self, user: Any) -> Any:
@@ -262,18 +287,17 @@ class OpcUaServer:
         ident = await node.get_child(ua.QualifiedName("Id", 0))
         await ident.write_value(ua.Variant(self.served.state_ids[(type_ref, state)], ua.VariantType.NodeId))
 
-    async def _update(self, full: bool) -> None:
-        observer = self.client_factory(None, None)
-        state = await self._api(observer, "state")
-        jobs = await self._api(observer, "job")
-        if not state.ok:
-            return
-        st = state.result
-        mode = st.mode.value
-        running = jobs.result if jobs.ok else []
-        programs = [j for j in running if str(j["description"]).startswith("program")]
-        pos = st.position
-        if pos is not None:
+    async def _apply(self, changed: dict[str, Any]) -> None:
+        """Write what the API's change streams delivered (JSON values of its queries) into the address space."""
+        self.deliveries += 1
+        for key, value in changed.items():
+            if isinstance(value, dict) and set(value) == {"error"}:
+                self.errors.append(f"{key}: {value['error']}")
+                continue
+            self._latest[key] = value
+        latest = self._latest
+        pos = changed.get("position")
+        if isinstance(pos, list) and len(pos) == 3:
             xyz = [round(float(v), 4) for v in pos]
             if self._last.get("position") != xyz:
                 self._last["position"] = xyz
@@ -283,34 +307,37 @@ class OpcUaServer:
                     child = await node.get_child(ua.QualifiedName(axis, 0))
                     await child.write_value(ua.Variant(v, ua.VariantType.Double))
                 self.updates += 1
-        await self._set("Monitoring/Axes/Mode", mode, ua.VariantType.String)
-        await self._set("Monitoring/Axes/Reason", st.reason, ua.VariantType.String)
-        await self._set("Monitoring/Axes/Homed", bool(st.homed), ua.VariantType.Boolean)
-        await self._state_machine("Monitoring/MachineTool/MachineryItemState/CurrentState", (model.MACHINERY, 1002),
-                                  item_state(mode, bool(running), st.link_ok))
-        await self._state_machine("Monitoring/MachineTool/MachineryOperationMode/CurrentState",
-                                  (model.MACHINERY, 1008), operation_mode(mode, bool(programs)))
-        await self._set("Monitoring/MachineTool/OperationMode", 1 if programs else 0, ua.VariantType.Int32)
-        await self._program(programs)
-        if full:
-            probe = await self._api(observer, "probe_in_use")
-            if probe.ok:
-                p = probe.result
-                await self._set("Equipment/Tools/Probe/Name", p["name"], ua.VariantType.String)
-                await self._set("Equipment/Tools/Probe/Identifier", p["name"], ua.VariantType.String)
-                status = {"qualified": 0, "expired": 1}.get(p["status"], 2)
-                await self._set("Equipment/Tools/Probe/IsQualifiedStatus", status, ua.VariantType.Int32)
-                diameter = p["tip_diameter"] if p["tip_radius"] is None else 2 * p["tip_radius"]
-                if diameter is not None:
-                    await self._set("Equipment/Tools/Probe/TipDiameter", float(diameter), ua.VariantType.Double)
-            info = await self._api(observer, "report_info")
-            if info.ok:
-                for key in model.REPORT_FIELDS:
-                    value = info.result.get(key)
-                    text = "" if value is None else (f"{value:g}" if isinstance(value, float) else str(value))
-                    if self._last.get(f"report/{key}") != text:
-                        self._last[f"report/{key}"] = text
-                        await self.served.report[key].write_value(ua.Variant(text, ua.VariantType.String))
+        if ("state" in changed or "job" in changed) and isinstance(latest.get("state"), dict):
+            st = latest["state"]
+            mode = str(getattr(st.get("mode"), "value", st.get("mode")))
+            running = latest.get("job") if isinstance(latest.get("job"), list) else []
+            programs = [j for j in running if str(j["description"]).startswith("program")]
+            await self._set("Monitoring/Axes/Mode", mode, ua.VariantType.String)
+            await self._set("Monitoring/Axes/Reason", str(st.get("reason") or ""), ua.VariantType.String)
+            await self._set("Monitoring/Axes/Homed", bool(st.get("homed")), ua.VariantType.Boolean)
+            await self._state_machine("Monitoring/MachineTool/MachineryItemState/CurrentState",
+                                      (model.MACHINERY, 1002), item_state(mode, bool(running), bool(st.get("link_ok"))))
+            await self._state_machine("Monitoring/MachineTool/MachineryOperationMode/CurrentState",
+                                      (model.MACHINERY, 1008), operation_mode(mode, bool(programs)))
+            await self._set("Monitoring/MachineTool/OperationMode", 1 if programs else 0, ua.VariantType.Int32)
+            await self._program(programs)
+        probe = changed.get("probe_in_use")
+        if isinstance(probe, dict) and "name" in probe:
+            await self._set("Equipment/Tools/Probe/Name", str(probe["name"]), ua.VariantType.String)
+            await self._set("Equipment/Tools/Probe/Identifier", str(probe["name"]), ua.VariantType.String)
+            status = {"qualified": 0, "expired": 1}.get(probe.get("status"), 2)
+            await self._set("Equipment/Tools/Probe/IsQualifiedStatus", status, ua.VariantType.Int32)
+            diameter = probe.get("tip_diameter") if probe.get("tip_radius") is None else 2 * probe["tip_radius"]
+            if diameter is not None:
+                await self._set("Equipment/Tools/Probe/TipDiameter", float(diameter), ua.VariantType.Double)
+        info = changed.get("report_info")
+        if isinstance(info, dict):
+            for key in model.REPORT_FIELDS:
+                value = info.get(key)
+                text = "" if value is None else (f"{value:g}" if isinstance(value, float) else str(value))
+                if self._last.get(f"report/{key}") != text:
+                    self._last[f"report/{key}"] = text
+                    await self.served.report[key].write_value(ua.Variant(text, ua.VariantType.String))
 
     async def _program(self, programs: list[dict[str, Any]]) -> None:
         now = programs[0] if programs else None
