@@ -79,6 +79,7 @@ class OpcUaServer:
         self.certificate = certificate  # cmm.control.tls.Certificate: Basic256Sha256 sign & encrypt besides None
         self.updates = 0  # passes of the update task that wrote something (the benchmark reads it)
         self.results = 0
+        self.kept: dict[str, Any] = {}  # ResultId -> ResultDataType, oldest first (the last KEEP_RESULTS)
         self.errors: list[str] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
@@ -147,6 +148,7 @@ class OpcUaServer:
         server.set_security_policy(policies)
         self.served = await model.build(server, self.name)
         await self._methods(server)
+        await self._result_methods()
         _install_sessions(server, self)
         self.server = server
         await self._fill_identification()
@@ -340,8 +342,10 @@ class OpcUaServer:
                     await self.served.report[key].write_value(ua.Variant(text, ua.VariantType.String))
 
     async def _program(self, programs: list[dict[str, Any]]) -> None:
+        """The active program and the production plan's job (one program run is one job) from the ``job`` query."""
         now = programs[0] if programs else None
         was = self._last.get("program")
+        job, prog = "Production/ProductionPlan/Job", "Production/ProductionPlan/Job/ProductionPrograms/Program"
         if now is not None:
             self._last["program"] = now
             name = str(now["description"]).removeprefix("program ").strip("'\"")
@@ -349,22 +353,40 @@ class OpcUaServer:
             if self._last.get("program_started") is None or was is None:
                 self._last["program_started"] = datetime.now(timezone.utc)
                 self._last["job_number"] = self._last.get("job_number", 0) + 1
-            await self._set("Production/ActiveProgram/Name", name, ua.VariantType.String)
-            await self._set("Production/ActiveProgram/JobIdentifier", f"{self.name}-{self._last['job_number']}",
-                            ua.VariantType.String)
-            await self._set("Production/ActiveProgram/NumberInList", 0, ua.VariantType.UInt16)
-            percent = 100.0 * now["done"] / now["total"] if now["total"] else 0.0
-            await self._set("Production/ActiveProgram/Progress", round(percent, 1), ua.VariantType.Double)
+            ident = f"{self.name}-{self._last['job_number']}"
+            percent = round(100.0 * now["done"] / now["total"], 1) if now["total"] else 0.0
+            for base in ("Production/ActiveProgram", prog):
+                await self._set(f"{base}/Name", name, ua.VariantType.String)
+                await self._set(f"{base}/NumberInList", 0, ua.VariantType.UInt16)
+                await self._set(f"{base}/Progress", percent, ua.VariantType.Double)
+            await self._set("Production/ActiveProgram/JobIdentifier", ident, ua.VariantType.String)
             await self._set("Production/ActiveProgram/Step", str(now["step"]), ua.VariantType.String)
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15), "Running")
-        elif was is not None:  # the run ended: its result, and the program's state Ended
+            await self._set(f"{job}/Identifier", ident, ua.VariantType.String)
+            await self._set(f"{job}/NumberInList", 0, ua.VariantType.UInt16)
+            await self._set(f"{job}/RunsPlanned", 1, ua.VariantType.UInt32)
+            await self._set(f"{job}/RunsCompleted", 0, ua.VariantType.UInt32)
+            await self._set(f"{job}/Duration", self._elapsed_ms(), ua.VariantType.Double)
+            await self._states("Running")
+        elif was is not None:  # the run ended: its result, and the program's and the job's state Ended
             self._last["program"] = None
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15), "Ended")
-            await self._set("Production/ActiveProgram/Progress", 100.0, ua.VariantType.Double)
+            await self._set(f"{job}/Duration", self._elapsed_ms(), ua.VariantType.Double)
+            await self._set(f"{job}/RunsCompleted", 1, ua.VariantType.UInt32)
+            for base in ("Production/ActiveProgram", prog):
+                await self._set(f"{base}/Progress", 100.0, ua.VariantType.Double)
+            await self._states("Ended")
             await self._publish_result()
         elif "Production/ActiveProgram/State/CurrentState" not in self._last:
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15),
-                                      "Initializing")
+            await self._states("Initializing")
+
+    async def _states(self, state: str) -> None:
+        prog = "Production/ProductionPlan/Job/ProductionPrograms/Program"
+        for path in ("Production/ActiveProgram", prog):
+            await self._state_machine(f"{path}/State/CurrentState", (model.MACHINE_TOOL, 15), state)
+        await self._state_machine("Production/ProductionPlan/Job/State/CurrentState", (model.MACHINE_TOOL, 28), state)
+
+    def _elapsed_ms(self) -> float:
+        started = self._last.get("program_started")
+        return 0.0 if started is None else round((datetime.now(timezone.utc) - started).total_seconds() * 1000.0, 0)
 
     async def _publish_result(self) -> None:
         observer = self.client_factory(None, None)
@@ -387,6 +409,9 @@ class OpcUaServer:
                               + ("" if r["ok"] is None else (" OK" if r["ok"] else " NOT OK")), ua.VariantType.String)
                    for r in rows]
         value = ua.ResultDataType(ResultMetaData=meta, ResultContent=content)
+        self.kept[meta.ResultId] = value
+        while len(self.kept) > KEEP_RESULTS:
+            self.kept.pop(next(iter(self.kept)))
         folder = self.served.results
         ns = self.served.ns[model.STATION]
         nid = ua.NodeId(f"{self.name}/ResultManagement/Results/{self.results}", ns)
@@ -398,6 +423,41 @@ class OpcUaServer:
         if old >= 1:
             await self.server.delete_nodes([self.server.get_node(
                 ua.NodeId(f"{self.name}/ResultManagement/Results/{old}", ns))], recursive=True)
+
+    async def _result_methods(self) -> None:
+        """GetLatestResult(Timeout) and GetResultById(ResultId, Timeout) of the Machinery Result model: the kept
+        results (the last :data:`KEEP_RESULTS`); ResultHandle is always 0 (no handles to release), Error 0 when
+        found, -1 when the station has no result yet, -2 when the id is not (or no longer) kept. Anonymous
+        clients may call them: they only read."""
+        rm = self.served.nodes["ResultManagement"]
+        rns = self.served.ns[model.RESULT]
+        timeout = ua.Argument(Name="Timeout", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1,
+                              Description=ua.LocalizedText("how long the client needs the result (ms); a hint"))
+        result_id = ua.Argument(Name="ResultId", DataType=ua.NodeId(ua.ObjectIds.TrimmedString), ValueRank=-1,
+                                Description=ua.LocalizedText("the ResultId of a result's ResultMetaData"))
+        outputs = [ua.Argument(Name="ResultHandle", DataType=ua.NodeId(ua.ObjectIds.Handle), ValueRank=-1),
+                   ua.Argument(Name="Result", DataType=self.served.nid((model.RESULT, 3008)), ValueRank=-1),
+                   ua.Argument(Name="Error", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1)]
+
+        def answer(value: Any, error: int) -> list[ua.Variant]:
+            if value is None:
+                value = ua.ResultDataType(ResultMetaData=ua.ResultMetaDataType(ResultId=""), ResultContent=[])
+            return [ua.Variant(0, ua.VariantType.UInt32), ua.Variant(value, ua.VariantType.ExtensionObject),
+                    ua.Variant(error, ua.VariantType.Int32)]
+
+        async def latest(parent: Any, _timeout: Any) -> list[ua.Variant]:
+            if not self.kept:
+                return answer(None, -1)
+            return answer(self.kept[next(reversed(self.kept))], 0)
+
+        async def by_id(parent: Any, wanted: Any, _timeout: Any) -> list[ua.Variant]:
+            value = self.kept.get(str(wanted.Value))
+            return answer(value, 0 if value is not None else -2)
+
+        await rm.add_method(self.served.nodes["ResultManagement/GetLatestResult"],
+                            ua.QualifiedName("GetLatestResult", rns), latest, [timeout], outputs)
+        await rm.add_method(self.served.nodes["ResultManagement/GetResultById"],
+                            ua.QualifiedName("GetResultById", rns), by_id, [result_id, timeout], outputs)
 
 
 _UNSET = object()
