@@ -89,3 +89,40 @@ def is_subtype(nodes: dict, sub: tuple[str, str], sup: tuple[str, str]) -> bool:
             return True
         sub = nodes[sub].target(HAS_SUBTYPE, forward=False) if sub in nodes else None
     return False
+
+
+UAX = "{http://opcfoundation.org/UA/2008/02/Types.xsd}"
+
+
+def method_arguments(folder: Path) -> dict[tuple[str, str], dict[str, list[tuple[str, tuple[str, str]]]]]:
+    """The official methods' arguments: (namespace URI, "i=N" of the method) -> {"InputArguments": [(name, data
+    type (namespace URI, "i=N"))], "OutputArguments": [...]}."""
+    out: dict[tuple[str, str], dict[str, list]] = {}
+    for name in FILES:
+        root = etree.parse(str(folder / name)).getroot()
+        uris = [u.text for u in root.find(NS + "NamespaceUris")]
+
+        def nid(text: str) -> tuple[str, str]:
+            if text.startswith("ns="):
+                index, rest = text.split(";", 1)
+                return uris[int(index[3:]) - 1], rest
+            return UA, text
+
+        for el in root.iter(NS + "UAVariable"):
+            kind = el.get("BrowseName")
+            if kind not in ("InputArguments", "OutputArguments") or el.get("ParentNodeId") is None:
+                continue
+            args = [(a.findtext(UAX + "Name"), nid(a.find(UAX + "DataType").findtext(UAX + "Identifier").strip()))
+                    for a in el.iter(UAX + "Argument")]
+            out.setdefault(nid(el.get("ParentNodeId")), {})[kind] = args
+    return out
+
+
+def declaration_id(nodes: dict, type_id: tuple[str, str], browse_name: tuple[str, str]) -> tuple[str, str] | None:
+    """The node of a type (or its supertypes) that declares ``browse_name``."""
+    while type_id in nodes:
+        for ref, forward, target in nodes[type_id].refs:
+            if forward and ref in HIERARCHICAL and target in nodes and nodes[target].browse_name == browse_name:
+                return target
+        type_id = nodes[type_id].target(HAS_SUBTYPE, forward=False)
+    return None

@@ -160,7 +160,24 @@ def test_every_served_type_browse_name_and_node_id_is_the_official_one(served):
                     assert ops.is_subtype(official, official_key(ns, tdef), want), (bname.Name, tdef, want)
                 elif want is not None:
                     assert (ops.UA, f"i={tdef.Identifier}") == want or want[0] == ops.UA, (bname.Name, tdef)
-            assert {"Axes", "Position", "Probe", "Progress", "ReportHeader", "StartProgram", "Stop"} <= own
+            assert {"Axes", "Position", "Probe", "Progress", "ReportHeader", "StartProgram", "Stop", "Job",
+                    "Program"} <= own
+            # the production plan's job is a GMSJobType with its state machine; the result management has the
+            # Machinery Result methods, their arguments (names and data types) as the official declarations
+            served_names = {(ns[b.NamespaceIndex], b.Name): (nid, tdef) for nid, (_, b, tdef, _) in nodes.items()}
+            _, job_type = served_names[(model.STATION, "Job")]
+            assert official_key(ns, job_type) == (model.GMS, "i=1016")
+            assert (model.MACHINE_TOOL, "ProductionPlan") in served_names
+            arguments = ops.method_arguments(SHARED)
+            for method in ("GetLatestResult", "GetResultById"):
+                nid, _ = served_names[(model.RESULT, method)]
+                decl = ops.declaration_id(official, (model.GMS, "i=1008"), (model.RESULT, method))
+                assert decl is not None and official[decl].node_class == "Method", method
+                node = client.get_node(nid)
+                for kind in ("InputArguments", "OutputArguments"):
+                    got = [(a.Name, official_key(ns, a.DataType))
+                           for a in await (await node.get_child(f"0:{kind}")).read_value()]
+                    assert got == arguments[decl][kind], (method, kind)
 
     run(check())
 
@@ -198,6 +215,8 @@ def test_a_client_browses_the_gms_instance_and_sees_the_position_change_as_the_m
             assert len(between) >= 2, f"the position did not change as the machine moved: {sorted(set(seen))}"
             assert abs(seen[-1] - target[0]) < 1e-3
             assert not server.errors
+            # a front end on the API: the values came through the API's change streams, not a poll of the station
+            assert api._subscriptions.count() >= 2 and server.deliveries >= len(between)
             assert (await state.read_value()).Text in ("NotExecuting", "Executing")
             await sub.delete()
 
@@ -284,14 +303,16 @@ def test_a_program_run_shows_its_progress_and_ends_as_a_result(served, tmp_path)
             results = await gms.get_child([f"{gms_ns}:ResultManagement", f"{res}:Results"])
             before = len(await results.get_children())
             progress = await gms.get_child([f"{mt}:Production", f"{mt}:ActiveProgram", f"{st}:Progress"])
-            seen = []
+            job = await gms.get_child([f"{mt}:Production", f"{mt}:ProductionPlan", f"{st}:Job"])
+            job_state = await job.get_child([f"{mt}:State", "0:CurrentState"])
+            seen, states = [], []
 
             class Handler:
                 def datachange_notification(self, node, value, data):
-                    seen.append(value)
+                    (seen if node == progress else states).append(value)
 
             sub = await user.create_subscription(50, Handler())
-            await sub.subscribe_data_change(progress)
+            await sub.subscribe_data_change([progress, job_state])
             production = await gms.get_child([f"{mt}:Production"])
             assert await production.call_method(f"{st}:StartProgram", str(program)) in ("started", "finished")
             await wait_for(lambda: _count(results, before + 1), timeout=120)
@@ -302,7 +323,26 @@ def test_a_program_run_shows_its_progress_and_ends_as_a_result(served, tmp_path)
             assert meta.InternalRecipeId and meta.ResultEvaluation in (1, 2, 3)
             assert value.ResultContent, "the result lists the run's characteristics"
             assert 100.0 in seen
+            # the production plan's job: this run, Running then Ended, its program by name
+            assert "Running" in [v.Text for v in states] and (await job_state.read_value()).Text == "Ended"
+            assert await (await job.get_child(f"{mt}:Identifier")).read_value() == meta.JobId
+            assert await (await job.get_child(f"{mt}:RunsCompleted")).read_value() == 1
+            program_name = await job.get_child([f"{mt}:ProductionPrograms", f"{st}:Program", f"{mt}:Name"])
+            assert await program_name.read_value() == meta.InternalRecipeId
             await sub.delete()
+        async with Client(server.url, timeout=60) as anonymous:  # the result management's methods only read
+            gms, ns = await gms_node(anonymous)
+            rm = await gms.get_child(f"{ns.index(model.GMS)}:ResultManagement")
+            res = ns.index(model.RESULT)
+            handle, latest, error = await rm.call_method(f"{res}:GetLatestResult", ua.Variant(0, ua.VariantType.Int32))
+            assert (handle, error) == (0, 0) and latest.ResultMetaData.ResultId == meta.ResultId
+            assert latest.ResultContent == value.ResultContent
+            _, by_id, error = await rm.call_method(f"{res}:GetResultById", ua.Variant(meta.ResultId,
+                                                   ua.VariantType.String), ua.Variant(0, ua.VariantType.Int32))
+            assert error == 0 and by_id.ResultMetaData.JobId == meta.JobId
+            _, _, error = await rm.call_method(f"{res}:GetResultById", ua.Variant("no such result",
+                                               ua.VariantType.String), ua.Variant(0, ua.VariantType.Int32))
+            assert error == -2
         # the holder's name in every record: the program's hits and its feature were taken by maria
         import json
 

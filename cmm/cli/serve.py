@@ -53,8 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ippdme-user", metavar="NAME", default=None,
                         help="with --users: the user I++ DME clients act as (the protocol has no login)")
     parser.add_argument("--tls", action="store_true",
-                        help="encrypt the pendant and OPC UA with the station's certificate (--tls-cert/--tls-key, "
-                             "or a self-signed one made on first start in ./tls; its fingerprint is printed)")
+                        help="encrypt the page (https / wss on --http-port), the pendant and OPC UA with the station's "
+                             "certificate (--tls-cert/--tls-key, or a self-signed one made on first start in ./tls; "
+                             "its fingerprint is printed)")
     parser.add_argument("--tls-cert", metavar="FILE", default=None, help="the certificate (PEM) for --tls")
     parser.add_argument("--tls-key", metavar="FILE", default=None, help="its private key (PEM) for --tls")
     parser.add_argument("--trends", metavar="DIR", default="trends",
@@ -189,22 +190,35 @@ def run(args: argparse.Namespace) -> int:
 
             station.controller.commands.roles = RolePolicy()  # every command checked against the client's role
             register_user_verbs(station.controller.commands, users)  # the admin's page manages the file
-        app = StationApp(station, host=host, port=args.http_port, lan=args.lan,
-                         pendant_port=args.pendant_port, tolerance=args.tolerance,
+        # with --tls the page and the pendant listen on loopback only, behind TLS proxies on the public ports
+        app = StationApp(station, host="127.0.0.1" if certificate is not None else host,
+                         port=_loopback_port() if certificate is not None else args.http_port, lan=args.lan,
+                         pendant_port=0 if certificate is not None else args.pendant_port, tolerance=args.tolerance,
                          allow_hosts=tuple(args.allow_host), shadows=args.shadows,
-                         control=Control(lan=args.lan, lan_stop=args.lan_stop), users=users,
-                         tls=certificate)
+                         control=Control(lan=args.lan, lan_stop=args.lan_stop), users=users)
     except Exception as exc:  # noqa: BLE001
         station.close()
         return _fail(f"cannot start the web server on port {args.http_port}: {exc}")
+    proxies = []
+    if certificate is not None:
+        try:
+            proxies = tls_proxies(app, certificate, host, args.http_port, args.pendant_port)
+        except OSError as exc:
+            app.close()
+            station.close()
+            return _fail(str(exc))
+    page_url = proxies[0].url if proxies else app.url
+    pendant_url = proxies[1].url if len(proxies) > 1 else app.pendant_url
     print(f"CMM station on {station.port}; session journal {station.measurement.journal.path if station.measurement.journal else '-'}")
-    print(f"Open {app.url} in a browser")
+    print(f"Open {page_url} in a browser")
     if args.lan:
         import socket
 
-        print(f"On the LAN: http://{socket.gethostname()}:{app.port}/ (or this PC's IP address)")
-    if app.pendant_url:
-        print(f"Pendant page: {app.pendant_url}")
+        scheme = "https" if proxies else "http"
+        print(f"On the LAN: {scheme}://{socket.gethostname()}:{args.http_port if proxies else app.port}/ (or this PC's "
+              "IP address)")
+    if pendant_url:
+        print(f"Pendant page: {pendant_url}")
     if app.control.access_code:
         print(f"Access code for remote operators: {app.control.access_code}")
     ippdme = None
@@ -243,9 +257,39 @@ def run(args: argparse.Namespace) -> int:
             opcua.close()
         if ippdme is not None:
             ippdme.close()
+        for proxy in proxies:
+            proxy.close()
         app.close()
         station.close()
         station.measurement.trends.close()
         if notifier is not None:
             notifier.close()
     return 0
+
+
+def _loopback_port() -> int:
+    """A free port on 127.0.0.1 for a page behind the TLS proxy."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def tls_proxies(app: Any, certificate: Any, host: str, page_port: int, pendant_port: int | None) -> list[Any]:
+    """The page (and the pendant) of ``app``, listening on loopback, served over TLS on ``host``: https / wss on
+    ``page_port`` and on ``pendant_port`` (default ``page_port`` + 1), the station's certificate
+    (:mod:`cmm.control.tls_proxy`). Raises OSError with the operator's sentence."""
+    from ..control.tls_proxy import TlsProxy
+
+    proxies = [TlsProxy(certificate, host, page_port, app.port, name="page").start()]
+    try:
+        if app.pendant is not None:
+            public = page_port + 1 if pendant_port is None else pendant_port
+            proxies.append(TlsProxy(certificate, host, public if page_port else 0, app.pendant.port,
+                                    name="pendant").start())
+    except OSError:
+        proxies[0].close()
+        raise
+    app.origins.ports.update(p.port for p in proxies)  # the pages on the public ports are the station's own
+    return proxies

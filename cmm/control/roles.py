@@ -19,9 +19,11 @@ Rules kept here, checked once in :meth:`cmm.control.api.CommandAPI.invoke` (neve
 - Without a user file the station runs in the local, no-login mode: no role is checked (the control holder rule
   of :mod:`cmm.control.access` alone decides), as a single-user bench always did.
 - With one (:class:`RolePolicy`), a client that logged in carries its user and role (:class:`~cmm.control.access.
-  Client`); a query is open to every client, anonymous observers too; STOP, E-STOP, cancel, pause and jog
-  release are never refused for a role (any user who logged in may stop; the holder rule decides the rest);
-  every other verb needs a role that lists it. A verb no group names needs the operator group's role.
+  Client`); a query is open to every client, anonymous observers too; STOP, E-STOP (also as the pendant's
+  press and answer), cancel, pause and jog release (:data:`STOP_VERBS`) are never refused for a role: whoever
+  the holder rule lets stop may (any user who logged in, the station PC, the holder); every other verb needs a
+  role that lists it. A verb no group names needs the operator group's role; :func:`unnamed` lists such verbs
+  and the tests keep it empty, so every verb's role is explicit.
 - ``None`` as the client is the station itself (its scripts, the CLI, the homing cycle): never refused.
 """
 
@@ -30,13 +32,15 @@ from __future__ import annotations
 from typing import Any
 
 ROLES = ("operator", "programmer", "metrologist", "admin")
-STOP_VERBS = frozenset({"stop", "estop", "cancel", "pause", "jog_release", "release_control"})
+# never refused for a role: stopping (STOP, E-STOP and the pendant's press / answer pair of them), ending jobs and
+# jogs, giving control back; the holder rule (Control.may_stop) decides who may
+STOP_VERBS = frozenset({"stop", "estop", "press", "answer", "cancel", "pause", "jog_release", "release_control"})
 GROUPS: dict[str, frozenset[str]] = {
     "operate": frozenset({
         "take_control", "move", "probe", "jog_hold", "step", "home", "reset", "reconnect", "resume", "skip_step",
         "cancel_move", "run_job", "run_program", "run_routine", "measure_feature", "construct", "undo", "delete_hit",
         "delete_feature", "refit_feature", "align", "auto_measure", "new_session", "new_part", "note", "set_info",
-        "select_probe"}),
+        "select_probe", "load_part", "place_sim_part", "run_dmis"}),
     "program": frozenset({"set_nominal", "define_datum", "define_gdt", "delete_gdt", "record_event"}),
     "calibrate": frozenset({"qualify", "save_calibration", "accept_gains", "zero", "configure"}),
     "administer": frozenset({"users", "add_user", "remove_user", "set_password", "new_token", "revoke_token"}),
@@ -58,7 +62,15 @@ def check_role(role: str) -> str:
 
 
 def group_of(verb: str) -> str:
+    """The verb's group; a verb no group names (a new one not yet in the table) falls to "operate"."""
     return next((g for g, verbs in GROUPS.items() if verb in verbs), "operate")
+
+
+def unnamed(verbs: Any) -> list[str]:
+    """The command verbs (``api.verbs()``) whose role is not explicit: not a query, not a stop verb, in no group.
+    The tests keep this empty for every verb the station registers."""
+    named = set().union(*GROUPS.values()) | STOP_VERBS
+    return sorted(v.name for v in verbs if not v.query and v.name not in named)
 
 
 def allowed(role: str | None, verb: str) -> bool:

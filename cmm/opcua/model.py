@@ -49,6 +49,9 @@ OBJECT_TYPES = (
     (MACHINE_TOOL, 32, "ProductionActiveProgramType", (MACHINE_TOOL, 59)),
     (MACHINE_TOOL, 24, "ProductionStateMachineType", (UA, ua.ObjectIds.FiniteStateMachineType)),
     (MACHINE_TOOL, 15, "ProductionProgramStateMachineType", (MACHINE_TOOL, 24)),
+    (MACHINE_TOOL, 28, "ProductionJobStateMachineType", (MACHINE_TOOL, 24)),
+    (MACHINE_TOOL, 29, "ProductionJobType", (UA, ua.ObjectIds.BaseObjectType)),
+    (MACHINE_TOOL, 30, "ProductionJobListType", (UA, ua.ObjectIds.OrderedListType)),
     (RESULT, 1004, "ResultManagementType", (UA, ua.ObjectIds.BaseObjectType)),
     (GMS, 1002, "GMSType", (MACHINE_TOOL, 13)),
     (GMS, 1011, "GMSIdentificationType", (MACHINE_TOOL, 11)),
@@ -56,6 +59,7 @@ OBJECT_TYPES = (
     (GMS, 1003, "GMSEquipmentType", (MACHINE_TOOL, 12)),
     (GMS, 1007, "SensorType", (MACHINE_TOOL, 50)),
     (GMS, 1008, "GMSResultManagementType", (RESULT, 1004)),
+    (GMS, 1016, "GMSJobType", (MACHINE_TOOL, 29)),
 )
 VARIABLE_TYPES = (  # (namespace, id, browse name, supertype, data type)
     (RESULT, 2001, "ResultType", (UA, ua.ObjectIds.BaseDataVariableType), (RESULT, 3008)),
@@ -70,6 +74,9 @@ STATES = (
     ((MACHINE_TOOL, 15), 5039, "Initializing", 0, True), ((MACHINE_TOOL, 15), 5041, "Running", 1, False),
     ((MACHINE_TOOL, 15), 5038, "Ended", 2, False), ((MACHINE_TOOL, 15), 5040, "Interrupted", 3, False),
     ((MACHINE_TOOL, 15), 5037, "Aborted", 4, False),
+    ((MACHINE_TOOL, 28), 5015, "Initializing", 0, True), ((MACHINE_TOOL, 28), 5017, "Running", 1, False),
+    ((MACHINE_TOOL, 28), 5014, "Ended", 2, False), ((MACHINE_TOOL, 28), 5016, "Interrupted", 3, False),
+    ((MACHINE_TOOL, 28), 5013, "Aborted", 4, False),
 )
 STATE_IDS = {(t, name): sid for t, sid, name, _, _ in STATES}
 
@@ -160,11 +167,35 @@ INSTANCE: tuple[tuple[str, tuple[str, str], str, Any], ...] = (
     ("Production/ActiveProgram/State/CurrentState", (UA, "CurrentState"), "State", None),
     ("Production/ActiveProgram/Progress", (STATION, "Progress"), "Variable", V.Double),
     ("Production/ActiveProgram/Step", (STATION, "Step"), "Variable", V.String),
+    # the production plan: the current (or last) job, one program run: GMSJobType with its program
+    ("Production/ProductionPlan", (MACHINE_TOOL, "ProductionPlan"), "Object", (MACHINE_TOOL, 30)),
+    ("Production/ProductionPlan/Job", (STATION, "Job"), "Object", (GMS, 1016)),
+    ("Production/ProductionPlan/Job/Identifier", (MACHINE_TOOL, "Identifier"), "Property", V.String),
+    ("Production/ProductionPlan/Job/NumberInList", (UA, "NumberInList"), "Property", V.UInt16),
+    ("Production/ProductionPlan/Job/RunsPlanned", (MACHINE_TOOL, "RunsPlanned"), "Variable", V.UInt32),
+    ("Production/ProductionPlan/Job/RunsCompleted", (MACHINE_TOOL, "RunsCompleted"), "Variable", V.UInt32),
+    ("Production/ProductionPlan/Job/State", (MACHINE_TOOL, "State"), "Object", (MACHINE_TOOL, 28)),
+    ("Production/ProductionPlan/Job/State/CurrentState", (UA, "CurrentState"), "State", None),
+    ("Production/ProductionPlan/Job/Duration", (GMS, "Duration"), "Property", V.Duration),
+    ("Production/ProductionPlan/Job/ProductionPrograms", (MACHINE_TOOL, "ProductionPrograms"), "Object",
+     (UA, V.OrderedListType)),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program", (STATION, "Program"), "Object", (MACHINE_TOOL, 59)),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program/Name", (MACHINE_TOOL, "Name"), "Property", V.String),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program/NumberInList", (UA, "NumberInList"), "Property",
+     V.UInt16),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program/State", (MACHINE_TOOL, "State"), "Object",
+     (MACHINE_TOOL, 15)),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program/State/CurrentState", (UA, "CurrentState"), "State",
+     None),
+    ("Production/ProductionPlan/Job/ProductionPrograms/Program/Progress", (STATION, "Progress"), "Variable",
+     V.Double),
     ("Production/ReportHeader", (STATION, "ReportHeader"), "Object", (UA, V.FolderType)),
     ("Production/StartProgram", (STATION, "StartProgram"), "Method", None),
     ("Production/Stop", (STATION, "Stop"), "Method", None),
     ("ResultManagement", (GMS, "ResultManagement"), "Object", (GMS, 1008)),
     ("ResultManagement/Results", (RESULT, "Results"), "Object", (UA, V.FolderType)),
+    ("ResultManagement/GetLatestResult", (RESULT, "GetLatestResult"), "Method", None),
+    ("ResultManagement/GetResultById", (RESULT, "GetResultById"), "Method", None),
 )
 REPORT_FIELDS = ("part_number", "drawing", "operator", "machine_name", "temperature", "remarks")
 
@@ -302,12 +333,14 @@ def _variant_type(detail: Any) -> ua.VariantType:
         return ua.VariantType.Int32
     return {V.String: ua.VariantType.String, V.LocalizedText: ua.VariantType.LocalizedText,
             V.Boolean: ua.VariantType.Boolean, V.Double: ua.VariantType.Double,
-            V.UInt16: ua.VariantType.UInt16}[detail]
+            V.UInt16: ua.VariantType.UInt16, V.UInt32: ua.VariantType.UInt32,
+            V.Duration: ua.VariantType.Double}[detail]
 
 
 def _default(vtype: ua.VariantType) -> Any:
     return {ua.VariantType.String: "", ua.VariantType.LocalizedText: ua.LocalizedText(""),
             ua.VariantType.Boolean: False, ua.VariantType.Double: 0.0, ua.VariantType.UInt16: 0,
+            ua.VariantType.UInt32: 0,
             ua.VariantType.Int32: 0}[vtype]
 
 

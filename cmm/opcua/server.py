@@ -1,9 +1,10 @@
 """The OPC UA server: a front end on the command API, serving the GMS model (:mod:`cmm.opcua.model`).
 
-It receives only the command API (``station.controller.commands``). A task asks the API's queries (``state``,
-``position``, ``job``, ``probe_in_use``, ``characteristics``) at a bounded rate (``rate`` Hz, 10 by default) and writes
-what changed into the address space, so subscribed clients see the machine move at no more than that rate
-whatever the machine does. A finished program run becomes a result (``GMSResultType``) in
+It receives only the command API (``station.controller.commands``) and never reads the station: it subscribes to
+the API's queries (:meth:`cmm.control.api.CommandAPI.subscribe`: ``state``, ``position``, ``job`` at ``rate`` Hz, 10
+by default; ``probe_in_use`` and ``report_info`` once a second) and writes what each delivery changed into the
+address space, so subscribed clients see the machine move at no more than that rate whatever the machine does;
+an idle machine sends nothing. A run's characteristics are a query when it ends. A finished program run becomes a result (``GMSResultType``) in
 ``ResultManagement/Results`` (the last :data:`KEEP_RESULTS`).
 
 Writes (the report header) and methods (``StartProgram``, ``Stop``) are commands of the session's client: an
@@ -18,7 +19,6 @@ import asyncio
 import contextvars
 import logging
 import threading
-import time
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Any, Callable
@@ -79,13 +79,17 @@ class OpcUaServer:
         self.certificate = certificate  # cmm.control.tls.Certificate: Basic256Sha256 sign & encrypt besides None
         self.updates = 0  # passes of the update task that wrote something (the benchmark reads it)
         self.results = 0
+        self.kept: dict[str, Any] = {}  # ResultId -> ResultDataType, oldest first (the last KEEP_RESULTS)
         self.errors: list[str] = []
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._stop: asyncio.Event | None = None
         self._failure: BaseException | None = None
-        self._last: dict[str, Any] = {}
+        self._last: dict[str, Any] = {}  # what the address space shows, by path
+        self._latest: dict[str, Any] = {}  # the API's queries as last delivered
+        self._subscriptions: list[Any] = []
+        self.deliveries = 0  # change deliveries applied (each is at most one per subscription period)
         self._workers: list[threading.Thread] = []
 
     @property
@@ -144,26 +148,49 @@ class OpcUaServer:
         server.set_security_policy(policies)
         self.served = await model.build(server, self.name)
         await self._methods(server)
+        await self._result_methods()
         _install_sessions(server, self)
         self.server = server
         await self._fill_identification()
         async with server:
-            self._ready.set()
-            period = 1.0 / self.rate
-            slow = 0.0
+            await self._follow()
+
+    async def _follow(self) -> None:
+        """Follow the API's change streams until close(): the machine's at ``rate``, the probe's and the report
+        header's once a second; each delivery (only what changed) is written into the address space."""
+        loop = asyncio.get_running_loop()
+        changes: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+
+        def deliver(changed: dict[str, Any]) -> None:  # on the API's subscription thread
+            if not loop.is_closed():
+                loop.call_soon_threadsafe(changes.put_nowait, changed)
+
+        observer = self.client_factory(None, None)
+        subs = [self.api.subscribe(observer, {"state": {}, "position": {"frame": "machine"}, "job": {}}, deliver,
+                                   rate=self.rate),
+                self.api.subscribe(observer, {"probe_in_use": {}, "report_info": {}}, deliver, rate=1.0)]
+        self._subscriptions = subs
+        self._ready.set()
+        stop = asyncio.ensure_future(self._stop.wait())
+        try:
             while not self._stop.is_set():
-                started = time.monotonic()
+                get = asyncio.ensure_future(changes.get())
+                await asyncio.wait({get, stop}, return_when=asyncio.FIRST_COMPLETED)
+                if not get.done():
+                    get.cancel()
+                    break
+                changed = dict(get.result())
+                while not changes.empty():  # a slow pass: what arrived meanwhile, merged (the newest wins)
+                    changed.update(changes.get_nowait())
                 try:
-                    await self._update(full=started >= slow)
-                except Exception as exc:  # noqa: BLE001 - one bad pass must not end the server
+                    await self._apply(changed)
+                except Exception as exc:  # noqa: BLE001 - one bad delivery must not end the server
                     log.exception("OPC UA update failed")
                     self.errors.append(str(exc))
-                if started >= slow:
-                    slow = started + 1.0  # the probe and the results: once a second is plenty
-                try:
-                    await asyncio.wait_for(self._stop.wait(), max(0.0, period - (time.monotonic() - started)))
-                except asyncio.TimeoutError:
-                    pass
+        finally:
+            for sub in subs:
+                sub.close()
+            stop.cancel()
 
     # --- the API, as the session's client ----------------------------------------------------
     def client_for(self, user: Any) -> Any:
@@ -262,18 +289,17 @@ class OpcUaServer:
         ident = await node.get_child(ua.QualifiedName("Id", 0))
         await ident.write_value(ua.Variant(self.served.state_ids[(type_ref, state)], ua.VariantType.NodeId))
 
-    async def _update(self, full: bool) -> None:
-        observer = self.client_factory(None, None)
-        state = await self._api(observer, "state")
-        jobs = await self._api(observer, "job")
-        if not state.ok:
-            return
-        st = state.result
-        mode = st.mode.value
-        running = jobs.result if jobs.ok else []
-        programs = [j for j in running if str(j["description"]).startswith("program")]
-        pos = st.position
-        if pos is not None:
+    async def _apply(self, changed: dict[str, Any]) -> None:
+        """Write what the API's change streams delivered (JSON values of its queries) into the address space."""
+        self.deliveries += 1
+        for key, value in changed.items():
+            if isinstance(value, dict) and set(value) == {"error"}:
+                self.errors.append(f"{key}: {value['error']}")
+                continue
+            self._latest[key] = value
+        latest = self._latest
+        pos = changed.get("position")
+        if isinstance(pos, list) and len(pos) == 3:
             xyz = [round(float(v), 4) for v in pos]
             if self._last.get("position") != xyz:
                 self._last["position"] = xyz
@@ -283,38 +309,43 @@ class OpcUaServer:
                     child = await node.get_child(ua.QualifiedName(axis, 0))
                     await child.write_value(ua.Variant(v, ua.VariantType.Double))
                 self.updates += 1
-        await self._set("Monitoring/Axes/Mode", mode, ua.VariantType.String)
-        await self._set("Monitoring/Axes/Reason", st.reason, ua.VariantType.String)
-        await self._set("Monitoring/Axes/Homed", bool(st.homed), ua.VariantType.Boolean)
-        await self._state_machine("Monitoring/MachineTool/MachineryItemState/CurrentState", (model.MACHINERY, 1002),
-                                  item_state(mode, bool(running), st.link_ok))
-        await self._state_machine("Monitoring/MachineTool/MachineryOperationMode/CurrentState",
-                                  (model.MACHINERY, 1008), operation_mode(mode, bool(programs)))
-        await self._set("Monitoring/MachineTool/OperationMode", 1 if programs else 0, ua.VariantType.Int32)
-        await self._program(programs)
-        if full:
-            probe = await self._api(observer, "probe_in_use")
-            if probe.ok:
-                p = probe.result
-                await self._set("Equipment/Tools/Probe/Name", p["name"], ua.VariantType.String)
-                await self._set("Equipment/Tools/Probe/Identifier", p["name"], ua.VariantType.String)
-                status = {"qualified": 0, "expired": 1}.get(p["status"], 2)
-                await self._set("Equipment/Tools/Probe/IsQualifiedStatus", status, ua.VariantType.Int32)
-                diameter = p["tip_diameter"] if p["tip_radius"] is None else 2 * p["tip_radius"]
-                if diameter is not None:
-                    await self._set("Equipment/Tools/Probe/TipDiameter", float(diameter), ua.VariantType.Double)
-            info = await self._api(observer, "report_info")
-            if info.ok:
-                for key in model.REPORT_FIELDS:
-                    value = info.result.get(key)
-                    text = "" if value is None else (f"{value:g}" if isinstance(value, float) else str(value))
-                    if self._last.get(f"report/{key}") != text:
-                        self._last[f"report/{key}"] = text
-                        await self.served.report[key].write_value(ua.Variant(text, ua.VariantType.String))
+        if ("state" in changed or "job" in changed) and isinstance(latest.get("state"), dict):
+            st = latest["state"]
+            mode = str(getattr(st.get("mode"), "value", st.get("mode")))
+            running = latest.get("job") if isinstance(latest.get("job"), list) else []
+            programs = [j for j in running if str(j["description"]).startswith("program")]
+            await self._set("Monitoring/Axes/Mode", mode, ua.VariantType.String)
+            await self._set("Monitoring/Axes/Reason", str(st.get("reason") or ""), ua.VariantType.String)
+            await self._set("Monitoring/Axes/Homed", bool(st.get("homed")), ua.VariantType.Boolean)
+            await self._state_machine("Monitoring/MachineTool/MachineryItemState/CurrentState",
+                                      (model.MACHINERY, 1002), item_state(mode, bool(running), bool(st.get("link_ok"))))
+            await self._state_machine("Monitoring/MachineTool/MachineryOperationMode/CurrentState",
+                                      (model.MACHINERY, 1008), operation_mode(mode, bool(programs)))
+            await self._set("Monitoring/MachineTool/OperationMode", 1 if programs else 0, ua.VariantType.Int32)
+            await self._program(programs)
+        probe = changed.get("probe_in_use")
+        if isinstance(probe, dict) and "name" in probe:
+            await self._set("Equipment/Tools/Probe/Name", str(probe["name"]), ua.VariantType.String)
+            await self._set("Equipment/Tools/Probe/Identifier", str(probe["name"]), ua.VariantType.String)
+            status = {"qualified": 0, "expired": 1}.get(probe.get("status"), 2)
+            await self._set("Equipment/Tools/Probe/IsQualifiedStatus", status, ua.VariantType.Int32)
+            diameter = probe.get("tip_diameter") if probe.get("tip_radius") is None else 2 * probe["tip_radius"]
+            if diameter is not None:
+                await self._set("Equipment/Tools/Probe/TipDiameter", float(diameter), ua.VariantType.Double)
+        info = changed.get("report_info")
+        if isinstance(info, dict):
+            for key in model.REPORT_FIELDS:
+                value = info.get(key)
+                text = "" if value is None else (f"{value:g}" if isinstance(value, float) else str(value))
+                if self._last.get(f"report/{key}") != text:
+                    self._last[f"report/{key}"] = text
+                    await self.served.report[key].write_value(ua.Variant(text, ua.VariantType.String))
 
     async def _program(self, programs: list[dict[str, Any]]) -> None:
+        """The active program and the production plan's job (one program run is one job) from the ``job`` query."""
         now = programs[0] if programs else None
         was = self._last.get("program")
+        job, prog = "Production/ProductionPlan/Job", "Production/ProductionPlan/Job/ProductionPrograms/Program"
         if now is not None:
             self._last["program"] = now
             name = str(now["description"]).removeprefix("program ").strip("'\"")
@@ -322,22 +353,40 @@ class OpcUaServer:
             if self._last.get("program_started") is None or was is None:
                 self._last["program_started"] = datetime.now(timezone.utc)
                 self._last["job_number"] = self._last.get("job_number", 0) + 1
-            await self._set("Production/ActiveProgram/Name", name, ua.VariantType.String)
-            await self._set("Production/ActiveProgram/JobIdentifier", f"{self.name}-{self._last['job_number']}",
-                            ua.VariantType.String)
-            await self._set("Production/ActiveProgram/NumberInList", 0, ua.VariantType.UInt16)
-            percent = 100.0 * now["done"] / now["total"] if now["total"] else 0.0
-            await self._set("Production/ActiveProgram/Progress", round(percent, 1), ua.VariantType.Double)
+            ident = f"{self.name}-{self._last['job_number']}"
+            percent = round(100.0 * now["done"] / now["total"], 1) if now["total"] else 0.0
+            for base in ("Production/ActiveProgram", prog):
+                await self._set(f"{base}/Name", name, ua.VariantType.String)
+                await self._set(f"{base}/NumberInList", 0, ua.VariantType.UInt16)
+                await self._set(f"{base}/Progress", percent, ua.VariantType.Double)
+            await self._set("Production/ActiveProgram/JobIdentifier", ident, ua.VariantType.String)
             await self._set("Production/ActiveProgram/Step", str(now["step"]), ua.VariantType.String)
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15), "Running")
-        elif was is not None:  # the run ended: its result, and the program's state Ended
+            await self._set(f"{job}/Identifier", ident, ua.VariantType.String)
+            await self._set(f"{job}/NumberInList", 0, ua.VariantType.UInt16)
+            await self._set(f"{job}/RunsPlanned", 1, ua.VariantType.UInt32)
+            await self._set(f"{job}/RunsCompleted", 0, ua.VariantType.UInt32)
+            await self._set(f"{job}/Duration", self._elapsed_ms(), ua.VariantType.Double)
+            await self._states("Running")
+        elif was is not None:  # the run ended: its result, and the program's and the job's state Ended
             self._last["program"] = None
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15), "Ended")
-            await self._set("Production/ActiveProgram/Progress", 100.0, ua.VariantType.Double)
+            await self._set(f"{job}/Duration", self._elapsed_ms(), ua.VariantType.Double)
+            await self._set(f"{job}/RunsCompleted", 1, ua.VariantType.UInt32)
+            for base in ("Production/ActiveProgram", prog):
+                await self._set(f"{base}/Progress", 100.0, ua.VariantType.Double)
+            await self._states("Ended")
             await self._publish_result()
         elif "Production/ActiveProgram/State/CurrentState" not in self._last:
-            await self._state_machine("Production/ActiveProgram/State/CurrentState", (model.MACHINE_TOOL, 15),
-                                      "Initializing")
+            await self._states("Initializing")
+
+    async def _states(self, state: str) -> None:
+        prog = "Production/ProductionPlan/Job/ProductionPrograms/Program"
+        for path in ("Production/ActiveProgram", prog):
+            await self._state_machine(f"{path}/State/CurrentState", (model.MACHINE_TOOL, 15), state)
+        await self._state_machine("Production/ProductionPlan/Job/State/CurrentState", (model.MACHINE_TOOL, 28), state)
+
+    def _elapsed_ms(self) -> float:
+        started = self._last.get("program_started")
+        return 0.0 if started is None else round((datetime.now(timezone.utc) - started).total_seconds() * 1000.0, 0)
 
     async def _publish_result(self) -> None:
         observer = self.client_factory(None, None)
@@ -360,6 +409,9 @@ class OpcUaServer:
                               + ("" if r["ok"] is None else (" OK" if r["ok"] else " NOT OK")), ua.VariantType.String)
                    for r in rows]
         value = ua.ResultDataType(ResultMetaData=meta, ResultContent=content)
+        self.kept[meta.ResultId] = value
+        while len(self.kept) > KEEP_RESULTS:
+            self.kept.pop(next(iter(self.kept)))
         folder = self.served.results
         ns = self.served.ns[model.STATION]
         nid = ua.NodeId(f"{self.name}/ResultManagement/Results/{self.results}", ns)
@@ -371,6 +423,41 @@ class OpcUaServer:
         if old >= 1:
             await self.server.delete_nodes([self.server.get_node(
                 ua.NodeId(f"{self.name}/ResultManagement/Results/{old}", ns))], recursive=True)
+
+    async def _result_methods(self) -> None:
+        """GetLatestResult(Timeout) and GetResultById(ResultId, Timeout) of the Machinery Result model: the kept
+        results (the last :data:`KEEP_RESULTS`); ResultHandle is always 0 (no handles to release), Error 0 when
+        found, -1 when the station has no result yet, -2 when the id is not (or no longer) kept. Anonymous
+        clients may call them: they only read."""
+        rm = self.served.nodes["ResultManagement"]
+        rns = self.served.ns[model.RESULT]
+        timeout = ua.Argument(Name="Timeout", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1,
+                              Description=ua.LocalizedText("how long the client needs the result (ms); a hint"))
+        result_id = ua.Argument(Name="ResultId", DataType=ua.NodeId(ua.ObjectIds.TrimmedString), ValueRank=-1,
+                                Description=ua.LocalizedText("the ResultId of a result's ResultMetaData"))
+        outputs = [ua.Argument(Name="ResultHandle", DataType=ua.NodeId(ua.ObjectIds.Handle), ValueRank=-1),
+                   ua.Argument(Name="Result", DataType=self.served.nid((model.RESULT, 3008)), ValueRank=-1),
+                   ua.Argument(Name="Error", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1)]
+
+        def answer(value: Any, error: int) -> list[ua.Variant]:
+            if value is None:
+                value = ua.ResultDataType(ResultMetaData=ua.ResultMetaDataType(ResultId=""), ResultContent=[])
+            return [ua.Variant(0, ua.VariantType.UInt32), ua.Variant(value, ua.VariantType.ExtensionObject),
+                    ua.Variant(error, ua.VariantType.Int32)]
+
+        async def latest(parent: Any, _timeout: Any) -> list[ua.Variant]:
+            if not self.kept:
+                return answer(None, -1)
+            return answer(self.kept[next(reversed(self.kept))], 0)
+
+        async def by_id(parent: Any, wanted: Any, _timeout: Any) -> list[ua.Variant]:
+            value = self.kept.get(str(wanted.Value))
+            return answer(value, 0 if value is not None else -2)
+
+        await rm.add_method(self.served.nodes["ResultManagement/GetLatestResult"],
+                            ua.QualifiedName("GetLatestResult", rns), latest, [timeout], outputs)
+        await rm.add_method(self.served.nodes["ResultManagement/GetResultById"],
+                            ua.QualifiedName("GetResultById", rns), by_id, [result_id, timeout], outputs)
 
 
 _UNSET = object()

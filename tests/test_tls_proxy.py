@@ -1,0 +1,112 @@
+"""The TLS-terminating proxy of `cmm serve --tls` (cmm/control/tls_proxy.py): real https and wss clients on
+127.0.0.1 that verify the station's self-signed certificate reach a real websockets server (the kind viser runs:
+http and its WebSocket on one port) through it; nothing is served in clear on the public port; a LAN peer naming
+this PC's loopback as its host is refused (it would otherwise count as the station PC behind the proxy)."""
+
+from __future__ import annotations
+
+import asyncio
+import http.client
+import socket
+import ssl
+import threading
+
+import pytest
+
+from cmm.control import tls
+from cmm.control.tls_proxy import TlsProxy
+from netutil import free_port
+
+websockets = pytest.importorskip("websockets")
+
+
+@pytest.fixture
+def backend():
+    """A websockets server on loopback: GET /page answers over http, / upgrades to a WebSocket that echoes."""
+    from websockets.asyncio.server import serve
+    from websockets.datastructures import Headers
+    from websockets.http11 import Response
+
+    port = free_port()
+    seen: list[str] = []
+    ready, stop = threading.Event(), {}
+
+    def page(connection, request):
+        seen.append(request.headers.get("Host", ""))
+        if request.path == "/page":
+            body = b"<html>the station page</html>"
+            return Response(200, "OK", Headers({"Content-Type": "text/html", "Content-Length": str(len(body))}),
+                            body)
+        return None
+
+    async def echo(ws):
+        async for message in ws:
+            await ws.send(f"echo {message}")
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        stop["future"] = loop.create_future()
+        stop["loop"] = loop
+        async with serve(echo, "127.0.0.1", port, process_request=page):
+            ready.set()
+            await stop["future"]
+
+    thread = threading.Thread(target=asyncio.run, args=(main(),), daemon=True)
+    thread.start()
+    assert ready.wait(30)
+    yield port, seen
+    stop["loop"].call_soon_threadsafe(stop["future"].set_result, None)
+    thread.join(10)
+
+
+def test_https_and_wss_reach_the_page_through_the_proxy_with_the_stations_certificate(backend, tmp_path):
+    port, seen = backend
+    cert = tls.certificate(tmp_path / "tls")  # self-signed, made now: 127.0.0.1 among its names
+    proxy = TlsProxy(cert, "127.0.0.1", free_port(), port).start()
+    try:
+        trusted = ssl.create_default_context(cafile=str(cert.cert_path))  # verifies the chain and the address
+        conn = http.client.HTTPSConnection("127.0.0.1", proxy.port, context=trusted, timeout=60)
+        conn.request("GET", "/page")
+        answer = conn.getresponse()
+        assert answer.status == 200 and answer.read() == b"<html>the station page</html>"
+        conn.close()
+        pem = tmp_path / "seen.pem"  # the certificate a client sees is the one whose fingerprint was printed
+        pem.write_text(ssl.get_server_certificate(("127.0.0.1", proxy.port)))
+        assert tls.fingerprint(pem) == cert.fingerprint
+
+        from websockets.sync.client import connect
+
+        with connect(f"wss://127.0.0.1:{proxy.port}/", ssl=trusted, open_timeout=60) as ws:
+            for text in ("access code 123456", "x" * 200_000):  # a frame larger than the proxy's chunk
+                ws.send(text)
+                assert ws.recv(timeout=60) == f"echo {text}"
+        assert seen and all(h == f"127.0.0.1:{proxy.port}" for h in seen)  # the Host the browser sent, unchanged
+        assert proxy.connections >= 2
+
+        # nothing in clear on the public port: a plain http request gets no page
+        with socket.create_connection(("127.0.0.1", proxy.port), timeout=60) as raw:
+            raw.sendall(f"GET /page HTTP/1.1\r\nHost: 127.0.0.1:{proxy.port}\r\n\r\n".encode())
+            raw.settimeout(60)
+            try:
+                got = raw.recv(4096)
+            except (ConnectionError, socket.timeout):
+                got = b""
+            assert b"the station page" not in got
+    finally:
+        proxy.close()
+
+
+def test_a_lan_peer_naming_the_loopback_as_its_host_is_refused(tmp_path):
+    proxy = TlsProxy(None, "0.0.0.0", 0, 1)
+    head = b"GET / HTTP/1.1\r\nHost: %s\r\nUpgrade: websocket\r\n\r\n"
+    # a LAN browser asks for the station by its address or name: forwarded
+    assert proxy.refusal(head % b"192.168.1.20:8080", ("192.168.1.31", 50123)) is None
+    assert proxy.refusal(head % b"cmm-7:8080", ("192.168.1.31", 50123)) is None
+    # a LAN peer claiming localhost would be "the station PC" behind the proxy: refused in a sentence
+    why = proxy.refusal(head % b"localhost:8080", ("192.168.1.31", 50123))
+    assert why == ("refused a request from 192.168.1.31 for host 'localhost:8080': open the station by its LAN "
+                   "address or name")
+    assert proxy.refusal(head % b"127.0.0.1:8080", ("::ffff:192.168.1.31", 50123, 0, 0)) is not None
+    assert proxy.refusal(b"GET / HTTP/1.1\r\n\r\n", ("192.168.1.31", 50123)) is not None  # no Host at all
+    # the station PC itself through the proxy: as it is
+    assert proxy.refusal(head % b"127.0.0.1:8080", ("127.0.0.1", 50123)) is None
