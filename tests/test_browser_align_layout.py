@@ -1,7 +1,8 @@
 """The prompted hand alignment in the page and the room to work, in headless chromium at 1280 x 800 (a laptop) and
-820 x 1180 (a tablet): once control is taken the status block (state, holder, DRO, link, STOP and E-STOP on one
-row) and the folded Control folder leave at least 60 % of the panel's height to the tabs, the status block covers
-nothing, and the plane-line-point wizard marks, counts, fits and aligns. The screenshots go to docs/images/ for the
+820 x 1180 (a tablet): before and once control is taken the status block (state, holder, DRO, link; STOP and E-STOP
+on one row, Take control or Release beside the DRO's frame) and the folded operator name leave at least 60 % of the
+panel's height to the tabs, the status block covers nothing, and the plane-line-point wizard marks, counts, fits and
+aligns. The screenshots go to docs/images/ for the
 README and the operator's guide."""
 
 from __future__ import annotations
@@ -26,22 +27,32 @@ LAPTOP = (1280, 800)
 TABLET = (820, 1180)
 IMAGES = Path(__file__).resolve().parents[1] / "docs" / "images"
 
-# the side panel's parts, by layout: its scroll box, the pinned status block, the Control folder, the tab bar
+# the side panel's parts, by layout: its scroll box and the height it may grow to (the tallest the panel is: a short
+# tab shrinks the box, not the room), the pinned status block, the tab bar, the buttons always at hand, the 3-D view
+# and the keyboard hint on it
 LAYOUT_JS = """() => {
-  const box = e => { const b = e.getBoundingClientRect(); return {top: b.top, bottom: b.bottom, left: b.left, right: b.right}; };
+  const box = e => { if (!e) return null; const b = e.getBoundingClientRect();
+                     return {top: b.top, bottom: b.bottom, left: b.left, right: b.right}; };
   const bar = document.getElementById("cmm-status");
   let panel = bar; while (panel && !/(auto|scroll)/.test(getComputedStyle(panel).overflowY)) panel = panel.parentElement;
+  let limit = panel.getBoundingClientRect().bottom;
+  for (let e = panel; e; e = e.parentElement) {
+    const max = getComputedStyle(e).maxHeight;
+    if (max.endsWith("px")) { limit = Math.max(limit, e.getBoundingClientRect().top + parseFloat(max)); break; }
+  }
   const pinned = bar.closest(".mantine-Paper-root");
-  const control = [...document.querySelectorAll(".mantine-Paper-root")].find(p => p.firstElementChild
-      && p.firstElementChild.classList.contains("mantine-Paper-root") && p.firstElementChild.textContent.trim() === "Control");
   const tabs = [...document.querySelectorAll("[role=tablist]")].find(t => t.textContent.includes("Align"));
-  const button = n => [...document.querySelectorAll("button")].find(b => b.textContent.trim() === n);
-  const c = box(control);
-  const atControl = document.elementFromPoint((c.left + c.right) / 2, c.top + 3);
-  return {panel: box(panel), pinned: box(pinned), control: c, tabs: box(tabs), stop: box(button("STOP")),
-          estop: box(button("E-STOP")), controlOnTop: control.contains(atControl),
+  const button = n => [...document.querySelectorAll("button")].find(b => b.textContent.trim() === n
+                                                                     && b.getClientRects().length);
+  const t = box(tabs);
+  const atTabs = document.elementFromPoint((t.left + t.right) / 2, t.top + 3);
+  const canvas = [...document.querySelectorAll("canvas")].sort((a, b) => b.width * b.height - a.width * a.height)[0];
+  return {panel: box(panel), limit, pinned: box(pinned), tabs: t, tabsOnTop: tabs.contains(atTabs),
+          stop: box(button("STOP")), estop: box(button("E-STOP")), take: box(button("Take control")),
+          release: box(button("Release")), view: box(canvas), hint: box(document.getElementById("cmm-view-keys")),
           viewport: [window.innerWidth, window.innerHeight]};
 }"""
+GIZMO_PX = 90  # viser's axis gizmo: the bottom-left 90 px of the 3-D view
 
 
 @pytest.fixture(scope="module")
@@ -51,49 +62,103 @@ def station(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def app(station):
-    yield from bs.station_app(station, pendant=False)
+    yield from bs.station_app(station, pendant_port=0)  # the pendant server: the view's keyboard hint is drawn
 
 
 def _take_control(page, app):
     bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "taking control")
-    # the Control folder folds: its name, code and Take control fields leave the page
+    # the name folder and Take control leave the page, Release takes the button's place
     take = page.get_by_role("button", name="Take control", exact=True)
     bs.wait_until(lambda: take.count() == 0, 60.0, "the Control folder folding", poll=0.2,
                   why=lambda: f"{take.count()} buttons; the station's is visible: {page.capp.gui['take'].visible}")
+    page.get_by_role("button", name="Release", exact=True).wait_for()
 
 
-def _assert_room(page, where):
+def _overlap(a, b) -> bool:
+    return a["left"] < b["right"] and b["left"] < a["right"] and a["top"] < b["bottom"] and b["top"] < a["bottom"]
+
+
+def _assert_room(page, where, control_button):
+    """The share of the panel's height below the top of the tab bar, with the checks of the layout around it."""
     m = page.evaluate(LAYOUT_JS)
-    panel, pinned, control, tabs = m["panel"], m["pinned"], m["control"], m["tabs"]
-    height = panel["bottom"] - panel["top"]
-    work = panel["bottom"] - tabs["top"]
+    panel, pinned, tabs = m["panel"], m["pinned"], m["tabs"]
+    height = m["limit"] - panel["top"]
+    work = m["limit"] - tabs["top"]
     assert work >= 0.6 * height, f"{where}: the tabs have {work:.0f} of the panel's {height:.0f} px: {m}"
-    assert pinned["bottom"] <= control["top"] + 0.5, f"{where}: the status block overlaps the Control folder: {m}"
-    assert m["controlOnTop"], f"{where}: something covers the top of the Control folder"
+    assert pinned["bottom"] <= tabs["top"] + 0.5 and m["tabsOnTop"], f"{where}: the status block covers the tabs: {m}"
     w, h = m["viewport"]
-    for name in ("stop", "estop"):  # STOP and E-STOP on screen, side by side, in the pinned block
+    for name in ("stop", "estop", control_button):  # STOP, E-STOP and Take control / Release in the pinned block
         b = m[name]
+        assert b is not None, f"{where}: no {name} button on the page: {m}"
         assert 0 <= b["top"] and b["bottom"] <= h and 0 <= b["left"] and b["right"] <= w, (where, name, b)
         assert pinned["top"] <= b["top"] and b["bottom"] <= pinned["bottom"], (where, name)
     assert abs(m["stop"]["top"] - m["estop"]["top"]) < 1.0, f"{where}: STOP and E-STOP not on one row"
-    return work / height
+    view, hint = m["view"], m["hint"]
+    if hint is not None:  # the keyboard hint on the 3-D view covers neither the axis gizmo nor the panel
+        gizmo = {"left": view["left"], "right": view["left"] + GIZMO_PX, "top": view["bottom"] - GIZMO_PX,
+                 "bottom": view["bottom"]}
+        assert not _overlap(hint, gizmo), f"{where}: the 3-D view's hint covers the axis gizmo: {hint}"
+        assert not _overlap(hint, panel), f"{where}: the 3-D view's hint is under the panel: {hint}"
+    return work / height, m
 
 
-def test_room_to_work_at_1280x800_and_on_a_tablet(app):
+def _part_on_screen(page, station):
+    """The part's bounding box as this page's camera shows it at start, in CSS px: (left, right, top, bottom), by
+    projecting its eight corners through the camera the page reported (position, look-at, up, vertical view angle)."""
+    from cmm.ui.scene import SCALE
+
+    cam = page.capp.client.camera
+    bs.wait_until(lambda: cam.image_width > 0, 60.0, "the page's camera reported")
+    part = station.measurement.part
+    corners = np.array([[x, y, z] for x in part.mesh.bounds[:, 0] for y in part.mesh.bounds[:, 1]
+                        for z in part.mesh.bounds[:, 2]])
+    pose = np.asarray(part.pose, float)
+    world = (corners @ pose[:3, :3].T + pose[:3, 3]) * SCALE
+    position, look_at = np.asarray(cam.position, float), np.asarray(cam.look_at, float)
+    forward = (look_at - position) / np.linalg.norm(look_at - position)
+    right = np.cross(forward, np.asarray(cam.up_direction, float))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    v = world - position
+    depth = v @ forward
+    t = np.tan(cam.fov / 2)
+    w, h = page.viewport_size["width"], page.viewport_size["height"]
+    xs = ((v @ right) / (depth * t * w / h) + 1) / 2 * w
+    ys = (1 - (v @ up) / (depth * t)) / 2 * h
+    return float(xs.min()), float(xs.max()), float(ys.min()), float(ys.max())
+
+
+def test_room_to_work_at_1280x800_and_on_a_tablet(app, station):
+    """Before and after taking control, at 1280 x 800 and on a portrait tablet: the tabs have at least 60 % of the
+    panel's height, the status block (state, holder, DRO, link; STOP, E-STOP and Take control / Release at hand)
+    covers nothing, the keyboard hint leaves the axis gizmo free, the six top tabs are one row, and at start the part
+    fills the view beside the panel."""
     IMAGES.mkdir(parents=True, exist_ok=True)
     shares = {}
     for name, size in (("1280x800", LAPTOP), ("tablet", TABLET)):
         with bs.browser_context(size, device_scale_factor=1) as context:  # README-sharp screenshots
             page = bs.open_page(context, app, size)
-            _take_control(page, app)
-            # measured once the panel has laid out the folded Control folder (viser applies one message at a time)
+            # measured once the panel has laid out (viser applies one message at a time)
             bs.wait_until(lambda: page.evaluate(LAYOUT_JS)["tabs"]["top"] < 0.5 * size[1], 60.0, "the panel laid out",
                           poll=0.5)
-            shares[name] = _assert_room(page, name)
-            page.wait_for_timeout(1500)  # the 3-D view drawn (software WebGL)
+            assert bs.top_tab_rows(page) == [list(bs.TABS)], (name, bs.top_tab_rows(page))
+            shares[f"{name} before control"], m = _assert_room(page, f"{name} before control", "take")
+            left, right, top, bottom = _part_on_screen(page, station)
+            free = m["panel"]["left"]  # the view left of the panel
+            assert (left + right) / 2 < free and 0 <= top and bottom <= size[1], (name, left, right, top, bottom)
+            if name == "1280x800":  # across most of the view beside the panel, and not under it
+                assert 0 <= left and right <= free and right - left >= 0.4 * free, (left, right, free)
+            _take_control(page, app)
+            bs.wait_until(lambda: page.evaluate(LAYOUT_JS)["release"] is not None, 60.0, "Release laid out", poll=0.5)
+            shares[f"{name} in control"], _ = _assert_room(page, f"{name} in control", "release")
+            assert bs.top_tab_rows(page) == [list(bs.TABS)], (name, bs.top_tab_rows(page))
+            # the README's picture: without the toasts of the moment (software WebGL, "you control the machine")
+            page.locator(".mantine-Notification-root button").evaluate_all("bs => bs.forEach(b => b.click())")
+            page.wait_for_timeout(1500)  # the toasts gone, the 3-D view drawn (software WebGL)
             page.screenshot(path=str(IMAGES / f"station-{name}.png"), timeout=bs.PAGE_WAIT_MS)
             bs.press(page, "Release")
             bs.wait_until(lambda: app.control.holder is None, 30.0, "the release")
+    print("working area, share of the panel's height:", {k: f"{v:.0%}" for k, v in shares.items()})
     assert all(s >= 0.6 for s in shares.values()), shares
 
 

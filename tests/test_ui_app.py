@@ -74,7 +74,7 @@ def test_browser_tab_gets_its_own_gui(app):
     before = len(app.clients)
     # viser counts a tab as connected once it reports its camera
     with ui_support.viser_tab(app, lambda c: "plot" in c.gui) as (ws, capp):
-        assert {"machine", "trace", "plot", "control"} <= set(capp.gui) and "tree" in capp.features.gui
+        assert {"machine", "trace", "plot", "take", "release"} <= set(capp.gui) and "tree" in capp.features.gui
         assert "status" in capp.status.gui and "plan" in capp.measure.gui and "result" in capp.align.gui
         assert capp.is_local  # it came from 127.0.0.1
         assert f"127.0.0.1:{app.pendant.port}/" in capp.gui["pendant"].content  # the pendant, embedded

@@ -32,8 +32,8 @@ FRAMES = ("Machine", "Part")
 #    as tall as the scrolled content. It marks that block data-cmm-sticky (and any clipping ancestor
 #    data-cmm-unclip), and re-checks once a second (tabs change the content height; React may re-create nodes).
 # 3. compact (room to work at 1280 x 800 and on a tablet): the block has no folder header (it cannot be folded
-#    away), STOP and E-STOP share one row, and its cover against the content scrolled under it reaches up only
-#    (a shadow all round painted over the top of the Control folder below it).
+#    away), STOP and E-STOP share one row, Take control (or Release) and the DRO's frame share the next, and its
+#    cover against the content scrolled under it reaches up only (a shadow all round painted over what follows).
 STICKY_CSS = """<style>
 [data-cmm-sticky] { position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body, #fff);
   box-shadow: 0 -10px 0 0 var(--mantine-color-body, #fff); }
@@ -45,6 +45,9 @@ STICKY_CSS = """<style>
 .mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) { display: flex; flex-wrap: wrap; column-gap: 6px; }
 .mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div { flex: 1 1 100%; min-width: 0; }
 .mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div:has(> button) { flex: 1 1 40%; }
+.mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div:has(> .mantine-Flex-root button) { flex: 1 1 50%; }
+.mantine-Paper-root:has(#cmm-status) div:has(> div > #cmm-status) > div > .mantine-Flex-root > div:first-child {
+  width: auto !important; }
 .mantine-ScrollArea-content div:has(.mantine-Paper-root #cmm-status) { overflow: visible !important; }
 .cmm-status { font: 12.5px/1.35 system-ui, sans-serif; padding: 2px 0 4px; }
 .cmm-status .mode { font-weight: 700; padding: 1px 6px; border-radius: 3px; color: #fff; }
@@ -202,13 +205,17 @@ class StatusPanel:
         self.gui: dict[str, Any] = {}
         self._shown = ""
 
-    def build(self, gui: Any) -> None:
+    def build(self, gui: Any, controls: Callable[[Any], Any] | None = None) -> None:
+        """The pinned block: the status lines, STOP and E-STOP on one row, then ``controls(gui)`` (the tab's
+        Take control / Release button) beside the DRO's frame on the next."""
         gui.add_html(STICKY_CSS)
         run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
             self.gui["status"] = gui.add_html(self.html())
             gui.add_button("STOP", color="orange").on_click(self._press(lambda: self.ctx.stop()))
             gui.add_button("E-STOP", color="red").on_click(self._press(lambda: self.ctx.emergency_stop()))
+            if controls is not None:
+                controls(gui)
             frame = gui.add_button_group("DRO", FRAMES)
             frame.on_click(lambda e: self.set_frame(e.target.value))
 

@@ -59,7 +59,7 @@ AXES = ("x", "y", "z")
 SPEEDS = {"positioning": "jog_fast", "probing": "jog_slow", "fine": "jog_fine"}
 STEP_SIZES = ("1 count", "0.01", "0.1", "1", "10")
 PICK_HINT = "Click the part to pick a point."
-CONTROL_FOLDS = ("operator", "set_name", "code", "take")  # the Control folder's widgets hidden while holding control
+CONTROL_FOLDS = ("who", "take")  # the name folder and Take control, hidden while this tab holds control
 JOG_KEYS_HELP = ("**Keyboard**: click the 3-D view (a blue frame shows it has the keys): arrows = X/Y, "
                  "PageUp/PageDown = Z at the Speed above, hold **Shift** = fast; releasing the key stops; **Esc** or "
                  "**Space** = stop; why a key does nothing is shown on the view. In the pendant below (click it "
@@ -504,7 +504,6 @@ class ClientApp:
         if self.client is not None:
             run_script(self.client.gui, f"localStorage.setItem({OPERATOR_KEY!r}, {json.dumps(name)});")
         self._operator_to_report()
-        self.ctx.set("control", "content", self.ctx.control_text())
         self.ctx.set("operator", "value", name)
         return True
 
@@ -568,22 +567,32 @@ class ClientApp:
 
     # --- GUI ---------------------------------------------------------------------------------------
 
+    def _control_buttons(self, gui: Any) -> None:
+        """Take control, or Release once this tab holds control (one button's room in the status block)."""
+        g = self.gui
+        g["take"] = take = gui.add_button("Take control", color="green")
+        take.on_click(lambda _: self.take_control(g["code"].value if "code" in g else None))
+        g["release"] = gui.add_button("Release", visible=False)
+        g["release"].on_click(lambda _: self.release_control())
+
     def build(self) -> None:
         """Create this client's widgets. Callbacks only call the methods above."""
         gui = self.client.gui
         g = self.gui
-        self.status.build(gui)  # first, and sticky: state, DRO, probe, STOP / E-STOP always on screen
+        # first, and sticky: state, holder, DRO, link, probe, STOP / E-STOP, Take control / Release always on screen
+        self.status.build(gui, controls=self._control_buttons)
         if getattr(self.app, "ask_name", False):
             self._start_dialog(gui)
-        with gui.add_folder("Control"):
-            g["control"] = gui.add_markdown(self.ctx.control_text())
+        # the operator's name (and, for a LAN tab, the access code) folded under one header: the room is the tabs'
+        needs_code = not self.is_local and self.control.access_code is not None
+        with gui.add_folder("Operator name, access code" if needs_code else "Operator name",
+                            expand_by_default=False) as who:
+            g["who"] = who
             g["operator"] = gui.add_text("Operator", self.operator or "", hint="your name, for the messages and the report")
             g["set_name"] = gui.add_button("Set name")
             g["set_name"].on_click(lambda _: self.set_operator(g["operator"].value))
-            g["code"] = gui.add_text("Access code", "", hint="local clients may leave it empty")
-            g["take"] = take = gui.add_button("Take control", color="green")
-            take.on_click(lambda _: self.take_control(g["code"].value))
-            gui.add_button("Release").on_click(lambda _: self.release_control())
+            if needs_code:
+                g["code"] = gui.add_text("Access code", "", hint="shown on the station's own screen")
         if getattr(self.app, "users", None) is not None:
             panel_users.users_folder(self, gui)
             if self.is_local and self.control.access_code is not None:  # only the person at the station decides
@@ -700,11 +709,11 @@ class ClientApp:
         if not self.gui:
             return
         st = self.station
-        self.ctx.set("control", "content", self.ctx.control_text())
-        # the Control folder folds to its sentence and Release once this tab holds control: room to work
+        # once this tab holds control its name folder and Take control leave, Release takes the button's place
         holding = self.control.holder == self.client_id
         for key in CONTROL_FOLDS:
             self.ctx.set(f"control:{key}", "visible", not holding, self.gui.get(key))
+        self.ctx.set("control:release", "visible", holding, self.gui.get("release"))
         self.status.refresh()
         self.ctx.set("machine", "content", machine_markdown(st))
         self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
