@@ -110,3 +110,35 @@ def test_a_lan_peer_naming_the_loopback_as_its_host_is_refused(tmp_path):
     assert proxy.refusal(b"GET / HTTP/1.1\r\n\r\n", ("192.168.1.31", 50123)) is not None  # no Host at all
     # the station PC itself through the proxy: as it is
     assert proxy.refusal(head % b"127.0.0.1:8080", ("127.0.0.1", 50123)) is None
+
+
+def test_cmm_serve_tls_puts_the_page_and_the_pendant_behind_the_proxy(tmp_path_factory):
+    """The wiring of `cmm serve --tls` (cli/serve.py tls_proxies): the page and the pendant on loopback, each
+    served over https on its public port with the station's certificate; the page addresses its embedded pendant
+    (and its jog-hold socket) at the pendant's public https address."""
+    import ui_support
+    from cmm.cli.serve import tls_proxies
+    from netutil import SIM
+
+    cert = tls.certificate(tmp_path_factory.mktemp("tls"))
+    gen = ui_support.station_app(tmp_path_factory, port=SIM, home=False)
+    app = next(gen)
+    try:
+        page_port = free_port()
+        proxies = tls_proxies(app, cert, "127.0.0.1", page_port, None)
+        try:
+            assert [p.port for p in proxies] == [page_port, page_port + 1]
+            assert app.pendant_src(None) == f"https://127.0.0.1:{page_port + 1}/"
+            assert {page_port, page_port + 1} <= app.origins.ports
+            trusted = ssl.create_default_context(cafile=str(cert.cert_path))
+            for port in (page_port, page_port + 1):
+                conn = http.client.HTTPSConnection("127.0.0.1", port, context=trusted, timeout=60)
+                conn.request("GET", "/")
+                answer = conn.getresponse()
+                assert answer.status == 200 and b"<html" in answer.read().lower()
+                conn.close()
+        finally:
+            for p in proxies:
+                p.close()
+    finally:
+        gen.close()

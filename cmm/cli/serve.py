@@ -292,4 +292,13 @@ def tls_proxies(app: Any, certificate: Any, host: str, page_port: int, pendant_p
         proxies[0].close()
         raise
     app.origins.ports.update(p.port for p in proxies)  # the pages on the public ports are the station's own
+    if len(proxies) > 1:  # the page's embedded pendant and its jog-hold socket: the pendant's public https address
+        loopback_src, outer = app.pendant_src, proxies[1].port
+
+        def public_pendant_src(client_id: Any) -> str | None:  # "http://HOST:LOOPBACK/" -> "https://HOST:PUBLIC/"
+            src = loopback_src(client_id)
+            if src is None or not src.startswith("http://"):
+                return src
+            return f"https://{src.split('/')[2].rsplit(':', 1)[0]}:{outer}/"
+        app.pendant_src = public_pendant_src
     return proxies
