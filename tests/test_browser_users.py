@@ -67,6 +67,7 @@ def log_in(page, name, password):
     fields = dialog.locator("input")
     fields.nth(0).fill(name)
     fields.nth(1).fill(password)
+    bs.wait_until(lambda: fields.nth(1).get_attribute("type") == "password", 30, "the password's characters hidden")
     bs.wait_until(lambda: fields.nth(0).input_value() == name and fields.nth(1).input_value() == password, 30,
                   "the login typed")
     dialog.get_by_role("button", name="Log in", exact=True).click()
@@ -92,6 +93,8 @@ def test_the_page_over_https_logs_in_and_its_role_decides(served):
         bs.open_folder(page, "Users (admin)", "Add user")
         bs.text_field(page, "User name").fill("tom")
         bs.text_field(page, "New password").fill("pass-word-3")
+        bs.wait_until(lambda: bs.text_field(page, "New password").get_attribute("type") == "password", 30,
+                      "the new password's characters hidden")
         bs.press(page, "Add user")
         bs.shows(page, "maria (operator) may not add user: that needs the role admin")
         assert "tom" not in {u["name"] for u in app.users.users()}

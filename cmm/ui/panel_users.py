@@ -12,13 +12,22 @@ from .panel_status import run_script
 
 # The login dialog's password field: typed characters hidden (viser's text field has no password mode)
 PASSWORD_JS = """
-(function hide(n) {
-  for (const input of document.querySelectorAll("input")) {
-    const label = input.closest("div") && input.closest("div").parentElement;
-    if (label && /Password/.test(label.textContent || "")) { input.type = "password"; return; }
-  }
-  if (n > 0) setTimeout(() => hide(n - 1), 200);
-})(50);
+(function () {
+  // viser's label is a <label> in the field's Flex row, not linked to its input: find the row by the label
+  const hide = () => {
+    for (const label of document.querySelectorAll("label")) {
+      if (!/^(new )?password$/i.test((label.textContent || "").trim())) continue;
+      const row = label.closest(".mantine-Flex-root");
+      const input = row && row.querySelector("input");
+      if (input && input.type !== "password") input.type = "password";
+    }
+  };
+  let queued = false;  // at most one pass in 50 ms, however fast the page changes
+  hide();
+  new MutationObserver(() => {
+    if (!queued) { queued = true; setTimeout(() => { queued = false; hide(); }, 50); }
+  }).observe(document.body, {childList: true, subtree: true});
+})();
 """
 
 
