@@ -135,3 +135,101 @@ def test_one_hit_per_touch_and_a_new_press_takes_the_next(app, station, size):
         bs.press(page, "Release")
         bs.wait_until(lambda: app.control.holder is None, 30.0, "the release")
         assert page.log.page_errors == [], page.log.problems
+
+
+# three hits on the simulator part's front face (its set-up at the part's true place), with moves between them
+FRONT = """FILNAM/'front'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+SNSET/APPRCH, 5
+SNSET/RETRCT, 5
+GOTO/60, -30, 60
+GOTO/20, -30, 60
+GOTO/100, -30, 60
+GOTO/20, -15, 20
+F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
+MEAS/PLANE, F(FRONT), 3
+  PTMEAS/CART, 20, 0, 20, 0, -1, 0
+  PTMEAS/CART, 60, 0, 30, 0, -1, 0
+  PTMEAS/CART, 100, 0, 20, 0, -1, 0
+ENDMES
+ENDFIL
+"""
+# from in front of the front face, below the part's top, straight through the part to its back
+THROUGH = """FILNAM/'through'
+UNITS/MM, ANGRAD
+D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
+GOTO/60, 90, 20
+ENDFIL
+"""
+
+
+def _status(page) -> str:
+    return page.locator("#cmm-status").inner_text()
+
+
+def _run_dmis_in_page(page, name: str) -> None:
+    """Routine tab, *DMIS program* folder: the program's file name typed into *DMIS file*, *Open DMIS* (checked), then *Run DMIS*."""
+    panel = page.capp.routine
+    bs.open_folder(page, "DMIS program", "DMIS file")
+    bs.text_field(page, "DMIS file").fill(name)
+    bs.typed(page, "DMIS file", name)
+    bs.press_until(page, "Open DMIS", lambda: panel.dmis is not None and panel.dmis[0].name == name,
+                   f"{name} opened", every=20.0)
+    before = len(page.capp.messages)
+    bs.press_until(page, "Run DMIS", lambda: panel.dmis_running or len(page.capp.messages) > before,
+                   f"{name} started or refused", every=30.0)
+
+
+def test_a_refused_and_a_stopped_dmis_run_are_toasts_and_the_status_block_says_stopped(app, station):
+    """Run DMIS refused (its straight line passes through the part) is a toast and the status block's STOPPED with
+    the program and why, not only a line in the Routine tab; a DMIS run stopped with the status block's STOP while
+    it moves is a toast too, and the status block says STOPPED only once every axis stands."""
+    from cmm.sim.cmm_sim import TRUE_PART_POSE
+    import numpy as np
+
+    folder = station.measurement.session_dir
+    (folder / "through.dmi").write_text(THROUGH)
+    (folder / "front.dmi").write_text(FRONT)
+    with bs.browser_context(viewport=LAPTOP) as context:
+        page = bs.open_page(context, app, LAPTOP)
+        bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
+        if station.controller.state.mode.value != "idle":
+            page.capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle")
+        # the tip 3 mm in front of the front face, below the part's top (where a routine's last hit leaves it)
+        page.capp.go_to(list(TRUE_PART_POSE @ np.array([60.0, -30.0, 60.0, 1.0]))[:3], frame="machine").wait(120)
+        page.capp.go_to(list(TRUE_PART_POSE @ np.array([60.0, -3.0, 20.0, 1.0]))[:3], frame="machine").wait(120)
+        bs.open_tab(page, "Routine")
+        _run_dmis_in_page(page, "through.dmi")
+        bs.shows(page, "DMIS program stopped", station_has=lambda: page.capp.messages[-3:])  # the toast
+        assert any(t == "DMIS program stopped" and "straight line" in b for _l, t, b in page.capp.messages[-3:])
+        bs.wait_until(lambda: "through.dmi stopped" in _status(page), 60.0, "the status block's STOPPED",
+                      why=lambda: _status(page))
+        text = _status(page)
+        assert "STOPPED" in text and "IDLE" not in text, text
+        assert np.allclose([a.velocity for a in station.machine.state.axes], 0.0)  # nothing moved
+        bs.screenshot(page, "hands-dmis-refused")
+
+        # a program that runs: STOP pressed in the status block while the machine moves
+        _run_dmis_in_page(page, "front.dmi")
+        bs.wait_until(lambda: page.capp.routine.dmis_running and max(
+            abs(a.velocity) for a in station.machine.state.axes) > 1.0, 120.0, "the program moving the machine",
+            why=lambda: page.capp.messages[-3:])
+        bs.wait_until(lambda: "RUNNING" in _status(page), 60.0, "the status block's RUNNING", why=lambda: _status(page))
+        page.get_by_role("button", name="STOP", exact=True).click()
+        # the status block says STOPPED (and nothing says stopped) only once the axes stand: watched while it brakes
+        end = station.machine.state.time + 10.0
+        while station.machine.state.time < end and "STOPPED" not in _status(page):
+            moving = max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
+            if moving:
+                text = _status(page).upper()
+                assert "STOPPED" not in text, f"the status block says stopped while an axis moves: {text}"
+                assert not any("stopped" in (t + b).lower() for _l, t, b in page.capp.messages[-2:]
+                               if page.capp.routine.dmis_running), page.capp.messages[-2:]
+        bs.wait_until(lambda: "STOPPED" in _status(page), 60.0, "the status block's STOPPED", why=lambda: _status(page))
+        assert np.allclose([a.velocity for a in station.machine.state.axes], 0.0)
+        bs.shows(page, "DMIS program stopped", station_has=lambda: page.capp.messages[-3:])  # the toast
+        bs.wait_until(lambda: not page.capp.routine.dmis_running, 60.0, "the run's end")
+        bs.screenshot(page, "hands-dmis-stopped")
+        assert page.log.page_errors == [], page.log.problems
