@@ -33,10 +33,12 @@ LONGEST_FIRST = (
     "test_browser_walk.py", "test_browser_station.py", "test_browser_routine.py", "test_browser_viser.py",
     "test_browser_colour_map.py", "test_routine.py", "test_browser_view_keys.py", "test_browser.py",
     "test_calibration_geometry.py", "test_browser_probes.py", "test_dmis_routine_export.py", "test_dmis.py", "test_qif.py",
+    "test_short_cylinder.py", "test_auto_measure_cone.py", "test_dmis_nominals.py", "test_one_hit.py",
     "test_session_postgres.py",
     "test_path_preview.py", "test_link_process.py", "test_calibrate_tcp.py", "test_calibration_probe.py",
     "test_ippdme_nist.py", "test_session_station.py", "test_program.py", "test_control.py",
-    "test_calibration_probes.py", "test_dmis_statements.py",
+    "test_calibration_probes.py", "test_dmis_statements.py", "test_command_api.py", "test_trends_dmis.py",
+    "test_ui_feedback.py", "test_dmis_part_pose.py",
 )
 
 
