@@ -7,15 +7,9 @@ psycopg; without them the tests are skipped with the reason shown (-ra).
 
 from __future__ import annotations
 
-import glob
-import os
-import shutil
-import subprocess
-import tempfile
-from pathlib import Path
-
 import pytest
 from netutil import free_port
+from pg_support import PgServer
 
 import session_support as sup
 from cmm.journal.writer import read_events
@@ -33,44 +27,13 @@ def _spool(tmp_path, monkeypatch):
 
 @pytest.fixture(scope="module")
 def pg_url():
-    try:
-        import psycopg  # noqa: F401
-    except ImportError:
-        pytest.skip("psycopg is not installed (pip install 'cmm[postgres]'): PostgreSQL store not tested")
-    bins = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
-    if not bins:
-        pytest.skip("PostgreSQL server binaries not found (apt-get install postgresql): PostgreSQL store not tested")
-    bindir = Path(bins[-1]).parent
-    root = Path(tempfile.mkdtemp(prefix="cmm-pg-"))
-    prefix: list[str] = []
-    if os.geteuid() == 0:  # initdb refuses to run as root: run the server as the postgres user
-        if shutil.which("runuser") is None:
-            pytest.skip("running as root without runuser: cannot start PostgreSQL as another user")
-        try:
-            import pwd
-
-            pw = pwd.getpwnam("postgres")
-        except KeyError:
-            pytest.skip("running as root and there is no 'postgres' user to run the server")
-        os.chown(root, pw.pw_uid, pw.pw_gid)
-        prefix = ["runuser", "-u", "postgres", "--"]
-    data, port = root / "data", free_port()
-    run = lambda *cmd: subprocess.run(prefix + list(cmd), capture_output=True, text=True, timeout=120)  # noqa: E731
-    r = run(str(bindir / "initdb"), "-D", str(data), "-A", "trust", "-U", "cmm", "--no-sync")
-    if r.returncode != 0:
-        shutil.rmtree(root, ignore_errors=True)
-        pytest.skip(f"initdb failed: {r.stderr.strip()[-300:]}")
-    r = run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(root / "log"), "-w", "-t", "60", "start",
-            "-o", f"-k {root} -p {port} -c listen_addresses=127.0.0.1 -c fsync=on")
-    if r.returncode != 0:
-        log = (root / "log").read_text() if (root / "log").exists() else ""
-        shutil.rmtree(root, ignore_errors=True)
-        pytest.skip(f"the PostgreSQL server did not start: {(r.stderr + log).strip()[-300:]}")
-    try:
-        yield f"postgresql://cmm@127.0.0.1:{port}/postgres"
-    finally:
-        run(str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop")
-        shutil.rmtree(root, ignore_errors=True)
+    """A PostgreSQL server of this module's on loopback (pg_support.PgServer: initdb, pg_ctl), its URL."""
+    server = PgServer()
+    if server.skip_reason:
+        server.close()
+        pytest.skip(f"{server.skip_reason}: PostgreSQL store not tested")
+    yield server.url
+    server.close()
 
 
 def test_postgres_store_round_trips_a_recorded_session(pg_url):
@@ -137,8 +100,6 @@ def test_a_bad_url_is_an_operator_message():
 @pytest.fixture
 def pg_server():
     """A PostgreSQL server of this test's own, which the test stops and starts again (an outage)."""
-    from pg_support import PgServer
-
     server = PgServer()
     if server.skip_reason:
         server.close()
