@@ -24,7 +24,7 @@ from .liveness import Liveness
 from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, RunStopped, refusal
 from .priority import raise_priority_on
 
-log = logging.getLogger("cmm.control.core")
+log = logging.getLogger(__name__.rsplit(".", 1)[0] + ".core")  # the core's log, as before the split
 
 FAULT_RETRY = 0.25  # s between attempts to reach the modules while in fault
 # s a front end waits without the loop making progress (a step, a transaction) before it gives up: the loop is stuck.

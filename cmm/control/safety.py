@@ -19,7 +19,7 @@ from .liveness import Liveness
 from .loop import COMMAND_TIMEOUT, _Command
 from .modes import ControlError, Refused, StopReport
 
-log = logging.getLogger("cmm.control.core")
+log = logging.getLogger(__name__.rsplit(".", 1)[0] + ".core")  # the core's log, as before the split
 
 STOP_TIMEOUT = 0.5  # s of the loop's standstill (no step, no transaction) before a STOP talks to the bus itself
 STILL_TIMEOUT = 3.0  # s of machine time a STOP / E-STOP waits for every axis to stand still before it answers
