@@ -146,6 +146,10 @@ class Station:
             return pose.tolist()
 
         cmds = self.controller.commands
+        cmds.register("simulator", lambda client: None if self.bench is None else {
+                          "part_pose": self.bench.settings.part_pose}, {},
+                      "None on a real machine; on the simulator: where the part truly lies (part_pose, 4x4 part -> "
+                      "machine), which the station does not know until it aligns the part", query=True)
         cmds.register("load_part", load, {"path": cmds.REQUIRED, "pose": None},
                       "load a part file (STEP, IGES with exact surfaces; STL, OBJ, PLY, 3MF, GLB) as the nominal CAD at "
                       "pose (\"X,Y,Z[,RZ]\" mm and degrees, or a 4x4 part -> machine; none: its lowest corner at the "
