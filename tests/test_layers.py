@@ -367,3 +367,13 @@ def test_in_process_front_ends_call_the_api_one_way():
            if attr in ("call", "request") and owner.split(".")[-1] in ("commands", "api", "cmds")
            and not f.startswith(wire)]
     assert not bad, "the API called another way than invoke:\n" + "\n".join(bad)
+
+
+def test_front_ends_and_the_calibration_never_reach_the_simulator_through_the_station():
+    """The simulated world comes from behind the port (``cmm.sim.bench``): the page asks the API's ``simulator``
+    query where the part lies, the calibration service places its ball bar on the bench it is handed; none reads
+    ``station.sim`` or ``host.sim``."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if attr in ("sim", "place_sim_artifacts", "mount_sim_stylus")
+           and owner.split(".")[-1] in ("station", "st", "host", "self")]
+    assert not bad, "the simulator reached through the station:\n" + "\n".join(bad)
