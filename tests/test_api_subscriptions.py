@@ -110,3 +110,26 @@ def test_the_documented_front_end_moves_the_machine_and_follows_it(station):
     assert len(set(xs)) >= 2 and all(start[0] - 1e-3 <= x <= start[0] + 20.0 + 1e-3 for x in xs)
     assert station.controller.commands.invoke(None, "position", frame="machine") == pytest.approx(start, abs=1e-3)
     assert len(path.read_text().splitlines()) <= 60
+
+
+def test_the_model_query_is_a_snapshot_the_page_draws_from(station):
+    """The page's panels and 3-D view read the measurement model through the ``model`` query: a copy taken under
+    the model's lock inside the measurement package, which a later hit does not change."""
+    from cmm.measurement.queries import ModelSnapshot
+
+    api = station.controller.commands
+    op = "model-query-test"
+    assert "model" in {v.name for v in api.queries()}
+    api.invoke(op, "take_control")
+    try:
+        before = api.invoke(None, "model")  # a query: open to an anonymous observer too
+        assert isinstance(before, ModelSnapshot)
+        # a hit on the sample part's top face (part frame)
+        api.invoke(op, "probe", target=[15.0, 10.0, 40.0], approach=[0.0, 0.0, -1.0], frame="part").wait(300)
+        after = api.invoke(op, "model")
+        assert len(after.hits) == len(before.hits) + 1  # the new hit is in the new snapshot...
+        assert set(after.hits) - set(before.hits) == {after.last_hit.id}
+        assert after.hit_or_deleted().keys() >= after.hits.keys()
+        assert len(api.invoke(op, "model").hits) == len(after.hits)  # ...and never in the old one
+    finally:
+        api.invoke(op, "release_control")

@@ -8,6 +8,8 @@ centres; the servo tuning (one axis, ~10 s) runs for real through the panel.
 
 from __future__ import annotations
 
+import dataclasses
+
 import shutil
 import threading
 import time
@@ -203,7 +205,8 @@ def test_geometry_bar_placement(app, operator):
     assert len(balls) == 2 and np.linalg.norm(balls[0].centre - np.array(setup.ball1)) < 1.0
     # on real hardware the routine waits for the operator's "Bar placed, continue"
     assert panel.bar_placed() is False and "no set-up is waiting" in _errors(operator)[0][2]
-    sim, app.station.sim = app.station.sim, None
+    # real hardware: the service is handed no simulator's bench (the operator places the bar)
+    host, service.host = service.host, dataclasses.replace(service.host, bench=None)
     try:
         place = service.placer(certs)
         t = threading.Thread(target=place, args=(setup,))
@@ -220,7 +223,7 @@ def test_geometry_bar_placement(app, operator):
         t.join(30)
         assert not t.is_alive() and service.instruction == ""
     finally:
-        app.station.sim = sim
+        service.host = host
 
 
 def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_nothing(app, operator):
@@ -230,7 +233,7 @@ def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_
     st = app.station
     panel = operator.calibration
     correction = st.machine.correction
-    sim, st.sim = st.sim, None
+    host, st.calibration.host = st.calibration.host, dataclasses.replace(st.calibration.host, bench=None)
     try:
         job = panel.run("geometry", repeats=1)
         assert job is not None, operator.messages[-2:]
@@ -247,5 +250,5 @@ def test_geometry_waits_for_the_operator_in_the_machine_loop_and_cancel_changes_
         assert st.calibration.instruction == "" and not st.calibration.running
         assert st.machine.correction is correction
     finally:
-        st.sim = sim
+        st.calibration.host = host
         st.controller.reset(None)

@@ -1,7 +1,8 @@
 """The station's calibration service: front ends run the calibration routines here, never on the machine.
 
-The station (the composition root) builds one ``CalibrationService`` over
-itself (``station.calibration``); the Calibration tab only calls it and shows
+The station (the composition root) builds one ``CalibrationService`` over a
+narrow :class:`CalibrationHost` (the command API, the configuration, the simulator's bench), never
+the station itself (``station.calibration``); the Calibration tab only calls it and shows
 what it returns, so the UI imports neither the routines nor the records.
 
 - ``load(directory)`` applies the records in force (probe settings, geometry correction) and keeps what it
@@ -19,7 +20,7 @@ what it returns, so the UI imports neither the routines nor the records.
   are plain data for any front end.
 
 Machine geometry places the ball bar for each set-up: on the simulator the
-service places it (under the simulator's lock, ``station.place_sim_artifacts``);
+service places it (under the simulator's lock, through the simulator's bench, :class:`CalibrationHost`);
 on a real machine it publishes the set-up in ``instruction`` and waits (keeping
 the machine loop running) for ``bar_placed()`` or ``cancel()``.
 """
@@ -29,6 +30,7 @@ from __future__ import annotations
 import threading
 import tomllib
 from pathlib import Path
+from dataclasses import dataclass
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -67,17 +69,25 @@ def machine_status(record: Any) -> dict[str, Any]:
     """What the station shows and journals of the machine geometry calibration in force."""
     return {"date": record.date, "scale_ppm": list(record.scale_ppm), "squareness_urad": list(record.squareness_urad)}
 
-class CalibrationHost(Protocol):
-    """What the service needs from the station (the composition root that builds it)."""
+class Bench(Protocol):
+    """The simulator's bench (:class:`cmm.sim.bench.SimBench`): what the simulated operator does at the machine."""
 
-    controller: Any  # the control core (cmm.control.Controller): its command API's run_job, configure, stop, note
-    config: Any
-    lock: Any  # held while records are applied (the measurement reads the probe settings under it)
+    sphere_centre: tuple[float, float, float]
 
-    @property
-    def simulated(self) -> bool: ...
+    def place_artifacts(self, spheres: list) -> None: ...
 
-    def place_sim_artifacts(self, spheres: list) -> None: ...
+    def mount_stylus(self, tip_diameter: float) -> None: ...
+
+
+@dataclass(frozen=True)
+class CalibrationHost:
+    """What the service needs, and nothing of the station: the composition root hands it these."""
+
+    api: Any  # the command API (cmm.control.api.CommandAPI): its run_job, configure, stop and note verbs
+    config: Any  # the machine configuration (probing speed, nominal tip, its source for the records)
+    settings_lock: Any  # held while records are applied (the measurement reads the probe settings under it)
+    wait_event: Callable[[threading.Event, float], bool]  # wait for the operator while the machine loop serves STOP
+    bench: Bench | None = None  # the simulator's bench; None: a real machine (its operator places the ball bar)
 
 
 def records_summary(directory: Path) -> list[dict[str, str]]:
@@ -178,8 +188,8 @@ class CalibrationService:
         from .records import apply_calibration
 
         host = self.host
-        with host.lock:
-            return host.controller.commands.invoke(
+        with host.settings_lock:
+            return host.api.invoke(
                 client, "configure", change=lambda setup: apply_calibration(loaded, setup.machine, setup.prober))
 
     @property
@@ -202,9 +212,8 @@ class CalibrationService:
 
     def _mount(self, probe: ProbeDefinition | None) -> None:
         """On the simulator the selected probe's stylus is the one that touches (its nominal tip diameter)."""
-        mount = getattr(self.host, "mount_sim_stylus", None)
-        if probe is not None and mount is not None and getattr(self.host, "simulated", False):
-            mount(probe.tip_diameter)
+        if probe is not None and self.host.bench is not None:
+            self.host.bench.mount_stylus(probe.tip_diameter)
 
     def probe_list(self) -> tuple[list[ProbeDefinition], str]:
         """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
@@ -292,8 +301,8 @@ class CalibrationService:
 
         host = self.host
         settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
-        with host.lock:
-            host.controller.commands.invoke(client, "configure",
+        with host.settings_lock:
+            host.api.invoke(client, "configure",
                                             change=lambda setup: setattr(setup.prober, "settings", settings))
         return f"probe {probe.name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"
 
@@ -323,10 +332,8 @@ class CalibrationService:
                 centre = load_sphere_certificate(path).approx_centre
             except CalibrationError:
                 centre = None
-            if centre is None and self.host.simulated:
-                sim_settings = getattr(self.host.sim, "settings", None)
-                if sim_settings is not None:
-                    centre = tuple(float(c) for c in sim_settings.sphere_centre)
+            if centre is None and self.host.bench is not None:
+                centre = self.host.bench.sphere_centre
         cert = write_sphere_certificate(path, diameter=diameter, serial=serial, uncertainty=uncertainty, form=form,
                                         centre=centre, certified=certified)
         self._note(client, f"reference sphere certificate entered: {cert.describe()}, "
@@ -425,7 +432,7 @@ class CalibrationService:
             self._cancel = False
             self.paused = False
             self._go.set()
-            return self.host.controller.commands.invoke(
+            return self.host.api.invoke(
                 client, "run_job", description=LABELS[routine], work=lambda job: self._work(job, routine, certs, options),
                 progress=progress, cancel=self._cancel_run,
                 **({"pause": self.pause, "resume": self.resume} if routine == "probe" else {}))  # the verbs
@@ -502,13 +509,14 @@ class CalibrationService:
 
     def placer(self, certs: dict[str, BallBarCertificate]) -> Callable[[Any], None]:
         """How each ball-bar set-up gets its bar: the simulated operator, or the real one (instruction + wait)."""
-        if self.host.simulated:
+        bench = self.host.bench
+        if bench is not None:
             rng = np.random.default_rng(7)
 
             def place_sim(s: Any) -> None:  # the simulated operator clamps the bar within 0.3 mm
                 d = certs[s.artifact].ball_diameter
                 off = rng.uniform(-0.3, 0.3, 3)
-                self.host.place_sim_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
+                bench.place_artifacts([(np.add(s.ball1, off), d), (np.add(s.ball2, off), d)])
             return place_sim
 
         def place_operator(s: Any) -> None:
@@ -518,7 +526,7 @@ class CalibrationService:
                                 "X={:.1f} Y={:.1f} Z={:.1f} and X={:.1f} Y={:.1f} Z={:.1f}, ".format(*s.ball1, *s.ball2)
                                 + "clamp it, then press **Bar placed, continue**.")
             try:
-                while not self.host.controller.wait_event(event, 0.2):
+                while not self.host.wait_event(event, 0.2):
                     if self._cancel:
                         break
                 if self._cancel:
@@ -550,7 +558,7 @@ class CalibrationService:
             return False
         self.holding = True
         try:
-            while not self.host.controller.wait_event(self._go, 0.2):
+            while not self.host.wait_event(self._go, 0.2):
                 if self._cancel:
                     break
         finally:
@@ -573,7 +581,7 @@ class CalibrationService:
         waiting = self._bar_event is not None or self.holding  # a paused qualification holds: nothing moves
         self.cancel()
         if not waiting:
-            self.host.controller.commands.invoke(None, "stop")
+            self.host.api.invoke(None, "stop")
 
     def cancel(self) -> None:
         """End a routine that waits for the operator (the front end also sends STOP for one that moves)."""
@@ -628,7 +636,7 @@ class CalibrationService:
         from .servo import apply_gains
 
         host = self.host
-        host.controller.commands.invoke(client, "configure", change=lambda setup: apply_gains(setup.machine, result.proposed))
+        host.api.invoke(client, "configure", change=lambda setup: apply_gains(setup.machine, result.proposed))
         path = save_record(result.record(True, host.config.source), self.records_dir / SERVO_RECORD)
         self._note(client, "servo gains accepted: " + "; ".join(
             f"{a.upper()} Kp {g.kp} Kd {g.kd} Ki {g.ki} IL {g.il}" for a, g in result.proposed.items()))
@@ -636,7 +644,7 @@ class CalibrationService:
 
     def _note(self, client: Any, text: str) -> None:
         """A line in the session journal, as ``client`` (the command API's ``note`` verb)."""
-        self.host.controller.commands.invoke(client, "note", text=text)
+        self.host.api.invoke(client, "note", text=text)
 
     def _geometry_artifact(self) -> str:
         try:

@@ -196,7 +196,7 @@ class StationApp:
     def link_info(self) -> str:
         st, link = self.station, self.station.controller.link_info()
         mods = ", ".join(f"{a} (type {t}, v{v})" for a, t, v in link["modules"]) or "-"  # found at start-up
-        kind = "simulator over TCP" if st.sim is not None else "serial"
+        kind = "simulator over TCP" if st.controller.commands.invoke(None, "simulator") is not None else "serial"
         return (f"port `{st.port}` ({kind}) · {link['baud']} baud · firmware {link['firmware']}\n\nmodules: {mods}")
 
     # --- station state -------------------------------------------------------------------

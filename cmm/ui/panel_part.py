@@ -54,10 +54,14 @@ class PartPanel:
         cad = part.mesh.metadata.get("cad")  # a CAD part's B-rep model (cmm.cad.CadModel)
         what = cad.summary() if cad is not None else f"{part.name}: a mesh of {len(part.mesh.faces)} triangles"
         lines = [f"**{part.name}**", "", what, "", f"station: part origin at {pose_text(part.pose)}"]
-        sim = self.station.sim
+        sim = self.simulator()
         if sim is not None:
-            lines.append(f"\nsimulator: the part lies at {pose_text(sim.settings.part_pose)}")
+            lines.append(f"\nsimulator: the part lies at {pose_text(sim['part_pose'])}")
         return "\n".join(lines)
+
+    def simulator(self) -> dict | None:
+        """The API's ``simulator`` query: None on a real machine, else where the part truly lies."""
+        return self.ctx.commands.invoke(self.ctx.who(), "simulator")
 
     # --- actions ------------------------------------------------------------------------------
 
@@ -105,10 +109,10 @@ class PartPanel:
     def next_part(self, dx: float = 0.0, dy: float = 0.0, turn: float = 0.0) -> Any:
         """Simulator: the next part put down moved by (dx, dy) mm and turned by ``turn`` degrees about its origin,
         from where the present one lies."""
-        sim = self.station.sim
+        sim = self.simulator()
         if sim is None:
             return self.ctx.error("there is no simulator: put the next part on the table by hand", "Next part")
-        x, y, z, rz = _xyzrz(sim.settings.part_pose)
+        x, y, z, rz = _xyzrz(sim["part_pose"])
         pose = [x + dx, y + dy, z, rz + turn]
         done = self.ctx.do("Next part", "place_sim_part", pose=pose)
         if done is not None:
@@ -136,7 +140,7 @@ class PartPanel:
                                       hint="where the part's CAD origin sits in machine coordinates")
         g["rz"] = gui.add_number("Turned about Z (°)", rz, step=0.5)
         gui.add_button("Place").on_click(lambda _: self.place())
-        if self.station.sim is not None:
+        if self.simulator() is not None:
             gui.add_markdown("**Next part** (simulator): put the part down moved and turned from where it lies; "
                              "the station finds it by aligning.")
             g["move"] = gui.add_vector2("Move by X, Y (mm)", (5.0, -3.0), step=0.5)

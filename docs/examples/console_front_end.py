@@ -2,7 +2,7 @@
 
 Run it on the simulator:  python3 docs/examples/console_front_end.py
 Every front end of the station (the page, the pendant, I++ DME, DMIS, OPC UA) has this shape: it receives the
-command API, sends verbs as its client, reads queries and subscribes to their change streams. It never sees
+command API, sends verbs as its client (``api.invoke``, the one call form), reads queries and subscribes to their change streams. It never sees
 the station, the machine or the measurement model, and the API decides what its client may do.
 """
 
@@ -26,16 +26,20 @@ def console(api: Any, client: str = "console", say: Callable[[str], None] = prin
         if "state" in changed:
             still.set()
 
-    answer = api.call(client, "take_control")
-    if not answer.ok:  # refusals come back as one sentence for the operator
-        say(f"cannot take control: {answer.error['message']}")
+    try:
+        api.invoke(client, "take_control")
+    except Exception as exc:  # noqa: BLE001 - refusals come as one sentence for the operator
+        say(f"cannot take control: {exc}")
         return heard
     with api.subscribe(client, {"position": {"frame": "machine"}, "state": None}, on_change, rate=10):
         x, y, z = api.invoke(client, "position", frame="machine")
         for target in ([x + 20.0, y, z], [x, y, z]):
-            answer = api.call(client, "move", {"target": target, "frame": "machine"}, wait=True, timeout=300)
-            say("arrived" if answer.ok else f"refused: {answer.error['message']}")
-    api.call(client, "release_control")
+            try:  # a motion verb returns its status; wait() gives its result or raises its error
+                api.invoke(client, "move", target=target, frame="machine").wait(300)
+                say("arrived")
+            except Exception as exc:  # noqa: BLE001 - told in the operator's words
+                say(f"refused: {exc}")
+    api.invoke(client, "release_control")
     return heard
 
 
