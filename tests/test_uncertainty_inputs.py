@@ -123,12 +123,12 @@ def test_bore_uncertainty_is_honest_on_the_simulator_error_model():
     prior (1 um): the bore's diameter and centre are covered and U is no wider than about 3 spreads."""
     from bench_uncertainty import run
 
-    res = run(16, seed=5, verbose=False, features=("bore",), form=0.001)
+    res = run(30, seed=5, verbose=False, features=("bore",), form=0.001)
     for name in ("diameter", "x", "y"):
         r = res["bore"][name]
         assert r["worst"] <= 2.0, (name, r)
-        assert r["coverage"] >= 14 / 16, (name, r)
-        assert r["U_over_spread"] <= 3.5, (name, r)
+        assert r["coverage"] >= 27 / 30, (name, r)  # a 95 % interval: 1.5 misses expected in 30
+        assert 1.4 <= r["U_over_spread"] <= 3.5, (name, r)
 
 
 def test_station_fit_uses_the_records_in_force(tmp_path):

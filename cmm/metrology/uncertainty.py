@@ -15,6 +15,9 @@ Terms (standard uncertainties; ``Sources`` holds their inputs):
   pattern about Z) at an unknown phase: the RMS over the phase (two patterns in quadrature), and half the
   difference of vertical and horizontal pre-travel left after an isotropic qualification ``z_xy`` (horizontal
   hits +z_xy, vertical ones -z_xy: the pattern 1 - 2 n_z^2).
+- probe, direction (replaces the two above when the qualification fitted a directional model, which the
+  compensation applies): each coefficient's standard uncertainty ``pretravel_u``, a hit moved along its normal by
+  (the term's basis at its direction - the term's mean over the qualification pattern, which r_eff holds).
 - machine: per-axis scale and the three squareness errors, each with the standard uncertainty of a rectangular
   distribution of half-width 1 / K (um per mm) from the length-measuring MPE ``A + L / K`` (ISO 10360-2), or
   from the geometry calibration's residuals when one is given (``scale_u``, ``squareness_u``); the hits moved by
@@ -24,8 +27,12 @@ Terms (standard uncertainties; ``Sources`` holds their inputs):
   uncorrected (u of the expansion ``L * sqrt((cte * dT)^2 + (cte_u * dT)^2 + (cte * allowance / sqrt 3)^2)``).
 - scatter: the probing repeatability ``repeatability`` (one sigma, per hit, independent).
 - sampling: the part's form the hits see beyond the repeatability (the fit's residual sigma), independent per
-  hit; with fewer than 3 residual degrees of freedom the residuals do not show the form, and ``form_prior``
-  (the form expected of the feature) is used instead.
+  hit, pooled with ``form_prior`` (the form expected of the feature, worth PRIOR_DOF degrees of freedom): a few
+  residuals do not show the form reliably.
+- the form value (max - min residual): two hits' residuals, see ``_form_terms``.
+
+``cmm.metrology.uncertainty_inputs`` fills ``Sources`` from the station's calibration records, configuration and
+session, each term's ``origin`` saying where its input came from.
 
 The sensitivities of the random terms use the hits one at a time (exact for the linearised fit). Values: size
 (``diameter``, a cone's ``half_angle_deg``), location (``x``, ``y``, ``z``: a centre, an apex, the axis point
