@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-SHARED = Path("/work/shared/cad")
+# NIST's part, read in place: CMM_SHARED, else the shared folder beside the checkout
+SHARED = Path(os.environ.get("CMM_SHARED", ROOT.parent / "shared")) / "cad"
 
 CHILD = r"""
 import json, sys, time

@@ -3,11 +3,11 @@ OPC UA tests."""
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from lxml import etree
+from shared_refs import shared_path
 
 NS = "{http://opcfoundation.org/UA/2011/03/UANodeSet.xsd}"
 UA = "http://opcfoundation.org/UA/"
@@ -19,12 +19,9 @@ HIERARCHICAL = {"i=47", "i=46", "i=35", "i=17604", "i=24136"}  # HasComponent, H
 
 
 def shared_dir() -> Path | None:
-    """../shared/opcua beside the checkout (CI), or CMM_SHARED, or the shared folder of this machine."""
-    here = Path(__file__).resolve().parents[1]
-    for base in (os.environ.get("CMM_SHARED"), here.parent / "shared", here.parent.parent / "shared", "/work/shared"):
-        if base and (Path(base) / "opcua" / FILES[-1]).is_file():
-            return Path(base) / "opcua"
-    return None
+    """The official nodesets, read in place: CMM_SHARED, else the shared folder beside the checkout."""
+    folder = shared_path("opcua")
+    return folder if (folder / FILES[-1]).is_file() else None
 
 
 @dataclass

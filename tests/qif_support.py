@@ -10,9 +10,9 @@ import os
 from functools import lru_cache
 from pathlib import Path
 
-QIF_DIR = Path(os.environ.get("CMM_QIF_SCHEMAS", Path(__file__).resolve().parents[1].parent / "shared" / "qif"))
-if not (QIF_DIR / "schemas").is_dir():
-    QIF_DIR = Path("/work/shared/qif")
+from shared_refs import shared_path
+
+QIF_DIR = Path(os.environ.get("CMM_QIF_SCHEMAS", shared_path("qif")))
 XMLDSIG = "http://www.w3.org/TR/2002/REC-xmldsig-core-20020212/xmldsig-core-schema.xsd"
 NS = {"q": "http://qifstandards.org/xsd/qif3"}
 

@@ -8,21 +8,19 @@ hole 25 deep at (50, 50) opening in the top face. Other geometry is written here
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import cad_support as cs
+from shared_refs import shared_path
 from cmm.cad import CadError, cad_for_mesh, read_cad
 from cmm.measurement.plan import plan_at_pick
 from cmm.metrology.hit_plan import plan_feature
 from cmm.metrology.mesh import MeshError, load_part, signed_deviation
 from cmm.metrology.pick import pick, suggest_feature
 
-SHARED = Path(__file__).resolve().parents[1].parent.parent / "shared" / "cad"
-if not SHARED.is_dir():  # the worktree layout (/work/wt/NAME) and the main checkout (/work/main) both reach it
-    SHARED = Path("/work/shared/cad")
+SHARED = shared_path("cad")  # NIST's part, read in place
 STP, IGS = SHARED / "ipp_simple.stp", SHARED / "ipp_simple.igs"
 
 

@@ -5,12 +5,12 @@ would collide with the reference sphere or leave the table is refused with a sen
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import session_support as sup
+from shared_refs import shared_path
 from cmm.cad import cad_for_mesh
 from cmm.cli import main
 from cmm.metrology.mesh import load_part
@@ -19,7 +19,8 @@ from cmm.sim.placement import PlacementError, parse_pose
 from cmm.sim.probe_world import MeshObstacle, ProbeModel
 from cmm.station import Station
 
-STP = Path("/work/shared/cad/ipp_simple.stp")  # read in place, never copied
+STP = shared_path("cad", "ipp_simple.stp")  # read in place, never copied
+pytestmark = pytest.mark.skipif(not STP.is_file(), reason=f"the reference part {STP} is not here (set CMM_SHARED)")
 POSE = pose_matrix((150.0, 120.0, 0.0), rz_deg=30.0)
 
 

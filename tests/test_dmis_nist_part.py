@@ -18,10 +18,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from shared_refs import shared_path
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-if not (SHARED / "dmis").is_dir():  # the project at /work/<tree>: ../shared is beside it
-    SHARED = Path("/work/shared")
+SHARED = shared_path()  # NIST's program, its output and its part, read in place
 PROGRAM = SHARED / "dmis" / "simple_in.dms"
 EXPECTED = SHARED / "dmis" / "simple_out.dms"
 PART = SHARED / "cad" / "ipp_simple.stp"
