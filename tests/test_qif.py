@@ -132,6 +132,12 @@ def test_every_feature_kind_and_gdt_characteristic_in_qif_is_the_reports(measure
         assert q["U"] == pytest.approx(want, rel=1e-12, abs=1e-15), f.name
         assert q["combined"] == pytest.approx(q["U"] / 2.0, rel=1e-12, abs=1e-15)
     assert any(c["U"] for c in chars if c["type"] == "Position")
+    # every characteristic that carries its own U (the feature's budget: sizes, locations, form too) has it in QIF
+    own = [(f"{f.name} {c.name}", c.uncertainty) for f in st.features.values() for c in f.characteristics()
+           if c.uncertainty is not None]
+    assert any(name.endswith(("flatness", "roundness", "cylindricity", "sphericity")) for name, _ in own)
+    for name, u in own:
+        assert by_name[" ".join(name.split())]["U"] == pytest.approx(u, rel=1e-12, abs=1e-15), name
     # the same session exported twice: the same QPId (a re-export replaces, it does not add a part)
     again = qif_support.validate(write_qif(s, tmp_path / "again.qif", mesh=mesh))
     assert again.find("q:QPId", NS).text == root.find("q:QPId", NS).text
@@ -260,9 +266,13 @@ def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp
     assert "QIF 3 results" in capsys.readouterr().out
     exported = qif_support.validate(target)
     run = qif_support.validate(dmis_run / "out" / "qifpart.qif")
-    # the same session: the same characteristics and values (the program is read from the session's notes)
-    assert [(c["name"], c["value"], c["status"]) for c in characteristics(exported)] == \
-        [(c["name"], c["value"], c["status"]) for c in characteristics(run) if not DMIS_ONLY.search(c["name"])]
+    # the same session: the same characteristics and values (the program is read from the session's notes), the
+    # DMIS-only tolerances (PERPEND, DISTB: kept in the session by the run) included, with their limits
+    keys = ("name", "type", "value", "status", "target", "max", "min", "zone", "features")
+    assert [tuple(c[k] for k in keys) for c in characteristics(exported)] == \
+        [tuple(c[k] for k in keys) for c in characteristics(run)]
+    assert {"BORE perpendicularity PERPEND T(PERP_B)", "BORE-BOSS distance DISTB T(DIST_BOSS)"} <= \
+        {c["name"] for c in characteristics(exported)}
     assert exported.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "qifpart.dmi"
     # re-evaluated with another tip radius: a new session, a valid document with its own QPId and values
     new = f"{info.name}-r"

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..metrology.numbers_text import num
 from ..measurement.program import record_trend
+from ..session.qif_dmis import record as record_dmis_tolerances
 from ..session.trends import tolerance_values
 from .alignments import AlignmentStatements
 from .features import KINDS, Actual, Nominal, bounded_line, nominal_from
@@ -147,6 +148,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
+            record_dmis_tolerances(self.model, self.name, self.result.evaluations)  # for the session's QIF
         return self.result
 
     def _run(self) -> None:
