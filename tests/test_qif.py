@@ -313,3 +313,37 @@ def test_an_auto_measured_session_on_the_station_is_valid_qif_with_the_reports_v
     assert {"DistanceBetween", "Diameter", "Flatness", "UserDefinedLinear"} <= {c["type"] for c in chars}
     assert root.find(".//q:InspectionOperator/q:Name", NS).text == "R. Quality"
     assert len(root.findall(".//q:Part/q:FeatureNominalIds/q:Id", NS)) == 5  # every feature's nominal from CAD
+
+
+def test_a_routine_run_written_as_the_report_tab_does_is_valid_qif_with_the_reports_values(tmp_path):
+    """A routine taught on the block and run on the station: the Report tab's QIF (the session worker's writer) of
+    the run's session validates and carries the report's characteristics, the routine as the program."""
+    import session_support as sup
+
+    from cmm.journal.store import load_session, open_session, open_store
+    from cmm.measurement.routine import teach_routine
+    from cmm.measurement.routine_run import RoutineRun
+    from cmm.session import worker
+    from cmm.session.export import resolve_part_mesh
+
+    qif_support.schema_or_skip()
+    gen = sup.sim_station(tmp_path, "teach")
+    st = next(gen)
+    try:
+        model = st.measurement
+        sup.teach_block(model, sup.BLOCK_FACES[:5])
+        routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
+                                part_nominals=model.part.nominal_features)
+        routine.steps[0]["manual"] = None  # the part is aligned: the datums are measured automatically
+        progress = RoutineRun(routine, model, st.controller, part_name="R-1").run()
+        assert progress.state == "done"
+        sessions = model.session_dir
+    finally:
+        gen.close()
+    name = Path(str(progress.session)).stem
+    (path,) = worker.qif(sessions, name, tmp_path / "exports")
+    root = qif_support.validate(path)
+    s = load_session(open_store(str(sessions)), name)
+    chars = check_against_csv(root, features_csv(s, mesh=resolve_part_mesh(s)))
+    assert {"Diameter", "Flatness", "DistanceBetween"} <= {c["type"] for c in chars}
+    assert root.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "block"

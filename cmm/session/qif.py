@@ -100,7 +100,11 @@ class _Doc:
 
 
 def recorded_program(session: Session) -> str:
-    """The program the session ran, from its notes ("DMIS program 'x.dmi' started"), or ""."""
+    """The program the session ran: the routine it records (a ``routine`` event), else from its notes ("DMIS
+    program 'x.dmi' started"), or ""."""
+    for event in session.events or ():
+        if event.get("kind") == "routine" and event.get("name"):
+            return str(event["name"])
     for _seq, text in session.state.notes:
         m = _PROGRAM_NOTE.match(text)
         if m:
