@@ -94,9 +94,13 @@ def from_records(recs: Any) -> list[RecordedEvaluation]:
 
 
 def session_evaluations(session: Any) -> list[RecordedEvaluation]:
-    """The DMIS tolerance evaluations recorded in ``session`` (of its last DMIS run that had any), or []."""
+    """The DMIS tolerance evaluations recorded in ``session`` (of its last DMIS run that had any), or []. A session
+    re-evaluated from raw counts (its start says ``derived_from``) gives none: its features are refitted, and the
+    recorded values were evaluated on the original fits (the DMIS program is not run again)."""
     last = None
     for event in getattr(session, "events", None) or ():
+        if event.get("kind") == "start" and event.get("derived_from"):
+            return []
         if event.get("kind") == EVENT:
             last = event
     return from_records(last.get("evaluations")) if last is not None else []
