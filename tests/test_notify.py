@@ -189,3 +189,64 @@ def test_settings_come_from_the_station_toml_and_the_flags_win(tmp_path):
     toml.write_text('[notify]\nwebhok = "http://x"\n')
     with pytest.raises(NotifyError, match=r"\[notify\] webhok is not a known setting"):
         load_config(toml)
+
+
+def test_a_dmis_run_without_tolerances_still_tells_its_end(tmp_path, monkeypatch, webhook):
+    """A program that only measures (no TOL/): its end is a run_end with the verdict DONE, nothing out of tolerance."""
+    from cmm.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    program = _bore_program(tmp_path)
+    text = program.read_text().replace("T(DIAM_B) = TOL/DIAM, 0.050, 0.060\n", "").replace(", TA(DIAM_B)", "")
+    program.write_text(text)
+    assert main(["run", str(program), "--sessions", str(tmp_path / "sessions"), "--station", "bench 9",
+                 "--notify-webhook", webhook.url]) == 0
+    ((_, m),) = _take(webhook.got, 1)
+    assert m["event"] == "run_end" and m["verdict"] == "DONE" and m["program"] == "bore.dmi"
+    assert m["characteristics"] == 0 and m["failed"] == [] and m["part"] == "sample part" and m["session"]
+    assert m["report"] == (tmp_path / "bore_report.html").resolve().as_uri()
+    assert webhook.got.empty()
+
+
+def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(tmp_path, webhook, broker):
+    """A routine on the station without trends: its end (part, routine, verdict, report link) to the webhook and
+    over MQTT; the same routine cancelled: run_end with the verdict STOPPED and the reason."""
+    import session_support as sup
+
+    from cmm.journal.store import open_session
+    from cmm.measurement.routine import teach_routine
+    from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
+    from cmm.station import Station
+
+    mqtt_url, got = broker
+    st = Station(port=SIM, session_dir=tmp_path / "sessions").start("teach", home=True)
+    notifier = None
+    try:
+        model = st.measurement
+        sup.teach_block(model, sup.BLOCK_FACES[:5])
+        routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
+                                part_nominals=model.part.nominal_features)
+        routine.steps[0]["manual"] = None  # the part is aligned: the datums are measured automatically
+        assert model.trends is None
+        notifier = Notifier(NotifyConfig(webhook=webhook.url, mqtt=mqtt_url, station="bench-10",
+                                         events=("run_end",))).attach(model)
+        progress = RoutineRun(routine, model, st.controller, part_name="P-17").run()
+        assert progress.state == "done"
+        ((_, m),) = _take(webhook.got, 1)
+        ((topic, published),) = _take(got, 1)
+        assert m["event"] == "run_end" and m["program"] == "block" and m["serial"] == "P-17"
+        assert m["verdict"] in ("PASS", "FAIL", "INCOMPLETE") and m["characteristics"] > 0
+        assert m["part"] == model.part.name and m["session"] == Path(str(progress.session)).stem
+        assert m["report"] == (tmp_path / "sessions" / f"{m['session']}-report.html").resolve().as_uri()
+        assert topic == "cmm/bench-10/run_end" and published == m
+        cancelled = RoutineRun(routine, model, st.controller, part_name="P-18")
+        cancelled.cancel()  # the operator cancels before the first hit
+        with pytest.raises(RoutineCancelled):
+            cancelled.run()
+        ((_, s),) = _take(webhook.got, 1)
+        assert s["event"] == "run_end" and s["verdict"] == "STOPPED" and s["program"] == "block"
+        assert s["serial"] == "P-18" and "cancelled by the operator" in s["message"]
+    finally:
+        if notifier is not None:
+            notifier.close()
+        st.close()

@@ -132,6 +132,12 @@ def test_every_feature_kind_and_gdt_characteristic_in_qif_is_the_reports(measure
         assert q["U"] == pytest.approx(want, rel=1e-12, abs=1e-15), f.name
         assert q["combined"] == pytest.approx(q["U"] / 2.0, rel=1e-12, abs=1e-15)
     assert any(c["U"] for c in chars if c["type"] == "Position")
+    # every characteristic that carries its own U (the feature's budget: sizes, locations, form too) has it in QIF
+    own = [(f"{f.name} {c.name}", c.uncertainty) for f in st.features.values() for c in f.characteristics()
+           if c.uncertainty is not None]
+    assert any(name.endswith(("flatness", "roundness", "cylindricity", "sphericity")) for name, _ in own)
+    for name, u in own:
+        assert by_name[" ".join(name.split())]["U"] == pytest.approx(u, rel=1e-12, abs=1e-15), name
     # the same session exported twice: the same QPId (a re-export replaces, it does not add a part)
     again = qif_support.validate(write_qif(s, tmp_path / "again.qif", mesh=mesh))
     assert again.find("q:QPId", NS).text == root.find("q:QPId", NS).text
@@ -260,15 +266,21 @@ def test_sessions_export_qif_of_a_run_and_of_a_reevaluated_session(dmis_run, tmp
     assert "QIF 3 results" in capsys.readouterr().out
     exported = qif_support.validate(target)
     run = qif_support.validate(dmis_run / "out" / "qifpart.qif")
-    # the same session: the same characteristics and values (the program is read from the session's notes)
-    assert [(c["name"], c["value"], c["status"]) for c in characteristics(exported)] == \
-        [(c["name"], c["value"], c["status"]) for c in characteristics(run) if not DMIS_ONLY.search(c["name"])]
+    # the same session: the same characteristics and values (the program is read from the session's notes), the
+    # DMIS-only tolerances (PERPEND, DISTB: kept in the session by the run) included, with their limits
+    keys = ("name", "type", "value", "status", "target", "max", "min", "zone", "features")
+    assert [tuple(c[k] for k in keys) for c in characteristics(exported)] == \
+        [tuple(c[k] for k in keys) for c in characteristics(run)]
+    assert {"BORE perpendicularity PERPEND T(PERP_B)", "BORE-BOSS distance DISTB T(DIST_BOSS)"} <= \
+        {c["name"] for c in characteristics(exported)}
     assert exported.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "qifpart.dmi"
     # re-evaluated with another tip radius: a new session, a valid document with its own QPId and values
     new = f"{info.name}-r"
     assert main(["sessions", "--store", sessions, "reevaluate", info.name, new, "--tip-radius", "1.01"]) == 0
     assert main(["sessions", "--store", sessions, "export", new, "--qif", str(tmp_path / "r.qif")]) == 0
     derived = qif_support.validate(tmp_path / "r.qif")
+    # the DMIS-only values were evaluated on the original fits: the re-evaluated document does not repeat them
+    assert not [c for c in characteristics(derived) if DMIS_ONLY.search(c["name"])]
     assert derived.find("q:QPId", NS).text != exported.find("q:QPId", NS).text
     s = load_session(open_store(sessions), new)
     from cmm.session.export import resolve_part_mesh
@@ -303,3 +315,37 @@ def test_an_auto_measured_session_on_the_station_is_valid_qif_with_the_reports_v
     assert {"DistanceBetween", "Diameter", "Flatness", "UserDefinedLinear"} <= {c["type"] for c in chars}
     assert root.find(".//q:InspectionOperator/q:Name", NS).text == "R. Quality"
     assert len(root.findall(".//q:Part/q:FeatureNominalIds/q:Id", NS)) == 5  # every feature's nominal from CAD
+
+
+def test_a_routine_run_written_as_the_report_tab_does_is_valid_qif_with_the_reports_values(tmp_path):
+    """A routine taught on the block and run on the station: the Report tab's QIF (the session worker's writer) of
+    the run's session validates and carries the report's characteristics, the routine as the program."""
+    import session_support as sup
+
+    from cmm.journal.store import load_session, open_session, open_store
+    from cmm.measurement.routine import teach_routine
+    from cmm.measurement.routine_run import RoutineRun
+    from cmm.session import worker
+    from cmm.session.export import resolve_part_mesh
+
+    qif_support.schema_or_skip()
+    gen = sup.sim_station(tmp_path, "teach")
+    st = next(gen)
+    try:
+        model = st.measurement
+        sup.teach_block(model, sup.BLOCK_FACES[:5])
+        routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
+                                part_nominals=model.part.nominal_features)
+        routine.steps[0]["manual"] = None  # the part is aligned: the datums are measured automatically
+        progress = RoutineRun(routine, model, st.controller, part_name="R-1").run()
+        assert progress.state == "done"
+        sessions = model.session_dir
+    finally:
+        gen.close()
+    name = Path(str(progress.session)).stem
+    (path,) = worker.qif(sessions, name, tmp_path / "exports")
+    root = qif_support.validate(path)
+    s = load_session(open_store(str(sessions)), name)
+    chars = check_against_csv(root, features_csv(s, mesh=resolve_part_mesh(s)))
+    assert {"Diameter", "Flatness", "DistanceBetween"} <= {c["type"] for c in chars}
+    assert root.find(".//q:InspectionProgram/q:File/q:Name", NS).text == "block"

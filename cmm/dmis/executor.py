@@ -17,6 +17,8 @@ import numpy as np
 
 from ..metrology.numbers_text import num
 from ..measurement.program import record_trend
+from ..session.notify import run_stopped as notify_stopped
+from ..session.qif_dmis import record as record_dmis_tolerances
 from ..session.trends import tolerance_values
 from .alignments import AlignmentStatements
 from .features import KINDS, Actual, Nominal, bounded_line, nominal_from
@@ -141,12 +143,19 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                 self.target.note(f"DMIS program {self.name!r} stopped: {exc}")
             except Exception:  # noqa: BLE001 - a journal refused (control taken over): the stop itself is told
                 pass
+            notify_stopped(self.model, self.name, exc)
             raise
         self._finish()
         self.target.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
+            record_dmis_tolerances(self.model, self.name, self.result.evaluations)  # for the session's QIF
+        elif getattr(self.model, "notifier", None) is not None:  # no tolerances: the run's end is still told
+            try:
+                self.model.notifier.run_end(self.model, self.name, [])
+            except Exception as exc:  # noqa: BLE001 - a notification never spoils the run
+                self.model.log("error", f"the end of the run was not notified: {exc}")
         return self.result
 
     def _run(self) -> None:

@@ -256,12 +256,14 @@ class RoutineRun:
         except RoutineCancelled as exc:
             self._tell(state="cancelled", message=str(exc), prompt="")
             model.note(f"routine {routine.name!r} cancelled")
+            self._notify_stopped(exc)
             raise
         except Exception as exc:
             self.faulted = self.progress.step
             name = routine.steps[self.faulted]["name"]
             self._tell(state="failed", message=f"step {self.faulted + 1} ({name}) stopped: {exc}", prompt="")
             model.note(f"routine {routine.name!r} stopped at step {self.faulted + 1} ({name}): {exc}")
+            self._notify_stopped(f"step {self.faulted + 1} ({name}): {exc}")
             raise
         self._end_at_clearance()
         model.note(f"routine {routine.name!r} finished")
@@ -277,8 +279,8 @@ class RoutineRun:
         from .program import record_trend
 
         model = self.model
-        if getattr(model, "trends", None) is None:
-            return None
+        if getattr(model, "trends", None) is None and getattr(model, "notifier", None) is None:
+            return None  # nobody to tell: no trends, no notifications
         records = {**model.features, **model.constructed}
         values = {m.name: m for m in feature_values(records[fid].record() for fid in self._fids.values()
                                                     if fid in records)}
@@ -287,6 +289,15 @@ class RoutineRun:
             if m is not None:
                 values.setdefault(m.name, m)  # a name given twice counts once: the part's record refuses twins
         return record_trend(model, self.routine.name, values=list(values.values()), serial=self.part_name or "")
+
+    def _notify_stopped(self, reason: Any) -> None:
+        """The run's early end to the model's notifier (cmm.session.notify), when it has one; never raises."""
+        notifier = getattr(self.model, "notifier", None)
+        if notifier is not None:
+            try:
+                notifier.run_stopped(self.model, self.routine.name, reason, self.part_name or "")
+            except Exception:  # noqa: BLE001 - a notification never hides the run's error
+                pass
 
     def _use_probe(self, step: dict[str, Any]) -> None:
         """Change to the probe the step names, before it moves."""

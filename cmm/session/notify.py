@@ -4,10 +4,15 @@ webhook URL (an HTTP POST of JSON) and over MQTT (paho-mqtt), both optional.
 Every message is one JSON object::
 
     {"event": "run_end" | "out_of_tolerance" | "fault", "station": ..., "part": ..., "program": ...,
-     "session": ..., "verdict": "PASS" | "FAIL" | "INCOMPLETE" | "FAULT", "failed": [characteristic names],
+     "session": ..., "verdict": "PASS" | "FAIL" | "INCOMPLETE" | "DONE" | "STOPPED" | "FAULT",
+     "failed": [characteristic names],
      "characteristics": n, "report": link, "message": one sentence, "time": ISO 8601}
 
-A run that ends with a characteristic out of tolerance sends ``run_end`` and then ``out_of_tolerance``. Over MQTT
+Every run sends ``run_end``: a routine, a DMIS program (``cmm run`` or the page), a TOML program. Its verdict: FAIL
+when a characteristic is out of tolerance, INCOMPLETE when one could not be judged (no nominal or tolerance),
+PASS when all are in, DONE for a run without characteristics, STOPPED for a run that ended early (an error, a
+cancel, a machine fault: the reason in the message). A run that ends with a characteristic out of tolerance sends
+``run_end`` and then ``out_of_tolerance``. Over MQTT
 the topic is ``<prefix>/<station>/<event>`` (prefix ``cmm`` unless the URL names one: ``mqtt://host:1883/shop/cmm``),
 QoS 1. The report link: ``report_url`` with ``{session}``, ``{program}`` and ``{station}`` filled in, else the
 ``file://`` URI of the report the Report tab writes (``<sessions>/<session>-report.html``).
@@ -140,7 +145,7 @@ class Notifier:
         values = list(values)
         failed = [v.name for v in values if v.ok is False]
         missing = sum(v.ok is None for v in values)
-        verdict = "FAIL" if failed else ("INCOMPLETE" if missing or not values else "PASS")
+        verdict = "FAIL" if failed else ("INCOMPLETE" if missing else ("PASS" if values else "DONE"))
         base = self._base(model, program, serial)
         text = (f"{program} on {base['part']}: {verdict}, {len(values)} characteristics"
                 + (f", {len(failed)} out of tolerance ({', '.join(failed[:5])}{', ...' if len(failed) > 5 else ''})"
@@ -150,6 +155,13 @@ class Notifier:
         if failed:
             self.send({**base, "event": "out_of_tolerance", "verdict": "FAIL", "failed": failed,
                        "characteristics": len(values), "message": text})
+
+    def run_stopped(self, model: Any, program: str, reason: Any, serial: str = "") -> None:
+        """A run of ``program`` ended before its end (an error, a cancel, a fault): ``run_end``, verdict STOPPED."""
+        base = self._base(model, program, serial)
+        why = " ".join(str(reason).split()) or type(reason).__name__
+        self.send({**base, "event": "run_end", "verdict": "STOPPED", "failed": [], "characteristics": 0,
+                   "message": f"{program} on {base['part']}: STOPPED, {why}"})
 
     def fault(self, model: Any, kind: str, info: Any) -> None:
         from ..journal.wording import event_text
@@ -281,6 +293,16 @@ class Notifier:
         self._queue.put(None)
         self._thread.join(timeout=2)
         self._drop_mqtt()
+
+
+def run_stopped(model: Any, program: str, reason: Any, serial: str = "") -> None:
+    """Tell the model's notifier (if any) that a run stopped early; never raises (the run's own error stands)."""
+    notifier = getattr(model, "notifier", None)
+    if notifier is not None:
+        try:
+            notifier.run_stopped(model, program, reason, serial)
+        except Exception:  # noqa: BLE001 - a notification never hides the run's error
+            pass
 
 
 def from_args(args: Any, session_dir: Any = None) -> Notifier | None:

@@ -100,7 +100,11 @@ class _Doc:
 
 
 def recorded_program(session: Session) -> str:
-    """The program the session ran, from its notes ("DMIS program 'x.dmi' started"), or ""."""
+    """The program the session ran: the routine it records (a ``routine`` event), else from its notes ("DMIS
+    program 'x.dmi' started"), or ""."""
+    for event in session.events or ():
+        if event.get("kind") == "routine" and event.get("name"):
+            return str(event["name"])
     for _seq, text in session.state.notes:
         m = _PROGRAM_NOTE.match(text)
         if m:
@@ -193,11 +197,16 @@ def _characteristic_rows(session: Session, program: Any, default_tolerance: floa
 
 def qif_document(session: Session, *, program: Any = None, default_tolerance: float | None = None, mesh: Any = None,
                  program_name: str | None = None, operator: str | None = None, station: str | None = None,
-                 report: str | None = None, dmis: Any = ()) -> ET.ElementTree:
+                 report: str | None = None, dmis: Any = None) -> ET.ElementTree:
     """The session as a QIF 3 Results document (see the module docstring). ``dmis``: a DMIS run's tolerance
-    evaluations (:class:`cmm.dmis.tolerances.Evaluation`), whose characteristics the report has no row for
+    evaluations (:class:`cmm.dmis.tolerances.Evaluation`; None: the ones recorded in the session,
+    :func:`cmm.session.qif_dmis.session_evaluations`), whose characteristics the report has no row for
     (orientation, distances and angles between features, profiles, runout, concentricity) are added after the
     report's, named ``<features> <word> T(<label>)``, with the DMIS output's value and INTOL / OUTOL."""
+    if dmis is None:
+        from .qif_dmis import session_evaluations
+
+        dmis = session_evaluations(session)
     d = _Doc()
     st = session.state
     info = st.info
