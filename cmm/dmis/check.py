@@ -333,6 +333,8 @@ def reference_problems(stmts: list[Statement]) -> dict[int, str]:
     devices, datums, features = set(), set(), set()
     for s in stmts:
         labels = [p for p in s.params if isinstance(p, Label)]
+        if s.label is not None and s.label.type == "FA":  # FA(name) = FEAT/..: an actual written as a statement
+            features.add(s.label.name)
         if s.major == "DEVICE" and s.label is not None:
             devices.add(s.label.name)
         elif s.major == "DATDEF" and len(labels) == 2:
