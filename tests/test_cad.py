@@ -145,6 +145,22 @@ def test_an_inch_file_comes_in_millimetres(tmp_path):
     assert sphere.params["radius"] == pytest.approx(10.0, abs=1e-9)
 
 
+def test_an_inch_iges_comes_in_millimetres(tmp_path):
+    from OCP.IGESControl import IGESControl_Writer
+
+    writer = IGESControl_Writer("IN", 1)  # the file's coordinates in inches, its global section says INCH
+    writer.AddShape(cs.box_with_sphere_and_cone())
+    writer.ComputeModel()
+    path = tmp_path / "inch.igs"
+    assert writer.Write(str(path))
+    assert "4HINCH" in path.read_text()
+    model = read_cad(path)
+    assert model.unit == "inch"
+    np.testing.assert_allclose(model.vertices.max(axis=0), [60, 40, 28], atol=1e-6)  # mm, not inches
+    (sphere,) = _faces(model, "sphere")
+    assert sphere.params["radius"] == pytest.approx(10.0, abs=1e-6)
+
+
 @pytest.mark.parametrize("schema, ap", [("AP203", "AP203"), ("AP214IS", "AP214"), ("AP242DIS", "AP242")])
 def test_every_step_schema_is_read(tmp_path, schema, ap):
     path = cs.write_step(cs.filleted_box(7.5), tmp_path / f"{schema}.stp", schema=schema)

@@ -130,6 +130,7 @@ def test_a_part_that_collides_or_leaves_the_table_is_refused_with_a_sentence(pos
 
 @pytest.mark.parametrize("command", [
     ["sim", "--cmm", "--tcp", "127.0.0.1:0"],
+    ["serve", "--http-port", "0"],
     ["run", "prog.dms"],
     ["calibrate", "probe"],
 ])

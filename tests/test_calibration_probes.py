@@ -253,3 +253,21 @@ def test_a_restarted_station_uses_the_selected_probe(fresh, tmp_path):
             assert again.prober.settings.tip_radius == pytest.approx(radius)
         finally:
             again.close()
+
+
+def test_the_probe_list_defines_and_qualifies_a_4_mm_stylus_that_the_simulator_mounts(fresh):
+    ui, operator, folder = fresh
+    st = ui.station
+    panel = operator.calibration
+    assert panel.add_probe("PROBE6", 4.0, "0, 0, -1"), _errors(operator)[-1:]
+    assert panel.select_probe("PROBE6"), _errors(operator)[-1:]
+    assert st.sim.world.probe.tip_radius == 2.0  # the simulator's head carries the 4 mm stylus now
+    job = panel.run("probe", per_ring=4, repeats=1)
+    assert job is not None, _errors(operator)[-1:]
+    assert job.wait(600) and job.error is None, job.error
+    assert panel.result[1].probe == "PROBE6"
+    panel.save_record()
+    rec = load_probe_record(folder / "probes" / "PROBE6.toml")
+    assert rec.tip_radius == pytest.approx(2.0, abs=0.01)  # qualified on the sphere with the 4 mm ball
+    row = next(r for r in panel.probes() if r["name"] == "PROBE6")
+    assert row["tip_diameter"] == 4.0 and row["tip_radius"] == pytest.approx(rec.tip_radius) and row["selected"]

@@ -115,9 +115,42 @@ def test_datset_with_one_direction_keeps_the_rest_of_the_current_system():
     ("SNSMNT/XVEC, 1, 0, 0, ZVEC, 0, 1, 0, MNTOFF, 0, 0, 0\nS(P) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 2\n",
      "line 2: S(P) points along (0, -1, 0): the station has one fixed probe pointing down (0, 0, -1)"),
     ("TEXT/OPER\n", "line 1: TEXT/OPER needs its text in quotes: TEXT/OPER, 'text'"),
+    ("F(P) = FEAT/PLANE, CART, 1, 2, 3, 0, 0, 0\n", "line 1: FEAT/PLANE: its direction vector is zero"),
+    ("F(C) = FEAT/CIRCLE, INNER, CART, 1, 2, 3, 0, 0, 1, -10\n",
+     "line 1: FEAT/CIRCLE: its diameter -10 is not a positive length"),
+    ("F(C) = FEAT/CYLNDR, OUTER, CART, 1, 2, 3, 0, 0, 1, 10, 0\n",
+     "line 1: FEAT/CYLNDR: its length 0 is not a positive length"),
+    ("F(S) = FEAT/SPHERE, OUTER, CART, 1, 2, 3, 0\n", "line 1: FEAT/SPHERE: its diameter 0 is not a positive length"),
+    ("FEDRAT/POSVEL, MMPS, 0\n", "line 1: FEDRAT/POSVEL takes a unit and a positive speed, not 0"),
+    ("FEDRAT/MESVEL, 5\n", "line 1: FEDRAT/MESVEL needs a unit: MPM, MMPS, IPM, IPS or PCENT"),
+    ("CLOSE/DID(OUT)\n", "line 1: CLOSE/DID(OUT): no DEVICE defines DID(OUT) (DID(name) = DEVICE/STOR, 'file')"),
+    ("T(P) = TOL/POS, 2D, 0.1, DAT(A)\n", "line 1: TOL/POS: DAT(A) is defined by no DATDEF in the program (DATDEF/FA(name), DAT(A))"),
+    ("D(X) = DATSET/DAT(B), ZDIR, ZORIG\n", "line 1: DATSET: DAT(B) is defined by no DATDEF in the program (DATDEF/FA(name), DAT(B))"),
+    ("F(Z) = FEAT/POINT, CART, 1, 2, 3, 0, 0, 1\nOUTPUT/FA(Z)\n",
+     "line 2: OUTPUT/FA(Z): no MEAS or CONST in the program makes FA(Z) (output the nominal as F(Z))"),
 ])
 def test_the_check_refuses_what_no_run_could_carry_out(program, problem):
     assert problem in check(program + "ENDFIL\n")[1]
+
+
+def test_what_the_check_passes_with_names_the_run_defines_or_recalls_is_not_refused():
+    program = ("DID(OUT) = DEVICE/STOR, 'a.dms'\nOPEN/DID(OUT), FDATA, DMIS, OUTPUT\nRECALL/DAT(A)\nRECALL/FA(P)\n"
+               "DECL/DOUBLE, DIA\nDIA = ASSIGN/10\nF(C) = FEAT/CIRCLE, INNER, CART, 1, 2, 3, 0, 0, 1, DIA\n"
+               "T(P) = TOL/POS, 2D, 0.1, DAT(A)\nD(X) = DATSET/DAT(A), ZDIR, ZORIG\nOUTPUT/FA(P)\nCLOSE/DID(OUT)\n")
+    assert check(program + "ENDFIL\n")[1] == []
+
+
+def test_a_nominal_feature_outputs_the_tolerance_as_defined_and_refuses_its_actual(station):
+    program = ("UNITS/MM, ANGDEC\nF(C) = FEAT/CIRCLE, INNER, CART, 30, 40, 30, 0, 0, 1, 30\n"
+               "T(POS) = TOL/POS, 3D, 0.1\n")
+    assert check(program + "OUTPUT/F(C), T(POS)\nENDFIL\n")[1] == []
+    out = run_text(program + "OUTPUT/F(C), T(POS)\nENDFIL\n", station).outputs[None].splitlines()
+    assert out[-3:] == ["F(C) = FEAT/CIRCLE, INNER, CART, 30.00000, 40.00000, 30.00000, 0.00000, 0.00000, 1.00000, "
+                        "30.00000", "T(POS) = TOL/POS, 3D, 0.1", "ENDFIL"]
+    with pytest.raises(DmisError, match=r"^line 4: TA\(POS\) is the tolerance evaluated on a measured feature, and "
+                                        r"F\(C\) has not been measured: output TA\(POS\) after MEAS/\.\., F\(C\), "
+                                        r"or T\(POS\) for its definition$"):
+        run_text(program + "OUTPUT/F(C), TA(POS)\nENDFIL\n", station)
 
 
 def test_cmm_run_check_refuses_absurd_numbers_and_warns_of_a_missing_endfil(tmp_path):

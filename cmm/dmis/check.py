@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .features import KINDS, NUMBERS, SIZED
+from .features import KINDS, NUMBERS, SIZED, size_problem
 from .lexer import DmisSyntaxError, statements
 from .parser import Expr, Label, Statement, Text, Word, parse_statement
 from .parser import evaluate
@@ -56,7 +56,13 @@ def _feat_problem(s: Statement) -> str | None:
     if not lo <= n <= hi:
         want = str(lo) if lo == hi else f"{lo} to {hi}"
         return f"FEAT/{kind} takes {want} numbers after {'POL' if 'POL' in words else 'CART'}, it has {n}"
-    return None
+    values = [p.constant() for p in s.params if isinstance(p, Expr)]
+    if len(values) != n or any(v is None for v in values):
+        return None  # a variable: its value is known only when the program runs (the run judges it then)
+    if kind != "SPHERE" and not ("LINE" == kind and "BND" in words) and not any(values[3:6]):
+        return f"FEAT/{kind}: its direction vector is zero"
+    problem = size_problem(kind, values)  # type: ignore[arg-type]
+    return None if problem is None else f"FEAT/{kind}: {problem}"
 
 
 def _words(s: Statement) -> list[str]:
@@ -146,6 +152,14 @@ def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0, mount:
             return f"GOTO/INCR takes a distance and a direction (4 numbers), it has {n}"
         if "INCR" not in words and n != 3:
             return f"GOTO takes X, Y, Z, it has {n} numbers"
+    if m == "FEDRAT":
+        values = [p.constant() for p in s.params if isinstance(p, Expr)]
+        if len(values) != 1:
+            return f"FEDRAT/{s.minor} takes a unit and one speed, it has {len(values)} numbers"
+        if values[0] is not None and not values[0] > 0.0:
+            return f"FEDRAT/{s.minor} takes a unit and a positive speed, not {values[0]:g}"
+        if not {"MPM", "MMPS", "IPM", "IPS", "PCENT"} & set(_words(s)):
+            return f"FEDRAT/{s.minor} needs a unit: MPM, MMPS, IPM, IPS or PCENT"
     if m == "SNSDEF":
         values = [p.constant() for p in s.params if isinstance(p, Expr)]
         # constants only: a variable (an expression or a word) is known only when it runs
@@ -311,6 +325,43 @@ def size_problems(stmts: list[Statement]) -> dict[int, str]:
     return out
 
 
+def reference_problems(stmts: list[Statement]) -> dict[int, str]:
+    """Statement index -> a name it uses that the program never gives anything: a device CLOSEd that no DEVICE
+    defines, a datum (TOL, DATSET) that no DATDEF defines nor RECALL brings, a feature OUTPUT as measured (FA)
+    that no MEAS or CONST makes nor RECALL brings. The whole program is looked at (not only the lines before): a
+    MACRO may be called after the lines it uses are run, so the order is the run's to judge."""
+    devices, datums, features = set(), set(), set()
+    for s in stmts:
+        labels = [p for p in s.params if isinstance(p, Label)]
+        if s.label is not None and s.label.type == "FA":  # FA(name) = FEAT/..: an actual written as a statement
+            features.add(s.label.name)
+        if s.major == "DEVICE" and s.label is not None:
+            devices.add(s.label.name)
+        elif s.major == "DATDEF" and len(labels) == 2:
+            datums.add(labels[1].name)
+        elif s.major in ("MEAS", "CONST") and labels:
+            features.add(labels[0].name)
+        elif s.major == "RECALL" and labels:
+            (datums if labels[0].type == "DAT" else features).add(labels[0].name)
+    out: dict[int, str] = {}
+    for k, s in enumerate(stmts):
+        labels = [p for p in s.params if isinstance(p, Label)]
+        if s.major == "CLOSE" and labels and labels[0].type == "DID" and labels[0].name not in devices:
+            out[k] = f"CLOSE/{labels[0]}: no DEVICE defines DID({labels[0].name}) (DID(name) = DEVICE/STOR, 'file')"
+        elif s.major in ("TOL", "DATSET"):
+            missing = [lab for lab in labels if lab.type == "DAT" and lab.name not in datums]
+            if missing:
+                what = f"{s.major}/{s.minor}" if s.minor else s.major
+                out[k] = (f"{what}: {missing[0]} is defined by no DATDEF in the program "
+                          f"(DATDEF/FA(name), {missing[0]})")
+        elif s.major == "OUTPUT":
+            missing = [lab for lab in labels if lab.type == "FA" and lab.name not in features]
+            if missing:
+                out[k] = (f"OUTPUT/{missing[0]}: no MEAS or CONST in the program makes {missing[0]} (output the "
+                          f"nominal as F({missing[0].name}))")
+    return out
+
+
 def check_statements(stmts: list[Statement]) -> list[str]:
     problems: list[str] = []
     stack: list[Statement] = []
@@ -318,9 +369,11 @@ def check_statements(stmts: list[Statement]) -> list[str]:
     in_meas = False
     sizes = size_problems(stmts)
     recalls = recall_problems(stmts)
+    references = reference_problems(stmts)
     variables = declared(stmts)
     for k, (s, scale, mount) in enumerate(zip(stmts, angle_scales(stmts), mounts(stmts))):
-        p = statement_problem(s, scale, mount) or number_problem(s, variables) or sizes.get(k) or recalls.get(k)
+        p = (statement_problem(s, scale, mount) or number_problem(s, variables) or sizes.get(k) or recalls.get(k)
+             or references.get(k))
         if p is not None:
             problems.append(f"line {s.line}: {p}")
         if s.label is not None:

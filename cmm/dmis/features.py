@@ -86,10 +86,23 @@ class Nominal:
         return None
 
 
+def size_problem(word: str, numbers: list[float]) -> str | None:
+    """Why a FEAT's size is no size (a diameter or a cylinder's length zero or negative), or None. ``numbers``:
+    the FEAT's numbers after CART or POL (x, y, z, i, j, k, diameter[, length]; SPHERE x, y, z, diameter)."""
+    where = {"SPHERE": [(3, "diameter")], "CIRCLE": [(6, "diameter")],
+             "CYLNDR": [(6, "diameter"), (7, "length")]}.get(word, [])
+    for k, what in where:
+        if k < len(numbers) and not numbers[k] > 0.0:
+            return f"its {what} {numbers[k]:g} is not a positive length"
+    return None
+
+
 def nominal_from(word: str, inner: bool | None, numbers: list[float], frame: np.ndarray, scale: float,
                  angle_scale: float) -> Nominal:
     """A Nominal from the FEAT numbers (program units, the current coordinate system ``frame``)."""
     v = list(numbers)
+    if (problem := size_problem(word, v)) is not None:
+        raise ValueError(problem)
 
     def pt(k: int) -> np.ndarray:
         return apply(frame, np.array(v[k:k + 3]) * scale)

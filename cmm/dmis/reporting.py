@@ -53,6 +53,15 @@ class OutputStatements:
                 if not pending:
                     raise self.fail(s, f"TA({lab.name}) needs the feature it applies to before it: "
                                        f"OUTPUT/FA(name), TA({lab.name})")
+                nominal_only = [a.label for a in pending if not a.geometry]
+                if nominal_only and lab.type == "T":  # the nominal feature and the tolerance as defined: no value
+                    self.emit(tol.text)
+                    after_tolerance = True
+                    continue
+                if nominal_only:
+                    raise self.fail(s, f"TA({lab.name}) is the tolerance evaluated on a measured feature, and "
+                                       f"F({nominal_only[0]}) has not been measured: output TA({lab.name}) after "
+                                       f"MEAS/.., F({nominal_only[0]}), or T({lab.name}) for its definition")
                 ev = evaluate_tolerance(tol, pending, self.datums, self.frame, self.sizes)
                 self.result.evaluations.append(ev)
                 self.emit(output_line(ev))
@@ -123,7 +132,8 @@ class OutputStatements:
         datums = [p.name for p in w if isinstance(p, Label) and p.type == "DAT"]
         if word == "POS" and "2D" in options:  # a point's 2D position is taken in the working plane (WKPLAN)
             options.append(self.work_plane)
-        tol = Tolerance(s.label.name, word, datums=datums, options=options)  # type: ignore[union-attr, arg-type]
+        tol = Tolerance(s.label.name, word, datums=datums, options=options,  # type: ignore[union-attr, arg-type]
+                        text=statement_text(s))
         # material conditions: MMC / LMC / RFS after the zone is the feature's, after a DAT(..) that datum's
         last: Param | None = None
         for p in w:

@@ -58,6 +58,7 @@ class Tolerance:
     options: list[str] = field(default_factory=list)  # 2D / 3D, CIRCLR / TOTAL, XAXIS ...
     material: str = ""  # POS: the feature's material condition, MMC / LMC ("": RFS)
     datum_material: dict[str, str] = field(default_factory=dict)  # DAT name -> MMC / LMC (its boundary)
+    text: str = ""  # its TOL statement as the output file writes it (OUTPUT/F(..), T(..) prints the definition)
 
 
 @dataclass
