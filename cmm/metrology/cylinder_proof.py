@@ -11,9 +11,8 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import linprog
-
 from cmm.metrology import fit_models as fm
+from cmm.metrology import lp_small
 from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball, min_enclosing_ball_from
 from cmm.metrology.fit_solver import levenberg_marquardt
 from cmm.metrology.geom_basics import algebraic_ball, frame_with_axis, unit
@@ -29,6 +28,9 @@ PROOF_CELLS = 600  # direction cells the branch and bound may evaluate away from
 NEAR_DEG = 0.05  # ... and, besides those, within this angle of the optimum's direction,
 NEAR_CELLS = 1800  # this many (first-order cell bounds close there only on cells ~ tolerance / length wide)
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
+_ANNULUS_COST = np.array([0.0, 0.0, -1.0, 1.0])  # the annulus-area program: maximise A - B (see _annulus_area_lower)
+_INNER_COST = np.array([0.0, 0.0, -1.0])  # the inner-radius program: maximise s (see _inner_radius_max)
+_FREE4 = (np.full(4, -np.inf), np.full(4, np.inf))  # free variables
 
 
 def _cylinder_screen(xs: np.ndarray, u: np.ndarray, method: str) -> tuple[float, np.ndarray, float]:
@@ -121,11 +123,11 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tupl
     n = len(x)
     zeros, ones = np.zeros((n, 1)), np.ones((n, 1))
     a_ub = np.vstack([np.hstack([-2.0 * x, zeros, -ones]), np.hstack([2.0 * x, ones, zeros])])
-    res = linprog([0.0, 0.0, -1.0, 1.0], A_ub=a_ub, b_ub=np.concatenate([-a, a]), bounds=[(None, None)] * 4,
-                  method="highs")
-    if res.status != 0:
+    res = lp_small.solve(_ANNULUS_COST, a_ub, np.full(2 * n, -np.inf), np.concatenate([-a, a]), _FREE4[0],
+                         _FREE4[1])
+    if not res.ok:
         return 0.0, keep[:0], keep[:0]
-    dual = np.abs(res.ineqlin.marginals)
+    dual = np.abs(res.duals)
     lam, mu = dual[:n], dual[n:]
     if lam.sum() <= 0 or mu.sum() <= 0:
         return 0.0, keep[:0], keep[:0]
@@ -154,11 +156,11 @@ def _inner_radius_max(rel: np.ndarray, reach: float) -> float:
     ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
     a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]),
                       np.column_stack([np.cos(ang), np.sin(ang), np.zeros(16)])])
-    res = linprog([0.0, 0.0, -1.0], A_ub=a_ub, b_ub=np.concatenate([r_k, np.full(16, rho)]),
-                  bounds=[(None, None)] * 3, method="highs")
-    if res.status != 0:
+    res = lp_small.solve(_INNER_COST, a_ub, np.full(len(a_ub), -np.inf), np.concatenate([r_k, np.full(16, rho)]),
+                         _FREE4[0][:3], _FREE4[1][:3])
+    if not res.ok:
         return plain
-    nu = np.abs(res.ineqlin.marginals[:len(near)])
+    nu = np.abs(res.duals[:len(near)])
     if nu.sum() <= 0:
         return plain
     nu = nu / nu.sum()
