@@ -30,6 +30,7 @@ NEAR_CELLS = 1800  # this many (first-order cell bounds close there only on cell
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
 _ANNULUS_COST = np.array([0.0, 0.0, -1.0, 1.0])  # the annulus-area program: maximise A - B (see _annulus_area_lower)
 _INNER_COST = np.array([0.0, 0.0, -1.0])  # the inner-radius program: maximise s (see _inner_radius_max)
+_POLYGON16 = np.column_stack([np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8), np.zeros(16)])
 _FREE4 = (np.full(4, -np.inf), np.full(4, np.inf))  # free variables
 
 
@@ -80,7 +81,11 @@ def _annulus_dual(rel: np.ndarray, outer: np.ndarray, inner: np.ndarray, reach: 
     m[1, len(outer):] = 1.0
     m[2:, :len(outer)] = rel[outer].T
     m[2:, len(outer):] = -rel[inner].T
-    w = np.linalg.lstsq(m, np.array([1.0, 1.0, 0.0, 0.0]), rcond=None)[0]
+    rhs = np.array([1.0, 1.0, 0.0, 0.0])
+    try:  # four points (the generic basis): a square system
+        w = np.linalg.solve(m, rhs) if m.shape[1] == 4 else np.linalg.lstsq(m, rhs, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        w = np.linalg.lstsq(m, rhs, rcond=None)[0]
     if np.any(w < -1e-12):
         return -np.inf
     w = np.maximum(w, 0.0)
@@ -149,7 +154,8 @@ def _weighted_inner(radii: np.ndarray, off: np.ndarray, rho: float, idx: np.ndar
 
 
 def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np.ndarray] | None = None,
-                      enough: float = -np.inf) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
+                      enough: float = -np.inf, program: bool = True
+                      ) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """An upper bound on min_i |rel_i - d| (the inner radius of an annulus centred at d) over every centre
     |d| <= reach. With a reference centre d0 (the algebraic circle's), e = d - d0 (|e| <= rho = reach + |d0|),
     R_i = |rel_i - d0| and n_i their unit vectors: |rel_i - d| <= R_i - n_i.e + rho^2 / (2 (R_i - rho)), and
@@ -159,7 +165,7 @@ def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np
 
     ``carry``: weights (point indices, nu) of a neighbouring cell's program, tried first: when their bound is
     already at most ``enough`` (what the caller needs), the program is skipped. Returns the bound and the
-    weights used (to carry to the next cell)."""
+    weights used (to carry to the next cell). ``program`` False: the carried weights' bound only, no program."""
     plain = float(np.sqrt(np.einsum("ij,ij->i", rel, rel)).min()) + reach
     d0 = algebraic_ball(rel)[0]
     rho = reach + float(np.sqrt(d0 @ d0))
@@ -167,15 +173,15 @@ def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np
     radii = np.sqrt(np.einsum("ij,ij->i", off, off))
     if carry is not None:
         reused = min(plain, _weighted_inner(radii, off, rho, *carry))
-        if reused <= enough:
+        if reused <= enough or not program:
             return reused, carry
+    if not program:
+        return plain, carry
     near = np.argsort(radii)[:ZONE_LP_POINTS]
     r_k, n_k = radii[near], off[near] / radii[near, None]
     if r_k.min() <= 2.0 * rho:
         return plain, carry
-    ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-    a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]),
-                      np.column_stack([np.cos(ang), np.sin(ang), np.zeros(16)])])
+    a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]), _POLYGON16])
     res = lp_small.solve(_INNER_COST, a_ub, np.full(len(a_ub), -np.inf), np.concatenate([r_k, np.full(16, rho)]),
                          _FREE4[0][:3], _FREE4[1][:3])
     if not res.ok:
@@ -207,11 +213,11 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
     basis = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     carry: tuple[np.ndarray, np.ndarray] | None = None  # the inner-radius weights, cell to cell
 
-    def _by_inner(rel: np.ndarray, q: float, area: float, slack: float) -> float:
+    def _by_inner(rel: np.ndarray, q: float, area: float, slack: float, program: bool = True) -> float:
         """area / (2 r_in_max + W): the cell is pruned when r_in_max is at most ``enough``."""
         nonlocal carry
         enough = 0.5 * (area / (best + slack) - best - slack) if area > 0 else -np.inf
-        r_in, carry = _inner_radius_max(rel, q, carry, enough)
+        r_in, carry = _inner_radius_max(rel, q, carry, enough, program)
         return area / (2.0 * r_in + best + slack)
 
     def bound(u: np.ndarray, delta: float) -> float:
@@ -229,6 +235,10 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
                 return area / scale - slack
             if np.isfinite(area) and _annulus_basis_optimal(rel, basis[0], basis[1]):
                 return max(area / scale, _by_inner(rel, q, area, slack)) - slack
+            if np.isfinite(area) and area > 0 and carry is not None:  # a valid bound, if not the program's best
+                value = _by_inner(rel, q, area, slack, program=False) - slack
+                if value >= best:
+                    return value
         order = np.argsort(dist)
         k = min(ZONE_LP_POINTS, len(xs))
         keep = np.unique(np.concatenate([order[:k], order[-k:]]))  # a subset: its bound holds for all points
