@@ -14,6 +14,7 @@ active lower bound, as linprog's ``ineqlin.marginals``).
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,7 @@ except Exception:  # pragma: no cover - depends on the scipy build
     _h = None
 
 INF = np.inf
+_LOCAL = threading.local()
 
 
 @dataclass
@@ -82,8 +84,10 @@ def solve(c: np.ndarray, a: np.ndarray, lhs: np.ndarray, rhs: np.ndarray, lb: np
     lp.a_matrix_.start_ = [0] + np.cumsum(mask.sum(axis=1)).tolist()
     lp.a_matrix_.index_ = np.nonzero(mask)[1].tolist()
     lp.a_matrix_.value_ = a.T[mask].tolist()
-    highs = _h._Highs()
-    highs.passOptions(_OPTIONS)
+    highs = getattr(_LOCAL, "highs", None)
+    if highs is None:  # one solver per thread, its options set once
+        highs = _LOCAL.highs = _h._Highs()
+        highs.passOptions(_OPTIONS)
     if highs.passModel(lp) == _h.HighsStatus.kError or highs.run() == _h.HighsStatus.kError:
         return _linprog(c, a, lhs, rhs, lb, ub)
     status = highs.getModelStatus()
