@@ -35,7 +35,9 @@ def _shift_radius(model: Model, state: Any, d: np.ndarray, criterion: str, n: in
     return model.update(state, step)
 
 
-ACTIVE_POINTS = 200  # points in each step's first linear program (the largest residuals); violators join after
+ACTIVE_POINTS = 200  # points in each step's first linear program (the largest residuals); violators join after,
+GENERATE_ABOVE = 2000  # on more points than this (fewer: the program on every point, whose optimal vertex can
+# differ from the generated one's where the program is degenerate, and the search from it end elsewhere)
 
 
 def _lp_rows(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> tuple[np.ndarray, ...]:
@@ -48,10 +50,8 @@ def _lp_rows(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> tu
         c = np.zeros(n + 1)
         c[-1] = 1.0
         ones = np.ones((m, 1))
-        a = np.vstack([np.hstack([jac, -ones]), np.hstack([jac, ones])])
-        lhs = np.concatenate([np.full(m, -np.inf), -d])
-        rhs = np.concatenate([-d, np.full(m, np.inf)])
-        return c, a, lhs, rhs, np.append(lb, 0.0), np.append(ub, np.inf)
+        a = np.vstack([np.hstack([jac, -ones]), np.hstack([-jac, -ones])])
+        return c, a, np.full(2 * m, -np.inf), np.concatenate([-d, d]), np.append(lb, 0.0), np.append(ub, np.inf)
     c = np.zeros(n)
     if criterion == "mcc":  # d + J x <= 0, the radius step minimised
         c[-1] = 1.0
@@ -75,7 +75,7 @@ def _lp_step(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> np
     step violates added until it violates none (the same solution as the program on every point)."""
     m, n = jac.shape
     key = np.abs(d) if criterion == "minzone" else (d if criterion == "mcc" else -d)
-    active = np.argsort(key)[-ACTIVE_POINTS:] if m > 2 * ACTIVE_POINTS else np.arange(m)
+    active = np.argsort(key)[-ACTIVE_POINTS:] if m > GENERATE_ABOVE else np.arange(m)
     tol = 1e-12 * max(1.0, float(np.abs(d).max()))
     for _ in range(50):
         res = lp_small.solve(*_lp_rows(d[active], jac[active], criterion, delta))
