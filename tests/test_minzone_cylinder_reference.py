@@ -38,6 +38,7 @@ def test_constraint_generation_step_equals_the_program_on_every_point():
     on every point (same optimum)."""
     rng = np.random.default_rng(4)
     jac = rng.normal(size=(3000, 5))  # above GENERATE_ABOVE: generated
+    jac[:, -1] = -1.0  # the radius column: a residual is distance - radius
     d = rng.normal(scale=0.01, size=3000)
     for criterion in ("minzone", "mcc", "mic"):
         step = _lp_step(d, jac, criterion, 0.05)
