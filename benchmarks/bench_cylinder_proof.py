@@ -8,6 +8,11 @@ not close within the cells allowed, the honest "not proven"). Prints per criteri
 (median of the repeats), the form, and "proven" or the warning's gap. The minimum zone's proof adds a branch
 and bound over direction cells, each bounded by the annulus-area linear program (or the last cell's dual
 weights when they still prove it).
+
+Then the minimum zone on 10,000 points (bench_fit's cylinder: D 16, 40 mm, and a 10 mm band) beside a plain
+Nelder-Mead over the axis (tests/minzone_reference.py) in the same run: CPU seconds of each, their zone widths,
+and the ratio (target: the minimum zone, with its proof, at most about 2x the plain optimiser's time at the
+same or a better width). ``--nm-points 0`` skips it.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import knownanswer as ka  # noqa: E402
+from minzone_reference import nelder_mead_zone  # noqa: E402
 
 from cmm.metrology import fit_criteria  # noqa: E402
 
@@ -32,7 +38,37 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--points", type=int, nargs="+", default=[300, 3000])
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--nm-points", type=int, default=10000, help="points of the Nelder-Mead comparison (0: skip)")
+    ap.add_argument("--skip-cases", action="store_true", help="only the Nelder-Mead comparison")
     args = ap.parse_args()
+    if not args.skip_cases:
+        run_cases(args)
+    if args.nm_points:
+        run_nelder_mead(args.nm_points)
+
+
+def run_nelder_mead(m: int) -> None:
+    """The minimum zone (search and proof) beside a plain Nelder-Mead over the axis, same data, same run."""
+    far, axis = np.array([1000.0, -400.0, 300.0]), np.array([0.3, -0.5, 0.81])
+    print(f"\nminimum zone vs a plain Nelder-Mead over the axis, {m} points (CPU s; ratio = minimum zone / NM)")
+    print(f"{'case':18s} {'NM s':>6s} {'NM zone mm':>12s} {'MZ s':>6s} {'MZ zone mm':>12s} {'ratio':>6s}  proof")
+    ratios = []
+    for seed in (0, 1):
+        for length in (40.0, 10.0):
+            data = ka.cylinder(far, axis, 8.0, m=m, length=length, seed=seed)
+            c0 = time.process_time()
+            nm = nelder_mead_zone(data.points)
+            c1 = time.process_time()
+            res = fit_criteria.fit("cylinder", data.points, "minzone")
+            c2 = time.process_time()
+            ratios.append((c2 - c1) / (c1 - c0))
+            proof = "proven" if res.proof and res.proof["proven"] else "not proven"
+            print(f"{f'{length:g} mm, seed {seed}':18s} {c1 - c0:6.2f} {nm:12.9f} {c2 - c1:6.2f} {res.form:12.9f} "
+                  f"{ratios[-1]:6.2f}  {proof}", flush=True)
+    print(f"median ratio {np.median(ratios):.2f}")
+
+
+def run_cases(args: argparse.Namespace) -> None:
     centre = np.array([1000.0, -600.0, 400.0])
     print(f"{'case':24s} {'points':>6s} {'method':8s} {'wall s':>7s} {'cpu s':>7s} {'form mm':>9s}  outcome")
     for label, length, form in CASES:

@@ -184,11 +184,16 @@ def test_the_inner_radius_bound_holds_over_the_centre_disc():
     a = rng.uniform(0, 2 * np.pi, 200)
     r = 8.0 + rng.uniform(-0.01, 0.01, 200)
     rel = np.column_stack([r * np.cos(a), r * np.sin(a)]) + [0.03, -0.02]
+    carried = None
     for reach in (0.0, 0.05, 0.3):
-        upper = cp._inner_radius_max(rel, reach)
+        upper, weights = cp._inner_radius_max(rel, reach)
+        # the weights of another program (the last reach's), reused without a program: still a bound
+        reused = cp._inner_radius_max(rel, reach, carried, enough=np.inf)[0] if carried is not None else upper
+        carried = weights
         b = rng.uniform(0, 2 * np.pi, 400)
         d = reach * np.sqrt(rng.uniform(0, 1, 400))[:, None] * np.column_stack([np.cos(b), np.sin(b)])
         d = np.vstack([d, reach * np.column_stack([np.cos(b), np.sin(b)])])
         r_in = np.linalg.norm(rel[None, :, :] - d[:, None, :], axis=2).min(axis=1)
         assert r_in.max() <= upper + 1e-12
+        assert r_in.max() <= reused + 1e-12
         assert upper <= np.linalg.norm(rel, axis=1).min() + reach + 1e-12  # never looser than the plain bound

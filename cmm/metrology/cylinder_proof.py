@@ -11,9 +11,8 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.optimize import linprog
-
 from cmm.metrology import fit_models as fm
+from cmm.metrology import lp_small
 from cmm.metrology.fit_enclosing import max_inscribed_ball, min_enclosing_ball, min_enclosing_ball_from
 from cmm.metrology.fit_solver import levenberg_marquardt
 from cmm.metrology.geom_basics import algebraic_ball, frame_with_axis, unit
@@ -29,6 +28,10 @@ PROOF_CELLS = 600  # direction cells the branch and bound may evaluate away from
 NEAR_DEG = 0.05  # ... and, besides those, within this angle of the optimum's direction,
 NEAR_CELLS = 1800  # this many (first-order cell bounds close there only on cells ~ tolerance / length wide)
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
+_ANNULUS_COST = np.array([0.0, 0.0, -1.0, 1.0])  # the annulus-area program: maximise A - B (see _annulus_area_lower)
+_INNER_COST = np.array([0.0, 0.0, -1.0])  # the inner-radius program: maximise s (see _inner_radius_max)
+_POLYGON16 = np.column_stack([np.cos(np.arange(16) * np.pi / 8), np.sin(np.arange(16) * np.pi / 8), np.zeros(16)])
+_FREE4 = (np.full(4, -np.inf), np.full(4, np.inf))  # free variables
 
 
 def _cylinder_screen(xs: np.ndarray, u: np.ndarray, method: str) -> tuple[float, np.ndarray, float]:
@@ -78,7 +81,11 @@ def _annulus_dual(rel: np.ndarray, outer: np.ndarray, inner: np.ndarray, reach: 
     m[1, len(outer):] = 1.0
     m[2:, :len(outer)] = rel[outer].T
     m[2:, len(outer):] = -rel[inner].T
-    w = np.linalg.lstsq(m, np.array([1.0, 1.0, 0.0, 0.0]), rcond=None)[0]
+    rhs = np.array([1.0, 1.0, 0.0, 0.0])
+    try:  # four points (the generic basis): a square system
+        w = np.linalg.solve(m, rhs) if m.shape[1] == 4 else np.linalg.lstsq(m, rhs, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        w = np.linalg.lstsq(m, rhs, rcond=None)[0]
     if np.any(w < -1e-12):
         return -np.inf
     w = np.maximum(w, 0.0)
@@ -121,11 +128,11 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tupl
     n = len(x)
     zeros, ones = np.zeros((n, 1)), np.ones((n, 1))
     a_ub = np.vstack([np.hstack([-2.0 * x, zeros, -ones]), np.hstack([2.0 * x, ones, zeros])])
-    res = linprog([0.0, 0.0, -1.0, 1.0], A_ub=a_ub, b_ub=np.concatenate([-a, a]), bounds=[(None, None)] * 4,
-                  method="highs")
-    if res.status != 0:
+    res = lp_small.solve(_ANNULUS_COST, a_ub, np.full(2 * n, -np.inf), np.concatenate([-a, a]), _FREE4[0],
+                         _FREE4[1])
+    if not res.ok:
         return 0.0, keep[:0], keep[:0]
-    dual = np.abs(res.ineqlin.marginals)
+    dual = np.abs(res.duals)
     lam, mu = dual[:n], dual[n:]
     if lam.sum() <= 0 or mu.sum() <= 0:
         return 0.0, keep[:0], keep[:0]
@@ -135,35 +142,57 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tupl
     return max(bound, 0.0), keep[lam > 1e-12], keep[mu > 1e-12]
 
 
-def _inner_radius_max(rel: np.ndarray, reach: float) -> float:
+def _weighted_inner(radii: np.ndarray, off: np.ndarray, rho: float, idx: np.ndarray, nu: np.ndarray) -> float:
+    """The bound of _inner_radius_max from weights ``nu`` (>= 0, summing to 1) on the points ``idx``; inf when
+    a point weighed lies within 2 rho of the reference centre (the expansion does not hold there)."""
+    r_k = radii[idx]
+    if r_k.min() <= 2.0 * rho:
+        return np.inf
+    n_k = off[idx] / r_k[:, None]
+    upper = float(nu @ r_k) + rho * float(np.linalg.norm(nu @ n_k)) + rho * rho / (2.0 * (r_k.min() - rho))
+    return upper + 1e-12 * float(radii.max())
+
+
+def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np.ndarray] | None = None,
+                      enough: float = -np.inf, program: bool = True
+                      ) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """An upper bound on min_i |rel_i - d| (the inner radius of an annulus centred at d) over every centre
     |d| <= reach. With a reference centre d0 (the algebraic circle's), e = d - d0 (|e| <= rho = reach + |d0|),
     R_i = |rel_i - d0| and n_i their unit vectors: |rel_i - d| <= R_i - n_i.e + rho^2 / (2 (R_i - rho)), and
     for weights nu >= 0 summing to 1, min_i (R_i - n_i.e) <= sum nu R + rho |sum nu n| (the weights: the dual of
     the linear program max s, s + n_i.e <= R_i, e in a 16-gon around the disc, on the points nearest d0; any
-    weights give a valid bound, the program makes it tight). Falls back to min |rel_i| + reach."""
+    weights give a valid bound, the program makes it tight). Falls back to min |rel_i| + reach.
+
+    ``carry``: weights (point indices, nu) of a neighbouring cell's program, tried first: when their bound is
+    already at most ``enough`` (what the caller needs), the program is skipped. Returns the bound and the
+    weights used (to carry to the next cell). ``program`` False: the carried weights' bound only, no program."""
     plain = float(np.sqrt(np.einsum("ij,ij->i", rel, rel)).min()) + reach
     d0 = algebraic_ball(rel)[0]
     rho = reach + float(np.sqrt(d0 @ d0))
     off = rel - d0
     radii = np.sqrt(np.einsum("ij,ij->i", off, off))
+    if carry is not None:
+        reused = min(plain, _weighted_inner(radii, off, rho, *carry))
+        if reused <= enough or not program:
+            return reused, carry
+    if not program:
+        return plain, carry
     near = np.argsort(radii)[:ZONE_LP_POINTS]
     r_k, n_k = radii[near], off[near] / radii[near, None]
     if r_k.min() <= 2.0 * rho:
-        return plain
-    ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-    a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]),
-                      np.column_stack([np.cos(ang), np.sin(ang), np.zeros(16)])])
-    res = linprog([0.0, 0.0, -1.0], A_ub=a_ub, b_ub=np.concatenate([r_k, np.full(16, rho)]),
-                  bounds=[(None, None)] * 3, method="highs")
-    if res.status != 0:
-        return plain
-    nu = np.abs(res.ineqlin.marginals[:len(near)])
+        return plain, carry
+    a_ub = np.vstack([np.column_stack([n_k, np.ones(len(near))]), _POLYGON16])
+    res = lp_small.solve(_INNER_COST, a_ub, np.full(len(a_ub), -np.inf), np.concatenate([r_k, np.full(16, rho)]),
+                         _FREE4[0][:3], _FREE4[1][:3])
+    if not res.ok:
+        return plain, carry
+    nu = np.abs(res.duals[:len(near)])
     if nu.sum() <= 0:
-        return plain
+        return plain, carry
     nu = nu / nu.sum()
     upper = float(nu @ r_k) + rho * float(np.linalg.norm(nu @ n_k)) + rho * rho / (2.0 * (r_k.min() - rho))
-    return min(plain, upper + 1e-12 * float(radii.max()))
+    used = nu > 0
+    return min(plain, upper + 1e-12 * float(radii.max())), (near[used], nu[used] / nu[used].sum())
 
 
 def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best: float) -> Callable[..., float]:
@@ -182,6 +211,14 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
     in q instead of first), so the bound closes on cells around the optimum once they are small enough."""
     norm_foot = float(np.sqrt(foot @ foot))
     basis = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    carry: tuple[np.ndarray, np.ndarray] | None = None  # the inner-radius weights, cell to cell
+
+    def _by_inner(rel: np.ndarray, q: float, area: float, slack: float, program: bool = True) -> float:
+        """area / (2 r_in_max + W): the cell is pruned when r_in_max is at most ``enough``."""
+        nonlocal carry
+        enough = 0.5 * (area / (best + slack) - best - slack) if area > 0 else -np.inf
+        r_in, carry = _inner_radius_max(rel, q, carry, enough, program)
+        return area / (2.0 * r_in + best + slack)
 
     def bound(u: np.ndarray, delta: float) -> float:
         nonlocal basis
@@ -197,7 +234,11 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
             if np.isfinite(area) and area / scale - slack >= best:
                 return area / scale - slack
             if np.isfinite(area) and _annulus_basis_optimal(rel, basis[0], basis[1]):
-                return max(area / scale, area / (2.0 * _inner_radius_max(rel, q) + best + slack)) - slack
+                return max(area / scale, _by_inner(rel, q, area, slack)) - slack
+            if np.isfinite(area) and area > 0 and carry is not None:  # a valid bound, if not the program's best
+                value = _by_inner(rel, q, area, slack, program=False) - slack
+                if value >= best:
+                    return value
         order = np.argsort(dist)
         k = min(ZONE_LP_POINTS, len(xs))
         keep = np.unique(np.concatenate([order[:k], order[-k:]]))  # a subset: its bound holds for all points
@@ -206,7 +247,7 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
             basis = (outer, inner)
         value = area / scale - slack
         if value < best:  # not pruned: the inner radius bounded over the axis positions, not from the foot's
-            value = max(value, area / (2.0 * _inner_radius_max(rel, q) + best + slack) - slack)
+            value = max(value, _by_inner(rel, q, area, slack) - slack)
         return value
 
     return bound

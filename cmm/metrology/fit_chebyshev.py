@@ -1,4 +1,4 @@
-"""Chebyshev-type criteria by sequential linear programming (scipy linprog/HiGHS).
+"""Chebyshev-type criteria by sequential linear programming (HiGHS, see lp_small).
 
 For a model of fit_models (radius = last local parameter) and a start state
 (the least-squares solution) each iteration linearises d + J delta and solves
@@ -19,8 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linprog
 
+from cmm.metrology import lp_small
 from cmm.metrology.features import FitError
 from cmm.metrology.fit_solver import Model
 
@@ -35,25 +35,61 @@ def _shift_radius(model: Model, state: Any, d: np.ndarray, criterion: str, n: in
     return model.update(state, step)
 
 
-def _lp_step(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> np.ndarray:
+ACTIVE_POINTS = 200  # points in each step's first linear program (the largest residuals); violators join after,
+GENERATE_ABOVE = 2000  # on more points than this (fewer: the program on every point, whose optimal vertex can
+# differ from the generated one's where the program is degenerate, and the search from it end elsewhere)
+
+
+def _lp_rows(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> tuple[np.ndarray, ...]:
+    """The step's program on the rows given: (c, A, lhs, rhs, lb, ub) for lhs <= A x <= rhs."""
     m, n = jac.shape
     # the radius (last) step is left free: it keeps every LP feasible and is bounded by the constraints
-    bounds = [(-delta, delta)] * (n - 1) + [(None, None)]
-    if criterion == "minzone":
+    lb = np.concatenate([np.full(n - 1, -delta), [-np.inf]])
+    ub = np.concatenate([np.full(n - 1, delta), [np.inf]])
+    if criterion == "minzone":  # -h <= d + J x <= h as two rows per point, h >= 0
         c = np.zeros(n + 1)
         c[-1] = 1.0
         ones = np.ones((m, 1))
-        a_ub = np.vstack([np.hstack([jac, -ones]), np.hstack([-jac, -ones])])
-        b_ub = np.concatenate([-d, d])
-        bounds = bounds + [(0.0, None)]
-    else:
-        sign = 1.0 if criterion == "mcc" else -1.0  # mcc: d + J delta <= 0; mic: -(d + J delta) <= 0
-        c = np.zeros(n)
-        c[-1] = sign  # mcc: minimise the radius step; mic: maximise it
-        a_ub, b_ub = sign * jac, -sign * d
-    res = linprog(c, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
-    if res.status != 0:
-        raise FitError(f"the linear program for the {criterion} criterion failed: {res.message}")
+        a = np.vstack([np.hstack([jac, -ones]), np.hstack([-jac, -ones])])
+        return c, a, np.full(2 * m, -np.inf), np.concatenate([-d, d]), np.append(lb, 0.0), np.append(ub, np.inf)
+    c = np.zeros(n)
+    if criterion == "mcc":  # d + J x <= 0, the radius step minimised
+        c[-1] = 1.0
+        return c, jac, np.full(m, -np.inf), -d, lb, ub
+    c[-1] = -1.0  # mic: d + J x >= 0, the radius step maximised
+    return c, jac, -d, np.full(m, np.inf), lb, ub
+
+
+def _violation(d: np.ndarray, jac: np.ndarray, criterion: str, x: np.ndarray) -> np.ndarray:
+    """How far each point's linearised residual lies outside the step's constraints (<= 0: inside)."""
+    n = jac.shape[1]
+    lin = d + jac @ x[:n]
+    if criterion == "minzone":
+        return np.abs(lin) - x[n]
+    return lin if criterion == "mcc" else -lin
+
+
+def _lp_step(d: np.ndarray, jac: np.ndarray, criterion: str, delta: float) -> np.ndarray:
+    """The trust-region step of the linearised criterion on all points, solved by constraint generation: the
+    program on the points with the largest residuals (the others are far inside the zone), then the points the
+    step violates added until it violates none (the same solution as the program on every point)."""
+    m, n = jac.shape
+    key = np.abs(d) if criterion == "minzone" else (d if criterion == "mcc" else -d)
+    active = np.argsort(key)[-ACTIVE_POINTS:] if m > GENERATE_ABOVE else np.arange(m)
+    tol = 1e-12 * max(1.0, float(np.abs(d).max()))
+    for _ in range(50):
+        res = lp_small.solve(*_lp_rows(d[active], jac[active], criterion, delta))
+        if not res.ok:
+            raise FitError(f"the linear program for the {criterion} criterion failed: {res.message}")
+        if len(active) == m:
+            break
+        viol = _violation(d, jac, criterion, res.x)
+        viol[active] = -np.inf
+        out = np.flatnonzero(viol > tol)
+        if not len(out):
+            break
+        worst = out[np.argsort(viol[out])[-ACTIVE_POINTS:]]
+        active = np.concatenate([active, worst])
     return res.x[:n]
 
 
