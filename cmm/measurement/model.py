@@ -33,6 +33,7 @@ from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
 
+from .tolerancing import Tolerancing
 from .errors import FEATURE_KINDS, INFO_FIELDS, MeasurementError  # noqa: F401 - front ends import them there
 TOLERANCE_KEYS = ("size", "form", "location", "position", "angle", "size_lower", "size_upper")
 # the diameter's own limits (deviations from the nominal, mm; a DMIS TOL/DIAM, -0.01, 0.05): any sign
@@ -156,8 +157,7 @@ class MeasurementModel:
         self._undo: list[tuple[str, int]] = []
         self.features: dict[int, Feature] = {}
         self.constructed: dict[int, ConstructedFeature] = {}
-        self._next_gdt = 1
-        self._gdt_cache: tuple[Any, list, list] | None = None
+        self.tolerancing = Tolerancing(self)  # datums and geometric tolerances
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Any = None
@@ -281,7 +281,7 @@ class MeasurementModel:
             self._undo.clear()
             self.features.clear()
             self.constructed.clear()
-            self._gdt_cache = None
+            self.tolerancing.cache = None
             self.hit_probes.clear()
             self.last_hit = None
         self._notify("hits", None)
@@ -636,115 +636,28 @@ class MeasurementModel:
         self._notify("feature", feature)
         return feature
 
-    # --- datums and geometric tolerances (ISO 1101 / ASME Y14.5) ---------------------------
+    # --- datums and geometric tolerances (ISO 1101 / ASME Y14.5): cmm.measurement.tolerancing --------------
 
     def measured_features(self) -> dict[int, Any]:
         """The fitted features as :class:`cmm.metrology.gdt_eval.MeasuredFeature` (geometry, nominal, points)."""
-        with self.lock:
-            hits = {**self.deleted, **self.hits}
-            return {fid: f.record().measured(hits) for fid, f in self.features.items()}
+        return self.tolerancing.measured_features()
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
-        """(definition, Characteristic) of every geometric tolerance (or of ``definitions``), evaluated as the
-        report does (:func:`cmm.metrology.gdt_eval.evaluate`)."""
-        from ..metrology.gdt_eval import evaluate
-
-        with self.lock:
-            defs = list(self.gdt.values()) if definitions is None else definitions
-            datums = dict(self.datums)
-            part = self.part
-            # the tree asks at every refresh (5 Hz per client): evaluate again only when an input changed
-            key = (repr(defs), repr(datums), id(part), None if part is None else np.asarray(part.pose).tobytes(),
-                   tuple((fid, id(f.result), id(f.nominal), tuple(f.hit_ids), repr(f.tolerance))
-                         for fid, f in self.features.items()))
-            if definitions is None and self._gdt_cache is not None and self._gdt_cache[0] == key:
-                return list(self._gdt_cache[1])
-        rows = evaluate(defs, datums, self.measured_features(), None if part is None else part.mesh,
-                        None if part is None else np.asarray(part.pose, float))
-        if definitions is None:
-            with self.lock:  # the results and nominals stay referenced, so their ids in the key stay theirs
-                self._gdt_cache = (key, rows, [(f.result, f.nominal) for f in self.features.values()])
-        return rows
+        """(definition, Characteristic) of every geometric tolerance (or of ``definitions``)."""
+        return self.tolerancing.gdt_characteristics(definitions)
 
     def define_datum(self, label: str, feature_id: int, modifier: str = "", targets: Any = None) -> dict[str, Any]:
-        """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB, or established by
-        ``targets`` (hit ids of the feature: 3 on a primary plane, 2 on a secondary, 1 on a tertiary; a target
-        area or line as ``{"area": [hit ids]}`` / ``{"line": [hit ids]}``, a line counting as two);
-        journalled."""
-        from ..metrology.datums import DatumError, datum_from_feature
-        from ..metrology.gdt_eval import check_datum
+        """Make feature ``feature_id`` datum ``label`` (:meth:`Tolerancing.define_datum`); journalled."""
+        return self.tolerancing.define_datum(label, feature_id, modifier, targets)
 
-        try:
-            d = check_datum({"label": label, "feature": feature_id, "modifier": modifier,
-                             **({"targets": list(targets)} if targets else {})})
-            with self.lock:
-                f = self.features.get(d["feature"])
-                if f is None:
-                    raise MeasurementError(f"there is no fitted feature {feature_id} to be datum {d['label']}")
-                datum_from_feature(d["label"], f.kind, f.result.summary(), feature=f.name)
-                if d["modifier"] or d.get("targets"):
-                    from ..metrology.gdt_eval import datum_of
-
-                    datum_of(d["label"], {d["label"]: d}, self.measured_features(), False)
-                self.record("datum", **d)
-        except (DatumError, ValueError, TypeError) as exc:
-            raise MeasurementError(str(exc)) from None
-        self._notify("features", None)
-        return d
-
-    def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (), *,
-                   material: str = "", angle: float | None = None, direction: str = "radial",
-                   name: str | None = None, gdt_id: int | None = None, pattern: Any = None,
-                   composite: dict[str, Any] | None = None,
-                   datum_modifiers: dict[str, str] | None = None,
-                   offset: float = 0.0) -> tuple[dict[str, Any], Any]:
-        """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
-        ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
-        refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
-        mesh for a profile). A composite position frame: ``pattern`` (the ids of the pattern's features) and
-        ``composite`` ({"tolerance", "datums"}: the feature-relating tier). ``datum_modifiers``: how this frame
-        references its datums ({"B": "MMB"}), over the datums' own modifiers. ``offset``: a profile's unequally
-        disposed zone (mm, ISO 1101 UZ, + towards the outside of the material). Journalled; returns (definition,
-        its first Characteristic)."""
-        from ..metrology.datums import DatumError
-        from ..metrology.gdt_eval import check_definition, evaluate_one
-
-        if isinstance(datums, str):
-            datums = [x for x in datums.replace(",", "|").split("|") if x.strip()]
-        raw = {"characteristic": characteristic, "feature": int(feature_id), "tolerance": tolerance,
-               "datums": list(datums), "material": material, "angle": angle, "direction": direction}
-        if composite is not None:
-            low = dict(composite)
-            if isinstance(low.get("datums"), str):
-                low["datums"] = [x for x in low["datums"].replace(",", "|").split("|") if x.strip()]
-            raw.update(pattern=list(pattern or []), composite=low)
-        if datum_modifiers:
-            raw["datum_modifiers"] = dict(datum_modifiers)
-        if offset:
-            raw["offset"] = offset
-        try:
-            d = check_definition(raw)
-            with self.lock:
-                part, datum_defs = self.part, dict(self.datums)
-            evaluate_one(d, datum_defs, self.measured_features(), None if part is None else part.mesh,
-                         None if part is None else np.asarray(part.pose, float))
-        except (DatumError, ValueError) as exc:
-            raise MeasurementError(str(exc)) from None
-        with self.lock:
-            gid = gdt_id if gdt_id is not None else self._next_gdt
-            self._next_gdt = max(self._next_gdt, gid + 1)
-            f = self.features.get(int(feature_id))
-            d = {"id": gid, "name": name or f"{d['characteristic']} {f.name if f else feature_id}", **d}
-            self.record("gdt", **d)
-        self._notify("features", None)
-        return d, self.gdt_characteristics([d])[0][1]
+    def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (),
+                   **options: Any) -> tuple[dict[str, Any], Any]:
+        """Define (or with ``gdt_id`` replace) a geometric tolerance (:meth:`Tolerancing.define_gdt`);
+        journalled; returns (definition, its first Characteristic)."""
+        return self.tolerancing.define_gdt(characteristic, feature_id, tolerance, datums, **options)
 
     def delete_gdt(self, gid: int) -> None:
-        with self.lock:
-            if int(gid) not in self.gdt:
-                raise MeasurementError(f"there is no geometric tolerance {gid}")
-            self.record("gdt_deleted", id=int(gid))
-        self._notify("features", None)
+        self.tolerancing.delete_gdt(gid)
 
     def delete_feature(self, fid: int) -> None:
         with self.lock:
