@@ -26,13 +26,14 @@ import numpy as np
 from ..journal.records import ConstructedRecord, FeatureRecord, HitRecord
 from ..journal.session import file_sha256, machine_snapshot, mesh_sha256
 from ..journal.state import SessionState
-from ..journal.store import check_name, is_url, open_store
+from ..journal.store import check_name, is_url
 from ..journal.writer import Journal, encode_event
 from ..metrology.features import FitError, FitResult
 from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
 
+from .session_files import clean_info, construct_pair, open_journal, start_event
 from .tolerancing import Tolerancing
 from .errors import FEATURE_KINDS, INFO_FIELDS, MeasurementError  # noqa: F401 - front ends import them there
 TOLERANCE_KEYS = ("size", "form", "location", "position", "angle", "size_lower", "size_upper")
@@ -254,16 +255,7 @@ class MeasurementModel:
         with self.lock:
             if self.journal is not None:
                 self.journal.close()
-            if is_url(self.session_dir):
-                self.journal = open_store(self.session_dir).create(name, append=True)
-                path: Path | str = f"{name}"
-            else:
-                path = self.session_dir / f"{name}.jsonl"
-                for n in range(2, 100):  # two stations started in the same second get their own sessions
-                    if name != stamp or not path.exists():
-                        break
-                    path = self.session_dir / f"{stamp}-{n}.jsonl"
-                self.journal = Journal(path)
+            self.journal, path = open_journal(self.session_dir, name, stamp)
             info = dict(self.info)
             if fresh:
                 self.state = SessionState()
@@ -295,13 +287,8 @@ class MeasurementModel:
             self._start(writer, **start)
 
     def _start(self, writer: Any, **start: Any) -> None:
-        part = self.part
-        port = start.pop("port", "")
-        self._append(writer, "start", port=port, **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
-                      **start, part=None if part is None else part.name,
-                      part_pose=None if part is None else part.pose,
-                      part_sha256=None if part is None else part.sha256,
-                      part_path=None if part is None or part.mesh is None else part.mesh.metadata.get("path"))
+        snapshot = machine_snapshot(self.config, self.machine.correction, self.prober.settings)
+        self._append(writer, "start", **start_event(snapshot, self.part, start))
 
     def record(self, kind: str, **data: Any) -> None:
         """An event: in the session journal if one is open, and folded into :attr:`state` either way. With
@@ -330,21 +317,7 @@ class MeasurementModel:
 
     def set_info(self, **fields: Any) -> dict[str, Any]:
         """Report header fields (part_number, drawing, operator, machine_name, temperature in deg C, remarks)."""
-        unknown = sorted(set(fields) - set(INFO_FIELDS))
-        if unknown:
-            raise MeasurementError(f"unknown report field(s) {', '.join(unknown)}; use {', '.join(INFO_FIELDS)}")
-        clean: dict[str, Any] = {}
-        for k, v in fields.items():
-            if k == "temperature" and v not in (None, ""):
-                try:
-                    t = float(v)
-                except (TypeError, ValueError):
-                    raise MeasurementError(f"the temperature must be a number of degrees Celsius, got {v!r}") from None
-                if not -50.0 <= t <= 100.0:
-                    raise MeasurementError(f"a temperature of {t} °C is not plausible for a measuring room")
-                clean[k] = t
-            else:
-                clean[k] = "" if v is None else str(v).strip()
+        clean = clean_info(fields)
         with self.lock:
             self.record("info", **clean)
         self._notify("info", dict(self.info))
@@ -602,8 +575,6 @@ class MeasurementModel:
                           tolerance: dict[str, float] | None = None, three_d: bool = False) -> ConstructedFeature:
         """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`): distances
         between parallel axes along the alignment's Z in its XY plane, or in 3-D with ``three_d``."""
-        from ..metrology.construct import construct, nominal_geometry
-
         tolerance = check_tolerance(tolerance)
         with self.lock:
             fa, fb = self.features.get(a), self.features.get(b)
@@ -613,19 +584,7 @@ class MeasurementModel:
                 raise MeasurementError("a construction needs two different features")
             # the alignment's Z in machine coordinates (the nominal set-up's without an alignment)
             workplane = None if self.part is None else np.asarray(self.part.pose, float)[:3, 2]
-        how = {"workplane": workplane, "three_d": three_d}
-        try:
-            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()), **how)
-        except (FitError, ValueError, KeyError) as exc:
-            raise MeasurementError(str(exc)) from None
-        nominal = None
-        na = nominal_geometry(fa.kind, None if fa.nominal is None else fa.nominal.to_dict())
-        nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())
-        if na is not None and nb is not None:
-            try:
-                nominal = construct(operation, na, nb, **how)
-            except (FitError, ValueError, KeyError, np.linalg.LinAlgError):
-                nominal = None
+        result, nominal = construct_pair(operation, fa, fb, workplane, three_d)
         with self.lock:
             fid = self._next_feature
             self._next_feature += 1
