@@ -89,7 +89,7 @@ VALUE_PROGRAMS = {"Home_Test", "SetCsyTransformation", "SetProp", "PtMeas", "Ena
 
 
 def supported(name: str | None) -> bool:
-    return name is not None and hasattr(Dme, f"_do_{name}")
+    return name is not None and Dme.handles(name)
 
 
 @dataclass

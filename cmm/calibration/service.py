@@ -38,11 +38,11 @@ import numpy as np
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import MotionError
 from ..metrology.features import FitError
-from .records import (MACHINE_RECORD, PROBE_LIST, PROBE_QUALIFICATIONS, PROBE_RECORD, SERVO_RECORD, SPHERE_CERTIFICATE,
-                      BallBarCertificate, CalibrationError, LoadedCalibration, ProbeDefinition, check_probe_definition,
-                      dumps, load_certificate, load_machine_record, load_probe_list, load_probe_record,
-                      load_servo_record, load_sphere_certificate, now, probe_expiry, save_probe_list, save_record,
-                      write_atomic, write_sphere_certificate)
+from .probe_list import DEFAULT_PROBE, ProbeList  # noqa: F401  (DEFAULT_PROBE: still importable from here)
+from .records import (MACHINE_RECORD, PROBE_LIST, PROBE_QUALIFICATIONS, PROBE_RECORD, SERVO_RECORD,
+                      SPHERE_CERTIFICATE, BallBarCertificate, CalibrationError, LoadedCalibration, ProbeDefinition,
+                      dumps, load_certificate, load_machine_record, load_probe_record, load_servo_record,
+                      load_sphere_certificate, now, save_record, write_atomic, write_sphere_certificate)
 
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
             "Servo tuning": "servo"}
@@ -50,7 +50,6 @@ LABELS = {v: k for k, v in ROUTINES.items()}
 ISO_RECORD = "iso10360-5.toml"
 SERVO_PROPOSAL = "servo-proposal.toml"
 BAR_CERTIFICATES = ("ball_bar_300", "ball_bar_200")
-DEFAULT_PROBE = "Probe1"  # the one probe of a folder without a probe list (also the I++ tool name clients know)
 Progress = Callable[[float, str], None]
 
 
@@ -153,6 +152,7 @@ class CalibrationService:
         self.holding = False  # a paused qualification holds the machine between two points
         self.checkpoint: Any = None  # a probe qualification a fault stopped (QualificationCheckpoint), to resume
         self._artifacts: Path | None = None
+        self.probe_book = ProbeList(self)  # the probe list and each probe's qualification record
 
     # --- the records in force -----------------------------------------------------
 
@@ -174,7 +174,7 @@ class CalibrationService:
             loaded.problems.append(str(exc))
         applied = self.apply(loaded)
         if nominal is not None:
-            applied.append(self._apply_nominal(None, nominal))
+            applied.append(self.probe_book.apply_nominal(None, nominal))
         for problem in loaded.problems:
             self.tell("error", f"calibration record refused: {problem}")
         self.log = applied + [f"refused: {p}" for p in loaded.problems]
@@ -203,123 +203,28 @@ class CalibrationService:
     # --- the probe list ------------------------------------------------------------
 
     def use_listed_probe(self) -> tuple[list[ProbeDefinition], str]:
-        """The list's selected probe (Probe1 without a list) becomes the probe in use: its name goes with every
-        hit and is on the status bar. Returns :meth:`probe_list`."""
-        probes, selected = self.probe_list()
-        self.use_probe(selected)
-        self._mount(next((p for p in probes if p.name == selected), None))
-        return probes, selected
-
-    def _mount(self, probe: ProbeDefinition | None) -> None:
-        """On the simulator the selected probe's stylus is the one that touches (its nominal tip diameter)."""
-        if probe is not None and self.host.bench is not None:
-            self.host.bench.mount_stylus(probe.tip_diameter)
+        """The list's selected probe (Probe1 without a list) becomes the probe in use (:class:`ProbeList`)."""
+        return self.probe_book.use_listed()
 
     def probe_list(self) -> tuple[list[ProbeDefinition], str]:
-        """(probes, selected) from <records>/probes.toml; without a list, one probe "Probe1" with the configured tip
-        (its qualification is probe.toml). Reading it changes nothing: :meth:`load` and :meth:`select_probe` make the
-        selected name the measurement model's ``probe_name``."""
-        probes, selected = load_probe_list(self.records_dir)
-        if not probes:
-            probes = [ProbeDefinition(DEFAULT_PROBE, round(2 * float(self.host.config.probe.tip_radius), 6))]
-        return probes, selected or probes[0].name
+        """(probes, selected) from <records>/probes.toml (:meth:`ProbeList.listing`)."""
+        return self.probe_book.listing()
 
     def probe_record(self, name: str) -> Any:
         """The last qualification of probe ``name`` (a ProbeRecord), None when it was never qualified."""
-        path = self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml"
-        if not path.is_file():
-            probes, _ = self.probe_list()
-            if name != probes[0].name or not (self.records_dir / PROBE_RECORD).is_file() or \
-                    (self.records_dir / PROBE_QUALIFICATIONS).is_dir():
-                return None
-            path = self.records_dir / PROBE_RECORD  # a folder from before the probe list: probe.toml is the first probe's
-        return load_probe_record(path)
+        return self.probe_book.record(name)
 
     def probes(self) -> list[dict[str, Any]]:
-        """The probe list for a front end: name, tip diameter, stylus, selected, and when qualified the
-        qualified radius, pre-travel, date, sphere and expiry (or the problem that makes the record unusable)."""
-        probes, selected = self.probe_list()
-        today = now()[:10]
-        rows = []
-        for p in probes:
-            row: dict[str, Any] = {"name": p.name, "tip_diameter": p.tip_diameter, "stylus": p.stylus,
-                                   "selected": p.name == selected, "tip_radius": None, "pretravel": "",
-                                   "qualified_on": "", "sphere": "", "expires": "", "expired": False, "problem": ""}
-            try:
-                rec = self.probe_record(p.name)
-            except CalibrationError as exc:
-                rec, row["problem"] = None, str(exc)
-            if rec is not None:
-                expires = probe_expiry(rec.date)
-                row.update(tip_radius=rec.tip_radius, pretravel=rec.model.describe(), qualified_on=rec.date[:10],
-                           sphere=rec.artifact, expires=expires, expired=bool(expires) and expires < today)
-            rows.append(row)
-        return rows
+        """The probe list for a front end, one row per probe (:meth:`ProbeList.rows`)."""
+        return self.probe_book.rows()
 
     def add_probe(self, name: str, tip_diameter: Any, stylus: Any = (0.0, 0.0, -1.0)) -> ProbeDefinition:
         """Add a stylus to the list (not selected, not qualified); CalibrationError when the entry is wrong."""
-        probe = check_probe_definition(name, tip_diameter, stylus)
-        probes, selected = self.probe_list()
-        if any(p.name == probe.name for p in probes):
-            raise CalibrationError(f"there is already a probe named {probe.name}: choose another name")
-        self._keep_legacy_record(probes)
-        save_probe_list(self.records_dir, probes + [probe], selected)
-        return probe
+        return self.probe_book.add(name, tip_diameter, stylus)
 
     def select_probe(self, client: Any, name: str) -> str:
-        """Make ``name`` the probe in use: its qualified radius and pre-travel go to the live station (through
-        the ``configure`` verb) and into probe.toml; an unqualified probe gets its nominal radius and no
-        pre-travel model. Returns what was applied."""
-        probes, _ = self.probe_list()
-        probe = next((p for p in probes if p.name == name), None)
-        if probe is None:
-            raise CalibrationError(f"there is no probe named {name!r}; the list has {', '.join(p.name for p in probes)}")
-        rec = self.probe_record(name)
-        self._keep_legacy_record(probes)
-        if rec is not None:
-            self._log(self.apply(LoadedCalibration(probe=rec), client=client))
-            save_record(rec, self.records_dir / PROBE_RECORD)
-            text = f"probe {name} selected: r_eff {rec.tip_radius:.5f} mm, {rec.model.describe()}"
-        else:
-            self._log([self._apply_nominal(client, probe)])
-            (self.records_dir / PROBE_RECORD).unlink(missing_ok=True)  # its own record is in probes/<name>.toml
-            text = f"probe {name} selected, NOT qualified: nominal radius {probe.tip_diameter / 2:.4f} mm"
-        save_probe_list(self.records_dir, probes, name)
-        self.use_probe(name)
-        self._mount(probe)
-        self.status["probe"] = None if rec is None else {"date": rec.date, "tip_radius": rec.tip_radius,
-                                                         "artifact": rec.artifact, "probing_speed": rec.probing_speed}
-        if self.status.get("probe") is not None:
-            self.status["probe"]["name"] = name
-        self._note(client, text)
-        return text
-
-    def _apply_nominal(self, client: Any, probe: ProbeDefinition) -> str:
-        """A probe never qualified: its nominal radius and no pre-travel model, applied while the machine is still."""
-        from ..machine.probing import ProbeSettings
-        from ..metrology.compensation import PretravelModel
-
-        host = self.host
-        settings = ProbeSettings(probe.tip_diameter / 2, PretravelModel())
-        with host.settings_lock:
-            host.api.invoke(client, "configure",
-                                            change=lambda setup: setattr(setup.prober, "settings", settings))
-        return f"probe {probe.name} (not qualified): nominal radius {probe.tip_diameter / 2:.4f} mm"
-
-    def _keep_legacy_record(self, probes: list[ProbeDefinition]) -> None:
-        """Before the probe list is first written: the existing probe.toml becomes the first probe's record."""
-        qdir = self.records_dir / PROBE_QUALIFICATIONS
-        if qdir.is_dir():
-            return
-        rec = None
-        if (self.records_dir / PROBE_RECORD).is_file():
-            try:
-                rec = load_probe_record(self.records_dir / PROBE_RECORD)
-            except CalibrationError:
-                rec = None
-        qdir.mkdir(parents=True, exist_ok=True)
-        if rec is not None:
-            save_record(rec, qdir / f"{probes[0].name}.toml")
+        """Make ``name`` the probe in use (:meth:`ProbeList.select`); returns what was applied."""
+        return self.probe_book.select(client, name)
 
     def set_sphere_certificate(self, *, diameter: Any, serial: str, uncertainty: Any, form: Any = 0.0,
                                centre: Any = None, client: Any = None, certified: str | None = None) -> Any:
@@ -602,7 +507,7 @@ class CalibrationService:
         if routine == "probe":
             probes, selected = self.probe_list()
             name = getattr(result, "probe", None) or selected
-            self._keep_legacy_record(probes)
+            self.probe_book.keep_legacy_record(probes)
             save_record(result.record, self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml")
             if name != selected:  # qualified while another probe was selected: filed, not applied
                 return self.records_dir / PROBE_QUALIFICATIONS / f"{name}.toml", False

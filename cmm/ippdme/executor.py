@@ -14,6 +14,7 @@ GetErrorInfo and EndSession is refused with 0514 until ClearAllErrors.
 
 from __future__ import annotations
 
+import functools
 import math
 import queue
 import threading
@@ -26,10 +27,10 @@ from . import protocol as P
 from .backend import Backend
 from .csy import CoordinateSystems
 from .errors import ERRORS, IppError
+from .setup_commands import DME_VERSION, HANDLERS, one, props  # noqa: F401  (DME_VERSION: still importable from here)
 from .status import IppStatus
-from .tools import Limits, ToolChanger, children, resolve
+from .tools import Limits, ToolChanger
 
-DME_VERSION = "1.4.3"
 MAX_PENDING = 64  # queued commands before acknowledgements are delayed (spec 6.2.3)
 ALLOWED_IN_ERROR = {"ClearAllErrors", "GetErrStatusE", "GetXtdErrStatus", "GetErrorInfo", "EndSession", "AbortE"}
 OUTSIDE_SESSION = {"StartSession", "EndSession", "ClearAllErrors", "GetErrStatusE", "AbortE"}
@@ -77,6 +78,11 @@ class Dme:
         self._worker.start()
 
     # --- the reader side -------------------------------------------------------------
+
+    @classmethod
+    def handles(cls, name: str) -> bool:
+        """Is ``name`` a command this server implements?"""
+        return hasattr(cls, f"_do_{name}") or name in HANDLERS
 
     def receive(self, line: str) -> None:
         try:
@@ -166,6 +172,8 @@ class Dme:
             if refused:
                 raise IppError(514, cmd.name)
             handler = getattr(self, f"_do_{cmd.name}", None)
+            if handler is None and cmd.name in HANDLERS:  # properties, tools, coordinate systems
+                handler = functools.partial(HANDLERS[cmd.name], self)
             if handler is None:
                 raise IppError(501, cmd.name, f"{cmd.name} is not supported by this server")
             for body in handler(cmd) or ():
@@ -296,26 +304,8 @@ class Dme:
         p = self.csy.from_machine(self.backend.position() if machine_pos is None else machine_pos)
         return float(p[AXES.index(name)])
 
-    @staticmethod
-    def _props(cmd: P.Command, allowed: set[str] | None = None, nargs: int | None = None) -> list[P.Prop]:
-        out = []
-        for a in cmd.args:
-            if not isinstance(a, P.Prop):
-                raise IppError(502, cmd.name, f"expected properties like X(), got {a!r}")
-            if allowed is not None and a.name not in allowed:
-                raise IppError(510, cmd.name, f"{a.name}() is not one of {', '.join(sorted(allowed))}")
-            if nargs is not None and len(a.args) != nargs:
-                raise IppError(502, cmd.name, f"{a.name} takes {nargs} value(s)")
-            out.append(a)
-        if len({a.name for a in out}) != len(out):
-            raise IppError(502, cmd.name, "an item appears twice")
-        return out
-
-    @staticmethod
-    def _one(cmd: P.Command, kind: type):
-        if len(cmd.args) != 1 or not isinstance(cmd.args[0], kind):
-            raise IppError(502, cmd.name, f"{cmd.name} takes one {kind.__name__} argument")
-        return cmd.args[0]
+    _props = staticmethod(props)
+    _one = staticmethod(one)
 
     # --- server methods (6.3.1) -------------------------------------------------------------
 
@@ -383,83 +373,11 @@ class Dme:
             self.last_errors.append(IppError(6, cmd.name, "AbortE"))
         return ()
 
-    def _do_GetDMEVersion(self, cmd: P.Command):
-        yield P.prop("DMEVersion", P.quote(DME_VERSION))
-
-    # --- properties ---------------------------------------------------------------------------
-
-    def _do_GetProp(self, cmd: P.Command):
-        items = []
-        for p in self._props(cmd, nargs=0):
-            tool, block, param, sub = resolve(self.tools, p.name, cmd.name)
-            if block == "Name":
-                items.append(P.prop(p.name, P.quote(tool.name)))
-            elif block == "Id":
-                items.append(P.prop(p.name, P.quote(tool.id)))
-            elif block == "AvrRadius":
-                items.append(P.prop(p.name, tool.radius))
-            elif block == "Alignment":
-                items.append(P.prop(p.name, *self.csy.vector_from_machine([0.0, 0.0, 1.0])))
-            elif block == "CollisionVolume":
-                items.append(P.prop(p.name))  # not modelled: no volume (the client keeps its own)
-            elif param is None:
-                raise IppError(510, cmd.name, f"{p.name} is a property block, not a value")
-            else:
-                items.append(P.prop(p.name, param.get(sub or "Act")))
-        yield ", ".join(items)
-
-    _do_GetPropE = _do_GetProp
-
-    def _do_SetProp(self, cmd: P.Command):
-        props = self._props(cmd, nargs=1)
-        targets = []
-        for p in props:  # all checked before any is set
-            tool, block, param, sub = resolve(self.tools, p.name, cmd.name)
-            if param is None or sub not in (None, "Act"):
-                raise IppError(509, cmd.name, f"{p.name} cannot be set (only the Act values can)")
-            if not math.isfinite(p.args[0]):
-                raise IppError(509, cmd.name, f"{p.name}: not a number")
-            targets.append((p, param))
-        clamped = [p.name for p, param in targets if not param.set(p.args[0])]
-        if clamped:
-            raise IppError(504, cmd.name, f"clamped to Min..Max: {', '.join(clamped)}")
-        return ()
-
-    _do_SetPropE = _do_SetProp
-
-    def _enum(self, cmd: P.Command, recursive: bool):
-        p = self._one(cmd, P.Prop)
-        if p.args:
-            raise IppError(502, cmd.name, "EnumProp takes a property pointer like Tool.PtMeasPar()")
-        for name, kind in children(self.tools, p.name, cmd.name, recursive):
-            yield f"{P.quote(name)}, {P.quote(kind)}"
-
-    def _do_EnumProp(self, cmd: P.Command):
-        return self._enum(cmd, False)
-
-    def _do_EnumAllProp(self, cmd: P.Command):
-        return self._enum(cmd, True)
-
     # --- DME methods (6.3.2) ----------------------------------------------------------------------
 
     def _do_Home(self, cmd: P.Command):
         self._motion(self.backend.home, cmd.name)
         self.nominal = self.backend.position()
-
-    def _do_IsHomed(self, cmd: P.Command):
-        yield P.prop("IsHomed", int(self.backend.homed))
-
-    def _do_EnableUser(self, cmd: P.Command):
-        self.user_enabled = True
-
-    def _do_DisableUser(self, cmd: P.Command):
-        self.user_enabled = False
-
-    def _do_IsUserEnabled(self, cmd: P.Command):
-        yield P.prop("IsUserEnabled", int(self.user_enabled))
-
-    def _do_GetMachineClass(self, cmd: P.Command):
-        yield "GetMachineClass(CartCMM)"
 
     def _do_Get(self, cmd: P.Command):
         props = self._props(cmd, REPORT_ITEMS, nargs=0)
@@ -589,74 +507,6 @@ class Dme:
         if daemon is not None:
             daemon.stop()
         return daemon is not None
-
-    # --- tools (6.3.2.14 ...) ------------------------------------------------------------------
-
-    def _do_EnumTools(self, cmd: P.Command):
-        for name in self.tools.names():
-            yield P.quote(name)
-
-    def _do_FindTool(self, cmd: P.Command):
-        name = self._one(cmd, P.Text).value
-        self.tools.found = "UnDefTool"
-        self.tools.found = self.tools.lookup(name, cmd.name).name
-
-    def _do_ChangeTool(self, cmd: P.Command):
-        name = self._one(cmd, P.Text).value
-        self.user_enabled = False
-        tool = self.tools.lookup(name, cmd.name)
-        change = getattr(self.backend, "change_tool", None)
-        if change is not None:  # the station's probe in use follows (its radius and pre-travel compensate)
-            try:
-                change(tool.name)
-            except Exception as exc:  # noqa: BLE001 - refused (no control, busy) or a bad record: said, not changed
-                raise IppError(511, cmd.name, f"the station could not use probe {tool.name}: {exc}") from None
-        self.tools.select(name, cmd.name)  # one stylus on the machine: a switch, nothing moves
-        self._refresh_daemon()
-
-    _do_SetTool = _do_ChangeTool
-
-    def _do_GetChangeToolAction(self, cmd: P.Command):
-        name = self._one(cmd, P.Text).value
-        self.tools.lookup(name, cmd.name)
-        yield "ChangeToolAction(Switch, X(0), Y(0), Z(0))"
-
-    def _do_AlignTool(self, cmd: P.Command):
-        if not all(isinstance(a, float) for a in cmd.args) or len(cmd.args) not in (4, 8):
-            raise IppError(502, cmd.name, "AlignTool(i, j, k, alpha) or AlignTool(i1, j1, k1, i2, j2, k2, alpha, beta)")
-        v = np.array(cmd.args, dtype=float)
-        vectors = [v[0:3]] if len(v) == 4 else [v[0:3], v[3:6]]
-        for vec in vectors:
-            if abs(np.linalg.norm(vec) - 1.0) > 1e-3:
-                raise IppError(502, cmd.name, f"{vec.tolist()} is not a unit vector")
-        self._tool_for_motion(cmd.name)
-        alpha = v[3] if len(v) == 4 else v[6]
-        shaft = self.csy.vector_from_machine([0.0, 0.0, 1.0])  # the fixed vertical stylus, away from the surface
-        off = math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(vectors[0], shaft))))))
-        if alpha != 0 and off > alpha:
-            raise IppError(1502, cmd.name, f"the stylus is fixed vertical: {off:.1f} deg from the request")
-        reached = list(shaft) + ([] if len(vectors) == 1 else list(vectors[1]))
-        yield P.fmt_args(round(float(x), 6) for x in reached)
-
-    # --- coordinate systems (6.3.3) --------------------------------------------------------------
-
-    def _do_SetCoordSystem(self, cmd: P.Command):
-        self.csy.select(self._one(cmd, P.Enum).name, cmd.name)
-        self._refresh_daemon()
-
-    def _do_GetCoordSystem(self, cmd: P.Command):
-        yield f"CoordSystem({self.csy.current})"
-
-    def _do_GetCsyTransformation(self, cmd: P.Command):
-        t = self.csy.get(self._one(cmd, P.Enum).name, cmd.name)
-        yield P.prop("GetCsyTransformation", *t.values)
-
-    def _do_SetCsyTransformation(self, cmd: P.Command):
-        if len(cmd.args) != 7 or not isinstance(cmd.args[0], P.Enum) or \
-                not all(isinstance(a, float) for a in cmd.args[1:]):
-            raise IppError(502, cmd.name, "SetCsyTransformation(Csy, X0, Y0, Z0, Theta, Psi, Phi)")
-        self.csy.set(cmd.args[0].name, list(cmd.args[1:]), cmd.name)  # type: ignore[union-attr,arg-type]
-        self._refresh_daemon()
 
     def _refresh_daemon(self) -> None:
         with self._lock:

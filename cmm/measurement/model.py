@@ -26,13 +26,15 @@ import numpy as np
 from ..journal.records import ConstructedRecord, FeatureRecord, HitRecord
 from ..journal.session import file_sha256, machine_snapshot, mesh_sha256
 from ..journal.state import SessionState
-from ..journal.store import check_name, is_url, open_store
+from ..journal.store import check_name, is_url
 from ..journal.writer import Journal, encode_event
 from ..metrology.features import FitError, FitResult
 from ..metrology.fit_hits import fit_hit_records
 from ..metrology.mesh import signed_deviation
 from ..metrology.pick import FeatureSuggestion, NominalFeature, PickResult, pick, suggest_feature
 
+from .session_files import clean_info, construct_pair, open_journal, start_event
+from .tolerancing import Tolerancing
 from .errors import FEATURE_KINDS, INFO_FIELDS, MeasurementError  # noqa: F401 - front ends import them there
 TOLERANCE_KEYS = ("size", "form", "location", "position", "angle", "size_lower", "size_upper")
 # the diameter's own limits (deviations from the nominal, mm; a DMIS TOL/DIAM, -0.01, 0.05): any sign
@@ -156,8 +158,7 @@ class MeasurementModel:
         self._undo: list[tuple[str, int]] = []
         self.features: dict[int, Feature] = {}
         self.constructed: dict[int, ConstructedFeature] = {}
-        self._next_gdt = 1
-        self._gdt_cache: tuple[Any, list, list] | None = None
+        self.tolerancing = Tolerancing(self)  # datums and geometric tolerances
         self._next_hit = 1
         self._next_feature = 1
         self.last_hit: Any = None
@@ -254,16 +255,7 @@ class MeasurementModel:
         with self.lock:
             if self.journal is not None:
                 self.journal.close()
-            if is_url(self.session_dir):
-                self.journal = open_store(self.session_dir).create(name, append=True)
-                path: Path | str = f"{name}"
-            else:
-                path = self.session_dir / f"{name}.jsonl"
-                for n in range(2, 100):  # two stations started in the same second get their own sessions
-                    if name != stamp or not path.exists():
-                        break
-                    path = self.session_dir / f"{stamp}-{n}.jsonl"
-                self.journal = Journal(path)
+            self.journal, path = open_journal(self.session_dir, name, stamp)
             info = dict(self.info)
             if fresh:
                 self.state = SessionState()
@@ -281,7 +273,7 @@ class MeasurementModel:
             self._undo.clear()
             self.features.clear()
             self.constructed.clear()
-            self._gdt_cache = None
+            self.tolerancing.cache = None
             self.hit_probes.clear()
             self.last_hit = None
         self._notify("hits", None)
@@ -295,13 +287,8 @@ class MeasurementModel:
             self._start(writer, **start)
 
     def _start(self, writer: Any, **start: Any) -> None:
-        part = self.part
-        port = start.pop("port", "")
-        self._append(writer, "start", port=port, **machine_snapshot(self.config, self.machine.correction, self.prober.settings),
-                      **start, part=None if part is None else part.name,
-                      part_pose=None if part is None else part.pose,
-                      part_sha256=None if part is None else part.sha256,
-                      part_path=None if part is None or part.mesh is None else part.mesh.metadata.get("path"))
+        snapshot = machine_snapshot(self.config, self.machine.correction, self.prober.settings)
+        self._append(writer, "start", **start_event(snapshot, self.part, start))
 
     def record(self, kind: str, **data: Any) -> None:
         """An event: in the session journal if one is open, and folded into :attr:`state` either way. With
@@ -330,21 +317,7 @@ class MeasurementModel:
 
     def set_info(self, **fields: Any) -> dict[str, Any]:
         """Report header fields (part_number, drawing, operator, machine_name, temperature in deg C, remarks)."""
-        unknown = sorted(set(fields) - set(INFO_FIELDS))
-        if unknown:
-            raise MeasurementError(f"unknown report field(s) {', '.join(unknown)}; use {', '.join(INFO_FIELDS)}")
-        clean: dict[str, Any] = {}
-        for k, v in fields.items():
-            if k == "temperature" and v not in (None, ""):
-                try:
-                    t = float(v)
-                except (TypeError, ValueError):
-                    raise MeasurementError(f"the temperature must be a number of degrees Celsius, got {v!r}") from None
-                if not -50.0 <= t <= 100.0:
-                    raise MeasurementError(f"a temperature of {t} °C is not plausible for a measuring room")
-                clean[k] = t
-            else:
-                clean[k] = "" if v is None else str(v).strip()
+        clean = clean_info(fields)
         with self.lock:
             self.record("info", **clean)
         self._notify("info", dict(self.info))
@@ -602,8 +575,6 @@ class MeasurementModel:
                           tolerance: dict[str, float] | None = None, three_d: bool = False) -> ConstructedFeature:
         """Construct a feature from features ``a`` and ``b`` (see :mod:`cmm.metrology.construct`): distances
         between parallel axes along the alignment's Z in its XY plane, or in 3-D with ``three_d``."""
-        from ..metrology.construct import construct, nominal_geometry
-
         tolerance = check_tolerance(tolerance)
         with self.lock:
             fa, fb = self.features.get(a), self.features.get(b)
@@ -613,19 +584,7 @@ class MeasurementModel:
                 raise MeasurementError("a construction needs two different features")
             # the alignment's Z in machine coordinates (the nominal set-up's without an alignment)
             workplane = None if self.part is None else np.asarray(self.part.pose, float)[:3, 2]
-        how = {"workplane": workplane, "three_d": three_d}
-        try:
-            result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()), **how)
-        except (FitError, ValueError, KeyError) as exc:
-            raise MeasurementError(str(exc)) from None
-        nominal = None
-        na = nominal_geometry(fa.kind, None if fa.nominal is None else fa.nominal.to_dict())
-        nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())
-        if na is not None and nb is not None:
-            try:
-                nominal = construct(operation, na, nb, **how)
-            except (FitError, ValueError, KeyError, np.linalg.LinAlgError):
-                nominal = None
+        result, nominal = construct_pair(operation, fa, fb, workplane, three_d)
         with self.lock:
             fid = self._next_feature
             self._next_feature += 1
@@ -636,115 +595,28 @@ class MeasurementModel:
         self._notify("feature", feature)
         return feature
 
-    # --- datums and geometric tolerances (ISO 1101 / ASME Y14.5) ---------------------------
+    # --- datums and geometric tolerances (ISO 1101 / ASME Y14.5): cmm.measurement.tolerancing --------------
 
     def measured_features(self) -> dict[int, Any]:
         """The fitted features as :class:`cmm.metrology.gdt_eval.MeasuredFeature` (geometry, nominal, points)."""
-        with self.lock:
-            hits = {**self.deleted, **self.hits}
-            return {fid: f.record().measured(hits) for fid, f in self.features.items()}
+        return self.tolerancing.measured_features()
 
     def gdt_characteristics(self, definitions: list[dict[str, Any]] | None = None) -> list[tuple[dict, Any]]:
-        """(definition, Characteristic) of every geometric tolerance (or of ``definitions``), evaluated as the
-        report does (:func:`cmm.metrology.gdt_eval.evaluate`)."""
-        from ..metrology.gdt_eval import evaluate
-
-        with self.lock:
-            defs = list(self.gdt.values()) if definitions is None else definitions
-            datums = dict(self.datums)
-            part = self.part
-            # the tree asks at every refresh (5 Hz per client): evaluate again only when an input changed
-            key = (repr(defs), repr(datums), id(part), None if part is None else np.asarray(part.pose).tobytes(),
-                   tuple((fid, id(f.result), id(f.nominal), tuple(f.hit_ids), repr(f.tolerance))
-                         for fid, f in self.features.items()))
-            if definitions is None and self._gdt_cache is not None and self._gdt_cache[0] == key:
-                return list(self._gdt_cache[1])
-        rows = evaluate(defs, datums, self.measured_features(), None if part is None else part.mesh,
-                        None if part is None else np.asarray(part.pose, float))
-        if definitions is None:
-            with self.lock:  # the results and nominals stay referenced, so their ids in the key stay theirs
-                self._gdt_cache = (key, rows, [(f.result, f.nominal) for f in self.features.values()])
-        return rows
+        """(definition, Characteristic) of every geometric tolerance (or of ``definitions``)."""
+        return self.tolerancing.gdt_characteristics(definitions)
 
     def define_datum(self, label: str, feature_id: int, modifier: str = "", targets: Any = None) -> dict[str, Any]:
-        """Make feature ``feature_id`` datum ``label`` (A, B, C ...), at RFS or MMB / LMB, or established by
-        ``targets`` (hit ids of the feature: 3 on a primary plane, 2 on a secondary, 1 on a tertiary; a target
-        area or line as ``{"area": [hit ids]}`` / ``{"line": [hit ids]}``, a line counting as two);
-        journalled."""
-        from ..metrology.datums import DatumError, datum_from_feature
-        from ..metrology.gdt_eval import check_datum
+        """Make feature ``feature_id`` datum ``label`` (:meth:`Tolerancing.define_datum`); journalled."""
+        return self.tolerancing.define_datum(label, feature_id, modifier, targets)
 
-        try:
-            d = check_datum({"label": label, "feature": feature_id, "modifier": modifier,
-                             **({"targets": list(targets)} if targets else {})})
-            with self.lock:
-                f = self.features.get(d["feature"])
-                if f is None:
-                    raise MeasurementError(f"there is no fitted feature {feature_id} to be datum {d['label']}")
-                datum_from_feature(d["label"], f.kind, f.result.summary(), feature=f.name)
-                if d["modifier"] or d.get("targets"):
-                    from ..metrology.gdt_eval import datum_of
-
-                    datum_of(d["label"], {d["label"]: d}, self.measured_features(), False)
-                self.record("datum", **d)
-        except (DatumError, ValueError, TypeError) as exc:
-            raise MeasurementError(str(exc)) from None
-        self._notify("features", None)
-        return d
-
-    def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (), *,
-                   material: str = "", angle: float | None = None, direction: str = "radial",
-                   name: str | None = None, gdt_id: int | None = None, pattern: Any = None,
-                   composite: dict[str, Any] | None = None,
-                   datum_modifiers: dict[str, str] | None = None,
-                   offset: float = 0.0) -> tuple[dict[str, Any], Any]:
-        """Define (or with ``gdt_id`` replace) a geometric tolerance on feature ``feature_id`` against
-        ``datums`` (labels in precedence order, e.g. "A|B|C" or ["A", "B"]); it is evaluated at once and
-        refused in words when it cannot be (a datum not defined or constraining nothing, no nominal, no
-        mesh for a profile). A composite position frame: ``pattern`` (the ids of the pattern's features) and
-        ``composite`` ({"tolerance", "datums"}: the feature-relating tier). ``datum_modifiers``: how this frame
-        references its datums ({"B": "MMB"}), over the datums' own modifiers. ``offset``: a profile's unequally
-        disposed zone (mm, ISO 1101 UZ, + towards the outside of the material). Journalled; returns (definition,
-        its first Characteristic)."""
-        from ..metrology.datums import DatumError
-        from ..metrology.gdt_eval import check_definition, evaluate_one
-
-        if isinstance(datums, str):
-            datums = [x for x in datums.replace(",", "|").split("|") if x.strip()]
-        raw = {"characteristic": characteristic, "feature": int(feature_id), "tolerance": tolerance,
-               "datums": list(datums), "material": material, "angle": angle, "direction": direction}
-        if composite is not None:
-            low = dict(composite)
-            if isinstance(low.get("datums"), str):
-                low["datums"] = [x for x in low["datums"].replace(",", "|").split("|") if x.strip()]
-            raw.update(pattern=list(pattern or []), composite=low)
-        if datum_modifiers:
-            raw["datum_modifiers"] = dict(datum_modifiers)
-        if offset:
-            raw["offset"] = offset
-        try:
-            d = check_definition(raw)
-            with self.lock:
-                part, datum_defs = self.part, dict(self.datums)
-            evaluate_one(d, datum_defs, self.measured_features(), None if part is None else part.mesh,
-                         None if part is None else np.asarray(part.pose, float))
-        except (DatumError, ValueError) as exc:
-            raise MeasurementError(str(exc)) from None
-        with self.lock:
-            gid = gdt_id if gdt_id is not None else self._next_gdt
-            self._next_gdt = max(self._next_gdt, gid + 1)
-            f = self.features.get(int(feature_id))
-            d = {"id": gid, "name": name or f"{d['characteristic']} {f.name if f else feature_id}", **d}
-            self.record("gdt", **d)
-        self._notify("features", None)
-        return d, self.gdt_characteristics([d])[0][1]
+    def define_gdt(self, characteristic: str, feature_id: int, tolerance: float, datums: Any = (),
+                   **options: Any) -> tuple[dict[str, Any], Any]:
+        """Define (or with ``gdt_id`` replace) a geometric tolerance (:meth:`Tolerancing.define_gdt`);
+        journalled; returns (definition, its first Characteristic)."""
+        return self.tolerancing.define_gdt(characteristic, feature_id, tolerance, datums, **options)
 
     def delete_gdt(self, gid: int) -> None:
-        with self.lock:
-            if int(gid) not in self.gdt:
-                raise MeasurementError(f"there is no geometric tolerance {gid}")
-            self.record("gdt_deleted", id=int(gid))
-        self._notify("features", None)
+        self.tolerancing.delete_gdt(gid)
 
     def delete_feature(self, fid: int) -> None:
         with self.lock:

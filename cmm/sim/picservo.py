@@ -8,7 +8,9 @@ module talks to the outside only through ``execute`` (decoded command bytes
 in, status bytes out) and through its :class:`~cmm.sim.plant.Plant` (PWM out,
 encoder count and input levels in).
 
-Addressing, baud rate and reply rules live in :mod:`cmm.sim.network`.
+Addressing, baud rate and reply rules live in :mod:`cmm.sim.network`; the
+profile generator in :mod:`cmm.sim.picservo_profile`, the status packet
+encoding in :mod:`cmm.sim.picservo_status`.
 
 Firmware families (``firmware``): "pic-servo" is the thesis's original module
 (version 4 by default), "pic-servo-sc" the later SC module (version 10). Only
@@ -40,6 +42,8 @@ from __future__ import annotations
 import struct
 
 from cmm.nmc import codec as c
+from cmm.sim import picservo_status as _status
+from cmm.sim.picservo_profile import HOLD, TRAPEZOID, VELOCITY, trapezoid_step, velocity_step
 from cmm.sim.plant import Plant
 
 # A 16x-oversampling UART samples mid-bit; the stop bit of an 8N1 byte (9.5 bit
@@ -81,27 +85,8 @@ LIMSTOP_OFF, LIMSTOP_ABRUPT = 0x04, 0x08
 # SC HARD_RESET control byte bits
 SAVE_DATA, RESTORE_ADDR, EPU_AMP, EPU_SERVO, EPU_LIMITS = 0x01, 0x02, 0x04, 0x08, 0x20
 MOVE_REL = 0x40  # LOAD_TRAJ, trapezoidal position mode on the SC (REVERSE in velocity / PWM mode)
-CLASSIC_ITEMS = 0x3F  # status items of the original firmware
-
-# Profile state.
-HOLD, TRAPEZOID, VELOCITY = 0, 1, 2
 
 _CAPTURE_CONDITIONS = c.ON_LIMIT1 | c.ON_LIMIT2 | c.ON_INDEX | c.ON_POS_ERR | c.ON_CUR_ERR
-_INT32 = 1 << 32
-
-
-def _int32(value: int) -> int:
-    return (value + 0x80000000) % _INT32 - 0x80000000
-
-
-def _clamp16(value: int) -> int:
-    return -0x8000 if value < -0x8000 else 0x7FFF if value > 0x7FFF else value
-
-
-def _stop_distance(u: int, a: int) -> int:
-    """Distance (16.16) covered while decelerating from speed ``u`` by ``a`` per tick to rest."""
-    n = u // a
-    return n * u - a * n * (n + 1) // 2
 
 
 class PicServo:
@@ -238,9 +223,9 @@ class PicServo:
         if self.servo_on:
             prof = self.prof
             if prof == TRAPEZOID:
-                self._trapezoid_step()
+                trapezoid_step(self)
             elif prof == VELOCITY:
-                self._velocity_step()
+                velocity_step(self)
             e = (self.cmd_fx >> 16) - cnt
             self.pos_error_value = e
             if e > self.el or e < -self.el:
@@ -315,72 +300,11 @@ class PicServo:
             elif self.servo_on:
                 self._stop_abrupt()
 
-    # --- profile generator ------------------------------------------------------
-    def _trapezoid_step(self) -> None:
-        """One tick of the trapezoidal profile; lands exactly on the goal."""
-        a = self.acc
-        rem = self.goal_fx - self.cmd_fx
-        v = self.v_fx
-        if rem == 0 or a <= 0:
-            if rem == 0:
-                self._finish_move()
-            return
-        if rem > 0:
-            r, u = rem, v
-        else:
-            r, u = -rem, -v
-        vmax = self.vmax
-        if u > vmax:
-            un = u - a
-            if un < vmax:
-                un = vmax
-        else:
-            un = u + a
-            if un > vmax:
-                un = vmax
-        if un > 0 and un + _stop_distance(un, a) > r:
-            if u > 0 and un > u and u + _stop_distance(u, a) <= r:
-                un = u  # cannot accelerate further: hold (slew)
-            else:
-                un = u - a  # decelerate
-                if un <= 0 <= u:
-                    un = a if a < r else r  # final creep onto the goal
-        if un > r:
-            un = r
-        if un <= u:
-            self.accel_done = True
-            if un < u:
-                self.slew_done = True
-        if un == r:
-            self.cmd_fx = self.goal_fx
-            self._finish_move()
-            return
-        if rem > 0:
-            self.cmd_fx += un
-            self.v_fx = un
-        else:
-            self.cmd_fx -= un
-            self.v_fx = -un
-
+    # --- profile generator (cmm.sim.picservo_profile) -------------------------
     def _finish_move(self) -> None:
         self.v_fx = 0
         self.prof = HOLD
         self.move_done = self.accel_done = self.slew_done = True
-
-    def _velocity_step(self) -> None:
-        vt = self.vtarget
-        v = self.v_fx
-        a = self.acc
-        if v < vt:
-            v = v + a if v + a < vt else vt
-        elif v > vt:
-            v = v - a if v - a > vt else vt
-        self.v_fx = v
-        self.cmd_fx += v
-        if v == vt:
-            self.move_done = self.accel_done = True
-            if v == 0:
-                self.prof = HOLD  # a smooth stop has ended
 
     # --- servo on/off -----------------------------------------------------------
     def _servo_on_here(self) -> None:
@@ -435,44 +359,14 @@ class PicServo:
 
     # --- commands ---------------------------------------------------------------
     def status_byte(self) -> int:
-        levels = self._input_levels()
-        return ((c.MOVE_DONE if self.move_done else 0) | (c.CKSUM_ERROR if self.cksum_error else 0)
-                | (c.OVERCURRENT if self.overcurrent else 0) | (c.POWER_ON if self.plant.power else 0)
-                | (c.POS_ERROR if self.pos_error else 0) | (c.LIMIT1 if levels[0] else 0)
-                | (c.LIMIT2 if levels[1] else 0) | (c.HOME_IN_PROG if self.home_in_prog else 0))
+        return _status.status_byte(self)
 
     def aux_byte(self) -> int:
-        p = self.plant
-        return ((c.AUX_INDEX if p.index else 0) | (c.AUX_POS_WRAP if self.pos_wrap else 0)
-                | (c.AUX_SERVO_ON if self.servo_on else 0) | (c.AUX_ACCEL_DONE if self.accel_done else 0)
-                | (c.AUX_SLEW_DONE if self.slew_done else 0) | (c.AUX_SERVO_OVERRUN if self.servo_overrun else 0))
+        return _status.aux_byte(self)
 
     def status_packet(self, items: int | None = None) -> bytes:
         """The status packet with ``items`` (default: the DEF_STAT set)."""
-        if items is None:
-            items = self.stat_items
-        if not self.sc:
-            items &= CLASSIC_ITEMS  # 0x40 / 0x80 do not exist on the original firmware
-        out = bytearray((self.status_byte(),))
-        if items:
-            if items & c.SEND_POS:
-                out += struct.pack("<i", _int32(self.pos))
-            if items & c.SEND_AD:
-                out.append(self.ad)
-            if items & c.SEND_VEL:
-                out += struct.pack("<h", _clamp16(self.velocity))
-            if items & c.SEND_AUX:
-                out.append(self.aux_byte())
-            if items & c.SEND_HOME:
-                out += struct.pack("<i", _int32(self.home))
-            if items & c.SEND_ID:
-                out += bytes((c.PIC_SERVO_TYPE, self.version & 0xFF))
-            if items & c.SEND_PERROR:
-                out += struct.pack("<h", _clamp16(self.pos_error_value))
-            if items & c.SEND_NPOINTS:
-                out.append(0)
-        out.append(sum(out) & 0xFF)
-        return bytes(out)
+        return _status.status_packet(self, items)
 
     def checksum_error_reply(self) -> bytes:
         """A bad packet is not executed, but answered with cksum_error set."""
