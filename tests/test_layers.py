@@ -337,10 +337,12 @@ def test_front_ends_never_wire_the_station():
 
 
 def test_the_pendant_only_translates():
-    """The pendant, the page's tab (ui/panels.py) and the panels' context (ui/context.py) neither install the access
-    policy (the composition root, StationApp, does) nor judge access themselves: the core's verbs refuse in the
-    operator's words, they pass them on (the page asks the core, ``check_access``, before an action of its own)."""
-    for name in ("ui/pendant.py", "ui/panels.py", "ui/context.py"):
+    """The pendant, the page's tab (ui/panels.py, its machine, jog and operator panels) and the panels' context
+    (ui/context.py) neither install the access policy (the composition root, StationApp, does) nor judge access
+    themselves: the core's verbs refuse in the operator's words, they pass them on (the page asks the core,
+    ``check_access``, before an action of its own)."""
+    for name in ("ui/pendant.py", "ui/panels.py", "ui/context.py", "ui/panel_machine.py", "ui/panel_jog.py",
+                 "ui/panel_operator.py"):
         uses = [(f, line, owner, attr) for f, line, owner, attr in _front_end_uses() if f == name]
         bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in uses
                if attr in ("use_policy_of", "can_move", "may_stop", "policy", "refusal")]

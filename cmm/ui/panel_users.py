@@ -1,7 +1,7 @@
 """Users on the page (a station with a user file): the start dialog's login and the admin's Users folder.
 
-Functions of the tab (:class:`cmm.ui.panels.ClientApp`, passed as ``self``); every change goes to the command
-API as the tab's client, and the API's role table decides (:mod:`cmm.control.roles`).
+Functions of the tab's operator panel (:class:`cmm.ui.panel_operator.OperatorPanel`, passed as ``self``); every
+change goes to the command API as the tab's client, and the API's role table decides (:mod:`cmm.control.roles`).
 """
 
 from __future__ import annotations
