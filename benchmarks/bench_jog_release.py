@@ -427,7 +427,7 @@ class ViserPage:
     def __init__(self, port: int) -> None:
         import viser
 
-        from cmm.ui.panels import HOLD_HZ
+        from cmm.ui.panel_jog import HOLD_HZ
 
         self.hz = float(HOLD_HZ)
         self.uuids: dict[str, str] = {}
