@@ -13,17 +13,13 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ..measurement.align_wizard import routine_manual_hits
 from ..measurement.routine_path import RoutinePath, routine_path
 from ..measurement.routine_run import RoutineRun
 from .context import PanelContext
 from .path_preview import PathPreview
-
-if TYPE_CHECKING:
-    from .panel_dmis import DmisPanel
-    from .panel_routine_edit import RoutineEditPanel
 
 
 class RunSlot:
@@ -41,14 +37,13 @@ class RoutineRunPanel:
     """The runs of the tab's routine on the next parts; Pause / Resume / Skip step / Cancel reach a DMIS program
     too."""
 
-    def __init__(self, ctx: PanelContext, gui: dict[str, Any], slot: RunSlot, editor: RoutineEditPanel,
-                 dmis: DmisPanel) -> None:
+    def __init__(self, ctx: PanelContext, gui: dict[str, Any], slot: RunSlot, editor: Any, dmis: Any) -> None:
         self.ctx = ctx
         self.station = ctx.station
         self.gui = gui  # the Routine tab's widgets
         self.slot = slot
-        self.editor = editor  # the routine to run
-        self.dmis = dmis
+        self.editor = editor  # the routine to run (a RoutineEditPanel)
+        self.dmis = dmis  # the DMIS program's panel (a DmisPanel): the run's buttons reach its run too
         self.align: Any = None  # the Align tab: its wizard prompts a routine's manual alignment
         self.run_: RoutineRun | None = None
         self.parts = 0  # parts run from this tab (names their sessions)
