@@ -10,14 +10,12 @@ notes it in the session journal; the service's probe methods delegate here.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from .records import (PROBE_QUALIFICATIONS, PROBE_RECORD, CalibrationError, LoadedCalibration, ProbeDefinition,
                       check_probe_definition, load_probe_list, load_probe_record, now, probe_expiry, save_probe_list,
                       save_record)
 
-if TYPE_CHECKING:
-    from .service import CalibrationService
 
 DEFAULT_PROBE = "Probe1"  # the one probe of a folder without a probe list (also the I++ tool name clients know)
 
@@ -25,7 +23,7 @@ DEFAULT_PROBE = "Probe1"  # the one probe of a folder without a probe list (also
 class ProbeList:
     """The service's probe list: listing, records, adding and selecting a probe."""
 
-    def __init__(self, service: CalibrationService) -> None:
+    def __init__(self, service: Any) -> None:
         self.service = service
 
     def use_listed(self) -> tuple[list[ProbeDefinition], str]:

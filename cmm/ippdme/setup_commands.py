@@ -13,7 +13,7 @@ command names to them for the executor's dispatch.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -21,8 +21,6 @@ from . import protocol as P
 from .errors import IppError
 from .tools import children, resolve
 
-if TYPE_CHECKING:
-    from .executor import Dme
 
 DME_VERSION = "1.4.3"
 
@@ -52,34 +50,34 @@ def one(cmd: P.Command, kind: type):
 # --- machine queries --------------------------------------------------------------------------------
 
 
-def get_dme_version(dme: Dme, cmd: P.Command):
+def get_dme_version(dme: Any, cmd: P.Command):
     yield P.prop("DMEVersion", P.quote(DME_VERSION))
 
 
-def is_homed(dme: Dme, cmd: P.Command):
+def is_homed(dme: Any, cmd: P.Command):
     yield P.prop("IsHomed", int(dme.backend.homed))
 
 
-def enable_user(dme: Dme, cmd: P.Command):
+def enable_user(dme: Any, cmd: P.Command):
     dme.user_enabled = True
 
 
-def disable_user(dme: Dme, cmd: P.Command):
+def disable_user(dme: Any, cmd: P.Command):
     dme.user_enabled = False
 
 
-def is_user_enabled(dme: Dme, cmd: P.Command):
+def is_user_enabled(dme: Any, cmd: P.Command):
     yield P.prop("IsUserEnabled", int(dme.user_enabled))
 
 
-def get_machine_class(dme: Dme, cmd: P.Command):
+def get_machine_class(dme: Any, cmd: P.Command):
     yield "GetMachineClass(CartCMM)"
 
 
 # --- properties -----------------------------------------------------------------------------------
 
 
-def get_prop(dme: Dme, cmd: P.Command):
+def get_prop(dme: Any, cmd: P.Command):
     items = []
     for p in props(cmd, nargs=0):
         tool, block, param, sub = resolve(dme.tools, p.name, cmd.name)
@@ -100,7 +98,7 @@ def get_prop(dme: Dme, cmd: P.Command):
     yield ", ".join(items)
 
 
-def set_prop(dme: Dme, cmd: P.Command):
+def set_prop(dme: Any, cmd: P.Command):
     given = props(cmd, nargs=1)
     targets = []
     for p in given:  # all checked before any is set
@@ -116,7 +114,7 @@ def set_prop(dme: Dme, cmd: P.Command):
     return ()
 
 
-def _enum(dme: Dme, cmd: P.Command, recursive: bool):
+def _enum(dme: Any, cmd: P.Command, recursive: bool):
     p = one(cmd, P.Prop)
     if p.args:
         raise IppError(502, cmd.name, "EnumProp takes a property pointer like Tool.PtMeasPar()")
@@ -124,29 +122,29 @@ def _enum(dme: Dme, cmd: P.Command, recursive: bool):
         yield f"{P.quote(name)}, {P.quote(kind)}"
 
 
-def enum_prop(dme: Dme, cmd: P.Command):
+def enum_prop(dme: Any, cmd: P.Command):
     return _enum(dme, cmd, False)
 
 
-def enum_all_prop(dme: Dme, cmd: P.Command):
+def enum_all_prop(dme: Any, cmd: P.Command):
     return _enum(dme, cmd, True)
 
 
 # --- tools (6.3.2.14 ...) -------------------------------------------------------------------------
 
 
-def enum_tools(dme: Dme, cmd: P.Command):
+def enum_tools(dme: Any, cmd: P.Command):
     for name in dme.tools.names():
         yield P.quote(name)
 
 
-def find_tool(dme: Dme, cmd: P.Command):
+def find_tool(dme: Any, cmd: P.Command):
     name = one(cmd, P.Text).value
     dme.tools.found = "UnDefTool"
     dme.tools.found = dme.tools.lookup(name, cmd.name).name
 
 
-def change_tool(dme: Dme, cmd: P.Command):
+def change_tool(dme: Any, cmd: P.Command):
     name = one(cmd, P.Text).value
     dme.user_enabled = False
     tool = dme.tools.lookup(name, cmd.name)
@@ -160,13 +158,13 @@ def change_tool(dme: Dme, cmd: P.Command):
     dme._refresh_daemon()
 
 
-def get_change_tool_action(dme: Dme, cmd: P.Command):
+def get_change_tool_action(dme: Any, cmd: P.Command):
     name = one(cmd, P.Text).value
     dme.tools.lookup(name, cmd.name)
     yield "ChangeToolAction(Switch, X(0), Y(0), Z(0))"
 
 
-def align_tool(dme: Dme, cmd: P.Command):
+def align_tool(dme: Any, cmd: P.Command):
     if not all(isinstance(a, float) for a in cmd.args) or len(cmd.args) not in (4, 8):
         raise IppError(502, cmd.name, "AlignTool(i, j, k, alpha) or AlignTool(i1, j1, k1, i2, j2, k2, alpha, beta)")
     v = np.array(cmd.args, dtype=float)
@@ -187,21 +185,21 @@ def align_tool(dme: Dme, cmd: P.Command):
 # --- coordinate systems (6.3.3) -------------------------------------------------------------------
 
 
-def set_coord_system(dme: Dme, cmd: P.Command):
+def set_coord_system(dme: Any, cmd: P.Command):
     dme.csy.select(one(cmd, P.Enum).name, cmd.name)
     dme._refresh_daemon()
 
 
-def get_coord_system(dme: Dme, cmd: P.Command):
+def get_coord_system(dme: Any, cmd: P.Command):
     yield f"CoordSystem({dme.csy.current})"
 
 
-def get_csy_transformation(dme: Dme, cmd: P.Command):
+def get_csy_transformation(dme: Any, cmd: P.Command):
     t = dme.csy.get(one(cmd, P.Enum).name, cmd.name)
     yield P.prop("GetCsyTransformation", *t.values)
 
 
-def set_csy_transformation(dme: Dme, cmd: P.Command):
+def set_csy_transformation(dme: Any, cmd: P.Command):
     if len(cmd.args) != 7 or not isinstance(cmd.args[0], P.Enum) or \
             not all(isinstance(a, float) for a in cmd.args[1:]):
         raise IppError(502, cmd.name, "SetCsyTransformation(Csy, X0, Y0, Z0, Theta, Psi, Phi)")

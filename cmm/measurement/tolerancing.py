@@ -10,20 +10,18 @@ names delegate here.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from .errors import MeasurementError
 
-if TYPE_CHECKING:
-    from .model import MeasurementModel
 
 
 class Tolerancing:
     """The model's datums and geometric tolerances: define, delete, evaluate."""
 
-    def __init__(self, model: MeasurementModel) -> None:
+    def __init__(self, model: Any) -> None:
         self.model = model
         self.next_id = 1  # the next geometric tolerance's id (ids go on counting across the parts of a series)
         self.cache: tuple[Any, list, list] | None = None  # (inputs, rows, the fits they reference)

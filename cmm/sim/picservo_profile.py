@@ -7,10 +7,8 @@ position ``cmd_fx``, profile velocity ``v_fx``, goal, limits and status bits.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
-if TYPE_CHECKING:
-    from cmm.sim.picservo import PicServo
 
 # Profile state.
 HOLD, TRAPEZOID, VELOCITY = 0, 1, 2
@@ -22,7 +20,7 @@ def stop_distance(u: int, a: int) -> int:
     return n * u - a * n * (n + 1) // 2
 
 
-def trapezoid_step(m: PicServo) -> None:
+def trapezoid_step(m: Any) -> None:
     """One tick of the trapezoidal profile; lands exactly on the goal."""
     a = m.acc
     rem = m.goal_fx - m.cmd_fx
@@ -69,7 +67,7 @@ def trapezoid_step(m: PicServo) -> None:
         m.v_fx = -un
 
 
-def velocity_step(m: PicServo) -> None:
+def velocity_step(m: Any) -> None:
     """One tick of the velocity profile: ramp towards the target velocity."""
     vt = m.vtarget
     v = m.v_fx

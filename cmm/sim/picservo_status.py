@@ -8,12 +8,10 @@ The functions read a :class:`~cmm.sim.picservo.PicServo` (``m``).
 from __future__ import annotations
 
 import struct
-from typing import TYPE_CHECKING
+from typing import Any
 
 from cmm.nmc import codec as c
 
-if TYPE_CHECKING:
-    from cmm.sim.picservo import PicServo
 
 CLASSIC_ITEMS = 0x3F  # status items of the original firmware
 _INT32 = 1 << 32
@@ -27,7 +25,7 @@ def _clamp16(value: int) -> int:
     return -0x8000 if value < -0x8000 else 0x7FFF if value > 0x7FFF else value
 
 
-def status_byte(m: PicServo) -> int:
+def status_byte(m: Any) -> int:
     """The status byte from the module's flags and its LIMIT input levels."""
     levels = m._input_levels()
     return ((c.MOVE_DONE if m.move_done else 0) | (c.CKSUM_ERROR if m.cksum_error else 0)
@@ -36,7 +34,7 @@ def status_byte(m: PicServo) -> int:
             | (c.LIMIT2 if levels[1] else 0) | (c.HOME_IN_PROG if m.home_in_prog else 0))
 
 
-def aux_byte(m: PicServo) -> int:
+def aux_byte(m: Any) -> int:
     """The auxiliary status byte (index, wrap, servo on, profile phases, overrun)."""
     p = m.plant
     return ((c.AUX_INDEX if p.index else 0) | (c.AUX_POS_WRAP if m.pos_wrap else 0)
@@ -44,7 +42,7 @@ def aux_byte(m: PicServo) -> int:
             | (c.AUX_SLEW_DONE if m.slew_done else 0) | (c.AUX_SERVO_OVERRUN if m.servo_overrun else 0))
 
 
-def status_packet(m: PicServo, items: int | None = None) -> bytes:
+def status_packet(m: Any, items: int | None = None) -> bytes:
     """The status packet with ``items`` (default: the DEF_STAT set)."""
     if items is None:
         items = m.stat_items
