@@ -400,3 +400,24 @@ def test_front_ends_and_the_calibration_never_reach_the_simulator_through_the_st
            if attr in ("sim", "place_sim_artifacts", "mount_sim_stylus")
            and owner.split(".")[-1] in ("station", "st", "host", "self")]
     assert not bad, "the simulator reached through the station:\n" + "\n".join(bad)
+
+
+MODULE_LINES = 800
+CLASS_LINES = 500
+
+
+def test_modules_and_classes_stay_small():
+    """One job per module and class: no module over 800 lines, no class over 500 (a grown file is split by
+    responsibility, as the bus, the control core and the DMIS executor were)."""
+    import ast
+
+    too_big = []
+    for name, path in _modules().items():
+        text = path.read_text(encoding="utf-8")
+        lines = text.count("\n") + 1
+        if lines > MODULE_LINES:
+            too_big.append(f"{name}: {lines} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > CLASS_LINES:
+                too_big.append(f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines")
+    assert not too_big, "split by responsibility: " + "; ".join(too_big)
