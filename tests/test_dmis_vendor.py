@@ -128,6 +128,10 @@ def test_datset_with_one_direction_keeps_the_rest_of_the_current_system():
     ("D(X) = DATSET/DAT(B), ZDIR, ZORIG\n", "line 1: DATSET: DAT(B) is defined by no DATDEF in the program (DATDEF/FA(name), DAT(B))"),
     ("F(Z) = FEAT/POINT, CART, 1, 2, 3, 0, 0, 1\nOUTPUT/FA(Z)\n",
      "line 2: OUTPUT/FA(Z): no MEAS or CONST in the program makes FA(Z) (output the nominal as F(Z))"),
+    ("F(P) = FEAT/PLANE, CART, 0, 0, 0, 0, 0, 1\nMEAS/PLANE, F(P), 0\nENDMES\n",
+     "line 2: MEAS/PLANE, F(P): the number of points must be a whole number of at least 1, not 0"),
+    ("SNSLCT/S(NOPE)\n",
+     "line 1: SNSLCT/S(NOPE): no SNSDEF in the program defines S(NOPE) (S(NOPE) = SNSDEF/PROBE, ..., tip diameter)"),
 ])
 def test_the_check_refuses_what_no_run_could_carry_out(program, problem):
     assert problem in check(program + "ENDFIL\n")[1]
@@ -135,7 +139,7 @@ def test_the_check_refuses_what_no_run_could_carry_out(program, problem):
 
 def test_what_the_check_passes_with_names_the_run_defines_or_recalls_is_not_refused():
     program = ("DID(OUT) = DEVICE/STOR, 'a.dms'\nOPEN/DID(OUT), FDATA, DMIS, OUTPUT\nRECALL/DAT(A)\nRECALL/FA(P)\n"
-               "DECL/DOUBLE, DIA\nDIA = ASSIGN/10\nF(C) = FEAT/CIRCLE, INNER, CART, 1, 2, 3, 0, 0, 1, DIA\n"
+               "RECALL/SA(TIP)\nSNSLCT/S(TIP)\nDECL/DOUBLE, DIA\nDIA = ASSIGN/10\nF(C) = FEAT/CIRCLE, INNER, CART, 1, 2, 3, 0, 0, 1, DIA\n"
                "T(P) = TOL/POS, 2D, 0.1, DAT(A)\nD(X) = DATSET/DAT(A), ZDIR, ZORIG\nOUTPUT/FA(P)\nCLOSE/DID(OUT)\n")
     assert check(program + "ENDFIL\n")[1] == []
 

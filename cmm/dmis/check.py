@@ -141,6 +141,9 @@ def statement_problem(s: Statement, angle_scale: float = math.pi / 180.0, mount:
     if m == "MEAS":
         if not labels or labels[0].type != "F":
             return f"MEAS/{s.minor} needs the feature it measures: MEAS/{s.minor}, F(name), number of points"
+        counts = [p.constant() for p in s.params if isinstance(p, Expr)]
+        if counts and counts[-1] is not None and not (counts[-1] >= 1 and float(counts[-1]).is_integer()):
+            return f"MEAS/{s.minor}, {labels[0]}: the number of points must be a whole number of at least 1, not {counts[-1]:g}"
     if m == "PTMEAS":
         n = numbers(s.params)
         if n not in (3, 6):
@@ -328,21 +331,24 @@ def size_problems(stmts: list[Statement]) -> dict[int, str]:
 def reference_problems(stmts: list[Statement]) -> dict[int, str]:
     """Statement index -> a name it uses that the program never gives anything: a device CLOSEd that no DEVICE
     defines, a datum (TOL, DATSET) that no DATDEF defines nor RECALL brings, a feature OUTPUT as measured (FA)
-    that no MEAS or CONST makes nor RECALL brings. The whole program is looked at (not only the lines before): a
+    that no MEAS or CONST makes nor RECALL brings, a sensor selected (SNSLCT) that no SNSDEF defines nor RECALL
+    brings. The whole program is looked at (not only the lines before): a
     MACRO may be called after the lines it uses are run, so the order is the run's to judge."""
-    devices, datums, features = set(), set(), set()
+    devices, datums, features, sensors = set(), set(), set(), set()
     for s in stmts:
         labels = [p for p in s.params if isinstance(p, Label)]
         if s.label is not None and s.label.type == "FA":  # FA(name) = FEAT/..: an actual written as a statement
             features.add(s.label.name)
         if s.major == "DEVICE" and s.label is not None:
             devices.add(s.label.name)
+        elif s.major == "SNSDEF" and s.label is not None:
+            sensors.add(s.label.name)
         elif s.major == "DATDEF" and len(labels) == 2:
             datums.add(labels[1].name)
         elif s.major in ("MEAS", "CONST") and labels:
             features.add(labels[0].name)
         elif s.major == "RECALL" and labels:
-            (datums if labels[0].type == "DAT" else features).add(labels[0].name)
+            {"DAT": datums, "SA": sensors}.get(labels[0].type, features).add(labels[0].name)
     out: dict[int, str] = {}
     for k, s in enumerate(stmts):
         labels = [p for p in s.params if isinstance(p, Label)]
@@ -354,6 +360,9 @@ def reference_problems(stmts: list[Statement]) -> dict[int, str]:
                 what = f"{s.major}/{s.minor}" if s.minor else s.major
                 out[k] = (f"{what}: {missing[0]} is defined by no DATDEF in the program "
                           f"(DATDEF/FA(name), {missing[0]})")
+        elif s.major == "SNSLCT" and labels and labels[0].type == "S" and labels[0].name not in sensors:
+            out[k] = (f"SNSLCT/{labels[0]}: no SNSDEF in the program defines {labels[0]} "
+                      f"({labels[0]} = SNSDEF/PROBE, ..., tip diameter)")
         elif s.major == "OUTPUT":
             missing = [lab for lab in labels if lab.type == "FA" and lab.name not in features]
             if missing:
