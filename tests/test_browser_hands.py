@@ -16,6 +16,7 @@ from __future__ import annotations
 import pytest
 
 import browser_support as bs
+from dmis_programs import APPROACH, FRONT_FACE, program
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(900),
@@ -138,30 +139,10 @@ def test_one_hit_per_touch_and_a_new_press_takes_the_next(app, station, size):
 
 
 # three hits on the simulator part's front face (its set-up at the part's true place), with moves between them
-FRONT = """FILNAM/'front'
-UNITS/MM, ANGRAD
-D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
-SNSET/APPRCH, 5
-SNSET/RETRCT, 5
-GOTO/60, -30, 60
-GOTO/20, -30, 60
-GOTO/100, -30, 60
-GOTO/20, -15, 20
-F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
-MEAS/PLANE, F(FRONT), 3
-  PTMEAS/CART, 20, 0, 20, 0, -1, 0
-  PTMEAS/CART, 60, 0, 30, 0, -1, 0
-  PTMEAS/CART, 100, 0, 20, 0, -1, 0
-ENDMES
-ENDFIL
-"""
+FRONT = program("front", APPROACH, "GOTO/60, -30, 60\nGOTO/20, -30, 60\nGOTO/100, -30, 60\nGOTO/20, -15, 20\n",
+                FRONT_FACE)
 # from in front of the front face, below the part's top, straight through the part to its back
-THROUGH = """FILNAM/'through'
-UNITS/MM, ANGRAD
-D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
-GOTO/60, 90, 20
-ENDFIL
-"""
+THROUGH = program("through", "GOTO/60, 90, 20\n")
 
 
 def _status(page) -> str:

@@ -17,30 +17,12 @@ from cmm.control import OpenPolicy
 from cmm.control.access import Client, Control
 from cmm.dmis.runner import register_verbs, run_text
 from cmm.sim.cmm_sim import TRUE_PART_POSE
+from dmis_programs import APPROACH, FRONT_FACE, program
 
 # three hits on the front face: the last one leaves the tip 5 mm in front of it, below the part's top
-FRONT = """FILNAM/'front'
-UNITS/MM, ANGRAD
-D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
-SNSET/APPRCH, 5
-SNSET/RETRCT, 5
-GOTO/60, -30, 60
-GOTO/20, -15, 20
-F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
-MEAS/PLANE, F(FRONT), 3
-  PTMEAS/CART, 20, 0, 20, 0, -1, 0
-  PTMEAS/CART, 60, 0, 30, 0, -1, 0
-  PTMEAS/CART, 100, 0, 20, 0, -1, 0
-ENDMES
-ENDFIL
-"""
+FRONT = program("front", APPROACH, "GOTO/60, -30, 60\nGOTO/20, -15, 20\n", FRONT_FACE)
 # straight to a point over the middle of the part: through its front edge from where FRONT's last hit left the tip
-GOTO_OVER = """FILNAM/'over'
-UNITS/MM, ANGRAD
-D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
-GOTO/60, 40, 70
-ENDFIL
-"""
+GOTO_OVER = program("over", "GOTO/60, 40, 70\n")
 
 
 @pytest.fixture

@@ -20,32 +20,14 @@ import session_support as sup
 
 from cmm.control import Mode
 from cmm.dmis.runner import run_text
+from dmis_programs import APPROACH, FRONT_FACE, program
 
 pytestmark = pytest.mark.timeout(600)
 
 # three hits on each of two faces: long enough to be stopped between its hits
-PROGRAM = """FILNAM/'faces'
-UNITS/MM, ANGRAD
-D(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0
-SNSET/APPRCH, 5
-SNSET/RETRCT, 5
-GOTO/60, -30, 60
-GOTO/20, -15, 20
-F(FRONT) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
-MEAS/PLANE, F(FRONT), 3
-  PTMEAS/CART, 20, 0, 20, 0, -1, 0
-  PTMEAS/CART, 60, 0, 30, 0, -1, 0
-  PTMEAS/CART, 100, 0, 20, 0, -1, 0
-ENDMES
-GOTO/60, -30, 60
-F(FRONT2) = FEAT/PLANE, CART, 60, 0, 20, 0, -1, 0
-MEAS/PLANE, F(FRONT2), 3
-  PTMEAS/CART, 30, 0, 20, 0, -1, 0
-  PTMEAS/CART, 60, 0, 25, 0, -1, 0
-  PTMEAS/CART, 90, 0, 20, 0, -1, 0
-ENDMES
-ENDFIL
-"""
+PROGRAM = program("faces", APPROACH, "GOTO/60, -30, 60\nGOTO/20, -15, 20\n", FRONT_FACE, "GOTO/60, -30, 60\n",
+                  FRONT_FACE.replace("FRONT", "FRONT2").replace("20, 0, 20", "30, 0, 20")
+                  .replace("60, 0, 30", "60, 0, 25").replace("100, 0, 20", "90, 0, 20"))
 QUIET_S = 2.0  # machine seconds after the standstill in which nothing may move
 
 
