@@ -259,6 +259,7 @@ def test_the_probe_list_defines_and_qualifies_a_4_mm_stylus_that_the_simulator_m
     ui, operator, folder = fresh
     st = ui.station
     panel = operator.calibration
+    assert operator.take_control()  # the I++ test above handed the station's control to its client
     assert panel.add_probe("PROBE6", 4.0, "0, 0, -1"), _errors(operator)[-1:]
     assert panel.select_probe("PROBE6"), _errors(operator)[-1:]
     assert st.sim.world.probe.tip_radius == 2.0  # the simulator's head carries the 4 mm stylus now
