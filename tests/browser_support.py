@@ -40,24 +40,35 @@ DEVICE_SCALE = float(os.environ.get("CMM_TEST_DPR", "0.5"))
 VIEW_SCALE = float(os.environ.get("CMM_TEST_VIEW_DPR", "0.25"))
 
 
-# The 3-D view's frames at most every FRAME_MS ms (requestAnimationFrame held back; viser draws on demand, and its
-# timers, jog holds and GUI-only messages do not wait for frames): 2 a second. Chromium's software WebGL (SwiftShader)
-# costs about 50 CPU ms a frame of the station's scene whatever the view's size (its worker threads, not the pixels),
-# and viser draws continuously for 250 ms after each scene update, so a page whose probe moved drew as fast as it was
-# let: 10 frames a second (FRAME_MS 100) were half a core per page, 2 a second a tenth. CMM_TEST_FRAME_MS=0: uncapped.
+# The 3-D view's frames at most every FRAME_MS ms when nothing came from the station (requestAnimationFrame held
+# back; viser draws on demand, and its timers, jog holds and GUI-only messages do not wait for frames): 2 a second.
+# Chromium's software WebGL (SwiftShader) costs about 50 CPU ms a frame of the station's scene whatever the view's
+# size (its worker threads, not the pixels), and viser draws continuously for 250 ms after each scene update, so a
+# page whose probe moved drew as fast as it was let: 10 frames a second were half a core per page, 2 a second a
+# tenth. CMM_TEST_FRAME_MS=0: uncapped.
 FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "500"))
+# viser applies the station's messages in a frame (a GUI-only batch waits too when a scene message is queued before
+# it), so a page that had a message since its last frame gets its next one MESSAGE_FRAME_MS after that frame: a
+# click's answer shows in a fifth of a second instead of up to FRAME_MS, while the frames a moving probe asks for
+# stay five a second at most. The page's websocket runs in a worker: its messages are seen as the worker's.
+MESSAGE_FRAME_MS = float(os.environ.get("CMM_TEST_MESSAGE_FRAME_MS", "200"))
 # Every callback waiting when a frame is let through runs in it (callbacks of one frame share its time stamp), so
 # no requester (the 3-D view, a panel's opening transition) is starved by another. A test may space the frames
-# further for a while: ``page.evaluate("window.__cmmFrameMs = 5000")``.
+# further for a while: ``page.evaluate("window.__cmmFrameMs = 5000")`` (messages then wait as long too).
 # ``window.__cmmPage`` keeps what a failed wait reports (page_diagnosis): the frames let through and when the last
 # was, the callbacks waiting, and the page's longest main-thread tasks.
 FRAME_CAP = """(() => { const raf = window.requestAnimationFrame.bind(window);
-  const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, next = 1;
+  const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, soon = 0, next = 1;
+  let heard = false;
   const stats = window.__cmmPage = { frames: 0, lastFrame: -1, waiting: () => ids.size, longTasks: [] };
+  const Worker0 = window.Worker;
+  if (Worker0) window.Worker = class extends Worker0 { constructor(...args) { super(...args);
+    this.addEventListener("message", () => { heard = true; }); } };
   window.requestAnimationFrame = (cb) => { const id = next++;
-    const go = (t) => { if (t === open || t >= due) { if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g);
-                                                                        stats.frames++; stats.lastFrame = t; }
-                                                       ids.delete(id); cb(t); } else { ids.set(id, raf(go)); } };
+    const go = (t) => { if (t === open || t >= due || (heard && t >= soon && !window.__cmmFrameMs)) {
+                          if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g); soon = t + %g;
+                                            heard = false; stats.frames++; stats.lastFrame = t; }
+                          ids.delete(id); cb(t); } else { ids.set(id, raf(go)); } };
     ids.set(id, raf(go)); return id; };
   window.cancelAnimationFrame = (id) => { const r = ids.get(id); if (r !== undefined) { caf(r); ids.delete(id); } };
   try { new PerformanceObserver((list) => { for (const e of list.getEntries()) { stats.longTasks.push([e.startTime, e.duration]);
@@ -118,7 +129,7 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
             context.set_default_timeout(PAGE_WAIT_MS)
             context.set_default_navigation_timeout(PAGE_WAIT_MS)
             if FRAME_MS:
-                context.add_init_script(FRAME_CAP % FRAME_MS)
+                context.add_init_script(FRAME_CAP % (FRAME_MS, MESSAGE_FRAME_MS))
             try:
                 yield context
             finally:

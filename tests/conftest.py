@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import resource
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import pytest
 
@@ -49,32 +51,42 @@ def pytest_collection_modifyitems(config, items):
 
 
 # Where the time goes, file by file: each test phase's wall seconds and the CPU seconds its test process spent in it
-# (every thread: the stations, their simulators, viser; not chromium nor other subprocesses), summed per file on the
+# (every thread: the stations, their simulators, viser), and the CPU seconds of its finished subprocesses (chromium and
+# Playwright's driver count when the browser closes, usually in the file's last teardown), summed per file on the
 # controller and printed after pytest's slowest tests. A file's module fixtures count in its first test's setup.
-_CPU_MARK = pytest.StashKey[float]()
-_FILES: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0])
+_CPU_MARK = pytest.StashKey[tuple[float, float]]()
+_FILES: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0, 0.0])
+
+
+def _cpu_now() -> tuple[float, float]:
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time(), children.ru_utime + children.ru_stime
 SLOWEST_FILES = 15
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
-    item.stash[_CPU_MARK] = time.process_time()
+    item.stash[_CPU_MARK] = _cpu_now()
 
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     outcome = yield
     report = outcome.get_result()
-    now = time.process_time()
-    report.user_properties.append(("cpu_s", round(now - item.stash.get(_CPU_MARK, now), 3)))
+    now = _cpu_now()
+    then = item.stash.get(_CPU_MARK, now)
+    report.user_properties.append(("cpu_s", round(now[0] - then[0], 3)))
+    report.user_properties.append(("child_cpu_s", round(now[1] - then[1], 3)))
     item.stash[_CPU_MARK] = now
 
 
 def pytest_runtest_logreport(report):
     entry = _FILES[report.nodeid.split("::", 1)[0]]
     entry[0] += report.duration
-    entry[1] += dict(report.user_properties).get("cpu_s", 0.0)
+    props = dict(report.user_properties)
+    entry[1] += props.get("cpu_s", 0.0)
     entry[2] += report.when == "call"
+    entry[3] += props.get("child_cpu_s", 0.0)
 
 
 @pytest.hookimpl(trylast=True)
@@ -83,8 +95,15 @@ def pytest_terminal_summary(terminalreporter):
         return
     wall = sum(e[0] for e in _FILES.values())
     cpu = sum(e[1] for e in _FILES.values())
+    child = sum(e[3] for e in _FILES.values())
     tr = terminalreporter
-    tr.write_sep("=", f"slowest {SLOWEST_FILES} files (wall s of their tests, CPU s of the test process)")
-    for name, (w, c, n) in sorted(_FILES.items(), key=lambda kv: -kv[1][0])[:SLOWEST_FILES]:
-        tr.write_line(f"{w:8.1f}s wall {c:8.1f}s CPU  {n:4d} tests  {name}")
-    tr.write_line(f"all files: {wall:.0f} s of test time, {cpu:.0f} CPU s in the test processes")
+    tr.write_sep("=", f"slowest {SLOWEST_FILES} files (wall s of their tests, CPU s of the test process and of its "
+                      f"subprocesses: chromium)")
+    for name, (w, c, n, k) in sorted(_FILES.items(), key=lambda kv: -kv[1][0])[:SLOWEST_FILES]:
+        tr.write_line(f"{w:8.1f}s wall {c:8.1f}s CPU {k:8.1f}s child CPU  {n:4d} tests  {name}")
+    tr.write_line(f"all files: {wall:.0f} s of test time, {cpu:.0f} CPU s in the test processes, {child:.0f} CPU s "
+                  f"in their subprocesses")
+    table = Path(__file__).resolve().parents[1] / "test-artifacts" / "file-times.csv"  # every file, for tuning
+    table.parent.mkdir(exist_ok=True)
+    table.write_text("file,wall_s,cpu_s,child_cpu_s,tests\n" + "".join(
+        f"{name},{w:.1f},{c:.1f},{k:.1f},{n}\n" for name, (w, c, n, k) in sorted(_FILES.items(), key=lambda kv: -kv[1][0])))

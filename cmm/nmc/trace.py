@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections import deque
 from dataclasses import dataclass
@@ -15,7 +16,12 @@ class TraceEntry:
     time: float  # seconds on the bus clock
     direction: str  # "tx" (host -> modules) or "rx" (modules -> host)
     data: bytes
-    note: str = ""
+    given_note: str | None = ""  # None: the command's description, worked out when first read
+
+    @functools.cached_property
+    def note(self) -> str:
+        # the link sends hundreds of packets a second and the trace is read rarely: describe on demand
+        return codec.describe(self.data) if self.given_note is None else self.given_note
 
     def format(self) -> str:
         note = f"  {self.note}" if self.note else ""
@@ -31,7 +37,7 @@ class ByteTrace:
         self._listeners: list[Callable[[TraceEntry], None]] = []
         self.enabled = True
 
-    def record(self, time: float, direction: str, data: bytes, note: str = "") -> None:
+    def record(self, time: float, direction: str, data: bytes, note: str | None = "") -> None:
         if not self.enabled or not data:
             return
         entry = TraceEntry(time, direction, bytes(data), note)
@@ -42,7 +48,7 @@ class ByteTrace:
             listener(entry)
 
     def tx(self, time: float, data: bytes) -> None:
-        self.record(time, "tx", data, codec.describe(data) if data[:1] == bytes((codec.HEADER,)) else "")
+        self.record(time, "tx", data, None if data[:1] == bytes((codec.HEADER,)) else "")
 
     def rx(self, time: float, data: bytes, note: str = "") -> None:
         self.record(time, "rx", data, note)

@@ -97,6 +97,7 @@ class MeshObstacle(Obstacle):
     """
 
     LOCAL_REACH = 0.5  # mm
+    BOUND_REACH = 5.0  # mm: within this of the last exact distance, that distance bounds the next one
     # beyond this distance from the bounding box (mm) a query answers the box's distance, a lower bound: it must
     # exceed the mounted tip's radius (SimulatedCMM.mount_stylus keeps it so), or a bound would read as a contact
     box_reach = 1.0
@@ -114,13 +115,20 @@ class MeshObstacle(Obstacle):
         self._tree = self.mesh.triangles_tree
         self._local_at: np.ndarray | None = None
         self._local_faces = np.zeros(0, dtype=np.int64)
+        self._known_at: np.ndarray | None = None  # where the last exact distance to the triangles was taken
+        self._known_dist = 0.0
         self.full_queries = 0
 
     def _gather(self, p: np.ndarray) -> None:
         """Faces that can hold the closest point for any tip within LOCAL_REACH of ``p``."""
-        closest, dist, _ = self.mesh.nearest.on_surface(p[None, :])
-        self.full_queries += 1
-        reach = float(dist[0]) + 2 * self.LOCAL_REACH
+        if self._known_at is not None and float(np.linalg.norm(p - self._known_at)) <= self.BOUND_REACH:
+            # the last exact distance bounds this one (the surface is at most that far plus the step): the faces
+            # in reach come from the tree's boxes alone, without the full query's search
+            dist = self._known_dist + float(np.linalg.norm(p - self._known_at))
+        else:
+            dist = float(self.mesh.nearest.on_surface(p[None, :])[1][0])
+            self.full_queries += 1
+        reach = dist + 2 * self.LOCAL_REACH
         box = np.concatenate([p - reach, p + reach])
         self._local_faces = np.fromiter(self._tree.intersection(box), dtype=np.int64)
         self._local_at = p.copy()
@@ -142,6 +150,7 @@ class MeshObstacle(Obstacle):
         n = self.mesh.face_normals[faces[k]]
         v = p - c
         dv = float(np.sqrt(d2[k]))
+        self._known_at, self._known_dist = p.copy(), dv
         if self.cad is not None:
             local = self._rot.T @ (np.stack([p, c]) - self._shift).T
 
