@@ -559,7 +559,8 @@ SAMPLE_321_HITS = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0
 
 
 AXES = "XYZ"
-JOG_GAP_MM = 2.0  # how far from the surface (probe tip to surface) the operator starts a hand hit's jog
+JOG_GAP_MM = 0.8  # how far from the surface (probe tip to surface) the operator starts a hand hit's jog (each mm
+# is half a second of machine time at the probing speed, 1.25 s of wall time at HAND_PACE)
 
 
 def go_to_in_page(page: Any, station: Any, target: Any, timeout: float = 120.0) -> None:

@@ -208,6 +208,27 @@ def test_a_dmis_run_without_tolerances_still_tells_its_end(tmp_path, monkeypatch
     assert webhook.got.empty()
 
 
+def test_a_dmis_run_that_stops_midway_tells_it_stopped_and_why(tmp_path, monkeypatch, webhook):
+    """The bore measured, then a GOTO straight into the part: the run stops there (``cmm run`` fails) and its end
+    is a run_end with the verdict STOPPED naming the line and the reason, not a PASS of what was measured."""
+    from cmm.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    program = _bore_program(tmp_path)
+    text = program.read_text()
+    assert "ENDMES\nGOTO/30, 40, 70\n" in text  # after the bore's hits, up out of it
+    program.write_text(text.replace("ENDMES\nGOTO/30, 40, 70\n", "ENDMES\nGOTO/30, 40, 70\nGOTO/60, 40, 20\n"))
+    assert main(["run", str(program), "--sessions", str(tmp_path / "sessions"), "--station", "bench 8",
+                 "--notify-webhook", webhook.url]) == 1
+    ((_, m),) = _take(webhook.got, 1)
+    assert m["event"] == "run_end" and m["verdict"] == "STOPPED" and m["program"] == "bore.dmi"
+    assert m["station"] == "bench 8" and m["part"] == "sample part" and m["failed"] == []
+    assert "STOPPED" in m["message"] and "GOTO" in m["message"] and "straight line" in m["message"], m["message"]
+    assert webhook.got.empty()  # no second end, no out-of-tolerance for a run that did not finish
+    (journal,) = (tmp_path / "sessions").rglob("*.jsonl")
+    assert journal.read_text().count('"kind": "hit"') == 6  # the bore was measured before the stop
+
+
 def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(tmp_path, webhook, broker):
     """A routine on the station without trends: its end (part, routine, verdict, report link) to the webhook and
     over MQTT; the same routine cancelled: run_end with the verdict STOPPED and the reason."""
