@@ -102,6 +102,9 @@ def test_datset_with_one_direction_keeps_the_rest_of_the_current_system():
     assert origins[:3, :3] == pytest.approx(np.eye(3)) and origins[:3, 3] == pytest.approx([7.0, 2.0, 3.0])
 
 
+POINT_P = "F(P) = FEAT/POINT, CART, 1, 2, 40, 0, 0, 1\nMEAS/POINT, F(P), 1\nENDMES\n"  # lines 1-3
+
+
 @pytest.mark.parametrize("program, problem", [
     ("GOTO/1e308, 0, 0\n", "line 1: 1e308 is not a usable number (more than 1e+06 in size)"),
     ("UNITS/MM\nF(P) = FEAT/POINT, CART, nan, 0, 0, 0, 0, 1\n", "line 2: nan is not a finite number"),
@@ -132,6 +135,15 @@ def test_datset_with_one_direction_keeps_the_rest_of_the_current_system():
      "line 2: MEAS/PLANE, F(P): the number of points must be a whole number of at least 1, not 0"),
     ("SNSLCT/S(NOPE)\n",
      "line 1: SNSLCT/S(NOPE): no SNSDEF in the program defines S(NOPE) (S(NOPE) = SNSDEF/PROBE, ..., tip diameter)"),
+    (POINT_P + "T(F) = TOL/FLAT, 0.01\nOUTPUT/FA(P), TA(F)\n",
+     "line 5: T(F): TOL/FLAT applies to a plane, FA(P) is a point"),
+    (POINT_P + "T(D) = TOL/DIAM, -0.01, 0.01\nOUTPUT/FA(P), TA(D)\n",
+     "line 5: T(D): TOL/DIAM needs a circle, cylinder or sphere with a nominal diameter; FA(P) is a point"),
+    ("F(L) = FEAT/PLANE, CART, 1, 2, 40, 0, 0, 1\nMEAS/PLANE, F(L), 3\nENDMES\nT(X) = TOL/POS, 3D, 0.1\n"
+     "OUTPUT/FA(L), TA(X)\n", "line 5: T(X): TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
+                               "FA(L) is a plane"),
+    (POINT_P + "DATDEF/FA(P), DAT(A)\nD(X) = DATSET/DAT(A), ZDIR, ZORIG\n",
+     "line 5: DATSET: DAT(A) (FA(P), a point) has no direction for ZDIR: use a plane, line, axis or circle"),
 ])
 def test_the_check_refuses_what_no_run_could_carry_out(program, problem):
     assert problem in check(program + "ENDFIL\n")[1]
@@ -141,6 +153,11 @@ def test_what_the_check_passes_with_names_the_run_defines_or_recalls_is_not_refu
     program = ("DID(OUT) = DEVICE/STOR, 'a.dms'\nOPEN/DID(OUT), FDATA, DMIS, OUTPUT\nRECALL/DAT(A)\nRECALL/FA(P)\n"
                "RECALL/SA(TIP)\nSNSLCT/S(TIP)\nDECL/DOUBLE, DIA\nDIA = ASSIGN/10\nF(C) = FEAT/CIRCLE, INNER, CART, 1, 2, 3, 0, 0, 1, DIA\n"
                "T(P) = TOL/POS, 2D, 0.1, DAT(A)\nD(X) = DATSET/DAT(A), ZDIR, ZORIG\nOUTPUT/FA(P)\nCLOSE/DID(OUT)\n")
+    assert check(program + "ENDFIL\n")[1] == []
+    # a point's datum sets origins (its location), a plane's the direction; TOL/POS on a point is a position
+    program = (POINT_P + "F(L) = FEAT/PLANE, CART, 1, 2, 40, 0, 0, 1\nMEAS/PLANE, F(L), 3\nENDMES\n"
+               "DATDEF/FA(P), DAT(A)\nDATDEF/FA(L), DAT(B)\nD(X) = DATSET/DAT(B), ZDIR, DAT(A), XORIG, YORIG, ZORIG\n"
+               "T(X) = TOL/POS, 3D, 0.1\nOUTPUT/FA(P), TA(X)\nT(F) = TOL/FLAT, 0.01\nOUTPUT/FA(L), TA(F)\n")
     assert check(program + "ENDFIL\n")[1] == []
 
 

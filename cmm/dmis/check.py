@@ -14,6 +14,8 @@ from .features import KINDS, NUMBERS, SIZED, size_problem
 from .lexer import DmisSyntaxError, statements
 from .parser import Expr, Label, Statement, Text, Word, parse_statement
 from .parser import evaluate
+from .frames import DIRS
+from .tolerances import kind_problem
 from .rules import (SAVED, SUPPORTED, const_problem, datset_word_problem, material_problem, mount_matrix, mounted,
                     open_problem, probe_direction, probe_problem, rotat_problem)
 
@@ -371,6 +373,52 @@ def reference_problems(stmts: list[Statement]) -> dict[int, str]:
     return out
 
 
+UNDIRECTED = ("point", "sphere")  # a datum of these kinds has a location but no direction
+
+
+def kind_problems(stmts: list[Statement]) -> dict[int, str]:
+    """Statement index -> a tolerance output on a feature of a kind it does not apply to (TOL/FLAT of a point,
+    TOL/DIAM of a plane), or a DATSET direction word (ZDIR ...) on a datum with no direction (a point, a sphere):
+    the kinds come from the program's FEAT and CONST statements, and the words are the run's own refusals."""
+    kinds: dict[str, str] = {}
+    tols: dict[str, str] = {}
+    datums: dict[str, str] = {}
+    for s in stmts:
+        labels = [p for p in s.params if isinstance(p, Label)]
+        if s.major == "FEAT" and s.label is not None and s.minor in KINDS:
+            kinds[s.label.name] = KINDS[s.minor]
+        elif s.major == "CONST" and labels and labels[0].type == "F" and s.minor in KINDS:
+            kinds[labels[0].name] = KINDS[s.minor]
+        elif s.major == "TOL" and s.label is not None and s.minor:
+            tols[s.label.name] = s.minor
+        elif s.major == "DATDEF" and len(labels) == 2 and labels[1].type == "DAT":
+            datums[labels[1].name] = labels[0].name
+    out: dict[int, str] = {}
+    for k, s in enumerate(stmts):
+        labels = [p for p in s.params if isinstance(p, Label)]
+        if s.major == "OUTPUT":
+            features = [lab.name for lab in labels if lab.type in ("FA", "F")]
+            for lab in (lab for lab in labels if lab.type == "TA" and lab.name in tols):
+                word = tols[lab.name]
+                if len(features) == 1 and features[0] in kinds:
+                    problem = kind_problem(word, kinds[features[0]], features[0])
+                    if problem is not None:
+                        out[k] = f"T({lab.name}): {problem}"
+                        break
+        elif s.major == "DATSET":
+            current = None
+            for p in s.params:
+                if isinstance(p, Label):
+                    current = (str(p), datums.get(p.name) if p.type == "DAT" else p.name)
+                elif isinstance(p, Word) and p.text in DIRS and current is not None:
+                    kind = kinds.get(current[1] or "")
+                    if kind in UNDIRECTED:
+                        out[k] = (f"DATSET: {current[0]} (FA({current[1]}), a {kind}) has no direction for "
+                                  f"{p.text}: use a plane, line, axis or circle")
+                        break
+    return out
+
+
 def check_statements(stmts: list[Statement]) -> list[str]:
     problems: list[str] = []
     stack: list[Statement] = []
@@ -379,10 +427,11 @@ def check_statements(stmts: list[Statement]) -> list[str]:
     sizes = size_problems(stmts)
     recalls = recall_problems(stmts)
     references = reference_problems(stmts)
+    kinds = kind_problems(stmts)
     variables = declared(stmts)
     for k, (s, scale, mount) in enumerate(zip(stmts, angle_scales(stmts), mounts(stmts))):
         p = (statement_problem(s, scale, mount) or number_problem(s, variables) or sizes.get(k) or recalls.get(k)
-             or references.get(k))
+             or references.get(k) or kinds.get(k))
         if p is not None:
             problems.append(f"line {s.line}: {p}")
         if s.label is not None:

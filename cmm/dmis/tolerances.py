@@ -43,6 +43,22 @@ ALL = ("DIAM", "RAD", "DISTB", "ANGLB", "FLAT", "STRGHT", "CIRLTY", "CYLCTY", "P
 AXIAL = ("line", "cylinder", "cone", "circle")
 
 
+SIZE_KINDS = ("circle", "cylinder", "sphere")
+POS_KINDS = ("point", "circle", "cylinder", "sphere", "cone")
+
+
+def kind_problem(word: str, kind: str, label: str) -> str | None:
+    """TOL/<word> output on FA(label), a <kind>: what the run refuses for that kind, in its words (None: accepted).
+    The check before a run reads the kinds from the FEAT statements and says the same."""
+    if word in FORM and kind not in FORM[word]:
+        return f"TOL/{word} applies to a {' or '.join(FORM[word])}, FA({label}) is a {kind}"
+    if word in SIZE and kind not in SIZE_KINDS:
+        return f"TOL/{word} needs a circle, cylinder or sphere with a nominal diameter; FA({label}) is a {kind}"
+    if word == "POS" and kind not in POS_KINDS:
+        return f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; FA({label}) is a {kind}"
+    return None
+
+
 class ToleranceError(ValueError):
     """A tolerance that cannot be evaluated on the features given, in words."""
 
@@ -214,7 +230,7 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
     lo, up = tol.lower, tol.upper
     if w in SIZE:
         nom = a.nominal
-        if a.kind not in ("circle", "cylinder", "sphere") or nom is None or nom.diameter is None:
+        if a.kind not in SIZE_KINDS or nom is None or nom.diameter is None:
             raise ToleranceError(f"TOL/{w} needs a circle, cylinder or sphere with a nominal diameter; "
                                  f"FA({a.label}) is a {a.kind}")
         dev = 2.0 * float(a.geometry["radius"]) - nom.diameter
@@ -240,8 +256,8 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         dev = float(value) - float(tol.nominal or 0.0)
         return Evaluation(tol, dev, lo - 1e-12 <= dev <= up + 1e-12, [a.label, b.label], note=note)
     if w in FORM:
-        if a.kind not in FORM[w]:
-            raise ToleranceError(f"TOL/{w} applies to a {' or '.join(FORM[w])}, FA({a.label}) is a {a.kind}")
+        if (problem := kind_problem(w, a.kind, a.label)) is not None:
+            raise ToleranceError(problem)
         characteristic = GDT_FORM.get((w, a.kind))
         if characteristic is not None and a.hit_points is not None and up > 0:
             value = _station(characteristic, up, a, [], datums).value
@@ -258,7 +274,7 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         # limits of the feature and of a datum at MMC / LMC are the program's TOL/DIAM outputs; the zone is
         # gdt.position's, as in gdt_eval
         nom = a.nominal
-        if nom is None or a.kind not in ("point", "circle", "cylinder", "sphere", "cone"):
+        if nom is None or a.kind not in POS_KINDS:
             raise ToleranceError(f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
                                  f"FA({a.label}) is a {a.kind}")
         drf = _drf(tol.datums, datums, material=tol.datum_material, sizes=sizes) if dat else None
