@@ -29,10 +29,12 @@ def backend():
 
     port = free_port()
     seen: list[str] = []
+    forwarded: list[list[str]] = []
     ready, stop = threading.Event(), {}
 
     def page(connection, request):
         seen.append(request.headers.get("Host", ""))
+        forwarded.append(request.headers.get_all("X-Forwarded-For"))
         if request.path == "/page":
             body = b"<html>the station page</html>"
             return Response(200, "OK", Headers({"Content-Type": "text/html", "Content-Length": str(len(body))}),
@@ -54,22 +56,23 @@ def backend():
     thread = threading.Thread(target=asyncio.run, args=(main(),), daemon=True)
     thread.start()
     assert ready.wait(30)
-    yield port, seen
+    yield port, seen, forwarded
     stop["loop"].call_soon_threadsafe(stop["future"].set_result, None)
     thread.join(10)
 
 
 def test_https_and_wss_reach_the_page_through_the_proxy_with_the_stations_certificate(backend, tmp_path):
-    port, seen = backend
+    port, seen, forwarded = backend
     cert = tls.certificate(tmp_path / "tls")  # self-signed, made now: 127.0.0.1 among its names
     proxy = TlsProxy(cert, "127.0.0.1", free_port(), port).start()
     try:
         trusted = ssl.create_default_context(cafile=str(cert.cert_path))  # verifies the chain and the address
         conn = http.client.HTTPSConnection("127.0.0.1", proxy.port, context=trusted, timeout=60)
-        conn.request("GET", "/page")
+        conn.request("GET", "/page", headers={"X-Forwarded-For": "10.9.9.9"})  # a client's own claim
         answer = conn.getresponse()
         assert answer.status == 200 and answer.read() == b"<html>the station page</html>"
         conn.close()
+        assert forwarded[-1] == ["127.0.0.1"]  # the proxy's word for the peer only (the key of the code's rate limit)
         pem = tmp_path / "seen.pem"  # the certificate a client sees is the one whose fingerprint was printed
         pem.write_text(ssl.get_server_certificate(("127.0.0.1", proxy.port)))
         assert tls.fingerprint(pem) == cert.fingerprint
@@ -81,6 +84,7 @@ def test_https_and_wss_reach_the_page_through_the_proxy_with_the_stations_certif
                 ws.send(text)
                 assert ws.recv(timeout=60) == f"echo {text}"
         assert seen and all(h == f"127.0.0.1:{proxy.port}" for h in seen)  # the Host the browser sent, unchanged
+        assert all(f == ["127.0.0.1"] for f in forwarded)  # the WebSocket's upgrade names its peer too
         assert proxy.connections >= 2
 
         # nothing in clear on the public port: a plain http request gets no page
@@ -112,6 +116,31 @@ def test_a_lan_peer_naming_the_loopback_as_its_host_is_refused(tmp_path):
     assert proxy.refusal(head % b"127.0.0.1:8080", ("127.0.0.1", 50123)) is None
 
 
+def test_the_proxy_names_each_peer_and_the_station_keys_the_code_limit_by_it():
+    """Behind the proxy every connection comes from 127.0.0.1: the proxy forwards each LAN peer's address (a
+    client's own X-Forwarded-For or Forwarded line dropped), and the station reads it only when it is behind its
+    own proxy, from a loopback peer; a LAN client connecting directly cannot choose its rate-limit key."""
+    from cmm.control.access import Control, forwarded_peer
+    from cmm.control.tls_proxy import forwarded_head
+
+    head = (b"GET / HTTP/1.1\r\nHost: cmm-7:8443\r\nX-Forwarded-For: 10.0.0.1\r\nforwarded: for=10.0.0.2\r\n"
+            b"Upgrade: websocket\r\n\r\n")
+    assert forwarded_head(head, ("192.168.1.31", 50123)) == (
+        b"GET / HTTP/1.1\r\nHost: cmm-7:8443\r\nUpgrade: websocket\r\nX-Forwarded-For: 192.168.1.31\r\n\r\n")
+    headers = {"X-Forwarded-For": "192.168.1.31"}
+    assert forwarded_peer(("127.0.0.1", 40000), headers, True) == ("192.168.1.31", 0)
+    assert forwarded_peer(("127.0.0.1", 40000), headers, False) == ("127.0.0.1", 40000)  # not behind the proxy
+    assert forwarded_peer(("192.168.1.40", 40000), headers, True) == ("192.168.1.40", 40000)  # not from the proxy
+    assert forwarded_peer(("127.0.0.1", 40000), {"X-Forwarded-For": "not an address"}, True) == ("127.0.0.1", 40000)
+    # the rate limit per LAN client: a wrong code from one does not lock out the next one
+    control = Control(access_code="open-sesame")
+    one, two = (forwarded_peer(("127.0.0.1", 40000 + k), {"X-Forwarded-For": f"192.168.1.{31 + k}"}, True)[0]
+                for k in range(2))
+    assert control.try_take("a", "guess", peer=one) == "wrong access code: control refused"
+    assert control.try_take("a", "open-sesame", peer=one).startswith("too many wrong access codes: wait")
+    assert control.try_take("b", "open-sesame", peer=two) is None and control.holder == "b"
+
+
 def test_cmm_serve_tls_puts_the_page_and_the_pendant_behind_the_proxy(tmp_path_factory):
     """The wiring of `cmm serve --tls` (cli/serve.py tls_proxies): the page and the pendant on loopback, each
     served over https on its public port with the station's certificate; the page addresses its embedded pendant
@@ -128,6 +157,7 @@ def test_cmm_serve_tls_puts_the_page_and_the_pendant_behind_the_proxy(tmp_path_f
         proxies = tls_proxies(app, cert, "127.0.0.1", page_port, None)
         try:
             assert [p.port for p in proxies] == [page_port, page_port + 1]
+            assert app.behind_tls_proxy and app.pendant.behind_tls_proxy  # both read the forwarded address
             assert app.pendant_src(None) == f"https://127.0.0.1:{page_port + 1}/"
             assert {page_port, page_port + 1} <= app.origins.ports
             trusted = ssl.create_default_context(cafile=str(cert.cert_path))

@@ -292,6 +292,9 @@ def tls_proxies(app: Any, certificate: Any, host: str, page_port: int, pendant_p
         proxies[0].close()
         raise
     app.origins.ports.update(p.port for p in proxies)  # the pages on the public ports are the station's own
+    app.behind_tls_proxy = True  # each client's address comes from the proxy (the access-code rate limit's key)
+    if app.pendant is not None:
+        app.pendant.behind_tls_proxy = True
     if len(proxies) > 1:  # the page's embedded pendant and its jog-hold socket: the pendant's public https address
         loopback_src, outer = app.pendant_src, proxies[1].port
 

@@ -448,6 +448,26 @@ class OriginPolicy:
         log.warning("%s", reason)
 
 
+FORWARDED_FOR = "X-Forwarded-For"  # the header the station's TLS proxy sets to the LAN peer's address
+
+
+def forwarded_peer(peer: Any, headers: Any, behind_proxy: bool) -> Any:
+    """The client's own address: behind the station's TLS proxy (its pages listen on loopback only) the socket
+    peer is the proxy on 127.0.0.1, and the proxy names the real one in ``X-Forwarded-For`` (after dropping any the
+    client sent); otherwise, or from any other peer, the socket peer itself (a LAN client cannot choose its key)."""
+    if not behind_proxy or not is_loopback_peer(peer) or headers is None:
+        return peer
+    value = headers.get(FORWARDED_FOR) if hasattr(headers, "get") else None
+    if not value:
+        return peer
+    address = str(value).split(",")[0].strip()
+    try:
+        ipaddress.ip_address(address.split("%", 1)[0])
+    except ValueError:
+        return peer
+    return (address, 0)
+
+
 def is_local_connection(peer: Any, host_header: str | None = None) -> bool:
     """The one rule for "this client sits at the station PC": its socket peer is on the loopback interface and,
     for a web page, its ``Host`` header names a loopback host (a LAN page cannot pass by naming us)."""

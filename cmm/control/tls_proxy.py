@@ -7,7 +7,9 @@ forwards the bytes both ways unchanged (an HTTP request, or a WebSocket upgrade 
 code and the users' passwords therefore never cross the LAN in clear.
 
 Behind the proxy every connection comes from 127.0.0.1, and the page tells "at the station PC" from "on the
-LAN" by a loopback peer that asked for a loopback host name. So the proxy refuses (421) a request from a LAN
+LAN" by a loopback peer that asked for a loopback host name; the proxy names each client's own address in an
+``X-Forwarded-For`` header (any the client sent is dropped), which the page and the pendant, knowing they are
+behind it, read for the access-code rate limit and the local test. The proxy also refuses (421) a request from a LAN
 peer whose ``Host`` names this PC's loopback (``localhost``, ``127.0.0.1``): a LAN browser never sends one, and
 letting it through would make that browser local. A request from a loopback peer passes as it is.
 """
@@ -19,7 +21,7 @@ import logging
 import threading
 from typing import Any
 
-from .access import is_loopback_host, is_loopback_peer
+from .access import FORWARDED_FOR, is_loopback_host, is_loopback_peer
 
 log = logging.getLogger(__name__)
 HEAD_LIMIT = 64 * 1024  # bytes of a request head
@@ -115,7 +117,7 @@ class TlsProxy:
                 await writer.drain()
                 return
             self.connections += 1
-            back_writer.write(head)
+            back_writer.write(forwarded_head(head, peer))
             await asyncio.gather(_pipe(reader, back_writer), _pipe(back_reader, writer))
         except (ConnectionError, OSError, asyncio.CancelledError):
             pass
@@ -137,6 +139,18 @@ class TlsProxy:
             return (f"refused a request from {where} for host {host or '(none)'!r}: open the station by its LAN "
                     "address or name")
         return None
+
+
+def forwarded_head(head: bytes, peer: Any) -> bytes:
+    """The request head as the page receives it: the client's own X-Forwarded-For / Forwarded lines dropped and
+    the proxy's X-Forwarded-For with the peer's address added, so the station keys the access-code rate limit
+    (and tells local from LAN) by each LAN client, not by the proxy's 127.0.0.1 that all of them share."""
+    lines = head[:-4].split(b"\r\n") if head.endswith(b"\r\n\r\n") else head.split(b"\r\n")
+    dropped = {FORWARDED_FOR.lower().encode(), b"forwarded"}
+    kept = [lines[0]] + [ln for ln in lines[1:] if ln.partition(b":")[0].strip().lower() not in dropped]
+    address = peer[0] if isinstance(peer, (tuple, list)) and peer else str(peer or "")
+    kept.append(f"{FORWARDED_FOR}: {address}".encode("latin-1"))
+    return b"\r\n".join(kept) + b"\r\n\r\n"
 
 
 async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:

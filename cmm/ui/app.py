@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..control.access import Control, OriginPolicy, is_local_connection, is_loopback_host
+from ..control.access import Control, OriginPolicy, forwarded_peer, is_local_connection, is_loopback_host
 from .origin import guard_viser
 from .panels import ClientApp
 from .scene import DEFAULT_TOLERANCE, ProbeUpdater, SceneView
@@ -47,6 +47,7 @@ class StationApp:
             self.control.on_holder_lost = lambda _cid: self._holder_lost()
         station.controller.use_policy_of(self.control)  # machine commands are checked there, once
         self.origins = OriginPolicy(lan=lan or not is_loopback_host(host), allow_hosts=allow_hosts)
+        self.behind_tls_proxy = False  # cmm serve --tls: the page on loopback, its clients' addresses forwarded
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
         self._refused = guard_viser(self.server, self.origins)
         # the wide side panel: the six top tabs (Machine ... Setup) in one row, the DRO's three columns unwrapped
@@ -125,11 +126,14 @@ class StationApp:
     # --- clients -------------------------------------------------------------------
 
     def client_address(self, client_id: int) -> Any:
-        """Remote address of a viser client's WebSocket (viser keeps it on the live connection)."""
+        """Remote address of a viser client's WebSocket (viser keeps it on the live connection); behind the
+        station's TLS proxy, the address the proxy forwarded (``behind_tls_proxy``, set by ``cmm serve --tls``)."""
         try:
-            return self.server._websock_server._live_connections[client_id].remote_address
+            connection = self.server._websock_server._live_connections[client_id]
         except Exception:  # noqa: BLE001 - unknown: treat as remote
             return None
+        request = getattr(connection, "request", None)
+        return forwarded_peer(connection.remote_address, getattr(request, "headers", None), self.behind_tls_proxy)
 
     def client_is_local(self, client_id: int) -> bool:
         """Local = at the station PC: a loopback peer that also asked for a loopback host name."""

@@ -102,7 +102,7 @@ from websockets.http11 import Request, Response
 
 from ..control import Client, Refused
 from ..control.priority import raise_priority_on
-from ..control.access import Control, OriginPolicy, is_local_connection, is_loopback_host
+from ..control.access import Control, OriginPolicy, forwarded_peer, is_local_connection, is_loopback_host
 from .pendant_grants import Grant, Grants
 
 STATE_HZ = 20.0
@@ -159,10 +159,13 @@ class _Session:
     user: str | None = None  # who logged in on this connection (a station with a user file), and their role
     role: str | None = None
 
+    address: Any = None  # where it connected from (behind the TLS proxy: the address the proxy forwarded)
+
     @property
     def peer(self) -> str | None:
         """The network address this pendant connected from."""
-        return self.ws.remote_address[0] if self.ws.remote_address else None
+        address = self.address or self.ws.remote_address
+        return address[0] if address else None
 
 
 class PendantServer:
@@ -177,6 +180,7 @@ class PendantServer:
         self.control = control
         self.origins = origins or OriginPolicy(lan=not is_loopback_host(host))
         self.host = host
+        self.behind_tls_proxy = False  # cmm serve --tls: on loopback behind the proxy, which forwards the address
         self.state_hz = state_hz
         root = static_dir or web_dir()
         self._files = {path: ((root / name).read_bytes(), ctype) for path, (name, ctype) in STATIC.items()}
@@ -294,9 +298,11 @@ class PendantServer:
 
     async def _handler(self, ws: ServerConnection) -> None:
         host = ws.request.headers.get("Host", "") if ws.request is not None else ""
-        local = is_local_connection(ws.remote_address, host)
+        address = forwarded_peer(ws.remote_address, ws.request.headers if ws.request is not None else None,
+                                 self.behind_tls_proxy)
+        local = is_local_connection(address, host)
         session = _Session(ws, f"pendant-{next(self._ids)}", local, authenticated=local,
-                           last_message=time.monotonic())
+                           last_message=time.monotonic(), address=address)
         self._sessions.add(session)
         tasks = [asyncio.create_task(self._send_states(session))]
         try:
