@@ -266,6 +266,17 @@ def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -
     return page
 
 
+def focus_view(page: Any) -> None:
+    """Click the 3-D view left of the middle (clear of the notifications in its corners and of the panel): the
+    view takes the keyboard (its jog keys, Esc and Space for STOP)."""
+    wait_until(lambda: page.evaluate("() => !!document.querySelector('canvas.cmm-keys')"), 30.0, "the 3-D view")
+    left, top, width, height = page.evaluate("() => { const r = document.querySelector('canvas.cmm-keys')"
+                                             ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; }")
+    page.mouse.click(left + 0.25 * width, top + 0.5 * height)
+    wait_until(lambda: page.evaluate("() => document.activeElement && document.activeElement.matches("
+                                     "'canvas[data-engine]')"), 10.0, "the 3-D view taking the focus")
+
+
 def typed(page: Any, label: str, value: Any, timeout: float = 30.0) -> None:
     """Wait until the station holds ``value`` in this page's field ``label`` (typed and Enter pressed): a button
     pressed before the value arrived would act on the old one (a fixed pause is a race on a loaded machine)."""

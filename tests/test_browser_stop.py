@@ -47,9 +47,9 @@ def app(station):
     yield from bs.station_app(station, pendant_port=0)
 
 
-def _press_during_go_to(page, station, button: str):
-    """A Go to at the fastest speed; at full speed ``button`` clicked in the page. Returns (the move's status, the
-    machine time and X at the click, the stops carried out)."""
+def _press_during_go_to(page, station, button: str, press=None):
+    """A Go to at the fastest speed; at full speed ``button`` clicked in the page (or ``press()``: a key, a
+    gamepad's button). Returns (the move's status, the machine time and X at the press, the stops carried out)."""
     ctl = station.controller
     events: list[str] = []
     lock = threading.Lock()
@@ -63,9 +63,10 @@ def _press_during_go_to(page, station, button: str):
     bs.wait_until(lambda: ctl.state.mode.value == "idle", 60.0, "the machine idle")
     page.capp.go_to(START, frame="machine").wait(120)
     target = page.get_by_role("button", name=button, exact=True)
-    target.scroll_into_view_if_needed()
-    box = target.bounding_box()
-    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the finger over the button
+    if press is None:
+        target.scroll_into_view_if_needed()
+        box = target.bounding_box()
+        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the finger over the button
     network = station.sim.network
     pace = network.pace
     unsubscribe = ctl.subscribe(seen)
@@ -74,13 +75,17 @@ def _press_during_go_to(page, station, button: str):
         bs.wait_until(lambda: abs(station.machine.state.axes[0].velocity) >= 45.0, 60.0, "the Go to at speed")
         network.set_pace(PRESS_PACE)
         try:
-            # where the button is now (the status text above it may have changed its height since the move began)
-            box = target.bounding_box()
-            page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+            box = None
+            if press is None:  # where the button is now (the status text above it may have changed its height)
+                box = target.bounding_box()
+                page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
             pressed = station.machine.state.time, float(station.machine.state.position[0])
-            page.mouse.down()
-            page.mouse.up()
-            bs.stop_time(station, pressed[0], f"standstill after {button} (clicked at {box})", limit=5.0)
+            if press is None:
+                page.mouse.down()
+                page.mouse.up()
+            else:
+                press()
+            bs.stop_time(station, pressed[0], f"standstill after {button} (pressed at {box})", limit=5.0)
         finally:
             network.set_pace(pace)
         bs.wait_until(lambda: status.done, 30.0, "the Go to ended")
@@ -151,3 +156,35 @@ def test_the_page_takes_one_hit_per_touch(app, station):
         hit = model.hits[max(model.hits)]
         assert hit.mode == "manual"
         assert station.machine.state.position[2] > hit.machine[2] + 0.5  # backed off, and stayed there
+
+
+def test_a_key_in_the_view_and_the_gamepads_stop_button_win_over_a_go_to(app, station):
+    """The keyboard's STOP (Esc with the 3-D view focused, the keyboard jog's stop) in the station page and the
+    gamepad's STOP (button B) on the pendant page beside it, each during a Go to at the fastest speed: the axes
+    stand short of the target and the move ends as stopped by the operator, one stop carried out each time."""
+    with bs.browser_context(viewport=LAPTOP) as context:
+        page = bs.open_page(context, app)
+        bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "control taken")
+        page.wait_for_function("() => window.__cmmHoldWorker !== undefined", timeout=60_000)
+        bs.focus_view(page)
+        status, (t0, x0), events = _press_during_go_to(page, station, "Esc in the view",
+                                                       press=lambda: page.keyboard.press("Escape"))
+        x = float(station.machine.state.position[0])
+        assert x - x0 < 40.0 and TARGET[0] - x > 60.0, f"Esc at X {x0:.1f}, standing at X {x:.1f}"
+        assert status.error is not None and "stopped by the operator" in str(status.error), status
+        assert events == ["stop"], events
+        assert station.controller.state.mode.value == "stopped"
+        # the pendant page (the station PC's, so it may stop) with a gamepad: its B button is STOP
+        pad = context.new_page()
+        pad.add_init_script(bs.FAKE_GAMEPAD)
+        pad.goto(app.pendant.url)
+        pad.wait_for_function("document.getElementById('link').classList.contains('on')", timeout=60_000)
+        assert "Test gamepad" in pad.text_content("#gamepad")
+        status, (t0, x0), events = _press_during_go_to(
+            page, station, "the gamepad's B", press=lambda: pad.evaluate("() => { window.__pad.buttons[1] = 1; }"))
+        pad.evaluate("() => { window.__pad.buttons[1] = 0; }")
+        x = float(station.machine.state.position[0])
+        assert x - x0 < 40.0 and TARGET[0] - x > 60.0, f"B at X {x0:.1f}, standing at X {x:.1f}"
+        assert status.error is not None and "stopped by the operator" in str(status.error), status
+        assert events == ["stop"], events
+        assert page.log.page_errors == [], page.log.problems

@@ -43,16 +43,6 @@ def _velocity(station):
     return np.array([a.velocity for a in station.machine.state.axes])
 
 
-def _focus_view(page):
-    """Click the 3-D view left of the middle (clear of the notifications in its corners and of the panel)."""
-    bs.wait_until(lambda: page.evaluate("() => !!document.querySelector('canvas.cmm-keys')"), 30.0, "the 3-D view")
-    left, top, width, height = page.evaluate("() => { const r = document.querySelector('canvas.cmm-keys')"
-                                             ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height]; }")
-    page.mouse.click(left + 0.25 * width, top + 0.5 * height)
-    bs.wait_until(lambda: page.evaluate("() => document.activeElement && document.activeElement.matches("
-                                        "'canvas[data-engine]')"), 10.0, "the 3-D view taking the focus")
-
-
 def _badge(page):
     return page.locator("#cmm-view-keys")
 
@@ -73,7 +63,7 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
         assert capp.take_control()
         _badge(page).wait_for()
         assert "Click the 3-D view" in _badge(page).inner_text()
-        _focus_view(page)
+        bs.focus_view(page)
         badge = _badge(page)
         bs.wait_until(lambda: "Keyboard jog" in badge.inner_text(), 10.0, "the badge saying the view has the keys")
         outline = page.evaluate("() => getComputedStyle(document.activeElement).outlineStyle")
@@ -103,17 +93,17 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
         # with the E-STOP latched
         capp.emergency_stop()
         bs.wait_until(lambda: station.controller.state.mode.value == "e-stopped", 10.0, "the E-STOP")
-        _focus_view(page)
+        bs.focus_view(page)
         _press_until_told(page, "ArrowLeft", "emergency stop", "the view saying the E-STOP is latched")
         capp.reset()
         bs.wait_until(lambda: station.controller.state.mode.value not in ("e-stopped", "fault"), 20.0, "the reset")
         # an observing page is told to take control
         capp.release_control()
-        _focus_view(page)
+        bs.focus_view(page)
         _press_until_told(page, "PageUp", "Take control", "the view saying this page observes")
         # at the end of the travel (homed, Z stands at its top): +Z says which axis and the way it can go
         assert capp.take_control()
-        _focus_view(page)
+        bs.focus_view(page)
         z_top = station.config.axis("z").max
         assert station.machine.state.position[2] > z_top - 0.005
         _press_until_told(page, "PageUp", "end of its travel", "the view saying Z is at the end of its travel")
