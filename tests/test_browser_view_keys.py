@@ -110,7 +110,7 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
         assert "-Z" in badge.inner_text()
         # Esc stops from the view
         page.keyboard.press("Escape")
-        bs.wait_until(lambda: "STOP sent" in badge.inner_text(), 10.0, "the view saying STOP was sent")
+        bs.wait_until(lambda: "STOP sent" in badge.inner_text(), 60.0, "the view saying STOP was sent")
         assert page.log.page_errors == []
 
 

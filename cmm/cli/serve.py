@@ -67,8 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--station", metavar="NAME", default=None,
                         help="this station's name in the shared trends (default: CMM_STATION, else the host name)")
     parser.add_argument("--no-shadows", dest="shadows", action="store_false",
-                        help="draw the 3-D view without the probe's shadow: each frame a few times cheaper for "
-                             "browsers on computers or tablets without a graphics processor")
+                        help="draw the 3-D view without the probe's shadow and the environment map's reflections "
+                             "(plain lights): each frame several times cheaper for browsers on computers or tablets "
+                             "without a graphics processor")
     from ..session.notify import add_arguments as notify_arguments
 
     notify_arguments(parser)
