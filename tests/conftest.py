@@ -54,8 +54,9 @@ def pytest_collection_modifyitems(config, items):
 
 
 # Where the time goes, file by file: each test phase's wall seconds and the CPU seconds its test process spent in it
-# (every thread: the stations, their simulators, viser), and the CPU seconds of its finished subprocesses (chromium and
-# Playwright's driver count when the browser closes, usually in the file's last teardown), summed per file on the
+# (every thread: the stations, their simulators, viser), and the CPU seconds of its finished subprocesses as the
+# kernel accounts them to it (Playwright's driver when the browser closes; most of chromium's renderer and GPU
+# processes escape that account: a page's own cost is read from /proc, see tests/README.md), summed per file on the
 # controller and printed after pytest's slowest tests. A file's module fixtures count in its first test's setup.
 _CPU_MARK = pytest.StashKey[tuple[float, float]]()
 _FILES: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0, 0, 0.0])
