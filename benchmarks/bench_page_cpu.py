@@ -7,7 +7,7 @@ the page's script and lays out the panel) and the frames the view drew, for each
 
 - ``full``: shadows and the environment map (the default of ``cmm serve``);
 - ``no-shadows``: ``cmm serve --no-shadows`` (no shadow maps, no environment map: plain lights);
-- ``tests``: as the browser tests draw it (``--no-shadows``, the view at 0.1 device pixels per CSS pixel).
+- ``tests``: as the browser tests draw it (``--no-shadows``, the view at 0.25 device pixels per CSS pixel).
 
 The figures come from /proc (chromium's processes are not children the kernel accounts to this script).
 
@@ -25,7 +25,7 @@ import time
 
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync"]
-WAYS = {"full": (True, None), "no-shadows": (False, None), "tests": (False, 0.1)}  # shadows, view's device pixels
+WAYS = {"full": (True, None), "no-shadows": (False, None), "tests": (False, 0.25)}  # shadows, view's device pixels
 
 
 def chromium_cpu() -> dict[str, float]:

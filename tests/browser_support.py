@@ -37,8 +37,8 @@ DEVICE_SCALE = float(os.environ.get("CMM_TEST_DPR", "0.5"))
 # Device pixels per CSS pixel of viser's 3-D view alone (its ``fixedDpr``; viser never goes under 1 by itself):
 # software WebGL's cost is the pixels it shades, and no test reads the view's pixels (picks are rays from CSS
 # coordinates). CMM_TEST_VIEW_DPR=1 for sharp screenshots of the view.
-VIEW_SCALE = float(os.environ.get("CMM_TEST_VIEW_DPR", "0.1"))  # an idle page's frames: 0.25 -> 0.1 cut its GPU
-# process from 0.08 to 0.06 of a core (with the environment map off: station_app's shadows=False)
+VIEW_SCALE = float(os.environ.get("CMM_TEST_VIEW_DPR", "0.25"))  # 0.1 cut an idle page's GPU process only from
+# 0.08 to 0.06 of a core (with the environment map off, station_app's shadows=False: most of the gain)
 
 
 # The 3-D view's frames at most every FRAME_MS ms when nothing came from the station (requestAnimationFrame held
