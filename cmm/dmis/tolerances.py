@@ -45,6 +45,8 @@ AXIAL = ("line", "cylinder", "cone", "circle")
 
 SIZE_KINDS = ("circle", "cylinder", "sphere")
 POS_KINDS = ("point", "circle", "cylinder", "sphere", "cone")
+SIZE_NEEDS = "TOL/{word} needs a circle, cylinder or sphere with a nominal diameter; FA({label}) is a {kind}"
+POS_NEEDS = "TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; FA({label}) is a {kind}"
 
 
 def kind_problem(word: str, kind: str, label: str) -> str | None:
@@ -53,9 +55,9 @@ def kind_problem(word: str, kind: str, label: str) -> str | None:
     if word in FORM and kind not in FORM[word]:
         return f"TOL/{word} applies to a {' or '.join(FORM[word])}, FA({label}) is a {kind}"
     if word in SIZE and kind not in SIZE_KINDS:
-        return f"TOL/{word} needs a circle, cylinder or sphere with a nominal diameter; FA({label}) is a {kind}"
+        return SIZE_NEEDS.format(word=word, label=label, kind=kind)
     if word == "POS" and kind not in POS_KINDS:
-        return f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; FA({label}) is a {kind}"
+        return POS_NEEDS.format(label=label, kind=kind)
     return None
 
 
@@ -231,8 +233,7 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
     if w in SIZE:
         nom = a.nominal
         if a.kind not in SIZE_KINDS or nom is None or nom.diameter is None:
-            raise ToleranceError(f"TOL/{w} needs a circle, cylinder or sphere with a nominal diameter; "
-                                 f"FA({a.label}) is a {a.kind}")
+            raise ToleranceError(SIZE_NEEDS.format(word=w, label=a.label, kind=a.kind))
         dev = 2.0 * float(a.geometry["radius"]) - nom.diameter
         if w == "RAD":
             dev /= 2.0
@@ -275,8 +276,7 @@ def _evaluate(tol: Tolerance, features: list[Actual], datums: dict[str, Actual],
         # gdt.position's, as in gdt_eval
         nom = a.nominal
         if nom is None or a.kind not in POS_KINDS:
-            raise ToleranceError(f"TOL/POS needs a point, circle, cylinder, sphere or cone with a nominal; "
-                                 f"FA({a.label}) is a {a.kind}")
+            raise ToleranceError(POS_NEEDS.format(label=a.label, kind=a.kind))
         drf = _drf(tol.datums, datums, material=tol.datum_material, sizes=sizes) if dat else None
         ndrf = _drf(tol.datums, datums, nominal=True) if dat else None
         _, nominal = _nominal_geometry((nom.design or nom) if dat else nom)
