@@ -202,9 +202,10 @@ def test_a_refused_and_a_stopped_dmis_run_are_toasts_and_the_status_block_says_s
         # the status block says STOPPED (and nothing says stopped) only once the axes stand: watched while it brakes
         end = station.machine.state.time + 10.0
         while station.machine.state.time < end and "STOPPED" not in _status(page):
+            # the page is read before the machine: a STOPPED seen while an axis still moves afterwards was early
+            text = _status(page).upper()
             moving = max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
             if moving:
-                text = _status(page).upper()
                 assert "STOPPED" not in text, f"the status block says stopped while an axis moves: {text}"
                 assert not any("stopped" in (t + b).lower() for _l, t, b in page.capp.messages[-2:]
                                if page.capp.routine.dmis_running), page.capp.messages[-2:]
