@@ -198,7 +198,13 @@ def test_a_refused_and_a_stopped_dmis_run_are_toasts_and_the_status_block_says_s
             abs(a.velocity) for a in station.machine.state.axes) > 1.0, 120.0, "the program moving the machine",
             why=lambda: page.capp.messages[-3:])
         bs.wait_until(lambda: "RUNNING" in _status(page), 60.0, "the status block's RUNNING", why=lambda: _status(page))
-        before = len(page.capp.messages)
+        last = page.capp.messages[-1]  # the list keeps the last 50: what came after is found by identity
+
+        def after_stop() -> list:
+            shown = list(page.capp.messages)
+            mark = max((i for i, m in enumerate(shown) if m is last), default=-1)
+            return shown[mark + 1:]
+
         page.get_by_role("button", name="STOP", exact=True).click()
         # the status block says STOPPED (and no message while the run runs) only once the axes stand: watched while
         # it brakes
@@ -206,7 +212,7 @@ def test_a_refused_and_a_stopped_dmis_run_are_toasts_and_the_status_block_says_s
         while station.machine.state.time < end and "STOPPED" not in _status(page):
             # the page is read before the machine: a STOPPED seen while an axis still moves afterwards was early
             text = _status(page).upper()
-            said = [(t, b) for _l, t, b in page.capp.messages[before:] if "stopped" in (t + b).lower()
+            said = [(t, b) for _l, t, b in after_stop() if "stopped" in (t + b).lower()
                     ] if page.capp.routine.dmis_running else []  # the run's end may be told while it brakes
             moving = max(abs(a.velocity) for a in station.machine.state.axes) > 1e-9
             if moving:
