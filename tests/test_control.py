@@ -311,7 +311,10 @@ def test_state_listeners_get_coalesced_states_and_every_move_end_at_once(homed):
     a move's end and every mode change reach them in the sample that shows it."""
     from cmm.control.core import STATE_INTERVAL
 
+    from cmm.machine.motion import VIRTUAL_POLL_PAUSE
+
     sim, ctl, _ = homed
+    ctl.machine.poll_pause = VIRTUAL_POLL_PAUSE  # samples several times per STATE_INTERVAL, as a jog's
     states = []
     ctl.subscribe_state(states.append)
     s0, t0 = ctl.machine.samples, ctl.machine.state.time
