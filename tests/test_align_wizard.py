@@ -75,8 +75,14 @@ def test_every_kind_finds_the_true_set_up(station, kind):
         w.probe_marker()  # no listener: the wizard counts the hit it took itself
     assert w.done and "Alignment computed" in w.text()
     w.apply()
-    um, deg = _off(st.measurement.part.pose)
-    assert um < 5.0 and deg < 0.002, (kind, um, deg)
+    # judged where it was measured: every touched point placed within 5 um. Farther out a short base extrapolates
+    # (plane-circle-circle: 44 mm between the centres; one 2 um encoder count there turns the part by 0.003 deg,
+    # 10 um at its far corner), as it does on any CMM
+    found = st.measurement.part.pose
+    touched = [invert(TRUE_PART_POSE) @ np.append(st.measurement.hits[h].point, 1.0) for s in w.steps
+               for h in s.hit_ids]  # part coordinates, homogeneous
+    worst = max(float(np.linalg.norm((found - TRUE_PART_POSE) @ q)) for q in touched) * 1000.0
+    assert len(touched) == total and worst < 5.0, (kind, worst, _off(found))
 
 
 def test_a_hit_or_an_element_is_taken_again(station):
