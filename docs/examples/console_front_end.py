@@ -46,7 +46,7 @@ def console(api: Any, client: str = "console", say: Callable[[str], None] = prin
 if __name__ == "__main__":
     from cmm.station import Station  # only the composition root knows the station; the front end gets the API
 
-    station = Station(port="sim://?cmm=1").start("console example", home=True)
+    station = Station(port="sim://?cmm=1&pace=1").start("console example", home=True)  # at the machine's pace
     try:
         console(station.controller.commands)
     finally:
