@@ -75,7 +75,9 @@ def test_a_vendor_export_runs_with_its_alignments_texts_and_output_files(station
     assert fa["CYL_BOSS"][6] == pytest.approx(20.0, abs=NOISE)
     assert ta["DIAM_B"][1] == "INTOL" and abs(ta["DIAM_B"][0]) < NOISE
     assert ta["FLAT_A"][1] == "INTOL" and ta["CYL_B"][1] == "INTOL"
-    assert ta["DIST_BOSS"][0] == pytest.approx(math.hypot(40.0, 18.0) - 43.863, abs=NOISE)
+    # a distance between two axes carries their tilts over the 40 mm between the bore's and the boss's points:
+    # one encoder count on one hit of the 15 mm boss moves it 3 um (seen: 3.0 and 5.8 um as the sampling varied)
+    assert ta["DIST_BOSS"][0] == pytest.approx(math.hypot(40.0, 18.0) - 43.863, abs=2 * NOISE)
     # 2D: across the boss axis at its axis point; 3D: the axis over its length; both well inside 0.1
     assert ta["POS2D_BOSS"][0] < 0.02 and ta["POS3D_BOSS"][0] < 0.03 and ta["POS2D_BOSS"][0] <= ta["POS3D_BOSS"][0] + 1e-6
     # the point whose nominal is 0.03 above the face: 2D (in the XY working plane) sees nothing, 3D twice 0.03
