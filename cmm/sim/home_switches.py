@@ -18,18 +18,25 @@ class HomeSwitches:
         axes = cmm.config.axes
         self._toward_max = [a.home >= (a.min + a.max) / 2 for a in axes]
         self._home = [a.home for a in axes]
+        # (threshold, towards the maximum) per axis: the switch is on at or beyond the threshold
+        self._limits = tuple((h - 1e-9, True) if up else (h + 1e-9, False) for h, up in zip(self._home, self._toward_max))
+        self._on: tuple[bool, bool, bool] | None = None
         self._levels: list[bool | None] = [None, None, None]
         cmm.network.add_tick_hook(self, reads_axes_only=True)
         self(cmm.network, 0)
 
     def __call__(self, network: Any, tick: int) -> None:
-        readings = self.cmm.axis_readings()
-        for i, r in enumerate(readings):
-            on = r >= self._home[i] - 1e-9 if self._toward_max[i] else r <= self._home[i] + 1e-9
-            level = on if self.active_high else not on
-            if level != self._levels[i]:
-                self._levels[i] = level
-                network.set_inputs(self.cmm._axis_module[i], **{self.input: level})
+        # every servo tick: plain comparisons, the inputs touched only when a switch changes
+        x, y, z = self.cmm.axis_readings()
+        (tx, ux), (ty, uy), (tz, uz) = self._limits
+        on = (x >= tx if ux else x <= tx, y >= ty if uy else y <= ty, z >= tz if uz else z <= tz)
+        if on != self._on:
+            self._on = on
+            for i, o in enumerate(on):
+                level = o if self.active_high else not o
+                if level != self._levels[i]:
+                    self._levels[i] = level
+                    network.set_inputs(self.cmm._axis_module[i], **{self.input: level})
 
 
 def for_homing(cmm: Any, homing: Any) -> HomeSwitches | None:

@@ -290,13 +290,13 @@ class SimNetwork:
         self._deliver(t_ns)
 
     def _skippable(self) -> bool:
+        for m in self.modules:  # first: asked every tick, and while anything moves a module is not quiet
+            if not m.quiet:
+                return False
         if self._arrivals or self._tx:
             return False
         for hook in self.tick_hooks:
             if id(hook) not in self._watchers:
-                return False
-        for m in self.modules:
-            if not m.quiet:
                 return False
         return True
 

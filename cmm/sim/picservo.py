@@ -206,7 +206,9 @@ class PicServo:
         old_pwm, old_rev, old_cla, old_isum, old_e = self.pwm, self.reverse, self.cla, self.isum, self.e_prev
 
         if self.home_in_prog:
-            levels = self._input_levels()
+            io = self.io  # _input_levels inlined: every tick of an armed move
+            levels = (plant.limit1 if io & _L1_IN else bool(io & _L1_OUT),
+                      plant.limit2 if io & _L2_IN else bool(io & _L2_OUT), plant.index)
             ctrl = self.home_ctrl
             old = self._levels
             self._levels = levels
@@ -260,7 +262,9 @@ class PicServo:
             self.reverse = self.pwm_reverse
 
         # Current limit: the adjustment creeps 1 per tick (thesis, ch. 2).
-        ad = plant.ad_value
+        ad = int(abs(plant.current) * plant._ad)  # plant.ad_value inlined (every tick)
+        if ad > 255:
+            ad = 255
         self.ad = ad
         cl = self.cl
         over = ad > cl if cl & 1 else ad < cl  # odd CL: sensor proportional to current
@@ -280,7 +284,11 @@ class PicServo:
         if pwm < 0:
             pwm = 0
         self.pwm = pwm
-        plant.drive(pwm, self.reverse, self.amp_en)
+        if self.amp_en and plant.power and pwm:  # plant.drive inlined (every tick)
+            v = plant.params.supply_v * pwm / 255.0
+            plant.volts = -v if self.reverse else v
+        else:
+            plant.volts = 0.0
         self.quiet = (vel == 0 and plant.v == 0.0 and self.prof == HOLD and pwm == old_pwm
                       and self.reverse == old_rev and cla == old_cla and self.isum == old_isum
                       and self.e_prev == old_e)

@@ -42,7 +42,8 @@ def trapezoid_step(m: Any) -> None:
         un = u + a
         if un > vmax:
             un = vmax
-    if un > 0 and un + stop_distance(un, a) > r:
+    n = un // a  # stop_distance(un, a) inlined: every tick of every moving axis
+    if un > 0 and un + n * un - a * n * (n + 1) // 2 > r:
         if u > 0 and un > u and u + stop_distance(u, a) <= r:
             un = u  # cannot accelerate further: hold (slew)
         else:

@@ -180,6 +180,8 @@ class ProbeWorld:
 
     def __post_init__(self) -> None:
         self._m = self.errors.matrix()
+        m, o = self._m, self.origin  # as plain floats for update (every servo tick); the matrix is upper triangular
+        self._k = tuple(float(v) for v in (o[0], o[1], o[2], m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]))
         self._rng = np.random.default_rng(self.seed)
         self._safe_from: np.ndarray | None = None  # tip position of the last distance query
         self._safe_dist = 0.0  # how far the tip may move from there before it could touch
@@ -201,10 +203,10 @@ class ProbeWorld:
 
         Runs every servo tick, so the no-contact-possible case is plain floats.
         """
-        m = self._m
-        px = self.origin[0] + m[0, 0] * x + m[0, 1] * y + m[0, 2] * z
-        py = self.origin[1] + m[1, 1] * y + m[1, 2] * z
-        pz = self.origin[2] + m[2, 2] * z
+        ox, oy, oz, m00, m01, m02, m11, m12, m22 = self._k
+        px = ox + m00 * x + m01 * y + m02 * z
+        py = oy + m11 * y + m12 * z
+        pz = oz + m22 * z
         if self._safe_from is not None:
             sx, sy, sz = self._safe_from
             if (px - sx) ** 2 + (py - sy) ** 2 + (pz - sz) ** 2 < self._safe_dist ** 2:
