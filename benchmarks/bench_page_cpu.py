@@ -45,7 +45,18 @@ def chromium_cpu() -> dict[str, float]:
     return out
 
 
-def measure(way: str, seconds: float, size: tuple[int, int]) -> None:
+def _keep_moving(station, stop) -> None:
+    """Go to and fro 100 mm in X and Y high above the table until ``stop`` is set (the simulator uncapped, as in
+    the tests)."""
+    ctl = station.controller
+    while not stop.is_set():
+        for target in ([150.0, 150.0, 280.0], [250.0, 250.0, 280.0]):
+            ctl.move(None, target, frame="machine", path="straight").wait(120)
+
+
+def measure(way: str, seconds: float, size: tuple[int, int], moving: bool = False) -> None:
+    import threading
+
     from playwright.sync_api import sync_playwright
 
     from cmm.station import Station
@@ -67,9 +78,16 @@ def measure(way: str, seconds: float, size: tuple[int, int]) -> None:
             page.goto(url)
             page.get_by_role("button", name="E-STOP").wait_for(timeout=120_000)
             page.wait_for_timeout(5000)  # past the first paint and the shaders' compilation
+            stop = threading.Event()
+            mover = threading.Thread(target=_keep_moving, args=(station, stop), daemon=True)
+            if moving:
+                mover.start()
             before, frames, t0 = chromium_cpu(), page.evaluate("window.__frames"), time.monotonic()
             page.wait_for_timeout(seconds * 1000)
             after, dt = chromium_cpu(), time.monotonic() - t0
+            stop.set()
+            if moving:
+                mover.join(60)
             drawn = page.evaluate("window.__frames") - frames
             browser.close()
     finally:
@@ -77,7 +95,7 @@ def measure(way: str, seconds: float, size: tuple[int, int]) -> None:
         station.close()
     cost = {k: (after.get(k, 0.0) - before.get(k, 0.0)) / dt for k in after}
     busiest = ", ".join(f"{k} {v:.2f}" for k, v in sorted(cost.items(), key=lambda kv: -kv[1]) if v >= 0.005)
-    print(f"{way:11s} idle page {size[0]}x{size[1]}: {sum(cost.values()):.2f} of a core ({busiest}); "
+    print(f"{way:11s} {'moving' if moving else 'idle'} page {size[0]}x{size[1]}: {sum(cost.values()):.2f} of a core ({busiest}); "
           f"{drawn / dt:.1f} animation frames a second")
 
 
@@ -86,10 +104,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=15.0, help="idle time measured per way (s)")
     parser.add_argument("--size", default="1280x800", help="the page's size in CSS pixels, WxH")
     parser.add_argument("--way", choices=sorted(WAYS), action="append", help="only these ways (default: all)")
+    parser.add_argument("--moving", action="store_true",
+                        help="the machine moving to and fro meanwhile (the simulator uncapped, as in the tests)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     for way in args.way or list(WAYS):
-        measure(way, args.seconds, (width, height))
+        measure(way, args.seconds, (width, height), args.moving)
 
 
 if __name__ == "__main__":
