@@ -82,8 +82,9 @@ from .access import AccessPolicy, Client, HolderPolicy, OpenPolicy
 from .api import CommandAPI, Response
 from .core import Controller
 from .jog import JogHolds
-from .modes import ALLOWED, COMMANDS, ControlError, ControlState, Mode, Refused, RunStopped, StopReport
+from .modes import ALLOWED, COMMANDS, ControlError, ControlState, CutShort, Mode, Refused, RunStopped, StopReport
 
-__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "CommandAPI", "ContactError", "ControlError",
-           "ControlState", "Controller", "JogHolds", "Response", "HolderPolicy", "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused", "RunStopped",
-           "StopReport", "SurfaceNotFound"]
+__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "CommandAPI", "ContactError",
+           "ControlError", "CutShort", "ControlState", "Controller", "JogHolds", "Response", "HolderPolicy",
+           "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused", "RunStopped", "StopReport",
+           "SurfaceNotFound"]

@@ -21,7 +21,7 @@ from ..machine.status import MoveStatus
 from ..nmc.bus import NmcError, Preempted
 from ..nmc.transport import rest
 from .liveness import Liveness
-from .modes import ALLOWED, ControlError, ControlState, Mode, Refused, RunStopped, refusal
+from .modes import ALLOWED, ControlError, ControlState, CutShort, Mode, Refused, RunStopped, refusal
 from .priority import raise_priority_on
 
 log = logging.getLogger(__name__.rsplit(".", 1)[0] + ".core")  # the core's log, as before the split
@@ -108,7 +108,7 @@ class MachineLoop:
                     self._stopped = None
             return cmd.fn()
         except Preempted as exc:  # a STOP took the link first: nothing failed, this command was not done
-            raise ControlError(f"{cmd.name} was cut short by a STOP ({exc})") from exc
+            raise CutShort(f"{cmd.name} was cut short by a STOP ({exc})") from exc
         except LINK_ERRORS as exc:
             self._enter_fault(f"link failure during {cmd.name}: {exc}", link=True)
             raise ControlError(f"{cmd.name} failed: the link to the modules failed ({exc}); "

@@ -34,6 +34,10 @@ class ControlError(MotionError):
     """The machine loop could not carry a command out (it is not answering, or the link failed)."""
 
 
+class CutShort(ControlError):
+    """A command a STOP or E-STOP took the link from first: nothing failed, the command was not done."""
+
+
 SAFETY_COMMANDS = frozenset({"stop", "estop", "jog_release", "cancel", "pause"})  # open to every client the policy lets stop
 # writing in the session journal (a note, a routine saved): part of the record, so the control holder or a client
 # at the station's own computer, never an anonymous observer on the LAN

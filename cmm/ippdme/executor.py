@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..control import ContactError, ControlError, LimitError, MotionError, SurfaceNotFound
+from ..control import ContactError, ControlError, CutShort, LimitError, MotionError, SurfaceNotFound
 from . import protocol as P
 from .backend import Backend
 from .csy import CoordinateSystems
@@ -270,14 +270,19 @@ class Dme:
             raise IppError(1001, method, str(exc)) from None
         except SurfaceNotFound as exc:
             raise IppError(1006, method, str(exc)) from None
-        except ControlError as exc:  # the link to the modules failed: the machine is in fault
-            raise IppError(503, method, str(exc)) from None
+        except ControlError as exc:
+            if not isinstance(exc, CutShort):  # the link to the modules failed: the machine is in fault
+                raise IppError(503, method, str(exc)) from None
+            raise self._ended(method, exc) from None  # a STOP or E-STOP took the link before the move's command
         except MotionError as exc:
-            if self._aborting:
-                raise _Aborted() from None
-            if self.backend.estopped:  # the move ended because somebody pressed E-STOP
-                raise IppError(500, method, str(exc)) from None
-            raise IppError(1011, method, str(exc)) from None
+            raise self._ended(method, exc) from None
+
+    def _ended(self, method: str, exc: MotionError) -> Exception:
+        """What a move that ended early is to the client: aborted by it, E-STOP (0500) or cut short (1011)."""
+        if self._aborting:
+            return _Aborted()
+        # the move ended because somebody pressed E-STOP
+        return IppError(500 if self.backend.estopped else 1011, method, str(exc))
 
     def _tool_for_motion(self, method: str, measuring: bool = False):
         if not self.backend.homed:
