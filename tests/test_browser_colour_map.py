@@ -125,8 +125,12 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
                       "the map with the new reach")
         wide = app.view.map
         assert wide.coverage > 2 * covered  # a longer reach paints more of the part
+        # the map is computed before its node replaces the last one in the scene (drawn in the background): wait
+        expected = to_linear(app.view.scale.colours(wide.vertex_deviations))
+        bs.wait_until(lambda: app.view._map_node is not None
+                      and glb_colours(app.view._map_node)[1].shape == expected.shape, 30.0, "the new map's node")
         _, stored = glb_colours(app.view._map_node)
-        assert np.array_equal(stored, to_linear(app.view.scale.colours(wide.vertex_deviations)))
+        assert np.array_equal(stored, expected)
         assert np.array_equal(wide.vertex_colours, app.view.scale.colours(wide.vertex_deviations))
 
         # --- the report of this session draws its map views in the same bands
