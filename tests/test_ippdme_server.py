@@ -345,6 +345,33 @@ def test_an_estop_from_a_browser_is_error_0500_on_the_move_and_unsolicited(serve
         assert c.call("GoTo(X(10), Y(10), Z(290))").ok
 
 
+def test_a_move_a_stop_cut_short_before_it_was_sent_is_0500_under_estop_and_1011_after(served):
+    """The race the E-STOP test sometimes loses: the stop takes the link before the move's own command, and the
+    control loop says so (CutShort, a ControlError). That is a stop, not 0503 "controller communications failure"."""
+    from cmm.control import Client, CutShort
+    from cmm.ippdme.errors import IppError
+
+    server, station = served
+    backend = server.backend.for_client("127.0.0.1:10")
+    assert backend.acquire() is None
+    dme = Dme(backend, lambda line: None, client="race")
+
+    def cut_short():
+        raise CutShort("move was cut short by a STOP (the link was taken)")
+
+    try:
+        assert station.controller.emergency_stop(Client("tab-1", local=True)).ok
+        with pytest.raises(IppError) as estop:
+            dme._motion(cut_short, "GoTo")
+        station.controller.reset(None)
+        with pytest.raises(IppError) as stop:
+            dme._motion(cut_short, "GoTo")
+        assert (estop.value.number, stop.value.number) == (500, 1011)
+    finally:
+        dme.close()
+        backend.release()
+
+
 def test_addresses():
     assert parse_address(None) == ("127.0.0.1", 1294)
     assert parse_address("0.0.0.0:1295") == ("0.0.0.0", 1295)
