@@ -278,10 +278,10 @@ class Dme:
             raise self._ended(method, exc) from None
 
     def _ended(self, method: str, exc: MotionError) -> Exception:
-        """What a move that ended early is to the client: aborted by it, E-STOP (0500) or cut short (1011)."""
+        """What a move that ended early is to the client: aborted by it, ended by somebody's E-STOP (0500), or
+        stopped otherwise (1011)."""
         if self._aborting:
             return _Aborted()
-        # the move ended because somebody pressed E-STOP
         return IppError(500 if self.backend.estopped else 1011, method, str(exc))
 
     def _tool_for_motion(self, method: str, measuring: bool = False):

@@ -19,7 +19,8 @@ class HomeSwitches:
         self._toward_max = [a.home >= (a.min + a.max) / 2 for a in axes]
         self._home = [a.home for a in axes]
         # (threshold, towards the maximum) per axis: the switch is on at or beyond the threshold
-        self._limits = tuple((h - 1e-9, True) if up else (h + 1e-9, False) for h, up in zip(self._home, self._toward_max))
+        self._limits = tuple((h - 1e-9, True) if up else (h + 1e-9, False)
+                             for h, up in zip(self._home, self._toward_max))
         self._on: tuple[bool, bool, bool] | None = None
         self._levels: list[bool | None] = [None, None, None]
         cmm.network.add_tick_hook(self, reads_axes_only=True)
