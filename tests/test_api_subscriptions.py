@@ -98,9 +98,6 @@ def test_a_failing_query_is_told_to_its_subscriber_and_a_broken_subscriber_is_cl
 def test_the_documented_front_end_moves_the_machine_and_follows_it(tmp_path):
     """The example as its docstring runs it, the simulator at the machine's own pace: a subscription at 10 a
     second hears the tip on the way (an uncapped virtual clock may finish a 20 mm move in a few wall ms)."""
-    import importlib.util
-    from pathlib import Path
-
     station = Station(port="sim://?cmm=1&pace=1", session_dir=tmp_path).start("console", home=True)
     try:
         _follow_the_example(station)
