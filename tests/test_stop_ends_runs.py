@@ -163,3 +163,47 @@ def test_a_stop_ends_a_probe_qualification(station, verb):
     error, report, watch, after = _stop_during(station, qualify, lambda: station.sim.triggers >= first + 7, verb)
     _assert_ended(station, error, report, watch, after, verb)
     assert not station.calibration.holding
+
+
+def test_a_run_that_meets_the_e_stop_before_the_modules_do_says_the_operator_ended_it(station, monkeypatch):
+    """The E-STOP latch and the run's end are one step: a run whose next move is refused under the latch while the
+    press is still on its way to the modules (a slow link, a busy computer) ends in the stop's words, never as a
+    plain refusal ("cannot move: the emergency stop is latched") that reads as the program's own failure."""
+    _ready(station)
+    ctl = station.controller
+    met = threading.Event()
+    halt = ctl._halt_now
+
+    def slow_halt(verb):  # the press reaches the modules only once the run has met the latch
+        met.wait(60)
+        return halt(verb)
+    monkeypatch.setattr(ctl, "_halt_now", slow_halt)
+    started = threading.Event()
+
+    def work(job):
+        here = np.array(ctl.state.machine.position, float)
+        for i in range(10_000):
+            started.set()
+            try:
+                ctl.commands.invoke(None, "move", target=[float(here[0] + (i % 2)), float(here[1]), float(here[2])],
+                                    frame="machine").wait(60)
+            except Exception:
+                met.set()
+                raise
+        raise AssertionError("the run never met the E-STOP")
+    outcome = {}
+
+    def go():
+        try:
+            ctl.commands.invoke(None, "run_job", description="the latch test", work=work)
+        except Exception as exc:  # noqa: BLE001 - asserted below
+            outcome["error"] = exc
+    thread = threading.Thread(target=go, daemon=True)
+    thread.start()
+    assert started.wait(60)
+    report = ctl.commands.invoke(None, "estop")
+    thread.join(60)
+    assert not thread.is_alive() and met.is_set()
+    assert report["ok"], report
+    assert "the latch test ended by the operator's E-STOP" in str(outcome.get("error")), outcome
+    assert ctl.state.mode is Mode.ESTOPPED

@@ -50,26 +50,28 @@ class SafetyCore:
             raise ValueError(f"a press is 'stop' or 'estop', not {verb!r}")
         self._may(client, verb)
         at = self.clock.now()
-        if verb == "estop":
-            with self._lock:
-                self._estop = self._estop or "emergency stop pressed"
-            self.machine.inhibit = "emergency stop latched"
+        self._stop_runs("stopped by the operator" if verb == "stop" else "emergency stop", estop=verb == "estop")
         failed = self._halt_now(verb)
-        self._stop_runs("stopped by the operator" if verb == "stop" else "emergency stop")
+        if self._job is None and self.jobs.descriptions():  # a run beside the loop is ended by its cancel
+            self.jobs.ask_all("cancel", unless=lambda fn: getattr(fn, "is_stop", False))
         return client, verb, at, failed is not None and not failed
 
-    def _stop_runs(self, why: str) -> None:
+    def _stop_runs(self, why: str, estop: bool) -> None:
         """A stop pressed while a run goes on ends the whole run: its next motion is refused (the control core's
-        checks and the machine's inhibit, for runs that move the machine directly) and its cancel is asked for
-        (a run waiting for the operator's hits ends its wait). Nothing moves on its own after the press."""
-        if self._job is None and not self.jobs.descriptions():
-            return
+        checks and the machine's inhibit, for runs that move the machine directly); a run beside the loop is then
+        asked to cancel (see press). Nothing moves on its own after the press. The run is marked stopped in the
+        same breath as the E-STOP latch and before the modules get the stop: a run that meets the stop's effects
+        (a move cut short, a probe refused under the latch) always finds itself ended by the operator's press."""
         with self._lock:
-            self._run_stopped = self._run_stopped or why
-        if self.machine.inhibit is None:
+            if estop:
+                self._estop = self._estop or "emergency stop pressed"
+            running = self._job is not None or bool(self.jobs.descriptions())
+            if running:
+                self._run_stopped = self._run_stopped or why
+        if estop:
+            self.machine.inhibit = "emergency stop latched"
+        if running and self.machine.inhibit is None:
             self.machine.inhibit = f"{why}: the run ends"
-        if self._job is None:  # a run beside the loop (waiting for the operator's hits) is ended by its cancel
-            self.jobs.ask_all("cancel", unless=lambda fn: getattr(fn, "is_stop", False))
 
     def answer(self, pressed: tuple[Any, str, float, bool]) -> StopReport:
         """The loop ends the motion the press cut short; the report once every axis stands still."""
