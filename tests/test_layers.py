@@ -12,6 +12,7 @@ sub-commands, loaded with ``importlib``; pyserial's handler package for ``sim://
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import networkx as nx
@@ -61,6 +62,12 @@ FORBIDDEN |= {(pkg, part) for pkg, whole in list(FORBIDDEN) if whole in ("cmm.ma
                                            "cmm.nmc.resync", "cmm.nmc.startup")}[whole]}
 
 
+@functools.lru_cache(maxsize=None)
+def _tree(path: Path) -> ast.Module:
+    """A module's syntax tree, parsed once for all the tests of this file (each walks every module)."""
+    return ast.parse(path.read_text(encoding="utf-8"))
+
+
 def _modules() -> dict[str, Path]:
     mods = {}
     for p in ROOT.rglob("*.py"):
@@ -71,9 +78,14 @@ def _modules() -> dict[str, Path]:
 
 
 def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
+    return set(_imports_of(name, path, frozenset(mods)))
+
+
+@functools.lru_cache(maxsize=None)
+def _imports_of(name: str, path: Path, mods: frozenset[str]) -> frozenset[str]:
     pkg = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
@@ -87,7 +99,7 @@ def _imports(name: str, path: Path, mods: dict[str, Path]) -> set[str]:
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in mods:
             out.add(node.value)  # a module imported by its name (importlib, a plug-in package)
-    return {m for m in out if m.split(".")[0] == "cmm" and m in mods}
+    return frozenset(m for m in out if m.split(".")[0] == "cmm" and m in mods)
 
 
 # modules that are a layer of their own inside their package
@@ -168,7 +180,7 @@ def test_the_control_core_uses_only_the_machines_public_surface():
     no ``<anything but self>._name`` attribute, no ``getattr(x, "_name")`` on another object."""
     bad = []
     for path in sorted((ROOT / "control").glob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__"):
                 owner = node.value
                 if not (isinstance(owner, ast.Name) and owner.id in ("self", "cls")):
@@ -211,16 +223,17 @@ COMMANDS = {"move", "probe", "step", "home", "zero", "reset", "reconnect", "run_
             "jog", "cancel", "cancel_jobs", "connect"}
 
 
-def _front_end_uses() -> list[tuple[str, int, str, str]]:
-    """(file, line, owner, attribute) of every ``owner.attribute`` in the front ends."""
+@functools.lru_cache(maxsize=None)
+def _front_end_uses() -> tuple[tuple[str, int, str, str], ...]:
+    """(file, line, owner, attribute) of every ``owner.attribute`` in the front ends (gathered once)."""
     out = []
     for pkg in FRONT_ENDS:
         for path in sorted((ROOT / pkg).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text())):
+            for node in ast.walk(_tree(path)):
                 if isinstance(node, ast.Attribute):
                     out.append((f"{pkg}/{path.relative_to(ROOT / pkg)}", node.lineno, ast.unparse(node.value),
                                 node.attr))
-    return out
+    return tuple(out)
 
 
 def test_front_ends_never_touch_the_machine_the_prober_or_the_bus():
@@ -326,7 +339,7 @@ def test_front_ends_never_wire_the_station():
     bad = []
     for pkg in FRONT_ENDS:
         for path in sorted((ROOT / pkg).rglob("*.py")):
-            for node in ast.walk(ast.parse(path.read_text())):
+            for node in ast.walk(_tree(path)):
                 targets = node.targets if isinstance(node, ast.Assign) else \
                     [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
                 for t in targets:
@@ -417,7 +430,7 @@ def test_modules_and_classes_stay_small():
         lines = text.count("\n") + 1
         if lines > MODULE_LINES:
             too_big.append(f"{name}: {lines} lines")
-        for node in ast.walk(ast.parse(text)):
+        for node in ast.walk(_tree(path)):
             if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > CLASS_LINES:
                 too_big.append(f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines")
     assert not too_big, "split by responsibility: " + "; ".join(too_big)
