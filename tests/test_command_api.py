@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+import session_support as sup
 import trimesh
 
 from cmm.control import OpenPolicy, Refused
@@ -311,7 +312,10 @@ def test_the_same_probe_through_the_ippdme_server_the_pendant_and_the_viser_page
                     break
             assert msg["id"] == 7 and "result" in msg, msg
             hits["pendant"] = np.asarray(msg["result"]["machine"])
-        # the I++ DME server: PtMeas with the same probing speed (its straight rapid is proven free of the part)
+        # the I++ DME server: PtMeas with the same probing speed (its straight rapid is proven free of the part).
+        # A connecting client takes control only from a holder whose machine stands still (the pendant's retract
+        # may still be settling in the last sample on a busy computer)
+        sup.standing(station, "the axes after the pendant's probe")
         with IppClient("127.0.0.1", ipp.port, timeout=120) as c:
             for cmd in ("StartSession()", 'ChangeTool("Probe1")', f"SetProp(Tool.PtMeasPar.Speed({speed}))"):
                 assert c.call(cmd).ok, cmd
