@@ -207,3 +207,29 @@ def test_a_run_that_meets_the_e_stop_before_the_modules_do_says_the_operator_end
     assert report["ok"], report
     assert "the latch test ended by the operator's E-STOP" in str(outcome.get("error")), outcome
     assert ctl.state.mode is Mode.ESTOPPED
+
+
+def test_after_a_stop_ends_an_auto_measure_the_next_move_goes(station):
+    """An auto-measure is a run the stop ends like the others, but it takes no mark of the stop itself: once it
+    has ended, the stop's "the run ends" inhibit must go with it (it stayed, and the next Go to failed with
+    "motion inhibited ... the run ends" until Reset while the status bar said STOPPED)."""
+    from cmm.measurement.plan import plan_at_pick
+
+    _ready(station)
+    ctl, model = station.controller, station.measurement
+    name, origin, direction = sup.BLOCK_FACES[0]
+    pose = model.part.pose
+    picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
+    plan = plan_at_pick(model, picked[0].face_id)
+    first = station.sim.triggers
+    error, report, watch, after = _stop_during(
+        station, lambda: ctl.commands.invoke(None, "auto_measure", plan=plan, name="stopped " + name),
+        lambda: station.sim.triggers >= first + 2, "stop")
+    # the press asks the auto-measure to cancel too: it ends as stopped or as cancelled after its hits so far
+    assert report["ok"] and error is not None, (report, error)
+    assert after <= 1
+    assert station.machine.inhibit is None
+    here = ctl.state.machine.position
+    status = ctl.commands.invoke(None, "move", target=[float(here[0]), float(here[1]), float(here[2]) + 5.0],
+                                 frame="machine")
+    assert np.asarray(status.wait(120))[2] == pytest.approx(here[2] + 5.0, abs=0.01)

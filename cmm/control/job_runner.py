@@ -127,6 +127,18 @@ class JobRunner:
             self.machine.inhibit = None
         return why
 
+    def _runs_ended(self) -> None:
+        """The last registered run has ended: a stop's mark on "the run" and the inhibit it set go with it. Runs
+        through run_job and run_beside take the mark themselves (their error names the press); this ends it for
+        the others (an auto-measure: its next motion stayed inhibited until Reset) and for a press that came while
+        the last run was ending (it marked a run that had already taken its mark, and the next run was refused)."""
+        with self._lock:
+            if self._job is not None or self.jobs.descriptions():
+                return
+            why, self._run_stopped = self._run_stopped, None
+        if why is not None and self.machine.inhibit == f"{why}: the run ends":
+            self.machine.inhibit = None
+
     def cancel_jobs(self, client: str | None) -> dict[str, Any]:
         """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
         to every client the access policy lets stop; a job that was not running is no error."""

@@ -21,7 +21,9 @@ ACTIONS = ("cancel", "pause", "resume", "skip")
 
 
 class RunningJobs:
-    def __init__(self) -> None:
+    def __init__(self, on_idle: Optional[Callable[[], None]] = None) -> None:
+        """``on_idle()`` is called (outside the lock) each time the last registered job ends."""
+        self._on_idle = on_idle
         self._lock = threading.Lock()
         self._jobs: dict[int, tuple[str, dict[str, Callable[[], object]]]] = {}
         self._ids = itertools.count(1)
@@ -44,6 +46,9 @@ class RunningJobs:
                 self._jobs.pop(key, None)
                 if description not in {d for d, _ in self._jobs.values()}:
                     self._progress.pop(description, None)
+                idle = not self._jobs
+            if idle and self._on_idle is not None:
+                self._on_idle()
 
     def report(self, description: str, done: int, total: int, step: str = "") -> None:
         """How far the running job ``description`` is (``done`` of ``total`` hits or steps; ``step``: what it does
