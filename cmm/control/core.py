@@ -89,7 +89,9 @@ class Controller(MachineLoop, SafetyCore, JobRunner):
         self._in_poll = False
         self.workspace: Workspace | None = None  # the part, for the motion rails (set_workspace)
         self.jogs = JogHolds(self)  # the one jog-hold pipeline every front end feeds
-        self.jobs = RunningJobs(on_idle=self._runs_ended)  # what runs now (auto-measure, routine, program, calibration): the cancel verb
+        # what runs now (auto-measure, routine, program, calibration): the cancel verb; the last run's end
+        # drops a stop's mark on the run
+        self.jobs = RunningJobs(on_idle=self._runs_ended)
         self.commands = CommandAPI(self)  # the same verbs as requests and responses, for the adapters
         self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
         self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
