@@ -75,10 +75,17 @@ class JobRunner:
         that refused its motions is lifted (an E-STOP's latch stays until Reset)."""
         with self._lock:
             self._job = None
+            why = self._take_run_stop()
+        self._publish()
+        return why
+
+    def _take_run_stop(self) -> str | None:
+        """Take a stop's mark on the run (None: there was none) and lift the inhibit it set (an E-STOP's latch
+        stays until Reset)."""
+        with self._lock:
             why, self._run_stopped = self._run_stopped, None
         if why is not None and self.machine.inhibit == f"{why}: the run ends":
             self.machine.inhibit = None
-        self._publish()
         return why
 
     def run_routine(self, client: str | None, description: str, routine: Callable[["Job"], Any], *,
@@ -121,23 +128,16 @@ class JobRunner:
         """A run beside the loop ended: the operator's stop that ended it, once no other run goes on (see _end_run)."""
         if self._job is not None or len(self.jobs.descriptions()) > 1:
             return self._run_stopped
-        with self._lock:
-            why, self._run_stopped = self._run_stopped, None
-        if why is not None and self.machine.inhibit == f"{why}: the run ends":
-            self.machine.inhibit = None
-        return why
+        return self._take_run_stop()
 
     def _runs_ended(self) -> None:
         """The last registered run has ended: a stop's mark on "the run" and the inhibit it set go with it. Runs
         through run_job and run_beside take the mark themselves (their error names the press); this ends it for
         the others (an auto-measure: its next motion stayed inhibited until Reset) and for a press that came while
         the last run was ending (it marked a run that had already taken its mark, and the next run was refused)."""
-        with self._lock:
-            if self._job is not None or self.jobs.descriptions():
-                return
-            why, self._run_stopped = self._run_stopped, None
-        if why is not None and self.machine.inhibit == f"{why}: the run ends":
-            self.machine.inhibit = None
+        with self._lock:  # re-entrant: the check and the take are one step
+            if self._job is None and not self.jobs.descriptions():
+                self._take_run_stop()
 
     def cancel_jobs(self, client: str | None) -> dict[str, Any]:
         """End whatever job runs (auto-measure, routine, program, calibration) cleanly: the ``cancel`` verb. Allowed
