@@ -208,9 +208,15 @@ def test_a_client_browses_the_gms_instance_and_sees_the_position_change_as_the_m
             await wait_for(lambda: _true(bool(seen)))
             start = float(api.invoke(None, "position")[0])
             target = [start + 60.0, 0.0, 0.0]
-            status = api.invoke(None, "move", target=target, frame="machine", path="straight")
-            await wait_for(lambda: _true(any(abs(v - target[0]) < 1e-3 for v in seen)))
-            await asyncio.get_running_loop().run_in_executor(None, status.wait, 60)
+            network = station.sim.network
+            pace = network.pace
+            network.set_pace(0.5)  # the move spans seconds of wall time whatever the load: the client sees it go
+            try:
+                status = api.invoke(None, "move", target=target, frame="machine", path="straight")
+                await wait_for(lambda: _true(any(abs(v - target[0]) < 1e-3 for v in seen)))
+                await asyncio.get_running_loop().run_in_executor(None, status.wait, 60)
+            finally:
+                network.set_pace(pace)
             between = {round(v, 3) for v in seen if start + 1 < v < target[0] - 1}
             assert len(between) >= 2, f"the position did not change as the machine moved: {sorted(set(seen))}"
             assert abs(seen[-1] - target[0]) < 1e-3

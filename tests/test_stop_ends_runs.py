@@ -73,6 +73,25 @@ def _ready(station) -> None:
     while ctl.state.mode is not Mode.IDLE and time.monotonic() < end:
         time.sleep(0.01)
     assert ctl.state.mode is Mode.IDLE, ctl.state
+    _off_the_sphere(station)
+
+
+def _off_the_sphere(station) -> None:
+    """A qualification's stop leaves the probe beside the reference sphere, often over its upper half, where a
+    climb to the clearance plane (the next run's first move) would hit the sphere from below: the operator moves
+    it clear first, out from the sphere's centre, then sideways, then up."""
+    ctl = station.controller
+    centre = np.array(station.sim.settings.sphere_centre, float)
+    here = np.array(ctl.state.machine.position, float)
+    away = here - centre
+    if not ctl.state.homed or np.linalg.norm(away) > 60.0:
+        return
+    out = centre + away / max(np.linalg.norm(away), 1e-9) * 40.0  # radially out: never nearer the sphere
+    side = out.copy()
+    flat = np.linalg.norm(away[:2])
+    side[:2] = centre[:2] + (away[:2] / flat if flat > 1e-6 else np.array([1.0, 0.0])) * 40.0
+    for target in (out, side, [side[0], side[1], centre[2] + 60.0]):
+        ctl.commands.invoke(None, "move", target=[float(v) for v in target], frame="machine").wait(120)
 
 
 def _stop_during(station, run, when, verb: str):
