@@ -640,10 +640,7 @@ def jog_to_touch(page: Any, station: Any, axis: int, sign: int, timeout: float =
 
     def hold(way: int, until: Any) -> None:
         """Hold the button toward ``way`` until ``until()`` or the jog stood still a machine second (dead-man)."""
-        button = page.get_by_role("button", name=f"hold {AXES[axis]} {'+' if way > 0 else '−'}", exact=True)
-        button.scroll_into_view_if_needed()
-        box = button.bounding_box()
-        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        finger_over(page, f"hold {AXES[axis]} {'+' if way > 0 else '−'}")
         network.set_pace(HAND_PACE)
         try:
             page.mouse.down()
@@ -932,3 +929,38 @@ def press_on_screen(page: Any, name: str, timeout: float = 60.0) -> None:
         time.sleep(0.25)
 
 
+
+
+# Where a finger on button ``b`` goes: its centre, scrolled into view if it is not, when it is inside the viewport and
+# on top there (not under the status bar, a toast or another panel); null while it is not.
+ON_TOP_CENTRE_JS = """b => {
+  b.scrollIntoView({ block: "nearest", inline: "nearest" });
+  const r = b.getBoundingClientRect();
+  if (r.width < 1 || r.height < 1 || r.left < 0 || r.top < 0 || r.right > window.innerWidth + 0.5
+      || r.bottom > window.innerHeight + 0.5) return null;
+  const x = r.left + r.width / 2, y = r.top + r.height / 2;
+  const top = document.elementFromPoint(x, y);
+  return top && (top === b || b.contains(top)) ? [x, y] : null;
+}"""
+
+
+def finger_over(page: Any, name: str, timeout: float = 60.0, steady_s: float = 0.3) -> tuple[float, float]:
+    """The mouse moved over the centre of the button ``name`` once it is on top there and has stayed at that place
+    for ``steady_s`` s: a panel that is still being laid out (a status line that grows, the armed jog's note, a
+    toast) moves a button from under a pointer placed on its first box, and the press then lands on nothing.
+    Returns the point; AssertionError with the last reason after ``timeout`` s."""
+    button = page.get_by_role("button", name=name, exact=True)
+    button.wait_for(timeout=PAGE_WAIT_MS)
+    end, last = time.monotonic() + timeout, None
+    while True:
+        try:
+            at = button.evaluate(ON_TOP_CENTRE_JS, timeout=10_000)
+        except Exception:  # noqa: BLE001 - the button replaced while its panel was re-drawn: look again
+            at = None
+        if at is not None and last is not None and max(abs(at[0] - last[0]), abs(at[1] - last[1])) < 0.5:
+            page.mouse.move(at[0], at[1])
+            return float(at[0]), float(at[1])
+        if time.monotonic() > end:
+            raise AssertionError(f"the {name!r} button never stood still on top of the page: {last} then {at}")
+        last = at
+        time.sleep(steady_s)

@@ -48,15 +48,11 @@ class Finger:
         self.at = (0.0, 0.0)
 
     def down(self, name: str) -> None:
-        button = self.page.get_by_role("button", name=name, exact=True)
-        button.scroll_into_view_if_needed()
-        box = button.bounding_box()
-        self.at = (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        self.at = bs.finger_over(self.page, name)
         if self.touch:
             self.cdp.send("Input.dispatchTouchEvent",
                           {"type": "touchStart", "touchPoints": [{"x": self.at[0], "y": self.at[1]}]})
         else:
-            self.page.mouse.move(*self.at)
             self.page.mouse.down()
 
     def up(self) -> None:

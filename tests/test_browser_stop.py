@@ -62,11 +62,7 @@ def _press_during_go_to(page, station, button: str, press=None):
         page.capp.reset()
     bs.wait_until(lambda: ctl.state.mode.value == "idle", 60.0, "the machine idle")
     page.capp.go_to(START, frame="machine").wait(120)
-    target = page.get_by_role("button", name=button, exact=True)
-    if press is None:
-        target.scroll_into_view_if_needed()
-        box = target.bounding_box()
-        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the finger over the button
+    before = bs.finger_over(page, button) if press is None else None  # the finger over the button
     network = station.sim.network
     pace = network.pace
     unsubscribe = ctl.subscribe(seen)
@@ -75,17 +71,17 @@ def _press_during_go_to(page, station, button: str, press=None):
         bs.wait_until(lambda: abs(station.machine.state.axes[0].velocity) >= 45.0, 60.0, "the Go to at speed")
         network.set_pace(PRESS_PACE)
         try:
-            box = None
-            if press is None:  # where the button is now (the status text above it may have changed its height)
-                box = target.bounding_box()
-                page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+            at = None
+            if press is None:  # the button stays where the finger is while the status text changes (a press that
+                at = bs.finger_over(page, button)  # landed on the status text once lost to the move)
+                assert at == before, f"{button} moved from {before} to {at} as the move began"
             pressed = station.machine.state.time, float(station.machine.state.position[0])
             if press is None:
                 page.mouse.down()
                 page.mouse.up()
             else:
                 press()
-            bs.stop_time(station, pressed[0], f"standstill after {button} (pressed at {box})", limit=5.0)
+            bs.stop_time(station, pressed[0], f"standstill after {button} (pressed at {at})", limit=5.0)
         finally:
             network.set_pace(pace)
         bs.wait_until(lambda: status.done, 30.0, "the Go to ended")
@@ -117,6 +113,19 @@ def test_estop_in_the_page_wins_over_a_go_to(app, station):
         assert events == ["stop"], events
         assert station.controller.state.mode.value == "stopped"
         assert np.all(np.abs([a.velocity for a in station.machine.state.axes]) < 1e-9)
+        # a press its worker found the socket closed for (closed after the page last heard it open) is not lost:
+        # the page's own viser click carries it, once
+        page.capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle")
+        seen = []
+        unsubscribe = station.controller.subscribe(lambda kind, info: seen.append(kind) if kind == "stop" else None)
+        try:
+            page.evaluate("() => window.__cmmHoldWorker.onmessage({data: {type: 'pressed', what: 'stop', sent: false}})")
+            bs.wait_until(lambda: station.controller.state.mode.value == "stopped", 60.0, "the STOP through viser")
+            page.wait_for_timeout(2000)
+        finally:
+            unsubscribe()
+        assert seen == ["stop"], seen
 
 
 def test_the_page_takes_one_hit_per_touch(app, station):
@@ -133,10 +142,7 @@ def test_the_page_takes_one_hit_per_touch(app, station):
         bs.tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe, "the armed jog")
         model = station.measurement
         before = len(model.hits)
-        button = page.get_by_role("button", name="hold Z −", exact=True)
-        button.scroll_into_view_if_needed()
-        box = button.bounding_box()
-        page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+        bs.finger_over(page, "hold Z −")
         network = station.sim.network
         pace = network.pace
         network.set_pace(bs.HAND_PACE)

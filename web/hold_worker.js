@@ -23,7 +23,7 @@
     "  ws.onmessage = function (e) { var m; try { m = JSON.parse(e.data); } catch (x) { return; }",
     "    if (m.type === 'error' || m.type === 'notice') postMessage(m); };",
     "}",
-    "function send(m) { if (ws && ws.readyState === 1) ws.send(JSON.stringify(m)); }",
+    "function send(m) { if (!ws || ws.readyState !== 1) return false; ws.send(JSON.stringify(m)); return true; }",
     "function tick() {",
     "  if (button === null) return;",
     "  if (Date.now() - beat > MAIN_SILENT_MS) { stop(true); return; }",
@@ -39,26 +39,39 @@
     "  if (m.type === 'hold') { button = m.button; beat = Date.now(); if (timer === null) timer = setInterval(tick, 40); tick(); }",
     "  else if (m.type === 'beat') { beat = Date.now(); }",
     "  else if (m.type === 'release') { stop(); }",
-    "  else if (m.type === 'stop') { stop(); send({type: 'stop'}); }",
-    "  else if (m.type === 'estop') { stop(); send({type: 'estop'}); }",
+    "  else if (m.type === 'stop' || m.type === 'estop') {",
+    "    stop(); postMessage({type: 'pressed', what: m.type, sent: send({type: m.type})}); }",
     "};",
     "open();"
   ].join("\n");
   var worker = new Worker(URL.createObjectURL(new Blob([src], {type: "text/javascript"})));
   window.__cmmHoldWorker = worker;
-  var linkOpen = false, pressedAt = 0;
+  var linkOpen = false, pressedAt = 0, viaViser = false;
   worker.onmessage = function (e) {
     if (e.data && e.data.type === "link") { linkOpen = !!e.data.open; return; }
+    if (e.data && e.data.type === "pressed") { if (!e.data.sent) viserPress(e.data.what); return; }
     window.dispatchEvent(new CustomEvent("cmm-pendant-message", { detail: e.data }));
   };
+  // A press the worker could not send (its socket closed after the page last heard it was open, or still
+  // reconnecting) is never lost: the button's own viser click carries it (the keyboard's stop presses STOP).
+  function viserPress(what) {
+    var label = what === "estop" ? "E-STOP" : "STOP";
+    var b = Array.prototype.find.call(document.querySelectorAll("button"),
+                                      function (x) { return x.textContent.trim() === label; });
+    console.warn("the " + label + " press went through the page's own connection: the jog link was not open");
+    if (!b) return;
+    viaViser = true;
+    try { b.click(); } finally { viaViser = false; }
+  }
   // The page's STOP and E-STOP buttons: the press goes from here, on pointer-down, through the worker's own
   // WebSocket to the pendant port (a thread of its own in the station, straight to the modules), not through
   // viser's socket and its queue of frames, panels and callbacks. While that socket is not open the button's own
-  // viser click carries the press instead (never both: the click is kept from viser when the worker sent it).
+  // viser click carries the press instead (never both: the click is kept from viser when the worker sent it), and so
+  // does a press the worker found its socket closed for.
   function stopButton(e) {
     var b = e.target && e.target.closest ? e.target.closest("button") : null;
     var label = b ? b.textContent.trim() : "";
-    if ((label !== "STOP" && label !== "E-STOP") || !linkOpen) return;
+    if ((label !== "STOP" && label !== "E-STOP") || !linkOpen || viaViser) return;
     e.preventDefault();
     e.stopImmediatePropagation();
     var now = Date.now();

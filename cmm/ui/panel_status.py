@@ -206,14 +206,16 @@ class StatusPanel:
         self._shown = ""
 
     def build(self, gui: Any, controls: Callable[[Any], Any] | None = None) -> None:
-        """The pinned block: the status lines, STOP and E-STOP on one row, then ``controls(gui)`` (the tab's
-        Take control / Release button) beside the DRO's frame on the next."""
+        """The pinned block: STOP and E-STOP on one row at its top, the status lines, then ``controls(gui)`` (the
+        tab's Take control / Release button) beside the DRO's frame. Nothing above the two buttons changes height: a
+        status line that wraps as the mode or its reason changes never moves them from under the operator's finger
+        (it did, and a press during a move landed on the status text)."""
         gui.add_html(STICKY_CSS)
         run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
-            self.gui["status"] = gui.add_html(self.html())
             gui.add_button("STOP", color="orange").on_click(self._press(lambda: self.ctx.stop()))
             gui.add_button("E-STOP", color="red").on_click(self._press(lambda: self.ctx.emergency_stop()))
+            self.gui["status"] = gui.add_html(self.html())
             if controls is not None:
                 controls(gui)
             frame = gui.add_button_group("DRO", FRAMES)
