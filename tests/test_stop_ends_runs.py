@@ -244,8 +244,9 @@ def test_after_a_stop_ends_an_auto_measure_the_next_move_goes(station):
     error, report, watch, after = _stop_during(
         station, lambda: ctl.commands.invoke(None, "auto_measure", plan=plan, name="stopped " + name),
         lambda: station.sim.triggers >= first + 2, "stop")
-    # the press asks the auto-measure to cancel too: it ends as stopped or as cancelled after its hits so far
+    # the press asks the auto-measure to cancel too; whichever way it ends, it says the operator's STOP ended it
     assert report["ok"] and error is not None, (report, error)
+    assert f"auto-measure of stopped {name} ended by the operator's STOP" in str(error), error
     assert after <= 1
     assert station.machine.inhibit is None
     here = ctl.state.machine.position

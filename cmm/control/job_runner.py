@@ -103,12 +103,12 @@ class JobRunner:
                 self.dispatcher.flush()
 
     def run_beside(self, client: str | None, description: str, fn: Callable[[], Any], *,
-                   cancel: Callable[[], None], **holds: Callable[[], Any] | None) -> Any:
+                   cancel: Callable[[], None], action: str = "job", **holds: Callable[[], Any] | None) -> Any:
         """Work that does not hold the machine (a program waiting for the operator's manual hits: the operator jogs
-        and probes meanwhile, each move its own command): run in the caller's thread, registered with its
-        ``cancel`` (and ``pause`` / ``resume`` / ``skip``) as a running job; only the client that may start a job
-        starts it."""
-        why = self.policy.refusal(client, "job")
+        and probes meanwhile, each move its own command; an auto-measure, each hit its own command): run in the
+        caller's thread, registered with its ``cancel`` (and ``pause`` / ``resume`` / ``skip``) as a running job;
+        only the client that may do ``action`` starts it. Ended by a STOP, it says so in the operator's words."""
+        why = self.policy.refusal(client, action)
         if why is not None:
             raise Refused(why)
         with self.jobs.running(description, cancel, **holds):

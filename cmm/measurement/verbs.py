@@ -96,7 +96,8 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
             plan = plan_at_pick(measurement, int(face), n=n)
         stop = threading.Event()  # the cancel verb sets it; the plan looks between its hits
         cancel, cancelled = stop.set, stop.is_set
-        with controller.jobs.running(f"auto-measure of {name or 'the ' + plan.kind}", cancel):
+
+        def work() -> Any:
             feature = run_plan(measurement, plan, name=name, method=method, progress=progress, cancelled=cancelled,
                                client=client)
             try:  # the run ends at the clearance plane (cmm.measurement.run_end); the feature stands either way
@@ -104,6 +105,9 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
             except Exception as exc:  # noqa: BLE001 - told in the journal, in words
                 measurement.note(f"auto-measure: the climb to the clearance plane at its end failed: {exc}")
             return feature
+        # a run like the others: a STOP ends it as "auto-measure of ... ended by the operator's STOP: ..."
+        return controller.run_beside(client, f"auto-measure of {name or 'the ' + plan.kind}", work, cancel=cancel,
+                                     action="measure")
 
     def program(client: Any, path: Any, serial: str = "") -> Any:
         return run_on(controller, measurement, path, client=client, serial=serial)
