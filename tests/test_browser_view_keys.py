@@ -111,6 +111,15 @@ def test_keyboard_jog_in_the_view_with_the_focus_shown_and_every_refusal_said(ap
         # Esc stops from the view
         page.keyboard.press("Escape")
         bs.wait_until(lambda: "STOP sent" in badge.inner_text(), 60.0, "the view saying STOP was sent")
+        bs.wait_until(lambda: station.controller.state.mode.value == "stopped", 60.0, "the STOP from the view")
+        # a page whose jog worker is not there (not loaded yet): the key's STOP goes by the STOP button's click
+        capp.reset()
+        bs.wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle")
+        page.evaluate("() => { window.__cmmWorkerKept = window.__cmmHoldWorker; delete window.__cmmHoldWorker; }")
+        bs.focus_view(page)
+        page.keyboard.press("Escape")
+        bs.wait_until(lambda: station.controller.state.mode.value == "stopped", 60.0, "the STOP without the worker")
+        page.evaluate("() => { window.__cmmHoldWorker = window.__cmmWorkerKept; }")
         assert page.log.page_errors == []
 
 
