@@ -142,6 +142,9 @@ def test_the_page_takes_one_hit_per_touch(app, station):
         bs.tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe, "the armed jog")
         model = station.measurement
         before = len(model.hits)
+        # the status bar says so (its probe line may wrap and move the jog buttons down: pressed after that)
+        page.wait_for_function("() => (document.getElementById('cmm-status') || {}).textContent.includes('armed')",
+                               timeout=bs.PAGE_WAIT_MS)
         bs.finger_over(page, "hold Z −")
         network = station.sim.network
         pace = network.pace
