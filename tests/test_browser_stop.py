@@ -138,14 +138,16 @@ def test_the_page_takes_one_hit_per_touch(app, station):
             page.capp.reset()
         bs.wait_until(lambda: station.controller.state.mode.value == "idle", 60.0, "the machine idle")
         bs.open_tab(page, "Machine", "Jog")
+        idle_at = bs.finger_over(page, "hold Z −")
         page.capp.go_to([250.0, 190.0, 42.5], frame="machine").wait(120)  # the part's face is at Z 40 here
         bs.tick_until(page, "Manual probing (armed jog)", True, lambda: page.capp.ctx.manual_probe, "the armed jog")
         model = station.measurement
         before = len(model.hits)
-        # the status bar says so (its probe line may wrap and move the jog buttons down: pressed after that)
+        # the status bar says so, and the button is where it was before the move and the arming: the status
+        # block's changing words never move the buttons below it from under the operator's finger
         page.wait_for_function("() => (document.getElementById('cmm-status') || {}).textContent.includes('armed')",
                                timeout=bs.PAGE_WAIT_MS)
-        bs.finger_over(page, "hold Z −")
+        assert bs.finger_over(page, "hold Z −") == idle_at, "the jog button moved as the status changed"
         network = station.sim.network
         pace = network.pace
         network.set_pace(bs.HAND_PACE)

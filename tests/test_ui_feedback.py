@@ -69,6 +69,11 @@ def test_face_names_and_running_status_between_moves(app):
     assert ">IDLE</span>" in status_html(st, "")
     paused = status_html(st, "", cycle="routine block on part 2", cycle_paused=True)  # a routine paused between hits
     assert ">PAUSED</span>" in paused and "routine block on part 2: Resume goes on" in paused
+    # the reason has a line of its own in every state (a blank one when idle), kept to one line while the machine
+    # runs: the block's height does not change as a move starts or ends
+    assert "<div class='reason' title=''>&nbsp;</div>" in status_html(st, "")
+    assert "<div class='reason warn one' title='auto-measure of TOP'>auto-measure of TOP</div>" in running
+    assert "class='reason warn' " in paused  # standing: wrapped, read in full
 
 
 def test_a_paused_run_is_not_called_silent(app):

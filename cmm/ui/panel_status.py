@@ -55,6 +55,10 @@ STICKY_CSS = """<style>
   grid-template-columns: 4.2em 1fr 1fr 1fr; gap: 0 6px; margin: 3px 0; white-space: nowrap; }
 .cmm-status .muted { color: #777; }
 .cmm-status .warn { color: #c62828; font-weight: 600; }
+.cmm-status .mode { display: inline-block; min-width: 5.2em; text-align: center; }
+.cmm-status .reason { min-height: 1.35em; }
+.cmm-status .reason.one { white-space: nowrap; overflow: hidden; text-overflow: ellipsis; }
+.cmm-status .pstate { display: inline-block; min-width: 9.5em; }
 </style>"""
 STICKY_JS = """
 if (!window.__cmmSticky) {
@@ -141,8 +145,6 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     st = station.controller.state.machine  # the control core's last sample (the observer's snapshot)
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
-    if reason:
-        out.append(f" <span class='warn'>{e(reason)}</span>")
     out.append(f" &middot; {e(control_text)}")
     warning = getattr(getattr(station.controller, "state", None), "link_warning", "")
     if warning:
@@ -159,6 +161,12 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
     offline = upload() if callable(upload) else ""  # the shop's session database: "database offline, N events waiting"
     if offline:
         out.append(f" &middot; <span class='warn'>{e(offline)}</span>")
+    # the reason on a line of its own, always there: a move's words appearing and going never change the block's
+    # height (the buttons below it stay under the operator's finger); one line while the machine moves (the whole
+    # text in its tooltip), wrapped when it stands (a fault's reason is read in full)
+    moving = mode in ("moving", "probing", "homing", "jogging", "running")
+    out.append(f"<div class='reason{' warn' if reason else ''}{' one' if moving else ''}' title='{e(reason)}'>"
+               f"{e(reason) if reason else '&nbsp;'}</div>")
     if st is not None:
         pos = st.position
         label = "machine"
@@ -178,7 +186,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         probe_state = "TRIGGERED" if st.probe_triggered else ("armed (manual hits)" if armed else "free")
         cls = "warn" if st.probe_triggered else ""
         name = getattr(station.measurement, "probe_name", "") or ""
-        out.append(f"probe {e(name)} <span class='{cls}'>{probe_state}</span> &middot; {tip}, {qual}")
+        out.append(f"probe {e(name)} <span class='pstate {cls}'>{probe_state}</span> &middot; {tip}, {qual}")
     out.append("</div>")
     return "".join(out)
 
