@@ -263,12 +263,20 @@ def open_page(context: Any, app: Any, viewport: tuple[int, int] | None = None) -
     page.log = PageLog()
     page.log.attach(page)
     page.goto(app_url(app))
-    viser_ready(page)
-    wait_until(lambda: set(app.clients) - before, 30.0, "the page's viser client")
-    (cid,) = set(app.clients) - before
+    cid = new_client(page, app, before)
     page.cid = cid
     page.capp = app.clients[cid]
     return page
+
+
+def new_client(page: Any, app: Any, before: set) -> Any:
+    """The id of the viser client a page just opened on ``app`` (``before``: the clients before it): once the page
+    shows its GUI, the newest client that was not there before (a socket that dropped and came back under load is
+    a new client, the old one gone)."""
+    viser_ready(page)
+    wait_until(lambda: set(app.clients) - before, PAGE_WAIT_MS / 1000, "the page's viser client",
+               why=lambda: f"clients {sorted(app.clients)} (before {sorted(before)}); {page_diagnosis(page)}")
+    return max(set(app.clients) - before)
 
 
 def focus_view(page: Any) -> None:

@@ -68,10 +68,7 @@ def test_colour_map_in_the_scene_legend_bands_and_report(app, station):
         log.attach(page)
         before = set(app.clients)
         page.goto(bs.app_url(app))
-        page.get_by_role("button", name="E-STOP").wait_for()
-        bs.wait_until(lambda: set(app.clients) - before, 10.0, "the page's viser client")
-        (cid,) = set(app.clients) - before
-        capp = app.clients[cid]
+        capp = app.clients[bs.new_client(page, app, before)]
         bs.open_tab(page, "Measure", "Colour map")
         legend = page.locator(".cmm-legend")
         # the legend lists the band limits of the shared scale (default: +-20 um, warning from +-10 um)

@@ -54,10 +54,7 @@ def open_over_tls(context, app, url):
     page.log.attach(page)
     page.goto(url)
     assert page.url.startswith("https://")
-    bs.viser_ready(page)  # the GUI came over the wss socket through the proxy
-    bs.wait_until(lambda: set(app.clients) - before, 60.0, "the page's viser client")
-    (cid,) = set(app.clients) - before
-    page.capp = app.clients[cid]
+    page.capp = app.clients[bs.new_client(page, app, before)]  # the GUI came over the wss socket through the proxy
     return page
 
 
