@@ -263,9 +263,9 @@ def test_ptmeas_reports_the_tip_centre_and_the_session_is_recorded(served, tmp_p
     top = (part.pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face (part coordinates)
     with connected(server) as c:
         ready(c, speed=50)
-        assert c.call(f"GoTo(X({top[0]}), Y({top[1]}), Z(70))").ok
+        assert c.call(f"GoTo(X({top[0]:.4f}), Y({top[1]:.4f}), Z(70))").ok
         assert c.call("OnPtMeasReport(X(), Y(), Z(), IJK(), ER())").ok
-        t = c.call(f"PtMeas(X({top[0]}), Y({top[1]}), Z({top[2]}), IJK(0, 0, 1))")
+        t = c.call(f"PtMeas(X({top[0]:.4f}), Y({top[1]:.4f}), Z({top[2]:.4f}), IJK(0, 0, 1))")
         assert t.ok, t.responses
         v = t.values()
         assert v["IJK"] == [0, 0, 1] and v["ER"] == [pytest.approx(station.prober.settings.tip_radius)]
@@ -275,8 +275,8 @@ def test_ptmeas_reports_the_tip_centre_and_the_session_is_recorded(served, tmp_p
         snap = server.status.snapshot()
         assert snap["points"] == [tuple(pytest.approx(x, abs=0.001) for x in (v["X"][0], v["Y"][0], v["Z"][0]))]
         beside = (part.pose @ np.array([-30.0, 15.0, 20.0, 1.0]))[:3]  # off the part, above the table
-        assert c.call(f"GoTo(Z(70))").ok and c.call(f"GoTo(X({beside[0]}), Y({beside[1]}))").ok
-        t = c.call(f"PtMeas(X({beside[0]}), Y({beside[1]}), Z({beside[2]}), IJK(0, 0, 1))")
+        assert c.call(f"GoTo(Z(70))").ok and c.call(f"GoTo(X({beside[0]:.4f}), Y({beside[1]:.4f}))").ok
+        t = c.call(f"PtMeas(X({beside[0]:.4f}), Y({beside[1]:.4f}), Z({beside[2]:.4f}), IJK(0, 0, 1))")
         assert [e.error_number for e in t.errors] == [1006]  # surface not found
         c.call("EndSession()")
     journal = station.measurement.journal.path
