@@ -12,6 +12,14 @@
 // STOP; the page's STOP and E-STOP buttons send their press through it too; what the station answers (a refusal and why) comes back as a "cmm-pendant-message" window event.
 (function () {
   var WS_URL = "__WS_URL__", TOKEN = "__TOKEN__";
+  // Click the page's button labelled ``label`` (its viser click): the fallback of a press the worker cannot carry,
+  // here and in web/view_keys.js.
+  window.__cmmPressButton = function (label) {
+    var b = Array.prototype.find.call(document.querySelectorAll("button"),
+                                      function (x) { return x.textContent.trim() === label; });
+    if (b) b.click();
+    return !!b;
+  };
   if (window.__cmmHoldWorker) return;
   var src = [
     "var ws = null, timer = null, button = null, beat = 0, MAIN_SILENT_MS = 1000;",
@@ -56,12 +64,9 @@
   // reconnecting) is never lost: the button's own viser click carries it (the keyboard's stop presses STOP).
   function viserPress(what) {
     var label = what === "estop" ? "E-STOP" : "STOP";
-    var b = Array.prototype.find.call(document.querySelectorAll("button"),
-                                      function (x) { return x.textContent.trim() === label; });
     console.warn("the " + label + " press went through the page's own connection: the jog link was not open");
-    if (!b) return;
     viaViser = true;
-    try { b.click(); } finally { viaViser = false; }
+    try { window.__cmmPressButton(label); } finally { viaViser = false; }
   }
   // The page's STOP and E-STOP buttons: the press goes from here, on pointer-down, through the worker's own
   // WebSocket to the pendant port (a thread of its own in the station, straight to the modules), not through

@@ -96,11 +96,7 @@
       releaseAll();
       var w = worker();
       if (w) w.postMessage({ type: "stop" });  // it falls back on the STOP button's click when its socket is closed
-      else {  // no jog worker yet: the page's own STOP button carries it
-        var b = Array.prototype.find.call(document.querySelectorAll("button"),
-                                          function (x) { return x.textContent.trim() === "STOP"; });
-        if (b) b.click();
-      }
+      else if (window.__cmmPressButton) window.__cmmPressButton("STOP");  // no jog worker: the STOP button's click
       say("STOP sent", false);
       return;
     }
