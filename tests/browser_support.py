@@ -224,8 +224,17 @@ FAKE_GAMEPAD = """
 def viser_ready(page: Any) -> None:
     """Wait (up to PAGE_WAIT_MS) until the station's viser page has painted its scene canvas and the GUI its
     viser client sent over the socket (the status bar's E-STOP button)."""
-    page.wait_for_selector("canvas", timeout=PAGE_WAIT_MS)
-    page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
+    try:
+        page.wait_for_selector("canvas", timeout=PAGE_WAIT_MS)
+        page.get_by_role("button", name="E-STOP").wait_for(timeout=PAGE_WAIT_MS)
+    except Exception as exc:  # noqa: BLE001 - Playwright's timeout, re-raised with what the page had
+        try:
+            had = page.evaluate("() => [document.readyState, document.querySelectorAll('canvas').length, "
+                                "document.body ? document.body.innerText.slice(0, 200) : '']")
+        except Exception as inner:  # noqa: BLE001
+            had = f"no answer ({type(inner).__name__})"
+        raise AssertionError(f"the station page was not ready within {PAGE_WAIT_MS / 1000:g} s (ready state, "
+                             f"canvases, text: {had}); {page_diagnosis(page)}") from exc
 
 
 COUNT_PASSES = """() => { const m = window.__passes = new Map(); let now = 0;
@@ -241,6 +250,10 @@ def render_passes(page: Any, wait_ms: int = 3000) -> int:
     an idle scene about once a second): 1 without shadows, one more per shadow-casting light with them."""
     page.evaluate(COUNT_PASSES)
     page.wait_for_timeout(wait_ms)
+    waited = wait_ms
+    while not page.evaluate("window.__passes.size") and waited < PAGE_WAIT_MS:  # a loaded machine drew no frame yet
+        page.wait_for_timeout(500)
+        waited += 500
     return int(page.evaluate("Math.max(0, ...window.__passes.values())"))
 
 

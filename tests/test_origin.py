@@ -92,7 +92,7 @@ def attack(port: int, *, origin: str | None, host: str | None = None, seconds: f
     out = {"messages": 0, "clicked": False, "closed": None}
     try:
         with connect(uri, sock=sock, origin=origin, subprotocols=[f"viser-v{viser.__version__}"],
-                     open_timeout=5) as ws:
+                     open_timeout=30) as ws:
             camera = _messages.ViewerCameraMessage((1.0, 0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 1.0, 0.01, 100.0, 600,
                                                    800, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
             try:
@@ -174,7 +174,7 @@ def test_the_pendant_port_refuses_foreign_pages_too(app):
     with pytest.raises(InvalidStatus) as info:
         ws_connect(f"ws://evil.example:{port}/ws", sock=sock, origin=f"http://evil.example:{port}", open_timeout=5)
     assert info.value.response.status_code == 403
-    with ws_connect(url, origin=f"http://127.0.0.1:{port}", open_timeout=5) as ws:  # its own page is welcome
+    with ws_connect(url, origin=f"http://127.0.0.1:{port}", open_timeout=30) as ws:  # its own page is welcome
         ws.send('{"type": "hello"}')
         kinds = [json.loads(ws.recv(timeout=5))["type"] for _ in range(5)]
         assert "hello" in kinds

@@ -54,7 +54,7 @@ class Client:
     """A blocking pendant client that remembers what the server said."""
 
     def __init__(self, url: str, clock=time.monotonic) -> None:
-        self.ws = connect(url, open_timeout=5, close_timeout=2)
+        self.ws = connect(url, open_timeout=30, close_timeout=2)
         self.messages: list[dict] = []
         self.clock = clock  # the station's simulated time
 
@@ -166,7 +166,7 @@ def test_refuses_websocket_from_another_origin(server):
     with pytest.raises(InvalidStatus) as e:
         connect(server.ws_url, origin="http://evil.example", open_timeout=5)
     assert e.value.response.status_code == 403
-    own = connect(server.ws_url, origin=server.url.rstrip("/"), open_timeout=5)
+    own = connect(server.ws_url, origin=server.url.rstrip("/"), open_timeout=30)
     own.close()
 
 

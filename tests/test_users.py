@@ -152,7 +152,7 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
     try:
         assert server.ws_url.startswith("wss://")
         trust = ssl.create_default_context(cafile=str(cert.cert_path))
-        ws = connect(server.ws_url, ssl=trust, open_timeout=10, close_timeout=2)
+        ws = connect(server.ws_url, ssl=trust, open_timeout=60, close_timeout=2)  # a TLS handshake beside CPU hogs
 
         def ask(**msg):
             ws.send(json.dumps(msg))
