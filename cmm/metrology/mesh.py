@@ -180,6 +180,25 @@ class SurfaceIndex:
         self.faces = np.ascontiguousarray(mesh.faces, dtype=np.int64)
         self.tree = igl.AABB()
         self.tree.init(self.vertices, self.faces)
+        self._edge_sums: NDArray[np.float64] | None = None
+        self._vertex_sums: NDArray[np.float64] | None = None
+
+    # The pseudo-normals' sums over a mesh's edges and vertices, made once per mesh: summing them over the whole
+    # mesh for every query was most of a rails check's time (np.add.at over every face).
+    def edge_normal_sums(self, mesh: trimesh.Trimesh) -> NDArray[np.float64]:
+        if self._edge_sums is None:
+            edge_sum = np.zeros((len(mesh.edges_unique), 3))
+            np.add.at(edge_sum, mesh.edges_unique_inverse, np.repeat(np.asarray(mesh.face_normals, float), 3, axis=0))
+            self._edge_sums = edge_sum
+        return self._edge_sums
+
+    def vertex_normal_sums(self, mesh: trimesh.Trimesh) -> NDArray[np.float64]:
+        if self._vertex_sums is None:
+            vertex_sum = np.zeros((len(mesh.vertices), 3))
+            angles = np.nan_to_num(np.asarray(mesh.face_angles))
+            np.add.at(vertex_sum, mesh.faces, np.asarray(mesh.face_normals, float)[:, None, :] * angles[:, :, None])
+            self._vertex_sums = vertex_sum
+        return self._vertex_sums
 
     def query(self, points: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
         """Squared distances, face ids and closest points of (n, 3) points.
@@ -269,15 +288,12 @@ def pseudo_normals(mesh: trimesh.Trimesh, face_ids: NDArray[np.int64], points: N
         # edge k of a face joins vertices k and k+1, so it is opposite vertex k+2
         zero = np.argmax(small[on_edge], axis=1)
         k = (zero + 1) % 3
-        edge_sum = np.zeros((len(mesh.edges_unique), 3))
-        np.add.at(edge_sum, mesh.edges_unique_inverse, np.repeat(face_normals, 3, axis=0))
+        edge_sum = surface_index(mesh).edge_normal_sums(mesh)
         normals[on_edge] = edge_sum[mesh.edges_unique_inverse[3 * face_ids[on_edge] + k]]
 
     on_vertex = np.nonzero(n_small >= 2)[0]
     if len(on_vertex):
-        vertex_sum = np.zeros((len(mesh.vertices), 3))
-        angles = np.nan_to_num(np.asarray(mesh.face_angles))
-        np.add.at(vertex_sum, mesh.faces, face_normals[:, None, :] * angles[:, :, None])
+        vertex_sum = surface_index(mesh).vertex_normal_sums(mesh)
         corner = np.argmax(bary[on_vertex], axis=1)
         normals[on_vertex] = vertex_sum[mesh.faces[face_ids[on_vertex], corner]]
 
