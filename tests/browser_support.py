@@ -55,6 +55,12 @@ FRAME_MS = float(os.environ.get("CMM_TEST_FRAME_MS", "500"))
 # that only moves scene nodes (the probe, 25 a second while it moves) waits for the next FRAME_MS frame: a moving
 # probe made the page draw five frames a second, each ~50 ms of the GPU process's CPU.
 MESSAGE_FRAME_MS = float(os.environ.get("CMM_TEST_MESSAGE_FRAME_MS", "200"))
+# A GUI element updated again within STREAM_MS of its last update is a stream (the status bar's DRO 20 times a
+# second while the axes move, the read-outs and the following-error plot 5 times): like the probe's moves, it waits
+# for the next FRAME_MS frame. A moving machine's streams let five frames a second through, each ~50 ms of the GPU
+# process's CPU and as much of the renderer's; an element's first update after a quiet spell (a click's answer, the
+# mode the STOP changed) is still shown MESSAGE_FRAME_MS after the last frame.
+STREAM_MS = float(os.environ.get("CMM_TEST_STREAM_MS", "300"))
 # Every callback waiting when a frame is let through runs in it (callbacks of one frame share its time stamp), so
 # no requester (the 3-D view, a panel's opening transition) is starved by another. A test may space the frames
 # further for a while: ``page.evaluate("window.__cmmFrameMs = 5000")`` (messages then wait as long too).
@@ -62,12 +68,16 @@ MESSAGE_FRAME_MS = float(os.environ.get("CMM_TEST_MESSAGE_FRAME_MS", "200"))
 # was, the callbacks waiting, and the page's longest main-thread tasks.
 FRAME_CAP = """(() => { const raf = window.requestAnimationFrame.bind(window);
   const caf = window.cancelAnimationFrame.bind(window), ids = new Map(); let open = -1, due = 0, soon = 0, next = 1;
-  let heard = false; const MOVES = new Set(["SetPositionMessage", "SetOrientationMessage"]);
+  let heard = false; const MOVES = new Set(["SetPositionMessage", "SetOrientationMessage"]), updated = new Map();
   const stats = window.__cmmPage = { frames: 0, lastFrame: -1, waiting: () => ids.size, longTasks: [] };
+  const streaming = (m) => { if (m.type !== "GuiUpdateMessage") return false;
+    const now = performance.now(), last = updated.get(m.uuid); updated.set(m.uuid, now);
+    return last !== undefined && now - last < %g; };
   const Worker0 = window.Worker;
   if (Worker0) window.Worker = class extends Worker0 { constructor(...args) { super(...args);
     this.addEventListener("message", (e) => { const d = e.data;
-      if (!(d && d.type === "message_batch" && d.messages.every((m) => MOVES.has(m.type)))) heard = true; }); } };
+      if (!(d && d.type === "message_batch")) { heard = true; return; }
+      for (const m of d.messages) if (!MOVES.has(m.type) && !streaming(m)) heard = true; }); } };
   window.requestAnimationFrame = (cb) => { const id = next++;
     const go = (t) => { if (t === open || t >= due || (heard && t >= soon && !window.__cmmFrameMs)) {
                           if (t !== open) { open = t; due = t + (window.__cmmFrameMs || %g); soon = t + %g;
@@ -133,7 +143,7 @@ def browser_context(viewport: tuple[int, int] = (480, 860), **options: Any) -> I
             context.set_default_timeout(PAGE_WAIT_MS)
             context.set_default_navigation_timeout(PAGE_WAIT_MS)
             if FRAME_MS:
-                context.add_init_script(FRAME_CAP % (FRAME_MS, MESSAGE_FRAME_MS))
+                context.add_init_script(FRAME_CAP % (STREAM_MS, FRAME_MS, MESSAGE_FRAME_MS))
             try:
                 yield context
             finally:
