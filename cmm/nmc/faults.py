@@ -246,7 +246,13 @@ class FaultyTransport:
     def _until_due(self, cap: float) -> float:
         now = self.now()
         nxt = [t - now for t in (self._lines.tx.next_due(), self._lines.rx.next_due()) if t is not None]
-        return max(min([cap, self.STEP, *nxt]), 1e-6) if cap > 1e-6 else cap
+        # a simulator that says when its next byte can come is slept through to then, not polled every STEP
+        quiet = getattr(self._inner, "quiet_for", None) if self._virtual else None
+        step = self.STEP
+        if quiet is not None:
+            q = quiet()
+            step = cap if q is None else max(q, 1e-6)
+        return max(min([cap, step, *nxt]), 1e-6) if cap > 1e-6 else cap
 
     def _advance(self, seconds: float) -> None:
         if self._virtual:

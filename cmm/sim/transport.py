@@ -95,6 +95,19 @@ class SimTransport:
         net.hold_pace()
         return data
 
+    def quiet_for(self) -> float | None:
+        """Simulated seconds during which no byte can reach the host (None: none until the host writes), for a
+        wrapper that polls without blocking (:class:`cmm.nmc.faults.FaultyTransport`) to sleep through."""
+        net = self.network
+        with net.lock:
+            if net.realtime:
+                return 0.0
+            if net.host_in:
+                return 0.0
+            if not net.busy():
+                return None
+            return max(0.0, (net.next_event_ns() - net.now_ns) * 1e-9)
+
     def read_all(self) -> bytes:
         with self.network.lock:
             self.network.sync()
