@@ -177,23 +177,30 @@ def out_of_tolerance(values: list[float] | np.ndarray, lower: float | None, uppe
 def normal_range_mean(n: int) -> float:
     """d2: the mean range of ``n`` standard normal values, by quadrature (what the table rounds)."""
     from scipy import integrate
-    from scipy.stats import norm
 
-    return integrate.quad(lambda x: 1.0 - norm.cdf(x) ** n - norm.sf(x) ** n, -9.0, 9.0, limit=200)[0]
+    return integrate.quad(lambda x: 1.0 - _cdf(x) ** n - _cdf(-x) ** n, -9.0, 9.0, limit=200)[0]
+
+
+# the standard normal's cdf and pdf in plain floats (scipy.stats' per-call overhead made the double integral slow)
+def _cdf(x: float) -> float:
+    return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+
+def _pdf(x: float) -> float:
+    return math.exp(-0.5 * x * x) / math.sqrt(2.0 * math.pi)
 
 
 def normal_range_moments(n: int) -> tuple[float, float]:
     """(d2, d3): mean and standard deviation of the range of ``n`` standard normal values, by quadrature
     (slow: a double integral; for checking the table)."""
     from scipy import integrate
-    from scipy.stats import norm
 
     lim = 9.0
     d2 = normal_range_mean(n)
 
     # E[R^2] = 2 * integral over w > 0 of w * P(R > w); P(R <= w) = n * int f(x) (F(x+w) - F(x))^(n-1) dx
     def p_range_le(w: float) -> float:
-        return n * integrate.quad(lambda x: norm.pdf(x) * (norm.cdf(x + w) - norm.cdf(x)) ** (n - 1),
+        return n * integrate.quad(lambda x: _pdf(x) * (_cdf(x + w) - _cdf(x)) ** (n - 1),
                                   -lim, lim, limit=200)[0]
 
     er2 = 2.0 * integrate.quad(lambda w: w * (1.0 - p_range_le(w)), 0.0, 2 * lim, limit=200)[0]
