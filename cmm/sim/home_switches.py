@@ -23,13 +23,19 @@ class HomeSwitches:
                              for h, up in zip(self._home, self._toward_max))
         self._on: tuple[bool, bool, bool] | None = None
         self._levels: list[bool | None] = [None, None, None]
+        # the same thresholds on each axis's plant position in counts (mm = home + counts / k, k signed by the
+        # axis's direction), so that a tick compares three numbers without converting them
+        counts = []
+        for (plant, home, k), (t, up) in zip(cmm._encoders, self._limits):
+            counts.append((plant, (t - home) * k, up if k > 0 else not up))
+        self._counts = tuple(counts)
         cmm.network.add_tick_hook(self, reads_axes_only=True)
         self(cmm.network, 0)
 
     def __call__(self, network: Any, tick: int) -> None:
         # every servo tick: plain comparisons, the inputs touched only when a switch changes
-        x, y, z = self.cmm.axis_readings()
-        (tx, ux), (ty, uy), (tz, uz) = self._limits
+        (px, tx, ux), (py, ty, uy), (pz, tz, uz) = self._counts
+        x, y, z = px.x, py.x, pz.x
         on = (x >= tx if ux else x <= tx, y >= ty if uy else y <= ty, z >= tz if uz else z <= tz)
         if on != self._on:
             self._on = on
