@@ -154,7 +154,8 @@ BLOCK_FACES = [("TOP", (20.0, 10.0, 100.0), (0, 0, -1)), ("FRONT", (20.0, -50.0,
 
 def teach_block(model, faces=BLOCK_FACES):
     """On the simulator's true set-up: auto-measure ``faces`` where the operator clicks, align 3-2-1 on
-    TOP/FRONT/LEFT, construct the bore-boss distance; returns (feature ids by name, the distance) as taught."""
+    TOP/FRONT/LEFT, construct the bore-boss distance (when both are among the faces); returns (feature ids by
+    name, the distance or None) as taught."""
     from cmm.measurement.alignment import align_features, apply
     from cmm.measurement.plan import plan_at_pick, run_plan
     from cmm.sim.cmm_sim import TRUE_PART_POSE
@@ -166,6 +167,8 @@ def teach_block(model, faces=BLOCK_FACES):
         picked = model.pick((pose @ np.array([*origin, 1.0]))[:3], pose[:3, :3] @ np.array(direction, float))
         ids[name] = run_plan(model, plan_at_pick(model, picked[0].face_id), name=name).id
     apply(model, align_features(model, ids["TOP"], ids["FRONT"], ids["LEFT"]))
+    if "bore" not in ids or "boss" not in ids:  # the three datum planes alone: no construction
+        return ids, None
     return ids, model.construct_feature("distance", ids["bore"], ids["boss"], "bore-boss")
 
 
