@@ -25,6 +25,7 @@ from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
 
 LAPTOP = (1280, 800)
 TABLET = (820, 1180)
+PHONE = (390, 844)
 IMAGES = Path(__file__).resolve().parents[1] / "docs" / "images"
 
 # the side panel's parts, by layout: its scroll box and the height it may grow to (the tallest the panel is: a short
@@ -132,7 +133,7 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app, station):
     """Before and after taking control, at 1280 x 800 and on a portrait tablet: the tabs have at least 60 % of the
     panel's height, the status block (state, holder, DRO, link; STOP, E-STOP and Take control / Release at hand)
     covers nothing, the keyboard hint leaves the axis gizmo free, the six top tabs are one row, and at start the part
-    fills the view beside the panel."""
+    fills the view beside the panel; on an upright phone the whole part is in the view at start."""
     IMAGES.mkdir(parents=True, exist_ok=True)
     shares = {}
     for name, size in (("1280x800", LAPTOP), ("tablet", TABLET)):
@@ -148,6 +149,8 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app, station):
             assert (left + right) / 2 < free and 0 <= top and bottom <= size[1], (name, left, right, top, bottom)
             if name == "1280x800":  # across most of the view beside the panel, and not under it
                 assert 0 <= left and right <= free and right - left >= 0.4 * free, (left, right, free)
+            else:  # upright: the part is not cut at the view's left edge (viser's view angle is vertical)
+                assert 0 <= left and right - left >= 0.3 * free, (left, right, free)
             _take_control(page, app)
             bs.wait_until(lambda: page.evaluate(LAYOUT_JS)["release"] is not None, 60.0, "Release laid out", poll=0.5)
             shares[f"{name} in control"], _ = _assert_room(page, f"{name} in control", "release")
@@ -160,6 +163,10 @@ def test_room_to_work_at_1280x800_and_on_a_tablet(app, station):
             bs.wait_until(lambda: app.control.holder is None, 30.0, "the release")
     print("working area, share of the panel's height:", {k: f"{v:.0%}" for k, v in shares.items()})
     assert all(s >= 0.6 for s in shares.values()), shares
+    with bs.browser_context(PHONE) as context:  # upright and narrow: viser's view angle is vertical, so the start
+        page = bs.open_page(context, app, PHONE)  # view backs off until the part fits across the view too
+        left, right, top, bottom = _part_on_screen(page, station)
+        assert 0 <= left and right <= PHONE[0] and 0 <= top and bottom <= PHONE[1], (left, right, top, bottom)
 
 
 @pytest.mark.parametrize("size", [LAPTOP, TABLET], ids=["1280x800", "tablet"])

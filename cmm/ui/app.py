@@ -172,7 +172,26 @@ class StationApp:
             self.clients[key] = capp
         if client is not None:
             capp.build()
+            self._fit_start_view(client)
         return capp
+
+    def _fit_start_view(self, client: Any) -> None:
+        """Once the client shows the start view (its first reports come before it has applied viser's initial
+        camera) and has told its view's size: an upright view starts further back (SceneView.fit_portrait). A
+        camera the operator has moved by then is left alone (a few reports without the start view: given up)."""
+        start = np.asarray(self.server.initial_camera.position, float)
+        seen: list[int] = []
+
+        def update(camera: Any) -> None:
+            if len(seen) > 10:
+                return
+            seen.append(1)
+            if getattr(camera, "image_height", 0) > 0 and np.allclose(np.asarray(camera.position, float), start,
+                                                                       atol=1e-5):
+                seen.extend([1] * 11)  # once
+                self.view.fit_portrait(camera)
+        client.camera.on_update(update)
+        update(client.camera)  # its reports may have come while its panels were built
 
     def _connect(self, client: Any) -> None:
         if client.client_id in self._refused:  # closed by the origin guard before it could send anything

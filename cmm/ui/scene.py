@@ -105,9 +105,22 @@ class SceneView:
 
     # --- building -------------------------------------------------------------
 
+    def fit_portrait(self, camera: Any) -> bool:
+        """A view narrower than it is high (a tablet or phone upright): viser's field of view is vertical, so the
+        start distance that fills a landscape view would crop the part at the sides. Backs ``camera`` (a client's,
+        still where :meth:`frame_camera` put it) off along its line of sight by 1 / aspect, so the part fills the
+        view's width as it fills a landscape view's height. Returns whether it moved the camera."""
+        aspect = float(getattr(camera, "aspect", 1.0) or 1.0)
+        if not 0.0 < aspect < 1.0:
+            return False
+        look = np.asarray(camera.look_at, float)
+        camera.position = tuple(float(v) for v in look + (np.asarray(camera.position, float) - look) / aspect)
+        return True
+
     def frame_camera(self, camera: Any) -> None:
         """Start new clients (viser's initial camera) from the front right looking at the part, close enough that it
-        fills the view beside the panel (the envelope without a part)."""
+        fills the view beside the panel (the envelope without a part); a portrait view is fitted when the client
+        reports its size (:meth:`fit_portrait`)."""
         cfg = self.station.config
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
