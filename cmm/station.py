@@ -84,12 +84,12 @@ class Station:
         self.measurement.reporter = write_part_report  # a routine's report step: the part's report beside its journal
         self.ippdme: Any = None  # the I++ DME server's status (cmm.ippdme.status.IppStatus) once one serves this station
         self.controller.on_hit(self.measurement.add_hit)
-        self.controller.set_workspace(PartWorkspace(self.measurement))
         # routines, records and results, for every front end; the probe it selects is the model's probe in use
         host = CalibrationHost(self.controller.commands, self.config, self.lock, self.controller.wait_event, self.bench)
         self.calibration = CalibrationService(host, calibration_dir, use_probe=self.measurement.use_probe,
                                               tell=self.measurement.log)
         self.controller.jogs.probe_speed = lambda: self.calibration.qualified_probing_speed  # armed jogs: the qualified speed
+        self.controller.set_workspace(PartWorkspace(self.measurement, reference=self.calibration.reference_sphere))
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         register_calibration_verbs(self.controller.commands, self.controller.check_access, self.calibration)
         self._register_part_verbs()

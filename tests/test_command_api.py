@@ -240,6 +240,42 @@ def test_a_programmed_hit_whose_clearance_is_below_the_part_goes_over_the_plane_
     assert abs(float((np.linalg.inv(pose) @ np.array([*hit.point, 1.0]))[2]) - 40.0) < 0.05  # on the top face
 
 
+def test_routes_from_under_the_reference_sphere_step_out_before_they_climb(station):
+    """A stopped qualification can leave the tip under the reference sphere's bulge: the next move's climb and the
+    next hit's rapid went straight up into it ("unexpected probe contact"). Both step out from the sphere's axis
+    first (horizontally, to the sphere + tip + margin), then climb and travel above it; previews show the same."""
+    from cmm.control.rails import SPHERE_MARGIN
+
+    api, m = station.controller.commands, station.measurement
+    contacts = _contacts(station)
+    c = np.array(station.bench.sphere_centre)
+    r = station.bench.settings.sphere_diameter / 2
+    keep = r + station.prober.settings.tip_radius + SPHERE_MARGIN
+    under = c + [0.8 * r, 0.0, -0.85 * (r + station.prober.settings.tip_radius)]  # under the bulge, clear of it
+
+    def go_under():  # as a qualification leaves it: beside the sphere first, then straight in under the bulge
+        beside = c + [2 * keep, 0.0, under[2] - c[2]]
+        for target, path in ((beside, "clearance"), (under, "straight")):
+            assert api.call(None, "move", {"target": list(target), "frame": "machine", "path": path},
+                            wait=True, timeout=120).ok
+    go_under()
+    away = (m.part.pose @ np.array([60.0, 40.0, 60.0, 1.0]))[:3]  # over the part's top face
+    legs = station.controller.move_legs(list(away), frame="machine")
+    assert legs[0][2] == pytest.approx(under[2], abs=0.005) and np.hypot(*(legs[0][:2] - c[:2])) == pytest.approx(keep, abs=0.01)
+    assert all(p[2] >= c[2] + keep - 1e-6 for p in legs[1:3]), legs  # climbs, then travels above the sphere
+    assert api.call(None, "move", {"target": list(away), "frame": "machine"}, wait=True, timeout=120).ok
+    station.controller.dispatcher.flush()
+    assert contacts == [], contacts
+    go_under()
+    point, down = away - [0.0, 0.0, 20.0], np.array([0.0, 0.0, -1.0])  # a hit on the top face from under the sphere
+    (preview,) = station.controller.probe_paths([(point, down, None)])
+    assert np.hypot(*(preview.rapid[0][:2] - c[:2])) == pytest.approx(keep, abs=0.01), preview.rapid
+    hit = m.probe(point, down, clearance_z=None).wait(120)
+    station.controller.dispatcher.flush()
+    assert contacts == [], contacts
+    assert abs(float((np.linalg.inv(m.part.pose) @ np.array([*hit.point, 1.0]))[2]) - 40.0) < 0.05
+
+
 # --- the jog-hold pipeline ------------------------------------------------------------------------------
 
 def test_the_jog_pipeline_clamps_and_says_so_and_refuses_what_is_not_a_velocity(station):

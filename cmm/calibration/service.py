@@ -152,6 +152,7 @@ class CalibrationService:
         self.holding = False  # a paused qualification holds the machine between two points
         self.checkpoint: Any = None  # a probe qualification a fault stopped (QualificationCheckpoint), to resume
         self._artifacts: Path | None = None
+        self._sphere_cache: tuple[Any, Any] | None = None  # (certificate file stamp, reference_sphere())
         self.probe_book = ProbeList(self)  # the probe list and each probe's qualification record
 
     # --- the records in force -----------------------------------------------------
@@ -246,6 +247,31 @@ class CalibrationService:
         return cert
 
     # --- where things are ---------------------------------------------------------
+
+    def reference_sphere(self) -> tuple[tuple[float, float, float], float] | None:
+        """Where the reference sphere stands and its diameter (machine mm), for the motion rails to keep the tip
+        clear of it: its certificate's set-up centre and diameter, else the simulator's sphere; None when neither
+        says. Read again only when the certificate file changes (the rails ask before every move)."""
+        path = self.artifacts_dir / SPHERE_CERTIFICATE
+        try:
+            stamp: Any = (str(path), path.stat().st_mtime_ns)
+        except OSError:
+            stamp = None
+        if self._sphere_cache is not None and self._sphere_cache[0] == stamp:
+            return self._sphere_cache[1]
+        found = None
+        if stamp is not None:
+            try:
+                cert = load_sphere_certificate(path)
+                if cert.approx_centre is not None:
+                    found = (tuple(float(v) for v in cert.approx_centre), float(cert.diameter))
+            except CalibrationError:
+                found = None
+        bench = self.host.bench
+        if found is None and bench is not None:
+            found = (bench.sphere_centre, float(bench.settings.sphere_diameter))
+        self._sphere_cache = (stamp, found)
+        return found
 
     @property
     def records_dir(self) -> Path:

@@ -396,10 +396,11 @@ class Controller(MachineLoop, SafetyCore, JobRunner):
             cz = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, hop_z=hop_z,
                              **distances)[0]
             backoff = self._backoff_here(here) if restart else None
-            if backoff is not None:  # a contact stopped the last motion: back off the way it came first
-                first = self.machine.move_to(here + backoff)
-            else:
-                first = None
+            # a contact stopped the last motion: back off the way it came first; beside the reference sphere: out
+            # from it before the rapid climbs
+            firsts = self._first_legs(here, backoff, p, climbs=cz is not None)
+            first = None if not firsts else (self.machine.move_to(firsts[0]) if len(firsts) == 1
+                                             else self.machine.move_path(firsts))
             outer = MoveStatus("probe at X={:.3f} Y={:.3f} Z={:.3f}".format(*p), self)
             with self._lock:
                 self._probing += 1
@@ -446,6 +447,16 @@ class Controller(MachineLoop, SafetyCore, JobRunner):
             raise Refused(str(exc)) from None
         return cz, self.prober.cycle_path(here, p, u, clearance_z=cz, **distances)
 
+    def _first_legs(self, here: np.ndarray, backoff: Any, toward: np.ndarray, *, climbs: bool) -> list[np.ndarray]:
+        """What a probe cycle moves before its own path: the back-off after a contact, then, when its rapid climbs
+        (not a straight one), out of a reference sphere's post (:func:`rails.leave_posts`)."""
+        legs = [] if backoff is None else [np.asarray(here, float) + backoff]
+        if not climbs:
+            return legs
+        start = legs[-1] if legs else np.asarray(here, float)
+        out = rails.leave_posts(start, rails.posts(self.workspace, self.tip_radius), toward)
+        return legs if out is None else [*legs, out]
+
     def probe_paths(self, targets: Any, *, frame: str = "machine", path: str = "clearance",
                     start: Any = None) -> list[CyclePath]:
         """The paths a sequence of programmed hits will take, for a preview before they run: ``targets`` are
@@ -468,9 +479,10 @@ class Controller(MachineLoop, SafetyCore, JobRunner):
             u = self._to_machine(approach, frame, direction=True)
             try:
                 cz, cycle = self._cycle(here, p, u, path=path, clearance_z=clearance_z, restart=restart, hop_z=hop_z)
-                if backoff is not None:  # probe(): the back-off, then the cycle from there at the same height
-                    cycle = self.prober.cycle_path(here + backoff, p, u, clearance_z=cz)
-                    cycle = replace(cycle, start=here, rapid=(here + backoff, *cycle.rapid))
+                firsts = self._first_legs(here, backoff, p, climbs=cz is not None)
+                if firsts:  # probe(): the back-off and the step out of a sphere's post, then the cycle from there
+                    cycle = self.prober.cycle_path(firsts[-1], p, u, clearance_z=cz)
+                    cycle = replace(cycle, start=here, rapid=(*firsts, *cycle.rapid))
                 for point in (*cycle.rapid, cycle.end, cycle.retract):
                     self.machine.check_target(point)
             except MotionError as exc:

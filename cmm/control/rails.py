@@ -11,6 +11,9 @@
 - **Hops within a feature**: a programmed hit may name a hop height below the clearance plane (the hits of a
   feature after its first). Its rapid goes straight when that line is proven free, else over the hop height
   when every leg of that route (climb, cross, descend) is proven free, else over the clearance plane.
+- **The reference sphere** (when its place is known: :meth:`Workspace.keep_out`): a route that starts beside or
+  under it (in the post of radius ``sphere + tip + SPHERE_MARGIN`` around it and its stand, up to its top) first
+  steps out horizontally, away from its axis, before it climbs; a travel that passes over it goes above it.
 - **Restart after a fault or a contact retracts first**: the next move backs off along the way the stopped
   motion came (by the retract distance) when that is known, then takes the clearance route, whatever path
   the caller asked for.
@@ -34,6 +37,7 @@ STRAIGHT_MARGIN = 0.5  # mm between the tip and the part that a straight move mu
 MAX_STEPS = 2000  # sphere-tracing steps before a line counts as not proven free (grazing the surface)
 SAMPLE_SPACING = 0.25  # mm between the points of a line checked in one query before any sphere tracing
 MAX_SAMPLES = 4000  # points of a line checked in one query (a longer line gets them wider apart)
+SPHERE_MARGIN = 5.0  # mm a route keeps beyond the tip radius from a reference sphere (its set-up centre is approximate)
 
 
 class Workspace(Protocol):
@@ -47,6 +51,9 @@ class Workspace(Protocol):
 
     def surface_distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distances (mm) of machine points to the part's surface: + outside the material."""
+
+    def keep_out(self) -> list[tuple[np.ndarray, float]]:
+        """Spheres on stands (centre, radius; machine mm) that routes go around (optional: the reference sphere)."""
 
 
 class RailError(ValueError):
@@ -137,16 +144,63 @@ def _too_close(p: np.ndarray, d: float, radius: float, need: float) -> str:
             "{:.2f} mm): use the clearance path").format(max(d - radius, -99.0), *p, need - radius)
 
 
-def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: float) -> list[np.ndarray]:
+def posts(workspace: Workspace | None, radius: float) -> list[tuple[np.ndarray, float]]:
+    """(centre, R) of each sphere the workspace keeps out: the tip's centre stays R from its axis below its top
+    (``centre z + R``), R = the sphere's radius + the tip's + SPHERE_MARGIN."""
+    keep = getattr(workspace, "keep_out", None) if workspace is not None else None
+    if keep is None:
+        return []
+    return [(np.asarray(c, float), float(r) + float(radius) + SPHERE_MARGIN) for c, r in keep()]
+
+
+def leave_posts(here: Any, around: Sequence[tuple[np.ndarray, float]], toward: Any) -> np.ndarray | None:
+    """Where the tip first goes when it stands in a post (beside, over or under a reference sphere, below its
+    top): horizontally out from the post's axis to its radius (towards ``toward`` when it stands on the axis), so
+    that the climb that follows cannot touch the sphere. None when it stands in none."""
+    here = np.asarray(here, float)
+    for c, r in around:
+        d = here[:2] - c[:2]
+        n = float(np.hypot(*d))
+        if n >= r or here[2] >= c[2] + r:
+            continue
+        if n < 1e-6:  # on the axis: out on the side of where it goes next
+            d = np.asarray(toward, float)[:2] - c[:2]
+            n = float(np.hypot(*d))
+            d, n = (d, n) if n > 1e-6 else (np.array([1.0, 0.0]), 1.0)
+        out = c[:2] + d / n * (r + 1e-3)
+        return np.array([out[0], out[1], here[2]])
+    return None
+
+
+def over_posts(a: Any, b: Any, z: float, around: Sequence[tuple[np.ndarray, float]]) -> float:
+    """The height to travel from ``a`` to ``b`` at (``z`` or more): above every post whose axis the travel passes
+    within its radius of."""
+    a, b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
+    ab = b - a
+    for c, r in around:
+        t = 0.0 if not ab.any() else float(np.clip((c[:2] - a) @ ab / (ab @ ab), 0.0, 1.0))
+        if float(np.hypot(*(a + t * ab - c[:2]))) < r:
+            z = max(z, float(c[2]) + r)
+    return z
+
+
+def clearance_route(here: Any, target: Any, clearance_z: float | None, z_max: float,
+                    around: Sequence[tuple[np.ndarray, float]] = ()) -> list[np.ndarray]:
     """Retract to the clearance plane, travel in it, descend: the legs from ``here`` to ``target`` (machine).
 
     The travel height is the highest of the plane, here and the target (never down to the plane from above),
-    at most ``z_max``; without a part (no plane) the higher of here and the target. Legs that would not move
-    are left out."""
+    at most ``z_max``; without a part (no plane) the higher of here and the target. Around reference spheres
+    (``around``: :func:`posts`) the route first steps out of a post it starts in and travels above those it
+    crosses. Legs that would not move are left out."""
     here, target = np.asarray(here, float), np.asarray(target, float)
-    z = max(float(here[2]), float(target[2]))
-    z = min(z if clearance_z is None else max(float(clearance_z), z), z_max)
-    legs = [np.array([here[0], here[1], z]), np.array([target[0], target[1], z]), target]
+    out_of = leave_posts(here, around, target)
+    start = here if out_of is None else out_of
+    z = max(float(start[2]), float(target[2]))
+    z = z if clearance_z is None else max(float(clearance_z), z)
+    z = min(over_posts(start, target, z, around), z_max)
+    legs = [np.array([start[0], start[1], z]), np.array([target[0], target[1], z]), target]
+    if out_of is not None:
+        legs.insert(0, out_of)
     out: list[np.ndarray] = []
     last = here
     for leg in legs:
@@ -171,6 +225,15 @@ def hop_free(workspace: Workspace | None, here: Any, pre: Any, hop_z: float, rad
 def probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | None, radius: float,
                     clearance_z: float | None = None, restart: bool = False,
                     hop_z: float | None = None) -> float | None:
+    """:func:`_probe_clearance`, raised over the reference spheres the rapid crosses (None stays None)."""
+    z = _probe_clearance(here, pre, path=path, workspace=workspace, radius=radius, clearance_z=clearance_z,
+                         restart=restart, hop_z=hop_z)
+    return None if z is None else over_posts(here, pre, z, posts(workspace, radius))
+
+
+def _probe_clearance(here: Any, pre: Any, *, path: str, workspace: Workspace | None, radius: float,
+                     clearance_z: float | None = None, restart: bool = False,
+                     hop_z: float | None = None) -> float | None:
     """The height a programmed hit's rapid crosses at on its way to the pre-hit point ``pre`` (machine Z of the tip
     centre), or None for a straight rapid: ``clearance_z`` when the caller gave one (below the part's clearance
     plane only when that route is proven free of the part, else the plane), else the part's clearance
@@ -215,4 +278,4 @@ def route(here: Any, target: Any, *, path: str, workspace: Workspace | None, rad
             raise RailError(why)
         return legs + [np.asarray(target, float)]
     cz = None if workspace is None else workspace.clearance_z()
-    return legs + clearance_route(start, target, cz, z_max)
+    return legs + clearance_route(start, target, cz, z_max, posts(workspace, radius))
