@@ -47,7 +47,7 @@ def test_tasks_run_in_another_process_and_match_the_in_process_results(store_dir
     assert json.loads(json_file.read_text())["session"]["hits"] == len(session.hits)
     result = pool.call(worker.reevaluate, str(store_dir), "taught", "taught-r", 1.2, "ls")
     derived = load_session(DirectoryStore(store_dir), "taught-r")
-    assert result == {"hits": len(derived.hits), "features": len(derived.features), "errors": []}
+    assert result == {"hits": len(derived.hits), "features": len(derived.features), "errors": [], "left_out": ""}
     assert derived.start["tip_radius"] == pytest.approx(1.2)
 
 

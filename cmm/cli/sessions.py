@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--program", metavar="PROGRAM.toml", help="with --qif: take the feature tolerances from a program")
     p.add_argument("--part", metavar="MESH", help="part mesh for deviations (else the recorded one if found)")
     p = action(sub, "reevaluate",
-               "recompute points and features from the raw counts into a new session", "name", "new")
+               "recompute points and features (a DMIS run's tolerances too: its program run again) from the raw "
+               "counts into a new session", "name", "new")
     p.add_argument("--tip-radius", type=float, help="tip radius in mm (default: the recorded one)")
     p.add_argument("--method", choices=("ls", "minzone", "mic", "mcc"), help="refit every feature with this criterion")
     p = action(sub, "teach", "write a measurement program (TOML) from a session", "name")
@@ -49,6 +50,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _when(t: float | None) -> str:
     return "" if t is None else time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(t))
+
+
+def _print_dmis(old: Any, new: Any) -> None:
+    """A DMIS run's tolerances the report has no row for, recorded and re-evaluated, one line each; those left out
+    in one sentence."""
+    from ..session.qif_dmis import DMIS_ONLY, left_out, session_evaluations
+
+    before = {(e.tolerance.label, tuple(e.features)): e for e in session_evaluations(old)}
+    for e in session_evaluations(new):
+        if e.tolerance.word in DMIS_ONLY:
+            b = before.get((e.tolerance.label, tuple(e.features)))
+            was = "—" if b is None else f"{b.value:.5f}"
+            print(f"{'-'.join(e.features)}: T({e.tolerance.label}) TOL/{e.tolerance.word}: {was} -> {e.value:.5f} "
+                  f"{'INTOL' if e.intol else 'OUTOL'}")
+    if gone := left_out(new):
+        print(f"warning: {gone}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -136,12 +153,17 @@ def _run(args: argparse.Namespace) -> int:
             program = load_program(args.program) if args.program else None
             write_qif(s, target, mesh=mesh, program=program)
             print(f"wrote the QIF 3 results of {args.name!r} to {target}")
+            from ..session.qif_dmis import left_out
+
+            if gone := left_out(s):  # the document says it too (a NotedEvent)
+                print(f"warning: {gone}", file=sys.stderr)
         for w in s.warnings:
             print(f"warning: {w}", file=sys.stderr)
         return 0
     if args.action == "reevaluate":
         from dataclasses import replace
 
+        from ..dmis.replay import reevaluate_event
         from ..session.reevaluate import reevaluate
         from ..journal.store import write_session
 
@@ -149,9 +171,10 @@ def _run(args: argparse.Namespace) -> int:
         settings = s.probe_settings()
         if args.tip_radius is not None:
             settings = replace(settings, tip_radius=args.tip_radius)
-        new = reevaluate(s, settings, method=args.method, name=args.new)
+        new = reevaluate(s, settings, method=args.method, name=args.new, tolerances=reevaluate_event)
         write_session(store, args.new, new.events)
         print(f"wrote {args.new!r}: {len(new.hits)} hits, {len(new.features)} features re-evaluated from raw counts")
+        _print_dmis(s, new)
         if new.state.gdt:  # the geometric tolerances, recorded and re-evaluated, one line each
             from ..session.export import resolve_part_mesh
             from ..session.gdt_session import session_gdt

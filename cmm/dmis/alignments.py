@@ -40,7 +40,9 @@ class AlignmentStatements:
         try:
             said = self.target.align(self.frame, self.design_frame, np.vstack(hits), name)
         except Exception as exc:  # noqa: BLE001 - not this part at its set-up: said, and the part stays
+            self.result.aligned.append(False)
             return self._not_aligned(s, str(exc), said=True)
+        self.result.aligned.append(True)
         self.log(f"line {s.line}: {said}")
         self._move_nominals(self.frame @ inverse(self.design_frame))
 

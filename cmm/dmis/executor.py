@@ -27,7 +27,7 @@ from .lexer import DmisSyntaxError
 from .parser import Expr, Label, Param, Statement, Text, Word, evaluate
 from .reporting import OutputStatements
 from .rules import LENGTH_UNITS, const_problem, match_probe, mounted, probe_direction, probe_problem, station_tip_problem
-from .run_state import DmisError, RunResult, Target, _text, blocks, statement_text
+from .run_state import DmisError, RunResult, Target, _text, blocks, replay_data, statement_text
 from .tolerances import Tolerance, ToleranceError
 from .vendor import VendorStatements
 
@@ -38,8 +38,9 @@ __all__ = ["DmisError", "Executor", "RunResult", "SPEED_UNITS", "Target", "block
 class Executor(AlignmentStatements, OutputStatements, VendorStatements):
     """One run of a program on a target."""
 
-    def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program") -> None:
+    def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program", text: str = "") -> None:
         self.stmts = stmts
+        self.text = text  # the program's text, kept in the session so that its re-evaluation can replay it
         self.target = target
         self.model = target.model
         self.name = name
@@ -150,7 +151,8 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
             record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
-            record_dmis_tolerances(self.model, self.name, self.result.evaluations)  # for the session's QIF
+            record_dmis_tolerances(self.model, self.name, self.result.evaluations,  # for the session's QIF
+                                   replay=replay_data(self.text, self.result, self.skipped))
         elif getattr(self.model, "notifier", None) is not None:  # no tolerances: the run's end is still told
             try:
                 self.model.notifier.run_end(self.model, self.name, [])
@@ -474,6 +476,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                                 search_distance=self.snset["SEARCH"], retract_distance=self.snset["RETRCT"],
                                 rapid_speed=self.posvel)
         ids.append(hid)
+        self.result.hit_ids.append(int(hid))
         self.result.hits += 1
 
     def do_endmes(self, s: Statement) -> None:
@@ -494,6 +497,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             if len(ids) < n:
                 raise DmisError(f"line {meas.line}: F({label}) needs {n} hits by hand, {len(ids)} were taken")
             self.result.hits += len(ids)
+            self.result.hit_ids.extend(int(h) for h in ids)
             self.target.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
         if expected and int(expected[0]) != len(ids):
             self.log(f"line {meas.line}: MEAS/{meas.minor}, F({label}) announced {int(expected[0])} points, "

@@ -64,6 +64,25 @@ class RunResult:
     log: list[str] = field(default_factory=list)
     hits: int = 0
     frames: dict[str, np.ndarray] = field(default_factory=dict)  # D(label) -> program -> machine, as defined
+    # what re-evaluating the session replays the program with (cmm.dmis.replay): the hits in the order taken, the
+    # operator's TEXT/QUERY answers, whether each alignment moved the part
+    hit_ids: list[int] = field(default_factory=list)
+    answers: list[str] = field(default_factory=list)
+    aligned: list[bool] = field(default_factory=list)
+    recalled: dict[str, Any] = field(default_factory=dict)  # RECALL of an item an earlier program saved: key -> it
+
+
+def replay_data(text: str, result: RunResult, skipped: dict[str, str]) -> dict[str, Any] | None:
+    """What re-evaluating the run's session needs to run the program again on its refitted hits
+    (:mod:`cmm.dmis.replay`), as JSON; None without the program's text."""
+    if not text:
+        return None
+    if skipped:  # a skip is the operator's, at a moment the replay cannot tell
+        return {"refused": "the operator skipped " + ", ".join(f"F({k})" for k in skipped) + " during the run"}
+    from .saved import encode
+
+    return {"text": text, "hit_ids": list(result.hit_ids), "answers": list(result.answers),
+            "aligned": list(result.aligned), "recalled": {k: encode(k, v) for k, v in result.recalled.items()}}
 
 
 def _text(p: Param) -> str:

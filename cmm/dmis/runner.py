@@ -253,7 +253,7 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
         if found is None:
             raise DmisError(f"line {line}: RECALL/{key}: nothing named {key} is defined or saved before it, nor "
                             "saved by an earlier program on this station")
-    executor = Executor(stmts, target, name=name)
+    executor = Executor(stmts, target, name=name, text=text)
     executor.result.log.extend(f"warning: {w}" for w in warnings(text, stmts))
     description = f"DMIS program {name!r}"
     # a program in manual mode cannot hold the machine (the operator jogs between its statements): it runs beside

@@ -108,6 +108,7 @@ class VendorStatements:
             return
         name = self._query_name(s)
         answer = self.target.ask(f"line {s.line}: {text}", answer=True)  # type: ignore[attr-defined]
+        self.result.answers.append(str(answer))  # type: ignore[attr-defined]
         self.variables[name] = answer  # type: ignore[attr-defined]
         self.emit(f"TEXT/OUTFIL, '{text} {answer}'")
         self.target.note(f"DMIS line {s.line}: {text} {answer}")  # type: ignore[attr-defined]
@@ -182,6 +183,7 @@ class VendorStatements:
             return None
         self.log(f"line {s.line}: {key} as saved by {got[1]}")  # type: ignore[attr-defined]
         self.saved[key] = got[0]
+        self.result.recalled[key] = got[0]  # type: ignore[attr-defined]
         return got[0]
 
     def do_recall(self, s: Statement) -> None:

@@ -44,6 +44,7 @@ import numpy as np
 from ..journal.session import Session
 from ..metrology.characteristics import Characteristic, verdict
 from .gdt_session import session_gdt
+from .qif_dmis import DMIS_ONLY
 from .qif_map import FEATURE_TYPES, ORIENTATION, QIF_NS, WITH_ZONE_SHAPE, expanded_uncertainty, qif_type, status
 from .report import _constructed_rows, _tolerances
 
@@ -202,11 +203,13 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
     evaluations (:class:`cmm.dmis.tolerances.Evaluation`; None: the ones recorded in the session,
     :func:`cmm.session.qif_dmis.session_evaluations`), whose characteristics the report has no row for
     (orientation, distances and angles between features, profiles, runout, concentricity) are added after the
-    report's, named ``<features> <word> T(<label>)``, with the DMIS output's value and INTOL / OUTOL."""
+    report's, named ``<features> <word> T(<label>)``, with the DMIS output's value and INTOL / OUTOL; those a
+    re-evaluated session leaves out are said in a ``NotedEvent`` (:func:`cmm.session.qif_dmis.left_out`)."""
+    gone = ""  # the DMIS-only characteristics a re-evaluated session's document leaves out, and why
     if dmis is None:
-        from .qif_dmis import session_evaluations
+        from .qif_dmis import left_out, session_evaluations
 
-        dmis = session_evaluations(session)
+        dmis, gone = session_evaluations(session), left_out(session)
     d = _Doc()
     st = session.state
     info = st.info
@@ -423,6 +426,10 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
     mr = d.el(mset, "MeasurementResults", id=d.id())
     tr = d.el(mr, "InspectionTraceability")
     d.el(tr, "ReportNumber", session.name)
+    if gone:  # said in the document, not silently missing
+        noted = d.el(d.el(tr, "NotedEvents", n="1"), "NotedEvent", id=d.id())
+        d.el(noted, "Description", gone)
+        d.el(noted, "SequenceNumber", "1")
     t0 = session.events[0].get("time") if session.events else None
     t1 = session.events[-1].get("time") if session.events else None
     if t0:
@@ -520,12 +527,6 @@ def _label(token: str) -> tuple[str, str]:
 def _refs(kind: str, c: Characteristic) -> tuple[str, ...]:
     """A geometric tolerance's datum references in precedence order ("A", "B", "E-F"), from its row."""
     return tuple(x.strip() for x in c.datums.split("|") if x.strip()) if kind in ("gdt", "dmis") and c.datums else ()
-
-
-# DMIS tolerance words the station's report has no row for -> the characteristic name qif_map types them by
-DMIS_ONLY = {"PARLEL": "parallelism", "PERPEND": "perpendicularity", "ANGLR": "angularity", "DISTB": "distance",
-             "ANGLB": "angle", "PROFS": "profile of a surface", "PROFL": "profile of a line",
-             "RUNOUT": "circular runout", "CONCEN": "concentricity"}
 
 
 def _dmis_rows(evaluations: Any) -> list[tuple[str, Any, Characteristic]]:

@@ -12,6 +12,13 @@ The result is a new in-memory :class:`Session` whose events are the
 original ones with hits and features replaced; its ``start`` event carries
 ``derived_from`` naming the original. ``write_session`` stores it as a new
 session.
+
+A DMIS run's tolerance evaluations (its ``dmis_tolerances`` event,
+:mod:`cmm.session.qif_dmis`) are recomputed on the refitted features by
+``tolerances`` (the front ends pass :func:`cmm.dmis.replay.reevaluate_event`,
+which runs the program again on the refitted hits: the sessions do not import
+the DMIS package); without it the event is copied, and its document says that
+it leaves those characteristics out.
 """
 
 from __future__ import annotations
@@ -47,9 +54,14 @@ def recompute_hits(session: Session, settings: Any) -> dict[int, HitRecord]:
     return out
 
 
+# (the event, the refitted features by id so far, every hit recomputed, feature id -> why it was not refitted)
+# -> the event's new fields
+Tolerances = Callable[[dict, dict[int, FeatureRecord], dict[int, HitRecord], dict[int, str]], dict]
+
+
 def reevaluate(session: Session, settings: Any = None, *, method: str | None = None,
                methods: dict[str, str] | None = None, name: str | None = None,
-               progress: Callable[[int, int], None] | None = None) -> Session:
+               progress: Callable[[int, int], None] | None = None, tolerances: Tolerances | None = None) -> Session:
     """A new session evaluated from ``session``'s raw hits.
 
     ``settings``: the ProbeSettings to compensate with (default: the recorded
@@ -57,11 +69,16 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
     maps feature names to criteria (wins over ``method``); otherwise each
     feature keeps its recorded method. A feature that cannot be refitted
     (e.g. a method not available for its kind) becomes an ``error`` event.
+    ``tolerances``: recomputes a ``dmis_tolerances`` event (see the module's docstring).
     """
+    from .qif_dmis import EVENT
+
     settings = settings or session.probe_settings()
     hits = recompute_hits(session, settings)
     methods = methods or {}
     events: list[dict] = []
+    refitted: dict[int, FeatureRecord] = {}
+    failed: dict[int, str] = {}
     n = len(session.events)
     for i, e in enumerate(session.events):
         kind = e.get("kind")
@@ -85,6 +102,8 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
             except (FitError, ValueError) as exc:
                 events.append({**head, "kind": "error", "source": "reevaluate",
                                "message": f"feature {e.get('name')!r} could not be refitted: {exc}"})
+                failed[rec.id] = f"{rec.name} could not be refitted: {exc}"
+                refitted.pop(rec.id, None)
                 continue
             refit = FeatureRecord.of(result, id=rec.id, name=rec.name, hit_ids=rec.hit_ids, kind=rec.kind,
                                      nominal=rec.nominal, tolerance=rec.tolerance, probe=rec.probe)
@@ -98,6 +117,10 @@ def reevaluate(session: Session, settings: Any = None, *, method: str | None = N
                 if budget is not None:
                     refit.fit["budget"] = budget
             events.append({**head, **refit.to_event()})
+            refitted[rec.id] = refit
+            failed.pop(rec.id, None)
+        elif kind == EVENT and tolerances is not None:
+            events.append({**head, **tolerances(e, dict(refitted), hits, dict(failed))})
         else:
             events.append(dict(e))
         if progress is not None and (i % 1000 == 0 or i == n - 1):

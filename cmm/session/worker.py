@@ -228,9 +228,12 @@ def export(store: StoreSpec, name: str, out_dir: str | Path, part: Any = None, c
 
 
 def reevaluate(store: StoreSpec, name: str, new: str, tip_radius: float = 0.0,
-               method: str | None = None) -> dict[str, Any]:
-    """Re-evaluate ``name`` from its raw counts into the new session ``new``; its hit and feature counts and
-    the features that could not be refitted (``errors``: their messages)."""
+               method: str | None = None, tolerances: Any = None) -> dict[str, Any]:
+    """Re-evaluate ``name`` from its raw counts into the new session ``new``; its hit and feature counts, the
+    features that could not be refitted (``errors``: their messages) and the DMIS tolerances left out (``left_out``:
+    one sentence, or ""). ``tolerances``: see :func:`cmm.session.reevaluate.reevaluate` (the caller's, a module-level
+    function: it is pickled by name)."""
+    from .qif_dmis import left_out
     from .reevaluate import reevaluate as derive
     from ..journal.store import open_store, write_session
 
@@ -238,10 +241,10 @@ def reevaluate(store: StoreSpec, name: str, new: str, tip_radius: float = 0.0,
     settings = session.probe_settings()
     if tip_radius:
         settings = replace(settings, tip_radius=float(tip_radius))
-    derived = derive(session, settings, method=method, name=new)
+    derived = derive(session, settings, method=method, name=new, tolerances=tolerances)
     write_session(open_store(store), new, derived.events)
     return {"hits": len(derived.hits), "features": len(derived.features),
-            "errors": [m for _, m in derived.state.errors[len(session.state.errors):]]}
+            "errors": [m for _, m in derived.state.errors[len(session.state.errors):]], "left_out": left_out(derived)}
 
 
 def crash() -> None:

@@ -451,14 +451,17 @@ class SessionsPanel:
             return None
 
         def work(progress: Callable[[float, str], None]) -> Any:
+            from ..dmis.replay import reevaluate_event  # a DMIS run's tolerances: its program run again
+
             progress(0.1, f"re-evaluating {name} (session worker)")
             return shared_worker().call(worker.reevaluate, self.station.measurement.session_dir, name, new, float(tip_radius or 0.0),
-                                        None if method == "recorded" else method)
+                                        None if method == "recorded" else method, reevaluate_event)
 
         def done(result: Any) -> str:
             errors = result["errors"]
             return (f"wrote {new}: {result['hits']} hits, {result['features']} features"
-                    + (f"; {len(errors)} feature(s) could not be refitted: {errors[0]}" if errors else ""))
+                    + (f"; {len(errors)} feature(s) could not be refitted: {errors[0]}" if errors else "")
+                    + (f"; {result['left_out']}" if result.get("left_out") else ""))
 
         return self._start("Re-evaluate", work, done)
 
