@@ -116,9 +116,11 @@ class FeatureRecord:
             return out
         from dataclasses import replace
 
-        from ..metrology.uncertainty import characteristic_u
+        from ..metrology.uncertainty import characteristic_k, characteristic_u
 
-        return [replace(c, uncertainty=characteristic_u(c.name, expanded)) for c in out]
+        budget = self.fit.get("budget")
+        return [replace(c, uncertainty=characteristic_u(c.name, expanded), uncertainty_k=characteristic_k(c.name, budget))
+                for c in out]
 
     def measured(self, hits: dict[int, Any], tolerance: dict[str, float] | None = None) -> Any:
         """The feature as geometric tolerances evaluate it (:class:`cmm.metrology.gdt_eval.MeasuredFeature`),

@@ -54,7 +54,8 @@ class Characteristic:
     note: str = ""
     check: str = ""  # why the operator must check this value (another solution fits better), or ""
     datums: str = ""  # a geometric tolerance's datum reference frame ("A|B|C", see cmm.metrology.gdt_eval)
-    uncertainty: float | None = None  # expanded U (k = 2) from the feature's budget (cmm.metrology.uncertainty)
+    uncertainty: float | None = None  # expanded U from the feature's budget (cmm.metrology.uncertainty)
+    uncertainty_k: float | None = None  # its coverage factor (2, or Student's t for few degrees of freedom)
 
     @property
     def deviation(self) -> float | None:
