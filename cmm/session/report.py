@@ -439,8 +439,9 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
             w.writerow([c.feature, "constructed", rec.operation, "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "", "", "",
-                        *where])
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "",
+                        "" if c.uncertainty is None else f"{c.uncertainty:.6f}",
+                        "" if c.uncertainty_k is None else f"{c.uncertainty_k:.2f}", *where])
     # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
     for d, c in session_gdt(session, mesh, tols):
         w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
@@ -606,13 +607,15 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                 else ""
             if c.check:
                 note += f"<br><span class='checknote'>check: {e(c.check)}</span>"
+            if c.uncertainty is None and c.uncertainty_why and c.actual is not None:
+                note += f"<br><span class='muted'>{e(c.uncertainty_why)}</span>"
             result = "<td class='chk'>check</td>" if c.check else {
                 True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
                 None: "<td class='l muted'>not evaluated</td>"}[c.ok]
             out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
                        f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
                        f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"
-                       f"<td class='muted'>{_num(c.uncertainty)}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                       f"<td class='muted'>{_num(c.uncertainty) if not c.uncertainty_why else 'none'}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                        f"{result}</tr>")
     if not per_feature:
         out.append("<tr><td class='l' colspan='11'>no features were fitted in this session</td></tr>")
