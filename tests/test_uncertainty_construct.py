@@ -65,3 +65,26 @@ def test_no_uncertainty_is_said_in_words():
     assert ch.uncertainty is None and "normal" in ch.uncertainty_why
     old = constructed_characteristics("d", construct("distance", a, p).summary(), None)[0]
     assert old.uncertainty is None and old.uncertainty_why.startswith("no uncertainty")
+
+
+def test_a_station_construction_carries_the_u_of_its_features_budgets():
+    """construct_pair (the station's construction of two fitted features) propagates their budgets."""
+    from types import SimpleNamespace
+
+    from cmm.measurement.session_files import construct_pair
+
+    feats = []
+    for centre, seed in (([0.0, 0.0, 0.0], 0), ([80.0, 30.0, 0.0], 1)):
+        g = np.random.default_rng(seed).normal(size=(12, 3))
+        pts = 10.0 * g / np.linalg.norm(g, axis=1)[:, None] + centre
+        fit = fit_sphere(pts)
+        feats.append(SimpleNamespace(kind="sphere", result=fit, nominal=None,
+                                     budget=budget("sphere", pts, fit, Sources(reference=(0.0, 0.0, 0.0))).summary()))
+    result, _ = construct_pair("distance", feats[0], feats[1], None, False)
+    unc = result.summary()["uncertainty"]
+    assert unc["U"] > 0 and unc["k"] >= 2.0 and "fully correlated" in unc["note"]
+    ch = constructed_characteristics("d", result.summary(), None)[0]
+    assert ch.uncertainty == pytest.approx(unc["U"])
+    feats[1].budget = None  # a fit without a budget: the reason, not a blank
+    result, _ = construct_pair("distance", feats[0], feats[1], None, False)
+    assert "second feature has no uncertainty budget" in result.summary()["uncertainty"]["why"]

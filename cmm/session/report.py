@@ -615,7 +615,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
             out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
                        f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
                        f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"
-                       f"<td class='muted'>{_num(c.uncertainty) if not c.uncertainty_why else 'none'}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                       f"<td class='muted'>{'none' if c.uncertainty_why and c.actual is not None else _num(c.uncertainty)}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                        f"{result}</tr>")
     if not per_feature:
         out.append("<tr><td class='l' colspan='11'>no features were fitted in this session</td></tr>")
