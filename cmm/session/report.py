@@ -406,7 +406,8 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
     out.append("</tbody></table><p class='muted'>ISO 1101 / ASME Y14.5: the actual is the width (diameter for "
                "⌀ zones) of the smallest zone of the tolerance's shape containing the feature, in the datum "
                "reference frame built from the datum features in precedence order; the tolerance allowed is the "
-               "stated one plus the bonus at MMC/LMC.</p>")
+               "stated one plus the bonus at MMC/LMC. No uncertainty is given for these zones: the station's budgets "
+               "cover a single feature's size, location and form, not a zone against datums.</p>")
     return "".join(out)
 
 
@@ -625,7 +626,8 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic. U (95 %): the expanded "
                "uncertainty from the feature's budget (probe, machine, temperature, sampling, scatter), where it has "
                "one: U = k u_c with k = 2, or Student's t for the budget's effective degrees of freedom where a few "
-               "hits' residuals carry most of it (k up to about 2.3; the features CSV gives k).</p>")
+               "hits' residuals carry most of it (k up to about 2.3; the features CSV gives k); &ldquo;none&rdquo;: the value has no uncertainty, the "
+               "reason under its name.</p>")
     out.append(actuals_table(session))
     if gdt_rows:
         out.append(gdt_table(gdt_rows, session))
