@@ -82,7 +82,7 @@ def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
                                                                  "D(START) = DATSET/MCS\n" + PLACEMENT)
     # each actual is followed by a comment with its expanded uncertainty, which NIST's output has not
     got_lines = [x for x in out.strip().splitlines() if not x.startswith("$$ FA(")]
-    assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(k=2\) diameter \d", out, re.M)
+    assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(95 %\) diameter \d", out, re.M)
     want_lines = expected.strip().splitlines()
     assert len(got_lines) == len(want_lines)
     for got, want in zip(got_lines, want_lines):

@@ -69,8 +69,8 @@ def test_the_nist_simple_program_on_the_nist_part_prints_nist_output(tmp_path):
     assert done.returncode == 0, done.stderr
     text = out.read_text()
     # each actual is followed by its expanded uncertainty as a DMIS comment ($$), which NIST's output has not
-    assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(k=2\) diameter ", text, re.M), text
-    text = "\n".join(line for line in text.splitlines() if not re.match(r"\$\$ FA\(\w+\): U \(k=2\)", line))
+    assert re.search(r"^\$\$ FA\(A_CIRCLE\): U \(95 %\) diameter ", text, re.M), text
+    text = "\n".join(line for line in text.splitlines() if not re.match(r"\$\$ FA\(\w+\): U \(95 %\)", line))
     got, want = _numbers(text), _numbers(EXPECTED.read_text())
     assert [g[0] for g in got] == [w[0] for w in want]  # the same statements, in NIST's format
     for (head, g), (_, w) in zip(got, want):

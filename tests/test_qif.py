@@ -130,7 +130,8 @@ def test_every_feature_kind_and_gdt_characteristic_in_qif_is_the_reports(measure
         q = by_name[f"{f.name} diameter"]
         want = c.uncertainty if c.uncertainty is not None else 2.0 * f.fit["uncertainty"]["diameter"]
         assert q["U"] == pytest.approx(want, rel=1e-12, abs=1e-15), f.name
-        assert q["combined"] == pytest.approx(q["U"] / 2.0, rel=1e-12, abs=1e-15)
+        k = c.uncertainty_k if c.uncertainty is not None else 2.0  # the budget's k (Student's t for few dof)
+        assert q["combined"] == pytest.approx(q["U"] / k, rel=1e-9, abs=1e-15)
     assert any(c["U"] for c in chars if c["type"] == "Position")
     # every characteristic that carries its own U (the feature's budget: sizes, locations, form too) has it in QIF
     own = [(f"{f.name} {c.name}", c.uncertainty) for f in st.features.values() for c in f.characteristics()

@@ -40,7 +40,7 @@ def test_single_terms_known_answers():
                    temperature_allowance=0.0, cte_u=0.0, form_prior=0.0)
     b = budget("sphere", sph, fit_sphere(sph), warm)
     assert _terms(b)["thermal"]["diameter"] == pytest.approx(20 * 11.5e-6, rel=1e-5)
-    assert "U (k=2)" in b.text() and set(b.summary()["U"]) == {"diameter", "x", "y", "z", "form"}
+    assert "U = k u_c" in b.text() and "k (95 %)" in b.text() and set(b.summary()["U"]) == {"diameter", "x", "y", "z", "form"}
 
 
 def test_a_five_hit_cap_has_a_sampling_term_from_the_prior():
@@ -67,7 +67,7 @@ def test_coverage_on_the_simulator_error_model():
 
 
 def test_station_features_carry_their_budget_into_the_session_and_the_csv(tmp_path):
-    """On the simulated station: the bore measured by a DMIS program has a budget (U k = 2) in the journal, a
+    """On the simulated station: the bore measured by a DMIS program has a budget (U and its k) in the journal, a
     comment with U in the DMIS output and a U column in the CSV; its diameter is within U of the true 30 mm."""
     import csv
     import io
@@ -101,7 +101,7 @@ OUTPUT/FA(BORE)
 ENDFIL
 """
         result = run_text(text, station, name="bore.dmi")
-        assert re.search(r"^\$\$ FA\(BORE\): U \(k=2\) diameter 0\.00\d+, x ", result.outputs[None], re.M)
+        assert re.search(r"^\$\$ FA\(BORE\): U \(95 %\) diameter 0\.00\d+ k=\d\.\d\d, x ", result.outputs[None], re.M)
         feats = list(station.measurement.features.values())
         assert len(feats) == 1 and feats[0].budget is not None
         U = feats[0].budget["U"]["diameter"]
@@ -110,12 +110,13 @@ ENDFIL
         session = load_session(DirectoryStore(station.measurement.session_dir), "budget")
         rows = list(csv.DictReader(io.StringIO(features_csv(session))))
         dia = next(r for r in rows if r["characteristic"] == "diameter")
-        assert float(dia["U_k2"]) == pytest.approx(U, abs=1e-6)
+        assert float(dia["U"]) == pytest.approx(U, abs=1e-6)
+        assert float(dia["k"]) == pytest.approx(feats[0].budget["k"]["diameter"], abs=0.006)
         # the same U beside the actual in the HTML report and in the page's feature tree
         from cmm.session.report import render
         from cmm.ui.panel_features import tree_html
 
-        assert "<th>U (k=2)</th>" in render(session) and f"<td class='muted'>{U:.4f}</td>" in render(session)
+        assert "<th>U (95 %)</th>" in render(session) and f"<td class='muted'>{U:.4f}</td>" in render(session)
         assert f"±{U:.4f}" in tree_html(station)
     finally:
         gen.close()

@@ -77,13 +77,18 @@ class OutputStatements:
                 raise self.fail(s, f"OUTPUT of {lab} is not supported: output FA(..), F(..) and TA(..)")
 
     def _uncertainty_line(self, a: Actual) -> str:
-        """A comment with the feature's expanded uncertainty (k = 2, cmm.metrology.uncertainty), or ""."""
+        """A comment with the feature's expanded uncertainties (about 95 %, each with its coverage factor k:
+        cmm.metrology.uncertainty), or ""."""
         f = self.model.features.get(a.feature_id) if a.feature_id is not None else None
-        expanded = ((getattr(f, "budget", None) or {}).get("U")) if f is not None else None
+        budget = (getattr(f, "budget", None) or {}) if f is not None else {}
+        expanded = budget.get("U")
         if not expanded:
             return ""
-        parts = [f"{k} {v / (1.0 if k.endswith('_deg') else self.scale):.5f}" for k, v in expanded.items()]
-        return f"$$ FA({a.label}): U (k=2) " + ", ".join(parts)
+        ks = budget.get("k")
+        ks = ks if isinstance(ks, dict) else {}
+        parts = [f"{k} {v / (1.0 if k.endswith('_deg') else self.scale):.5f} k={float(ks.get(k, 2.0)):.2f}"
+                 for k, v in expanded.items()]
+        return f"$$ FA({a.label}): U (95 %) " + ", ".join(parts)
 
     def _to_model(self, ev: Evaluation, features: list[Actual]) -> None:
         """The station's report carries the DMIS tolerance too (where the model has the same characteristic):

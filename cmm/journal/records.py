@@ -111,14 +111,21 @@ class FeatureRecord:
         defaults)."""
         out = characteristics(self.name, self.kind, self.fit, self.nominal,
                               self.tolerance if tolerance is None else tolerance)
-        expanded = (self.fit.get("budget") or {}).get("U")
-        if not expanded:
-            return out
         from dataclasses import replace
 
-        from ..metrology.uncertainty import characteristic_u
+        expanded = (self.fit.get("budget") or {}).get("U")
+        if not expanded:
+            why = (f"no uncertainty: the budget is defined for least-squares fits only (this one: {self.method})"
+                   if self.method != "ls" else f"no uncertainty: no budget for this {self.kind} (too few hits, or "
+                                               "recorded before the station kept one)")
+            return [replace(c, uncertainty_why=why) for c in out]
+        from ..metrology.uncertainty import characteristic_k, characteristic_u
 
-        return [replace(c, uncertainty=characteristic_u(c.name, expanded)) for c in out]
+        budget = self.fit.get("budget")
+        out = [replace(c, uncertainty=characteristic_u(c.name, expanded), uncertainty_k=characteristic_k(c.name, budget))
+               for c in out]
+        return [c if c.uncertainty is not None else
+                replace(c, uncertainty_why=f"no uncertainty: the budget has no term for the {c.name}") for c in out]
 
     def measured(self, hits: dict[int, Any], tolerance: dict[str, float] | None = None) -> Any:
         """The feature as geometric tolerances evaluate it (:class:`cmm.metrology.gdt_eval.MeasuredFeature`),

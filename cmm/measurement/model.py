@@ -83,7 +83,7 @@ class Feature:
                                nominal=None if self.nominal is None else self.nominal.to_dict(),
                                tolerance=self.tolerance, probe=probe)
         if self.budget is not None:
-            rec.fit["budget"] = self.budget  # U (k = 2) per value and its terms, kept with the fit
+            rec.fit["budget"] = self.budget  # U, k per value and its terms, kept with the fit
         return rec
 
 

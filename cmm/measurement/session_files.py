@@ -70,6 +70,14 @@ def construct_pair(operation: str, fa: Any, fb: Any, workplane: Any, three_d: bo
         result = construct(operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()), **how)
     except (FitError, ValueError, KeyError) as exc:
         raise MeasurementError(str(exc)) from None
+    from ..metrology.uncertainty_construct import distance_uncertainty
+
+    try:
+        result.uncertainty = distance_uncertainty(
+            operation, (fa.kind, fa.result.geometry()), (fb.kind, fb.result.geometry()),
+            (getattr(fa, "budget", None), getattr(fb, "budget", None)), **how)
+    except (FitError, ValueError, KeyError, TypeError, np.linalg.LinAlgError) as exc:
+        result.uncertainty = {"why": f"no uncertainty: it could not be propagated ({exc})"}
     nominal = None
     na = nominal_geometry(fa.kind, None if fa.nominal is None else fa.nominal.to_dict())
     nb = nominal_geometry(fb.kind, None if fb.nominal is None else fb.nominal.to_dict())

@@ -54,7 +54,9 @@ class Characteristic:
     note: str = ""
     check: str = ""  # why the operator must check this value (another solution fits better), or ""
     datums: str = ""  # a geometric tolerance's datum reference frame ("A|B|C", see cmm.metrology.gdt_eval)
-    uncertainty: float | None = None  # expanded U (k = 2) from the feature's budget (cmm.metrology.uncertainty)
+    uncertainty: float | None = None  # expanded U from the feature's budget (cmm.metrology.uncertainty)
+    uncertainty_k: float | None = None  # its coverage factor (2, or Student's t for few degrees of freedom)
+    uncertainty_why: str = ""  # why it has none, in words (shown where the U would be)
 
     @property
     def deviation(self) -> float | None:
@@ -190,15 +192,19 @@ def constructed_characteristics(name: str, result: dict[str, Any], nominal: dict
     tol = {**DEFAULT_TOLERANCE, **(tolerance or {})}
     kind = result.get("kind")
     nom = nominal if nominal and nominal.get("kind") == kind else None
+    unc = result.get("uncertainty") or {}
+    why = str(unc.get("why", "no uncertainty: constructed before the station propagated one")) if not unc.get("U") \
+        else ""
+    u = {"uncertainty": float(unc["U"]), "uncertainty_k": float(unc["k"])} if unc.get("U") else {"uncertainty_why": why}
     if kind == "distance":
         n = None if nom is None else float(nom["value"])
         return [Characteristic(name, "distance", n, float(result["value"]), tol["location"], -tol["location"],
-                               note=_how(result, "" if n is not None else "no nominal: an operand has none"))]
+                               note=_how(result, "" if n is not None else "no nominal: an operand has none"), **u)]
     if kind == "angle":
         t = float(tol.get("angle", DEFAULT_ANGLE_TOLERANCE))
         n = None if nom is None else float(nom["value"])
         return [Characteristic(name, "angle", n, float(result["value"]), t, -t, unit="deg",
-                               note=_how(result, "" if n is not None else "no nominal: an operand has none"))]
+                               note=_how(result, "" if n is not None else "no nominal: an operand has none"), **u)]
     if kind == "point":
         tp = None if nom is None else 2.0 * float(np.linalg.norm(_arr(result["point"]) - _arr(nom["point"])))
         return [Characteristic(name, "position ⌀", None if tp is None else 0.0, tp,

@@ -58,6 +58,9 @@ class Constructed:
     value: float | None = None  # mm for a distance, degrees for an angle
     projection: str = ""  # how a distance or angle was taken (the plane it was projected into, or 3-D)
     warning: str = ""  # a distance whose operands are further from parallel than STEP_ANGLE_WARN_DEG, in words
+    # its expanded uncertainty from the operands' budgets ({"U", "k", "u_c", "note"}) or why it has none
+    # ({"why"}): cmm.metrology.uncertainty_construct
+    uncertainty: dict[str, Any] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         out: dict[str, Any] = {"kind": self.kind, **self.geometry}
@@ -67,6 +70,8 @@ class Constructed:
             out["projection"] = self.projection
         if self.warning:
             out["warning"] = self.warning
+        if self.uncertainty:
+            out["uncertainty"] = dict(self.uncertainty)
         return out
 
 

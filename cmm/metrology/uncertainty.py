@@ -1,5 +1,5 @@
 """Task-specific measurement uncertainty of a fitted feature (GUM, ISO 15530-4 ideas): a budget per
-characteristic, the expanded uncertainty U (k = 2) shown with each reported value.
+characteristic, the expanded uncertainty U (about 95 % coverage) shown with each reported value.
 
 Every term is a systematic or random pattern of errors of the hits, propagated through the least-squares fit
 itself: the hits are moved by the pattern (along their surface normals, or by the machine's error field) and the
@@ -34,6 +34,12 @@ Terms (standard uncertainties; ``Sources`` holds their inputs):
 ``cmm.metrology.uncertainty_inputs`` fills ``Sources`` from the station's calibration records, configuration and
 session, each term's ``origin`` saying where its input came from.
 
+Coverage factor (GUM G.4): every term but the sampling is taken as exactly known (infinite degrees of freedom);
+the sampling term's form estimate has the residuals' degrees of freedom plus PRIOR_DOF. The effective degrees of
+freedom of each value (Welch-Satterthwaite) give k = Student's t at 95.45 % (``coverage_factor``): exactly 2
+when the sampling term is negligible, 2.1-2.3 for a few hits whose form the residuals barely show (U = k u_c
+with k = 2 there covered only ~94.5-95 % on the simulator's error model, the errors' RMS matching u_c).
+
 The sensitivities of the random terms use the hits one at a time (exact for the linearised fit). Values: size
 (``diameter``, a cone's ``half_angle_deg``), location (``x``, ``y``, ``z``: a centre, an apex, the axis point
 at the hits' centroid, a plane's offset along its normal as ``offset``) in mm.
@@ -47,7 +53,8 @@ from typing import Any
 
 import numpy as np
 
-K_COVERAGE = 2.0
+K_COVERAGE = 2.0  # the coverage factor at infinite degrees of freedom (the normal distribution's 95.45 %)
+COVERAGE = math.erf(K_COVERAGE / math.sqrt(2.0))  # 0.9545: the probability k = 2 gives a normal error
 PRIOR_DOF = 8  # degrees of freedom the form prior is worth against the residuals' own
 SOURCES_DOC = ("probe qualification", "probe lobing", "probe Z/XY", "machine scale", "machine squareness",
                "thermal", "scatter", "sampling")
@@ -130,6 +137,16 @@ class Term:
     note: str
     u: dict[str, float]  # value name -> standard uncertainty contribution
     origin: str = "default"  # where the input came from: a calibration record, the configuration, a default
+    dof: float = math.inf  # degrees of freedom of its standard uncertainty (GUM G.3; inf: taken as known)
+
+
+def coverage_factor(nu_eff: float) -> float:
+    """k for a coverage of 95.45 % at ``nu_eff`` effective degrees of freedom (Student's t; 2 at infinity)."""
+    if not math.isfinite(nu_eff) or nu_eff > 1e6:
+        return K_COVERAGE
+    from scipy.stats import t as student_t
+
+    return float(student_t.ppf(0.5 + COVERAGE / 2.0, max(nu_eff, 1.0)))
 
 
 @dataclass
@@ -143,14 +160,31 @@ class Budget:
     def combined(self) -> dict[str, float]:
         return {k: math.sqrt(sum(t.u.get(k, 0.0) ** 2 for t in self.terms)) for k in self.values}
 
+    def effective_dof(self) -> dict[str, float]:
+        """Welch-Satterthwaite: u_c^4 / sum(u_i^4 / nu_i) per value (inf when every term is taken as known)."""
+        out = {}
+        for k, uc in self.combined().items():
+            den = sum(t.u.get(k, 0.0) ** 4 / t.dof for t in self.terms if math.isfinite(t.dof) and t.dof > 0)
+            out[k] = uc ** 4 / den if den > 0 and uc > 0 else math.inf
+        return out
+
+    def coverage_factors(self) -> dict[str, float]:
+        """k per value: Student's t at 95.45 % for its effective degrees of freedom (2 when they are many)."""
+        return {k: coverage_factor(nu) for k, nu in self.effective_dof().items()}
+
     def expanded(self) -> dict[str, float]:
-        """U (k = 2) per value."""
-        return {k: K_COVERAGE * v for k, v in self.combined().items()}
+        """U = k u_c per value (k from ``coverage_factors``)."""
+        ks = self.coverage_factors()
+        return {k: ks[k] * v for k, v in self.combined().items()}
 
     def summary(self) -> dict[str, Any]:
-        """JSON-ready: values, U (k = 2) and the terms (standard uncertainties, mm / deg)."""
-        return {"k": K_COVERAGE, "U": self.expanded(), "u_c": self.combined(),
-                "terms": [{"source": t.source, "note": t.note, "u": t.u, "from": t.origin} for t in self.terms],
+        """JSON-ready: values, U, k and the effective degrees of freedom per value (null: infinite), and the terms
+        (standard uncertainties, mm / deg)."""
+        nu = self.effective_dof()
+        return {"k": self.coverage_factors(), "U": self.expanded(), "u_c": self.combined(),
+                "nu_eff": {k: (None if not math.isfinite(v) else float(v)) for k, v in nu.items()},
+                "terms": [{"source": t.source, "note": t.note, "u": t.u, "from": t.origin,
+                           **({} if not math.isfinite(t.dof) else {"dof": t.dof})} for t in self.terms],
                 "reference": None if self.reference is None else [float(v) for v in self.reference],
                 **({} if self.sources is None else {"inputs": self.sources.as_dict()})}
 
@@ -161,7 +195,8 @@ class Budget:
         for t in self.terms:
             rows.append(f"{t.source:22s}" + "".join(f"{t.u.get(n, 0.0) * 1000:10.2f}um" for n in names)
                         + f"  {t.origin}")
-        rows.append(f"{'U (k=2)':22s}" + "".join(f"{v * 1000:10.2f}um" for v in self.expanded().values()))
+        rows.append(f"{'k (95 %)':22s}" + "".join(f"{v:12.2f}" for v in self.coverage_factors().values()))
+        rows.append(f"{'U = k u_c':22s}" + "".join(f"{v * 1000:10.2f}um" for v in self.expanded().values()))
         return "\n".join(rows)
 
 
@@ -394,8 +429,9 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
     note = f"form seen by {len(x)} hits {seen * 1000:.2f} um, pooled with the prior: {form * 1000:.2f} um"
     if dof < 3:
         note = f"{len(x)} hits ({nu} residual degrees of freedom): form assumed {form * 1000:.2f} um"
+    # its degrees of freedom (the residuals' and the prior's) set k through the value's effective ones
     terms.append(Term("sampling", note, {k: v * form for k, v in g.items()},
-                      f"the hits' residuals and {src.origin_of('sampling')} prior"))
+                      f"the hits' residuals and {src.origin_of('sampling')} prior", dof=float(nu + PRIOR_DOF)))
     _form_terms(kind, fit, n, src, terms, base)
     if kind == "cone":  # the half angle in degrees
         for t in terms:
@@ -441,7 +477,8 @@ def _form_terms(kind: str, fit: Any, n: np.ndarray, src: Sources, terms: list[Te
 
 
 def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = None) -> dict[str, float]:
-    """U (k = 2) of each reported value of the feature (mm; a cone's half angle in degrees)."""
+    """U (k from ``Budget.coverage_factors``) of each reported value of the feature (mm; a cone's half angle in
+    degrees)."""
     return budget(kind, points, fit, sources).expanded()
 
 
@@ -450,8 +487,9 @@ def with_reference(sources: Sources, reference: Any) -> Sources:
 
 
 def characteristic_u(name: str, expanded_u: dict[str, float] | None) -> float | None:
-    """U (k = 2) of a reported characteristic (cmm.metrology.characteristics names) from a feature's budget; None
-    where the budget has no term for it (form, constructed values)."""
+    """U of a reported characteristic (cmm.metrology.characteristics names) from a feature's budget's U per value
+    (the same propagation of its u_c gives the characteristic's u_c); None where the budget has no term for it
+    (constructed values)."""
     if not expanded_u:
         return None
     if name == "diameter":
@@ -468,6 +506,16 @@ def characteristic_u(name: str, expanded_u: dict[str, float] | None) -> float | 
     return None
 
 
+def characteristic_k(name: str, summary: dict | None) -> float | None:
+    """The coverage factor of a characteristic's U (``characteristic_u``) from a budget summary: its U over the
+    same propagation of the u_c (a position combines three values, each with its own k)."""
+    U = characteristic_u(name, (summary or {}).get("U"))
+    u = characteristic_u(name, (summary or {}).get("u_c"))
+    if U is None or not u:
+        return None
+    return U / u
+
+
 def feature_budget(kind: str, method: str, points: Any, fit: Any, sources: Sources | None = None) -> dict | None:
     """The budget of a station feature as its record keeps it (``{"U": .., "u_c": .., "terms": ..}``), or None
     when none is defined (criteria other than least squares, kinds without one, too few hits)."""
@@ -481,7 +529,7 @@ def feature_budget(kind: str, method: str, points: Any, fit: Any, sources: Sourc
 
 def plan_note(kind: str, points: Any, nominal: Any = None, tolerance: dict[str, float] | None = None,
               sources: Sources | None = None) -> str:
-    """A sentence for a hit plan whose expected U (k = 2; the budget of its exact nominal points, the form prior
+    """A sentence for a hit plan whose expected U (about 95 %; the budget of its exact nominal points, the form prior
     for the sampling) is more than a quarter of the feature's tolerance zone (2 x the +- tolerance), else ""."""
     from .characteristics import DEFAULT_TOLERANCE
     from .fit_ls import LS_FITS
@@ -491,12 +539,15 @@ def plan_note(kind: str, points: Any, nominal: Any = None, tolerance: dict[str, 
     try:
         fit = LS_FITS[kind](x, nominal=nominal) if nominal is not None and kind in ("cylinder", "cone") else \
             LS_FITS[kind](x)
-        expected = budget(kind, x, fit, sources).expanded()
+        b = budget(kind, x, fit, sources)
+        expected, ks = b.expanded(), b.coverage_factors()
     except Exception:  # noqa: BLE001 - no expectation: nothing to say
         return ""
-    name, value, zone = ("diameter", expected.get("diameter"), 2 * tol["size"]) if "diameter" in expected else (
-        ("location", expected.get("offset"), 2 * tol["location"]) if "offset" in expected else ("", None, 0.0))
+    name, key, zone = ("diameter", "diameter", 2 * tol["size"]) if "diameter" in expected else (
+        ("location", "offset", 2 * tol["location"]) if "offset" in expected else ("", "", 0.0))
+    value = expected.get(key)
     if value is None or value <= zone / 4:
         return ""
-    return (f"the expected uncertainty of the {name} with these {len(x)} hits is U = {value * 1000:.1f} um (k=2), "
+    return (f"the expected uncertainty of the {name} with these {len(x)} hits is U = {value * 1000:.1f} um "
+            f"(k={ks[key]:.2f}), "
             f"more than a quarter of its {zone:.3f} mm tolerance zone: take more hits, or accept a U that large")

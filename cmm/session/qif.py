@@ -19,7 +19,7 @@ session), with:
   geometric tolerances), the same :class:`~cmm.metrology.characteristics.Characteristic` values the report and
   its CSV show: definition (tolerance), nominal (target), item (which features, which station) and measurement
   (actual value, status PASS / FAIL / INDETERMINATE for "check" / NOT_ANALYZED without a nominal, and the
-  expanded uncertainty U, k = 2, see :mod:`cmm.session.qif_map`), and the overall status.
+  expanded uncertainty U with its coverage factor k, see :mod:`cmm.session.qif_map`), and the overall status.
 
 Coordinates are in the part's coordinate system (the CAD model's) when the session has a part pose, else in
 machine coordinates; lengths mm, angles degrees (``FileUnits``).
@@ -45,7 +45,8 @@ from ..journal.session import Session
 from ..metrology.characteristics import Characteristic, verdict
 from .gdt_session import session_gdt
 from .qif_dmis import DMIS_ONLY
-from .qif_map import FEATURE_TYPES, ORIENTATION, QIF_NS, WITH_ZONE_SHAPE, expanded_uncertainty, qif_type, status
+from .qif_map import (FEATURE_TYPES, ORIENTATION, QIF_NS, WITH_ZONE_SHAPE, coverage_factor, expanded_uncertainty,
+                      qif_type, status)
 from .report import _constructed_rows, _tolerances
 
 APPLICATION = "cmm station"
@@ -469,11 +470,12 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
         for kind, owner, c, ref_fids, qt, family, ids in crow:
             fit = features[ref_fids[0]].fit if kind == "feature" and ref_fids else None
             u = expanded_uncertainty(c, fit)
+            k = coverage_factor(c)
             me = d.el(cm, f"{qt}CharacteristicMeasurement", id=ids["measurement"])
             attrs = []
             if u is not None:
                 attrs.append(_attr_d(d, "ExpandedUncertainty", u))
-                attrs.append(_attr_d(d, "CoverageFactor", 2.0))
+                attrs.append(_attr_d(d, "CoverageFactor", k))
             if c.check:
                 attrs.append(_attr_str(d, "Check", c.check))
             if kind == "gdt" and "composite" not in owner and str(owner.get("material") or "") in ("MMC", "LMC"):
@@ -492,7 +494,7 @@ def qif_document(session: Session, *, program: Any = None, default_tolerance: fl
             if c.actual is not None:
                 v = d.el(me, "Value", c.actual)
                 if u is not None:
-                    v.set("combinedUncertainty", _num(u / 2.0))
+                    v.set("combinedUncertainty", _num(u / k))
                     v.set("meanError", "0")
     d.el(d.el(mr, "InspectionStatus"), "InspectionStatusEnum",
          {"PASS": "PASS", "FAIL": "FAIL"}.get(overall, "UNKNOWN"))

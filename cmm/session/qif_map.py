@@ -3,7 +3,7 @@ uncertainty each characteristic carries.
 
 The writer (:mod:`cmm.session.qif`) asks this module three things per characteristic: the QIF characteristic
 type (``Diameter``, ``Position``, ``Flatness`` ...), which family its definition belongs to (a ``Tolerance`` with
-limits around a target, or a ``ToleranceValue`` zone), and its expanded uncertainty U (k = 2).
+limits around a target, or a ``ToleranceValue`` zone), and its expanded uncertainty U (k = 2, or its budget's own k).
 
 **Expanded uncertainty (the hook).** :func:`expanded_uncertainty` first takes the characteristic's own U when
 it carries one (an attribute ``expanded_uncertainty``, ``U`` or ``uncertainty`` on the
@@ -96,8 +96,18 @@ def _u(fit: dict, *keys: str) -> float | None:
     return None
 
 
+def coverage_factor(c: Any) -> float:
+    """The coverage factor of ``expanded_uncertainty``: the characteristic's own (its budget's: 2, or Student's t
+    for few degrees of freedom), else COVERAGE_FACTOR (the fit's scatter-based U)."""
+    k = getattr(c, "uncertainty_k", None)
+    if isinstance(k, (int, float)) and math.isfinite(k) and k > 0 and isinstance(getattr(c, "uncertainty", None),
+                                                                               (int, float)):
+        return float(k)
+    return COVERAGE_FACTOR
+
+
 def expanded_uncertainty(c: Any, fit: dict | None = None) -> float | None:
-    """U (k = 2) of a characteristic in its unit (mm, degrees), or None when the station has none for it.
+    """U (k: ``coverage_factor``) of a characteristic in its unit (mm, degrees), or None when the station has none for it.
     See the module docstring: the characteristic's own U first, else the fit's scatter-based one."""
     for attr in ("expanded_uncertainty", "U", "uncertainty"):
         v = getattr(c, attr, None)

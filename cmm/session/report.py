@@ -406,7 +406,8 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
     out.append("</tbody></table><p class='muted'>ISO 1101 / ASME Y14.5: the actual is the width (diameter for "
                "⌀ zones) of the smallest zone of the tolerance's shape containing the feature, in the datum "
                "reference frame built from the datum features in precedence order; the tolerance allowed is the "
-               "stated one plus the bonus at MMC/LMC.</p>")
+               "stated one plus the bonus at MMC/LMC. No uncertainty is given for these zones: the station's budgets "
+               "cover a single feature's size, location and form, not a zone against datums.</p>")
     return "".join(out)
 
 
@@ -420,7 +421,7 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     # the last column; machine coordinates when nothing was aligned): the same on every row of the feature
     frame = session_frame(session.state)
     w.writerow(["feature", "kind", "method", "hits", "characteristic", "unit", "nominal", "upper_tol", "lower_tol",
-                "actual", "deviation", "out_of_tolerance", "result", "probe", "U_k2",
+                "actual", "deviation", "out_of_tolerance", "result", "probe", "U", "k",
                 *[f"actual_{k.lower()}" for k in ACTUAL_COLUMNS], "frame"])
     tols = _tolerances(session, program, default_tolerance)
     for fid, f in session.state.features.items():
@@ -431,15 +432,17 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
                         "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict,
-                        f.probe or "", "" if u is None else f"{u:.6f}", *where])
+                        f.probe or "", "" if u is None else f"{u:.6f}",
+                        "" if u is None or c.uncertainty_k is None else f"{c.uncertainty_k:.2f}", *where])
     for rec, cs in _constructed_rows(session, default_tolerance):
         where = [*actual_cells(actuals(str(rec.result.get("kind", "")), rec.result, frame)), frame.label]
         for c in cs:
             w.writerow([c.feature, "constructed", rec.operation, "", c.name, c.unit,
                         "" if c.nominal is None else f"{c.nominal:.6f}", f"{c.upper:.6f}", f"{c.lower:.6f}",
                         "" if c.actual is None else f"{c.actual:.6f}",
-                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "", "",
-                        *where])
+                        "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "",
+                        "" if c.uncertainty is None else f"{c.uncertainty:.6f}",
+                        "" if c.uncertainty_k is None else f"{c.uncertainty_k:.2f}", *where])
     # geometric tolerances: kind "gdt", method the datum reference frame ("A|B|C"), upper_tol with any bonus
     for d, c in session_gdt(session, mesh, tols):
         w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
@@ -581,7 +584,7 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
     out.append(f"<div class='head'>{dl(left)}{dl(right)}</div>")
     out.append("<h2>Features</h2><table><thead><tr><th class='l'>feature</th><th class='l'>probe</th>"
                "<th class='l'>characteristic</th>"
-               "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>U (k=2)</th><th>deviation</th>"
+               "<th>nominal</th><th>+tol</th><th>&minus;tol</th><th>actual</th><th>U (95 %)</th><th>deviation</th>"
                "<th>out of tol</th><th>result</th></tr></thead><tbody>")
     for f, cs in per_feature:
         for k, c in enumerate(cs):
@@ -605,22 +608,26 @@ def _render(session: Session, *, mesh: Any = None, program: Any = None, title: s
                 else ""
             if c.check:
                 note += f"<br><span class='checknote'>check: {e(c.check)}</span>"
+            if c.uncertainty is None and c.uncertainty_why and c.actual is not None:
+                note += f"<br><span class='muted'>{e(c.uncertainty_why)}</span>"
             result = "<td class='chk'>check</td>" if c.check else {
                 True: "<td class='ok'>pass</td>", False: "<td class='ng'>FAIL</td>",
                 None: "<td class='l muted'>not evaluated</td>"}[c.ok]
             out.append(f"<tr class='{cls.strip()}'>{name_cell}<td class='l'>{e(c.name)}{note}</td>"
                        f"<td>{_num(c.nominal)}{unit if c.nominal is not None else ''}</td><td>{c.upper:.4f}</td>"
                        f"<td>{lower}</td><td>{_num(c.actual)}{unit if c.actual is not None else ''}</td>"
-                       f"<td class='muted'>{_num(c.uncertainty)}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
+                       f"<td class='muted'>{'none' if c.uncertainty_why and c.actual is not None else _num(c.uncertainty)}</td><td>{_num(c.deviation)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
                        f"{result}</tr>")
     if not per_feature:
         out.append("<tr><td class='l' colspan='11'>no features were fitted in this session</td></tr>")
     out.append("</tbody></table><p class='muted'>Lengths in mm, angles in degrees. Sizes and locations against the "
                "feature's nominal from the part (CAD); position is the diameter of the zone the actual axis or centre "
                "lies in (ISO 1101), relative to the alignment; form is the fitted feature's max &minus; min residual. "
-               "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic. U (k=2): the expanded "
+               "&ldquo;Not evaluated&rdquo;: the feature has no nominal for this characteristic. U (95 %): the expanded "
                "uncertainty from the feature's budget (probe, machine, temperature, sampling, scatter), where it has "
-               "one.</p>")
+               "one: U = k u_c with k = 2, or Student's t for the budget's effective degrees of freedom where a few "
+               "hits' residuals carry most of it (k up to about 2.3; the features CSV gives k); &ldquo;none&rdquo;: the value has no uncertainty, the "
+               "reason under its name.</p>")
     out.append(actuals_table(session))
     if gdt_rows:
         out.append(gdt_table(gdt_rows, session))

@@ -95,8 +95,11 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = (), machi
             unit = "°" if c.unit == "deg" else ""
             nominal = "—" if c.nominal is None else f"{c.nominal:.4f}{unit}"
             actual = "—" if c.actual is None else f"{c.actual:.4f}{unit}"
-            if c.actual is not None and c.uncertainty is not None:  # the expanded U (k = 2) of the feature's budget
-                actual += f" <span style='color:#777'>±{c.uncertainty:.4f}</span>"
+            if c.actual is not None and c.uncertainty is not None:  # the expanded U of the feature's budget, its k
+                k = "" if c.uncertainty_k is None else f" title='U (95 %), k = {c.uncertainty_k:.2f}'"
+                actual += f" <span style='color:#777'{k}>±{c.uncertainty:.4f}</span>"
+            elif c.actual is not None and c.uncertainty_why:  # no U: said so, the reason in its tooltip
+                actual += f" <span style='color:#777' title='{e(c.uncertainty_why)}'>(no U)</span>"
             dev = "" if c.deviation is None else f"{c.deviation:+.4f}"
             label = c.name.replace(' (along the normal)', '') if fid is not None else f"{c.feature}: {c.name}"
             rows.append(f"<tr style='{bg}'><td style='padding-left:10px' title='{e(c.note)}'>"
