@@ -109,7 +109,9 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.start_as(page, "Ada")
         bs.press_until(page, "Take control", lambda: app.control.holder == page.capp.client_id, "Ada's control")
         status.get_by_text("Ada (you) controls the machine").filter(visible=True).first.wait_for()
-        assert model.info.get("operator") == "Ada"  # the report header's operator
+        # the report header's operator: recorded by the Take control click's callback after the control itself, so
+        # the status bar's refresher can show the holder first
+        bs.wait_until(lambda: model.info.get("operator") == "Ada", 30.0, "Ada recorded as the session's operator")
 
         # --- Machine > Home
         bs.open_tab(page, "Machine", "Home")
