@@ -178,17 +178,17 @@ class StationApp:
     def _fit_start_view(self, client: Any) -> None:
         """Once the client shows the start view (its first reports come before it has applied viser's initial
         camera) and has told its view's size: an upright view starts further back (SceneView.fit_portrait). A
-        camera the operator has moved by then is left alone (a few reports without the start view: given up)."""
+        camera the operator has moved by then is left alone (after 50 reports without the start view: given up)."""
         start = np.asarray(self.server.initial_camera.position, float)
         seen: list[int] = []
 
         def update(camera: Any) -> None:
-            if len(seen) > 10:
+            if len(seen) > 50:
                 return
             seen.append(1)
             if getattr(camera, "image_height", 0) > 0 and np.allclose(np.asarray(camera.position, float), start,
                                                                        atol=1e-5):
-                seen.extend([1] * 11)  # once
+                seen.extend([1] * 51)  # once
                 self.view.fit_portrait(camera)
         client.camera.on_update(update)
         update(client.camera)  # its reports may have come while its panels were built
