@@ -2,7 +2,7 @@
 calibration service, and wires them together.
 
 Front ends command the machine and change the measurement with the command API's verbs
-(``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.control.api`), so the access policy and the
+(``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.api`), so the access policy and the
 state model are checked in one place. Each package registers its own verbs and queries where it lives
 (:mod:`cmm.measurement.verbs` and :mod:`cmm.measurement.queries`: fit, construct, nominal, datum, GD&T, align,
 auto-measure, programs, the session journal; :mod:`cmm.calibration.verbs`: qualify, save, accept gains, select

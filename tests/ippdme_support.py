@@ -45,7 +45,7 @@ def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeou
         station.measurement.part = None  # no part for the motion rails either
     station.machine.poll_pause = POLL_PAUSE
     station.start()
-    server = IppServer(StationBackend(station), "127.0.0.1", 0, send_timeout=send_timeout,
+    server = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0, send_timeout=send_timeout,
                        send_buffer=send_buffer, trace=trace).start()
     try:
         yield server, station

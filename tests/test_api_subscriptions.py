@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from cmm.control.api import CommandError
+from cmm.api import CommandError
 from cmm.station import Station
 
 

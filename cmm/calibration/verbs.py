@@ -1,6 +1,7 @@
 """The calibration's verbs of the command API, registered where the calibration lives: ``qualify`` runs a
 routine (its result returned, nothing applied), ``save_calibration``, ``accept_gains`` and ``select_probe``
-change the live machine through the ``configure`` verb and are the calibrating holder's.
+change the live machine through the ``configure`` verb and are the calibrating holder's; the ``probes`` query
+reads the probe list.
 
 The composition root (:mod:`cmm.station`) calls :func:`register_calibration_verbs` with the API, the control
 core's access check and the :class:`~cmm.calibration.service.CalibrationService` it built."""
@@ -27,6 +28,17 @@ def register_calibration_verbs(cmds: Any, check_access: Callable[[Any, str], Non
             return fn(client, **params)
         return verb
 
+    def probes(client: Any) -> dict[str, Any]:
+        folder = None if calibration.directory is None else str(calibration.directory)
+        try:
+            return {"probes": calibration.probes(), "folder": folder, "problem": ""}
+        except Exception as exc:  # noqa: BLE001 - an unreadable list is told, the folder still known
+            return {"probes": [], "folder": folder, "problem": str(exc) or type(exc).__name__}
+    cmds.register("probes", probes, {},
+                  "the probe list (the Calibration tab's): per probe its name, tip diameter, stylus, selected (the one "
+                  "in use), and when qualified its radius, pre-travel, date, sphere and expiry; folder: where the "
+                  "records are kept (None: nowhere, so no probe of the list can be chosen); problem: why the list "
+                  "cannot be read (empty when it can)", query=True)
     cmds.register("save_calibration", calibrating(
                       lambda client, routine, result, accepted=False: calibration.save(client, routine, result,
                                                                                        accepted=accepted)),

@@ -14,7 +14,7 @@ metrologist    what a programmer may, and calibrate: qualify probes, ISO 10360-5
 admin          everything, and manage the users
 =============  ==============================================================================================
 
-Rules kept here, checked once in :meth:`cmm.control.api.CommandAPI.invoke` (never in a front end):
+Rules kept here, checked once in :meth:`cmm.api.CommandAPI.invoke` (never in a front end):
 
 - Without a user file the station runs in the local, no-login mode: no role is checked (the control holder rule
   of :mod:`cmm.control.access` alone decides), as a single-user bench always did.
