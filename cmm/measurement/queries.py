@@ -68,8 +68,7 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
         return out
 
     def part(client: Any) -> dict[str, Any] | None:
-        with measurement.lock:
-            p = measurement.part
+        p = measurement.part  # one attribute read: the page asks five times a second and never waits on the lock
         if p is None:
             return None
         cad = p.mesh.metadata.get("cad")  # a CAD part's B-rep model (cmm.cad.CadModel)
