@@ -445,6 +445,23 @@ def test_front_ends_and_the_calibration_never_reach_the_simulator_through_the_st
     assert not bad, "the simulator reached through the station:\n" + "\n".join(bad)
 
 
+# the page's panels that receive only the command API (through their PanelContext): they read with queries and
+# change with verbs; a panel converted from reaching into the station joins this list
+PANELS_ON_THE_API = ("ui/panel_sessions.py", "ui/panel_calibration.py", "ui/panel_trends.py", "ui/panel_operator.py",
+                     "ui/panel_diagnostics.py", "ui/panel_part.py")
+
+
+def test_panels_on_the_api_never_reach_the_station():
+    """The panels in PANELS_ON_THE_API get nothing of the station: no ``ctx.station``, ``app.station``, no
+    ``station.measurement``, ``.controller``, ``.calibration`` or ``.config``, no calibration service or trends
+    object held; the session store is opened only to read a session for replay (its changes are verbs)."""
+    held = ("station", "measurement", "controller", "calibration", "service", "config")
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if f in PANELS_ON_THE_API and (attr in held or owner.split(".")[-1] in held)]
+    assert not bad, "a panel reaching around the command API:\n" + "\n".join(bad)
+    assert all((ROOT / f).is_file() for f in PANELS_ON_THE_API), "a panel named here no longer exists"
+
+
 MODULE_LINES = 800
 CLASS_LINES = 500
 

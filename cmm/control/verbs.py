@@ -80,6 +80,9 @@ def register_machine_verbs(api: CommandAPI, c: Any) -> None:
     api.register("link_health", lambda client: c.link_health(), {},
                  "the link's counters (transactions, retries, late replies recovered, the last minute's retry "
                  "rate) and the Diagnostics tab's words for them", query=True)
+    api.register("trace", lambda client, last=30: c.trace_text(last=int(last)), {"last": 30},
+                 "the last packets on the link (the NMC byte trace, Tx and Rx) as text, for the Diagnostics tab; "
+                 "the link process's on a real port", query=True)
     api.register("job", lambda client: c.jobs.snapshot(), {},
                  "what runs now (auto-measure, routine, program, calibration), oldest first: description, "
                  "done and total (hits of a program; 0 when the job does not say) and step", query=True)
