@@ -108,7 +108,7 @@ def test_the_calibration_is_read_with_queries_and_changed_by_the_holder(station)
     assert api.call(OBSERVER, "add_probe", {"name": "Star1", "tip_diameter": 3.0}).error["code"] == "refused"
     added = api.invoke(OPERATOR, "add_probe", name="Star1", tip_diameter=3.0, stylus=[1.0, 0.0, 0.0])
     assert added == {"name": "Star1", "tip_diameter": 3.0, "stylus": [1.0, 0.0, 0.0]}
-    rows = {r["name"]: r for r in api.invoke(OBSERVER, "probes")}
+    rows = {r["name"]: r for r in api.invoke(OBSERVER, "probes")["probes"]}
     assert list(rows) == [*names, "Star1"] and rows["Star1"]["tip_radius"] is None and not rows["Star1"]["selected"]
     assert "already a probe" in api.call(OPERATOR, "add_probe", {"name": "Star1", "tip_diameter": 2.0}).error["message"]
 
