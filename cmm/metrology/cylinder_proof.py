@@ -3,7 +3,8 @@
 A branch and bound over direction cells (``_direction_bound``) gives a lower bound on the criterion of every
 cylinder whose axis direction lies in the cone (for the minimum zone also passing near the least-squares axis at
 the data centre); each cell is bounded from the exact 2D criterion at its centre direction (``_ball_cell_bound``)
-or from the thinnest annulus by area (``_zone_cell_bound``). ``fit_criteria.cylinder`` searches, this proves.
+or from the thinnest annulus by area (``_zone_cell_bound``; on small cells with the tilt a variable of its linear
+program, ``_tilted_area_lower``). ``fit_criteria.cylinder`` searches, this proves.
 """
 
 from __future__ import annotations
