@@ -1,6 +1,7 @@
 """The calibration's verbs of the command API, registered where the calibration lives: ``qualify`` runs a
 routine (its result returned, nothing applied), ``save_calibration``, ``accept_gains`` and ``select_probe``
-change the live machine through the ``configure`` verb and are the calibrating holder's.
+change the live machine through the ``configure`` verb and are the calibrating holder's; the
+``calibration_state`` query is what the status bar and the jog show of it.
 
 The composition root (:mod:`cmm.station`) calls :func:`register_calibration_verbs` with the API, the control
 core's access check and the :class:`~cmm.calibration.service.CalibrationService` it built."""
@@ -42,5 +43,9 @@ def register_calibration_verbs(cmds: Any, check_access: Callable[[Any, str], Non
                   {"name": REQUIRED},
                   "make a probe of the list the one in use: its qualified radius and pre-travel (or its nominal "
                   "radius) go to the live machine; returns what was applied")
-
-
+    cmds.register("calibration_state", lambda client: {
+                      "holding": bool(calibration.holding), "probe": calibration.status.get("probe"),
+                      "probing_speed": float(calibration.qualified_probing_speed)}, {},
+                  "the calibration as the status bar shows it: holding (a paused qualification holds the machine "
+                  "between two points), the probe qualification in force (None: not qualified) and the qualified "
+                  "probing speed (mm/s) manual hits are taken at", query=True)

@@ -31,6 +31,7 @@ from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
 from . import access
 from .modes import ControlError, Refused
+from .queries import register_control_queries
 from .subscriptions import Subscription, Subscriptions
 from .rails import RailError
 
@@ -186,6 +187,7 @@ class CommandAPI:
                       "resume(), skip() (when given) are what the pause, resume and skip_step verbs call; "
                       "hold_machine false: work(None) runs in the caller's thread beside the machine loop (a program "
                       "waiting for the operator's manual hits), registered the same way")
+        register_control_queries(self, c)  # the set-up, the link, access, and the in-process clock and events
 
     # --- registry ---------------------------------------------------------------------
 
