@@ -95,6 +95,13 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                         "unit": m.unit, "ok": m.ok})
         return out
 
+    api.register("part_frame", lambda client: ModelSnapshot(
+                     part=measurement.part, aligned=bool(measurement.aligned),
+                     alignment_name=str(measurement.alignment_name or ""), probe_name=str(measurement.probe_name or ""),
+                     state=measurement.state), {},
+                 "in process: the part, the alignment in force and the probe in use (a ModelSnapshot without the "
+                 "hits, the features and the lock): what the DRO, the frame labels and the pick show at their rate",
+                 query=True)
     api.register("model", lambda client: snapshot(measurement), {},
                  "in process: the measurement model at this moment (hits, deleted hits, features, constructions, "
                  "the part, the last hit), copied under the model's lock; front ends draw from it", query=True)

@@ -2,10 +2,11 @@
 
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
-tab, and runs two light threads, reading the station only through the command API's queries (and the model's
-events, the ``watch_model`` query) and changing it only through its verbs: the probe updater (the probe node at most 25 times a second, the
-following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
-:class:`~cmm.control.access.Control`, shared with the pendant page.
+tab, and runs two light threads: the probe updater (the probe node at most 25 times a second, the
+following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). It reads the
+station only through the command API's queries (the model's events too: the ``watch_model`` query) and changes it
+only through its verbs. Who may move the machine is decided by the access
+:class:`~cmm.control.access.Control`, shared with the pendant page (the ``use_policy`` verb).
 """
 
 from __future__ import annotations

@@ -2,8 +2,9 @@
 
 Each tab (:class:`~cmm.ui.panels.ClientApp`) builds one context and hands it to its panels (status bar,
 features, alignment, auto-measure, colour map, sessions, calibration) instead of itself. It holds the
-command API (:class:`cmm.control.api.CommandAPI`, the only way the page reaches the station), the tab's viser client, the shared 3-D view, the tab's selection (picked point, selected feature,
-manual probing armed), what the operator was told, and the two ways a panel acts:
+command API (:class:`cmm.control.api.CommandAPI`, the page's one way to the station), the tab's viser client,
+the shared 3-D view, the tab's selection (picked point, selected feature, manual probing armed), what the
+operator was told, and the two ways a panel acts:
 
 - :meth:`PanelContext.do`: a verb of the command API (measure, construct, align, auto-measure, cancel ...), sent
   as this tab's client: the core decides who may (the checks and answers every front end gets) and its refusal

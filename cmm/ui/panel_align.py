@@ -191,7 +191,7 @@ class AlignPanel:
     def text(self) -> str:
         if self.result is None:
             return "*no alignment computed*"
-        part = self.ctx.model().part
+        part = self.ctx.query("part_frame").part
         return self.result.text(None if part is None else part.pose)
 
     def _show(self) -> None:

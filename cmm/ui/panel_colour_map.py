@@ -40,7 +40,7 @@ class ColourMapPanel:
 
     def show(self, on: bool) -> Any:
         """Turn the map on or off; returns the map drawn (None when off or without a part)."""
-        if on and self.ctx.model().part is None:
+        if on and self.ctx.query("part_frame").part is None:
             self.ctx.error("load a part first: the map is painted on its mesh", "Colour map")
         dmap = self.view.show_colour_map(on, self.ctx.deviations() or None)
         if on and self.view.map_error:

@@ -163,11 +163,11 @@ class MachinePanel:
 
     def target_label(self) -> str:
         """The Go to field's label names its frame (and the alignment part coordinates go through)."""
-        return f"Target, {frame_label(self.ctx.model(), self.goto_frame)} (mm)"
+        return f"Target, {frame_label(self.ctx.query('part_frame'), self.goto_frame)} (mm)"
 
     def goto_frame_text(self) -> str:
         if self.goto_frame == "Part":
-            return (f"Target in **part** coordinates ({alignment_text(self.ctx.model())}); the move goes over the "
+            return (f"Target in **part** coordinates ({alignment_text(self.ctx.query('part_frame'))}); the move goes over the "
                     "clearance plane.")
         return "Target in **machine** coordinates; the move goes over the clearance plane."
 
@@ -201,7 +201,7 @@ class MachinePanel:
         result = self.ctx.picked = (hit, nominal)
         if self.client is not None:  # the marker and the picked face, replacing the last pick's
             faces = None if suggestion is None else suggestion.face_ids
-            m = self.ctx.model()
+            m = self.ctx.query("part_frame")
             self.ctx.pick_drawing.show(self.client.scene, hit, m.part, faces, m.state)
         self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f} (machine)".format(*hit.point)
                     + (f" · {nominal.kind}" if nominal is not None else ""))
@@ -216,7 +216,7 @@ class MachinePanel:
     def forget_stale_pick(self) -> None:
         """A new part (another CAD part or the next part of a series) removes the drawing of a pick made on the one
         before; another CAD part forgets the pick too (its faces are not the new part's)."""
-        m = self.ctx.model()
+        m = self.ctx.query("part_frame")
         if self.ctx.pick_drawing.drop_stale(m.part, m.state):
             self.clear_pick()
 
@@ -238,7 +238,7 @@ class MachinePanel:
             return None
         hit = self.ctx.picked[0]
         # along the picked (outward) normal, the rapid over the part's clearance plane
-        clearance_z = None if self.ctx.model().part is None else self.ctx.query("clearance_z")
+        clearance_z = None if self.ctx.query("part_frame").part is None else self.ctx.query("clearance_z")
         status = send_command(self.ctx, "Probe here", lambda cid: self.ctx.commands.invoke(
             cid, "probe", target=hit.point, approach=-np.asarray(hit.normal, float), frame="machine",
             clearance_z=clearance_z))

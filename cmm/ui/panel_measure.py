@@ -99,7 +99,7 @@ class MeasurePanel:
 
     def text(self) -> str:
         p = self.current_plan()
-        picked = picked_text(self.ctx.model().part, self.ctx.picked)
+        picked = picked_text(self.ctx.query("part_frame").part, self.ctx.picked)
         if p is None:
             return picked + ("" if self.ctx.picked is None else "; then Plan.")
         lines = [picked, "", f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",

@@ -139,7 +139,7 @@ def status_html(source: Any, control_text: str, *, frame: str = "Machine", link_
     e = html.escape
     query = reader(source)
     cs = query("state")  # the control core's state and last sample (the observer's snapshot)
-    model = query("model")
+    model = query("part_frame")  # the part, the alignment in force, the probe's name
     mode, reason, link_ok = machine_mode(cs)
     if cycle and mode in CYCLE_MODES:
         mode, reason = ("paused", f"{cycle}: Resume goes on") if cycle_paused else ("running", cycle)
@@ -253,7 +253,7 @@ class StatusPanel:
         query = self.ctx.query
         rate = self.link.update(query("samples"))
         return status_html(query, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
-                           armed=self.ctx.manual_probe, aligned=query("model").aligned,
+                           armed=self.ctx.manual_probe, aligned=query("part_frame").aligned,
                            cycle=getattr(self.ctx.shared, "cycle", None),
                            cycle_paused=bool(getattr(self.ctx.shared, "cycle_paused", False)),
                            run_stopped=str(getattr(self.ctx.shared, "run_stopped", "") or ""))

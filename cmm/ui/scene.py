@@ -125,7 +125,7 @@ class SceneView:
         cfg = self.query("config")
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
-        part = model_of(self.query).part
+        part = self.query("part_frame").part
         if part is not None and part.mesh is not None:
             corners = np.array([[x, y, z] for x in part.mesh.bounds[:, 0] for y in part.mesh.bounds[:, 1]
                                 for z in part.mesh.bounds[:, 2]])
@@ -173,7 +173,7 @@ class SceneView:
         self.draw_features()
 
     def draw_part(self) -> None:
-        part = model_of(self.query).part
+        part = self.query("part_frame").part
         if part is None:
             self.scene.add_frame("/local", show_axes=False)
             return
