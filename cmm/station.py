@@ -8,7 +8,8 @@ state model are checked in one place. Each package registers its own verbs and q
 auto-measure, programs, the session journal; :mod:`cmm.calibration.verbs` and :mod:`cmm.calibration.queries`:
 qualify, save, accept gains, select probe, the probe list and records; :mod:`cmm.session.verbs`: the recorded
 sessions and the trends); the station calls them on what it built. Front ends read the measurement model
-(:mod:`cmm.measurement`) through the API's queries. The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
+(:mod:`cmm.measurement`) through the API's queries, and the machine through the control core's
+(:mod:`cmm.control.queries`). The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
 thread before its probe completes), its events go to the model's journal and listeners, and the model probes
 through the control core.
 """
@@ -157,6 +158,9 @@ class Station:
                           "part_pose": self.bench.settings.part_pose}, {},
                       "None on a real machine; on the simulator: where the part truly lies (part_pose, 4x4 part -> "
                       "machine), which the station does not know until it aligns the part", query=True)
+        cmds.register("ippdme", lambda client: self.ippdme, {},
+                      "in process: the status of the I++ DME server serving this station (its client, the command "
+                      "in hand, the points measured; cmm.ippdme.status.IppStatus), None when none serves", query=True)
         cmds.register("load_part", load, {"path": cmds.REQUIRED, "pose": None},
                       "load a part file (STEP, IGES with exact surfaces; STL, OBJ, PLY, 3MF, GLB) as the nominal CAD at "
                       "pose (\"X,Y,Z[,RZ]\" mm and degrees, or a 4x4 part -> machine; none: its lowest corner at the "

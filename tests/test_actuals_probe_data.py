@@ -59,13 +59,13 @@ def test_actuals_are_in_the_alignment_frame_and_name_it(station):
     st.measurement.set_alignment(TRUE_PART_POSE, "3-2-1", names=["TOP", "FRONT", "LEFT"])
     bore = st.controller.commands.invoke(ME, "measure_feature", kind="circle", hits=_bore_hits(st), name="bore")
     # the tree: X, Y, Z, D in part coordinates, the frame named at the top
-    tree = tree_html(st)
+    tree = tree_html(st.controller.commands)
     assert "actuals in <b>part coordinates (3-2-1 TOP/FRONT/LEFT)</b>" in tree
     row = re.search(r"class='cmm-actual'[^>]*>([^<]+)<", tree).group(1)
     x, y, z, d = _numbers(row, "X", "Y", "Z", "D")
     assert (x, y, z, d) == pytest.approx((30.0, 40.0, 20.0, 30.0), abs=0.005)
     # machine coordinates on demand
-    machine = tree_html(st, machine=True)
+    machine = tree_html(st.controller.commands, machine=True)
     assert "actuals in <b>machine coordinates</b>" in machine
     mx, my = _numbers(re.search(r"class='cmm-actual'[^>]*>([^<]+)<", machine).group(1), "X", "Y")
     centre = TRUE_PART_POSE @ np.array([30.0, 40.0, 20.0, 1.0])
@@ -100,7 +100,7 @@ def test_probe_data_shown_is_the_data_the_hits_used(station):
     assert start["calibration"]["probe"]["date"].startswith("2026-11-01")
     # requalified after the session started, before any hit: Machine > Probe shows it at once
     _requalify(st, 0.9975, "2026-11-02T09:30:00")
-    text = probe_markdown(st)
+    text = probe_markdown(st.controller.commands)
     assert "0.99750 mm" in text and "qualified 2026-11-02" in text
     st.measurement.set_alignment(TRUE_PART_POSE, "3-2-1", names=["TOP", "FRONT", "LEFT"])
     _bore_hits(st)
@@ -111,7 +111,7 @@ def test_probe_data_shown_is_the_data_the_hits_used(station):
     assert "r 0.99750 mm, qualified 2026-11-02 09:30" in head and "(4 hits)" in head
     # a requalification in the middle: the header shows both, each with its hits
     _requalify(st, 0.9990, "2026-11-03T10:00:00")
-    assert "0.99900 mm" in probe_markdown(st)
+    assert "0.99900 mm" in probe_markdown(st.controller.commands)
     _bore_hits(st, z=25.0)
     head = render(open_session(st.measurement.journal.path))
     head = head[head.index("<div class='head'>"):head.index("<h2>Features")]

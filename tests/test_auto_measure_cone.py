@@ -91,7 +91,7 @@ def test_the_conical_boss_is_measured_as_the_cone_near_its_nominal(station, tmp_
     from_report = rec.characteristics({**(rec.tolerance or {}), "size": 0.02, "form": 0.02,
                                                 "location": 0.02})
     assert from_report == feature_chars(feature)
-    tree = tree_html(station)
+    tree = tree_html(station.controller.commands)
     html = render(session)
     csv = features_csv(session)
     for c in from_report:
@@ -168,7 +168,7 @@ def test_check_reaches_the_tree_and_the_report_for_the_feature_and_its_gdt(stati
     feature_rows = feature_chars(cone)
     assert {c.verdict for c in feature_rows} == {"check"}
 
-    tree = tree_html(station)
+    tree = tree_html(station.controller.commands)
     model.journal.close()
     session = load_session(DirectoryStore(tmp_path), "cone")
     html = render(session)

@@ -645,3 +645,42 @@ def test_control_is_taken_and_released_through_verbs_and_the_ippdme_listener_gra
         assert control.holder is None
     finally:
         station.controller.policy = OpenPolicy()
+
+
+def test_the_pages_reads_are_queries_open_to_observers_and_documented(station):
+    """What the page shows it reads through queries of the API (never the station's objects): the set-up, the link,
+    whether this client may act (in the core's words), the probe data and the calibration's state; each is open to
+    an observer. The access holder is handed over with the use_policy verb, which takes nothing else. Every query
+    the station registers is in the architecture's table of queries."""
+    import re
+    from pathlib import Path
+
+    api = station.controller.commands
+    control = Control()
+    with pytest.raises(ValueError):
+        api.invoke(None, "use_policy", control="not an access holder")
+    api.invoke(None, "use_policy", control=control)
+    assert api.invoke(None, "control_policy") is control
+    holder, observer = Client("holder", local=True), Client("observer", local=True)
+    assert control.take("holder", is_local=True)
+    try:
+        assert api.invoke(holder, "access", command="move") is None
+        why = api.invoke(observer, "access", command="move")
+        assert why is not None and why == HolderPolicy(control).refusal(observer, "move")
+        with pytest.raises(Refused, match=re.escape(why)):
+            station.controller.check_access(observer, "move")
+        assert api.invoke(observer, "machine_config").speeds == station.config.speeds
+        assert api.invoke(observer, "link_info")["port"] == str(station.port)
+        assert api.invoke(observer, "probe_settings").tip_radius == station.controller.tip_radius
+        data = api.invoke(observer, "probe_data")
+        assert data["tip_radius"] == station.measurement.probe_data()["tip_radius"]
+        assert data["name"] == station.measurement.probe_name
+        calibration = api.invoke(observer, "calibration_state")
+        assert calibration["probing_speed"] == station.calibration.qualified_probing_speed
+        assert calibration["holding"] is False
+        assert api.invoke(observer, "samples") <= api.invoke(observer, "samples")
+    finally:
+        control.release("holder")
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "architecture.md").read_text()
+    named = set(re.findall(r"`([a-z_]+)`", doc))
+    assert sorted(v.name for v in api.queries() if v.name not in named) == []

@@ -38,11 +38,11 @@ def test_coordinate_fields_name_their_frame_and_the_alignment(app):
     assert capp.goto_frame == "Machine" and capp.target_label() == "Target, machine (mm)"
     capp.set_goto_frame("Part")
     assert capp.target_label() == "Target, part (nominal set-up, no alignment made) (mm)"
-    assert "nominal set-up, no alignment made" in status_html(st, "", frame="Part")
-    assert "nominal set-up" not in status_html(st, "", frame="Machine")
+    assert "nominal set-up, no alignment made" in status_html(st.controller.commands, "", frame="Part")
+    assert "nominal set-up" not in status_html(st.controller.commands, "", frame="Machine")
     st.measurement.set_alignment(TRUE_PART_POSE, "3-2-1", names=["TOP", "FRONT", "LEFT"])
     assert capp.target_label() == "Target, part (alignment 3-2-1 TOP/FRONT/LEFT) (mm)"
-    assert "alignment 3-2-1 TOP/FRONT/LEFT" in status_html(st, "", frame="Part")
+    assert "alignment 3-2-1 TOP/FRONT/LEFT" in status_html(st.controller.commands, "", frame="Part")
     assert "alignment 3-2-1 TOP/FRONT/LEFT" in capp.goto_frame_text()
     capp.set_goto_frame("Machine")
     # a pick and the auto-measure plan: machine coordinates, said so

@@ -87,7 +87,7 @@ def test_position_of_the_bore_to_datums_a_b_c(station, tmp_path, capsys):
 
     rows = model.gdt_characteristics()
     assert len(rows) == 6
-    tree = tree_html(station)
+    tree = tree_html(station.controller.commands)
     assert "Geometric tolerances" in tree and f"{c.actual:.4f}" in tree and "A|B|C" in tree
 
     # journalled: the report, the CSV, the JSON and a replay read the same numbers

@@ -211,9 +211,9 @@ def test_a_second_client_is_refused_while_the_first_keeps_the_machine(served):
         assert first.call("IsHomed()").ok
         assert server.status.snapshot()["client"] == server.client
         station.ippdme = server.status  # as cmm serve --ippdme does: the browser's status panel shows the client
-        assert f"I++ DME client {server.client} has control" in machine_markdown(station)
+        assert f"I++ DME client {server.client} has control" in machine_markdown(station.controller.commands)
     wait_until(lambda: server.client is None)
-    assert "no client" in machine_markdown(station)
+    assert "no client" in machine_markdown(station.controller.commands)
 
 
 def test_a_client_that_ends_its_session_and_connects_again_at_once_is_served(served):

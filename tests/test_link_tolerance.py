@@ -243,16 +243,16 @@ def test_the_status_bar_shows_the_link_warning(tmp_path):
         port = bus.port = FaultyTransport(bus.port)  # the same simulator, with a stall to inject
         for _ in range(3):
             station.controller.poll()
-        assert "link warning" not in status_html(station, "", link_rate=100.0)
+        assert "link warning" not in status_html(station.controller.commands, "", link_rate=100.0)
         port.inject(Fault("stall", "rx", duration=0.5))  # a late reply, recovered by a retry: quiet
         for _ in range(3):
             station.controller.poll()
         assert bus.stats["late"] >= 1
-        assert "link warning" not in status_html(station, "", link_rate=100.0)
+        assert "link warning" not in status_html(station.controller.commands, "", link_rate=100.0)
         port.inject(Fault("stall", "rx", duration=3.0))  # seconds of silence: replies lost, the bar says so
         for _ in range(3):
             station.controller.poll()
-        text = status_html(station, "", link_rate=100.0)
+        text = status_html(station.controller.commands, "", link_rate=100.0)
         assert "link warning: " in text and "retrying" in text and "FAULT" not in text, text
     finally:
         station.close()

@@ -88,7 +88,7 @@ def test_a_refused_dmis_run_is_a_toast_and_a_stopped_status_bar(station):
         level, title, body = panel.ctx.messages[-1]
         assert (level, title) == ("error", "DMIS program stopped") and "straight line" in body, panel.ctx.messages
         assert shared.cycle is None and "DMIS program through.dmi stopped: " in shared.run_stopped
-        bar = status_html(station, "", run_stopped=shared.run_stopped)
+        bar = status_html(station.controller.commands, "", run_stopped=shared.run_stopped)
         assert ">STOPPED</span>" in bar and "through.dmi stopped" in bar and ">IDLE</span>" not in bar, bar
         panel.ctx.begin_cycle("DMIS program next.dmi")  # the next run starts: the stop is no longer the news
         assert shared.run_stopped == ""

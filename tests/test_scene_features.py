@@ -92,7 +92,7 @@ def test_features_hide_and_show_per_feature_and_kind_and_the_selection_stands_ou
     assert cn.outline.thickness > pn.outline.thickness and cn.patch.opacity > 0.12  # selected: stronger
     capp.features.show_selected(False)
     assert not cn.visible and pn.visible
-    assert "(hidden)" in tree_html(app.station, circle.id, capp.features.hidden())
+    assert "(hidden)" in tree_html(app.api, circle.id, capp.features.hidden())
     # per kind: planes off, then Show all
     capp.features.show_kind("plane", False)
     assert not pn.visible and not cn.visible
@@ -126,7 +126,7 @@ def test_each_feature_row_has_its_own_show_checkbox(app):
     rows[a.id].value = False  # what unticking it in the page does (viser calls the row's update callback)
     assert not view._feature_nodes[a.id].visible and view._feature_nodes[b.id].visible
     capp.features.refresh()
-    tree = tree_html(app.station, b.id, capp.features.hidden())
+    tree = tree_html(app.api, b.id, capp.features.hidden())
     row_a = next(r for r in tree.split("<tr") if f"data-feature='{a.id}'" in r)
     assert "(hidden)" in row_a and "(hidden)" not in next(r for r in tree.split("<tr") if f"data-feature='{b.id}'" in r)
     # planes hidden as a kind: both are hidden, the rows keep their own choice; planes shown: only A stays hidden

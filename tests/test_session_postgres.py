@@ -148,7 +148,7 @@ def test_a_station_records_through_a_database_restart_and_every_event_arrives_on
             _hit(st, x, 5.0)
         store = open_store(pg_server.url)
         assert store.uploader.wait_uploaded("through outage", 30.0), store.uploader.status_text()
-        assert "database offline" not in status_html(st, "")
+        assert "database offline" not in status_html(st.controller.commands, "")
 
         pg_server.stop("immediate")  # the shop's database dies (no clean shutdown)
         for x in (10.0, 40.0, 85.0, 110.0):
@@ -158,7 +158,7 @@ def test_a_station_records_through_a_database_restart_and_every_event_arrives_on
         end = time.monotonic() + 30.0
         while "database offline" not in journal.upload_status() and time.monotonic() < end:
             time.sleep(0.05)  # the uploader has to try and fail first
-        text = status_html(st, "")
+        text = status_html(st.controller.commands, "")
         m = re.search(r"database offline, (\d+) events waiting", text)
         assert m and int(m.group(1)) >= 5, text  # 4 hits and the note at least
         assert "psycopg" not in text and "Traceback" not in text
@@ -170,7 +170,7 @@ def test_a_station_records_through_a_database_restart_and_every_event_arrives_on
 
         assert pg_server.start() == ""  # back, same port and data
         assert store.uploader.wait_uploaded(None, 60.0), store.uploader.status_text()
-        assert "database offline" not in status_html(st, "")
+        assert "database offline" not in status_html(st.controller.commands, "")
     finally:
         st.close()
     rows = _db_events(pg_server.url, "through outage")

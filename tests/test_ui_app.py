@@ -299,13 +299,13 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     from cmm.ui.panel_status import status_html
 
     st = app.station
-    text = status_html(st, operator.ctx.control_text(), frame="Machine", link_rate=100.0)
+    text = status_html(st.controller.commands, operator.ctx.control_text(), frame="Machine", link_rate=100.0)
     x, y, z = st.machine.state.position
     mode = str(st.controller.state.mode.value).upper()  # idle, or stopped after the previous test's STOP
     assert f">{mode}</span>" in text and f"X {x:.4f}" in text and "link <span class=''>ok" in text
-    assert "SILENT" in status_html(st, "", link_rate=0.0)
+    assert "SILENT" in status_html(st.controller.commands, "", link_rate=0.0)
     assert "probe Probe1 <span" in text  # no calibration folder given: the list's first probe, named
-    part = status_html(st, "", frame="Part")
+    part = status_html(st.controller.commands, "", frame="Part")
     assert "no alignment made" in part
     above = _above_part(st)
     assert operator.pick(above, [0, 0, -1]) is not None
@@ -315,7 +315,7 @@ def test_status_bar_auto_measure_and_feature_tree(app, operator, unpaced):
     assert operator.measure.run(name="top face", wait=True), operator.messages[-2:]
     feature = operator.measure.feature
     assert feature.name == "top face" and len(feature.hit_ids) == 3 and feature.nominal.kind == "plane"
-    tree = tree_html(st, feature.id)
+    tree = tree_html(st.controller.commands, feature.id)
     assert "▶" in tree and "top face" in tree and "flatness" in tree and ">pass<" in tree
     with pytest.raises(Exception, match="no diameter"):
         typed_nominal(feature, diameter=10.0)

@@ -64,14 +64,14 @@ def test_face_names_and_running_status_between_moves(app):
     wait_idle(st, 10)
     assert st.controller.state.mode.value == "idle"
     # between two hits of a cycle the machine is idle: the bar still says the cycle runs
-    running = status_html(st, "", cycle="auto-measure of TOP")
+    running = status_html(st.controller.commands, "", cycle="auto-measure of TOP")
     assert ">RUNNING</span>" in running and "auto-measure of TOP" in running
-    assert ">IDLE</span>" in status_html(st, "")
-    paused = status_html(st, "", cycle="routine block on part 2", cycle_paused=True)  # a routine paused between hits
+    assert ">IDLE</span>" in status_html(st.controller.commands, "")
+    paused = status_html(st.controller.commands, "", cycle="routine block on part 2", cycle_paused=True)  # a routine paused between hits
     assert ">PAUSED</span>" in paused and "routine block on part 2: Resume goes on" in paused
     # the reason has a line of its own in every state (a blank one when idle), kept to one line while the machine
     # runs: the block's height does not change as a move starts or ends
-    assert "<div class='reason' title=''>&nbsp;</div>" in status_html(st, "")
+    assert "<div class='reason' title=''>&nbsp;</div>" in status_html(st.controller.commands, "")
     assert "<div class='reason warn one' title='auto-measure of TOP'>auto-measure of TOP</div>" in running
     assert "class='reason warn' " in paused  # standing: wrapped, read in full
 
@@ -81,10 +81,10 @@ def test_a_paused_run_is_not_called_silent(app):
     loop, so no samples come). Paused: the link is ok, not sampling; a link without samples otherwise is SILENT."""
     st = app.station
     wait_idle(st, 10)
-    paused = status_html(st, "", link_rate=0.0, cycle="routine block on part 2", cycle_paused=True)
+    paused = status_html(st.controller.commands, "", link_rate=0.0, cycle="routine block on part 2", cycle_paused=True)
     assert ">PAUSED</span>" in paused and "SILENT" not in paused and "ok (paused: not sampling)" in paused, paused
-    assert "SILENT: no samples" in status_html(st, "", link_rate=0.0)  # idle and no samples: that is silent
-    assert "SILENT" not in status_html(st, "", link_rate=100.0)
+    assert "SILENT: no samples" in status_html(st.controller.commands, "", link_rate=0.0)  # idle and no samples: that is silent
+    assert "SILENT" not in status_html(st.controller.commands, "", link_rate=100.0)
 
 
 def test_auto_measure_names_the_pick_keeps_the_typed_name_and_runs_as_one_cycle(app):

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import pytest
 import session_support as ss
 from test_report_numbers import T, fit_surfaces
@@ -15,6 +13,7 @@ from cmm.measurement.model import Part
 from cmm.measurement.recording import record
 from cmm.metrology.compensation import PretravelModel
 from cmm.journal.store import DirectoryStore, load_session
+from cmm.measurement.queries import register_queries
 from cmm.measurement.verbs import register_measurement_verbs
 from cmm.ui.context import PanelContext
 from cmm.ui.panel_features import FeaturesPanel, tree_html
@@ -34,8 +33,8 @@ def panel(tmp_path):
     controller = Controller(machine, prober)  # the tab's actions are the command API's verbs, checked by the holder
     controller.use_policy_of(control)
     register_measurement_verbs(controller, model)
-    ctx = PanelContext(SimpleNamespace(measurement=model, controller=controller), control, None,
-                       client_id="operator", is_local=True)
+    register_queries(controller.commands, model)  # the tab reads the model through the API's queries
+    ctx = PanelContext(controller.commands, control, None, client_id="operator", is_local=True)
     yield FeaturesPanel(ctx), model, store
     model.close()
     machine.close()
@@ -62,7 +61,7 @@ def test_targets_common_datum_and_composite_from_the_tab(panel):
     assert d["pattern"] == [fid["bore"], fid["boss"]] and d["composite"] == {"tolerance": 0.05, "datums": ["A"]}
     rows = [r for dd, r in model.gdt_characteristics() if dd["id"] == d["id"]]
     assert [r.feature for r in rows] == ["bore", "boss", "pattern of 2"] and rows[0] == c
-    tree = tree_html(p.station)
+    tree = tree_html(p.ctx.query)
     assert f"{d['id']} pattern of 2" in tree and f"{rows[2].actual:.4f}" in tree
     # refused in words, nothing recorded: two targets on the primary, a composite with a larger lower tier
     n_defs = len(model.gdt)

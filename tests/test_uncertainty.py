@@ -117,6 +117,6 @@ ENDFIL
         from cmm.ui.panel_features import tree_html
 
         assert "<th>U (95 %)</th>" in render(session) and f"<td class='muted'>{U:.4f}</td>" in render(session)
-        assert f"±{U:.4f}" in tree_html(station)
+        assert f"±{U:.4f}" in tree_html(station.controller.commands)
     finally:
         gen.close()

@@ -2,7 +2,7 @@
 routine (its result returned, nothing applied), ``save_calibration``, ``accept_gains`` and ``select_probe``
 change the live machine through the ``configure`` verb and are the calibrating holder's, as are ``add_probe``,
 ``set_sphere_certificate`` and ``bar_placed`` (the page's entries and the operator's answer to a set-up); the ``probes``
-query reads the probe list.
+query reads the probe list, and ``calibration_state`` is what the status bar and the jog show of it.
 
 The composition root (:mod:`cmm.station`) calls :func:`register_calibration_verbs` with the API, the control
 core's access check and the :class:`~cmm.calibration.service.CalibrationService` it built."""
@@ -80,6 +80,13 @@ def register_calibration_verbs(cmds: Any, check_access: Callable[[Any, str], Non
     cmds.register("bar_placed", calibrating(lambda client: calibration.bar_placed()), {},
                   "the operator clamped the ball bar for the set-up the geometry routine shows: it goes on; false "
                   "when no set-up waits")
+
+    cmds.register("calibration_state", lambda client: {
+                      "holding": bool(calibration.holding), "probe": calibration.status.get("probe"),
+                      "probing_speed": float(calibration.qualified_probing_speed)}, {},
+                  "the calibration as the status bar shows it: holding (a paused qualification holds the machine "
+                  "between two points), the probe qualification in force (None: not qualified) and the qualified "
+                  "probing speed (mm/s) manual hits are taken at", query=True)
 
 
 def _probe_row(probe: Any) -> dict[str, Any]:

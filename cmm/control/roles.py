@@ -44,7 +44,7 @@ GROUPS: dict[str, frozenset[str]] = {
         "reevaluate_session", "add_probe", "set_sphere_certificate", "bar_placed"}),
     "program": frozenset({"set_nominal", "define_datum", "define_gdt", "delete_gdt", "record_event"}),
     "calibrate": frozenset({"qualify", "save_calibration", "accept_gains", "zero", "configure"}),
-    "administer": frozenset({"users", "add_user", "remove_user", "set_password", "new_token", "revoke_token"}),
+    "administer": frozenset({"use_policy", "users", "add_user", "remove_user", "set_password", "new_token", "revoke_token"}),
 }
 MAY: dict[str, tuple[str, ...]] = {  # role -> its groups
     "operator": ("operate",),

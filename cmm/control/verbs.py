@@ -19,6 +19,7 @@ from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError
 from . import access
 from .modes import ControlError, Refused
+from .queries import register_control_queries
 from .rails import RailError
 
 
@@ -145,6 +146,7 @@ def register_machine_verbs(api: CommandAPI, c: Any) -> None:
                        (LimitError, "limit"), (SurfaceNotFound, "not_found"), (Cancelled, "cancelled"),
                        (ControlError, "fault"), (MotionError, _motion_code)):
         api.register_error(kind, code)
+    register_control_queries(api, c)  # the set-up, the link, access, and the in-process clock and events
 
 
 def _motion_code(exc: BaseException) -> str:

@@ -21,6 +21,12 @@ class ModelSnapshot:
     constructed: dict[int, Any] = field(default_factory=dict)
     part: Any = None
     last_hit: Any = None
+    aligned: bool = False  # the pose in force came from an alignment
+    alignment_name: str = ""  # that alignment as the operator knows it ("3-2-1 TOP/FRONT/LEFT")
+    datums: dict[str, Any] = field(default_factory=dict)  # datum definitions by label
+    info: dict[str, Any] = field(default_factory=dict)  # the report header
+    probe_name: str = ""  # the probe in use
+    state: Any = None  # the session's fold (a new part of a series starts another): identity only, never changed
 
     def hit_or_deleted(self) -> dict[int, Any]:
         """Every hit by id, the deleted ones too (a feature's hits that were deleted after its fit)."""
@@ -37,12 +43,35 @@ def snapshot(measurement: Any) -> ModelSnapshot:
     reader outside the model)."""
     with measurement.lock:
         return ModelSnapshot(dict(measurement.hits), dict(measurement.deleted), dict(measurement.features),
-                             dict(measurement.constructed), measurement.part, measurement.last_hit)
+                             dict(measurement.constructed), measurement.part, measurement.last_hit,
+                             bool(measurement.aligned), str(measurement.alignment_name or ""),
+                             dict(measurement.datums), dict(measurement.info), str(measurement.probe_name or ""),
+                             measurement.state)
+
+
+class ModelQueries:
+    """The measurement's queries on a bare model, without a control core (the pure renderers' tests, scripts):
+    ``invoke(client, name, **params)`` as the command API's."""
+
+    REQUIRED = object()
+
+    def __init__(self, measurement: Any, calibration: Any = None) -> None:
+        self._queries: dict[str, Any] = {}
+        register_queries(self, measurement, calibration)
+
+    def register(self, name: str, fn: Any, params: dict[str, Any], doc: str, *, query: bool = False,
+                 motion: bool = False) -> None:
+        self._queries[name] = fn
+
+    def invoke(self, client: Any, name: str, /, **params: Any) -> Any:
+        return self._queries[name](client, **params)
 
 
 def register_queries(api: Any, measurement: Any, calibration: Any = None) -> None:
     """``part``: the part loaded; ``probe_in_use``: the probe in use; ``characteristics``: the session's toleranced
-    characteristics; ``report_info``: the report header."""
+    characteristics; ``report_info``: the report header; ``model``: the model now; what the page computes from it
+    without changing it (deviations, the pick, a proposed plan, an alignment previewed); in process, the model's
+    events."""
 
     def probe(client: Any) -> dict[str, Any]:
         row: dict[str, Any] = {}
@@ -81,6 +110,13 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                  "None without a part; else its name, pose (4x4 part -> machine, where the station believes it lies), "
                  "description (a CAD part's faces, or the mesh's triangles) and the file it was loaded from (path)",
                  query=True)
+    api.register("part_frame", lambda client: ModelSnapshot(
+                     part=measurement.part, aligned=bool(measurement.aligned),
+                     alignment_name=str(measurement.alignment_name or ""), probe_name=str(measurement.probe_name or ""),
+                     state=measurement.state), {},
+                 "in process: the part, the alignment in force and the probe in use (a ModelSnapshot without the "
+                 "hits, the features and the lock): what the DRO, the frame labels and the pick show at their rate",
+                 query=True)
     api.register("model", lambda client: snapshot(measurement), {},
                  "in process: the measurement model at this moment (hits, deleted hits, features, constructions, "
                  "the part, the last hit), copied under the model's lock; front ends draw from it", query=True)
@@ -91,3 +127,65 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                  "nominal, lower and upper limits, unit and ok (None: no limit)", query=True)
     api.register("report_info", lambda client: dict(measurement.info), {},
                  "the report header (part number, drawing, operator, machine name, temperature, remarks)", query=True)
+    register_model_reads(api, measurement)
+
+
+def register_model_reads(api: Any, measurement: Any) -> None:
+    """The reads the page makes of the model besides its snapshot: each computes from the model, changes nothing."""
+    from . import alignment
+    from .align_wizard import AlignWizard
+    from .plan import plan_at_pick
+
+    REQUIRED = api.REQUIRED  # noqa: N806 - the API's marker of a parameter that must be given
+
+    def upload_status(client: Any) -> str:
+        upload = getattr(measurement.journal, "upload_status", None)
+        return upload() if callable(upload) else ""
+
+    def align_preview(client: Any, primary: int | None = None, secondary: int | None = None,
+                      tertiary: int | None = None, hits: list[int] | None = None) -> Any:
+        if hits is not None:
+            return alignment.best_fit_hits(measurement, [int(h) for h in hits])
+        if None in (primary, secondary, tertiary):
+            raise ValueError("an alignment needs three features (primary, secondary, tertiary) or hits")
+        return alignment.align_features(measurement, int(primary), int(secondary), int(tertiary))
+
+    def wizard(client: Any, kind: str, invoke: Any, on_change: Any = None, elements: Any = None) -> Any:
+        return AlignWizard(measurement, invoke, kind, on_change=on_change, elements=elements)
+
+    api.register("hit_deviations", lambda client: measurement.hit_deviations(), {},
+                 "hit id -> its signed deviation from the part's surface (mm, + = material outside the nominal)",
+                 query=True)
+    api.register("probe_data", lambda client: {**measurement.probe_data(), "name": measurement.probe_name}, {},
+                 "the probe data the next hit uses, as each hit journals it: tip radius, pre-travel model, the date "
+                 "of the qualification they came from; and the probe's name", query=True)
+    api.register("above_point", lambda client, point, normal, clearance=None: measurement.above_point(
+                     point, normal, clearance), {"point": REQUIRED, "normal": REQUIRED, "clearance": None},
+                 "the tip position clearance mm (default: approach distance + tip radius) out from a surface point "
+                 "along its normal (machine mm)", query=True)
+    api.register("clearance_z", lambda client, margin=10.0: measurement.clearance_z(margin), {"margin": 10.0},
+                 "a machine Z that clears the part (its top + margin), or the present height without a part",
+                 query=True)
+    api.register("pick", lambda client, origin, direction: measurement.pick_region(origin, direction),
+                 {"origin": REQUIRED, "direction": REQUIRED},
+                 "in process: a ray pick on the part (machine mm): the point hit and the feature suggested for its "
+                 "surface with its faces, or None for a miss", query=True)
+    api.register("plan_at_pick", lambda client, face, n=None: plan_at_pick(measurement, int(face), n=n),
+                 {"face": REQUIRED, "n": None},
+                 "in process: the measurement proposed for the part's face (feature, hits, paths): what auto_measure "
+                 "would run", query=True)
+    api.register("align_preview", align_preview, {"primary": None, "secondary": None, "tertiary": None, "hits": None},
+                 "in process: an alignment computed (3-2-1 from three features, or a best fit of hits), not applied: "
+                 "the align verb applies it", query=True)
+    api.register("gdt_characteristics", lambda client: measurement.gdt_characteristics(), {},
+                 "in process: (definition, characteristic) of every geometric tolerance, evaluated as the report "
+                 "does", query=True)
+    api.register("upload_status", upload_status, {},
+                 "the shop database's words when it is offline (\"database offline, N events waiting\"), else empty",
+                 query=True)
+    api.register("watch_model", lambda client, on_event: measurement.subscribe(on_event), {"on_event": REQUIRED},
+                 "in process: on_event(kind, info) for every change of the model ('hit', 'hits', 'feature', "
+                 "'features', 'part', 'info') and every machine event it passes on", query=True)
+    api.register("align_wizard", wizard, {"kind": REQUIRED, "invoke": REQUIRED, "on_change": None, "elements": None},
+                 "in process: a prompted alignment of kind on the model's part (cmm.measurement.align_wizard); it "
+                 "counts the model's hits and sends its verbs through invoke(verb, **params)", query=True)

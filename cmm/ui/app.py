@@ -1,10 +1,12 @@
-"""The viser application: one shared scene, one GUI per client, all actions through the Station.
+"""The viser application: one shared scene, one GUI per client, everything through the command API.
 
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
 tab, and runs two light threads: the probe updater (the probe node at most 25 times a second, the
-following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Who may move the machine is decided by the access
-:class:`~cmm.control.access.Control`, shared with the pendant page.
+following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). It reads the
+station only through the command API's queries (the model's events too: the ``watch_model`` query) and changes it
+only through its verbs. Who may move the machine is decided by the access
+:class:`~cmm.control.access.Control`, shared with the pendant page (the ``use_policy`` verb).
 """
 
 from __future__ import annotations
@@ -30,13 +32,20 @@ log = logging.getLogger(__name__)
 
 
 class StationApp:
-    def __init__(self, station: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
+    """The page of the station behind ``api`` (the command API, :class:`cmm.control.api.CommandAPI`)."""
+
+    def __init__(self, api: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
                  tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False,
                  allow_hosts: tuple[str, ...] = (), ask_name: bool = True, shadows: bool = True,
-                 users: Any = None, tls: Any = None) -> None:
+                 users: Any = None, tls: Any = None, station: Any = None) -> None:
         import viser
 
+        if not hasattr(api, "invoke"):  # transitional: a station handed in (the tests and benchmarks building one)
+            station, api = api, api.controller.commands
+        self.api = api
+        # transitional: the station, for the panels that still reach it (operator, diagnostics, sessions, ...);
+        # goes once they read through the API's queries
         self.station = station
         self.ask_name = ask_name  # each new tab opens with the "Who is operating?" dialog
         self.users = users  # cmm.control.users.UserStore: each tab logs in (the start dialog); None: no login
@@ -45,7 +54,7 @@ class StationApp:
         self.control = control or Control(lan=lan)
         if self.control.on_holder_lost is None:  # a holder that goes away must not leave its jog running
             self.control.on_holder_lost = lambda _cid: self._holder_lost()
-        station.controller.use_policy_of(self.control)  # machine commands are checked there, once
+        api.invoke(None, "use_policy", control=self.control)  # machine commands are checked there, once
         self.origins = OriginPolicy(lan=lan or not is_loopback_host(host), allow_hosts=allow_hosts)
         self.behind_tls_proxy = False  # cmm serve --tls: the page on loopback, its clients' addresses forwarded
         self.server = viser.ViserServer(host=host, port=port, label="CMM station", verbose=verbose)
@@ -68,7 +77,7 @@ class StationApp:
         self._redraw_lock = threading.Lock()
         self.shared = SimpleNamespace(calibration_job=None, cycle=None, cycle_paused=False, run_stopped="")  # state every tab's panels share
         # (a running calibration; the cycle running, e.g. an auto-measure, that the status bars show as RUNNING)
-        self.view = SceneView(self.server.scene, station, tolerance=tolerance,
+        self.view = SceneView(self.server.scene, api, tolerance=tolerance,
                               on_feature_click=self._feature_clicked)
         self.view.build()
         self.view.frame_camera(self.server.initial_camera)
@@ -76,11 +85,11 @@ class StationApp:
         self.pendant_url: str | None = None
         if pendant:
             self._start_pendant(pendant_port if pendant_port is not None else (port + 1 if port else 0))
-        station.measurement.subscribe(self._on_station_event)
+        api.invoke(None, "watch_model", on_event=self._on_model_event)
         self.server.scene.on_click()(self._scene_clicked)
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
-        self.updater = ProbeUpdater(station, self.view, extra=self._sample_plot).start()
+        self.updater = ProbeUpdater(api, self.view, extra=self._sample_plot).start()
         self._stop = threading.Event()
         self.refresh_errors = 0  # refreshes that failed (each distinct failure is logged once)
         self._refresh_failures: set[tuple[str, str, str]] = set()
@@ -101,7 +110,7 @@ class StationApp:
             return
         for p in dict.fromkeys((port, 0)):
             try:
-                self.pendant = start_pendant_server(self.station, self.control, self.host, p, origins=self.origins,
+                self.pendant = start_pendant_server(self.api, self.control, self.host, p, origins=self.origins,
                                                     ssl=None if self.tls is None else self.tls.ssl_context(),
                                                     users=self.users)
                 self.pendant_url = self.pendant.url
@@ -121,7 +130,7 @@ class StationApp:
 
     def _holder_lost(self) -> None:
         try:
-            self.station.controller.commands.invoke(None, "jog_release")  # the station's own release
+            self.api.invoke(None, "jog_release")  # the station's own release
         except Exception:  # noqa: BLE001 - nothing was jogging
             pass
 
@@ -206,7 +215,7 @@ class StationApp:
                 if token and self.pendant is not None:
                     self.pendant.revoke(token)
             capp.jog_release()
-            self.station.controller.commands.invoke(capp.ctx.who(), "release_control")  # a holder gone gives it up
+            self.api.invoke(capp.ctx.who(), "release_control")  # a holder gone gives it up
 
     def _scene_clicked(self, event: Any) -> None:
         capp = self.clients.get(event.client_id)
@@ -219,14 +228,14 @@ class StationApp:
             capp.select_feature(fid)
 
     def link_info(self) -> str:
-        st, link = self.station, self.station.controller.link_info()
+        link = self.api.invoke(None, "link_info")
         mods = ", ".join(f"{a} (type {t}, v{v})" for a, t, v in link["modules"]) or "-"  # found at start-up
-        kind = "simulator over TCP" if st.controller.commands.invoke(None, "simulator") is not None else "serial"
-        return (f"port `{st.port}` ({kind}) · {link['baud']} baud · firmware {link['firmware']}\n\nmodules: {mods}")
+        kind = "simulator over TCP" if self.api.invoke(None, "simulator") is not None else "serial"
+        return (f"port `{link['port']}` ({kind}) · {link['baud']} baud · firmware {link['firmware']}\n\nmodules: {mods}")
 
-    # --- station state -------------------------------------------------------------------
+    # --- the model's and the machine's events ---------------------------------------------------
 
-    def _on_station_event(self, kind: str, info: Any) -> None:
+    def _on_model_event(self, kind: str, info: Any) -> None:
         # runs in the machine's thread: only mark what to redraw
         if kind in ("hit", "hits"):
             self._dirty["hits"] = True
@@ -261,7 +270,7 @@ class StationApp:
         return data[:, 0], (data[:, 1], data[:, 2], data[:, 3])
 
     def redraw(self) -> None:
-        """Redraw whatever station events marked dirty (refresher thread; tests may call it)."""
+        """Redraw whatever the model's events marked dirty (refresher thread; tests may call it)."""
         with self._redraw_lock:  # a second caller waits for a redraw in progress instead of seeing stale data
             self._redraw()
 
@@ -273,7 +282,7 @@ class StationApp:
         if self._dirty["hits"]:
             self._dirty["hits"] = False
             try:
-                self._deviations = self.station.measurement.hit_deviations()
+                self._deviations = self.api.invoke(None, "hit_deviations")
             except Exception:  # noqa: BLE001
                 self._deviations = {}
             self.view.draw_hits(self._deviations)

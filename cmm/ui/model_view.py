@@ -1,23 +1,32 @@
-"""The measurement model as the page reads it: a snapshot through the command API's ``model`` query
-(:func:`cmm.measurement.queries.snapshot`), never the model's lock held by the page.
+"""How the page reads: queries of the command API (:mod:`cmm.control.api`), never the station's objects.
 
-The page draws hits, features and constructions from one :class:`~cmm.measurement.queries.ModelSnapshot` per
-refresh; what it changes it changes with the API's verbs (:meth:`cmm.ui.context.PanelContext.do`)."""
+One call form for reads, ``query(name, **params)``: a tab's :meth:`cmm.ui.context.PanelContext.query`, or
+:func:`reader` of the command API itself (the shared 3-D view, the pure renderers, their tests; a bare model
+without a control core is read through :class:`cmm.measurement.queries.ModelQueries`). The measurement model is
+one :class:`~cmm.measurement.queries.ModelSnapshot` per refresh (the ``model`` query, copied under the model's
+lock by the model's side), never the model's lock held by the page; what the page changes it changes with the
+API's verbs (:meth:`cmm.ui.context.PanelContext.do`)."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
-from ..measurement.queries import ModelSnapshot, snapshot
+from ..measurement.queries import ModelSnapshot
 
-
-def model_of(station: Any, client: Any = None) -> ModelSnapshot:
-    """The ``model`` query of the station's command API as ``client`` (a query: open to every client); a bare
-    model without a control core (the pure renderers' tests) is copied the same way."""
-    api = getattr(getattr(station, "controller", None), "commands", None)
-    if api is not None and any(v.name == "model" for v in api.queries()):
-        return api.invoke(client, "model")
-    return snapshot(station.measurement)
+Query = Callable[..., Any]  # query(name, **params) -> the query's result
 
 
-__all__ = ["ModelSnapshot", "model_of"]
+def reader(source: Any) -> Query:
+    """``query(name, **params)`` of ``source``: a query function as it is, or anything with the command API's
+    ``invoke`` (asked as the station's own client: queries are open to every client)."""
+    if callable(source) and not hasattr(source, "invoke"):
+        return source
+    return lambda name, /, **params: source.invoke(None, name, **params)
+
+
+def model_of(source: Any) -> ModelSnapshot:
+    """The ``model`` query of ``source`` (see :func:`reader`)."""
+    return reader(source)("model")
+
+
+__all__ = ["ModelSnapshot", "Query", "model_of", "reader"]

@@ -37,7 +37,6 @@ MARKER_MM = 2.0  # the markers' radius on the part (mm)
 class AlignPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.result: alignment.AlignmentResult | None = None
         self.datums: dict[str, Any] = {}  # what the result was computed from: Apply sends it as the align verb
@@ -57,7 +56,8 @@ class AlignPanel:
         if self.wizard is not None:
             self.wizard.close()
         try:
-            self.wizard = AlignWizard(self.station.measurement, self._verb, kind, on_change=lambda _w: self.show_wizard())
+            self.wizard = self.ctx.query("align_wizard", kind=kind, invoke=self._verb,
+                                         on_change=lambda _w: self.show_wizard())
         except (WizardError, AlignmentError) as exc:
             self.wizard = None
             self.ctx.error(exc, "Alignment")
@@ -71,8 +71,9 @@ class AlignPanel:
         aligns): shown in this tab while the routine waits for the hits."""
         if self.wizard is not None:
             self.wizard.close()
-        self.wizard = AlignWizard(self.station.measurement, self._verb, f"routine {routine.name}",
-                                  on_change=lambda _w: self.show_wizard(), elements=routine_elements(routine, datums))
+        self.wizard = self.ctx.query("align_wizard", kind=f"routine {routine.name}", invoke=self._verb,
+                                     on_change=lambda _w: self.show_wizard(),
+                                     elements=routine_elements(routine, datums))
         self.wizard.listen()
         self.show_wizard()
         self.ctx.notify("Manual alignment", f"routine {routine.name}: take the hits the Align tab marks")
@@ -153,7 +154,7 @@ class AlignPanel:
 
     def compute_321(self, primary: int, secondary: int, tertiary: int) -> Any:
         try:
-            self.result = alignment.align_features(self.station.measurement, primary, secondary, tertiary)
+            self.result = self.ctx.query("align_preview", primary=primary, secondary=secondary, tertiary=tertiary)
             self.datums = {"primary": primary, "secondary": secondary, "tertiary": tertiary}
         except (AlignmentError, ValueError, KeyError) as exc:
             self.result = None
@@ -165,8 +166,8 @@ class AlignPanel:
         from .ids import parse_ids
 
         try:
-            ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.station.measurement.hits)
-            self.result = alignment.best_fit_hits(self.station.measurement, ids)
+            ids = parse_ids(ids_text) if ids_text.strip() else sorted(self.ctx.model().hits)
+            self.result = self.ctx.query("align_preview", hits=ids)
             self.datums = {"hits": ids}
         except (AlignmentError, ValueError) as exc:
             self.result = None
@@ -189,9 +190,9 @@ class AlignPanel:
 
     def text(self) -> str:
         if self.result is None:
-            part = self.station.measurement.part
-            return "*no alignment computed*" if part is None else "*no alignment computed*"
-        return self.result.text(None if self.station.measurement.part is None else self.station.measurement.part.pose)
+            return "*no alignment computed*"
+        part = self.ctx.query("part_frame").part
+        return self.result.text(None if part is None else part.pose)
 
     def _show(self) -> None:
         self.ctx.set("align:result", "content", self.text(), self.gui.get("result"))

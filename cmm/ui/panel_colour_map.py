@@ -30,7 +30,6 @@ def legend_html(scale: ColourScale) -> str:
 class ColourMapPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
 
     @property
@@ -41,7 +40,7 @@ class ColourMapPanel:
 
     def show(self, on: bool) -> Any:
         """Turn the map on or off; returns the map drawn (None when off or without a part)."""
-        if on and self.station.measurement.part is None:
+        if on and self.ctx.query("part_frame").part is None:
             self.ctx.error("load a part first: the map is painted on its mesh", "Colour map")
         dmap = self.view.show_colour_map(on, self.ctx.deviations() or None)
         if on and self.view.map_error:
@@ -68,7 +67,8 @@ class ColourMapPanel:
         v = self.view
         if not v.map_on:
             return "*The map is off: the hits alone are coloured.*"
-        if self.station.measurement.part is None:
+        model = self.ctx.model()
+        if model.part is None:
             return "*No part loaded.*"
         if v.map_error:
             return v.map_error
@@ -77,7 +77,7 @@ class ColourMapPanel:
             return "*drawing ...*"
         text = (f"{m.hits_used} hit{'s' if m.hits_used != 1 else ''} paint "
                 f"{m.coverage * 100:.0f} % of the surface ({len(m.mesh.faces)} faces); the rest is grey.")
-        left_out = len(self.station.measurement.hits) - m.hits_used
+        left_out = len(model.hits) - m.hits_used
         if left_out > 0:
             text += (f" {left_out} hit{'s' if left_out != 1 else ''} deviating more than "
                      f"±{m.scale.max_distance:g} mm (another surface, or the part not aligned?) take no part.")

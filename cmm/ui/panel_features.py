@@ -36,7 +36,7 @@ from ..metrology.actuals import actuals, actuals_text, model_frame
 from ..measurement.errors import FEATURE_KINDS, MeasurementError
 from .context import PanelContext
 from .ids import parse_ids, parse_targets
-from .model_view import model_of
+from .model_view import reader
 
 RESULT_COLOURS = {True: "#2e7d32", False: "#c62828", None: "#8d6e00"}
 RESULT_WORDS = {True: "pass", False: "FAIL", None: "no nominal"}
@@ -48,13 +48,15 @@ def feature_chars(f: Any) -> list[Any]:
     return f.record().characteristics()
 
 
-def tree_html(station: Any, selected: int | None = None, hidden: Any = (), machine: bool = False) -> str:
-    """The feature tree (pure: tested without a browser); features in ``hidden`` are marked so. Under each
-    feature its actual X, Y, Z (D, axis, angle) in the alignment's frame, named at the top (``machine``: in
-    machine coordinates)."""
+def tree_html(source: Any, selected: int | None = None, hidden: Any = (), machine: bool = False) -> str:
+    """The feature tree (pure: drawn from the queries of ``source``, a query function or the command API, see
+    :func:`cmm.ui.model_view.reader`, so it is tested without a browser); features in ``hidden`` are marked so.
+    Under each feature its actual X, Y, Z (D, axis, angle) in the alignment's frame, named at the top
+    (``machine``: in machine coordinates)."""
     e = html.escape
-    frame = model_frame(station.measurement, machine)
-    view = model_of(station)
+    query = reader(source)
+    view = query("model")
+    frame = model_frame(view, machine)
     feats, built = sorted(view.features.items()), sorted(view.constructed.items())
     if not feats and not built:
         return "<p style='color:#777'>No features yet: take hits, then Fit (or Auto-measure a face).</p>"
@@ -71,10 +73,10 @@ def tree_html(station: Any, selected: int | None = None, hidden: Any = (), machi
     for fid, c in built:
         summary = c.result.summary()
         where[fid] = actuals_text(actuals(str(summary.get("kind", "")), summary, frame))
-    gdt_rows = station.measurement.gdt_characteristics()
-    if gdt_rows or station.measurement.datums:
+    gdt_rows = query("gdt_characteristics")
+    if gdt_rows or view.datums:
         datums = ", ".join(f"{k}{ {'MMB': '(M)', 'LMB': '(L)'}.get(d.get('modifier') or '', '')} = feature {d['feature']}"
-                           for k, d in sorted(station.measurement.datums.items()))
+                           for k, d in sorted(view.datums.items()))
         items.append((None, "Geometric tolerances", f"datums: {datums or 'none'}",
                       [replace(c, feature=f"{d.get('id')} {c.feature}") for d, c in gdt_rows]))
     for fid, name, what, chars in items:
@@ -215,7 +217,6 @@ def _fmt(v: Any) -> str:
 class FeaturesPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.retake: tuple[int, int, int] | None = None  # (feature, hit to replace, newest hit id when armed)
         self._nominal_shown: Any = None  # the feature (and its nominal) the nominal fields were filled from
@@ -248,7 +249,8 @@ class FeaturesPanel:
 
     def feature_markdown(self) -> str:
         fid = self.ctx.selected_feature
-        feature = self.station.measurement.features.get(fid) if fid is not None else None
+        model = self.ctx.model()
+        feature = model.features.get(fid) if fid is not None else None
         if feature is None:
             return "*no feature selected*"
         s = feature.result.summary()
@@ -262,7 +264,7 @@ class FeaturesPanel:
         if s.get("proof"):
             lines.append(f"\n{proof_text(s['proof'])}")
         lines.extend(f"\n**warning:** {w}" for w in s.get("warnings", []))
-        frame = model_frame(self.station.measurement, self.machine)
+        frame = model_frame(model, self.machine)
         lines.append(f"\nactual in {frame.label}: **{actuals_text(actuals(feature.kind, feature.result.geometry(), frame))}**")
         if self.machine:
             lines.append("\ngeometry (machine coordinates, mm):")
@@ -277,7 +279,7 @@ class FeaturesPanel:
 
     def selected(self) -> Any:
         fid = self.ctx.selected_feature
-        return None if fid is None else self.station.measurement.features.get(fid)
+        return None if fid is None else self.ctx.model().features.get(fid)
 
     def remove_hit(self, hid: int) -> Any:
         f = self.selected()
@@ -293,7 +295,7 @@ class FeaturesPanel:
             return self.ctx.error(f"pick a hit of the selected feature to re-take", "Re-take")
         if not self.ctx.allowed("Re-take"):
             return
-        self.retake = (f.id, hid, max(self.station.measurement.hits, default=0))
+        self.retake = (f.id, hid, max(self.ctx.model().hits, default=0))
         self.ctx.notify("Re-take", f"take the new hit for hit {hid} of {f.name} (Probe here, jog or auto)")
 
     def _check_retake(self) -> None:
@@ -464,7 +466,7 @@ class FeaturesPanel:
 
     def detail_markdown(self) -> str:
         fid = self.ctx.selected_feature
-        c = self.station.measurement.constructed.get(fid) if fid is not None else None
+        c = self.ctx.model().constructed.get(fid) if fid is not None else None
         if c is None:
             return self.feature_markdown()
         r = c.result.summary()
@@ -482,7 +484,7 @@ class FeaturesPanel:
         g["machine"] = gui.add_checkbox("Machine coordinates", False,
                                         hint="actuals in machine coordinates instead of the alignment's frame")
         g["machine"].on_update(lambda e: setattr(self, "machine", bool(e.target.value)))
-        g["tree"] = gui.add_html(tree_html(self.station))
+        g["tree"] = gui.add_html(tree_html(self.ctx.query))
         g["features"] = gui.add_dropdown("Feature", ("-",), initial_value="-")
         g["features"].on_update(lambda e: self._chosen(e.target.value))
         g["hits"] = gui.add_html("")
@@ -559,7 +561,7 @@ class FeaturesPanel:
             gid = gui.add_number("Tolerance id", 1, min=1, step=1)
             gui.add_button("Delete tolerance").on_click(lambda _: self.delete_gdt(int(gid.value)))
         with gui.add_folder("Report header"):
-            info = self.station.measurement.info
+            info = self.ctx.model().info
             fields = {k: gui.add_text(label, str(info.get(k, "") or ""))
                       for k, label in (("part_number", "Part number"), ("drawing", "Drawing"), ("operator", "Operator"),
                                        ("temperature", "Temperature (°C)"))}
@@ -595,7 +597,7 @@ class FeaturesPanel:
     def _fill_nominal_fields(self) -> None:
         """The nominal fields show the selected feature's nominal (a D30 bore reads 30, not 0) when it changes."""
         fid = self.ctx.selected_feature
-        f = self.station.measurement.features.get(fid) if fid is not None else None
+        f = self.ctx.model().features.get(fid) if fid is not None else None
         key = (fid, None if f is None or f.nominal is None else repr(f.nominal.to_dict()))
         if key == self._nominal_shown:
             return
@@ -612,7 +614,7 @@ class FeaturesPanel:
             self.ctx.set(f"features:{key}", "options", options, self.gui.get(key))
         self._sync_show()
         self._sync_rows()
-        self.ctx.set("features:tree", "content", tree_html(self.station, self.ctx.selected_feature, self.hidden(),
+        self.ctx.set("features:tree", "content", tree_html(self.ctx.query, self.ctx.selected_feature, self.hidden(),
                                                        self.machine),
                      self.gui.get("tree"))
         self.ctx.set("features:hits", "content", self.hits_html(), self.gui.get("hits"))

@@ -50,7 +50,6 @@ class JogPanel:
     def __init__(self, ctx: PanelContext, app: Any, client: Any, verb: Callable[..., Any]) -> None:
         self.ctx = ctx
         self.app = app
-        self.station = app.station
         self.client = client
         self.gui = ctx.gui
         self._verb = verb  # a verb of the command API sent as this tab, a refusal shown
@@ -60,22 +59,27 @@ class JogPanel:
         self.hold_token: str | None = None  # the jog buttons' hold refresher's grant (web/hold_worker.js)
         self._jogging = False
         self._last_error = ("", 0.0)
+        self._clock: Any = None  # the machine's clock (the clock query), taken once: a hold notes when it was heard
 
     @property
-    def api(self) -> Any:
-        return self.station.controller
+    def config(self) -> Any:
+        """The machine's configuration (the ``config`` query): the jog speeds and the counts per mm."""
+        return self.ctx.query("machine_config")
 
     def jog_velocity(self, axis: int, sign: int) -> np.ndarray:
         v = np.zeros(3)
-        v[axis] = math.copysign(getattr(self.station.config.speeds, SPEEDS[self.speed_mode]), sign)
+        v[axis] = math.copysign(getattr(self.config.speeds, SPEEDS[self.speed_mode]), sign)
         return v
 
     def _hold_handler(self, axis: int, sign: int) -> Callable[[Any], Any]:
         """The jog button's hold callback: a coroutine, so viser runs it in its event loop as the event arrives;
         it notes that moment (the dead-man runs from it) and hands the hold to a thread (a late thread pool
         then cannot keep the jog going)."""
+        if self._clock is None:
+            self._clock = self.ctx.query("clock")
+
         async def held(_event: Any) -> None:
-            heard = self.api.clock.now()
+            heard = self._clock.now()
             asyncio.get_running_loop().run_in_executor(None, self.jog_hold, axis, sign, heard)
         return held
 
@@ -109,7 +113,7 @@ class JogPanel:
         """The jog of held keys: "keys +x -y" at this tab's speed, "... fast" at the fast jog speed."""
         words = label.split()[1:]
         fast = "fast" in words
-        speed = getattr(self.station.config.speeds, "jog_fast" if fast else SPEEDS[self.speed_mode])
+        speed = getattr(self.config.speeds, "jog_fast" if fast else SPEEDS[self.speed_mode])
         v = np.zeros(3)
         for w in words:
             if w == "fast":
@@ -139,7 +143,7 @@ class JogPanel:
 
     def step(self, axis: int, sign: int) -> Any:
         size = self.step_size
-        mm = 1.0 / self.station.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
+        mm = 1.0 / self.config.axes[axis].counts_per_mm if size == "1 count" else float(size)
         return self._verb("Step", "step", axis=AXES[axis], mm=math.copysign(mm, sign))
 
     def set_manual_probe(self, on: bool) -> None:
@@ -147,7 +151,7 @@ class JogPanel:
         self.ctx.manual_probe = bool(on)
 
     def station_probing_speed(self) -> float:
-        return float(self.station.calibration.qualified_probing_speed)
+        return float(self.ctx.query("calibration_state")["probing_speed"])
 
     def build(self, gui: Any, grant: Callable[..., str | None]) -> None:
         """The Jog tab; ``grant`` issues a pendant grant acting as this tab (``hold=``: the hold refresher's)."""
@@ -182,6 +186,6 @@ class JogPanel:
                                         'title="pendant" allow="gamepad"></iframe>')
 
     def refresh(self) -> None:
-        st_now = self.station.controller.state.machine
+        st_now = self.ctx.query("state").machine
         if self._jogging and st_now is not None and not st_now.jogging:
             self._jogging = False  # the machine loop ended the jog (dead-man, limit, contact, stop)

@@ -1,8 +1,9 @@
 """Machine > Home, Go to and Probe: the machine's commands (Home, Zero, Reset, Reconnect, STOP, E-stop), the Go to
 move in a chosen frame, the pick on the part with Move above / Probe here, and the hits list.
 
-Machine commands go to the control core (``station.controller``, see :mod:`cmm.control`) as this tab's client:
-the core checks the access policy and the machine state once, and refuses with a sentence that is shown here.
+Machine commands go to the command API (:mod:`cmm.control.api`) as this tab's client: the core checks the access
+policy and the machine state once, and refuses with a sentence that is shown here. What the tab shows comes from the
+API's queries (``state``, ``position``, ``probe_data``, ``model`` ...).
 """
 
 from __future__ import annotations
@@ -15,14 +16,18 @@ import numpy as np
 
 from .context import OPERATOR_ERRORS, PanelContext
 from .frames import alignment_text, frame_label
+from .model_view import reader
 from .panel_jog import AXES, JogPanel
 from .scene import SCALE
 
 PICK_HINT = "Click the part to pick a point."
 
 
-def machine_markdown(station: Any) -> str:
-    cs = station.controller.state
+def machine_markdown(source: Any) -> str:
+    """Machine > Home: the axes' table, the mode and the way back from a fault (``source``: a query function or the
+    command API, :func:`cmm.ui.model_view.reader`)."""
+    query = reader(source)
+    cs = query("state")
     st = cs.machine
     if st is None:
         return f"**{cs.mode.value.upper()}**" + (f": {cs.reason}" if cs.reason else "")
@@ -39,17 +44,18 @@ def machine_markdown(station: Any) -> str:
                                         "press **Reconnect**, then **Home** (positions are lost)."))
     elif not cs.homed:
         lines.append("\nPress **Home** before measuring.")
-    if getattr(station, "ippdme", None) is not None:  # cmm serve --ippdme: who drives the machine from outside
+    ippdme = query("ippdme")
+    if ippdme is not None:  # cmm serve --ippdme: who drives the machine from outside
         from ..ippdme.status import ippdme_markdown
 
-        lines.append("\n" + ippdme_markdown(station.ippdme))
+        lines.append("\n" + ippdme_markdown(ippdme))
     return "\n".join(lines)
 
 
-def probe_markdown(station: Any) -> str:
+def probe_markdown(source: Any) -> str:
     """Machine > Probe: the probe in use and the data the next hit uses (live: a qualification applied shows)."""
-    d = station.measurement.probe_data()
-    name = station.measurement.probe_name or "probe"
+    d = reader(source)("probe_data")
+    name = d["name"] or "probe"
     q = f"qualified {d['qualified'][:16].replace('T', ' ')}" if d["qualified"] else "**not qualified** (nominal radius)"
     q = q if d["qualified"] is not None else "qualification not known"
     return (f"**{name}**: stylus radius **{d['tip_radius']:.5f} mm** · {q} · pre-travel {d['pretravel']}")
@@ -76,18 +82,12 @@ class MachinePanel:
     def __init__(self, ctx: PanelContext, app: Any, client: Any, jog: JogPanel) -> None:
         self.ctx = ctx
         self.app = app
-        self.station = app.station
         self.client = client
         self.gui = ctx.gui
         self.jog = jog  # STOP and E-stop end this tab's jog
         self.goto_frame = "Machine"  # the Go to fields' frame: follows the DRO's unless chosen here
         self.move_status: Any = None
         self._zero_armed = 0.0
-
-    @property
-    def api(self) -> Any:
-        """The control core: every machine command goes there with this client's id."""
-        return self.station.controller
 
     def _verb(self, action: str, method: str, /, **params: Any) -> Any:
         return send_verb(self.ctx, action, method, **params)
@@ -96,12 +96,12 @@ class MachinePanel:
 
     def stop(self) -> Any:
         self.jog._jogging = False
-        # a STOP not confirmed by every module is told by the station's "stop" event (one toast per event)
+        # a STOP not confirmed by every module is told by the machine's "stop" event (one toast per event)
         return self._verb("Stop", "stop")
 
     def emergency_stop(self) -> Any:
         self.jog._jogging = False
-        # the station's "estop" event tells every tab (confirmed or not): one toast per event
+        # the machine's "estop" event tells every tab (confirmed or not): one toast per event
         return self._verb("E-stop", "estop")
 
     def reset(self) -> None:
@@ -113,7 +113,7 @@ class MachinePanel:
     def home(self) -> None:
         """The homing cycle, in a worker thread (it takes seconds); STOP aborts it."""
         def run() -> None:
-            self._verb("Home", "home")  # done: the station's "homed" event toasts in every tab
+            self._verb("Home", "home")  # done: the machine's "homed" event toasts in every tab
         threading.Thread(target=run, name="ui-home", daemon=True).start()
 
     def zero(self, confirm: bool = False) -> None:
@@ -155,7 +155,7 @@ class MachinePanel:
         self.goto_frame = frame
         if "goto_frame" in self.gui and self.gui["goto_frame"].value != frame:
             self.gui["goto_frame"].value = frame
-        here = self.api.frame_position(frame.lower())
+        here = self.ctx.query("position", frame=frame.lower())
         if "target" in self.gui and here is not None:
             self.gui["target"].value = tuple(round(float(v), 4) for v in here)
         self.ctx.set("goto_frame_text", "content", self.goto_frame_text())
@@ -163,11 +163,11 @@ class MachinePanel:
 
     def target_label(self) -> str:
         """The Go to field's label names its frame (and the alignment part coordinates go through)."""
-        return f"Target, {frame_label(self.station, self.goto_frame)} (mm)"
+        return f"Target, {frame_label(self.ctx.query('part_frame'), self.goto_frame)} (mm)"
 
     def goto_frame_text(self) -> str:
         if self.goto_frame == "Part":
-            return (f"Target in **part** coordinates ({alignment_text(self.station)}); the move goes over the "
+            return (f"Target in **part** coordinates ({alignment_text(self.ctx.query('part_frame'))}); the move goes over the "
                     "clearance plane.")
         return "Target in **machine** coordinates; the move goes over the clearance plane."
 
@@ -187,9 +187,8 @@ class MachinePanel:
 
     def pick(self, origin_mm: Any, direction: Any) -> Any:
         """Ray pick on the part (machine mm). Anyone may pick: it moves nothing."""
-        m = self.station.measurement
         try:
-            picked = m.pick_region(origin_mm, direction)
+            picked = self.ctx.query("pick", origin=origin_mm, direction=direction)
         except OPERATOR_ERRORS as exc:
             self.ctx.error(exc, "Pick")
             return None
@@ -202,6 +201,7 @@ class MachinePanel:
         result = self.ctx.picked = (hit, nominal)
         if self.client is not None:  # the marker and the picked face, replacing the last pick's
             faces = None if suggestion is None else suggestion.face_ids
+            m = self.ctx.query("part_frame")
             self.ctx.pick_drawing.show(self.client.scene, hit, m.part, faces, m.state)
         self.ctx.notify("Picked", "X={:.3f} Y={:.3f} Z={:.3f} (machine)".format(*hit.point)
                     + (f" · {nominal.kind}" if nominal is not None else ""))
@@ -216,7 +216,7 @@ class MachinePanel:
     def forget_stale_pick(self) -> None:
         """A new part (another CAD part or the next part of a series) removes the drawing of a pick made on the one
         before; another CAD part forgets the pick too (its faces are not the new part's)."""
-        m = self.station.measurement
+        m = self.ctx.query("part_frame")
         if self.ctx.pick_drawing.drop_stale(m.part, m.state):
             self.clear_pick()
 
@@ -228,7 +228,7 @@ class MachinePanel:
             self.ctx.error("click a point on the part first", "Move above")
             return None
         hit = self.ctx.picked[0]
-        above = self.station.measurement.above_point(hit.point, hit.normal)  # approach distance + tip radius out
+        above = self.ctx.query("above_point", point=hit.point, normal=hit.normal)  # approach distance + tip radius out
         status = self._verb("Move above", "move", target=above, frame="machine")  # over the clearance plane
         return None if status is None else self._track(status)
 
@@ -237,10 +237,11 @@ class MachinePanel:
             self.ctx.error("click a point on the part first", "Probe here")
             return None
         hit = self.ctx.picked[0]
-        m = self.station.measurement  # along the picked (outward) normal, the rapid over the part's clearance plane
+        # along the picked (outward) normal, the rapid over the part's clearance plane
+        clearance_z = None if self.ctx.query("part_frame").part is None else self.ctx.query("clearance_z")
         status = send_command(self.ctx, "Probe here", lambda cid: self.ctx.commands.invoke(
             cid, "probe", target=hit.point, approach=-np.asarray(hit.normal, float), frame="machine",
-            clearance_z=None if m.part is None else m.clearance_z()))
+            clearance_z=clearance_z))
         return None if status is None else self._track(status)
 
     def _track(self, status: Any) -> Any:
@@ -263,7 +264,7 @@ class MachinePanel:
     def build_home(self, gui: Any) -> None:
         """Machine > Home: the link, the axes' table and the machine's commands."""
         gui.add_markdown(self.app.link_info())
-        self.gui["machine"] = gui.add_markdown(machine_markdown(self.station))
+        self.gui["machine"] = gui.add_markdown(machine_markdown(self.ctx.query))
         gui.add_button("Home").on_click(lambda _: self.home())
         gui.add_button("Zero (press twice)").on_click(lambda _: self.zero())
         gui.add_button("Reset").on_click(lambda _: self.reset())
@@ -272,7 +273,7 @@ class MachinePanel:
     def build_goto(self, gui: Any) -> None:
         """Machine > Go to: the target in its frame, and the pick's Move above / Probe here."""
         g = self.gui
-        here = self.station.controller.state.position  # the control core's last sample
+        here = self.ctx.query("state").position  # the control core's last sample
         pos = here if here is not None else np.zeros(3)
         g["goto_frame"] = gui.add_button_group("Frame", ("Machine", "Part"))
         g["goto_frame"].on_click(lambda e: self.set_goto_frame(e.target.value))
@@ -287,7 +288,7 @@ class MachinePanel:
     def build_probe(self, gui: Any) -> None:
         """Machine > Probe: the probe's data, the last contact and the hits (delete, undo)."""
         g = self.gui
-        g["probe_data"] = gui.add_markdown(probe_markdown(self.station))
+        g["probe_data"] = gui.add_markdown(probe_markdown(self.ctx.query))
         g["contact"] = gui.add_markdown("*no hit yet*")
         g["hits"] = gui.add_markdown("")
         g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
@@ -296,16 +297,17 @@ class MachinePanel:
 
     def refresh(self) -> None:
         """The axes' table, the Go to label (the alignment may change), the probe's data, the contact and the hits."""
-        st = self.station
-        self.ctx.set("machine", "content", machine_markdown(st))
+        query = self.ctx.query
+        self.ctx.set("machine", "content", machine_markdown(query))
         self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
-        self.ctx.set("probe_data", "content", probe_markdown(st))  # a qualification applied shows at once
-        hit = st.measurement.last_hit
+        self.ctx.set("probe_data", "content", probe_markdown(query))  # a qualification applied shows at once
+        model = self.ctx.model()
+        hit = model.last_hit
         if hit is not None:
             self.ctx.set("contact", "content",
                       "last trigger (tip centre, machine): X={:.4f} Y={:.4f} Z={:.4f}\n\n".format(*hit.machine)
                       + "contact point (machine): X={:.4f} Y={:.4f} Z={:.4f}".format(*hit.point))
-        hits = sorted(self.ctx.model().hits.items())
+        hits = sorted(model.hits.items())
         devs = self.app.deviations()
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]

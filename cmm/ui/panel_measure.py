@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..measurement.plan import plan_at_pick, plan_targets
+from ..measurement.plan import plan_targets
 from ..metrology.hit_plan import PlanError
 from .context import PanelContext
 from .path_preview import PathPreview
@@ -37,12 +37,12 @@ def face_name(normal_part: Any) -> str:
     return FACE_NAMES[(axis, 1 if n[axis] > 0 else -1)]
 
 
-def picked_text(station: Any, picked: Any) -> str:
-    """What the last click on the part picked, in the operator's words: the feature kind and the face."""
+def picked_text(part: Any, picked: Any) -> str:
+    """What the last click on ``part`` picked, in the operator's words: the feature kind and the face."""
     if picked is None:
         return "*Click a face of the part, then Plan.*"
     hit, nominal = picked
-    pose = getattr(station.measurement.part, "pose", None)
+    pose = getattr(part, "pose", None)
     normal = np.asarray(hit.normal, float) if pose is None else np.asarray(pose, float)[:3, :3].T @ hit.normal
     kind = nominal.kind if nominal is not None else "face"
     where = f"{face_name(normal)} face" if kind in ("plane", "face") else f"{kind} face"
@@ -54,7 +54,6 @@ def picked_text(station: Any, picked: Any) -> str:
 class MeasurePanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.plan: Any = None
         self.plan_pick: Any = None  # the pick the plan was made for: a new pick makes it stale
@@ -68,7 +67,7 @@ class MeasurePanel:
         if self.ctx.picked is None:
             return self.ctx.error("click the face to measure on the part first", "Auto-measure")
         try:
-            self.plan = plan_at_pick(self.station.measurement, self.ctx.picked[0].face_id, n=hits_per_ring or None)
+            self.plan = self.ctx.query("plan_at_pick", face=self.ctx.picked[0].face_id, n=hits_per_ring or None)
         except (PlanError, ValueError) as exc:
             self.plan = None
             return self.ctx.error(exc, "Auto-measure")
@@ -100,7 +99,7 @@ class MeasurePanel:
 
     def text(self) -> str:
         p = self.current_plan()
-        picked = picked_text(self.station, self.ctx.picked)
+        picked = picked_text(self.ctx.query("part_frame").part, self.ctx.picked)
         if p is None:
             return picked + ("" if self.ctx.picked is None else "; then Plan.")
         lines = [picked, "", f"**{p.description}**", *(f"\n**check:** {note}" for note in p.notes), "",

@@ -21,6 +21,7 @@ import numpy as np
 
 from .frames import alignment_text
 from .context import PanelContext
+from .model_view import reader
 
 FRAMES = ("Machine", "Part")
 # Keeps the status block on screen while the panel scrolls, in two layers that do not depend on one another:
@@ -95,9 +96,9 @@ MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "p
 CYCLE_MODES = ("idle", "moving", "probing")
 
 
-def machine_mode(station: Any) -> tuple[str, str, bool]:
-    """(mode, reason, link ok) from the control core's state (not homed / idle / moving / probing / fault ...)."""
-    cs = station.controller.state
+def machine_mode(cs: Any) -> tuple[str, str, bool]:
+    """(mode, reason, link ok) from the control core's state (the ``state`` query: not homed / idle / moving /
+    probing / fault ...)."""
     mode = getattr(cs.mode, "value", cs.mode)
     reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
     return str(mode), str(reason or ""), bool(cs.link_ok)
@@ -120,33 +121,38 @@ class LinkMeter:
         return self.rate
 
 
-def part_position(station: Any, position: np.ndarray) -> np.ndarray | None:
-    part = station.measurement.part
+def part_position(part: Any, position: np.ndarray) -> np.ndarray | None:
+    """``position`` (machine mm) in the coordinates of ``part`` (its pose); None without a part."""
     if part is None:
         return None
     pose = np.asarray(part.pose, float)
     return pose[:3, :3].T @ (np.asarray(position, float) - pose[:3, 3])
 
 
-def status_html(station: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
+def status_html(source: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
                 armed: bool = False, aligned: bool = False, cycle: str | None = None, cycle_paused: bool = False,
                 run_stopped: str = "") -> str:
-    """The status block's HTML (pure: every input is passed in, so it is tested without a browser).
+    """The status block's HTML (pure: what it shows comes from the queries of ``source``, a query function or
+    the command API (:func:`cmm.ui.model_view.reader`), and the arguments, so it is tested without a browser).
     ``cycle``: the cycle running (an auto-measure, a routine run), shown as RUNNING while the machine is in it
     (PAUSED with ``cycle_paused``: a routine paused between hits)."""
     e = html.escape
-    mode, reason, link_ok = machine_mode(station)
+    query = reader(source)
+    cs = query("state")  # the control core's state and last sample (the observer's snapshot)
+    model = query("part_frame")  # the part, the alignment in force, the probe's name
+    mode, reason, link_ok = machine_mode(cs)
     if cycle and mode in CYCLE_MODES:
         mode, reason = ("paused", f"{cycle}: Resume goes on") if cycle_paused else ("running", cycle)
     elif run_stopped and mode == "idle":  # the last run was refused or stopped: not back to a plain IDLE
         mode, reason = "stopped", run_stopped
-    if getattr(getattr(station, "calibration", None), "holding", False):  # the job stands in the machine loop
+    calibration = query("calibration_state")
+    if calibration["holding"]:  # the job stands in the machine loop
         mode, reason = "paused", f"{reason or 'calibration'}: Resume goes on"
-    st = station.controller.state.machine  # the control core's last sample (the observer's snapshot)
+    st = cs.machine
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
     out.append(f" &middot; {e(control_text)}")
-    warning = getattr(getattr(station.controller, "state", None), "link_warning", "")
+    warning = getattr(cs, "link_warning", "")
     if warning:
         out.append(f" &middot; <span class='warn'>link warning: {e(warning)}</span>")
     if link_rate is not None:
@@ -157,8 +163,7 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         else:
             ok = link_ok and link_rate > 5.0
             out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
-    upload = getattr(getattr(getattr(station, "measurement", None), "journal", None), "upload_status", None)
-    offline = upload() if callable(upload) else ""  # the shop's session database: "database offline, N events waiting"
+    offline = query("upload_status")  # the shop's session database: "database offline, N events waiting"
     if offline:
         out.append(f" &middot; <span class='warn'>{e(offline)}</span>")
     # the reason on a line of its own, always there: a move's words appearing and going never change the block's
@@ -171,21 +176,21 @@ def status_html(station: Any, control_text: str, *, frame: str = "Machine", link
         pos = st.position
         label = "machine"
         if frame == "Part":
-            pp = part_position(station, pos)
+            pp = part_position(model.part, pos)
             if pp is not None:
                 pos, label = pp, "part"
-        frame_name = f"<span class='muted'>{e(alignment_text(station))}</span>" if label == "part" else ""
+        frame_name = f"<span class='muted'>{e(alignment_text(model))}</span>" if label == "part" else ""
         out.append(f"<div class='dro' aria-label='DRO {label}'><span class='muted'>{e(label)}</span>"
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + frame_name + "</div>")
         if label == "part" and not aligned:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
-        settings = station.controller.probe_settings
+        settings = query("probe_settings")
         tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
-        probe_cal = station.calibration.status.get("probe")
+        probe_cal = calibration["probe"]
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
         probe_state = "TRIGGERED" if st.probe_triggered else ("armed (manual hits)" if armed else "free")
         cls = "warn" if st.probe_triggered else ""
-        name = getattr(station.measurement, "probe_name", "") or ""
+        name = model.probe_name
         out.append(f"probe {e(name)} <span class='pstate {cls}'>{probe_state}</span> &middot; {tip}, {qual}")
     out.append("</div>")
     return "".join(out)
@@ -245,10 +250,10 @@ class StatusPanel:
             self.refresh()
 
     def html(self) -> str:
-        st = self.ctx.station
-        rate = self.link.update(st.controller.samples)
-        return status_html(st, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
-                           armed=self.ctx.manual_probe, aligned=self.ctx.station.measurement.aligned,
+        query = self.ctx.query
+        rate = self.link.update(query("samples"))
+        return status_html(query, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
+                           armed=self.ctx.manual_probe, aligned=query("part_frame").aligned,
                            cycle=getattr(self.ctx.shared, "cycle", None),
                            cycle_paused=bool(getattr(self.ctx.shared, "cycle_paused", False)),
                            run_stopped=str(getattr(self.ctx.shared, "run_stopped", "") or ""))

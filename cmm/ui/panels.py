@@ -4,11 +4,11 @@
 actions as plain methods: the machine's commands, Go to and pick in :mod:`.panel_machine`, the jog in
 :mod:`.panel_jog`, the operator and the control in :mod:`.panel_operator`, the Diagnostics in
 :mod:`.panel_diagnostics`, the Align, Measure, Routine, Report and Setup tabs in theirs), lays them out in the
-side panel's tabs (``build()``) and copies station state into their read-outs a few times a second
+side panel's tabs (``build()``) and copies what the API's queries say into their read-outs a few times a second
 (``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
 ...), so the tests drive exactly what a button does without a browser.
 
-Machine commands go to the control core (``station.controller``, see :mod:`cmm.control`) as this client
+Machine commands go to the command API (:mod:`cmm.control.api`) as this client
 (:meth:`~cmm.ui.context.PanelContext.who`): the core checks the access policy (the shared
 :class:`~cmm.control.access.Control`, STOP and E-stop by its one :meth:`~cmm.control.access.Control.may_stop`
 policy) and the machine state once, and refuses with a sentence that is shown here. Measurement changes (hits,
@@ -65,14 +65,14 @@ class ClientApp:
     def __init__(self, app: Any, client: Any = None, *, client_id: str | None = None,
                  is_local: bool = False) -> None:
         self.app = app
-        self.station = app.station
         self.control = app.control
         self.client = client
         self.client_id = client_id or (f"viser-{client.client_id}" if client is not None else "test")
         self.is_local = is_local
         # what this tab's panels share (selection, messages, widgets, the control check); they get it, not the tab
-        self.ctx = PanelContext(app.station, app.control, app.view, client, client_id=self.client_id,
-                                is_local=is_local, deviations=app.deviations, shared=app.shared)
+        self.ctx = PanelContext(app.api, app.control, app.view, client, client_id=self.client_id,
+                                is_local=is_local, deviations=app.deviations, shared=app.shared,
+                                station=app.station)  # transitional: for the panels still reaching the station
         self.messages = self.ctx.messages  # (level, title, body): what the operator was told
         self.gui = self.ctx.gui
         self.jog = JogPanel(self.ctx, app, client, lambda *a, **kw: send_verb(self.ctx, *a, **kw))
@@ -98,8 +98,8 @@ class ClientApp:
 
     @property
     def api(self) -> Any:
-        """The control core: every machine command goes there with this client's id."""
-        return self.station.controller
+        """The command API: every machine command goes there with this client's id."""
+        return self.ctx.api
 
     # the machine's commands, Go to, pick and hits (Machine > Home, Go to, Probe)
     stop = _on("machine", "stop")
@@ -209,7 +209,7 @@ class ClientApp:
                 self.diagnostics.build(gui)
 
     def refresh(self) -> None:
-        """Copy station state into this client's read-outs (only what changed)."""
+        """Copy the station's state (the API's queries) into this client's read-outs (only what changed)."""
         self.operator_panel.watch_control()
         self.machine.forget_stale_pick()
         self.jog.refresh()

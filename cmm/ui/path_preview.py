@@ -1,6 +1,6 @@
 """The path preview: the probe path a plan or a routine will run, drawn in one tab's 3-D view before Run.
 
-The path comes from the control core (:meth:`cmm.control.core.Controller.probe_paths`): the rails' clearance
+The path comes from the control core (its ``probe_paths`` query, :meth:`cmm.control.core.Controller.probe_paths`): the rails' clearance
 height and the prober's cycle, the very functions the run executes, from where the tip stands now. It shows the
 clearance moves (orange), each approach and search into the surface (magenta, to the hit point), each retract
 (cyan) and the hit points; Run or Clear removes it. A preview the rails refuse (a hit outside the travel) says
@@ -28,7 +28,7 @@ class PathPreview:
 
     def show(self, targets: Any, what: str = "Preview") -> list[Any] | None:
         """Draw the path of ``targets`` ((point, approach, clearance Z), machine mm) as the core will run it."""
-        return self.show_cycles(lambda: self.ctx.station.controller.probe_paths(list(targets)), what)
+        return self.show_cycles(lambda: self.ctx.query("probe_paths", targets=list(targets)), what)
 
     def show_cycles(self, paths: Any, what: str = "Preview") -> list[Any] | None:
         """Draw the cycles ``paths()`` returns (the control core's, e.g. a routine's); its refusal is told."""

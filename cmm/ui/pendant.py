@@ -5,7 +5,8 @@ One small asyncio loop in a background thread (the ``websockets`` library's
 WebSocket). The server only translates: each message becomes a verb of the
 command API (``jog_hold``, ``jog_release``, ``step``, ``stop``, or any verb with
 ``call``) sent as this pendant's client; the jog-hold pipeline, the access
-policy and the machine's state are the control core's. Every station call runs
+policy and the machine's state are the control core's, and what it shows comes from the API's queries (the
+state, the configured jog speeds, the dead-man; the machine's events, in process). Every API call runs
 on one worker thread, in arrival order, so the event loop never waits on the
 serial bus and a release can never overtake the jog it ends; a STOP goes to
 the stop verb on a thread of its own, not through that worker's queue.
@@ -171,10 +172,11 @@ class _Session:
 class PendantServer:
     """Handle returned by :func:`start_pendant_server`: ``url``, ``ws_url``, ``port``, ``close()``."""
 
-    def __init__(self, station: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
+    def __init__(self, api: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
                  state_hz: float = STATE_HZ, static_dir: Path | None = None,
                  origins: OriginPolicy | None = None, ssl: Any = None, users: Any = None) -> None:
-        self.station = station
+        if not hasattr(api, "invoke"):  # transitional: a station handed in (the tests building one)
+            api = api.controller.commands
         self.ssl = ssl  # an ssl.SSLContext: the page and its WebSocket over https / wss (cmm.control.tls)
         self.users = users  # cmm.control.users.UserStore: connections log in; None: the local, no-login mode
         self.control = control
@@ -193,13 +195,13 @@ class PendantServer:
         self._error: BaseException | None = None
         self.port = 0
         self.errors: list[str] = []  # station calls that failed unexpectedly
-        self.api = station.controller  # the control core: its state, clock and events (read only)
-        self.commands = station.controller.commands  # every command goes through the command API as our client
+        self.commands = api  # every command and every read goes through the command API as our client
+        self.clock = api.invoke(None, "clock")  # the machine's clock: when a message was heard (the dead-man's start)
         self.grants = Grants()  # station pages' embedded pendants (see revoke)
-        if self.api.holder is not control:  # the core refuses in its words: it must know who holds control
+        if api.invoke(None, "control_policy") is not control:  # the core refuses in its words: it must know who holds control
             raise ValueError("the pendant's Control is not the station's access policy: wire it where both are "
-                             "built (station.controller.use_policy_of(control))")
-        self._unsubscribe = self.api.subscribe(self._on_machine_event)
+                             "built (the use_policy verb)")
+        self._unsubscribe = api.invoke(None, "watch_machine", on_event=self._on_machine_event)
         self._thread = threading.Thread(target=self._run_thread, args=(port,), name="pendant-server", daemon=True)
         self._thread.start()
         if not self._ready.wait(10):
@@ -227,7 +229,7 @@ class PendantServer:
     # --- life cycle ----------------------------------------------------------
 
     def _run_thread(self, port: int) -> None:
-        raise_priority_on(self.api.clock)  # a release reaches the machine loop first, whatever the web load
+        raise_priority_on(self.clock)  # a release reaches the machine loop first, whatever the web load
         try:
             asyncio.run(self._main(port))
         except BaseException as exc:  # noqa: BLE001 - reported to the starting thread
@@ -309,7 +311,7 @@ class PendantServer:
             async for raw in ws:
                 session.last_message = time.monotonic()
                 # the machine's clock as the message arrives: a jog's dead-man runs from here (cmm.control.jog)
-                await self._on_message(session, raw, self.api.clock.now())
+                await self._on_message(session, raw, self.clock.now())
         except ConnectionClosed:
             pass
         finally:
@@ -359,7 +361,7 @@ class PendantServer:
     async def _send_states(self, session: _Session) -> None:
         period = 1.0 / self.state_hz
         while True:
-            cs = self.api.state
+            cs = self.commands.invoke(None, "state")
             st = cs.machine
             holder = self.control.holder
             msg: dict[str, Any] = {
@@ -380,7 +382,7 @@ class PendantServer:
             await asyncio.sleep(period)
 
     def _speeds(self) -> dict[str, float]:
-        s = self.station.config.speeds
+        s = self.commands.invoke(None, "machine_config").speeds
         return {"jog_fast": s.jog_fast, "jog_slow": s.jog_slow, "jog_fine": s.jog_fine}
 
     async def _on_message(self, session: _Session, raw: Any, heard: float | None = None) -> None:
@@ -399,7 +401,7 @@ class PendantServer:
                 "type": "hello", "client": session.client_id, "local": session.local,
                 "code_required": not session.local, "lan": self.control.access_code is not None,
                 "users": self.users is not None,
-                "speeds": self._speeds(), "deadman_ms": round(self.api.jogs.grace * 1000), "state_hz": self.state_hz})
+                "speeds": self._speeds(), "deadman_ms": round(self.commands.invoke(None, "jog_settings")["grace"] * 1000), "state_hz": self.state_hz})
             if "code" in msg:
                 await self._take(session, msg.get("code"))
         elif kind == "take":
@@ -592,13 +594,14 @@ class PendantServer:
             return {"ok": False, "message": f"{'STOP' if verb == 'stop' else 'E-STOP'} failed: {exc}"}
 
 
-def start_pendant_server(station: Any, control: Control, host: str = "127.0.0.1", port: int = 0,
+def start_pendant_server(api: Any, control: Control, host: str = "127.0.0.1", port: int = 0,
                          **options: Any) -> PendantServer:
-    """Serve the pendant page and its WebSocket in a background thread; returns the running handle.
+    """Serve the pendant page and its WebSocket in a background thread for the station behind ``api`` (the command
+    API); returns the running handle.
 
-    ``control`` is the station's access policy already (``station.controller.use_policy_of(control)``, wired
-    where both are built: :class:`~cmm.ui.app.StationApp`), so the core's verbs refuse in their own words;
+    ``control`` is the station's access policy already (the ``use_policy`` verb, sent where both are built:
+    :class:`~cmm.ui.app.StationApp`), so the core's verbs refuse in their own words;
     ``host`` "0.0.0.0" listens on the LAN (pair it with ``Control(lan=True)``);
     ``port`` 0 picks a free port (see ``handle.port``).
     """
-    return PendantServer(station, control, host, port, **options)
+    return PendantServer(api, control, host, port, **options)

@@ -9,7 +9,7 @@ cloud in machine coordinates would be.
 
 One :class:`SceneView` draws into the shared ``server.scene`` (every client
 sees the same scene); the live probe is pushed by :class:`ProbeUpdater`, a
-throttled thread that reads the station's latest state at a fixed rate
+throttled thread that reads the latest state (the API's state query) at a fixed rate
 rather than forwarding every machine sample.
 """
 
@@ -27,7 +27,7 @@ from ..metrology.colour_map import DeviationMap, deviation_map
 from ..metrology.colour_scale import DEFAULT_TOLERANCE, ColourScale
 from ..metrology.transform import apply_points, invert
 from .feature_drawing import Drawing, feature_drawing, ghost_drawing
-from .model_view import model_of
+from .model_view import model_of, reader
 
 SCALE = 0.001  # scene units per millimetre (the scene is in metres)
 PROBE_HZ = 50.0  # the probe updater's rate (it also samples the following-error plot)
@@ -68,12 +68,13 @@ FEATURE_COLOURS = {"plane": (240, 180, 40), "circle": (250, 120, 20), "sphere": 
 PART_FILL_DISTANCE = 2.6
 
 class SceneView:
-    """Draws the station into a viser scene (``server.scene``)."""
+    """Draws the station into a viser scene (``server.scene``) from the command API's queries (``api``: the API or
+    a query function, :func:`cmm.ui.model_view.reader`): the configuration, the state, the model."""
 
-    def __init__(self, scene: Any, station: Any, *, tolerance: float = DEFAULT_TOLERANCE,
+    def __init__(self, scene: Any, api: Any, *, tolerance: float = DEFAULT_TOLERANCE,
                  on_feature_click: Callable[[int, Any], None] | None = None) -> None:
         self.scene = scene
-        self.station = station
+        self.query = reader(api)
         self.scale = ColourScale(tolerance)
         self.on_feature_click = on_feature_click
         self.origin_mm = np.zeros(3)  # the local frame's origin (near the part), machine mm
@@ -121,10 +122,10 @@ class SceneView:
         """Start new clients (viser's initial camera) from the front right looking at the part, close enough that it
         fills the view beside the panel (the envelope without a part); a portrait view is fitted when the client
         reports its size (:meth:`fit_portrait`)."""
-        cfg = self.station.config
+        cfg = self.query("machine_config")
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
-        part = self.station.measurement.part
+        part = self.query("part_frame").part
         if part is not None and part.mesh is not None:
             corners = np.array([[x, y, z] for x in part.mesh.bounds[:, 0] for y in part.mesh.bounds[:, 1]
                                 for z in part.mesh.bounds[:, 2]])
@@ -142,7 +143,7 @@ class SceneView:
         camera.position = tuple(float(v) for v in centre + np.array([1.1, -1.5, 1.0]) * size)
 
     def build(self) -> None:
-        st, cfg = self.station, self.station.config
+        cfg = self.query("machine_config")
         lo = np.array([a.min for a in cfg.axes])
         hi = np.array([a.max for a in cfg.axes])
         self.scene.set_up_direction("+z")
@@ -156,10 +157,10 @@ class SceneView:
             position=(float((lo[0] + hi[0]) / 2 * SCALE), float((lo[1] + hi[1]) / 2 * SCALE), table_z * SCALE),
             receive_shadow=True, cast_shadow=False)
         self.draw_part()
-        here = st.controller.state.position  # the control core's last sample
+        here = self.query("state").position  # the control core's last sample
         start = here if here is not None else (lo + hi) / 2
         self.probe = self.scene.add_frame("/probe", show_axes=False, position=tuple(np.asarray(start) * SCALE))
-        r = float(st.controller.tip_radius)
+        r = float(self.query("probe_settings").tip_radius)
         self.scene.add_icosphere("/probe/tip", radius=r * SCALE, color=(230, 30, 30), subdivisions=3)
         stylus = trimesh.creation.cylinder(radius=max(r * 0.4, 0.2), segment=[[0, 0, r * 0.8], [0, 0, STYLUS_LENGTH]],
                                            sections=24)
@@ -172,7 +173,7 @@ class SceneView:
         self.draw_features()
 
     def draw_part(self) -> None:
-        part = self.station.measurement.part
+        part = self.query("part_frame").part
         if part is None:
             self.scene.add_frame("/local", show_axes=False)
             return
@@ -220,13 +221,12 @@ class SceneView:
     def draw_colour_map(self, deviations: dict[int, float] | None = None) -> DeviationMap | None:
         """(Re)draw the colour map from the hits' deviations (see :mod:`cmm.metrology.colour_map`): the part
         mesh painted by the interpolated deviation, grey beyond the scale's reach; the plain part while off."""
-        st = self.station
-        part = st.measurement.part
-        hits = model_of(st).hits
+        view = model_of(self.query)
+        part, hits = view.part, view.hits
         if self.map_on and part is not None:
             if deviations is None:
                 try:
-                    deviations = st.measurement.hit_deviations()
+                    deviations = self.query("hit_deviations")
                 except Exception:  # noqa: BLE001 - no deviations: an all-grey map
                     deviations = {}
             pose = np.asarray(part.pose, float)
@@ -277,8 +277,7 @@ class SceneView:
         return self.scale.colours(np.array([deviations.get(h, float("nan")) for h in ids], dtype=np.float64))
 
     def draw_hits(self, deviations: dict[int, float] | None = None) -> None:
-        st = self.station
-        hits = model_of(st).hits
+        hits = model_of(self.query).hits
         with self._lock:
             if not hits:
                 self.scene.add_frame("/local/hits", show_axes=False)  # replaces the previous hits with nothing
@@ -286,7 +285,7 @@ class SceneView:
             ids = sorted(hits)
             if deviations is None:
                 try:
-                    deviations = st.measurement.hit_deviations()
+                    deviations = self.query("hit_deviations")
                 except Exception:  # noqa: BLE001 - colour is a help, not a requirement
                     deviations = {}
             points = np.array([hits[h].point for h in ids])
@@ -308,8 +307,7 @@ class SceneView:
     def draw_features(self) -> None:
         """Draw each feature as it was measured (:mod:`cmm.ui.feature_drawing`): a translucent patch or a faint
         surface with thin outlines, its check alternative as a dashed ghost; a feature redraws when it is refit."""
-        st = self.station
-        view = model_of(st)
+        view = model_of(self.query)
         features, hits = view.features, view.hit_or_deleted()
         with self._lock:
             for fid in list(self._feature_nodes):
@@ -368,7 +366,7 @@ class SceneView:
         for fid, node in self._feature_nodes.items():
             node.set_selected(fid == self.selected)
         # the selected feature's hits: larger yellow spheres around them
-        view = model_of(self.station)
+        view = model_of(self.query)
         feature = view.features.get(self.selected) if self.selected is not None else None
         hits = view.hits
         pts = [hits[h].point for h in (feature.hit_ids if feature is not None else []) if h in hits]
@@ -598,9 +596,9 @@ class ProbeUpdater:
     probe's last position always reaches the scene).
     """
 
-    def __init__(self, station: Any, view: SceneView, hz: float = PROBE_HZ,
+    def __init__(self, api: Any, view: SceneView, hz: float = PROBE_HZ,
                  extra: Callable[[Any], None] | None = None, scene_hz: float = PROBE_SCENE_HZ) -> None:
-        self.station = station
+        self.query = reader(api)  # the command API's state query: the control core's last sample
         self.view = view
         self.period = 1.0 / hz
         self.scene_period = 1.0 / scene_hz
@@ -623,7 +621,7 @@ class ProbeUpdater:
 
     def step(self) -> bool:
         """One tick: push the probe if it moved. Returns True when it pushed."""
-        state = self.station.controller.state.machine  # the control core's last sample
+        state = self.query("state").machine  # the control core's last sample
         self.ticks += 1
         if state is None:
             return False

@@ -1,0 +1,58 @@
+"""The control core's read-only queries of the command API, beside its verbs (:mod:`cmm.control.api`): the set-up
+(configuration, probe settings, the link), who may send what, the jog's dead-man, the planned paths of a preview,
+and, in process, the objects a front end needs to keep time with the machine (its clock, the access holder, the
+machine's events). A front end (the page, the pendant) reads the machine through these and the ``state``,
+``position`` and ``link_health`` queries, never through the control core itself.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .access import Control
+
+
+def register_control_queries(api: Any, controller: Any) -> None:
+    """Register the control core's queries on ``api`` (a :class:`~cmm.api.CommandAPI`)."""
+    c = controller
+    REQUIRED = api.REQUIRED  # noqa: N806 - the API's marker of a parameter that must be given
+
+    api.register("probe_settings", lambda client: c.probe_settings, {},
+                 "the probe settings in force (tip radius, pre-travel model); change them with configure",
+                 query=True)
+    api.register("link_info", lambda client: c.link_info(), {},
+                 "the link as the front ends show it: port, baud, firmware and the modules found at start-up "
+                 "(address, type, version)", query=True)
+    api.register("samples", lambda client: c.samples, {},
+                 "how many machine samples the control core has taken (a front end's link meter counts them)",
+                 query=True)
+    api.register("access", lambda client, command="measure": c.policy.refusal(client, command),
+                 {"command": "measure"},
+                 "whether this client may send command now (the access policy: the control holder, the role): "
+                 "None when it may, else the sentence of the refusal", query=True)
+    api.register("jog_settings", lambda client: {"grace": float(c.jogs.grace)}, {},
+                 "the jog's dead-man: grace (s), how soon a jog stops when its holds stop coming", query=True)
+    api.register("probe_paths", lambda client, targets, frame="machine", path="clearance", start=None:
+                 c.probe_paths(list(targets), frame=frame, path=path, start=start),
+                 {"targets": REQUIRED, "frame": "machine", "path": "clearance", "start": None},
+                 "the paths programmed hits would take (targets: point, approach, clearance Z or None[, hop Z]), "
+                 "each from where the one before retracted, the first from start (default: here); moves nothing; "
+                 "refused for a target the probe verb would refuse", query=True)
+    api.register("control_policy", lambda client: c.holder, {},
+                 "in process: the access holder the core checks (cmm.control.access.Control), None without one "
+                 "(a script)", query=True)
+    api.register("clock", lambda client: c.clock, {},
+                 "in process: the machine's clock (now(); a front end notes when it heard an event on it)",
+                 query=True)
+    api.register("watch_machine", lambda client, on_event: c.subscribe(on_event), {"on_event": REQUIRED},
+                 "in process: on_event(kind, info) for every machine event ('state', 'fault', 'estop', 'stop', "
+                 "'contact', 'deadman', 'limit', 'homed' ...), on the dispatcher thread; returns the function "
+                 "that ends it", query=True)
+
+    def use_policy(client: Any, control: Any) -> None:
+        if not isinstance(control, Control):  # only an in-process front end hands the one access holder over
+            raise ValueError("use_policy takes the station's access holder (cmm.control.access.Control)")
+        c.use_policy_of(control)
+    api.register("use_policy", use_policy, {"control": REQUIRED},
+                 "in process: the page's access holder (cmm.control.access.Control) becomes the core's access policy, "
+                 "shared with the pendant; machine commands are checked there, once")
