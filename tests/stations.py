@@ -51,13 +51,16 @@ class Stations:
         self._built.append(_close_once(obj))
         return obj
 
-    def close(self, obj: Any = None) -> None:
-        """Close ``obj`` now (something this builder made), or everything it made, the last made first."""
-        if obj is not None:
-            obj.close()
-            return
+    def close(self) -> None:
+        """Close everything built, the last built first (what the test closed itself is not closed again)."""
+        failed = None
         while self._built:
-            self._built.pop().close()
+            try:
+                self._built.pop().close()
+            except Exception as exc:  # noqa: BLE001 - the rest is still closed; the first failure is raised after
+                failed = failed or exc
+        if failed is not None:
+            raise failed
 
     def __enter__(self) -> "Stations":
         return self
