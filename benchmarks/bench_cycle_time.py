@@ -151,7 +151,7 @@ def auto_measure(station: Station, log: LineLog) -> None:
 
 
 def ippdme_ptmeas(station: Station, log: LineLog, points: int) -> None:
-    server = IppServer(StationBackend(station), "127.0.0.1", 0).start()
+    server = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0).start()
     clock = station.machine.clock
     try:
         with IppClient("127.0.0.1", server.port) as c:

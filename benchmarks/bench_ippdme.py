@@ -31,7 +31,7 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         station = Station(port="sim://?cmm=1", session_dir=tmp).start()
-        server = IppServer(StationBackend(station), "127.0.0.1", 0).start()
+        server = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0).start()
         try:
             with IppClient("127.0.0.1", server.port) as c:
                 for cmd in ("StartSession()", "Home()", 'ChangeTool("Probe1")', "SetProp(Tool.GoToPar.Speed(50))"):

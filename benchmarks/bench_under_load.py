@@ -223,7 +223,8 @@ def main() -> None:
             return
         with tempfile.TemporaryDirectory() as tmp:
             station = Station(session_dir=tmp).start(home=True)
-            server = start_ippdme(station, "127.0.0.1:0")
+            server = start_ippdme(station.controller.commands, "127.0.0.1:0")
+            station.serving_ippdme(server.status)
             watch = Watch(station)
             bus = station.machine.bus
             print(f"{args.hogs} CPU hogs on {os.cpu_count()} cores; station nice {_nice(None)} "

@@ -2,11 +2,12 @@
 calibration service, and wires them together.
 
 Front ends command the machine and change the measurement with the command API's verbs
-(``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.control.api`), so the access policy and the
+(``station.controller.commands.invoke(client, verb, ...)``, :mod:`cmm.api`), so the access policy and the
 state model are checked in one place. Each package registers its own verbs and queries where it lives
 (:mod:`cmm.measurement.verbs` and :mod:`cmm.measurement.queries`: fit, construct, nominal, datum, GD&T, align,
-auto-measure, programs, the session journal; :mod:`cmm.calibration.verbs`: qualify, save, accept gains, select
-probe); the station calls them on what it built. Front ends read the measurement model
+auto-measure, programs, the session journal; :mod:`cmm.calibration.verbs` and :mod:`cmm.calibration.queries`:
+qualify, save, accept gains, select probe, the probe list and records; :mod:`cmm.session.verbs`: the recorded
+sessions and the trends); the station calls them on what it built. Front ends read the measurement model
 (:mod:`cmm.measurement`) through the API's queries. The control core's hit recorder is the model's ``add_hit`` (a hit is journalled on the dispatcher
 thread before its probe completes), its events go to the model's journal and listeners, and the model probes
 through the control core.
@@ -21,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .calibration.service import CalibrationHost, CalibrationService
+from .calibration.queries import register_calibration_queries
 from .calibration.verbs import register_calibration_verbs
 from .control import Controller
 from .machine.config import ConfigError, MachineConfig, load
@@ -34,6 +36,7 @@ from .measurement.verbs import register_measurement_verbs
 from .metrology.mesh import load_part
 from .nmc.trace import ByteTrace
 from .session.report import write_part_report
+from .session.verbs import register_session_verbs
 from .sim.bench import BenchError, default_pose, open_bench, pose_param
 from .sim.placement import PlacementError, part_pose_of  # noqa: F401 - --part-pose of the front ends
 
@@ -92,6 +95,8 @@ class Station:
         self.controller.set_workspace(PartWorkspace(self.measurement, reference=self.calibration.reference_sphere))
         register_measurement_verbs(self.controller, self.measurement, self.calibration)
         register_calibration_verbs(self.controller.commands, self.controller.check_access, self.calibration)
+        register_calibration_queries(self.controller.commands, self.calibration)
+        register_session_verbs(self.controller.commands, self.controller.check_access, self.measurement)
         self._register_part_verbs()
         register_queries(self.controller.commands, self.measurement, self.calibration)
         # a station with users (the API checks roles): every journal event names the person who held control

@@ -149,7 +149,8 @@ class Stations:
 
         station = self.station(config=config or load(), port=SIM_URL, home=False, empty_world=empty_world,
                                poll_pause=POLL_PAUSE)
-        return self._keep(IppServer(StationBackend(station), "127.0.0.1", 0, **server).start()), station
+        server = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0, **server).start()
+        return self._keep(server), station
 
     # --- below the station --------------------------------------------------------------------------------
 

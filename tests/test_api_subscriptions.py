@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from cmm.control.api import CommandError
+from cmm.api import CommandError
 
 
 @pytest.fixture(scope="module")

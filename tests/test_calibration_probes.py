@@ -196,7 +196,7 @@ def test_hits_remember_their_probe_and_ippdme_lists_the_probes(fresh):
     events = read_events(st.measurement.journal.path).events
     hits = [e for e in events if e.get("kind") == "hit"]
     assert hits and hits[-1]["probe"] == st.measurement.probe_name == "T2"
-    backend = StationBackend(st)
+    backend = StationBackend(st.controller.commands)
     probes = dict(backend.probes())
     assert set(probes) == {"Probe1", "T2", "T5"}  # T5: added with its stylus along +X
     assert probes["T2"] == pytest.approx(st.prober.settings.tip_radius)
@@ -214,7 +214,7 @@ def test_ippdme_enumtools_and_changetool_use_the_station_probes(fresh):
     ui, operator, folder = fresh
     st = ui.station
     operator.release_control()  # the I++ client takes the station's control
-    server = IppServer(StationBackend(st), "127.0.0.1", 0).start()
+    server = IppServer(StationBackend(st.controller.commands), "127.0.0.1", 0).start()
     client = IppClient("127.0.0.1", server.port, timeout=60)
     try:
         assert client.call("StartSession()").ok

@@ -32,12 +32,9 @@ def test_one_local_rule_for_web_pages_and_the_ippdme_server(stations):
     assert all(is_loopback_host(h) for h in ("127.0.0.1", "localhost", "::1"))
     assert not any(is_loopback_host(h) for h in ("0.0.0.0", "", "::", "192.168.1.9"))
 
-    class Host:  # what StationBackend needs of a station: its control core and configuration
-        def __init__(self, station):
-            self.controller, self.config = station.controller, station.config
     station = stations.station(start=False)
     try:
-        backend = StationBackend(Host(station))
+        backend = StationBackend(station.controller.commands)  # the I++ backend gets the command API only
         assert backend.for_client("127.0.0.1:4000").client.local
         assert backend.for_client("[::1]:4000").client.local
         assert not backend.for_client("192.168.1.9:4000").client.local
@@ -323,7 +320,7 @@ def test_the_same_probe_through_the_ippdme_server_the_pendant_and_the_viser_page
     top = (pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face, part (20, 15, 40)
     speed = station.config.speeds.probing
     app = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
-    ipp = IppServer(StationBackend(station), "127.0.0.1", 0).start()
+    ipp = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0).start()
     hits = {}
     try:
         # the viser page: pick the point on the part, Probe here (along the picked normal)
@@ -579,7 +576,7 @@ def test_the_journal_is_written_through_verbs_by_the_holder_or_at_the_station(st
         api.invoke(None, "note", text="the station's own")
         # a remote I++ client that lost control to a browser: what its server saw still reaches the journal
         from cmm.ippdme.backend import StationBackend
-        StationBackend(station, "ippdme 10.0.0.9:5000", local=False).end_session()
+        StationBackend(station.controller.commands, "ippdme 10.0.0.9:5000", local=False).end_session()
     finally:
         station.controller.policy = OpenPolicy()
     events = read_events(path).events
@@ -636,9 +633,9 @@ def test_control_is_taken_and_released_through_verbs_and_the_ippdme_listener_gra
         assert api.call(Client("lan-tab"), "release_control").result["released"] is False
         assert api.call(Client("pendant", local=True), "release_control").result["released"] is True
         assert control.holder is None
-        plain = StationBackend(station).for_client("192.168.1.9:4000")
+        plain = StationBackend(station.controller.commands).for_client("192.168.1.9:4000")
         assert "access code" in plain.acquire() and control.holder is None
-        opened = StationBackend(station, grants_control=True).for_client("192.168.1.9:4000")
+        opened = StationBackend(station.controller.commands, grants_control=True).for_client("192.168.1.9:4000")
         assert not opened.client.local and opened.acquire() is None
         assert control.holder == "ippdme 192.168.1.9:4000"
         opened.release()

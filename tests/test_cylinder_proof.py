@@ -197,3 +197,60 @@ def test_the_inner_radius_bound_holds_over_the_centre_disc():
         assert r_in.max() <= upper + 1e-12
         assert r_in.max() <= reused + 1e-12
         assert upper <= np.linalg.norm(rel, axis=1).min() + reach + 1e-12  # never looser than the plain bound
+
+
+def _axis_distances(rel, zs, d, s):
+    """Exact distances of the points (rel across u, zs along it) to the axis through (d, 0) along unit(s, 1)."""
+    x = np.column_stack([rel - d, zs])
+    v = unit(np.array([s[0], s[1], 1.0]))
+    y = x - np.outer(x @ v, v)
+    return np.sqrt(np.einsum("ij,ij->i", y, y))
+
+
+def _disc_samples(rng, radius, k):
+    """k points in the disc of ``radius``, every other one on its rim."""
+    b = rng.uniform(0, 2 * np.pi, k)
+    r = np.where(np.arange(k) % 2, radius, radius * np.sqrt(rng.uniform(0, 1, k)))
+    return np.column_stack([r * np.cos(b), r * np.sin(b)])
+
+
+def test_the_tilted_annulus_certificate_holds_for_every_axis_of_the_cell():
+    """_tilt_certificate: for any weights (lam on some points, mu on others, each summing to 1), every axis
+    crossing within ``reach`` of the reference with its direction tilted by at most ``sigma`` has
+    sum lam rho^2 - sum mu rho^2 (at most the range of rho^2) at or above the certificate. Random weights, a
+    noisy D 16 band 20 mm long, sampled axes inside and on the rim of both discs."""
+    rng = np.random.default_rng(4)
+    a = rng.uniform(0, 2 * np.pi, 120)
+    r = 8.0 + rng.uniform(-0.01, 0.01, 120)
+    rel = np.column_stack([r * np.cos(a), r * np.sin(a)]) + [0.02, -0.01]
+    zs = rng.uniform(-10.0, 10.0, 120)
+    for reach, sigma in ((0.0, 0.0), (0.05, 1e-4), (0.05, 0.01), (0.3, 0.02)):
+        for _ in range(20):
+            outer, inner = rng.choice(120, 4, replace=False), rng.choice(120, 3, replace=False)
+            lam, mu = rng.dirichlet(np.ones(4)), rng.dirichlet(np.ones(3))
+            cert = cp._tilt_certificate(rel, zs, outer, lam, inner, mu, reach, sigma)
+            for d, s in zip(_disc_samples(rng, reach, 30), _disc_samples(rng, sigma, 30)):
+                rho2 = _axis_distances(rel, zs, d, s) ** 2
+                assert lam @ rho2[outer] - mu @ rho2[inner] >= cert - 1e-12 * rho2.max()
+
+
+def test_the_tilted_program_finds_rows_outside_its_start():
+    """_tilted_area_lower solves its program by constraint generation from a few rows: started from points that
+    are never active (those midway between the nearest and farthest from the axis), it adds the violated ones
+    until none is, so its bound equals the program's on every point; and the bound stays below the exact range
+    of rho^2 of every sampled axis in the cell."""
+    rng = np.random.default_rng(6)
+    a = rng.uniform(0, 2 * np.pi, 400)
+    r = 8.0 + rng.uniform(-0.01, 0.01, 400)
+    rel = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    zs = rng.uniform(-20.0, 20.0, 400)
+    dist = np.linalg.norm(rel, axis=1)
+    middle = np.argsort(dist)[190:210]  # none of them on the annulus's rims
+    for reach, sigma in ((0.05, 1e-4), (0.05, 2e-3)):
+        from_middle, weights = cp._tilted_area_lower(rel, zs, middle, reach, sigma)
+        from_all, _ = cp._tilted_area_lower(rel, zs, np.arange(400), reach, sigma)
+        assert from_middle == pytest.approx(from_all, rel=1e-9, abs=1e-12) and from_all > 0
+        assert not set(weights[0]) & set(middle) and not set(weights[2]) & set(middle)
+        for d, s in zip(_disc_samples(rng, reach, 50), _disc_samples(rng, sigma, 50)):
+            rho2 = _axis_distances(rel, zs, d, s) ** 2
+            assert float(np.ptp(rho2)) >= from_middle - 1e-12 * rho2.max()

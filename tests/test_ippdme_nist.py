@@ -210,7 +210,7 @@ def station(module_stations):
 def test_nist_program(name, station):
     prg = program(name)
     station.sim.place_artifacts([])
-    backend = StationBackend(station)
+    backend = StationBackend(station.controller.commands)
     want = expected(name, prg)
     measured = {tag: sigs for tag, sigs, _ in want}
     directions: dict[str, np.ndarray] = {}

@@ -413,7 +413,8 @@ def test_cmm_serve_starts_the_server_on_the_station(stations, capsys):
     assert build_parser().parse_args(["serve", "--ippdme", "0.0.0.0:1300"]).ippdme == "0.0.0.0:1300"
     station = stations.station(home=False)
     try:
-        server = start(station, "127.0.0.1:0")
+        server = start(station.controller.commands, "127.0.0.1:0")  # the server gets the API only
+        station.serving_ippdme(server.status)  # as `cmm serve` does: the page shows the I++ client
         try:
             assert "I++ DME server on 127.0.0.1:" in capsys.readouterr().out
             with connected(server) as c:
@@ -424,7 +425,7 @@ def test_cmm_serve_starts_the_server_on_the_station(stations, capsys):
         taken = socket.create_server(("127.0.0.1", 0))  # the port is in use: one sentence, no traceback
         try:
             with pytest.raises(OSError, match="cannot listen for I\\+\\+ DME clients"):
-                start(station, f"127.0.0.1:{taken.getsockname()[1]}")
+                start(station.controller.commands, f"127.0.0.1:{taken.getsockname()[1]}")
         finally:
             taken.close()
     finally:

@@ -1,7 +1,8 @@
 """The architecture holds: imports go down the layers only, and no module imports itself in a circle.
 
-Layers (README "Architecture"): front ends (ui, ippdme, cli) -> station (composition root) -> control -> machine
--> nmc, and station -> measurement and session, beside each other, -> the program files (cmm.program) -> the
+Layers (README "Architecture"): front ends (ui, ippdme, opcua, dmis, cli) -> station (composition root) -> control
+-> machine -> nmc, and station -> measurement and session, beside each other; the command API's mechanics (cmm.api)
+under the control core, which registers the machine's verbs into it, importing no other part of cmm; -> the program files (cmm.program) -> the
 journal (cmm.journal: records, fold, writer, stores) -> metrology; the measurement model never imports the
 sessions; calibration beside them; the simulator speaks only bytes. Every import
 counts: those inside functions, and those for type checkers only (``if TYPE_CHECKING:``), which draw the
@@ -25,8 +26,11 @@ ALLOWED = {
     "cad": set(),  # STEP/IGES read with OpenCASCADE into plain data: faces with exact surfaces
     "metrology": {"cad"},  # picks, nominals and deviations use a CAD part's exact surfaces
     "data": set(),
+    # the command API's mechanics (registry, calls, error codes, subscriptions, the caller): it knows verbs by name,
+    # never what is behind them; every layer registers its own verbs, queries, streams and error kinds into it
+    "api": set(),
     "machine": {"nmc", "metrology", "data"},
-    "control": {"machine", "nmc"},
+    "control": {"api", "machine", "nmc"},
     # machine.config: the axes it simulates, never the driver; cad: a CAD part's probe contacts on its exact surfaces
     "sim": {"nmc", "machine", "metrology", "cad"},
     # the journal: the records of its events, their fold (SessionState), its writer and stores; the live model
@@ -36,15 +40,17 @@ ALLOWED = {
     "session": {"machine", "metrology", "sim", "journal"},
     "calibration": {"machine", "metrology", "nmc", "sim", "session", "program"},  # program: its TOML text writer
     "measurement": {"metrology", "journal", "program"},  # the measurement model: journals its events, fits with metrology
-    "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
-    "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
-    "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
-    "opcua": {"control"},  # the OPC UA server: a front end on the command API only
-    "ui": {"control", "station", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
+    "station": {"api", "control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
+    # the I++ DME and OPC UA servers: front ends on the command API only (the control core's errors and access
+    # rules for connections from cmm.control)
+    "ippdme": {"api", "control"},
+    "opcua": {"api", "control"},
+    "dmis": {"api", "control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
+    "ui": {"api", "control", "station", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
            "opcua"},  # hosts I++ and DMIS runs
     # every sub-command is a module of cmm/cli (a front end: it translates options into the capability's calls)
-    "cli": {"station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis", "ippdme",
-            "opcua", "cad", "measurement", "journal", "program"},
+    "cli": {"api", "station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis",
+            "ippdme", "opcua", "cad", "measurement", "journal", "program"},
 }
 # known exceptions (module, package) -> the reason it is there
 EXCEPTIONS: dict[tuple[str, str], str] = {
@@ -384,6 +390,30 @@ def test_front_ends_import_neither_the_station_nor_the_measurement_model():
     assert all(m in g for m in COMPOSERS), "a composer named here no longer exists: drop it from COMPOSERS"
 
 
+# front ends that receive only the command API: built with the API object (``StationBackend(api)``,
+# ``OpcUaServer(api, ...)``), they never hold the station, its control core, the measurement model or the
+# calibration service, and read the machine through the API's queries and streams
+API_ONLY = {"ippdme", "opcua"}
+# being converted to the same rule; each moves to API_ONLY (one line) once it receives only the API
+API_ONLY_PENDING = {"ui", "dmis"}
+BEHIND_THE_API = ("station", "controller", "measurement", "calibration")
+
+
+def test_api_only_front_ends_receive_nothing_but_the_api():
+    """The I++ DME and OPC UA servers import neither the station, the measurement, the calibration, the sessions
+    nor the machine (only cmm.api and cmm.control's errors and connection rules), and name no ``station``,
+    ``controller``, ``measurement`` or ``calibration`` object: no ``station.controller``, ``self.controller.state``
+    or ``service.calibration`` beside the API's ``invoke``, ``listen`` and ``subscribe``."""
+    assert not API_ONLY & API_ONLY_PENDING and API_ONLY | API_ONLY_PENDING <= set(FRONT_END_PACKAGES)
+    g = _graph()
+    bad = sorted(f"{a} -> {b}" for a, b in g.edges if _layer(a) in API_ONLY and _layer(b) not in ("api", "control")
+                 and _layer(b) != _layer(a) and b != "cmm")
+    bad += [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+            if f.split("/")[0] in API_ONLY
+            and (attr in BEHIND_THE_API or owner.split(".")[-1] in BEHIND_THE_API)]
+    assert not bad, "front ends reaching behind the command API:\n" + "\n".join(bad)
+
+
 def test_the_page_never_holds_the_models_lock():
     """The page draws from the API's ``model`` query (a snapshot copied under the model's lock inside the
     measurement package) and never takes ``measurement.lock`` itself, so a slow redraw never holds up a hit."""
@@ -413,6 +443,23 @@ def test_front_ends_and_the_calibration_never_reach_the_simulator_through_the_st
            if attr in ("sim", "place_sim_artifacts", "mount_sim_stylus")
            and owner.split(".")[-1] in ("station", "st", "host", "self")]
     assert not bad, "the simulator reached through the station:\n" + "\n".join(bad)
+
+
+# the page's panels that receive only the command API (through their PanelContext): they read with queries and
+# change with verbs; a panel converted from reaching into the station joins this list
+PANELS_ON_THE_API = ("ui/panel_sessions.py", "ui/panel_calibration.py", "ui/panel_trends.py", "ui/panel_operator.py",
+                     "ui/panel_diagnostics.py", "ui/panel_part.py")
+
+
+def test_panels_on_the_api_never_reach_the_station():
+    """The panels in PANELS_ON_THE_API get nothing of the station: no ``ctx.station``, ``app.station``, no
+    ``station.measurement``, ``.controller``, ``.calibration`` or ``.config``, no calibration service or trends
+    object held; the session store is opened only to read a session for replay (its changes are verbs)."""
+    held = ("station", "measurement", "controller", "calibration", "service", "config")
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if f in PANELS_ON_THE_API and (attr in held or owner.split(".")[-1] in held)]
+    assert not bad, "a panel reaching around the command API:\n" + "\n".join(bad)
+    assert all((ROOT / f).is_file() for f in PANELS_ON_THE_API), "a panel named here no longer exists"
 
 
 MODULE_LINES = 800

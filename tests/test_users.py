@@ -173,9 +173,10 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(stations, tmp_path):
         # I++ DME has no login: its clients act as the user the operator named (--ippdme-user), or only observe
         from cmm.ippdme.backend import StationBackend
 
-        anonymous = StationBackend(station, grants_control=True).for_client("10.0.0.5:5000")
+        api = station.controller.commands
+        anonymous = StationBackend(api, grants_control=True).for_client("10.0.0.5:5000")
         assert "needs a user: log in" in anonymous.acquire()
-        named = StationBackend(station, grants_control=True, user=("maria", "operator")).for_client("10.0.0.5:5001")
+        named = StationBackend(api, grants_control=True, user=("maria", "operator")).for_client("10.0.0.5:5001")
         assert named.acquire() is None and control.holder_name == "maria"
     finally:
         server.close()

@@ -82,7 +82,7 @@ class Bench(Protocol):
 class CalibrationHost:
     """What the service needs, and nothing of the station: the composition root hands it these."""
 
-    api: Any  # the command API (cmm.control.api.CommandAPI): its run_job, configure, stop and note verbs
+    api: Any  # the command API (cmm.api.CommandAPI): its run_job, configure, stop and note verbs
     config: Any  # the machine configuration (probing speed, nominal tip, its source for the records)
     settings_lock: Any  # held while records are applied (the measurement reads the probe settings under it)
     wait_event: Callable[[threading.Event, float], bool]  # wait for the operator while the machine loop serves STOP

@@ -227,9 +227,10 @@ def run(args: argparse.Namespace) -> int:
         from ..ippdme.serve import start as start_ippdme
 
         try:
-            ippdme = start_ippdme(station, args.ippdme, user=None if users is None or not args.ippdme_user else
-                                  (args.ippdme_user, next(u["role"] for u in users.users()
-                                                          if u["name"] == args.ippdme_user)))
+            ippdme = start_ippdme(station.controller.commands, args.ippdme, user=None if users is None or
+                                  not args.ippdme_user else (args.ippdme_user, next(
+                                      u["role"] for u in users.users() if u["name"] == args.ippdme_user)))
+            station.serving_ippdme(ippdme.status)  # the page shows who drives the machine through I++
         except (OSError, ValueError) as exc:
             app.close()
             station.close()

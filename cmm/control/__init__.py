@@ -2,9 +2,10 @@
 
 Layers (imports go down only; see README "Architecture")::
 
-    ui (viser panels, pendant), cli, I++ DME server      front ends
+    ui (viser panels, pendant), cli, I++ DME, OPC UA     front ends: they receive the command API
     station                                              composition root: builds and wires
-    control      <- this package: the command API, the machine loop, the state model, access policy
+    control      <- this package: the machine loop, the state model, access policy, the machine's verbs
+    api          the command API's mechanics (cmm.api): verbs, calls, error codes, subscriptions
     machine      axes in mm, moves, horizon jogs, probing cycles, homing
     nmc          PIC-SERVO protocol and bus
 
@@ -14,8 +15,9 @@ Commands in, state and errors out. Every command takes the front end's
 ``client`` first: a :class:`Client` (id, local?, authenticated?) or an id
 string; ``None`` is the station itself (scripts, CLI, homing). The same verbs
 as requests and responses (a method name and named parameters in, a result or
-an error with a code and the operator's sentence out): ``controller.commands``
-(:mod:`cmm.control.api`), which the pendant and the I++ server map to.
+an error with a code and the operator's sentence out): ``controller.commands``,
+a :class:`cmm.api.CommandAPI` on which the core registers the machine's verbs
+(:mod:`.verbs`), and which the pendant, the I++ and the OPC UA servers map to.
 
 ===================================  =========================================================================
 ``move(client, xyz, frame=, path=)``  to a point in 'machine' or 'part' coordinates, over the clearance plane
@@ -79,12 +81,12 @@ from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError, MoveStatus
 from .access import AccessPolicy, Client, HolderPolicy, OpenPolicy
-from .api import CommandAPI, Response
+from ..api import ERROR_CODES, CommandAPI, CommandError, Response, Verb  # the API's home is cmm.api
 from .core import Controller
 from .jog import JogHolds
 from .modes import ALLOWED, COMMANDS, ControlError, ControlState, CutShort, Mode, Refused, RunStopped, StopReport
 
-__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "CommandAPI", "ContactError",
+__all__ = ["ALLOWED", "AccessPolicy", "COMMANDS", "Cancelled", "Client", "CommandAPI", "CommandError", "ContactError",
            "ControlError", "CutShort", "ControlState", "Controller", "JogHolds", "Response", "HolderPolicy",
            "LimitError", "Mode", "MotionError", "MoveStatus", "OpenPolicy", "Refused", "RunStopped", "StopReport",
-           "SurfaceNotFound"]
+           "SurfaceNotFound", "ERROR_CODES", "Verb"]

@@ -85,29 +85,10 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping, Protocol
 
+from ..api.clients import AccessRefused, Client, client_of  # noqa: F401 - the API's, re-exported here
 from .modes import RECORD_COMMANDS, SAFETY_COMMANDS
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Client:
-    id: str
-    local: bool = False  # connects from the station PC itself
-    authenticated: bool = False  # gave the access code on this connection (or is local)
-    # came through a listener the operator opened for programs that command the machine (the I++ DME port, its
-    # address chosen at start-up): that decision stands in for the access code when it takes control
-    listener_grants_control: bool = False
-    # who logged in on this connection (a station with a user file, cmm.control.users): the name every message and
-    # record carries, and the role cmm.control.roles checks; None: nobody logged in
-    user: str | None = None
-    role: str | None = None
-
-
-def client_of(client: Any) -> Client | None:
-    if client is None or isinstance(client, Client):
-        return client
-    return Client(str(client))
 
 
 class AccessPolicy(Protocol):
@@ -165,10 +146,6 @@ MAX_WAIT = 30.0  # s, the longest wait after many wrong codes
 class _Attempts:
     failures: int = 0
     not_before: float = 0.0
-
-
-class AccessRefused(PermissionError):
-    """Control (or a stop) refused, with the reason an operator reads."""
 
 
 class Control:

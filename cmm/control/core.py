@@ -24,12 +24,13 @@ from .access import AccessPolicy, HolderPolicy, OpenPolicy
 from .dispatch import Dispatcher
 from . import rails
 from .modes import ControlState, Mode, Refused
-from .api import CommandAPI
+from ..api import CommandAPI
 from .jog import JogHolds
 from .job_runner import Job, JobRunner  # noqa: F401 - Job: what run_routine hands a routine
 from .loop import _NOBODY, COMMAND_TIMEOUT, STATE_INTERVAL, MachineLoop, _Command  # noqa: F401 - re-exported
 from .rails import Workspace
 from .running import RunningJobs
+from .verbs import register_machine_verbs
 from .safety import STILL_TIMEOUT, STOP_PATIENCE, STOP_TIMEOUT, SafetyCore  # noqa: F401 - re-exported
 
 log = logging.getLogger(__name__)
@@ -92,7 +93,8 @@ class Controller(MachineLoop, SafetyCore, JobRunner):
         # what runs now (auto-measure, routine, program, calibration): the cancel verb; the last run's end
         # drops a stop's mark on the run
         self.jobs = RunningJobs(on_idle=self._runs_ended)
-        self.commands = CommandAPI(self)  # the same verbs as requests and responses, for the adapters
+        self.commands = CommandAPI()  # the same verbs as requests and responses, for the adapters
+        register_machine_verbs(self.commands, self)
         self._restart: str | None = None  # a fault or a contact stopped the machine: the next move retracts first
         self._backoff: np.ndarray | None = None  # ... backing off this way first (after a contact)
         self._contact_at: np.ndarray | None = None  # where that contact was (machine mm)

@@ -14,7 +14,7 @@ metrologist    what a programmer may, and calibrate: qualify probes, ISO 10360-5
 admin          everything, and manage the users
 =============  ==============================================================================================
 
-Rules kept here, checked once in :meth:`cmm.control.api.CommandAPI.invoke` (never in a front end):
+Rules kept here, checked once in :meth:`cmm.api.CommandAPI.invoke` (never in a front end):
 
 - Without a user file the station runs in the local, no-login mode: no role is checked (the control holder rule
   of :mod:`cmm.control.access` alone decides), as a single-user bench always did.
@@ -40,7 +40,8 @@ GROUPS: dict[str, frozenset[str]] = {
         "take_control", "move", "probe", "jog_hold", "step", "home", "reset", "reconnect", "resume", "skip_step",
         "cancel_move", "run_job", "run_program", "run_routine", "measure_feature", "construct", "undo", "delete_hit",
         "delete_feature", "refit_feature", "align", "auto_measure", "new_session", "new_part", "note", "set_info",
-        "select_probe", "load_part", "place_sim_part", "run_dmis"}),
+        "select_probe", "load_part", "place_sim_part", "run_dmis", "rename_session", "delete_session",
+        "reevaluate_session", "add_probe", "set_sphere_certificate", "bar_placed"}),
     "program": frozenset({"set_nominal", "define_datum", "define_gdt", "delete_gdt", "record_event"}),
     "calibrate": frozenset({"qualify", "save_calibration", "accept_gains", "zero", "configure"}),
     "administer": frozenset({"users", "add_user", "remove_user", "set_password", "new_token", "revoke_token"}),

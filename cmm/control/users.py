@@ -250,7 +250,7 @@ def _sha(token: str) -> str:
 def register_user_verbs(api: Any, store: UserStore) -> None:
     """The admin's verbs of the command API (the page's Users folder, scripts with an admin's token): the role
     table puts them in the ``administer`` group, so only an admin may; the file changes as ``cmm users`` does."""
-    from .api import REQUIRED
+    from ..api import REQUIRED
 
     api.register("users", lambda client: store.users(), {}, "the users, their roles and token labels (admin)")
     api.register("add_user", lambda client, name, role, password: store.add(name, role, password),

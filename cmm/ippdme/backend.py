@@ -14,6 +14,9 @@ from typing import Any, Callable, Protocol
 
 import numpy as np
 
+from ..api import Client, CommandError
+from ..control import Mode
+from ..control.access import is_local_connection
 
 
 class Backend(Protocol):
@@ -42,8 +45,8 @@ class Backend(Protocol):
 MOVING_MODES = ("moving", "jogging", "probing", "homing")
 
 
-def busy_holder(controller: Any, me: str) -> str | None:
-    """Why an I++ client may not take control now, naming the holder; None when it may.
+def busy_holder(api: Any, client: Any) -> str | None:
+    """Why an I++ client may not take control now, naming the holder; None when it may (the API's queries).
 
     The rule (docs/reliability.md): a connecting I++ client takes control only from nobody, or from a holder whose
     machine stands still with nothing running (no jog, move, probe, homing, routine, program, auto-measure or
@@ -51,28 +54,29 @@ def busy_holder(controller: Any, me: str) -> str | None:
     error naming the holder and what the machine does, and connects again after the holder has released
     control (Release in the page, or the pendant closed) or stopped. Nothing waits: a client is never left
     hanging on a connection the operator does not know about."""
-    control = getattr(controller, "holder", None)
-    holder = None if control is None else control.holder
-    if holder is None or holder == me:
+    control = api.invoke(client, "control")
+    holder = control["holder"]
+    if holder is None or control["yours"]:
         return None
-    mode = str(getattr(controller.state.mode, "value", controller.state.mode))
-    machine = controller.state.machine
+    state = api.invoke(client, "state")
+    mode = str(getattr(state.mode, "value", state.mode))
+    machine = state.machine
     turning = machine is not None and any(abs(a.velocity) > 0 for a in machine.axes)
-    jobs = controller.jobs.descriptions()
+    jobs = [job["description"] for job in api.invoke(client, "job")]
     if mode not in MOVING_MODES and not turning and not jobs:
         return None
     doing = f"{jobs[0]} is running" if jobs else (f"the machine is {mode}" if mode in MOVING_MODES
                                                    else "the machine is moving")
-    return (f"{control.name(holder)} holds the station's control and {doing}: an I++ client does not take "
-            f"control from them. Ask {control.name(holder)} to stop and release control (Release in the page), "
+    return (f"{holder} holds the station's control and {doing}: an I++ client does not take "
+            f"control from them. Ask {holder} to stop and release control (Release in the page), "
             "then connect again")
 
 
 class StationBackend:
-    """The I++ DME backend on a started :class:`~cmm.station.Station`, through its control core.
+    """The I++ DME backend on a started station's command API (:class:`cmm.api.CommandAPI`), the only object it gets.
 
     An adapter that only translates: every command goes to the command API
-    (:mod:`cmm.control.api`, its verbs) with this connection's client id, so the
+    (its verbs, queries and event streams) with this connection's client id, so the
     core's access policy and motion rails apply: the I++ client takes the
     station's one control holder (browsers then observe and can still stop the
     machine). GoTo is a straight ``move`` and PtMeas a ``probe`` with the
@@ -82,15 +86,10 @@ class StationBackend:
     (journal, browser), so an I++ session is recorded like a browser one.
     """
 
-    def __init__(self, station: Any, client: str = "ippdme", *, local: bool = True, peer: str | None = None,
+    def __init__(self, api: Any, client: str = "ippdme", *, local: bool = True, peer: str | None = None,
                  probe_name: str = "Probe1", grants_control: bool = False,
                  user: tuple[str, str] | None = None) -> None:
-        from ..control import Client
-
-        self.station = station
-        self.controller = station.controller
-        self.commands = station.controller.commands  # the verbs every front end sends
-        self.config = station.config
+        self.commands = api  # the verbs every front end sends
         # grants_control: the listener was opened by the operator for I++ clients (its address chosen at start-up),
         # so its clients take control without the access code they have no way to give
         self.grants_control = grants_control
@@ -101,21 +100,20 @@ class StationBackend:
                              role=None if user is None else user[1])
         self.peer = peer
         self.probe_name = probe_name
+        self.config = api.invoke(self.client, "machine_config")  # travel, speeds, probe distances, homing
 
     def for_client(self, peer: str) -> "StationBackend":
         """The backend of one connection: its own client id for the control core (``peer`` is host:port)."""
-        from ..control.access import is_local_connection
-
         host = peer.rsplit(":", 1)[0].strip("[]")
         local = is_local_connection(host)
-        return StationBackend(self.station, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name,
+        return StationBackend(self.commands, f"ippdme {peer}", local=local, peer=host, probe_name=self.probe_name,
                               grants_control=self.grants_control, user=self.user)
 
     # --- control --------------------------------------------------------------------
     def acquire(self) -> str | None:
         """Take the station's control for this client (the take_control verb); the reason when refused. Never
         from a holder whose machine is moving or running something (docs/reliability.md): the holder is named."""
-        busy = busy_holder(self.controller, self.client.id)
+        busy = busy_holder(self.commands, self.client)
         if busy is not None:
             return busy
         try:
@@ -139,51 +137,58 @@ class StationBackend:
         return np.asarray(self.commands.invoke(self.client, "position", frame="machine"), dtype=float)
 
     def check_target(self, target: np.ndarray) -> np.ndarray:
-        return self.controller.check_target(target)
+        return self.commands.invoke(self.client, "check_target", target=target)
+
+    def _probe_list(self) -> dict[str, Any]:
+        """The calibration's ``probes`` query (a station without a calibration service has none: no list)."""
+        try:
+            return self.commands.invoke(self.client, "probes")
+        except CommandError as exc:
+            if exc.code != "unknown_method":
+                raise
+            return {"probes": [], "folder": None, "problem": ""}
 
     def probes(self) -> list[tuple[str, float]]:
         """The station's probe list (the Calibration tab's): each probe's qualified radius (the one in use: the live
-        radius; one never qualified: its nominal radius). Without a calibration service: one probe."""
-        service = getattr(self.station, "calibration", None)
-        try:
-            rows = service.probes() if service is not None else []
-        except Exception:  # noqa: BLE001 - an unreadable probe list: the probe in use is still measurable
-            rows = []
+        radius; one never qualified: its nominal radius). Without a calibration service, or with a list that cannot
+        be read: one probe, the one in use."""
+        rows = self._probe_list()["probes"]
+        live = float(self.commands.invoke(self.client, "tip_radius"))
         if not rows:
-            return [(self.probe_name, float(self.controller.tip_radius))]
-        return [(r["name"], float(self.controller.tip_radius) if r["selected"] else
+            return [(self.probe_name, live)]
+        return [(r["name"], live if r["selected"] else
                  float(r["tip_radius"] if r["tip_radius"] is not None else r["tip_diameter"] / 2)) for r in rows]
 
     def change_tool(self, name: str) -> None:
         """ChangeTool to one of the station's probes: it becomes the probe in use (as *Use this probe* in the
         Calibration tab). Tools that are not station probes (RefTool, NoTool ...) and a station without a
-        calibration folder change nothing here."""
-        service = getattr(self.station, "calibration", None)
-        if service is None or getattr(service, "directory", None) is None:
+        calibration folder change nothing here; a list that cannot be read is an error (the client is told)."""
+        listing = self._probe_list()
+        if listing["folder"] is None:
             return
-        probes, selected = service.probe_list()
-        if name != selected and name in {p.name for p in probes}:
-            self.controller.commands.invoke(self.client, "select_probe", name=name)
+        if listing["problem"]:
+            raise ValueError(listing["problem"])
+        selected = next((r["name"] for r in listing["probes"] if r["selected"]), None)
+        if name != selected and name in {r["name"] for r in listing["probes"]}:
+            self.commands.invoke(self.client, "select_probe", name=name)
 
     def subscribe_state(self, fn: Callable[[Any], None]) -> Callable[[], None]:
         """``fn(machine_state)`` (time, position) after samples, on the core's dispatcher thread."""
         def forward(state: Any) -> None:
             if state.machine is not None:
                 fn(state.machine)
-        return self.controller.subscribe_state(forward)
+        return self.commands.listen(self.client, "state", forward)
 
     def on_emergency_stop(self, fn: Callable[[str], None]) -> Callable[[], None]:
         """``fn(message)`` when anyone (browser, pendant, this or another client) E-stops the machine."""
         def forward(kind: str, info: dict) -> None:
             if kind == "estop":
                 fn(str(info.get("message") or "emergency stop"))
-        return self.controller.subscribe(forward)
+        return self.commands.listen(self.client, "events", forward)
 
     @property
     def estopped(self) -> bool:
-        from ..control import Mode
-
-        return self.controller.state.mode is Mode.ESTOPPED
+        return self.commands.invoke(self.client, "state").mode is Mode.ESTOPPED
 
     # --- motion: the command API's move and probe, straight lines as I++ DME means them ---------
     def move_to(self, target: np.ndarray, speed: float, accel: float) -> np.ndarray:

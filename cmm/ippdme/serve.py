@@ -9,19 +9,17 @@ from .backend import StationBackend
 from .server import IppServer, parse_address
 
 
-def start(station: Any, address: str, *, user: tuple[str, str] | None = None) -> IppServer:
-    """Start the I++ DME server for ``station``; raises ValueError/OSError with an operator's message.
-
-    ``station.ippdme`` is then the server's :class:`~cmm.ippdme.status.IppStatus`
-    (connected client, current command, measured points) for the browser.
+def start(api: Any, address: str, *, user: tuple[str, str] | None = None) -> IppServer:
+    """Start the I++ DME server on the station's command API ``api``; raises ValueError/OSError with an operator's
+    message. The caller hands the server's :class:`~cmm.ippdme.status.IppStatus` (connected client, current
+    command, measured points) to the station for the browser (``station.serving_ippdme(server.status)``).
     """
     host, port = parse_address(address)
     try:
         # the operator chose this address at start-up: its clients take control without an access code
-        server = IppServer(StationBackend(station, grants_control=True, user=user), host, port).start()
+        server = IppServer(StationBackend(api, grants_control=True, user=user), host, port).start()
     except OSError as exc:
         raise OSError(f"cannot listen for I++ DME clients on {host}:{port}: {exc}") from None
-    station.serving_ippdme(server.status)
     print(f"I++ DME server on {server.address}: point PC-DMIS, CALYPSO, ... at this address (one client at a time)")
     if not is_loopback_host(host):
         print("I++ DME: listening beyond this PC; anyone on the network can connect and move the machine")

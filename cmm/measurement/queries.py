@@ -41,8 +41,8 @@ def snapshot(measurement: Any) -> ModelSnapshot:
 
 
 def register_queries(api: Any, measurement: Any, calibration: Any = None) -> None:
-    """``probe_in_use``: the probe in use; ``characteristics``: the session's toleranced characteristics; ``report_info``:
-    the report header."""
+    """``part``: the part loaded; ``probe_in_use``: the probe in use; ``characteristics``: the session's toleranced
+    characteristics; ``report_info``: the report header."""
 
     def probe(client: Any) -> dict[str, Any]:
         row: dict[str, Any] = {}
@@ -67,6 +67,20 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                         "unit": m.unit, "ok": m.ok})
         return out
 
+    def part(client: Any) -> dict[str, Any] | None:
+        p = measurement.part  # one attribute read: the page asks five times a second and never waits on the lock
+        if p is None:
+            return None
+        cad = p.mesh.metadata.get("cad")  # a CAD part's B-rep model (cmm.cad.CadModel)
+        path = p.mesh.metadata.get("path")
+        return {"name": p.name, "pose": [[float(v) for v in row] for row in p.pose],
+                "description": cad.summary() if cad is not None else f"{p.name}: a mesh of {len(p.mesh.faces)} triangles",
+                "path": None if path is None else str(path)}
+
+    api.register("part", part, {},
+                 "None without a part; else its name, pose (4x4 part -> machine, where the station believes it lies), "
+                 "description (a CAD part's faces, or the mesh's triangles) and the file it was loaded from (path)",
+                 query=True)
     api.register("model", lambda client: snapshot(measurement), {},
                  "in process: the measurement model at this moment (hits, deleted hits, features, constructions, "
                  "the part, the last hit), copied under the model's lock; front ends draw from it", query=True)

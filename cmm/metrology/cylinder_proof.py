@@ -3,7 +3,8 @@
 A branch and bound over direction cells (``_direction_bound``) gives a lower bound on the criterion of every
 cylinder whose axis direction lies in the cone (for the minimum zone also passing near the least-squares axis at
 the data centre); each cell is bounded from the exact 2D criterion at its centre direction (``_ball_cell_bound``)
-or from the thinnest annulus by area (``_zone_cell_bound``). ``fit_criteria.cylinder`` searches, this proves.
+or from the thinnest annulus by area (``_zone_cell_bound``; on small cells with the tilt a variable of its linear
+program, ``_tilted_area_lower``). ``fit_criteria.cylinder`` searches, this proves.
 """
 
 from __future__ import annotations
@@ -25,8 +26,13 @@ PROOF_GAP = 1e-4  # mm (0.1 um): a cylinder criterion is proven optimal in the c
 PROOF_FULL_POINTS = {"mcc": 20000, "minzone": 20000, "mic": 2000}
 ZONE_LP_POINTS = 40  # minimum zone bound: points nearest and farthest from the axis in each cell's linear program
 PROOF_CELLS = 600  # direction cells the branch and bound may evaluate away from the optimum ...
-NEAR_DEG = 0.05  # ... and, besides those, within this angle of the optimum's direction,
+NEAR_BUDGET_DEG = 0.05  # ... and, besides those, with their centre within this angle of the optimum's direction,
 NEAR_CELLS = 1800  # this many (first-order cell bounds close there only on cells ~ tolerance / length wide)
+NEAR_DEG = 0.15  # the optimum's neighbourhood the proof records (near_cells: the cells evaluated there)
+TILT_DELTA = 0.02  # rad: direction cells this small are bounded by the tilted annulus program (_zone_cell_bound)
+TILT_START = 8  # its first rows: the points nearest and farthest from the axis (and the last cell's active ones),
+TILT_ADD = 8  # then at most this many of the points its solution violates per round,
+TILT_ROUNDS = 10  # for at most this many rounds (any round's weights give a bound)
 CRITICAL_POINTS = 150  # points per side (largest / smallest LS residuals) in the bound's subsample
 _ANNULUS_COST = np.array([0.0, 0.0, -1.0, 1.0])  # the annulus-area program: maximise A - B (see _annulus_area_lower)
 _INNER_COST = np.array([0.0, 0.0, -1.0])  # the inner-radius program: maximise s (see _inner_radius_max)
@@ -142,6 +148,75 @@ def _annulus_area_lower(rel: np.ndarray, keep: np.ndarray, reach: float) -> tupl
     return max(bound, 0.0), keep[lam > 1e-12], keep[mu > 1e-12]
 
 
+_TILT_COST = np.array([0.0, 0.0, 0.0, 0.0, -1.0, 1.0])  # the tilted annulus program: maximise A - B
+_FREE6 = (np.full(6, -np.inf), np.full(6, np.inf))
+_ORIGIN2 = np.zeros(2)
+
+
+def _tilt_certificate(rel: np.ndarray, zs: np.ndarray, outer: np.ndarray, lam: np.ndarray, inner: np.ndarray,
+                      mu: np.ndarray, reach: float, sigma: float) -> float:
+    """A lower bound on max_i rho_i^2 - min_i rho_i^2 (rho_i: point i's distance to the axis) over every axis
+    crossing the plane x.u = 0 within ``reach`` of the reference (rel: the points seen from it across u) along a
+    direction unit(u + s), |s| <= sigma (s across u), from weights lam >= 0 on the ``outer`` points and mu >= 0
+    on the ``inner`` ones, each summing to 1.
+
+    With d the crossing and z_i = x_i.u, w_i = rel_i - d - z_i s: rho_i^2 = |w_i|^2 - (w_i.s)^2 / (1 + |s|^2)
+    = L_i + |d|^2 + E_i, L_i = |rel_i|^2 - 2 rel_i.d - 2 z_i rel_i.s linear in (d, s), and
+    E_i = 2 z_i d.s + z_i^2 |s|^2 - (w_i.s)^2 / (1 + |s|^2) in [-2 |z_i| reach sigma - |w_i|^2 sigma^2,
+    2 |z_i| reach sigma + z_i^2 sigma^2]. The weights turn sum lam rho^2 - sum mu rho^2 (at most the range) into
+    sum lam |rel|^2 - sum mu |rel|^2 less 2 reach |imbalance in d|, 2 sigma |imbalance in s| and the E terms:
+    second order in the tilt but for the bilinear 2 z d.s (the first-order cell bound's 2 Z sin(delta) per unit
+    width becomes 4 Z reach sigma per unit area)."""
+    ro, ri = rel[outer], rel[inner]
+    zo, zi = np.abs(zs[outer]), np.abs(zs[inner])
+    a_o, a_i = np.einsum("ij,ij->i", ro, ro), np.einsum("ij,ij->i", ri, ri)
+    imb_d = lam @ ro - mu @ ri
+    imb_s = (lam * zs[outer]) @ ro - (mu * zs[inner]) @ ri
+    w_o = np.sqrt(a_o) + reach + zo * sigma
+    e_terms = lam @ (2.0 * zo * reach * sigma + w_o * w_o * sigma * sigma) + \
+        mu @ (2.0 * zi * reach * sigma + zi * zi * sigma * sigma)
+    value = (float(lam @ a_o - mu @ a_i) - 2.0 * reach * float(np.sqrt(imb_d @ imb_d))
+             - 2.0 * sigma * float(np.sqrt(imb_s @ imb_s)) - float(e_terms))
+    return value - 1e-12 * max(1.0, float(a_o.max()))
+
+
+def _tilted_area_lower(rel: np.ndarray, zs: np.ndarray, start: np.ndarray, reach: float, sigma: float
+                       ) -> tuple[float, tuple[np.ndarray, ...] | None]:
+    """_tilt_certificate's bound with the weights of the linear program in (d, s, A, B): L_i in [A, B],
+    |s_k| <= sigma, d free (its duals: weights whose d imbalance is zero), by constraint generation: the
+    program on the points ``start``, then the points its solution violates added until none is (the program
+    on every point, from a few rows). Returns the bound and the weights (outer indices, lam, inner indices, mu)
+    to carry to the next cell (any weights give a bound, the last program's included)."""
+    a_all = np.einsum("ij,ij->i", rel, rel)
+    coef = np.hstack([-2.0 * rel, -2.0 * zs[:, None] * rel])  # L_i = a_i + coef_i.(d, s)
+    tol = 1e-12 * max(1.0, float(a_all.max()))
+    lb, ub = _FREE6[0].copy(), _FREE6[1].copy()
+    lb[2:4], ub[2:4] = -sigma, sigma
+    active = np.unique(start)
+    for _ in range(TILT_ROUNDS):
+        n = len(active)
+        a, c = a_all[active], coef[active]
+        zeros, ones = np.zeros((n, 1)), np.ones((n, 1))
+        a_ub = np.vstack([np.hstack([c, zeros, -ones]), np.hstack([-c, ones, zeros])])
+        res = lp_small.solve(_TILT_COST, a_ub, np.full(2 * n, -np.inf), np.concatenate([-a, a]), lb, ub)
+        if not res.ok:
+            return 0.0, None
+        lin = a_all + coef @ res.x[:4]
+        viol = np.maximum(lin - res.x[5], res.x[4] - lin)
+        viol[active] = -np.inf
+        out = np.flatnonzero(viol > tol)
+        if not len(out):
+            break
+        active = np.concatenate([active, out[np.argsort(viol[out])[-TILT_ADD:]]])
+    dual = np.abs(res.duals)
+    lam, mu = dual[:n], dual[n:]
+    if lam.sum() <= 0 or mu.sum() <= 0:
+        return 0.0, None
+    o, i = lam > 1e-12 * lam.sum(), mu > 1e-12 * mu.sum()
+    weights = (active[o], lam[o] / lam[o].sum(), active[i], mu[i] / mu[i].sum())
+    return _tilt_certificate(rel, zs, *weights, reach, sigma), weights
+
+
 def _weighted_inner(radii: np.ndarray, off: np.ndarray, rho: float, idx: np.ndarray, nu: np.ndarray) -> float:
     """The bound of _inner_radius_max from weights ``nu`` (>= 0, summing to 1) on the points ``idx``; inf when
     a point weighed lies within 2 rho of the reference centre (the expansion does not hold there)."""
@@ -154,7 +229,7 @@ def _weighted_inner(radii: np.ndarray, off: np.ndarray, rho: float, idx: np.ndar
 
 
 def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np.ndarray] | None = None,
-                      enough: float = -np.inf, program: bool = True
+                      enough: float = -np.inf, program: bool = True, centre: np.ndarray | None = None
                       ) -> tuple[float, tuple[np.ndarray, np.ndarray] | None]:
     """An upper bound on min_i |rel_i - d| (the inner radius of an annulus centred at d) over every centre
     |d| <= reach. With a reference centre d0 (the algebraic circle's), e = d - d0 (|e| <= rho = reach + |d0|),
@@ -167,7 +242,7 @@ def _inner_radius_max(rel: np.ndarray, reach: float, carry: tuple[np.ndarray, np
     already at most ``enough`` (what the caller needs), the program is skipped. Returns the bound and the
     weights used (to carry to the next cell). ``program`` False: the carried weights' bound only, no program."""
     plain = float(np.sqrt(np.einsum("ij,ij->i", rel, rel)).min()) + reach
-    d0 = algebraic_ball(rel)[0]
+    d0 = algebraic_ball(rel)[0] if centre is None else centre
     rho = reach + float(np.sqrt(d0 @ d0))
     off = rel - d0
     radii = np.sqrt(np.einsum("ij,ij->i", off, off))
@@ -200,25 +275,50 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
     axis passes within ``centre_range`` of ``foot`` (scaled units), valid for the widths below ``best``.
 
     For the cell's centre direction u (cell half-angle delta) and an axis through c along u' in the cell
-    (c where it crosses the plane x.u = 0), each point's distance rho' to it and rho to the axis (c, u) satisfy
-    rho cos(delta) - Z sin(delta) <= rho' <= rho + Z sin(delta) (Z = max |x.u|), so the width
-    w' >= w_u(c) - (1 - cos delta) M - 2 Z sin delta (M >= every rho). In the plane across u, with the points
-    rel_i seen from the projected foot: w_u(c) (r_out + r_in) = r_out^2 - r_in^2 >= F (the annulus area bound:
-    the dual weights of the last cell's active points when they are still feasible and prune the cell, else
-    the linear program), r_in <= min |rel_i| + q (q: how far c's projection can be from the foot's), so a
-    cylinder with w' < best has w_u < W = best + slack and w_u >= F / (2 r_in_max + W): the returned bound is
-    F / (2 r_in_max + W) - slack. A cell this does not prune gets r_in_max from _inner_radius_max (second order
-    in q instead of first), so the bound closes on cells around the optimum once they are small enough."""
+    (c where it crosses the plane x.u = 0; in the plane across u, q bounds how far its projection d lies from
+    the foot's), with the points rel_i seen from the projected foot and a width w' < best: w' (r_out + r_in) =
+    r_out^2 - r_in^2 >= F (an area bound valid over the cell), r_out + r_in = 2 r_in + w' and r_in <= r_in_max,
+    so w' >= F / (2 r_in_max + best) (r_in_max from _inner_radius_max: second order in q, not first).
+
+    Cells wider than TILT_DELTA: each point's distance rho' to the axis (c, u') and rho to (c, u) satisfy
+    rho cos(delta) - Z sin(delta) <= rho' <= rho + Z sin(delta) (Z = max |x.u|), so w' >= w_u(c) - slack,
+    slack = (1 - cos delta) M + 2 Z sin delta (M >= every rho), with F the annulus area bound across u (the dual
+    weights of the last cell's active points when they are still feasible and prune the cell, else the linear
+    program) and W = best + slack for best. Smaller cells (those around the optimum, where a slack first order in
+    delta makes the cells shrink to ~ tolerance / length): F from the tilted annulus program (_tilted_area_lower,
+    the tilt a variable of the program: what is left is second order in the tilt but for a term in
+    q tan(delta)) and r_in_max grown by Z tan(delta)."""
     norm_foot = float(np.sqrt(foot @ foot))
     basis = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     carry: tuple[np.ndarray, np.ndarray] | None = None  # the inner-radius weights, cell to cell
+    tilt_weights: tuple[np.ndarray, ...] | None = None  # the tilted program's weights, cell to cell
 
-    def _by_inner(rel: np.ndarray, q: float, area: float, slack: float, program: bool = True) -> float:
-        """area / (2 r_in_max + W): the cell is pruned when r_in_max is at most ``enough``."""
+    def _by_inner(rel: np.ndarray, q: float, area: float, slack: float, program: bool = True, pad: float = 0.0,
+                  centre: np.ndarray | None = None) -> float:
+        """area / (2 (r_in_max + pad) + W): the cell is pruned when r_in_max is at most ``enough``."""
         nonlocal carry
-        enough = 0.5 * (area / (best + slack) - best - slack) if area > 0 else -np.inf
-        r_in, carry = _inner_radius_max(rel, q, carry, enough, program)
-        return area / (2.0 * r_in + best + slack)
+        enough = 0.5 * (area / (best + slack) - best - slack) - pad if area > 0 else -np.inf
+        r_in, carry = _inner_radius_max(rel, q, carry, enough, program, centre)
+        return area / (2.0 * (r_in + pad) + best + slack)
+
+    def tilted(rel: np.ndarray, dist: np.ndarray, zs: np.ndarray, q: float, sigma: float) -> float:
+        """The bound of a small cell: the carried weights of the tilted program first, the program (from the
+        points nearest and farthest from the foot and the carried ones) when they do not prune the cell."""
+        nonlocal tilt_weights
+        pad = float(np.abs(zs).max()) * sigma  # rho' <= |rel_i - d| + |z_i| tan(delta): see _tilt_certificate
+        if tilt_weights is not None:
+            area = _tilt_certificate(rel, zs, *tilt_weights, q, sigma)
+            if area > 0:
+                value = _by_inner(rel, q, area, 0.0, program=False, pad=pad, centre=_ORIGIN2)
+                if value >= best:
+                    return value
+        order = np.argsort(dist)
+        k = min(TILT_START, len(dist))
+        start = [order[:k], order[-k:]] + ([] if tilt_weights is None else [tilt_weights[0], tilt_weights[2]])
+        area, weights = _tilted_area_lower(rel, zs, np.concatenate(start), q, sigma)
+        if weights is not None:
+            tilt_weights = weights
+        return _by_inner(rel, q, area, 0.0, pad=pad, centre=_ORIGIN2) if area > 0 else 0.0
 
     def bound(u: np.ndarray, delta: float) -> float:
         nonlocal basis
@@ -226,7 +326,10 @@ def _zone_cell_bound(xs: np.ndarray, foot: np.ndarray, centre_range: float, best
         q = centre_range + (centre_range + norm_foot) * np.tan(min(delta, 1.0))
         rel = xs @ f - foot @ f
         dist = np.sqrt(np.einsum("ij,ij->i", rel, rel))
-        z = float(np.abs(xs @ u).max())
+        zs = xs @ u
+        if delta <= TILT_DELTA:
+            return tilted(rel, dist, zs, q, float(np.tan(delta)))
+        z = float(np.abs(zs).max())
         slack = (1.0 - np.cos(delta)) * (float(dist.max()) + q) + 2.0 * z * np.sin(delta)
         scale = 2.0 * (float(dist.min()) + q) + best + slack
         if len(basis[0]) and len(basis[1]):
@@ -283,26 +386,29 @@ def _direction_bound(cell_bound: Callable[..., float], u0: np.ndarray, best: flo
     delta = sqrt(2) h of its centre's (h: half the cell side); ``cell_bound(u, delta)`` bounds the criterion
     over the cell. Cells whose bound cannot beat ``best`` are dropped, the others split in four; a cell is
     only dropped on its bound, so the result bounds the whole cone, the optimum's own neighbourhood included
-    (there the cells shrink until the first-order bound closes). Cells whose centre lies within NEAR_DEG of
-    ``u_best`` count against NEAR_CELLS, the others against PROOF_CELLS; the search stops when either runs out.
-    Returns (lowest bound left, cells evaluated, of which near u_best)."""
+    (there the cells shrink until the bound closes). Cells whose centre lies within NEAR_BUDGET_DEG of ``u_best``
+    count against NEAR_CELLS, the others against PROOF_CELLS; the search stops when either runs out. Returns
+    (lowest bound left, cells evaluated, of which within NEAR_DEG of u_best)."""
     import heapq
 
     frame = frame_with_axis(u0)
     e1, e2 = frame[:, 0], frame[:, 1]
     t_max = np.tan(np.radians(cone))
-    near = np.radians(NEAR_DEG)
+    budget_near, near = np.radians(NEAR_BUDGET_DEG), np.radians(NEAR_DEG)
+    recorded = [0]  # cells evaluated within NEAR_DEG of u_best
 
     def bound(p: float, q: float, h: float) -> float:
         return cell_bound(unit(u0 + p * e1 + q * e2), min(np.sqrt(2.0) * h, np.pi / 2))
 
     def is_near(p: float, q: float) -> bool:
-        return bool(np.arccos(min(1.0, abs(float(unit(u0 + p * e1 + q * e2) @ u_best)))) <= near)
+        angle = np.arccos(min(1.0, abs(float(unit(u0 + p * e1 + q * e2) @ u_best))))
+        recorded[0] += int(angle <= near)
+        return bool(angle <= budget_near)
 
     n0 = 4
     h0 = t_max / n0
     heap: list[tuple[float, float, float, float]] = []
-    counts = [0, 0]  # cells evaluated away from / near u_best
+    counts = [0, 0]  # cells evaluated away from / within NEAR_BUDGET_DEG of u_best
     for i in range(n0):
         for j in range(n0):
             p, q = -t_max + (2 * i + 1) * h0, -t_max + (2 * j + 1) * h0
@@ -311,7 +417,7 @@ def _direction_bound(cell_bound: Callable[..., float], u0: np.ndarray, best: flo
     while heap:
         lower, p, q, h = heap[0]
         if lower >= best or counts[0] >= PROOF_CELLS or counts[1] >= NEAR_CELLS:
-            return lower, sum(counts), counts[1]
+            return lower, sum(counts), recorded[0]
         heapq.heappop(heap)
         for dp, dq in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
             cp, cq, ch = p + dp * h / 2, q + dq * h / 2, h / 2
@@ -321,7 +427,7 @@ def _direction_bound(cell_bound: Callable[..., float], u0: np.ndarray, best: flo
             counts[is_near(cp, cq)] += 1
             if child < best:
                 heapq.heappush(heap, (child, cp, cq, ch))
-    return best, sum(counts), counts[1]
+    return best, sum(counts), recorded[0]
 
 
 def _prove_cylinder(xs: np.ndarray, crit: np.ndarray, method: str, u0: np.ndarray, value: float,

@@ -1,7 +1,7 @@
 """The OPC UA server: a front end on the command API, serving the GMS model (:mod:`cmm.opcua.model`).
 
 It receives only the command API (``station.controller.commands``) and never reads the station: it subscribes to
-the API's queries (:meth:`cmm.control.api.CommandAPI.subscribe`: ``state``, ``position``, ``job`` at ``rate`` Hz, 10
+the API's queries (:meth:`cmm.api.CommandAPI.subscribe`: ``state``, ``position``, ``job`` at ``rate`` Hz, 10
 by default; ``probe_in_use`` and ``report_info`` once a second) and writes what each delivery changed into the
 address space, so subscribed clients see the machine move at no more than that rate whatever the machine does;
 an idle machine sends nothing. A run's characteristics are a query when it ends. A finished program run becomes a result (``GMSResultType``) in
@@ -493,7 +493,7 @@ def operation_mode(mode: str, program: bool) -> str:
 def default_client(user: str | None, role: str | None) -> Any:
     """The API client of an OPC UA session: an anonymous one observes; a user's came through the listener the
     operator opened (``--opcua``) with a name and password, which stands in for the access code."""
-    from ..control.access import Client
+    from ..api import Client
 
     if user is None:
         return Client("opcua (anonymous)")

@@ -9,14 +9,18 @@ routine runs in its own thread (never in viser's callback thread) and its
 uncalibrated / radius only / calibrated; geometry: scale, squareness and the
 bar errors before / after; servo: original and proposed gains).
 
-The tab drives nothing itself: the station's calibration service
-(``station.calibration``, :mod:`cmm.calibration.service`) runs each routine
-through the command API (``controller.run_job``), writes the records and applies
-them (``controller.configure``); this module only calls it and renders what it
-returns.
+The tab drives nothing itself: it sends the calibration's verbs of the command
+API (``qualify``, ``save_calibration``, ``accept_gains``, ``select_probe``,
+``add_probe``, ``set_sphere_certificate``, ``bar_placed``:
+:mod:`cmm.calibration.verbs`) and reads its queries (``calibration_run``,
+``calibration_records``, ``calibration_certificate``, ``probes``:
+:mod:`cmm.calibration.queries`); the calibration service behind them
+(:mod:`cmm.calibration.service`) runs each routine through the ``run_job`` verb,
+writes the records and applies them (``configure``). This module renders what
+they return.
 
 Nothing is applied by running: **Save record** writes the record and, for the
-probe and the geometry, applies it to the live station; servo gains are sent to
+probe and the geometry, applies it to the live machine; servo gains are sent to
 the modules only by **Accept gains**. A routine that fails (CalibrationError,
 SurfaceNotFound, MotionError ...) is reported as a notification and the
 previous calibration stays in force.
@@ -35,8 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from .context import PanelContext
+from .context import OPERATOR_ERRORS, PanelContext
 from .jobs import Job, ProgressView
+
+# what a calibration verb ends with that is an operator's message, not a crash (the service's calibration_errors():
+# its CalibrationError is a RuntimeError; SurfaceNotFound and MotionError are too)
+ERRORS = OPERATOR_ERRORS + (RuntimeError,)
 
 # the wizard's labels (the service accepts either; cmm.calibration.service.ROUTINES is the same table)
 ROUTINES = {"Probe qualification": "probe", "ISO 10360-5 test": "iso", "Machine geometry": "geometry",
@@ -156,8 +164,6 @@ def servo_markdown(result: Any, accepted: bool = False) -> str:
 class CalibrationPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
-        self.service = ctx.station.calibration  # the station's calibration service: runs, records, applies
         self.routine = "probe"
         self.job: Job | None = None
         self.result: tuple[str, Any] | None = None  # (routine, result object) of the last successful run
@@ -167,25 +173,33 @@ class CalibrationPanel:
         self.gui: dict[str, Any] = {}
         self.progress_view = ProgressView(ctx)
 
+    def _query(self, name: str, **params: Any) -> Any:
+        return self.ctx.commands.invoke(self.ctx.who(), name, **params)
+
+    def _run_state(self) -> dict[str, Any]:
+        """The ``calibration_run`` query: running, paused, holding, the bar set-up waited for, resumable."""
+        return self._query("calibration_run")
+
     @property
     def records_dir(self) -> Path:
-        return self.service.records_dir
+        return Path(self._query("calibration_records")["directory"])
 
     def certificate_markdown(self, routine: str | None = None) -> str:
-        return self.service.certificate_text(routine or self.routine)
+        return self._query("calibration_certificate", routine=routine or self.routine)["text"]
 
     def records(self) -> list[dict[str, str]]:
-        return self.service.records()
+        return self._query("calibration_records")["records"]
 
     def records_markdown(self) -> str:
-        rows = self.records()
-        lines = [f"records in `{self.records_dir}`:", ""]
+        info = self._query("calibration_records")
+        rows = info["records"]
+        lines = [f"records in `{info['directory']}`:", ""]
         if rows:
             lines += ["| record | date | result |", "|---|---|---|"]
             lines += [f"| {r['kind']} | {r['date']} | {r['result']} |" for r in rows]
         else:
             lines.append("*no records yet: the nominal settings are in force*")
-        log = self.service.in_force()
+        log = info["in_force"]
         if log:
             lines += ["", "in force: " + "; ".join(log)]
         return "\n".join(lines)
@@ -194,10 +208,13 @@ class CalibrationPanel:
 
     def probes(self) -> list[dict[str, Any]]:
         try:
-            return self.service.probes()
-        except self.service.errors as exc:
+            listing = self._query("probes")
+        except ERRORS as exc:
             self.ctx.error(exc, "Probe list")
             return []
+        if listing["problem"]:
+            self.ctx.error(listing["problem"], "Probe list")
+        return listing["probes"]
 
     def probes_markdown(self) -> str:
         """A narrow table (the side panel): probe, tip, qualified radius, expiry; a detail line per probe."""
@@ -225,22 +242,23 @@ class CalibrationPanel:
         if isinstance(stylus, str):  # "0, 0, -1", "0 0 -1" or "0;0;-1", as the other fields of the page take numbers
             stylus = [x for x in re.split(r"[,;\s]+", stylus.strip()) if x]
         try:
-            probe = self.service.add_probe(name, tip_diameter, stylus)
-        except self.service.errors as exc:
+            probe = self.ctx.commands.invoke(self.ctx.who(), "add_probe", name=name, tip_diameter=tip_diameter,
+                                             stylus=stylus)
+        except ERRORS as exc:
             self.ctx.error(exc, "Add probe")
             return False
-        self.ctx.notify("Probe added", f"{probe.name}: tip D {probe.tip_diameter:g} mm; select it and qualify it")
+        self.ctx.notify("Probe added", f"{probe['name']}: tip D {probe['tip_diameter']:g} mm; select it and qualify it")
         self._refresh_probes()
         return True
 
     def select_probe(self, name: str) -> bool:
         """Use probe ``name``: its qualified radius and pre-travel are what compensation uses from now on."""
-        if self.running or not self.station.controller.allowed("configure"):
+        if self.running or not self._machine_allows("configure"):
             self.ctx.error("change the probe when the machine is idle (not during a routine or a move)", "Use probe")
             return False
         try:
             text = self.ctx.commands.invoke(self.ctx.who(), "select_probe", name=name)
-        except self.service.errors as exc:
+        except ERRORS as exc:
             self.ctx.error(exc, "Use probe")
             return False
         self.ctx.notify("Probe in use", text)
@@ -255,14 +273,13 @@ class CalibrationPanel:
         if not self.ctx.allowed("Save certificate"):
             return False
         try:
-            cert = self.service.set_sphere_certificate(diameter=diameter, serial=serial,
-                                                       uncertainty=float(uncertainty_um) / 1000.0,
-                                                       form=float(form_um or 0.0) / 1000.0, client=self.ctx.who(),
-                                                       certified=certified or None)
-        except self.service.errors + (TypeError,) as exc:
+            cert = self.ctx.commands.invoke(self.ctx.who(), "set_sphere_certificate", diameter=diameter,
+                                            serial=serial, uncertainty_um=uncertainty_um, form_um=form_um,
+                                            certified=certified or None)
+        except ERRORS + (TypeError,) as exc:
             self.ctx.error(f"{exc}. The previous certificate stays.", "Save certificate")
             return False
-        self.ctx.notify("Certificate saved", cert.describe())
+        self.ctx.notify("Certificate saved", cert["text"])
         self._set("certificate", "content", self.certificate_markdown())
         return True
 
@@ -288,6 +305,10 @@ class CalibrationPanel:
         job = self._app_job()
         return job is not None and not job.done
 
+    def _machine_allows(self, command: str) -> bool:
+        """Whether the machine's state allows ``command`` now (the ``state`` query's commands allowed)."""
+        return command in self._query("state").allowed
+
     def run(self, routine: str | None = None, **options: Any) -> Job | None:
         """Start a routine (the service runs it in the machine loop; this tab waits in its own thread, never in
         viser's). Options: probe ``per_ring``, ``polar_deg``, ``repeats``; iso ``repeats``; geometry
@@ -299,16 +320,16 @@ class CalibrationPanel:
         label = LABELS[routine]
         if not self.ctx.allowed(label):
             return None
-        if self.running or self.service.running:
+        if self.running or self._run_state()["running"]:
             title = self._app_job().title if self.running else "a calibration routine"  # type: ignore[union-attr]
             self.ctx.error(f"'{title}' is running: wait for it or press STOP", f"{label} refused")
             return None
-        api = self.station.controller
-        if not api.allowed("job"):
-            self.ctx.error(f"the machine is {api.state.mode.value}" + (f" ({api.state.reason})" if api.state.reason else "")
-                            + ": calibrate when it is homed and idle (or press STOP)", f"{label} refused")
+        state = self._query("state")
+        if "job" not in state.allowed:
+            self.ctx.error(f"the machine is {state.mode.value}" + (f" ({state.reason})" if state.reason else "")
+                           + ": calibrate when it is homed and idle (or press STOP)", f"{label} refused")
             return None
-        problem = self.service.certificate_problem(routine)
+        problem = self._query("calibration_certificate", routine=routine)["problem"]
         if problem is not None:
             self.ctx.error(f"{problem}. The previous calibration stays in force.", f"{label} refused")
             return None
@@ -332,7 +353,10 @@ class CalibrationPanel:
         """The operator has clamped the bar for the set-up shown: the routine goes on."""
         if not self.ctx.allowed("Bar placed"):
             return False
-        if not self.service.bar_placed():
+        placed = self.ctx.do("Bar placed", "bar_placed")  # the core decides who may; its refusal is shown
+        if placed is None:
+            return False
+        if not placed:
             self.ctx.error("no set-up is waiting for the bar", "Bar placed")
             return False
         self._show_instruction()
@@ -369,7 +393,7 @@ class CalibrationPanel:
                 self.ctx.error("the qualification is not paused", "Resume")
                 return False
             return True
-        if self.service.checkpoint is None:
+        if not self._run_state()["resumable"]:
             self.ctx.error("no qualification was paused or stopped by a fault: press Run", "Resume")
             return False
         g = self.gui
@@ -381,7 +405,7 @@ class CalibrationPanel:
     def _done(self, job: Job) -> None:
         if job.error is not None:
             exc = job.error
-            known = isinstance(exc, self.service.errors)
+            known = isinstance(exc, ERRORS)
             text = (str(exc) if known else f"{type(exc).__name__}: {exc}") + ". The previous calibration stays in force."
             self.ctx.error(text, f"{job.title} stopped")
             self.progress_view.finish(job, text, False)
@@ -419,12 +443,12 @@ class CalibrationPanel:
         if self.result is None or self.result[0] != "servo":
             self.ctx.error("run the servo tuning first", "Accept gains")
             return False
-        if self.running or not self.station.controller.allowed("configure"):
+        if self.running or not self._machine_allows("configure"):
             self.ctx.error("wait until the machine is idle", "Accept gains")
             return False
         try:
             self.saved = self.ctx.commands.invoke(self.ctx.who(), "accept_gains", result=self.result[1])
-        except self.service.errors as exc:
+        except ERRORS as exc:
             self.ctx.error(exc, "Accept gains")
             return False
         self.accepted = True
@@ -435,7 +459,7 @@ class CalibrationPanel:
         return True
 
     def save_record(self) -> Path | None:
-        """Write the last result's record; probe and geometry are also applied to the live station."""
+        """Write the last result's record; probe and geometry are also applied to the live machine."""
         if self.result is None:
             self.ctx.error("run a routine first: there is nothing to save", "Save record")
             return None
@@ -446,7 +470,7 @@ class CalibrationPanel:
         try:
             path, applied = self.ctx.commands.invoke(self.ctx.who(), "save_calibration", routine=routine, result=r,
                                                      accepted=self.accepted)
-        except self.service.errors + (TypeError,) as exc:
+        except ERRORS + (TypeError,) as exc:
             self.ctx.error(f"{exc}. The previous calibration stays in force.", "Save record failed")
             return None
         self.saved = path
@@ -547,9 +571,9 @@ class CalibrationPanel:
     def _refresh_records(self) -> None:
         self._set("records", "content", self.records_markdown())
 
-    def _show_instruction(self) -> None:
+    def _show_instruction(self, text: str | None = None) -> None:
         """The ball-bar set-up the service waits for (shown in every tab; a toast in the tab that started it)."""
-        text = self.service.instruction
+        text = self._run_state()["instruction"] if text is None else text
         if text == self._shown_instruction:
             return
         self._shown_instruction = text
@@ -560,11 +584,12 @@ class CalibrationPanel:
 
     def refresh(self) -> None:
         """Called by ClientApp.refresh (5 Hz): the set-up to place, and a routine started in another tab."""
-        self._show_instruction()
+        run = self._run_state()
+        self._show_instruction(run["instruction"])
         job = self._app_job()
-        if job is not None and not job.done and self.progress_view.status is not None and self.service.paused:
+        if job is not None and not job.done and self.progress_view.status is not None and run["paused"]:
             text = (f"**PAUSED** {job.title}: {job.message}" + (" · holding; **Resume** lifts to the clearance "
-                    "height and goes on" if self.service.holding else " · stopping after the point in progress"))
+                    "height and goes on" if run["holding"] else " · stopping after the point in progress"))
             if self.progress_view.status.content != text:
                 self.progress_view.status.content = text
         if job is not None and job is not self.job and not job.done:

@@ -15,13 +15,12 @@ class DiagnosticsPanel:
     def __init__(self, ctx: PanelContext, app: Any) -> None:
         self.ctx = ctx
         self.app = app
-        self.station = app.station
         self.gui = ctx.gui
         self.live_trace = False
         self._plot_key: bytes | None = None
 
     def show_trace(self) -> None:
-        self.ctx.set("trace", "value", self.station.controller.trace_text(last=30))  # the link process's on a real port
+        self.ctx.set("trace", "value", self.ctx.commands.invoke(self.ctx.who(), "trace", last=30))  # the link process's on a real port
         self.ctx.set("link_health", "content", self.link_health())
 
     def link_health(self) -> str:

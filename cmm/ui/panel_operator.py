@@ -53,7 +53,6 @@ class OperatorPanel:
                  jog_release: Callable[[], None]) -> None:
         self.ctx = ctx
         self.app = app
-        self.station = app.station
         self.control = app.control
         self.client = client
         self.client_id = ctx.client_id
@@ -134,7 +133,7 @@ class OperatorPanel:
     def _operator_to_report(self) -> None:
         """The named holder is the session's operator (journalled, so the report header shows them)."""
         name = self.operator
-        if name is None or self.station.measurement.info.get("operator") == name:
+        if name is None or self.ctx.commands.invoke(self.ctx.who(), "report_info").get("operator") == name:
             return
         try:
             self.ctx.commands.invoke(self.ctx.who(), "set_info", operator=name)

@@ -41,19 +41,20 @@ def _xyzrz(pose: Any) -> tuple[float, float, float, float]:
 class PartPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.path: Path | None = None  # the file of the part loaded here
 
     # --- what the tab shows ---------------------------------------------------------------
 
+    def part(self) -> dict | None:
+        """The API's ``part`` query: None without a part, else its name, pose, description and file."""
+        return self.ctx.commands.invoke(self.ctx.who(), "part")
+
     def text(self) -> str:
-        part = self.station.measurement.part
+        part = self.part()
         if part is None:
             return "*No part loaded: load a part file (STEP, IGES or a mesh).*"
-        cad = part.mesh.metadata.get("cad")  # a CAD part's B-rep model (cmm.cad.CadModel)
-        what = cad.summary() if cad is not None else f"{part.name}: a mesh of {len(part.mesh.faces)} triangles"
-        lines = [f"**{part.name}**", "", what, "", f"station: part origin at {pose_text(part.pose)}"]
+        lines = [f"**{part['name']}**", "", part["description"], "", f"station: part origin at {pose_text(part['pose'])}"]
         sim = self.simulator()
         if sim is not None:
             lines.append(f"\nsimulator: the part lies at {pose_text(sim['part_pose'])}")
@@ -71,8 +72,8 @@ class PartPanel:
         return [x, y, z, float(g["rz"].value)]
 
     def parts_dir(self) -> Path:
-        where = self.station.measurement.session_dir
-        folder = Path(where).parent / "parts" if isinstance(where, Path) else Path(tempfile.gettempdir()) / "cmm-parts"
+        where = self.ctx.commands.invoke(self.ctx.who(), "session_store")
+        folder = (Path(tempfile.gettempdir()) / "cmm-parts" if where["url"] else Path(where["store"]).parent / "parts")
         folder.mkdir(parents=True, exist_ok=True)
         return folder
 
@@ -90,18 +91,19 @@ class PartPanel:
 
     def load(self, path: Path, pose: Any = None) -> Any:
         pose = self.pose_fields() if pose is None and "origin" in self.gui else pose
-        part = self.ctx.do("Load part", "load_part", path=str(path), pose=pose)
-        if part is not None:
-            self.path = Path(path)
-            self.ctx.clear_pick()
-            self.ctx.notify("Part", f"{part.name} loaded at {pose_text(part.pose)}")
-            self._fields_from(part.pose)
+        if self.ctx.do("Load part", "load_part", path=str(path), pose=pose) is None:
+            return None
+        part = self.part()  # what the station believes now, as every front end reads it
+        self.path = Path(path)
+        self.ctx.clear_pick()
+        self.ctx.notify("Part", f"{part['name']} loaded at {pose_text(part['pose'])}")
+        self._fields_from(part["pose"])
         return part
 
     def place(self) -> Any:
         """The present part again, at the pose in the fields (and on the simulator's table there)."""
-        part = self.station.measurement.part
-        path = self.path or (None if part is None else part.mesh.metadata.get("path"))
+        part = self.part()
+        path = self.path or (None if part is None else part["path"])
         if path is None:
             return self.ctx.error("load a part file first (the sample part is placed by the simulator)", "Place part")
         return self.load(Path(path))
@@ -130,8 +132,8 @@ class PartPanel:
 
     def build(self, gui: Any) -> None:
         g = self.gui
-        part = self.station.measurement.part
-        x, y, z, rz = _xyzrz(part.pose) if part is not None else (190.0, 150.0, 0.0, 0.0)
+        part = self.part()
+        x, y, z, rz = _xyzrz(part["pose"]) if part is not None else (190.0, 150.0, 0.0, 0.0)
         g["part"] = gui.add_markdown(self.text())
         upload = gui.add_upload_button("Load part file", hint="STEP or IGES (exact surfaces), STL, OBJ, PLY, 3MF, GLB",
                                        mime_type=",".join(ACCEPT))

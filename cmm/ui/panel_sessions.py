@@ -6,7 +6,10 @@ what a button does. A replay moves nothing: the session's part, hits and
 features are drawn into this browser's own scene
 (:class:`~cmm.ui.scene.ReplayView`), the live scene stays as it is for
 everyone else. Actions that change the record (rename, delete, new session,
-re-evaluate) need control; looking, replaying and exporting do not.
+re-evaluate) need control; looking, replaying and exporting do not. The tab reads the store's place, the
+session list and the trends through the command API's queries and changes the record with its verbs
+(``rename_session``, ``delete_session``, ``reevaluate_session``: :mod:`cmm.session.verbs`), so the core's access
+policy decides; it opens the store itself only to read a session for replay.
 
 Work that may take a while (opening a big session, exports with deviations,
 reports, re-evaluation) runs in a :class:`Job` thread, never in viser's
@@ -22,14 +25,14 @@ from typing import Any, Callable
 
 from ..control import MotionError
 from ..journal.bulk import dispose, gc_paused
-from ..journal.writer import JournalError
-from ..journal.store import StoreError, check_name, is_url, open_store
-from ..session.worker import WorkerError, shared_summaries, shared_worker
+from ..journal.store import StoreError, check_name, open_store
+from ..session.verbs import REEVALUATE_METHODS, check_reevaluation
+from ..session.worker import shared_worker
 
 from .context import PanelContext
 from .jobs import Job, ProgressView
 
-METHODS = ("recorded", "ls", "minzone", "mic", "mcc")
+METHODS = REEVALUATE_METHODS
 LIST_EVERY = 10  # refresh() calls between re-listing the store (refresh runs at 5 Hz)
 
 
@@ -91,7 +94,6 @@ def describe_event(e: dict) -> str:
 class SessionsPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.session: Any = None  # the Session being replayed (None: live)
         self.replay: Any = None
         self.index = -1
@@ -107,43 +109,31 @@ class SessionsPanel:
 
     # --- store --------------------------------------------------------------
 
+    def _query(self, name: str, **params: Any) -> Any:
+        return self.ctx.commands.invoke(self.ctx.who(), name, **params)
+
+    def where(self) -> str:
+        """The session store (a folder or a postgresql:// URL), as the ``session_store`` query gives it."""
+        return self._query("session_store")["store"]
+
     def store(self) -> Any:
-        return open_store(self.station.measurement.session_dir)
+        """The store, opened here to read a session for replay (its changes go through the API's verbs)."""
+        return open_store(self.where())
 
     def live_name(self) -> str | None:
-        """The name of the session the station is recording."""
-        j = self.station.measurement.journal
-        if j is None:
-            return None
-        path = getattr(j, "path", None)
-        return Path(path).stem if path is not None else getattr(j, "name", None)
+        """The name of the session being recorded now."""
+        return self._query("session_store")["live"]
 
     def export_dir(self) -> Path:
-        d = self.station.measurement.session_dir
-        return Path("exports") if is_url(d) else Path(d)
+        return Path(self._query("session_store")["export_dir"])
 
     def sessions(self, wait: bool = True) -> list[dict[str, Any]]:
-        """name, events, hits, features, recording, modified for every session in the store.
+        """name, events, hits, features, recording, modified for every session in the store (the ``sessions``
+        query).
 
         The summaries are read by the session worker process, once per journal version for every tab;
         ``wait=False`` (the list the tab shows) gives "…" for one still being read."""
-        live = self.live_name()
-        rows = []
-        for info in self.store().list():
-            if info.name == live:
-                view = self.ctx.model()
-                hits, features = len(view.hits), len(view.features)
-            else:
-                try:
-                    summary = shared_summaries().get(self.station.measurement.session_dir, info.name,
-                                                     (info.events, info.modified), wait=wait)
-                except (StoreError, JournalError, OSError, ValueError, KeyError, WorkerError) as exc:
-                    summary = {"hits": "?", "features": "?", "damage": str(exc)}
-                summary = summary or {"hits": "…", "features": "…"}
-                hits, features = summary.get("hits"), summary.get("features")
-            rows.append({"name": info.name, "events": info.events, "hits": hits, "features": features,
-                         "recording": info.open_for_writing or info.name == live, "modified": info.modified})
-        return rows
+        return self._query("sessions", wait=wait)
 
     def list_markdown(self) -> str:
         try:
@@ -159,14 +149,6 @@ class SessionsPanel:
                 flag = (flag + " · replaying").strip(" ·")
             lines.append(f"| {r['name']} | {r['hits']} | {r['features']} | {r['events']} | {flag} |")
         return "\n".join(lines)
-
-    def _is_live(self, name: str) -> bool:
-        if name == self.live_name():
-            return True
-        try:
-            return any(i.name == name and i.open_for_writing for i in self.store().list())
-        except (StoreError, OSError):
-            return False
 
     # --- jobs ---------------------------------------------------------------------
 
@@ -207,7 +189,7 @@ class SessionsPanel:
         return resolve_part_mesh(session, self._live_mesh())
 
     def _live_mesh(self) -> Any:
-        part = self.station.measurement.part
+        part = self.ctx.model().part
         return part.mesh if part is not None else None
 
     def open(self, name: str) -> Job | None:
@@ -306,37 +288,31 @@ class SessionsPanel:
 
     # --- record management -------------------------------------------------------------
 
-    def rename(self, old: str, new: str) -> bool:
-        if not self.ctx.allowed("Rename session"):
-            return False
+    def _change(self, action: str, verb: str, **params: Any) -> Any:
+        """Send a verb that changes the record; the core decides who may, its refusal is shown (None)."""
+        if not self.ctx.allowed(action):
+            return None
         try:
-            new = check_name(new.strip())
-            if self._is_live(old):
-                raise StoreError(f"session {old!r} is being recorded: start a new session before you rename it")
-            self.store().rename(old, new)
-        except (StoreError, OSError) as exc:
-            self.ctx.error(exc, "Rename refused")
+            return self.ctx.commands.invoke(self.ctx.who(), verb, **params)
+        except (StoreError, OSError, MotionError) as exc:
+            self.ctx.error(exc, f"{action.split()[0]} refused")
+            return None
+
+    def rename(self, old: str, new: str) -> bool:
+        new = self._change("Rename session", "rename_session", old=old, new=new)
+        if new is None:
             return False
         if self.session is not None and self.session.name == old:
             self.session.name = new
-        shared_summaries().forget(self.station.measurement.session_dir, old)
         self.ctx.notify("Renamed", f"{old} → {new}")
         self.refresh_list()
         return True
 
     def delete(self, name: str) -> bool:
-        if not self.ctx.allowed("Delete session"):
-            return False
-        try:
-            if self._is_live(name):
-                raise StoreError(f"session {name!r} is being recorded: it cannot be deleted")
-            self.store().delete(name)
-        except (StoreError, OSError) as exc:
-            self.ctx.error(exc, "Delete refused")
+        if self._change("Delete session", "delete_session", name=name) is None:
             return False
         if self.session is not None and self.session.name == name:
             self.back_to_live()
-        shared_summaries().forget(self.station.measurement.session_dir, name)
         self.ctx.notify("Deleted", f"session {name}")
         self.refresh_list()
         return True
@@ -377,8 +353,8 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"exporting {name} (session worker)")
-            return shared_worker().call(worker.export, self.station.measurement.session_dir, name, self.export_dir(),
-                                        self._live_mesh(), csv, json)
+            return shared_worker().call(worker.export, self.where(), name, self.export_dir(), self._live_mesh(), csv,
+                                        json)
 
         return self._start("Export", work, self._files_done)
 
@@ -389,8 +365,7 @@ class SessionsPanel:
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             progress(0.1, f"writing the QIF results of {name} (session worker)")
-            return shared_worker().call(worker.qif, self.station.measurement.session_dir, name, self.export_dir(),
-                                        self._live_mesh())
+            return shared_worker().call(worker.qif, self.where(), name, self.export_dir(), self._live_mesh())
 
         return self._start("QIF", work, self._files_done)
 
@@ -408,15 +383,14 @@ class SessionsPanel:
         control charts of the series the session's part belongs to (as ``cmm report --trend``)."""
         from ..session import worker
 
-        store = self.station.measurement.session_dir
-        if trends and getattr(self.station.measurement, "trends", None) is None:
+        store = self.where()
+        if trends and self._query("trends") is None:
             self.ctx.error("this station records no trends: start it with cmm serve --trends DIR", "Report")
             return None
 
         def work(progress: Callable[[float, str], None]) -> list[Path]:
             charts = None
             if trends:
-                from ..session.trends_chart import charts_for
                 from ..session.trends import TrendError
 
                 series = shared_worker().call(worker.trend_series, store, name)
@@ -424,7 +398,7 @@ class SessionsPanel:
                     raise TrendError(f"{name} was not recorded as a part of a series: run a routine or a DMIS "
                                      "program with trends on to make one")
                 progress(0.05, f"the control charts of {series[-1]!r}")
-                charts = charts_for(self.station.measurement.trends, series[-1])
+                charts = self._query("trend_charts", series=series[-1])
             progress(0.1, f"rendering the report of {name} (session worker)")
             return shared_worker().call(worker.report, store, name, self.export_dir(),
                                         self._live_mesh(), self.ctx.view.scale, charts)  # the colour map's bands
@@ -435,17 +409,9 @@ class SessionsPanel:
         """Recompute hits and features from the raw counts with another tip radius / fit method into a new session."""
         if not self.ctx.allowed("Re-evaluate"):
             return None
-        from ..session import worker
-
         new = (new or "").strip() or f"{name}-reevaluated"
-        try:
-            check_name(new)
-            if self.store().exists(new):
-                raise StoreError(f"a session named {new!r} already exists: choose another name")
-            if method not in METHODS:
-                raise ValueError(f"unknown fit method {method!r}; choose one of {', '.join(METHODS)}")
-            if tip_radius and not 0 < float(tip_radius) < 50:
-                raise ValueError(f"tip radius {tip_radius} mm is not plausible")
+        try:  # refused now, in the operator's words; the verb checks again when the job sends it
+            check_reevaluation(self.where(), new, tip_radius, method)
         except (StoreError, ValueError, OSError) as exc:
             self.ctx.error(exc, "Re-evaluate refused")
             return None
@@ -454,8 +420,9 @@ class SessionsPanel:
             from ..dmis.replay import reevaluate_event  # a DMIS run's tolerances: its program run again
 
             progress(0.1, f"re-evaluating {name} (session worker)")
-            return shared_worker().call(worker.reevaluate, self.station.measurement.session_dir, name, new, float(tip_radius or 0.0),
-                                        None if method == "recorded" else method, reevaluate_event)
+            return self.ctx.commands.invoke(self.ctx.who(), "reevaluate_session", name=name, new=new,
+                                            tip_radius=float(tip_radius or 0.0), method=method,
+                                            tolerances=reevaluate_event)
 
         def done(result: Any) -> str:
             errors = result["errors"]

@@ -8,6 +8,10 @@ picture the report includes), the chart statistics, Cp/Cpk and the out-of-tolera
 data come from: the shared database (every station) or, while it is unreachable, this station's journal.
 A part recorded here redraws the chart; *Refresh* fetches other stations' new parts. *Export CSV* writes
 the characteristic's parts next to the trends journal.
+
+The tab reads the trends through the command API's queries (``trends``, ``trend_series``, ``trend_options``,
+``trend_history``:
+:mod:`cmm.session.verbs`), open to observers: reading charts changes nothing.
 """
 
 from __future__ import annotations
@@ -28,7 +32,6 @@ NOT_CONFIGURED = ("Trends are not recorded on this station: start it with `cmm s
 class TrendsPanel:
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.series: str | None = None
         self.characteristic: str | None = None
@@ -37,24 +40,31 @@ class TrendsPanel:
         self.chart: TrendChart | None = None
         self._version = -1
 
+    def _query(self, name: str, **params: Any) -> Any:
+        return self.ctx.commands.invoke(self.ctx.who(), name, **params)
+
     @property
-    def trends(self) -> Any:
-        return getattr(self.station.measurement, "trends", None)
+    def trends(self) -> dict[str, Any] | None:
+        """The ``trends`` query: None when none are recorded here; else the parts' version, shared, directory."""
+        return self._query("trends")
 
     # --- actions ---------------------------------------------------------------------------------
 
     def series_options(self) -> list[str]:
-        return [] if self.trends is None else self.trends.series()
+        return [] if self.trends is None else self._query("trend_series")["series"]
+
+    def _options_of_series(self) -> dict[str, Any] | None:
+        if self.series is None or self.trends is None:
+            return None
+        return self._query("trend_options", series=self.series)
 
     def characteristic_options(self) -> list[str]:
-        if self.trends is None or self.series is None:
-            return []
-        return [name for name, _unit in self.trends.characteristics(self.series)]
+        o = self._options_of_series()
+        return [] if o is None else [name for name, _unit in o["characteristics"]]
 
     def station_options(self) -> list[str]:
-        if self.trends is None or self.series is None:
-            return [ALL]
-        return [ALL, *self.trends.stations(self.series)]
+        o = self._options_of_series()
+        return [ALL] if o is None else [ALL, *o["stations"]]
 
     def choose_series(self, name: str | None) -> None:
         names = self.series_options()
@@ -99,13 +109,14 @@ class TrendsPanel:
             self.characteristic = chars[0] if chars else None
         if self.series is None or self.characteristic is None:
             self.chart = None
-            self._show(t.status_text(), "", "No parts recorded yet: run a program or routine.")
+            self._show(self._query("trend_series")["status"], "", "No parts recorded yet: run a program or routine.")
             return None
-        h = t.history(self.series, self.characteristic, self.station_filter)
+        h = self._query("trend_history", series=self.series, characteristic=self.characteristic,
+                        station=self.station_filter)
         self.chart = trend(h, self.subgroup)
-        self._version = self._parts_version()
-        where = "" if h.source == "database" or not t.database_url else " (from this station's journal)"
-        self._show(t.status_text(), trend_svg(self.chart, width=400, height=320, fluid=True),
+        self._version = t["version"]
+        where = "" if h.source == "database" or not t["shared"] else " (from this station's journal)"
+        self._show(self._query("trend_series")["status"], trend_svg(self.chart, width=400, height=320, fluid=True),
                    summary_markdown(self.chart) + where)
         return self.chart
 
@@ -117,7 +128,7 @@ class TrendsPanel:
         h = self.chart.history
         if path is None:
             slug = re.sub(r"[^A-Za-z0-9._-]+", "_", f"{h.series}-{h.characteristic}").strip("_")
-            path = Path(self.trends.directory) / f"{slug}.csv"
+            path = Path(self.trends["directory"]) / f"{slug}.csv"
         try:
             p = Path(path)
             p.write_text(history_csv(h), encoding="utf-8")
@@ -175,9 +186,10 @@ class TrendsPanel:
 
     def _parts_version(self) -> int:
         t = self.trends
-        return -1 if t is None else t.version
+        return -1 if t is None else t["version"]
 
     def refresh(self) -> None:
-        """Called by the tab's refresh (5 Hz): redraw when this station recorded a part."""
-        if self.trends is not None and self._parts_version() != self._version:
+        """Called by the tab's refresh (5 Hz): redraw when a part was recorded here."""
+        version = self._parts_version()
+        if version != -1 and version != self._version:
             self._guard(self.update)
