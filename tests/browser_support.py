@@ -197,11 +197,10 @@ from netutil import SIM, free_port  # noqa: E402,F401 - free_port re-exported fo
 def sim_station(tmp_path_factory: Any, session: str) -> Iterator[Any]:
     """A homed station on the simulator recording ``session``; a module fixture's body:
     ``yield from bs.sim_station(tmp_path_factory, "walk")`` (closed after the module)."""
-    from cmm.station import Station
+    from stations import Stations
 
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp(f"{session}-sessions")).start(session, home=True)
-    yield st
-    st.close()
+    with Stations(lambda: tmp_path_factory.mktemp(f"{session}-sessions")) as built:
+        yield built.station(session)
 
 
 def station_app(station: Any, **options: Any) -> Iterator[Any]:

@@ -9,21 +9,27 @@ from pathlib import Path
 
 import pytest
 
-from cmm.machine.config import load
-from cmm.machine.motion import Machine
-from cmm.machine.probing import Prober
-from cmm.sim.cmm_sim import SimulatedCMM
+from stations import Stations
 
 
 @pytest.fixture
-def sim_machine():
+def stations(tmp_path):
+    """Builds the test's stations (tests/stations.py: the kinds), their sessions in ``tmp_path``; closed after it."""
+    with Stations(lambda: tmp_path) as built:
+        yield built
+
+
+@pytest.fixture(scope="module")
+def module_stations(tmp_path_factory):
+    """Builds stations shared by a module's tests, each with a fresh session folder; closed after the module."""
+    with Stations(lambda: tmp_path_factory.mktemp("sessions")) as built:
+        yield built
+
+
+@pytest.fixture
+def sim_machine(stations):
     """(simulator, connected machine, prober); the machine polls only when a test waits."""
-    config = load()
-    sim = SimulatedCMM(config)
-    machine = Machine(config, sim.transport())
-    machine.connect()
-    yield sim, machine, Prober(machine)
-    machine.close()
+    return stations.machine()
 
 
 # Test files in the order the xdist workers should start them, the longest first (wall seconds of a quiet 2-core

@@ -5,12 +5,9 @@ from __future__ import annotations
 from contextlib import contextmanager
 from dataclasses import replace
 
-from cmm.ippdme.backend import StationBackend
 from cmm.ippdme.client import IppClient
 from cmm.ippdme.server import IppServer
 from cmm.machine.config import load
-from cmm.sim.probe_world import PlaneObstacle
-from cmm.station import Station
 
 # in-process simulated CMM on the virtual clock, at most 25 machine seconds per wall second: the poll
 # thread then sleeps instead of spinning, so the server's threads (and the other tests) get the CPU
@@ -38,20 +35,11 @@ def ipp_station(tmp_path, config=None, *, empty_world: bool = False, send_timeou
     NIST programs move through the region they occupy); tests place their
     own artifacts with ``station.sim.place_artifacts``.
     """
-    config = config or load()
-    station = Station(config, port=SIM_URL, session_dir=tmp_path / "sessions")  # in-process, virtual clock
-    if empty_world:
-        station.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # the table far below the travel, nothing else
-        station.measurement.part = None  # no part for the motion rails either
-    station.machine.poll_pause = POLL_PAUSE
-    station.start()
-    server = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0, send_timeout=send_timeout,
-                       send_buffer=send_buffer, trace=trace).start()
-    try:
-        yield server, station
-    finally:
-        server.close()
-        station.close()
+    from stations import Stations  # the kind ``ipp`` (tests/stations.py)
+
+    with Stations(lambda: tmp_path / "sessions") as built:
+        yield built.ipp(config, empty_world=empty_world, send_timeout=send_timeout, send_buffer=send_buffer,
+                        trace=trace)
 
 
 @contextmanager

@@ -28,20 +28,11 @@ def matched_pretravel(sim) -> PretravelModel:
 def sim_station(session_dir, session: str, placed=None):
     """A fixture's body: ``yield from sup.sim_station(tmp_path, "dmis")``: the station on the in-process simulator
     (virtual clock), homed, its pre-travel the simulator's, the part placed at ``placed`` (part -> machine) if
-    given, a session ``session`` open; closed after the test."""
-    from cmm.station import Station
+    given, a session ``session`` open; closed after the test (tests/stations.py: the kind ``probing``)."""
+    from stations import Stations
 
-    st = Station(port="sim://?cmm=1", session_dir=session_dir)
-    try:
-        st.controller.connect()
-        st.controller.home(None)
-        st.prober.settings.pretravel = matched_pretravel(st.sim)
-        if placed is not None:
-            st.sim.place_part(placed)
-        st.measurement.new_session(session)
-        yield st
-    finally:
-        st.close()
+    with Stations(lambda: session_dir) as built:
+        yield built.probing(session, placed=placed)
 
 
 def setup(part_pose=None):

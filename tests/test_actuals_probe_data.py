@@ -12,8 +12,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-import session_support as sup
-from netutil import SIM
 
 from cmm.calibration.records import ProbeRecord
 from cmm.control.access import Client
@@ -22,7 +20,6 @@ from cmm.metrology.compensation import PretravelModel
 from cmm.session.report import features_csv, render
 from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
-from cmm.station import Station
 from cmm.ui.panel_features import tree_html
 from cmm.ui.panels import probe_markdown
 
@@ -30,12 +27,10 @@ ME = Client("page", local=True)
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("actuals"),
-                 calibration_dir=tmp_path_factory.mktemp("actuals-calibration")).start("actuals", home=True)
-    st.prober.settings.pretravel = sup.matched_pretravel(st.sim)  # the simulator's probe, as qualified
-    yield st
-    st.close()
+def station(module_stations, tmp_path_factory):
+    # qualified: the simulator's probe, as qualified
+    return module_stations.station("actuals", qualified=True,
+                                   calibration_dir=tmp_path_factory.mktemp("actuals-calibration"))
 
 
 def _bore_hits(st, z=20.0):

@@ -8,7 +8,6 @@ import pytest
 
 from cmm.api import AccessRefused, Client, CommandAPI, CommandError
 from cmm.control.access import Control, OpenPolicy
-from cmm.station import Station
 
 
 class Jammed(RuntimeError):
@@ -63,10 +62,8 @@ def test_a_stream_is_heard_until_its_listener_ends_it():
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("api")).start(home=True)
-    yield st
-    st.close()
+def station(module_stations):
+    return module_stations.station()
 
 
 def test_the_machine_queries_a_front_end_reads_the_station_through(station):

@@ -9,18 +9,17 @@ import pytest
 from cmm.control.access import Client, Control
 from cmm.journal.store import open_store
 from cmm.session.trends import TrendError, Trends
-from cmm.station import Station
 
 OPERATOR = Client("operator", local=True)
 OBSERVER = Client("observer")  # a LAN tab that did not take control
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
+def station(module_stations, tmp_path_factory):
     root = tmp_path_factory.mktemp("api-sessions")
     trends = Trends(root / "trends", station="cmm-api")
-    st = Station(port="sim://?cmm=1", session_dir=root / "sessions", calibration_dir=root / "calibration",
-                 trends=trends).start("first")
+    st = module_stations.station("first", home=False, session_dir=root / "sessions",
+                                calibration_dir=root / "calibration", trends=trends)
     st.controller.use_policy_of(Control(lan=True, access_code="c0de"))
     api = st.controller.commands
     api.invoke(OPERATOR, "take_control")

@@ -9,14 +9,11 @@ import time
 import pytest
 
 from cmm.api import CommandError
-from cmm.station import Station
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("subs")).start("subs", home=True)
-    yield st
-    st.close()
+def station(module_stations):
+    return module_stations.station("subs")
 
 
 def _until(pred, seconds=120.0):
@@ -95,10 +92,10 @@ def test_a_failing_query_is_told_to_its_subscriber_and_a_broken_subscriber_is_cl
     assert api._subscriptions.count() == 0
 
 
-def test_the_documented_front_end_moves_the_machine_and_follows_it(tmp_path):
+def test_the_documented_front_end_moves_the_machine_and_follows_it(stations):
     """The example as its docstring runs it, the simulator at the machine's own pace: a subscription at 10 a
     second hears the tip on the way (an uncapped virtual clock may finish a 20 mm move in a few wall ms)."""
-    station = Station(port="sim://?cmm=1&pace=1", session_dir=tmp_path).start("console", home=True)
+    station = stations.station("console", port="sim://?cmm=1&pace=1")
     try:
         _follow_the_example(station)
     finally:

@@ -10,7 +10,6 @@ from html import escape as e
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 from cmm.machine.probing import Hit
 from cmm.measurement.plan import plan_at_pick, run_plan
@@ -21,7 +20,6 @@ from cmm.session.export import session_json
 from cmm.session.report import features_csv, render
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 from cmm.journal.store import DirectoryStore, load_session
-from cmm.station import Station
 from cmm.ui.panel_features import feature_chars, tree_html
 
 HALF_ANGLE = math.degrees(math.atan(0.5))  # the sample part's cone: radius 12 at z 40, 6 at z 52
@@ -36,10 +34,8 @@ CHECK_NOMINAL = {"kind": "cone", "apex": [290.0, 190.0, 64.0], "direction": [0.0
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start("cone", home=True)
-    yield st
-    st.close()
+def station(stations):
+    return stations.station("cone")
 
 
 def _cone_face(model) -> int:

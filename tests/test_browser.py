@@ -15,10 +15,8 @@ import urllib.request
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 import browser_support as bs
-from cmm.station import Station
 from cmm.ui import pendant as pendant_mod
 from cmm.control.access import Control
 from cmm.ui.pendant import start_pendant_server
@@ -31,11 +29,10 @@ STOP_WITHIN = 0.3  # s from the input's release to zero velocity
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start(home=True)  # homed on the uncapped clock: 2 machine s
-    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED): the page's wall-time jog refreshes meet the dead-man
-    yield st
-    st.close()
+def station(stations):
+    # homed on the uncapped clock (2 machine s), then paced (as netutil.SIM_PACED): the page's wall-time jog
+    # refreshes meet the dead-man
+    return stations.station(pace=1.0)
 
 
 @pytest.fixture

@@ -27,8 +27,6 @@ pytest.importorskip("viser")
 
 import viser  # noqa: E402
 
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 
 ATTACK = """<!doctype html><html><body><h1>Cheap tools!</h1><pre id="log"></pre><script>
 window.result = {viser: {messages: 0, closed: null, opened: false}, pendant: {messages: 0, closed: null, opened: false}};
@@ -52,12 +50,9 @@ open("pendant", "ws://127.0.0.1:%(pendant)d/ws", null, (ws) => {
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False, shadows=False)
-    yield ui
-    ui.close()
-    station.close()
+def app(module_stations):
+    station = module_stations.station(home=False, port=SIM_PACED)
+    return module_stations.app(station, pendant_port=0, ask_name=False, shadows=False)
 
 
 @pytest.fixture(scope="module")

@@ -31,16 +31,10 @@ TABLET = (820, 1180)  # the walk does the same steps at 1280 x 800
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    from cmm.station import Station
-
+def app(module_stations, tmp_path_factory):
     folder = tmp_path_factory.mktemp("fresh-calibration")
-    st = Station(port=bs.SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=folder).start(
-        "probes")  # not homed: the operator homes it from the page
-    try:
-        yield from bs.station_app(st, pendant=False, ask_name=True)
-    finally:
-        st.close()
+    st = module_stations.station("probes", home=False, calibration_dir=folder)  # the operator homes it from the page
+    yield from bs.station_app(st, pendant=False, ask_name=True)
 
 
 @pytest.fixture

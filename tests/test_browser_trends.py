@@ -18,11 +18,9 @@ from cmm.session.trends import Measured, Trends  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    from cmm.station import Station
-
+def station(module_stations, tmp_path_factory):
     root = tmp_path_factory.mktemp("trends-browser")
-    st = Station(port=bs.SIM, session_dir=root / "sessions").start("trends")  # reading charts needs no homing
+    st = module_stations.station("trends", home=False, session_dir=root / "sessions")  # charts need no homing
     rng = np.random.default_rng(3)
     st.measurement.trends = Trends(root / "trends", station="cmm-1")
     for i in range(40):  # part 28 is out of tolerance

@@ -26,12 +26,8 @@ LAPTOP = (1280, 800)
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    from cmm.station import Station
-
-    st = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("keys")).start("keys", home=True)
-    yield st
-    st.close()
+def station(module_stations):
+    return module_stations.station("keys", port=SIM_PACED)
 
 
 @pytest.fixture(scope="module")

@@ -26,7 +26,6 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(400),
 pytest.importorskip("viser")
 
 from cmm.sim.url import open_world, release as release_world  # noqa: E402
-from cmm.station import Station  # noqa: E402
 from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 
@@ -59,10 +58,8 @@ def world():
 
 
 @pytest.fixture(scope="module")
-def station(world, tmp_path_factory):
-    st = Station(port=world.url, session_dir=tmp_path_factory.mktemp("viser-sessions")).start(home=True)
-    yield st
-    st.close()
+def station(world, module_stations):
+    return module_stations.station(port=world.url)
 
 
 @contextlib.contextmanager

@@ -38,14 +38,10 @@ FEATURES = ("TOP", "FRONT", "LEFT", "BORE", "BOSS", "DOME")
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
+def station(module_stations, tmp_path_factory):
     """A station on the simulator, not homed, with an empty calibration folder (no certificate, no probe record)."""
-    from cmm.station import Station
-
-    st = Station(port=bs.SIM, session_dir=tmp_path_factory.mktemp("sessions"),
-                 calibration_dir=tmp_path_factory.mktemp("fresh-calibration")).start("day-part-1")
-    yield st
-    st.close()
+    return module_stations.station("day-part-1", home=False,
+                                   calibration_dir=tmp_path_factory.mktemp("fresh-calibration"))
 
 
 @pytest.fixture(scope="module")

@@ -25,21 +25,12 @@ POSE = pose_matrix((150.0, 120.0, 0.0), rz_deg=30.0)
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
+def station(module_stations):
     """The station on the in-process simulator (virtual clock) with the NIST part at POSE, homed. Its probe has no
     3-lobed pre-travel (the station's compensation of the lobes leaves about a micrometre on a circle, whatever the
     part): what the hits show is the geometry."""
     settings = CmmSimSettings(probe=ProbeModel(pretravel_lobe=0.0))
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("sessions"), part_path=STP, part_pose=POSE,
-                 sim_settings=settings)
-    try:
-        st.controller.connect()
-        st.controller.home(None)
-        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
-        st.measurement.new_session("cad")
-        yield st
-    finally:
-        st.close()
+    return module_stations.probing("cad", part_path=STP, part_pose=POSE, sim_settings=settings)
 
 
 def test_the_simulated_contacts_are_on_the_exact_surfaces():

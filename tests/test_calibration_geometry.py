@@ -5,12 +5,10 @@ import pytest
 
 from cmm.calibration.geometry import BarMeasurement, calibrate_geometry, default_setups, fit_geometry
 from cmm.calibration.records import BallBarCertificate, CalibrationError
-from cmm.machine.config import load
 from cmm.machine.geometry import GeometryCorrection, geometry_matrix
-from cmm.machine.motion import Machine
 from cmm.machine.probing import ProbeSettings
 from cmm.metrology.compensation import PretravelModel
-from cmm.sim.cmm_sim import CmmSimSettings, SimulatedCMM
+from cmm.sim.cmm_sim import CmmSimSettings
 from cmm.sim.probe_world import GeometryErrors
 
 CERTS = {"ball_bar_300": BallBarCertificate("ball bar 300", 300.0, 25.0, 0.0005),
@@ -41,11 +39,8 @@ def test_fit_needs_enough_setups():
 
 
 @pytest.mark.timeout(900)  # about 40 s of CPU on the virtual clock: beside CPU hogs it takes several times that
-def test_ball_bar_routine_recovers_injected_scale_and_squareness():
-    config = load()
-    sim = SimulatedCMM(config, CmmSimSettings(errors=GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))))
-    m = Machine(config, sim.transport())
-    m.connect()
+def test_ball_bar_routine_recovers_injected_scale_and_squareness(stations):
+    sim, m, _ = stations.machine(settings=CmmSimSettings(errors=GeometryErrors((50.0, 0.0, 0.0), (30.0, 0.0, 0.0))))
     p = sim.settings.probe
     settings = ProbeSettings(p.tip_radius, PretravelModel({"const": 0.0, "s2_cos3": p.pretravel_lobe,
                                                            "z2": p.pretravel_z - p.pretravel_xy}))
@@ -72,18 +67,17 @@ def test_ball_bar_routine_recovers_injected_scale_and_squareness():
     assert rec.correction == GeometryCorrection(rec.scale_ppm, rec.squareness_urad)
 
 
-def test_the_station_saves_a_geometry_result_and_applies_it(tmp_path):
+def test_the_station_saves_a_geometry_result_and_applies_it(stations, tmp_path):
     """The save step of `cmm calibrate geometry` and the tab (the station's calibration service) on a fitted
     result with its nine set-ups ("XY+" ... as record keys): the record loads again and the machine has the
     correction. (The routine itself through the CLI costs ~45 s CPU on the virtual clock: not run here.)"""
     from cmm.calibration.geometry import GeometryResult
     from cmm.calibration.records import load_machine_record
-    from cmm.station import Station
 
     meas = synthetic((50.0, 0.0, 0.0), (30.0, 0.0, 0.0), noise=0.0005, seed=1)
     corr, res, us, ua = fit_geometry(meas)
     result = GeometryResult(corr, meas, res, us, ua, verification=synthetic((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
-    station = Station(port="sim://?cmm=1")
+    station = stations.station(start=False)
     try:
         station.controller.connect()
         station.calibration.load(tmp_path)

@@ -11,7 +11,6 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM, free_port
 
 pytest.importorskip("viser")
 
@@ -19,21 +18,15 @@ from cmm.calibration.records import load_probe_record, load_sphere_certificate  
 from cmm.ippdme.backend import StationBackend  # noqa: E402
 from cmm.ippdme.tools import Limits, ToolChanger  # noqa: E402
 from cmm.journal.writer import read_events  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def fresh(tmp_path_factory):
+def fresh(module_stations, tmp_path_factory):
     folder = tmp_path_factory.mktemp("fresh-calibration")
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"),
-                      calibration_dir=folder).start(home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
+    ui = module_stations.app(module_stations.station(calibration_dir=folder), pendant=False)
     operator = ui.add_client(client_id="operator", is_local=True)
     assert operator.take_control()
-    yield ui, operator, folder
-    ui.close()
-    station.close()
+    return ui, operator, folder
 
 
 def _errors(capp):
@@ -242,12 +235,12 @@ def test_ippdme_enumtools_and_changetool_use_the_station_probes(fresh):
         server.close()
 
 
-def test_a_restarted_station_uses_the_selected_probe(fresh, tmp_path):
+def test_a_restarted_station_uses_the_selected_probe(fresh, stations, tmp_path):
     ui, operator, folder = fresh
     t2 = load_probe_record(folder / "probes" / "T2.toml")
     for name, radius in (("T2", t2.tip_radius), ("T3", 1.5)):  # qualified; never qualified: nominal D 3 mm
         assert ui.station.calibration.select_probe(None, name)
-        again = Station(port=SIM, session_dir=tmp_path / name, calibration_dir=folder)
+        again = stations.station(start=False, session_dir=tmp_path / name, calibration_dir=folder)
         try:
             assert again.measurement.probe_name == name
             assert again.prober.settings.tip_radius == pytest.approx(radius)

@@ -8,9 +8,6 @@ import pytest
 from cmm.calibration import records as rec
 from cmm.calibration.records import CalibrationError
 from cmm.machine.config import load
-from cmm.machine.motion import Machine
-from cmm.machine.probing import Prober
-from cmm.sim.cmm_sim import SimulatedCMM
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -59,17 +56,14 @@ def test_records_round_trip_and_write_atomically(tmp_path):
     assert rec.load_probe_record(tmp_path / "probe.toml").tip_radius == 0.9961  # the old record survived
 
 
-def test_station_calibration_applies_good_records_and_refuses_bad_ones(tmp_path):
+def test_station_calibration_applies_good_records_and_refuses_bad_ones(stations, tmp_path):
     rec.save_record(rec.MachineRecord("d", "bars", (50.0, 0.0, 0.0), (30.0, 0.0, 0.0)), tmp_path / "machine.toml")
     (tmp_path / "probe.toml").write_text("[record]\nkind = 'probe'\n[results]\ntip_radius = 'big'\n")
     loaded = rec.load_station_calibration(tmp_path)
     assert loaded.probe is None and "tip_radius" in loaded.problems[0]
     config = load()
-    sim = SimulatedCMM(config)
-    m = Machine(config, sim.transport())
-    m.connect()
+    _, m, prober = stations.machine(config)
     try:
-        prober = Prober(m)
         done = rec.apply_calibration(loaded, m, prober)
         assert len(done) == 1 and m.correction.scale_ppm == (50.0, 0.0, 0.0)
         assert prober.settings.tip_radius == config.probe.tip_radius

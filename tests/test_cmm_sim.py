@@ -10,7 +10,7 @@ import pytest
 from cmm.machine.config import load
 from cmm.machine.motion import Machine
 from cmm.machine.probing import Prober
-from cmm.sim.cmm_sim import CmmSimSettings, SimulatedCMM
+from cmm.sim.cmm_sim import CmmSimSettings
 from cmm.sim.probe_world import GeometryErrors
 
 
@@ -40,11 +40,9 @@ def test_cmm_sim_over_tcp_serves_a_machine_that_probes_the_part():
         proc.wait(10)
 
 
-def test_injected_scale_and_squareness_move_the_real_tip():
+def test_injected_scale_and_squareness_move_the_real_tip(stations):
     errors = GeometryErrors(scale_ppm=(50.0, 0.0, 0.0), squareness_urad=(30.0, 0.0, 0.0))
-    sim = SimulatedCMM(load(), CmmSimSettings(errors=errors))
-    m = Machine(sim.config, sim.transport())
-    m.connect()
+    sim, m, _ = stations.machine(settings=CmmSimSettings(errors=errors))
     m.move_to([400.0, 300.0, 300.0]).wait()
     tip = sim.tip_position()
     reading = np.array(sim.axis_readings())
@@ -52,13 +50,11 @@ def test_injected_scale_and_squareness_move_the_real_tip():
     assert tip[1] == pytest.approx(reading[1], abs=1e-9)
 
 
-def test_geometry_correction_cancels_the_injected_errors():
+def test_geometry_correction_cancels_the_injected_errors(stations):
     from cmm.machine.geometry import GeometryCorrection
 
     errors = GeometryErrors(scale_ppm=(50.0, -20.0, 10.0), squareness_urad=(30.0, -15.0, 25.0))
-    sim = SimulatedCMM(load(), CmmSimSettings(errors=errors))
-    m = Machine(sim.config, sim.transport())
-    m.connect()
+    sim, m, _ = stations.machine(settings=CmmSimSettings(errors=errors))
     m.correction = GeometryCorrection(errors.scale_ppm, errors.squareness_urad)
     target = np.array([450.0, 350.0, 50.0])
     m.move_to(target).wait()
@@ -69,13 +65,11 @@ def test_geometry_correction_cancels_the_injected_errors():
     assert m.sample().axes[0].counts == m.mm_to_counts(target)[0] + 1
 
 
-def test_pure_z_move_with_squareness_correction_arrives():
+def test_pure_z_move_with_squareness_correction_arrives(stations):
     """With squareness corrected, a Z move also moves X and Y by a few counts: they must get a rate."""
     from cmm.machine.geometry import GeometryCorrection
 
-    sim = SimulatedCMM(load())
-    m = Machine(sim.config, sim.transport())
-    m.connect()
+    sim, m, _ = stations.machine()
     m.correction = GeometryCorrection((0.0, 0.0, 0.0), (30.0, 40.0, -25.0))
     start = m.position
     m.move_to(start - [0.0, 0.0, 250.0]).wait(30)
@@ -121,17 +115,12 @@ def test_cmm_sim_honours_firmware_modules_and_version_and_says_so():
         proc.wait(10)
 
 
-def test_a_standing_machine_skips_its_idle_servo_ticks_and_still_feels_a_part_put_on_the_probe():
+def test_a_standing_machine_skips_its_idle_servo_ticks_and_still_feels_a_part_put_on_the_probe(stations):
     """The probe and the home switches read only the axes: while every module is idle the network skips the
     servo ticks between host packets (they would change nothing), and the probe check runs again at the end of
     each skipped stretch, so a ball put on the standing stylus still trips it."""
-    from cmm.sim.home_switches import HomeSwitches
-
-    sim = SimulatedCMM(load())
-    HomeSwitches(sim)
+    sim, m, _ = stations.machine(home_switches=True)
     net = sim.network
-    m = Machine(sim.config, sim.transport())
-    m.connect()
     try:
         m.move_to([300.0, 200.0, 250.0]).wait()
         watched, every = [], []

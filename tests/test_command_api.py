@@ -15,7 +15,6 @@ from cmm.control import OpenPolicy, Refused
 from cmm.control.access import Client, Control, HolderPolicy, OriginPolicy, is_local_connection, is_loopback_host
 from cmm.control.rails import clearance_route, probe_clearance, route, straight_blocked, to_frame, to_machine
 from cmm.ippdme.backend import StationBackend
-from cmm.station import Station
 from control_support import wait_idle
 
 SIM = "sim://?cmm=1&pace=25"  # the in-process simulated CMM on its virtual clock, paced for threaded waits
@@ -23,7 +22,7 @@ SIM = "sim://?cmm=1&pace=25"  # the in-process simulated CMM on its virtual cloc
 
 # --- access: one rule for every front end ------------------------------------------------------------
 
-def test_one_local_rule_for_web_pages_and_the_ippdme_server():
+def test_one_local_rule_for_web_pages_and_the_ippdme_server(stations):
     assert is_local_connection(("127.0.0.1", 5000), "127.0.0.1:8080")
     assert is_local_connection(("::ffff:127.0.0.1", 5, 0, 0), "localhost:8080")
     assert not is_local_connection(("127.0.0.1", 5000), "station.example:8080")  # a page naming another host
@@ -33,7 +32,7 @@ def test_one_local_rule_for_web_pages_and_the_ippdme_server():
     assert all(is_loopback_host(h) for h in ("127.0.0.1", "localhost", "::1"))
     assert not any(is_loopback_host(h) for h in ("0.0.0.0", "", "::", "192.168.1.9"))
 
-    station = Station(port="sim://?cmm=1")
+    station = stations.station(start=False)
     try:
         backend = StationBackend(station.controller.commands)  # the I++ backend gets the command API only
         assert backend.for_client("127.0.0.1:4000").client.local
@@ -142,10 +141,8 @@ def test_a_hop_goes_straight_or_over_its_height_only_where_proven_free_else_over
 # --- the station: Go to after a bore cycle, a restart after a contact ----------------------------------
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
-    yield st
-    st.close()
+def station(module_stations):
+    return module_stations.station()
 
 
 def _contacts(station):

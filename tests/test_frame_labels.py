@@ -8,23 +8,16 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM, free_port
 
 pytest.importorskip("viser")
 
 from cmm.sim.cmm_sim import TRUE_PART_POSE  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_status import status_html  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("frames")).start("frames", home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
-    yield ui
-    ui.close()
-    station.close()
+def app(module_stations):
+    return module_stations.app(module_stations.station("frames"), pendant=False, ask_name=False)
 
 
 def test_coordinate_fields_name_their_frame_and_the_alignment(app):

@@ -9,7 +9,6 @@ import math
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 from cmm.cli import main
 from cmm.measurement.model import MeasurementError
@@ -21,15 +20,12 @@ from cmm.session.replay import Replay
 from cmm.session.report import features_csv, render
 from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
-from cmm.station import Station
 from cmm.ui.panel_features import tree_html
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start("gdt", home=True)
-    yield st
-    st.close()
+def station(stations):
+    return stations.station("gdt")
 
 
 def _measure(model, origin, direction, name, n=None):

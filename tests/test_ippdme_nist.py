@@ -40,10 +40,8 @@ from cmm.ippdme.protocol import ParseError, Response, data_items, parse_line, pa
 from cmm.ippdme.server import IppServer
 from cmm.ippdme.tools import Limits, ToolChanger, resolve
 from cmm.machine.config import load
-from cmm.sim.probe_world import PlaneObstacle
-from cmm.station import Station
 
-from ippdme_support import POLL_PAUSE, SIM_URL, nist_config
+from ippdme_support import nist_config
 from shared_refs import require, shared_path
 
 DATA = shared_path("ippdme", "nist-test-files")  # NIST's I++ DME test suite, read in place
@@ -203,15 +201,9 @@ def names(body: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    config = nist_config()
-    st = Station(config, port=SIM_URL, session_dir=tmp_path_factory.mktemp("sessions"))
-    st.sim.world.obstacles[:] = [PlaneObstacle(-1000.0)]  # no table, part or sphere where the NIST programs move
-    st.measurement.part = None  # ... and the station knows it: no part for the motion rails to keep clear of
-    st.machine.poll_pause = POLL_PAUSE
-    st.start()
-    yield st
-    st.close()
+def station(module_stations):
+    # empty_world: no table, part or sphere where the NIST programs move, and no part for the motion rails
+    return module_stations.nist(empty_world=True)
 
 
 @pytest.mark.parametrize("name", PROGRAMS)

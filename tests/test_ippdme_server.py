@@ -404,15 +404,14 @@ def test_the_i_client_holds_the_control_browsers_observe_and_may_stop(served):
     wait_until(lambda: control.holder is None)  # released when the client goes
 
 
-def test_cmm_serve_starts_the_server_on_the_station(tmp_path, capsys):
+def test_cmm_serve_starts_the_server_on_the_station(stations, capsys):
     from cmm.cli import build_parser
     from cmm.ippdme.serve import start
-    from cmm.station import Station
 
     args = build_parser().parse_args(["serve", "--ippdme"])
     assert args.ippdme == "127.0.0.1:1294"  # loopback unless asked
     assert build_parser().parse_args(["serve", "--ippdme", "0.0.0.0:1300"]).ippdme == "0.0.0.0:1300"
-    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start()
+    station = stations.station(home=False)
     try:
         server = start(station.controller.commands, "127.0.0.1:0")  # the server gets the API only
         station.serving_ippdme(server.status)  # as `cmm serve` does: the page shows the I++ client

@@ -43,19 +43,11 @@ def parked(seed: int = 1) -> tuple[SimNetwork, FaultyTransport, Bus, list[Module
 @contextlib.contextmanager
 def faulty_machine(seed: int):
     """(simulated CMM, fault-injecting transport, connected machine) for machine-level fault tests."""
-    from cmm.machine.config import load
-    from cmm.machine.motion import Machine
-    from cmm.sim.cmm_sim import SimulatedCMM
+    from stations import Stations
 
-    config = load()
-    sim = SimulatedCMM(config)
-    port = FaultyTransport(sim.transport(), seed=seed)
-    machine = Machine(config, port)
-    machine.connect()
-    try:
-        yield sim, port, machine
-    finally:
-        machine.close()
+    with Stations() as built:
+        sim, machine, _ = built.machine(link=lambda port: FaultyTransport(port, seed=seed))
+        yield sim, machine.bus.port, machine
 
 
 def count_starts(net: SimNetwork) -> list[int]:

@@ -233,11 +233,10 @@ def test_the_control_state_shows_an_idle_link_warning_and_stays_out_of_fault():
         ctl.close()
 
 
-def test_the_status_bar_shows_the_link_warning(tmp_path):
-    from cmm.station import Station
+def test_the_status_bar_shows_the_link_warning(stations):
     from cmm.ui.panel_status import status_html
 
-    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start()
+    station = stations.station(home=False)
     try:
         bus = station.machine.bus
         port = bus.port = FaultyTransport(bus.port)  # the same simulator, with a stall to inject

@@ -190,19 +190,15 @@ def test_jog_stops_inside_the_travel(sim_machine):
     m.step("y", 0.1).wait()  # and it can still step
 
 
-def test_velocity_mode_jog_for_firmware_without_goal_changes():
+def test_velocity_mode_jog_for_firmware_without_goal_changes(stations):
     """[jog] mode = "velocity": the dead-man in the loop stops it, the travel limit watch too."""
     from dataclasses import replace
 
     from cmm.machine.config import load
-    from cmm.machine.motion import Machine
-    from cmm.sim.cmm_sim import SimulatedCMM
 
     config = load()
     config = replace(config, jog=replace(config.jog, mode="velocity"))
-    sim = SimulatedCMM(config)
-    m = Machine(config, sim.transport())
-    m.connect()
+    sim, m, _ = stations.machine(config)
     try:
         m.move_to([100.0, 100.0, 200.0]).wait()
         for _ in range(6):

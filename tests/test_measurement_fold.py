@@ -7,23 +7,19 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 from cmm.machine.probing import Hit
 from cmm.measurement.model import MeasurementError, MeasurementModel
 from cmm.journal.state import SessionState
 from cmm.journal.writer import read_events
 from cmm.journal.session import Session
-from cmm.station import Station
 
 TOP = ((20.0, 15.0, 40.0), (50.0, 5.0, 40.0), (110.0, 70.0, 40.0), (95.0, 10.0, 40.0))  # part mm, on the top face
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start("first part", home=True)
-    yield st
-    st.close()
+def station(stations):
+    return stations.station("first part")
 
 
 def file_fold(path) -> SessionState:

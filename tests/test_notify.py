@@ -16,7 +16,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
-from netutil import SIM, free_port
+from netutil import free_port
 
 from cmm.session.notify import NotifyConfig, NotifyError, Notifier, load_config
 
@@ -132,14 +132,12 @@ def test_a_dmis_run_out_of_tolerance_is_notified_to_the_webhook_and_over_mqtt(tm
     assert published["cmm/bench_7/run_end"] == run_end and published["cmm/bench_7/out_of_tolerance"] == oot
 
 
-def test_a_machine_fault_on_the_station_is_notified(tmp_path, webhook, broker):
+def test_a_machine_fault_on_the_station_is_notified(stations, tmp_path, webhook, broker):
     """An emergency stop on a running station: a fault message, with the station's session and report link."""
-    from cmm.station import Station
-
     mqtt_url, got = broker
     cfg = NotifyConfig(webhook=webhook.url, mqtt=f"{mqtt_url}/shop/cmm", station="bench-8",
                        report_url="http://quality.example/reports/{station}/{session}")
-    st = Station(port=SIM, session_dir=tmp_path / "sessions").start("faulty", home=True)
+    st = stations.station("faulty", session_dir=tmp_path / "sessions")
     notifier = Notifier(cfg).attach(st.measurement)
     try:
         st.controller.commands.invoke(None, "estop")
@@ -229,7 +227,7 @@ def test_a_dmis_run_that_stops_midway_tells_it_stopped_and_why(tmp_path, monkeyp
     assert journal.read_text().count('"kind": "hit"') == 6  # the bore was measured before the stop
 
 
-def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(tmp_path, webhook, broker):
+def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(stations, tmp_path, webhook, broker):
     """A routine on the station without trends: its end (part, routine, verdict, report link) to the webhook and
     over MQTT; the same routine cancelled: run_end with the verdict STOPPED and the reason."""
     import session_support as sup
@@ -237,10 +235,9 @@ def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(tmp_pat
     from cmm.journal.store import open_session
     from cmm.measurement.routine import teach_routine
     from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
-    from cmm.station import Station
 
     mqtt_url, got = broker
-    st = Station(port=SIM, session_dir=tmp_path / "sessions").start("teach", home=True)
+    st = stations.station("teach", session_dir=tmp_path / "sessions")
     notifier = None
     try:
         model = st.measurement

@@ -21,8 +21,6 @@ from cmm.control.roles import RolePolicy  # noqa: E402
 from cmm.control.users import UserStore  # noqa: E402
 from cmm.opcua import model  # noqa: E402
 from cmm.opcua.server import OpcUaServer  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from ippdme_support import POLL_PAUSE, SIM_URL, nist_config  # noqa: E402
 from netutil import free_port  # noqa: E402
 
 USERS = {"maria": ("s3cret-maria", "operator")}
@@ -30,9 +28,8 @@ SHARED = ops.shared_dir()
 
 
 @pytest.fixture(scope="module")
-def served(tmp_path_factory):
-    station = Station(nist_config(), port=SIM_URL, session_dir=tmp_path_factory.mktemp("sessions"))
-    station.machine.poll_pause = POLL_PAUSE
+def served(module_stations, tmp_path_factory):
+    station = module_stations.nist(start=False)  # started below, once its policy and roles are set
     station.controller.use_policy_of(Control())  # the holder rule of `cmm serve`: observers do not command
     store = UserStore(tmp_path_factory.mktemp("users") / "users.toml")  # `cmm serve --users FILE`
     for name, (password, role) in USERS.items():

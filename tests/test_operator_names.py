@@ -4,25 +4,18 @@ the status bar and the report header, on the simulator (virtual clock)."""
 from __future__ import annotations
 
 import pytest
-from netutil import SIM, free_port
 
 pytest.importorskip("viser")
 
 from cmm.control import Refused  # noqa: E402
 from cmm.session.report import render  # noqa: E402
 from cmm.journal.store import DirectoryStore, load_session  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
+def app(module_stations, tmp_path_factory):
     sessions = tmp_path_factory.mktemp("sessions")
-    station = Station(port=SIM, session_dir=sessions).start("named", home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
-    yield ui, sessions
-    ui.close()
-    station.close()
+    return module_stations.app(module_stations.station("named", session_dir=sessions), pendant=False), sessions
 
 
 def test_names_in_control_messages_status_bar_and_report(app):

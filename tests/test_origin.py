@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from netutil import free_port, SIM_PACED
+from netutil import SIM_PACED
 
 pytest.importorskip("viser")
 
@@ -28,9 +28,7 @@ from viser import _messages  # noqa: E402
 from websockets.exceptions import ConnectionClosed, InvalidStatus  # noqa: E402
 from websockets.sync.client import connect  # noqa: E402
 
-from cmm.station import Station  # noqa: E402
 from cmm.control.access import Control  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.control.access import OriginPolicy, is_loopback_peer  # noqa: E402
 
 
@@ -56,12 +54,8 @@ def test_policy_rules():
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    station = Station(port=SIM_PACED, session_dir=tmp_path_factory.mktemp("sessions")).start()
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
-    yield ui
-    ui.close()
-    station.close()
+def app(module_stations):
+    return module_stations.app(module_stations.station(home=False, port=SIM_PACED), pendant_port=0)
 
 
 def _walk(obj: Any):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 from cmm.control import Refused
 from cmm.measurement.plan import plan_at_pick, plan_targets, run_plan
@@ -20,7 +19,6 @@ from cmm.measurement.routine_run import RoutineRun
 from cmm.program.toml_program import machine_targets
 from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE
-from cmm.station import Station
 
 CORNER = 0.05  # mm: a previewed corner (rapid corner, pre-hit point, retract point) is passed this close
 CONTACT = 0.1  # mm: the trigger is where the nominal surface is, within the pre-travel and the stop
@@ -28,11 +26,10 @@ OFF_PATH = 0.1  # mm: the recorded tip never strays further from the previewed p
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("preview")).start("preview", home=True)
+def station(module_stations):
+    st = module_stations.station("preview")
     st.measurement.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    yield st
-    st.close()
+    return st
 
 
 def _pick(model, origin, direction):
@@ -115,13 +112,12 @@ def _from_corner(recorded, corner):
 
 
 @pytest.fixture
-def fresh_station(tmp_path):
+def fresh_station(stations):
     """A station of its own: applying an alignment carries every feature of the model into the session, and a
     routine is taught from the session's features only."""
-    st = Station(port=SIM, session_dir=tmp_path).start("taught-321", home=True)
+    st = stations.station("taught-321")
     st.measurement.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")
-    yield st
-    st.close()
+    return st
 
 
 def test_a_routine_runs_the_previewed_path_with_its_alignment_after_the_hand_hits(fresh_station):

@@ -9,11 +9,9 @@ import urllib.request
 
 import pytest
 from browser_support import JogRecord, stop_time, wait_until
-from netutil import SIM
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from cmm.station import Station
 from cmm.ui import pendant as pendant_mod
 from cmm.control.access import Control
 from cmm.ui.pendant import start_pendant_server
@@ -26,11 +24,10 @@ STOP_WITHIN = 0.3  # s from the last message to zero velocity (0.2 s dead-man bu
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start(home=True)  # homed on the uncapped clock: 2 machine s
-    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED): the tests' wall-time jog refreshes meet the dead-man
-    yield st
-    st.close()
+def station(stations):
+    # homed on the uncapped clock (2 machine s), then paced (as netutil.SIM_PACED): the tests' wall-time jog
+    # refreshes meet the dead-man
+    return stations.station(pace=1.0)
 
 
 def _serve(station, control):

@@ -147,10 +147,8 @@ def test_a_program_runs_on_a_measurement_model_only(tmp_path):
         run_program(prog.Program("x", "p", "ab", [], [], 10.0), object())
 
 
-def test_a_program_run_on_the_station_journals_its_features_with_their_tolerances(taught, tmp_path):
+def test_a_program_run_on_the_station_journals_its_features_with_their_tolerances(taught, stations, tmp_path):
     """The front ends' path (a job of the control core, on the station's model) records each feature's tolerance."""
-    from cmm.station import Station
-
     program = prog.from_toml(prog.to_toml(taught))
     program.features = [f for f in program.features if f.name != "boss"]  # fewer hits: a faster test
     used = {i for f in program.features for i in f.hits}
@@ -159,7 +157,7 @@ def test_a_program_run_on_the_station_journals_its_features_with_their_tolerance
                   for k, f in enumerate(program.features)}
     for f in program.features:
         f.tolerance = tolerances[f.name]
-    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start("station-run", home=True)
+    station = stations.station("station-run")
     try:
         run = run_on(station.controller, station.measurement, program)
         assert set(run.features) == {"top_plane", "dome"}
@@ -171,18 +169,17 @@ def test_a_program_run_on_the_station_journals_its_features_with_their_tolerance
     assert any("program 'sample-part check' finished" in text for _, text in s.state.notes)
 
 
-def test_a_programs_later_hits_of_a_feature_hop_below_the_clearance_height_and_fit_the_same(taught, tmp_path):
+def test_a_programs_later_hits_of_a_feature_hop_below_the_clearance_height_and_fit_the_same(taught, stations):
     """The CLI's program runner hops within a feature as the routine runner does: on the station (rails, the part
     mesh) the plane's later hits never climb to the clearance height, each takes less machine time (the
     simulator's virtual clock) and the fitted plane is the one the clearance route gives, within probing noise."""
     from cmm.sim.cmm_sim import TRUE_PART_POSE
-    from cmm.station import Station
 
     program = prog.from_toml(prog.to_toml(taught))
     program.features = [f for f in program.features if f.name == "top_plane"]
     program.hits = [h for h in program.hits if h.id in program.features[0].hits]
     assert len(program.hits) >= 4
-    station = Station(port="sim://?cmm=1", session_dir=tmp_path).start("program-hops", home=True)
+    station = stations.station("program-hops")
     try:
         model = station.measurement
         model.set_alignment(TRUE_PART_POSE, "manual", note="the simulator's true set-up")

@@ -11,16 +11,15 @@ from cmm.control import Client, Controller
 from cmm.control.access import Control
 from cmm.control.roles import GROUPS, STOP_VERBS, RolePolicy, unnamed
 from cmm.control.users import UserStore, register_user_verbs
-from cmm.station import Station
 from ippdme_support import SIM_URL, nist_config
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "users.md"
 
 
-def test_every_verb_the_station_registers_has_an_explicit_role(tmp_path):
+def test_every_verb_the_station_registers_has_an_explicit_role(stations, tmp_path):
     from cmm.dmis.runner import register_verbs
 
-    station = Station(nist_config(), port=SIM_URL, session_dir=tmp_path / "sessions")
+    station = stations.station(config=nist_config(), port=SIM_URL, start=False, session_dir=tmp_path / "sessions")
     try:
         api = station.controller.commands
         register_verbs(station)  # run_dmis

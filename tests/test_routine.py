@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import session_support as sup
-from netutil import SIM, free_port
+from netutil import free_port
 
 from cmm.control import OpenPolicy
 from cmm.control.access import Client, Control
@@ -21,7 +21,6 @@ from cmm.journal.writer import read_events
 from cmm.session.report import features_csv, render
 from cmm.journal.store import open_session
 from cmm.sim.cmm_sim import TRUE_PART_POSE, pose_matrix
-from cmm.station import Station
 
 FACES = sup.BLOCK_FACES
 # where the second part stands: 6 mm and 4 mm off, turned 3 degrees
@@ -32,18 +31,16 @@ MANUAL = [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), (
 
 
 @pytest.fixture(scope="module")
-def taught(tmp_path_factory):
+def taught(module_stations, tmp_path_factory):
     """A station that measured the six features on the first part, aligned 3-2-1 and constructed a distance;
     the routine taught from that session."""
-    st = Station(port=SIM, session_dir=tmp_path_factory.mktemp("routine"),
-                 calibration_dir=tmp_path_factory.mktemp("routine-calibration")).start("teach", home=True)
+    st = module_stations.station("teach", calibration_dir=tmp_path_factory.mktemp("routine-calibration"))
     model = st.measurement
     sup.teach_block(model)
     session = open_session(model.journal.path)
     routine = teach_routine(session, name="block", part_mesh=model.part.mesh,
                             part_nominals=model.part.nominal_features)
-    yield st, routine
-    st.close()
+    return st, routine
 
 
 def test_teaching_gives_the_steps_in_order_and_the_file_round_trips(taught, tmp_path):

@@ -9,14 +9,11 @@ import numpy as np
 import pytest
 import trimesh
 import ui_support
-from netutil import SIM, free_port
 
 pytest.importorskip("viser")
 
 from cmm.machine.probing import Hit  # noqa: E402
 from cmm.metrology.pick import NominalFeature  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.feature_drawing import PATCH_OPACITY, feature_drawing  # noqa: E402
 from cmm.ui.panel_features import tree_html  # noqa: E402
 from cmm.ui.pick_highlight import HIGHLIGHT_OPACITY, OFFSET_MM  # noqa: E402
@@ -24,12 +21,8 @@ from cmm.ui.scene import SCALE  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("scene")).start("scene")
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
-    yield ui
-    ui.close()
-    station.close()
+def app(module_stations):
+    return module_stations.app(module_stations.station("scene", home=False), pendant=False, ask_name=False)
 
 
 def _hits(model, surface_points, approaches):

@@ -128,20 +128,17 @@ def _hit(st, dx: float, dy: float):
 
 
 def test_a_station_records_through_a_database_restart_and_every_event_arrives_once(pg_server, tmp_path,
-                                                                                    monkeypatch):
+                                                                                    monkeypatch, stations):
     """The station records into the PostgreSQL store; the database is killed mid-session: hits go on (none refused,
     no FAULT), the status bar says "database offline, N events waiting", a note and a new part's session are
     journalled too; the database comes back and every event arrives once, in order, byte for byte."""
     import re
     import time
 
-    from netutil import SIM
-
-    from cmm.station import Station
     from cmm.ui.panel_status import status_html
 
     monkeypatch.setenv("CMM_SESSION_SPOOL", str(tmp_path / "spool"))
-    st = Station(port=SIM, session_dir=pg_server.url).start("through outage", home=True)
+    st = stations.station("through outage", session_dir=pg_server.url)
     try:
         journal = st.measurement.journal
         for x in (15.0, 45.0, 85.0):

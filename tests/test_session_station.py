@@ -6,19 +6,15 @@ import time
 
 import numpy as np
 import pytest
-from netutil import SIM
 
 from cmm.control.modes import Refused
 from cmm.journal.session import mesh_sha256
 from cmm.journal.store import DirectoryStore, SessionBusy, load_session
-from cmm.station import Station
 
 
 @pytest.fixture
-def station(tmp_path):
-    st = Station(port=SIM, session_dir=tmp_path).start("recorded", home=True)
-    yield st
-    st.close()
+def station(stations):
+    return stations.station("recorded")
 
 
 def test_the_station_journals_config_part_hash_alignment_and_hits(station, tmp_path):
@@ -94,12 +90,10 @@ def test_report_fields_cad_nominals_tolerances_and_refit(station, tmp_path):
 
 
 @pytest.fixture
-def paced_station(tmp_path):
-    # a person's jog refreshes come in wall time: the simulated clock must not race past the dead-man
-    st = Station(port=SIM, session_dir=tmp_path).start("manual", home=True)  # homed on the uncapped clock
-    st.sim.network.set_pace(1.0)  # then paced (as netutil.SIM_PACED)
-    yield st
-    st.close()
+def paced_station(stations):
+    # a person's jog refreshes come in wall time: the simulated clock must not race past the dead-man (homed on
+    # the uncapped clock, then paced as netutil.SIM_PACED)
+    return stations.station("manual", pace=1.0)
 
 
 def test_manual_hits_are_taken_at_the_qualified_probing_speed(paced_station):

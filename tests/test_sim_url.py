@@ -113,8 +113,8 @@ def test_machine_poll_thread_runs_on_the_virtual_clock_with_other_threads_waitin
         machine.close()
 
 
-def test_station_runs_in_process_on_the_virtual_clock(tmp_path):
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path).start("virtual", home=True)
+def test_station_runs_in_process_on_the_virtual_clock(stations):
+    st = stations.station("virtual")
     try:
         assert st.port.startswith("sim://world") and st.sim is not None
         assert sim_url.get(st.port).cmm is st.sim  # the composition root reaches the world it opened

@@ -32,16 +32,10 @@ QUIET_S = 2.0  # machine seconds after the standstill in which nothing may move
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    from cmm.station import Station
-
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
-    try:
-        st.prober.settings.pretravel = sup.matched_pretravel(st.sim)
-        st.measurement.new_session("stops")
-        yield st
-    finally:
-        st.close()
+def station(module_stations):
+    st = module_stations.station(qualified=True)
+    st.measurement.new_session("stops")
+    return st
 
 
 class Watch:

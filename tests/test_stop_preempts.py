@@ -97,17 +97,14 @@ def test_a_stop_pre_empts_only_a_patient_retry_begun_before_it():
     assert st.position is not None
 
 
-def test_a_jog_stop_in_the_link_process_cuts_short_a_retry_during_motion():
+def test_a_jog_stop_in_the_link_process_cuts_short_a_retry_during_motion(stations):
     """The link process's jog stop (a release, the dead-man) asks for the link while a transaction of the
     station's is retrying a lost reply during the jog: that transaction gives up (Preempted, not a link failure)
     instead of resynchronising first, and the stop goes out next."""
     from cmm.nmc.link_process import JogGuard
 
-    config = load()
-    sim = SimulatedCMM(config)
-    port = FaultyTransport(sim.transport())
-    m = Machine(config, port)
-    m.connect()
+    sim, m, _ = stations.machine(link=FaultyTransport)
+    port = m.bus.port
     try:
         m.move_to([100.0, 100.0, 200.0]).wait()
         v = np.array([40.0, 0.0, 0.0])

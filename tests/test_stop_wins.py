@@ -29,14 +29,8 @@ HELD_S = 1.0  # machine seconds the loop is held late (the defect: 1.29 s)
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    from cmm.station import Station
-
-    st = Station(port="sim://?cmm=1", session_dir=tmp_path_factory.mktemp("sessions")).start(home=True)
-    try:
-        yield st
-    finally:
-        st.close()
+def station(module_stations):
+    return module_stations.station()
 
 
 def _x_counts(station) -> int:

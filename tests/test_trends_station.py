@@ -8,7 +8,7 @@ import csv
 import numpy as np
 import pytest
 import ui_support
-from netutil import SIM, free_port
+from netutil import free_port
 
 from cmm.measurement.program import run_on
 from cmm.program import toml_program as prog
@@ -35,11 +35,9 @@ def _program(part) -> prog.Program:
 
 
 @pytest.fixture(scope="module")
-def station(tmp_path_factory):
-    from cmm.station import Station
-
+def station(module_stations, tmp_path_factory):
     root = tmp_path_factory.mktemp("trends-station")
-    st = Station(port=SIM, session_dir=root / "sessions").start("runs", home=True)
+    st = module_stations.station("runs", session_dir=root / "sessions")
     st.measurement.trends = Trends(root / "trends", station="cmm-test")
     yield st
     st.close()

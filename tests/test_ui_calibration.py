@@ -17,15 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netutil import free_port, SIM
 
 pytest.importorskip("viser")
 
 from cmm.calibration.probe import analyse_qualification, qualification_pattern  # noqa: E402
 from cmm.calibration.records import load_probe_record, load_servo_record, load_sphere_certificate  # noqa: E402
 from cmm.control import Refused  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 from cmm.ui.panel_calibration import residual_series, residual_svg  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -41,13 +38,10 @@ def records(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def app(tmp_path_factory, records):
-    station = Station(port=SIM, session_dir=tmp_path_factory.mktemp("sessions"), calibration_dir=records).start(home=True)
+def app(module_stations, records):
+    station = module_stations.station(calibration_dir=records)
     assert station.calibration.directory == records
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
-    yield ui
-    ui.close()
-    station.close()
+    return module_stations.app(station, pendant=False)
 
 
 @pytest.fixture(scope="module")

@@ -4,14 +4,11 @@ control charts in its report (as ``cmm report --trend``); a session that is no p
 from __future__ import annotations
 
 import pytest
-from netutil import SIM, free_port
 
 pytest.importorskip("viser")
 
 from cmm.dmis.runner import run_text  # noqa: E402
 from cmm.session.trends import Trends  # noqa: E402
-from cmm.station import Station  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
 
 TOP = ("FILNAM/'top face'\nUNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\n"
        "GOTO/10, 10, 50\nF(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\n"
@@ -25,9 +22,9 @@ def _wait(job, timeout=60.0):
     return job
 
 
-def test_the_sessions_report_includes_the_series_charts(tmp_path):
-    station = Station(port=SIM, session_dir=tmp_path / "sessions").start("p0", home=True)
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
+def test_the_sessions_report_includes_the_series_charts(stations, tmp_path):
+    station = stations.station("p0", session_dir=tmp_path / "sessions")
+    ui = stations.app(station, pendant=False)
     try:
         station.measurement.trends = Trends(tmp_path / "trends", station="cmm-a")
         op = ui.add_client(client_id="operator", is_local=True)

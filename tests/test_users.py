@@ -125,7 +125,7 @@ def test_cmm_users_manages_the_file_from_the_command_line(tmp_path, capsys, monk
     assert "there is no user 'maria'" in capsys.readouterr().err
 
 
-def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
+def test_a_pendant_over_tls_logs_in_and_its_role_decides(stations, tmp_path):
     """The pendant served over https / wss with the station's self-signed certificate (checked by its file, as a
     client that was given the printed fingerprint would): an anonymous connection only observes, a wrong password
     is refused without saying which part was wrong, a logged-in operator takes control under the person's name and
@@ -136,15 +136,13 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(tmp_path):
     from websockets.sync.client import connect
 
     from cmm.control import tls
-    from cmm.station import Station
     from cmm.ui.pendant import start_pendant_server
-    from netutil import SIM
 
     store = UserStore(tmp_path / "users.toml")
     store.add("maria", "operator", "correct horse")
     cert = tls.certificate(tmp_path / "tls")
     assert cert.made and tls.certificate(tmp_path / "tls").fingerprint == cert.fingerprint  # made once, then reused
-    station = Station(port=SIM, session_dir=tmp_path / "sessions").start()
+    station = stations.station(home=False, session_dir=tmp_path / "sessions")
     control = Control()
     station.controller.use_policy_of(control)
     station.controller.commands.roles = RolePolicy()

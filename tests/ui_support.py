@@ -7,7 +7,7 @@ import time
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator
 
-from netutil import SIM_PACED, free_port
+from netutil import SIM_PACED
 
 # A tab's panels are built by the station in the background when its page says hello; on a loaded machine that
 # has taken seconds. A bound, not a pause: the wait ends as soon as the tab is built.
@@ -20,17 +20,10 @@ def station_app(tmp_path_factory: Any, *, port: str = SIM_PACED, session: str | 
     homed station on the simulator (``port``; ``station``: more Station arguments; ``session``: the session it
     starts) with its StationApp on a free 127.0.0.1 port (``ui``: StationApp's options), both closed after the
     module."""
-    from cmm.station import Station
-    from cmm.ui.app import StationApp
+    from stations import Stations
 
-    st = Station(port=port, session_dir=tmp_path_factory.mktemp("sessions"), **(station or {}))
-    st.start(session, home=home) if session is not None else st.start(home=home)
-    app = StationApp(st, host="127.0.0.1", port=free_port(), **ui)
-    try:
-        yield app
-    finally:
-        app.close()
-        st.close()
+    with Stations(lambda: tmp_path_factory.mktemp("sessions")) as built:
+        yield built.app(built.station(session, home=home, port=port, **(station or {})), **ui)
 
 
 @contextmanager
