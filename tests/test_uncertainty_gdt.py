@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cmm.metrology.fit_ls import fit_cylinder, fit_plane, fit_sphere
-from cmm.metrology.gdt_eval import MeasuredFeature, evaluate
+from cmm.metrology.gdt_eval import MeasuredFeature, evaluate, evaluate_one
 from cmm.metrology.uncertainty import Sources, budget
 from cmm.metrology.uncertainty_gdt import gdt_uncertainty
 
@@ -65,7 +65,7 @@ def test_perpendicularity_to_a_datum_plane_carries_the_machine_squareness_known_
     datums = {"A": {"label": "A", "feature": 1}}
     (_, c), = evaluate([d], datums, feats)
     assert c.actual == pytest.approx(0.0, abs=1e-7)
-    u = gdt_uncertainty(d, datums, feats, c.actual)
+    u = gdt_uncertainty(d, datums, feats, c.actual, evaluate_one)
     t = u["terms"]
     assert t["machine squareness"] == pytest.approx(math.sqrt(2) * 20.0 * SRC.machine_squareness_u(), rel=0.02)
     assert t["thermal"] < 1e-7 and t["probe qualification"] < 1e-7 and t["machine scale"] < 1e-7
@@ -77,10 +77,10 @@ def test_values_without_an_honest_propagation_say_why():
     pts, fit = _sphere()
     feats = {1: MeasuredFeature("S", "sphere", fit.summary(), None, pts,
                                 budget=budget("sphere", pts, fit, SRC).summary())}
-    why = gdt_uncertainty({"characteristic": "profile of a surface", "feature": 1}, {}, feats, 0.0)["why"]
+    why = gdt_uncertainty({"characteristic": "profile of a surface", "feature": 1}, {}, feats, 0.0, evaluate_one)["why"]
     assert "best fit of its points to the CAD mesh" in why
     assert "composite" in gdt_uncertainty({"characteristic": "position", "feature": 1, "composite": {}}, {}, feats,
-                                          0.0)["why"]
+                                          0.0, evaluate_one)["why"]
 
 
 def test_position_and_perpendicularity_are_covered_on_the_simulator():

@@ -452,14 +452,30 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
     return out
 
 
+_PROPAGATED: dict[tuple, dict[str, Any]] = {}  # the propagation of a tolerance on given hits (see _uncertainty)
+
+
 def _uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature],
                  rows: list[tuple[str, gdt.GdtResult]], mesh: Any, pose: Any) -> dict[str, Any]:
     """The Characteristic's uncertainty fields of a definition's row (cmm.metrology.uncertainty_gdt)."""
     from .uncertainty_gdt import gdt_uncertainty
 
+    from .uncertainty_gdt import involved
+
     if len(rows) != 1:
         return {"uncertainty_why": "no uncertainty: a composite position's tiers are not propagated"}
-    u = gdt_uncertainty(d, datums, feats, rows[0][1].value, mesh, pose)
+    # the tree, the report, the CSV and QIF evaluate the same tolerances on the same hits: propagate once
+    parts = [(fid, None if feats.get(fid) is None else (feats[fid].kind, repr(feats[fid].geometry),
+                                                        np.asarray(feats[fid].points).tobytes(),
+                                                        repr((feats[fid].budget or {}).get("inputs"))))
+             for fid in involved(d, datums)]
+    key = (repr(sorted(d.items())), repr(sorted(datums.items())), repr(parts), rows[0][1].value)
+    u = _PROPAGATED.get(key)
+    if u is None:
+        u = gdt_uncertainty(d, datums, feats, rows[0][1].value, evaluate_one, mesh, pose)
+        if len(_PROPAGATED) > 512:
+            _PROPAGATED.clear()
+        _PROPAGATED[key] = u
     if "U" not in u:
         return {"uncertainty_why": str(u.get("why", "no uncertainty"))}
     return {"uncertainty": float(u["U"]), "uncertainty_k": float(u["k"])}

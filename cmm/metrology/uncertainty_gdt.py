@@ -8,10 +8,13 @@ source common to every feature (the probe's qualification and directional errors
 squareness, the part's expansion: one physical error of the set-up) moves all their hits at once, so its effects
 on the feature and on the datums add with their real signs; the scatter of each hit and the part's form under
 each hit (sampling) are independent from hit to hit, taken one hit at a time and combined in quadrature. Each
-pattern moves the hits by its standard uncertainty (not an infinitesimal step): a value that is a distance from
-a zero deviation (a position, a perpendicularity near zero) then takes each pattern's full length whatever its
-direction, which bounds its error. k: Student's t at 95.45 % for the Welch-Satterthwaite degrees of freedom of
-the sampling terms (``cmm.metrology.uncertainty.sampling_form``).
+pattern moves the hits by +- its standard uncertainty: (v+ - v-) / 2 is the linear change, and
+sqrt((v+^2 + v-^2) / 2 - v^2) the length of the change of the deviation the value measures (exact for a value
+linear in the errors and for a value that is the length of a deviation vector, v = |dev + delta|). A value more
+than its U from zero takes the linear propagation; nearer zero (a perpendicularity of 1 um against errors of
+1 um) its error can take the whole deviation's error in any direction, which the linear change (along the
+deviation read) misses: the lengths bound it. k: Student's t at 95.45 % for the Welch-Satterthwaite degrees of
+freedom of the sampling terms (``cmm.metrology.uncertainty.sampling_form``).
 
 The sampling term counts for the datum features and for a toleranced feature whose value stands on its fitted
 geometry (position, the orientation of an axis, coaxiality); where the value is the zone of the toleranced
@@ -28,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -103,11 +106,9 @@ def involved(d: dict[str, Any], datums: dict[str, dict]) -> list[int]:
 
 
 def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], value: float,
-                    mesh: Any = None, pose: Any = None) -> dict[str, Any]:
+                    evaluate_one: Callable[..., Any], mesh: Any = None, pose: Any = None) -> dict[str, Any]:
     """``{"U": mm, "k": k, "u_c": mm, "terms": {source: mm}}`` of the evaluated ``value`` of definition ``d``, or
-    ``{"why": reason}`` when it has none."""
-    from .gdt_eval import evaluate_one
-
+    ``{"why": reason}`` when it has none; ``evaluate_one``: cmm.metrology.gdt_eval.evaluate_one (its caller)."""
     ch = d.get("characteristic", "")
     if "composite" in d:
         return {"why": "no uncertainty: a composite position's tiers are not propagated"}
@@ -135,11 +136,18 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
     n = np.vstack([m.n for _, m in parts])
     spans = np.cumsum([0] + [len(m.x) for _, m in parts])
 
-    def change(dx: np.ndarray) -> float:
+    def value_at(dx: np.ndarray) -> float:
         moved = dict(feats)
         for j, (fid, m) in enumerate(parts):
             moved[fid] = m.moved(dx[spans[j]:spans[j + 1]])
-        return float(evaluate_one(d, datums, moved, mesh, pose).value) - value
+        return float(evaluate_one(d, datums, moved, mesh, pose).value)
+
+    def change(dx: np.ndarray) -> tuple[float, float]:
+        """(the linear change of the value, the length of the deviation's change) for the displacement ``dx``:
+        from the value at +dx and -dx, |delta|^2 = (v+^2 + v-^2) / 2 - v^2, exact both for a value linear in
+        the errors and for the length of a deviation vector (v = |dev + delta|), whatever delta's direction."""
+        vp, vm = value_at(dx), value_at(-dx)
+        return (vp - vm) / 2.0, math.sqrt(max(0.0, (vp * vp + vm * vm) / 2.0 - value * value))
 
     along = lambda pattern: pattern[:, None] * n  # noqa: E731 - a displacement along each hit's normal
     systematic: dict[str, list[np.ndarray]] = {"probe qualification": [src.u_tip * along(np.ones(len(x)))]}
@@ -170,29 +178,44 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
         square.append(m)
     systematic["machine scale"], systematic["machine squareness"] = scale, square
     systematic["thermal"] = [src.thermal_u() * rel]
+    both: dict[str, tuple[float, float]] = {}  # term -> (u linear, u of the deviation's length)
+    dofs: dict[str, float] = {}
+
+    def add(name: str, changes: list[tuple[float, float]]) -> None:
+        both[name] = (math.sqrt(sum(a * a for a, _ in changes)), math.sqrt(sum(b * b for _, b in changes)))
+
     try:
-        terms = {s: math.sqrt(sum(change(p) ** 2 for p in pats)) for s, pats in systematic.items()}
+        for source, pats in systematic.items():
+            add(source, [change(p) for p in pats])
         one = np.zeros((len(x), 3))
 
-        def hit(i: int, size: float) -> float:
+        def hit(i: int, size: float) -> tuple[float, float]:
             dx = one.copy()
             dx[i] = size * n[i]
             return change(dx)
 
-        terms["scatter"] = math.sqrt(sum(hit(i, src.repeatability) ** 2 for i in range(len(x))))
-        ws = 0.0
+        add("scatter", [hit(i, src.repeatability) for i in range(len(x))])
         own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity") and parts[0][1].kind != "plane")
         for j, (fid, m) in enumerate(parts):
             if j == 0 and not own:
                 continue
-            u = math.sqrt(sum(hit(i, m.form) ** 2 for i in range(spans[j], spans[j + 1])))
-            terms[f"sampling {m.f.name}"] = u
-            ws += u ** 4 / (m.nu + PRIOR_DOF)  # the residuals' degrees of freedom and the prior's
+            add(f"sampling {m.f.name}", [hit(i, m.form) for i in range(spans[j], spans[j + 1])])
+            dofs[f"sampling {m.f.name}"] = m.nu + PRIOR_DOF  # the residuals' degrees of freedom and the prior's
     except Exception as exc:  # noqa: BLE001 - a moved set the evaluation refuses: no uncertainty, said why
         return {"why": f"no uncertainty: the tolerance could not be re-evaluated on the moved hits ({exc})"}
-    uc = math.sqrt(sum(v * v for v in terms.values()))
-    nu = uc ** 4 / ws if ws > 0 and uc > 0 else math.inf
-    k = coverage_factor(nu)
+
+    def expanded(which: int) -> tuple[float, float, dict[str, float]]:
+        terms = {t: v[which] for t, v in both.items()}
+        uc = math.sqrt(sum(v * v for v in terms.values()))
+        ws = sum(terms[t] ** 4 / nu for t, nu in dofs.items())
+        return coverage_factor(uc ** 4 / ws if ws > 0 and uc > 0 else math.inf), uc, terms
+
+    # a value more than its U from zero (a position 20 um off with U 4 um): the linear propagation; nearer zero
+    # (a perpendicularity of 1 um against 1 um errors) the value's error can take the whole deviation's error
+    # in any direction (the linear change sees only its part along the deviation read): its length bounds it
+    k, uc, terms = expanded(1)
+    if value > k * uc:
+        k, uc, terms = expanded(0)
     return {"U": k * uc, "k": k, "u_c": uc, "terms": terms,
             "note": "from the budgets' sources moved through the feature's and the datums' fits and the zone's "
                     "evaluation: sources common to the set-up at once, scatter and sampling hit by hit"}
