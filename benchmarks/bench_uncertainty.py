@@ -1,6 +1,6 @@
 """Coverage of the uncertainty budget (cmm.metrology.uncertainty) on the simulator's error model.
 
-    python3 benchmarks/bench_uncertainty.py [--trials 200] [--seed 1] [--local-fits]
+    python3 benchmarks/bench_uncertainty.py [--trials 200] [--seed 1] [--local-fits] [--gdt]
 
 Each sample-part feature (the simulator's true geometry at its true pose) is measured ``--trials`` times with
 the station's default hit plans (plane 4 hits, cylinders and cone 2 rings of 4, the sphere cap the pole and 4 at
@@ -13,7 +13,9 @@ one. Printed per feature and value: coverage (|error| <= U), the worst |error| /
 (the standard deviation of the errors): targets >= 95 %, < 2, <= 3. A count of 200 trials scatters by about
 +-1.4 % around the true coverage (binomial), U / spread by about +-5 %: ``--local-fits`` (cylinders and cones
 fitted by local least squares from the true geometry, the same minimum as the station's multi-start fit on
-errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run.
+errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run. ``--gdt``: geometric
+tolerances against datums instead (``run_gdt``: the boss's position to A|B and perpendicularity to A, the
+features and their datums measured in one set-up a trial), with their U (cmm.metrology.uncertainty_gdt).
 """
 
 from __future__ import annotations
