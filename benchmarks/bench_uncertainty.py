@@ -1,6 +1,6 @@
 """Coverage of the uncertainty budget (cmm.metrology.uncertainty) on the simulator's error model.
 
-    python3 benchmarks/bench_uncertainty.py [--trials 200] [--seed 1] [--local-fits]
+    python3 benchmarks/bench_uncertainty.py [--trials 200] [--seed 1] [--local-fits] [--gdt]
 
 Each sample-part feature (the simulator's true geometry at its true pose) is measured ``--trials`` times with
 the station's default hit plans (plane 4 hits, cylinders and cone 2 rings of 4, the sphere cap the pole and 4 at
@@ -13,7 +13,9 @@ one. Printed per feature and value: coverage (|error| <= U), the worst |error| /
 (the standard deviation of the errors): targets >= 95 %, < 2, <= 3. A count of 200 trials scatters by about
 +-1.4 % around the true coverage (binomial), U / spread by about +-5 %: ``--local-fits`` (cylinders and cones
 fitted by local least squares from the true geometry, the same minimum as the station's multi-start fit on
-errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run.
+errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run. ``--gdt``: geometric
+tolerances against datums instead (``run_gdt``: the boss's position to A|B and perpendicularity to A, the
+features and their datums measured in one set-up a trial), with their U (cmm.metrology.uncertainty_gdt).
 """
 
 from __future__ import annotations
@@ -137,6 +139,100 @@ def measure(kind: str, true_pts: np.ndarray, rng: np.random.Generator, pose: np.
     return hits, truth.T + pose[:3, 3], src
 
 
+def _normals_of(kind: str, true_pts: np.ndarray) -> np.ndarray:
+    key = (kind, true_pts.tobytes())
+    if key not in _NORMALS:
+        fit = LS_FITS[kind](true_pts)
+        from cmm.metrology.uncertainty import _geometry, _normals
+
+        _NORMALS[key] = _normals(kind, _geometry(kind, fit), true_pts)
+    return _NORMALS[key]
+
+
+def measure_set(items: dict[str, tuple[str, np.ndarray]], rng: np.random.Generator, pose: np.ndarray,
+                form: float = 0.0):
+    """Several features measured in one set-up: one probe (lobes at one phase, one qualification), one machine
+    geometry and one part temperature for all of them, each hit its own noise and form. Returns
+    {name: (hits, truth, surface)} and the sources."""
+    phase = rng.uniform(0, 2 * np.pi)
+    h = 1e-3 / Sources().mpe_k
+    g = np.eye(3) + np.diag(rng.uniform(-h, h, 3))
+    g[0, 1], g[0, 2], g[1, 2] = rng.uniform(-h, h, 3)
+    record = qualify(rng, phase, g)
+    src = probe_sources(record, reference=tuple(pose[:3, 3]))
+    t = 20.0 + rng.uniform(-src.temperature_allowance, src.temperature_allowance)
+    cte = src.cte + rng.normal(0, src.cte_u)
+    out = {}
+    for name, (kind, pts) in items.items():
+        n = _normals_of(kind, pts)
+        delta = _pretravel(n, phase) + rng.normal(0, PROBE.noise_sigma, len(n))
+        model = record.model(-n) + (PROBE.tip_radius - record.tip_radius)
+        surface = pts + rng.normal(0, form, len(n))[:, None] * n if form > 0 else pts
+        local = surface - (delta - model)[:, None] * n
+        rel = (pose[:3, :3] @ local.T).T
+        hits = pose[:3, 3] + rel @ g.T + rel * cte * (t - 20.0)
+        out[name] = (hits, (pose[:3, :3] @ pts.T).T + pose[:3, 3], (pose[:3, :3] @ surface.T).T + pose[:3, 3])
+    return out, src
+
+
+def run_gdt(trials: int, seed: int, form: float = 0.0, verbose: bool = True) -> dict[str, dict[str, float]]:
+    """Geometric tolerances of the sample part against datums, with their U (cmm.metrology.uncertainty_gdt):
+    datum A the top plane, B the bore; the boss's position to A|B (its nominal 5 um off the true axis, so the
+    true value is 10 um) and its perpendicularity to A (true value 0). The features, datums included, are
+    measured in one set-up per trial (measure_set); the true value is the same evaluation on the true geometry
+    and the part's surface under the hits."""
+    from cmm.metrology.gdt_eval import MeasuredFeature, evaluate
+
+    rng = np.random.default_rng(seed)
+    pose = TRUE_PART_POSE
+    p = plans()
+    items = {k: p[k] for k in ("top_plane", "bore", "boss")}
+    ids = {"top_plane": 1, "bore": 2, "boss": 3}
+    true_fits = {}
+    nominal = {}
+    for name, (kind, pts) in items.items():
+        truth = (pose[:3, :3] @ pts.T).T + pose[:3, 3]
+        true_fits[name] = LS_FITS[kind](truth)
+        nominal[name] = {"kind": kind, **true_fits[name].geometry()}
+        if kind == "cylinder":
+            nominal[name]["bore"] = name == "bore"
+    nominal["boss"]["point"] = (np.asarray(nominal["boss"]["point"]) + pose[:3, :3] @ [0.005, 0, 0]).tolist()
+    datums = {"A": {"label": "A", "feature": 1}, "B": {"label": "B", "feature": 2}}
+    defs = [{"id": 1, "name": "position", "characteristic": "position", "feature": 3, "tolerance": 0.05,
+             "datums": ["A", "B"]},
+            {"id": 2, "name": "perpendicularity", "characteristic": "perpendicularity", "feature": 3,
+             "tolerance": 0.05, "datums": ["A"]}]
+    errs: dict[str, list[float]] = {}
+    us: dict[str, list[float]] = {}
+    for _ in range(trials):
+        measured, src = measure_set(items, rng, pose, form)
+        feats, truths = {}, {}
+        for name, (kind, _pts) in items.items():
+            hits, _truth, surface = measured[name]
+            fit = local_fit(kind, true_fits[name], hits) if kind == "cylinder" else LS_FITS[kind](hits)
+            geo = {k: (np.asarray(v).tolist()) for k, v in (fit.summary() if kind == "cylinder" else
+                                                               fit.geometry()).items()}
+            b = budget(kind, hits, fit, src).summary()
+            feats[ids[name]] = MeasuredFeature(name, kind, geo, nominal[name], hits, budget=b)
+            tg = true_fits[name].geometry()
+            truths[ids[name]] = MeasuredFeature(name, kind, tg, nominal[name], surface)
+        for (d, c), (_, ct) in zip(evaluate(defs, datums, feats), evaluate(defs, datums, truths)):
+            errs.setdefault(d["name"], []).append(float(c.actual) - float(ct.actual))
+            us.setdefault(d["name"], []).append(float(c.uncertainty))
+    out = {}
+    for k in errs:
+        e, u = np.abs(np.array(errs[k])), np.array(us[k])
+        out[k] = {"coverage": float(np.mean(e <= u)), "worst": float(np.max(e / u)),
+                  "U_over_spread": float(np.mean(u) / (float(np.std(errs[k])) or 1e-12)), "U": float(np.mean(u)),
+                  "err_max": float(e.max())}
+        if verbose:
+            r = out[k]
+            print(f"boss       {k:17s} U {r['U'] * 1000:8.3f} um  max|err| {r['err_max'] * 1000:8.3f}  coverage "
+                  f"{r['coverage'] * 100:5.1f} %  worst |err|/U {r['worst']:5.2f}  U/spread {r['U_over_spread']:5.2f}",
+                  flush=True)
+    return out
+
+
 def local_fit(kind: str, true_fit, hits: np.ndarray):
     """A cylinder or cone fitted by least squares from the true geometry (no multi-start search)."""
     from types import SimpleNamespace
@@ -236,7 +332,12 @@ def main() -> None:
                         help="compensate with the mean pre-travel only (no directional qualification)")
     parser.add_argument("--local-fits", action="store_true",
                         help="fit cylinders and cones by local least squares from the true geometry (fast)")
+    parser.add_argument("--gdt", action="store_true",
+                        help="geometric tolerances against datums instead (the boss's position to A|B, perpendicularity to A)")
     args = parser.parse_args()
+    if args.gdt:
+        run_gdt(args.trials, args.seed, form=args.form / 1000)
+        return
     res = run(args.trials, args.seed, form=args.form / 1000, isotropic=args.isotropic, local_fits=args.local_fits)
     cov = [r["coverage"] for f in res.values() for r in f.values()]
     worst = max(r["worst"] for f in res.values() for r in f.values())

@@ -59,7 +59,8 @@ def test_k_is_2_when_the_sampling_term_is_negligible():
     g = np.random.default_rng(0).normal(size=(40, 3))
     sph = 10.0 * g / np.linalg.norm(g, axis=1)[:, None] + [100, 50, 20]
     b = budget("sphere", sph, fit_sphere(sph), Sources(form_prior=0.0))
-    assert all(k == pytest.approx(2.0, abs=1e-3) for k in b.coverage_factors().values())
+    # (the form's k comes from the distribution of the range of its residuals' errors, not from Student's t)
+    assert all(k == pytest.approx(2.0, abs=1e-3) for name, k in b.coverage_factors().items() if name != "form")
     plane = np.array([[0, 0, 0], [50, 0, 0], [50, 40, 0], [0, 40, 0.0]])
     b = budget("plane", plane, fit_plane(plane), Sources(form_prior=0.0))
     assert b.coverage_factors()["offset"] == 2.0
@@ -79,3 +80,17 @@ def test_the_cap_is_covered_95_percent_where_k_2_was_not():
         assert res[name]["worst"] <= 2.0, (name, res[name])
         assert res[name]["U_over_spread"] <= 3.0, (name, res[name])
 
+
+
+def test_the_form_value_is_covered_without_the_two_hit_overstatement():
+    """The form values (flatness of the 4-hit plane, the cone's form) on the simulator's error model with 1 um of
+    form, 80 trials at a fixed seed: U / the errors' spread was 3.0-3.2 with each hit's scatter counted at both
+    ends independently; through the fit's residual projection and the range of the residuals' errors it is about
+    2.2-2.6, coverage kept."""
+    from bench_uncertainty import run
+
+    res = run(80, seed=4, verbose=False, features=("top_plane", "cone"), form=0.001, local_fits=True)
+    for name in ("top_plane", "cone"):
+        r = res[name]["form"]
+        assert r["coverage"] >= 0.95 and r["worst"] < 2.0, (name, r)
+        assert r["U_over_spread"] <= 2.9, (name, r)

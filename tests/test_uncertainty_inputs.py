@@ -165,29 +165,40 @@ def test_station_fit_uses_the_records_in_force(tmp_path):
 
 
 def test_form_values_carry_their_uncertainty_known_answer():
-    """Flatness is the difference of two hits' residuals: their scatter counts at both ends (sqrt 2), what moves
-    every hit alike (tip radius, machine, thermal) cancels; a roundness whose extreme hits lie in different
-    directions also carries the probe's directional errors. The characteristic shows U of the form."""
+    """The form (max - min residual) moves with its two extreme hits' residuals after the refit: each hit's scatter
+    through the residuals' projection R = I - H (var = sigma^2 (R_aa + R_bb - 2 R_ab), not 2 sigma^2), what the fit
+    absorbs (tip radius, a plane's affine errors) cancels, a circle's anisotropic scale does not (an ellipse). U is
+    the 95.45 % quantile of the range of the residuals' errors, which bounds the form's error."""
     from cmm.metrology.characteristics import characteristics
     from cmm.metrology.fit_ls import fit_circle, fit_plane
-    from cmm.metrology.uncertainty import characteristic_u
+    from cmm.metrology.uncertainty import COVERAGE, characteristic_u
 
     plane = np.array([[0, 0, 0], [50, 0, 0], [50, 40, 0], [0, 40, 0.0], [25, 20, 0.004]])
     src = Sources(repeatability=0.00025, lobing=0.0015, z_xy=0.001)
     b = budget("plane", plane, fit_plane(plane), src)
     assert b.values["form"] == pytest.approx(fit_plane(plane).form)
-    # all normals along Z: the lobing and Z/XY patterns are the same at both ends and cancel
-    assert b.expanded()["form"] == pytest.approx(2 * math.sqrt(2) * 0.00025, rel=1e-9)
+    # an independent propagation: the plane z = a + b x + c y fitted by linear least squares
+    design = np.c_[np.ones(5), plane[:, :2]]
+    proj = np.eye(5) - design @ np.linalg.pinv(design)
+    resid = proj @ plane[:, 2]
+    a, lo = int(np.argmax(resid)), int(np.argmin(resid))
+    u_lin = 0.00025 * math.sqrt(proj[a, a] + proj[lo, lo] - 2 * proj[a, lo])
+    assert u_lin < 0.9 * math.sqrt(2) * 0.00025  # the old two-hit propagation (sqrt 2 sigma) overstated it
+    assert b.combined()["form"] == pytest.approx(u_lin, rel=1e-4)  # all normals along Z: lobing, Z/XY cancel
+    ranges = np.ptp(np.random.default_rng(7).normal(0, 0.00025, (40000, 5)) @ proj, axis=1)
+    assert b.expanded()["form"] == pytest.approx(float(np.quantile(ranges, COVERAGE)), rel=0.03)
     assert characteristic_u("flatness", b.expanded()) == b.expanded()["form"]
     # a circle: out at 0 deg, in at 60 deg: the 3-lobed pattern differs by 2 there (cos 0 - cos 180)
-    a = np.radians(np.arange(0, 360, 30))
-    r = 10 + np.where(np.isclose(a, 0), 0.003, 0) + np.where(np.isclose(a, np.radians(60)), -0.003, 0)
-    circle = np.c_[r * np.cos(a), r * np.sin(a), np.zeros_like(a)]
+    ang = np.radians(np.arange(0, 360, 30))
+    r = 10 + np.where(np.isclose(ang, 0), 0.003, 0) + np.where(np.isclose(ang, np.radians(60)), -0.003, 0)
+    circle = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros_like(ang)]
     fit = fit_circle(circle)
     b = budget("circle", circle, fit, src)
     t = _terms(b)
-    assert t["probe lobing"].u["form"] == pytest.approx(0.0015 / math.sqrt(2) * 2, rel=1e-6)
-    assert t["probe qualification"].u["form"] == 0.0 and t["machine scale"].u["form"] == 0.0
+    assert t["probe lobing"].u["form"] == pytest.approx(0.0015 / math.sqrt(2) * 2, rel=1e-3)
+    assert t["probe qualification"].u["form"] == pytest.approx(0.0, abs=1e-9)  # the radius takes it
+    # an x (y) scale error s makes an ellipse: residuals r s cos 2phi / 2 (- ...): 3/4 r s between 0 and 60 deg
+    assert t["machine scale"].u["form"] == pytest.approx(math.sqrt(2) * 0.75 * 10 * src.machine_scale_u(), rel=2e-2)
     # the feature's characteristics: roundness with its U
     chars = characteristics("c", "circle", {**fit.summary(), "form": fit.form}, None)
     roundness = next(c for c in chars if c.name == "roundness")

@@ -137,7 +137,8 @@ class FeatureRecord:
         tol = {**DEFAULT_TOLERANCE, **((self.tolerance if tolerance is None else tolerance) or {})}
         return MeasuredFeature(self.name, self.kind, self.fit, self.nominal, pts, float(tol["size"]),
                                tuple(h for h in self.hit_ids if h in hits), tol.get("size_lower"),
-                               tol.get("size_upper"), self.fit.get("alternative") or None)
+                               tol.get("size_upper"), self.fit.get("alternative") or None,
+                               self.fit.get("budget") or None)
 
 
 @dataclass(frozen=True)

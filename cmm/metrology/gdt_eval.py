@@ -61,6 +61,7 @@ class MeasuredFeature:
     size_lower: float | None = None  # the diameter's own limits (deviations from the nominal), when not +-
     size_upper: float | None = None
     alternative: dict[str, Any] | None = None  # a clearly different fit the hits fit better (fit summary), or None
+    budget: dict[str, Any] | None = None  # its uncertainty budget's summary (cmm.metrology.uncertainty), or None
 
 
 def check_definition(d: dict[str, Any]) -> dict[str, Any]:
@@ -444,10 +445,40 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
                                           datums="|".join(d.get("datums") or []))))
             continue
         check = check_text(d, datums, feats)
+        unc = _uncertainty(d, datums, feats, rows, mesh, pose)
         for feature_name, r in rows:
             out.append((d, Characteristic(feature_name, r.label, 0.0, r.value, r.allowed, 0.0,
-                                          note=f"{name}: {r.note}", check=check, datums=r.drf)))
+                                          note=f"{name}: {r.note}", check=check, datums=r.drf, **unc)))
     return out
+
+
+_PROPAGATED: dict[tuple, dict[str, Any]] = {}  # the propagation of a tolerance on given hits (see _uncertainty)
+
+
+def _uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature],
+                 rows: list[tuple[str, gdt.GdtResult]], mesh: Any, pose: Any) -> dict[str, Any]:
+    """The Characteristic's uncertainty fields of a definition's row (cmm.metrology.uncertainty_gdt)."""
+    from .uncertainty_gdt import gdt_uncertainty
+
+    from .uncertainty_gdt import involved
+
+    if len(rows) != 1:
+        return {"uncertainty_why": "no uncertainty: a composite position's tiers are not propagated"}
+    # the tree, the report, the CSV and QIF evaluate the same tolerances on the same hits: propagate once
+    parts = [(fid, None if feats.get(fid) is None else (feats[fid].kind, repr(feats[fid].geometry),
+                                                        np.asarray(feats[fid].points).tobytes(),
+                                                        repr((feats[fid].budget or {}).get("inputs"))))
+             for fid in involved(d, datums)]
+    key = (repr(sorted(d.items())), repr(sorted(datums.items())), repr(parts), rows[0][1].value)
+    u = _PROPAGATED.get(key)
+    if u is None:
+        u = gdt_uncertainty(d, datums, feats, rows[0][1].value, evaluate_one, mesh, pose)
+        if len(_PROPAGATED) > 512:
+            _PROPAGATED.clear()
+        _PROPAGATED[key] = u
+    if "U" not in u:
+        return {"uncertainty_why": str(u.get("why", "no uncertainty"))}
+    return {"uncertainty": float(u["U"]), "uncertainty_k": float(u["k"])}
 
 
 def check_text(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature]) -> str:

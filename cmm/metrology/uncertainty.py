@@ -29,7 +29,8 @@ Terms (standard uncertainties; ``Sources`` holds their inputs):
 - sampling: the part's form the hits see beyond the repeatability (the fit's residual sigma), independent per
   hit, pooled with ``form_prior`` (the form expected of the feature, worth PRIOR_DOF degrees of freedom): a few
   residuals do not show the form reliably.
-- the form value (max - min residual): two hits' residuals, see ``_form_terms``.
+- the form value (max - min residual): its two extreme hits' residuals after the refit, U from the range of the
+  residuals' errors, see ``_form_ends`` and ``_form_range_quantile``.
 
 ``cmm.metrology.uncertainty_inputs`` fills ``Sources`` from the station's calibration records, configuration and
 session, each term's ``origin`` saying where its input came from.
@@ -156,6 +157,7 @@ class Budget:
     terms: list[Term] = field(default_factory=list)
     reference: tuple[float, ...] | None = None  # the point the machine's and thermal errors were taken about
     sources: "Sources | None" = None  # the inputs (kept with the budget: re-evaluation uses the same)
+    k_given: dict[str, float] = field(default_factory=dict)  # k of values whose error is not normal (the form)
 
     def combined(self) -> dict[str, float]:
         return {k: math.sqrt(sum(t.u.get(k, 0.0) ** 2 for t in self.terms)) for k in self.values}
@@ -170,7 +172,7 @@ class Budget:
 
     def coverage_factors(self) -> dict[str, float]:
         """k per value: Student's t at 95.45 % for its effective degrees of freedom (2 when they are many)."""
-        return {k: coverage_factor(nu) for k, nu in self.effective_dof().items()}
+        return {k: self.k_given.get(k, coverage_factor(nu)) for k, nu in self.effective_dof().items()}
 
     def expanded(self) -> dict[str, float]:
         """U = k u_c per value (k from ``coverage_factors``)."""
@@ -292,11 +294,12 @@ def _linear_sensitivity(kind: str, fit: Any, x: np.ndarray, centroid: np.ndarray
     normals = _normals(kind, model.geometry(p0), x)
     names = list(v0)
 
-    def change(moved: np.ndarray) -> dict[str, float]:
+    def change(moved: np.ndarray) -> tuple[dict[str, float], np.ndarray]:
+        """(change of each value, change of each hit's residual) for the point displacements ``moved``."""
         dd = np.einsum("ij,ij->i", normals, moved)  # the distances grow by the displacement along the normal
         dp = -pinv @ dd
         dv = vj @ dp
-        return {n: float(dv[i]) for i, n in enumerate(names)}
+        return {n: float(dv[i]) for i, n in enumerate(names)}, dd + jac @ dp
 
     return change
 
@@ -338,23 +341,46 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
 
     linear = _linear_sensitivity(kind, fit, x, centroid) if kind in ("cylinder", "cone") else None
 
+    resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
+    # the form value (max - min residual) moves with the residuals of its two extreme hits, after the refit
+    ends = _form_ends(kind, resid, len(x))
+    last = [np.zeros(len(x))]  # the residuals' change per unit of the last pattern (the form's Monte Carlo)
+    form_sys: list[np.ndarray] = []  # each systematic pattern's residual change at its standard uncertainty
+
     def delta(moved: np.ndarray, scale: float) -> dict[str, float]:
-        """Change of each value per unit of the pattern ``moved`` (point displacements for ``scale``)."""
+        """Change of each value per unit of the pattern ``moved`` (point displacements for ``scale``), with the
+        form's (``form``) when the feature has one."""
         if linear is not None:
-            return {k: v / scale for k, v in linear(moved).items()}
-        try:
-            v = values_of(kind, _refit(kind, x + moved, fit), centroid)
-        except Exception:  # noqa: BLE001 - a pattern the fit cannot take adds nothing it could say
-            return {k: 0.0 for k in base}
-        return {k: (v[k] - base[k]) / scale for k in base}
+            dv, dr = linear(moved)
+            out = {k: v / scale for k, v in dv.items()}
+        else:
+            try:
+                refit = _refit(kind, x + moved, fit)
+                v = values_of(kind, refit, centroid)
+            except Exception:  # noqa: BLE001 - a pattern the fit cannot take adds nothing it could say
+                last[0] = np.zeros(len(x))
+                return {k: 0.0 for k in base} | ({"form": 0.0} if ends else {})
+            out = {k: (v[k] - base[k]) / scale for k in base}
+            if ends:
+                r = np.asarray(refit.residuals, float)
+                if kind == "plane" and float(np.dot(refit.normal, fit.normal)) < 0:  # its residuals' sign flips too
+                    r = -r
+                dr = r - resid
+        if ends:
+            out["form"] = float(dr[ends[0]] - dr[ends[1]]) / scale
+            last[0] = dr / scale
+        return out
 
     def systematic(pattern: np.ndarray, u: float, scale: float = 1e-3) -> dict[str, float]:
         """A bias along the normals (per unit ``pattern``) of standard uncertainty ``u``."""
         d = delta(scale * pattern[:, None] * n, scale)
+        form_sys.append(last[0] * u)
         return {k: abs(v) * u for k, v in d.items()}
 
+    names = list(base) + (["form"] if ends else [])
+
     def quad(*parts: dict[str, float]) -> dict[str, float]:
-        return {k: math.sqrt(sum(p.get(k, 0.0) ** 2 for p in parts)) for k in base}
+        return {k: math.sqrt(sum(p.get(k, 0.0) ** 2 for p in parts)) for k in names}
 
     terms: list[Term] = []
     ones = np.ones(len(x))
@@ -390,6 +416,7 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
         m = np.zeros_like(x)
         m[:, k] = rel[:, k]
         d = delta(1e-4 * m, 1e-4)
+        form_sys.append(last[0] * su)
         scale_parts.append({kk: abs(v) * su for kk, v in d.items()})
     terms.append(Term("machine scale", f"per axis, u = {su * 1e6:.2f} um/m", quad(*scale_parts),
                       src.origin_of("machine scale")))
@@ -398,82 +425,97 @@ def budget(kind: str, points: Any, fit: Any = None, sources: Sources | None = No
         m = np.zeros_like(x)
         m[:, a] = rel[:, b]
         d = delta(1e-4 * m, 1e-4)
+        form_sys.append(last[0] * qu)
         sq_parts.append({kk: abs(v) * qu for kk, v in d.items()})
     terms.append(Term("machine squareness", f"xy, xz, yz, u = {qu * 1e6:.2f} urad", quad(*sq_parts),
                       src.origin_of("machine squareness")))
     d = delta(1e-4 * rel, 1e-4)
     tu = src.thermal_u()
+    form_sys.append(last[0] * tu)
     terms.append(Term("thermal", f"part at {src.temperature:g} C +- {src.temperature_allowance:g} K, CTE "
                                  f"{src.cte * 1e6:g} +- {src.cte_u * 1e6:g} um/m/K", {k: abs(v) * tu for k, v in d.items()},
                       src.origin_of("thermal")))
     # random terms: the hits one at a time
-    sens = {k: 0.0 for k in base}
+    sens = {k: 0.0 for k in names}
+    hat = np.zeros((len(x), len(x)))  # row i: the residuals' change per unit error of hit i (I - the hat matrix)
     for i in range(len(x)):
         e = np.zeros(len(x))
         e[i] = 1.0
         di = delta(1e-3 * e[:, None] * n, 1e-3)
-        for k in base:
+        hat[i] = last[0]
+        for k in names:
             sens[k] += di[k] ** 2
     g = {k: math.sqrt(v) for k, v in sens.items()}
     terms.append(Term("scatter", f"repeatability {src.repeatability * 1000:.2f} um per hit",
                       {k: v * src.repeatability for k, v in g.items()}, src.origin_of("scatter")))
-    resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
-    n_params = {"plane": 3, "line": 4, "circle": 6, "sphere": 4, "cylinder": 5, "cone": 6, "point": 3}.get(kind, 3)
-    dof = len(x) - n_params
-    sigma = float(np.sqrt(resid @ resid / dof)) if dof > 0 and resid.size else 0.0
-    seen = math.sqrt(max(0.0, sigma ** 2 - src.repeatability ** 2)) if dof > 0 else 0.0
-    # the form the residuals show, pooled with the prior (worth PRIOR_DOF degrees of freedom): a few residuals
-    # estimate it poorly (3 of them give a sigma anywhere from 0.2 to 1.8 times the truth)
-    nu = max(dof, 0)
-    form = math.sqrt((nu * seen ** 2 + PRIOR_DOF * src.form_prior ** 2) / (nu + PRIOR_DOF))
+    form, seen, nu = sampling_form(kind, resid, src, len(x))
+    dof = nu
     note = f"form seen by {len(x)} hits {seen * 1000:.2f} um, pooled with the prior: {form * 1000:.2f} um"
     if dof < 3:
         note = f"{len(x)} hits ({nu} residual degrees of freedom): form assumed {form * 1000:.2f} um"
     # its degrees of freedom (the residuals' and the prior's) set k through the value's effective ones
-    terms.append(Term("sampling", note, {k: v * form for k, v in g.items()},
+    # the form value's measurand is the part's form under the hits: the sampling adds nothing to its error
+    terms.append(Term("sampling", note, {k: v * form for k, v in g.items() if k != "form"},
                       f"the hits' residuals and {src.origin_of('sampling')} prior", dof=float(nu + PRIOR_DOF)))
-    _form_terms(kind, fit, n, src, terms, base)
+    k_given = {}
+    if ends:
+        base["form"] = float(getattr(fit, "form", resid[ends[0]] - resid[ends[1]]))
+        for t in terms:
+            t.u.setdefault("form", 0.0)
+        uc = math.sqrt(sum(t.u["form"] ** 2 for t in terms))
+        if uc > 0:
+            k_given["form"] = _form_range_quantile(np.array(form_sys), hat, src.repeatability) / uc
     if kind == "cone":  # the half angle in degrees
         for t in terms:
             if "half_angle_deg" in t.u:
                 t.u["half_angle_deg"] = float(t.u["half_angle_deg"])
-    return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference, src)
+    return Budget(kind, {k: float(v) for k, v in base.items()}, terms, src.reference, src, k_given)
+
+
+def sampling_form(kind: str, resid: np.ndarray, src: Sources, n_hits: int) -> tuple[float, float, int]:
+    """(the form sigma the sampling term uses, the form the residuals show beyond the scatter, their degrees of
+    freedom): the residuals' form pooled with the prior (worth PRIOR_DOF degrees of freedom): a few residuals
+    estimate it poorly (3 of them give a sigma anywhere from 0.2 to 1.8 times the truth)."""
+    n_params = {"plane": 3, "line": 4, "circle": 6, "sphere": 4, "cylinder": 5, "cone": 6, "point": 3}.get(kind, 3)
+    dof = n_hits - n_params
+    sigma = float(np.sqrt(resid @ resid / dof)) if dof > 0 and resid.size else 0.0
+    seen = math.sqrt(max(0.0, sigma ** 2 - src.repeatability ** 2)) if dof > 0 else 0.0
+    nu = max(dof, 0)
+    return math.sqrt((nu * seen ** 2 + PRIOR_DOF * src.form_prior ** 2) / (nu + PRIOR_DOF)), seen, nu
 
 
 FORM_KINDS = ("plane", "circle", "sphere", "cylinder", "cone")
 
 
-def _form_terms(kind: str, fit: Any, n: np.ndarray, src: Sources, terms: list[Term], base: dict[str, float]) -> None:
-    """The form value (max - min residual) and its terms: it is the difference of two hits' residuals (the one
-    furthest out and the one furthest in), so what moves every hit alike (the tip radius, the machine's and the
-    part's affine errors: second order) cancels; each hit's scatter counts at both ends (sqrt 2), the probe's
-    directional errors by the difference of their pattern at the two hits' directions. The fit's own change
-    is neglected (it lowers the range slightly: conservative)."""
-    resid = np.asarray(getattr(fit, "residuals", np.zeros(0)), float)
-    if kind not in FORM_KINDS or resid.size != len(n) or resid.size < 2:
-        return
-    a, b = int(np.argmax(resid)), int(np.argmin(resid))
-    base["form"] = float(getattr(fit, "form", resid[a] - resid[b]))
-    by = {t.source: t for t in terms}
-    if "probe direction" in by and src.pretravel_u:
-        from .compensation import pretravel_basis
+def _form_ends(kind: str, resid: np.ndarray, n_hits: int) -> tuple[int, int] | None:
+    """The hits furthest out and furthest in (the form value is the difference of their residuals), or None for a
+    feature without a form value.
 
-        keys = tuple(k for k in src.pretravel_u if k != "const")
-        basis = pretravel_basis(-n[[a, b]], keys)
-        by["probe direction"].u["form"] = math.sqrt(sum(
-            (src.pretravel_u[k] * (basis[0, i] - basis[1, i])) ** 2 for i, k in enumerate(keys)))
-    if "probe lobing" in by:
-        phi = np.arctan2(-n[[a, b], 1], -n[[a, b], 0])
-        hz = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2
-        c, s_ = hz * np.cos(3 * phi), hz * np.sin(3 * phi)
-        by["probe lobing"].u["form"] = src.lobing / math.sqrt(2.0) * math.hypot(c[0] - c[1], s_[0] - s_[1])
-    if "probe Z/XY" in by:
-        p = n[[a, b], 0] ** 2 + n[[a, b], 1] ** 2 - n[[a, b], 2] ** 2
-        by["probe Z/XY"].u["form"] = abs(p[0] - p[1]) * src.z_xy
-    if "scatter" in by:
-        by["scatter"].u["form"] = math.sqrt(2.0) * src.repeatability
-    for t in terms:
-        t.u.setdefault("form", 0.0)
+    Every pattern of errors moves the form by the change of those two residuals after the refit: what the fit
+    absorbs (a uniform offset, the tip radius, the machine's and the part's affine errors on a plane) cancels,
+    and each hit's scatter counts through the residuals' projection (R = I - the fit's hat matrix: var(r_a - r_b)
+    = sigma^2 (R_aa + R_bb - 2 R_ab)), not as two independent hits: with few residual degrees of freedom the
+    extreme residuals are strongly correlated and the fit takes up most of each hit's error."""
+    if kind not in FORM_KINDS or resid.size != n_hits or resid.size < 2:
+        return None
+    return int(np.argmax(resid)), int(np.argmin(resid))
+
+
+FORM_DRAWS = 4000  # Monte Carlo draws of the residuals' errors for the form's U (fixed seed: a budget is repeatable)
+
+
+def _form_range_quantile(systematic: np.ndarray, hat: np.ndarray, repeatability: float) -> float:
+    """The 95.45 % quantile of the range (max - min) of the residuals' errors over the budget's terms (GUM
+    Supplement 1: each systematic pattern a normal coefficient at its standard uncertainty, each hit's scatter
+    through the fit): |measured form - true form| <= range(residual errors), whichever hits are the extremes.
+    Where the form is much larger than the errors, the two extreme hits stay the extremes and the error is the
+    change of their two residuals (the terms' linear ``form`` contributions); where the form is small against the
+    errors (a nearly perfect part) other hits take over and the range of the errors is what bounds it."""
+    rng = np.random.default_rng(0)
+    dr = rng.standard_normal((FORM_DRAWS, len(hat))) @ hat * repeatability
+    if systematic.size:
+        dr += rng.standard_normal((FORM_DRAWS, len(systematic))) @ systematic
+    return float(np.quantile(np.ptp(dr, axis=1), COVERAGE))
 
 
 def expanded(kind: str, points: Any, fit: Any = None, sources: Sources | None = None) -> dict[str, float]:

@@ -381,7 +381,8 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
     e = html.escape
     st = session.state
     out = ["<h2>Geometric tolerances</h2><table><thead><tr><th class='l'>feature</th><th class='l'>tolerance</th>"
-           "<th class='l'>datums</th><th>tolerance</th><th>bonus</th><th>actual</th><th>out of tol</th><th>result</th>"
+           "<th class='l'>datums</th><th>tolerance</th><th>bonus</th><th>actual</th><th>U (95 %)</th><th>out of tol</th>"
+           "<th>result</th>"
            "</tr></thead><tbody>"]
     for d, c in rows:
         frame = []
@@ -398,16 +399,22 @@ def gdt_table(rows: list[tuple[dict, Characteristic]], session: Session) -> str:
             None: "<td class='l muted'>not evaluated</td>"}[c.ok]
         cls = "fail" if c.ok is False else "none" if c.ok is None else ""
         check = f"<br><span class='checknote'>check: {e(c.check)}</span>" if c.check else ""
+        if c.uncertainty is None and c.uncertainty_why and c.actual is not None:  # no U: the reason under the frame
+            check += f"<br><span class='muted'>{e(c.uncertainty_why)}</span>"
+        k = "" if c.uncertainty_k is None else f" title='k = {c.uncertainty_k:.2f}'"
         out.append(f"<tr class='{cls}'><td class='l'><b>{e(c.feature)}</b></td><td class='l'>{e(tolerance_text(d))}"
                    f"<br><span class='muted'>{e(c.note)}</span>{check}</td><td class='l'>{e('; '.join(frame)) or '&mdash;'}</td>"
                    f"<td>{float(d.get('tolerance') or 0):.4f}</td><td>{'' if bonus < 1e-12 else f'{bonus:.4f}'}</td>"
-                   f"<td>{_num(c.actual)}</td><td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>"
-                   f"{result}</tr>")
+                   f"<td>{_num(c.actual)}</td><td class='muted'{k}>"
+                   f"{'none' if c.uncertainty is None and c.actual is not None else _num(c.uncertainty)}</td>"
+                   f"<td>{'' if not c.out_of_tolerance else f'{c.out_of_tolerance:.4f}'}</td>{result}</tr>")
     out.append("</tbody></table><p class='muted'>ISO 1101 / ASME Y14.5: the actual is the width (diameter for "
                "⌀ zones) of the smallest zone of the tolerance's shape containing the feature, in the datum "
                "reference frame built from the datum features in precedence order; the tolerance allowed is the "
-               "stated one plus the bonus at MMC/LMC. No uncertainty is given for these zones: the station's budgets "
-               "cover a single feature's size, location and form, not a zone against datums.</p>")
+               "stated one plus the bonus at MMC/LMC. U (95 %): the expanded uncertainty of the value, its budget's "
+               "sources (probe, machine, temperature, scatter, sampling) moved through the feature's and the datum "
+               "features' fits and the zone's evaluation (a source of the set-up in all of them at once); "
+               "&ldquo;none&rdquo;: none could be propagated, the reason under the frame.</p>")
     return "".join(out)
 
 
@@ -447,7 +454,9 @@ def features_csv(session: Session, *, program: Any = None, default_tolerance: fl
     for d, c in session_gdt(session, mesh, tols):
         w.writerow([c.feature, "gdt", c.datums, "", c.name, c.unit, "" if c.nominal is None else f"{c.nominal:.6f}",
                     f"{c.upper:.6f}", f"{c.lower:.6f}", "" if c.actual is None else f"{c.actual:.6f}",
-                    "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, ""])
+                    "" if c.deviation is None else f"{c.deviation:.6f}", f"{c.out_of_tolerance:.6f}", c.verdict, "",
+                    "" if c.uncertainty is None else f"{c.uncertainty:.6f}",
+                    "" if c.uncertainty_k is None else f"{c.uncertainty_k:.2f}"])
     return buf.getvalue()
 
 

@@ -1,0 +1,94 @@
+"""The expanded uncertainty of geometric tolerances (cmm.metrology.uncertainty_gdt): the budgets' sources moved
+through the feature's and the datums' fits and the zone's evaluation."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cmm.metrology.fit_ls import fit_cylinder, fit_plane, fit_sphere
+from cmm.metrology.gdt_eval import MeasuredFeature, evaluate, evaluate_one
+from cmm.metrology.uncertainty import Sources, budget
+from cmm.metrology.uncertainty_gdt import gdt_uncertainty
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+SRC = Sources(reference=(0.0, 0.0, 0.0))
+
+
+def _sphere():
+    rng = np.random.default_rng(0)
+    g = rng.normal(size=(9, 3))
+    g[:, 2] = np.abs(g[:, 2])
+    pts = 10 * g / np.linalg.norm(g, axis=1)[:, None] + [100, 50, 20] + rng.normal(0, 0.0005, (9, 3))
+    return pts, fit_sphere(pts)
+
+
+def test_a_position_far_from_its_nominal_has_twice_the_u_of_its_centre_along_the_deviation():
+    """A sphere 10 um off its nominal along X, no datums: the position 2 |deviation| moves by twice the centre's
+    x, so its U is twice the feature budget's U of x (the same sources, the same Student's t)."""
+    pts, fit = _sphere()
+    b = budget("sphere", pts, fit, SRC)
+    centre = np.asarray(fit.center)
+    nominal = {"kind": "sphere", "center": (centre - [0.01, 0, 0]).tolist(), "radius": 10.0}
+    feats = {1: MeasuredFeature("S", "sphere", fit.summary(), nominal, pts, budget=b.summary())}
+    (d, c), = evaluate([{"id": 1, "name": "pos", "characteristic": "position", "feature": 1, "tolerance": 0.05,
+                         "datums": []}], {}, feats)
+    assert c.actual == pytest.approx(0.02, abs=1e-9)
+    assert c.uncertainty == pytest.approx(2 * b.expanded()["x"], rel=0.03)
+    assert c.uncertainty_k == pytest.approx(b.coverage_factors()["x"], abs=0.01)
+    # without a budget (another criterion's fit) it has none, and says why
+    feats = {1: MeasuredFeature("S", "sphere", fit.summary(), nominal, pts)}
+    (d, c), = evaluate([d], {}, feats)
+    assert c.uncertainty is None and "has no uncertainty budget" in c.uncertainty_why
+
+
+def test_perpendicularity_to_a_datum_plane_carries_the_machine_squareness_known_answer():
+    """A 20 mm long axis exactly perpendicular to its datum plane: a uniform expansion, the tip radius and the
+    axes' scales tilt neither; the xz and yz squareness errors tilt the axis by their angle and leave the plane
+    (its hits at one Z): each moves the perpendicularity (20 mm x |tilt|) by 20 mm x u, in quadrature."""
+    plane = np.array([[0, 0, 0], [80, 0, 0], [80, 60, 0], [0, 60, 0], [40, 30, 0]], float)
+    ang = np.linspace(0, 2 * np.pi, 4, endpoint=False)
+    cyl = np.vstack([np.c_[30 + 10 * np.cos(ang + o), 40 + 10 * np.sin(ang + o), np.full(4, z)]
+                     for z, o in ((5.0, 0.0), (25.0, math.pi / 4))])
+    fp, fc = fit_plane(plane), fit_cylinder(cyl)
+    feats = {1: MeasuredFeature("A", "plane", fp.summary(), {"kind": "plane", "point": [0, 0, 0], "normal": [0, 0, 1]},
+                                plane, budget=budget("plane", plane, fp, SRC).summary()),
+             2: MeasuredFeature("C", "cylinder", fc.summary(), None, cyl,
+                                budget=budget("cylinder", cyl, fc, SRC).summary())}
+    d = {"id": 1, "name": "perp", "characteristic": "perpendicularity", "feature": 2, "tolerance": 0.05,
+         "datums": ["A"]}
+    datums = {"A": {"label": "A", "feature": 1}}
+    (_, c), = evaluate([d], datums, feats)
+    assert c.actual == pytest.approx(0.0, abs=1e-7)
+    u = gdt_uncertainty(d, datums, feats, c.actual, evaluate_one)
+    t = u["terms"]
+    assert t["machine squareness"] == pytest.approx(math.sqrt(2) * 20.0 * SRC.machine_squareness_u(), rel=0.02)
+    assert t["thermal"] < 1e-7 and t["probe qualification"] < 1e-7 and t["machine scale"] < 1e-7
+    assert "sampling C" in t and "sampling A" in t  # the axis's fitted geometry, and the datum's
+    assert c.uncertainty == pytest.approx(u["U"]) and c.uncertainty > 0
+
+
+def test_values_without_an_honest_propagation_say_why():
+    pts, fit = _sphere()
+    feats = {1: MeasuredFeature("S", "sphere", fit.summary(), None, pts,
+                                budget=budget("sphere", pts, fit, SRC).summary())}
+    why = gdt_uncertainty({"characteristic": "profile of a surface", "feature": 1}, {}, feats, 0.0, evaluate_one)["why"]
+    assert "best fit of its points to the CAD mesh" in why
+    assert "composite" in gdt_uncertainty({"characteristic": "position", "feature": 1, "composite": {}}, {}, feats,
+                                          0.0, evaluate_one)["why"]
+
+
+def test_position_and_perpendicularity_are_covered_on_the_simulator():
+    """The boss's position to A|B (true value 10 um) and perpendicularity to A on the simulator's error model, the
+    features and their datums measured in one set-up (benchmarks/bench_uncertainty.py --gdt), 30 trials at a fixed
+    seed: every error within U but at most a few, none beyond 2U."""
+    from bench_uncertainty import run_gdt
+
+    res = run_gdt(30, seed=5, form=0.001, verbose=False)
+    for name in ("position", "perpendicularity"):
+        assert res[name]["coverage"] >= 0.93 and res[name]["worst"] < 2.0, (name, res[name])
