@@ -38,7 +38,8 @@ ALLOWED = {
     "measurement": {"metrology", "journal", "program"},  # the measurement model: journals its events, fits with metrology
     "station": {"control", "machine", "measurement", "metrology", "nmc", "session", "sim", "calibration"},
     "ippdme": {"control", "station", "measurement", "metrology", "session"},  # a front end like the ui
-    "dmis": {"control", "station", "measurement", "metrology", "session"},  # DMIS programs: a front end too
+    # DMIS programs: a front end too; program: the part programs' one runner (cmm.program.runner)
+    "dmis": {"control", "station", "measurement", "metrology", "session", "program"},
     "opcua": {"control"},  # the OPC UA server: a front end on the command API only
     "ui": {"control", "station", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
            "opcua"},  # hosts I++ and DMIS runs

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..metrology.numbers_text import num
 from ..measurement.program import record_trend
+from ..program.runner import RunProgress, StepRunner
 from ..session.notify import run_stopped as notify_stopped
 from ..session.qif_dmis import record as record_dmis_tolerances
 from ..session.trends import tolerance_values
@@ -77,15 +78,15 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
         self._vendor_init()
         self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
-        self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
-        self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
-        # the operator's Skip step: the measurement in progress ends after its current hit (its feature is not
-        # fitted), or the next one (a MEAS block) is left out; moves are never skipped (the program's GOTOs keep
-        # the probe clear of the part); the features skipped, by label
-        self.skip_asked = threading.Event()
-        self.skipped: dict[str, str] = {}
+        # the part programs' one runner (cmm.program.runner): its state, progress and the operator's controls.
+        # Each statement reached is a step. Cancel ends the run before the next statement; Pause holds it there
+        # (the machine loop serving STOP meanwhile); Skip step ends the measurement in progress after its current
+        # hit (its feature is not fitted), or leaves out the next one (a MEAS block); moves are never skipped (the
+        # program's GOTOs keep the probe clear of the part). DMIS says where it holds, not the runner.
+        self.runner = StepRunner(steps=len(stmts), on_progress=self._told, wait=self._wait, pause_text=None,
+                                 resume_text=None)
+        self.skipped: dict[str, str] = {}  # the features skipped, by label
         self._meas_at = -1  # the statement index of the MEAS block in progress
-        self._fraction = 0.0  # how far the run is (statements), for the progress it reports
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -130,13 +131,24 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
     def log(self, text: str) -> None:
         self.result.log.append(text)
 
+    def _told(self, p: RunProgress) -> None:
+        if self.on_progress is not None:
+            self.on_progress(p.fraction, p.message)
+
+    def _wait(self, event: threading.Event, _timeout: float) -> bool:
+        """A pause holds in the target's wait (the machine standing, the machine loop serving STOP)."""
+        self.target.hold(lambda: event.is_set() or self.runner.cancelled)
+        return event.is_set()
+
     # --- run -----------------------------------------------------------------------------
 
     def run(self) -> RunResult:
         self.target.note(f"DMIS program {self.name!r} started")
+        self.runner.update(state="running")
         try:
             self._run()
         except DmisError as exc:  # the output so far is kept, saying where and why it stopped
+            self.runner.update(state="cancelled" if self.runner.cancelled else "failed", message=str(exc))
             self.emit(f"$$ the program stopped: {exc}")
             self._finish()
             exc.result = self.result
@@ -147,6 +159,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             notify_stopped(self.model, self.name, exc)
             raise
         self._finish()
+        self.runner.update(state="done", step=len(self.stmts))
         self.target.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
@@ -169,18 +182,18 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
-            self._fraction = pc / len(self.stmts)
+            self.runner.update(step=pc)
             self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
-            if self.skip_asked.is_set():
+            if self.runner.skip_asked:
                 skip_to = self._skip(pc, s, pairs)
                 if skip_to is not None:
                     pc = skip_to
                     continue
             if m == "MEAS":
                 self._meas_at = pc
-            if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
+            if int(100 * pc / len(self.stmts)) != told:
                 told = int(100 * pc / len(self.stmts))
-                self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
+                self.runner.tell(message=f"line {s.line}: {s.name}")
             try:
                 if m == "IF":
                     cond = evaluate(s.params[0], self.variables, s.line)  # type: ignore[arg-type]
@@ -239,22 +252,18 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
 
     def _between(self, s: Statement) -> None:
         """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
-        if self.paused.is_set() and not self.cancelled.is_set():
+        runner = self.runner
+        if runner.paused and not runner.cancelled:
             self.log(f"line {s.line}: paused by the operator")
-            if self.on_progress is not None:
-                self.on_progress(self._fraction, f"paused before line {s.line}: {s.name}; Resume to go on")
-            self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
-            if self.on_progress is not None and not self.cancelled.is_set():
-                self.on_progress(self._fraction, f"line {s.line}: {s.name}")
-        if self.cancelled.is_set():
+            if runner.hold(f"paused before line {s.line}: {s.name}; Resume to go on"):
+                runner.tell(state="running", message=f"line {s.line}: {s.name}")
+        if runner.cancelled:
             raise self.fail(s, "the program was cancelled by the operator before this statement")
 
     def skip(self) -> bool:
         """The operator's Skip step (any thread): the feature measurement in progress (MEAS .. ENDMES) ends after
         its current hit, else the next one is left out; a paused run goes on to do it."""
-        self.skip_asked.set()
-        self.paused.clear()
-        return True
+        return self.runner.skip()
 
     def _skip(self, pc: int, s: Statement, pairs: dict[int, int]) -> int | None:
         """Where the run goes on when the operator asked to skip before statement ``pc`` (None: no step here to
@@ -269,7 +278,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             meas, nxt, why = s, pairs[pc] + 1, "before its first hit"
         else:
             return None
-        self.skip_asked.clear()
+        self.runner.take_skip()
         label = self.labels(meas)[0].name
         self.skipped[label] = f"line {meas.line}, {why}"
         self.result.actuals.pop(label, None)
@@ -478,6 +487,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         ids.append(hid)
         self.result.hit_ids.append(int(hid))
         self.result.hits += 1
+        self.runner.hit_taken(quiet=True)
 
     def do_endmes(self, s: Statement) -> None:
         meas, ids = self._meas  # type: ignore[misc]
@@ -497,6 +507,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             if len(ids) < n:
                 raise DmisError(f"line {meas.line}: F({label}) needs {n} hits by hand, {len(ids)} were taken")
             self.result.hits += len(ids)
+            self.runner.hit_taken(len(ids), quiet=True)
             self.result.hit_ids.extend(int(h) for h in ids)
             self.target.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
         if expected and int(expected[0]) != len(ids):

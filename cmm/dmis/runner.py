@@ -278,22 +278,15 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
             target.note(f"DMIS program {name!r} ended at the clearance plane, machine Z {z:.3f}")
         return result
 
+    controls = executor.runner.controls()  # the part programs' one runner: pause, resume, skip, cancel
+
     def cancel_run() -> None:  # the cancel verb: the run ends before its next statement (or its wait for hits)
-        executor.cancelled.set()
+        controls["cancel"]()
         target.cancel.set()
 
-    def pause() -> bool:
-        executor.paused.set()
-        return True
-
-    def resume() -> bool:
-        was = executor.paused.is_set()
-        executor.paused.clear()
-        return was
-
     return station.controller.commands.invoke(client, "run_job", description=description, work=work,
-                                              hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
-                                              skip=executor.skip,
+                                              hold_machine=not manual, cancel=cancel_run, pause=controls["pause"],
+                                              resume=controls["resume"], skip=controls["skip"],
                                               **({"progress": progress} if progress is not None and not manual else {}))
 
 
