@@ -10,18 +10,15 @@ in force (``UNITS``, ``DATSET``, ``TRANS``, ``ROTAT``, ``RECALL``) and output th
 from __future__ import annotations
 
 import math
-import threading
 from typing import Any
 
 import numpy as np
 
 from ..metrology.numbers_text import num
-from ..measurement.program import record_trend
-from ..program.runner import RunProgress, StepRunner
-from ..session.notify import run_stopped as notify_stopped
-from ..session.qif_dmis import record as record_dmis_tolerances
+from ..session.qif_dmis import EVENT as TOLERANCES_EVENT, to_records
 from ..session.trends import tolerance_values
 from .alignments import AlignmentStatements
+from .controls import RunControls
 from .features import KINDS, Actual, Nominal, bounded_line, nominal_from
 from .frames import FrameError, apply, apply_vector
 from .lexer import DmisSyntaxError
@@ -36,7 +33,7 @@ SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.
 __all__ = ["DmisError", "Executor", "RunResult", "SPEED_UNITS", "Target", "blocks", "statement_text"]
 
 
-class Executor(AlignmentStatements, OutputStatements, VendorStatements):
+class Executor(RunControls, AlignmentStatements, OutputStatements, VendorStatements):
     """One run of a program on a target."""
 
     def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program", text: str = "") -> None:
@@ -83,8 +80,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         # (the machine loop serving STOP meanwhile); Skip step ends the measurement in progress after its current
         # hit (its feature is not fitted), or leaves out the next one (a MEAS block); moves are never skipped (the
         # program's GOTOs keep the probe clear of the part). DMIS says where it holds, not the runner.
-        self.runner = StepRunner(steps=len(stmts), on_progress=self._told, wait=self._wait, pause_text=None,
-                                 resume_text=None)
+        self._controls_init(len(stmts))
         self.skipped: dict[str, str] = {}  # the features skipped, by label
         self._meas_at = -1  # the statement index of the MEAS block in progress
 
@@ -131,15 +127,6 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
     def log(self, text: str) -> None:
         self.result.log.append(text)
 
-    def _told(self, p: RunProgress) -> None:
-        if self.on_progress is not None:
-            self.on_progress(p.fraction, p.message)
-
-    def _wait(self, event: threading.Event, _timeout: float) -> bool:
-        """A pause holds in the target's wait (the machine standing, the machine loop serving STOP)."""
-        self.target.hold(lambda: event.is_set() or self.runner.cancelled)
-        return event.is_set()
-
     # --- run -----------------------------------------------------------------------------
 
     def run(self) -> RunResult:
@@ -156,21 +143,23 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                 self.target.note(f"DMIS program {self.name!r} stopped: {exc}")
             except Exception:  # noqa: BLE001 - a journal refused (control taken over): the stop itself is told
                 pass
-            notify_stopped(self.model, self.name, exc)
+            try:
+                self.target.run_end(self.name, stopped=exc)  # told to the notifier; the stop itself stands
+            except Exception:  # noqa: BLE001 - a notification never hides the run's error
+                pass
             raise
         self._finish()
         self.runner.update(state="done", step=len(self.stmts))
         self.target.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
-            record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
-            record_dmis_tolerances(self.model, self.name, self.result.evaluations,  # for the session's QIF
-                                   replay=replay_data(self.text, self.result, self.skipped))
-        elif getattr(self.model, "notifier", None) is not None:  # no tolerances: the run's end is still told
-            try:
-                self.model.notifier.run_end(self.model, self.name, [])
-            except Exception as exc:  # noqa: BLE001 - a notification never spoils the run
-                self.model.log("error", f"the end of the run was not notified: {exc}")
+            replay = replay_data(self.text, self.result, self.skipped)
+            recs = to_records(self.result.evaluations)  # for the session's QIF, with what its re-evaluation replays
+            event = (TOLERANCES_EVENT, {"program": str(self.name), "evaluations": recs,
+                                        **({"replay": replay} if replay else {})}) if recs else None
+            self.target.run_end(self.name, values=tolerance_values(self.result.evaluations), event=event)
+        else:  # no tolerances: the run's end is still told
+            self.target.run_end(self.name)
         return self.result
 
     def _run(self) -> None:
@@ -249,43 +238,6 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             except Exception as exc:  # noqa: BLE001 - motion, probing and fit errors are operator sentences
                 raise self.fail(s, f"{s.name}: {exc}") from None
             pc = nxt
-
-    def _between(self, s: Statement) -> None:
-        """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
-        runner = self.runner
-        if runner.paused and not runner.cancelled:
-            self.log(f"line {s.line}: paused by the operator")
-            if runner.hold(f"paused before line {s.line}: {s.name}; Resume to go on"):
-                runner.tell(state="running", message=f"line {s.line}: {s.name}")
-        if runner.cancelled:
-            raise self.fail(s, "the program was cancelled by the operator before this statement")
-
-    def skip(self) -> bool:
-        """The operator's Skip step (any thread): the feature measurement in progress (MEAS .. ENDMES) ends after
-        its current hit, else the next one is left out; a paused run goes on to do it."""
-        return self.runner.skip()
-
-    def _skip(self, pc: int, s: Statement, pairs: dict[int, int]) -> int | None:
-        """Where the run goes on when the operator asked to skip before statement ``pc`` (None: no step here to
-        skip, the request waits for the next one). The skipped feature is said in the output, the log and the
-        journal; the hits it took stay in the session, not fitted."""
-        if self._meas is not None:  # inside MEAS .. ENDMES: its remaining hits are not taken
-            meas, ids = self._meas
-            self._meas, self._guides = None, []
-            nxt = pairs[self._meas_at] + 1
-            why = f"after {len(ids)} hit{'s' if len(ids) != 1 else ''}"
-        elif s.major == "MEAS":
-            meas, nxt, why = s, pairs[pc] + 1, "before its first hit"
-        else:
-            return None
-        self.runner.take_skip()
-        label = self.labels(meas)[0].name
-        self.skipped[label] = f"line {meas.line}, {why}"
-        self.result.actuals.pop(label, None)
-        self.log(f"line {meas.line}: F({label}) skipped by the operator {why}; it is not fitted")
-        self.emit(f"$$ F({label}) skipped by the operator {why} (line {meas.line}): not measured")
-        self.target.note(f"DMIS F({label}) skipped by the operator {why} (line {meas.line}); not fitted")
-        return nxt
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
@@ -521,7 +473,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         if feature.result.alternative is not None:
             self.log(f"line {meas.line}: FA({label}): another {nom.kind} fits the hits better; check it")
         self.result.actuals[label] = Actual(label, nom.kind, g, nom, feature.id,
-                                            np.array([self.model.hits[h].point for h in ids], float))
+                                            _points(self.model.hits, ids))
 
     def do_const(self, s: Statement) -> None:
         from .construct import construct_actual
@@ -545,3 +497,8 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         self.datums[dat.name] = self.actual(s, feat)
         self.target.note(f"DMIS datum {dat.name}: FA({feat.name})")
 
+
+
+def _points(hits: Any, ids: list[int]) -> np.ndarray:
+    """The hits' points (``hits``: one read of the model's hits)."""
+    return np.array([hits[h].point for h in ids], float)

@@ -212,9 +212,15 @@ class RoutineRun:
         # and skip_step verbs reach this run through them
         controls = self.runner.controls()
         controls["cancel"] = self.cancel
+        description = f"routine {routine.name!r}"
+        wait = getattr(self.controller, "wait_event", None)
+        if wait is not None:  # a pause inside the machine loop keeps the loop serving STOP
+            self.runner.wait = wait
         try:
-            with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", controls.pop("cancel"),
-                                                                 **controls):
+            with nullcontext() if jobs is None else jobs.running(description, controls.pop("cancel"), **controls):
+                if jobs is not None:  # the job query: hits taken of the hits planned, what the run does now
+                    self.runner.report = lambda p: jobs.report(description, p.hits, p.total_hits, p.message)
+                    self.runner.update()
                 self.runner.run_steps(start, self._step, skipped=lambda i: bool(routine.steps[i].get("skip")),
                                       describe=routine.describe)
                 self._define_gdt()  # a routine without a report step still evaluates its tolerances

@@ -58,6 +58,8 @@ class Jobs(Protocol):
                 resume: Callable[[], Any] | None = None,
                 skip: Callable[[], Any] | None = None) -> AbstractContextManager[None]: ...
 
+    def report(self, description: str, done: int, total: int, step: str = "") -> None: ...
+
 
 class StepRunner:
     """The state, controls and progress of one run. ``wait(event, timeout)`` is how a checkpoint waits (the control
@@ -71,6 +73,8 @@ class StepRunner:
                  resume_text: str | None = "resumed") -> None:
         self.progress = RunProgress(steps=steps, total_hits=total_hits)
         self.on_progress = on_progress
+        # the progress for the command API's ``job`` query (the running jobs' report), while the run is registered
+        self.report: Callable[[RunProgress], None] | None = None
         self.wait = wait or (lambda event, timeout: event.wait(timeout))
         self.pause_text, self.resume_text = pause_text, resume_text
         self.faulted: int | None = None  # index of the step a fault stopped
@@ -144,6 +148,11 @@ class StepRunner:
         """Change the progress without telling (the next tell carries it)."""
         for k, v in changes.items():
             setattr(self.progress, k, v)
+        if self.report is not None:
+            try:
+                self.report(self.progress)
+            except Exception:  # noqa: BLE001 - the job query's view never stops the run
+                pass
 
     def tell(self, **changes: Any) -> None:
         """Change the progress and tell ``on_progress``; a front end that fails (a closed page) never stops the run."""
