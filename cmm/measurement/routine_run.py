@@ -95,8 +95,9 @@ class RoutineRun:
         return self.runner.skip()
 
     def cancel(self) -> None:
-        faulted = self.faulted
-        if self.runner.cancel():  # stopped on a fault: nothing runs to see the flag
+        faulted, stopped = self.faulted, self.progress.state == "failed"
+        self.runner.cancel()
+        if stopped:  # stopped on a fault: nothing ran to see the flag
             self.model.note(f"routine {self.routine.name!r} cancelled after the fault at step {faulted + 1}"
                             if faulted is not None else f"routine {self.routine.name!r} cancelled")
 

@@ -107,14 +107,13 @@ class StepRunner:
         return True
 
     def cancel(self) -> bool:
-        """End the run at its next checkpoint; True when the run had stopped on a fault (nothing runs to see the
-        flag: it is cancelled here)."""
+        """End the run at its next checkpoint (a run stopped on a fault, where nothing runs to see the flag, is
+        cancelled here); True: asked (the running jobs count it)."""
         self._stopped.set()
         self._go.set()
         if self.progress.state == "failed":
             self.tell(state="cancelled", message="cancelled after the fault; the hits taken stay recorded", prompt="")
-            return True
-        return False
+        return True
 
     def controls(self) -> dict[str, Callable[[], Any]]:
         """The callables the running jobs register (``Jobs.running``): cancel, pause, resume, skip."""
