@@ -58,12 +58,12 @@ def test_a_probe_with_an_absurd_number_is_refused_in_one_sentence(station):
 ])
 def test_dmis_refuses_absurd_numbers_in_words(station, body, words):
     with pytest.raises(DmisError) as err:
-        run_text(HEAD + body + "ENDFIL\n", station)
+        run_text(HEAD + body + "ENDFIL\n", station.controller.commands)
     assert words in str(err.value) and not LONG_NUMBER.search(str(err.value)), str(err.value)
 
 
 def test_dmis_says_when_a_huge_positioning_speed_is_limited(station):
-    result = run_text(HEAD + "FEDRAT/POSVEL, MMPS, 5e5\nGOTO/300, 200, 290\nENDFIL\n", station)
+    result = run_text(HEAD + "FEDRAT/POSVEL, MMPS, 5e5\nGOTO/300, 200, 290\nENDFIL\n", station.controller.commands)
     assert any("mm/s is above the station's positioning speed" in line for line in result.log), result.log
 
 

@@ -75,7 +75,7 @@ def placed_simple_program() -> str:
 
 
 def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
-    result = run_text(placed_simple_program(), station, name="simple_in.dms")
+    result = run_text(placed_simple_program(), station.controller.commands, name="simple_in.dms")
     out = result.outputs[None]
     # the output has the NIST output's statements, plus the placement, in its format
     expected = (DATA / "simple_out.dms").read_text().replace("D(START) = DATSET/MCS",
@@ -101,12 +101,12 @@ def test_the_nist_simple_program_placed_on_the_bore_outputs_its_circle(station):
     with pytest.raises(DmisError, match=r"^line 14: SNSLCT/S\(PROBE6\): the station's probe has a 2.0 mm tip, the "
                                         r"program's S\(PROBE6\) a 4.0 mm tip: qualify it with `cmm calibrate probe "
                                         r"--probe PROBE6 --tip-diameter 4.0`"):
-        run_text(placed_simple_program().replace("-1.0, 2.0", "-1.0, 4.0"), station)
+        run_text(placed_simple_program().replace("-1.0, 2.0", "-1.0, 4.0"), station.controller.commands)
     assert np.allclose(station.machine.position, start)
 
 
 def test_the_sample_part_program_measures_the_true_part(station):
-    result = run_text(SAMPLE.read_text(), station, name=SAMPLE.name)
+    result = run_text(SAMPLE.read_text(), station.controller.commands, name=SAMPLE.name)
     out = result.outputs["sample_part_out.dms"]  # the program's own output device
     # the datum frame (top face, front face, bore axis) is where the simulator put the part
     frame = result.frames["PART"]
@@ -163,13 +163,13 @@ def test_unsupported_statements_and_syntax_errors_are_refused_with_their_lines_b
                                                                                                   capsys):
     start = station.machine.position.copy()
     with pytest.raises(DmisError, match=r"^line 5: SCNMOD is not supported$"):
-        run_text(BAD, station)
+        run_text(BAD, station.controller.commands)
     _, problems = check(BAD)
     assert problems == ["line 5: SCNMOD is not supported", "line 6: MEAS/TORUS is not supported"]
     # a syntax error names its line; continuation lines count
     syntax = "UNITS/MM, ANGDEC\nGOTO/1, $\n 2, 3\nF(X) = FEAT/POINT, CART, 1, 2, (3, 0, 0, 1\n"
     with pytest.raises(DmisError, match=r"^line 4: a '\(' is not closed with '\)'$"):
-        run_text(syntax, station)
+        run_text(syntax, station.controller.commands)
     assert [s.line for s in statements(syntax)] == [1, 2, 4]
     # the check reads on past a statement it cannot read: one pass lists every problem, in line order
     assert check(BAD.replace("ENDMES\n", "ENDMES\nGOTO/1, $\n  2, (3\n"))[1] == [
@@ -180,14 +180,14 @@ def test_unsupported_statements_and_syntax_errors_are_refused_with_their_lines_b
         "line 3: F(P) is measured before it is defined (F(P) = FEAT/...)", "line 3: MEAS is not closed with ENDMES"]
     probe = "GOTO/100, 100, 250\nS(SIDE) = SNSDEF/PROBE, INDEX, CART, 0, 0, 0, 1, 0, 0, 2\n"
     with pytest.raises(DmisError, match=r"^line 2: S\(SIDE\) points along \(1, 0, 0\): the station has one fixed probe"):
-        run_text(probe, station)
+        run_text(probe, station.controller.commands)
     assert np.allclose(station.machine.position, start)  # nothing moved
     assert station.measurement.hits == {}
     # a statement that fails while running stops the program there; its output so far is kept, saying why
     into = ("FILNAM/'into the part'\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nGOTO/60, 40, 70\n"
             "GOTO/60, 40, 20\nENDFIL\n")
     with pytest.raises(DmisError, match=r"^line 4: GOTO: the straight line") as stopped:
-        run_text(into, station)
+        run_text(into, station.controller.commands)
     out = stopped.value.result.outputs[None]
     assert out.startswith("FILNAM/'into the part'") and "$$ the program stopped: line 4: GOTO:" in out
     assert out.endswith("ENDFIL\n") and station.machine.position[2] > 60.0  # it stopped above the part
@@ -225,7 +225,7 @@ def test_a_taught_program_exported_to_dmis_runs_again_with_the_same_features(sta
                    approach=station.config.probe.approach_distance, search=station.config.probe.search_distance,
                    retract=station.config.probe.retract_distance)
     assert check(text)[1] == []
-    again = run_text(text, station, name="exported")
+    again = run_text(text, station.controller.commands, name="exported")
     assert set(again.actuals) == {"BOSS", "DOME"}
     a, b = taught.features, again.actuals
     g1, g2 = a["boss"].result.geometry(), b["BOSS"].geometry
@@ -282,7 +282,7 @@ ENDFIL
 
 
 def test_variables_loops_conditions_macros_and_coordinate_systems(station):
-    result = run_text(FLOW, station, name="flow")
+    result = run_text(FLOW, station.controller.commands, name="flow")
     hits = [station.measurement.hits[h].point for h in sorted(station.measurement.hits)]
     # the loop's three points (the first in polar coordinates, the second the IF's): where the part really is
     want = [[10, 10], [60, 5], [110, 10]]
@@ -403,7 +403,7 @@ def test_the_routine_tab_opens_checks_and_runs_a_dmis_program(station):
     from cmm.control.access import Client, Control
     from cmm.dmis.runner import register_verbs
 
-    register_verbs(station)  # as the station's page does
+    register_verbs(station.controller.commands)  # as the station's page does
     control = Control()
     assert control.take("operator", is_local=True)
     station.controller.use_policy_of(control)
@@ -420,7 +420,7 @@ def _routine_tab_runs_dmis(station, control):
     from cmm.ui.context import PanelContext
     from cmm.ui.panel_routine import RoutinePanel
 
-    panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+    panel = RoutinePanel(PanelContext(station.controller.commands, control, None, client_id="operator", is_local=True))
     folder = station.measurement.session_dir
     (folder / "bad.dmi").write_text(BAD)
     assert panel.open_dmis("bad.dmi") is None and panel.dmis is None
@@ -499,7 +499,7 @@ ENDFIL
 def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_and_radians(station):
     """The statements the sample program does not use: a polar SNSDEF, SNSET/DEPTH, FEAT/LINE, FEAT/POINT, an
     outer circle, TOL/RAD, STRGHT, CIRLTY, PROFL, and a ROTAT in radians (UNITS/.., ANGRAD)."""
-    result = run_text(EDGES, station, name="edges")
+    result = run_text(EDGES, station.controller.commands, name="edges")
     out = result.outputs[None]
     first, turned = out.split("D(TURNED) = ROTAT/ZAXIS")
     fa, ta = _actuals(first), _tolerances(first)
@@ -572,7 +572,7 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     assert any("SNSET/DEPTH has no effect" in line for line in result.log)
     # a polar SNSDEF in radians: A = a quarter turn points the probe sideways, which the station has not
     with pytest.raises(DmisError, match=r"^line 2: S\(SIDE\) points along \(1, 0, "):
-        run_text("UNITS/MM, ANGRAD\nS(SIDE) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n", station)
+        run_text("UNITS/MM, ANGRAD\nS(SIDE) = SNSDEF/PROBE, INDEX, POL, 1.5707963, 0, 2\n", station.controller.commands)
 
 
 def test_cmm_run_ends_without_noise_on_stderr(tmp_path):

@@ -131,7 +131,7 @@ def test_each_run_is_a_part_and_judges_positions_after_a_re_alignment_as_the_rep
         assert control.take("operator", is_local=True)
         positions = []
         for part in (1, 2):
-            panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+            panel = RoutinePanel(PanelContext(station.controller.commands, control, None, client_id="operator", is_local=True))
             assert panel.open_dmis("realign.dmi")
             assert panel.run_dmis(wait=True), panel.ctx.messages[-2:]
             assert panel.dmis_status.startswith("**DONE**: 4 features, 15 hits, 3 tolerances"), panel.dmis_status

@@ -105,7 +105,7 @@ def test_datset_moves_the_station_part_and_the_rails_follow_it(station):
     assert straight_blocked(placed, *BESIDE, r) is None and straight_blocked(placed, *INTO, r) is not None
 
     with pytest.raises(DmisError, match=r"^line 28: GOTO: the straight line passes .* use the clearance path$") as err:
-        run_text(PROGRAM, station, name="pose.dmi", manual_hits=_operator(station))
+        run_text(PROGRAM, station.controller.commands, name="pose.dmi", manual_hits=_operator(station))
     # the DATSET put the station's part where it lies, journalled as an alignment (the 3-D view and the report
     # read the same pose), and the run says so
     model = station.measurement

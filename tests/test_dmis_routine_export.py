@@ -61,7 +61,7 @@ def test_a_taught_routine_exported_to_dmis_runs_again_on_a_part_placed_elsewhere
     answer = st.controller.commands.call(None, "move", {"target": above[:3].tolist(), "frame": "machine",
                                                         "path": "clearance"}, wait=True, timeout=120)
     assert answer.ok, answer.error
-    again = run_text(text, st, name="exported")
+    again = run_text(text, st.controller.commands, name="exported")
     assert {"TOP", "FRONT", "LEFT", "BORE", "BOSS"} <= set(again.actuals)
     pose = np.asarray(model.part.pose, float)  # where the DATSET moved the station's part
     delta = pose @ invert(moved)
@@ -104,7 +104,7 @@ def test_the_routine_tab_exports_dmis_beside_the_routine_file_and_offers_it(stat
     control = Control()
     assert control.take("operator", is_local=True)
     tab = _Tab()
-    panel = RoutinePanel(PanelContext(station, control, None, tab, client_id="operator", is_local=True))
+    panel = RoutinePanel(PanelContext(station.controller.commands, control, None, tab, client_id="operator", is_local=True))
     assert panel.export_dmis("") is None and panel.ctx.messages[-1][:2] == ("error", "Export DMIS")
     assert panel.teach("block 7") is not None
     folder = tmp_path / "routines"
@@ -145,7 +145,7 @@ def test_a_line_in_a_routine_is_exported_as_a_bounded_line_in_its_face_and_measu
     answer = st.controller.commands.call(None, "move", {"target": above[:3].tolist(), "frame": "machine",
                                                         "path": "clearance"}, wait=True, timeout=120)
     assert answer.ok, answer.error
-    run = run_text(text, st, name="edge")
+    run = run_text(text, st.controller.commands, name="edge")
     g = run.actuals["EDGE"].geometry
     d = TRUE_PART_POSE[:3, :3].T @ np.asarray(g["direction"], float)  # the measured line, in part axes
     assert abs(d[0]) == pytest.approx(np.cos(np.arctan2(1.0, 90.0)), abs=1e-3)
@@ -199,7 +199,7 @@ def test_an_exported_features_later_hits_hop_as_the_routine_runner_and_measure_t
                                                                   "path": "clearance"}, wait=True, timeout=120)
         assert answer.ok, answer.error
         t0 = station.machine.clock.now()
-        run = run_text(text, station, name=f"top {hops}")
+        run = run_text(text, station.controller.commands, name=f"top {hops}")
         results[hops] = ((station.machine.clock.now() - t0) / len(program.hits), run.actuals["TOP"].geometry)
     (s_over, over), (s_hop, hop) = results[False], results[True]
     print(f"exported top plane: {s_over:.2f} machine s/hit over the clearance height, {s_hop:.2f} hopping")

@@ -54,7 +54,7 @@ def station(tmp_path):
 
 
 def test_pause_resume_skip_and_cancel_reach_a_dmis_run_between_its_statements(station):
-    register_verbs(station)
+    register_verbs(station.controller.commands)
     commands = station.controller.commands
     model = station.measurement
     progress: list[str] = []
@@ -114,7 +114,7 @@ def test_pause_resume_skip_and_cancel_reach_a_dmis_run_between_its_statements(st
 def test_skip_step_in_the_middle_of_a_measurement_leaves_the_rest_of_its_hits_and_a_later_use_stops_in_words(station):
     """Skip asked while a MEAS block is under way: its remaining hits are not taken, the feature is not fitted,
     and a statement that needs it (here a DATDEF) stops the run naming the skip."""
-    register_verbs(station)
+    register_verbs(station.controller.commands)
     commands = station.controller.commands
     text = PROGRAM.replace("TEXT/MAN, 'skip the edge'\n", "").replace(
         "  PTMEAS/CART, 60, 0, 20, 0, -1, 0\n", "  PTMEAS/CART, 60, 0, 20, 0, -1, 0\n  TEXT/MAN, 'skip now'\n").replace(

@@ -54,15 +54,15 @@ def test_an_alignment_and_a_datum_saved_by_one_program_are_recalled_by_the_next(
     start = station.machine.position.copy()
     with pytest.raises(DmisError, match=r"^line 5: RECALL/DA\(FIX\): nothing named DA\(FIX\) is defined or saved "
                                         r"before it, nor saved by an earlier program on this station$"):
-        run_text(SECOND, station, name="next.dms")
+        run_text(SECOND, station.controller.commands, name="next.dms")
     assert np.allclose(station.machine.position, start)
-    first = run_text(FIRST, station, name="fixture.dms")
+    first = run_text(FIRST, station.controller.commands, name="fixture.dms")
     assert "SAVE/DA(FIX)" in first.outputs[None]
     assert (station.measurement.session_dir / "dmis-saved.json").is_file()
     top = first.actuals["PT"].location()[2]  # the boss top, machine Z
     # the next program: its nominals in the saved fixture system (Z from the boss top), its point read there; the
     # datum comes back too (a DATSET on it would build the same system)
-    second = run_text(SECOND, station, name="next.dms")
+    second = run_text(SECOND, station.controller.commands, name="next.dms")
     assert any("DA(FIX) as saved by program 'fixture.dms' at" in line for line in second.log), second.log
     assert "RECALL/DA(FIX)" in second.outputs[None]
     got = _point(second.outputs[None])

@@ -174,7 +174,7 @@ def test_manual_alignment_polar_rotation_constructions_and_mmc_on_the_true_part(
     stmts, problems = check(text)
     assert problems == [] and needs_operator(stmts)
     prompts: list[str] = []
-    result = run_text(text, station, name="manual.dmi", manual_hits=_operator(station, prompts))
+    result = run_text(text, station.controller.commands, name="manual.dmi", manual_hits=_operator(station, prompts))
     out = result.outputs[None]
     # the operator was asked for each datum's hits, with where to take them
     assert prompts[0] == ("line 8: take 3 hits by hand on F(TOP) (PLANE): near 15.000, 10.000, 40.000; "
@@ -266,7 +266,7 @@ def test_manual_hits_are_waited_for_with_the_prompt_on_the_routine_tab(station):
 
     control = Control()
     assert control.take("operator", is_local=True)
-    panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+    panel = RoutinePanel(PanelContext(station.controller.commands, control, None, client_id="operator", is_local=True))
     (station.measurement.session_dir / "top.dmi").write_text(
         "UNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
         "F(TOP) = FEAT/PLANE, CART, 60, 40, 40, 0, 0, 1\nMEAS/PLANE, F(TOP), 3\nENDMES\nOUTPUT/FA(TOP)\nENDFIL\n")
@@ -337,9 +337,9 @@ def test_material_condition_outside_position_and_mmc_without_size_are_refused(st
             "PTMEAS/CART, 45, 40, 30, -1, 0, 0\nPTMEAS/CART, 22.5, 52.990381, 30, 0.5, -0.866025, 0\n"
             "PTMEAS/CART, 22.5, 27.009619, 30, 0.5, 0.866025, 0\nGOTO/30, 40, 60\nENDMES\n")
     with pytest.raises(DmisError, match=r"^line 14: TOL/FLAT, MMC: a material condition applies to TOL/POS only$"):
-        run_text(base + "T(F) = TOL/FLAT, 0.01, MMC\n", station)
+        run_text(base + "T(F) = TOL/FLAT, 0.01, MMC\n", station.controller.commands)
     with pytest.raises(DmisError, match=r"^line 15: T\(P\) at MMC needs FA\(B\)'s size limits: output its TOL/DIAM"):
-        run_text(base + "T(P) = TOL/POS, 2D, 0.05, MMC\nOUTPUT/FA(B), TA(P)\n", station)
+        run_text(base + "T(P) = TOL/POS, 2D, 0.05, MMC\nOUTPUT/FA(B), TA(P)\n", station.controller.commands)
 
 
 MANUAL_TOP = ("FILNAM/'top by hand'\nUNITS/MM, ANGDEC\nD(SETUP) = TRANS/XORIG, 190, YORIG, 150, ZORIG, 0\nMODE/MAN\n"
@@ -397,11 +397,11 @@ def test_snslct_selects_the_qualified_probe_of_the_list_with_the_sensor_tip_or_n
     station.calibration.add_probe("T3", 3.0)
     _qualified(folder, "T4", 1.9962)
     _qualified(folder, "Probe1", 0.9961)
-    result = run_text("S(BIG) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 4.0\nSNSLCT/S(BIG)\n", station)
+    result = run_text("S(BIG) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 4.0\nSNSLCT/S(BIG)\n", station.controller.commands)
     assert station.measurement.probe_name == "T4" and station.prober.settings.tip_radius == pytest.approx(1.9962)
     assert station.sim.world.probe.tip_radius == 2.0  # the simulator's head carries the 4 mm stylus now
     assert any(line.startswith("line 2: S(BIG): probe T4 selected") for line in result.log)
-    run_text("S(PROBE1) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.0\nSNSLCT/S(PROBE1)\n", station)  # by its name
+    run_text("S(PROBE1) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.0\nSNSLCT/S(PROBE1)\n", station.controller.commands)  # by its name
     assert station.measurement.probe_name == "Probe1" and station.prober.settings.tip_radius == pytest.approx(0.9961)
     assert station.sim.world.probe.tip_radius == 1.0
     start = station.machine.position.copy()
@@ -409,11 +409,11 @@ def test_snslct_selects_the_qualified_probe_of_the_list_with_the_sensor_tip_or_n
                                          r"it with `cmm calibrate probe --probe P2 --tip-diameter 3.0` \(or in the "
                                          r"Calibration tab's probe list\); qualified probes: Probe1 \(2.0 mm\), "
                                          r"T4 \(4.0 mm\)$"):
-        run_text("GOTO/100, 100, 250\nS(P2) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(P2)\n", station)
+        run_text("GOTO/100, 100, 250\nS(P2) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(P2)\n", station.controller.commands)
     with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(T3\): the probe T3 \(3.0 mm\) is not qualified: "
                                          r"qualify it with `cmm calibrate probe --probe T3 --tip-diameter 3.0`"):
-        run_text("GOTO/100, 100, 250\nS(T3) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(T3)\n", station)
+        run_text("GOTO/100, 100, 250\nS(T3) = SNSDEF/PROBE, FIXED, CART, 0, 0, 0, 0, 0, -1, 3\nSNSLCT/S(T3)\n", station.controller.commands)
     with pytest.raises(DmisError, match=r"^line 3: SNSLCT/S\(T4\): the probe T4 of the probe list has a 4.0 mm tip, "
                                          r"the program's S\(T4\) a 2.5 mm tip$"):
-        run_text("GOTO/100, 100, 250\nS(T4) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.5\nSNSLCT/S(T4)\n", station)
+        run_text("GOTO/100, 100, 250\nS(T4) = SNSDEF/PROBE, FIXED, POL, 0, 0, 2.5\nSNSLCT/S(T4)\n", station.controller.commands)
     assert station.measurement.probe_name == "Probe1" and np.allclose(station.machine.position, start)  # unmoved

@@ -52,7 +52,7 @@ def test_a_vendor_export_runs_with_its_alignments_texts_and_output_files(station
     assert warnings(text, stmts) == ["line 71: ROTATE is not DMIS: read as ROTAT (write ROTAT/...)"]
     asked: list[tuple[str, bool]] = []
     told: list[str] = []
-    result = run_text(text, station, name=VENDOR.name, on_prompt=told.append,
+    result = run_text(text, station.controller.commands, name=VENDOR.name, on_prompt=told.append,
                       query=lambda prompt, answer: asked.append((prompt, answer)) or "SN-0042")
     assert asked == [("line 15: Serial number of the part:", True)]
     assert "Clamp the block with its corner at X190 Y150" in told  # TEXT/OPER, on the page's program status
@@ -167,13 +167,13 @@ def test_a_nominal_feature_outputs_the_tolerance_as_defined_and_refuses_its_actu
     program = ("UNITS/MM, ANGDEC\nF(C) = FEAT/CIRCLE, INNER, CART, 30, 40, 30, 0, 0, 1, 30\n"
                "T(POS) = TOL/POS, 3D, 0.1\n")
     assert check(program + "OUTPUT/F(C), T(POS)\nENDFIL\n")[1] == []
-    out = run_text(program + "OUTPUT/F(C), T(POS)\nENDFIL\n", station).outputs[None].splitlines()
+    out = run_text(program + "OUTPUT/F(C), T(POS)\nENDFIL\n", station.controller.commands).outputs[None].splitlines()
     assert out[-3:] == ["F(C) = FEAT/CIRCLE, INNER, CART, 30.00000, 40.00000, 30.00000, 0.00000, 0.00000, 1.00000, "
                         "30.00000", "T(POS) = TOL/POS, 3D, 0.1", "ENDFIL"]
     with pytest.raises(DmisError, match=r"^line 4: TA\(POS\) is the tolerance evaluated on a measured feature, and "
                                         r"F\(C\) has not been measured: output TA\(POS\) after MEAS/\.\., F\(C\), "
                                         r"or T\(POS\) for its definition$"):
-        run_text(program + "OUTPUT/F(C), TA(POS)\nENDFIL\n", station)
+        run_text(program + "OUTPUT/F(C), TA(POS)\nENDFIL\n", station.controller.commands)
 
 
 def test_cmm_run_check_refuses_absurd_numbers_and_warns_of_a_missing_endfil(tmp_path):
@@ -204,7 +204,7 @@ def test_device_files_stay_in_the_output_folder():
 def test_a_query_without_an_operator_is_refused_in_words(station):
     with pytest.raises(DmisError, match=r"^line 2: the program asks the operator \(for an answer\) and this run has "
                                         r"no one to ask"):
-        run_text("DECL/CHAR, 10, SN\nTEXT/QUERY, (SN), 10, ALPHA, L, 'Serial?'\nENDFIL\n", station)
+        run_text("DECL/CHAR, 10, SN\nTEXT/QUERY, (SN), 10, ALPHA, L, 'Serial?'\nENDFIL\n", station.controller.commands)
 
 
 UPLOADED = b"""FILNAM/'uploaded'
@@ -227,7 +227,7 @@ def _panel(station):
     control = Control()
     assert control.take("operator", is_local=True)
     station.controller.use_policy_of(control)
-    return RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True))
+    return RoutinePanel(PanelContext(station.controller.commands, control, None, client_id="operator", is_local=True))
 
 
 def _wait_for(what, timeout=120.0):

@@ -22,7 +22,7 @@ def test_every_verb_the_station_registers_has_an_explicit_role(stations, tmp_pat
     station = stations.station(config=nist_config(), port=SIM_URL, start=False, session_dir=tmp_path / "sessions")
     try:
         api = station.controller.commands
-        register_verbs(station)  # run_dmis
+        register_verbs(station.controller.commands)  # run_dmis
         register_user_verbs(api, UserStore(tmp_path / "users.toml"))  # the admin's verbs
         names = {v.name for v in api.verbs()}
         assert {"run_dmis", "load_part", "place_sim_part", "press", "answer", "add_user"} <= names

@@ -39,10 +39,10 @@ def test_a_dmis_run_ends_at_the_clearance_plane_and_the_next_program_can_start(s
     straight line passes 0.29 mm from the part"). The front-face program's last hit leaves the tip 5 mm in front
     of the face, below the part's top: the run now climbs to the clearance plane, and a program that goes
     straight over the part runs."""
-    run_text(FRONT, station, name="front.dmi")
+    run_text(FRONT, station.controller.commands, name="front.dmi")
     z = station.controller.frame_position("machine")[2]
     assert z == pytest.approx(_plane(station), abs=0.01), (z, _plane(station))
-    result = run_text(GOTO_OVER, station, name="over.dmi")  # refused on the old code: through the front edge
+    result = run_text(GOTO_OVER, station.controller.commands, name="over.dmi")  # refused on the old code: through the front edge
     assert "ENDFIL" in result.outputs[None]
     here = station.controller.frame_position("machine")
     assert here[2] >= _plane(station) - 0.01, here
@@ -69,13 +69,13 @@ def test_a_refused_dmis_run_is_a_toast_and_a_stopped_status_bar(station):
     from cmm.ui.panel_routine import RoutinePanel
     from cmm.ui.panel_status import status_html
 
-    register_verbs(station)
+    register_verbs(station.controller.commands)
     control = Control()
     assert control.take("operator", is_local=True)
     station.controller.use_policy_of(control)
     try:
         shared = SimpleNamespace(calibration_job=None, cycle=None, cycle_paused=False, run_stopped="")
-        panel = RoutinePanel(PanelContext(station, control, None, client_id="operator", is_local=True, shared=shared))
+        panel = RoutinePanel(PanelContext(station.controller.commands, control, None, client_id="operator", is_local=True, shared=shared))
         folder = station.measurement.session_dir
         # the tip stands 1 mm in front of the front face, below its top: a straight line to the back is refused
         start = (TRUE_PART_POSE @ np.array([60.0, -3.0, 20.0, 1.0]))[:3]

@@ -85,7 +85,7 @@ OUTPUT/FA(TOP), FA(BTOP), TA(STEP)
 OUTPUT/FA(TOP), FA(BTOP), TA(TILT)
 ENDFIL
 """
-        result = run_text(text, station, name="step.dmi")
+        result = run_text(text, station.controller.commands, name="step.dmi")
         evs = {ev.tolerance.label: ev for ev in result.evaluations}
         assert set(evs) == {"STEP", "TILT"}
         assert abs(evs["STEP"].value) < 0.02 and evs["STEP"].intol

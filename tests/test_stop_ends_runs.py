@@ -144,7 +144,7 @@ def test_a_stop_ends_a_dmis_run(station, verb):
     station.controller.commands.invoke(None, "move", target=[60.0, -30.0, 60.0], frame="part").wait(120)
     first = station.sim.triggers
     error, report, watch, after = _stop_during(
-        station, lambda: run_text(PROGRAM, station, name=f"{verb}.dmi"), lambda: station.sim.triggers >= first + 1, verb)
+        station, lambda: run_text(PROGRAM, station.controller.commands, name=f"{verb}.dmi"), lambda: station.sim.triggers >= first + 1, verb)
     _assert_ended(station, error, report, watch, after, verb)
     assert station.sim.triggers - first <= 2  # the program had six hits: it did not go on to the others
     assert "DMIS program" in str(error), error  # the run says that it ended, not only the move

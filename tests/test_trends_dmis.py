@@ -27,7 +27,7 @@ def test_a_dmis_run_on_the_station_records_a_part(station, tmp_path):  # noqa: F
                                                                  "OUTPUT/FA(A_CIRCLE), TA(DIA)")
     with Trends(tmp_path / "trends", station="cmm-dmis") as t:
         station.measurement.trends = t
-        result = run_text(text, station, name="simple_in.dms")
+        result = run_text(text, station.controller.commands, name="simple_in.dms")
         (ev,) = result.evaluations
         h = t.history("simple_in.dms", "A_CIRCLE / DIAM T(DIA)")
         assert len(h) == 1 and h.station == ["cmm-dmis"]

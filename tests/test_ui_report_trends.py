@@ -32,7 +32,7 @@ def test_the_sessions_report_includes_the_series_charts(stations, tmp_path):
         panel = op.sessions
         for name in ("p1", "p2"):  # two parts of the series 'top.dmi'
             assert panel.new_session(name) is not None, op.messages[-2:]
-            run_text(TOP, station, name="top.dmi", client="operator")
+            run_text(TOP, station.controller.commands, name="top.dmi", client="operator")
         assert panel.new_session("p3") is not None
         job = _wait(panel.report("p2", trends=True))
         assert job.error is None, job.error

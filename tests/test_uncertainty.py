@@ -100,7 +100,7 @@ GOTO/30, 40, 70
 OUTPUT/FA(BORE)
 ENDFIL
 """
-        result = run_text(text, station, name="bore.dmi")
+        result = run_text(text, station.controller.commands, name="bore.dmi")
         assert re.search(r"^\$\$ FA\(BORE\): U \(95 %\) diameter 0\.00\d+ k=\d\.\d\d, x ", result.outputs[None], re.M)
         feats = list(station.measurement.features.values())
         assert len(feats) == 1 and feats[0].budget is not None

@@ -120,7 +120,7 @@ def _run(args: Any, path: Path, text: str) -> int:
         else:  # the run still measures, but its sizes carry the probe's pre-travel: say so before the results
             print(f"no calibration records in {args.records}: the probe is not qualified (its nominal tip radius, "
                   "no pre-travel model); name the records with --records DIR")
-        if _refuse_sensors(station, path, text):  # before anything moves, homing included
+        if _refuse_sensors(commands, path, text):  # before anything moves, homing included
             return 1
         if not commands.invoke(None, "state").homed:
             if not args.home:
@@ -129,8 +129,8 @@ def _run(args: Any, path: Path, text: str) -> int:
             commands.invoke(None, "home")
         session = str(commands.invoke(None, "new_part"))  # this run is a part of its own
         try:
-            register_verbs(station)
-            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(station),
+            register_verbs(commands)
+            result = commands.invoke(None, "run_dmis", text=text, name=path.name, manual_hits=terminal_hits(commands),
                                     query=terminal_query)
         except DmisError as exc:
             print(f"{path}: {exc}", file=sys.stderr)
@@ -182,24 +182,27 @@ def terminal_query(prompt: str, answer: bool) -> str:
     return input(f"{prompt} " + ("(type the answer, Enter): " if answer else "(Enter to go on): ")).strip()
 
 
-def _refuse_sensors(station: Any, path: Path, text: str) -> bool:
+def _refuse_sensors(commands: Any, path: Path, text: str) -> bool:
     """Whether a SNSLCT names a stylus the station has not qualified (said with the command that qualifies it)."""
     from ..dmis.check import check
     from ..dmis.rules import sensor_problems
     from ..dmis.runner import StationTarget
 
-    target = StationTarget(station)
+    target = StationTarget(commands)
     problems = sensor_problems(check(text)[0], target.probes(), target.nominal_tip_diameter)
     for problem in problems:
         print(f"{path}: {problem}", file=sys.stderr)
     return bool(problems)
 
 
-def terminal_hits(station: Any) -> Any:
+def terminal_hits(commands: Any) -> Any:
     """Manual mode (MODE/MAN) on the command line, which has no jog: each hit is asked for at the terminal and,
     once the operator confirms it, taken by the machine at the program's point (Enter) or where the operator
     types it (X, Y, Z machine coordinates, e.g. read off the part's real place), approaching as the program says."""
     from ..dmis.executor import DmisError
+    from ..dmis.runner import StationTarget
+
+    target = StationTarget(commands)  # the hits' session ids, read through the command API
 
     def take(prompt: str, n: int, guides: list) -> list[int]:
         line = prompt.split(":")[0]
@@ -209,7 +212,6 @@ def terminal_hits(station: Any) -> Any:
         if len(guides) < n:
             raise DmisError(f"{line}: on the command line every manual hit needs its PTMEAS point to guide it")
         print(prompt, flush=True)
-        model = station.measurement
         ids = []
         for k, (point, approach) in enumerate(guides[:n], 1):
             where = ", ".join(f"{x:.3f}" for x in point)
@@ -219,15 +221,14 @@ def terminal_hits(station: Any) -> Any:
                 if answer.lower() in ("q", "quit", "stop"):
                     raise DmisError(f"{line}: stopped by the operator")
                 try:
-                    target = point if not answer else [float(x) for x in answer.replace(",", " ").split()]
-                    if len(target) != 3:
+                    at = point if not answer else [float(x) for x in answer.replace(",", " ").split()]
+                    if len(at) != 3:
                         raise ValueError
                     break
                 except ValueError:
                     print("  three numbers please: X, Y, Z (or Enter, or q)", flush=True)
-            hit = station.controller.commands.invoke(None, "probe", target=target, approach=approach,
-                                                     frame="machine").wait(120)
-            ids.append(model.hit_id(hit))
+            hit = commands.invoke(None, "probe", target=at, approach=approach, frame="machine").wait(120)
+            ids.append(target.hit_id(hit))
         return ids
 
     return take

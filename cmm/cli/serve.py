@@ -192,8 +192,8 @@ def run(args: argparse.Namespace) -> int:
             station.controller.commands.roles = RolePolicy()  # every command checked against the client's role
             register_user_verbs(station.controller.commands, users)  # the admin's page manages the file
         # with --tls the page and the pendant listen on loopback only, behind TLS proxies on the public ports
-        # the page gets the command API; the station too only while some of its panels still reach it (transitional)
-        app = StationApp(station.controller.commands, station=station,
+        # the page gets the command API only
+        app = StationApp(station.controller.commands,
                          host="127.0.0.1" if certificate is not None else host,
                          port=_loopback_port() if certificate is not None else args.http_port, lan=args.lan,
                          pendant_port=0 if certificate is not None else args.pendant_port, tolerance=args.tolerance,

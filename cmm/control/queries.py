@@ -1,4 +1,4 @@
-"""The control core's read-only queries of the command API, beside its verbs (:mod:`cmm.control.api`): the set-up
+"""The control core's read-only queries of the command API, beside its verbs (:mod:`cmm.control.verbs`): the set-up
 (configuration, probe settings, the link), who may send what, the jog's dead-man, the planned paths of a preview,
 and, in process, the objects a front end needs to keep time with the machine (its clock, the access holder, the
 machine's events). A front end (the page, the pendant) reads the machine through these and the ``state``,
@@ -9,7 +9,11 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
 from .access import Control
+
+ABOVE = 1e-3  # mm: a tip at the clearance plane within this is at the plane
 
 
 def register_control_queries(api: Any, controller: Any) -> None:
@@ -48,6 +52,24 @@ def register_control_queries(api: Any, controller: Any) -> None:
                  "in process: on_event(kind, info) for every machine event ('state', 'fault', 'estop', 'stop', "
                  "'contact', 'deadman', 'limit', 'homed' ...), on the dispatcher thread; returns the function "
                  "that ends it", query=True)
+
+    def clearance_target(client: Any, here: Any = None) -> list[float] | None:
+        ws = c.workspace
+        plane = None if ws is None else ws.clearance_z()
+        at = c.frame_position("machine") if here is None else np.asarray(here, float)
+        if plane is None or at is None:
+            return None
+        z = min(float(plane), float(c.config.axis("z").max))
+        return None if float(at[2]) >= z - ABOVE else [float(at[0]), float(at[1]), z]
+    api.register("clearance_target", clearance_target, {"here": None},
+                 "straight above the tip (or above here, machine mm) at the part's clearance plane, where a run ends "
+                 "(machine mm); None when the tip is at or above it or there is no part", query=True)
+    api.register("loop_wait", lambda client: c.wait_event, {},
+                 "in process: wait(event, timeout) for a run waiting on its operator: inside the machine loop the "
+                 "loop goes on serving STOP, E-STOP and the link watch meanwhile", query=True)
+    api.register("job_reporter", lambda client: c.jobs.report, {},
+                 "in process: report(description, done, total, step): how far a running job is, for the job query",
+                 query=True)
 
     def use_policy(client: Any, control: Any) -> None:
         if not isinstance(control, Control):  # only an in-process front end hands the one access holder over

@@ -10,17 +10,15 @@ in force (``UNITS``, ``DATSET``, ``TRANS``, ``ROTAT``, ``RECALL``) and output th
 from __future__ import annotations
 
 import math
-import threading
 from typing import Any
 
 import numpy as np
 
 from ..metrology.numbers_text import num
-from ..measurement.program import record_trend
-from ..session.notify import run_stopped as notify_stopped
-from ..session.qif_dmis import record as record_dmis_tolerances
+from ..session.qif_dmis import EVENT as TOLERANCES_EVENT, to_records
 from ..session.trends import tolerance_values
 from .alignments import AlignmentStatements
+from .controls import RunControls
 from .features import KINDS, Actual, Nominal, bounded_line, nominal_from
 from .frames import FrameError, apply, apply_vector
 from .lexer import DmisSyntaxError
@@ -35,7 +33,7 @@ SPEED_UNITS = {"MPM": 1000.0 / 60.0, "MMPS": 1.0, "IPM": 25.4 / 60.0, "IPS": 25.
 __all__ = ["DmisError", "Executor", "RunResult", "SPEED_UNITS", "Target", "blocks", "statement_text"]
 
 
-class Executor(AlignmentStatements, OutputStatements, VendorStatements):
+class Executor(RunControls, AlignmentStatements, OutputStatements, VendorStatements):
     """One run of a program on a target."""
 
     def __init__(self, stmts: list[Statement], target: Target, *, name: str = "program", text: str = "") -> None:
@@ -77,15 +75,14 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         self._guides: list[tuple[np.ndarray, np.ndarray, str]] = []
         self._vendor_init()
         self.on_progress: Any = None  # (fraction, "line N: STATEMENT") as the run goes on
-        self.cancelled = threading.Event()  # the operator's Cancel: the run ends before the next statement
-        self.paused = threading.Event()  # the operator's Pause: the run holds before the next statement
-        # the operator's Skip step: the measurement in progress ends after its current hit (its feature is not
-        # fitted), or the next one (a MEAS block) is left out; moves are never skipped (the program's GOTOs keep
-        # the probe clear of the part); the features skipped, by label
-        self.skip_asked = threading.Event()
-        self.skipped: dict[str, str] = {}
+        # the part programs' one runner (cmm.program.runner): its state, progress and the operator's controls.
+        # Each statement reached is a step. Cancel ends the run before the next statement; Pause holds it there
+        # (the machine loop serving STOP meanwhile); Skip step ends the measurement in progress after its current
+        # hit (its feature is not fitted), or leaves out the next one (a MEAS block); moves are never skipped (the
+        # program's GOTOs keep the probe clear of the part). DMIS says where it holds, not the runner.
+        self._controls_init(len(stmts))
+        self.skipped: dict[str, str] = {}  # the features skipped, by label
         self._meas_at = -1  # the statement index of the MEAS block in progress
-        self._fraction = 0.0  # how far the run is (statements), for the progress it reports
 
     # --- helpers ---------------------------------------------------------------------------
 
@@ -134,9 +131,11 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
 
     def run(self) -> RunResult:
         self.target.note(f"DMIS program {self.name!r} started")
+        self.runner.update(state="running")
         try:
             self._run()
         except DmisError as exc:  # the output so far is kept, saying where and why it stopped
+            self.runner.update(state="cancelled" if self.runner.cancelled else "failed", message=str(exc))
             self.emit(f"$$ the program stopped: {exc}")
             self._finish()
             exc.result = self.result
@@ -144,20 +143,23 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
                 self.target.note(f"DMIS program {self.name!r} stopped: {exc}")
             except Exception:  # noqa: BLE001 - a journal refused (control taken over): the stop itself is told
                 pass
-            notify_stopped(self.model, self.name, exc)
+            try:
+                self.target.run_end(self.name, stopped=exc)  # told to the notifier; the stop itself stands
+            except Exception:  # noqa: BLE001 - a notification never hides the run's error
+                pass
             raise
         self._finish()
+        self.runner.update(state="done", step=len(self.stmts))
         self.target.note(f"DMIS program {self.name!r} finished ({len(self.result.actuals)} features, "
                         f"{sum(not e.intol for e in self.result.evaluations)} out of tolerance)")
         if self.result.evaluations:  # the run is a part of the program's series (when the model records trends)
-            record_trend(self.model, self.name, values=tolerance_values(self.result.evaluations))
-            record_dmis_tolerances(self.model, self.name, self.result.evaluations,  # for the session's QIF
-                                   replay=replay_data(self.text, self.result, self.skipped))
-        elif getattr(self.model, "notifier", None) is not None:  # no tolerances: the run's end is still told
-            try:
-                self.model.notifier.run_end(self.model, self.name, [])
-            except Exception as exc:  # noqa: BLE001 - a notification never spoils the run
-                self.model.log("error", f"the end of the run was not notified: {exc}")
+            replay = replay_data(self.text, self.result, self.skipped)
+            recs = to_records(self.result.evaluations)  # for the session's QIF, with what its re-evaluation replays
+            event = (TOLERANCES_EVENT, {"program": str(self.name), "evaluations": recs,
+                                        **({"replay": replay} if replay else {})}) if recs else None
+            self.target.run_end(self.name, values=tolerance_values(self.result.evaluations), event=event)
+        else:  # no tolerances: the run's end is still told
+            self.target.run_end(self.name)
         return self.result
 
     def _run(self) -> None:
@@ -169,18 +171,18 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             s = self.stmts[pc]
             nxt = pc + 1
             m = s.major
-            self._fraction = pc / len(self.stmts)
+            self.runner.update(step=pc)
             self._between(s)  # the operator's Pause holds here, Cancel ends the run here (never mid-hit)
-            if self.skip_asked.is_set():
+            if self.runner.skip_asked:
                 skip_to = self._skip(pc, s, pairs)
                 if skip_to is not None:
                     pc = skip_to
                     continue
             if m == "MEAS":
                 self._meas_at = pc
-            if self.on_progress is not None and int(100 * pc / len(self.stmts)) != told:
+            if int(100 * pc / len(self.stmts)) != told:
                 told = int(100 * pc / len(self.stmts))
-                self.on_progress(pc / len(self.stmts), f"line {s.line}: {s.name}")
+                self.runner.tell(message=f"line {s.line}: {s.name}")
             try:
                 if m == "IF":
                     cond = evaluate(s.params[0], self.variables, s.line)  # type: ignore[arg-type]
@@ -236,47 +238,6 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             except Exception as exc:  # noqa: BLE001 - motion, probing and fit errors are operator sentences
                 raise self.fail(s, f"{s.name}: {exc}") from None
             pc = nxt
-
-    def _between(self, s: Statement) -> None:
-        """Between two statements: hold while the operator has paused the run; end it when they cancelled."""
-        if self.paused.is_set() and not self.cancelled.is_set():
-            self.log(f"line {s.line}: paused by the operator")
-            if self.on_progress is not None:
-                self.on_progress(self._fraction, f"paused before line {s.line}: {s.name}; Resume to go on")
-            self.target.hold(lambda: not self.paused.is_set() or self.cancelled.is_set())
-            if self.on_progress is not None and not self.cancelled.is_set():
-                self.on_progress(self._fraction, f"line {s.line}: {s.name}")
-        if self.cancelled.is_set():
-            raise self.fail(s, "the program was cancelled by the operator before this statement")
-
-    def skip(self) -> bool:
-        """The operator's Skip step (any thread): the feature measurement in progress (MEAS .. ENDMES) ends after
-        its current hit, else the next one is left out; a paused run goes on to do it."""
-        self.skip_asked.set()
-        self.paused.clear()
-        return True
-
-    def _skip(self, pc: int, s: Statement, pairs: dict[int, int]) -> int | None:
-        """Where the run goes on when the operator asked to skip before statement ``pc`` (None: no step here to
-        skip, the request waits for the next one). The skipped feature is said in the output, the log and the
-        journal; the hits it took stay in the session, not fitted."""
-        if self._meas is not None:  # inside MEAS .. ENDMES: its remaining hits are not taken
-            meas, ids = self._meas
-            self._meas, self._guides = None, []
-            nxt = pairs[self._meas_at] + 1
-            why = f"after {len(ids)} hit{'s' if len(ids) != 1 else ''}"
-        elif s.major == "MEAS":
-            meas, nxt, why = s, pairs[pc] + 1, "before its first hit"
-        else:
-            return None
-        self.skip_asked.clear()
-        label = self.labels(meas)[0].name
-        self.skipped[label] = f"line {meas.line}, {why}"
-        self.result.actuals.pop(label, None)
-        self.log(f"line {meas.line}: F({label}) skipped by the operator {why}; it is not fitted")
-        self.emit(f"$$ F({label}) skipped by the operator {why} (line {meas.line}): not measured")
-        self.target.note(f"DMIS F({label}) skipped by the operator {why} (line {meas.line}); not fitted")
-        return nxt
 
     def execute(self, s: Statement) -> None:
         handler = getattr(self, "do_" + s.major.lower(), None)
@@ -478,6 +439,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         ids.append(hid)
         self.result.hit_ids.append(int(hid))
         self.result.hits += 1
+        self.runner.hit_taken(quiet=True)
 
     def do_endmes(self, s: Statement) -> None:
         meas, ids = self._meas  # type: ignore[misc]
@@ -497,6 +459,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
             if len(ids) < n:
                 raise DmisError(f"line {meas.line}: F({label}) needs {n} hits by hand, {len(ids)} were taken")
             self.result.hits += len(ids)
+            self.runner.hit_taken(len(ids), quiet=True)
             self.result.hit_ids.extend(int(h) for h in ids)
             self.target.note(f"DMIS F({label}): {len(ids)} hits taken by hand (manual mode)")
         if expected and int(expected[0]) != len(ids):
@@ -510,7 +473,7 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         if feature.result.alternative is not None:
             self.log(f"line {meas.line}: FA({label}): another {nom.kind} fits the hits better; check it")
         self.result.actuals[label] = Actual(label, nom.kind, g, nom, feature.id,
-                                            np.array([self.model.hits[h].point for h in ids], float))
+                                            _points(self.model.hits, ids))
 
     def do_const(self, s: Statement) -> None:
         from .construct import construct_actual
@@ -534,3 +497,8 @@ class Executor(AlignmentStatements, OutputStatements, VendorStatements):
         self.datums[dat.name] = self.actual(s, feat)
         self.target.note(f"DMIS datum {dat.name}: FA({feat.name})")
 
+
+
+def _points(hits: Any, ids: list[int]) -> np.ndarray:
+    """The hits' points (``hits``: one read of the model's hits)."""
+    return np.array([hits[h].point for h in ids], float)

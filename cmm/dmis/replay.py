@@ -157,6 +157,9 @@ class ReplayTarget:
     def define_position(self, *args: Any, **kw: Any) -> None:
         pass
 
+    def run_end(self, series: str, **_: Any) -> None:
+        pass  # the run's trend and records are the run's, not its replay's
+
     def probes(self) -> None:
         return None
 

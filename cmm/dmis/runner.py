@@ -20,6 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..control.modes import Refused
 from ..measurement.run_end import end_at_clearance
 from .check import check, outside_recalls, warnings
 from .executor import DmisError, Executor, RunResult
@@ -30,16 +31,29 @@ ManualHits = Callable[[str, int, list[tuple[np.ndarray, np.ndarray]]], list[int]
 Query = Callable[[str, bool], str]  # (prompt, an answer wanted) -> the operator's answer ("" to confirm)
 
 
-class StationTarget:
-    """The station as a DMIS target: straight moves, programmed hits with the program's cycle, its model."""
+class ModelView:
+    """The measurement model as a DMIS run reads it: each attribute from the command API's ``model`` query (a
+    snapshot taken under the model's lock), never the model itself."""
 
-    def __init__(self, station: Any, client: Any = None, timeout: float = 120.0, *,
+    def __init__(self, commands: Any, client: Any) -> None:
+        self._commands, self._client = commands, client
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._commands.invoke(self._client, "model"), name)
+
+
+class StationTarget:
+    """The station as a DMIS target, through its command API as ``client``: straight moves, programmed hits with
+    the program's cycle, the model's fits and records (verbs), its hits and features (queries)."""
+
+    def __init__(self, commands: Any, client: Any = None, timeout: float = 120.0, *,
                  manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
                  manual_timeout: float = 1800.0, cancel: threading.Event | None = None,
                  query: Query | None = None) -> None:
-        self.station = station
-        self.commands = station.controller.commands  # moves and hits go through the command API as ``client``
-        self.model = station.measurement
+        self.commands = commands  # moves, hits, fits and records go through the command API as ``client``
+        self.model = ModelView(commands, client)
         self.client = client
         self.timeout = timeout
         self._manual_hits = manual_hits
@@ -55,8 +69,9 @@ class StationTarget:
     def hold(self, done: Callable[[], bool]) -> None:
         """Wait (the machine standing still, the machine loop serving STOP) until ``done()``."""
         event = threading.Event()
+        wait = self.commands.invoke(self.client, "loop_wait")  # inside the machine loop: the loop goes on serving STOP
         while not done():
-            self.station.controller.wait_event(event, 0.1)
+            wait(event, 0.1)
 
     def tell(self, text: str) -> None:
         """TEXT/OPER: the operator reads it (the page's program status, the terminal) and the journal keeps it."""
@@ -71,10 +86,25 @@ class StationTarget:
                             f"({'for an answer' if answer else 'to confirm'}) and this run has no one to ask: run "
                             "it at a terminal or from the page's Routine tab")
         self._tell(prompt)
+        # the operator answers in another thread (the page's Answer, the terminal): the run holds meanwhile, the
+        # machine loop serving STOP when the run holds the machine
+        got: list[Any] = []
+
+        def ask() -> None:
+            try:
+                got.append(("answer", str(self._query(prompt, answer))))  # type: ignore[misc]
+            except BaseException as exc:  # noqa: BLE001 - raised in the run's thread below
+                got.append(("error", exc))
+
+        threading.Thread(target=ask, name="dmis question", daemon=True).start()
         try:
-            return str(self._query(prompt, answer))
+            self.hold(lambda: bool(got))
         finally:
             self._tell("")
+        kind, value = got[0]
+        if kind == "error":
+            raise value
+        return value
 
     def manual_hits(self, prompt: str, n: int, guides: list[tuple[np.ndarray, np.ndarray]]) -> list[int]:
         """The ids of n hits the operator takes by hand (MODE/MAN): the given way, else the next n hits that
@@ -85,12 +115,12 @@ class StationTarget:
                 return list(self._manual_hits(prompt, n, guides))
             finally:
                 self._tell("")
-        start = set(list(self.model.hits))
+        start = set(self.model.hits)
         end = time.monotonic() + self.manual_timeout
         told = ""
         try:
             while True:
-                new = [h for h in list(self.model.hits) if h not in start]
+                new = [h for h in self.model.hits if h not in start]
                 if len(new) >= n:
                     return new[:n]
                 if self.cancel.is_set():
@@ -121,7 +151,17 @@ class StationTarget:
                                    path="straight", speed=speed or self.probing_speed,
                                    approach_distance=approach_distance, search_distance=search_distance,
                                    retract_distance=retract_distance, rapid_speed=rapid_speed).wait(self.timeout)
-        return int(self.model.hit_id(hit))
+        return self.hit_id(hit)
+
+    def hit_id(self, hit: Any) -> int:
+        """The session id of the hit a probe verb returned (the model recorded it as it came)."""
+        key = (hit.time, tuple(hit.counts), tuple(hit.machine))
+        hits = self.model.hits
+        for hid in reversed(list(hits)):
+            h = hits[hid]
+            if (h.time, tuple(h.counts), tuple(h.machine)) == key:
+                return int(hid)
+        raise DmisError("the hit was not recorded")
 
     def align(self, measured: np.ndarray, nominal: np.ndarray, points: np.ndarray, name: str) -> str:
         """The program's alignment moves the station's part (the align verb, as the page's Align tab does): the
@@ -161,21 +201,28 @@ class StationTarget:
                              tolerance=tolerance, datums=datums, material=material, name=name,
                              datum_modifiers=datum_modifiers)
 
+    def run_end(self, series: str, *, values: Any = None, event: Any = None, stopped: Any = None) -> None:
+        """The run's end: its trend values and its journal event, or why it stopped (the record_event verb)."""
+        data = {"series": series, "stopped": stopped} if stopped is not None else \
+            {"series": series, "values": values, "event": event}
+        self.commands.invoke(self.client, "record_event", kind="program_stopped" if stopped is not None
+                             else "program_end", data=data)
+
+    def setup(self) -> dict[str, Any]:
+        """What the station measures with (the probing_setup query)."""
+        return self.commands.invoke(self.client, "probing_setup")
+
     def probes(self) -> list[dict[str, Any]] | None:
         """The station's probe list (name, tip_diameter, qualified, selected); None without a calibration folder,
         where its one probe measures whatever the program's sensor."""
-        service = getattr(self.station, "calibration", None)
-        if service is None or getattr(service, "directory", None) is None:
-            return None
-        return [{"name": r["name"], "tip_diameter": float(r["tip_diameter"]), "selected": bool(r["selected"]),
-                 "qualified": r["tip_radius"] is not None and not r.get("expired"),
-                 "qualified_diameters": () if r["tip_radius"] is None else (2.0 * float(r["tip_radius"]),)}
-                for r in service.probes()]
+        probes = self.setup()["probes"]
+        return None if probes is None else [{**p, "qualified_diameters": tuple(p["qualified_diameters"])}
+                                            for p in probes]
 
     def select_probe(self, name: str) -> str:
         """Make a probe of the list the one in use (the command API's select_probe verb, as the Calibration tab
         and the I++ server's ChangeTool do); "" when it already is."""
-        if name == getattr(self.model, "probe_name", None):
+        if name == self.setup()["probe_name"]:
             return ""
         return str(self.commands.invoke(self.client, "select_probe", name=name))
 
@@ -184,30 +231,30 @@ class StationTarget:
         one (SAVE then holds within the run)."""
         from .saved import SavedItems
 
-        folder = getattr(self.model, "session_dir", None)
-        return SavedItems(folder) if isinstance(folder, Path) else None
+        folder = self.setup()["session_dir"]
+        return SavedItems(Path(folder)) if folder is not None else None
 
     @property
     def tip_radius(self) -> float:
-        return float(self.station.controller.tip_radius)
+        return float(self.setup()["tip_radius"])
 
     @property
     def nominal_tip_diameter(self) -> float:
         """The configured probe's tip (mm): the one a station without a probe list measures with."""
-        return 2.0 * float(self.station.config.probe.tip_radius)
+        return float(self.setup()["nominal_tip_diameter"])
 
     @property
     def probing_speed(self) -> float:
-        return float(self.station.calibration.qualified_probing_speed)
+        return float(self.setup()["probing_speed"])
 
     @property
     def positioning_speed(self) -> float:
-        return float(self.station.config.speeds.positioning)
+        return float(self.setup()["positioning_speed"])
 
     @property
     def probe_distances(self) -> tuple[float, float, float]:
-        p = self.station.config.probe
-        return float(p.approach_distance), float(p.search_distance), float(p.retract_distance)
+        p = self.setup()
+        return float(p["approach_distance"]), float(p["search_distance"]), float(p["retract_distance"])
 
 
 def load_text(path: str | Path) -> str:
@@ -229,17 +276,18 @@ def needs_operator(stmts: list[Statement]) -> bool:
     return False
 
 
-def run_text(text: str, station: Any, *, name: str = "program", client: Any = None,
+def run_text(text: str, commands: Any, *, name: str = "program", client: Any = None,
              manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
              cancel: threading.Event | None = None, query: Query | None = None,
              progress: Callable[[float, str], None] | None = None) -> RunResult:
-    """Check ``text`` and run it on ``station`` (connected, homed): the run's actuals, tolerances and output.
+    """Check ``text`` and run it on the station whose command API is ``commands`` (connected, homed), as
+    ``client``: the run's actuals, tolerances and output.
     ``manual_hits``, ``on_prompt``, ``cancel``: how the operator's hits are taken in manual mode (see above);
     ``query(prompt, answer)``: how TEXT/MAN and TEXT/QUERY ask the operator."""
     stmts, problems = check(text)
     if problems:
         raise DmisError(problems[0])
-    target = StationTarget(station, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel, query=query)
+    target = StationTarget(commands, client, manual_hits=manual_hits, on_prompt=on_prompt, cancel=cancel, query=query)
     # a sensor that is no qualified probe of the list (no list: not the station's tip): refused before motion
     problems = sensor_problems(stmts, target.probes(), target.nominal_tip_diameter)
     if problems:
@@ -265,11 +313,13 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
             executor.on_progress = job.progress
         elif progress is not None:
             executor.on_progress = progress
+        report = commands.invoke(client, "job_reporter")  # the job query: hits taken, the statement in progress
+        executor.runner.report = lambda p: report(description, p.hits, p.total_hits, p.message)
         result = executor.run()
         # the program's last hit retracts a few mm only: the run ends at the clearance plane, so the next
         # program's first GOTO does not start beside the part (cmm.measurement.run_end)
         try:
-            z = end_at_clearance(station.controller, client, target.timeout)
+            z = end_at_clearance(commands, client, target.timeout)
         except Exception as exc:  # noqa: BLE001 - the program's results stand; the failed climb is told
             result.log.append(f"the climb to the clearance plane at the end failed: {exc}")
             target.note(f"DMIS program {name!r}: the climb to the clearance plane at its end failed: {exc}")
@@ -278,40 +328,34 @@ def run_text(text: str, station: Any, *, name: str = "program", client: Any = No
             target.note(f"DMIS program {name!r} ended at the clearance plane, machine Z {z:.3f}")
         return result
 
+    controls = executor.runner.controls()  # the part programs' one runner: pause, resume, skip, cancel
+
     def cancel_run() -> None:  # the cancel verb: the run ends before its next statement (or its wait for hits)
-        executor.cancelled.set()
+        controls["cancel"]()
         target.cancel.set()
 
-    def pause() -> bool:
-        executor.paused.set()
-        return True
-
-    def resume() -> bool:
-        was = executor.paused.is_set()
-        executor.paused.clear()
-        return was
-
-    return station.controller.commands.invoke(client, "run_job", description=description, work=work,
-                                              hold_machine=not manual, cancel=cancel_run, pause=pause, resume=resume,
-                                              skip=executor.skip,
+    return commands.invoke(client, "run_job", description=description, work=work,
+                                              hold_machine=not manual, cancel=cancel_run, pause=controls["pause"],
+                                              resume=controls["resume"], skip=controls["skip"],
                                               **({"progress": progress} if progress is not None and not manual else {}))
 
 
-def register_verbs(station: Any) -> None:
+def register_verbs(commands: Any) -> None:
     """The ``run_dmis`` verb on the station's command API (once): front ends that run DMIS programs send it."""
-    commands = station.controller.commands
     if any(v.name == "run_dmis" for v in commands.verbs()):
         return
 
     def run_dmis(client: Any, text: str | None = None, path: Any = None, name: str | None = None,
                  manual_hits: ManualHits | None = None, on_prompt: Callable[[str], None] | None = None,
                  query: Query | None = None, progress: Callable[[float, str], None] | None = None) -> RunResult:
-        station.controller.check_access(client, "measure")
+        refusal = commands.invoke(client, "access", command="measure")
+        if refusal:
+            raise Refused(refusal)
         if (text is None) == (path is None):
             raise DmisError("run_dmis needs the program's text or the path of its file (one of them)")
         if text is None:
             text, name = load_text(path), name or Path(path).name
-        return run_text(str(text), station, name=name or "program", client=client, manual_hits=manual_hits,
+        return run_text(str(text), commands, name=name or "program", client=client, manual_hits=manual_hits,
                         on_prompt=on_prompt, query=query, progress=progress)
 
     commands.register("run_dmis", run_dmis, {"text": None, "path": None, "name": None, "manual_hits": None,

@@ -455,21 +455,22 @@ def routine_manual_hits(run: Any, wizard_for: Callable[[list[str]], "AlignWizard
         if w is None or w.done:
             w = state["wizard"] = wizard_for(list(step["datums"]))
         i = w.index
-        run._tell(state="waiting", prompt=prompt)
+        runner = run.runner  # the part programs' runner: its progress and its cancel
+        runner.tell(state="waiting", prompt=prompt)
         while True:
             w.settle() if w._worker is not None else None
             if w.index > i or w.done:
-                run._tell(state="running", prompt="")
+                runner.tell(state="running", prompt="")
                 return list(w.steps[i].hit_ids[:n])
-            if run._cancel:
+            if runner.cancelled:
                 w.close()
                 from .routine_run import RoutineCancelled
 
                 raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
             shown = f"{prompt}: {len(w.steps[i].hit_ids)} of {n} taken"
             if run.progress.prompt != shown:
-                run._tell(prompt=shown)
-            run._stopped.wait(0.1)
+                runner.tell(prompt=shown)
+            runner.sleep(0.1)
     return hits
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
+from ..program.runner import StepRunner
 from ..program.toml_program import Program, ProgramError, check, load, machine_targets
 from .model import Feature, MeasurementModel
 
@@ -127,12 +128,15 @@ def run_on(controller: Any, model: MeasurementModel, program: Program | str | Pa
            client: Any = None, serial: str = "") -> ProgramRun:
     """Run a program (or the program file at that path) as a job of the control core: it holds the machine
     for the whole run, as ``client``; the ``cancel`` verb ends it before its next hit."""
-    import threading
-
     prog = load(program) if isinstance(program, (str, Path)) else program
-    stop = threading.Event()
     description = f"program {prog.name!r}"
+    # the part programs' one runner: the cancel verb ends the run before its next hit, pause holds it there (the
+    # machine loop serving STOP), resume goes on; each hit taken is its progress (the job query)
+    runner = StepRunner(steps=len(prog.hits), total_hits=len(prog.hits),
+                        wait=getattr(controller, "wait_event", None))
     jobs = getattr(controller, "jobs", None)
-    progress = None if jobs is None else (lambda k, n: jobs.report(description, k, n, f"hit {k} of {n}"))
+    if jobs is not None:
+        runner.report = lambda p: jobs.report(description, p.hits, p.total_hits, f"hit {p.hits} of {p.total_hits}")
     return controller.run_job(client, description, lambda: run_program(
-        prog, model, part_pose, serial=serial, cancelled=stop.is_set, progress=progress), cancel=stop.set)
+        prog, model, part_pose, serial=serial, cancelled=lambda: not runner.hold(),
+        progress=lambda k, n: runner.hit_taken()), cancel=runner.cancel, pause=runner.pause, resume=runner.resume)

@@ -5,6 +5,7 @@ client, anonymous observers too)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 
@@ -117,6 +118,28 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                  "in process: the part, the alignment in force and the probe in use (a ModelSnapshot without the "
                  "hits, the features and the lock): what the DRO, the frame labels and the pick show at their rate",
                  query=True)
+
+    def probing_setup(client: Any) -> dict[str, Any]:
+        cfg = measurement.config
+        probes = None
+        if calibration is not None and getattr(calibration, "directory", None) is not None:
+            probes = [{"name": r["name"], "tip_diameter": float(r["tip_diameter"]), "selected": bool(r["selected"]),
+                       "qualified": r["tip_radius"] is not None and not r.get("expired"),
+                       "qualified_diameters": [] if r["tip_radius"] is None else [2.0 * float(r["tip_radius"])]}
+                      for r in calibration.probes()]
+        speed = float(calibration.qualified_probing_speed) if calibration is not None else float(cfg.speeds.probing)
+        folder = getattr(measurement, "session_dir", None)
+        return {"tip_radius": float(measurement.prober.settings.tip_radius),
+                "nominal_tip_diameter": 2.0 * float(cfg.probe.tip_radius),
+                "approach_distance": float(cfg.probe.approach_distance),
+                "search_distance": float(cfg.probe.search_distance),
+                "retract_distance": float(cfg.probe.retract_distance),
+                "positioning_speed": float(cfg.speeds.positioning), "probing_speed": speed,
+                "probe_name": measurement.probe_name or "", "probes": probes,
+                # the sessions folder (None: the sessions are in a database), and where they are (a folder or URL)
+                "session_dir": str(folder) if isinstance(folder, Path) else None,
+                "sessions": None if folder is None else str(folder)}
+
     api.register("model", lambda client: snapshot(measurement), {},
                  "in process: the measurement model at this moment (hits, deleted hits, features, constructions, "
                  "the part, the last hit), copied under the model's lock; front ends draw from it", query=True)
@@ -125,6 +148,11 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
     api.register("characteristics", characteristics, {},
                  "the live session's toleranced characteristics (as the report lists them): name, value, "
                  "nominal, lower and upper limits, unit and ok (None: no limit)", query=True)
+    api.register("probing_setup", probing_setup, {},
+                 "what a part program measures with: the tip radius in use and the configured tip diameter (mm), "
+                 "the approach, search and retract distances (mm), the positioning and qualified probing speeds "
+                 "(mm/s), the probe in use, the probe list (name, tip_diameter, selected, qualified, "
+                 "qualified_diameters; None without a calibration folder) and the sessions folder", query=True)
     api.register("report_info", lambda client: dict(measurement.info), {},
                  "the report header (part number, drawing, operator, machine name, temperature, remarks)", query=True)
     register_model_reads(api, measurement)

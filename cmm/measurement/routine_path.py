@@ -114,6 +114,6 @@ def routine_path(routine: Routine, controller: Any, pose: Any, run: Any = None, 
         from .run_end import clearance_target
 
         end = np.asarray(out.cycles[-1].retract, float)
-        top = clearance_target(controller, end)
+        top = clearance_target(controller.commands, end)
         out.tail = [] if top is None else [end, top]
     return out

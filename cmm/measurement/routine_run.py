@@ -5,9 +5,7 @@ session of their own (see :mod:`cmm.measurement.routine` for what a routine is).
 
 from __future__ import annotations
 
-import threading
 from contextlib import nullcontext
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,24 +16,14 @@ from ..metrology.fit_ls import fit_plane
 from ..metrology.hops import with_hops
 from ..metrology.pick import NominalFeature
 from ..metrology.transform import invert
+from ..program.runner import RunProgress, StepRunner
 from ..program.toml_program import check, machine_targets
 from .alignment import AlignmentResult, align_321, align_features, apply, datum_frame
 from .routine import MANUAL_HITS, Routine, RoutineError
 from .routine_path import run_order
 
 
-@dataclass
-class RunProgress:
-    step: int = 0  # index of the step running
-    steps: int = 0
-    hits: int = 0  # hits taken so far
-    total_hits: int = 0
-    state: str = "ready"  # ready, waiting (for the operator), running, paused, done, failed, cancelled
-    message: str = ""
-    prompt: str = ""  # what the operator must do now (manual alignment hits)
-    results: dict[str, Any] = field(default_factory=dict)  # step name -> feature / constructed feature
-    session: Any = None  # the part's session (path or name)
-    part: Any = None  # the trends record of the finished run (cmm.session.trends.PartResult), when recorded
+__all__ = ["RoutineCancelled", "RoutineRun", "RunProgress"]
 
 
 class RoutineCancelled(RoutineError):
@@ -45,10 +33,11 @@ class RoutineCancelled(RoutineError):
 
 
 class RoutineRun:
-    """One run of a routine on the next part. ``run()`` blocks (call it from a job thread); ``pause``,
-    ``resume``, ``skip`` and ``cancel`` act between hits from any thread. After a step stopped on a fault
-    (state ``failed``, ``faulted`` its index), ``resume_after_fault()`` or ``restart()`` (blocking, from a job
-    thread) carry on in the same part session; ``cancel()`` ends it."""
+    """One run of a routine on the next part: the routine's steps on the part programs' one runner
+    (:class:`cmm.program.runner.StepRunner`: its state, progress and controls). ``run()`` blocks (call it from a job
+    thread); ``pause``, ``resume``, ``skip`` and ``cancel`` act between hits from any thread. After a step stopped on
+    a fault (state ``failed``, ``faulted`` its index), ``resume_after_fault()`` or ``restart()`` (blocking, from a
+    job thread) carry on in the same part session; ``cancel()`` ends it."""
 
     def __init__(self, routine: Routine, model: Any, controller: Any = None, *, client: Any = None,
                  part_name: str | None = None, on_progress: Callable[[RunProgress], None] | None = None,
@@ -58,20 +47,14 @@ class RoutineRun:
         self.controller = controller
         self.client = client
         self.part_name = part_name
-        self.on_progress = on_progress
         self.timeout = timeout
         self.change_probe = change_probe  # makes a named probe the one in use (the calibration service's)
-        self.progress = RunProgress(steps=len(routine.steps), total_hits=self._total_hits())
-        self._go = threading.Event()
-        self._go.set()
-        self._skip = False
-        self._cancel = False
-        self._stopped = threading.Event()  # set by cancel: ends the waits for the operator at once
+        self.runner = StepRunner(steps=len(routine.steps), total_hits=self._total_hits(), on_progress=on_progress)
+        self._manual_hits: Callable[[str, int], list[int]] | None = None  # how the operator's hits are taken
         self._fids: dict[str, int] = {}  # feature name -> the model's feature id for this part
         self._partial: list[int] = []  # hits of the feature being measured, not fitted yet
         self._taken: list[int] = []  # every hit this run kept (fitted into a feature)
         self._manual: list[list[int]] | None = None  # the manual 3-2-1 hits, once all were taken
-        self.faulted: int | None = None  # index of the step a fault stopped
         self.discarded: list[int] = []  # hits of stopped steps, deleted (they stay in the journal)
         self._hit_map: dict[int, int] = {}  # program hit id -> this run's hit id
         self._gdt_done = False  # the taught datums and geometric tolerances are defined once per run
@@ -82,49 +65,47 @@ class RoutineRun:
                     for n in (s["datums"] if s["kind"] == "align" else [s["name"]] if s["kind"] == "feature" else [])}
         return sum(len(r.feature(n).hits) for n in measured)
 
-    # --- operator's controls -------------------------------------------------------------
+    # --- the runner's state and the operator's controls ------------------------------------------
 
-    def pause(self) -> None:
-        self._go.clear()
-        self._tell(state="paused", message="paused after the hit in progress: Resume to go on")
+    @property
+    def progress(self) -> RunProgress:
+        return self.runner.progress
+
+    @property
+    def faulted(self) -> int | None:
+        return self.runner.faulted
+
+    @property
+    def on_progress(self) -> Callable[[RunProgress], None] | None:
+        return self.runner.on_progress
+
+    @on_progress.setter
+    def on_progress(self, fn: Callable[[RunProgress], None] | None) -> None:
+        self.runner.on_progress = fn
+
+    def pause(self) -> bool:
+        return self.runner.pause()
 
     def resume(self) -> bool:
         """Go on after a pause; False when the run was not paused."""
-        self._go.set()
-        if self.progress.state == "paused":
-            self._tell(state="running", message="resumed")
-            return True
-        return False
+        return self.runner.resume()
 
-    def skip(self) -> None:
+    def skip(self) -> bool:
         """Leave the step in progress after its current hit (its feature is not fitted)."""
-        self._skip = True
-        self._go.set()
+        return self.runner.skip()
 
     def cancel(self) -> None:
-        self._cancel = True
-        self._stopped.set()
-        self._go.set()
-        if self.progress.state == "failed":  # stopped on a fault: nothing runs to see the flag
-            self.model.note(f"routine {self.routine.name!r} cancelled after the fault at step {self.faulted + 1}"
-                            if self.faulted is not None else f"routine {self.routine.name!r} cancelled")
-            self._tell(state="cancelled", message="cancelled after the fault; the hits taken stay recorded",
-                       prompt="")
+        faulted, stopped = self.faulted, self.progress.state == "failed"
+        self.runner.cancel()
+        if stopped:  # stopped on a fault: nothing ran to see the flag
+            self.model.note(f"routine {self.routine.name!r} cancelled after the fault at step {faulted + 1}"
+                            if faulted is not None else f"routine {self.routine.name!r} cancelled")
 
     def _tell(self, **changes: Any) -> None:
-        for k, v in changes.items():
-            setattr(self.progress, k, v)
-        if self.on_progress is not None:
-            try:
-                self.on_progress(self.progress)
-            except Exception:  # noqa: BLE001 - a closed page must not stop the run
-                pass
+        self.runner.tell(**changes)
 
     def _between_hits(self) -> None:
-        while not self._go.wait(0.05):
-            if self._cancel:
-                break
-        if self._cancel:
+        if not self.runner.hold():
             raise RoutineCancelled("the routine was cancelled by the operator; the hits taken stay recorded")
 
     # --- the run --------------------------------------------------------------------------
@@ -143,7 +124,7 @@ class RoutineRun:
 
     @property
     def can_resume(self) -> bool:
-        return self.progress.state == "failed" and self.faulted is not None and not self._cancel
+        return self.runner.can_resume
 
     def resume_after_fault(self, manual_hits: Callable[[str, int], list[int]] | None = None) -> RunProgress:
         """After a fault (and Reset): retract to the clearance height, discard the stopped step's hits, run that
@@ -226,32 +207,23 @@ class RoutineRun:
         return run_order(self.routine, start=start, done=set(self._fids), manual_taken=self._manual is not None)
 
     def _steps_from(self, start: int, manual_hits: Callable[[str, int], list[int]] | None) -> RunProgress:
+        self._manual_hits = manual_hits
         model, routine = self.model, self.routine
-        self.faulted = None
         jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel, pause, resume
         # and skip_step verbs reach this run through them
+        controls = self.runner.controls()
+        controls["cancel"] = self.cancel
+        description = f"routine {routine.name!r}"
+        wait = getattr(self.controller, "wait_event", None)
+        if wait is not None:  # a pause inside the machine loop keeps the loop serving STOP
+            self.runner.wait = wait
         try:
-            with nullcontext() if jobs is None else jobs.running(f"routine {routine.name!r}", self.cancel,
-                                                                 pause=self.pause, resume=self.resume, skip=self.skip):
-                for i in range(start, len(routine.steps)):
-                    step = routine.steps[i]
-                    self.progress.step = i
-                    if step.get("skip"):
-                        continue
-                    self._skip = False
-                    self._tell(message=routine.describe(i))
-                    if step["kind"] in ("align", "feature"):
-                        self._use_probe(step)
-                    if step["kind"] == "align":
-                        self._align(step, manual_hits or self._wait_for_hits)
-                    elif step["kind"] == "feature":
-                        if step["name"] not in self._fids:
-                            self._in_job(f"measure {step['name']}", lambda s=step: self._measure(s["name"]))
-                    elif step["kind"] == "construct":
-                        self._construct(step)
-                    else:
-                        self._define_gdt()
-                        self.progress.results[step["name"]] = self._report()
+            with nullcontext() if jobs is None else jobs.running(description, controls.pop("cancel"), **controls):
+                if jobs is not None:  # the job query: hits taken of the hits planned, what the run does now
+                    self.runner.report = lambda p: jobs.report(description, p.hits, p.total_hits, p.message)
+                    self.runner.update()
+                self.runner.run_steps(start, self._step, skipped=lambda i: bool(routine.steps[i].get("skip")),
+                                      describe=routine.describe)
                 self._define_gdt()  # a routine without a report step still evaluates its tolerances
         except RoutineCancelled as exc:
             self._tell(state="cancelled", message=str(exc), prompt="")
@@ -259,17 +231,32 @@ class RoutineRun:
             self._notify_stopped(exc)
             raise
         except Exception as exc:
-            self.faulted = self.progress.step
-            name = routine.steps[self.faulted]["name"]
-            self._tell(state="failed", message=f"step {self.faulted + 1} ({name}) stopped: {exc}", prompt="")
-            model.note(f"routine {routine.name!r} stopped at step {self.faulted + 1} ({name}): {exc}")
-            self._notify_stopped(f"step {self.faulted + 1} ({name}): {exc}")
+            name = routine.steps[self.progress.step]["name"]
+            k = self.runner.fail(f"step {self.progress.step + 1} ({name}) stopped: {exc}")
+            model.note(f"routine {routine.name!r} stopped at step {k + 1} ({name}): {exc}")
+            self._notify_stopped(f"step {k + 1} ({name}): {exc}")
             raise
         self._end_at_clearance()
         model.note(f"routine {routine.name!r} finished")
         self.progress.part = self._record_trend()
-        self._tell(state="done", step=len(routine.steps), message=f"routine {routine.name!r} done", prompt="")
+        self.runner.finish(f"routine {routine.name!r} done")
         return self.progress
+
+    def _step(self, i: int) -> None:
+        """One step of the routine: an alignment, a feature, a construction or the report."""
+        step = self.routine.steps[i]
+        if step["kind"] in ("align", "feature"):
+            self._use_probe(step)
+        if step["kind"] == "align":
+            self._align(step, self._manual_hits or self._wait_for_hits)
+        elif step["kind"] == "feature":
+            if step["name"] not in self._fids:
+                self._in_job(f"measure {step['name']}", lambda s=step: self._measure(s["name"]))
+        elif step["kind"] == "construct":
+            self._construct(step)
+        else:
+            self._define_gdt()
+            self.progress.results[step["name"]] = self._report()
 
     def _record_trend(self) -> Any:
         """The finished run as a part of the routine's series, when the model records trends: the characteristics
@@ -318,7 +305,7 @@ class RoutineRun:
         for _ in range(300):
             if str(getattr(self.controller.state.mode, "value", "")) not in ("moving", "probing", "jogging"):
                 break
-            self._stopped.wait(0.1)
+            self.runner.sleep(0.1)
 
     def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
         if self.controller is None:
@@ -337,7 +324,7 @@ class RoutineRun:
         targets = with_hops([by_id[hid] for hid in f.hits], part.mesh, pose, float(model.prober.settings.tip_radius))
         for p, u, cz, hop in targets:
             self._between_hits()
-            if self._skip:
+            if self.runner.skip_asked:
                 self.model.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
                 self._partial = []
                 return None
@@ -374,7 +361,7 @@ class RoutineRun:
         from .run_end import end_at_clearance
 
         try:
-            z = end_at_clearance(self.controller, self.client, self.timeout)
+            z = end_at_clearance(self.controller.commands, self.client, self.timeout)
         except Exception as exc:  # noqa: BLE001 - the part's results stand; the climb's refusal is told
             text = f"routine {self.routine.name!r}: the climb to the clearance plane at its end failed: {exc}"
             self.model.note(text)
@@ -420,11 +407,11 @@ class RoutineRun:
             if len(new) >= n:
                 self._tell(state="running", prompt="")
                 return new[:n]
-            if self._cancel:
+            if self.runner.cancelled:
                 raise RoutineCancelled("the routine was cancelled while waiting for manual hits")
             if self.progress.prompt != f"{prompt}: {len(new)} of {n} taken":
                 self._tell(prompt=f"{prompt}: {len(new)} of {n} taken")
-            self._stopped.wait(0.1)  # a person's pace: look again in a tenth of a second
+            self.runner.sleep(0.1)  # a person's pace: look again in a tenth of a second
 
     def _align(self, step: dict[str, Any], manual_hits: Callable[[str, int], list[int]]) -> None:
         """Manual 3-2-1 hits (when the step says so), then the three datums measured and the part aligned. Run

@@ -15,33 +15,24 @@ from typing import Any
 
 import numpy as np
 
-ABOVE = 1e-3  # mm: the tip at the plane within this is at the plane
 
-
-def clearance_target(controller: Any, here: Any = None) -> np.ndarray | None:
+def clearance_target(api: Any, here: Any = None) -> np.ndarray | None:
     """Straight above the tip (or ``here``, machine mm: where a previewed run ends) at the clearance plane; None
-    when no climb is needed or possible."""
-    ws = getattr(controller, "workspace", None)
-    plane = None if ws is None else ws.clearance_z()
-    here = controller.frame_position("machine") if here is None else np.asarray(here, float)
-    if plane is None or here is None:
-        return None
-    z_max = float(controller.config.axis("z").max)
-    z = min(float(plane), z_max)
-    if float(here[2]) >= z - ABOVE:
-        return None
-    return np.array([float(here[0]), float(here[1]), z])
+    when no climb is needed or possible (the control core's ``clearance_target`` query)."""
+    target = api.invoke(None, "clearance_target", here=None if here is None else [float(v) for v in here])
+    return None if target is None else np.asarray(target, float)
 
 
-def end_at_clearance(controller: Any, client: Any, timeout: float = 120.0) -> float | None:
-    """Climb to the clearance plane after a run (see the module docstring). Returns the machine Z reached, None when
-    nothing moved. A refused or failed climb raises the command API's error (the caller tells it)."""
-    mode = str(getattr(controller.state.mode, "value", controller.state.mode))
+def end_at_clearance(api: Any, client: Any, timeout: float = 120.0) -> float | None:
+    """Climb to the clearance plane after a run (see the module docstring), through the command API ``api`` as
+    ``client``. Returns the machine Z reached, None when nothing moved. A refused or failed climb raises the
+    command API's error (the caller tells it)."""
+    state = api.invoke(client, "state")
+    mode = str(getattr(state.mode, "value", state.mode))
     if mode in ("stopped", "e-stopped", "fault", "not homed"):  # a stop ended the run: it stands
         return None
-    target = clearance_target(controller)
+    target = clearance_target(api)
     if target is None:
         return None
-    controller.commands.invoke(client, "move", target=[float(x) for x in target], frame="machine",
-                               path="clearance").wait(timeout)
+    api.invoke(client, "move", target=[float(x) for x in target], frame="machine", path="clearance").wait(timeout)
     return float(target[2])

@@ -22,7 +22,10 @@ from .program import run_on
 from .run_end import end_at_clearance
 
 # the journal events a front end may write itself (record_event); everything else the model records as it changes
-JOURNAL_EVENTS = ("routine_saved",)
+# a part program's end, which its runner tells (cmm.dmis.runner): data {"series", "values", "event"} (its trend
+# values, its own journal event) or {"series", "stopped"} (why it stopped early, for the notifier)
+RUN_ENDS = ("program_end", "program_stopped")
+JOURNAL_EVENTS = ("routine_saved", *RUN_ENDS)
 
 
 def register_measurement_verbs(controller: Any, measurement: Any, calibration: Any = None) -> None:
@@ -101,7 +104,7 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
             feature = run_plan(measurement, plan, name=name, method=method, progress=progress, cancelled=cancelled,
                                client=client)
             try:  # the run ends at the clearance plane (cmm.measurement.run_end); the feature stands either way
-                end_at_clearance(controller, client)
+                end_at_clearance(controller.commands, client)
             except Exception as exc:  # noqa: BLE001 - told in the journal, in words
                 measurement.note(f"auto-measure: the climb to the clearance plane at its end failed: {exc}")
             return feature
@@ -191,6 +194,8 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
                                f"{kind!r} (hits, features and alignments are the measurement verbs')")
         if data is not None and not (isinstance(data, dict) and all(isinstance(k, str) for k in data)):
             raise MeasurementError(f"record_event: data must be named fields (a JSON object), got {type(data).__name__}")
+        if kind in RUN_ENDS:
+            return run_end(**(data or {}))
         measurement.record(kind, **(data or {}))
 
     cmds.register("new_session", new_session, {"name": None},
@@ -207,7 +212,73 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
                   "an anonymous observer")
     cmds.register("record_event", record_event, {"kind": REQUIRED, "data": None},
                   "an event of a front end in the session journal: kind " + ", ".join(JOURNAL_EVENTS) + " with its "
-                  "data {name: value}; hits, features and alignments only through their verbs; who may: as note")
+                  "data {name: value} (in process, a part program's end: program_end {series, values, event} records "
+                  "its trend and its event and tells the notifier, program_stopped {series, stopped} tells why it "
+                  "stopped); hits, features and alignments only through their verbs; who may: as note")
+    def new_routine_run(client: Any, routine: Any, part_name: str | None = None, on_progress: Any = None) -> Any:
+        from .routine_run import RoutineRun
+
+        return RoutineRun(routine, measurement, part_name=part_name, on_progress=on_progress)
+
+    def teach(client: Any, name: str | None = None, manual_alignment: bool = True) -> Any:
+        from ..journal.store import open_session
+        from .routine import teach_routine
+
+        journal = measurement.journal
+        if journal is None or not hasattr(journal, "path"):
+            raise MeasurementError("this session has no journal file to teach from")
+        part = measurement.part
+        return teach_routine(open_session(journal.path), name=name or None, manual_alignment=manual_alignment,
+                             part_mesh=None if part is None else part.mesh,
+                             part_nominals=None if part is None else part.nominal_features)
+
+    def preview(client: Any, routine: Any, run: Any = None) -> Any:
+        from .routine_path import routine_path
+
+        part = measurement.part
+        if part is None:
+            raise MeasurementError("load the routine's part first")
+        return routine_path(routine, controller, part.pose, run, mesh=part.mesh)
+
+    def run_end(series: str, values: Any = None, event: Any = None, stopped: Any = None, serial: str = "") -> Any:
+        """A part program's end (record_event's program_end / program_stopped): its trend values (the run a part
+        of the series, the notifier told) and its own journal event (kind, data), or why it stopped early."""
+        from .program import record_trend
+
+        notifier = getattr(measurement, "notifier", None)
+        if stopped is not None:  # an early end: told to the notifier (never raises; the run's error stands)
+            if notifier is not None:
+                try:
+                    notifier.run_stopped(measurement, series, stopped, serial)
+                except Exception:  # noqa: BLE001 - a notification never hides the run's error
+                    pass
+            return None
+        part = None
+        if values is not None:
+            part = record_trend(measurement, series, values=list(values), serial=serial)
+        elif notifier is not None:  # nothing to trend: the run's end is still told
+            try:
+                notifier.run_end(measurement, series, [])
+            except Exception as exc:  # noqa: BLE001 - a notification never spoils the run
+                measurement.log("error", f"the end of the run was not notified: {exc}")
+        if event is not None:
+            kind, data = event
+            try:
+                measurement.record(kind, **data)
+            except Exception as exc:  # noqa: BLE001 - the extras are help; the measurement stands without them
+                measurement.log("error", f"the {kind} of {series!r} were not kept in the session: {exc}")
+        return part
+
+    cmds.register("new_routine_run", new_routine_run, {"routine": REQUIRED, "part_name": None, "on_progress": None},
+                  "in process: a run of a routine on the next part (its progress, pause / resume / skip, its recovery "
+                  "after a fault), not started and changing nothing: run_routine runs it", query=True)
+    cmds.register("teach_routine", teach, {"name": None, "manual_alignment": True},
+                  "in process: a routine taught from the live session's journal (its last 3-2-1 alignment, features, "
+                  "constructions and a report step), on the part loaded; changes nothing", query=True)
+    cmds.register("routine_path", preview, {"routine": REQUIRED, "run": None},
+                  "in process: the path a run of the routine takes on the part where the model has it (the probing "
+                  "cycles, the hand-taken hits, a stopped run's resume: run), from the control core's rails",
+                  query=True)
     cmds.register("run_routine", routine, {"run": REQUIRED, "manual_hits": None, "action": "run"},
                   "in process: run a routine on the next part (a RoutineRun: pause / resume / skip on it), or after "
                   "a fault resume it from the stopped step (retract, the step again) or restart it; cancel ends it "

@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 
 
 class StationApp:
-    """The page of the station behind ``api`` (the command API, :class:`cmm.control.api.CommandAPI`)."""
+    """The page of the station behind ``api`` (the command API, :class:`cmm.api.CommandAPI`)."""
 
     def __init__(self, api: Any, *, host: str = "127.0.0.1", port: int = 8080, lan: bool = False,
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
@@ -41,12 +41,10 @@ class StationApp:
                  users: Any = None, tls: Any = None, station: Any = None) -> None:
         import viser
 
-        if not hasattr(api, "invoke"):  # transitional: a station handed in (the tests and benchmarks building one)
+        if not hasattr(api, "invoke"):  # a station handed in (the tests and benchmarks building one): its API
             station, api = api, api.controller.commands
-        self.api = api
-        # transitional: the station, for the panels that still reach it (operator, diagnostics, sessions, ...);
-        # goes once they read through the API's queries
-        self.station = station
+        self.api = api  # all the page gets: every panel reads with its queries and changes with its verbs
+        self.station = station  # the tests' hook only (they read the simulated station beside the page); no panel reads it
         self.ask_name = ask_name  # each new tab opens with the "Who is operating?" dialog
         self.users = users  # cmm.control.users.UserStore: each tab logs in (the start dialog); None: no login
         self.tls = tls  # cmm.control.tls.Certificate: the pendant serves https / wss with it

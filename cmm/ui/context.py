@@ -2,7 +2,7 @@
 
 Each tab (:class:`~cmm.ui.panels.ClientApp`) builds one context and hands it to its panels (status bar,
 features, alignment, auto-measure, colour map, sessions, calibration) instead of itself. It holds the
-command API (:class:`cmm.control.api.CommandAPI`, the page's one way to the station), the tab's viser client,
+command API (:class:`cmm.api.CommandAPI`, the page's one way to the station), the tab's viser client,
 the shared 3-D view, the tab's selection (picked point, selected feature, manual probing armed), what the
 operator was told, and the two ways a panel acts:
 
@@ -43,13 +43,8 @@ def _none(*_: Any) -> None:
 class PanelContext:
     def __init__(self, api: Any, control: Any, view: Any, client: Any = None, *, client_id: str,
                  is_local: bool = False, deviations: Callable[[], dict[int, float]] = dict,
-                 shared: Any = None, station: Any = None) -> None:
-        if not hasattr(api, "invoke"):  # transitional: a station handed in (by the panels' tests not yet on the API)
-            station, api = api, api.controller.commands
+                 shared: Any = None) -> None:
         self.api = api  # the command API: every read (query) and every change (verb) of the page goes through it
-        # transitional: the station, for the panels that still reach it (sessions, calibration, trends, operator,
-        # diagnostics, part, routines, DMIS); goes once they read through the API's queries
-        self.station = station
         self.control = control  # the access holder shared with the pendant (cmm.control.access.Control)
         self.view = view  # the shared 3-D scene (cmm.ui.scene.SceneView)
         self.client = client  # the tab's viser client; None in tests standing in for a tab
@@ -135,7 +130,7 @@ class PanelContext:
 
     @property
     def commands(self) -> Any:
-        """The command API (:mod:`cmm.control.api`): the verbs every front end sends."""
+        """The command API (:mod:`cmm.api`): the verbs every front end sends."""
         return self.api
 
     def query(self, name: str, /, **params: Any) -> Any:

@@ -1,4 +1,4 @@
-"""How the page reads: queries of the command API (:mod:`cmm.control.api`), never the station's objects.
+"""How the page reads: queries of the command API (:mod:`cmm.api`), never the station's objects.
 
 One call form for reads, ``query(name, **params)``: a tab's :meth:`cmm.ui.context.PanelContext.query`, or
 :func:`reader` of the command API itself (the shared 3-D view, the pure renderers, their tests; a bare model

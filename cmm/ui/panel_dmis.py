@@ -23,7 +23,6 @@ class DmisPanel:
 
     def __init__(self, ctx: PanelContext, gui: dict[str, Any], slot: RunSlot, path: Callable[[str], Path]) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui = gui  # the Routine tab's widgets (the progress bar is the routine's)
         self.slot = slot  # one run at a time: a routine's or a program's
         self._path = path  # a file name as the Routine tab takes it (relative: in the sessions folder)
@@ -38,7 +37,7 @@ class DmisPanel:
         self._dmis_cancel = False
         from ..dmis.runner import register_verbs
 
-        register_verbs(self.station)  # this tab runs DMIS programs with the run_dmis verb (registered once)
+        register_verbs(ctx.commands)  # this tab runs DMIS programs with the run_dmis verb (registered once)
 
     @property
     def running(self) -> bool:
@@ -98,7 +97,6 @@ class DmisPanel:
         path, text = self.dmis  # the new_part and run_dmis verbs decide who may; a refusal is shown in words
 
         def work() -> None:
-            model = self.station.measurement
             # each run is a part of the program's series: a session of its own (a name no earlier run took, also
             # of another page or before a restart) with none of the previous part's features or tolerances
             try:
@@ -121,7 +119,8 @@ class DmisPanel:
                 self.dmis_status = f"**STOPPED**: {exc}"
                 self.ctx.error(exc, "DMIS program stopped")
             else:
-                out_dir = model.session_dir if isinstance(model.session_dir, Path) else Path(".")
+                folder = self.ctx.commands.invoke(self.ctx.who(), "probing_setup")["session_dir"]
+                out_dir = Path(folder) if folder is not None else Path(".")
                 written = []
                 for device, content in result.outputs.items():
                     target = out_dir / (device or f"{Path(str(session)).stem}_out.dms")
@@ -154,7 +153,7 @@ class DmisPanel:
         """``PROGRAM n``: the first n from this page's run count on that names no session in the store yet."""
         from ..journal.store import open_store
 
-        store = open_store(self.station.measurement.session_dir)
+        store = open_store(self.ctx.commands.invoke(self.ctx.who(), "probing_setup")["sessions"])
         n = len(self.dmis_results) + 1
         while store.exists(f"{stem} {n}"):
             n += 1
@@ -172,8 +171,8 @@ class DmisPanel:
             self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
 
     def _dmis_query(self, prompt: str, answer: bool) -> str:
-        """TEXT/MAN (confirm) or TEXT/QUERY (answer): asked on this tab; the run waits (the machine standing still)
-        until the operator presses Answer, or Cancel."""
+        """TEXT/MAN (confirm) or TEXT/QUERY (answer): asked on this tab; the run waits (the machine standing still,
+        the runner holding it) until the operator presses Answer, or Cancel."""
         self.dmis_question = prompt
         self._dmis_answered.clear()
         self.dmis_status = (f"**QUESTION**: {prompt}" + (" (type the answer in Answer, then press Answer)" if answer
@@ -181,7 +180,7 @@ class DmisPanel:
         self.ctx.set("routine:dmis_status", "content", self.dmis_status, self.gui.get("dmis_status"))
         self.ctx.notify("DMIS program asks", prompt)
         try:
-            while not self.station.controller.wait_event(self._dmis_answered, 0.2):
+            while not self._dmis_answered.wait(0.2):
                 if not self.dmis_running or self._dmis_cancel:
                     break
             if not self._dmis_answered.is_set():

@@ -1,7 +1,7 @@
 """Machine > Home, Go to and Probe: the machine's commands (Home, Zero, Reset, Reconnect, STOP, E-stop), the Go to
 move in a chosen frame, the pick on the part with Move above / Probe here, and the hits list.
 
-Machine commands go to the command API (:mod:`cmm.control.api`) as this tab's client: the core checks the access
+Machine commands go to the command API (:mod:`cmm.api`) as this tab's client: the core checks the access
 policy and the machine state once, and refuses with a sentence that is shown here. What the tab shows comes from the
 API's queries (``state``, ``position``, ``probe_data``, ``model`` ...).
 """

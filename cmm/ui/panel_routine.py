@@ -52,7 +52,6 @@ class RoutinePanel:
 
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui: dict[str, Any] = {}
         self.slot = RunSlot()
         self.editor = RoutineEditPanel(ctx, self.gui, busy=lambda: self.runs.edit_refusal())

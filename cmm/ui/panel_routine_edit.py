@@ -14,9 +14,9 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
-from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError, teach_routine
+from ..measurement.errors import MeasurementError
+from ..measurement.routine import CONSTRUCTIONS, Routine, RoutineError
 from ..program.toml_program import ProgramError, load, part_hash
-from ..journal.store import open_session
 from .context import OPERATOR_ERRORS, PanelContext
 
 
@@ -48,22 +48,16 @@ class RoutineEditPanel:
 
     def __init__(self, ctx: PanelContext, gui: dict[str, Any], busy: Callable[[], str | None]) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui = gui  # the Routine tab's widgets (shared with its run and DMIS panels)
         self.busy = busy
         self.routine: Routine | None = None
 
     def teach(self, name: str = "") -> Routine | None:
-        model = self.station.measurement
-        if model.journal is None or not hasattr(model.journal, "path"):
-            self.ctx.error("this session has no journal file to teach from", "Routine")
+        try:  # from the live session's journal, on the part loaded
+            self.routine = self.ctx.commands.invoke(self.ctx.who(), "teach_routine", name=name.strip() or None)
+        except MeasurementError as exc:  # no journal file to teach from
+            self.ctx.error(exc, "Routine")
             return None
-        try:
-            session = open_session(model.journal.path)
-            part = model.part
-            self.routine = teach_routine(session, name=name.strip() or None,
-                                         part_mesh=None if part is None else part.mesh,
-                                         part_nominals=None if part is None else part.nominal_features)
         except (ProgramError, ValueError, OSError) as exc:
             self.ctx.error(exc, "Teach")
             return None
@@ -107,17 +101,17 @@ class RoutineEditPanel:
         if self.routine is None:
             self.ctx.error("teach or open a routine first", "Export DMIS")
             return None
-        part = self.station.measurement.part
+        part = self.ctx.model().part
         pose = part.pose if part is not None else [[1, 0, 0, 190.0], [0, 1, 0, 150.0], [0, 0, 1, 0], [0, 0, 0, 1]]
-        probe = self.station.config.probe
+        probe = self.ctx.commands.invoke(self.ctx.who(), "probing_setup")  # the configured probe and its cycle
         # the part the routine was taught on: its later hits of a feature hop over its mesh as the runner's
         mesh = part.mesh if part is not None and part_hash(part) == self.routine.program.part_sha256 else None
         stem = re.sub(r"[^\w.-]+", "_", self.routine.name).strip("._") or "routine"
         out = self._path(path).parent / f"{stem}.dmi"
         try:
-            text = to_dmis(self.routine.program, pose, tip_radius=probe.tip_radius,
-                           approach=probe.approach_distance, search=probe.search_distance,
-                           retract=probe.retract_distance, mesh=mesh)
+            text = to_dmis(self.routine.program, pose, tip_radius=probe["nominal_tip_diameter"] / 2.0,
+                           approach=probe["approach_distance"], search=probe["search_distance"],
+                           retract=probe["retract_distance"], mesh=mesh)
             out.write_text(text, encoding="utf-8")
         except OSError as exc:
             self.ctx.error(f"cannot write {out}: {exc.strerror or exc}", "Export DMIS")
@@ -137,8 +131,8 @@ class RoutineEditPanel:
 
     def _path(self, text: str) -> Path:
         p = Path(text.strip() or f"{self.routine.name if self.routine else 'routine'}.toml").expanduser()
-        base = self.station.measurement.session_dir
-        return p if p.is_absolute() or not isinstance(base, Path) else base / p
+        base = self.ctx.commands.invoke(self.ctx.who(), "probing_setup")["session_dir"]
+        return p if p.is_absolute() or base is None else Path(base) / p
 
     def edit(self, action: str, *args: Any) -> bool:
         """An edit of the selected step: rename, up, down, delete, skip, tolerance, clearance, nominal, hits, hit,

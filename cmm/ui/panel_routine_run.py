@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..measurement.align_wizard import routine_manual_hits
-from ..measurement.routine_path import RoutinePath, routine_path
+from ..measurement.routine_path import RoutinePath
 from ..measurement.routine_run import RoutineRun
 from .context import PanelContext
 from .path_preview import PathPreview
@@ -39,7 +39,6 @@ class RoutineRunPanel:
 
     def __init__(self, ctx: PanelContext, gui: dict[str, Any], slot: RunSlot, editor: Any, dmis: Any) -> None:
         self.ctx = ctx
-        self.station = ctx.station
         self.gui = gui  # the Routine tab's widgets
         self.slot = slot
         self.editor = editor  # the routine to run (a RoutineEditPanel)
@@ -67,7 +66,7 @@ class RoutineRunPanel:
         feature (the hand hits of a manual alignment named where they come), or, while a run stopped on a fault
         waits, its resume (the back-off and the retract, then the stopped step again and the rest). The run's
         alignment moves the hits after it by what it finds."""
-        r, part = self.editor.routine, self.station.measurement.part
+        r, part = self.editor.routine, self.ctx.model().part
         if r is None or part is None:
             self.ctx.error("teach or open a routine (and load its part) first", "Routine preview")
             return None
@@ -75,7 +74,7 @@ class RoutineRunPanel:
         found: list[RoutinePath] = []
 
         def paths() -> list[Any]:
-            found.append(routine_path(r, self.station.controller, part.pose, run, mesh=part.mesh))
+            found.append(self.ctx.commands.invoke(self.ctx.who(), "routine_path", routine=r, run=run))
             return found[0].cycles
         cycles = self.preview.show_cycles(paths, "Routine preview")
         words = found[0].text() if found and cycles is not None else ""
@@ -103,7 +102,8 @@ class RoutineRunPanel:
             self.run_.cancel()  # a new part: the run stopped on a fault is given up (its hits stay recorded)
         self.parts += 1
         name = part_name.strip() or f"part {self.parts}"
-        self.run_ = RoutineRun(r, self.station.measurement, part_name=name, on_progress=lambda _p: self._show_progress())
+        self.run_ = self.ctx.commands.invoke(self.ctx.who(), "new_routine_run", routine=r, part_name=name,
+                                             on_progress=lambda _p: self._show_progress())
         self._go("run", name)
         return True
 
@@ -147,7 +147,7 @@ class RoutineRunPanel:
         if self.running:
             self.ctx.error("the routine is still stopping: wait a moment", "Routine")
             return False
-        mode = str(getattr(self.station.controller.state.mode, "value", ""))
+        mode = self._mode()
         if mode in ("fault", "e-stopped"):
             self.ctx.error(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: press Reset "
                            "first, then resume", "Routine")
@@ -200,10 +200,14 @@ class RoutineRunPanel:
         E-STOP, a STOP), never after a stop of the routine's own (a skipped datum)."""
         b = "**" if bold else ""
         n = (run.faulted or 0) + 1
-        mode = str(getattr(self.station.controller.state.mode, "value", ""))
+        mode = self._mode()
         first = (f"Clear the cause, press {b}Reset{b}, then " if mode in ("fault", "e-stopped", "stopped")
                  else "Then ")
         return f"{first}{b}Resume from step {n}{b}, {b}Restart{b} from step 1, or {b}Cancel{b}."
+
+    def _mode(self) -> str:
+        """The machine's mode now (the state query): idle, moving, stopped, fault, e-stopped ..."""
+        return str(getattr(self.ctx.commands.invoke(self.ctx.who(), "state").mode, "value", ""))
 
     def _show_progress(self) -> None:
         run = self.run_

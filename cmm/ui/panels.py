@@ -8,7 +8,7 @@ side panel's tabs (``build()``) and copies what the API's queries say into their
 (``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
 ...), so the tests drive exactly what a button does without a browser.
 
-Machine commands go to the command API (:mod:`cmm.control.api`) as this client
+Machine commands go to the command API (:mod:`cmm.api`) as this client
 (:meth:`~cmm.ui.context.PanelContext.who`): the core checks the access policy (the shared
 :class:`~cmm.control.access.Control`, STOP and E-stop by its one :meth:`~cmm.control.access.Control.may_stop`
 policy) and the machine state once, and refuses with a sentence that is shown here. Measurement changes (hits,
@@ -71,8 +71,7 @@ class ClientApp:
         self.is_local = is_local
         # what this tab's panels share (selection, messages, widgets, the control check); they get it, not the tab
         self.ctx = PanelContext(app.api, app.control, app.view, client, client_id=self.client_id,
-                                is_local=is_local, deviations=app.deviations, shared=app.shared,
-                                station=app.station)  # transitional: for the panels still reaching the station
+                                is_local=is_local, deviations=app.deviations, shared=app.shared)
         self.messages = self.ctx.messages  # (level, title, body): what the operator was told
         self.gui = self.ctx.gui
         self.jog = JogPanel(self.ctx, app, client, lambda *a, **kw: send_verb(self.ctx, *a, **kw))

@@ -43,7 +43,7 @@ client -> server
 - ``{"type": "step", "axis": 0 | 1 | 2, "mm": signed size}``: one step jog (keyboard step mode), up to
   10 mm; only the control holder.
 - ``{"type": "call", "id": n, "method": "...", "params": {...}, "wait": bool}``: any verb of the command
-  API (:mod:`cmm.control.api`: move, probe, home, ...), as this pendant's client; answered with
+  API (:mod:`cmm.api`: move, probe, home, ...), as this pendant's client; answered with
   ``{"type": "result", "id": n, "result": ...}`` or ``{"type": "result", "id": n, "error": {"code",
   "message"}}``; ``wait`` answers when a motion has ended (with the tip position or the hit).
 - ``{"type": "stop"}``: controlled stop of whatever the machine is doing, under
