@@ -42,7 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from cmm.nmc import codec as c
-from cmm.sim.picservo import PicServo, divisor_rate, rates_match, standard_rate
+from cmm.sim.picservo import UART_TOLERANCE, PicServo, divisor_rate, rates_match, standard_rate
 from cmm.sim.plant import DEFAULT_PLANT, Plant, PlantParams
 from cmm.sim.transport import SimTransport
 
@@ -272,19 +272,38 @@ class SimNetwork:
         """Run the network up to time ``t_ns`` (ticks whose end is <= t_ns)."""
         if t_ns <= self.now_ns:
             return
+        rx = self._rx
+        mods = self.modules
         while True:
-            tick_end = (self.tick + 1) * TICK_NS
+            tick = self.tick
+            tick_end = (tick + 1) * TICK_NS
             if tick_end > t_ns:
                 break
-            self._feed_until(tick_end, inclusive=False)
-            if tick_end + TICK_NS <= t_ns and self._skippable():
-                nxt = t_ns if not self._rx else min(t_ns, self._rx[0][0])
-                skip = nxt // TICK_NS - self.tick - 1
-                if skip > 0:
-                    self.tick += skip  # every module is provably idle: skip exactly
-                    continue
-            self._run_tick(tick_end)
-            self.tick += 1
+            if rx and rx[0][0] < tick_end:
+                self._feed_until(tick_end, inclusive=False)
+            if tick_end + TICK_NS <= t_ns:
+                for m in mods:  # _skippable's first test inlined: while anything moves, one module is not quiet
+                    if not m.quiet:
+                        break
+                else:
+                    if self._skippable():
+                        nxt = t_ns if not rx else min(t_ns, rx[0][0])
+                        skip = nxt // TICK_NS - tick - 1
+                        if skip > 0:
+                            self.tick += skip  # every module is provably idle: skip exactly
+                            continue
+            # _run_tick inlined (every base tick of a moving machine)
+            for m in mods:
+                if not m.quiet:
+                    m.plant.step()
+            for hook in self.tick_hooks:
+                hook(self, tick)
+            for m in mods:
+                if not m.quiet and (m.sr == 1 or tick % m.sr == 0):
+                    m.servo()
+            if self._arrivals:
+                self._execute(tick, tick_end)
+            self.tick = tick + 1
         self._feed_until(t_ns, inclusive=True)
         self.now_ns = t_ns
         self._deliver(t_ns)
@@ -317,26 +336,26 @@ class SimNetwork:
         tick = t // TICK_NS
         if tick < self.tick:
             tick = self.tick
+        # rates_match and _Parser.feed inlined: every host byte reaches every module
+        span = None if host_baud is None else UART_TOLERANCE * host_baud
         for i, m in enumerate(self.modules):
-            if not m.comms_enabled or not rates_match(m.line_rate, host_baud):
+            if not m.comms_enabled:
                 continue
-            packet = self._parsers[i].feed(b)
-            if packet is not None:
+            if span is not None and not (host_baud > 0 and abs(m.line_rate - host_baud) <= span):
+                continue
+            buf = self._parsers[i].buf
+            if not buf:
+                if b == c.HEADER:  # everything else outside a packet is ignored
+                    buf.append(b)
+                continue
+            buf.append(b)
+            n = len(buf)
+            if n == 3:
+                self._parsers[i].need = 4 + (b >> 4)
+            elif n > 3 and n == self._parsers[i].need:
+                packet = bytes(buf)
+                buf.clear()
                 self._arrivals.append(_Arrival(tick, self._seq, i, packet))
-
-    def _run_tick(self, tick_end: int) -> None:
-        tick = self.tick
-        mods = self.modules
-        for m in mods:
-            if not m.quiet:
-                m.plant.step()
-        for hook in self.tick_hooks:
-            hook(self, tick)
-        for m in mods:
-            if not m.quiet and (m.sr == 1 or tick % m.sr == 0):
-                m.servo()
-        if self._arrivals:
-            self._execute(tick, tick_end)
 
     def _execute(self, tick: int, tick_end: int) -> None:
         due = [a for a in self._arrivals if a.tick <= tick]
