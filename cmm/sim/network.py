@@ -195,6 +195,8 @@ class SimNetwork:
                 t += per
                 self._rx.append((t, b, rate))
             self._host_tx_free = t
+        elif not self._rx and data:
+            self._feed_together(t, data, rate)
         else:
             for b in data:
                 self._rx.append((t, b, rate))
@@ -356,6 +358,46 @@ class SimNetwork:
                 packet = bytes(buf)
                 buf.clear()
                 self._arrivals.append(_Arrival(tick, self._seq, i, packet))
+
+    def _feed_together(self, t: int, data: bytes, host_baud: int | None) -> None:
+        """Bytes that all arrive at ``t`` (no wire time): what :meth:`_feed` does byte by byte, module by module
+        (the packets each module completes, in the order of the byte that completed them, then of the module), in
+        one pass per module over the bytes: every transaction's packet arrives so."""
+        seq0 = self._seq
+        self._seq = seq0 + len(data)
+        tx = self._tx
+        if tx:  # the first byte aborts the reply in progress (the later ones find nothing more to abort)
+            while tx and tx[-1][0] >= t:
+                tx.pop()
+            self._tx_free = tx[-1][1] if tx else t
+        tick = t // TICK_NS
+        if tick < self.tick:
+            tick = self.tick
+        span = None if host_baud is None else UART_TOLERANCE * host_baud
+        done: list[tuple[int, int, bytes]] = []
+        header = c.HEADER
+        for i, m in enumerate(self.modules):
+            if not m.comms_enabled:
+                continue
+            if span is not None and not (host_baud > 0 and abs(m.line_rate - host_baud) <= span):
+                continue
+            parser = self._parsers[i]
+            buf = parser.buf
+            for k, b in enumerate(data):
+                if not buf:
+                    if b == header:
+                        buf.append(b)
+                    continue
+                buf.append(b)
+                n = len(buf)
+                if n == 3:
+                    parser.need = 4 + (b >> 4)
+                elif n > 3 and n == parser.need:
+                    done.append((seq0 + k + 1, i, bytes(buf)))
+                    buf.clear()
+        if done:
+            done.sort(key=lambda d: (d[0], d[1]))
+            self._arrivals.extend(_Arrival(tick, seq, i, packet) for seq, i, packet in done)
 
     def _execute(self, tick: int, tick_end: int) -> None:
         due = [a for a in self._arrivals if a.tick <= tick]
