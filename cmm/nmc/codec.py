@@ -431,6 +431,7 @@ def save_as_home(address: int) -> bytes:
     return encode(address, SAVE_AS_HOME)
 
 
+@functools.cache  # the machine's every sample sends one to each axis
 def nop(address: int) -> bytes:
     return encode(address, NOP)
 
