@@ -62,7 +62,8 @@ def byte_ns(baud: int) -> int:
 
 
 class _Parser:
-    """Byte-by-byte packet framing of one module's receiver."""
+    """One module's receiver state: the packet being framed (its bytes, its length once the command byte is in;
+    framed byte by byte in :meth:`SimNetwork._feed` and :meth:`SimNetwork._feed_together`)."""
 
     __slots__ = ("buf", "need")
 
@@ -73,22 +74,6 @@ class _Parser:
     def reset(self) -> None:
         self.buf.clear()
         self.need = 0
-
-    def feed(self, b: int) -> bytes | None:
-        buf = self.buf
-        if not buf:
-            if b == c.HEADER:  # everything else outside a packet is ignored
-                buf.append(b)
-            return None
-        buf.append(b)
-        n = len(buf)
-        if n == 3:
-            self.need = 4 + (b >> 4)
-        elif n > 3 and n == self.need:
-            packet = bytes(buf)
-            buf.clear()
-            return packet
-        return None
 
 
 @dataclass
