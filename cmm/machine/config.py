@@ -65,7 +65,10 @@ def counts_to_mm(counts: Any, axes: Sequence[AxisConfig], correction: GeometryCo
     scale and direction, then the geometry correction. The one conversion: the machine's positions and hits, and
     a session's hits in re-evaluation (with the axes and correction it recorded), go through it."""
     c = np.asarray(counts, dtype=np.float64)
-    readings = np.stack([a.to_mm(c[..., i]) for i, a in enumerate(axes)], axis=-1)
+    if c.shape == (len(axes),):  # one reading (every sample): the same float64 arithmetic on plain floats
+        readings = np.array([a.to_mm(v) for a, v in zip(axes, c.tolist())])
+    else:
+        readings = np.stack([a.to_mm(c[..., i]) for i, a in enumerate(axes)], axis=-1)
     if correction is None or correction.is_identity:
         return readings
     return readings @ correction.matrix.T

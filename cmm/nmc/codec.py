@@ -13,6 +13,7 @@ Multi-byte fields are little-endian.
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass
 
@@ -430,6 +431,7 @@ def save_as_home(address: int) -> bytes:
     return encode(address, SAVE_AS_HOME)
 
 
+@functools.cache  # the machine's every sample sends one to each axis
 def nop(address: int) -> bytes:
     return encode(address, NOP)
 
@@ -440,9 +442,17 @@ def hard_reset(address: int) -> bytes:
 
 # --- status packets ---------------------------------------------------------
 
+@functools.cache  # every transaction asks, for a handful of item sets
 def status_length(items: int) -> int:
     """Bytes in a status packet carrying ``items`` (status byte and checksum included)."""
     return 2 + sum(struct.calcsize(fmt) for mask, _, fmt in STATUS_ITEMS if items & mask)
+
+
+@functools.cache
+def _status_layout(items: int) -> tuple[struct.Struct, tuple[str, ...]]:
+    """The items of a status packet as one little-endian struct (after the status byte) and their names."""
+    chosen = [(name, fmt) for mask, name, fmt in STATUS_ITEMS if items & mask]
+    return struct.Struct("<" + "".join(fmt[1:] for _, fmt in chosen)), tuple(name for name, _ in chosen)
 
 
 @dataclass(frozen=True)
@@ -496,13 +506,8 @@ def parse_status(packet: bytes | bytearray, items: int) -> Status:
         raise ChecksumMismatch(
             f"status checksum {packet[-1]:#04x} should be {checksum(packet[:-1]):#04x}: {bytes(packet).hex(' ')}"
         )
-    fields: dict[str, int] = {}
-    i = 1
-    for mask, name, fmt in STATUS_ITEMS:
-        if items & mask:
-            fields[name] = struct.unpack_from(fmt, packet, i)[0]
-            i += struct.calcsize(fmt)
-    return Status(packet[0], **fields)
+    layout, names = _status_layout(items)
+    return Status(packet[0], **dict(zip(names, layout.unpack_from(packet, 1))))
 
 
 def encode_status(status: int, items: int = 0, **values: int) -> bytes:

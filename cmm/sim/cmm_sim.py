@@ -107,8 +107,8 @@ class SimulatedCMM:
         return self.world.tip(np.array(self.axis_readings()))
 
     def _tick(self, network: SimNetwork, tick: int) -> None:
-        x, y, z = self.axis_readings()
-        triggered = self.world.update(x, y, z)
+        (px, hx, kx), (py, hy, ky), (pz, hz, kz) = self._encoders  # axis_readings inlined (every servo tick)
+        triggered = self.world.update(hx + px.x / kx, hy + py.x / ky, hz + pz.x / kz)
         level = triggered if self._active_high else not triggered
         if level != self._level:
             if triggered:

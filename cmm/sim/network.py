@@ -42,7 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from cmm.nmc import codec as c
-from cmm.sim.picservo import PicServo, divisor_rate, rates_match, standard_rate
+from cmm.sim.picservo import UART_TOLERANCE, PicServo, divisor_rate, rates_match, standard_rate
 from cmm.sim.plant import DEFAULT_PLANT, Plant, PlantParams
 from cmm.sim.transport import SimTransport
 
@@ -62,7 +62,8 @@ def byte_ns(baud: int) -> int:
 
 
 class _Parser:
-    """Byte-by-byte packet framing of one module's receiver."""
+    """One module's receiver state: the packet being framed (its bytes, its length once the command byte is in;
+    framed byte by byte in :meth:`SimNetwork._feed` and :meth:`SimNetwork._feed_together`)."""
 
     __slots__ = ("buf", "need")
 
@@ -73,22 +74,6 @@ class _Parser:
     def reset(self) -> None:
         self.buf.clear()
         self.need = 0
-
-    def feed(self, b: int) -> bytes | None:
-        buf = self.buf
-        if not buf:
-            if b == c.HEADER:  # everything else outside a packet is ignored
-                buf.append(b)
-            return None
-        buf.append(b)
-        n = len(buf)
-        if n == 3:
-            self.need = 4 + (b >> 4)
-        elif n > 3 and n == self.need:
-            packet = bytes(buf)
-            buf.clear()
-            return packet
-        return None
 
 
 @dataclass
@@ -195,6 +180,8 @@ class SimNetwork:
                 t += per
                 self._rx.append((t, b, rate))
             self._host_tx_free = t
+        elif not self._rx and data:
+            self._feed_together(t, data, rate)
         else:
             for b in data:
                 self._rx.append((t, b, rate))
@@ -272,19 +259,38 @@ class SimNetwork:
         """Run the network up to time ``t_ns`` (ticks whose end is <= t_ns)."""
         if t_ns <= self.now_ns:
             return
+        rx = self._rx
+        mods = self.modules
         while True:
-            tick_end = (self.tick + 1) * TICK_NS
+            tick = self.tick
+            tick_end = (tick + 1) * TICK_NS
             if tick_end > t_ns:
                 break
-            self._feed_until(tick_end, inclusive=False)
-            if tick_end + TICK_NS <= t_ns and self._skippable():
-                nxt = t_ns if not self._rx else min(t_ns, self._rx[0][0])
-                skip = nxt // TICK_NS - self.tick - 1
-                if skip > 0:
-                    self.tick += skip  # every module is provably idle: skip exactly
-                    continue
-            self._run_tick(tick_end)
-            self.tick += 1
+            if rx and rx[0][0] < tick_end:
+                self._feed_until(tick_end, inclusive=False)
+            if tick_end + TICK_NS <= t_ns:
+                for m in mods:  # _skippable's first test inlined: while anything moves, one module is not quiet
+                    if not m.quiet:
+                        break
+                else:
+                    if self._skippable():
+                        nxt = t_ns if not rx else min(t_ns, rx[0][0])
+                        skip = nxt // TICK_NS - tick - 1
+                        if skip > 0:
+                            self.tick += skip  # every module is provably idle: skip exactly
+                            continue
+            # _run_tick inlined (every base tick of a moving machine)
+            for m in mods:
+                if not m.quiet:
+                    m.plant.step()
+            for hook in self.tick_hooks:
+                hook(self, tick)
+            for m in mods:
+                if not m.quiet and (m.sr == 1 or tick % m.sr == 0):
+                    m.servo()
+            if self._arrivals:
+                self._execute(tick, tick_end)
+            self.tick = tick + 1
         self._feed_until(t_ns, inclusive=True)
         self.now_ns = t_ns
         self._deliver(t_ns)
@@ -317,26 +323,66 @@ class SimNetwork:
         tick = t // TICK_NS
         if tick < self.tick:
             tick = self.tick
+        # rates_match and _Parser.feed inlined: every host byte reaches every module
+        span = None if host_baud is None else UART_TOLERANCE * host_baud
         for i, m in enumerate(self.modules):
-            if not m.comms_enabled or not rates_match(m.line_rate, host_baud):
+            if not m.comms_enabled:
                 continue
-            packet = self._parsers[i].feed(b)
-            if packet is not None:
+            if span is not None and not (host_baud > 0 and abs(m.line_rate - host_baud) <= span):
+                continue
+            buf = self._parsers[i].buf
+            if not buf:
+                if b == c.HEADER:  # everything else outside a packet is ignored
+                    buf.append(b)
+                continue
+            buf.append(b)
+            n = len(buf)
+            if n == 3:
+                self._parsers[i].need = 4 + (b >> 4)
+            elif n > 3 and n == self._parsers[i].need:
+                packet = bytes(buf)
+                buf.clear()
                 self._arrivals.append(_Arrival(tick, self._seq, i, packet))
 
-    def _run_tick(self, tick_end: int) -> None:
-        tick = self.tick
-        mods = self.modules
-        for m in mods:
-            if not m.quiet:
-                m.plant.step()
-        for hook in self.tick_hooks:
-            hook(self, tick)
-        for m in mods:
-            if not m.quiet and (m.sr == 1 or tick % m.sr == 0):
-                m.servo()
-        if self._arrivals:
-            self._execute(tick, tick_end)
+    def _feed_together(self, t: int, data: bytes, host_baud: int | None) -> None:
+        """Bytes that all arrive at ``t`` (no wire time): what :meth:`_feed` does byte by byte, module by module
+        (the packets each module completes, in the order of the byte that completed them, then of the module), in
+        one pass per module over the bytes: every transaction's packet arrives so."""
+        seq0 = self._seq
+        self._seq = seq0 + len(data)
+        tx = self._tx
+        if tx:  # the first byte aborts the reply in progress (the later ones find nothing more to abort)
+            while tx and tx[-1][0] >= t:
+                tx.pop()
+            self._tx_free = tx[-1][1] if tx else t
+        tick = t // TICK_NS
+        if tick < self.tick:
+            tick = self.tick
+        span = None if host_baud is None else UART_TOLERANCE * host_baud
+        done: list[tuple[int, int, bytes]] = []
+        header = c.HEADER
+        for i, m in enumerate(self.modules):
+            if not m.comms_enabled:
+                continue
+            if span is not None and not (host_baud > 0 and abs(m.line_rate - host_baud) <= span):
+                continue
+            parser = self._parsers[i]
+            buf = parser.buf
+            for k, b in enumerate(data):
+                if not buf:
+                    if b == header:
+                        buf.append(b)
+                    continue
+                buf.append(b)
+                n = len(buf)
+                if n == 3:
+                    parser.need = 4 + (b >> 4)
+                elif n > 3 and n == parser.need:
+                    done.append((seq0 + k + 1, i, bytes(buf)))
+                    buf.clear()
+        if done:
+            done.sort(key=lambda d: (d[0], d[1]))
+            self._arrivals.extend(_Arrival(tick, seq, i, packet) for seq, i, packet in done)
 
     def _execute(self, tick: int, tick_end: int) -> None:
         due = [a for a in self._arrivals if a.tick <= tick]

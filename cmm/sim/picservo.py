@@ -87,6 +87,10 @@ SAVE_DATA, RESTORE_ADDR, EPU_AMP, EPU_SERVO, EPU_LIMITS = 0x01, 0x02, 0x04, 0x08
 MOVE_REL = 0x40  # LOAD_TRAJ, trapezoidal position mode on the SC (REVERSE in velocity / PWM mode)
 
 _CAPTURE_CONDITIONS = c.ON_LIMIT1 | c.ON_LIMIT2 | c.ON_INDEX | c.ON_POS_ERR | c.ON_CUR_ERR
+# as plain globals for servo() (every tick of an armed move reads them)
+_ON_LIMIT1, _ON_LIMIT2, _ON_INDEX, _ON_POS_ERR, _ON_CUR_ERR = (c.ON_LIMIT1, c.ON_LIMIT2, c.ON_INDEX, c.ON_POS_ERR,
+                                                               c.ON_CUR_ERR)
+_LIMSTOP = LIMSTOP_OFF | LIMSTOP_ABRUPT
 
 
 class PicServo:
@@ -203,7 +207,11 @@ class PicServo:
         vel = cnt - self.pos
         self.velocity = vel
         self.pos = cnt
-        old_pwm, old_rev, old_cla, old_isum, old_e = self.pwm, self.reverse, self.cla, self.isum, self.e_prev
+        old_pwm = self.pwm
+        old_rev = self.reverse
+        old_cla = self.cla
+        old_isum = self.isum
+        old_e = self.e_prev
 
         if self.home_in_prog:
             io = self.io  # _input_levels inlined: every tick of an armed move
@@ -212,10 +220,10 @@ class PicServo:
             ctrl = self.home_ctrl
             old = self._levels
             self._levels = levels
-            if ((ctrl & c.ON_LIMIT1 and levels[0] != old[0]) or (ctrl & c.ON_LIMIT2 and levels[1] != old[1])
-                    or (ctrl & c.ON_INDEX and levels[2] != old[2])):
+            if ((ctrl & _ON_LIMIT1 and levels[0] != old[0]) or (ctrl & _ON_LIMIT2 and levels[1] != old[1])
+                    or (ctrl & _ON_INDEX and levels[2] != old[2])):
                 self._capture()
-        if self.sc_io & (LIMSTOP_OFF | LIMSTOP_ABRUPT):
+        if self.sc_io & _LIMSTOP:
             self._limit_protection()
         if not plant.power and self.servo_on:
             # The firmware watches the motor supply and drops the servo itself.
@@ -230,10 +238,11 @@ class PicServo:
                 velocity_step(self)
             e = (self.cmd_fx >> 16) - cnt
             self.pos_error_value = e
-            if e > self.el or e < -self.el:
+            el = self.el
+            if e > el or e < -el:
                 self._servo_off()  # collision detector: motor off, sticky flag
                 self.pos_error = True
-                if self.home_in_prog and self.home_ctrl & c.ON_POS_ERR:
+                if self.home_in_prog and self.home_ctrl & _ON_POS_ERR:
                     self._capture()
                 mag = 0
             else:
@@ -262,7 +271,8 @@ class PicServo:
             self.reverse = self.pwm_reverse
 
         # Current limit: the adjustment creeps 1 per tick (thesis, ch. 2).
-        ad = int(abs(plant.current) * plant._ad)  # plant.ad_value inlined (every tick)
+        current = plant.current
+        ad = int((current if current >= 0.0 else -current) * plant._ad)  # plant.ad_value inlined (every tick)
         if ad > 255:
             ad = 255
         self.ad = ad
@@ -273,7 +283,7 @@ class PicServo:
             if cla < mag:
                 cla += 1
             self.overcurrent = True
-            if self.home_in_prog and self.home_ctrl & c.ON_CUR_ERR:
+            if self.home_in_prog and self.home_ctrl & _ON_CUR_ERR:
                 self._capture()
                 if not self.servo_on:
                     mag = self.pwm_reg
