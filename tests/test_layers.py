@@ -419,8 +419,15 @@ def test_front_ends_import_neither_the_station_nor_the_measurement_model():
 # ``OpcUaServer(api, ...)``), they never hold the station, its control core, the measurement model or the
 # calibration service, and read the machine through the API's queries and streams
 API_ONLY = {"ippdme", "opcua"}
-# being converted to the same rule; each moves to API_ONLY (one line) once it receives only the API
+# the page and DMIS receive only the API too (no station, control core, model or calibration object: checked
+# below), but import plain pieces of the layers under them: the page its drawings' metrology, DMIS the part
+# programs' runner and the measurement's words
 API_ONLY_PENDING = {"ui", "dmis"}
+# the tests' hook: the page's entry keeps the station a test hands in (no panel reads it)
+API_ONLY_HOOKS = {("ui/app.py", "api.controller.commands"), ("ui/pendant.py", "api.controller.commands"),
+                  # the tab's Calibration panel (cmm.ui.panel_calibration), not the calibration service
+                  ("ui/panels.py", "self.calibration"), ("ui/panels.py", "self.calibration.build"),
+                  ("ui/panels.py", "self.calibration.refresh")}
 BEHIND_THE_API = ("station", "controller", "measurement", "calibration")
 
 
@@ -437,6 +444,16 @@ def test_api_only_front_ends_receive_nothing_but_the_api():
             if f.split("/")[0] in API_ONLY
             and (attr in BEHIND_THE_API or owner.split(".")[-1] in BEHIND_THE_API)]
     assert not bad, "front ends reaching behind the command API:\n" + "\n".join(bad)
+
+
+def test_the_page_and_dmis_hold_no_object_behind_the_api():
+    """The page (every tab, the scene, the pendant) and the DMIS runner name no ``station``, ``controller``,
+    ``measurement`` or ``calibration`` object: they read with the API's queries and change with its verbs."""
+    bad = [f"{f}:{line} {owner}.{attr}" for f, line, owner, attr in _front_end_uses()
+           if f.split("/")[0] in API_ONLY_PENDING
+           and (attr in BEHIND_THE_API or owner.split(".")[-1] in BEHIND_THE_API)
+           and (f, f"{owner}.{attr}") not in API_ONLY_HOOKS]
+    assert not bad, "the page or DMIS reaching behind the command API:\n" + "\n".join(bad)
 
 
 def test_the_page_never_holds_the_models_lock():
