@@ -424,7 +424,8 @@ API_ONLY = {"ippdme", "opcua"}
 # programs' runner and the measurement's words
 API_ONLY_PENDING = {"ui", "dmis"}
 # the tests' hook: the page's entry keeps the station a test hands in (no panel reads it)
-API_ONLY_HOOKS = {("ui/app.py", "api.controller.commands"), ("ui/pendant.py", "api.controller.commands"),
+API_ONLY_HOOKS = {("ui/app.py", "self.station"), ("ui/app.py", "api.controller"), ("ui/pendant.py", "api.controller"),
+                  ("ui/app.py", "api.controller.commands"), ("ui/pendant.py", "api.controller.commands"),
                   # the tab's Calibration panel (cmm.ui.panel_calibration), not the calibration service
                   ("ui/panels.py", "self.calibration"), ("ui/panels.py", "self.calibration.build"),
                   ("ui/panels.py", "self.calibration.refresh")}
