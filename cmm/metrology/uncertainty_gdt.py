@@ -41,6 +41,16 @@ BUDGET_KINDS = ("plane", "circle", "sphere", "cylinder", "cone", "point")
 ON_GEOMETRY = ("position", "concentricity", "coaxiality")  # values of the fitted geometry (orientation: an axis)
 
 
+def _numbers(v: Any) -> Any:
+    """A geometry entry as numbers when it is a list of numbers; anything else as it is."""
+    if isinstance(v, list):
+        try:
+            return np.asarray(v, float)
+        except (TypeError, ValueError):
+            return v
+    return v
+
+
 class _Moving:
     """A feature whose hits move: its new geometry for hit displacements (refit or the linearised fit)."""
 
@@ -51,7 +61,7 @@ class _Moving:
         self.kind = f.kind
         self.x = np.asarray(f.points, float).reshape(-1, 3)
         g = dict(f.geometry)
-        arr = {k: np.asarray(v, float) if isinstance(v, list) else v for k, v in g.items()}
+        arr = {k: _numbers(v) for k, v in g.items()}  # the fit's words (a cone's check) stay words
         if self.kind == "point":
             self.n = np.tile(np.asarray(g.get("normal", [0.0, 0.0, 1.0]), float), (len(self.x), 1))
         else:
