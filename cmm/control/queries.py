@@ -1,8 +1,9 @@
-"""The control core's read-only queries of the command API, beside its verbs (:mod:`cmm.control.verbs`): the set-up
-(configuration, probe settings, the link), who may send what, the jog's dead-man, the planned paths of a preview,
-and, in process, the objects a front end needs to keep time with the machine (its clock, the access holder, the
-machine's events). A front end (the page, the pendant) reads the machine through these and the ``state``,
-``position`` and ``link_health`` queries, never through the control core itself.
+"""The control core's read-only queries of the command API, beside its verbs (:mod:`cmm.control.verbs`): the
+machine's state (where the tip is, its mode, the link's health and byte trace, what runs, who holds control), the
+set-up (configuration, probe settings, the link), who may send what, the jog's dead-man, the planned paths of a
+preview, where a run ends, and, in process, the objects a front end needs to keep time with the machine (its
+clock, the access holder, the machine's events). A front end (the page, the pendant, I++) reads the machine
+through these, never through the control core itself.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from ..api import client_of
 from .access import Control
 
 ABOVE = 1e-3  # mm: a tip at the clearance plane within this is at the plane
@@ -21,6 +23,20 @@ def register_control_queries(api: Any, controller: Any) -> None:
     c = controller
     REQUIRED = api.REQUIRED  # noqa: N806 - the API's marker of a parameter that must be given
 
+    api.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
+                 "where the tip centre is, in frame 'machine' or 'part'", query=True)
+    api.register("state", lambda client: c.state, {},
+                 "the machine's state: mode and why, homed, link, the commands allowed now, the last sample",
+                 query=True)
+    api.register("link_health", lambda client: c.link_health(), {},
+                 "the link's counters (transactions, retries, late replies recovered, the last minute's retry "
+                 "rate) and the Diagnostics tab's words for them", query=True)
+    api.register("trace", lambda client, last=30: c.trace_text(last=int(last)), {"last": 30},
+                 "the last packets on the link (the NMC byte trace, Tx and Rx) as text, for the Diagnostics tab; "
+                 "the link process's on a real port", query=True)
+    api.register("job", lambda client: c.jobs.snapshot(), {},
+                 "what runs now (auto-measure, routine, program, calibration), oldest first: description, "
+                 "done and total (hits of a program; 0 when the job does not say) and step", query=True)
     api.register("probe_settings", lambda client: c.probe_settings, {},
                  "the probe settings in force (tip radius, pre-travel model); change them with configure",
                  query=True)
@@ -52,6 +68,24 @@ def register_control_queries(api: Any, controller: Any) -> None:
                  "in process: on_event(kind, info) for every machine event ('state', 'fault', 'estop', 'stop', "
                  "'contact', 'deadman', 'limit', 'homed' ...), on the dispatcher thread; returns the function "
                  "that ends it", query=True)
+
+    def control(client: Any) -> dict[str, Any]:
+        holder = c.holder  # the station's Control, None while the station runs without one (scripts)
+        held = None if holder is None else holder.holder
+        me = client_of(client)
+        return {"holder": None if held is None else holder.name(held),
+                "yours": held is not None and me is not None and me.id == held}
+    api.register("control", control, {},
+                 "who holds control: holder (as messages name the person; None: nobody, or a station without a "
+                 "holder) and yours (true when the asking client holds it)", query=True)
+    api.register("machine_config", lambda client: c.config, {},
+                 "in process: the machine's configuration (axes and their travel, speeds, probe distances, homing)",
+                 query=True)
+    api.register("check_target", lambda client, target: c.check_target(target), {"target": REQUIRED},
+                 "target (X, Y, Z machine mm) inside the travel, returned; an error naming the axis it leaves "
+                 "otherwise (nothing moves)", query=True)
+    api.register("tip_radius", lambda client: c.tip_radius, {},
+                 "the radius (mm) of the probe tip the machine compensates with now", query=True)
 
     def clearance_target(client: Any, here: Any = None) -> list[float] | None:
         ws = c.workspace

@@ -1,19 +1,19 @@
-"""The control core's verbs of the command API: the machine's commands, queries and event streams, registered where
+"""The control core's verbs of the command API: the machine's commands and event streams, registered where
 the machine's control lives (the measurement registers its own in :mod:`cmm.measurement.verbs`, the calibration in
 :mod:`cmm.calibration.verbs`).
 
 :func:`register_machine_verbs` is called by the :class:`~cmm.control.core.Controller` when it builds its API
 (``controller.commands``): ``move``, ``probe``, ``jog_hold``, ``stop``, ``estop``, ``home``, ``take_control`` ...,
-the queries a front end reads the machine with (``state``, ``position``, ``machine_config``, ``check_target``,
-``tip_radius``, ``control``, ``job``, ``link_health``), the streams it follows it with (``events``, ``state``) and
-the error codes of the machine's and the core's errors.
+the streams a front end follows it with (``events``, ``state``) and the error codes of the machine's and the
+core's errors; its queries (``state``, ``position``, ``machine_config``, ``control``, ``job`` ...) are in
+:mod:`cmm.control.queries`.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from ..api import REQUIRED, CommandAPI, client_of
+from ..api import REQUIRED, CommandAPI
 from ..machine.motion import ContactError, LimitError
 from ..machine.probing import SurfaceNotFound
 from ..machine.status import Cancelled, MotionError
@@ -73,20 +73,6 @@ def register_machine_verbs(api: CommandAPI, c: Any) -> None:
     api.register("release_control", lambda client: access.release_control(c.holder, client), {},
                  "this client gives control up (after a disconnect too); a client that did not hold it changes "
                  "nothing")
-    api.register("position", lambda client, frame="machine": c.frame_position(frame), {"frame": "machine"},
-                 "where the tip centre is, in frame 'machine' or 'part'", query=True)
-    api.register("state", lambda client: c.state, {},
-                 "the machine's state: mode and why, homed, link, the commands allowed now, the last sample",
-                 query=True)
-    api.register("link_health", lambda client: c.link_health(), {},
-                 "the link's counters (transactions, retries, late replies recovered, the last minute's retry "
-                 "rate) and the Diagnostics tab's words for them", query=True)
-    api.register("trace", lambda client, last=30: c.trace_text(last=int(last)), {"last": 30},
-                 "the last packets on the link (the NMC byte trace, Tx and Rx) as text, for the Diagnostics tab; "
-                 "the link process's on a real port", query=True)
-    api.register("job", lambda client: c.jobs.snapshot(), {},
-                 "what runs now (auto-measure, routine, program, calibration), oldest first: description, "
-                 "done and total (hits of a program; 0 when the job does not say) and step", query=True)
     api.register("cancel", c.cancel_jobs, {},
                  "end whatever job runs (auto-measure, routine, program, calibration) after the hit in "
                  "progress; its hits stay recorded; allowed to everyone who may STOP")
@@ -119,23 +105,6 @@ def register_machine_verbs(api: CommandAPI, c: Any) -> None:
                  "hold_machine false: work(None) runs in the caller's thread beside the machine loop (a program "
                  "waiting for the operator's manual hits), registered the same way")
 
-    def control(client: Any) -> dict[str, Any]:
-        holder = c.holder  # the station's Control, None while the station runs without one (scripts)
-        held = None if holder is None else holder.holder
-        me = client_of(client)
-        return {"holder": None if held is None else holder.name(held),
-                "yours": held is not None and me is not None and me.id == held}
-    api.register("control", control, {},
-                 "who holds control: holder (as messages name the person; None: nobody, or a station without a "
-                 "holder) and yours (true when the asking client holds it)", query=True)
-    api.register("machine_config", lambda client: c.config, {},
-                 "in process: the machine's configuration (axes and their travel, speeds, probe distances, homing)",
-                 query=True)
-    api.register("check_target", lambda client, target: c.check_target(target), {"target": REQUIRED},
-                 "target (X, Y, Z machine mm) inside the travel, returned; an error naming the axis it leaves "
-                 "otherwise (nothing moves)", query=True)
-    api.register("tip_radius", lambda client: c.tip_radius, {},
-                 "the radius (mm) of the probe tip the machine compensates with now", query=True)
     api.register_stream("events", c.subscribe,
                         "fn(kind, info) on the dispatcher thread: 'mode', 'fault', 'stop', 'estop', 'contact', "
                         "'deadman', 'limit', 'homed', 'hit', 'error' ... (info's message is for people)")
