@@ -28,10 +28,18 @@ from cmm.session.gdt_session import session_gdt
 from cmm.session.report import features_csv, render
 from cmm.journal.store import DirectoryStore, load_session
 from cmm.sim.cmm_sim import NOMINAL_PART_POSE
-from cmm.measurement.queries import ModelQueries
+from cmm.api import CommandAPI
+from cmm.measurement.queries import register_queries
 from cmm.ui.panel_features import feature_chars, tree_html
 
 T = NOMINAL_PART_POSE
+
+
+def _queries(model):
+    """The measurement's queries on a bare model (no control core): the command API with only them registered."""
+    api = CommandAPI()
+    register_queries(api, model)
+    return api
 
 
 def ring(centre, radius, z, k, phase=0.0, inward=False):
@@ -133,7 +141,7 @@ def measured(tmp_path_factory):
     live_constructed = {c.id: c for c in model.constructed.values()}
     live_probes = {fid: model.feature_probe(f) for fid, f in live_features.items()}
     live_gdt = model.gdt_characteristics()
-    tree = tree_html(ModelQueries(model))
+    tree = tree_html(_queries(model))
     model.close()
     machine.close()
     s = load_session(store, "numbers")
@@ -228,7 +236,7 @@ def test_a_criterion_cylinders_proof_reaches_the_tree_the_journal_and_the_report
     feature = model.fit_feature("cylinder", ids, "mcc", "boss mcc")
     proof = feature.result.proof
     assert proof is not None and proof["cone_deg"] > 0 and proof["cells"] > 0
-    tree = tree_html(ModelQueries(model))
+    tree = tree_html(_queries(model))
     model.close()
     machine.close()
     assert proof_text(proof, short=True) in tree

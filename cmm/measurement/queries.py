@@ -50,24 +50,6 @@ def snapshot(measurement: Any) -> ModelSnapshot:
                              measurement.state)
 
 
-class ModelQueries:
-    """The measurement's queries on a bare model, without a control core (the pure renderers' tests, scripts):
-    ``invoke(client, name, **params)`` as the command API's."""
-
-    REQUIRED = object()
-
-    def __init__(self, measurement: Any, calibration: Any = None) -> None:
-        self._queries: dict[str, Any] = {}
-        register_queries(self, measurement, calibration)
-
-    def register(self, name: str, fn: Any, params: dict[str, Any], doc: str, *, query: bool = False,
-                 motion: bool = False) -> None:
-        self._queries[name] = fn
-
-    def invoke(self, client: Any, name: str, /, **params: Any) -> Any:
-        return self._queries[name](client, **params)
-
-
 def register_queries(api: Any, measurement: Any, calibration: Any = None) -> None:
     """``part``: the part loaded; ``probe_in_use``: the probe in use; ``characteristics``: the session's toleranced
     characteristics; ``report_info``: the report header; ``model``: the model now; what the page computes from it

@@ -2,7 +2,8 @@
 
 One call form for reads, ``query(name, **params)``: a tab's :meth:`cmm.ui.context.PanelContext.query`, or
 :func:`reader` of the command API itself (the shared 3-D view, the pure renderers, their tests; a bare model
-without a control core is read through :class:`cmm.measurement.queries.ModelQueries`). The measurement model is
+without a control core is read through a bare :class:`cmm.api.CommandAPI` with
+:func:`cmm.measurement.queries.register_queries` on it). The measurement model is
 one :class:`~cmm.measurement.queries.ModelSnapshot` per refresh (the ``model`` query, copied under the model's
 lock by the model's side), never the model's lock held by the page; what the page changes it changes with the
 API's verbs (:meth:`cmm.ui.context.PanelContext.do`)."""
