@@ -314,40 +314,13 @@ class SimNetwork:
             self._feed(t, b, rate)
 
     def _feed(self, t: int, b: int, host_baud: int | None) -> None:
-        self._seq += 1
-        tx = self._tx
-        if tx:  # a new byte aborts the reply in progress
-            while tx and tx[-1][0] >= t:
-                tx.pop()
-            self._tx_free = tx[-1][1] if tx else t
-        tick = t // TICK_NS
-        if tick < self.tick:
-            tick = self.tick
-        # rates_match and _Parser.feed inlined: every host byte reaches every module
-        span = None if host_baud is None else UART_TOLERANCE * host_baud
-        for i, m in enumerate(self.modules):
-            if not m.comms_enabled:
-                continue
-            if span is not None and not (host_baud > 0 and abs(m.line_rate - host_baud) <= span):
-                continue
-            buf = self._parsers[i].buf
-            if not buf:
-                if b == c.HEADER:  # everything else outside a packet is ignored
-                    buf.append(b)
-                continue
-            buf.append(b)
-            n = len(buf)
-            if n == 3:
-                self._parsers[i].need = 4 + (b >> 4)
-            elif n > 3 and n == self._parsers[i].need:
-                packet = bytes(buf)
-                buf.clear()
-                self._arrivals.append(_Arrival(tick, self._seq, i, packet))
+        """One host byte arriving at ``t`` (a byte with wire time, or behind bytes still on the wire)."""
+        self._feed_together(t, bytes((b,)), host_baud)
 
     def _feed_together(self, t: int, data: bytes, host_baud: int | None) -> None:
-        """Bytes that all arrive at ``t`` (no wire time): what :meth:`_feed` does byte by byte, module by module
-        (the packets each module completes, in the order of the byte that completed them, then of the module), in
-        one pass per module over the bytes: every transaction's packet arrives so."""
+        """Bytes that all arrive at ``t``: a new byte aborts the reply in progress, and every module that listens at
+        the host's rate frames them; the packets completed arrive in the order of the byte that completed them, then
+        of the module (one pass per module over the bytes: a whole transaction's packet arrives so)."""
         seq0 = self._seq
         self._seq = seq0 + len(data)
         tx = self._tx
