@@ -234,6 +234,7 @@ def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(station
 
     from cmm.journal.store import open_session
     from cmm.measurement.routine import teach_routine
+    from cmm.measurement.routine_host import StationRoutineHost
     from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
 
     mqtt_url, got = broker
@@ -248,7 +249,7 @@ def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(station
         assert model.trends is None
         notifier = Notifier(NotifyConfig(webhook=webhook.url, mqtt=mqtt_url, station="bench-10",
                                          events=("run_end",))).attach(model)
-        progress = RoutineRun(routine, model, st.controller, part_name="P-17").run()
+        progress = RoutineRun(routine, StationRoutineHost(model, st.controller), part_name="P-17").run()
         assert progress.state == "done"
         ((_, m),) = _take(webhook.got, 1)
         ((topic, published),) = _take(got, 1)
@@ -257,7 +258,7 @@ def test_a_routine_run_tells_its_end_and_a_cancelled_one_that_it_stopped(station
         assert m["part"] == model.part.name and m["session"] == Path(str(progress.session)).stem
         assert m["report"] == (tmp_path / "sessions" / f"{m['session']}-report.html").resolve().as_uri()
         assert topic == "cmm/bench-10/run_end" and published == m
-        cancelled = RoutineRun(routine, model, st.controller, part_name="P-18")
+        cancelled = RoutineRun(routine, StationRoutineHost(model, st.controller), part_name="P-18")
         cancelled.cancel()  # the operator cancels before the first hit
         with pytest.raises(RoutineCancelled):
             cancelled.run()

@@ -15,6 +15,7 @@ from cmm.measurement.plan import plan_at_pick, plan_targets, run_plan
 from cmm.measurement.alignment import align_features, apply
 from cmm.measurement.routine import teach_routine
 from cmm.measurement.routine_path import routine_path
+from cmm.measurement.routine_host import StationRoutineHost
 from cmm.measurement.routine_run import RoutineRun
 from cmm.program.toml_program import machine_targets
 from cmm.journal.store import open_session
@@ -155,7 +156,7 @@ def test_a_routine_runs_the_previewed_path_with_its_alignment_after_the_hand_hit
         return got
 
     try:
-        progress = RoutineRun(routine, model, ctl, part_name="p2").run(manual_hits=hands)
+        progress = RoutineRun(routine, StationRoutineHost(model, ctl), part_name="p2").run(manual_hits=hands)
     finally:
         if recording:
             rec.__exit__()
@@ -174,7 +175,7 @@ def test_a_resume_preview_backs_off_the_contact_and_retracts_first(station):
     hits = routine.program.feature("boss").hits
     p, u = next((p, u) for h, p, u, _cz in machine_targets(routine.program, model.part.pose) if h.id == hits[1])
     station.sim.place_artifacts([(p - (cfg.tip_radius + cfg.approach_distance) * u + [0.0, 0.0, 6.0], 3.0)])
-    run = RoutineRun(routine, model, ctl, part_name="p4")
+    run = RoutineRun(routine, StationRoutineHost(model, ctl), part_name="p4")
     try:
         with pytest.raises(Exception, match="unexpected probe contact"):
             run.run()

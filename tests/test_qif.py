@@ -327,6 +327,7 @@ def test_a_routine_run_written_as_the_report_tab_does_is_valid_qif_with_the_repo
 
     from cmm.journal.store import load_session, open_session, open_store
     from cmm.measurement.routine import teach_routine
+    from cmm.measurement.routine_host import StationRoutineHost
     from cmm.measurement.routine_run import RoutineRun
     from cmm.session import worker
     from cmm.session.export import resolve_part_mesh
@@ -340,7 +341,7 @@ def test_a_routine_run_written_as_the_report_tab_does_is_valid_qif_with_the_repo
         routine = teach_routine(open_session(model.journal.path), name="block", part_mesh=model.part.mesh,
                                 part_nominals=model.part.nominal_features)
         routine.steps[0]["manual"] = None  # the part is aligned: the datums are measured automatically
-        progress = RoutineRun(routine, model, st.controller, part_name="R-1").run()
+        progress = RoutineRun(routine, StationRoutineHost(model, st.controller), part_name="R-1").run()
         assert progress.state == "done"
         sessions = model.session_dir
     finally:

@@ -14,6 +14,7 @@ from netutil import free_port
 from cmm.control import OpenPolicy
 from cmm.control.access import Client, Control
 from cmm.measurement.routine import Routine, RoutineError, teach_routine
+from cmm.measurement.routine_host import StationRoutineHost
 from cmm.measurement.routine_run import RoutineCancelled, RoutineRun
 from cmm.metrology.transform import invert
 from cmm.program.toml_program import from_toml, load, machine_targets
@@ -117,7 +118,7 @@ def test_the_routine_runs_on_a_second_part_placed_differently(taught):
     st.sim.place_part(SECOND_POSE)
     take, prompts = _manual_hits_on(st, SECOND_POSE)
     seen = []
-    run = RoutineRun(routine, st.measurement, st.controller, part_name="part 2",
+    run = RoutineRun(routine, StationRoutineHost(st.measurement, st.controller), part_name="part 2",
                      on_progress=lambda p: seen.append((p.state, p.hits)))
     progress = run.run(manual_hits=take)
     assert prompts == ["Take 3 hits by hand on TOP (primary datum)", "Take 2 hits by hand on FRONT (secondary datum)",
@@ -159,7 +160,7 @@ def test_each_run_of_a_routine_is_a_part_of_its_trends_series(taught, tmp_path):
         for name, pose in (("P1", TRUE_PART_POSE), ("P2", SECOND_POSE)):
             st.sim.place_part(pose)
             st.measurement.set_alignment(pose, "manual", note=f"{name} placed")
-            parts.append(RoutineRun(r, st.measurement, st.controller, part_name=name).run().part)
+            parts.append(RoutineRun(r, StationRoutineHost(st.measurement, st.controller), part_name=name).run().part)
         assert [p.serial for p in parts] == ["P1", "P2"] and trends.series() == ["block"]
         names = [n for n, _ in trends.characteristics("block")]
         diameter = next(n for n in names if n.startswith("bore / diameter"))
@@ -177,7 +178,7 @@ def test_pause_skip_and_cancel_between_hits(taught):
     st.measurement.set_alignment(TRUE_PART_POSE, "manual", note="back on the first part")
     r = Routine(from_toml(routine.text()))
     r.steps[0]["manual"] = None  # this part is aligned: the datums are measured automatically
-    run = RoutineRun(r, st.measurement, st.controller, part_name="part 3")
+    run = RoutineRun(r, StationRoutineHost(st.measurement, st.controller), part_name="part 3")
     events, cancelled, refused = [], [], []
     done = set()
     api, holder, observer = st.controller.commands, Client("page", local=True), Client("lan-tab")
@@ -247,8 +248,7 @@ def test_a_fault_mid_routine_is_resumed_from_the_stopped_step_with_another_probe
     retract = p1 - (cfg.tip_radius + cfg.retract_distance) * u1
     pre = p2 - (cfg.tip_radius + cfg.approach_distance) * u2
     st.sim.place_artifacts([((retract + pre) / 2, 2.0)])
-    run = RoutineRun(r, model, st.controller, part_name="part 4",
-                     change_probe=lambda name: st.calibration.select_probe(None, name))
+    run = RoutineRun(r, StationRoutineHost(model, st.controller, select_probes=True), part_name="part 4")
     with pytest.raises(Exception, match="unexpected probe contact"):
         run.run()
     assert run.progress.state == "failed" and run.faulted == 0 and run.can_resume
@@ -297,7 +297,7 @@ def test_restart_and_cancel_after_a_fault(taught):
     for name in ("alignment", "TOP", "FRONT", "LEFT", "dome", "bore-boss", "boss"):
         r.delete(next(i for i, s in enumerate(r.steps) if s["name"] == name))
     assert [s["name"] for s in r.steps] == ["bore", "report"]
-    run = RoutineRun(r, model, st.controller, part_name="part 5")
+    run = RoutineRun(r, StationRoutineHost(model, st.controller), part_name="part 5")
     stopped = []
 
     def on_progress(p):
@@ -320,7 +320,7 @@ def test_restart_and_cancel_after_a_fault(taught):
     assert progress.results["bore"].result.geometry()["radius"] == pytest.approx(15.0, abs=0.005)
     with pytest.raises(RoutineError, match="no stopped"):
         run.resume_after_fault()
-    run2 = RoutineRun(r, model, st.controller, part_name="part 6")
+    run2 = RoutineRun(r, StationRoutineHost(model, st.controller), part_name="part 6")
     run2.on_progress = lambda p: p.hits == 1 and st.controller.emergency_stop(None)
     with pytest.raises(Exception):
         run2.run()
@@ -456,7 +456,8 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
     r.program.feature("bore").tolerance = {"position": 0.05, "size": 0.01}  # no location given
     st.sim.place_part(TRUE_PART_POSE)
     model.set_alignment(TRUE_PART_POSE, "manual", note="GDT1 placed")
-    first = RoutineRun(r, model, st.controller, part_name="GDT1").run()  # part names no other test's run took
+    # part names no other test's run took
+    first = RoutineRun(r, StationRoutineHost(model, st.controller), part_name="GDT1").run()
     fids = {n: f.id for n, f in first.results.items() if hasattr(f, "id")}
     for label, name in zip("ABC", ("TOP", "FRONT", "LEFT")):
         model.define_datum(label, fids[name])
@@ -478,7 +479,7 @@ def test_a_taught_routine_keeps_gdt_datums_tolerances_and_constructions(taught):
     assert next(s for s in again.steps if s["name"] == "bore-boss toleranced")["tolerance"] == {"location": 0.03}
     st.sim.place_part(SECOND_POSE)
     model.set_alignment(SECOND_POSE, "manual", note="GDT2 placed")
-    second = RoutineRun(again, model, st.controller, part_name="GDT2").run()
+    second = RoutineRun(again, StationRoutineHost(model, st.controller), part_name="GDT2").run()
     assert second.state == "done"
     # the run ends with the tip at the clearance plane (it stood beside the cone at part Z 43)
     assert st.controller.frame_position("machine")[2] >= st.controller.workspace.clearance_z() - 0.01
@@ -519,8 +520,7 @@ def test_the_wizard_prompts_the_routines_manual_alignment(taught):
         wizards.append(w)
         return w
 
-    run = RoutineRun(routine, model, st.controller, part_name="wizard part")
-    run.client = me
+    run = RoutineRun(routine, StationRoutineHost(model, st.controller, me), part_name="wizard part")
     done = []
     worker = threading.Thread(target=lambda: done.append(run.run(manual_hits=routine_manual_hits(run, wizard_for))),
                               daemon=True)

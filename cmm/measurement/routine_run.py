@@ -5,7 +5,6 @@ session of their own (see :mod:`cmm.measurement.routine` for what a routine is).
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,8 +17,9 @@ from ..metrology.pick import NominalFeature
 from ..metrology.transform import invert
 from ..program.runner import RunProgress, StepRunner
 from ..program.toml_program import check, machine_targets
-from .alignment import AlignmentResult, align_321, align_features, apply, datum_frame
+from .alignment import AlignmentResult, align_321, datum_frame
 from .routine import MANUAL_HITS, Routine, RoutineError
+from .routine_host import RoutineHost
 from .routine_path import run_order
 
 
@@ -37,21 +37,20 @@ class RoutineRun:
     (:class:`cmm.program.runner.StepRunner`: its state, progress and controls). ``run()`` blocks (call it from a job
     thread); ``pause``, ``resume``, ``skip`` and ``cancel`` act between hits from any thread. After a step stopped on
     a fault (state ``failed``, ``faulted`` its index), ``resume_after_fault()`` or ``restart()`` (blocking, from a
-    job thread) carry on in the same part session; ``cancel()`` ends it."""
+    job thread) carry on in the same part session; ``cancel()`` ends it.
 
-    def __init__(self, routine: Routine, model: Any, controller: Any = None, *, client: Any = None,
-                 part_name: str | None = None, on_progress: Callable[[RunProgress], None] | None = None,
-                 timeout: float = 120.0, change_probe: Callable[[str], Any] | None = None) -> None:
+    ``host`` is all the run gets of the station (:class:`~cmm.measurement.routine_host.RoutineHost`: the part,
+    its hits and fits, the journal, the machine); the ``run_routine`` verb hands it one acting for its caller."""
+
+    def __init__(self, routine: Routine, host: RoutineHost, *, part_name: str | None = None,
+                 on_progress: Callable[[RunProgress], None] | None = None, timeout: float = 120.0) -> None:
         self.routine = routine
-        self.model = model
-        self.controller = controller
-        self.client = client
+        self.host = host
         self.part_name = part_name
         self.timeout = timeout
-        self.change_probe = change_probe  # makes a named probe the one in use (the calibration service's)
         self.runner = StepRunner(steps=len(routine.steps), total_hits=self._total_hits(), on_progress=on_progress)
         self._manual_hits: Callable[[str, int], list[int]] | None = None  # how the operator's hits are taken
-        self._fids: dict[str, int] = {}  # feature name -> the model's feature id for this part
+        self._fids: dict[str, int] = {}  # feature name -> its feature id for this part
         self._partial: list[int] = []  # hits of the feature being measured, not fitted yet
         self._taken: list[int] = []  # every hit this run kept (fitted into a feature)
         self._manual: list[list[int]] | None = None  # the manual 3-2-1 hits, once all were taken
@@ -98,7 +97,7 @@ class RoutineRun:
         faulted, stopped = self.faulted, self.progress.state == "failed"
         self.runner.cancel()
         if stopped:  # stopped on a fault: nothing ran to see the flag
-            self.model.note(f"routine {self.routine.name!r} cancelled after the fault at step {faulted + 1}"
+            self.host.note(f"routine {self.routine.name!r} cancelled after the fault at step {faulted + 1}"
                             if faulted is not None else f"routine {self.routine.name!r} cancelled")
 
     def _tell(self, **changes: Any) -> None:
@@ -112,13 +111,13 @@ class RoutineRun:
 
     def run(self, manual_hits: Callable[[str, int], list[int]] | None = None) -> RunProgress:
         """Run every step. ``manual_hits(prompt, n)`` returns the ids of n hits the operator took by hand when
-        the alignment asks for them (default: wait for n new hits in the model, the prompt shown meanwhile)."""
-        model, routine = self.model, self.routine
+        the alignment asks for them (default: wait for n new hits, the prompt shown meanwhile)."""
+        host, routine = self.host, self.routine
         routine.validate()
-        check(routine.program, model.part, None, None)
+        check(routine.program, host.part(), None, None)
         name = f"{routine.name} {self.part_name}" if self.part_name else routine.name
-        self.progress.session = model.new_part(name)  # this part's tree and report: its own rows only
-        model.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
+        self.progress.session = host.new_part(name)  # this part's tree and report: its own rows only
+        host.record("routine", name=routine.name, text=routine.text(), part=self.part_name)
         self._tell(state="running", message=f"routine {routine.name!r} started")
         return self._steps_from(0, manual_hits)
 
@@ -136,7 +135,7 @@ class RoutineRun:
         self._retract()
         self._discard(self._partial, f"step {step + 1} stopped by the fault")
         self._partial = []
-        self.model.note(f"routine {self.routine.name!r} resumed from step {step + 1}")
+        self.host.note(f"routine {self.routine.name!r} resumed from step {step + 1}")
         self._tell(state="running", message=f"resumed from step {step + 1}", prompt="")
         return self._steps_from(step, manual_hits)
 
@@ -148,7 +147,7 @@ class RoutineRun:
         self._retract()
         for fid in self._fids.values():
             try:
-                self.model.delete_feature(fid)
+                self.host.delete_feature(fid)
             except Exception:  # noqa: BLE001 - a feature the operator deleted meanwhile
                 pass
         self._discard(self._taken + self._partial, "the routine restarted")
@@ -157,27 +156,25 @@ class RoutineRun:
         self._gdt_done = False
         self._taken, self._partial, self._manual = [], [], None
         self.progress.results.clear()
-        self.model.note(f"routine {self.routine.name!r} restarted from step 1")
+        self.host.note(f"routine {self.routine.name!r} restarted from step 1")
         self._tell(state="running", message="restarted from step 1", hits=0, prompt="")
         return self._steps_from(0, manual_hits)
 
     def _discard(self, ids: list[int], why: str) -> None:
         """Delete hits (a 'hit_deleted' event each: the journal keeps them) and say why."""
-        gone = [h for h in ids if h in self.model.hits]
+        hits = self.host.hits()
+        gone = [h for h in ids if h in hits]
         for h in gone:
-            self.model.delete_hit(h)
+            self.host.delete_hit(h)
         if gone:
             self.discarded += gone
-            self.model.record("routine_discarded", hit_ids=gone, reason=why)
-            self.model.note(f"routine {self.routine.name!r}: hits {', '.join(map(str, gone))} discarded ({why})")
+            self.host.record("routine_discarded", hit_ids=gone, reason=why)
+            self.host.note(f"routine {self.routine.name!r}: hits {', '.join(map(str, gone))} discarded ({why})")
             self._tell(hits=max(0, self.progress.hits - len(gone)))
 
     def _retract(self) -> None:
         """Straight up to the clearance height through the command API (its rails back off a contact first)."""
-        c = self.controller
-        if c is None:
-            return
-        mode = str(getattr(c.state.mode, "value", ""))
+        mode = self.host.mode()
         if mode in ("fault", "e-stopped"):
             raise RoutineError(f"the machine is {'in fault' if mode == 'fault' else 'emergency stopped'}: "
                                "press Reset, then resume")
@@ -185,20 +182,19 @@ class RoutineRun:
         target = self.retract_target()
         if target is None:
             return
-        answer = c.commands.call(self.client, "move", {"target": [float(x) for x in target],
-                                                        "frame": "machine", "path": "clearance"},
-                                 wait=True, timeout=self.timeout)
-        if not answer.ok:
-            raise RoutineError(f"the retract to the clearance height failed: {answer.error['message']}")
-        self.model.note(f"routine {self.routine.name!r}: retracted to the clearance height Z {target[2]:.3f}")
+        try:
+            self.host.move_up(target, self.timeout)
+        except RoutineError as exc:
+            raise RoutineError(f"the retract to the clearance height failed: {exc}") from None
+        self.host.note(f"routine {self.routine.name!r}: retracted to the clearance height Z {target[2]:.3f}")
 
     def retract_target(self) -> np.ndarray | None:
         """Where a resume's retract goes (machine mm): straight above the tip at the part's clearance height (or
-        where the tip is, when higher); None without a controller or a reported position."""
-        here = None if self.controller is None else self.controller.frame_position("machine")
+        where the tip is, when higher); None without a reported position."""
+        here = self.host.position()
         if here is None:
             return None
-        z = max(float(here[2]), float(self.model.clearance_z()) if self.model.part is not None else float(here[2]))
+        z = max(float(here[2]), self.host.clearance_z() if self.host.part() is not None else float(here[2]))
         return np.array([float(here[0]), float(here[1]), z])
 
     def remaining(self) -> list[tuple[str, str]]:
@@ -208,36 +204,32 @@ class RoutineRun:
 
     def _steps_from(self, start: int, manual_hits: Callable[[str, int], list[int]] | None) -> RunProgress:
         self._manual_hits = manual_hits
-        model, routine = self.model, self.routine
-        jobs = getattr(self.controller, "jobs", None)  # the control core's running jobs: the cancel, pause, resume
-        # and skip_step verbs reach this run through them
+        host, routine = self.host, self.routine
         controls = self.runner.controls()
-        controls["cancel"] = self.cancel
         description = f"routine {routine.name!r}"
-        wait = getattr(self.controller, "wait_event", None)
-        if wait is not None:  # a pause inside the machine loop keeps the loop serving STOP
-            self.runner.wait = wait
-        try:
-            with nullcontext() if jobs is None else jobs.running(description, controls.pop("cancel"), **controls):
-                if jobs is not None:  # the job query: hits taken of the hits planned, what the run does now
-                    self.runner.report = lambda p: jobs.report(description, p.hits, p.total_hits, p.message)
-                    self.runner.update()
+        self.runner.wait = host.wait  # a pause inside the machine loop keeps the loop serving STOP
+        try:  # a running job: the cancel, pause, resume and skip_step verbs reach this run
+            with host.running(description, self.cancel, pause=controls["pause"], resume=controls["resume"],
+                              skip=controls["skip"]):
+                # the job query: hits taken of the hits planned, what the run does now
+                self.runner.report = lambda p: host.report(description, p.hits, p.total_hits, p.message)
+                self.runner.update()
                 self.runner.run_steps(start, self._step, skipped=lambda i: bool(routine.steps[i].get("skip")),
                                       describe=routine.describe)
                 self._define_gdt()  # a routine without a report step still evaluates its tolerances
         except RoutineCancelled as exc:
             self._tell(state="cancelled", message=str(exc), prompt="")
-            model.note(f"routine {routine.name!r} cancelled")
+            host.note(f"routine {routine.name!r} cancelled")
             self._notify_stopped(exc)
             raise
         except Exception as exc:
             name = routine.steps[self.progress.step]["name"]
             k = self.runner.fail(f"step {self.progress.step + 1} ({name}) stopped: {exc}")
-            model.note(f"routine {routine.name!r} stopped at step {k + 1} ({name}): {exc}")
+            host.note(f"routine {routine.name!r} stopped at step {k + 1} ({name}): {exc}")
             self._notify_stopped(f"step {k + 1} ({name}): {exc}")
             raise
         self._end_at_clearance()
-        model.note(f"routine {routine.name!r} finished")
+        host.note(f"routine {routine.name!r} finished")
         self.progress.part = self._record_trend()
         self.runner.finish(f"routine {routine.name!r} done")
         return self.progress
@@ -259,84 +251,61 @@ class RoutineRun:
             self.progress.results[step["name"]] = self._report()
 
     def _record_trend(self) -> Any:
-        """The finished run as a part of the routine's series, when the model records trends: the characteristics
-        of the features it measured and constructed (sizes, positions, form, distances) and of the part's
-        geometric tolerances, with the part's name as its serial (see :func:`.program.record_trend`)."""
-        from ..metrology.measured import feature_values, measured
-        from .program import record_trend
-
-        model = self.model
-        if getattr(model, "trends", None) is None and getattr(model, "notifier", None) is None:
-            return None  # nobody to tell: no trends, no notifications
-        records = {**model.features, **model.constructed}
-        values = {m.name: m for m in feature_values(records[fid].record() for fid in self._fids.values()
-                                                    if fid in records)}
-        for _d, c in model.gdt_characteristics() if model.gdt else []:
-            m = measured(c)
-            if m is not None:
-                values.setdefault(m.name, m)  # a name given twice counts once: the part's record refuses twins
-        return record_trend(model, self.routine.name, values=list(values.values()), serial=self.part_name or "")
+        """The finished run as a part of the routine's series, when the station records trends: the
+        characteristics of the features it measured and constructed (sizes, positions, form, distances) and of
+        the part's geometric tolerances, with the part's name as its serial."""
+        return self.host.record_part(self.routine.name, list(self._fids.values()), self.part_name or "")
 
     def _notify_stopped(self, reason: Any) -> None:
-        """The run's early end to the model's notifier (cmm.session.notify), when it has one; never raises."""
-        notifier = getattr(self.model, "notifier", None)
-        if notifier is not None:
-            try:
-                notifier.run_stopped(self.model, self.routine.name, reason, self.part_name or "")
-            except Exception:  # noqa: BLE001 - a notification never hides the run's error
-                pass
+        """The run's early end to whoever is notified (cmm.session.notify); never raises."""
+        self.host.run_stopped(self.routine.name, reason, self.part_name or "")
 
     def _use_probe(self, step: dict[str, Any]) -> None:
         """Change to the probe the step names, before it moves."""
         want = step.get("probe")
-        if not want or want == getattr(self.model, "probe_name", ""):
+        in_use = self.host.probe_name()
+        if not want or want == in_use:
             return
-        if self.change_probe is None:
-            raise RoutineError(f"{step['name']} measures with probe {want} but {self.model.probe_name or 'another'} "
-                               "is in use: change the probe, or clear the step's probe")
         self._wait_standing()
-        self.change_probe(want)
-        self.model.note(f"routine {self.routine.name!r}: probe {want} for {step['name']}")
+        if not self.host.select_probe(want):
+            raise RoutineError(f"{step['name']} measures with probe {want} but {in_use or 'another'} "
+                               "is in use: change the probe, or clear the step's probe")
+        self.host.note(f"routine {self.routine.name!r}: probe {want} for {step['name']}")
 
     def _wait_standing(self) -> None:
         """The operator's last manual hit may still be retracting: wait until the machine stands (30 s at most)."""
-        if self.controller is None:
-            return
         for _ in range(300):
-            if str(getattr(self.controller.state.mode, "value", "")) not in ("moving", "probing", "jogging"):
+            if self.host.mode() not in ("moving", "probing", "jogging"):
                 break
             self.runner.sleep(0.1)
 
     def _in_job(self, what: str, fn: Callable[[], Any]) -> Any:
-        if self.controller is None:
-            return fn()
         self._wait_standing()
-        return self.controller.run_job(self.client, f"routine {self.routine.name!r}: {what}", fn, cancel=self.cancel)
+        return self.host.run_job(f"routine {self.routine.name!r}: {what}", fn, cancel=self.cancel)
 
     def _measure(self, name: str) -> Any:
         """Probe a feature's hits (part coordinates through the current alignment) and fit it."""
-        model, program = self.model, self.routine.program
+        host, program = self.host, self.routine.program
         f = self.routine.feature(name)
-        pose = np.asarray(model.part.pose, float)
+        part = host.part()
+        pose = np.asarray(part.pose, float)
         by_id = {h.id: t for h, *t in machine_targets(program, pose)}
         self._partial = ids = []
-        part = model.part
-        targets = with_hops([by_id[hid] for hid in f.hits], part.mesh, pose, float(model.prober.settings.tip_radius))
+        targets = with_hops([by_id[hid] for hid in f.hits], part.mesh, pose, host.tip_radius())
         for p, u, cz, hop in targets:
             self._between_hits()
             if self.runner.skip_asked:
-                self.model.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
+                host.note(f"{name} skipped by the operator after {len(ids)} of {len(f.hits)} hits")
                 self._partial = []
                 return None
-            hit = model.probe(p, u, clearance_z=cz, client=self.client, hop_z=hop).wait(self.timeout)
-            ids.append(model.hit_id(hit))
+            ids.append(host.probe(p, u, cz, hop, self.timeout))
             self._hit_map[f.hits[len(ids) - 1]] = ids[-1]  # program hit id -> this part's (datum targets)
             self._tell(hits=self.progress.hits + 1)
         nominal = None
         if f.nominal:
             nominal = NominalFeature(f.nominal["kind"],
                                      {k: v for k, v in f.nominal.items() if k != "kind"}).transformed(pose)
-        feature = model.fit_feature(f.kind, ids, f.method, f.name, nominal, tolerance=f.tolerance)
+        feature = host.fit(f.kind, ids, f.method, f.name, nominal, f.tolerance)
         self._taken += ids
         self._partial = []
         self._fids[name] = feature.id
@@ -346,29 +315,25 @@ class RoutineRun:
     def _construct(self, step: dict[str, Any]) -> None:
         a, b = (self._fids.get(n) for n in step["of"])
         if a is None or b is None:
-            self.model.note(f"{step['name']} not constructed: {' or '.join(step['of'])} was not measured")
+            self.host.note(f"{step['name']} not constructed: {' or '.join(step['of'])} was not measured")
             return
-        c = self.model.construct_feature(step["operation"], a, b, step["name"], tolerance=step.get("tolerance"),
-                                         three_d=bool(step.get("three_d")))
+        c = self.host.construct(step["operation"], a, b, step["name"], step.get("tolerance"),
+                                bool(step.get("three_d")))
         self._fids[step["name"]] = c.id
         self.progress.results[step["name"]] = c
 
     def _end_at_clearance(self) -> None:
         """The run ends with the tip at the clearance plane (the last hit retracts only a few mm): the next run's
-        first move starts clear of the part."""
-        if self.controller is None:
-            return
-        from .run_end import end_at_clearance
-
+        first move starts clear of the part (:mod:`cmm.measurement.run_end`)."""
         try:
-            z = end_at_clearance(self.controller.commands, self.client, self.timeout)
+            z = self.host.end_at_clearance(self.timeout)
         except Exception as exc:  # noqa: BLE001 - the part's results stand; the climb's refusal is told
             text = f"routine {self.routine.name!r}: the climb to the clearance plane at its end failed: {exc}"
-            self.model.note(text)
+            self.host.note(text)
             self._tell(message=text)
             return
         if z is not None:
-            self.model.note(f"routine {self.routine.name!r}: ended at the clearance plane, machine Z {z:.3f}")
+            self.host.note(f"routine {self.routine.name!r}: ended at the clearance plane, machine Z {z:.3f}")
 
     def _define_gdt(self) -> None:
         """The taught datums and geometric tolerances (A|B|C, modifiers, composite tiers ...) on the features this
@@ -377,33 +342,25 @@ class RoutineRun:
         if self._gdt_done or not (program.datums or program.gdt):
             return
         self._gdt_done = True
-        from .program_gdt import define
-
-        for text in define(self.model, program.datums, program.gdt, dict(self._fids), dict(self._hit_map)):
-            self.model.note(f"routine {self.routine.name!r}: {text}")
+        for text in self.host.define_tolerances(program.datums, program.gdt, dict(self._fids), dict(self._hit_map)):
+            self.host.note(f"routine {self.routine.name!r}: {text}")
 
     def _report(self) -> Any:
         """The part's report (HTML beside its session journal); the journal holds everything up to here."""
         path = self.progress.session
         if not isinstance(path, Path):
-            self.model.note("report step: the session is in a database; make its report with cmm report")
+            self.host.note("report step: the session is in a database; make its report with cmm report")
             return None
-        reporter = getattr(self.model, "reporter", None)  # cmm.session.report.write_part_report on a station
-        if reporter is None:
-            self.model.note("report step: this measurement model writes no reports; make its report with cmm report")
-            return None
-        part = self.model.part
-        return reporter(path, mesh=None if part is None else part.mesh,
-                        title=f"{self.routine.name} {self.part_name or ''}".strip())
+        return self.host.write_report(path, f"{self.routine.name} {self.part_name or ''}".strip())
 
     # --- alignment --------------------------------------------------------------------------
 
     def _wait_for_hits(self, prompt: str, n: int) -> list[int]:
         """The default for manual hits: show ``prompt`` and wait until the operator has taken ``n`` hits."""
-        start = set(self.model.hits)
+        start = set(self.host.hits())
         self._tell(state="waiting", prompt=prompt)
         while True:
-            new = [h for h in self.model.hits if h not in start]
+            new = [h for h in self.host.hits() if h not in start]
             if len(new) >= n:
                 self._tell(state="running", prompt="")
                 return new[:n]
@@ -416,7 +373,7 @@ class RoutineRun:
     def _align(self, step: dict[str, Any], manual_hits: Callable[[str, int], list[int]]) -> None:
         """Manual 3-2-1 hits (when the step says so), then the three datums measured and the part aligned. Run
         again after a fault, it keeps the manual hits and the datums measured before the fault."""
-        model = self.model
+        host = self.host
         datums = step["datums"]
         if step.get("manual") and self._manual is None:
             ids = []
@@ -426,10 +383,10 @@ class RoutineRun:
                 if len(got) != n:
                     raise RoutineError(f"the manual alignment needs {n} hits on {datum}, got {len(got)}")
                 ids.append(got)
-            apply(model, self._manual_321(datums, ids))
+            host.apply_alignment(self._manual_321(datums, ids))
             self._manual = ids
             self._taken += [h for g in ids for h in g]
-            model.note("manual 3-2-1 alignment from 6 hits taken by hand")
+            host.note("manual 3-2-1 alignment from 6 hits taken by hand")
         fids = []
         for d in datums:
             if d not in self._fids:
@@ -437,20 +394,20 @@ class RoutineRun:
             if d not in self._fids:
                 raise RoutineError(f"the alignment needs {d}, which was skipped")
             fids.append(self._fids[d])
-        apply(model, align_features(model, *fids))
+        host.align_features(*fids)
 
     def _manual_321(self, datums: list[str], ids: list[list[int]]) -> AlignmentResult:
         """The pose from 3 hits on the primary plane, 2 on the secondary and 1 on the tertiary, against the
         three planes' nominals (part coordinates)."""
-        model = self.model
-        pose = np.asarray(model.part.pose, float)
+        pose = np.asarray(self.host.part().pose, float)
         nominal = []
         for d in datums:
             nom = self.routine.feature(d).nominal
             if not nom or nom.get("kind") != "plane":
                 raise RoutineError(f"the manual alignment needs the nominal plane of {d}")
             nominal.append(("plane", {"point": nom["point"], "normal": nom["normal"]}))
-        pts = [np.array([model.hits[h].point for h in group], float) for group in ids]
+        hits = self.host.hits()
+        pts = [np.array([hits[h].point for h in group], float) for group in ids]
         R = pose[:3, :3]
         n0 = np.asarray(fit_plane(pts[0]).normal, float)
         n0 = n0 if n0 @ (R @ np.asarray(nominal[0][1]["normal"], float)) >= 0 else -n0

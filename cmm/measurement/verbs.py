@@ -19,6 +19,7 @@ from . import alignment
 from .errors import INFO_FIELDS, MeasurementError
 from .plan import plan_at_pick, run_plan
 from .program import run_on
+from .routine_host import RoutineHost, StationRoutineHost
 from .run_end import end_at_clearance
 
 # the journal events a front end may write itself (record_event); everything else the model records as it changes
@@ -165,11 +166,14 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
     cmds.register("run_program", program, {"path": REQUIRED, "serial": ""},
                   "run a measurement program file (the machine is the program's until it ends; cancel ends it "
                   "after the hit in progress)")
+    def routine_host(client: Any) -> RoutineHost:
+        """What a routine's run gets of this station, acting as ``client``: a step's probe is selected with the
+        select_probe verb when there is a calibration service."""
+        return StationRoutineHost(measurement, controller, client, select_probes=calibration is not None)
+
     def routine(client: Any, run: Any, manual_hits: Any = None, action: str = "run") -> Any:
         controller.check_access(client, "measure")
-        run.controller, run.client = controller, client  # its jobs are this client's; the cancel verb ends it
-        if calibration is not None and run.change_probe is None:  # a step's probe: selected as Use this probe does
-            run.change_probe = lambda name: cmds.invoke(client, "select_probe", name=name)
+        run.host = routine_host(client)  # its jobs are this client's; the cancel verb ends it
         go = {"run": run.run, "resume": run.resume_after_fault, "restart": run.restart}.get(action)
         if go is None:
             raise MeasurementError(f"run_routine: action must be run, resume or restart, not {action!r}")
@@ -218,7 +222,7 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
     def new_routine_run(client: Any, routine: Any, part_name: str | None = None, on_progress: Any = None) -> Any:
         from .routine_run import RoutineRun
 
-        return RoutineRun(routine, measurement, part_name=part_name, on_progress=on_progress)
+        return RoutineRun(routine, routine_host(client), part_name=part_name, on_progress=on_progress)
 
     def teach(client: Any, name: str | None = None, manual_alignment: bool = True) -> Any:
         from ..journal.store import open_session
