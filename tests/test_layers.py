@@ -524,3 +524,38 @@ def test_modules_and_classes_stay_small():
             if isinstance(node, ast.ClassDef) and node.end_lineno - node.lineno + 1 > CLASS_LINES:
                 too_big.append(f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines")
     assert not too_big, "split by responsibility: " + "; ".join(too_big)
+
+
+# what a routine's run never holds: the measurement model, the control core and its command API, the station
+RUN_NEVER_HOLDS = {"model", "measurement", "controller", "commands", "jobs", "api", "station", "prober", "machine"}
+
+
+def test_a_routines_run_reaches_the_station_only_through_its_host():
+    """A routine's run (cmm/measurement/routine_run.py) gets the narrow RoutineHost protocol
+    (cmm/measurement/routine_host.py), as the I++ executor gets its Backend and the calibration service its
+    CalibrationHost: its constructor takes the host typed as the protocol, it names no ``model``, ``controller``,
+    ``commands``, ``jobs`` ... object (no ``self.model``, no ``self.controller.state``), and it imports neither the
+    measurement model, the control core, the station nor the host's adapter."""
+    run_path, host_path = ROOT / "measurement" / "routine_run.py", ROOT / "measurement" / "routine_host.py"
+    protocol = next(n for n in _tree(host_path).body if isinstance(n, ast.ClassDef) and n.name == "RoutineHost")
+    assert any(ast.unparse(b) == "Protocol" for b in protocol.bases), "RoutineHost is a typing.Protocol"
+    run = next(n for n in _tree(run_path).body if isinstance(n, ast.ClassDef) and n.name == "RoutineRun")
+    init = next(n for n in run.body if isinstance(n, ast.FunctionDef) and n.name == "__init__")
+    params = {a.arg: None if a.annotation is None else ast.unparse(a.annotation)
+              for a in init.args.args + init.args.kwonlyargs}
+    assert params.get("host") == "RoutineHost", f"RoutineRun takes its host as the protocol: {params}"
+    bad = []
+    for node in ast.walk(_tree(run_path)):
+        if isinstance(node, ast.Attribute) and (node.attr in RUN_NEVER_HOLDS
+                                                or ast.unparse(node.value).split(".")[-1] in RUN_NEVER_HOLDS):
+            bad.append(f"routine_run.py:{node.lineno} {ast.unparse(node)}")
+        elif isinstance(node, ast.Name) and node.id in RUN_NEVER_HOLDS | {"StationRoutineHost"}:
+            bad.append(f"routine_run.py:{node.lineno} {node.id}")
+        elif isinstance(node, ast.arg) and node.arg in RUN_NEVER_HOLDS:
+            bad.append(f"routine_run.py:{node.lineno} parameter {node.arg}")
+    mods = _modules()
+    bad += [f"routine_run.py imports {m}" for m in _imports("cmm.measurement.routine_run", run_path, mods)
+            if m in ("cmm.measurement.model", "cmm.measurement.verbs", "cmm.station") or _layer(m) == "control"]
+    bad += ["routine_run.py imports StationRoutineHost" for node in ast.walk(_tree(run_path))
+            if isinstance(node, ast.ImportFrom) and any(a.name == "StationRoutineHost" for a in node.names)]
+    assert not bad, "a routine's run reaching around its host:\n" + "\n".join(bad)
