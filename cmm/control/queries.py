@@ -98,9 +98,11 @@ def register_control_queries(api: Any, controller: Any) -> None:
     api.register("clearance_target", clearance_target, {"here": None},
                  "straight above the tip (or above here, machine mm) at the part's clearance plane, where a run ends "
                  "(machine mm); None when the tip is at or above it or there is no part", query=True)
-    api.register("loop_wait", lambda client: c.wait_event, {},
-                 "in process: wait(event, timeout) for a run waiting on its operator: inside the machine loop the "
-                 "loop goes on serving STOP, E-STOP and the link watch meanwhile", query=True)
+    api.register("loop_wait", lambda client, event, timeout: c.wait_event(event, float(timeout)),
+                 {"event": REQUIRED, "timeout": REQUIRED},
+                 "in process: wait for event (a threading.Event) at most timeout s, for a run waiting on its operator; "
+                 "inside the machine loop the loop goes on serving STOP, E-STOP and the link watch meanwhile; True "
+                 "when the event was set", query=True)
     api.register("job_reporter", lambda client: c.jobs.report, {},
                  "in process: report(description, done, total, step): how far a running job is, for the job query",
                  query=True)

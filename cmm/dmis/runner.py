@@ -69,9 +69,8 @@ class StationTarget:
     def hold(self, done: Callable[[], bool]) -> None:
         """Wait (the machine standing still, the machine loop serving STOP) until ``done()``."""
         event = threading.Event()
-        wait = self.commands.invoke(self.client, "loop_wait")  # inside the machine loop: the loop goes on serving STOP
-        while not done():
-            wait(event, 0.1)
+        while not done():  # inside the machine loop: the loop goes on serving STOP
+            self.commands.invoke(self.client, "loop_wait", event=event, timeout=0.1)
 
     def tell(self, text: str) -> None:
         """TEXT/OPER: the operator reads it (the page's program status, the terminal) and the journal keeps it."""

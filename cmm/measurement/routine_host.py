@@ -264,7 +264,7 @@ class StationRoutineHost:
         self._jobs.report(description, done, total, step)
 
     def wait(self, event: threading.Event, timeout: float) -> bool:
-        return self._api.invoke(self.client, "loop_wait")(event, timeout)
+        return self._api.invoke(self.client, "loop_wait", event=event, timeout=timeout)
 
     def select_probe(self, name: str) -> bool:
         if not self._select_probes:
