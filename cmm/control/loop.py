@@ -199,7 +199,7 @@ class MachineLoop:
         while self._running:
             self.poll()
             if self._idle():
-                rest(self.clock, self.poll_pause)  # on an uncapped simulator clock: no racing ahead at full CPU
+                rest(self.clock, self.machine.idle_poll_pause)  # on an uncapped simulator clock: no racing ahead at full CPU
             else:
                 self.clock.sleep(self.poll_pause)
 

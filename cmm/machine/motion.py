@@ -49,6 +49,10 @@ VIRTUAL_POLL_PAUSE = 0.004
 # themselves: a third less CPU per machine second again. A jog (dead-man, deflected-probe watch) and an idle
 # station keep 4 ms, so what the operator's hands feel is sampled as before.
 VIRTUAL_MOVE_POLL_PAUSE = 0.02
+# ... and every 20 ms while the station is idle (nothing moves, no job, homing or probe cycle): an idle
+# simulated station polled every 4 ms spent a tenth of a core on nothing; a command does not wait for the
+# loop (it goes to the modules at once), and the first sample of a jog comes back to 4 ms.
+VIRTUAL_IDLE_POLL_PAUSE = 0.02
 STEP_MIN_COUNTS = 1
 STEP_MAX_MM = 10.0
 
@@ -144,6 +148,13 @@ class Machine(Connection, Jogging):
             return POLL_PAUSE
         motion = self._motion
         return VIRTUAL_MOVE_POLL_PAUSE if motion is not None and motion.kind != "jog" else VIRTUAL_POLL_PAUSE
+
+    @property
+    def idle_poll_pause(self) -> float:
+        """Seconds between samples while the station is idle (see VIRTUAL_IDLE_POLL_PAUSE)."""
+        if self._poll_pause is not None or not self._virtual:
+            return self.poll_pause
+        return VIRTUAL_IDLE_POLL_PAUSE
 
     @poll_pause.setter
     def poll_pause(self, seconds: float) -> None:
