@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 from cmm.ui import pendant as pendant_mod
 from cmm.control.access import Control
 from cmm.ui.pendant import start_pendant_server
@@ -134,12 +135,12 @@ def assert_speeds(speeds, expected: float, rel: float, rec) -> None:
 def test_gamepad_moves_and_stops(page, server, station):
     """The left stick jogs: full right +X at jog_fast; with A held, up +Y at the fine speed; half up (A let go) at
     the cubic curve's much slower speed; back to centre or B stops. Speeds are position over the machine's clock
-    in the windows the page's refreshes kept the jog live (bs.JogRecord), stops counted from the page's release
+    in the windows the page's refreshes kept the jog live (bm.JogRecord), stops counted from the page's release
     reaching the station: how fast a loaded computer runs the browser is not judged."""
     open_pendant(page, server)
     start = station.machine.state.position.copy()
     fast, fine = station.config.speeds.jog_fast, station.config.speeds.jog_fine
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         page.evaluate("window.__pad.axes[0] = 1.0")  # left stick full right: +X at jog_fast
         bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 60.0, "the jog at jog_fast")
         t0 = station.machine.state.time
@@ -154,7 +155,7 @@ def test_gamepad_moves_and_stops(page, server, station):
 
     # hold A: fine (probing) speed; the cubic curve makes a half deflection much slower than half speed
     half = ((0.5 - 0.15) / 0.85) ** 3 * fast
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         y0 = station.machine.state.position[1]
         page.evaluate("window.__pad.buttons[0] = 1; window.__pad.axes[1] = -1.0")  # stick up: +Y
         bs.wait_until(lambda: station.machine.state.position[1] > y0 + 0.01, 60.0, "the fine jog")
@@ -187,7 +188,7 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
     open_pendant(page, server)
     start = station.machine.state.position.copy()
     slow, fast = station.config.speeds.jog_slow, station.config.speeds.jog_fast
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         page.keyboard.down("ArrowRight")
         bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 60.0, "the keyboard jog")
         t0 = station.machine.state.time
@@ -198,7 +199,7 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
         assert_speeds(rec.live_speeds(0, t0 + 0.05, released), slow, 0.03, rec)
     moved = station.machine.state.position - start
     assert moved[0] > 0.5 and abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-9
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         y0 = station.machine.state.position[1]
         page.keyboard.down("Shift")
         page.keyboard.down("ArrowUp")
@@ -210,7 +211,7 @@ def test_keyboard_jog_and_keyup_stop(page, server, station):
         page.keyboard.up("Shift")
         released = stopped_by_the_release(rec, let_go, "the fast jog's key-up")
         assert_speeds(rec.live_speeds(1, t0 + 0.1, released), fast, 0.03, rec)
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         z0 = station.machine.state.position[2]
         page.keyboard.down("PageDown")  # Z-
         bs.wait_until(lambda: station.machine.state.position[2] < z0 - 0.01, 60.0, "the Z jog")
@@ -229,7 +230,7 @@ def test_hold_button(page, server, station):
     open_pendant(page, server)
     box = page.locator(".pad .xp").bounding_box()
     centre = (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
-    with bs.JogRecord(station) as rec:
+    with bm.JogRecord(station) as rec:
         page.mouse.move(*centre)
         page.mouse.down()
         bs.wait_until(lambda: velocity(station)[0] > 0.9 * station.config.speeds.jog_slow, 60.0, "the button jog")
@@ -244,7 +245,7 @@ def test_hold_button(page, server, station):
         page.get_by_role("button", name=label, exact=True).click()
         assert page.locator(".speeds button.sel").inner_text() == label
         x0 = station.machine.state.position[0]
-        with bs.JogRecord(station) as rec:
+        with bm.JogRecord(station) as rec:
             page.mouse.move(*centre)
             page.mouse.down()
             try:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 from dmis_programs import APPROACH, FRONT_FACE, program
 
 _reason = bs.unavailable_reason()
@@ -66,7 +67,7 @@ def _hold(page, station, finger, name, done, what, then_s: float = 0.0, limit: f
     """``name`` held (on the simulator's hand pace) until ``done()``, then ``then_s`` s of machine time more."""
     network = station.sim.network
     pace = network.pace
-    network.set_pace(bs.HAND_PACE)
+    network.set_pace(bm.HAND_PACE)
     try:
         finger.down(name)
         try:

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
@@ -119,7 +120,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bs.screenshot(page, "routine-prompt")
         model = station.measurement
         # the operator's hands: each hit where the part really is, by the page's armed jog
-        taken = bs.manual_321_by_jog(page, station, SECOND_POSE, MANUAL, {
+        taken = bm.manual_321_by_jog(page, station, SECOND_POSE, MANUAL, {
             3: "Take 2 hits by hand on FRONT (secondary datum)", 5: "Take 1 hit by hand on LEFT (tertiary datum)"})
         bs.shows(page, "RUNNING")
         bs.wait_until(lambda: capp.routine.run_.progress.state in ("done", "failed"), 400.0, "the routine's end")
@@ -132,7 +133,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
         bore = progress.results["BORE"]
         assert_bore_radius(station, bore.result.geometry()["radius"])
         assert "SN-0002" in str(progress.session)
-        bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
+        bm.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
 
         box = page.get_by_role("button", name="Run on next part").bounding_box()
         assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= TABLET[0]

@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 from control_support import BreakablePort
 
 _reason = bs.unavailable_reason()
@@ -76,7 +77,7 @@ def assert_status_bar_on_screen(page, viewport, where):
 def measure_face(page, station, local_point, outward, hits_per_ring, timeout=90.0):
     """Auto-measure a face with what the Plan and Run buttons call (the buttons themselves are pressed once,
     for the top face, in the walk below)."""
-    bs.pick_face(page, station, local_point, outward)
+    bm.pick_face(page, station, local_point, outward)
     assert page.capp.measure.make_plan(hits_per_ring) is not None, page.capp.messages[-2:]
     before = set(station.measurement.features)
     assert page.capp.measure.run(wait=True), page.capp.messages[-2:]
@@ -93,7 +94,7 @@ def _started(page, station, before) -> bool:
 def automeasure_in_page(page, station, local_point, outward, hits_per_ring, proposal, shot=None):
     """Auto-measure a feature through the page: the pick a click on it sends, the hits per ring typed, Plan (the
     proposal and its path shown), Run (the feature measured and fitted against its CAD nominal)."""
-    bs.pick_face(page, station, local_point, outward)
+    bm.pick_face(page, station, local_point, outward)
     page.get_by_label("Hits (per ring)", exact=True).fill(str(hits_per_ring))
     page.get_by_label("Hits (per ring)", exact=True).press("Enter")
     bs.wait_until(lambda: page.capp.measure.gui["hits"].value == hits_per_ring, 30.0, "the typed hits per ring")
@@ -136,7 +137,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         status.get_by_text("You control the machine.").filter(visible=True).first.wait_for()
 
         # --- auto-measure in the browser: pick the top face, Plan (path drawn), Run
-        bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
+        bm.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
         bs.press_until(page, "Plan", lambda: page.capp.measure.plan is not None, "the plan")
         bs.shows(page, "4 hits · clearance plane")
@@ -212,7 +213,7 @@ def test_operator_walk_status_automeasure_tree_alignment_report(app, station):
         bs.wait_until(lambda: page.capp.features.retake is not None, 20.0, "the re-take armed")
         assert page.capp.features.retake[:2] == (top.id, old)
         pose = station.measurement.part.pose
-        bs.pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
+        bm.pick_face(page, station, pose[:3, :3].T @ (old_point - pose[:3, 3]), (0, 0, 1))
         bs.open_tab(page, "Machine", "Go to")
         bs.press(page, "Probe here")
         bs.wait_until(lambda: old not in station.measurement.hits, 90.0,

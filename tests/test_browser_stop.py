@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(600),
@@ -150,7 +151,7 @@ def test_the_page_takes_one_hit_per_touch(app, station):
         assert bs.finger_over(page, "hold Z −") == idle_at, "the jog button moved as the status changed"
         network = station.sim.network
         pace = network.pace
-        network.set_pace(bs.HAND_PACE)
+        network.set_pace(bm.HAND_PACE)
         try:
             page.mouse.down()
             try:

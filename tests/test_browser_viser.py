@@ -18,6 +18,7 @@ from control_support import wait_idle
 from netutil import SIM_PACED
 
 import browser_support as bs
+import browser_moves as bm
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(400),
@@ -271,7 +272,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     start = station.machine.state.position.copy()
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
     timeout = station.config.deadman_timeout
-    with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+    with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
         page.mouse.move(*button_centre(page, "hold X +"))
         page.mouse.down()
         try:
@@ -318,7 +319,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
                                                ("positioning", "hold X −", -1, station.config.speeds.jog_fast)):
         bs.press_until(page, mode, lambda: page.capp.speed_mode == mode, f"the {mode} speed chosen")
         x0 = station.machine.state.position[0]
-        with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+        with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
             page.mouse.move(*button_centre(page, button))
             page.mouse.down()
             try:
@@ -414,7 +415,7 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     assert qualified < station.config.speeds.jog_fast / 4
     hits = len(station.measurement.hits)
     page.mouse.move(*button_centre(page, "hold Z −"))
-    with bs.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
+    with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
         page.mouse.down()
         try:
             bs.wait_until(lambda: station.machine.state.position[2] < target[2] - 0.05, 60.0, "the armed jog down")
@@ -434,8 +435,8 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     near = np.flatnonzero((t >= t0) & (pos[:, 2] <= hit.machine[2] + 0.5))[0]  # 0.5 mm above the touch
     descent = (t >= t0) & (np.arange(len(t)) < near)
     td, zd = t[descent], pos[descent, 2]
-    fastest = max(abs(np.interp(w + bs.WINDOW, td, zd) - np.interp(w, td, zd)) / bs.WINDOW
-                  for w in np.arange(td[0], td[-1] - bs.WINDOW, bs.WINDOW / 2))
+    fastest = max(abs(np.interp(w + bm.WINDOW, td, zd) - np.interp(w, td, zd)) / bm.WINDOW
+                  for w in np.arange(td[0], td[-1] - bm.WINDOW, bm.WINDOW / 2))
     assert fastest < 1.1 * qualified, (fastest, qualified)
     live = rec.live_speeds(2, t0 + 0.3, td[-1])  # none when the page's holds never kept it live for a window
     assert not live or max(abs(np.array(live) / qualified - 1)) < 0.1, (np.round(live, 3), qualified, rec.summary())

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import browser_support as bs
+import browser_moves as bm
 
 _reason = bs.unavailable_reason()
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(1200),
@@ -80,7 +81,7 @@ def run_routine_on(page, station, pose, part_name):
     bs.wait_until(lambda: page.capp.routine.gui["part"].value == part_name, 30.0, "the part name at the station")
     bs.press(page, "Run on next part")
     page.get_by_text("WAITING FOR THE OPERATOR").filter(visible=True).first.wait_for(timeout=120_000)
-    taken = bs.manual_321_by_jog(page, station, pose, bs.SAMPLE_321_HITS, PROMPTS)  # by hand: the page's armed jog
+    taken = bm.manual_321_by_jog(page, station, pose, bm.SAMPLE_321_HITS, PROMPTS)  # by hand: the page's armed jog
     run = page.capp.routine
     bs.wait_until(lambda: run.run_ is not None and run.run_.progress.state in ("done", "failed", "cancelled"),
                   600.0, "the routine's end")
@@ -88,7 +89,7 @@ def run_routine_on(page, station, pose, part_name):
     bs.shows(page, "DONE")
     progress = run.run_.progress
     assert part_name in str(progress.session)
-    bs.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
+    bm.assert_taken_by_jog(station, progress.session, taken)  # its manual 3-2-1: the hits the page's jog took
     hits = station.measurement.hits
     for name in FEATURES:
         assert_true_feature(station, progress.results[name], pose, hits, f"{part_name} {name}")
@@ -137,14 +138,14 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         bs.screenshot(page, "walk-qualified")
 
         # --- Measure > Auto-measure: three planes, named; Align: 3-2-1 on them
-        bs.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
+        bm.pick_face(page, station, (20.0, 60.0, 40.0), (0, 0, 1))
         bs.open_tab(page, "Measure", "Auto-measure")
         bs.shows(page, "the top face at X")  # the tab says what was picked
-        _, top = bs.automeasure_in_page(page, station, 4, name="TOP", shot="walk-plan-top")
-        bs.pick_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0))
-        _, front = bs.automeasure_in_page(page, station, 3, name="FRONT")
-        bs.pick_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0))
-        _, left = bs.automeasure_in_page(page, station, 3, name="LEFT")
+        _, top = bm.automeasure_in_page(page, station, 4, name="TOP", shot="walk-plan-top")
+        bm.pick_face(page, station, (60.0, 0.0, 25.0), (0, -1, 0))
+        _, front = bm.automeasure_in_page(page, station, 3, name="FRONT")
+        bm.pick_face(page, station, (0.0, 40.0, 25.0), (-1, 0, 0))
+        _, left = bm.automeasure_in_page(page, station, 3, name="LEFT")
         bs.open_tab(page, "Align")
         page.capp.align.refresh()
         for key, f in (("p", top), ("s", front), ("t", left)):  # what choosing them in the dropdowns sets
@@ -156,12 +157,12 @@ def test_an_operators_day_on_the_laptop_then_the_next_part_from_a_tablet(app, st
         assert np.abs(model.part.pose[:3, 3] - TRUE_PART_POSE[:3, 3]).max() < 0.01  # the set-up found to um
 
         # --- the bore, the boss and the dome
-        bs.pick_ray(page, station, (30.0, 40.0, 20.0), (1, 0, 0))  # from the bore's axis to its wall
-        _, bore = bs.automeasure_in_page(page, station, 4, proposal="cylinder (bore)", name="BORE")
-        bs.pick_face(page, station, (80.0, 22.0, 47.0), (1, 0, 0))
-        _, boss = bs.automeasure_in_page(page, station, 3, proposal="cylinder (boss)", name="BOSS")
-        bs.pick_face(page, station, (70.0, 58.0, 49.0), (0, 0, 1))
-        _, dome = bs.automeasure_in_page(page, station, 4, proposal="sphere: the pole and 4 hits at 45°", name="DOME")
+        bm.pick_ray(page, station, (30.0, 40.0, 20.0), (1, 0, 0))  # from the bore's axis to its wall
+        _, bore = bm.automeasure_in_page(page, station, 4, proposal="cylinder (bore)", name="BORE")
+        bm.pick_face(page, station, (80.0, 22.0, 47.0), (1, 0, 0))
+        _, boss = bm.automeasure_in_page(page, station, 3, proposal="cylinder (boss)", name="BOSS")
+        bm.pick_face(page, station, (70.0, 58.0, 49.0), (0, 0, 1))
+        _, dome = bm.automeasure_in_page(page, station, 4, proposal="sphere: the pole and 4 hits at 45°", name="DOME")
         for f in (top, front, left, bore, boss, dome):  # part 1 against the simulator's true part
             assert_true_feature(station, model.features[f.id], TRUE_PART_POSE, model.hits, f"part 1 {f.name}")
 

@@ -8,7 +8,8 @@ import urllib.error
 import urllib.request
 
 import pytest
-from browser_support import JogRecord, stop_time, wait_until
+from browser_moves import JogRecord
+from browser_support import stop_time, wait_until
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
