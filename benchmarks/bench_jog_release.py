@@ -221,7 +221,7 @@ def run_station(url: str, sessions: str, big: str, loaders: int, link_process: s
     config = load()
     config = dataclasses.replace(config, link=dataclasses.replace(config.link, process=link_process))
     station = Station(config, port=url, session_dir=sessions).start(home=True)
-    app = StationApp(station, port=0, pendant_port=0)
+    app = StationApp(station.controller.commands, port=0, pendant_port=0)
     station.controller.move(None, [250.0, 200.0, 150.0], frame="machine").wait(60)
     cfg = station.config
     print("ready", app.port, app.pendant.ws_url, flush=True)

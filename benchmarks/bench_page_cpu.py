@@ -67,7 +67,7 @@ def measure(way: str, seconds: float, size: tuple[int, int], moving: bool = Fals
     with socket.socket() as sock:  # a free port on loopback for the page
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    app = StationApp(station, host="127.0.0.1", port=port, ask_name=False, shadows=shadows, pendant=False)
+    app = StationApp(station.controller.commands, host="127.0.0.1", port=port, ask_name=False, shadows=shadows, pendant=False)
     url = app.url + (f"?fixedDpr={view_dpr:g}" if view_dpr else "")
     try:
         with sync_playwright() as p:

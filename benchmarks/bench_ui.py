@@ -39,7 +39,7 @@ def main() -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     station = Station(session_dir=tempfile.mkdtemp()).start(home=True)
-    app = StationApp(station, host="127.0.0.1", port=port, pendant=False)
+    app = StationApp(station.controller.commands, host="127.0.0.1", port=port, pendant=False)
     received = [0]
     stop = threading.Event()
 

@@ -204,12 +204,12 @@ def sim_station(tmp_path_factory: Any, session: str) -> Iterator[Any]:
 def station_app(station: Any, **options: Any) -> Iterator[Any]:
     """The station's web UI on a free 127.0.0.1 port (``options``: StationApp's, e.g. ``pendant=False``);
     a module fixture's body: ``yield from bs.station_app(station, ...)`` (closed after the module)."""
-    from cmm.ui.app import StationApp
+    from stations import station_page
 
     options.setdefault("ask_name", False)  # no start dialog over the page unless the test is about it
     options.setdefault("shadows", False)  # software WebGL: the shadow maps and the environment map were most of
     # chromium's CPU (see app_url): an idle page's GPU process 0.18 of a core with the map, 0.08 without
-    ui = StationApp(station, host="127.0.0.1", port=free_port(), **options)
+    ui = station_page(station, host="127.0.0.1", port=free_port(), **options)
     yield ui
     ui.close()
 

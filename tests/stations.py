@@ -40,6 +40,16 @@ def _close_once(obj: Any) -> Any:
     return obj
 
 
+def station_page(station: Any, **ui: Any) -> Any:
+    """The station's page (StationApp, options ``ui``) on its command API, which is all the page gets; the station
+    is kept beside it as ``.station`` for the test, which reads the simulated machine and model there."""
+    from cmm.ui.app import StationApp
+
+    app = StationApp(station.controller.commands, **ui)
+    app.station = station
+    return app
+
+
 class Stations:
     """Builds stations and their front ends; :meth:`close` closes everything it built, the last built first."""
 
@@ -135,9 +145,7 @@ class Stations:
 
     def app(self, station: Any, **ui: Any) -> Any:
         """``station``'s viser app (StationApp with options ``ui``) on a free 127.0.0.1 port, closed before it."""
-        from cmm.ui.app import StationApp
-
-        return self._keep(StationApp(station, host="127.0.0.1", port=free_port(), **ui))
+        return self._keep(station_page(station, host="127.0.0.1", port=free_port(), **ui))
 
     def ipp(self, config: Any = None, *, empty_world: bool = False, **server: Any) -> tuple[Any, Any]:
         """(server, station): a started, unhomed station (``config``: the shipped one by default) on the I++ tests'

@@ -44,7 +44,7 @@ def control(station):
 @pytest.fixture
 def server(station, control):
     station.controller.use_policy_of(control)  # as the composition root (StationApp) wires it
-    handle = start_pendant_server(station, control, "127.0.0.1", 0)
+    handle = start_pendant_server(station.controller.commands, control, "127.0.0.1", 0)
     yield handle
     handle.close()
 

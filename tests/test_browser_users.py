@@ -24,7 +24,7 @@ def served(tmp_path_factory):
     from cmm.control import tls
     from cmm.control.roles import RolePolicy
     from cmm.control.users import UserStore, register_user_verbs
-    from cmm.ui.app import StationApp
+    from stations import station_page
     from netutil import free_port
 
     store = UserStore(tmp_path_factory.mktemp("users") / "users.toml")
@@ -35,7 +35,7 @@ def served(tmp_path_factory):
     sup.teach_block(station.measurement, sup.BLOCK_FACES[:5])
     station.controller.commands.roles = RolePolicy()  # as `cmm serve --users`
     register_user_verbs(station.controller.commands, store)
-    app = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False, users=store, shadows=False)
+    app = station_page(station, host="127.0.0.1", port=free_port(), pendant=False, users=store, shadows=False)
     cert = tls.certificate(tmp_path_factory.mktemp("tls"))
     proxies = tls_proxies(app, cert, "127.0.0.1", free_port(), None)
     try:

@@ -27,7 +27,7 @@ pytestmark = [pytest.mark.browser, pytest.mark.timeout(400),
 pytest.importorskip("viser")
 
 from cmm.sim.url import open_world, release as release_world  # noqa: E402
-from cmm.ui.app import StationApp  # noqa: E402
+from stations import station_page  # noqa: E402
 from cmm.ui.scene import SCALE  # noqa: E402
 
 VIEWPORT = (1400, 900)
@@ -78,7 +78,7 @@ def held_on_a_slow_clock(world):
 
 @pytest.fixture(scope="module")
 def app(station):
-    ui = StationApp(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False, shadows=False)
+    ui = station_page(station, host="127.0.0.1", port=bs.free_port(), pendant_port=0, ask_name=False, shadows=False)
     yield ui
     ui.close()
 

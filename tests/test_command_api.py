@@ -313,13 +313,13 @@ def test_the_same_probe_through_the_ippdme_server_the_pendant_and_the_viser_page
 
     from cmm.ippdme.client import IppClient
     from cmm.ippdme.server import IppServer
-    from cmm.ui.app import StationApp
+    from stations import station_page
     from netutil import free_port
 
     pose = station.measurement.part.pose
     top = (pose @ np.array([20.0, 15.0, 40.0, 1.0]))[:3]  # the sample part's top face, part (20, 15, 40)
     speed = station.config.speeds.probing
-    app = StationApp(station, host="127.0.0.1", port=free_port(), pendant_port=0)
+    app = station_page(station, host="127.0.0.1", port=free_port(), pendant_port=0)
     ipp = IppServer(StationBackend(station.controller.commands), "127.0.0.1", 0).start()
     hits = {}
     try:

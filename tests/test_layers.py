@@ -423,11 +423,8 @@ API_ONLY = {"ippdme", "opcua"}
 # below), but import plain pieces of the layers under them: the page its drawings' metrology, DMIS the part
 # programs' runner and the measurement's words
 API_ONLY_PENDING = {"ui", "dmis"}
-# the tests' hook: the page's entry keeps the station a test hands in (no panel reads it)
-API_ONLY_HOOKS = {("ui/app.py", "self.station"), ("ui/app.py", "api.controller"), ("ui/pendant.py", "api.controller"),
-                  ("ui/app.py", "api.controller.commands"), ("ui/pendant.py", "api.controller.commands"),
-                  # the tab's Calibration panel (cmm.ui.panel_calibration), not the calibration service
-                  ("ui/panels.py", "self.calibration"), ("ui/panels.py", "self.calibration.build"),
+# not the calibration service: the tab's Calibration panel (cmm.ui.panel_calibration), named calibration too
+API_ONLY_HOOKS = {("ui/panels.py", "self.calibration"), ("ui/panels.py", "self.calibration.build"),
                   ("ui/panels.py", "self.calibration.refresh")}
 BEHIND_THE_API = ("station", "controller", "measurement", "calibration")
 

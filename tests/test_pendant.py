@@ -33,7 +33,7 @@ def station(stations):
 
 def _serve(station, control):
     station.controller.use_policy_of(control)  # as the composition root (StationApp) wires it
-    return start_pendant_server(station, control, "127.0.0.1", 0)
+    return start_pendant_server(station.controller.commands, control, "127.0.0.1", 0)
 
 
 @pytest.fixture

@@ -335,10 +335,10 @@ def test_every_edit_of_the_routine_tab(taught):
     """The Routine tab's edits on a taught routine (no page: the panel's actions): rename, reorder, skip, delete,
     insert (feature, alignment, construction, report), tolerance, clearance, nominal, hit plan, one hit, probe,
     manual alignment; a wrong entry is refused with a sentence and changes nothing."""
-    from cmm.ui.app import StationApp
+    from stations import station_page
 
     st, routine = taught
-    ui = StationApp(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    ui = station_page(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
     try:
         capp = ui.add_client(client_id="operator", is_local=True)
         panel = capp.routine
@@ -407,10 +407,10 @@ def test_the_routine_tab_shows_each_steps_settings_and_fills_the_edit_fields_wit
     nominal, the tolerance, the clearance), and the list shows each feature's settings after an edit, without
     saving the file."""
     import ui_support
-    from cmm.ui.app import StationApp
+    from stations import station_page
 
     st, routine = taught
-    ui = StationApp(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
+    ui = station_page(st, host="127.0.0.1", port=free_port(), pendant=False, ask_name=False)
     try:
         with ui_support.viser_tab(ui, lambda c: "hits" in c.routine.gui) as (_ws, capp):
             panel = capp.routine

@@ -45,7 +45,7 @@ def station(module_stations, tmp_path_factory):
 
 
 def test_program_runs_are_parts_of_a_series_and_the_trends_tab_charts_them(station, tmp_path):
-    from cmm.ui.app import StationApp
+    from stations import station_page
 
     program = _program(station.measurement.part)
     run = run_on(station.controller, station.measurement, program, serial="P1")
@@ -65,7 +65,7 @@ def test_program_runs_are_parts_of_a_series_and_the_trends_tab_charts_them(stati
     flat = t.history("dome check", "top_plane / flatness")
     assert np.all(np.isnan(flat.lower)) and np.allclose(flat.upper, 0.02)
 
-    app = StationApp(station, host="127.0.0.1", port=free_port(), pendant=False)
+    app = station_page(station, host="127.0.0.1", port=free_port(), pendant=False)
     try:
         tab = app.add_client(client_id="viewer", is_local=False)  # an observer may read the charts
         panel = tab.trends

@@ -146,7 +146,7 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(stations, tmp_path):
     control = Control()
     station.controller.use_policy_of(control)
     station.controller.commands.roles = RolePolicy()
-    server = start_pendant_server(station, control, "127.0.0.1", 0, ssl=cert.ssl_context(), users=store)
+    server = start_pendant_server(station.controller.commands, control, "127.0.0.1", 0, ssl=cert.ssl_context(), users=store)
     try:
         assert server.ws_url.startswith("wss://")
         trust = ssl.create_default_context(cafile=str(cert.cert_path))

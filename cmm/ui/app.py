@@ -38,13 +38,10 @@ class StationApp:
                  control: Control | None = None, pendant: bool = True, pendant_port: int | None = None,
                  tolerance: float = DEFAULT_TOLERANCE, verbose: bool = False,
                  allow_hosts: tuple[str, ...] = (), ask_name: bool = True, shadows: bool = True,
-                 users: Any = None, tls: Any = None, station: Any = None) -> None:
+                 users: Any = None, tls: Any = None) -> None:
         import viser
 
-        if not hasattr(api, "invoke"):  # a station handed in (the tests and benchmarks building one): its API
-            station, api = api, api.controller.commands
         self.api = api  # all the page gets: every panel reads with its queries and changes with its verbs
-        self.station = station  # the tests' hook only (they read the simulated station beside the page); no panel reads it
         self.ask_name = ask_name  # each new tab opens with the "Who is operating?" dialog
         self.users = users  # cmm.control.users.UserStore: each tab logs in (the start dialog); None: no login
         self.tls = tls  # cmm.control.tls.Certificate: the pendant serves https / wss with it

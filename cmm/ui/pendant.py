@@ -175,8 +175,6 @@ class PendantServer:
     def __init__(self, api: Any, control: Control, host: str = "127.0.0.1", port: int = 0, *,
                  state_hz: float = STATE_HZ, static_dir: Path | None = None,
                  origins: OriginPolicy | None = None, ssl: Any = None, users: Any = None) -> None:
-        if not hasattr(api, "invoke"):  # transitional: a station handed in (the tests building one)
-            api = api.controller.commands
         self.ssl = ssl  # an ssl.SSLContext: the page and its WebSocket over https / wss (cmm.control.tls)
         self.users = users  # cmm.control.users.UserStore: connections log in; None: the local, no-login mode
         self.control = control
