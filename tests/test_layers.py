@@ -46,8 +46,8 @@ ALLOWED = {
     "ippdme": {"api", "control"},
     "opcua": {"api", "control"},
     # DMIS programs: a front end too; program: the part programs' one runner (cmm.program.runner)
-    "dmis": {"api", "control", "station", "measurement", "metrology", "session", "program"},
-    "ui": {"api", "control", "station", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
+    "dmis": {"api", "control", "measurement", "metrology", "session", "program"},
+    "ui": {"api", "control", "measurement", "journal", "metrology", "session", "program", "ippdme", "dmis",
            "opcua"},  # hosts I++ and DMIS runs
     # every sub-command is a module of cmm/cli (a front end: it translates options into the capability's calls)
     "cli": {"api", "station", "control", "ui", "sim", "session", "calibration", "metrology", "machine", "nmc", "dmis",
