@@ -39,17 +39,17 @@ def sim_machine(stations):
 # page (and a held jog runs at a hand's pace), which a simulator test beside it fills, whereas three pages at once
 # overload two cores. Files not listed follow in collection order. Scheduling only: every file runs alone as well.
 LONGEST_FIRST = (
-    "test_routine.py", "test_browser_walk.py", "test_calibration_geometry.py", "test_dmis.py",
-    "test_browser_routine.py", "test_dmis_routine_export.py", "test_browser_viser.py",
-    "test_browser_station.py", "test_qif.py", "test_browser.py", "test_control.py", "test_browser_align_layout.py",
-    "test_link_process.py", "test_browser_hands.py", "test_browser_stop.py", "test_notify.py",
-    "test_dmis_nist_part.py", "test_calibrate_tcp.py", "test_browser_users.py", "test_path_preview.py",
-    "test_browser_probes.py", "test_ippdme_nist.py", "test_program.py", "test_browser_view_keys.py",
-    "test_short_cylinder.py", "test_calibration_probe.py", "test_link_faults.py", "test_session_station.py",
-    "test_kill9.py", "test_stop_ends_runs.py", "test_align_wizard.py", "test_session_postgres.py", "test_cmm_sim.py",
-    "test_pendant.py", "test_one_hit.py", "test_fit_criteria.py", "test_calibration_probes.py",
-    "test_ippdme_server.py", "test_browser_colour_map.py", "test_calibration_records.py", "test_browser_dmis.py",
-    "test_dmis_statements.py", "test_dmis_vendor.py", "test_machine_probing.py", "test_auto_measure_cone.py", "test_link_tolerance.py",
+    "test_browser_walk.py", "test_routine.py", "test_browser_viser.py", "test_link_tolerance.py", "test_browser.py",
+    "test_link_process.py", "test_browser_station.py", "test_calibration_geometry.py", "test_browser_routine.py",
+    "test_dmis.py", "test_browser_stop.py", "test_dmis_routine_export.py", "test_browser_hands.py",
+    "test_calibrate_tcp.py", "test_browser_users.py", "test_qif_reevaluate.py", "test_browser_align_layout.py",
+    "test_ippdme_nist.py", "test_browser_probes.py", "test_program.py", "test_browser_view_keys.py", "test_qif.py",
+    "test_browser_colour_map.py", "test_kill9.py", "test_dmis_nominals.py", "test_stop_ends_runs.py",
+    "test_notify.py", "test_session_station.py", "test_cmm_sim.py", "test_auto_measure_cone.py",
+    "test_session_postgres.py", "test_calibration_probe.py", "test_pendant.py", "test_control.py",
+    "test_dmis_nist_part.py", "test_short_cylinder.py", "test_machine_motion.py", "test_dmis_vendor.py",
+    "test_dmis_statements.py", "test_ippdme_server.py", "test_path_preview.py", "test_link_faults.py",
+    "test_machine_probing.py", "test_calibration_probes.py", "test_calibration_records.py",
 )
 
 
