@@ -43,8 +43,14 @@ def test_a_subscriber_hears_the_machine_move_at_a_bounded_rate_and_nothing_while
         assert set(first) == {"position", "job"}  # the first delivery is the whole snapshot
         assert first["position"] == pytest.approx(list(start), abs=1e-9)
         target = [start[0] + 40.0, start[1], start[2]]
+        # the move at the wall clock's pace (about a second), so a 20 Hz subscriber hears it on its way however
+        # fast the uncapped simulator would run it
+        station.sim.network.set_pace(1.0)
         t0 = time.monotonic()
-        assert api.call(op, "move", {"target": target, "frame": "machine"}, wait=True, timeout=300).ok
+        try:
+            assert api.call(op, "move", {"target": target, "frame": "machine"}, wait=True, timeout=300).ok
+        finally:
+            station.sim.network.set_pace(None)
         _until(lambda: any(c.get("position") == pytest.approx(target, abs=1e-3) for _, c in heard))
         t1 = time.monotonic()
         with lock:

@@ -451,3 +451,22 @@ def test_observer_is_told_the_holders_name(server, station, control, client):
         assert state["holder_name"] == "Maria"
     finally:
         control.release("viser-named")
+
+
+def test_a_stop_whose_thread_fails_hands_the_error_to_the_waiting_page():
+    """The pendant runs a stop on a thread of its own and awaits it; when that thread fails, the awaiting
+    coroutine gets the error. (The callback binds the error when it is scheduled: an except clause's name is
+    deleted when its block ends, so a callback the loop ran after that found nothing and the page's STOP would
+    wait forever; a race the loop usually won.)"""
+    import asyncio
+    import types
+
+    def boom():
+        raise RuntimeError("the modules did not answer")
+
+    async def page_waits():
+        server = types.SimpleNamespace(_loop=asyncio.get_running_loop())
+        await asyncio.wait_for(pendant_mod.PendantServer._own_thread(server, boom), timeout=30)
+
+    with pytest.raises(RuntimeError, match="did not answer"):
+        asyncio.run(page_waits())

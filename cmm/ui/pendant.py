@@ -431,7 +431,7 @@ class PendantServer:
                 pressed = self.commands.invoke(self._who(session), "press", verb=kind)  # the core checks may_stop
             except Refused as exc:
                 return await self._error_msg(session, str(exc))
-            except Exception as exc:  # noqa: BLE001 - then the verb, on its own thread, as before
+            except Exception:  # noqa: BLE001 - then the verb, on its own thread, as before
                 log.exception("the direct %s failed", kind)
                 pressed = None
             report = await self._own_thread(self._stop_machine, self._who(session), kind, pressed)
@@ -572,7 +572,8 @@ class PendantServer:
             try:
                 result = fn(*args)
             except BaseException as exc:  # noqa: BLE001 - handed to the awaiting coroutine
-                loop.call_soon_threadsafe(lambda: future.done() or future.set_exception(exc))
+                # bound now: the name ``exc`` is deleted when the except block ends, before the loop runs this
+                loop.call_soon_threadsafe(lambda err=exc: future.done() or future.set_exception(err))
             else:
                 loop.call_soon_threadsafe(lambda: future.done() or future.set_result(result))
         threading.Thread(target=run, name="pendant-stop", daemon=True).start()
