@@ -6,9 +6,10 @@ tab, and runs two light threads: the probe updater (the probe node at most 25 ti
 following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Each tab's
 status bar and DRO, and its read-outs that are plain snapshots, follow the station through the API's subscriptions
 (``api.subscribe``, one hub thread: only what changed is delivered); the refresher redraws the bar from their last
-snapshot and the other read-outs from their queries. It reads the station only through the command API's queries
-(the model's events too: the ``watch_model`` query) and changes it only through its verbs. Who may move the machine is decided by the access
-:class:`~cmm.control.access.Control`, shared with the pendant page (the ``use_policy`` verb).
+snapshot and the other read-outs from their queries. It reads the station only through the command API's
+queries (the model's events too: the ``watch_model`` query) and changes it only through its verbs. Who may move
+the machine is decided by the access :class:`~cmm.control.access.Control`, shared with the pendant page (the
+``use_policy`` verb).
 """
 
 from __future__ import annotations

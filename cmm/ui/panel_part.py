@@ -70,7 +70,8 @@ class PartPanel:
     def show(self, snapshot: dict[str, Any] | None) -> None:
         """Draw the read-out from the read-outs' subscription."""
         if snapshot is not None:
-            self.ctx.set("part:text", "content", part_text(snapshot["part"], snapshot["simulator"]), self.gui.get("part"))
+            self.ctx.set("part:text", "content", part_text(snapshot["part"], snapshot["simulator"]),
+                         self.gui.get("part"))
 
     def simulator(self) -> dict | None:
         """The API's ``simulator`` query: None on a real machine, else where the part truly lies."""

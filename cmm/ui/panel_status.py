@@ -19,8 +19,6 @@ import time
 from types import SimpleNamespace
 from typing import Any, Callable
 
-import numpy as np
-
 from .frames import alignment_text
 from .context import PanelContext
 from .feed import Feed
@@ -237,8 +235,9 @@ class StatusPanel:
         self._lock = threading.Lock()  # the hub's deliveries and the refresher both redraw
 
     def subscribe(self, on_error: Callable[[str, str], None]) -> Feed:
-        """Follow the station through the API's subscription, as this tab's client (the queries are open to
-        observers); ``close()`` ends it."""
+        """Follow the station through the API's subscription, as this tab's client when it connected (the bar's
+        queries are open to every client, an anonymous observer too: a log-in later changes nothing they answer);
+        ``close()`` ends it."""
         self.feed = Feed(self.ctx.api, self.ctx.who(), STATUS_QUERIES, STATUS_RATE, lambda _snap: self.refresh(),
                          on_error)
         return self.feed
