@@ -97,3 +97,12 @@ def test_a_failing_query_is_told_once_and_the_last_good_value_stays():
     finally:
         feed.close()
     assert api._subscriptions.count() == 0
+
+
+def test_the_pages_close_ends_its_tabs_subscriptions(app):
+    hub = app.api._subscriptions
+    before = hub.count()
+    with ui_support.viser_tab(app) as (_ws, capp):
+        assert hub.count() == before + 2
+        app.close()  # the page closes while the tab is open
+        assert hub.count() == before and capp.status.feed.closed and capp.ctx.readouts.closed
