@@ -4,8 +4,9 @@
 actions as plain methods: the machine's commands, Go to and pick in :mod:`.panel_machine`, the jog in
 :mod:`.panel_jog`, the operator and the control in :mod:`.panel_operator`, the Diagnostics in
 :mod:`.panel_diagnostics`, the Align, Measure, Routine, Report and Setup tabs in theirs), lays them out in the
-side panel's tabs (``build()``) and copies what the API's queries say into their read-outs a few times a second
-(``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
+side panel's tabs (``build()``), subscribes to the API's queries its status bar and its plain read-outs draw from
+(``subscribe()``: each delivery redraws them; ``close()`` when the tab goes) and copies what the other queries say
+into their read-outs a few times a second (``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
 ...), so the tests drive exactly what a button does without a browser.
 
 Machine commands go to the command API (:mod:`cmm.api`) as this client
@@ -39,13 +40,13 @@ from .panel_trends import TrendsPanel
 
 __all__ = ["ClientApp", "hold_worker_script", "machine_markdown", "probe_markdown"]
 
-# The tab strips a little tighter than viser's (0.9em a side) so the six top tabs fit one row of the wide panel;
-# dock tabs (laptop) and Mantine tabs (viser's narrow-screen layout) alike.
 # the read-outs that are plain snapshots, on a subscription of their own at the read-outs' rate: Machine > Probe's
 # data and Setup > Part's text (the part and, on the simulator, where it truly lies)
 READOUT_QUERIES: dict[str, dict[str, Any]] = {"probe_data": {}, "part": {}, "simulator": {}}
 READOUT_RATE = 5.0
 
+# The tab strips a little tighter than viser's (0.9em a side) so the six top tabs fit one row of the wide panel;
+# dock tabs (laptop) and Mantine tabs (viser's narrow-screen layout) alike.
 TABS_CSS = """<style>
 [role=tablist] > [data-dock-tab] { padding: 0 0.6em !important; }
 .mantine-Tabs-tab { padding-left: 0.6em !important; padding-right: 0.6em !important; }
@@ -99,8 +100,8 @@ class ClientApp:
         self.colour_map = ColourMapPanel(self.ctx)
         self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
-        self._closed = False
         self.ctx.frame_shown = self.machine.set_goto_frame
+        self._closed = False  # the tab went: its subscriptions are closed (and none is opened any more)
 
     @property
     def api(self) -> Any:
