@@ -502,6 +502,31 @@ def test_panels_on_the_api_never_reach_the_station():
     assert all((ROOT / f).is_file() for f in PANELS_ON_THE_API), "a panel named here no longer exists"
 
 
+# what the page draws from its subscriptions (cmm/ui/feed.py) instead of polling the queries: the status bar (its
+# 20 Hz redraw too) and the read-outs the read-outs' subscription delivers; (file, class or None, function or None)
+SUBSCRIBERS = (("ui/panel_status.py", "StatusPanel", None), ("ui/panels.py", "ClientApp", "fast_refresh"),
+               ("ui/panels.py", "ClientApp", "_readouts"), ("ui/panel_machine.py", "MachinePanel", "show_probe"),
+               ("ui/panel_part.py", "PartPanel", "show"))
+POLLS = ("query", "invoke", "model", "call")  # a query asked (ctx.query, api.invoke, ctx.model, api.call)
+
+
+def test_the_status_bar_and_the_subscribed_read_outs_poll_no_query():
+    """The status bar, the refresher's 20 Hz pass over it and the read-outs drawn from the read-outs' subscription
+    call no query (``query(...)``, ``invoke(...)``, ``model()``) themselves: they draw from the tab's subscriptions
+    (a tab without a page reads the bar's queries once per ask, through ``status_snapshot``)."""
+    import ast
+
+    bad = []
+    for f, cls, fn in SUBSCRIBERS:
+        for klass in (n for n in ast.walk(_tree(ROOT / f)) if isinstance(n, ast.ClassDef) and n.name == cls):
+            scopes = [n for n in klass.body if isinstance(n, ast.FunctionDef) and fn in (None, n.name)]
+            assert scopes, f"{f}: {cls}.{fn} no longer exists"
+            bad += [f"{f}:{call.lineno} {ast.unparse(call)}" for scope in scopes for call in ast.walk(scope)
+                    if isinstance(call, ast.Call)
+                    and (getattr(call.func, "attr", None) or getattr(call.func, "id", None)) in POLLS]
+    assert not bad, "polling what the subscriptions deliver:\n" + "\n".join(bad)
+
+
 MODULE_LINES = 800
 CLASS_LINES = 500
 

@@ -98,7 +98,14 @@ def register_queries(api: Any, measurement: Any, calibration: Any = None) -> Non
                      alignment_name=str(measurement.alignment_name or ""), probe_name=str(measurement.probe_name or ""),
                      state=measurement.state), {},
                  "in process: the part, the alignment in force and the probe in use (a ModelSnapshot without the "
-                 "hits, the features and the lock): what the DRO, the frame labels and the pick show at their rate",
+                 "hits, the features and the lock): what the frame labels and the pick show at their rate",
+                 query=True)
+    api.register("part_alignment", lambda client: {
+                     "part": None if measurement.part is None else str(measurement.part.name),
+                     "aligned": bool(measurement.aligned), "alignment": str(measurement.alignment_name or ""),
+                     "probe": str(measurement.probe_name or "")}, {},
+                 "part_frame as JSON (what the status bar subscribes to): the part's name (None without a part), "
+                 "aligned (the pose in force came from an alignment), the alignment's name and the probe in use",
                  query=True)
 
     def probing_setup(client: Any) -> dict[str, Any]:

@@ -3,10 +3,13 @@
 :class:`StationApp` starts the viser server, draws the scene
 (:mod:`cmm.ui.scene`), builds a :class:`~cmm.ui.panels.ClientApp` per browser
 tab, and runs two light threads: the probe updater (the probe node at most 25 times a second, the
-following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). It reads the
-station only through the command API's queries (the model's events too: the ``watch_model`` query) and changes it
-only through its verbs. Who may move the machine is decided by the access
-:class:`~cmm.control.access.Control`, shared with the pendant page (the ``use_policy`` verb).
+following-error plot sampled at 50 Hz) and the panel refresher (20 Hz status bar, 5 Hz read-outs). Each tab's
+status bar and DRO, and its read-outs that are plain snapshots, follow the station through the API's subscriptions
+(``api.subscribe``, one hub thread: only what changed is delivered); the refresher redraws the bar from their last
+snapshot and the other read-outs from their queries. It reads the station only through the command API's
+queries (the model's events too: the ``watch_model`` query) and changes it only through its verbs. Who may move
+the machine is decided by the access :class:`~cmm.control.access.Control`, shared with the pendant page (the
+``use_policy`` verb).
 """
 
 from __future__ import annotations
@@ -116,6 +119,8 @@ class StationApp:
     def close(self) -> None:
         self._stop.set()
         self.updater.close()
+        for capp in list(self.clients.values()):
+            capp.close()  # the tabs' subscriptions
         for thread in (self._refresher,):
             if thread.is_alive():
                 thread.join(timeout=2)
@@ -206,6 +211,7 @@ class StationApp:
         with self._clients_lock:
             capp = self.clients.pop(client.client_id, None)
         if capp is not None:
+            capp.close()  # its subscriptions end
             for token in (capp.pendant_token, capp.hold_token):
                 if token and self.pendant is not None:
                     self.pendant.revoke(token)
@@ -296,7 +302,8 @@ class StationApp:
             tick += 1
             clients = list(self.clients.items())
             for cid, capp in clients:
-                self._guarded(f"tab {cid} status bar", capp.fast_refresh)  # the DRO at 20 Hz (sent when changed)
+                # the bar's own state from its subscription's last snapshot (the DRO itself follows the deliveries)
+                self._guarded(f"tab {cid} status bar", capp.fast_refresh)
             self._guarded("scene", self.redraw)
             if tick % READOUT_EVERY == 0:
                 for cid, capp in clients:
@@ -311,3 +318,12 @@ class StationApp:
             if key not in self._refresh_failures:
                 self._refresh_failures.add(key)
                 log.exception("refreshing the %s failed (logged once; the refresher goes on)", what)
+
+    def refresh_failed(self, what: str, message: str) -> None:
+        """A query a tab subscribes to failed (delivered once as its error): counted and logged as a refresh that
+        failed; the tab keeps showing the last good value."""
+        self.refresh_errors += 1
+        key = (what, "subscription", message)
+        if key not in self._refresh_failures:
+            self._refresh_failures.add(key)
+            log.error("refreshing the %s failed: %s (logged once; the subscription goes on)", what, message)

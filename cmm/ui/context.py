@@ -62,6 +62,7 @@ class PanelContext:
         self.selected_feature: int | None = None
         self.manual_probe = False  # jogs are armed: a trigger takes a manual hit
         self._shown: dict[str, Any] = {}
+        self.readouts: Any = None  # the tab's read-outs subscription (cmm.ui.feed.Feed; a tab with a page)
         # installed by the tab
         self.stop: Callable[[], Any] = _none
         self.emergency_stop: Callable[[], Any] = _none

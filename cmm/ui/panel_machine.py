@@ -288,7 +288,10 @@ class MachinePanel:
     def build_probe(self, gui: Any) -> None:
         """Machine > Probe: the probe's data, the last contact and the hits (delete, undo)."""
         g = self.gui
-        g["probe_data"] = gui.add_markdown(probe_markdown(self.ctx.query))
+        feed = self.ctx.readouts
+        g["probe_data"] = gui.add_markdown(probe_markdown(self.ctx.query if feed is None else feed.query))
+        if feed is not None:  # a delivery that came while the widget was made
+            self.show_probe(feed.snapshot())
         g["contact"] = gui.add_markdown("*no hit yet*")
         g["hits"] = gui.add_markdown("")
         g["hit_id"] = gui.add_number("Hit", 1, min=1, step=1)
@@ -298,9 +301,12 @@ class MachinePanel:
     def refresh(self) -> None:
         """The axes' table, the Go to label (the alignment may change), the probe's data, the contact and the hits."""
         query = self.ctx.query
+        # the axes' status words are the machine's (AxisState.words), which the state query's JSON does not carry,
+        # and the I++ DME line an in-process object: read here at the read-outs' rate, not subscribed to
         self.ctx.set("machine", "content", machine_markdown(query))
         self.ctx.set("target:label", "label", self.target_label(), self.gui.get("target"))  # the alignment may change
-        self.ctx.set("probe_data", "content", probe_markdown(query))  # a qualification applied shows at once
+        if self.ctx.readouts is None:  # a tab with a page has the probe's data from its subscription (show_probe)
+            self.ctx.set("probe_data", "content", probe_markdown(query))
         model = self.ctx.model()
         hit = model.last_hit
         if hit is not None:
@@ -312,6 +318,11 @@ class MachinePanel:
         rows = [f"{hid}: ({h.point[0]:.3f}, {h.point[1]:.3f}, {h.point[2]:.3f}) "
                 f"{devs.get(hid, float('nan')) * 1000:+.1f} um {h.mode}" for hid, h in hits[-12:]]
         self.ctx.set("hits", "content", "hits (last 12, machine coordinates):\n\n" + ("\n\n".join(rows) if rows else "*none*"))
+
+    def show_probe(self, snapshot: dict[str, Any] | None) -> None:
+        """Machine > Probe's data from the read-outs' subscription (a qualification applied shows at once)."""
+        if snapshot is not None:
+            self.ctx.set("probe_data", "content", probe_markdown(lambda name: snapshot[name]))
 
     def refresh_pick(self) -> None:
         if self.ctx.picked is not None:

@@ -33,6 +33,16 @@ def pose_text(pose: Any) -> str:
             f"{math.degrees(math.atan2(p[1, 0], p[0, 0])):.3f}° about Z")
 
 
+def part_text(part: dict | None, simulator: dict | None) -> str:
+    """Setup > Part's read-out from the ``part`` and ``simulator`` queries (JSON)."""
+    if part is None:
+        return "*No part loaded: load a part file (STEP, IGES or a mesh).*"
+    lines = [f"**{part['name']}**", "", part["description"], "", f"station: part origin at {pose_text(part['pose'])}"]
+    if simulator is not None:
+        lines.append(f"\nsimulator: the part lies at {pose_text(simulator['part_pose'])}")
+    return "\n".join(lines)
+
+
 def _xyzrz(pose: Any) -> tuple[float, float, float, float]:
     p = np.asarray(pose, float)
     return float(p[0, 3]), float(p[1, 3]), float(p[2, 3]), math.degrees(math.atan2(p[1, 0], p[0, 0]))
@@ -50,15 +60,18 @@ class PartPanel:
         """The API's ``part`` query: None without a part, else its name, pose, description and file."""
         return self.ctx.commands.invoke(self.ctx.who(), "part")
 
-    def text(self) -> str:
-        part = self.part()
-        if part is None:
-            return "*No part loaded: load a part file (STEP, IGES or a mesh).*"
-        lines = [f"**{part['name']}**", "", part["description"], "", f"station: part origin at {pose_text(part['pose'])}"]
-        sim = self.simulator()
-        if sim is not None:
-            lines.append(f"\nsimulator: the part lies at {pose_text(sim['part_pose'])}")
-        return "\n".join(lines)
+    def text(self, snapshot: dict[str, Any] | None = None) -> str:
+        """The part's read-out: from the read-outs' subscription's ``snapshot`` (``part``, ``simulator``), or
+        asked now."""
+        if snapshot is None:
+            snapshot = {"part": self.part(), "simulator": self.simulator()}
+        return part_text(snapshot["part"], snapshot["simulator"])
+
+    def show(self, snapshot: dict[str, Any] | None) -> None:
+        """Draw the read-out from the read-outs' subscription."""
+        if snapshot is not None:
+            self.ctx.set("part:text", "content", part_text(snapshot["part"], snapshot["simulator"]),
+                         self.gui.get("part"))
 
     def simulator(self) -> dict | None:
         """The API's ``simulator`` query: None on a real machine, else where the part truly lies."""
@@ -134,7 +147,10 @@ class PartPanel:
         g = self.gui
         part = self.part()
         x, y, z, rz = _xyzrz(part["pose"]) if part is not None else (190.0, 150.0, 0.0, 0.0)
-        g["part"] = gui.add_markdown(self.text())
+        feed = self.ctx.readouts
+        g["part"] = gui.add_markdown(self.text(None if feed is None else feed.snapshot()))
+        if feed is not None:  # a delivery that came while the widget was made
+            self.show(feed.snapshot())
         upload = gui.add_upload_button("Load part file", hint="STEP or IGES (exact surfaces), STL, OBJ, PLY, 3MF, GLB",
                                        mime_type=",".join(ACCEPT))
         upload.on_upload(lambda e: self.upload(e.target.value.name, e.target.value.content))
@@ -151,4 +167,5 @@ class PartPanel:
                 lambda _: self.next_part(*(float(v) for v in g["move"].value), float(g["turn"].value)))
 
     def refresh(self) -> None:
-        self.ctx.set("part:text", "content", self.text(), self.gui.get("part"))
+        if self.ctx.readouts is None:  # a tab with a page draws it from its subscription (show)
+            self.ctx.set("part:text", "content", self.text(), self.gui.get("part"))

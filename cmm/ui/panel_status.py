@@ -7,7 +7,8 @@ stopped / fault with its reason), who holds control, link health (samples
 per second), the DRO in machine or part coordinates (switchable; part
 coordinates through the alignment), and the probe: armed for manual hits,
 triggered, the tip in use and its qualification. It is re-sent only when
-its text changes.
+its text changes. A tab with a page draws it from a subscription to the API's queries (:data:`STATUS_QUERIES`,
+:mod:`cmm.ui.feed`), never by polling them.
 """
 
 from __future__ import annotations
@@ -15,12 +16,12 @@ from __future__ import annotations
 import html
 import threading
 import time
+from types import SimpleNamespace
 from typing import Any, Callable
-
-import numpy as np
 
 from .frames import alignment_text
 from .context import PanelContext
+from .feed import Feed
 from .model_view import reader
 
 FRAMES = ("Machine", "Part")
@@ -96,12 +97,21 @@ MODE_COLOURS = {"idle": "#2e7d32", "moving": "#1565c0", "jogging": "#1565c0", "p
 CYCLE_MODES = ("idle", "moving", "probing")
 
 
-def machine_mode(cs: Any) -> tuple[str, str, bool]:
-    """(mode, reason, link ok) from the control core's state (the ``state`` query: not homed / idle / moving /
-    probing / fault ...)."""
-    mode = getattr(cs.mode, "value", cs.mode)
-    reason = cs.reason or (cs.activity if mode in ("moving", "probing", "homing") else "")
-    return str(mode), str(reason or ""), bool(cs.link_ok)
+# the queries the status bar draws from, as it subscribes to them (cmm.api.subscriptions): the machine's state and
+# last sample, the tip in part coordinates (None without a part), the part's alignment and the probe in use, the
+# calibration's hold and qualification, the shop database's words, the tip radius and the link meter's samples
+STATUS_QUERIES: dict[str, dict[str, Any]] = {
+    "state": {}, "position": {"frame": "part"}, "part_alignment": {}, "calibration_state": {}, "upload_status": {},
+    "tip_radius": {}, "samples": {}}
+STATUS_RATE = 20.0  # Hz: the DRO follows a move at this rate (the bar is re-sent only when its text changes)
+
+
+def machine_mode(cs: dict[str, Any]) -> tuple[str, str, bool]:
+    """(mode, reason, link ok) from the control core's state (the ``state`` query as JSON: not homed / idle /
+    moving / probing / fault ...)."""
+    mode = str(getattr(cs["mode"], "value", cs["mode"]))  # in process the JSON keeps the Mode (a str enum)
+    reason = cs["reason"] or (cs["activity"] if mode in ("moving", "probing", "homing") else "")
+    return mode, str(reason or ""), bool(cs["link_ok"])
 
 
 class LinkMeter:
@@ -121,38 +131,40 @@ class LinkMeter:
         return self.rate
 
 
-def part_position(part: Any, position: np.ndarray) -> np.ndarray | None:
-    """``position`` (machine mm) in the coordinates of ``part`` (its pose); None without a part."""
-    if part is None:
-        return None
-    pose = np.asarray(part.pose, float)
-    return pose[:3, :3].T @ (np.asarray(position, float) - pose[:3, 3])
+def status_snapshot(source: Any) -> dict[str, Any]:
+    """One round of :data:`STATUS_QUERIES` of ``source`` (a query function or the command API), as JSON: what the
+    bar's subscription delivers (a tab without a page, the tests, read it this way)."""
+    from ..api import jsonable
+
+    query = reader(source)
+    return {name: jsonable(query(name, **params)) for name, params in STATUS_QUERIES.items()}
 
 
 def status_html(source: Any, control_text: str, *, frame: str = "Machine", link_rate: float | None = None,
-                armed: bool = False, aligned: bool = False, cycle: str | None = None, cycle_paused: bool = False,
+                armed: bool = False, cycle: str | None = None, cycle_paused: bool = False,
                 run_stopped: str = "") -> str:
-    """The status block's HTML (pure: what it shows comes from the queries of ``source``, a query function or
-    the command API (:func:`cmm.ui.model_view.reader`), and the arguments, so it is tested without a browser).
+    """The status block's HTML (pure: what it shows comes from ``source`` and the arguments, so it is tested
+    without a browser). ``source``: the snapshot of :data:`STATUS_QUERIES` (``{query: JSON value}``, as the
+    subscription delivers it), or a query function or the command API to take one from (:func:`status_snapshot`).
     ``cycle``: the cycle running (an auto-measure, a routine run), shown as RUNNING while the machine is in it
     (PAUSED with ``cycle_paused``: a routine paused between hits)."""
     e = html.escape
-    query = reader(source)
-    cs = query("state")  # the control core's state and last sample (the observer's snapshot)
-    model = query("part_frame")  # the part, the alignment in force, the probe's name
+    snap = source if isinstance(source, dict) else status_snapshot(source)
+    cs = snap["state"]  # the control core's state and last sample (the observer's snapshot)
+    frame_info = snap["part_alignment"]  # the part, the alignment in force, the probe's name
     mode, reason, link_ok = machine_mode(cs)
     if cycle and mode in CYCLE_MODES:
         mode, reason = ("paused", f"{cycle}: Resume goes on") if cycle_paused else ("running", cycle)
     elif run_stopped and mode == "idle":  # the last run was refused or stopped: not back to a plain IDLE
         mode, reason = "stopped", run_stopped
-    calibration = query("calibration_state")
+    calibration = snap["calibration_state"]
     if calibration["holding"]:  # the job stands in the machine loop
         mode, reason = "paused", f"{reason or 'calibration'}: Resume goes on"
-    st = cs.machine
+    st = cs["machine"]
     colour = MODE_COLOURS.get(mode, "#555")
     out = [f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:{colour}'>{e(mode.upper())}</span>"]
     out.append(f" &middot; {e(control_text)}")
-    warning = getattr(cs, "link_warning", "")
+    warning = cs.get("link_warning", "")
     if warning:
         out.append(f" &middot; <span class='warn'>link warning: {e(warning)}</span>")
     if link_rate is not None:
@@ -163,7 +175,7 @@ def status_html(source: Any, control_text: str, *, frame: str = "Machine", link_
         else:
             ok = link_ok and link_rate > 5.0
             out.append(f" &middot; link <span class='{'' if ok else 'warn'}'>{'ok' if ok else 'SILENT: no samples'}</span>")
-    offline = query("upload_status")  # the shop's session database: "database offline, N events waiting"
+    offline = snap["upload_status"]  # the shop's session database: "database offline, N events waiting"
     if offline:
         out.append(f" &middot; <span class='warn'>{e(offline)}</span>")
     # the reason on a line of its own, always there: a move's words appearing and going never change the block's
@@ -173,25 +185,24 @@ def status_html(source: Any, control_text: str, *, frame: str = "Machine", link_
     out.append(f"<div class='reason{' warn' if reason else ''}{' one' if moving else ''}' title='{e(reason)}'>"
                f"{e(reason) if reason else '&nbsp;'}</div>")
     if st is not None:
-        pos = st.position
+        pos = [a["mm"] for a in st["axes"]]
         label = "machine"
-        if frame == "Part":
-            pp = part_position(model.part, pos)
-            if pp is not None:
-                pos, label = pp, "part"
+        if frame == "Part" and snap["position"] is not None:  # None: part coordinates without a part
+            pos, label = snap["position"], "part"
+        model = SimpleNamespace(part=frame_info["part"], aligned=frame_info["aligned"],
+                                alignment_name=frame_info["alignment"])
         frame_name = f"<span class='muted'>{e(alignment_text(model))}</span>" if label == "part" else ""
         out.append(f"<div class='dro' aria-label='DRO {label}'><span class='muted'>{e(label)}</span>"
                    + "".join(f"<span>{n} {v:.4f}</span>" for n, v in zip("XYZ", pos)) + frame_name + "</div>")
-        if label == "part" and not aligned:
+        if label == "part" and not frame_info["aligned"]:
             out.append("<div class='warn'>no alignment made: part coordinates of the nominal set-up</div>")
-        settings = query("probe_settings")
-        tip = "" if settings is None else f"tip r {settings.tip_radius:.4f} mm"
+        radius = snap["tip_radius"]
+        tip = "" if radius is None else f"tip r {radius:.4f} mm"
         probe_cal = calibration["probe"]
         qual = f"qualified {str(probe_cal.get('date', ''))[:10]}" if probe_cal else "not qualified"
-        probe_state = "TRIGGERED" if st.probe_triggered else ("armed (manual hits)" if armed else "free")
-        cls = "warn" if st.probe_triggered else ""
-        name = model.probe_name
-        out.append(f"probe {e(name)} <span class='pstate {cls}'>{probe_state}</span> &middot; {tip}, {qual}")
+        probe_state = "TRIGGERED" if st["probe_triggered"] else ("armed (manual hits)" if armed else "free")
+        cls = "warn" if st["probe_triggered"] else ""
+        out.append(f"probe {e(frame_info['probe'])} <span class='pstate {cls}'>{probe_state}</span> &middot; {tip}, {qual}")
     out.append("</div>")
     return "".join(out)
 
@@ -209,26 +220,47 @@ def run_script(gui: Any, source: str) -> bool:
 
 
 class StatusPanel:
-    """The status block and the STOP / E-STOP buttons of one tab."""
+    """The status block and the STOP / E-STOP buttons of one tab. A tab with a page subscribes to
+    :data:`STATUS_QUERIES` (:meth:`subscribe`): each delivery redraws the bar from the snapshot; the refresher redraws
+    it from the same snapshot for what is the page's own (who holds control, a cycle, manual hits armed, the link
+    meter's clock). A tab without a page (tests, scripts) reads the queries when asked (:meth:`html`)."""
 
     def __init__(self, ctx: PanelContext) -> None:
         self.ctx = ctx
         self.frame = "Machine"
         self.link = LinkMeter()
         self.gui: dict[str, Any] = {}
+        self.feed: Feed | None = None  # the subscription (a tab with a page)
         self._shown = ""
+        self._lock = threading.Lock()  # the hub's deliveries and the refresher both redraw
+
+    def subscribe(self, on_error: Callable[[str, str], None]) -> Feed:
+        """Follow the station through the API's subscription, as this tab's client when it connected (the bar's
+        queries are open to every client, an anonymous observer too: a log-in later changes nothing they answer);
+        ``close()`` ends it."""
+        self.feed = Feed(self.ctx.api, self.ctx.who(), STATUS_QUERIES, STATUS_RATE, lambda _snap: self.refresh(),
+                         on_error)
+        return self.feed
+
+    def close(self) -> None:
+        if self.feed is not None:
+            self.feed.close()
 
     def build(self, gui: Any, controls: Callable[[Any], Any] | None = None) -> None:
         """The pinned block: STOP and E-STOP on one row at its top, the status lines, then ``controls(gui)`` (the
         tab's Take control / Release button) beside the DRO's frame. Nothing above the two buttons changes height: a
         status line that wraps as the mode or its reason changes never moves them from under the operator's finger
         (it did, and a press during a move landed on the status text)."""
+        if self.feed is not None:
+            self.feed.wait()  # the first snapshot: the bar opens showing the machine
         gui.add_html(STICKY_CSS)
         run_script(gui, STICKY_JS)
         with gui.add_folder("Status"):
             gui.add_button("STOP", color="orange").on_click(self._press(lambda: self.ctx.stop()))
             gui.add_button("E-STOP", color="red").on_click(self._press(lambda: self.ctx.emergency_stop()))
-            self.gui["status"] = gui.add_html(self.html())
+            with self._lock:
+                self._shown = self.html()
+                self.gui["status"] = gui.add_html(self._shown)
             if controls is not None:
                 controls(gui)
             frame = gui.add_button_group("DRO", FRAMES)
@@ -250,16 +282,24 @@ class StatusPanel:
             self.refresh()
 
     def html(self) -> str:
-        query = self.ctx.query
-        rate = self.link.update(query("samples"))
-        return status_html(query, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
-                           armed=self.ctx.manual_probe, aligned=query("part_frame").aligned,
-                           cycle=getattr(self.ctx.shared, "cycle", None),
+        """The bar now: from the subscription's last snapshot (a tab with a page), else from the queries."""
+        snap = status_snapshot(self.ctx.query) if self.feed is None else self.feed.snapshot()
+        if snap is None:  # no whole snapshot yet (a query failing: told once, see Feed)
+            return (f"<div id='cmm-status' class='cmm-status'><span class='mode' style='background:#555'>"
+                    f"&hellip;</span> &middot; {html.escape(self.ctx.control_text().replace('*', ''))}"
+                    "<div class='reason'>&nbsp;</div></div>")
+        rate = self.link.update(int(snap["samples"]))
+        return status_html(snap, self.ctx.control_text().replace("*", ""), frame=self.frame, link_rate=rate,
+                           armed=self.ctx.manual_probe, cycle=getattr(self.ctx.shared, "cycle", None),
                            cycle_paused=bool(getattr(self.ctx.shared, "cycle_paused", False)),
                            run_stopped=str(getattr(self.ctx.shared, "run_stopped", "") or ""))
 
     def refresh(self) -> None:
-        text = self.html()
-        if "status" in self.gui and text != self._shown:
-            self._shown = text
-            self.gui["status"].content = text
+        """Redraw the bar (re-sent only when its text changed): on a delivery, and from the refresher."""
+        if "status" not in self.gui:
+            return
+        with self._lock:
+            text = self.html()
+            if text != self._shown:
+                self._shown = text
+                self.gui["status"].content = text

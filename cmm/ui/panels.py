@@ -4,8 +4,9 @@
 actions as plain methods: the machine's commands, Go to and pick in :mod:`.panel_machine`, the jog in
 :mod:`.panel_jog`, the operator and the control in :mod:`.panel_operator`, the Diagnostics in
 :mod:`.panel_diagnostics`, the Align, Measure, Routine, Report and Setup tabs in theirs), lays them out in the
-side panel's tabs (``build()``) and copies what the API's queries say into their read-outs a few times a second
-(``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
+side panel's tabs (``build()``), subscribes to the API's queries its status bar and its plain read-outs draw from
+(``subscribe()``: each delivery redraws them; ``close()`` when the tab goes) and copies what the other queries say
+into their read-outs a few times a second (``refresh()``). The tab's actions stay reachable on the tab (``go_to``, ``jog_hold``, ``pick``, ``take_control``
 ...), so the tests drive exactly what a button does without a browser.
 
 Machine commands go to the command API (:mod:`cmm.api`) as this client
@@ -18,9 +19,10 @@ not security). Jog buttons feed the core's jog-hold pipeline (:mod:`cmm.control.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 from .context import PanelContext
+from .feed import Feed
 from .panel_align import AlignPanel
 from .panel_calibration import CalibrationPanel
 from .panel_colour_map import ColourMapPanel
@@ -37,6 +39,11 @@ from .panel_status import StatusPanel
 from .panel_trends import TrendsPanel
 
 __all__ = ["ClientApp", "hold_worker_script", "machine_markdown", "probe_markdown"]
+
+# the read-outs that are plain snapshots, on a subscription of their own at the read-outs' rate: Machine > Probe's
+# data and Setup > Part's text (the part and, on the simulator, where it truly lies)
+READOUT_QUERIES: dict[str, dict[str, Any]] = {"probe_data": {}, "part": {}, "simulator": {}}
+READOUT_RATE = 5.0
 
 # The tab strips a little tighter than viser's (0.9em a side) so the six top tabs fit one row of the wide panel;
 # dock tabs (laptop) and Mantine tabs (viser's narrow-screen layout) alike.
@@ -94,6 +101,7 @@ class ClientApp:
         self.trends = TrendsPanel(self.ctx)
         self.ctx.show_frame = self.status.set_frame
         self.ctx.frame_shown = self.machine.set_goto_frame
+        self._closed = False  # the tab went: its subscriptions are closed (and none is opened any more)
 
     @property
     def api(self) -> Any:
@@ -157,9 +165,33 @@ class ClientApp:
 
     # --- GUI ---------------------------------------------------------------------------------------
 
+    def subscribe(self) -> None:
+        """Follow the station through the API's subscriptions as this tab: the status bar and the DRO at 20 Hz, the
+        read-outs that are plain snapshots (the probe's data, the part) at 5 Hz; ``close()`` ends them."""
+        if self._closed:  # the tab went while it was being built
+            return
+
+        def failed(what: str) -> Callable[[str, str], None]:
+            return lambda query, message: self.app.refresh_failed(f"tab {self.client_id} {what} ({query})", message)
+        self.status.subscribe(failed("status bar"))
+        self.ctx.readouts = Feed(self.ctx.api, self.ctx.who(), READOUT_QUERIES, READOUT_RATE, self._readouts,
+                                 failed("read-outs"))
+
+    def _readouts(self, snapshot: dict[str, Any]) -> None:
+        self.machine.show_probe(snapshot)
+        self.part.show(snapshot)
+
+    def close(self) -> None:
+        """The tab went (or the page closes): its subscriptions end."""
+        self._closed = True
+        self.status.close()
+        if self.ctx.readouts is not None:
+            self.ctx.readouts.close()
+
     def build(self) -> None:
         """Create this client's widgets: each panel builds its own, here they are laid out in the tabs."""
         gui = self.client.gui
+        self.subscribe()
         # first, and sticky: state, holder, DRO, link, probe, STOP / E-STOP, Take control / Release always on screen
         self.status.build(gui, controls=self.operator_panel.control_buttons)
         if getattr(self.app, "ask_name", False):
@@ -206,6 +238,8 @@ class ClientApp:
                 self.calibration.build(gui)
             with setup.add_tab("Diagnostics"):
                 self.diagnostics.build(gui)
+        if self._closed:  # it went while it was being built: what it subscribed to meanwhile ends
+            self.close()
 
     def refresh(self) -> None:
         """Copy the station's state (the API's queries) into this client's read-outs (only what changed)."""
@@ -230,6 +264,8 @@ class ClientApp:
         self.calibration.refresh()
 
     def fast_refresh(self) -> None:
-        """The status bar (DRO) at the refresher's full rate while the machine moves; idle it changes nothing."""
+        """The status bar at the refresher's full rate from its subscription's last snapshot (no query): what is the
+        page's own (control, a cycle, manual hits armed, the link meter's clock) shows as soon as a delivery would;
+        idle it changes nothing."""
         if self.gui:
             self.status.refresh()
