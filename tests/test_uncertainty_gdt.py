@@ -79,8 +79,55 @@ def test_values_without_an_honest_propagation_say_why():
                                 budget=budget("sphere", pts, fit, SRC).summary())}
     why = gdt_uncertainty({"characteristic": "profile of a surface", "feature": 1}, {}, feats, 0.0, evaluate_one)["why"]
     assert "best fit of its points to the CAD mesh" in why
-    assert "composite" in gdt_uncertainty({"characteristic": "position", "feature": 1, "composite": {}}, {}, feats,
-                                          0.0, evaluate_one)["why"]
+
+
+def _fitted(name, kind, pts, nominal, src):
+    fit = (fit_plane if kind == "plane" else fit_cylinder)(pts)
+    return MeasuredFeature(name, kind, fit.summary(), nominal, pts, budget=budget(kind, pts, fit, src).summary())
+
+
+def test_a_composite_positions_tiers_each_get_their_u_known_answers():
+    """Two holes 40 sqrt(2) mm apart on datums A|B|C, each 4 um out from the pattern's centre: the lower tier
+    (translations and the rotation free) is 2 x 4 um. Each hole's pattern-locating row has the U of the same
+    hole's plain position to A|B|C (the same propagation: the other hole's hits do not move it); the pattern's
+    row has its own, and in it the part's expansion about any point (the translation is free) opens the pattern
+    by 2 x (20 sqrt(2) mm) x the expansion: its term is that times the thermal u, while the hits of B and C, which
+    only locate the pattern, count nothing in it."""
+    src = Sources(reference=(50.0, 50.0, 0.0))
+    sq = np.array([(0, 0), (1, 0), (1, 1), (0, 1)])
+    feats = {1: _fitted("A", "plane", np.c_[100 * sq, np.zeros(4)], {"kind": "plane", "point": [50, 50, 0],
+                                                                      "normal": [0, 0, 1]}, src),
+             2: _fitted("B", "plane", np.c_[100 * sq[:, 0], np.zeros(4), -2 - 6 * sq[:, 1]],
+                        {"kind": "plane", "point": [50, 0, -5], "normal": [0, -1, 0]}, src),
+             3: _fitted("C", "plane", np.c_[np.zeros(4), 100 * sq[:, 0], -2 - 6 * sq[:, 1]],
+                        {"kind": "plane", "point": [0, 50, -5], "normal": [-1, 0, 0]}, src)}
+    ang = np.linspace(0, 2 * np.pi, 4, endpoint=False)
+    for k, s in enumerate(((1, 1), (-1, -1))):
+        nom = np.array([50.0, 50.0]) + 20 * np.array(s)
+        act = nom + 0.004 * np.array(s) / math.sqrt(2)
+        pts = np.vstack([np.c_[act[0] + 5 * np.cos(ang + o), act[1] + 5 * np.sin(ang + o), np.full(4, z)]
+                         for z, o in ((-2.0, 0.0), (-8.0, math.pi / 4))])
+        feats[10 + k] = _fitted(f"hole {k + 1}", "cylinder", pts, {"kind": "cylinder", "point": [*nom, -5],
+                                                                   "direction": [0, 0, 1], "radius": 5.0}, src)
+    datums = {x: {"label": x, "feature": i} for i, x in enumerate("ABC", 1)}
+    d = {"id": 7, "name": "holes", "characteristic": "position", "feature": 10, "pattern": [10, 11],
+         "tolerance": 0.5, "datums": ["A", "B", "C"], "composite": {"tolerance": 0.02, "datums": ["A"]}}
+    rows = evaluate([d], datums, feats)
+    plain = evaluate([{"id": 8, "name": "p", "characteristic": "position", "feature": 10 + k, "tolerance": 0.5,
+                       "datums": ["A", "B", "C"]} for k in range(2)], datums, feats)
+    for (_, tier), (_, alone) in zip(rows[:2], plain):
+        assert tier.uncertainty == pytest.approx(alone.uncertainty, rel=1e-6) and tier.uncertainty_k > 2.0
+    low = rows[2][1]
+    assert low.feature == "pattern of 2" and low.actual == pytest.approx(0.008, abs=1e-9)
+    from cmm.metrology.gdt_eval import _row_values
+    from cmm.metrology.uncertainty_gdt import row_uncertainties
+
+    us = row_uncertainties(d, datums, feats, [c.actual for _, c in rows], _row_values)
+    assert [u["U"] for u in us] == pytest.approx([c.uncertainty for _, c in rows])
+    t = us[2]["terms"]
+    assert t["thermal"] == pytest.approx(2 * 20 * math.sqrt(2) * src.thermal_u(), rel=1e-3)
+    assert t["sampling B"] < 1e-9 and t["sampling C"] < 1e-9 and t["sampling hole 1"] > 0.1 * low.uncertainty
+    assert 0 < low.uncertainty < rows[0][1].uncertainty  # the pattern's own form, not its location
 
 
 def test_position_and_perpendicularity_are_covered_on_the_simulator():

@@ -21,9 +21,12 @@ geometry (position, the orientation of an axis, coaxiality); where the value is 
 feature's own points (the orientation of a plane, runout, form) the part's form under those hits is what is
 measured and only the datums' sampling counts, as for a feature's form value.
 
+A composite position's rows (each feature's pattern-locating tier, the pattern's feature-relating tier) are
+propagated together (:func:`row_uncertainties`): every feature of the pattern and every datum feature moves, each
+row's value is re-evaluated and takes its own U.
+
 Refused, with the reason: a feature or datum feature without a budget (not a least-squares plane, circle,
-sphere, cylinder, cone or point), a composite position, a profile (its best fit to the CAD mesh is not
-propagated).
+sphere, cylinder, cone or point), a profile (its best fit to the CAD mesh is not propagated).
 """
 
 from __future__ import annotations
@@ -105,8 +108,9 @@ class _Moving:
 
 
 def involved(d: dict[str, Any], datums: dict[str, dict]) -> list[int]:
-    """The ids of the toleranced feature and of the datum features of the frame, the toleranced one first."""
-    ids = [int(d["feature"])]
+    """The ids of the toleranced feature (a composite's pattern) and of the datum features of the frame, the
+    toleranced one first."""
+    ids = [int(d["feature"])] + [int(x) for x in d.get("pattern") or [] if int(x) != int(d["feature"])]
     for label in d.get("datums") or []:
         for part in str(label).split("-"):
             dd = datums.get(part)
@@ -118,46 +122,74 @@ def involved(d: dict[str, Any], datums: dict[str, dict]) -> list[int]:
 def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], value: float,
                     evaluate_one: Callable[..., Any], mesh: Any = None, pose: Any = None) -> dict[str, Any]:
     """``{"U": mm, "k": k, "u_c": mm, "terms": {source: mm}}`` of the evaluated ``value`` of definition ``d``, or
-    ``{"why": reason}`` when it has none; ``evaluate_one``: cmm.metrology.gdt_eval.evaluate_one (its caller)."""
+    ``{"why": reason}`` when it has none; ``evaluate_one``: cmm.metrology.gdt_eval.evaluate_one (its caller; for
+    a composite position its first row, the first feature's pattern-locating tier)."""
+    return row_uncertainties(d, datums, feats, [value],
+                             lambda *a: [float(evaluate_one(*a).value)], mesh, pose)[0]
+
+
+def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], values: list[float],
+                      evaluate_values: Callable[..., list[float]], mesh: Any = None,
+                      pose: Any = None) -> list[dict[str, Any]]:
+    """The uncertainty (as :func:`gdt_uncertainty`) of each row's value of definition ``d``: one row, or a
+    composite position's (each feature's pattern-locating tier and the pattern's feature-relating tier), all
+    propagated through the same moved hits; ``evaluate_values(d, datums, feats, mesh, pose)``: the rows'
+    values."""
     ch = d.get("characteristic", "")
-    if "composite" in d:
-        return {"why": "no uncertainty: a composite position's tiers are not propagated"}
+    rows = len(values)
+    refused = lambda why: [{"why": why}] * rows  # noqa: E731
     if ch.startswith("profile"):
-        return {"why": "no uncertainty: a profile is evaluated after a best fit of its points to the CAD mesh, "
-                       "which is not propagated"}
+        return refused("no uncertainty: a profile is evaluated after a best fit of its points to the CAD mesh, "
+                       "which is not propagated")
     ids = involved(d, datums)
+    toleranced = 1 + len([x for x in d.get("pattern") or [] if int(x) != int(d["feature"])])
     parts: list[tuple[int, _Moving]] = []
     sources = None
     for i, fid in enumerate(ids):
         f = feats.get(fid)
         if f is None:
-            return {"why": f"no uncertainty: feature {fid} is not measured"}
+            return refused(f"no uncertainty: feature {fid} is not measured")
         budget = getattr(f, "budget", None)
-        role = "the toleranced feature" if i == 0 else f"datum feature {f.name}"
+        role = ("the toleranced feature" if toleranced == 1 else f"feature {f.name} of the pattern") if i < toleranced \
+            else f"datum feature {f.name}"
         if not budget or f.kind not in BUDGET_KINDS or not len(f.points):
-            return {"why": f"no uncertainty: {role} has no uncertainty budget (a least-squares fit of a plane, "
-                           "circle, sphere, cylinder, cone or point has one)"}
+            return refused(f"no uncertainty: {role} has no uncertainty budget (a least-squares fit of a plane, "
+                           "circle, sphere, cylinder, cone or point has one)")
         if sources is None:
             sources = Sources.from_dict(budget.get("inputs"))
         parts.append((fid, _Moving(f, sources)))
     assert sources is not None
     src = sources
+    value = np.asarray(values, float)
     x = np.vstack([m.x for _, m in parts])
     n = np.vstack([m.n for _, m in parts])
     spans = np.cumsum([0] + [len(m.x) for _, m in parts])
 
-    def value_at(dx: np.ndarray) -> float:
+    def value_at(dx: np.ndarray) -> np.ndarray:
         moved = dict(feats)
         for j, (fid, m) in enumerate(parts):
             moved[fid] = m.moved(dx[spans[j]:spans[j + 1]])
-        return float(evaluate_one(d, datums, moved, mesh, pose).value)
+        out = np.asarray(evaluate_values(d, datums, moved, mesh, pose), float)
+        if out.shape != value.shape:
+            raise ValueError(f"{len(out)} values on the moved hits, {rows} measured")
+        return out
 
-    def change(dx: np.ndarray) -> tuple[float, float]:
-        """(the linear change of the value, the length of the deviation's change) for the displacement ``dx``:
+    def change(dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the linear change of each value, the length of its deviation's change) for the displacement ``dx``:
         from the value at +dx and -dx, |delta|^2 = (v+^2 + v-^2) / 2 - v^2, exact both for a value linear in
-        the errors and for the length of a deviation vector (v = |dev + delta|), whatever delta's direction."""
+        the errors and for the length of a deviation vector (v = |dev + delta|), whatever delta's direction.
+        A value that is the largest of several lengths (a position checked at both ends of an axis) has a kink
+        where the largest changes end: across it that second difference takes the ends' gap, not |delta|^2 (the
+        boss's position to A|B got U / RMS error 3.0 from it). Where it is positive the one-sided second
+        differences (0, dx, 2dx and 0, -dx, -2dx) are taken too and the smallest kept: a side without the kink
+        gives the active end's |delta|^2 exactly, and a kink only adds to the side that has it."""
         vp, vm = value_at(dx), value_at(-dx)
-        return (vp - vm) / 2.0, math.sqrt(max(0.0, (vp * vp + vm * vm) / 2.0 - value * value))
+        sq = (vp * vp + vm * vm) / 2.0 - value * value
+        if np.any(sq > 0):
+            vp2, vm2 = value_at(2 * dx), value_at(-2 * dx)
+            sq = np.minimum(sq, np.minimum((vp2 * vp2 - 2 * vp * vp + value * value) / 2.0,
+                                           (vm2 * vm2 - 2 * vm * vm + value * value) / 2.0))
+        return (vp - vm) / 2.0, np.sqrt(np.maximum(0.0, sq))
 
     along = lambda pattern: pattern[:, None] * n  # noqa: E731 - a displacement along each hit's normal
     systematic: dict[str, list[np.ndarray]] = {"probe qualification": [src.u_tip * along(np.ones(len(x)))]}
@@ -188,34 +220,37 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
         square.append(m)
     systematic["machine scale"], systematic["machine squareness"] = scale, square
     systematic["thermal"] = [src.thermal_u() * rel]
-    both: dict[str, tuple[float, float]] = {}  # term -> (u linear, u of the deviation's length)
+    both: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # term -> (u linear, u of the deviation's length) per row
     dofs: dict[str, float] = {}
 
-    def add(name: str, changes: list[tuple[float, float]]) -> None:
-        both[name] = (math.sqrt(sum(a * a for a, _ in changes)), math.sqrt(sum(b * b for _, b in changes)))
+    def add(name: str, changes: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        both[name] = (np.sqrt(sum(a * a for a, _ in changes)), np.sqrt(sum(b * b for _, b in changes)))
 
     try:
         for source, pats in systematic.items():
             add(source, [change(p) for p in pats])
-        one = np.zeros((len(x), 3))
-
-        def hit(i: int, size: float) -> tuple[float, float]:
-            dx = one.copy()
-            dx[i] = size * n[i]
-            return change(dx)
-
-        add("scatter", [hit(i, src.repeatability) for i in range(len(x))])
+        # each hit moved once along its normal: its scatter and its sampling are the same displacement at two
+        # sizes, and both changes (the linear one and the deviation's length) scale with the size
+        step = np.concatenate([np.full(len(m.x), max(src.repeatability, m.form, 1e-6)) for _, m in parts])
+        per_hit = []
+        for i in range(len(x)):
+            dx = np.zeros((len(x), 3))
+            dx[i] = step[i] * n[i]
+            per_hit.append(change(dx))
+        add("scatter", [(a * src.repeatability / step[i], b * src.repeatability / step[i])
+                        for i, (a, b) in enumerate(per_hit)])
         own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity") and parts[0][1].kind != "plane")
         for j, (fid, m) in enumerate(parts):
-            if j == 0 and not own:
+            if j < toleranced and not own:
                 continue
-            add(f"sampling {m.f.name}", [hit(i, m.form) for i in range(spans[j], spans[j + 1])])
+            add(f"sampling {m.f.name}", [(per_hit[i][0] * m.form / step[i], per_hit[i][1] * m.form / step[i])
+                                         for i in range(spans[j], spans[j + 1])])
             dofs[f"sampling {m.f.name}"] = m.nu + PRIOR_DOF  # the residuals' degrees of freedom and the prior's
     except Exception as exc:  # noqa: BLE001 - a moved set the evaluation refuses: no uncertainty, said why
-        return {"why": f"no uncertainty: the tolerance could not be re-evaluated on the moved hits ({exc})"}
+        return refused(f"no uncertainty: the tolerance could not be re-evaluated on the moved hits ({exc})")
 
-    def expanded(which: int) -> tuple[float, float, dict[str, float]]:
-        terms = {t: v[which] for t, v in both.items()}
+    def expanded(row: int, which: int) -> tuple[float, float, dict[str, float]]:
+        terms = {t: float(v[which][row]) for t, v in both.items()}
         uc = math.sqrt(sum(v * v for v in terms.values()))
         ws = sum(terms[t] ** 4 / nu for t, nu in dofs.items())
         return coverage_factor(uc ** 4 / ws if ws > 0 and uc > 0 else math.inf), uc, terms
@@ -225,9 +260,13 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
     # whole deviation's error in any direction (the linear change sees only its part along the deviation read):
     # its length bounds it. (Deciding on the linear U instead covered a perpendicularity whose true value is 0
     # only 88 % on the simulator: a measured value large by chance then took the smaller, linear U.)
-    k, uc, terms = expanded(1)
-    if value > k * uc:
-        k, uc, terms = expanded(0)
-    return {"U": k * uc, "k": k, "u_c": uc, "terms": terms,
-            "note": "from the budgets' sources moved through the feature's and the datums' fits and the zone's "
-                    "evaluation: sources common to the set-up at once, scatter and sampling hit by hit"}
+    out = []
+    for row in range(rows):
+        k, uc, terms = expanded(row, 1)
+        if value[row] > k * uc:
+            k, uc, terms = expanded(row, 0)
+        out.append({"U": k * uc, "k": k, "u_c": uc, "terms": terms,
+                    "note": "from the budgets' sources moved through the feature's and the datums' fits and the "
+                            "zone's evaluation: sources common to the set-up at once, scatter and sampling hit by "
+                            "hit"})
+    return out
