@@ -129,12 +129,13 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
 
 
 def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], values: list[float],
-                      evaluate_values: Callable[..., list[float]], mesh: Any = None,
-                      pose: Any = None) -> list[dict[str, Any]]:
+                      evaluate_values: Callable[..., list[float]], mesh: Any = None, pose: Any = None,
+                      own: bool | None = None) -> list[dict[str, Any]]:
     """The uncertainty (as :func:`gdt_uncertainty`) of each row's value of definition ``d``: one row, or a
     composite position's (each feature's pattern-locating tier and the pattern's feature-relating tier), all
     propagated through the same moved hits; ``evaluate_values(d, datums, feats, mesh, pose)``: the rows'
-    values."""
+    values. ``own``: whether the toleranced feature's sampling counts (its fitted geometry is what the value
+    stands on), for another caller's values (a DMIS tolerance); by default from the characteristic."""
     ch = d.get("characteristic", "")
     rows = len(values)
     refused = lambda why: [{"why": why}] * rows  # noqa: E731
@@ -239,7 +240,9 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
             per_hit.append(change(dx))
         add("scatter", [(a * src.repeatability / step[i], b * src.repeatability / step[i])
                         for i, (a, b) in enumerate(per_hit)])
-        own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity") and parts[0][1].kind != "plane")
+        if own is None:
+            own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity")
+                                        and parts[0][1].kind != "plane")
         for j, (fid, m) in enumerate(parts):
             if j < toleranced and not own:
                 continue
