@@ -73,12 +73,56 @@ def test_perpendicularity_to_a_datum_plane_carries_the_machine_squareness_known_
     assert c.uncertainty == pytest.approx(u["U"]) and c.uncertainty > 0
 
 
+def _box_face(n_x=4, n_y=3):
+    """A 100 x 60 x 40 box (trimesh) centred at the origin at the identity pose, and points on its top face."""
+    import trimesh
+
+    g = np.stack(np.meshgrid(np.linspace(-40, 40, n_x), np.linspace(-22, 22, n_y)), -1).reshape(-1, 2)
+    return trimesh.creation.box(extents=(100, 60, 40)), np.c_[g, np.full(len(g), 20.0)]
+
+
+PROFILE = {"id": 1, "name": "prof", "characteristic": "profile of a surface", "feature": 1, "tolerance": 0.02,
+           "datums": []}
+
+
+def test_a_profile_is_propagated_through_its_best_fit_and_covers_a_simulated_error():
+    """A profile of a surface (no datums: a best fit in all six DOF) of 12 hits on a box's top face, true value 0:
+    each trial's hits scatter by the repeatability along the face's normal. Near zero the value is the largest of
+    12 scatters, so U is twice its 95.45 % point (about 2 x 2.9 sigma), not the change of the largest hit: every
+    trial is covered, and U is not more than about 3x the value's RMS."""
+    mesh, exact = _box_face()
+    rng = np.random.default_rng(3)
+    values, us = [], []
+    for _ in range(24):
+        pts = exact + np.c_[np.zeros((len(exact), 2)), rng.normal(0, SRC.repeatability, len(exact))]
+        fit = fit_plane(pts)
+        f = MeasuredFeature("top", "plane", fit.summary(), None, pts, budget=budget("plane", pts, fit, SRC).summary())
+        (_, c), = evaluate([PROFILE], {}, {1: f}, mesh, np.eye(4))
+        assert c.uncertainty is not None, c.uncertainty_why
+        values.append(c.actual)
+        us.append(c.uncertainty)
+    values, us = np.array(values), np.array(us)
+    assert np.all(values <= us) and np.mean(us) / math.sqrt(np.mean(values ** 2)) < 3.0
+    assert np.mean(us) == pytest.approx(2 * 2.87 * SRC.repeatability, rel=0.1)
+    # without a budget anywhere the hits take the station's default sources, and say so
+    u = gdt_uncertainty(PROFILE, {}, {1: MeasuredFeature("top", "plane", fit.summary(), None, exact)}, 0.0,
+                        evaluate_one, mesh, np.eye(4))
+    assert u["U"] > 0 and "default sources" in u["note"]
+
+
 def test_values_without_an_honest_propagation_say_why():
-    pts, fit = _sphere()
-    feats = {1: MeasuredFeature("S", "sphere", fit.summary(), None, pts,
-                                budget=budget("sphere", pts, fit, SRC).summary())}
-    why = gdt_uncertainty({"characteristic": "profile of a surface", "feature": 1}, {}, feats, 0.0, evaluate_one)["why"]
-    assert "best fit of its points to the CAD mesh" in why
+    mesh, pts = _box_face(9, 7)
+    fit = fit_plane(pts)
+    feats = {1: MeasuredFeature("top", "plane", fit.summary(), None, pts,
+                                budget=budget("plane", pts, fit, SRC).summary())}
+    why = gdt_uncertainty(PROFILE, {}, feats, 0.0, evaluate_one, mesh, np.eye(4))["why"]
+    assert "a profile of 63 points (more than 60) is not propagated" in why
+    assert "needs its points, the CAD mesh" in gdt_uncertainty(PROFILE, {}, feats, 0.0, evaluate_one)["why"]
+    sphere_pts, sphere = _sphere()
+    feats = {1: MeasuredFeature("S", "sphere", sphere.summary(), {"kind": "sphere", "center": [100, 50, 20]},
+                                sphere_pts)}
+    assert "has no uncertainty budget" in gdt_uncertainty({"characteristic": "position", "feature": 1}, {}, feats,
+                                                          0.0, evaluate_one)["why"]
 
 
 def _fitted(name, kind, pts, nominal, src):

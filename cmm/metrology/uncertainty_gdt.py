@@ -25,8 +25,15 @@ A composite position's rows (each feature's pattern-locating tier, the pattern's
 propagated together (:func:`row_uncertainties`): every feature of the pattern and every datum feature moves, each
 row's value is re-evaluated and takes its own U.
 
+A profile's points move as they are (no fit of their own: the profile's best fit to the CAD mesh is inside the
+evaluation repeated for every moved set), each along the mesh's normal at its closest point, with the sources of
+a budget of the frame's features (the station's defaults when none has one). Near zero its value is the largest
+of its hits' errors, not the change of the hit that happens to be largest: twice the 95.45 % point of the
+largest of n hit scatters takes the lengths' place for its own hits.
+
 Refused, with the reason: a feature or datum feature without a budget (not a least-squares plane, circle,
-sphere, cylinder, cone or point), a profile (its best fit to the CAD mesh is not propagated).
+sphere, cylinder, cone or point; a profile's own points need none), a profile without the mesh and pose or of
+more than PROFILE_MAX_HITS points (each hit repeats the best fit to the mesh).
 """
 
 from __future__ import annotations
@@ -107,6 +114,29 @@ class _Moving:
         return replace(self.f, geometry=g, points=self.x + dx)
 
 
+class _Points:
+    """A profile's toleranced feature: its hits move and the profile takes them as they are (its own best fit
+    to the CAD mesh is inside the evaluation that is repeated); each hit's normal the mesh's at its closest
+    point."""
+
+    def __init__(self, f: Any, mesh: Any, pose: Any) -> None:
+        from .mesh import closest_points
+        from .transform import as_pose, invert
+
+        self.f, self.kind = f, f.kind
+        self.x = np.asarray(f.points, float).reshape(-1, 3)
+        t = as_pose(pose)
+        to_part = invert(t)
+        self.n = closest_points(mesh, self.x @ to_part[:3, :3].T + to_part[:3, 3]).normals @ t[:3, :3].T
+        self.form, self.nu = 0.0, 0  # its form under the hits is what a profile measures: no sampling term
+
+    def moved(self, dx: np.ndarray) -> Any:
+        return replace(self.f, points=self.x + dx)
+
+
+PROFILE_MAX_HITS = 60  # a profile's U re-evaluates it (a best fit to the mesh) about 2 x (hits + 12) times
+
+
 def involved(d: dict[str, Any], datums: dict[str, dict]) -> list[int]:
     """The ids of the toleranced feature (a composite's pattern) and of the datum features of the frame, the
     toleranced one first."""
@@ -139,28 +169,35 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
     ch = d.get("characteristic", "")
     rows = len(values)
     refused = lambda why: [{"why": why}] * rows  # noqa: E731
-    if ch.startswith("profile"):
-        return refused("no uncertainty: a profile is evaluated after a best fit of its points to the CAD mesh, "
-                       "which is not propagated")
+    profile = ch.startswith("profile")
     ids = involved(d, datums)
     toleranced = 1 + len([x for x in d.get("pattern") or [] if int(x) != int(d["feature"])])
-    parts: list[tuple[int, _Moving]] = []
-    sources = None
+    parts: list[tuple[int, Any]] = []
+    budgets = [getattr(feats.get(fid), "budget", None) for fid in ids]
+    # the set-up's sources: the toleranced feature's budget's, a profile's (its points need no fit of their own)
+    # from a datum feature's budget or, with none, the station's defaults
+    inputs = next((b.get("inputs") for b in budgets if b), None)
+    src = Sources.from_dict(inputs) if inputs else Sources()
     for i, fid in enumerate(ids):
         f = feats.get(fid)
         if f is None:
             return refused(f"no uncertainty: feature {fid} is not measured")
-        budget = getattr(f, "budget", None)
+        if profile and i == 0:
+            n_hits = len(np.asarray(f.points).reshape(-1, 3))
+            if mesh is None or pose is None or n_hits < 3:
+                return refused("no uncertainty: a profile needs its points, the CAD mesh and the part's pose")
+            if n_hits > PROFILE_MAX_HITS:
+                return refused(f"no uncertainty: a profile of {n_hits} points (more than {PROFILE_MAX_HITS}) is not "
+                               "propagated: each of its hits would repeat the best fit to the CAD mesh")
+            parts.append((fid, _Points(f, mesh, pose)))
+            continue
+        budget = budgets[i]
         role = ("the toleranced feature" if toleranced == 1 else f"feature {f.name} of the pattern") if i < toleranced \
             else f"datum feature {f.name}"
         if not budget or f.kind not in BUDGET_KINDS or not len(f.points):
             return refused(f"no uncertainty: {role} has no uncertainty budget (a least-squares fit of a plane, "
                            "circle, sphere, cylinder, cone or point has one)")
-        if sources is None:
-            sources = Sources.from_dict(budget.get("inputs"))
-        parts.append((fid, _Moving(f, sources)))
-    assert sources is not None
-    src = sources
+        parts.append((fid, _Moving(f, src)))
     value = np.asarray(values, float)
     x = np.vstack([m.x for _, m in parts])
     n = np.vstack([m.n for _, m in parts])
@@ -175,7 +212,7 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
             raise ValueError(f"{len(out)} values on the moved hits, {rows} measured")
         return out
 
-    def change(dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def change(dx: np.ndarray, lengths: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """(the linear change of each value, the length of its deviation's change) for the displacement ``dx``:
         from the value at +dx and -dx, |delta|^2 = (v+^2 + v-^2) / 2 - v^2, exact both for a value linear in
         the errors and for the length of a deviation vector (v = |dev + delta|), whatever delta's direction.
@@ -186,7 +223,7 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
         gives the active end's |delta|^2 exactly, and a kink only adds to the side that has it."""
         vp, vm = value_at(dx), value_at(-dx)
         sq = (vp * vp + vm * vm) / 2.0 - value * value
-        if np.any(sq > 0):
+        if lengths and np.any(sq > 0):
             vp2, vm2 = value_at(2 * dx), value_at(-2 * dx)
             sq = np.minimum(sq, np.minimum((vp2 * vp2 - 2 * vp * vp + value * value) / 2.0,
                                            (vm2 * vm2 - 2 * vm * vm + value * value) / 2.0))
@@ -237,9 +274,21 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
         for i in range(len(x)):
             dx = np.zeros((len(x), 3))
             dx[i] = step[i] * n[i]
-            per_hit.append(change(dx))
+            per_hit.append(change(dx, lengths=not (profile and i < spans[1])))  # a profile's own: see below
         add("scatter", [(a * src.repeatability / step[i], b * src.repeatability / step[i])
                         for i, (a, b) in enumerate(per_hit)])
+        if profile:
+            # near zero a profile (twice its points' largest distance from the mesh) read from n hits is the
+            # largest of n scatters, not the change of the hit that happens to be largest: its error is bounded by
+            # twice the largest hit error, whose 95.45 % point (n independent hits) takes the lengths' place
+            from scipy.stats import norm
+
+            from .uncertainty import COVERAGE
+
+            n_own = int(spans[1])
+            z = float(norm.ppf((1.0 + COVERAGE ** (1.0 / n_own)) / 2.0))
+            rest = sum((per_hit[i][1] * src.repeatability / step[i]) ** 2 for i in range(n_own, len(x)))
+            both["scatter"] = (both["scatter"][0], np.sqrt(rest + (z * src.repeatability) ** 2) * np.ones(rows))
         if own is None:
             own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity")
                                         and parts[0][1].kind != "plane")
@@ -271,5 +320,5 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
         out.append({"U": k * uc, "k": k, "u_c": uc, "terms": terms,
                     "note": "from the budgets' sources moved through the feature's and the datums' fits and the "
                             "zone's evaluation: sources common to the set-up at once, scatter and sampling hit by "
-                            "hit"})
+                            "hit" + ("" if inputs else " (the station's default sources: no feature has a budget)")})
     return out
