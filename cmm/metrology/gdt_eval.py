@@ -456,8 +456,8 @@ _PROPAGATED: dict[tuple, list[dict[str, Any]]] = {}  # the propagation of a tole
 
 
 def _row_values(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature], mesh: Any = None,
-                pose: Any = None) -> list[float]:
-    return [float(r.value) for _, r in evaluate_rows(d, datums, feats, mesh, pose)]
+                pose: Any = None) -> list[gdt.GdtResult]:
+    return [r for _, r in evaluate_rows(d, datums, feats, mesh, pose)]
 
 
 def _uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature],

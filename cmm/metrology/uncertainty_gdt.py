@@ -45,7 +45,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .uncertainty import PRIOR_DOF, Sources, coverage_factor, sampling_form
+from .uncertainty import COVERAGE, K_COVERAGE, PRIOR_DOF, Sources, coverage_factor, sampling_form
 
 BUDGET_KINDS = ("plane", "circle", "sphere", "cylinder", "cone", "point")
 ON_GEOMETRY = ("position", "concentricity", "coaxiality")  # values of the fitted geometry (orientation: an axis)
@@ -114,6 +114,22 @@ class _Moving:
         return replace(self.f, geometry=g, points=self.x + dx)
 
 
+LARGEST_DRAWS = 4000  # Monte Carlo draws for the U of a value that is the largest of several (fixed seed)
+
+
+def _largest_of(changes: np.ndarray) -> float:
+    """The 95.45 % point of the largest |error| of several values (a position at each end of an axis) whose
+    linear changes per independent pattern (rows, at its standard uncertainty) are ``changes``. The largest of
+    several values moves with whichever is largest after the errors: where two ends are about level (an axis
+    square to its datum) that is the larger of the two ends' errors, biased up, which one end's linear U misses
+    (the boss's position to A|B, both ends 4.5 um off: 94.5 % covered in 1000 trials); |max(a + e) - max(a)| <=
+    max |e| bounds it, whichever end is largest."""
+    changes = changes[np.abs(changes).max(axis=1) > 1e-15]  # patterns that move none (another feature's hits)
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal((LARGEST_DRAWS, len(changes))) @ changes
+    return float(np.quantile(np.abs(e).max(axis=1), COVERAGE))
+
+
 class _Points:
     """A profile's toleranced feature: its hits move and the profile takes them as they are (its own best fit
     to the CAD mesh is inside the evaluation that is repeated); each hit's normal the mesh's at its closest
@@ -154,8 +170,7 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
     """``{"U": mm, "k": k, "u_c": mm, "terms": {source: mm}}`` of the evaluated ``value`` of definition ``d``, or
     ``{"why": reason}`` when it has none; ``evaluate_one``: cmm.metrology.gdt_eval.evaluate_one (its caller; for
     a composite position its first row, the first feature's pattern-locating tier)."""
-    return row_uncertainties(d, datums, feats, [value],
-                             lambda *a: [float(evaluate_one(*a).value)], mesh, pose)[0]
+    return row_uncertainties(d, datums, feats, [value], lambda *a: [evaluate_one(*a)], mesh, pose)[0]
 
 
 def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], values: list[float],
@@ -198,18 +213,32 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
             return refused(f"no uncertainty: {role} has no uncertainty budget (a least-squares fit of a plane, "
                            "circle, sphere, cylinder, cone or point has one)")
         parts.append((fid, _Moving(f, src)))
-    value = np.asarray(values, float)
     x = np.vstack([m.x for _, m in parts])
     n = np.vstack([m.n for _, m in parts])
     spans = np.cumsum([0] + [len(m.x) for _, m in parts])
+
+    def flat(items: list[Any]) -> tuple[list[float], list[float]]:
+        """The rows' values and, after them, the values each row's is the largest of (GdtResult.parts)."""
+        vals = [float(getattr(it, "value", it)) for it in items]
+        return vals, [float(p) for it in items for p in (getattr(it, "parts", ()) or ())]
+
+    try:
+        base = evaluate_values(d, datums, feats, mesh, pose)
+        base_parts = flat(base)[1]
+        counts = [len(getattr(it, "parts", ()) or ()) for it in base]
+    except Exception as exc:  # noqa: BLE001 - the definition does not evaluate: no uncertainty, said why
+        return refused(f"no uncertainty: the tolerance could not be evaluated ({exc})")
+    value = np.asarray(list(values) + base_parts, float)
+    part_of = np.cumsum([rows] + counts)  # row r's parts: value[part_of[r]:part_of[r + 1]]
 
     def value_at(dx: np.ndarray) -> np.ndarray:
         moved = dict(feats)
         for j, (fid, m) in enumerate(parts):
             moved[fid] = m.moved(dx[spans[j]:spans[j + 1]])
-        out = np.asarray(evaluate_values(d, datums, moved, mesh, pose), float)
+        vals, more = flat(evaluate_values(d, datums, moved, mesh, pose))
+        out = np.asarray(vals + more, float)
         if out.shape != value.shape:
-            raise ValueError(f"{len(out)} values on the moved hits, {rows} measured")
+            raise ValueError(f"{len(out)} values on the moved hits, {len(value)} measured")
         return out
 
     def change(dx: np.ndarray, lengths: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -261,8 +290,11 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
     both: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # term -> (u linear, u of the deviation's length) per row
     dofs: dict[str, float] = {}
 
+    independent: list[np.ndarray] = []  # every pattern's linear changes, each an independent standard error
+
     def add(name: str, changes: list[tuple[np.ndarray, np.ndarray]]) -> None:
         both[name] = (np.sqrt(sum(a * a for a, _ in changes)), np.sqrt(sum(b * b for _, b in changes)))
+        independent.extend(a for a, _ in changes)
 
     try:
         for source, pats in systematic.items():
@@ -282,8 +314,6 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
             # largest of n scatters, not the change of the hit that happens to be largest: its error is bounded by
             # twice the largest hit error, whose 95.45 % point (n independent hits) takes the lengths' place
             from scipy.stats import norm
-
-            from .uncertainty import COVERAGE
 
             n_own = int(spans[1])
             z = float(norm.ppf((1.0 + COVERAGE ** (1.0 / n_own)) / 2.0))
@@ -315,9 +345,13 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
     out = []
     for row in range(rows):
         k, uc, terms = expanded(row, 1)
+        big = k * uc
         if value[row] > k * uc:
             k, uc, terms = expanded(row, 0)
-        out.append({"U": k * uc, "k": k, "u_c": uc, "terms": terms,
+            big = k * uc
+            if part_of[row + 1] - part_of[row] > 1:
+                big = max(big, k / K_COVERAGE * _largest_of(np.array(independent)[:, part_of[row]:part_of[row + 1]]))
+        out.append({"U": big, "k": big / uc if uc > 0 else k, "u_c": uc, "terms": terms,
                     "note": "from the budgets' sources moved through the feature's and the datums' fits and the "
                             "zone's evaluation: sources common to the set-up at once, scatter and sampling hit by "
                             "hit" + ("" if inputs else " (the station's default sources: no feature has a budget)")})
