@@ -13,9 +13,9 @@ one. Printed per feature and value: coverage (|error| <= U), the worst |error| /
 (the standard deviation of the errors) and U / the RMS error (their spread about the truth, which U is
 compared to: a value that cannot go negative, read near a true value of 0, has a folded error whose standard
 deviation is 0.60 sigma while its 95 % point is 1.96 sigma): targets >= 95 %, < 2, <= 3. A count of 200
-trials scatters by about +-1.4 % around the true coverage (binomial), U / spread by about +-5 %: ``--local-fits`` (cylinders and cones
-fitted by local least squares from the true geometry, the same minimum as the station's multi-start fit on
-errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run. ``--gdt``: geometric
+trials scatters by about +-1.4 % around the true coverage (binomial), U / spread by about +-5 %:
+``--local-fits`` (cylinders and cones fitted by local least squares from the true geometry, the same minimum as
+the station's multi-start fit on errors of a few um, about 50 times faster) makes 2000 trials a feature a five-minute run. ``--gdt``: geometric
 tolerances against datums instead (``run_gdt``: the boss's position to A|B and perpendicularity to A, the
 features and their datums measured in one set-up a trial), with their U (cmm.metrology.uncertainty_gdt).
 """

@@ -449,7 +449,8 @@ def coaxiality(characteristic: str, kind: str, geometry: dict[str, Any], drf: DR
     local = drf.to_local(ends)
     ends_value = 2.0 * np.hypot(local[:, 0], local[:, 1])
     return GdtResult(characteristic, float(ends_value.max()), tol, drf=drf.labels,
-                     note="zone coaxial with the datum axis", parts=tuple(float(v) for v in ends_value) if len(ends_value) > 1 else ())
+                     note="zone coaxial with the datum axis",
+                     parts=tuple(float(v) for v in ends_value) if len(ends_value) > 1 else ())
 
 
 def _datum_axis(drf: DRF, what: str) -> None:
