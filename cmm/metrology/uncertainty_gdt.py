@@ -150,7 +150,7 @@ class _Points:
         return replace(self.f, points=self.x + dx)
 
 
-PROFILE_MAX_HITS = 60  # a profile's U re-evaluates it (a best fit to the mesh) about 2 x (hits + 12) times
+PROFILE_MAX_HITS = 60  # a profile's U re-evaluates it (a best fit to the mesh) 2 x its hits + about 50 times
 
 
 def involved(d: dict[str, Any], datums: dict[str, dict]) -> list[int]:
@@ -174,12 +174,12 @@ def gdt_uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int,
 
 
 def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, Any], values: list[float],
-                      evaluate_values: Callable[..., list[float]], mesh: Any = None, pose: Any = None,
+                      evaluate_values: Callable[..., list[Any]], mesh: Any = None, pose: Any = None,
                       own: bool | None = None) -> list[dict[str, Any]]:
     """The uncertainty (as :func:`gdt_uncertainty`) of each row's value of definition ``d``: one row, or a
     composite position's (each feature's pattern-locating tier and the pattern's feature-relating tier), all
     propagated through the same moved hits; ``evaluate_values(d, datums, feats, mesh, pose)``: the rows'
-    values. ``own``: whether the toleranced feature's sampling counts (its fitted geometry is what the value
+    values (numbers, or GdtResults whose ``parts`` are the values each is the largest of). ``own``: whether the toleranced feature's sampling counts (its fitted geometry is what the value
     stands on), for another caller's values (a DMIS tolerance); by default from the characteristic."""
     ch = d.get("characteristic", "")
     rows = len(values)
