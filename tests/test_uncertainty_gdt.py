@@ -110,6 +110,27 @@ def test_a_profile_is_propagated_through_its_best_fit_and_covers_a_simulated_err
     assert u["U"] > 0 and "default sources" in u["note"]
 
 
+def test_a_flatness_near_zero_is_bounded_by_its_largest_hit_errors():
+    """A flatness (the zone of the feature's own 20 hits) whose true value is 0: the value read is the range of 20
+    scatters after the fit. The hit-by-hit change of its two extreme hits covered such a value 85 % of the time (a
+    value read large by chance took the smaller linear U); twice the 95.45 % point of the largest of 20 scatters
+    bounds it."""
+    _, exact = _box_face(5, 4)
+    rng = np.random.default_rng(3)
+    d = {"id": 1, "name": "flat", "characteristic": "flatness", "feature": 1, "tolerance": 0.02, "datums": []}
+    values, us = [], []
+    for _ in range(16):
+        pts = exact + np.c_[np.zeros((len(exact), 2)), rng.normal(0, SRC.repeatability, len(exact))]
+        fit = fit_plane(pts)
+        f = MeasuredFeature("top", "plane", fit.summary(), None, pts, budget=budget("plane", pts, fit, SRC).summary())
+        (_, c), = evaluate([d], {}, {1: f})
+        values.append(c.actual)
+        us.append(c.uncertainty)
+    values, us = np.array(values), np.array(us)
+    assert np.all(values <= us) and np.mean(us) / math.sqrt(np.mean(values ** 2)) < 3.0
+    assert np.mean(us) == pytest.approx(2 * 3.04 * SRC.repeatability, rel=0.05)
+
+
 def test_values_without_an_honest_propagation_say_why():
     mesh, pts = _box_face(9, 7)
     fit = fit_plane(pts)

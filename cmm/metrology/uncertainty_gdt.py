@@ -27,9 +27,10 @@ row's value is re-evaluated and takes its own U.
 
 A profile's points move as they are (no fit of their own: the profile's best fit to the CAD mesh is inside the
 evaluation repeated for every moved set), each along the mesh's normal at its closest point, with the sources of
-a budget of the frame's features (the station's defaults when none has one). Near zero its value is the largest
-of its hits' errors, not the change of the hit that happens to be largest: twice the 95.45 % point of the
-largest of n hit scatters takes the lengths' place for its own hits.
+a budget of the frame's features (the station's defaults when none has one). Near zero a zone of the
+toleranced feature's own hits (a profile, a form, a runout) is set by the extremes of its hits' errors, not by the
+change of the hit that happens to be the extreme: twice the 95.45 % point of the largest of n hit scatters takes
+the lengths' place for its own hits.
 
 Refused, with the reason: a feature or datum feature without a budget (not a least-squares plane, circle,
 sphere, cylinder, cone or point; a profile's own points need none), a profile without the mesh and pose or of
@@ -302,26 +303,30 @@ def row_uncertainties(d: dict[str, Any], datums: dict[str, dict], feats: dict[in
         # each hit moved once along its normal: its scatter and its sampling are the same displacement at two
         # sizes, and both changes (the linear one and the deviation's length) scale with the size
         step = np.concatenate([np.full(len(m.x), max(src.repeatability, m.form, 1e-6)) for _, m in parts])
+        if own is None:
+            own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity")
+                                        and parts[0][1].kind != "plane")
+        n_own = int(spans[toleranced])  # the toleranced feature's hits come first
         per_hit = []
         for i in range(len(x)):
             dx = np.zeros((len(x), 3))
             dx[i] = step[i] * n[i]
-            per_hit.append(change(dx, lengths=not (profile and i < spans[1])))  # a profile's own: see below
+            per_hit.append(change(dx, lengths=own or i >= n_own))  # a zone's own hits: see below
         add("scatter", [(a * src.repeatability / step[i], b * src.repeatability / step[i])
                         for i, (a, b) in enumerate(per_hit)])
-        if profile:
-            # near zero a profile (twice its points' largest distance from the mesh) read from n hits is the
-            # largest of n scatters, not the change of the hit that happens to be largest: its error is bounded by
-            # twice the largest hit error, whose 95.45 % point (n independent hits) takes the lengths' place
+        if not own:
+            # near zero a zone of the feature's own hits (the range of their distances: a form, a runout; a profile:
+            # twice their largest distance) read from n hits is set by the extremes of n scatters, not by the
+            # change of the hit that happens to be the extreme: its error is bounded by twice the largest hit error,
+            # whose 95.45 % point (n independent hits) takes the lengths' place, as a standard uncertainty of half
+            # of it. (The hit-by-hit lengths covered a flatness of 30 hits whose true value is 0 85 % of the time,
+            # a profile's none; the range's own 95.45 % point, smaller, let values read large by chance take the
+            # linear U: a flatness of 0.85 um 83 % covered, against 95 % with this bound.)
             from scipy.stats import norm
 
-            n_own = int(spans[1])
-            z = float(norm.ppf((1.0 + COVERAGE ** (1.0 / n_own)) / 2.0))
             rest = sum((per_hit[i][1] * src.repeatability / step[i]) ** 2 for i in range(n_own, len(x)))
-            both["scatter"] = (both["scatter"][0], np.sqrt(rest + (z * src.repeatability) ** 2) * np.ones(rows))
-        if own is None:
-            own = ch in ON_GEOMETRY or (ch in ("parallelism", "perpendicularity", "angularity")
-                                        and parts[0][1].kind != "plane")
+            bound = float(norm.ppf((1.0 + COVERAGE ** (1.0 / n_own)) / 2.0)) * src.repeatability
+            both["scatter"] = (both["scatter"][0], np.sqrt(rest + bound ** 2) * np.ones(rows))
         for j, (fid, m) in enumerate(parts):
             if j < toleranced and not own:
                 continue
