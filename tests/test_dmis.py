@@ -562,6 +562,14 @@ def test_lines_points_outer_circles_radius_straightness_roundness_line_profile_a
     hits = hits[:8]
     off = np.abs(np.linalg.norm(hits[3:7, :2] - setup[:2] - [70.0, 22.0], axis=1) - 10.0)
     assert ta["PL"] == (pytest.approx(2 * off.max(), abs=1e-4), "OUTOL") and off.max() > 0.1
+    # each TA line with its U as each FA line (a $$ comment after it), or why it has none: the radius's U is half
+    # the circle's diameter U; roundness and the line profile propagated through DMIS's own evaluation
+    u_ta = dict(re.findall(r"^\$\$ TA\((\w+)\): (.*)$", first, re.M))
+    assert u_ta["STR"].startswith("no U: the toleranced feature has no uncertainty budget"), u_ta
+    diameter_u = float(re.search(r"^\$\$ FA\(BOSSC\): U \(95 %\) diameter ([\d.]+)", first, re.M).group(1))
+    assert u_ta["RAD"].startswith(f"U (95 %) {diameter_u / 2:.5f} k=")
+    for label in ("CIR", "PL"):
+        assert 0 < float(re.match(r"U \(95 %\) ([\d.]+) k=", u_ta[label]).group(1)) < 0.01, u_ta
     # the point on the boss's top, and every hit on the true part's surface where it was asked for
     assert fa["PT"][1][2] == pytest.approx(55.0, abs=NOISE) and fa["PT"][1][3:] == [0.0, 0.0, 1.0]
     part = (np.linalg.inv(TRUE_PART_POSE) @ np.c_[hits, np.ones(len(hits))].T).T[:, :3]

@@ -83,6 +83,14 @@ def test_a_vendor_export_runs_with_its_alignments_texts_and_output_files(station
     # the point whose nominal is 0.03 above the face: 2D (in the XY working plane) sees nothing, 3D twice 0.03
     assert ta["POS2D_PT"][0] < 2 * NOISE
     assert ta["POS3D_PT"][0] == pytest.approx(0.06, abs=2 * NOISE)
+    # every TA line is followed by its U, as each FA line (the size's is the feature budget's diameter U; the
+    # others propagated through DMIS's own evaluation of the word)
+    for k, x in enumerate(lines):
+        if x.startswith("TA("):
+            label = x[3:x.index(")")]
+            assert re.match(rf"\$\$ TA\({label}\): U \(95 %\) 0\.0\d+ k=2\.\d\d$", lines[k + 1]), lines[k + 1]
+    bore_u = re.search(r"^\$\$ FA\(CYL_BORE\): U \(95 %\) diameter ([\d.]+)", out, re.M).group(1)
+    assert f"$$ TA(DIAM_B): U (95 %) {bore_u} k=" in out
     # constructions: the bore axis pierces the top at the origin; the edge runs along X at Y -40, Z 0
     assert fa["PT_PIERCE"][:3] == pytest.approx([0.0, 0.0, 0.0], abs=NOISE)
     assert fa["LIN_EDGE"][1:3] == pytest.approx([-40.0, 0.0], abs=NOISE)

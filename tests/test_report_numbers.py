@@ -218,6 +218,14 @@ def test_every_gdt_characteristic_reaches_the_report_unchanged(measured):
     assert "G(M) = boss" in html
     composite = [c for d, c in rows if "composite" in d]
     assert [c.feature for c in composite] == ["bore", "boss", "pattern of 2"]
+    # each tier its own U (the same propagation as any position), in the tree's and the CSV's rows alike
+    assert all(c.uncertainty is not None and c.uncertainty > 0 for c in composite), [c.uncertainty_why for c in composite]
+    assert [r[14] for r in csv_rows if r[0] in ("pattern of 2",)] == [f"{composite[2].uncertainty:.6f}"]
+    # the profiles too: their points moved through their best fit to the mesh (the edge, a line, has no budget of
+    # its own: the station's default sources)
+    profiles = [c for d, c in rows if d["characteristic"].startswith("profile")]
+    assert len(profiles) == 2 and all(c.uncertainty and c.uncertainty > 0 for c in profiles), \
+        [c.uncertainty_why for c in profiles]
     assert "⊕ ⌀0.5000 | A|B|C / ⌀0.0500 | A" in html and "E = bore low; F = bore high" in html
 
 

@@ -9,6 +9,7 @@ from .features import Actual, actual_line, nominal_line
 from .parser import Label, Param, Statement, Word
 from .rules import material_problem
 from .run_state import statement_text
+from .tolerance_u import tolerance_u_line
 from .tolerances import (Evaluation, Tolerance, evaluate as evaluate_tolerance, model_tolerance, output_line,
                          planar_position)
 
@@ -71,6 +72,7 @@ class OutputStatements:
                 if tol.word in ("DIAM", "RAD") and nom is not None and nom.diameter is not None:
                     k = 2.0 if tol.word == "RAD" else 1.0  # the size limits as diameters, for MMC / LMC
                     self.sizes[pending[0].label] = (nom.diameter + k * tol.lower, nom.diameter + k * tol.upper)
+                self.emit(tolerance_u_line(ev, pending, self.datums, self.frame, self.sizes, self.model, self.scale))
                 self._to_model(ev, pending)
                 after_tolerance = True
             else:

@@ -75,6 +75,7 @@ class GdtResult:
     drf: str = ""  # "A|B|C" with modifiers; "" without datums
     material: str = ""  # "MMC" / "LMC" / "" (RFS)
     note: str = ""  # how it was measured: shift used, free DOF, zone shape
+    parts: tuple[float, ...] = ()  # the values the value is the largest of (a position at each axis end), or ()
 
     @property
     def allowed(self) -> float:
@@ -312,7 +313,8 @@ def position(kind: str, geometry: dict[str, Any], nominal: dict[str, Any], toler
         dev, shift = _datum_shift(drf, dev)
         if shift:
             notes.append(f"datum shift up to ⌀{shift:.4f} used")
-    value = 2.0 * float(np.linalg.norm(dev, axis=1).max())
+    ends_value = 2.0 * np.linalg.norm(dev, axis=1)
+    value = float(ends_value.max())
     bonus = 0.0
     if material:
         if material not in ("MMC", "LMC"):
@@ -323,7 +325,8 @@ def position(kind: str, geometry: dict[str, Any], nominal: dict[str, Any], toler
         bonus = material_bonus(material, 2.0 * float(geometry["radius"]), size_limits, internal)
         notes.append(f"actual size ⌀{2.0 * float(geometry['radius']):.4f}, bonus {bonus:.4f}")
     zone = "spherical zone" if kind in ("sphere", "point") else "cylindrical zone"
-    return GdtResult("position", value, tol, bonus, _drf_text(drf), material, "; ".join([zone] + notes))
+    return GdtResult("position", value, tol, bonus, _drf_text(drf), material, "; ".join([zone] + notes),
+                     parts=tuple(float(v) for v in ends_value) if len(ends_value) > 1 else ())
 
 
 def _datum_shift(drf: DRF, dev: np.ndarray) -> tuple[np.ndarray, float]:
@@ -396,7 +399,7 @@ def composite_position(items: list[tuple[str, dict[str, Any], dict[str, Any], An
     upper_rows = [position(kind, g, nominal, upper, drf=drf, nominal_drf=ndrf, points=pts)
                   for kind, g, nominal, pts in items]
     upper_rows = [GdtResult(r.characteristic, r.value, r.tolerance, r.bonus, r.drf, r.material,
-                            f"pattern-locating tier (PLTZF); {r.note}") for r in upper_rows]
+                            f"pattern-locating tier (PLTZF); {r.note}", r.parts) for r in upper_rows]
     acts, noms, axis = _pattern_points(items, lower_drf, lower_ndrf, what)
     f = frame_with_axis(axis)
     e = f[:, :2]
@@ -444,8 +447,10 @@ def coaxiality(characteristic: str, kind: str, geometry: dict[str, Any], drf: DR
     else:
         ends = o[None, :]
     local = drf.to_local(ends)
-    value = 2.0 * float(np.hypot(local[:, 0], local[:, 1]).max())
-    return GdtResult(characteristic, value, tol, drf=drf.labels, note="zone coaxial with the datum axis")
+    ends_value = 2.0 * np.hypot(local[:, 0], local[:, 1])
+    return GdtResult(characteristic, float(ends_value.max()), tol, drf=drf.labels,
+                     note="zone coaxial with the datum axis",
+                     parts=tuple(float(v) for v in ends_value) if len(ends_value) > 1 else ())
 
 
 def _datum_axis(drf: DRF, what: str) -> None:

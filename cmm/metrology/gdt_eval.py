@@ -445,40 +445,42 @@ def evaluate(definitions: list[dict[str, Any]], datums: dict[str, dict], feats: 
                                           datums="|".join(d.get("datums") or []))))
             continue
         check = check_text(d, datums, feats)
-        unc = _uncertainty(d, datums, feats, rows, mesh, pose)
-        for feature_name, r in rows:
+        uncs = _uncertainty(d, datums, feats, rows, mesh, pose)
+        for (feature_name, r), unc in zip(rows, uncs):
             out.append((d, Characteristic(feature_name, r.label, 0.0, r.value, r.allowed, 0.0,
                                           note=f"{name}: {r.note}", check=check, datums=r.drf, **unc)))
     return out
 
 
-_PROPAGATED: dict[tuple, dict[str, Any]] = {}  # the propagation of a tolerance on given hits (see _uncertainty)
+_PROPAGATED: dict[tuple, list[dict[str, Any]]] = {}  # the propagation of a tolerance on given hits (see _uncertainty)
+
+
+def _row_values(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature], mesh: Any = None,
+                pose: Any = None) -> list[gdt.GdtResult]:
+    return [r for _, r in evaluate_rows(d, datums, feats, mesh, pose)]
 
 
 def _uncertainty(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature],
-                 rows: list[tuple[str, gdt.GdtResult]], mesh: Any, pose: Any) -> dict[str, Any]:
-    """The Characteristic's uncertainty fields of a definition's row (cmm.metrology.uncertainty_gdt)."""
-    from .uncertainty_gdt import gdt_uncertainty
+                 rows: list[tuple[str, gdt.GdtResult]], mesh: Any, pose: Any) -> list[dict[str, Any]]:
+    """The Characteristic's uncertainty fields of each of a definition's rows (cmm.metrology.uncertainty_gdt;
+    a composite position's tiers each their own)."""
+    from .uncertainty_gdt import involved, row_uncertainties
 
-    from .uncertainty_gdt import involved
-
-    if len(rows) != 1:
-        return {"uncertainty_why": "no uncertainty: a composite position's tiers are not propagated"}
     # the tree, the report, the CSV and QIF evaluate the same tolerances on the same hits: propagate once
     parts = [(fid, None if feats.get(fid) is None else (feats[fid].kind, repr(feats[fid].geometry),
                                                         np.asarray(feats[fid].points).tobytes(),
                                                         repr((feats[fid].budget or {}).get("inputs"))))
              for fid in involved(d, datums)]
-    key = (repr(sorted(d.items())), repr(sorted(datums.items())), repr(parts), rows[0][1].value)
-    u = _PROPAGATED.get(key)
-    if u is None:
-        u = gdt_uncertainty(d, datums, feats, rows[0][1].value, evaluate_one, mesh, pose)
+    values = [float(r.value) for _, r in rows]
+    key = (repr(sorted(d.items())), repr(sorted(datums.items())), repr(parts), tuple(values))
+    us = _PROPAGATED.get(key)
+    if us is None:
+        us = row_uncertainties(d, datums, feats, values, _row_values, mesh, pose)
         if len(_PROPAGATED) > 512:
             _PROPAGATED.clear()
-        _PROPAGATED[key] = u
-    if "U" not in u:
-        return {"uncertainty_why": str(u.get("why", "no uncertainty"))}
-    return {"uncertainty": float(u["U"]), "uncertainty_k": float(u["k"])}
+        _PROPAGATED[key] = us
+    return [{"uncertainty": float(u["U"]), "uncertainty_k": float(u["k"])} if "U" in u
+            else {"uncertainty_why": str(u.get("why", "no uncertainty"))} for u in us]
 
 
 def check_text(d: dict[str, Any], datums: dict[str, dict], feats: dict[int, MeasuredFeature]) -> str:
