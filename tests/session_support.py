@@ -183,3 +183,25 @@ def standing(station, what: str, still: float = 0.2, timeout: float = 60.0) -> N
         if time.monotonic() > end:
             raise AssertionError(f"{what}: the axes did not stand still within {timeout:g} s")
         time.sleep(0.02)
+
+
+# The sample block's three datum faces, three hits each (part coordinates: point, approach direction)
+PLANE_FACES = {
+    "TOP": [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), ((50.0, 70.0, 40.0), (0, 0, -1))],
+    "FRONT": [((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((60.0, 0.0, 30.0), (0, 1, 0))],
+    "LEFT": [((0.0, 20.0, 15.0), (1, 0, 0)), ((0.0, 50.0, 15.0), (1, 0, 0)), ((0.0, 35.0, 30.0), (1, 0, 0))]}
+
+
+def planes_routine(part, name: str, faces=("TOP", "FRONT", "LEFT")):
+    """A routine that measures the named faces of PLANE_FACES as least-squares planes on ``part``."""
+    from cmm.measurement.routine import Routine
+    from cmm.program.toml_program import Program, ProgramFeature, ProgramHit, part_hash
+
+    hits, features = [], []
+    for face in faces:
+        ids = []
+        for point, approach in PLANE_FACES[face]:
+            hits.append(ProgramHit(len(hits) + 1, point, approach, 65.0))
+            ids.append(hits[-1].id)
+        features.append(ProgramFeature(face, "plane", "ls", ids))
+    return Routine(Program(name, "block", part_hash(part), features, hits))

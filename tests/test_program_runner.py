@@ -18,29 +18,16 @@ from cmm.dmis.runner import register_verbs
 from cmm.measurement.routine import Routine
 from cmm.measurement.routine_run import RoutineCancelled
 from cmm.program.runner import StepRunner
-from cmm.program.toml_program import Program, ProgramFeature, ProgramHit, part_hash
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
 # three datum planes of the block (part mm): hits on the top, the front and the left face, approach into them
-FACES = {"TOP": [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), ((50.0, 70.0, 40.0), (0, 0, -1))],
-         "FRONT": [((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((60.0, 0.0, 30.0), (0, 1, 0))],
-         "LEFT": [((0.0, 20.0, 15.0), (1, 0, 0)), ((0.0, 50.0, 15.0), (1, 0, 0)), ((0.0, 35.0, 30.0), (1, 0, 0))]}
-
-
 @pytest.fixture
 def station(tmp_path):
     yield from sup.sim_station(tmp_path, "runner controls")
 
 
 def _routine(model) -> Routine:
-    hits, features = [], []
-    for name, planned in FACES.items():
-        ids = []
-        for point, approach in planned:
-            hits.append(ProgramHit(len(hits) + 1, point, approach, 65.0))
-            ids.append(hits[-1].id)
-        features.append(ProgramFeature(name, "plane", "ls", ids))
-    return Routine(Program("planes", "block", part_hash(model.part), features, hits))
+    return sup.planes_routine(model.part, "planes")
 
 
 def _the(jobs: list[dict], description: str) -> dict:

@@ -9,20 +9,16 @@ import inspect
 
 import numpy as np
 import pytest
+import session_support as sup
 
 from cmm.control.access import Client
 from cmm.journal.writer import read_events
 from cmm.measurement.routine import Routine
 from cmm.measurement.routine_host import RoutineHost, StationRoutineHost
 from cmm.measurement.routine_run import RoutineRun
-from cmm.program.toml_program import Program, ProgramFeature, ProgramHit, part_hash
 from cmm.sim.cmm_sim import TRUE_PART_POSE
 
 # two faces of the block (part mm): hits on the top and the front, approach into them
-FACES = {"TOP": [((15.0, 10.0, 40.0), (0, 0, -1)), ((105.0, 12.0, 40.0), (0, 0, -1)), ((50.0, 70.0, 40.0), (0, 0, -1))],
-         "FRONT": [((15.0, 0.0, 15.0), (0, 1, 0)), ((105.0, 0.0, 15.0), (0, 1, 0)), ((60.0, 0.0, 30.0), (0, 1, 0))]}
-
-
 @pytest.fixture
 def station(stations):
     st = stations.station("routine host")
@@ -31,14 +27,7 @@ def station(stations):
 
 
 def _routine(part) -> Routine:
-    hits, features = [], []
-    for name, planned in FACES.items():
-        ids = []
-        for point, approach in planned:
-            hits.append(ProgramHit(len(hits) + 1, point, approach, 65.0))
-            ids.append(hits[-1].id)
-        features.append(ProgramFeature(name, "plane", "ls", ids))
-    routine = Routine(Program("two faces", "block", part_hash(part), features, hits))
+    routine = sup.planes_routine(part, "two faces", ("TOP", "FRONT"))
     routine.steps.append({"kind": "construct", "name": "square", "operation": "angle", "of": ["TOP", "FRONT"]})
     return routine
 
