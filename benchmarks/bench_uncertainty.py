@@ -23,6 +23,7 @@ features and their datums measured in one set-up a trial), with their U (cmm.met
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -257,7 +258,8 @@ def local_fit(kind: str, true_fit, hits: np.ndarray):
 
 
 def run(trials: int, seed: int, verbose: bool = True, features: tuple[str, ...] | None = None, form: float = 0.0,
-        isotropic: bool = False, local_fits: bool = False) -> dict[str, dict[str, dict[str, float]]]:
+        isotropic: bool = False, local_fits: bool = False,
+        form_prior: float | None = None) -> dict[str, dict[str, dict[str, float]]]:
     rng = np.random.default_rng(seed)
     pose = TRUE_PART_POSE
     out: dict[str, dict[str, dict[str, float]]] = {}
@@ -269,6 +271,8 @@ def run(trials: int, seed: int, verbose: bool = True, features: tuple[str, ...] 
         true_fit = None
         for _ in range(trials):
             hits, truth, src = measure(kind, pts, rng, pose, form, isotropic)
+            if form_prior is not None:  # the form the shop tells the budget to expect (its process, its drawing)
+                src = dataclasses.replace(src, form_prior=form_prior)
             nominal = None
             if kind == "cone":
                 ax = pose[:3, :3] @ [0, 0, -1.0]
@@ -335,6 +339,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--form", type=float, default=1.0,
                         help="the part's form under each hit, um (one sigma; the budget's prior is 1 um); 0: perfect")
+    parser.add_argument("--form-prior", type=float, default=None,
+                        help="the form the budget is told to expect, um (one sigma; default: the budget's 1 um)")
     parser.add_argument("--isotropic", action="store_true",
                         help="compensate with the mean pre-travel only (no directional qualification)")
     parser.add_argument("--local-fits", action="store_true",
@@ -345,7 +351,8 @@ def main() -> None:
     if args.gdt:
         run_gdt(args.trials, args.seed, form=args.form / 1000)
         return
-    res = run(args.trials, args.seed, form=args.form / 1000, isotropic=args.isotropic, local_fits=args.local_fits)
+    res = run(args.trials, args.seed, form=args.form / 1000, isotropic=args.isotropic, local_fits=args.local_fits,
+              form_prior=None if args.form_prior is None else args.form_prior / 1000)
     cov = [r["coverage"] for f in res.values() for r in f.values()]
     worst = max(r["worst"] for f in res.values() for r in f.values())
     real = [r for f in res.values() for r in f.values() if r["err_max"] > 1e-6]  # values the errors move at all
