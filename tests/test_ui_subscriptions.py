@@ -106,3 +106,22 @@ def test_the_pages_close_ends_its_tabs_subscriptions(app):
         assert hub.count() == before + 2
         app.close()  # the page closes while the tab is open
         assert hub.count() == before and capp.status.feed.closed and capp.ctx.readouts.closed
+
+
+def test_a_tab_built_before_the_first_delivery_reads_the_query_itself():
+    """A tab's widgets are made from the feed at once; when the hub has not come round yet (a busy computer: the
+    first snapshot was late and the tab's Probe panel failed to build, KeyError), the feed answers with the query."""
+    api = CommandAPI()
+    hub_may_go = threading.Event()
+    api.register("slow", lambda client: hub_may_go.wait(30) and "late", {}, "held up", query=True)
+    api.register("probe_data", lambda client: {"tip": 2.0}, {}, "the probe's data", query=True)
+    feed = Feed(api, None, {"slow": {}, "probe_data": {}}, 50.0, lambda snapshot: None)
+    try:
+        assert feed.snapshot() is None  # nothing delivered: the hub waits on the first query
+        assert feed.query("probe_data") == {"tip": 2.0}
+        hub_may_go.set()
+        _until(lambda: feed.snapshot() is not None, what="the first delivery")
+        assert feed.snapshot() == {"slow": "late", "probe_data": {"tip": 2.0}}
+    finally:
+        hub_may_go.set()
+        feed.close()

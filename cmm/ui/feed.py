@@ -36,6 +36,7 @@ class Feed:
         self._first = threading.Event()
         self.deliveries = 0
         self.closed = False
+        self._api, self._client = api, client
         self.subscription = api.subscribe(client, self.queries, self._changed, rate=rate)
 
     def _changed(self, changed: dict[str, Any]) -> None:
@@ -66,9 +67,13 @@ class Feed:
             return dict(self._values) if len(self._values) == len(self.queries) else None
 
     def query(self, name: str, /, **_params: Any) -> Any:
-        """A query function over the snapshot (for the renderers that take one): the value last delivered."""
+        """A query function over the snapshot (for the renderers that take one): the value last delivered, or,
+        before the first delivery of ``name`` (a tab built while the hub is slow to come round), the query itself
+        as this feed's client."""
         with self._lock:
-            return self._values[name]
+            if name in self._values:
+                return self._values[name]
+        return self._api.invoke(self._client, name, **self.queries[name])
 
     def wait(self, timeout: float = FIRST_DELIVERY_S) -> dict[str, Any] | None:
         """The snapshot once the first delivery came (None after ``timeout`` or while a query fails)."""
