@@ -64,7 +64,10 @@ def log_in(page, name, password):
     fields = dialog.locator("input")
     fields.nth(0).fill(name)
     fields.nth(1).fill(password)
-    bs.wait_until(lambda: fields.nth(1).get_attribute("type") == "password", 30, "the password's characters hidden")
+    bs.wait_until(lambda: fields.nth(1).get_attribute("type") == "password", 30, "the password's characters hidden",
+                  why=lambda: page.evaluate("() => ({watch: !!window.__cmmPasswordWatch, labels: [...document"
+                                            ".querySelectorAll('label')].map(l => l.textContent), types: [...document"
+                                            ".querySelectorAll('input')].map(i => i.type)})"))
     bs.wait_until(lambda: fields.nth(0).input_value() == name and fields.nth(1).input_value() == password, 30,
                   "the login typed")
     dialog.get_by_role("button", name="Log in", exact=True).click()
