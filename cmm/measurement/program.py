@@ -94,6 +94,17 @@ def run_program(program: Program, model: MeasurementModel, part_pose: Any = None
     return ProgramRun(program, ids, feats, record_trend(model, program.name, feats.values(), serial=serial))
 
 
+def tell_stopped(model: Any, series: str, reason: Any, serial: str = "") -> None:
+    """Tell the model's notifier (if it has one) that a run of ``series`` stopped early, and why; never raises (the
+    run's own error stands)."""
+    notifier = getattr(model, "notifier", None)  # cmm.session.notify's Notifier, when the station notifies
+    if notifier is not None:
+        try:
+            notifier.run_stopped(model, series, reason, serial)
+        except Exception:  # noqa: BLE001 - a notification never hides the run's error
+            pass
+
+
 def record_trend(model: MeasurementModel, series: str, features: Any = (), *, values: Any = (), serial: str = "",
                  run_id: str | None = None) -> Any:
     """Record a finished run as a part of ``series`` in ``model.trends`` (None when the model records no trends):

@@ -224,12 +224,9 @@ class StationRoutineHost:
         return record_trend(model, series, values=list(values.values()), serial=serial)
 
     def run_stopped(self, series: str, reason: Any, serial: str) -> None:
-        notifier = getattr(self._model, "notifier", None)  # cmm.session.notify, when the station notifies
-        if notifier is not None:
-            try:
-                notifier.run_stopped(self._model, series, reason, serial)
-            except Exception:  # noqa: BLE001 - a notification never hides the run's error
-                pass
+        from .program import tell_stopped
+
+        tell_stopped(self._model, series, reason, serial)
 
     # --- the machine, through the command API as the run's client ---------------------------------
 

@@ -247,15 +247,11 @@ def register_measurement_verbs(controller: Any, measurement: Any, calibration: A
     def run_end(series: str, values: Any = None, event: Any = None, stopped: Any = None, serial: str = "") -> Any:
         """A part program's end (record_event's program_end / program_stopped): its trend values (the run a part
         of the series, the notifier told) and its own journal event (kind, data), or why it stopped early."""
-        from .program import record_trend
+        from .program import record_trend, tell_stopped
 
         notifier = getattr(measurement, "notifier", None)
         if stopped is not None:  # an early end: told to the notifier (never raises; the run's error stands)
-            if notifier is not None:
-                try:
-                    notifier.run_stopped(measurement, series, stopped, serial)
-                except Exception:  # noqa: BLE001 - a notification never hides the run's error
-                    pass
+            tell_stopped(measurement, series, stopped, serial)
             return None
         part = None
         if values is not None:

@@ -295,16 +295,6 @@ class Notifier:
         self._drop_mqtt()
 
 
-def run_stopped(model: Any, program: str, reason: Any, serial: str = "") -> None:
-    """Tell the model's notifier (if any) that a run stopped early; never raises (the run's own error stands)."""
-    notifier = getattr(model, "notifier", None)
-    if notifier is not None:
-        try:
-            notifier.run_stopped(model, program, reason, serial)
-        except Exception:  # noqa: BLE001 - a notification never hides the run's error
-            pass
-
-
 def from_args(args: Any, session_dir: Any = None) -> Notifier | None:
     """The notifier the command line and the --config TOML ask for, or None."""
     cfg = load_config(getattr(args, "config", None), webhook=getattr(args, "notify_webhook", None),
