@@ -141,3 +141,33 @@ def test_a_move_started_in_the_moment_of_the_stop_is_not_started_after_it(statio
     finally:
         ctl.machine.halted = None
         bus.clear_halt()
+
+
+def test_the_stop_answers_once_a_slow_axis_has_braked_to_rest(station):
+    """An axis braking under one count per servo tick reads 0 counts on most ticks: the answer "stands still" waits
+    for every module's braking ramp to end (its move-done bit), not for the first sample with no count moved. The
+    defect: STOP during a slow move answered while X still crept 0.5 mm, and the next move (an I++ client's Home
+    after AbortE) was refused "the machine is busy (stopping)"."""
+    ctl = station.controller
+    who = None
+    if ctl.state.mode is not Mode.IDLE:
+        ctl.commands.invoke(who, "reset")
+    ctl.commands.invoke(who, "move", target=START, frame="machine", path="straight").wait(60)
+    # 2 mm/s is half a count per tick (500 counts/mm, ~1950 ticks/s); braking at 4 mm/s^2 takes 0.5 s and 0.5 mm
+    status = ctl.commands.invoke(who, "move", target=TARGET, frame="machine", path="straight", speed=2.0, accel=4.0)
+    start = ctl.clock.now()
+    while ctl.clock.now() < start + 1.5:  # at full speed (0.5 s of machine time to get there)
+        ctl.clock.sleep(0.05)
+    assert not status.done and abs(ctl.state.machine.axes[0].velocity) > 1.0, ctl.state.machine
+    report = ctl.commands.invoke(who, "stop")
+    assert report["ok"] and "stands still" in report["message"], report
+    at_answer, answered = _x_counts(station), ctl.clock.now()
+    while ctl.clock.now() < answered + 0.5:
+        ctl.clock.sleep(0.01)
+    assert abs(_x_counts(station) - at_answer) <= 1, \
+        f"X moved {abs(_x_counts(station) - at_answer)} counts after the answer said every axis stands still"
+    assert ctl.state.mode is Mode.STOPPED, ctl.state
+    with pytest.raises(Exception, match="stopped by the operator"):
+        status.wait(10)
+    # the next move is taken at once
+    ctl.commands.invoke(who, "move", target=START, frame="machine", path="straight").wait(60)

@@ -112,8 +112,8 @@ class SafetyCore:
         return [a.name.upper() for a in self.config.axes if a.address in failed]
 
     def _when_still(self, report: StopReport, press: float, name: str) -> StopReport:
-        """The stop's answer once every axis stands still (a sample taken after the press shows no velocity): no
-        message says "stopped" while an axis still moves. Told as the 'stop' / 'estop' event."""
+        """The stop's answer once every axis stands still (a sample taken after the press in which every module's
+        braking ramp has ended and no encoder moved a count): no message says "stopped" while an axis still moves. Told as the 'stop' / 'estop' event."""
         still = self._wait_still(press)
         if report.ok and still is not None:
             report = StopReport(True, ("stopped: every axis stands still" if name == "stop" else
@@ -136,7 +136,7 @@ class SafetyCore:
             return None
         while True:
             st = self._state.machine
-            if st is not None and st.time > press and all(abs(a.velocity) < 1e-9 for a in st.axes):
+            if st is not None and st.time > press and st.standing:
                 return float(st.time)
             if self.clock.now() > end or time.monotonic() > wall_end:
                 return None

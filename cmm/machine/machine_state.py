@@ -31,10 +31,17 @@ class AxisState:
     status: int
     aux: int
     current: int | None = None  # motor current sense, raw A/D (0..255)
+    counts_per_tick: int = 0  # the module's velocity as it reports it: counts its encoder moved in the last servo tick
 
     @property
     def words(self) -> list[str]:
         return codec.status_words(self.status, self.aux)
+
+    @property
+    def trajectory_done(self) -> bool:
+        """The module's move has ended (move done): a trapezoid at its goal, a velocity ramp (a smooth stop
+        included) at its target, or the servo off."""
+        return bool(self.status & codec.MOVE_DONE)
 
 
 @dataclass(frozen=True)
@@ -52,6 +59,19 @@ class MachineState:
     @property
     def counts(self) -> tuple[int, int, int]:
         return tuple(a.counts for a in self.axes)  # type: ignore[return-value]
+
+    # An axis braking (or starting) under one count per servo tick reads 0 counts on most ticks: a sample with no
+    # count moved does not say it stands. Its module's move-done bit does: the braking ramp has ended.
+    @property
+    def standing(self) -> bool:
+        """Every axis stands: its trajectory has ended and its encoder moved no count in the last tick."""
+        return all(a.trajectory_done and a.counts_per_tick == 0 for a in self.axes)
+
+    @property
+    def holding(self) -> bool:
+        """Every axis's trajectory has ended and its servo holds it within a count a tick (a servo holding its place
+        may move a count either way): not moving, in the operator's sense."""
+        return all(a.trajectory_done and abs(a.counts_per_tick) <= 1 for a in self.axes)
 
 
 @dataclass

@@ -115,7 +115,8 @@ class Machine(Connection, Jogging):
             for axis, st, p in zip(self.config.axes, sts, mm):
                 tick = codec.tick_seconds(axis.gains.sr)
                 vel = axis.rate_to_mm(st.velocity / tick) if st.velocity is not None else 0.0
-                axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0, st.ad))
+                axes.append(AxisState(st.position, float(p), st.position_error, vel, st.status, st.aux or 0, st.ad,
+                                      int(st.velocity or 0)))
             self.state = MachineState(
                 now, tuple(axes), any(self.probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
