@@ -160,11 +160,25 @@ def page_diagnosis(page: Any) -> str:
     except Exception as exc:  # noqa: BLE001 - a diagnosis never hides the failure it explains
         return f"the page did not answer ({type(exc).__name__}: {str(exc).splitlines()[0]})"
     if "frames" not in d:
-        return f"page clock {d['now'] / 1000:.1f} s (no frame statistics)"
+        return f"page clock {d['now'] / 1000:.1f} s (no frame statistics)" + station_side(page)
     since = "none yet" if d["sinceFrame"] is None else f"the last {d['sinceFrame'] / 1000:.1f} s ago"
     tasks = ", ".join(f"{dur / 1000:.2f} s at {at / 1000:.1f} s" for at, dur in d["longTasks"]) or "none"
     return (f"page clock {d['now'] / 1000:.1f} s; {d['frames']} frames, {since}; {d['waiting']} frame callbacks "
-            f"waiting; longest main-thread tasks: {tasks}")
+            f"waiting; longest main-thread tasks: {tasks}" + station_side(page))
+
+
+def station_side(page: Any) -> str:
+    """The station's side of a page, for a failed wait's message: is the tab's client still connected, and is the
+    refresher that copies the read-outs into it going (its rounds, read twice a second apart, and its failures)."""
+    capp = getattr(page, "capp", None)
+    app = getattr(capp, "app", None)
+    if app is None:
+        return ""
+    before = app.refreshes
+    time.sleep(1.0)
+    return (f"; station: the tab's client {'is connected' if page.cid in app.clients else 'is gone'}, the refresher "
+            f"did {app.refreshes - before} read-out rounds in 1 s ({app.refreshes} in all, {app.refresh_errors} "
+            "failed)")
 
 
 def shows(page: Any, text: str, station_has: Any = None, timeout: float = PAGE_WAIT_MS / 1000) -> None:

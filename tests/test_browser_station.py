@@ -104,7 +104,8 @@ def automeasure_in_page(page, station, local_point, outward, hits_per_ring, prop
     planned = lambda: getattr(measure.plan, "description", "")  # noqa: E731
     bs.wait_until(lambda: proposal in planned(), 60.0, f"the plan at the station: {proposal}",
                   why=lambda: f"planned {planned()!r}; told {page.capp.messages[-3:]}")
-    bs.shows(page, proposal)  # the proposed feature and its pattern of hits
+    bs.shows(page, proposal, lambda: f"the proposal: {proposal in measure.gui['plan'].content}, a plan: "
+             f"{measure.plan is not None}, {measure.gui['plan'].content[:200]}")  # the proposal and its hits
     plan = page.capp.measure.plan
     bs.shows(page, f"{len(plan)} hits · clearance plane")
     # the planned path is drawn in this tab's scene (after the plan's text: its clearance proofs take a while)

@@ -90,6 +90,7 @@ class StationApp:
         self.updater = ProbeUpdater(api, self.view, extra=self._sample_plot).start()
         self._stop = threading.Event()
         self.refresh_errors = 0  # refreshes that failed (each distinct failure is logged once)
+        self.refreshes = 0  # read-out rounds done (a refresher held up somewhere shows it here)
         self._refresh_failures: set[tuple[str, str, str]] = set()
         self._refresher = threading.Thread(target=self._refresh_loop, name="ui-refresh", daemon=True)
         self._refresher.start()
@@ -308,6 +309,7 @@ class StationApp:
             if tick % READOUT_EVERY == 0:
                 for cid, capp in clients:
                     self._guarded(f"tab {cid} read-outs", capp.refresh)
+                self.refreshes += 1
 
     def _guarded(self, what: str, fn: Any) -> None:
         try:
