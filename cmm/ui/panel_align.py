@@ -150,7 +150,8 @@ class AlignPanel:
             self._markers.append(scene.add_icosphere(f"/align/marker{k}", radius=r * SCALE, color=colour,
                                                      position=tuple(float(v) * SCALE for v in p)))
             seg = np.array([[p, p + 12.0 * np.asarray(n, float)]], np.float32) * SCALE
-            self._markers.append(scene.add_line_segments(f"/align/approach{k}", seg, colors=colour, line_width=3.0))
+            self._markers.append(scene.add_line_segments(f"/align/approach{k}", seg, colors=colour,
+                                                                 thickness=3.0, thickness_units="screen"))
 
     def compute_321(self, primary: int, secondary: int, tertiary: int) -> Any:
         try:
