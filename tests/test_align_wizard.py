@@ -128,3 +128,21 @@ def test_a_hit_or_an_element_is_taken_again(station):
     assert w.done and np.allclose(w.result.pose, first, atol=5e-3)
     with pytest.raises(WizardError):
         w.probe_marker()
+
+
+def test_a_closed_wizard_hears_no_more_hits_and_its_thread_ends(station):
+    """A wizard the page closes (another kind chosen, the tab gone) leaves the model's listeners as they were and its
+    counting thread ends: a shift of tabs does not leave one idle listener per wizard behind."""
+    st = station
+    listeners = list(st.measurement._listeners)
+    w = AlignWizard(st.measurement, _verbs(st), "plane-line-point")
+    w.listen()
+    assert len(st.measurement._listeners) == len(listeners) + 1
+    w.close()
+    w.close()  # twice is once
+    assert st.measurement._listeners == listeners
+    w._worker.join(10)
+    assert not w._worker.is_alive()
+    p, n, _ = w.markers()[0]
+    st.measurement.probe(p, -n).wait()
+    assert w.steps[0].hit_ids == []  # not counted: it no longer listens

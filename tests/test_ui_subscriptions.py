@@ -102,10 +102,13 @@ def test_a_failing_query_is_told_once_and_the_last_good_value_stays():
 def test_the_pages_close_ends_its_tabs_subscriptions(app):
     hub = app.api._subscriptions
     before = hub.count()
+    model = app.station.measurement
+    assert app._on_model_event in model._listeners  # the page hears the model's changes
     with ui_support.viser_tab(app) as (_ws, capp):
         assert hub.count() == before + 2
         app.close()  # the page closes while the tab is open
         assert hub.count() == before and capp.status.feed.closed and capp.ctx.readouts.closed
+    assert app._on_model_event not in model._listeners  # and no longer
 
 
 def test_a_tab_built_before_the_first_delivery_reads_the_query_itself():

@@ -286,7 +286,7 @@ class AlignWizard:
         if self._worker is None:
             self._worker = threading.Thread(target=self._drain, name="align-wizard", daemon=True)
             self._worker.start()
-            self.model.subscribe(self._event)
+            self._unsubscribe = self.model.subscribe(self._event)
 
     def _event(self, kind: str, info: Any) -> None:
         if kind == "hit" and self.active and isinstance(info, tuple):
@@ -416,9 +416,10 @@ class AlignWizard:
         return done
 
     def close(self) -> None:
-        """Stop counting hits (the listener stays subscribed, idle: the model has no unsubscribe)."""
+        """Stop counting hits: the model's listener and the counting thread end."""
         self.active = False
         if self._worker is not None:
+            self._unsubscribe()
             self._queue.put(None)
 
     def _changed(self) -> None:

@@ -14,6 +14,8 @@ from several threads; hits are journalled on the control core's dispatcher threa
 
 from __future__ import annotations
 
+import contextlib
+
 import json
 import threading
 import time
@@ -206,10 +208,16 @@ class MeasurementModel:
 
     # --- events -------------------------------------------------------------------
 
-    def subscribe(self, fn: Callable[[str, Any], None]) -> None:
+    def subscribe(self, fn: Callable[[str, Any], None]) -> Callable[[], None]:
         """Events: 'hit', 'hits', 'feature', 'features', 'part', 'info', plus the machine events the owner
-        passes on ('mode', 'fault', 'stop', 'estop', 'contact', 'deadman', 'limit', 'homed', 'error' ...)."""
+        passes on ('mode', 'fault', 'stop', 'estop', 'contact', 'deadman', 'limit', 'homed', 'error' ...).
+        Returns the function that ends the subscription (a page that closes, a wizard done with its hits)."""
         self._listeners.append(fn)
+
+        def unsubscribe() -> None:
+            with contextlib.suppress(ValueError):  # ended already
+                self._listeners.remove(fn)
+        return unsubscribe
 
     def machine_event(self, kind: str, info: Any) -> None:
         """A control core event: journalled (stops, faults, contacts ...) and passed to the listeners."""

@@ -202,7 +202,8 @@ def register_model_reads(api: Any, measurement: Any) -> None:
                  query=True)
     api.register("watch_model", lambda client, on_event: measurement.subscribe(on_event), {"on_event": REQUIRED},
                  "in process: on_event(kind, info) for every change of the model ('hit', 'hits', 'feature', "
-                 "'features', 'part', 'info') and every machine event it passes on", query=True)
+                 "'features', 'part', 'info') and every machine event it passes on; returns the function that ends it",
+                 query=True)
     api.register("align_wizard", wizard, {"kind": REQUIRED, "invoke": REQUIRED, "on_change": None, "elements": None},
                  "in process: a prompted alignment of kind on the model's part (cmm.measurement.align_wizard); it "
                  "counts the model's hits and sends its verbs through invoke(verb, **params)", query=True)

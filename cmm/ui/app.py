@@ -83,7 +83,7 @@ class StationApp:
         self.pendant_url: str | None = None
         if pendant:
             self._start_pendant(pendant_port if pendant_port is not None else (port + 1 if port else 0))
-        api.invoke(None, "watch_model", on_event=self._on_model_event)
+        self._unwatch = api.invoke(None, "watch_model", on_event=self._on_model_event)
         self.server.scene.on_click()(self._scene_clicked)
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
@@ -119,6 +119,7 @@ class StationApp:
 
     def close(self) -> None:
         self._stop.set()
+        self._unwatch()  # a closed page hears the model no more
         self.updater.close()
         for capp in list(self.clients.values()):
             capp.close()  # the tabs' subscriptions
