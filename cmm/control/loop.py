@@ -227,7 +227,7 @@ class MachineLoop:
             return Mode.HOMING, "", "homing cycle"
         if self._job is not None and self._run_stopped is not None:  # the run unwinds after the operator's stop
             st = m.state
-            if motion is not None or st is not None and not st.holding:
+            if motion is not None or st is not None and not st.standing:
                 return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
             return Mode.STOPPED, f"{self._job}: {self._run_stopped}", ""
         if self._job is not None:
@@ -243,7 +243,7 @@ class MachineLoop:
             return Mode.PROBING, "", "probe cycle"
         if self._stopped is not None:
             st = m.state
-            if st is not None and not st.holding:
+            if st is not None and not st.standing:
                 return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
             return Mode.STOPPED, self._stopped, ""
         if not self._homed:

@@ -251,7 +251,7 @@ class Jogging:
                 self._tell_limit(motion, self.horizon_target(state.position, v)[1])
             elif np.any(v):
                 self._retarget(motion)
-            elif state.standing:
+            elif state.ramps_done:
                 self._finish(motion, result=state.position)
             return
         for i, (axis, a) in enumerate(zip(self.config.axes, state.axes)):
@@ -265,7 +265,7 @@ class Jogging:
                 v[i] = 0
                 motion.extra["v"] = v
                 self.emit("limit", axis=axis.name)
-        if not np.any(v) and state.standing:  # its braking ramps ended (a trapezoid may only start from rest)
+        if not np.any(v) and state.ramps_done:  # its braking ramps ended (a trapezoid may only start from rest)
             self._finish(motion, result=state.position)
 
     def _watch_deflected(self, motion: _Motion, state: MachineState) -> bool:

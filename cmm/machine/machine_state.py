@@ -12,6 +12,7 @@ from ..nmc import codec
 from .status import MotionError, MoveStatus
 
 GROUP = 0x80  # all three axes; X is the leader, so a group START_MOVE is acknowledged
+REST_S = 0.01  # machine s within a count of where the axes came to rest, trajectories done: they stand still
 
 
 class LimitError(MotionError):
@@ -51,6 +52,7 @@ class MachineState:
     probe_triggered: bool
     jogging: bool
     moving: bool
+    resting: float = 0.0  # machine s every trajectory has been done and every axis within a count of where it rested
 
     @property
     def position(self) -> np.ndarray:
@@ -60,18 +62,21 @@ class MachineState:
     def counts(self) -> tuple[int, int, int]:
         return tuple(a.counts for a in self.axes)  # type: ignore[return-value]
 
-    # An axis braking (or starting) under one count per servo tick reads 0 counts on most ticks: a sample with no
-    # count moved does not say it stands. Its module's move-done bit does: the braking ramp has ended.
     @property
-    def standing(self) -> bool:
-        """Every axis stands: its trajectory has ended and its encoder moved no count in the last tick."""
+    def ramps_done(self) -> bool:
+        """Every axis's trajectory has ended and its encoder moved no count in the last tick: a jog may end, a
+        trapezoid may start (they start from rest)."""
         return all(a.trajectory_done and a.counts_per_tick == 0 for a in self.axes)
 
+    # "Stands still" is judged over a little time, not from one sample: an axis braking under one count per servo tick
+    # reads 0 counts on most ticks, and a servo catching up its following error (or ringing) after its trajectory
+    # ended passes through 0 counts a tick at each turn. Within a count of where the axes came to rest (a servo holding
+    # its place may move a count either way) for REST_S of machine time, they stand.
     @property
-    def holding(self) -> bool:
-        """Every axis's trajectory has ended and its servo holds it within a count a tick (a servo holding its place
-        may move a count either way): not moving, in the operator's sense."""
-        return all(a.trajectory_done and abs(a.counts_per_tick) <= 1 for a in self.axes)
+    def standing(self) -> bool:
+        """Every axis stands: its trajectory has ended and it has stayed within a count of where it came to rest for
+        REST_S of machine time."""
+        return self.resting >= REST_S
 
 
 @dataclass

@@ -87,6 +87,7 @@ class Machine(Connection, Jogging):
         self._event_listeners: list[Callable[[str, dict], None]] = []
         self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
         self.samples = 0
+        self._rest: tuple[float, list[int]] | None = None  # (since, counts) where the axes came to rest
         self._virtual = is_virtual(self.clock)
         self._poll_pause: float | None = None  # set: this pause always (scripts, tests); else see poll_pause
         self.correction = GeometryCorrection()  # the calibration routine sets it
@@ -120,7 +121,7 @@ class Machine(Connection, Jogging):
             self.state = MachineState(
                 now, tuple(axes), any(self.probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
-                self._motion is not None,
+                self._motion is not None, self._resting(now, [st.position for st in sts], sts),
             )
             self.samples += 1
             subscribers = list(self._subscribers)
@@ -130,6 +131,18 @@ class Machine(Connection, Jogging):
             except Exception:  # noqa: BLE001 - a broken subscriber must never stop the machine
                 log.exception("machine state subscriber %r failed", fn)
         return self.state
+
+    def _resting(self, now: float, counts: list[int], sts: list[Any]) -> float:
+        """Machine s every trajectory has been done and every axis within a count of where it came to rest (0: not
+        at rest in this sample; it rests from here on if it stays)."""
+        rest = self._rest
+        if all(st.status & codec.MOVE_DONE for st in sts):
+            if rest is not None and all(abs(c - r) <= 1 for c, r in zip(counts, rest[1])):
+                return now - rest[0]
+            self._rest = (now, counts)
+        else:
+            self._rest = None
+        return 0.0
 
     def counts_to_mm(self, counts: Any) -> np.ndarray:
         """Raw axis counts -> machine coordinates (mm), geometry correction applied."""
