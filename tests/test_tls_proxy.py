@@ -79,7 +79,12 @@ def test_https_and_wss_reach_the_page_through_the_proxy_with_the_stations_certif
 
         from websockets.sync.client import connect
 
-        with connect(f"wss://127.0.0.1:{proxy.port}/", ssl=trusted, open_timeout=60) as ws:
+        try:
+            ws = connect(f"wss://127.0.0.1:{proxy.port}/", ssl=trusted, open_timeout=60)
+        except Exception as exc:  # what the proxy saw of it (once under load: closed after 30 s, not understood)
+            raise AssertionError(f"the WebSocket through the proxy failed ({exc!r}); the proxy's dropped "
+                                 f"connections: {proxy.dropped}, refused: {proxy.refused}") from exc
+        with ws:
             for text in ("access code 123456", "x" * 200_000):  # a frame larger than the proxy's chunk
                 ws.send(text)
                 assert ws.recv(timeout=60) == f"echo {text}"

@@ -40,6 +40,7 @@ class TlsProxy:
         self.name = name
         self.connections = 0  # accepted and forwarded
         self.refused: list[str] = []  # why requests were refused (the last 50)
+        self.dropped: list[str] = []  # connections that ended before a request head came (the last 50), and why
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: asyncio.AbstractServer | None = None
         self._thread: threading.Thread | None = None
@@ -97,7 +98,13 @@ class TlsProxy:
         try:
             try:
                 head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), HEAD_TIMEOUT)
-            except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, asyncio.TimeoutError, ConnectionError):
+            except (asyncio.IncompleteReadError, asyncio.LimitOverrunError, asyncio.TimeoutError,
+                    ConnectionError) as exc:
+                why = {asyncio.TimeoutError: f"no request head within {HEAD_TIMEOUT:g} s",
+                       asyncio.IncompleteReadError: "closed before its request head"}.get(type(exc), repr(exc))
+                self.dropped.append(f"{peer}: {why}")  # a certificate check or a port scan closes before it
+                del self.dropped[:-50]
+                log.debug("TLS connection from %s ended: %s", peer, why)
                 return
             why = self.refusal(head, peer)
             if why is not None:
