@@ -15,6 +15,7 @@ from several threads; hits are journalled on the control core's dispatcher threa
 from __future__ import annotations
 
 import contextlib
+import functools
 
 import json
 import threading
@@ -213,11 +214,7 @@ class MeasurementModel:
         passes on ('mode', 'fault', 'stop', 'estop', 'contact', 'deadman', 'limit', 'homed', 'error' ...).
         Returns the function that ends the subscription (a page that closes, a wizard done with its hits)."""
         self._listeners.append(fn)
-
-        def unsubscribe() -> None:
-            with contextlib.suppress(ValueError):  # ended already
-                self._listeners.remove(fn)
-        return unsubscribe
+        return functools.partial(_discard, self._listeners, fn)
 
     def machine_event(self, kind: str, info: Any) -> None:
         """A control core event: journalled (stops, faults, contacts ...) and passed to the listeners."""
@@ -634,3 +631,9 @@ class MeasurementModel:
             self.constructed.pop(fid, None)
             self.features.pop(fid, None)
         self._notify("features", None)
+
+
+def _discard(items: list[Any], item: Any) -> None:
+    """Remove ``item`` from ``items`` if it is there (a subscription ended twice is ended once)."""
+    with contextlib.suppress(ValueError):
+        items.remove(item)

@@ -239,10 +239,11 @@ class StationRoutineHost:
         return None if here is None else np.asarray(here, float)
 
     def move_up(self, target: Any, timeout: float) -> None:
-        answer = self._api.call(self.client, "move", {"target": [float(x) for x in target], "frame": "machine",
-                                                      "path": "clearance"}, wait=True, timeout=timeout)
-        if not answer.ok:
-            raise RoutineError(answer.error["message"])
+        try:
+            self._api.invoke(self.client, "move", target=[float(x) for x in target], frame="machine",
+                             path="clearance").wait(timeout)
+        except Exception as exc:  # noqa: BLE001 - a refusal, a contact, a stop: the run's error in the API's words
+            raise RoutineError(str(exc) or type(exc).__name__) from exc
 
     def end_at_clearance(self, timeout: float) -> float | None:
         from .run_end import end_at_clearance
