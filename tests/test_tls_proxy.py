@@ -49,7 +49,7 @@ def backend():
         loop = asyncio.get_running_loop()
         stop["future"] = loop.create_future()
         stop["loop"] = loop
-        async with serve(echo, "127.0.0.1", port, process_request=page):
+        async with serve(echo, "127.0.0.1", port, process_request=page, open_timeout=60):  # as patient as the page
             ready.set()
             await stop["future"]
 

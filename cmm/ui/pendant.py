@@ -237,8 +237,10 @@ class PendantServer:
     async def _main(self, port: int) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop = asyncio.Event()
+        # open_timeout: the TLS and WebSocket handshakes of a tablet joining a busy station (websockets' 10 s
+        # closed a wss handshake without an answer beside two CPU hogs)
         async with serve(self._handler, self.host, port, process_request=self._process_request,
-                         ping_interval=5, ping_timeout=5, max_size=4096, compression=None,
+                         ping_interval=5, ping_timeout=5, max_size=4096, compression=None, open_timeout=60,
                          logger=log, ssl=self.ssl) as server:
             self.port = next(iter(server.sockets)).getsockname()[1]
             self._ready.set()
