@@ -111,6 +111,7 @@ def test_teach_rename_and_run_the_routine_on_the_next_part_from_the_page(app, st
 
         # the next part stands elsewhere; Run on next part
         station.sim.place_part(SECOND_POSE)
+        bs.shows(page, "Part name")  # (if not: what the page and the station were doing, said)
         bs.text_field(page, "Part name").fill("SN-0002")
         bs.text_field(page, "Part name").press("Enter")
         bs.typed(page, "Part name", "SN-0002")
