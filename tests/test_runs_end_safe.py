@@ -94,3 +94,33 @@ def test_a_refused_dmis_run_is_a_toast_and_a_stopped_status_bar(station):
         assert shared.run_stopped == ""
     finally:
         station.controller.policy = OpenPolicy()
+
+
+def test_a_run_ended_by_stop_does_not_climb_while_the_axes_still_brake(station):
+    """The climb at a run's end is left out when a STOP ended the run, also while the axes still brake (the mode is
+    "moving", its activity the control core's STOPPING): nothing moves on its own after the press. A loaded run's
+    page showed STOPPED and then an axis moving again."""
+    import threading
+
+    from cmm.control.modes import STOPPING
+    from cmm.measurement.run_end import end_at_clearance
+
+    api, ctl = station.controller.commands, station.controller
+    start = ctl.frame_position("machine")
+    low = [float(start[0]), float(start[1]), _plane(station) - 20.0]  # below the clearance plane: a climb is due
+    api.invoke(None, "move", target=low, frame="machine", path="clearance").wait(120)
+    # a slow move (0.5 mm/s, braking at 1 mm/s^2: 0.5 s of braking), stopped on its way
+    api.invoke(None, "move", target=[low[0] + 20.0, low[1], low[2]], frame="machine", path="straight", speed=0.5,
+               accel=1.0)
+    t0 = ctl.clock.now()
+    while ctl.clock.now() < t0 + 2.0:
+        ctl.clock.sleep(0.05)
+    stopper = threading.Thread(target=api.invoke, args=(None, "stop"))
+    stopper.start()
+    while ctl.state.activity != STOPPING:  # braking (bounded by the test's timeout)
+        assert stopper.is_alive(), f"the stop answered before its braking was seen: {ctl.state}"
+        ctl.clock.sleep(0.002)
+    assert end_at_clearance(api, None) is None  # on the old code: a climb, refused "busy (stopping)" or made after
+    stopper.join(60)
+    z = ctl.frame_position("machine")[2]
+    assert z == pytest.approx(low[2], abs=0.01), z  # it stands where it braked, below the plane

@@ -21,7 +21,7 @@ from ..machine.status import MoveStatus
 from ..nmc.bus import NmcError, Preempted
 from ..nmc.transport import rest
 from .liveness import Liveness
-from .modes import ALLOWED, ControlError, ControlState, CutShort, Mode, Refused, RunStopped, refusal
+from .modes import ALLOWED, ControlError, ControlState, CutShort, Mode, Refused, RunStopped, STOPPING, refusal
 from .priority import raise_priority_on
 
 log = logging.getLogger(__name__.rsplit(".", 1)[0] + ".core")  # the core's log, as before the split
@@ -228,7 +228,7 @@ class MachineLoop:
         if self._job is not None and self._run_stopped is not None:  # the run unwinds after the operator's stop
             st = m.state
             if motion is not None or st is not None and not st.standing:
-                return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
+                return Mode.MOVING, "", STOPPING  # never "stopped" while an axis still moves
             return Mode.STOPPED, f"{self._job}: {self._run_stopped}", ""
         if self._job is not None:
             return (Mode.PROBING if self._probing or (motion is not None and motion.kind == "probe") else Mode.MOVING,
@@ -244,7 +244,7 @@ class MachineLoop:
         if self._stopped is not None:
             st = m.state
             if st is not None and not st.standing:
-                return Mode.MOVING, "", "stopping (STOP pressed)"  # never "stopped" while an axis still moves
+                return Mode.MOVING, "", STOPPING  # never "stopped" while an axis still moves
             return Mode.STOPPED, self._stopped, ""
         if not self._homed:
             return Mode.NOT_HOMED, "", ""

@@ -94,6 +94,10 @@ class StopReport:
     failed_axes: tuple[str, ...] = ()
 
 
+# the activity while the axes brake after the operator's STOP (mode MOVING: never "stopped" while an axis still moves)
+STOPPING = "stopping (STOP pressed)"
+
+
 @dataclass(frozen=True)
 class ControlState:
     """One consistent picture for every front end (position, mode and why)."""

@@ -31,6 +31,8 @@ def end_at_clearance(api: Any, client: Any, timeout: float = 120.0) -> float | N
     mode = str(getattr(state.mode, "value", state.mode))
     if mode in ("stopped", "e-stopped", "fault", "not homed"):  # a stop ended the run: it stands
         return None
+    if mode == "moving" and str(state.activity).startswith("stopping"):  # still braking after the STOP (the
+        return None  # control core's STOPPING): it will stand, and nothing moves on its own after the press
     target = clearance_target(api)
     if target is None:
         return None
