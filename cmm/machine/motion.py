@@ -168,6 +168,9 @@ class Machine(Connection, Jogging):
         """Seconds between samples while the station is idle (see VIRTUAL_IDLE_POLL_PAUSE)."""
         if self._poll_pause is not None or not self._virtual:
             return self.poll_pause
+        state = self.state
+        if state is not None and not state.standing:  # braking or settling after a stop: its rest seen at 4 ms
+            return VIRTUAL_POLL_PAUSE
         return VIRTUAL_IDLE_POLL_PAUSE
 
     @poll_pause.setter
