@@ -112,8 +112,9 @@ class SafetyCore:
         return [a.name.upper() for a in self.config.axes if a.address in failed]
 
     def _when_still(self, report: StopReport, press: float, name: str) -> StopReport:
-        """The stop's answer once every axis stands still (a sample taken after the press in which every module's
-        braking ramp has ended and no encoder moved a count): no message says "stopped" while an axis still moves. Told as the 'stop' / 'estop' event."""
+        """The stop's answer once every axis stands still (a sample taken after the press that is
+        ``MachineState.standing``: every braking ramp ended, every axis at rest for 10 ms of machine time): no
+        message says "stopped" while an axis still moves. Told as the 'stop' / 'estop' event."""
         still = self._wait_still(press)
         if report.ok and still is not None:
             report = StopReport(True, ("stopped: every axis stands still" if name == "stop" else
