@@ -121,7 +121,7 @@ class Machine(Connection, Jogging):
             self.state = MachineState(
                 now, tuple(axes), any(self.probe_active(s.status) for s in sts),  # type: ignore[arg-type]
                 self._motion is not None and self._motion.kind == "jog",
-                self._motion is not None, self._resting(now, [st.position for st in sts], sts),
+                self._motion is not None, self._resting(now, axes),
             )
             self.samples += 1
             subscribers = list(self._subscribers)
@@ -132,11 +132,12 @@ class Machine(Connection, Jogging):
                 log.exception("machine state subscriber %r failed", fn)
         return self.state
 
-    def _resting(self, now: float, counts: list[int], sts: list[Any]) -> float:
+    def _resting(self, now: float, axes: list[AxisState]) -> float:
         """Machine s every trajectory has been done and every axis within a count of where it came to rest (0: not
         at rest in this sample; it rests from here on if it stays)."""
         rest = self._rest
-        if all(st.status & codec.MOVE_DONE for st in sts):
+        counts = [a.counts for a in axes]
+        if all(a.trajectory_done for a in axes):
             if rest is not None and all(abs(c - r) <= 1 for c, r in zip(counts, rest[1])):
                 return now - rest[0]
             self._rest = (now, counts)
