@@ -133,7 +133,7 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(stations, tmp_path):
     import json
     import ssl
 
-    from websockets.sync.client import connect
+    from netutil import WssClient
 
     from cmm.control import tls
     from cmm.ui.pendant import start_pendant_server
@@ -150,7 +150,8 @@ def test_a_pendant_over_tls_logs_in_and_its_role_decides(stations, tmp_path):
     try:
         assert server.ws_url.startswith("wss://")
         trust = ssl.create_default_context(cafile=str(cert.cert_path))
-        ws = connect(server.ws_url, ssl=trust, open_timeout=60, close_timeout=2)  # a TLS handshake beside CPU hogs
+        # a TLS handshake beside CPU hogs; a client whose TLS socket one thread uses (netutil.WssClient says why)
+        ws = WssClient(server.ws_url, ssl=trust, open_timeout=60, close_timeout=2)
 
         def ask(**msg):
             ws.send(json.dumps(msg))
