@@ -116,6 +116,11 @@ class ControlState:
     def position(self) -> Any:
         return None if self.machine is None else self.machine.position
 
+    @property
+    def stop_in_force(self) -> bool:
+        """The operator's STOP holds the machine: still braking (moving, :data:`STOPPING`) or standing stopped."""
+        return self.mode is Mode.STOPPED or self.activity == STOPPING
+
     def to_dict(self) -> dict[str, Any]:
         m = self.machine
         return {"mode": self.mode.value, "reason": self.reason, "activity": self.activity, "homed": self.homed,

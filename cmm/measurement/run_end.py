@@ -29,10 +29,8 @@ def end_at_clearance(api: Any, client: Any, timeout: float = 120.0) -> float | N
     command API's error (the caller tells it)."""
     state = api.invoke(client, "state")
     mode = str(getattr(state.mode, "value", state.mode))
-    if mode in ("stopped", "e-stopped", "fault", "not homed"):  # a stop ended the run: it stands
-        return None
-    if mode == "moving" and str(state.activity).startswith("stopping"):  # still braking after the STOP (the
-        return None  # control core's STOPPING): it will stand, and nothing moves on its own after the press
+    if state.stop_in_force or mode in ("e-stopped", "fault", "not homed"):  # a stop ended the run: it stands (or
+        return None  # still brakes: it will stand, and nothing moves on its own after the press)
     target = clearance_target(api)
     if target is None:
         return None
