@@ -119,6 +119,31 @@ def test_jog_dead_man_stops_within_200_ms(sim_machine):
     assert not m.busy
 
 
+def test_a_release_on_its_way_to_the_loop_is_not_overtaken_by_the_dead_man(sim_machine):
+    """The control core posts a release (``release_now``) and the loop serves it before its next sample. A sample
+    read meanwhile, past the dead-man's time since the last hold, leaves the stop to the release: the operator let
+    go, and is not told "Jog stopped" for it."""
+    _, m, _ = sim_machine
+    deadman = m.config.deadman_timeout
+    m.move_to([100.0, 100.0, 200.0]).wait()
+    events = []
+    m.on_event(lambda kind, info: events.append(kind))
+    m.jog([20.0, 0.0, 0.0])  # the last hold
+    m.run_for(0.8 * deadman)
+    m.release_now()  # the let-go reached the control core: its release waits for the loop's next step
+    m.clock.sleep(0.5 * deadman)  # the sample in hand ends past the dead-man's time since the last hold
+    m.poll()
+    assert "deadman" not in events
+    m.jog_release()  # the loop's next step
+    m.run_for(0.3)
+    assert "deadman" not in events and not m.busy and m.sample().axes[0].velocity == 0
+    # a release posted that never came keeps the dead-man back for one dead-man time at most
+    m.jog([20.0, 0.0, 0.0])
+    m.release_now()
+    m.run_for(3 * deadman)
+    assert events.count("deadman") == 1 and m.sample().axes[0].velocity == 0
+
+
 def test_jog_release_and_step_jog_one_count(sim_machine):
     _, m, _ = sim_machine
     m.move_to([100.0, 100.0, 200.0]).wait()

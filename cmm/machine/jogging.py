@@ -156,7 +156,11 @@ class Jogging:
         """Any thread, no lock, no wait: the link process stops the jog at once (the loop's release follows)
         and from then on refuses jogs sent before release number ``release_epoch``.
 
-        Without a link process this does nothing: the loop's own release is the only one."""
+        Without a link process it only notes that a release is on its way: the loop serves it before its next
+        sample, and the dead-man does not fire meanwhile (a release that came while a sample was read would
+        otherwise be overtaken by the dead-man, and the operator told "Jog stopped" for letting go). For one
+        dead-man time at most: a release that never came would not keep the dead-man from a later jog."""
+        self._release_posted = self.clock.now()
         if self.guarded:
             self.bus.release_now(release_epoch)
 
@@ -223,6 +227,7 @@ class Jogging:
 
     def jog_release(self) -> None:
         """End a jog now (button or key released): decelerate."""
+        self._release_posted = None
         with self._lock:
             motion = self._motion
             if motion is not None and motion.kind == "jog":
@@ -231,6 +236,10 @@ class Jogging:
                     return
                 self._jog_stop_axes(range(3))
                 _jog_stopped(motion)
+
+    def _release_coming(self, state: MachineState) -> bool:
+        posted = self._release_posted
+        return posted is not None and state.time - posted < self.config.deadman_timeout
 
     def _watch_jog(self, motion: _Motion, state: MachineState) -> None:
         if "deflected_at" in motion.extra and self._watch_deflected(motion, state):
@@ -242,7 +251,8 @@ class Jogging:
                 v = _jog_stopped(motion)
                 if fired == "deadman":
                     self.emit("deadman", after=state.time - self._jog_refreshed)
-        elif np.any(v) and state.time - self._jog_refreshed > self.config.deadman_timeout:
+        elif np.any(v) and not self._release_coming(state) and \
+                state.time - self._jog_refreshed > self.config.deadman_timeout:
             self._jog_stop_axes(range(3))
             v = _jog_stopped(motion)
             self.emit("deadman", after=state.time - self._jog_refreshed)

@@ -83,6 +83,7 @@ class Machine(Connection, Jogging):
         self._lock = threading.RLock()
         self._motion: _Motion | None = None
         self._jog_refreshed = 0.0
+        self._release_posted: float | None = None  # when a release was posted to the loop (release_now)
         self._subscribers: list[Callable[[MachineState], None]] = []
         self._event_listeners: list[Callable[[str, dict], None]] = []
         self._probe_mask = codec.LIMIT1 if config.probe.input == "limit1" else codec.LIMIT2
