@@ -1,6 +1,8 @@
 """Loopback helpers shared by the tests that start servers."""
 
+import asyncio
 import socket
+import threading
 
 
 def free_port() -> int:
@@ -28,14 +30,12 @@ class WssClient:
     has no such race, so the tests of wss servers connect with this."""
 
     def __init__(self, url: str, *, ssl: object, open_timeout: float = 60.0, **options: object) -> None:
-        import asyncio
-        import threading
-
         from websockets.asyncio.client import connect
 
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="wss-client", daemon=True)
         self._thread.start()
+
         async def open_() -> object:  # connect() gives an awaitable, not the coroutine the loop's hand-off takes
             return await connect(url, ssl=ssl, open_timeout=open_timeout, **options)
 
@@ -46,8 +46,6 @@ class WssClient:
             raise
 
     def _call(self, coroutine: object, timeout: float | None) -> object:
-        import asyncio
-
         future = asyncio.run_coroutine_threadsafe(coroutine, self._loop)
         try:
             return future.result(timeout)
@@ -59,8 +57,6 @@ class WssClient:
         self._call(self._ws.send(message), 60.0)
 
     def recv(self, timeout: float | None = None) -> str | bytes:
-        import asyncio
-
         return self._call(asyncio.wait_for(self._ws.recv(), timeout), None)
 
     def close(self) -> None:
