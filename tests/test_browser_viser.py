@@ -119,13 +119,6 @@ def take_control(page, app) -> None:
     assert app.control.holder == page.capp.client_id
 
 
-def button_centre(page, name: str) -> tuple[float, float]:
-    button = page.get_by_role("button", name=name, exact=True)
-    button.scroll_into_view_if_needed()
-    box = button.bounding_box()
-    return box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
-
-
 def machine_row(page, axis: str) -> list[str]:
     row = page.get_by_role("row").filter(has=page.get_by_role("cell", name=axis, exact=True))
     return [c.strip() for c in row.first.get_by_role("cell").all_inner_texts()]
@@ -224,7 +217,7 @@ def test_observer_cannot_jog(open_page, app, station):
         wait_idle(station, 20)
         start = station.machine.state.position.copy()
         for _ in range(2):  # while another client holds control, then with nobody in control
-            observer.mouse.move(*button_centre(observer, "hold X +"))
+            bs.finger_over(observer, "hold X +")
             observer.mouse.down()
             observer.wait_for_timeout(600)
             moved = speed(station)
@@ -240,12 +233,13 @@ def test_observer_cannot_jog(open_page, app, station):
     bs.screenshot(observer, "viser-browser-observer")
     # the same press moves the machine once this page takes control (the refusal above was not a dead button)
     take_control(observer, app)
-    observer.mouse.move(*button_centre(observer, "hold X +"))
+    bs.finger_over(observer, "hold X +")
     observer.mouse.down()
     try:
         # the position, not the sampled velocity: at the probing jog speed a tick moves less than a count,
         # and software WebGL on a busy machine can delay viser's first hold refresh
-        bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 60.0, "the jog after taking control")
+        bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 60.0, "the jog after taking control",
+                      why=lambda: (app.control.holder, observer.capp.messages[-3:]))
     finally:
         observer.mouse.up()
     bs.wait_until(lambda: speed(station) < 1e-9, 2.0, "the stop")
@@ -273,7 +267,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
     jog = station.config.speeds.jog_slow  # "probing", the Jog tab's default speed
     timeout = station.config.deadman_timeout
     with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
-        page.mouse.move(*button_centre(page, "hold X +"))
+        bs.finger_over(page, "hold X +")
         page.mouse.down()
         try:
             bs.wait_until(lambda: station.machine.state.position[0] > start[0] + 0.01, 60.0, "the hold jog")
@@ -320,7 +314,7 @@ def test_hold_jog_moves_smoothly_while_held_and_stops_on_release(open_page, app,
         bs.press_until(page, mode, lambda: page.capp.speed_mode == mode, f"the {mode} speed chosen")
         x0 = station.machine.state.position[0]
         with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
-            page.mouse.move(*button_centre(page, button))
+            bs.finger_over(page, button)
             page.mouse.down()
             try:
                 bs.wait_until(lambda: axis_sign * (station.machine.state.position[0] - x0) > 0.01, 60.0,
@@ -414,7 +408,7 @@ def test_manual_probing_jog_takes_the_hit_at_the_qualified_speed(open_page, app,
     qualified = page.capp.station_probing_speed()
     assert qualified < station.config.speeds.jog_fast / 4
     hits = len(station.measurement.hits)
-    page.mouse.move(*button_centre(page, "hold Z −"))
+    bs.finger_over(page, "hold Z −")
     with bm.JogRecord(station, page.capp) as rec, held_on_a_slow_clock(world):
         page.mouse.down()
         try:
