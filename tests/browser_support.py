@@ -186,7 +186,8 @@ def shows(page: Any, text: str, station_has: Any = None, timeout: float = PAGE_W
     (``station_has()``: what the station's widget holds) and what the page was doing. Every text wait in the
     tests looks among the visible matches only (``.filter(visible=True).first``): the hidden tabs hold the same
     words (the routine's DONE also matched a hidden "accel done" cell of the Diagnostics table, and ``.first``
-    waited on that one in vain)."""
+    waited on that one in vain). The match ignores case and takes any visible text containing ``text``: give words
+    that nothing else on the page says ("Alignment computed" was met at once by "no alignment computed")."""
     try:
         page.get_by_text(text).filter(visible=True).first.wait_for(timeout=timeout * 1000)
     except Exception as exc:  # noqa: BLE001 - Playwright's timeout, re-raised with the diagnosis
